@@ -1,0 +1,577 @@
+"""Frozen, validated settings with units in their names.
+
+Every object here is a frozen dataclass whose ``__post_init__`` rejects impossible
+values with a :class:`ValueError` that names the field and says how to fix it.
+All of them round-trip through plain dicts, YAML and JSON (:func:`to_dict`,
+:func:`from_dict`, :func:`save_settings`, :func:`load_settings`), so a dataset
+records exactly how it was made.
+
+Conventions
+-----------
+* Lengths are in micrometres (``_um``), times in minutes (``_min``), camera values
+  in ADU or electrons (``_adu``, ``_e``), render-resolution pixels in ``_px``.
+* The trench is vertical: the closed end is at the top of the image (row 0), the
+  open end, where cells leave, at the bottom.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal, TypeVar
+
+import yaml
+
+__all__ = [
+    "CONDENSERS",
+    "Camera",
+    "Condenser",
+    "Microscope",
+    "PipelineSettings",
+    "RenderSettings",
+    "SimulationSettings",
+    "TrenchGeometry",
+    "from_dict",
+    "load_settings",
+    "save_settings",
+    "to_dict",
+]
+
+GrowthModel = Literal["sizer", "adder", "timer"]
+Modality = Literal["phase", "fluorescence"]
+NoiseModel = Literal["camera", "gaussian", "none"]
+
+
+def _require(condition: bool, message: str) -> None:
+    if not condition:
+        raise ValueError(message)
+
+
+def _positive(obj: object, *names: str) -> None:
+    for name in names:
+        value = getattr(obj, name)
+        _require(
+            isinstance(value, (int, float)) and math.isfinite(value) and value > 0,
+            f"{type(obj).__name__}.{name} must be a positive finite number, got {value!r}",
+        )
+
+
+def _non_negative(obj: object, *names: str) -> None:
+    for name in names:
+        value = getattr(obj, name)
+        _require(
+            isinstance(value, (int, float)) and math.isfinite(value) and value >= 0,
+            f"{type(obj).__name__}.{name} must be zero or positive, got {value!r}",
+        )
+
+
+def _choice(obj: object, name: str, allowed: typing.Iterable[str]) -> None:
+    value = getattr(obj, name)
+    allowed = tuple(allowed)
+    _require(
+        value in allowed,
+        f"{type(obj).__name__}.{name} must be one of {', '.join(map(repr, allowed))}, "
+        f"got {value!r}",
+    )
+
+
+@dataclass(frozen=True)
+class Condenser:
+    """Phase-ring / condenser-annulus dimensions (supplement Fig. S4.1).
+
+    Parameters
+    ----------
+    ring_width_mm
+        Width ``W`` of the annulus.
+    ring_radius_mm
+        Outer radius ``R`` of the annulus.
+    pupil_diameter_mm
+        Diameter of the back focal plane that the annulus sits in; the annulus
+        radii are expressed as fractions of the pupil radius in the PSF model.
+    """
+
+    ring_width_mm: float
+    ring_radius_mm: float
+    pupil_diameter_mm: float
+
+    def __post_init__(self) -> None:
+        _positive(self, "ring_width_mm", "ring_radius_mm", "pupil_diameter_mm")
+        _require(
+            self.ring_width_mm < self.ring_radius_mm,
+            f"Condenser ring width W={self.ring_width_mm} mm must be smaller than its "
+            f"radius R={self.ring_radius_mm} mm",
+        )
+        _require(
+            self.ring_radius_mm <= self.pupil_diameter_mm / 2,
+            f"Condenser ring radius R={self.ring_radius_mm} mm must fit in the pupil "
+            f"(radius {self.pupil_diameter_mm / 2} mm)",
+        )
+
+    @property
+    def outer_fraction(self) -> float:
+        """Outer annulus radius as a fraction of the pupil radius."""
+        return self.ring_radius_mm / (self.pupil_diameter_mm / 2)
+
+    @property
+    def inner_fraction(self) -> float:
+        """Inner annulus radius as a fraction of the pupil radius."""
+        return (self.ring_radius_mm - self.ring_width_mm) / (self.pupil_diameter_mm / 2)
+
+
+#: Nominal annulus dimensions (W, R, pupil diameter, mm) of the standard condensers,
+#: as used by SyMBac 0.5 (Fig. S4.2 of the supplement uses Ph2: W = 0.8, R = 5).
+CONDENSERS: dict[str, Condenser] = {
+    "Ph1": Condenser(0.45, 3.75, 24.0),
+    "Ph2": Condenser(0.8, 5.0, 24.0),
+    "Ph3": Condenser(1.0, 9.5, 24.0),
+    "Ph4": Condenser(1.5, 14.0, 30.0),
+    "PhF": Condenser(1.5, 19.0, 40.0),
+}
+
+
+@dataclass(frozen=True)
+class TrenchGeometry:
+    """A mother-machine trench and the device around it in the field of view.
+
+    Parameters
+    ----------
+    length_um
+        Trench length from the closed end to the open end (``trench_length``).
+    width_um
+        Trench width (``trench_width``).
+    depth_um
+        Depth of media in the trench (``s_media`` of eq. OPL2-3); cells thinner than
+        this leave media above and below them.
+    margin_um
+        Device (PDMS) shown around the trench on the left, right and closed end.
+    """
+
+    length_um: float = 16.0
+    width_um: float = 1.4
+    depth_um: float = 1.2
+    margin_um: float = 0.8
+
+    def __post_init__(self) -> None:
+        _positive(self, "length_um", "width_um", "depth_um")
+        _non_negative(self, "margin_um")
+
+
+@dataclass(frozen=True)
+class SimulationSettings:
+    """Agent-based growth in a mother-machine trench (supplement section 2).
+
+    The names follow the supplement's parameter list; each carries its unit.
+
+    Parameters
+    ----------
+    n_frames
+        Number of frames to simulate (``sim_length``).
+    trench
+        Geometry of the trench (``trench_length``, ``trench_width``).
+    frame_interval_min
+        Time between frames.
+    cell_max_length_um
+        Mean length at division for the sizer model (``cell_max_length``).
+    max_length_var_um2
+        Variance of the division length between cells (``max_length_var``).
+    cell_width_um
+        Mean cell width (``cell_width``).
+    width_var_um2
+        Variance of the cell width between cells (``width_var``).
+    growth_model
+        ``"sizer"`` (divide at a drawn length), ``"adder"`` (divide after adding a
+        drawn length) or ``"timer"`` (divide after a drawn time).
+    added_length_um
+        Mean length added between birth and division (adder model).
+    interdivision_time_min
+        Mean time between divisions (timer model).
+    growth_rate_per_min
+        Exponential elongation rate constant ``k`` in ``L(t) = L0 exp(k t)``.
+    growth_noise
+        Per-step multiplicative noise: the rate is scaled by ``U(1 - a, 1 + a)``
+        (the supplement uses ``U(0.7, 1.3)``, i.e. ``a = 0.3``).
+    septum_sd
+        Standard deviation of the septum position as a fraction of cell length.
+    gravity
+        Pull of cells towards the closed end (positive) or the open end (negative),
+        in um/min^2; zero gives loose stacking driven by growth alone.
+    phys_iters
+        Physics iterations per frame (``phys_iters``); more gives tighter packing.
+    lysis_p
+        Probability that a cell lyses in each frame (``lysis_p``).
+    do_transformation
+        Give cells a random curvature (eq. 1) when scenes are drawn.
+    seed
+        Seed of the random generator that drives every draw of a run.
+    save_dir
+        Where the CLI saves the simulation (``save_dir``); ``None`` keeps it in memory.
+    """
+
+    n_frames: int = 60
+    trench: TrenchGeometry = field(default_factory=TrenchGeometry)
+    frame_interval_min: float = 3.0
+    cell_max_length_um: float = 3.5
+    max_length_var_um2: float = 0.04
+    cell_width_um: float = 1.0
+    width_var_um2: float = 0.0025
+    growth_model: GrowthModel = "sizer"
+    added_length_um: float = 1.75
+    interdivision_time_min: float = 25.0
+    growth_rate_per_min: float = math.log(2) / 25.0
+    growth_noise: float = 0.3
+    septum_sd: float = 0.05
+    gravity: float = 0.0
+    phys_iters: int = 15
+    lysis_p: float = 0.0
+    do_transformation: bool = False
+    seed: int = 0
+    save_dir: str | None = None
+
+    def __post_init__(self) -> None:
+        _require(
+            isinstance(self.n_frames, int) and self.n_frames >= 1,
+            f"SimulationSettings.n_frames must be an integer >= 1, got {self.n_frames!r}",
+        )
+        _require(
+            isinstance(self.phys_iters, int) and self.phys_iters >= 1,
+            f"SimulationSettings.phys_iters must be an integer >= 1, got {self.phys_iters!r}",
+        )
+        _positive(
+            self,
+            "frame_interval_min",
+            "cell_max_length_um",
+            "cell_width_um",
+            "added_length_um",
+            "interdivision_time_min",
+            "growth_rate_per_min",
+        )
+        _non_negative(self, "max_length_var_um2", "width_var_um2", "septum_sd", "growth_noise")
+        _choice(self, "growth_model", typing.get_args(GrowthModel))
+        _require(
+            self.growth_noise < 1,
+            f"SimulationSettings.growth_noise must be below 1 (rates stay positive), "
+            f"got {self.growth_noise!r}",
+        )
+        _require(
+            0 <= self.lysis_p <= 1,
+            f"SimulationSettings.lysis_p is a probability in [0, 1], got {self.lysis_p!r}",
+        )
+        _require(
+            isinstance(self.gravity, (int, float)) and math.isfinite(self.gravity),
+            f"SimulationSettings.gravity must be a finite number, got {self.gravity!r}",
+        )
+        _require(
+            isinstance(self.seed, int) and self.seed >= 0,
+            f"SimulationSettings.seed must be a non-negative integer, got {self.seed!r}",
+        )
+        _require(
+            self.cell_width_um < self.trench.width_um,
+            f"cell_width_um={self.cell_width_um} does not fit in a trench of width_um="
+            f"{self.trench.width_um}: make the trench wider or the cells narrower",
+        )
+        _require(
+            self.cell_max_length_um > self.cell_width_um,
+            f"cell_max_length_um={self.cell_max_length_um} must exceed cell_width_um="
+            f"{self.cell_width_um}: a rod is longer than it is wide",
+        )
+        _require(
+            self.cell_max_length_um < self.trench.length_um,
+            f"cell_max_length_um={self.cell_max_length_um} must be shorter than the trench "
+            f"(length_um={self.trench.length_um})",
+        )
+
+
+@dataclass(frozen=True)
+class Microscope:
+    """Objective, illumination and sampling.
+
+    Parameters
+    ----------
+    pixel_size_um
+        Camera pixel size in the sample plane (camera pixel / magnification).
+    magnification
+        Objective magnification, recorded for reference.
+    numerical_aperture
+        Objective NA; cannot exceed ``refractive_index``.
+    refractive_index
+        Refractive index of the immersion medium (1.0 air, 1.33 water, 1.518 oil).
+    wavelength_um
+        Imaging (vacuum) wavelength; the emission wavelength in fluorescence.
+    condenser
+        Phase-contrast condenser, one of :data:`CONDENSERS`.
+    modality
+        ``"phase"`` or ``"fluorescence"``.
+    """
+
+    pixel_size_um: float = 0.065
+    magnification: float = 100.0
+    numerical_aperture: float = 1.45
+    refractive_index: float = 1.518
+    wavelength_um: float = 0.65
+    condenser: str = "Ph3"
+    modality: Modality = "phase"
+
+    def __post_init__(self) -> None:
+        _positive(
+            self,
+            "pixel_size_um",
+            "magnification",
+            "numerical_aperture",
+            "refractive_index",
+            "wavelength_um",
+        )
+        _require(
+            self.numerical_aperture <= self.refractive_index,
+            f"Microscope.numerical_aperture={self.numerical_aperture} cannot exceed the "
+            f"immersion refractive_index={self.refractive_index} (an oil objective needs "
+            f"refractive_index ~1.518)",
+        )
+        _choice(self, "condenser", CONDENSERS)
+        _choice(self, "modality", typing.get_args(Modality))
+        _require(
+            self.wavelength_um < 5,
+            f"Microscope.wavelength_um={self.wavelength_um} looks like nanometres: give it "
+            f"in micrometres (e.g. 0.65)",
+        )
+
+    @property
+    def condenser_rings(self) -> Condenser:
+        """The annulus dimensions of :attr:`condenser`."""
+        return CONDENSERS[self.condenser]
+
+    @property
+    def min_apodisation_sigma_um(self) -> float:
+        """Lower bound of the apodisation sigma, eq. 13: ``0.9 lambda n / (2 NA)``."""
+        return 0.9 * self.wavelength_um * self.refractive_index / (2 * self.numerical_aperture)
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """Parameters of the forward model that turns a scene into an image.
+
+    Parameters
+    ----------
+    upsample
+        Render-resolution pixels per camera pixel (>= 3, supplement section 4).
+    psf_radius_px
+        PSF kernel radius in render-resolution pixels.
+    cell_intensity, media_intensity, device_intensity
+        Effective intensities ``I_c``, ``I_m``, ``I_t`` of eq. 3 (ADU above the camera
+        baseline for a full-depth column of each material).
+    apodisation_sigma_um
+        Gaussian apodisation of the phase PSF, eq. 11-12; at least the bound of eq. 13.
+    defocus_sigma_um
+        Gaussian defocus blur, eq. 14 (0 = in focus).
+    ring_contrast
+        Weight of the phase-ring term against the bright-field term of the phase
+        kernel; sets halo strength independently of the kernel's shape.
+    psf_offset
+        Constant added to the phase kernel inside its radius, as a fraction of the
+        kernel's peak; produces halo and shade-off (section 13.2).
+    noise_model
+        ``"camera"`` (EMVA1288, eq. 17), ``"gaussian"`` or ``"none"``.
+    gaussian_noise_sd_adu
+        Standard deviation of the Gaussian noise model.
+    """
+
+    upsample: int = 3
+    psf_radius_px: int = 50
+    cell_intensity: float = 1400.0
+    media_intensity: float = 2600.0
+    device_intensity: float = 900.0
+    apodisation_sigma_um: float = 0.6
+    defocus_sigma_um: float = 0.0
+    ring_contrast: float = 0.5
+    psf_offset: float = 0.0
+    noise_model: NoiseModel = "camera"
+    gaussian_noise_sd_adu: float = 20.0
+
+    def __post_init__(self) -> None:
+        _require(
+            isinstance(self.upsample, int) and self.upsample >= 1,
+            f"RenderSettings.upsample must be an integer >= 1, got {self.upsample!r}",
+        )
+        _require(
+            isinstance(self.psf_radius_px, int) and self.psf_radius_px >= 3,
+            f"RenderSettings.psf_radius_px must be an integer >= 3, got {self.psf_radius_px!r}",
+        )
+        _non_negative(
+            self,
+            "cell_intensity",
+            "media_intensity",
+            "device_intensity",
+            "defocus_sigma_um",
+            "ring_contrast",
+            "gaussian_noise_sd_adu",
+        )
+        _positive(self, "apodisation_sigma_um")
+        _require(
+            isinstance(self.psf_offset, (int, float)) and math.isfinite(self.psf_offset),
+            f"RenderSettings.psf_offset must be a finite number, got {self.psf_offset!r}",
+        )
+        _choice(self, "noise_model", typing.get_args(NoiseModel))
+
+
+@dataclass(frozen=True)
+class Camera:
+    """EMVA1288 linear camera (supplement section 6).
+
+    Parameters
+    ----------
+    baseline_adu
+        Mean dark signal ``mu_d`` in ADU (offset).
+    sensitivity_adu_per_e
+        System gain ``s`` in ADU per electron.
+    dark_noise_e
+        Dark (read) noise ``sigma_d`` in electrons.
+    bit_depth
+        Bits of the digitiser; output is clipped to ``[0, 2**bit_depth - 1]``.
+    """
+
+    baseline_adu: float = 100.0
+    sensitivity_adu_per_e: float = 2.9
+    dark_noise_e: float = 8.0
+    bit_depth: int = 16
+
+    def __post_init__(self) -> None:
+        _non_negative(self, "baseline_adu", "dark_noise_e")
+        _positive(self, "sensitivity_adu_per_e")
+        _require(
+            isinstance(self.bit_depth, int) and 1 <= self.bit_depth <= 16,
+            f"Camera.bit_depth must be an integer in 1..16, got {self.bit_depth!r}",
+        )
+
+    @property
+    def max_adu(self) -> int:
+        """Largest value the digitiser can output."""
+        return 2**self.bit_depth - 1
+
+
+@dataclass(frozen=True)
+class PipelineSettings:
+    """Everything needed to simulate and render a dataset, in one file."""
+
+    simulation: SimulationSettings = field(default_factory=SimulationSettings)
+    microscope: Microscope = field(default_factory=Microscope)
+    render: RenderSettings = field(default_factory=RenderSettings)
+    camera: Camera = field(default_factory=Camera)
+
+    def __post_init__(self) -> None:
+        _require(
+            self.render.apodisation_sigma_um >= self.microscope.min_apodisation_sigma_um,
+            f"RenderSettings.apodisation_sigma_um={self.render.apodisation_sigma_um} is below "
+            f"the diffraction bound of eq. 13 ({self.microscope.min_apodisation_sigma_um:.3f} "
+            f"um for this microscope): raise it",
+        )
+
+
+# --------------------------------------------------------------------------------------
+# Serialisation
+# --------------------------------------------------------------------------------------
+
+T = TypeVar("T")
+
+
+def to_dict(settings: Any) -> dict[str, Any]:
+    """Convert a settings dataclass (nested ones included) to plain Python types."""
+    if not dataclasses.is_dataclass(settings) or isinstance(settings, type):
+        raise TypeError(f"to_dict expects a settings dataclass, got {type(settings).__name__}")
+    return dataclasses.asdict(settings)
+
+
+def _convert(tp: Any, value: Any, where: str) -> Any:
+    origin = typing.get_origin(tp)
+    if dataclasses.is_dataclass(tp):
+        if isinstance(value, tp):
+            return value
+        if not isinstance(value, dict):
+            raise ValueError(f"{where} must be a mapping of {tp.__name__} fields, got {value!r}")
+        return from_dict(tp, value, _where=where)
+    if origin in (typing.Union, types.UnionType):
+        args = typing.get_args(tp)
+        if value is None and type(None) in args:
+            return None
+        for arg in args:
+            if arg is type(None):
+                continue
+            try:
+                return _convert(arg, value, where)
+            except (TypeError, ValueError):
+                continue
+        raise ValueError(f"{where} has an unsupported value {value!r}")
+    if origin is Literal:
+        return value  # checked by the dataclass' own validation
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ValueError(f"{where} must be true or false, got {value!r}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not (
+            isinstance(value, int) or (isinstance(value, float) and value.is_integer())
+        ):
+            raise ValueError(f"{where} must be an integer, got {value!r}")
+        return int(value)
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f"{where} must be a number, got {value!r}")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise ValueError(f"{where} must be text, got {value!r}")
+        return value
+    return value
+
+
+def from_dict(cls: type[T], data: dict[str, Any], *, _where: str | None = None) -> T:
+    """Build settings of type ``cls`` from a mapping, rejecting unknown fields.
+
+    Missing fields take their defaults. Nested settings may be given as mappings.
+    """
+    where = _where or cls.__name__
+    if not isinstance(data, dict):
+        raise ValueError(f"{where} must be a mapping, got {type(data).__name__}")
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ValueError(
+            f"unknown field(s) {', '.join(unknown)} in {where}; valid fields are: "
+            f"{', '.join(sorted(names))}"
+        )
+    kwargs = {key: _convert(hints[key], value, f"{where}.{key}") for key, value in data.items()}
+    return cls(**kwargs)
+
+
+def save_settings(settings: Any, path: str | Path) -> Path:
+    """Write settings to ``path`` as YAML (``.yaml``/``.yml``) or JSON (``.json``)."""
+    path = Path(path)
+    data = to_dict(settings)
+    if path.suffix.lower() in {".yaml", ".yml"}:
+        text = yaml.safe_dump(data, sort_keys=False)
+    elif path.suffix.lower() == ".json":
+        text = json.dumps(data, indent=2)
+    else:
+        raise ValueError(f"cannot save settings to {path}: use a .yaml, .yml or .json file")
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def load_settings(path: str | Path, cls: type[T]) -> T:
+    """Read settings of type ``cls`` from a YAML or JSON file written by :func:`save_settings`.
+
+    A file may also hold only some fields (the rest take their defaults).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"settings file {path} does not exist")
+    text = path.read_text(encoding="utf-8")
+    try:
+        data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
+    except (json.JSONDecodeError, yaml.YAMLError) as err:
+        raise ValueError(f"{path} is not valid YAML/JSON: {err}") from err
+    return from_dict(cls, data or {})
