@@ -29,9 +29,11 @@ import yaml
 
 __all__ = [
     "CONDENSERS",
+    "AgarPadGeometry",
     "Camera",
     "Condenser",
     "Microscope",
+    "OutlineGeometry",
     "PipelineSettings",
     "RenderSettings",
     "SimulationSettings",
@@ -43,6 +45,7 @@ __all__ = [
 ]
 
 GrowthModel = Literal["sizer", "adder", "timer"]
+GeometryKind = Literal["trench", "chamber", "agar_pad", "outline"]
 Modality = Literal["phase", "fluorescence"]
 NoiseModel = Literal["camera", "gaussian", "none"]
 
@@ -162,17 +165,118 @@ class TrenchGeometry:
 
 
 @dataclass(frozen=True)
+class AgarPadGeometry:
+    """An open agar-pad field in which a monolayer colony grows (supplement 13.2).
+
+    Coordinates of cells are measured from the top-left corner of the field (x to the
+    right, y down the image rows); founders start at the centre. There are no walls:
+    cells whose centre leaves the field are removed (fate ``"exited"``), which also
+    bounds the cost of a long run.
+
+    Parameters
+    ----------
+    field_width_um, field_height_um
+        Size of the simulated field of view.
+    """
+
+    field_width_um: float = 40.0
+    field_height_um: float = 40.0
+
+    def __post_init__(self) -> None:
+        _positive(self, "field_width_um", "field_height_um")
+
+
+@dataclass(frozen=True)
+class OutlineGeometry:
+    """A user's own device drawn as wall polylines, or read from a DXF drawing.
+
+    Coordinates are in micrometres with x to the right and y down the image rows
+    (a DXF drawing, whose y axis points up, is flipped and shifted so that the top-left
+    corner of its bounding box is the origin). Cells whose centre leaves the bounding
+    box of the walls (grown by ``exit_margin_um``) are removed; leave gaps in the walls
+    where the device opens to the flow.
+
+    Parameters
+    ----------
+    polylines_um
+        Wall polylines, each a sequence of ``(x, y)`` vertices; close a polygon by
+        repeating its first vertex. Ignored when ``dxf_path`` is given.
+    dxf_path
+        A DXF drawing whose LINE, LWPOLYLINE, POLYLINE, ARC and CIRCLE entities are the
+        walls (needs the ``[dxf]`` extra, i.e. ``ezdxf``).
+    dxf_layer
+        Only read entities on this layer (``None``: all layers).
+    dxf_unit_um
+        Micrometres per drawing unit (1 for a drawing in um, 1000 for mm).
+    founders_um
+        Where the founder cells start, ``(x, y)`` each; empty puts ``n_founders`` cells
+        at the centre of the bounding box.
+    exit_margin_um
+        How far past the walls' bounding box a cell may go before it is removed.
+    """
+
+    polylines_um: tuple[tuple[tuple[float, float], ...], ...] = ()
+    dxf_path: str | None = None
+    dxf_layer: str | None = None
+    dxf_unit_um: float = 1.0
+    founders_um: tuple[tuple[float, float], ...] = ()
+    exit_margin_um: float = 2.0
+
+    def __post_init__(self) -> None:
+        _positive(self, "dxf_unit_um")
+        _non_negative(self, "exit_margin_um")
+        lines = []
+        for index, line in enumerate(self.polylines_um):
+            try:
+                points = tuple((float(x), float(y)) for x, y in line)
+            except (TypeError, ValueError) as err:
+                raise ValueError(
+                    f"OutlineGeometry.polylines_um[{index}] must be a list of (x, y) pairs in "
+                    f"um, got {line!r}"
+                ) from err
+            _require(
+                len(points) >= 2 and all(math.isfinite(v) for p in points for v in p),
+                f"OutlineGeometry.polylines_um[{index}] needs at least two finite (x, y) "
+                f"vertices, got {line!r}",
+            )
+            lines.append(points)
+        object.__setattr__(self, "polylines_um", tuple(lines))
+        try:
+            founders = tuple((float(x), float(y)) for x, y in self.founders_um)
+        except (TypeError, ValueError) as err:
+            raise ValueError(
+                f"OutlineGeometry.founders_um must be a list of (x, y) pairs in um, got "
+                f"{self.founders_um!r}"
+            ) from err
+        object.__setattr__(self, "founders_um", founders)
+
+
+@dataclass(frozen=True)
 class SimulationSettings:
-    """Agent-based growth in a mother-machine trench (supplement section 2).
+    """Agent-based growth in a mother-machine trench (supplement section 2, Algorithm 1)
+    or a 2D geometry (section 13).
 
     The names follow the supplement's parameter list; each carries its unit.
+    ``docs/simulation.md`` explains every parameter and how to tune stacking.
 
     Parameters
     ----------
     n_frames
         Number of frames to simulate (``sim_length``).
     trench
-        Geometry of the trench (``trench_length``, ``trench_width``).
+        Geometry of the trench (``trench_length``, ``trench_width``); also the
+        chamber's size when ``geometry="chamber"``.
+    geometry
+        ``"trench"`` (mother machine, founders stacked along it), ``"chamber"`` (a wide
+        trench open to the flow channel at its bottom, founders spread across it,
+        section 13.1), ``"agar_pad"`` (open monolayer colony, section 13.2) or
+        ``"outline"`` (walls from :attr:`outline`).
+    agar_pad
+        Field of view of the ``"agar_pad"`` geometry.
+    outline
+        Walls of the ``"outline"`` geometry (polylines or a DXF drawing).
+    n_founders
+        Number of cells the run starts with.
     frame_interval_min
         Time between frames.
     cell_max_length_um
@@ -195,13 +299,24 @@ class SimulationSettings:
     growth_noise
         Per-step multiplicative noise: the rate is scaled by ``U(1 - a, 1 + a)``
         (the supplement uses ``U(0.7, 1.3)``, i.e. ``a = 0.3``).
+    interdivision_time_var_min2
+        Variance of the interdivision time between cells (timer model).
     septum_sd
         Standard deviation of the septum position as a fraction of cell length.
+    angle_jitter_rad
+        Daughters' angles differ from their mother's by ``U(-a, a)`` (Algorithm 1).
+    jitter_um
+        Standard deviation of the random displacement of every cell in each physics
+        iteration ("jitter cells", Algorithm 1); the cell's angle jitters by the same
+        amount divided by its half-length.
     gravity
-        Pull of cells towards the closed end (positive) or the open end (negative),
-        in um/min^2; zero gives loose stacking driven by growth alone.
+        Drift speed of a free cell towards the closed end (positive) or the open end
+        (negative), in um/min; zero gives stacking driven by growth alone. In the
+        ``"agar_pad"`` geometry it pulls towards the field centre, in ``"outline"``
+        towards the top of the image.
     phys_iters
-        Physics iterations per frame (``phys_iters``); more gives tighter packing.
+        Physics iterations per frame (``phys_iters``); more resolves overlaps more
+        completely (tighter, cleaner stacking).
     lysis_p
         Probability that a cell lyses in each frame (``lysis_p``).
     do_transformation
@@ -214,6 +329,10 @@ class SimulationSettings:
 
     n_frames: int = 60
     trench: TrenchGeometry = field(default_factory=TrenchGeometry)
+    geometry: GeometryKind = "trench"
+    agar_pad: AgarPadGeometry = field(default_factory=AgarPadGeometry)
+    outline: OutlineGeometry = field(default_factory=OutlineGeometry)
+    n_founders: int = 1
     frame_interval_min: float = 3.0
     cell_max_length_um: float = 3.5
     max_length_var_um2: float = 0.04
@@ -224,7 +343,10 @@ class SimulationSettings:
     interdivision_time_min: float = 25.0
     growth_rate_per_min: float = math.log(2) / 25.0
     growth_noise: float = 0.3
+    interdivision_time_var_min2: float = 4.0
     septum_sd: float = 0.05
+    angle_jitter_rad: float = 0.01
+    jitter_um: float = 0.002
     gravity: float = 0.0
     phys_iters: int = 15
     lysis_p: float = 0.0
@@ -250,8 +372,34 @@ class SimulationSettings:
             "interdivision_time_min",
             "growth_rate_per_min",
         )
-        _non_negative(self, "max_length_var_um2", "width_var_um2", "septum_sd", "growth_noise")
+        _non_negative(
+            self,
+            "max_length_var_um2",
+            "width_var_um2",
+            "septum_sd",
+            "growth_noise",
+            "interdivision_time_var_min2",
+            "angle_jitter_rad",
+            "jitter_um",
+        )
         _choice(self, "growth_model", typing.get_args(GrowthModel))
+        _choice(self, "geometry", typing.get_args(GeometryKind))
+        _require(
+            isinstance(self.n_founders, int) and self.n_founders >= 1,
+            f"SimulationSettings.n_founders must be an integer >= 1, got {self.n_founders!r}",
+        )
+        _require(
+            self.septum_sd < 0.25,
+            f"SimulationSettings.septum_sd={self.septum_sd} is a fraction of the cell length "
+            f"and must be below 0.25 (daughters must keep a positive length)",
+        )
+        _require(
+            self.geometry != "outline"
+            or bool(self.outline.polylines_um)
+            or self.outline.dxf_path is not None,
+            "SimulationSettings.geometry='outline' needs walls: give outline.polylines_um "
+            "or outline.dxf_path",
+        )
         _require(
             self.growth_noise < 1,
             f"SimulationSettings.growth_noise must be below 1 (rates stay positive), "
@@ -269,10 +417,12 @@ class SimulationSettings:
             isinstance(self.seed, int) and self.seed >= 0,
             f"SimulationSettings.seed must be a non-negative integer, got {self.seed!r}",
         )
+        widest_um = self.cell_width_um + 3 * math.sqrt(self.width_var_um2)
         _require(
-            self.cell_width_um < self.trench.width_um,
-            f"cell_width_um={self.cell_width_um} does not fit in a trench of width_um="
-            f"{self.trench.width_um}: make the trench wider or the cells narrower",
+            self.geometry not in ("trench", "chamber") or widest_um < self.trench.width_um,
+            f"cell_width_um={self.cell_width_um} (+3 sd of width_var_um2: {widest_um:.3g}) "
+            f"does not fit in a trench of width_um={self.trench.width_um}: make the trench "
+            f"wider or the cells narrower (or lower width_var_um2)",
         )
         _require(
             self.cell_max_length_um > self.cell_width_um,
@@ -280,7 +430,8 @@ class SimulationSettings:
             f"{self.cell_width_um}: a rod is longer than it is wide",
         )
         _require(
-            self.cell_max_length_um < self.trench.length_um,
+            self.geometry not in ("trench", "chamber")
+            or self.cell_max_length_um < self.trench.length_um,
             f"cell_max_length_um={self.cell_max_length_um} must be shorter than the trench "
             f"(length_um={self.trench.length_um})",
         )

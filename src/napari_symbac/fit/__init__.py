@@ -1,1 +1,48 @@
-"""TODO"""
+"""Fit the forward model to a real recording.
+
+* :func:`class_statistics`: mean and variance of cells, media and device from rough
+  painted labels (eq. 2 of the SyMBac supplement);
+* :func:`objective_terms`: eq. 20 and better comparisons of a synthetic and a real
+  image (class statistics, power spectrum, histogram, edge profile, pixels);
+* :func:`fit_parameters`: intensities, apodisation, defocus, PSF offset (ring
+  contrast, noise) fitted to a real image;
+* :func:`fit_scene`: analysis by synthesis, cells and trench placed and sized so the
+  rendered image overlays the real one pixel for pixel.
+"""
+
+from napari_symbac.fit.inputs import (
+    CLASS_NAMES,
+    CLASS_VALUES,
+    as_image_stack,
+    as_label_stack,
+    as_single_image,
+)
+from napari_symbac.fit.intensities import ClassStatistics, class_statistics
+from napari_symbac.fit.objectives import DEFAULT_TERMS, TERM_NAMES, objective_terms
+from napari_symbac.fit.parameters import (
+    DEFAULT_FIT,
+    FitCancelled,
+    FitResult,
+    fit_parameters,
+    parameter_bounds,
+    scene_classes,
+)
+
+__all__ = [
+    "CLASS_NAMES",
+    "CLASS_VALUES",
+    "DEFAULT_FIT",
+    "DEFAULT_TERMS",
+    "TERM_NAMES",
+    "ClassStatistics",
+    "FitCancelled",
+    "FitResult",
+    "as_image_stack",
+    "as_label_stack",
+    "as_single_image",
+    "class_statistics",
+    "fit_parameters",
+    "objective_terms",
+    "parameter_bounds",
+    "scene_classes",
+]

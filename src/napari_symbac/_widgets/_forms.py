@@ -1,0 +1,146 @@
+"""A magicgui form for any frozen settings dataclass.
+
+Fields become spin boxes, check boxes and combo boxes with their units in the label;
+nested settings become titled sub-forms. :attr:`SettingsForm.value` builds (and so
+validates) the dataclass; invalid input raises the dataclass' own ``ValueError``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+from typing import Any, Literal
+
+from magicgui.widgets import CheckBox, ComboBox, Container, FloatSpinBox, LineEdit, SpinBox, Widget
+
+__all__ = ["SettingsForm"]
+
+_UNIT_SUFFIXES = {
+    "_um2": "um²",
+    "_um": "um",
+    "_min": "min",
+    "_mm": "mm",
+    "_px": "px",
+    "_adu": "ADU",
+    "_e": "e⁻",
+    "_per_min": "1/min",
+    "_adu_per_e": "ADU/e⁻",
+}
+
+
+def _label(name: str) -> str:
+    for suffix, unit in sorted(_UNIT_SUFFIXES.items(), key=lambda kv: -len(kv[0])):
+        if name.endswith(suffix):
+            return f"{name[: -len(suffix)].replace('_', ' ')} ({unit})"
+    return name.replace("_", " ")
+
+
+def _float_step(value: float) -> float:
+    magnitude = abs(value) if value else 1.0
+    step = 10 ** (int(f"{magnitude:e}".split("e")[1]) - 1)
+    return float(step)
+
+
+def _is_text(annotation: Any) -> bool:
+    args = set(typing.get_args(annotation)) - {type(None)}
+    return annotation is str or args == {str}
+
+
+def _field_widget(name: str, annotation: Any, value: Any) -> Widget | None:
+    """An editor for one field, or ``None`` for values a form cannot edit (tuples)."""
+    label = _label(name)
+    origin = typing.get_origin(annotation)
+    if dataclasses.is_dataclass(annotation):
+        return SettingsForm(type(value), value=value, name=name, label=label)
+    if origin is Literal:
+        return ComboBox(
+            name=name, label=label, choices=list(typing.get_args(annotation)), value=value
+        )
+    if annotation is bool:
+        return CheckBox(name=name, label=label, value=value)
+    if annotation is int:
+        return SpinBox(name=name, label=label, value=value, min=-(2**31), max=2**31 - 1)
+    if annotation is float:
+        return FloatSpinBox(
+            name=name, label=label, value=value, min=-1e9, max=1e9, step=_float_step(value)
+        )
+    if _is_text(annotation):  # text and optional text (paths): empty -> None
+        return LineEdit(name=name, label=label, value="" if value is None else str(value))
+    return None
+
+
+class SettingsForm(Container):
+    """Editable form of a settings dataclass.
+
+    Parameters
+    ----------
+    cls
+        The frozen settings dataclass.
+    value
+        Initial settings; defaults to ``cls()``.
+    choices
+        Optional ``{field: [choices]}`` for string fields with a fixed set of values.
+    """
+
+    def __init__(
+        self,
+        cls: type,
+        value: Any | None = None,
+        *,
+        choices: dict[str, list[str]] | None = None,
+        **kwargs: Any,
+    ) -> None:
+        super().__init__(**kwargs)
+        self._cls = cls
+        self._fixed: dict[str, Any] = {}  # fields kept as they are (no editor)
+        value = cls() if value is None else value
+        hints = typing.get_type_hints(cls)
+        choices = choices or {}
+        for field in dataclasses.fields(cls):
+            current = getattr(value, field.name)
+            if field.name in choices:
+                widget = ComboBox(
+                    name=field.name,
+                    label=_label(field.name),
+                    choices=choices[field.name],
+                    value=current,
+                )
+            else:
+                widget = _field_widget(field.name, hints[field.name], current)
+            if widget is None:
+                self._fixed[field.name] = current
+            else:
+                self.append(widget)
+        self._remember_exact(value)
+
+    def _remember_exact(self, settings: Any) -> None:
+        # Spin boxes round what they show; a field the user did not touch keeps its
+        # exact value (shown value -> exact value).
+        self._exact = {
+            widget.name: (widget.value, getattr(settings, widget.name))
+            for widget in self
+            if isinstance(widget, FloatSpinBox)
+        }
+
+    @property
+    def value(self) -> Any:
+        """The settings currently in the form (validated on construction)."""
+        kwargs = dict(self._fixed)
+        for widget in self:
+            raw = widget.value
+            if isinstance(widget, LineEdit):
+                raw = raw or None
+            shown, exact = self._exact.get(widget.name, (None, None))
+            kwargs[widget.name] = exact if shown is not None and raw == shown else raw
+        return self._cls(**kwargs)
+
+    @value.setter
+    def value(self, settings: Any) -> None:
+        self._fixed = {name: getattr(settings, name) for name in self._fixed}
+        for widget in self:
+            current = getattr(settings, widget.name)
+            widget.value = (
+                ("" if current is None else str(current))
+                if isinstance(widget, LineEdit)
+                else current
+            )

@@ -1,0 +1,162 @@
+"""Dock widget: simulate growth in a worker thread, preview live, render with masks.
+
+The headless calls behind it are :func:`napari_symbac.sim.Simulator` and
+:func:`napari_symbac.pipeline.render_simulation`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import TYPE_CHECKING
+
+import numpy as np
+from magicgui.widgets import Container, Label, PushButton
+
+from napari_symbac._widgets._forms import SettingsForm
+from napari_symbac.settings import PipelineSettings, SimulationSettings
+
+if TYPE_CHECKING:
+    import napari
+
+__all__ = [
+    "PREVIEW_LAYER",
+    "RESULT_IMAGE_LAYER",
+    "RESULT_LABELS_LAYER",
+    "SYMBAC_METADATA_KEY",
+    "SimulateWidget",
+]
+
+PREVIEW_LAYER = "simulation preview"
+RESULT_IMAGE_LAYER = "synthetic"
+RESULT_LABELS_LAYER = "synthetic labels"
+#: Layer-metadata key under which rendered layers carry their simulation and settings.
+SYMBAC_METADATA_KEY = "symbac"
+
+
+class SimulateWidget(Container):
+    """Simulation settings form with Run / Cancel, a progress bar and a live preview.
+
+    While the simulation runs, the ``simulation preview`` labels layer shows the cells
+    of the newest frame; when it finishes, every frame is rendered and shown as the
+    ``synthetic`` image layer with its ``synthetic labels`` instance masks (cell ids
+    consistent over time). Cancelling removes the preview and leaves earlier results
+    untouched.
+    """
+
+    def __init__(self, viewer: napari.viewer.Viewer, settings: PipelineSettings | None = None):
+        super().__init__(name="symbac_simulate", labels=True)
+        self.viewer = viewer
+        self.pipeline = settings or PipelineSettings()
+        self.form = SettingsForm(
+            SimulationSettings, self.pipeline.simulation, name="settings", label="simulation"
+        )
+        self.run_button = PushButton(text="Run simulation", name="run")
+        self.cancel_button = PushButton(text="Cancel", name="cancel", enabled=False)
+        self.status = Label(value="", name="status")
+        self.extend([self.form, self.run_button, self.cancel_button, self.status])
+        self.run_button.changed.connect(self.run)
+        self.cancel_button.changed.connect(self.cancel)
+        self.worker = None
+        self.simulation = None
+        self.series = None
+        self._n_frames = 0
+
+    # -- actions -------------------------------------------------------------------------
+
+    def run(self) -> None:
+        """Validate the form and start simulating and rendering in a worker thread."""
+        from napari.qt.threading import thread_worker
+
+        try:
+            sim_settings = self.form.value
+            pipeline = dataclasses.replace(self.pipeline, simulation=sim_settings)
+        except ValueError as err:
+            self.status.value = f"Invalid settings: {err}"
+            return
+        n_frames = sim_settings.n_frames
+        self._n_frames = n_frames
+
+        @thread_worker(progress={"total": 2 * n_frames, "desc": "SyMBac simulate + render"})
+        def work():
+            from napari_symbac.pipeline import RenderedSeries, iter_render
+            from napari_symbac.scene import draw_scene
+            from napari_symbac.sim import Simulator
+
+            simulator = Simulator(sim_settings, np.random.default_rng(sim_settings.seed))
+            for index, frame in enumerate(simulator.iter_frames()):
+                scene = draw_scene(frame, sim_settings.trench, pipeline.microscope, pipeline.render)
+                yield ("simulated", index + 1, scene.camera_labels())
+            simulation = simulator.result()
+            frames = []
+            for rendered in iter_render(simulation, pipeline):
+                frames.append(rendered)
+                yield ("rendered", len(frames), None)
+            series = RenderedSeries.from_frames(frames)
+            return simulation, pipeline, series
+
+        self.worker = work()
+        self.worker.yielded.connect(self._on_yielded)
+        self.worker.returned.connect(self._on_returned)
+        self.worker.aborted.connect(self._on_aborted)
+        self.worker.errored.connect(self._on_errored)
+        self.worker.finished.connect(self._on_finished)
+        self.run_button.enabled = False
+        self.cancel_button.enabled = True
+        self.status.value = "Simulating..."
+        self.worker.start()
+
+    def cancel(self) -> None:
+        """Stop the running worker at its next frame."""
+        if self.worker is not None:
+            self.status.value = "Cancelling..."
+            self.worker.quit()
+
+    # -- worker callbacks -----------------------------------------------------------------
+
+    def _on_yielded(self, message) -> None:
+        stage, done, labels = message
+        if stage == "simulated":
+            self.status.value = f"Simulated frame {done}"
+            if PREVIEW_LAYER in self.viewer.layers:
+                self.viewer.layers[PREVIEW_LAYER].data = labels
+            else:
+                self.viewer.add_labels(labels, name=PREVIEW_LAYER)
+        else:
+            self.status.value = f"Rendered frame {done} of {self._n_frames}"
+
+    def _on_returned(self, result) -> None:
+        self.simulation, self.pipeline, self.series = result
+        self._remove_preview()
+        metadata = {SYMBAC_METADATA_KEY: {"simulation": self.simulation, "settings": self.pipeline}}
+        scale = (1.0, *(2 * (self.pipeline.microscope.pixel_size_um,)))
+        for name, data, kind in (
+            (RESULT_IMAGE_LAYER, self.series.images, "image"),
+            (RESULT_LABELS_LAYER, self.series.labels, "labels"),
+        ):
+            if name in self.viewer.layers:
+                layer = self.viewer.layers[name]
+                layer.data = data
+                layer.metadata.update(metadata)
+            elif kind == "image":
+                self.viewer.add_image(data, name=name, scale=scale, metadata=metadata)
+            else:
+                self.viewer.add_labels(data, name=name, scale=scale, metadata=metadata)
+        n_cells = len(self.simulation.lineage)
+        self.status.value = f"Done: {len(self.simulation.frames)} frames, {n_cells} cells"
+
+    def _on_aborted(self) -> None:
+        self._remove_preview()
+        self.status.value = "Cancelled: nothing was kept"
+
+    def _on_errored(self, err: Exception) -> None:
+        self._remove_preview()
+        self.status.value = f"Failed: {err}"
+
+    def _on_finished(self) -> None:
+        self.worker = None
+        self.run_button.enabled = True
+        self.cancel_button.enabled = False
+
+    def _remove_preview(self) -> None:
+        if PREVIEW_LAYER in self.viewer.layers:
+            self.viewer.layers.remove(PREVIEW_LAYER)

@@ -1,0 +1,212 @@
+"""Dock widget: tune PSF, intensities and noise live on a rendered simulation.
+
+Headless equivalent: :class:`napari_symbac.fit.live.LivePreview`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from magicgui.widgets import CheckBox, ComboBox, Container, FloatSlider, Label
+
+from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
+
+if TYPE_CHECKING:
+    import napari
+
+__all__ = ["SLIDERS", "TuneWidget"]
+
+#: Slider name -> (label, minimum, maximum). Each name is a RenderSettings field.
+SLIDERS: dict[str, tuple[str, float, float]] = {
+    "cell_intensity": ("cell intensity (ADU)", 0.0, 20000.0),
+    "media_intensity": ("media intensity (ADU)", 0.0, 20000.0),
+    "device_intensity": ("device intensity (ADU)", 0.0, 20000.0),
+    "apodisation_sigma_um": ("apodisation sigma (um)", 0.05, 3.0),
+    "defocus_sigma_um": ("defocus sigma (um)", 0.0, 1.0),
+    "ring_contrast": ("ring contrast", 0.0, 3.0),
+    "psf_offset": ("PSF offset", -0.05, 0.05),
+    "gaussian_noise_sd_adu": ("gaussian noise sd (ADU)", 0.0, 1000.0),
+}
+
+
+class TuneWidget(Container):
+    """Sliders for the forward model's parameters, updating the preview while dragging.
+
+    Choose a rendered layer (made by *Simulate and render*). Each change re-renders the
+    frame on screen from cached convolutions; other frames are re-rendered when you
+    step to them. The tuned settings are written back into the layer's metadata, so
+    an export from that layer uses them. With a real image chosen, the preview can be
+    matched to its Fourier spectrum and histogram.
+    """
+
+    def __init__(self, viewer: napari.viewer.Viewer):
+        super().__init__(name="symbac_tune")
+        self.viewer = viewer
+        self.source = ComboBox(name="source", label="rendered layer", choices=self._rendered)
+        self.reference = ComboBox(
+            name="reference", label="real image", choices=self._references, nullable=True
+        )
+        self.modality = ComboBox(
+            name="modality", label="modality", choices=["phase", "fluorescence"]
+        )
+        self.noise_model = ComboBox(
+            name="noise_model", label="noise", choices=["camera", "gaussian", "none"]
+        )
+        self.sliders = {
+            name: FloatSlider(name=name, label=label, min=low, max=high, readout=True)
+            for name, (label, low, high) in SLIDERS.items()
+        }
+        self.match_fourier = CheckBox(name="match_fourier", text="match Fourier spectrum")
+        self.match_histogram = CheckBox(name="match_histogram", text="match histogram")
+        self.status = Label(name="status", value="")
+        self.extend(
+            [
+                self.source,
+                self.reference,
+                self.modality,
+                self.noise_model,
+                *self.sliders.values(),
+                self.match_fourier,
+                self.match_histogram,
+                self.status,
+            ]
+        )
+        self.preview = None
+        self._stale: set[int] = set()
+        self._loading = False
+        self.source.changed.connect(self._load_source)
+        for widget in (*self.sliders.values(), self.modality, self.noise_model):
+            widget.changed.connect(self._on_parameter)
+        for widget in (self.reference, self.match_fourier, self.match_histogram):
+            widget.changed.connect(self._on_matching)
+        viewer.dims.events.current_step.connect(self._on_step)
+        for event in (viewer.layers.events.inserted, viewer.layers.events.removed):
+            event.connect(self._refresh_choices)
+        self._load_source()
+
+    # -- choices --------------------------------------------------------------------------
+
+    def _rendered(self, _widget=None) -> list:
+        return [
+            layer
+            for layer in self.viewer.layers
+            if SYMBAC_METADATA_KEY in layer.metadata
+            and layer.data.ndim == 3
+            and not hasattr(layer, "selected_label")
+        ]
+
+    def _references(self, _widget=None) -> list:
+        from napari.layers import Image
+
+        return [
+            layer
+            for layer in self.viewer.layers
+            if isinstance(layer, Image) and SYMBAC_METADATA_KEY not in layer.metadata
+        ]
+
+    def _refresh_choices(self, _event=None) -> None:
+        previous = self.source.value
+        self.source.reset_choices()
+        self.reference.reset_choices()
+        if self.source.value is not previous:
+            self._load_source()
+
+    # -- state ----------------------------------------------------------------------------
+
+    def _load_source(self, _value=None) -> None:
+        from napari_symbac.fit.live import LivePreview
+        from napari_symbac.pipeline import draw_frame
+
+        layer = self.source.value
+        if layer is None:
+            self.preview = None
+            self.status.value = "Render a simulation first (Simulate and render)"
+            return
+        simulation = layer.metadata[SYMBAC_METADATA_KEY]["simulation"]
+        settings = layer.metadata[SYMBAC_METADATA_KEY]["settings"]
+        self.preview = LivePreview(
+            lambda index: draw_frame(simulation, settings, index),
+            settings.microscope,
+            settings.render,
+            settings.camera,
+            n_frames=len(simulation.frames),
+            seed=settings.simulation.seed,
+        )
+        self._loading = True
+        try:
+            for name, slider in self.sliders.items():
+                slider.value = getattr(settings.render, name)
+            self.sliders["apodisation_sigma_um"].min = round(
+                settings.microscope.min_apodisation_sigma_um, 3
+            )
+            self.modality.value = settings.microscope.modality
+            self.noise_model.value = settings.render.noise_model
+        finally:
+            self._loading = False
+        self._stale = set()
+        self.status.value = ""
+
+    def _current_frame(self) -> int:
+        return int(self.viewer.dims.current_step[0]) if self.viewer.dims.ndim >= 3 else 0
+
+    def _show(self, index: int) -> None:
+        layer = self.source.value
+        image = self.preview.frame(index)
+        info = np.iinfo(layer.data.dtype) if layer.data.dtype.kind in "ui" else None
+        if info is not None:
+            image = np.clip(np.rint(image), info.min, info.max)
+        layer.data[index] = image.astype(layer.data.dtype)
+        self._stale.discard(index)
+        layer.refresh()
+
+    def _store_settings(self) -> None:
+        layer = self.source.value
+        meta = layer.metadata[SYMBAC_METADATA_KEY]
+        meta["settings"] = dataclasses.replace(
+            meta["settings"],
+            microscope=self.preview.model.microscope,
+            render=self.preview.render_settings,
+        )
+
+    # -- events ---------------------------------------------------------------------------
+
+    def _on_parameter(self, _value: Any = None) -> None:
+        if self._loading or self.preview is None:
+            return
+        changes = {name: slider.value for name, slider in self.sliders.items()}
+        changes["noise_model"] = self.noise_model.value
+        changes["modality"] = self.modality.value
+        try:
+            self.preview.update(**changes)
+        except ValueError as err:
+            self.status.value = f"Not applied: {err}"
+            return
+        self.status.value = ""
+        self._stale = set(range(self.preview.n_frames))
+        self._show(self._current_frame())
+        self._store_settings()
+
+    def _on_matching(self, _value: Any = None) -> None:
+        if self.preview is None:
+            return
+        reference = self.reference.value
+        frame = None
+        if reference is not None:
+            data = np.asarray(reference.data)
+            frame = data[min(self._current_frame(), len(data) - 1)] if data.ndim == 3 else data
+        try:
+            self.preview.set_reference(
+                frame,
+                fourier=self.match_fourier.value,
+                histogram=self.match_histogram.value,
+            )
+            self._stale = set(range(self.preview.n_frames))
+            self._show(self._current_frame())
+        except ValueError as err:
+            self.status.value = f"Not applied: {err}"
+
+    def _on_step(self, _event=None) -> None:
+        if self.preview is not None and self._current_frame() in self._stale:
+            self._show(self._current_frame())

@@ -1,0 +1,274 @@
+"""The ``napari-symbac`` command: every step of the pipeline, headless.
+
+Run ``napari-symbac --help`` or ``napari-symbac COMMAND --help``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+
+from napari_symbac import __version__
+
+__all__ = ["main"]
+
+
+class _Timer:
+    """Collects (step, seconds) pairs and prints them as a table."""
+
+    def __init__(self) -> None:
+        self.steps: list[tuple[str, float]] = []
+
+    @contextmanager
+    def step(self, name: str) -> Iterator[None]:
+        start = time.perf_counter()
+        yield
+        self.steps.append((name, time.perf_counter() - start))
+
+    def report(self) -> str:
+        width = max(len(name) for name, _ in self.steps)
+        lines = [f"  {name:<{width}}  {seconds:7.2f} s" for name, seconds in self.steps]
+        total = sum(seconds for _, seconds in self.steps)
+        lines.append(f"  {'total':<{width}}  {total:7.2f} s")
+        return "\n".join(lines)
+
+
+def _tqdm_progress(
+    desc: str, total: int | None = None
+) -> tuple[Callable[[int, int], None], object]:
+    from tqdm import tqdm
+
+    bar = tqdm(total=total, desc=desc, unit="frame", leave=False, file=sys.stderr)
+
+    def update(done: int, total_now: int) -> None:
+        bar.total = total_now
+        bar.n = done
+        bar.refresh()
+
+    return update, bar
+
+
+# --------------------------------------------------------------------------------------
+# Commands
+# --------------------------------------------------------------------------------------
+
+
+def _load_pipeline(config: str | None):
+    from napari_symbac.settings import PipelineSettings, load_settings
+
+    return PipelineSettings() if config is None else load_settings(config, PipelineSettings)
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from napari_symbac.settings import SimulationSettings, load_settings
+    from napari_symbac.sim import save_simulation, simulate
+
+    settings = (
+        SimulationSettings()
+        if args.config is None
+        else load_settings(args.config, SimulationSettings)
+    )
+    overrides = {k: v for k, v in (("n_frames", args.frames), ("seed", args.seed)) if v is not None}
+    settings = dataclasses.replace(settings, **overrides)
+    out = Path(args.out or settings.save_dir or "simulation")
+    timer = _Timer()
+    update, bar = _tqdm_progress("simulate", settings.n_frames)
+    with timer.step("simulate"):
+        simulation = simulate(settings, progress=update)
+    bar.close()
+    with timer.step("save"):
+        save_simulation(simulation, out)
+    print(
+        f"wrote simulation of {settings.n_frames} frames, {len(simulation.lineage)} cells to {out}"
+    )
+    print(timer.report())
+    return 0
+
+
+def _cmd_render(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    import tifffile
+
+    from napari_symbac.pipeline import render_simulation
+    from napari_symbac.sim import load_simulation
+
+    timer = _Timer()
+    with timer.step("load"):
+        simulation = load_simulation(args.simulation)
+        settings = dataclasses.replace(_load_pipeline(args.config), simulation=simulation.settings)
+    update, bar = _tqdm_progress("render", len(simulation.frames))
+    with timer.step("render"):
+        series = render_simulation(simulation, settings, progress=update)
+    bar.close()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    with timer.step("write"):
+        for name, array in (
+            ("images", series.images),
+            ("labels", series.labels),
+            ("semantic", series.semantic),
+        ):
+            tmp = out / f".{name}.tif.partial"
+            tifffile.imwrite(tmp, array, imagej=array.dtype != "uint32", compression="zlib")
+            tmp.replace(out / f"{name}.tif")
+    print(f"wrote images.tif, labels.tif, semantic.tif {series.images.shape} to {out}")
+    print(timer.report())
+    return 0
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from napari_symbac.export import export_dataset, load_export_settings
+
+    settings = load_export_settings(args.config)
+    timer = _Timer()
+    update, bar = _tqdm_progress("export", settings.n_items)
+    with timer.step("export"):
+        report = export_dataset(
+            settings,
+            args.out,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            progress=update,
+        )
+    bar.close()
+    print(report)
+    print(timer.report())
+    return 0
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from napari_symbac.demo import run_demo
+
+    report = run_demo(
+        args.out, n_frames=args.frames, seed=args.seed, progress_factory=_tqdm_progress
+    )
+    print(report)
+    return 0
+
+
+def _cmd_defaults(args: argparse.Namespace) -> int:
+    import yaml
+
+    from napari_symbac import settings as settings_module
+
+    if args.kind == "export":
+        from napari_symbac.export import ExportSettings
+
+        default = ExportSettings()
+    else:
+        classes = {
+            "pipeline": settings_module.PipelineSettings,
+            "simulation": settings_module.SimulationSettings,
+            "microscope": settings_module.Microscope,
+            "render": settings_module.RenderSettings,
+            "camera": settings_module.Camera,
+        }
+        default = classes[args.kind]()
+    if args.out:
+        settings_module.save_settings(default, args.out)
+        print(f"wrote default {args.kind} settings to {args.out}")
+    else:
+        print(yaml.safe_dump(settings_module.to_dict(default), sort_keys=False), end="")
+    return 0
+
+
+# --------------------------------------------------------------------------------------
+# Parser
+# --------------------------------------------------------------------------------------
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="napari-symbac",
+        description="Synthetic micrographs of bacteria with perfect ground truth (SyMBac method).",
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    demo = sub.add_parser(
+        "demo",
+        help="simulate, render and export a small mother-machine dataset (no input needed)",
+        description="Run the main job on the built-in defaults: simulate a mother-machine "
+        "trench, render phase-contrast frames with masks, write a small training dataset "
+        "and a preview montage, and print what was written and how long each step took.",
+    )
+    demo.add_argument("--out", default="symbac-demo", help="output folder (default: %(default)s)")
+    demo.add_argument("--frames", type=int, default=40, help="frames to simulate (default: 40)")
+    demo.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    demo.set_defaults(func=_cmd_demo)
+
+    simulate = sub.add_parser(
+        "simulate",
+        help="run the growth simulation and save it",
+        description="Simulate cell growth in a mother-machine trench with pymunk physics and "
+        "save settings, per-frame cell states and lineage to a folder.",
+    )
+    simulate.add_argument("--config", help="SimulationSettings YAML/JSON (default: built-in)")
+    simulate.add_argument("--out", help="output folder (default: save_dir of the config)")
+    simulate.add_argument("--frames", type=int, help="override n_frames")
+    simulate.add_argument("--seed", type=int, help="override the seed")
+    simulate.set_defaults(func=_cmd_simulate)
+
+    render = sub.add_parser(
+        "render",
+        help="render a saved simulation to images and masks",
+        description="Draw and render every frame of a saved simulation; writes images.tif "
+        "(uint16), labels.tif (uint32 instance masks, cell ids consistent over time) and "
+        "semantic.tif (uint8, cells separated by zeros).",
+    )
+    render.add_argument("simulation", help="folder written by 'napari-symbac simulate'")
+    render.add_argument("--config", help="PipelineSettings YAML/JSON for optics and camera")
+    render.add_argument("--out", required=True, help="output folder")
+    render.set_defaults(func=_cmd_render)
+
+    export = sub.add_parser(
+        "export",
+        help="generate a training dataset (DeLTA, Cellpose, StarDist, COCO, CTC, ...)",
+        description="Generate a randomised training dataset in parallel with dask; re-running "
+        "the same command resumes an interrupted export.",
+    )
+    export.add_argument("--config", required=True, help="ExportSettings YAML/JSON")
+    export.add_argument("--out", required=True, help="output folder")
+    export.add_argument(
+        "--workers", type=int, help="local worker processes (default: one per core)"
+    )
+    export.add_argument("--scheduler", help="address of an existing dask scheduler")
+    export.set_defaults(func=_cmd_export)
+
+    defaults = sub.add_parser(
+        "defaults",
+        help="print or write the default settings as a starting config",
+        description="Print (or write with --out) the default settings of one kind as YAML, "
+        "to edit and pass to --config.",
+    )
+    defaults.add_argument(
+        "kind", choices=["pipeline", "simulation", "microscope", "render", "camera", "export"]
+    )
+    defaults.add_argument("--out", help="write to this .yaml/.json file instead of printing")
+    defaults.set_defaults(func=_cmd_defaults)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``napari-symbac`` command."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except (ValueError, OSError) as err:
+        print(f"napari-symbac {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"napari-symbac {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,183 @@
+"""Atomic file writes and clear messages for disk errors.
+
+Every file of a dataset is first written under a temporary name in its final folder and
+then moved into place with :func:`os.replace`, which is atomic on POSIX and Windows for
+two paths on the same file system. A crash, a kill or a cancel therefore never leaves a
+half-written image or mask under its final name: at worst a hidden temporary file
+(``.NAME.tmp-PID-RANDOM.EXT``), which :func:`remove_stale_temporaries` sweeps away when
+the export is run again.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import re
+import uuid
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager, suppress
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "ExportError",
+    "atomic_path",
+    "explain_os_error",
+    "remove_stale_temporaries",
+    "write_bytes",
+    "write_json",
+    "write_png",
+    "write_text",
+    "write_tiff",
+]
+
+_TEMP_RE = re.compile(r"^\..+\.tmp-\d+-[0-9a-f]{8}(\.[A-Za-z0-9]+)?$")
+
+
+class ExportError(RuntimeError):
+    """An export stopped for a reason the user can fix (disk full, no permission, ...).
+
+    Attributes
+    ----------
+    path
+        The file or folder the export was writing when it stopped (``None`` if unknown).
+    errno
+        The operating-system error number, if the cause was an :class:`OSError`.
+    """
+
+    def __init__(
+        self, message: str, path: str | os.PathLike | None = None, errno_: int | None = None
+    ):
+        super().__init__(message)
+        self.path = None if path is None else str(path)
+        self.errno = errno_
+
+    def __reduce__(self):  # keep path and errno when sent back from a dask worker
+        return (type(self), (str(self), self.path, self.errno))
+
+
+def explain_os_error(err: OSError, path: str | os.PathLike | None = None) -> ExportError:
+    """Turn an :class:`OSError` raised while writing into an :class:`ExportError`.
+
+    The message names the path and says how to fix the problem; every export resumes
+    where it stopped when the same command is run again.
+    """
+    where = str(path if path is not None else (err.filename or "the output folder"))
+    again = "then run the same export again: finished items are kept and the rest is completed"
+    if err.errno in (errno.ENOSPC, errno.EDQUOT):
+        message = (
+            f"the disk is full (no space left on device) while writing {where}: free some "
+            f"space on that disk or choose an output folder on another disk, {again}"
+        )
+    elif err.errno in (errno.EACCES, errno.EPERM) or isinstance(err, PermissionError):
+        message = (
+            f"permission denied while writing {where}: choose an output folder you can "
+            f"write to, or give yourself write permission on it (e.g. chmod u+w), {again}"
+        )
+    elif err.errno == errno.EROFS:
+        message = (
+            f"{where} is on a read-only file system: choose an output folder on a writable "
+            f"disk, {again}"
+        )
+    else:
+        message = f"could not write {where}: {err.strerror or err}; fix the cause, {again}"
+    return ExportError(message, where, err.errno)
+
+
+def atomic_path(path: Path) -> Path:
+    """A unique temporary path beside ``path`` with the same extension."""
+    return path.with_name(f".{path.stem}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}{path.suffix}")
+
+
+@contextmanager
+def _replacing(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary path; on success move it to ``path``, on failure delete it."""
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise explain_os_error(err, path.parent) from err
+    tmp = atomic_path(path)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except OSError as err:
+        _unlink_quietly(tmp)
+        raise explain_os_error(err, path) from err
+    except BaseException:
+        _unlink_quietly(tmp)
+        raise
+
+
+def _unlink_quietly(path: Path) -> None:
+    with suppress(OSError):
+        path.unlink()
+
+
+def _atomic(path: str | os.PathLike, write: Callable[[Path], Any]) -> Path:
+    with _replacing(path) as tmp:
+        write(tmp)
+    return Path(path)
+
+
+def write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically."""
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as handle:
+            handle.write(data)
+            handle.flush()
+            os.fsync(handle.fileno())
+
+    return _atomic(path, write)
+
+
+def write_text(path: str | os.PathLike, text: str) -> Path:
+    """Write UTF-8 ``text`` to ``path`` atomically."""
+    return write_bytes(path, text.encode("utf-8"))
+
+
+def write_json(path: str | os.PathLike, data: Any, *, indent: int | None = None) -> Path:
+    """Write ``data`` as JSON (keys in insertion order, no NaN) to ``path`` atomically."""
+    return write_text(path, json.dumps(data, indent=indent, allow_nan=False) + "\n")
+
+
+def write_tiff(path: str | os.PathLike, array: np.ndarray, **kwargs: Any) -> Path:
+    """Write ``array`` as an uncompressed TIFF atomically (no timestamps: reproducible bytes)."""
+    import tifffile
+
+    array = np.ascontiguousarray(array)
+    return _atomic(path, lambda tmp: tifffile.imwrite(tmp, array, **kwargs))
+
+
+def write_png(path: str | os.PathLike, array: np.ndarray) -> Path:
+    """Write a 2-D uint8 or uint16 ``array`` as a greyscale PNG atomically."""
+    import imageio.v3 as iio
+
+    array = np.ascontiguousarray(array)
+    if array.ndim != 2 or array.dtype not in (np.uint8, np.uint16):
+        raise ValueError(
+            f"PNG holds 2-D uint8 or uint16 images only, got {array.dtype} {array.shape}: "
+            "use the tiff format for wider masks"
+        )
+    return _atomic(path, lambda tmp: iio.imwrite(tmp, array, extension=".png"))
+
+
+def remove_stale_temporaries(folder: str | os.PathLike) -> int:
+    """Delete temporary files that an interrupted export left under ``folder``.
+
+    Returns the number of files removed. Only names made by :func:`atomic_path` match.
+    """
+    removed = 0
+    folder = Path(folder)
+    if not folder.is_dir():
+        return 0
+    for root, _dirs, files in os.walk(folder):
+        for name in files:
+            if _TEMP_RE.match(name):
+                _unlink_quietly(Path(root) / name)
+                removed += 1
+    return removed

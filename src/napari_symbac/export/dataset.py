@@ -1,0 +1,432 @@
+"""Export settings and the item generator of the simulate -> draw -> render pipeline.
+
+Seeding
+-------
+Every random draw of a dataset comes from ``ExportSettings.seed`` through
+:class:`numpy.random.SeedSequence` spawn keys, so each item is a pure function of the
+settings and its index and can be made in any order, on any worker:
+
+========================  ==============================================================
+``spawn_key=(0, i)``      unit ``i``: frame drawn, parameters drawn, then camera noise
+``spawn_key=(1, s)``      simulation ``s`` (frames: ``s = i % n_simulations``; time
+                          series: one simulation per series, ``s = i``)
+``spawn_key=(2,)``        the train/validation split
+========================  ==============================================================
+
+``SeedSequence(seed, spawn_key=(0, i))`` is the ``i``-th child of
+``SeedSequence(seed).spawn(n)[0]``'s family; see :func:`unit_rng`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from napari_symbac.export.formats import FORMATS
+from napari_symbac.export.item import ExportItem
+from napari_symbac.settings import PipelineSettings, from_dict, load_settings, to_dict
+
+__all__ = [
+    "ExportSettings",
+    "PipelineSource",
+    "Randomisation",
+    "Range",
+    "load_export_settings",
+    "split_of",
+    "unit_rng",
+]
+
+Kind = Literal["frames", "timeseries"]
+
+
+def _fail(message: str) -> None:
+    raise ValueError(message)
+
+
+@dataclass(frozen=True)
+class Range:
+    """A closed interval ``[low, high]`` that a parameter is drawn from, uniformly."""
+
+    low: float
+    high: float
+
+    def __post_init__(self) -> None:
+        for name in ("low", "high"):
+            value = getattr(self, name)
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, (int, float))
+                or not math.isfinite(value)
+            ):
+                _fail(f"Range.{name} must be a finite number, got {value!r}")
+        if self.low > self.high:
+            _fail(f"Range low={self.low} must not exceed high={self.high}")
+
+    def draw(self, rng: np.random.Generator) -> float:
+        """One uniform draw (always consumes one number, even when ``low == high``)."""
+        u = rng.random()
+        return float(self.low + (self.high - self.low) * u)
+
+
+@dataclass(frozen=True)
+class Randomisation:
+    """How rendering parameters vary between items (SyMBac's training-data sweep).
+
+    Scales multiply the value in :class:`~napari_symbac.settings.PipelineSettings`; a
+    range with ``low == high == 1`` switches a variation off. Each item (or each time
+    series, which keeps one set of parameters for all its frames) draws its own values,
+    recorded in the manifest.
+
+    Parameters
+    ----------
+    cell_intensity_scale, media_intensity_scale, device_intensity_scale
+        Multipliers of ``render.cell_intensity``, ``media_intensity``, ``device_intensity``.
+    apodisation_sigma_scale
+        Multiplier of ``render.apodisation_sigma_um`` (the PSF width, eq. 11-12); the
+        result never goes below the diffraction bound of eq. 13.
+    defocus_sigma_um
+        Range of ``render.defocus_sigma_um`` (eq. 14), absolute.
+    noise_scale
+        Multiplier of ``camera.dark_noise_e`` and ``render.gaussian_noise_sd_adu``.
+    """
+
+    cell_intensity_scale: Range = field(default_factory=lambda: Range(0.85, 1.15))
+    media_intensity_scale: Range = field(default_factory=lambda: Range(0.9, 1.1))
+    device_intensity_scale: Range = field(default_factory=lambda: Range(0.85, 1.15))
+    apodisation_sigma_scale: Range = field(default_factory=lambda: Range(1.0, 1.25))
+    defocus_sigma_um: Range = field(default_factory=lambda: Range(0.0, 0.0))
+    noise_scale: Range = field(default_factory=lambda: Range(0.8, 1.2))
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, Mapping):
+                value = Range(**value)
+                object.__setattr__(self, f.name, value)
+            elif isinstance(value, (list, tuple)) and len(value) == 2:
+                value = Range(*value)
+                object.__setattr__(self, f.name, value)
+            if not isinstance(value, Range):
+                _fail(f"Randomisation.{f.name} must be a range {{low, high}}, got {value!r}")
+            if value.low < 0:
+                _fail(f"Randomisation.{f.name} must not be negative, got low={value.low}")
+
+    def draw(self, rng: np.random.Generator, pipeline: PipelineSettings) -> dict[str, float]:
+        """Draw one item's parameters; keys are ``"render.FIELD"`` / ``"camera.FIELD"``."""
+        render, camera = pipeline.render, pipeline.camera
+        cell = self.cell_intensity_scale.draw(rng)
+        media = self.media_intensity_scale.draw(rng)
+        device = self.device_intensity_scale.draw(rng)
+        sigma = self.apodisation_sigma_scale.draw(rng)
+        defocus = self.defocus_sigma_um.draw(rng)
+        noise = self.noise_scale.draw(rng)
+        bound = pipeline.microscope.min_apodisation_sigma_um
+        return {
+            "render.cell_intensity": render.cell_intensity * cell,
+            "render.media_intensity": render.media_intensity * media,
+            "render.device_intensity": render.device_intensity * device,
+            "render.apodisation_sigma_um": max(render.apodisation_sigma_um * sigma, bound),
+            "render.defocus_sigma_um": defocus,
+            "render.gaussian_noise_sd_adu": render.gaussian_noise_sd_adu * noise,
+            "camera.dark_noise_e": camera.dark_noise_e * noise,
+        }
+
+
+def apply_params(pipeline: PipelineSettings, params: Mapping[str, Any]) -> PipelineSettings:
+    """``pipeline`` with the ``"render.X"`` / ``"camera.X"`` values of ``params`` set."""
+    changes: dict[str, dict[str, Any]] = {"render": {}, "camera": {}, "microscope": {}}
+    for key, value in params.items():
+        part, _, name = key.partition(".")
+        if part in changes and name:
+            changes[part][name] = value
+    return dataclasses.replace(
+        pipeline,
+        **{
+            part: dataclasses.replace(getattr(pipeline, part), **values)
+            for part, values in changes.items()
+            if values
+        },
+    )
+
+
+@dataclass(frozen=True)
+class ExportSettings:
+    """A dataset to export: how many items, which formats, how they vary.
+
+    Parameters
+    ----------
+    n_items
+        Number of images (``kind="frames"``) or of time series (``kind="timeseries"``).
+    kind
+        ``"frames"``: independent images, each a random frame of a simulation rendered
+        with its own drawn parameters (segmentation training). ``"timeseries"``: every
+        frame of ``n_items`` simulations, one set of drawn parameters per series, with
+        lineage (tracking formats ``ctc`` and ``trackmate``).
+    formats
+        Format names of :data:`~napari_symbac.export.formats.FORMATS`: ``tiff``, ``png``,
+        ``delta``, ``omnipose``, ``stardist``, ``coco``, ``ctc``, ``trackmate``,
+        ``ome-zarr``.
+    seed
+        Seed of every random draw of the dataset (see the module notes).
+    val_fraction
+        Fraction of images (or series) put in the validation split, in ``[0, 1)``.
+    n_simulations
+        ``kind="frames"``: number of independent simulations images are drawn from
+        (item ``i`` uses simulation ``i % n_simulations``).
+    first_frame
+        ``kind="frames"``: frames are drawn from ``[first_frame, n_frames)``, to skip a
+        trench that is still filling.
+    randomise
+        Parameter variations between items.
+    coco_segmentation
+        ``"polygon"`` or ``"rle"`` for the COCO format.
+    pipeline
+        Simulation, microscope, render and camera settings.
+    """
+
+    n_items: int = 100
+    kind: Kind = "frames"
+    formats: list[str] = field(default_factory=lambda: ["tiff"])
+    seed: int = 0
+    val_fraction: float = 0.1
+    n_simulations: int = 1
+    first_frame: int = 0
+    randomise: Randomisation = field(default_factory=Randomisation)
+    coco_segmentation: Literal["polygon", "rle"] = "polygon"
+    pipeline: PipelineSettings = field(default_factory=PipelineSettings)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.n_items, bool) or not isinstance(self.n_items, int) or self.n_items < 1:
+            _fail(f"ExportSettings.n_items must be an integer >= 1, got {self.n_items!r}")
+        if self.kind not in ("frames", "timeseries"):
+            _fail(f"ExportSettings.kind must be 'frames' or 'timeseries', got {self.kind!r}")
+        formats = self.formats
+        if isinstance(formats, str):
+            formats = [f.strip() for f in formats.split(",") if f.strip()]
+        formats = [str(f).lower() for f in formats]
+        if not formats:
+            _fail("ExportSettings.formats is empty: name at least one format")
+        unknown = [f for f in formats if f not in FORMATS]
+        if unknown:
+            _fail(
+                f"ExportSettings.formats has unknown format(s) {', '.join(unknown)}; known "
+                f"formats: {', '.join(FORMATS)}"
+            )
+        if len(set(formats)) != len(formats):
+            _fail(f"ExportSettings.formats lists a format twice: {formats}")
+        tracking = [f for f in formats if FORMATS[f].timeseries_only]  # type: ignore[attr-defined]
+        if tracking and self.kind != "timeseries":
+            _fail(
+                f"format(s) {', '.join(tracking)} hold tracking ground truth: set "
+                "ExportSettings.kind to 'timeseries'"
+            )
+        object.__setattr__(self, "formats", formats)
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            _fail(f"ExportSettings.seed must be a non-negative integer, got {self.seed!r}")
+        if not (isinstance(self.val_fraction, (int, float)) and 0 <= self.val_fraction < 1):
+            _fail(f"ExportSettings.val_fraction must be in [0, 1), got {self.val_fraction!r}")
+        if not isinstance(self.n_simulations, int) or self.n_simulations < 1:
+            _fail(
+                f"ExportSettings.n_simulations must be an integer >= 1, got {self.n_simulations!r}"
+            )
+        n_frames = self.pipeline.simulation.n_frames
+        if not isinstance(self.first_frame, int) or not 0 <= self.first_frame < n_frames:
+            _fail(
+                f"ExportSettings.first_frame={self.first_frame!r} must be in [0, n_frames="
+                f"{n_frames}) of pipeline.simulation"
+            )
+        if self.coco_segmentation not in ("polygon", "rle"):
+            _fail(
+                "ExportSettings.coco_segmentation must be 'polygon' or 'rle', got "
+                f"{self.coco_segmentation!r}"
+            )
+
+    @property
+    def n_images(self) -> int:
+        """Number of images in the dataset."""
+        if self.kind == "frames":
+            return self.n_items
+        return self.n_items * self.pipeline.simulation.n_frames
+
+
+def load_export_settings(path: str | os.PathLike) -> ExportSettings:
+    """Read :class:`ExportSettings` (with its nested pipeline settings) from YAML or JSON.
+
+    Missing fields take their defaults; ``save_settings(export_settings, path)`` of
+    :mod:`napari_symbac.settings` writes such a file.
+    """
+    return load_settings(path, ExportSettings)
+
+
+def export_settings_from_dict(data: Mapping[str, Any]) -> ExportSettings:
+    """Build :class:`ExportSettings` from a plain mapping (e.g. a manifest's ``settings``)."""
+    return from_dict(ExportSettings, dict(data))
+
+
+def unit_rng(seed: int, unit: int) -> np.random.Generator:
+    """The generator of unit ``unit`` (an image, or a time series) of a dataset."""
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0, unit)))
+
+
+def _simulation_seed_sequence(seed: int, simulation: int) -> np.random.SeedSequence:
+    return np.random.SeedSequence(seed, spawn_key=(1, simulation))
+
+
+@lru_cache(maxsize=8)
+def _val_units(seed: int, n_units: int, val_fraction: float) -> frozenset[int]:
+    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(2,)))
+    n_val = round(val_fraction * n_units)
+    return frozenset(int(u) for u in rng.permutation(n_units)[:n_val])
+
+
+def split_of(settings: ExportSettings, unit: int) -> str:
+    """``"val"`` for the ``round(val_fraction * n_items)`` units drawn for validation."""
+    val = _val_units(settings.seed, settings.n_items, float(settings.val_fraction))
+    return "val" if unit in val else "train"
+
+
+_SIMULATIONS: dict[str, Any] = {}
+
+
+def _simulation(pipeline: PipelineSettings, seed: int, index: int):
+    """Simulation ``index`` of a dataset, cached per process (workers simulate once)."""
+    import json
+
+    from napari_symbac.sim import simulate
+
+    key = json.dumps([to_dict(pipeline.simulation), seed, index], sort_keys=True)
+    if key not in _SIMULATIONS:
+        seq = _simulation_seed_sequence(seed, index)
+        sim_settings = dataclasses.replace(
+            pipeline.simulation, seed=int(seq.generate_state(1)[0]), save_dir=None
+        )
+        if len(_SIMULATIONS) >= 4:
+            _SIMULATIONS.pop(next(iter(_SIMULATIONS)))
+        _SIMULATIONS[key] = simulate(sim_settings, np.random.default_rng(seq))
+    return _SIMULATIONS[key]
+
+
+def _curvature(simulation) -> dict[int, tuple[float, float, float]] | None:
+    curvature = {
+        int(cell_id): tuple(record.curvature)
+        for cell_id, record in simulation.lineage.items()
+        if any(record.curvature)
+    }
+    return curvature or None
+
+
+class PipelineSource:
+    """Items of an :class:`ExportSettings` dataset, made by simulate -> draw -> render.
+
+    A unit is one image (``kind="frames"``) or one time series (``kind="timeseries"``).
+    """
+
+    def __init__(self, settings: ExportSettings) -> None:
+        self.settings = settings
+
+    @property
+    def n_units(self) -> int:
+        return self.settings.n_items
+
+    def _name_width(self) -> int:
+        return max(6, len(str(self.settings.n_items - 1)))
+
+    def unit_names(self, unit: int) -> list[str]:
+        if self.settings.kind == "frames":
+            return [f"{unit:0{self._name_width()}d}"]
+        n_frames = self.settings.pipeline.simulation.n_frames
+        width = max(4, len(str(n_frames - 1)))
+        return [f"s{unit:04d}_t{t:0{width}d}" for t in range(n_frames)]
+
+    def header(self) -> dict[str, Any]:
+        return {
+            "kind": self.settings.kind,
+            "seed": self.settings.seed,
+            "n_items": self.settings.n_images,
+            "settings": to_dict(self.settings),
+            "seeding": (
+                "unit i: numpy.random.default_rng(SeedSequence(seed, spawn_key=(0, i))); "
+                "simulation s: SeedSequence(seed, spawn_key=(1, s)); split: "
+                "SeedSequence(seed, spawn_key=(2,))"
+            ),
+        }
+
+    def make_unit(self, unit: int) -> list[ExportItem]:
+        from napari_symbac.optics import ForwardModel
+        from napari_symbac.scene import draw_scene
+
+        s = self.settings
+        pipeline = s.pipeline
+        rng = unit_rng(s.seed, unit)
+        split = split_of(s, unit)
+        sim_index = unit % s.n_simulations if s.kind == "frames" else unit
+        simulation = _simulation(pipeline, s.seed, sim_index)
+        n_frames = len(simulation.frames)
+        if s.kind == "frames":
+            frames = [int(rng.integers(s.first_frame, n_frames))]
+        else:
+            frames = list(range(n_frames))
+        params = s.randomise.draw(rng, pipeline)
+        varied = apply_params(pipeline, params)
+        model = ForwardModel(varied.microscope, varied.render, varied.camera)
+        curvature = _curvature(simulation)
+        parents = {int(c): int(r.parent_id) for c, r in simulation.lineage.items()}
+        max_label = max(parents, default=0)
+        names = self.unit_names(unit)
+        items = []
+        for k, frame in enumerate(frames):
+            scene = draw_scene(
+                simulation.frames[frame],
+                pipeline.simulation.trench,
+                varied.microscope,
+                varied.render,
+                curvature=curvature,
+            )
+            image = model.render(scene, rng)
+            labels = scene.camera_labels()
+            present = np.unique(labels)
+            item_params = {"simulation": sim_index, "frame": frame, **params}
+            items.append(
+                ExportItem(
+                    name=names[k],
+                    index=unit if s.kind == "frames" else unit * n_frames + frame,
+                    image=image,
+                    labels=labels,
+                    semantic=scene.semantic_mask(),
+                    split=split,  # type: ignore[arg-type]
+                    series=None if s.kind == "frames" else unit,
+                    frame=None if s.kind == "frames" else frame,
+                    n_frames=None if s.kind == "frames" else n_frames,
+                    parents={int(c): parents.get(int(c), 0) for c in present if c},
+                    max_label=max(max_label, int(labels.max()) if labels.size else 0),
+                    pixel_size_um=pipeline.microscope.pixel_size_um,
+                    frame_interval_min=pipeline.simulation.frame_interval_min,
+                    params=item_params,
+                )
+            )
+        return items
+
+
+def regenerate(manifest_dir: str | os.PathLike, name: str) -> ExportItem:
+    """Make item ``name`` of an exported dataset again, from its ``manifest.json``.
+
+    With the same package version the result is bit for bit the exported item.
+    """
+    import json
+
+    path = Path(manifest_dir) / "manifest.json"
+    document = json.loads(path.read_text("utf-8"))
+    settings = export_settings_from_dict(document["settings"])
+    source = PipelineSource(settings)
+    for unit in range(source.n_units):
+        if name in source.unit_names(unit):
+            return next(item for item in source.make_unit(unit) if item.name == name)
+    raise KeyError(f"{path} has no item named {name!r}")

@@ -1,0 +1,178 @@
+"""The manifest of a dataset: how it was made, and which items are finished.
+
+Layout under the output folder::
+
+    manifest.json              dataset header: settings, seed, versions, status, and (once
+                               complete) every item's entry
+    manifest_items/NAME.json   one entry per finished item: split, parameters drawn, files,
+                               and a per-cell summary (id, parent, centroid, area)
+
+An item's entry is written last, after all of its files, each file atomically. An item is
+finished exactly when its entry exists and names files that all exist, so re-running an
+export skips finished items and (re)writes the others.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from napari_symbac.export.atomic import ExportError, explain_os_error, write_json
+from napari_symbac.export.formats import FormatWriter
+from napari_symbac.export.item import ExportItem, item_objects
+
+__all__ = [
+    "ITEMS_DIR",
+    "MANIFEST",
+    "check_or_start_manifest",
+    "finish_manifest",
+    "finished_items",
+    "read_entries",
+    "write_item",
+]
+
+MANIFEST = "manifest.json"
+ITEMS_DIR = "manifest_items"
+MANIFEST_VERSION = 1
+
+
+def _versions() -> dict[str, str]:
+    from napari_symbac import __version__
+
+    return {
+        "napari_symbac": __version__,
+        "numpy": np.__version__,
+        "python": platform.python_version(),
+    }
+
+
+def write_item(out_dir: Path, item: ExportItem, writers: Sequence[FormatWriter]) -> dict[str, Any]:
+    """Write one item in every format, then its manifest entry; return the entry."""
+    files: dict[str, list[str]] = {}
+    for writer in writers:
+        files[writer.name] = writer.write_item(out_dir, item)
+    entry = {
+        "name": item.name,
+        "index": int(item.index),
+        "split": item.split,
+        "series": item.series,
+        "frame": item.frame,
+        "n_frames": item.n_frames,
+        "shape": [int(s) for s in item.image.shape],
+        "label_dtype": item.label_dtype.name,
+        "pixel_size_um": float(item.pixel_size_um),
+        "frame_interval_min": float(item.frame_interval_min),
+        "params": dict(item.params),
+        "files": files,
+        "objects": item_objects(item),
+    }
+    write_json(out_dir / ITEMS_DIR / f"{item.name}.json", entry)
+    return entry
+
+
+def _entry_if_finished(out_dir: Path, name: str) -> dict[str, Any] | None:
+    path = out_dir / ITEMS_DIR / f"{name}.json"
+    try:
+        entry = json.loads(path.read_text("utf-8"))
+    except (OSError, json.JSONDecodeError):
+        return None
+    files = [f for paths in entry.get("files", {}).values() for f in paths]
+    if not all((out_dir / f).is_file() for f in files):
+        return None
+    return entry
+
+
+def finished_items(out_dir: Path, names: Iterable[str] | None = None) -> dict[str, dict[str, Any]]:
+    """Entries of the finished items among ``names`` (all entries in the folder if ``None``)."""
+    out_dir = Path(out_dir)
+    folder = out_dir / ITEMS_DIR
+    if not folder.is_dir():
+        return {}
+    if names is None:
+        names = sorted(p.stem for p in folder.glob("*.json") if not p.name.startswith("."))
+        existing = None
+    else:
+        existing = {p.name for p in os.scandir(folder)}
+    done = {}
+    for name in names:
+        if existing is not None and f"{name}.json" not in existing:
+            continue
+        entry = _entry_if_finished(out_dir, name)
+        if entry is not None:
+            done[name] = entry
+    return done
+
+
+def read_entries(out_dir: Path, names: Iterable[str] | None = None) -> list[dict[str, Any]]:
+    """Finished entries sorted by item index."""
+    return sorted(finished_items(out_dir, names).values(), key=lambda e: (e["index"], e["name"]))
+
+
+def check_or_start_manifest(out_dir: Path, header: Mapping[str, Any]) -> dict[str, Any]:
+    """Start ``manifest.json`` in ``out_dir``, or check that it describes the same export.
+
+    Raises
+    ------
+    ExportError
+        If the folder holds an export made with other settings or another version of
+        napari-symbac (items would not match), or cannot be written.
+    """
+    out_dir = Path(out_dir)
+    path = out_dir / MANIFEST
+    document = {
+        "manifest_version": MANIFEST_VERSION,
+        "generator": "napari-symbac",
+        "versions": _versions(),
+        **header,
+        "status": "incomplete",
+    }
+    document = json.loads(json.dumps(document))  # plain JSON types, for comparison
+    if path.is_file():
+        try:
+            old = json.loads(path.read_text("utf-8"))
+        except (OSError, json.JSONDecodeError) as err:
+            raise ExportError(
+                f"{path} exists but cannot be read ({err}): delete it or export to another folder",
+                path,
+            ) from err
+        keys = ("settings", "formats", "kind")
+        if any(old.get(k) != document.get(k) for k in keys):
+            raise ExportError(
+                f"{out_dir} already holds an export made with different settings or formats; "
+                "to resume it use its own settings (manifest.json records them), or export "
+                "to a new folder",
+                path,
+            )
+        if old.get("versions", {}).get("napari_symbac") != document["versions"]["napari_symbac"]:
+            raise ExportError(
+                f"{out_dir} was exported by napari-symbac "
+                f"{old.get('versions', {}).get('napari_symbac')}, this is "
+                f"{document['versions']['napari_symbac']}: items would differ, so export to "
+                "a new folder (or install the version that made it to resume)",
+                path,
+            )
+        if old.get("status") == "complete":
+            return old
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise explain_os_error(err, out_dir) from err
+    write_json(path, document, indent=2)
+    return document
+
+
+def finish_manifest(out_dir: Path, entries: Sequence[Mapping[str, Any]]) -> Path:
+    """Mark the manifest complete and list every item's entry in it."""
+    path = Path(out_dir) / MANIFEST
+    document = json.loads(path.read_text("utf-8"))
+    document["status"] = "complete"
+    document["n_items"] = len(entries)
+    document["items"] = list(entries)
+    write_json(path, document, indent=1)
+    return path

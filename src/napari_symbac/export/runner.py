@@ -1,0 +1,409 @@
+"""Run an export: serially in this process or in parallel through dask.distributed.
+
+Work is split into *units* (an image, or a whole time series) that an
+:class:`ItemSource` turns into items. Each unit is a pure function of the dataset
+settings and its index, so the order in which units run does not matter: a serial run,
+a local cluster and a remote scheduler all write the same bytes.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import time
+import uuid
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+from napari_symbac.export.atomic import ExportError, remove_stale_temporaries
+from napari_symbac.export.formats import FormatWriter, get_writer
+from napari_symbac.export.item import ExportItem
+from napari_symbac.export.manifest import (
+    check_or_start_manifest,
+    finish_manifest,
+    finished_items,
+    read_entries,
+    write_item,
+)
+
+__all__ = [
+    "ExportReport",
+    "ItemSource",
+    "run_export",
+    "write_items",
+]
+
+Progress = Callable[[int, int], None]
+Cancel = Callable[[], bool] | Any  # a callable returning True to stop, or a threading.Event
+
+
+@runtime_checkable
+class ItemSource(Protocol):
+    """What an export draws its items from (must pickle, to travel to dask workers)."""
+
+    @property
+    def n_units(self) -> int:
+        """Number of units of work (images, or time series)."""
+
+    def unit_names(self, unit: int) -> list[str]:
+        """Names of the items that ``unit`` makes, without making them."""
+
+    def make_unit(self, unit: int) -> list[ExportItem]:
+        """Make the items of ``unit`` (a pure function of the source and ``unit``)."""
+
+    def header(self) -> dict[str, Any]:
+        """Dataset-level manifest fields (``settings``, ``formats``, ``kind``, ``seed``...)."""
+
+
+@dataclass(frozen=True)
+class ExportReport:
+    """What an export did.
+
+    Attributes
+    ----------
+    out_dir
+        The dataset folder.
+    n_items
+        Items the dataset holds when complete.
+    n_written, n_skipped
+        Items written by this run, and items found finished from an earlier run.
+    cancelled
+        Whether the run stopped early because it was cancelled (re-run to complete it).
+    seconds
+        Wall time of the run.
+    workers
+        Worker processes used (1 for a serial run).
+    formats
+        Formats written.
+    files
+        Dataset-level files written at the end (manifest, COCO JSON, ``man_track.txt``...).
+    """
+
+    out_dir: Path
+    n_items: int
+    n_written: int
+    n_skipped: int
+    cancelled: bool
+    seconds: float
+    workers: int
+    formats: tuple[str, ...]
+    files: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def complete(self) -> bool:
+        """Whether every item of the dataset is on disk."""
+        return not self.cancelled and self.n_written + self.n_skipped == self.n_items
+
+    @property
+    def items_per_s(self) -> float:
+        """Items written per second by this run."""
+        return self.n_written / self.seconds if self.seconds > 0 else math.nan
+
+    def __str__(self) -> str:
+        state = "complete" if self.complete else "CANCELLED - run again to resume"
+        return (
+            f"export to {self.out_dir}: {state}; {self.n_items} items "
+            f"({self.n_written} written, {self.n_skipped} already there) in "
+            f"{', '.join(self.formats)}; {self.seconds:.1f} s with {self.workers} worker(s)"
+        )
+
+
+def _is_cancelled(cancel: Cancel | None) -> bool:
+    if cancel is None:
+        return False
+    if hasattr(cancel, "is_set"):
+        return bool(cancel.is_set())
+    return bool(cancel())
+
+
+def _writers(formats: Sequence[str], options: dict[str, Any]) -> list[FormatWriter]:
+    return [get_writer(name, **options) for name in formats]
+
+
+def run_units(
+    source: ItemSource,
+    units: Sequence[int],
+    out_dir: str,
+    formats: Sequence[str],
+    options: dict[str, Any],
+    skip: Sequence[str] = (),
+) -> list[dict[str, Any]]:
+    """Make and write the items of ``units``, skipping the names in ``skip``.
+
+    This is the function that runs on a dask worker; it returns the manifest entries
+    written (entries of skipped items are not returned).
+    """
+    out = Path(out_dir)
+    writers = _writers(formats, options)
+    skip = set(skip)
+    entries = []
+    for unit in units:
+        if all(name in skip for name in source.unit_names(unit)):
+            continue
+        for item in source.make_unit(unit):
+            if item.name not in skip:
+                entries.append(write_item(out, item, writers))
+    return entries
+
+
+def _chunks(units: list[int], size: int) -> list[list[int]]:
+    return [units[i : i + size] for i in range(0, len(units), size)]
+
+
+def _local_cluster(workers: int):
+    from distributed import LocalCluster
+
+    return LocalCluster(
+        n_workers=workers,
+        threads_per_worker=1,
+        processes=True,
+        host="127.0.0.1",
+        dashboard_address=None,
+        silence_logs=logging.ERROR,
+        # one item needs little memory; do not let dask pause workers on small machines
+        memory_limit=0,
+    )
+
+
+def _run_dask(
+    source: ItemSource,
+    batches: list[list[int]],
+    skip_of: Callable[[list[int]], list[str]],
+    out_dir: Path,
+    formats: Sequence[str],
+    options: dict[str, Any],
+    *,
+    workers: int,
+    scheduler: str | None,
+    on_entries: Callable[[list[dict[str, Any]]], None],
+    cancel: Cancel | None,
+) -> tuple[bool, int]:
+    from distributed import Client, as_completed
+
+    cluster = None
+    if scheduler is None:
+        cluster = _local_cluster(workers)
+        client = Client(cluster)
+    else:
+        client = Client(scheduler)
+    cancelled = False
+    try:
+        n_workers = len(client.scheduler_info().get("workers", {})) or workers
+        token = uuid.uuid4().hex[:8]
+        source_future = client.scatter(source, broadcast=True, hash=False)
+        futures = [
+            client.submit(
+                run_units,
+                source_future,
+                batch,
+                str(out_dir),
+                list(formats),
+                options,
+                skip_of(batch),
+                key=f"symbac-export-{token}-{i}",
+                pure=False,
+                retries=0,
+            )
+            for i, batch in enumerate(batches)
+        ]
+        try:
+            for future in as_completed(futures):
+                entries = future.result()
+                on_entries(entries)
+                if _is_cancelled(cancel):
+                    cancelled = True
+                    break
+        finally:
+            client.cancel(futures)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    return cancelled, n_workers
+
+
+def run_export(
+    source: ItemSource,
+    out_dir: str | os.PathLike,
+    formats: Sequence[str],
+    *,
+    options: dict[str, Any] | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress: Progress | None = None,
+    cancel: Cancel | None = None,
+    batch_size: int | None = None,
+) -> ExportReport:
+    """Export every item of ``source`` to ``out_dir``, resuming an earlier run.
+
+    Parameters
+    ----------
+    source
+        Where items come from (see :class:`ItemSource`).
+    out_dir
+        Dataset folder; created if missing.
+    formats
+        Names of formats in :data:`~napari_symbac.export.formats.FORMATS`.
+    options
+        Writer options (``coco_segmentation``).
+    workers
+        Worker processes of a local dask cluster (on 127.0.0.1 only); ``None`` is one
+        per core, ``1`` (or fewer units than two) runs serially in this process.
+    scheduler
+        Address of a running dask scheduler (``tcp://host:8786``) to use instead; its
+        workers must see ``out_dir`` at the same path.
+    progress
+        Called as ``progress(done, total)`` in items (finished ones from an earlier run
+        count as done).
+    cancel
+        A callable returning ``True``, or a :class:`threading.Event`, checked between
+        units; finished items stay on disk and a later run completes the rest.
+    batch_size
+        Units per dask task (default: about four tasks per worker, at most 32 units).
+
+    Raises
+    ------
+    ExportError
+        Disk full, permission denied, or a folder holding a different export.
+    """
+    start = time.perf_counter()
+    out = Path(out_dir).resolve()
+    options = dict(options or {})
+    formats = tuple(formats)
+    writers = _writers(formats, options)  # validates the names early
+    check_or_start_manifest(out, {**source.header(), "formats": list(formats)})
+    remove_stale_temporaries(out)
+
+    names_of = {unit: source.unit_names(unit) for unit in range(source.n_units)}
+    all_names = [name for names in names_of.values() for name in names]
+    total = len(all_names)
+    done = set(finished_items(out, all_names))
+    n_skipped = len(done)
+    pending = [u for u, names in names_of.items() if not all(n in done for n in names)]
+    state = {"done": n_skipped, "written": 0}
+    if progress is not None:
+        progress(state["done"], total)
+
+    def on_entries(entries: list[dict[str, Any]]) -> None:
+        state["written"] += len(entries)
+        state["done"] += len(entries)
+        if progress is not None:
+            progress(state["done"], total)
+
+    def skip_of(units: Iterable[int]) -> list[str]:
+        return [n for u in units for n in names_of[u] if n in done]
+
+    n_workers = (os.cpu_count() or 1) if workers is None else max(1, int(workers))
+    cancelled = False
+    if pending and (scheduler is not None or (n_workers > 1 and len(pending) > 1)):
+        if batch_size is None:
+            batch_size = max(1, min(32, len(pending) // (4 * n_workers)))
+        cancelled, n_workers = _run_dask(
+            source,
+            _chunks(pending, batch_size),
+            skip_of,
+            out,
+            formats,
+            options,
+            workers=n_workers,
+            scheduler=scheduler,
+            on_entries=on_entries,
+            cancel=cancel,
+        )
+    else:
+        n_workers = 1
+        for unit in pending:
+            if _is_cancelled(cancel):
+                cancelled = True
+                break
+            on_entries(run_units(source, [unit], str(out), formats, options, skip_of([unit])))
+
+    files: tuple[str, ...] = ()
+    entries = read_entries(out, all_names)
+    if not cancelled:
+        if len(entries) != total:
+            missing = sorted(set(all_names) - {e["name"] for e in entries})[:5]
+            raise ExportError(
+                f"export to {out} finished with {total - len(entries)} item(s) missing "
+                f"(e.g. {', '.join(missing)}): run it again to complete them",
+                out,
+            )
+        written = []
+        for writer in writers:
+            written.extend(writer.finalize(out, entries))
+        finish_manifest(out, entries)
+        files = (*written, "manifest.json")
+    return ExportReport(
+        out_dir=out,
+        n_items=total,
+        n_written=state["written"],
+        n_skipped=n_skipped,
+        cancelled=cancelled,
+        seconds=time.perf_counter() - start,
+        workers=n_workers,
+        formats=formats,
+        files=files,
+    )
+
+
+class _ListSource:
+    """An :class:`ItemSource` over items already in memory (one unit per item)."""
+
+    def __init__(self, items: Sequence[ExportItem], header: dict[str, Any]) -> None:
+        self.items = list(items)
+        names = [item.name for item in self.items]
+        if len(set(names)) != len(names):
+            raise ValueError("write_items: item names must be unique")
+        self._header = header
+
+    @property
+    def n_units(self) -> int:
+        return len(self.items)
+
+    def unit_names(self, unit: int) -> list[str]:
+        return [self.items[unit].name]
+
+    def make_unit(self, unit: int) -> list[ExportItem]:
+        return [self.items[unit]]
+
+    def header(self) -> dict[str, Any]:
+        return self._header
+
+
+def write_items(
+    items: Sequence[ExportItem],
+    out_dir: str | os.PathLike,
+    formats: Sequence[str],
+    *,
+    header: dict[str, Any] | None = None,
+    coco_segmentation: str = "polygon",
+    progress: Progress | None = None,
+    cancel: Cancel | None = None,
+) -> ExportReport:
+    """Write items already in memory as a dataset (serially, atomically, resumable).
+
+    Parameters
+    ----------
+    items
+        The items, e.g. from :func:`~napari_symbac.export.series_items` for a rendered
+        time series.
+    out_dir
+        Dataset folder.
+    formats
+        Format names, e.g. ``("tiff", "ctc")``.
+    header
+        Extra manifest fields, typically ``{"settings": to_dict(pipeline_settings)}``.
+    """
+    header = {"kind": "items", "settings": None, **(header or {})}
+    return run_export(
+        _ListSource(items, header),
+        out_dir,
+        formats,
+        options={"coco_segmentation": coco_segmentation},
+        workers=1,
+        progress=progress,
+        cancel=cancel,
+    )

@@ -1,0 +1,479 @@
+"""Automatic fit of the optical parameters to a real image (section 7, eq. 13, 20).
+
+For fixed geometry and kernel the clean image is linear in the intensities,
+``mu = I_c C + I_m M + I_t D`` (eq. 3, 15) with ``C, M, D`` the convolved scene
+components that the :class:`~napari_symbac.optics.ForwardModel` caches. The fit
+therefore solves the intensities *exactly* (non-negative least squares) inside every
+evaluation and leaves only the kernel parameters (apodisation, defocus, ring
+contrast, PSF offset) and the noise to the nonlinear optimiser (variable
+projection).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import optimize
+
+from napari_symbac.fit.inputs import CLASS_VALUES, as_label_stack, as_single_image
+from napari_symbac.fit.objectives import (
+    DEFAULT_TERMS,
+    TERM_NAMES,
+    objective_terms,
+    total_objective,
+)
+from napari_symbac.optics import ForwardModel
+from napari_symbac.optics.forward import block_average
+from napari_symbac.settings import Camera, Microscope, RenderSettings
+
+__all__ = [
+    "DEFAULT_FIT",
+    "FitCancelled",
+    "FitResult",
+    "fit_parameters",
+    "parameter_bounds",
+    "scene_classes",
+]
+
+Progress = Callable[[int, int], None]
+Cancel = Callable[[], bool]
+
+#: Kernel parameters fitted by default (the intensities are always fitted). The ring
+#: contrast is left at the condenser's value: with apodisation and PSF offset it forms a
+#: nearly degenerate "optics" family (docs/fitting.md); add it to ``fit`` to free it.
+DEFAULT_FIT = ("apodisation_sigma_um", "defocus_sigma_um", "psf_offset")
+_FITTABLE = (*DEFAULT_FIT, "ring_contrast", "gaussian_noise_sd_adu")
+#: Natural scale of each parameter: the optimiser works in these units.
+_SCALE = {
+    "apodisation_sigma_um": 0.1,
+    "defocus_sigma_um": 0.05,
+    "ring_contrast": 0.1,
+    "psf_offset": 0.05,
+    "gaussian_noise_sd_adu": 10.0,
+}
+_INTENSITIES = ("cell_intensity", "media_intensity", "device_intensity")
+
+
+class FitCancelled(RuntimeError):
+    """Raised inside a fit when its ``cancel`` callable returns True."""
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """Outcome of :func:`fit_parameters`.
+
+    Attributes
+    ----------
+    render
+        Fitted render settings (intensities, kernel parameters, noise).
+    terms
+        ``{term: (before, after)}`` for every objective term computed.
+    objective_before, objective_after
+        Weighted sum of the optimised terms at the start and at the end.
+    n_evaluations
+        Renders of the forward model the fit used.
+    weights
+        The optimised terms and their weights.
+    fitted
+        Names of the nonlinear parameters that were free.
+    residual
+        ``real - synthetic`` (ADU) when the pixel term was used, else ``None``.
+    message
+        The optimiser's last message.
+    """
+
+    render: RenderSettings
+    terms: dict[str, tuple[float, float]]
+    objective_before: float
+    objective_after: float
+    n_evaluations: int
+    weights: dict[str, float] = field(default_factory=dict)
+    fitted: tuple[str, ...] = ()
+    residual: np.ndarray | None = field(default=None, repr=False)
+    message: str = ""
+
+    @property
+    def terms_before(self) -> dict[str, float]:
+        """Term values at the starting parameters."""
+        return {k: v[0] for k, v in self.terms.items()}
+
+    @property
+    def terms_after(self) -> dict[str, float]:
+        """Term values at the fitted parameters."""
+        return {k: v[1] for k, v in self.terms.items()}
+
+    def report(self) -> str:
+        """A small table of the terms before and after, and the fitted values."""
+        lines = [f"{'term':<14}{'before':>12}{'after':>12}"]
+        for name, (before, after) in self.terms.items():
+            lines.append(f"{name:<14}{before:12.4g}{after:12.4g}")
+        lines.append(f"{'objective':<14}{self.objective_before:12.4g}{self.objective_after:12.4g}")
+        for name in (*_INTENSITIES, *self.fitted):
+            lines.append(f"{name:<24}{getattr(self.render, name):12.5g}")
+        lines.append(f"evaluations: {self.n_evaluations}")
+        return "\n".join(lines)
+
+
+def parameter_bounds(
+    name: str, microscope: Microscope, real_sd_adu: float = 1000.0
+) -> tuple[float, float]:
+    """Physical bounds of a fitted parameter.
+
+    The apodisation sigma cannot be below the diffraction bound of eq. 13,
+    ``0.9 lambda n / (2 NA)``; defocus (eq. 14) is non-negative and, for a usable
+    recording, below half a micrometre.
+    """
+    if name == "apodisation_sigma_um":
+        low = microscope.min_apodisation_sigma_um if microscope.modality == "phase" else 0.05
+        return (low, max(3.0, 4 * low))
+    if name == "defocus_sigma_um":
+        return (0.0, 0.5)
+    if name == "ring_contrast":
+        return (0.0, 3.0)
+    if name == "psf_offset":
+        return (-0.5, 0.5)
+    if name == "gaussian_noise_sd_adu":
+        return (0.0, max(5 * real_sd_adu, 1.0))
+    raise ValueError(f"cannot fit {name!r}; fittable parameters are {', '.join(_FITTABLE)}")
+
+
+def scene_classes(scene: Any) -> np.ndarray:
+    """Class map (:data:`~napari_symbac.fit.CLASS_VALUES`) of a scene at camera resolution.
+
+    Cells are the pixels of :meth:`Scene.camera_labels`; device the remaining pixels
+    that are mostly PDMS; media the rest.
+    """
+    cell = scene.camera_labels() > 0
+    device = block_average(scene.interior(scene.device), scene.upsample) > 0.5
+    out = np.full(scene.camera_shape, CLASS_VALUES["media"], np.int64)
+    out[device] = CLASS_VALUES["device"]
+    out[cell] = CLASS_VALUES["cell"]
+    return out
+
+
+def _variance(clean_adu: np.ndarray, render: RenderSettings, camera: Camera) -> np.ndarray:
+    """Per-pixel noise variance (ADU^2) of the camera stage for a clean image (eq. 17)."""
+    if render.noise_model == "camera":
+        s = camera.sensitivity_adu_per_e
+        return s * np.maximum(clean_adu, 0.0) + (s * camera.dark_noise_e) ** 2 + 1 / 12
+    if render.noise_model == "gaussian":
+        return np.full(clean_adu.shape, render.gaussian_noise_sd_adu**2 + 1 / 12)
+    return np.full(clean_adu.shape, 1 / 12)
+
+
+class _Budget:
+    def __init__(self, total: int, progress: Progress | None, cancel: Cancel | None) -> None:
+        self.total = total
+        self.done = 0
+        self.progress = progress
+        self.cancel = cancel
+
+    def tick(self) -> None:
+        if self.cancel is not None and self.cancel():
+            raise FitCancelled("fit cancelled")
+        self.done += 1
+        if self.progress is not None:
+            self.progress(min(self.done, self.total), self.total)
+
+
+def _nnls(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Non-negative least squares that tolerates all-zero columns."""
+    use = np.any(a != 0, axis=0)
+    x = np.zeros(a.shape[1])
+    if use.any():
+        x[use] = optimize.nnls(a[:, use], b, maxiter=50 * a.shape[1])[0]
+    return x
+
+
+def _render_with(render: RenderSettings, names: tuple[str, ...], z: np.ndarray, start) -> Any:
+    values = {n: float(start[n] + _SCALE[n] * zi) for n, zi in zip(names, z)}
+    return dataclasses.replace(render, **values)
+
+
+def fit_parameters(
+    real_image: np.ndarray,
+    labels: np.ndarray,
+    scene: Any,
+    microscope: Microscope,
+    render: RenderSettings,
+    camera: Camera | None = None,
+    *,
+    terms: tuple[str, ...] | Mapping[str, float] | None = None,
+    fit: tuple[str, ...] = DEFAULT_FIT,
+    rng: np.random.Generator | None = None,
+    progress: Progress | None = None,
+    cancel: Cancel | None = None,
+    max_evaluations: int = 400,
+    global_search: bool = True,
+    model: ForwardModel | None = None,
+) -> FitResult:
+    """Fit intensities, apodisation, defocus, ring contrast, PSF offset and noise.
+
+    Parameters
+    ----------
+    real_image
+        One 2D frame of the real recording (ADU, camera baseline included).
+    labels
+        Painted class map of ``real_image`` (1 = cell, 2 = media, 3 = device, 0 =
+        unpainted); rough strokes suffice for the statistics terms.
+    scene
+        A synthetic :class:`~napari_symbac.scene.Scene`. With the statistics terms it
+        may be any scene of the same kind of sample; with ``terms=("pixel",)`` it must
+        reproduce the real image pixel for pixel (e.g. from :func:`fit_scene`).
+    microscope, render, camera
+        The starting model; ``render`` gives the starting values.
+    terms
+        Objective terms and weights (names of :data:`~napari_symbac.fit.objectives.TERM_NAMES`).
+        Default :data:`~napari_symbac.fit.objectives.DEFAULT_TERMS`. ``("pixel",)`` fits
+        the image pixel by pixel, by iteratively reweighted least squares with the
+        camera's variance (eq. 17) held fixed in each round.
+    fit
+        Nonlinear parameters to fit; the intensities are always solved exactly.
+        ``gaussian_noise_sd_adu`` is added when ``render.noise_model == "gaussian"``.
+    rng
+        Generator for the fixed noise field of the statistics terms (common random
+        numbers keep the objective deterministic); default ``default_rng(0)``.
+    progress
+        ``progress(done, total)`` after every render.
+    cancel
+        Checked before every render; when it returns True the fit raises
+        :class:`FitCancelled`.
+    max_evaluations
+        Budget of renders for the whole fit.
+    global_search
+        Start with a coarse grid over apodisation x defocus (the landscape has local
+        minima in those two) before the local optimiser.
+    model
+        A forward model to reuse (its convolution cache is shared); built from
+        ``microscope``, ``render``, ``camera`` when omitted.
+
+    Returns
+    -------
+    FitResult
+    """
+    camera = Camera() if camera is None else camera
+    real = as_single_image(real_image, name="real_image")
+    weights = dict(DEFAULT_TERMS) if terms is None else _weights(terms)
+    pixel_mode = "pixel" in weights
+    if pixel_mode and tuple(scene.camera_shape) != real.shape:
+        raise ValueError(
+            f"the pixel term compares images pixel by pixel, but the scene's camera shape "
+            f"{tuple(scene.camera_shape)} differs from the image's {real.shape}: fit the scene "
+            "first (fit_scene) or use the statistics terms"
+        )
+    has_device = bool(np.any(scene_classes(scene) == CLASS_VALUES["device"]))
+    required = ("cell", "media", "device") if has_device and not pixel_mode else ("cell", "media")
+    if pixel_mode and labels is None:
+        labels = scene_classes(scene)
+    real_classes = as_label_stack(labels, (1, *real.shape), required=required)[0]
+    names = tuple(dict.fromkeys(fit))
+    if render.noise_model == "gaussian" and not pixel_mode:
+        names = (*names, "gaussian_noise_sd_adu") if "gaussian_noise_sd_adu" not in names else names
+    for n in names:
+        parameter_bounds(n, microscope)  # validates the name
+    if microscope.modality != "phase":
+        names = tuple(n for n in names if n in ("defocus_sigma_um", "gaussian_noise_sd_adu"))
+    rng = np.random.default_rng(0) if rng is None else rng
+    base = ForwardModel(microscope, render, camera) if model is None else model.with_render(render)
+    budget = _Budget(max_evaluations, progress, cancel)
+    syn_classes = scene_classes(scene)
+    real_sd = float(real.std())
+    start = {n: float(getattr(render, n)) for n in names}
+    bounds = [parameter_bounds(n, microscope, real_sd) for n in names]
+    for n, (lo, hi) in zip(names, bounds):
+        start[n] = float(np.clip(start[n], lo, hi))
+    z_lo = np.array([(lo - start[n]) / _SCALE[n] for n, (lo, _) in zip(names, bounds)])
+    z_hi = np.array([(hi - start[n]) / _SCALE[n] for n, (_, hi) in zip(names, bounds)])
+    y = real - camera.baseline_adu
+    noise_z = rng.standard_normal(scene.camera_shape)
+    real_masks_for_terms = (real_classes, syn_classes)
+
+    def components(r: RenderSettings) -> np.ndarray:
+        budget.tick()
+        comps = base.with_render(r).components(scene)
+        return np.stack([comps["cells"], comps["media"], comps["device"]]).astype(np.float64)
+
+    def solve_class_means(a: np.ndarray) -> np.ndarray:
+        rows, rhs = [], []
+        for cname, value in CLASS_VALUES.items():
+            rmask = real_classes == value
+            smask = syn_classes == value
+            if rmask.any() and smask.any():
+                rows.append(a[:, smask].mean(axis=1))
+                rhs.append(real[rmask].mean() - camera.baseline_adu)
+        return _nnls(np.array(rows), np.array(rhs))
+
+    def with_intensities(r: RenderSettings, intens: np.ndarray) -> RenderSettings:
+        return dataclasses.replace(r, **{k: float(v) for k, v in zip(_INTENSITIES, intens)})
+
+    def synthetic(r: RenderSettings, a: np.ndarray, noisy: bool) -> np.ndarray:
+        intens = np.array([getattr(r, k) for k in _INTENSITIES])
+        clean = np.tensordot(intens, a, axes=1)
+        if not noisy:
+            return clean + camera.baseline_adu
+        var = _variance(clean, r, camera)
+        return clean + camera.baseline_adu + np.sqrt(var) * noise_z
+
+    def all_terms(r: RenderSettings, a: np.ndarray, var: np.ndarray | None) -> dict[str, float]:
+        stats = tuple(t for t in TERM_NAMES if t != "pixel")
+        out = objective_terms(synthetic(r, a, True), real, real_masks_for_terms, terms=stats)
+        if pixel_mode:
+            out.update(
+                objective_terms(
+                    synthetic(r, a, False), real, real_classes, terms=("pixel",), variance=var
+                )
+            )
+        return out
+
+    a0 = components(render)
+    clean0 = np.tensordot(np.array([getattr(render, k) for k in _INTENSITIES]), a0, axes=1)
+    var0 = _variance(clean0, render, camera) if pixel_mode else None
+    terms_before = all_terms(render, a0, var0)
+    message = ""
+
+    if pixel_mode:
+        # IRLS: the variance is held fixed within each weighted solve, then updated.
+        var = _variance(np.maximum(y, 0.0), render, camera)
+        z = np.zeros(len(names))
+        current = render
+        for round_index in range(3):
+            sw = 1 / np.sqrt(var).ravel()
+
+            def residual(zz: np.ndarray, sw: np.ndarray = sw) -> np.ndarray:
+                r = _render_with(render, names, zz, start)
+                a = components(r).reshape(3, -1).T
+                intens = _nnls(a * sw[:, None], y.ravel() * sw)
+                return (y.ravel() - a @ intens) * sw
+
+            if names and budget.done < budget.total:
+                if round_index == 0 and global_search:
+                    z = _grid_start(
+                        names, z, start, bounds, lambda zz: float(np.sum(residual(zz) ** 2))
+                    )
+                remaining = max(budget.total - budget.done, 2 * len(names) + 2)
+                sol = optimize.least_squares(
+                    residual,
+                    np.clip(z, z_lo, z_hi),
+                    bounds=(z_lo, z_hi) if len(names) else (-np.inf, np.inf),
+                    diff_step=0.02,
+                    x_scale=1.0,
+                    xtol=1e-6,
+                    ftol=1e-9,
+                    max_nfev=max(remaining // (len(names) + 1), 3),
+                )
+                z = sol.x
+                message = str(sol.message)
+            current = _render_with(render, names, z, start)
+            a = components(current)
+            am = a.reshape(3, -1).T
+            intens = _nnls(am * sw[:, None], y.ravel() * sw)
+            current = with_intensities(current, intens)
+            clean = (am @ intens).reshape(real.shape)
+            if render.noise_model == "gaussian":
+                sd = float(np.sqrt(max(np.mean((y - clean) ** 2) - 1 / 12, 0.0)))
+                current = dataclasses.replace(current, gaussian_noise_sd_adu=sd)
+            var = _variance(clean, current, camera)
+        final = current
+        a_final = components(final)
+        terms_after = all_terms(final, a_final, var)
+        residual_image = (real - synthetic(final, a_final, False)).astype(np.float32)
+    else:
+
+        def scalar(zz: np.ndarray) -> float:
+            zz = np.clip(zz, z_lo, z_hi)
+            r = _render_with(render, names, zz, start)
+            a = components(r)
+            r = with_intensities(r, solve_class_means(a))
+            t = objective_terms(synthetic(r, a, True), real, real_masks_for_terms, terms=tuple(weights))
+            return total_objective(t, weights)
+
+        z = np.zeros(len(names))
+        if names:
+            if global_search:
+                z = _grid_start(names, z, start, bounds, scalar)
+            remaining = max(budget.total - budget.done - 2, 10)
+            sol = optimize.minimize(
+                scalar,
+                z,
+                method="Powell",
+                bounds=list(zip(z_lo, z_hi)),
+                options={"maxfev": remaining, "xtol": 1e-3, "ftol": 1e-6},
+            )
+            z = np.clip(sol.x, z_lo, z_hi)
+            message = str(sol.message)
+        final = _render_with(render, names, z, start)
+        a_final = components(final)
+        final = with_intensities(final, solve_class_means(a_final))
+        terms_after = all_terms(final, a_final, None)
+        residual_image = None
+
+    terms_table = {k: (terms_before[k], terms_after[k]) for k in terms_after}
+    if progress is not None:
+        progress(budget.total, budget.total)
+    return FitResult(
+        render=final,
+        terms=terms_table,
+        objective_before=total_objective(terms_before, weights),
+        objective_after=total_objective(terms_after, weights),
+        n_evaluations=budget.done,
+        weights=weights,
+        fitted=names,
+        residual=residual_image,
+        message=message,
+    )
+
+
+def _weights(terms: tuple[str, ...] | Mapping[str, float]) -> dict[str, float]:
+    weights = dict(terms) if isinstance(terms, Mapping) else dict.fromkeys(terms, 1.0)
+    unknown = sorted(set(weights) - set(TERM_NAMES))
+    if unknown:
+        raise ValueError(f"unknown objective term(s) {unknown}; choose from {TERM_NAMES}")
+    if not weights:
+        raise ValueError("terms must name at least one objective term")
+    for name, w in weights.items():
+        if not (math.isfinite(w) and w >= 0):
+            raise ValueError(f"the weight of {name!r} must be zero or positive, got {w!r}")
+    return weights
+
+
+def _grid_start(
+    names: tuple[str, ...],
+    z: np.ndarray,
+    start: Mapping[str, float],
+    bounds: list[tuple[float, float]],
+    cost: Callable[[np.ndarray], float],
+) -> np.ndarray:
+    """Global step: a coarse grid over apodisation x defocus, others at their start.
+
+    Apodisation takes 5 log-spaced values from the eq. 13 bound to 4x the bound,
+    defocus 0, 0.1, 0.2 and 0.35 um; the best grid point (or the start, if better)
+    is returned in the optimiser's scaled units.
+    """
+    axes = []
+    for name in ("apodisation_sigma_um", "defocus_sigma_um"):
+        if name in names:
+            i = names.index(name)
+            lo, hi = bounds[i]
+            if name == "apodisation_sigma_um":
+                values = np.geomspace(lo * 1.02, min(4 * lo, hi), 5)
+            else:
+                values = np.array([0.0, 0.1, 0.2, 0.35])
+            values = np.clip(values, lo, hi)
+            axes.append((i, (values - start[name]) / _SCALE[name]))
+    if not axes:
+        return z
+    best, best_cost = z.copy(), cost(z)
+    grids = np.meshgrid(*[values for _, values in axes], indexing="ij")
+    for point in zip(*(g.ravel() for g in grids)):
+        trial = z.copy()
+        for (i, _), value in zip(axes, point):
+            trial[i] = value
+        c = cost(trial)
+        if c < best_cost:
+            best, best_cost = trial, c
+    return best

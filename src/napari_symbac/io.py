@@ -1,0 +1,102 @@
+"""Read a user's real recordings with their pixel size (no Qt, no napari import)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["Recording", "napari_get_reader", "read_recording"]
+
+_TIFF_SUFFIXES = (".tif", ".tiff", ".ome.tif", ".ome.tiff")
+_UNIT_TO_UM = {"um": 1.0, "µm": 1.0, "micron": 1.0, "\\u00B5m": 1.0, "nm": 1e-3, "mm": 1e3}
+
+
+@dataclass(frozen=True)
+class Recording:
+    """A real image or time series with what its file says about it.
+
+    Attributes
+    ----------
+    data
+        ``(Y, X)`` or ``(T, Y, X)`` array as stored.
+    pixel_size_um
+        Pixel size from the file's OME or ImageJ metadata, or ``None`` if absent.
+    name
+        File stem, for layer names.
+    """
+
+    data: np.ndarray
+    pixel_size_um: float | None
+    name: str
+
+
+def _pixel_size_um(tif) -> float | None:
+    if tif.is_ome and tif.ome_metadata:
+        import re
+
+        match = re.search(r'PhysicalSizeX="([0-9.eE+-]+)"', tif.ome_metadata)
+        unit = re.search(r'PhysicalSizeXUnit="([^"]+)"', tif.ome_metadata)
+        if match:
+            return float(match.group(1)) * _UNIT_TO_UM.get(unit.group(1) if unit else "um", 1.0)
+    page = tif.pages[0]
+    tag = page.tags.get("XResolution")
+    if tag is None:
+        return None
+    numerator, denominator = tag.value
+    if not numerator:
+        return None
+    pixels_per_unit = numerator / denominator
+    unit = (tif.imagej_metadata or {}).get("unit", "")
+    if tif.is_imagej and unit in _UNIT_TO_UM:
+        return _UNIT_TO_UM[unit] / pixels_per_unit
+    resolution_unit = page.tags.get("ResolutionUnit")
+    if resolution_unit is not None and int(resolution_unit.value) == 3:  # centimetre
+        return 1e4 / pixels_per_unit
+    return None
+
+
+def read_recording(path: str | Path) -> Recording:
+    """Read a TIFF recording and its pixel size.
+
+    Raises
+    ------
+    ValueError
+        If the file is not a TIFF or holds no image.
+    """
+    import tifffile
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} does not exist")
+    if not path.name.lower().endswith(_TIFF_SUFFIXES):
+        raise ValueError(f"{path.name} is not a TIFF file (.tif/.tiff)")
+    try:
+        with tifffile.TiffFile(path) as tif:
+            data = tif.asarray()
+            pixel = _pixel_size_um(tif)
+    except tifffile.TiffFileError as err:
+        raise ValueError(f"{path} is not a readable TIFF: {err}") from err
+    name = path.name
+    for suffix in _TIFF_SUFFIXES:
+        if name.lower().endswith(suffix):
+            name = name[: -len(suffix)]
+            break
+    return Recording(data=data, pixel_size_um=pixel, name=name)
+
+
+def napari_get_reader(path):
+    """npe2 reader: a TIFF recording as an image layer scaled to micrometres."""
+    if isinstance(path, list) or not str(path).lower().endswith(_TIFF_SUFFIXES):
+        return None
+    return _read_layers
+
+
+def _read_layers(path) -> list[tuple]:
+    recording = read_recording(path)
+    meta = {"name": recording.name, "metadata": {"pixel_size_um": recording.pixel_size_um}}
+    if recording.pixel_size_um:
+        scale = (recording.pixel_size_um,) * 2
+        meta["scale"] = (1.0,) * (recording.data.ndim - 2) + scale
+    return [(recording.data, meta, "image")]

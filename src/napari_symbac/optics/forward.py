@@ -1,0 +1,399 @@
+"""The forward model: scene -> camera image as an ordered list of stages (eq. 3, 14-17).
+
+Stages, in order:
+
+1. ``psf`` (linear): the phase-contrast kernel of eq. 7-13 or the Airy pattern of
+   eq. 6, with the defocus of eq. 14 folded in, convolved with each scene component
+   (cells, media, device) separately (eq. 15), then area-averaged to camera pixels.
+   Each convolved component is cached, keyed on the component's content and the
+   kernel's parameters.
+2. ``intensity`` (eq. 3): ``I_c C + I_m M + I_t D``; by linearity this equals the
+   convolution of the composed image, so changing an intensity only recombines
+   cached arrays.
+3. any ``extra_stages`` (pointwise effects found by fitting / diagnosis).
+4. ``camera`` (eq. 17): noise, baseline, rounding and clipping to the bit depth.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from napari_symbac.optics.backends import ConvolutionBackend, get_backend
+from napari_symbac.optics.camera import apply_camera_noise, apply_gaussian_noise, quantise
+from napari_symbac.optics.psf import airy_psf, defocus, phase_contrast_psf
+from napari_symbac.settings import Camera, Microscope, RenderSettings
+
+__all__ = ["COMPONENTS", "ForwardModel", "Stage", "block_average"]
+
+COMPONENTS = ("cells", "media", "device")
+
+
+def block_average(image: np.ndarray, factor: int) -> np.ndarray:
+    """Resample to camera pixels: the mean of every ``factor x factor`` block (area average)."""
+    image = np.asarray(image)
+    if factor == 1:
+        return image.astype(np.float32, copy=False)
+    *lead, rows, cols = image.shape
+    if rows % factor or cols % factor:
+        raise ValueError(f"image shape {image.shape[-2:]} is not a multiple of {factor}")
+    blocks = image.reshape(*lead, rows // factor, factor, cols // factor, factor)
+    return blocks.mean(axis=(-3, -1), dtype=np.float32)
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One step of the forward model.
+
+    Attributes
+    ----------
+    name
+        Short name (``"psf"``, ``"intensity"``, ``"camera"``, ...).
+    linear
+        Linear in the scene: applied per component once and cached.
+    parameters
+        The parameters the stage depends on (for display and cache keys).
+    apply
+        For extra (non-built-in) stages: ``apply(image, scene) -> image`` on the
+        clean camera-resolution float32 image.
+    """
+
+    name: str
+    linear: bool
+    parameters: dict[str, Any] = field(default_factory=dict)
+    apply: Callable[[np.ndarray, Any], np.ndarray] | None = None
+
+
+class _Cache:
+    """Least-recently-used store of convolved, camera-resolution components."""
+
+    def __init__(self, max_items: int = 96) -> None:
+        self.max_items = max_items
+        self._items: OrderedDict[tuple, np.ndarray] = OrderedDict()
+        self.hits = 0
+        self.misses = 0
+
+    def get(self, key: tuple) -> np.ndarray | None:
+        value = self._items.get(key)
+        if value is not None:
+            self._items.move_to_end(key)
+            self.hits += 1
+        return value
+
+    def put(self, key: tuple, value: np.ndarray) -> None:
+        self.misses += 1
+        value.setflags(write=False)
+        self._items[key] = value
+        self._items.move_to_end(key)
+        while len(self._items) > self.max_items:
+            self._items.popitem(last=False)
+
+    def clear(self) -> None:
+        self._items.clear()
+
+
+class ForwardModel:
+    """Image formation from a :class:`~napari_symbac.scene.Scene` to camera counts.
+
+    Parameters
+    ----------
+    microscope
+        Objective, wavelength, condenser and modality (``"phase"`` or ``"fluorescence"``).
+    render
+        Upsampling, PSF radius, intensities (eq. 3), apodisation (eq. 11-13),
+        defocus (eq. 14), ring contrast, PSF offset and noise model.
+    camera
+        EMVA1288 camera of eq. 17.
+    backend
+        ``"scipy"`` (default), ``"torch"``, ``"torch:cuda"``, ``"cupy"`` or a backend object.
+    extra_stages
+        Pointwise stages applied to the clean image before the camera.
+
+    Examples
+    --------
+    >>> model = ForwardModel(Microscope(), RenderSettings(), Camera())  # doctest: +SKIP
+    >>> image = model.render(scene, np.random.default_rng(0))  # doctest: +SKIP
+    """
+
+    def __init__(
+        self,
+        microscope: Microscope,
+        render: RenderSettings,
+        camera: Camera | None = None,
+        *,
+        backend: str | ConvolutionBackend = "scipy",
+        extra_stages: Sequence[Stage] = (),
+        _cache: _Cache | None = None,
+        _kernel_cache: dict | None = None,
+    ) -> None:
+        if not isinstance(microscope, Microscope):
+            raise ValueError(f"microscope must be a Microscope, got {type(microscope).__name__}")
+        if not isinstance(render, RenderSettings):
+            raise ValueError(f"render must be RenderSettings, got {type(render).__name__}")
+        camera = Camera() if camera is None else camera
+        if microscope.modality == "phase" and (
+            render.apodisation_sigma_um < microscope.min_apodisation_sigma_um
+        ):
+            raise ValueError(
+                f"RenderSettings.apodisation_sigma_um={render.apodisation_sigma_um} is below "
+                f"the diffraction bound of eq. 13 ({microscope.min_apodisation_sigma_um:.3f} um "
+                f"for this microscope): raise it"
+            )
+        for stage in extra_stages:
+            if stage.apply is None:
+                raise ValueError(f"extra stage {stage.name!r} has no apply function")
+        self.microscope = microscope
+        self.render_settings = render
+        self.camera = camera
+        self.backend = get_backend(backend)
+        self.extra_stages = tuple(extra_stages)
+        self._cache = _cache if _cache is not None else _Cache()
+        self._kernels: dict = _kernel_cache if _kernel_cache is not None else {}
+
+    # ------------------------------------------------------------------ stages
+    @property
+    def stages(self) -> tuple[Stage, ...]:
+        """The ordered stages of this model (for display, saving and diagnosis)."""
+        m, r = self.microscope, self.render_settings
+        psf_params: dict[str, Any] = {
+            "modality": m.modality,
+            "wavelength_um": m.wavelength_um,
+            "numerical_aperture": m.numerical_aperture,
+            "psf_radius_px": r.psf_radius_px,
+            "upsample": r.upsample,
+            "defocus_sigma_um": r.defocus_sigma_um,
+        }
+        if m.modality == "phase":
+            psf_params.update(
+                condenser=m.condenser,
+                apodisation_sigma_um=r.apodisation_sigma_um,
+                ring_contrast=r.ring_contrast,
+                psf_offset=r.psf_offset,
+            )
+        return (
+            Stage("psf", True, psf_params),
+            Stage("resample", True, {"upsample": r.upsample}),
+            Stage(
+                "intensity",
+                False,
+                {
+                    "cell_intensity": r.cell_intensity,
+                    "media_intensity": r.media_intensity,
+                    "device_intensity": r.device_intensity,
+                },
+            ),
+            *self.extra_stages,
+            Stage(
+                "camera",
+                False,
+                {
+                    "noise_model": r.noise_model,
+                    **_camera_dict(self.camera),
+                    "gaussian_noise_sd_adu": r.gaussian_noise_sd_adu,
+                },
+            ),
+        )
+
+    def with_render(self, render: RenderSettings) -> ForwardModel:
+        """A model with new render settings sharing this one's caches.
+
+        When only intensities or the noise model changed, rendering a scene that was
+        rendered before recombines cached arrays: no convolution runs.
+        """
+        return ForwardModel(
+            self.microscope,
+            render,
+            self.camera,
+            backend=self.backend,
+            extra_stages=self.extra_stages,
+            _cache=self._cache,
+            _kernel_cache=self._kernels,
+        )
+
+    def with_camera(self, camera: Camera) -> ForwardModel:
+        """A model with another camera, sharing this one's caches."""
+        return ForwardModel(
+            self.microscope,
+            self.render_settings,
+            camera,
+            backend=self.backend,
+            extra_stages=self.extra_stages,
+            _cache=self._cache,
+            _kernel_cache=self._kernels,
+        )
+
+    def with_microscope(self, microscope: Microscope) -> ForwardModel:
+        """A model with another microscope, sharing this one's caches."""
+        return ForwardModel(
+            microscope,
+            self.render_settings,
+            self.camera,
+            backend=self.backend,
+            extra_stages=self.extra_stages,
+            _cache=self._cache,
+            _kernel_cache=self._kernels,
+        )
+
+    @property
+    def cache_info(self) -> dict[str, int]:
+        """Hits and misses of the convolution cache (a miss is one convolution)."""
+        return {
+            "hits": self._cache.hits,
+            "misses": self._cache.misses,
+            "size": len(self._cache._items),
+        }
+
+    # ------------------------------------------------------------------ kernel
+    def _kernel_key(self, pixel_size_um: float) -> tuple:
+        m, r = self.microscope, self.render_settings
+        key: tuple = (
+            m.modality,
+            m.wavelength_um,
+            m.numerical_aperture,
+            round(pixel_size_um, 12),
+            r.psf_radius_px,
+            r.defocus_sigma_um,
+        )
+        if m.modality == "phase":
+            key += (m.condenser, r.apodisation_sigma_um, r.ring_contrast, r.psf_offset)
+        return key
+
+    def kernel(self, pixel_size_um: float | None = None) -> np.ndarray:
+        """The 2-D kernel of the ``psf`` stage (defocus included), float32, sum 1."""
+        m, r = self.microscope, self.render_settings
+        px = m.pixel_size_um / r.upsample if pixel_size_um is None else pixel_size_um
+        key = self._kernel_key(px)
+        kernel = self._kernels.get(key)
+        if kernel is None:
+            if m.modality == "phase":
+                kernel = phase_contrast_psf(
+                    r.psf_radius_px,
+                    px,
+                    m.wavelength_um,
+                    m.numerical_aperture,
+                    m.condenser,
+                    r.apodisation_sigma_um,
+                    r.ring_contrast,
+                    defocus_sigma_um=r.defocus_sigma_um,
+                    offset=r.psf_offset,
+                    min_apodisation_sigma_um=m.min_apodisation_sigma_um,
+                )
+            else:
+                kernel = airy_psf(r.psf_radius_px, px, m.wavelength_um, m.numerical_aperture)
+                kernel = defocus(kernel, px, r.defocus_sigma_um)
+                kernel = kernel / kernel.sum(dtype=np.float64)
+            kernel = np.asarray(kernel, np.float32)
+            kernel.setflags(write=False)
+            self._kernels[key] = kernel
+        return kernel
+
+    # ------------------------------------------------------------------ render
+    def _check_scene(self, scene: Any) -> None:
+        r, m = self.render_settings, self.microscope
+        if scene.upsample != r.upsample:
+            raise ValueError(
+                f"the scene was drawn with upsample={scene.upsample} but the render settings "
+                f"say {r.upsample}: redraw the scene with these settings"
+            )
+        if scene.border_px < r.psf_radius_px:
+            raise ValueError(
+                f"the scene's border ({scene.border_px} px) is narrower than the PSF radius "
+                f"({r.psf_radius_px} px): redraw the scene with these render settings"
+            )
+        expected = m.pixel_size_um / r.upsample
+        if not math.isclose(scene.pixel_size_um, expected, rel_tol=1e-6):
+            raise ValueError(
+                f"the scene's pixel size ({scene.pixel_size_um} um) differs from this "
+                f"microscope's render pixel ({expected} um)"
+            )
+
+    def components(self, scene: Any) -> dict[str, np.ndarray]:
+        """Convolved, camera-resolution cells / media / device images (cached, read-only)."""
+        self._check_scene(scene)
+        kernel = self.kernel(scene.pixel_size_um)
+        kkey = self._kernel_key(scene.pixel_size_um)
+        trim = scene.border_px - self.render_settings.psf_radius_px
+        out: dict[str, np.ndarray] = {}
+        missing: list[str] = []
+        for name in COMPONENTS:
+            key = (scene.fingerprints[name], kkey, trim)
+            cached = self._cache.get(key)
+            if cached is None:
+                missing.append(name)
+            else:
+                out[name] = cached
+        if missing:
+            stack = np.stack([getattr(scene, name) for name in missing])
+            if trim:
+                stack = stack[:, trim:-trim, trim:-trim]
+            convolved = self.backend.convolve_valid(stack, kernel)
+            small = block_average(convolved, scene.upsample)
+            for name, image in zip(missing, small):
+                image = np.ascontiguousarray(image)
+                self._cache.put((scene.fingerprints[name], kkey, trim), image)
+                out[name] = image
+        return out
+
+    def render_clean(self, scene: Any) -> np.ndarray:
+        """Noise-free camera-resolution image in ADU above the baseline (eq. 3, 15), float32."""
+        comps = self.components(scene)
+        r = self.render_settings
+        image = (
+            np.float32(r.cell_intensity) * comps["cells"]
+            + np.float32(r.media_intensity) * comps["media"]
+            + np.float32(r.device_intensity) * comps["device"]
+        )
+        for stage in self.extra_stages:
+            image = np.asarray(stage.apply(image, scene), dtype=np.float32)  # type: ignore[misc]
+        return image.astype(np.float32, copy=False)
+
+    def add_noise(self, clean: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """The ``camera`` stage: noise of ``render.noise_model``, baseline, uint16 (eq. 17)."""
+        model = self.render_settings.noise_model
+        if model == "camera":
+            return apply_camera_noise(clean, self.camera, rng)
+        if model == "gaussian":
+            return apply_gaussian_noise(
+                clean, self.camera, self.render_settings.gaussian_noise_sd_adu, rng
+            )
+        return quantise(np.asarray(clean, np.float64) + self.camera.baseline_adu, self.camera)
+
+    def render(self, scene: Any, rng: np.random.Generator) -> np.ndarray:
+        """Camera image (uint16) with the noise model of ``render.noise_model``."""
+        if not isinstance(rng, np.random.Generator):
+            raise ValueError("rng must be a numpy.random.Generator (np.random.default_rng(seed))")
+        return self.add_noise(self.render_clean(scene), rng)
+
+    def render_fluorescence_3d(
+        self, volume: np.ndarray, psf_3d: np.ndarray, upsample: int | None = None
+    ) -> np.ndarray:
+        """Sum-over-z convolution of eq. 16, area-averaged to camera pixels (float32).
+
+        Parameters
+        ----------
+        volume
+            ``(Z, Y, X)`` emitter density per plane, at render resolution, with a
+            border of at least the PSF radius on every side (it is cropped away).
+        psf_3d
+            ``(Z, ky, kx)`` PSF planes matching ``volume``'s planes, e.g. from
+            :func:`~napari_symbac.optics.psf.born_wolf_psf_3d`.
+        upsample
+            Block size of the resampling; defaults to ``render.upsample``.
+        """
+        image = self.backend.convolve_valid(volume, psf_3d, sum_planes=True)
+        factor = self.render_settings.upsample if upsample is None else upsample
+        return block_average(image, factor)
+
+
+def _camera_dict(camera: Camera) -> dict[str, Any]:
+    return {
+        "baseline_adu": camera.baseline_adu,
+        "sensitivity_adu_per_e": camera.sensitivity_adu_per_e,
+        "dark_noise_e": camera.dark_noise_e,
+        "bit_depth": camera.bit_depth,
+    }

@@ -1,0 +1,176 @@
+"""ExportSettings and the real simulate -> draw -> render item generator."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+import tifffile
+import yaml
+from _export_synthetic import tree_digest
+
+from napari_symbac.export import (
+    ExportSettings,
+    Randomisation,
+    Range,
+    export_dataset,
+    load_export_settings,
+    regenerate,
+)
+from napari_symbac.export.dataset import PipelineSource, _simulation, split_of
+from napari_symbac.settings import PipelineSettings, SimulationSettings, save_settings, to_dict
+
+PIPELINE = PipelineSettings(simulation=SimulationSettings(n_frames=10))
+
+
+def _settings(**changes) -> ExportSettings:
+    base = ExportSettings(
+        n_items=5,
+        formats=["tiff", "stardist"],
+        seed=7,
+        val_fraction=0.4,
+        first_frame=5,
+        pipeline=PIPELINE,
+    )
+    return dataclasses.replace(base, **changes)
+
+
+def test_settings_validation_messages():
+    with pytest.raises(ValueError, match="kind to 'timeseries'"):
+        ExportSettings(formats=["ctc"])
+    with pytest.raises(ValueError, match="unknown format"):
+        ExportSettings(formats=["tiff", "hdf5"])
+    with pytest.raises(ValueError, match="val_fraction"):
+        ExportSettings(val_fraction=1.0)
+    with pytest.raises(ValueError, match="first_frame"):
+        ExportSettings(first_frame=60)
+    with pytest.raises(ValueError, match="must not exceed"):
+        Range(2.0, 1.0)
+    assert ExportSettings(formats="tiff, coco").formats == ["tiff", "coco"]
+
+
+def test_settings_yaml_round_trip(tmp_path):
+    settings = _settings(
+        kind="timeseries",
+        formats=["ctc", "trackmate"],
+        randomise=Randomisation(noise_scale=Range(0.5, 2.0)),
+    )
+    path = save_settings(settings, tmp_path / "export.yaml")
+    assert load_export_settings(path) == settings
+    # the CLI prints defaults with yaml.safe_dump(to_dict(...))
+    text = yaml.safe_dump(to_dict(ExportSettings()))
+    assert "formats" in text
+    # a partial file takes defaults for the rest
+    partial = tmp_path / "partial.yaml"
+    partial.write_text(
+        "n_items: 3\nformats: [omnipose]\nrandomise:\n  noise_scale: {low: 1, high: 1}\n"
+    )
+    loaded = load_export_settings(partial)
+    assert loaded.n_items == 3
+    assert loaded.randomise.noise_scale == Range(1.0, 1.0)
+    assert loaded.pipeline == PipelineSettings()
+
+
+def test_split_is_exact_and_seeded():
+    settings = _settings(n_items=50, val_fraction=0.2)
+    val = [u for u in range(50) if split_of(settings, u) == "val"]
+    assert len(val) == 10
+    other = [
+        u
+        for u in range(50)
+        if split_of(_settings(n_items=50, val_fraction=0.2, seed=8), u) == "val"
+    ]
+    assert other != val
+
+
+@pytest.fixture(scope="module")
+def frames_export(tmp_path_factory):
+    out = tmp_path_factory.mktemp("real")
+    report = export_dataset(_settings(), out, workers=1)
+    assert report.complete
+    return out
+
+
+def test_real_frames_round_trip(frames_export):
+    manifest = json.loads((frames_export / "manifest.json").read_text())
+    assert manifest["status"] == "complete"
+    assert manifest["settings"]["seed"] == 7
+    entries = manifest["items"]
+    assert [e["split"] for e in entries].count("val") == 2
+    cell_intensities = set()
+    for entry in entries:
+        images = tifffile.imread(frames_export / entry["files"]["tiff"][0])
+        labels = tifffile.imread(frames_export / entry["files"]["tiff"][1])
+        semantic = tifffile.imread(frames_export / entry["files"]["tiff"][2])
+        masks = tifffile.imread(frames_export / entry["files"]["stardist"][1])
+        assert images.dtype == np.uint16
+        assert images.shape == labels.shape == tuple(entry["shape"])
+        assert labels.dtype == np.uint16
+        np.testing.assert_array_equal(masks, labels)
+        assert set(np.unique(semantic)) <= {0, 1}
+        assert not np.any((semantic > 0) & (labels == 0))
+        assert 5 <= entry["params"]["frame"] < 10
+        base = PIPELINE.render.cell_intensity
+        assert 0.85 * base <= entry["params"]["render.cell_intensity"] <= 1.15 * base
+        cell_intensities.add(entry["params"]["render.cell_intensity"])
+        # cells are brighter or darker than media: the image is not flat
+        assert images.std() > 0
+    assert len(cell_intensities) == len(entries)  # every item draws its own
+
+
+def test_regenerate_is_bit_identical(frames_export):
+    entry = json.loads((frames_export / "manifest_items" / "000003.json").read_text())
+    item = regenerate(frames_export, "000003")
+    np.testing.assert_array_equal(
+        item.image, tifffile.imread(frames_export / entry["files"]["tiff"][0])
+    )
+    np.testing.assert_array_equal(
+        item.labels, tifffile.imread(frames_export / entry["files"]["tiff"][1])
+    )
+    assert dict(item.params) == entry["params"]
+
+
+def test_seed_controls_the_files(tmp_path, frames_export):
+    export_dataset(_settings(), tmp_path / "same", workers=1)
+    assert tree_digest(tmp_path / "same") == tree_digest(frames_export)
+    export_dataset(_settings(seed=8), tmp_path / "other", workers=1)
+    a = tifffile.imread(frames_export / "tiff" / "train" / "images" / "000000.tif")
+    other = tmp_path / "other" / "tiff"
+    b = tifffile.imread(next(other.rglob("000000.tif")))
+    assert a.shape == b.shape
+    assert not np.array_equal(a, b)
+
+
+def test_real_pipeline_parallel_equals_serial(tmp_path, frames_export):
+    """A LocalCluster of two processes renders the same bytes as the serial run."""
+    report = export_dataset(_settings(), tmp_path, workers=2)
+    assert report.workers == 2
+    assert tree_digest(tmp_path) == tree_digest(frames_export)
+
+
+def test_real_time_series_tracking_ground_truth(tmp_path):
+    settings = _settings(n_items=1, kind="timeseries", formats=["ctc"], val_fraction=0.0)
+    report = export_dataset(settings, tmp_path, workers=1)
+    assert report.n_items == 10
+    simulation = _simulation(settings.pipeline, settings.seed, 0)
+    table = np.loadtxt(
+        tmp_path / "ctc" / "train" / "01_GT" / "TRA" / "man_track.txt", dtype=int, ndmin=2
+    )
+    assert len(table) >= 2
+    for label, begin, end, parent in table:
+        record = simulation.lineage[label]
+        assert parent == record.parent_id
+        assert record.birth_frame <= begin <= end <= record.end_frame
+        if parent:
+            parent_end = table[table[:, 0] == parent][0, 2]
+            assert parent_end < begin
+        mask = tifffile.imread(
+            tmp_path / "ctc" / "train" / "01_GT" / "TRA" / f"man_track{begin:03d}.tif"
+        )
+        assert label in mask
+    # the first frame of every series is its own item with the series' drawn parameters
+    items = PipelineSource(settings).make_unit(0)
+    assert [it.frame for it in items] == list(range(10))
+    assert len({json.dumps(dict(it.params) | {"frame": 0}) for it in items}) == 1

@@ -1,0 +1,254 @@
+"""Atomic writes, resume after a fault or a kill, cancellation, disk errors, dask."""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+from pathlib import Path
+
+import _export_synthetic
+import cloudpickle
+import numpy as np
+import pytest
+import tifffile
+from _export_synthetic import SyntheticSource, tree_digest
+
+from napari_symbac.export import ExportError, run_export
+from napari_symbac.export.atomic import write_tiff
+from napari_symbac.export.manifest import ITEMS_DIR
+
+FORMATS = ("tiff", "omnipose", "stardist", "coco")
+HERE = Path(__file__).resolve().parent
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> dict[str, bytes]:
+    """Files of an uninterrupted serial export of 12 synthetic items."""
+    out = tmp_path_factory.mktemp("reference")
+    report = run_export(SyntheticSource(12), out, FORMATS, workers=1)
+    assert report.complete
+    assert report.n_written == 12
+    assert report.n_skipped == 0
+    return tree_digest(out)
+
+
+def _images_without_masks(out: Path) -> list[str]:
+    """Masks whose image is missing, and partial (temporary) files under their final name."""
+    problems = []
+    for mask in (out / "stardist").rglob("masks/*.tif"):
+        if not (mask.parent.parent / "images" / mask.name).exists():
+            problems.append(str(mask))
+    for mask in (out / "omnipose").rglob("*_masks.tif"):
+        if not mask.with_name(mask.name.replace("_masks", "")).exists():
+            problems.append(str(mask))
+    for path in out.rglob("*.tif"):
+        if not path.name.startswith("."):
+            tifffile.imread(path)  # every final-named file is complete
+    return problems
+
+
+def test_reference_is_reproducible(tmp_path, reference):
+    run_export(SyntheticSource(12), tmp_path, FORMATS, workers=1)
+    assert tree_digest(tmp_path) == reference
+
+
+def test_manifest_records_items(tmp_path, reference):
+    manifest = json.loads(reference["manifest.json"])
+    assert manifest["status"] == "complete"
+    assert manifest["n_items"] == 12
+    assert len(manifest["items"]) == 12
+    assert manifest["seed"] == 0
+    assert manifest["versions"]["napari_symbac"]
+    entry = manifest["items"][4]
+    assert entry["name"] == "000004"
+    assert entry["params"]["unit"] == 4
+    assert entry["files"]["stardist"] == [
+        f"stardist/{entry['split']}/images/000004.tif",
+        f"stardist/{entry['split']}/masks/000004.tif",
+    ]
+
+
+def test_fault_then_resume_completes_identically(tmp_path, reference):
+    flag = tmp_path / "fail"
+    flag.touch()
+    out = tmp_path / "out"
+    source = SyntheticSource(12, fail_at=7, fail_flag=str(flag))
+    with pytest.raises(RuntimeError, match="injected fault in unit 7"):
+        run_export(source, out, FORMATS, workers=1)
+    assert len(list((out / ITEMS_DIR).glob("*.json"))) == 7
+    assert json.loads((out / "manifest.json").read_text())["status"] == "incomplete"
+    assert not _images_without_masks(out)
+    flag.unlink()
+    report = run_export(source, out, FORMATS, workers=1)
+    assert report.complete
+    assert report.n_skipped == 7
+    assert report.n_written == 5
+    assert tree_digest(out) == reference
+
+
+def test_killed_export_resumes(tmp_path, reference):
+    """Kill a serial export (SIGKILL) in a subprocess midway, then resume it."""
+    out = tmp_path / "out"
+    script = textwrap.dedent(
+        f"""
+        import sys
+        sys.path.insert(0, {str(HERE)!r})
+        from _export_synthetic import SyntheticSource
+        from napari_symbac.export import run_export
+        run_export(SyntheticSource(12, delay_s=0.25), {str(out)!r}, {FORMATS!r}, workers=1)
+        """
+    )
+    proc = subprocess.Popen([sys.executable, "-c", script])
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            items = out / ITEMS_DIR
+            if items.is_dir() and len(list(items.glob("*.json"))) >= 4:
+                break
+            if proc.poll() is not None:
+                pytest.fail("the export finished before it could be killed")
+            time.sleep(0.02)
+        else:
+            pytest.fail("the export did not start in 60 s")
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    done = len(list((out / ITEMS_DIR).glob("*.json")))
+    assert 4 <= done < 12
+    assert not _images_without_masks(out)
+    report = run_export(SyntheticSource(12), out, FORMATS, workers=1)
+    assert report.complete
+    assert report.n_skipped == done
+    assert tree_digest(out) == reference
+
+
+def test_missing_file_is_rewritten(tmp_path, reference):
+    run_export(SyntheticSource(12), tmp_path, FORMATS, workers=1)
+    (tmp_path / "stardist" / "train" / "masks" / "000003.tif").unlink()
+    report = run_export(SyntheticSource(12), tmp_path, FORMATS, workers=1)
+    assert report.n_written == 1
+    assert report.n_skipped == 11
+    assert tree_digest(tmp_path) == reference
+
+
+def test_stale_temporary_files_are_removed(tmp_path, reference):
+    stale = tmp_path / "stardist" / "train" / "images" / ".000001.tmp-123-deadbeef.tif"
+    stale.parent.mkdir(parents=True)
+    stale.write_bytes(b"partial")
+    run_export(SyntheticSource(12), tmp_path, FORMATS, workers=1)
+    assert not stale.exists()
+    assert tree_digest(tmp_path) == reference
+
+
+def test_cancel_between_items_then_resume(tmp_path, reference):
+    event = threading.Event()
+    seen = []
+
+    def progress(done: int, total: int) -> None:
+        seen.append((done, total))
+        if done >= 5:
+            event.set()
+
+    report = run_export(
+        SyntheticSource(12), tmp_path, FORMATS, workers=1, progress=progress, cancel=event
+    )
+    assert report.cancelled
+    assert not report.complete
+    assert report.n_written == 5
+    assert seen == [(k, 12) for k in range(6)]
+    assert "CANCELLED" in str(report)
+    report = run_export(SyntheticSource(12), tmp_path, FORMATS, workers=1, cancel=lambda: False)
+    assert report.complete
+    assert report.n_skipped == 5
+    assert tree_digest(tmp_path) == reference
+
+
+def test_other_settings_in_same_folder_refused(tmp_path):
+    run_export(SyntheticSource(3), tmp_path, ["tiff"], workers=1)
+    with pytest.raises(ExportError, match="different settings"):
+        run_export(SyntheticSource(4), tmp_path, ["tiff"], workers=1)
+    with pytest.raises(ExportError, match="different settings"):
+        run_export(SyntheticSource(3), tmp_path, ["png"], workers=1)
+
+
+def test_disk_full_stops_with_clear_message(tmp_path, monkeypatch):
+    real_replace = os.replace
+    calls = {"n": 0}
+
+    def replace(src, dst):
+        calls["n"] += 1
+        if calls["n"] > 20:  # the disk fills up during the export
+            raise OSError(errno.ENOSPC, "No space left on device", str(src))
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", replace)
+    with pytest.raises(ExportError) as info:
+        run_export(SyntheticSource(12), tmp_path, FORMATS, workers=1)
+    message = str(info.value)
+    assert "disk is full" in message
+    assert "free some space" in message
+    assert "run the same export again" in message
+    assert info.value.errno == errno.ENOSPC
+    assert info.value.path
+    assert Path(info.value.path).parent.is_relative_to(tmp_path)
+    assert not list(tmp_path.rglob(".*.tmp-*"))  # the failed temporary file is removed
+    monkeypatch.setattr(os, "replace", real_replace)
+    assert run_export(SyntheticSource(12), tmp_path, FORMATS, workers=1).complete
+
+
+def test_permission_denied_names_path_and_fix(tmp_path, monkeypatch):
+    def deny(*args, **kwargs):
+        raise PermissionError(errno.EACCES, "Permission denied", str(tmp_path / "x"))
+
+    monkeypatch.setattr(os, "replace", deny)
+    target = tmp_path / "a" / "b.tif"
+    with pytest.raises(ExportError, match="permission denied") as info:
+        write_tiff(target, np.zeros((2, 2), np.uint16))
+    assert str(target) in str(info.value)
+    assert "chmod" in str(info.value)
+    assert not list(tmp_path.rglob(".*"))
+
+
+def test_dask_local_cluster_matches_serial(tmp_path, reference):
+    """Two worker processes on 127.0.0.1 write the same bytes as a serial run."""
+    cloudpickle.register_pickle_by_value(_export_synthetic)
+    try:
+        seen = []
+        report = run_export(
+            SyntheticSource(12),
+            tmp_path,
+            FORMATS,
+            workers=2,
+            batch_size=2,
+            progress=lambda done, total: seen.append(done),
+        )
+    finally:
+        cloudpickle.unregister_pickle_by_value(_export_synthetic)
+    assert report.complete
+    assert report.workers == 2
+    assert report.n_written == 12
+    assert seen[0] == 0
+    assert seen[-1] == 12
+    assert seen == sorted(seen)
+    assert tree_digest(tmp_path) == reference
+
+
+def test_dask_worker_error_reaches_caller(tmp_path):
+    cloudpickle.register_pickle_by_value(_export_synthetic)
+    try:
+        with pytest.raises(RuntimeError, match="injected fault in unit 3"):
+            run_export(SyntheticSource(6, fail_at=3), tmp_path, ["tiff"], workers=2, batch_size=1)
+    finally:
+        cloudpickle.unregister_pickle_by_value(_export_synthetic)
+    report = run_export(SyntheticSource(6), tmp_path, ["tiff"], workers=1)
+    assert report.complete
+    assert report.n_written >= 1

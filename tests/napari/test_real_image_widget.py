@@ -1,0 +1,54 @@
+"""Load a real image from a file, paint a few strokes of each class, measure them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import tifffile
+
+pytest.importorskip("napari", reason="the [gui] extra (napari + Qt) is not installed")
+
+from napari_symbac._widgets.real_image import RealImageWidget, class_layer_name
+from napari_symbac.fit import CLASS_VALUES
+
+
+def test_open_paint_measure(make_napari_viewer, tmp_path, real_data_dir):
+    source = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")
+    path = tmp_path / "trench.tif"
+    tifffile.imwrite(
+        path, source, imagej=True, resolution=(1 / 0.065, 1 / 0.065), metadata={"unit": "um"}
+    )
+    viewer = make_napari_viewer()
+    widget = RealImageWidget(viewer)
+    viewer.window.add_dock_widget(widget)
+
+    widget.file.value = path
+    assert widget.image.value.name == "trench"
+    assert widget.pixel_size.value == pytest.approx(0.065, abs=1e-4)
+
+    widget.paint_button.native.click()
+    labels = viewer.layers[class_layer_name("trench")]
+    assert labels.mode == "paint"
+    assert labels.selected_label == CLASS_VALUES["cell"]
+    assert labels.data.shape == source.shape
+    # A user's strokes: a few brush dabs along each region.
+    for row in range(60, 220, 20):
+        labels.paint((row, 22), CLASS_VALUES["cell"], refresh=False)
+        labels.paint((row, 2), CLASS_VALUES["device"], refresh=False)
+        labels.paint((row, 12), CLASS_VALUES["media"], refresh=False)
+    widget.measure_button.native.click()
+    stats = widget.statistics
+    assert stats is not None
+    assert stats["device"].mean < stats["cell"].mean < stats["media"].mean
+    assert "cell: mean" in widget.result.value
+
+
+def test_measure_without_labels_says_what_to_do(make_napari_viewer):
+    viewer = make_napari_viewer()
+    viewer.add_image(np.random.default_rng(0).random((32, 32)), name="img")
+    widget = RealImageWidget(viewer)
+    widget.measure_button.native.click()
+    assert widget.result.value == "Paint classes first"
+    widget.paint_button.native.click()
+    widget.measure_button.native.click()
+    assert "missing the class(es) cell, media" in widget.result.value

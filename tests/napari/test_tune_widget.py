@@ -1,0 +1,63 @@
+"""Move the tuning sliders as a user would and watch the preview layer follow."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("napari", reason="the [gui] extra (napari + Qt) is not installed")
+
+from napari_symbac._widgets.simulate import (  # noqa: E402
+    RESULT_IMAGE_LAYER,
+    RESULT_LABELS_LAYER,
+    SYMBAC_METADATA_KEY,
+    SimulateWidget,
+)
+from napari_symbac._widgets.tune import TuneWidget  # noqa: E402
+
+
+@pytest.fixture
+def rendered(make_napari_viewer, qtbot):
+    viewer = make_napari_viewer()
+    simulate = SimulateWidget(viewer)
+    tune = TuneWidget(viewer)
+    viewer.window.add_dock_widget(simulate)
+    viewer.window.add_dock_widget(tune)
+    simulate.form.n_frames.value = 3
+    simulate.run_button.native.click()
+    qtbot.waitUntil(lambda: RESULT_LABELS_LAYER in viewer.layers, timeout=120_000)
+    qtbot.waitUntil(lambda: simulate.worker is None, timeout=10_000)
+    return viewer, tune
+
+
+def test_slider_moves_change_the_preview(rendered):
+    viewer, tune = rendered
+    assert tune.source.value is viewer.layers[RESULT_IMAGE_LAYER]
+    layer = viewer.layers[RESULT_IMAGE_LAYER]
+    labels = viewer.layers[RESULT_LABELS_LAYER].data
+    frame = tune._current_frame()
+    cells = labels[frame] > 0
+    before = layer.data[frame][cells].mean()
+    tune.sliders["cell_intensity"].value = tune.sliders["cell_intensity"].value + 3000
+    after = layer.data[frame][cells].mean()
+    assert after > before + 1500
+    settings = layer.metadata[SYMBAC_METADATA_KEY]["settings"]
+    assert settings.render.cell_intensity == pytest.approx(tune.sliders["cell_intensity"].value)
+
+
+def test_other_frames_update_when_shown(rendered):
+    viewer, tune = rendered
+    layer = viewer.layers[RESULT_IMAGE_LAYER]
+    viewer.dims.set_current_step(0, 0)
+    old_last = layer.data[2].copy()
+    tune.sliders["media_intensity"].value = tune.sliders["media_intensity"].value + 4000
+    np.testing.assert_array_equal(layer.data[2], old_last)  # not re-rendered yet
+    viewer.dims.set_current_step(0, 2)
+    assert layer.data[2].mean() > old_last.mean() + 1000
+
+
+def test_invalid_value_is_reported(rendered):
+    _viewer, tune = rendered
+    tune.sliders["apodisation_sigma_um"].min = 0.05
+    tune.sliders["apodisation_sigma_um"].value = 0.06
+    assert "Not applied" in tune.status.value

@@ -1,0 +1,128 @@
+"""The forward model: composition (eq. 3, 15), caching, backends, noise (eq. 17)."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+
+import numpy as np
+import pytest
+
+from napari_symbac.optics import ForwardModel, Stage, block_average, texture_stage
+from napari_symbac.optics.psf import airy_psf, born_wolf_psf_3d
+from napari_symbac.scene import draw_scene
+from napari_symbac.settings import Camera, Microscope, RenderSettings, TrenchGeometry
+
+MIC = Microscope()
+RS = RenderSettings(psf_radius_px=30, ring_contrast=1.0, noise_model="none")
+WIDE = TrenchGeometry(length_um=12.0, width_um=4.0, depth_um=1.2, margin_um=2.0)
+
+
+@pytest.fixture
+def scene(cells_factory):
+    return draw_scene(cells_factory([2.0, 5.5], x_um=2.0, width_um=0.9), WIDE, MIC, RS)
+
+
+def test_flat_regions_render_at_their_intensities(scene):
+    model = ForwardModel(MIC, RS, Camera())
+    image = model.render_clean(scene)
+    assert image.dtype == np.float32
+    assert image.shape == scene.camera_shape
+    ps = MIC.pixel_size_um
+    # Device far from the trench, empty media far from cells and walls.
+    assert image[round(8 / ps), 2] == pytest.approx(RS.device_intensity, rel=0.01)
+    assert image[round(12.5 / ps), round(4.0 / ps)] == pytest.approx(RS.media_intensity, rel=0.01)
+    # Phase contrast: cells darker than media, with a bright halo beside them.
+    cell_px = image[round(4.0 / ps), round(4.0 / ps)]
+    assert cell_px < RS.media_intensity
+    row = image[round(4.0 / ps), round(4.0 / ps) : round(5.9 / ps)]
+    assert row.max() > RS.media_intensity * 1.02
+
+
+def test_linear_in_intensities_and_cached(scene):
+    model = ForwardModel(MIC, RS)
+    base = model.render_clean(scene)
+    misses = model.cache_info["misses"]
+    assert misses == 3
+    new = dataclasses.replace(RS, cell_intensity=500.0, media_intensity=3000.0)
+    tuned = model.with_render(new)
+    image = tuned.render_clean(scene)
+    assert tuned.cache_info["misses"] == misses  # no new convolution
+    fresh = ForwardModel(MIC, new).render_clean(scene)
+    np.testing.assert_allclose(image, fresh, rtol=1e-6, atol=1e-3)
+    comps = model.components(scene)
+    combo = 500.0 * comps["cells"] + 3000.0 * comps["media"] + RS.device_intensity * comps["device"]
+    np.testing.assert_allclose(image, combo, rtol=1e-6)
+    assert not np.allclose(base, image)
+    # A kernel change does convolve again.
+    model.with_render(dataclasses.replace(RS, apodisation_sigma_um=0.9)).render_clean(scene)
+    assert model.cache_info["misses"] == misses + 3
+
+
+def test_same_seed_is_bit_identical(scene):
+    model = ForwardModel(MIC, dataclasses.replace(RS, noise_model="camera"))
+    a = model.render(scene, np.random.default_rng(7))
+    b = model.render(scene, np.random.default_rng(7))
+    c = model.render(scene, np.random.default_rng(8))
+    assert a.dtype == np.uint16
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+    none = ForwardModel(MIC, RS, Camera(baseline_adu=100)).render(scene, np.random.default_rng(0))
+    np.testing.assert_array_equal(none, np.rint(ForwardModel(MIC, RS).render_clean(scene) + 100))
+    with pytest.raises(ValueError, match="Generator"):
+        model.render(scene, 7)
+
+
+def test_fluorescence_conserves_flux(scene):
+    mic = dataclasses.replace(MIC, modality="fluorescence")
+    rs = dataclasses.replace(RS, cell_intensity=1000.0, media_intensity=0.0, device_intensity=0.0)
+    image = ForwardModel(mic, rs).render_clean(scene)
+    truth = 1000.0 * block_average(scene.interior(scene.cells), scene.upsample)
+    assert image.sum() == pytest.approx(truth.sum(), rel=0.01)
+    assert image.max() < truth.max()  # blurred
+
+
+def test_sum_over_z_matches_2d_for_a_z_invariant_psf(scene):
+    """Eq. 16 with identical planes equals the 2-D convolution of the projection."""
+    model = ForwardModel(dataclasses.replace(MIC, modality="fluorescence"), RS)
+    z = 4
+    volume = np.repeat(scene.cells[None] / z, z, axis=0)
+    psf = np.repeat(airy_psf(30, scene.pixel_size_um, 0.65, 1.45)[None], z, axis=0)
+    three_d = model.render_fluorescence_3d(volume, psf)
+    two_d = model.components(scene)["cells"]
+    np.testing.assert_allclose(three_d, two_d, atol=1e-5)
+    # A real 3-D PSF blurs out-of-focus planes more.
+    bw = born_wolf_psf_3d(30, scene.pixel_size_um, np.linspace(-0.6, 0.6, z), 0.65, 1.45, 1.518)
+    blurred = model.render_fluorescence_3d(volume, bw)
+    assert blurred.max() < two_d.max()
+
+
+def test_extra_stage_and_texture(scene):
+    texture = np.ones(scene.camera_shape, np.float32)
+    model = ForwardModel(MIC, RS, extra_stages=[texture_stage(texture, 0.1)])
+    plain = ForwardModel(MIC, RS).render_clean(scene)
+    np.testing.assert_allclose(model.render_clean(scene), plain * 1.1, rtol=1e-6)
+    assert [s.name for s in model.stages] == ["psf", "resample", "intensity", "texture", "camera"]
+    with pytest.raises(ValueError, match="apply"):
+        ForwardModel(MIC, RS, extra_stages=[Stage("broken", False)])
+
+
+def test_mismatched_scene_and_bad_settings(scene):
+    with pytest.raises(ValueError, match="upsample"):
+        ForwardModel(MIC, dataclasses.replace(RS, upsample=4)).render_clean(scene)
+    with pytest.raises(ValueError, match="border"):
+        ForwardModel(MIC, dataclasses.replace(RS, psf_radius_px=40)).render_clean(scene)
+    with pytest.raises(ValueError, match=r"eq\. 13"):
+        ForwardModel(MIC, dataclasses.replace(RS, apodisation_sigma_um=0.1))
+
+
+@pytest.mark.skipif(importlib.util.find_spec("torch") is None, reason="PyTorch not installed")
+def test_torch_backend_matches_scipy(scene):
+    a = ForwardModel(MIC, RS).render_clean(scene)
+    b = ForwardModel(MIC, RS, backend="torch").render_clean(scene)
+    np.testing.assert_allclose(a, b, rtol=1e-4, atol=0.05)
+
+
+def test_unknown_backend():
+    with pytest.raises(ValueError, match="unknown convolution backend"):
+        ForwardModel(MIC, RS, backend="opencl")

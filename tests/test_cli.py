@@ -1,0 +1,123 @@
+"""The ``napari-symbac`` command, as a user runs it."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tifffile
+
+from napari_symbac.cli import build_parser, main
+
+COMMANDS = ["demo", "simulate", "render", "export", "defaults"]
+
+
+def test_top_level_help_lists_every_command():
+    text = build_parser().format_help()
+    assert all(command in text for command in COMMANDS)
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_every_command_has_help(command, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main([command, "--help"])
+    assert exit_info.value.code == 0
+    assert "usage: napari-symbac" in capsys.readouterr().out
+
+
+def test_console_script_is_installed():
+    result = subprocess.run(
+        [Path(sys.executable).with_name("napari-symbac"), "--version"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert result.stdout.startswith("napari-symbac ")
+
+
+@pytest.fixture(scope="module")
+def demo_dirs(tmp_path_factory):
+    """The demo run twice with one seed, once with another."""
+    root = tmp_path_factory.mktemp("demo")
+    for name, seed in (("a", 5), ("b", 5), ("c", 6)):
+        assert main(["demo", "--out", str(root / name), "--frames", "8", "--seed", str(seed)]) == 0
+    return root
+
+
+def _dataset_files(folder: Path) -> dict[str, bytes]:
+    return {
+        str(path.relative_to(folder)): path.read_bytes()
+        for path in sorted(folder.rglob("*"))
+        if path.is_file() and path.suffix in {".tif", ".tiff", ".txt", ".png", ".npz"}
+    }
+
+
+def test_demo_writes_what_it_reports(demo_dirs, capsys):
+    out = demo_dirs / "a"
+    for name in ("settings.yaml", "preview.png", "simulation", "dataset"):
+        assert (out / name).exists(), name
+    main(["demo", "--out", str(demo_dirs / "again"), "--frames", "3"])
+    report = capsys.readouterr().out
+    for step in ("simulate", "render", "write dataset", "total"):
+        assert step in report
+
+
+def test_demo_masks_match_rendered_cells(demo_dirs):
+    images = sorted((demo_dirs / "a" / "dataset" / "tiff" / "images").glob("*.tif"))
+    masks = sorted((demo_dirs / "a" / "dataset" / "tiff" / "masks").glob("*.tif"))
+    assert len(images) == len(masks) == 8
+    for image_path, mask_path in zip(images, masks):
+        image = tifffile.imread(image_path).astype(float)
+        mask = tifffile.imread(mask_path)
+        assert image.shape == mask.shape
+        assert mask.dtype in (np.uint16, np.uint32)
+        trench_columns = slice(mask.shape[1] // 2 - 3, mask.shape[1] // 2 + 4)
+        trench = np.zeros(mask.shape, bool)
+        trench[:, trench_columns] = True
+        background = trench & (mask == 0)
+        for cell_id in np.unique(mask)[1:]:
+            inside = image[mask == cell_id]
+            # Every labelled cell is darker than the media around it (phase contrast).
+            if background.any():
+                assert inside.mean() < image[background].mean()
+
+
+def test_same_seed_same_bytes(demo_dirs):
+    first = _dataset_files(demo_dirs / "a")
+    second = _dataset_files(demo_dirs / "b")
+    other = _dataset_files(demo_dirs / "c")
+    assert first
+    assert first.keys() == second.keys()
+    assert all(first[name] == second[name] for name in first)
+    assert any(first[name] != other.get(name) for name in first)
+
+
+def test_bad_config_is_one_clear_line(tmp_path, capsys):
+    config = tmp_path / "sim.yaml"
+    config.write_text("n_frames: 10\ncell_width_um: 3.0\n")
+    assert main(["simulate", "--config", str(config), "--out", str(tmp_path / "out")]) == 2
+    error = capsys.readouterr().err
+    assert "does not fit in a trench" in error
+    assert "Traceback" not in error
+    assert not (tmp_path / "out").exists()
+
+
+def test_simulate_then_render(tmp_path):
+    assert main(["simulate", "--out", str(tmp_path / "sim"), "--frames", "4", "--seed", "1"]) == 0
+    assert main(["render", str(tmp_path / "sim"), "--out", str(tmp_path / "render")]) == 0
+    images = tifffile.imread(tmp_path / "render" / "images.tif")
+    labels = tifffile.imread(tmp_path / "render" / "labels.tif")
+    assert images.shape == labels.shape
+    assert images.shape[0] == 4
+    assert labels.dtype == np.uint32
+
+
+def test_defaults_round_trip(tmp_path):
+    from napari_symbac.settings import PipelineSettings, load_settings
+
+    path = tmp_path / "pipeline.yaml"
+    assert main(["defaults", "pipeline", "--out", str(path)]) == 0
+    assert load_settings(path, PipelineSettings) == PipelineSettings()

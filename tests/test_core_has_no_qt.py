@@ -1,0 +1,25 @@
+"""The core library and the CLI must not import Qt or napari."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+CHECK = """
+import sys
+import napari_symbac, napari_symbac.cli, napari_symbac.pipeline, napari_symbac.demo
+import napari_symbac.sim, napari_symbac.scene, napari_symbac.optics
+import napari_symbac.fit, napari_symbac.diagnose, napari_symbac.export
+napari_symbac.cli.build_parser()
+bad = sorted(m for m in sys.modules
+             if m.split('.')[0] in {'napari', 'qtpy', 'PyQt5', 'PyQt6', 'PySide2', 'PySide6',
+                                     'magicgui', 'superqt', 'vispy'})
+print(','.join(bad))
+"""
+
+
+def test_core_imports_no_gui_toolkit():
+    result = subprocess.run(
+        [sys.executable, "-c", CHECK], capture_output=True, text=True, check=True
+    )
+    assert result.stdout.strip() == ""

@@ -1,0 +1,108 @@
+"""Settings: validation messages and YAML/JSON round trips."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from napari_symbac.settings import (
+    Camera,
+    Microscope,
+    PipelineSettings,
+    RenderSettings,
+    SimulationSettings,
+    TrenchGeometry,
+    from_dict,
+    load_settings,
+    save_settings,
+    to_dict,
+)
+
+
+@pytest.mark.parametrize("suffix", [".yaml", ".json"])
+def test_pipeline_settings_round_trip(tmp_path, suffix):
+    settings = PipelineSettings(
+        simulation=SimulationSettings(n_frames=7, trench=TrenchGeometry(length_um=20.0), seed=3),
+        microscope=Microscope(numerical_aperture=0.95, refractive_index=1.0, condenser="Ph2"),
+        render=RenderSettings(cell_intensity=123.0, noise_model="gaussian"),
+        camera=Camera(baseline_adu=50.0),
+    )
+    path = save_settings(settings, tmp_path / f"settings{suffix}")
+    assert load_settings(path, PipelineSettings) == settings
+
+
+def test_partial_file_takes_defaults(tmp_path):
+    path = tmp_path / "sim.yaml"
+    path.write_text("n_frames: 5\ntrench:\n  width_um: 2.0\n")
+    loaded = load_settings(path, SimulationSettings)
+    assert loaded.n_frames == 5
+    assert loaded.trench.width_um == 2.0
+    assert loaded.cell_width_um == SimulationSettings().cell_width_um
+
+
+def test_settings_are_frozen():
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        Microscope().numerical_aperture = 2.0  # type: ignore[misc]
+
+
+@pytest.mark.parametrize(
+    ("factory", "match"),
+    [
+        (lambda: TrenchGeometry(width_um=-1.0), r"TrenchGeometry\.width_um must be a positive"),
+        (lambda: SimulationSettings(n_frames=0), r"n_frames must be an integer >= 1"),
+        (lambda: SimulationSettings(width_var_um2=-0.1), r"width_var_um2 must be zero or positive"),
+        (
+            lambda: SimulationSettings(cell_width_um=2.0, trench=TrenchGeometry(width_um=1.5)),
+            r"does not fit in a trench",
+        ),
+        (lambda: SimulationSettings(lysis_p=1.5), r"lysis_p is a probability"),
+        (lambda: SimulationSettings(growth_model="random"), r"growth_model must be one of"),
+        (
+            lambda: Microscope(numerical_aperture=1.4, refractive_index=1.0),
+            r"cannot exceed the immersion refractive_index",
+        ),
+        (lambda: Microscope(wavelength_um=650), r"looks like nanometres"),
+        (lambda: Microscope(condenser="Ph9"), r"condenser must be one of"),
+        (lambda: RenderSettings(upsample=0), r"upsample must be an integer >= 1"),
+        (lambda: Camera(sensitivity_adu_per_e=0), r"sensitivity_adu_per_e must be a positive"),
+        (
+            lambda: PipelineSettings(render=RenderSettings(apodisation_sigma_um=0.05)),
+            r"below the diffraction bound of eq\. 13",
+        ),
+    ],
+)
+def test_impossible_values_name_the_field(factory, match):
+    with pytest.raises(ValueError, match=match):
+        factory()
+
+
+def test_eq13_bound_matches_formula():
+    scope = Microscope(wavelength_um=0.5, refractive_index=1.5, numerical_aperture=1.25)
+    assert scope.min_apodisation_sigma_um == pytest.approx(0.9 * 0.5 * 1.5 / (2 * 1.25))
+
+
+def test_unknown_and_mistyped_fields_are_rejected():
+    with pytest.raises(ValueError, match=r"unknown field\(s\) pixel_size in Microscope"):
+        from_dict(Microscope, {"pixel_size": 0.1})
+    with pytest.raises(ValueError, match=r"SimulationSettings\.n_frames must be an integer"):
+        from_dict(SimulationSettings, {"n_frames": "ten"})
+    with pytest.raises(ValueError, match=r"PipelineSettings\.camera must be a mapping"):
+        from_dict(PipelineSettings, {"camera": 3})
+
+
+def test_to_dict_is_plain():
+    data = to_dict(PipelineSettings())
+    assert isinstance(data["simulation"]["trench"], dict)
+    assert from_dict(PipelineSettings, data) == PipelineSettings()
+
+
+def test_load_settings_errors(tmp_path):
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        load_settings(tmp_path / "missing.yaml", Camera)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("a: [1, 2\n")
+    with pytest.raises(ValueError, match="not valid YAML/JSON"):
+        load_settings(bad, Camera)
+    with pytest.raises(ValueError, match=r"use a \.yaml, \.yml or \.json file"):
+        save_settings(Camera(), tmp_path / "camera.txt")
