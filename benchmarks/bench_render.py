@@ -130,7 +130,7 @@ def main() -> None:
     print("-" * 64)
     rows = [
         ("draw_scene (5 cells)", t_draw),
-        ("render, cold (new scene: 3 convolutions + noise)", t_cold),
+        ("render, cold (new frame: convolve changed components)", t_cold),
         ("render, cached (intensity changed: recombine + noise)", t_cached),
         ("one rfft2 of the render-resolution frame", t_fft),
     ]

@@ -42,7 +42,7 @@ def _tqdm_progress(
 ) -> tuple[Callable[[int, int], None], object]:
     from tqdm import tqdm
 
-    bar = tqdm(total=total, desc=desc, unit="frame", leave=False, file=sys.stderr)
+    bar = tqdm(total=total, desc=desc, unit="frame", leave=False, file=sys.stderr, disable=None)
 
     def update(done: int, total_now: int) -> None:
         bar.total = total_now

@@ -17,7 +17,7 @@ from napari_symbac.settings import PipelineSettings, save_settings
 __all__ = ["DEMO_FORMATS", "run_demo"]
 
 #: Dataset formats the demo writes.
-DEMO_FORMATS = ("tiff", "cellpose", "deltas", "ctc")
+DEMO_FORMATS = ("tiff", "omnipose", "delta", "ctc")
 
 ProgressFactory = Callable[[str, int], tuple[Callable[[int, int], None], object]]
 
@@ -35,7 +35,8 @@ def run_demo(
     Parameters
     ----------
     out
-        Output folder; created if needed. Files already there are replaced.
+        Output folder; created if needed. Running the demo again with the same
+        settings finds the dataset complete and rewrites only the preview.
     n_frames
         Number of frames to simulate and render.
     seed
@@ -48,7 +49,7 @@ def run_demo(
     """
     import imageio.v3 as iio
 
-    from napari_symbac.export import write_series
+    from napari_symbac.export import series_items, write_items
     from napari_symbac.pipeline import montage, render_simulation
     from napari_symbac.sim import save_simulation, simulate
 
@@ -80,9 +81,16 @@ def run_demo(
     series = timed(
         "render", lambda update: render_simulation(simulation, settings, progress=update), n_frames
     )
+    items = series_items(
+        series.images,
+        series.labels,
+        series.semantic,
+        lineage=simulation.lineage,
+        pixel_size_um=settings.microscope.pixel_size_um,
+        frame_interval_min=settings.simulation.frame_interval_min,
+    )
     written = timed(
-        "write dataset",
-        lambda: write_series(series, simulation, out / "dataset", formats=DEMO_FORMATS),
+        "write dataset", lambda: write_items(items, out / "dataset", DEMO_FORMATS)
     )
     preview = out / "preview.png"
     timed(
@@ -96,7 +104,8 @@ def run_demo(
         f"trench, {n_cells} cells over the run, seed {seed}",
         f"  {out / 'settings.yaml'}  settings used (reload with --config)",
         f"  {out / 'simulation'}  simulation (cell states per frame + lineage)",
-        f"  {out / 'dataset'}  {written}",
+        f"  {out / 'dataset'}  {len(items)} image/mask pairs as {', '.join(DEMO_FORMATS)} "
+        f"({written.n_written} written, {written.n_skipped} already there)",
         f"  {preview}  preview montage with mask outlines",
         "timings:",
     ]

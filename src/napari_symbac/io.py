@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Recording", "napari_get_reader", "read_recording"]
+__all__ = ["Recording", "napari_get_reader", "read_recording", "write_dataset"]
 
 _TIFF_SUFFIXES = (".tif", ".tiff", ".ome.tif", ".ome.tiff")
 _UNIT_TO_UM = {"um": 1.0, "µm": 1.0, "micron": 1.0, "\\u00B5m": 1.0, "nm": 1e-3, "mm": 1e3}
@@ -100,3 +100,29 @@ def _read_layers(path) -> list[tuple]:
         scale = (recording.pixel_size_um,) * 2
         meta["scale"] = (1.0,) * (recording.data.ndim - 2) + scale
     return [(recording.data, meta, "image")]
+
+
+def write_dataset(path: str, layer_data: list[tuple]) -> list[str]:
+    """npe2 writer: one image layer and its labels layer as a training-dataset folder.
+
+    Writes the plain-TIFF and Omnipose/Cellpose layouts (see ``docs/export.md``);
+    a ``(T, Y, X)`` image gives one image/mask pair per frame.
+    """
+    from napari_symbac.export import series_items, write_items
+
+    by_kind = {kind: data for data, _meta, kind in layer_data}
+    image, labels = np.asarray(by_kind["image"]), np.asarray(by_kind["labels"])
+    if image.ndim == 2:
+        image, labels = image[None], labels[None]
+    if image.shape != labels.shape:
+        raise ValueError(
+            f"the image {image.shape} and labels {labels.shape} layers must have the same shape"
+        )
+    if not np.issubdtype(image.dtype, np.integer):
+        raise ValueError(
+            f"the image layer is {image.dtype}; datasets hold camera counts (uint16): "
+            "write a rendered synthetic layer"
+        )
+    report = write_items(series_items(image, labels.astype(np.uint32)), path, ("tiff", "omnipose"))
+    root = Path(path)
+    return [str(p) for p in sorted(root.rglob("*")) if p.is_file()] if report.complete else []

@@ -522,8 +522,9 @@ class RenderSettings:
         Weight of the phase-ring term against the bright-field term of the phase
         kernel; sets halo strength independently of the kernel's shape.
     psf_offset
-        Constant added to the phase kernel inside its radius, as a fraction of the
-        kernel's peak; produces halo and shade-off (section 13.2).
+        Weight moved from the bright-field part of the phase kernel to a negative
+        uniform disk over its radius (a constant inside the radius, kernel sum kept
+        at 1); positive values add long-range halo and shade-off (section 13.2).
     noise_model
         ``"camera"`` (EMVA1288, eq. 17), ``"gaussian"`` or ``"none"``.
     gaussian_noise_sd_adu

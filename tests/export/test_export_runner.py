@@ -252,3 +252,29 @@ def test_dask_worker_error_reaches_caller(tmp_path):
     report = run_export(SyntheticSource(6), tmp_path, ["tiff"], workers=1)
     assert report.complete
     assert report.n_written >= 1
+
+
+def test_local_cluster_on_loopback_and_user_scheduler(tmp_path, reference):
+    """The default cluster binds 127.0.0.1 with separate processes; a scheduler address works."""
+    from distributed import Client
+
+    from napari_symbac.export.runner import _local_cluster
+
+    cloudpickle.register_pickle_by_value(_export_synthetic)
+    try:
+        with _local_cluster(2) as cluster, Client(cluster) as client:
+            assert cluster.scheduler_address.startswith("tcp://127.0.0.1:")
+            workers = client.scheduler_info()["workers"]
+            assert len(workers) == 2
+            assert all(address.startswith("tcp://127.0.0.1:") for address in workers)
+            pids = set(client.run(os.getpid).values())
+            assert len(pids) == 2
+            assert os.getpid() not in pids
+            report = run_export(
+                SyntheticSource(12), tmp_path, FORMATS, scheduler=cluster.scheduler_address
+            )
+    finally:
+        cloudpickle.unregister_pickle_by_value(_export_synthetic)
+    assert report.complete
+    assert report.workers == 2
+    assert tree_digest(tmp_path) == reference

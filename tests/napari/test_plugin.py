@@ -37,3 +37,30 @@ def test_widget_docks_and_sample_opens(make_napari_viewer):
         trench_media[20:, centre - 3 : centre + 4] = True  # below the closed-end margin
         trench_media &= mask == 0
         assert frame[mask > 0].mean() < frame[trench_media].mean()
+
+
+def test_save_layers_as_dataset_through_napari(make_napari_viewer, tmp_path):
+    import tifffile
+
+    viewer = make_napari_viewer()
+    viewer.open_sample("napari-symbac", "trench")
+    viewer.layers.selection = set(viewer.layers)
+    written = viewer.layers.save(str(tmp_path / "ds"), selected=True, plugin="napari-symbac")
+    assert written
+    images = sorted((tmp_path / "ds" / "tiff" / "train" / "images").glob("*.tif"))
+    masks = sorted((tmp_path / "ds" / "omnipose" / "train").glob("*_masks.tif"))
+    n_frames = viewer.layers["synthetic trench"].data.shape[0]
+    assert len(images) == len(masks) == n_frames
+    np.testing.assert_array_equal(
+        tifffile.imread(masks[0]), viewer.layers["synthetic trench labels"].data[0]
+    )
+
+
+def test_real_sample_field_opens(make_napari_viewer):
+    viewer = make_napari_viewer()
+    viewer.open_sample("napari-symbac", "colicoords")
+    brightfield = viewer.layers["ColiCoords brightfield"]
+    cells = viewer.layers["ColiCoords cells"]
+    assert brightfield.data.shape == cells.data.shape == (512, 512)
+    assert brightfield.scale[-1] == pytest.approx(0.08)
+    assert cells.data.max() >= 5  # several labelled cells

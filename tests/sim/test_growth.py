@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -39,7 +40,11 @@ def _division_table(sim: Simulation) -> np.ndarray:
             continue
         (l1, w1), (l2, _) = first[kids[0]], first[kids[1]]
         rows.append(
-            (first[record.cell_id][0], l1 + l2 - w1 / 3, (record.division_frame - record.birth_frame) * dt)
+            (
+                first[record.cell_id][0],
+                l1 + l2 - w1 / 3,
+                (record.division_frame - record.birth_frame) * dt,
+            )
         )
     return np.array(rows)
 
@@ -163,7 +168,7 @@ def test_length_traces_are_sawtooth():
             break
         record = sim.lineage[kids[0]]
     assert len(mother_line) >= 3
-    for before, after in zip(mother_line[:-1], mother_line[1:]):
+    for before, after in itertools.pairwise(mother_line):
         assert after.length_um[0] < 0.75 * before.length_um[-1]  # the drop at division
 
 

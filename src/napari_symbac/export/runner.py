@@ -130,12 +130,20 @@ def run_units(
     formats: Sequence[str],
     options: dict[str, Any],
     skip: Sequence[str] = (),
+    fft_threads: int | None = None,
 ) -> list[dict[str, Any]]:
     """Make and write the items of ``units``, skipping the names in ``skip``.
 
     This is the function that runs on a dask worker; it returns the manifest entries
-    written (entries of skipped items are not returned).
+    written (entries of skipped items are not returned). ``fft_threads`` sets the
+    default thread count of :mod:`scipy.fft` meanwhile (1 on dask workers: one worker
+    process per core, no oversubscription).
     """
+    if fft_threads is not None:
+        from scipy import fft
+
+        with fft.set_workers(fft_threads):
+            return run_units(source, units, out_dir, formats, options, skip)
     out = Path(out_dir)
     writers = _writers(formats, options)
     skip = set(skip)
@@ -203,6 +211,7 @@ def _run_dask(
                 list(formats),
                 options,
                 skip_of(batch),
+                1,
                 key=f"symbac-export-{token}-{i}",
                 pure=False,
                 retries=0,

@@ -21,6 +21,7 @@ from napari_symbac.fit.intensities import ClassStatistics, class_statistics
 from napari_symbac.fit.objectives import DEFAULT_TERMS, TERM_NAMES, objective_terms
 from napari_symbac.fit.parameters import (
     DEFAULT_FIT,
+    DEFAULT_FIT_STATISTICS,
     FitCancelled,
     FitResult,
     fit_parameters,
@@ -32,6 +33,7 @@ __all__ = [
     "CLASS_NAMES",
     "CLASS_VALUES",
     "DEFAULT_FIT",
+    "DEFAULT_FIT_STATISTICS",
     "DEFAULT_TERMS",
     "TERM_NAMES",
     "ClassStatistics",

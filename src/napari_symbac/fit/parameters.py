@@ -33,6 +33,7 @@ from napari_symbac.settings import Camera, Microscope, RenderSettings
 
 __all__ = [
     "DEFAULT_FIT",
+    "DEFAULT_FIT_STATISTICS",
     "FitCancelled",
     "FitResult",
     "fit_parameters",
@@ -43,10 +44,14 @@ __all__ = [
 Progress = Callable[[int, int], None]
 Cancel = Callable[[], bool]
 
-#: Kernel parameters fitted by default (the intensities are always fitted). The ring
-#: contrast is left at the condenser's value: with apodisation and PSF offset it forms a
-#: nearly degenerate "optics" family (docs/fitting.md); add it to ``fit`` to free it.
+#: Kernel parameters fitted by default with the pixel term (the intensities are always
+#: fitted). The ring contrast is left at the condenser's value: with apodisation and
+#: PSF offset it forms a nearly degenerate "optics" family (docs/fitting.md); add it to
+#: ``fit`` to free it.
 DEFAULT_FIT = ("apodisation_sigma_um", "defocus_sigma_um", "psf_offset")
+#: Default with the statistics terms, which barely constrain the PSF offset: the
+#: supplement's own pair (section 7).
+DEFAULT_FIT_STATISTICS = ("apodisation_sigma_um", "defocus_sigma_um")
 _FITTABLE = (*DEFAULT_FIT, "ring_contrast", "gaussian_noise_sd_adu")
 #: Natural scale of each parameter: the optimiser works in these units.
 _SCALE = {
@@ -204,7 +209,7 @@ def fit_parameters(
     camera: Camera | None = None,
     *,
     terms: tuple[str, ...] | Mapping[str, float] | None = None,
-    fit: tuple[str, ...] = DEFAULT_FIT,
+    fit: tuple[str, ...] | None = None,
     rng: np.random.Generator | None = None,
     progress: Progress | None = None,
     cancel: Cancel | None = None,
@@ -234,6 +239,8 @@ def fit_parameters(
         camera's variance (eq. 17) held fixed in each round.
     fit
         Nonlinear parameters to fit; the intensities are always solved exactly.
+        Default :data:`DEFAULT_FIT` with the pixel term, else
+        :data:`DEFAULT_FIT_STATISTICS`.
         ``gaussian_noise_sd_adu`` is added when ``render.noise_model == "gaussian"``.
     rng
         Generator for the fixed noise field of the statistics terms (common random
@@ -271,6 +278,8 @@ def fit_parameters(
     if pixel_mode and labels is None:
         labels = scene_classes(scene)
     real_classes = as_label_stack(labels, (1, *real.shape), required=required)[0]
+    if fit is None:
+        fit = DEFAULT_FIT if pixel_mode else DEFAULT_FIT_STATISTICS
     names = tuple(dict.fromkeys(fit))
     if render.noise_model == "gaussian" and not pixel_mode:
         names = (*names, "gaussian_noise_sd_adu") if "gaussian_noise_sd_adu" not in names else names

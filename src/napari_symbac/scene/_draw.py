@@ -305,10 +305,12 @@ def _check_curvature(curvature: Mapping[int, tuple[float, float, float]] | None)
             raise ValueError(
                 f"curvature[{key!r}] must be a tuple (a_um, b, c) of eq. 1, got {value!r}"
             ) from err
-        if not all(math.isfinite(v) for v in (a_um, b, c)) or b == 0:
-            raise ValueError(
-                f"curvature[{key!r}] = {value!r}: a, b, c must be finite and b non-zero"
-            )
+        if not all(math.isfinite(v) for v in (a_um, b, c)):
+            raise ValueError(f"curvature[{key!r}] = {value!r}: a, b, c must be finite")
+        if a_um == 0:
+            continue  # straight, whatever b and c (the simulator's "no curvature" is zeros)
+        if b == 0:
+            raise ValueError(f"curvature[{key!r}] = {value!r}: b must be non-zero")
         out[int(key)] = (a_um, b, c)
     return out
 

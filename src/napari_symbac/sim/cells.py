@@ -88,10 +88,11 @@ class FrameCells:
     width_um: np.ndarray
 
     def __post_init__(self) -> None:
-        ids = np.asarray(self.ids, dtype=np.int64).reshape(-1)
+        # views, so that making them read-only never touches the caller's arrays
+        ids = np.asarray(self.ids, dtype=np.int64).reshape(-1).view()
         object.__setattr__(self, "ids", ids)
         for name in _FIELDS[1:]:
-            value = np.asarray(getattr(self, name), dtype=np.float64).reshape(-1)
+            value = np.asarray(getattr(self, name), dtype=np.float64).reshape(-1).view()
             if value.shape != ids.shape:
                 raise ValueError(
                     f"FrameCells.{name} has {value.size} entries but ids has {ids.size}: "
@@ -226,8 +227,10 @@ class Simulation:
             where = np.flatnonzero(self.frames[t].ids == cell_id)
             if where.size:
                 rows.append((t, int(where[0])))
-        columns = {name: np.array([getattr(self.frames[t], name)[i] for t, i in rows]) for name in
-                   _FIELDS[1:]}
+        columns = {
+            name: np.array([getattr(self.frames[t], name)[i] for t, i in rows])
+            for name in _FIELDS[1:]
+        }
         return CellTrace(cell_id, np.array([t for t, _ in rows], dtype=np.int64), **columns)
 
     def children(self, cell_id: int) -> list[int]:

@@ -13,6 +13,7 @@ Four layouts (``SimulationSettings.geometry``):
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -127,8 +128,7 @@ def make_layout(settings: SimulationSettings, rng: np.random.Generator) -> Layou
                 )
             )
         founders = tuple((x, y, float(rng.uniform(-math.pi, math.pi))) for x, y in spots)
-        return Layout((), (), (0.0, 0.0, fw, fh), founders, (fw / 2, fh / 2), math.inf,
-                      "none")
+        return Layout((), (), (0.0, 0.0, fw, fh), founders, (fw / 2, fh / 2), math.inf, "none")
 
     # outline
     lines = outline_polylines_um(s.outline)
@@ -139,7 +139,7 @@ def make_layout(settings: SimulationSettings, rng: np.random.Generator) -> Layou
     segments = tuple(
         (float(a[0]), float(a[1]), float(b[0]), float(b[1]), r)
         for line in lines
-        for a, b in zip(line[:-1], line[1:])
+        for a, b in itertools.pairwise(line)
         if not np.allclose(a, b)
     )
     if s.outline.founders_um:
@@ -147,20 +147,25 @@ def make_layout(settings: SimulationSettings, rng: np.random.Generator) -> Layou
     else:
         spots = _row((x0 + x1) / 2, (y0 + y1) / 2, n, s.cell_width_um * 1.5)
     founders = tuple((float(x), float(y), float(rng.uniform(-0.01, 0.01))) for x, y in spots)
-    return Layout(tuple(lines), segments, (x0 - m, y0 - m, x1 + m, y1 + m), founders, None,
-                  math.inf, "none")
+    return Layout(
+        tuple(lines), segments, (x0 - m, y0 - m, x1 + m, y1 + m), founders, None, math.inf, "radial"
+    )
 
 
 def outline_polylines_um(outline: OutlineGeometry) -> list[np.ndarray]:
     """The wall polylines of an :class:`~napari_symbac.settings.OutlineGeometry` in um."""
     if outline.dxf_path is not None:
-        return read_dxf_walls(outline.dxf_path, unit_um=outline.dxf_unit_um,
-                              layer=outline.dxf_layer)
+        return read_dxf_walls(
+            outline.dxf_path, unit_um=outline.dxf_unit_um, layer=outline.dxf_layer
+        )
     return [np.asarray(line, dtype=float) for line in outline.polylines_um]
 
 
 def read_dxf_walls(
-    path: str | Path, *, unit_um: float = 1.0, layer: str | None = None,
+    path: str | Path,
+    *,
+    unit_um: float = 1.0,
+    layer: str | None = None,
     tolerance_um: float = 0.02,
 ) -> list[np.ndarray]:
     """Read the walls of a device drawing (DXF) as polylines in um.
@@ -192,8 +197,9 @@ def read_dxf_walls(
     try:
         doc = ezdxf.readfile(path)
     except ezdxf.DXFStructureError as err:
-        raise ValueError(f"OutlineGeometry.dxf_path: {path} is not a valid DXF file: {err}") \
-            from err
+        raise ValueError(
+            f"OutlineGeometry.dxf_path: {path} is not a valid DXF file: {err}"
+        ) from err
     kinds = "LINE LWPOLYLINE POLYLINE ARC CIRCLE ELLIPSE SPLINE"
     query = doc.modelspace().query(kinds if layer is None else f'{kinds}[layer=="{layer}"]')
     lines = []

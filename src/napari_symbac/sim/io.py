@@ -17,6 +17,7 @@ never leaves a half-written simulation.
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import shutil
@@ -176,11 +177,14 @@ def load_simulation(directory: str | os.PathLike) -> Simulation:
             offsets = data["offsets"]
             columns = {name: data[name] for name in _FRAME_FIELDS}
         with np.load(folder / "lineage.npz", allow_pickle=False) as data:
-            lin = {k: data[k] for k in ("cell_id", "parent_id", "birth_frame", "end_frame",
-                                        "fate", "curvature")}
+            lin = {
+                k: data[k]
+                for k in ("cell_id", "parent_id", "birth_frame", "end_frame", "fate", "curvature")
+            }
     except FileNotFoundError as err:
-        raise _corrupt(folder, f"{Path(err.filename).name if err.filename else 'a file'} "
-                               "is missing") from err
+        raise _corrupt(
+            folder, f"{Path(err.filename).name if err.filename else 'a file'} is missing"
+        ) from err
     except (OSError, KeyError, ValueError, zipfile.BadZipFile, EOFError) as err:
         raise _corrupt(folder, f"an array file is damaged ({err})") from err
 
@@ -198,17 +202,24 @@ def load_simulation(directory: str | os.PathLike) -> Simulation:
         raise _corrupt(folder, "frames.npz columns have different lengths")
     frames = [
         FrameCells(*(columns[name][a:b] for name in _FRAME_FIELDS))
-        for a, b in zip(offsets[:-1], offsets[1:])
+        for a, b in itertools.pairwise(offsets)
     ]
     m = lin["cell_id"].size
     if any(lin[k].shape[:1] != (m,) for k in lin) or lin["curvature"].shape != (m, 3):
         raise _corrupt(folder, "lineage.npz columns have different lengths")
     try:
         lineage = {
-            int(c): LineageRecord(int(c), int(p), int(b), int(e), fates[int(f)],
-                                  tuple(float(v) for v in curv))
-            for c, p, b, e, f, curv in zip(lin["cell_id"], lin["parent_id"], lin["birth_frame"],
-                                           lin["end_frame"], lin["fate"], lin["curvature"])
+            int(c): LineageRecord(
+                int(c), int(p), int(b), int(e), fates[int(f)], tuple(float(v) for v in curv)
+            )
+            for c, p, b, e, f, curv in zip(
+                lin["cell_id"],
+                lin["parent_id"],
+                lin["birth_frame"],
+                lin["end_frame"],
+                lin["fate"],
+                lin["curvature"],
+            )
         }
     except (IndexError, TypeError) as err:
         raise _corrupt(folder, "lineage.npz has an unknown fate") from err

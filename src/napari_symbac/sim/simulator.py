@@ -78,8 +78,9 @@ class _Cell:
         "width_um",
     )
 
-    def __init__(self, cell_id: int, length_um: float, width_um: float, target_width_um: float,
-                 target: float) -> None:
+    def __init__(
+        self, cell_id: int, length_um: float, width_um: float, target_width_um: float, target: float
+    ) -> None:
         self.cell_id = cell_id
         self.length_um = length_um
         self.birth_length_um = length_um
@@ -113,12 +114,11 @@ class Simulator:
     5
     """
 
-    def __init__(self, settings: SimulationSettings,
-                 rng: np.random.Generator | None = None) -> None:
+    def __init__(
+        self, settings: SimulationSettings, rng: np.random.Generator | None = None
+    ) -> None:
         if not isinstance(settings, SimulationSettings):
-            raise TypeError(
-                f"Simulator needs SimulationSettings, got {type(settings).__name__}"
-            )
+            raise TypeError(f"Simulator needs SimulationSettings, got {type(settings).__name__}")
         self.settings = settings
         self.rng = np.random.default_rng(settings.seed) if rng is None else rng
         self.layout: Layout = make_layout(settings, self.rng)
@@ -141,23 +141,36 @@ class Simulator:
         space.collision_bias = COLLISION_BIAS
         space.damping = 0.0
         for x0, y0, x1, y1, radius in self.layout.segments_um:
-            wall = pymunk.Segment(space.static_body, (x0 * SCALE, y0 * SCALE),
-                                  (x1 * SCALE, y1 * SCALE), radius * SCALE)
+            wall = pymunk.Segment(
+                space.static_body,
+                (x0 * SCALE, y0 * SCALE),
+                (x1 * SCALE, y1 * SCALE),
+                radius * SCALE,
+            )
             wall.elasticity = 0.0
             wall.friction = 0.0
             space.add(wall)
         return space
 
-    def _attach_body(self, cell: _Cell, x_um: float, y_um: float, angle_rad: float,
-                     shown_length_um: float | None = None) -> None:
+    def _attach_body(
+        self,
+        cell: _Cell,
+        x_um: float,
+        y_um: float,
+        angle_rad: float,
+        shown_length_um: float | None = None,
+    ) -> None:
         if shown_length_um is not None:
             cell.shown_length_um = shown_length_um
         body = pymunk.Body(1.0, 1.0)
         _set_mass(body, cell, cell.shown_length_um)
         body.position = (x_um * SCALE, y_um * SCALE)
         body.angle = -angle_rad
-        shape = pymunk.Poly(body, _core(cell.shown_length_um, cell.width_um),
-                            radius=cell.width_um / 2 * SCALE - CORE_HALF_WIDTH)
+        shape = pymunk.Poly(
+            body,
+            _core(cell.shown_length_um, cell.width_um),
+            radius=cell.width_um / 2 * SCALE - CORE_HALF_WIDTH,
+        )
         shape.elasticity = 0.0
         shape.friction = 0.0
         self._space.add(body, shape)
@@ -310,13 +323,16 @@ class Simulator:
         for it in range(iters):
             shown = start * ratio ** ((it + 1) / iters)
             for i in growing:
-                self._update_shape(cells[i], cells[i].length_um if it + 1 == iters
-                                   else float(shown[i]))
+                self._update_shape(
+                    cells[i], cells[i].length_um if it + 1 == iters else float(shown[i])
+                )
             pos = np.array([tuple(body.position) for body in bodies]) / SCALE
             angle = -np.array([body.angle for body in bodies])
             velocity = self._flow(pos, angle, shown, widths, rate, drift)
             if self.layout.box_walls_um is not None:
                 _clamp_at_walls(velocity, pos, angle, shown, widths, self.layout.box_walls_um)
+            elif self.layout.segments_um and self.layout.flow != "none":
+                _clamp_at_contacts(velocity, bodies)
             spin = np.zeros(n)
             if jitter > 0:
                 kicks = self.rng.normal(0.0, jitter, size=(n, 3))
@@ -331,8 +347,9 @@ class Simulator:
             body.velocity = (0.0, 0.0)
             body.angular_velocity = 0.0
 
-    def _groups(self, pos: np.ndarray, angle: np.ndarray, length: np.ndarray,
-                width: np.ndarray) -> list[tuple[np.ndarray, bool, float, float]]:
+    def _groups(
+        self, pos: np.ndarray, angle: np.ndarray, length: np.ndarray, width: np.ndarray
+    ) -> list[tuple[np.ndarray, bool, float, float]]:
         """Groups of cells touching along the trench: ``(members, grounded, top,
         bottom)``; a grounded group touches the closed end."""
         reach = np.abs(np.cos(angle)) * (length - width) / 2 + width / 2
@@ -352,8 +369,15 @@ class Simulator:
             out.append((members, g_top <= GROUP_GAP_UM, g_top, g_bottom))
         return out
 
-    def _flow(self, pos: np.ndarray, angle: np.ndarray, length: np.ndarray,
-              width: np.ndarray, rate: np.ndarray, drift: float) -> np.ndarray:
+    def _flow(
+        self,
+        pos: np.ndarray,
+        angle: np.ndarray,
+        length: np.ndarray,
+        width: np.ndarray,
+        rate: np.ndarray,
+        drift: float,
+    ) -> np.ndarray:
         """Velocity (um per iteration) of each cell from growth and gravity.
 
         Overdamped cells in contact move with the growth of the cells between them and
@@ -368,12 +392,14 @@ class Simulator:
           groups towards the closed end at the drift speed and compresses grounded
           ones gently (:data:`GRAVITY_COMPRESSION` of it); negative gravity pulls
           cells out with a speed growing along the trench, opening gaps.
-        * Chamber: the colony expands from its centroid,
+        * Chamber and outline: the colony expands from its centroid,
           ``v = (r / 2)(p - centroid)`` (area grows at the elongation rate ``r``);
-          walls then confine it.
-        * Agar pad and outline: no prediction (an isotropic dilation would also
-          widen the gaps of a loose colony); pymunk's contacts push cells apart. On the agar pad gravity pulls towards (negative:
-          away from) the field centre, elsewhere along -y (negative: +y).
+          the part of it that would push a cell into a wall it touches is removed.
+        * Agar pad: no prediction (an isotropic dilation would also widen the gaps
+          of a loose colony); pymunk's contacts push the cells apart.
+
+        Gravity on the agar pad pulls towards (negative: away from) the field
+        centre, in the other 2D geometries along -y (negative: +y).
         """
         velocity = np.zeros_like(pos)
         if self.layout.flow in ("radial", "none"):
@@ -500,8 +526,14 @@ class Simulator:
         return Simulation(settings, list(self._frames), lineage, walls)
 
 
-def _clamp_at_walls(velocity: np.ndarray, pos: np.ndarray, angle: np.ndarray,
-                    length: np.ndarray, width: np.ndarray, walls: tuple[float, float]) -> None:
+def _clamp_at_walls(
+    velocity: np.ndarray,
+    pos: np.ndarray,
+    angle: np.ndarray,
+    length: np.ndarray,
+    width: np.ndarray,
+    walls: tuple[float, float],
+) -> None:
     """Stop the predicted flow from pushing cells that touch a trench or chamber wall
     into it (the contacts would have to undo it)."""
     along = (length - width) / 2
@@ -513,6 +545,26 @@ def _clamp_at_walls(velocity: np.ndarray, pos: np.ndarray, angle: np.ndarray,
     at_top = (pos[:, 1] - reach_y <= GROUP_GAP_UM) & (velocity[:, 1] < 0)
     velocity[at_left | at_right, 0] = 0.0
     velocity[at_top, 1] = 0.0
+
+
+def _clamp_at_contacts(velocity: np.ndarray, bodies: list[pymunk.Body]) -> None:
+    """Remove the part of each predicted velocity that points into a static wall the
+    cell touched in the last physics iteration (any wall shape)."""
+    for i, body in enumerate(bodies):
+        normals: list[tuple[float, float]] = []
+
+        def _collect(arbiter: pymunk.Arbiter, normals=normals) -> None:
+            other = arbiter.shapes[1].body
+            if other.body_type == pymunk.Body.STATIC:
+                n = arbiter.normal
+                normals.append((n.x, n.y))
+
+        body.each_arbiter(_collect)
+        for nx, ny in normals:
+            into = velocity[i, 0] * nx + velocity[i, 1] * ny
+            if into > 0:
+                velocity[i, 0] -= into * nx
+                velocity[i, 1] -= into * ny
 
 
 def _core(length_um: float, width_um: float) -> list[tuple[float, float]]:
@@ -535,7 +587,9 @@ def _set_mass(body: pymunk.Body, cell: _Cell, length_um: float) -> None:
     r = cell.width_um / 2
     mass = math.pi * r * r * length_um - 2.0 / 3.0 * math.pi * r**3
     body.mass = mass
-    body.moment = ROTATIONAL_DRAG * mass * ((length_um * SCALE) ** 2 + (cell.width_um * SCALE) ** 2) / 12
+    body.moment = (
+        ROTATIONAL_DRAG * mass * ((length_um * SCALE) ** 2 + (cell.width_um * SCALE) ** 2) / 12
+    )
 
 
 def _wrap(angle: float) -> float:
@@ -574,8 +628,11 @@ def check_save_dir(save_dir: str | os.PathLike) -> Path:
     return path
 
 
-def simulate(settings: SimulationSettings, rng: np.random.Generator | None = None,
-             progress: Progress | None = None) -> Simulation:
+def simulate(
+    settings: SimulationSettings,
+    rng: np.random.Generator | None = None,
+    progress: Progress | None = None,
+) -> Simulation:
     """Simulate growth in the settings' geometry (supplement section 2, Algorithm 1).
 
     Parameters

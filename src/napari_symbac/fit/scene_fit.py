@@ -1,0 +1,614 @@
+"""Scene fitting by analysis by synthesis (issue 5, item 4).
+
+Place and size spherocylinder cells (centre, angle, length, one shared or
+hierarchical width) and the trench (left wall, width, closed end) so that the
+rendered image overlays the real recording pixel for pixel, jointly with the
+optical parameters. Starts from a plain segmentation of the real image (Otsu
+threshold, watershed, region moments). For every geometry and kernel the
+intensities are solved exactly by non-negative least squares (eq. 3 is linear in
+them); the noise weights follow the camera model (eq. 17) by iteratively
+reweighted least squares.
+
+Coordinates of fitted cells are in micrometres from the top-left corner of the
+image (x along columns, y down the rows), angle as in
+:class:`~napari_symbac.sim.FrameCells` (0 = vertical).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from scipy import ndimage
+
+from napari_symbac.fit.inputs import as_label_stack, as_single_image
+from napari_symbac.fit.objectives import objective_terms
+from napari_symbac.fit.parameters import (
+    _SCALE,
+    _Budget,
+    _nnls,
+    _variance,
+    parameter_bounds,
+)
+from napari_symbac.optics import ForwardModel
+from napari_symbac.scene import Scene, spherocylinder_distance
+from napari_symbac.settings import Camera, Microscope, RenderSettings, TrenchGeometry
+from napari_symbac.sim import FrameCells
+
+__all__ = [
+    "SceneFit",
+    "TrenchPlacement",
+    "draw_fit_scene",
+    "fit_scene",
+    "otsu_cells",
+]
+
+_INTENSITIES = ("cell_intensity", "media_intensity", "device_intensity")
+#: Finite-difference step in scaled units (0.3 x 0.05 um = 15 nm, ~ 2/3 of a render
+#: pixel): the chord ``2 sqrt(r^2 - d^2)`` has a square-root cusp at a cell's edge, so
+#: steps much smaller than a render pixel give a Jacobian that only sees the cusp.
+DIFF_STEP = 0.3
+
+
+@dataclass(frozen=True)
+class TrenchPlacement:
+    """Where the trench lies in the image (um from the image's top-left corner).
+
+    Attributes
+    ----------
+    left_um
+        Position of the left wall.
+    width_um
+        Trench width.
+    top_um
+        Position of the closed end (negative: above the image).
+    depth_um
+        Optical depth of the trench (``s_media``; not fitted).
+    """
+
+    left_um: float
+    width_um: float
+    top_um: float
+    depth_um: float = 1.2
+
+    def __post_init__(self) -> None:
+        for name in ("left_um", "width_um", "top_um", "depth_um"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"TrenchPlacement.{name} must be finite")
+        if self.width_um <= 0 or self.depth_um <= 0:
+            raise ValueError("TrenchPlacement.width_um and depth_um must be positive")
+
+
+def draw_fit_scene(
+    cells: FrameCells,
+    trench: TrenchPlacement | None,
+    camera_shape: tuple[int, int],
+    microscope: Microscope,
+    render: RenderSettings,
+    depth_um: float = 1.2,
+) -> Scene:
+    """Draw a scene with the trench anywhere in the image (as :func:`draw_scene`).
+
+    The drawing rules are those of :func:`~napari_symbac.scene.draw_scene`
+    (section 3, eq. OPL1-3): chord ``2 sqrt(r^2 - d^2)`` through each spherocylinder,
+    divided by the depth and clipped to 1 and to the trench; media fills the rest of
+    the trench, device the rest of the field. ``trench=None`` draws an open field (agar
+    pad: media everywhere, no device). Cell coordinates are image coordinates.
+    """
+    u = render.upsample
+    border = render.psf_radius_px
+    px = microscope.pixel_size_um / u
+    rows, cols = camera_shape
+    shape = (rows * u + 2 * border, cols * u + 2 * border)
+    yc = (np.arange(shape[0]) - border + 0.5) * px
+    xc = (np.arange(shape[1]) - border + 0.5) * px
+    if trench is None:
+        trench_frac = np.ones(shape, np.float32)
+        depth = depth_um
+    else:
+        depth = trench.depth_um
+
+        def coverage(c: np.ndarray, low: float, high: float) -> np.ndarray:
+            lo = np.maximum(c - px / 2, low)
+            hi = np.minimum(c + px / 2, high)
+            return np.clip((hi - lo) / px, 0.0, 1.0)
+
+        trench_frac = np.outer(
+            coverage(yc, trench.top_um, np.inf),
+            coverage(xc, trench.left_um, trench.left_um + trench.width_um),
+        ).astype(np.float32)
+    thickness = np.zeros(shape, np.float32)
+    labels = np.zeros(shape, np.uint32)
+    for i in range(len(cells)):
+        width = float(cells.width_um[i])
+        length = max(float(cells.length_um[i]), width)
+        r = width / 2
+        cx, cy = float(cells.x_um[i]), float(cells.y_um[i])
+        reach = length / 2 + 2 * px
+        j0 = max(math.floor((cx - reach) / px) + border, 0)
+        j1 = min(math.ceil((cx + reach) / px) + border + 1, shape[1])
+        i0 = max(math.floor((cy - reach) / px) + border, 0)
+        i1 = min(math.ceil((cy + reach) / px) + border + 1, shape[0])
+        if j0 >= j1 or i0 >= i1:
+            continue
+        d = spherocylinder_distance(
+            xc[None, j0:j1], yc[i0:i1, None], (cx, cy), float(cells.angle_rad[i]), length, width
+        )
+        chord = (2 * np.sqrt(np.maximum(r * r - d * d, 0.0))).astype(np.float32)
+        box_t = thickness[i0:i1, j0:j1]
+        box_l = labels[i0:i1, j0:j1]
+        take = chord > box_t
+        box_t[take] = chord[take]
+        box_l[take] = cells.ids[i]
+    cells_frac = np.minimum(np.minimum(thickness / np.float32(depth), 1.0), trench_frac)
+    labels[cells_frac <= 0] = 0
+    return Scene(
+        cells=cells_frac,
+        media=np.maximum(trench_frac - cells_frac, 0.0),
+        device=1.0 - trench_frac,
+        labels=labels,
+        border_px=border,
+        upsample=u,
+        camera_shape=(rows, cols),
+        pixel_size_um=px,
+        depth_um=depth,
+        cell_ids=cells.ids,
+    )
+
+
+def _spherocylinder_width(area_um2: float, length_um: float) -> float:
+    """Width of the spherocylinder of given area and length: ``A = w L - (1 - pi/4) w^2``."""
+    k = 1 - math.pi / 4
+    disc = max(length_um**2 - 4 * k * area_um2, 0.0)
+    return (length_um - math.sqrt(disc)) / (2 * k)
+
+
+def _longest_run(mask: np.ndarray) -> tuple[int, int] | None:
+    labels, n = ndimage.label(mask)
+    if n == 0:
+        return None
+    sizes = ndimage.sum(mask, labels, range(1, n + 1))
+    idx = np.flatnonzero(labels == int(np.argmax(sizes)) + 1)
+    return int(idx[0]), int(idx[-1])
+
+
+def otsu_cells(
+    image: np.ndarray,
+    microscope: Microscope,
+    *,
+    geometry: Literal["trench", "open"] = "trench",
+    depth_um: float = 1.2,
+) -> tuple[FrameCells, np.ndarray, TrenchPlacement | None, np.ndarray]:
+    """Plain segmentation: Otsu threshold, watershed, region moments.
+
+    Phase contrast is assumed (cells darker than the media around them). In a trench
+    the trench is found first from the column profile (Otsu threshold of the column
+    means, longest run above it) and its closed end from the row profile.
+
+    Returns
+    -------
+    cells
+        One spherocylinder per region: centroid, principal-axis angle, extent along
+        the axis (length) and the width of the spherocylinder with the region's area
+        and length (image coordinates, um).
+    otsu_width_um
+        That width per cell: the Otsu estimate of the cell width (section 1.3).
+    trench
+        The trench placement, or ``None`` for ``geometry="open"``.
+    mask
+        The instance labels of the segmentation (camera pixels).
+    """
+    from skimage.filters import threshold_otsu
+    from skimage.morphology import h_maxima, remove_small_objects
+    from skimage.segmentation import watershed
+
+    px = microscope.pixel_size_um
+    smooth = ndimage.gaussian_filter(image, 1.0)
+    region = np.ones(image.shape, bool)
+    trench = None
+    if geometry == "trench":
+        columns = smooth.mean(axis=0)
+        run = _longest_run(columns > threshold_otsu(columns))
+        if run is None:
+            raise ValueError("no trench found in the image: is it a mother-machine trench?")
+        c0, c1 = run
+        inside = smooth[:, c0 : c1 + 1].mean(axis=1)
+        above = inside > threshold_otsu(inside)
+        first = int(np.argmax(np.convolve(above, np.ones(3), "same") >= 2))
+        top_um = first * px if first > 0 else -2.0
+        trench = TrenchPlacement(c0 * px, (c1 - c0 + 1) * px, top_um, depth_um)
+        region[:, : c0] = False
+        region[:, c1 + 1 :] = False
+        region[: max(first, 0), :] = False
+    elif geometry != "open":
+        raise ValueError(f"geometry must be 'trench' or 'open', got {geometry!r}")
+    threshold = threshold_otsu(smooth[region])
+    mask = (smooth < threshold) & region
+    mask = ndimage.binary_opening(mask)
+    mask = remove_small_objects(mask, max(int(0.4 / px**2), 4))
+    distance = ndimage.distance_transform_edt(mask)
+    markers, _ = ndimage.label(h_maxima(distance, 1.5))
+    instances = watershed(-distance, markers, mask=mask)
+    rows_list = []
+    for index in range(1, int(instances.max()) + 1):
+        rr, cc = np.nonzero(instances == index)
+        if rr.size < 6:
+            continue
+        x = (cc + 0.5) * px
+        y = (rr + 0.5) * px
+        cx, cy = x.mean(), y.mean()
+        cov = np.cov(np.stack([x - cx, y - cy]))
+        evals, evecs = np.linalg.eigh(cov)
+        vx, vy = evecs[:, 1]
+        if vy < 0:
+            vx, vy = -vx, -vy
+        angle = math.atan2(vx, vy)
+        along = (x - cx) * vx + (y - cy) * vy
+        length = float(along.max() - along.min() + px)
+        area = rr.size * px * px
+        width = _spherocylinder_width(area, length)
+        width = min(max(width, 2 * px), length)
+        rows_list.append((cx, cy, angle, length, width))
+    if not rows_list:
+        raise ValueError("the Otsu segmentation found no cells in the image")
+    rows_list.sort(key=lambda row: (row[1], row[0]))
+    table = np.array(rows_list)
+    cells = FrameCells(
+        ids=np.arange(1, len(table) + 1),
+        x_um=table[:, 0],
+        y_um=table[:, 1],
+        angle_rad=table[:, 2],
+        length_um=table[:, 3],
+        width_um=table[:, 4],
+    )
+    return cells, table[:, 4].copy(), trench, instances
+
+
+@dataclass(frozen=True)
+class SceneFit:
+    """Outcome of :func:`fit_scene`.
+
+    Attributes
+    ----------
+    cells
+        Fitted cells (image coordinates, um), model-based lengths and widths.
+    initial_cells
+        The Otsu / watershed / moments start.
+    otsu_width_um
+        Otsu width of each initial cell (area and length of its region).
+    trench
+        Fitted trench placement (``None`` for an open field).
+    render
+        Fitted render settings (intensities and kernel parameters).
+    scene
+        The fitted scene at render resolution.
+    synthetic
+        Noise-free rendered image, baseline included (ADU, float32).
+    residual
+        ``real - synthetic`` (ADU, float32): the pixelwise residual for diagnosis.
+    terms
+        ``{term: (before, after)}``; ``pixel`` is the reduced chi-square with the
+        camera's variance (1 = fitted to the noise).
+    objective_before, objective_after
+        The pixel term at the start (Otsu geometry, starting optics, intensities
+        solved) and at the end.
+    n_evaluations
+        Renders used.
+    """
+
+    cells: FrameCells
+    initial_cells: FrameCells
+    otsu_width_um: np.ndarray
+    trench: TrenchPlacement | None
+    render: RenderSettings
+    scene: Scene = field(repr=False)
+    synthetic: np.ndarray = field(repr=False)
+    residual: np.ndarray = field(repr=False)
+    terms: dict[str, tuple[float, float]] = field(default_factory=dict)
+    objective_before: float = math.nan
+    objective_after: float = math.nan
+    n_evaluations: int = 0
+
+    def trench_geometry(self, image_rows: int, pixel_size_um: float) -> TrenchGeometry:
+        """An approximate :class:`TrenchGeometry` for re-rendering with the pipeline.
+
+        ``draw_scene`` centres the trench with equal margins; the margin is taken from
+        the fitted left wall.
+        """
+        if self.trench is None:
+            raise ValueError("an open-field fit has no trench")
+        margin = max(self.trench.left_um, 0.0)
+        length = max(image_rows * pixel_size_um - margin, self.trench.width_um)
+        return TrenchGeometry(
+            length_um=length,
+            width_um=self.trench.width_um,
+            depth_um=self.trench.depth_um,
+            margin_um=margin,
+        )
+
+    def cells_table(self) -> dict[str, list]:
+        """The fitted cells and their Otsu widths as plain lists (for JSON)."""
+        table: dict[str, list] = {
+            name: np.asarray(getattr(self.cells, name)).tolist()
+            for name in ("ids", "x_um", "y_um", "angle_rad", "length_um", "width_um")
+        }
+        table["otsu_width_um"] = np.asarray(self.otsu_width_um).tolist()
+        table["otsu_length_um"] = np.asarray(self.initial_cells.length_um).tolist()
+        return table
+
+
+def fit_scene(
+    real_image: np.ndarray,
+    microscope: Microscope,
+    render: RenderSettings,
+    camera: Camera | None = None,
+    *,
+    trench: TrenchPlacement | TrenchGeometry | None = None,
+    labels: np.ndarray | None = None,
+    geometry: Literal["trench", "open"] = "trench",
+    fit_optics: tuple[str, ...] = ("apodisation_sigma_um", "defocus_sigma_um", "psf_offset"),
+    width_sd_um: float = 0.0,
+    irls_rounds: int = 3,
+    max_iterations: int = 25,
+    progress: Callable[[int, int], None] | None = None,
+    cancel: Callable[[], bool] | None = None,
+) -> SceneFit:
+    """Fit cells, trench and optics so the rendered image overlays the real one.
+
+    Parameters
+    ----------
+    real_image
+        One 2D frame (ADU, camera baseline included), phase contrast.
+    microscope, render, camera
+        Starting model; ``render`` gives the starting kernel parameters.
+    trench
+        Starting trench placement (:class:`TrenchPlacement` in image coordinates, or a
+        :class:`TrenchGeometry` read as ``left = top = margin_um``); default: found
+        from the image.
+    labels
+        Optional painted class map; only checked for shape here (the segmentation
+        needs no labels), and used to report eq. 20 / class statistics terms.
+    geometry
+        ``"trench"`` (mother machine) or ``"open"`` (agar pad: no device).
+    fit_optics
+        Kernel parameters fitted jointly with the geometry (the intensities always are).
+    width_sd_um
+        0 (default): one width shared by all cells. > 0: per-cell widths tied to the
+        shared width by a Gaussian prior of this s.d. (hierarchical). Free per-cell
+        widths would soak up PSF effects (docs/fitting.md).
+    irls_rounds
+        Rounds of iteratively reweighted least squares (variance held fixed within a
+        round, eq. 17).
+    max_iterations
+        Gauss-Newton iterations per round.
+    progress, cancel
+        As in :func:`~napari_symbac.fit.fit_parameters`.
+
+    Returns
+    -------
+    SceneFit
+    """
+    camera = Camera() if camera is None else camera
+    real = as_single_image(real_image, name="real_image")
+    if labels is not None:
+        labels = as_label_stack(labels, (1, *real.shape))[0]
+    if not (math.isfinite(width_sd_um) and width_sd_um >= 0):
+        raise ValueError(f"width_sd_um must be zero or positive, got {width_sd_um!r}")
+    for name in fit_optics:
+        parameter_bounds(name, microscope)
+    px = microscope.pixel_size_um
+    depth = trench.depth_um if trench is not None else 1.2
+    init_cells, otsu_w, found, _ = otsu_cells(real, microscope, geometry=geometry, depth_um=depth)
+    if isinstance(trench, TrenchGeometry):
+        trench = TrenchPlacement(trench.margin_um, trench.width_um, trench.margin_um, depth)
+    placement = trench if trench is not None else found
+    if geometry == "open":
+        placement = None
+    n = len(init_cells)
+    shape = real.shape
+    fit_top = placement is not None and placement.top_um > 0
+    # ---- parameter vector (scaled units) -------------------------------------------
+    scale_geo = 0.05
+    width0 = float(np.clip(np.median(otsu_w) + 0.1, 0.4, 2.0))  # Otsu is biased narrow
+    names_cell = ("x_um", "y_um", "angle_rad", "length_um")
+    p0: list[float] = []
+    lo: list[float] = []
+    hi: list[float] = []
+    for i in range(n):
+        vals = (
+            init_cells.x_um[i],
+            init_cells.y_um[i],
+            init_cells.angle_rad[i],
+            max(init_cells.length_um[i] + 0.1, width0),
+        )
+        bounds_i = ((-2, shape[1] * px + 2), (-3, shape[0] * px + 3), (-1.6, 1.6), (0.3, 12.0))
+        for v, (a, b) in zip(vals, bounds_i):
+            p0.append(v)
+            lo.append(a)
+            hi.append(b)
+    i_width = len(p0)
+    p0.append(width0)
+    lo.append(0.3)
+    hi.append(2.5)
+    i_dw = len(p0)
+    if width_sd_um > 0:
+        p0.extend([0.0] * n)
+        lo.extend([-1.0] * n)
+        hi.extend([1.0] * n)
+    i_trench = len(p0)
+    if placement is not None:
+        p0.extend([placement.left_um, placement.width_um])
+        lo.extend([-1.0, 0.3])
+        hi.extend([shape[1] * px, shape[1] * px + 1])
+        if fit_top:
+            p0.append(placement.top_um)
+            lo.append(-1.0)
+            hi.append(shape[0] * px)
+    i_optics = len(p0)
+    start_optics = {name: float(getattr(render, name)) for name in fit_optics}
+    for name in fit_optics:
+        a, b = parameter_bounds(name, microscope)
+        v = float(np.clip(start_optics[name], a, b))
+        p0.append(v)
+        lo.append(a)
+        hi.append(b)
+    scales = np.array(
+        [scale_geo] * (i_optics) + [_SCALE[name] for name in fit_optics], dtype=float
+    )
+    x0 = np.array(p0)
+    lo_a, hi_a = np.array(lo), np.array(hi)
+    x0 = np.clip(x0, lo_a + 1e-9, hi_a - 1e-9)
+
+    def unpack(x: np.ndarray) -> tuple[FrameCells, TrenchPlacement | None, RenderSettings]:
+        cell = x[: 4 * n].reshape(n, 4) if n else np.zeros((0, 4))
+        width = np.full(n, x[i_width])
+        if width_sd_um > 0:
+            width = width + x[i_dw : i_dw + n]
+        width = np.maximum(width, 0.2)
+        frame = FrameCells(
+            ids=np.arange(1, n + 1),
+            x_um=cell[:, 0],
+            y_um=cell[:, 1],
+            angle_rad=cell[:, 2],
+            length_um=np.maximum(cell[:, 3], width),
+            width_um=width,
+        )
+        place = None
+        if placement is not None:
+            top = x[i_trench + 2] if fit_top else placement.top_um
+            place = TrenchPlacement(x[i_trench], x[i_trench + 1], top, placement.depth_um)
+        r = dataclasses.replace(
+            render, **{name: float(v) for name, v in zip(fit_optics, x[i_optics:])}
+        )
+        return frame, place, r
+
+    total = (irls_rounds * (max_iterations + 2) + 2) * (len(x0) + 1)
+    budget = _Budget(total, progress, cancel)
+    model = ForwardModel(microscope, render, camera)
+    y = (real - camera.baseline_adu).ravel()
+
+    def design(x: np.ndarray) -> tuple[np.ndarray, Scene, RenderSettings]:
+        budget.tick()
+        frame, place, r = unpack(x)
+        scene = draw_fit_scene(frame, place, shape, microscope, r, depth)
+        comps = model.with_render(r).components(scene)
+        a = np.stack([comps[k].ravel() for k in ("cells", "media", "device")], axis=1)
+        return a.astype(np.float64), scene, r
+
+    def solve(a: np.ndarray, sw: np.ndarray) -> np.ndarray:
+        return _nnls(a * sw[:, None], y * sw)
+
+    def prior(x: np.ndarray) -> np.ndarray:
+        if width_sd_um > 0:
+            return x[i_dw : i_dw + n] / width_sd_um
+        return np.zeros(0)
+
+    var = _variance(np.maximum(y, 0.0), render, camera)
+    a0, _, _ = design(x0)
+    sw0 = 1 / np.sqrt(var)
+    i0 = solve(a0, sw0)
+    clean0 = a0 @ i0
+    var_before = _variance(clean0, render, camera)
+    before_pixel = float(np.mean((y - clean0) ** 2 / var_before))
+    x = x0.copy()
+    for _ in range(irls_rounds):
+        sw = 1 / np.sqrt(var)
+
+        def residual(z: np.ndarray, sw: np.ndarray = sw) -> np.ndarray:
+            xx = x0 + z * scales
+            a, _, _ = design(xx)
+            return np.concatenate([(y - a @ solve(a, sw)) * sw, prior(xx)])
+
+        z = _levenberg_marquardt(
+            residual,
+            (x - x0) / scales,
+            (lo_a - x0) / scales,
+            (hi_a - x0) / scales,
+            max_iterations,
+        )
+        x = x0 + z * scales
+        a, _, r = design(x)
+        clean = a @ solve(a, sw)
+        var = _variance(clean, r, camera)
+    a, scene, r = design(x)
+    sw = 1 / np.sqrt(var)
+    intens = solve(a, sw)
+    final_render = dataclasses.replace(r, **{k: float(v) for k, v in zip(_INTENSITIES, intens)})
+    frame, place, _ = unpack(x)
+    synthetic = ((a @ intens) + camera.baseline_adu).reshape(shape).astype(np.float32)
+    after_pixel = float(np.mean((y - a @ intens) ** 2 / _variance(a @ intens, r, camera)))
+    terms = {"pixel": (before_pixel, after_pixel)}
+    if labels is not None:
+        before_img = (clean0 + camera.baseline_adu).reshape(shape)
+        tb = objective_terms(before_img, real, labels, terms=("eq20", "class_stats"))
+        ta = objective_terms(synthetic, real, labels, terms=("eq20", "class_stats"))
+        terms.update({k: (tb[k], ta[k]) for k in ta})
+    if progress is not None:
+        progress(budget.total, budget.total)
+    return SceneFit(
+        cells=frame,
+        initial_cells=init_cells,
+        otsu_width_um=otsu_w,
+        trench=place,
+        render=final_render,
+        scene=scene,
+        synthetic=synthetic,
+        residual=(real - synthetic).astype(np.float32),
+        terms=terms,
+        objective_before=before_pixel,
+        objective_after=after_pixel,
+        n_evaluations=budget.done,
+    )
+
+
+
+def _levenberg_marquardt(
+    residual: Callable[[np.ndarray], np.ndarray],
+    z0: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    max_iterations: int,
+    step: float = DIFF_STEP,
+) -> np.ndarray:
+    """Projected Levenberg-Marquardt with a forward-difference Jacobian.
+
+    Steps are clipped to the bounds; the damping ``lambda diag(J^T J)`` (Marquardt
+    scaling) shrinks after an accepted step and grows after a rejected one. Stops after
+    ``max_iterations`` Jacobians or when the cost falls by less than 1e-6 relative.
+    (scipy's trust-region solver stalled on these renders: the Coleman-Li scaling near
+    the bounds and the cusps at cell edges made it reject every step.)
+    """
+    z = np.clip(z0, lower, upper)
+    r = residual(z)
+    cost = float(r @ r)
+    lam = 1e-2
+    for _ in range(max_iterations):
+        jac = np.empty((r.size, z.size))
+        for k in range(z.size):
+            zk = z.copy()
+            h = step if zk[k] + step <= upper[k] else -step
+            zk[k] += h
+            jac[:, k] = (residual(zk) - r) / h
+        jtj = jac.T @ jac
+        grad = jac.T @ r
+        diag = np.diag(jtj) + 1e-9 * max(float(np.mean(np.diag(jtj))), 1e-12)
+        improved = False
+        for _attempt in range(6):
+            delta = -np.linalg.solve(jtj + lam * np.diag(diag), grad)
+            trial = np.clip(z + delta, lower, upper)
+            r_trial = residual(trial)
+            cost_trial = float(r_trial @ r_trial)
+            if cost_trial < cost:
+                improved = True
+                gain = (cost - cost_trial) / max(cost, 1e-300)
+                z, r, cost = trial, r_trial, cost_trial
+                lam = max(lam / 3, 1e-6)
+                break
+            lam *= 4
+        if not improved or gain < 1e-6:
+            break
+    return z

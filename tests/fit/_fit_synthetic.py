@@ -1,0 +1,62 @@
+"""Helpers: synthetic trenches rendered by the project's own model, with known parameters."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from napari_symbac.optics import ForwardModel
+from napari_symbac.scene import Scene, draw_scene
+from napari_symbac.settings import Camera, Microscope, RenderSettings, TrenchGeometry
+from napari_symbac.sim import FrameCells
+
+PIXEL_UM = 0.065
+#: A 128 x 46 crop of a 1.5 um trench with 0.75 um of PDMS either side.
+TRENCH = TrenchGeometry(length_um=128 * PIXEL_UM - 0.75, width_um=1.5, depth_um=1.2, margin_um=0.75)
+#: Truth: ~900 e- of media background at 2.9 ADU/e- (camera noise, eq. 17).
+TRUTH = RenderSettings(
+    cell_intensity=1400.0,
+    media_intensity=2600.0,
+    device_intensity=900.0,
+    apodisation_sigma_um=0.6,
+    defocus_sigma_um=0.15,
+    ring_contrast=0.5,
+    psf_offset=0.05,
+)
+
+
+@dataclass(frozen=True)
+class Truth:
+    cells: FrameCells
+    scene: Scene
+    image: np.ndarray
+    microscope: Microscope
+    render: RenderSettings
+    camera: Camera
+
+
+def make_cells(y_um, x_um=None, angle_rad=None, length_um=None, width_um=0.95) -> FrameCells:
+    n = len(y_um)
+    return FrameCells(
+        ids=np.arange(1, n + 1),
+        x_um=np.full(n, 0.75) if x_um is None else np.asarray(x_um, float),
+        y_um=np.asarray(y_um, float),
+        angle_rad=np.zeros(n) if angle_rad is None else np.asarray(angle_rad, float),
+        length_um=np.full(n, 2.4) if length_um is None else np.asarray(length_um, float),
+        width_um=np.full(n, width_um),
+    )
+
+
+def make_truth() -> Truth:
+    """Three cells in a 128 x 46 trench crop, rendered with :data:`TRUTH` and camera noise."""
+    cells = make_cells(
+        y_um=[1.3, 3.9, 6.55],
+        x_um=[0.74, 0.78, 0.72],
+        angle_rad=[0.0, 0.08, -0.05],
+        length_um=[2.3, 2.6, 2.2],
+    )
+    microscope = Microscope(pixel_size_um=PIXEL_UM)
+    camera = Camera()
+    scene = draw_scene(cells, TRENCH, microscope, TRUTH)
+    image = ForwardModel(microscope, TRUTH, camera).render(scene, np.random.default_rng(1))
+    return Truth(cells, scene, image, microscope, TRUTH, camera)

@@ -1,0 +1,58 @@
+"""Export three items from the GUI and check the files; cancel and resume."""
+
+from __future__ import annotations
+
+import pytest
+import tifffile
+
+pytest.importorskip("napari", reason="the [gui] extra (napari + Qt) is not installed")
+
+from napari_symbac._widgets.export import ExportWidget  # noqa: E402
+
+
+@pytest.fixture
+def widget(make_napari_viewer):
+    viewer = make_napari_viewer()
+    widget = ExportWidget(viewer)
+    viewer.window.add_dock_widget(widget)
+    return widget
+
+
+def test_export_three_items(widget, qtbot, tmp_path):
+    widget.n_items.value = 3
+    widget.formats.value = ["tiff", "omnipose"]
+    widget.val_fraction.value = 0.0
+    widget.folder.value = tmp_path / "dataset"
+    widget.export_button.native.click()
+    qtbot.waitUntil(lambda: widget.report is not None, timeout=120_000)
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=10_000)
+    assert widget.report.complete
+    images = sorted((tmp_path / "dataset" / "tiff" / "train" / "images").glob("*.tif"))
+    masks = sorted((tmp_path / "dataset" / "omnipose" / "train").glob("*_masks.tif"))
+    assert len(images) == len(masks) == 3
+    for path in images:
+        assert tifffile.imread(path).ndim == 2
+    assert (tmp_path / "dataset" / "manifest.json").is_file()
+    assert "complete" in widget.status.value
+
+
+def test_no_folder_is_reported(widget):
+    widget.export_button.native.click()
+    assert widget.status.value == "Choose an output folder"
+    assert widget.worker is None
+
+
+def test_cancel_then_resume(widget, qtbot, tmp_path):
+    widget.n_items.value = 40
+    widget.folder.value = tmp_path / "big"
+    widget.export_button.native.click()
+    qtbot.waitUntil(lambda: "Exported" in widget.status.value, timeout=120_000)
+    widget.cancel_button.native.click()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
+    first = widget.report
+    assert first.cancelled
+    assert 0 < first.n_written < 40
+    widget.export_button.native.click()
+    qtbot.waitUntil(lambda: widget.worker is None and widget.report is not first, timeout=180_000)
+    assert widget.report.complete
+    assert widget.report.n_skipped == first.n_written
