@@ -112,7 +112,7 @@ def iter_render(
     rng = noise_rng(settings) if rng is None else rng
     model = ForwardModel(settings.microscope, settings.render, settings.camera)
     for scene in iter_scenes(simulation, settings):
-        yield model.render(scene, rng), scene.camera_labels(), scene.semantic_mask()
+        yield model.render(scene, rng, cache=False), scene.camera_labels(), scene.semantic_mask()
 
 
 def render_simulation(

@@ -61,3 +61,37 @@ def test_invalid_value_is_reported(rendered):
     tune.sliders["apodisation_sigma_um"].min = 0.05
     tune.sliders["apodisation_sigma_um"].value = 0.06
     assert "Not applied" in tune.status.value
+
+
+def test_auto_fit_recovers_intensities(rendered, qtbot):
+    from napari_symbac._widgets.real_image import class_layer_name
+    from napari_symbac.fit.parameters import scene_classes
+
+    viewer, tune = rendered
+    frame = tune._current_frame()
+    scene = tune.preview.scene(frame)
+    truth = {"cell_intensity": 2100.0, "media_intensity": 3300.0, "device_intensity": 700.0}
+    start = {name: tune.sliders[name].value for name in truth}
+    tune.preview.update(**truth)
+    real = tune.preview.frame(frame).astype("uint16")
+    tune.preview.update(**start)
+    viewer.add_image(real, name="real")
+    viewer.add_labels(scene_classes(scene).astype("uint8"), name=class_layer_name("real"))
+    tune.reference.value = viewer.layers["real"]
+    tune.fit_button.native.click()
+    qtbot.waitUntil(lambda: tune.fit_worker is None, timeout=300_000)
+    assert tune.fit_result is not None, tune.status.value
+    for name, value in truth.items():
+        assert tune.sliders[name].value == pytest.approx(value, rel=0.05), name
+    assert tune.fit_result.objective_after < tune.fit_result.objective_before
+    assert tune.terms_table.shape[0] == len(tune.fit_result.terms)
+    assert "Fitted in" in tune.status.value
+
+
+def test_auto_fit_needs_painted_classes(rendered):
+    viewer, tune = rendered
+    viewer.add_image(viewer.layers[RESULT_IMAGE_LAYER].data[0], name="plain")
+    tune.reference.value = viewer.layers["plain"]
+    tune.fit_button.native.click()
+    assert "Paint classes on plain first" in tune.status.value
+    assert tune.fit_worker is None

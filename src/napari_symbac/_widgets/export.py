@@ -48,7 +48,9 @@ class ExportWidget(Container):
         self.source = ComboBox(
             name="source", label="settings from", choices=self._rendered, nullable=True
         )
-        self.formats = Select(name="formats", label="formats", choices=list(FORMATS), value=["tiff"])
+        self.formats = Select(
+            name="formats", label="formats", choices=list(FORMATS), value=["tiff"]
+        )
         self.kind = ComboBox(name="kind", label="items", choices=["frames", "timeseries"])
         self.n_items = SpinBox(name="n_items", label="number of items", value=100, min=1, max=10**7)
         self.seed = SpinBox(name="seed", label="seed", value=0, min=0, max=2**31 - 1)
@@ -95,7 +97,9 @@ class ExportWidget(Container):
         """The export settings in the form (validated)."""
         layer = self.source.value
         pipeline = (
-            layer.metadata[SYMBAC_METADATA_KEY]["settings"] if layer is not None else PipelineSettings()
+            layer.metadata[SYMBAC_METADATA_KEY]["settings"]
+            if layer is not None
+            else PipelineSettings()
         )
         return ExportSettings(
             n_items=self.n_items.value,

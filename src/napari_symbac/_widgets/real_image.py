@@ -75,6 +75,7 @@ class RealImageWidget(Container):
         viewer.layers.events.inserted.connect(self.image.reset_choices)
         viewer.layers.events.removed.connect(self.image.reset_choices)
         self.statistics = None
+        self._prefill_pixel_size()
 
     def _image_layers(self, _widget=None) -> list:
         from napari.layers import Image
@@ -99,9 +100,13 @@ class RealImageWidget(Container):
         )
         self.image.value = layer
 
-    def _prefill_pixel_size(self) -> None:
+    def _prefill_pixel_size(self, _value=None) -> None:
         layer = self.image.value
-        pixel = layer.metadata.get("pixel_size_um") if layer is not None else None
+        if layer is None:
+            return
+        pixel = layer.metadata.get("pixel_size_um")
+        if not pixel and layer.scale[-1] != 1:  # a layer already scaled to micrometres
+            pixel = float(layer.scale[-1])
         if pixel:
             self.pixel_size.value = pixel
 

@@ -54,12 +54,27 @@ class SimulateWidget(Container):
         self.cancel_button = PushButton(text="Cancel", name="cancel", enabled=False)
         self.status = Label(value="", name="status")
         self.extend([self.form, self.run_button, self.cancel_button, self.status])
+        if hasattr(self.form, "geometry"):
+            self.form.geometry.changed.connect(self._show_geometry_settings)
+            self._show_geometry_settings()
         self.run_button.changed.connect(self.run)
         self.cancel_button.changed.connect(self.cancel)
         self.worker = None
         self.simulation = None
         self.series = None
         self._n_frames = 0
+
+    def _show_geometry_settings(self, _value=None) -> None:
+        """Show only the sub-form of the chosen geometry (the trench also sizes a chamber)."""
+        kind = self.form.geometry.value
+        visible = {
+            "trench": kind in ("trench", "chamber"),
+            "agar_pad": kind == "agar_pad",
+            "outline": kind == "outline",
+        }
+        for name, show in visible.items():
+            if hasattr(self.form, name):
+                getattr(self.form, name).visible = show
 
     # -- actions -------------------------------------------------------------------------
 

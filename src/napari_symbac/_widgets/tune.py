@@ -9,14 +9,24 @@ import dataclasses
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from magicgui.widgets import CheckBox, ComboBox, Container, FloatSlider, Label
+from magicgui.widgets import (
+    CheckBox,
+    ComboBox,
+    Container,
+    FloatSlider,
+    Image,
+    Label,
+    PushButton,
+    Table,
+)
 
+from napari_symbac._widgets.real_image import class_layer_name
 from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
 
 if TYPE_CHECKING:
     import napari
 
-__all__ = ["SLIDERS", "TuneWidget"]
+__all__ = ["SLIDERS", "TuneWidget", "terms_plot"]
 
 #: Slider name -> (label, minimum, maximum). Each name is a RenderSettings field.
 SLIDERS: dict[str, tuple[str, float, float]] = {
@@ -29,6 +39,24 @@ SLIDERS: dict[str, tuple[str, float, float]] = {
     "psf_offset": ("PSF offset", -0.05, 0.05),
     "gaussian_noise_sd_adu": ("gaussian noise sd (ADU)", 0.0, 1000.0),
 }
+
+
+def terms_plot(terms: dict[str, tuple[float, float]], width: int = 240) -> np.ndarray:
+    """A small RGB bar chart of objective terms: grey before, orange after (per term).
+
+    Each pair of bars is scaled to the larger of the two, so every term shows how
+    much the fit reduced it.
+    """
+    bar, gap = 7, 5
+    height = max(1, len(terms)) * (2 * bar + gap) + gap
+    image = np.full((height, width, 3), 40, np.uint8)
+    for row, (before, after) in enumerate(terms.values()):
+        top = gap + row * (2 * bar + gap)
+        scale = max(abs(before), abs(after)) or 1.0
+        for offset, value, colour in ((0, before, (150, 150, 150)), (bar, after, (255, 150, 40))):
+            length = round((width - 2) * abs(value) / scale)
+            image[top + offset : top + offset + bar - 1, 1 : 1 + length] = colour
+    return image
 
 
 class TuneWidget(Container):
@@ -61,6 +89,10 @@ class TuneWidget(Container):
         self.match_fourier = CheckBox(name="match_fourier", text="match Fourier spectrum")
         self.match_histogram = CheckBox(name="match_histogram", text="match histogram")
         self.status = Label(name="status", value="")
+        self.fit_button = PushButton(name="fit", text="Auto-fit to the real image")
+        self.cancel_fit_button = PushButton(name="cancel_fit", text="Cancel fit", enabled=False)
+        self.terms_table = Table(name="terms", label="objective terms")
+        self.terms_image = Image(name="terms_plot", label="before / after")
         self.extend(
             [
                 self.source,
@@ -70,9 +102,19 @@ class TuneWidget(Container):
                 *self.sliders.values(),
                 self.match_fourier,
                 self.match_histogram,
+                self.fit_button,
+                self.cancel_fit_button,
                 self.status,
+                self.terms_table,
+                self.terms_image,
             ]
         )
+        self.terms_image.visible = False
+        self.fit_button.changed.connect(self.auto_fit)
+        self.cancel_fit_button.changed.connect(self.cancel_fit)
+        self.fit_worker = None
+        self.fit_result = None
+        self._fit_cancelled = False
         self.preview = None
         self._stale: set[int] = set()
         self._loading = False
@@ -175,6 +217,9 @@ class TuneWidget(Container):
     def _on_parameter(self, _value: Any = None) -> None:
         if self._loading or self.preview is None:
             return
+        if self.fit_worker is not None:
+            self.status.value = "Fitting: wait for the fit or cancel it"
+            return
         changes = {name: slider.value for name, slider in self.sliders.items()}
         changes["noise_model"] = self.noise_model.value
         changes["modality"] = self.modality.value
@@ -206,6 +251,98 @@ class TuneWidget(Container):
             self._show(self._current_frame())
         except ValueError as err:
             self.status.value = f"Not applied: {err}"
+
+    # -- auto-fit -------------------------------------------------------------------------
+
+    def auto_fit(self) -> None:
+        """Fit the parameters to the chosen real image's painted classes, in a worker."""
+        from napari.qt.threading import thread_worker
+
+        from napari_symbac.fit import fit_parameters
+
+        reference = self.reference.value
+        if self.preview is None or reference is None:
+            self.status.value = "Choose a rendered layer and a real image first"
+            return
+        if class_layer_name(reference.name) not in self.viewer.layers:
+            self.status.value = (
+                f"Paint classes on {reference.name} first (Real image and classes widget)"
+            )
+            return
+        index = self._current_frame()
+        real = np.asarray(reference.data)
+        classes = np.asarray(self.viewer.layers[class_layer_name(reference.name)].data)
+        if real.ndim == 3:
+            real, classes = real[min(index, len(real) - 1)], classes[min(index, len(classes) - 1)]
+        preview = self.preview
+        scene = preview.scene(index)
+        self._fit_cancelled = False
+
+        @thread_worker(progress={"total": 0, "desc": "SyMBac auto-fit"})
+        def work():
+            return fit_parameters(
+                real,
+                classes,
+                scene,
+                preview.model.microscope,
+                preview.render_settings,
+                preview.model.camera,
+                model=preview.model,
+                cancel=lambda: self._fit_cancelled,
+            )
+
+        self.fit_worker = work()
+        self.fit_worker.returned.connect(self._on_fit_returned)
+        self.fit_worker.errored.connect(self._on_fit_errored)
+        self.fit_worker.finished.connect(self._on_fit_finished)
+        self.fit_button.enabled = False
+        self.cancel_fit_button.enabled = True
+        self.status.value = "Fitting..."
+        self.fit_worker.start()
+
+    def cancel_fit(self) -> None:
+        """Stop the fit before its next render; the parameters stay as they were."""
+        self._fit_cancelled = True
+
+    def _on_fit_returned(self, result) -> None:
+        self.fit_result = result
+        fitted = {name: getattr(result.render, name) for name in SLIDERS}
+        self._loading = True
+        try:
+            for name, value in fitted.items():
+                slider = self.sliders[name]
+                slider.max = max(slider.max, float(value))
+                slider.value = float(value)
+        finally:
+            self._loading = False
+        self.preview.update(**dataclasses.asdict(result.render))
+        self._stale = set(range(self.preview.n_frames))
+        self._show(self._current_frame())
+        self._store_settings()
+        self.terms_table.value = {
+            "term": list(result.terms),
+            "before": [f"{before:.4g}" for before, _ in result.terms.values()],
+            "after": [f"{after:.4g}" for _, after in result.terms.values()],
+        }
+        self.terms_image.value = terms_plot(result.terms)
+        self.terms_image.visible = True
+        self.status.value = (
+            f"Fitted in {result.n_evaluations} renders: objective "
+            f"{result.objective_before:.4g} -> {result.objective_after:.4g}"
+        )
+
+    def _on_fit_errored(self, err: Exception) -> None:
+        from napari_symbac.fit import FitCancelled
+
+        if isinstance(err, FitCancelled):
+            self.status.value = "Fit cancelled: parameters unchanged"
+        else:
+            self.status.value = f"Fit failed: {err}"
+
+    def _on_fit_finished(self) -> None:
+        self.fit_worker = None
+        self.fit_button.enabled = True
+        self.cancel_fit_button.enabled = False
 
     def _on_step(self, _event=None) -> None:
         if self.preview is not None and self._current_frame() in self._stale:

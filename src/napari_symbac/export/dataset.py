@@ -390,7 +390,7 @@ class PipelineSource:
                 varied.render,
                 curvature=curvature,
             )
-            image = model.render(scene, rng)
+            image = model.render(scene, rng, cache=False)
             labels = scene.camera_labels()
             present = np.unique(labels)
             item_params = {"simulation": sim_index, "frame": frame, **params}

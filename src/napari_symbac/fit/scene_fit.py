@@ -182,12 +182,15 @@ def otsu_cells(
     *,
     geometry: Literal["trench", "open"] = "trench",
     depth_um: float = 1.2,
+    max_cell_length_um: float = 4.0,
 ) -> tuple[FrameCells, np.ndarray, TrenchPlacement | None, np.ndarray]:
     """Plain segmentation: Otsu threshold, watershed, region moments.
 
     Phase contrast is assumed (cells darker than the media around them). In a trench
-    the trench is found first from the column profile (Otsu threshold of the column
-    means, longest run above it) and its closed end from the row profile.
+    the trench is found first from the column profile (90th percentile of each
+    column, longest run above 30 % of its range) and its closed end from the row
+    profile (Otsu threshold). A region longer than ``max_cell_length_um`` is taken
+    as several touching cells and starts as equal rods along its axis.
 
     Returns
     -------
@@ -203,16 +206,20 @@ def otsu_cells(
         The instance labels of the segmentation (camera pixels).
     """
     from skimage.filters import threshold_otsu
-    from skimage.morphology import h_maxima, remove_small_objects
-    from skimage.segmentation import watershed
+    from skimage.morphology import remove_small_objects
 
     px = microscope.pixel_size_um
     smooth = ndimage.gaussian_filter(image, 1.0)
     region = np.ones(image.shape, bool)
     trench = None
     if geometry == "trench":
-        columns = smooth.mean(axis=0)
-        run = _longest_run(columns > threshold_otsu(columns))
+        # Device columns are dark all along; trench columns hold bright media or halo
+        # somewhere: the 90th percentile of each column separates them.
+        columns = np.percentile(smooth, 90, axis=0)
+        low, high = np.percentile(columns, 10), columns.max()
+        above = columns > low + 0.3 * (high - low)
+        above = ndimage.binary_closing(above, np.ones(7, bool)) | above  # dips between halos
+        run = _longest_run(above)
         if run is None:
             raise ValueError("no trench found in the image: is it a mother-machine trench?")
         c0, c1 = run
@@ -229,9 +236,15 @@ def otsu_cells(
     threshold = threshold_otsu(smooth[region])
     mask = (smooth < threshold) & region
     mask = ndimage.binary_opening(mask)
-    mask = remove_small_objects(mask, max(int(0.4 / px**2), 4))
+    mask = remove_small_objects(mask, max_size=max(int(0.4 / px**2), 4))
+    # Cells in phase contrast are separated by bright septa: the components of the
+    # mask eroded by ~0.1 um (which breaks thin necks between touching cells) are the
+    # markers of a watershed that grows them back inside the mask.
+    from skimage.segmentation import watershed
+
+    erode_px = max(round(0.1 / px), 1)
+    markers, _ = ndimage.label(ndimage.binary_erosion(mask, iterations=erode_px))
     distance = ndimage.distance_transform_edt(mask)
-    markers, _ = ndimage.label(h_maxima(distance, 1.5))
     instances = watershed(-distance, markers, mask=mask)
     rows_list = []
     for index in range(1, int(instances.max()) + 1):
@@ -252,7 +265,14 @@ def otsu_cells(
         area = rr.size * px * px
         width = _spherocylinder_width(area, length)
         width = min(max(width, 2 * px), length)
-        rows_list.append((cx, cy, angle, length, width))
+        # A region much longer than a cell is several touching cells: start with
+        # equal rods along its axis (the fit moves and sizes them).
+        k = max(math.ceil(length / (0.75 * max_cell_length_um)), 1) if length > max_cell_length_um else 1
+        for j in range(k):
+            offset = (j + 0.5) * length / k - length / 2
+            rows_list.append(
+                (cx + offset * vx, cy + offset * vy, angle, max(length / k, width), width)
+            )
     if not rows_list:
         raise ValueError("the Otsu segmentation found no cells in the image")
     rows_list.sort(key=lambda row: (row[1], row[0]))

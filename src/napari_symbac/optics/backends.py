@@ -65,15 +65,18 @@ class ScipyBackend:
     def __init__(self) -> None:
         self._kernel_ffts: dict[tuple, np.ndarray] = {}
 
-    def _kernel_fft(self, kernel: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-        key = (hashlib.blake2b(kernel.tobytes(), digest_size=16).hexdigest(), kernel.shape, shape)
+    def _cached(self, key: tuple, make) -> np.ndarray:
         cached = self._kernel_ffts.get(key)
         if cached is None:
-            cached = sp_fft.rfft2(kernel, s=shape, workers=-1)
+            cached = make()
             if len(self._kernel_ffts) >= 8:
                 self._kernel_ffts.pop(next(iter(self._kernel_ffts)))
             self._kernel_ffts[key] = cached
         return cached
+
+    def _kernel_fft(self, kernel: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+        key = (hashlib.blake2b(kernel.tobytes(), digest_size=16).hexdigest(), kernel.shape, shape)
+        return self._cached(key, lambda: sp_fft.rfft2(kernel, s=shape, workers=-1))
 
     def convolve_valid(
         self, images: np.ndarray, kernel: np.ndarray, *, sum_planes: bool = False
@@ -90,6 +93,99 @@ class ScipyBackend:
         out = full[:, ky - 1 : images.shape[1], kx - 1 : images.shape[2]]
         out = np.ascontiguousarray(out, dtype=np.float32)
         return out[0] if sum_planes else out
+
+    # ------------------------------------------------------ convolve + resample
+    def _resample_kernel_fft(
+        self, kernel: np.ndarray, factor: int, shape: tuple[int, int]
+    ) -> np.ndarray:
+        """Spectrum of ``kernel`` convolved with the ``factor x factor`` mean filter.
+
+        The kernel is rolled so that the samples the block average needs land on
+        multiples of ``factor`` (see :meth:`convolve_resample`).
+        """
+        key = (
+            hashlib.blake2b(kernel.tobytes(), digest_size=16).hexdigest(),
+            kernel.shape,
+            shape,
+            "resample",
+            factor,
+        )
+
+        def make() -> np.ndarray:
+            k64 = np.asarray(kernel, np.float64)
+            ky, kx = k64.shape
+            padded = np.zeros(shape, np.float64)
+            # kernel (*) box: the box sum of the kernel at every offset, divided by factor^2
+            for dy in range(factor):
+                for dx in range(factor):
+                    padded[dy : dy + ky, dx : dx + kx] += k64
+            padded /= factor * factor
+            shift = (ky + factor - 2, kx + factor - 2)
+            padded = np.roll(padded, (-shift[0], -shift[1]), axis=(0, 1))
+            return sp_fft.rfft2(padded.astype(np.float32), workers=-1)
+
+        return self._cached(key, make)
+
+    def convolve_resample(
+        self,
+        images: np.ndarray,
+        kernel: np.ndarray,
+        factor: int,
+        *,
+        weights: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Valid convolution followed by the ``factor x factor`` block average.
+
+        Equals ``block_average(convolve_valid(images, kernel), factor)`` (float
+        rounding aside) but costs one forward transform per image and an inverse
+        transform ``factor**2`` times smaller: the block mean is folded into the
+        kernel's (cached) spectrum and the decimation into an aliasing sum of the
+        product spectrum. With ``weights`` (one per image) the images are first
+        combined into one, ``sum_i weights[i] images[i]`` (by linearity the same as
+        weighting the convolved images), and a single ``(Y', X')`` image is returned.
+
+        ``images`` is ``(N, Y, X)`` with ``Y - ky + 1`` and ``X - kx + 1``
+        multiples of ``factor``; the result is ``(N, (Y - ky + 1) // factor,
+        (X - kx + 1) // factor)`` float32.
+        """
+        images, kernel = _check(images, kernel)
+        if kernel.shape[0] != 1:
+            raise ValueError("convolve_resample takes one 2-D kernel")
+        kernel = kernel[0]
+        factor = int(factor)
+        ky, kx = kernel.shape
+        rows, cols = images.shape[1] - ky + 1, images.shape[2] - kx + 1
+        if factor < 1 or rows % factor or cols % factor:
+            raise ValueError(
+                f"the valid convolution ({rows}, {cols}) is not a multiple of {factor}"
+            )
+        if weights is not None:
+            weights = np.asarray(weights, np.float32)
+            if weights.shape != (images.shape[0],):
+                raise ValueError(f"weights {weights.shape} do not fit images {images.shape}")
+            combined = weights[0] * images[0]
+            for weight, image in zip(weights[1:], images[1:]):
+                combined += weight * image
+            images = combined[None]
+        m1 = sp_fft.next_fast_len(-(-images.shape[1] // factor))
+        m2 = sp_fft.next_fast_len(-(-images.shape[2] // factor))
+        shape = (m1 * factor, m2 * factor)
+        spectrum = sp_fft.rfft2(images, s=shape, workers=-1)
+        spectrum *= self._resample_kernel_fft(kernel, factor, shape)
+        # Decimate the rows: sum the aliases of the (full, complex) row frequencies.
+        folded = spectrum.reshape(spectrum.shape[0], factor, m1, -1).sum(axis=1)
+        folded = sp_fft.ifft(folded, axis=1, workers=-1)
+        # Decimate the columns of the now real rows: rebuild the Hermitian spectrum,
+        # sum its aliases and transform back.
+        n2 = shape[1]
+        half = folded.shape[-1]
+        mirror = np.conj(folded[..., n2 - half : 0 : -1]) if n2 - half > 0 else folded[..., :0]
+        full = np.concatenate([folded, mirror], axis=-1)
+        cols_spec = full.reshape(*full.shape[:-1], factor, m2).sum(axis=-2)
+        out = sp_fft.irfft(cols_spec[..., : m2 // 2 + 1], n=m2, axis=-1, workers=-1)
+        out = out[:, : rows // factor, : cols // factor] / (factor * factor)
+        out = np.ascontiguousarray(out, dtype=np.float32)
+        return out[0] if weights is not None else out
 
 
 class TorchBackend:

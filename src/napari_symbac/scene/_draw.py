@@ -9,6 +9,7 @@ physical optical path length.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import math
 from collections.abc import Mapping
@@ -94,7 +95,6 @@ class Scene:
     pixel_size_um: float
     depth_um: float
     cell_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    fingerprints: dict[str, str] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         shape = None
@@ -125,11 +125,19 @@ class Scene:
                 f"upsample {self.upsample} and border_px {self.border_px} imply {expected}"
             )
         object.__setattr__(self, "cell_ids", _readonly(np.asarray(self.cell_ids, np.int64)))
-        object.__setattr__(
-            self,
-            "fingerprints",
-            {name: _fingerprint(getattr(self, name)) for name in ("cells", "media", "device")},
-        )
+
+    @property
+    def fingerprints(self) -> dict[str, str]:
+        """Content hashes of ``cells``, ``media`` and ``device`` (cache keys).
+
+        Computed on first use (the images are read-only, so they cannot go stale):
+        bulk rendering, which does not cache, never pays for them.
+        """
+        cached = self.__dict__.get("_fingerprints")
+        if cached is None:
+            cached = {name: _fingerprint(getattr(self, name)) for name in ("cells", "media", "device")}
+            object.__setattr__(self, "_fingerprints", cached)
+        return cached
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -322,6 +330,25 @@ def _coverage(centres_um: np.ndarray, pixel_um: float, low_um: float, high_um: f
     return np.clip((hi - lo) / pixel_um, 0.0, 1.0)
 
 
+@functools.lru_cache(maxsize=16)
+def _trench_images(
+    shape: tuple[int, int], border: int, px: float, margin_um: float, width_um: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Trench (media-filled) fraction and device fraction of every render pixel (read-only).
+
+    They depend on the geometry only, so every frame of a trench shares them.
+    """
+    yc = (np.arange(shape[0]) - border + 0.5) * px
+    xc = (np.arange(shape[1]) - border + 0.5) * px
+    trench_frac = np.outer(
+        _coverage(yc, px, margin_um, np.inf), _coverage(xc, px, margin_um, margin_um + width_um)
+    ).astype(np.float32)
+    device = 1.0 - trench_frac
+    trench_frac.setflags(write=False)
+    device.setflags(write=False)
+    return trench_frac, device
+
+
 def draw_scene(
     cells: FrameCellsLike,
     trench: TrenchGeometry,
@@ -403,21 +430,26 @@ def draw_scene(
     # Physical coordinates of render-pixel centres, origin at the top-left of the field of view.
     yc = (np.arange(shape[0]) - border + 0.5) * px
     xc = (np.arange(shape[1]) - border + 0.5) * px
-    trench_frac = np.outer(
-        _coverage(yc, px, m, np.inf), _coverage(xc, px, m, m + trench.width_um)
-    ).astype(np.float32)
+    trench_frac, device = _trench_images(shape, border, px, m, trench.width_um)
 
     thickness = np.zeros(shape, np.float32)
     labels = np.zeros(shape, np.uint32)
+    boxes = []
     for i in range(n):
         r = width[i] / 2
         cx, cy = m + x[i], m + y[i]
         bend = curv.get(int(ids[i]))
-        reach = length[i] / 2 + (abs(bend[0]) if bend else 0.0) + 2 * px
-        j0 = max(math.floor((cx - reach) / px) + border, 0)
-        j1 = min(math.ceil((cx + reach) / px) + border + 1, shape[1])
-        i0 = max(math.floor((cy - reach) / px) + border, 0)
-        i1 = min(math.ceil((cy + reach) / px) + border + 1, shape[0])
+        # Bounding box of the cell: the rotated rectangle of half-length ``length / 2``
+        # along the axis and half-width ``r + |a|`` across it (the chord is zero outside).
+        half_len = length[i] / 2
+        half_wid = r + (abs(bend[0]) if bend else 0.0)
+        sin_a, cos_a = abs(math.sin(angle[i])), abs(math.cos(angle[i]))
+        reach_x = min(half_len * sin_a + half_wid * cos_a, half_len + half_wid) + 2 * px
+        reach_y = min(half_len * cos_a + half_wid * sin_a, half_len + half_wid) + 2 * px
+        j0 = max(math.floor((cx - reach_x) / px) + border, 0)
+        j1 = min(math.ceil((cx + reach_x) / px) + border + 1, shape[1])
+        i0 = max(math.floor((cy - reach_y) / px) + border, 0)
+        i1 = min(math.ceil((cy + reach_y) / px) + border + 1, shape[0])
         if j0 >= j1 or i0 >= i1:
             continue
         d = spherocylinder_distance(
@@ -429,12 +461,19 @@ def draw_scene(
         take = chord > box_t
         box_t[take] = chord[take]
         box_l[take] = ids[i]
+        boxes.append((slice(i0, i1), slice(j0, j1)))
 
-    cells_frac = np.minimum(thickness / np.float32(trench.depth_um), 1.0)
-    cells_frac = np.minimum(cells_frac, trench_frac)  # cells cannot sit inside the PDMS
-    labels[cells_frac <= 0] = 0
-    media = np.maximum(trench_frac - cells_frac, 0.0)
-    device = 1.0 - trench_frac
+    # Outside the cells' boxes there is no cell: cells = 0, media = trench, label 0.
+    # Inside them (overlaps are recomputed identically):
+    cells_frac = np.zeros(shape, np.float32)
+    media = trench_frac.copy()
+    depth = np.float32(trench.depth_um)
+    for box in boxes:
+        frac = np.minimum(thickness[box] / depth, np.float32(1.0))
+        frac = np.minimum(frac, trench_frac[box])  # cells cannot sit inside the PDMS
+        cells_frac[box] = frac
+        labels[box][frac <= 0] = 0
+        media[box] = np.maximum(trench_frac[box] - frac, np.float32(0.0))
     return Scene(
         cells=cells_frac,
         media=media,
