@@ -67,7 +67,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     import dataclasses
 
     from napari_symbac.settings import SimulationSettings, load_settings
-    from napari_symbac.sim import save_simulation, simulate
+    from napari_symbac.sim import simulate
 
     settings = (
         SimulationSettings()
@@ -75,15 +75,14 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         else load_settings(args.config, SimulationSettings)
     )
     overrides = {k: v for k, v in (("n_frames", args.frames), ("seed", args.seed)) if v is not None}
-    settings = dataclasses.replace(settings, **overrides)
     out = Path(args.out or settings.save_dir or "simulation")
+    # simulate() saves to save_dir itself, atomically, once the run is complete.
+    settings = dataclasses.replace(settings, **overrides, save_dir=str(out))
     timer = _Timer()
     update, bar = _tqdm_progress("simulate", settings.n_frames)
-    with timer.step("simulate"):
+    with timer.step("simulate and save"):
         simulation = simulate(settings, progress=update)
     bar.close()
-    with timer.step("save"):
-        save_simulation(simulation, out)
     print(
         f"wrote simulation of {settings.n_frames} frames, {len(simulation.lineage)} cells to {out}"
     )

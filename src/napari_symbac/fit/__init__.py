@@ -28,6 +28,13 @@ from napari_symbac.fit.parameters import (
     parameter_bounds,
     scene_classes,
 )
+from napari_symbac.fit.scene_fit import (
+    SceneFit,
+    TrenchPlacement,
+    draw_fit_scene,
+    fit_scene,
+    otsu_cells,
+)
 
 __all__ = [
     "CLASS_NAMES",
@@ -39,12 +46,17 @@ __all__ = [
     "ClassStatistics",
     "FitCancelled",
     "FitResult",
+    "SceneFit",
+    "TrenchPlacement",
     "as_image_stack",
     "as_label_stack",
     "as_single_image",
     "class_statistics",
+    "draw_fit_scene",
     "fit_parameters",
+    "fit_scene",
     "objective_terms",
+    "otsu_cells",
     "parameter_bounds",
     "scene_classes",
 ]

@@ -1,0 +1,104 @@
+"""Analysis by synthesis: fit_scene recovers cell sizes that Otsu gets wrong."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from _fit_synthetic import TRENCH
+
+from napari_symbac.fit import (
+    FitCancelled,
+    SceneFit,
+    TrenchPlacement,
+    draw_fit_scene,
+    fit_scene,
+    otsu_cells,
+    scene_classes,
+)
+from napari_symbac.settings import RenderSettings
+from napari_symbac.sim import FrameCells
+
+START = RenderSettings(apodisation_sigma_um=1.0, defocus_sigma_um=0.05, psf_offset=0.0)
+
+
+def _to_image_coordinates(cells: FrameCells, margin_um: float) -> FrameCells:
+    return FrameCells(
+        cells.ids,
+        cells.x_um + margin_um,
+        cells.y_um + margin_um,
+        cells.angle_rad,
+        cells.length_um,
+        cells.width_um,
+    )
+
+
+@pytest.fixture(scope="module")
+def scene_fit(truth) -> SceneFit:
+    return fit_scene(
+        truth.image,
+        truth.microscope,
+        START,
+        truth.camera,
+        labels=scene_classes(truth.scene),
+        irls_rounds=2,
+        max_iterations=15,
+    )
+
+
+def test_draw_fit_scene_matches_draw_scene(truth):
+    m = TRENCH.margin_um
+    placement = TrenchPlacement(m, TRENCH.width_um, m, TRENCH.depth_um)
+    scene = draw_fit_scene(
+        _to_image_coordinates(truth.cells, m),
+        placement,
+        truth.image.shape,
+        truth.microscope,
+        truth.render,
+    )
+    for name in ("cells", "media", "device", "labels"):
+        np.testing.assert_array_equal(getattr(scene, name), getattr(truth.scene, name))
+
+
+def test_scene_fit_recovers_widths_and_lengths(scene_fit, truth):
+    fitted = scene_fit.cells
+    assert len(fitted) == len(truth.cells)
+    order = np.argsort(fitted.y_um)
+    true = _to_image_coordinates(truth.cells, TRENCH.margin_um)
+    np.testing.assert_allclose(fitted.width_um[order], true.width_um, atol=0.020)
+    np.testing.assert_allclose(fitted.length_um[order], true.length_um, atol=0.050)
+    np.testing.assert_allclose(fitted.x_um[order], true.x_um, atol=0.03)
+    np.testing.assert_allclose(fitted.y_um[order], true.y_um, atol=0.03)
+    np.testing.assert_allclose(fitted.angle_rad[order], true.angle_rad, atol=0.03)
+    assert scene_fit.trench.width_um == pytest.approx(TRENCH.width_um, abs=0.02)
+    assert scene_fit.trench.left_um == pytest.approx(TRENCH.margin_um, abs=0.02)
+
+
+def test_scene_fit_reaches_the_noise_and_fits_intensities(scene_fit, truth):
+    assert scene_fit.objective_after == pytest.approx(1.0, abs=0.1)  # reduced chi-square
+    assert scene_fit.objective_before > 2 * scene_fit.objective_after
+    for name in ("cell_intensity", "media_intensity", "device_intensity"):
+        assert getattr(scene_fit.render, name) == pytest.approx(
+            getattr(truth.render, name), rel=0.03
+        ), name
+    assert scene_fit.render.defocus_sigma_um == pytest.approx(0.15, abs=0.03)
+    assert scene_fit.residual.shape == truth.image.shape
+    assert np.abs(scene_fit.residual).mean() < 100  # ~ the camera noise (80 ADU)
+    assert {"pixel", "eq20", "class_stats"} <= set(scene_fit.terms)
+
+
+def test_otsu_is_biased_narrow_and_short(truth):
+    cells, otsu_width, trench, instances = otsu_cells(truth.image.astype(float), truth.microscope)
+    assert len(cells) == 3 and instances.max() == 3
+    assert np.all(otsu_width < truth.cells.width_um - 0.15)  # section 1.3 of the supplement
+    assert trench is not None
+
+
+def test_scene_fit_inputs_are_checked(truth):
+    with pytest.raises(ValueError, match="single frame"):
+        fit_scene(np.stack([truth.image] * 2), truth.microscope, START, truth.camera)
+    with pytest.raises(ValueError, match="do not match"):
+        fit_scene(truth.image, truth.microscope, START, truth.camera, labels=np.zeros((5, 5)))
+    with pytest.raises(ValueError, match="width_sd_um"):
+        fit_scene(truth.image, truth.microscope, START, truth.camera, width_sd_um=-1.0)
+    with pytest.raises(FitCancelled):
+        fit_scene(truth.image, truth.microscope, START, truth.camera, cancel=lambda: True)
