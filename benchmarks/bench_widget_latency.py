@@ -18,11 +18,11 @@ import time
 
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
 
-import napari
 import numpy as np
 import scipy.fft
 from qtpy.QtWidgets import QApplication
 
+import napari
 from napari_symbac._widgets.simulate import RESULT_IMAGE_LAYER, SimulateWidget
 from napari_symbac._widgets.tune import TuneWidget
 from napari_symbac.settings import PipelineSettings, TrenchGeometry

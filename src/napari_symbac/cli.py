@@ -142,6 +142,67 @@ def _cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_fit(args: argparse.Namespace) -> int:
+    import dataclasses
+    import json
+
+    import imageio.v3 as iio
+    import numpy as np
+    import tifffile
+
+    from napari_symbac.fit import fit_scene
+    from napari_symbac.fit.scene_fit import before_after_montage
+    from napari_symbac.io import read_recording
+    from napari_symbac.settings import Microscope, load_settings, save_settings
+
+    timer = _Timer()
+    with timer.step("load"):
+        image = read_recording(args.image).data
+        if args.frame is not None:
+            image = image[args.frame]
+        labels = None if args.labels is None else tifffile.imread(args.labels)
+        base = _load_pipeline(args.config)
+        microscope = load_settings(args.microscope, Microscope)
+    update, bar = _tqdm_progress("fit")
+    with timer.step("fit"):
+        result = fit_scene(
+            image, microscope, base.render, base.camera, labels=labels, progress=update
+        )
+    bar.close()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    with timer.step("write"):
+        settings = dataclasses.replace(base, microscope=microscope, render=result.render)
+        note = ""
+        if result.trench is not None:
+            try:
+                trench = result.trench_geometry(image.shape[-2], microscope.pixel_size_um)
+                width = float(np.median(result.cells.width_um))
+                simulation = dataclasses.replace(
+                    base.simulation, trench=trench, cell_width_um=width
+                )
+                settings = dataclasses.replace(settings, simulation=simulation)
+            except ValueError as err:
+                note = f" (simulation settings kept: {err})"
+        save_settings(settings, out / "settings.yaml")
+        table = {
+            "cells": result.cells_table(),
+            "trench": None if result.trench is None else dataclasses.asdict(result.trench),
+            "terms": {k: list(v) for k, v in result.terms.items()},
+            "coordinates": "um from the top-left corner of the image",
+        }
+        (out / "cells.json").write_text(json.dumps(table, indent=2, default=float))
+        tifffile.imwrite(out / "residual.tif", result.residual)
+        iio.imwrite(out / "before_after.png", before_after_montage(image, result))
+    before, after = result.objective_before, result.objective_after
+    print(
+        f"fitted {len(result.cells)} cells; pixel chi2 {before:.3g} -> {after:.3g}; wrote "
+        f"settings.yaml, cells.json, residual.tif, before_after.png to {out}{note}"
+    )
+    print(timer.report())
+    return 0
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from napari_symbac.demo import run_demo
 
@@ -240,6 +301,22 @@ def build_parser() -> argparse.ArgumentParser:
     )
     export.add_argument("--scheduler", help="address of an existing dask scheduler")
     export.set_defaults(func=_cmd_export)
+
+    fit = sub.add_parser(
+        "fit",
+        help="fit cells, trench and optics to a real image (analysis by synthesis)",
+        description="Segment a real phase-contrast trench (Otsu), then fit every cell, the "
+        "trench and the optical parameters so the rendered image overlays it; writes the "
+        "fitted PipelineSettings (settings.yaml, reusable by render/export), the fitted "
+        "cells (cells.json), the residual (residual.tif) and before_after.png.",
+    )
+    fit.add_argument("image", help="real image (TIFF), one frame")
+    fit.add_argument("--labels", help="painted class labels TIFF (1 cell, 2 media, 3 device)")
+    fit.add_argument("--microscope", required=True, help="Microscope YAML/JSON")
+    fit.add_argument("--config", help="PipelineSettings YAML/JSON with starting render/camera")
+    fit.add_argument("--frame", type=int, help="frame of a time series to fit")
+    fit.add_argument("--out", required=True, help="output folder")
+    fit.set_defaults(func=_cmd_fit)
 
     defaults = sub.add_parser(
         "defaults",

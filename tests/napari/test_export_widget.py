@@ -7,7 +7,7 @@ import tifffile
 
 pytest.importorskip("napari", reason="the [gui] extra (napari + Qt) is not installed")
 
-from napari_symbac._widgets.export import ExportWidget  # noqa: E402
+from napari_symbac._widgets.export import ExportWidget
 
 
 @pytest.fixture

@@ -6,8 +6,8 @@ import pytest
 
 pytest.importorskip("magicgui", reason="the [gui] extra is not installed")
 
-from napari_symbac._widgets._forms import SettingsForm  # noqa: E402
-from napari_symbac.settings import (  # noqa: E402
+from napari_symbac._widgets._forms import SettingsForm
+from napari_symbac.settings import (
     Camera,
     Microscope,
     OutlineGeometry,

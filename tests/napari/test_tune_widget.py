@@ -7,13 +7,13 @@ import pytest
 
 pytest.importorskip("napari", reason="the [gui] extra (napari + Qt) is not installed")
 
-from napari_symbac._widgets.simulate import (  # noqa: E402
+from napari_symbac._widgets.simulate import (
     RESULT_IMAGE_LAYER,
     RESULT_LABELS_LAYER,
     SYMBAC_METADATA_KEY,
     SimulateWidget,
 )
-from napari_symbac._widgets.tune import TuneWidget  # noqa: E402
+from napari_symbac._widgets.tune import TuneWidget
 
 
 @pytest.fixture
