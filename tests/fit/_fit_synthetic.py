@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
 from napari_symbac.optics import ForwardModel
 from napari_symbac.scene import Scene, draw_scene
 from napari_symbac.settings import Camera, Microscope, RenderSettings, TrenchGeometry

@@ -6,6 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from _fit_synthetic import TRENCH, make_cells
 
 from napari_symbac.fit import (
     CLASS_VALUES,
@@ -16,8 +17,6 @@ from napari_symbac.fit import (
 )
 from napari_symbac.scene import draw_scene
 from napari_symbac.settings import Microscope, RenderSettings
-
-from _fit_synthetic import TRENCH, make_cells
 
 #: A deliberately wrong start: intensities 20 % off, apodisation and defocus far away.
 START = RenderSettings(
@@ -63,7 +62,8 @@ def test_pixel_fit_recovers_intensities_apodisation_and_defocus(pixel_fit, truth
 
 def test_progress_is_reported_and_bounded(pixel_fit):
     result, calls = pixel_fit
-    assert calls and calls[-1][0] == calls[-1][1]
+    assert calls
+    assert calls[-1][0] == calls[-1][1]
     assert all(done <= total for done, total in calls)
     assert result.n_evaluations == len(calls) - 1  # one final (done == total) call
 

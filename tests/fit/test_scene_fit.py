@@ -88,7 +88,8 @@ def test_scene_fit_reaches_the_noise_and_fits_intensities(scene_fit, truth):
 
 def test_otsu_is_biased_narrow_and_short(truth):
     cells, otsu_width, trench, instances = otsu_cells(truth.image.astype(float), truth.microscope)
-    assert len(cells) == 3 and instances.max() == 3
+    assert len(cells) == 3
+    assert instances.max() == 3
     assert np.all(otsu_width < truth.cells.width_um - 0.15)  # section 1.3 of the supplement
     assert trench is not None
 

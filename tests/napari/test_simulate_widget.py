@@ -53,3 +53,32 @@ def test_invalid_settings_are_reported_not_raised(widget):
     widget.run_button.native.click()
     assert "does not fit in a trench" in widget.status.value
     assert widget.worker is None
+
+
+def test_optical_path_length_layer_is_aligned(widget, qtbot):
+    import numpy as np
+
+    from napari_symbac._widgets.simulate import RESULT_OPL_LAYER
+
+    widget.form.n_frames.value = 4
+    widget.show_opl.value = True
+    widget.run_button.native.click()
+    qtbot.waitUntil(lambda: RESULT_OPL_LAYER in widget.viewer.layers, timeout=120_000)
+    opl = widget.viewer.layers[RESULT_OPL_LAYER]
+    image = widget.viewer.layers[RESULT_IMAGE_LAYER]
+    labels = widget.viewer.layers[RESULT_LABELS_LAYER].data
+    upsample = widget.pipeline.render.upsample
+    assert opl.data.shape == (4, labels.shape[1] * upsample, labels.shape[2] * upsample)
+    # The centre render pixel of a camera pixel sits at that camera pixel's world position.
+    centre = upsample // 2
+    np.testing.assert_allclose(
+        opl.data_to_world((0, centre + upsample * 5, centre + upsample * 7)),
+        image.data_to_world((0, 5, 7)),
+        atol=1e-9,
+    )
+    # Light crosses more optical path through a cell (n_cell > n_media) than through the
+    # empty trench (OPL3 = n_media * depth, the lowest value with n_media < n_PDMS).
+    cells = np.kron(labels[-1] > 0, np.ones((upsample, upsample), bool))
+    empty_trench = 1.333 * widget.pipeline.simulation.trench.depth_um
+    assert opl.data[-1].min() == pytest.approx(empty_trench, rel=1e-4)
+    assert opl.data[-1][cells].mean() > empty_trench + 0.02

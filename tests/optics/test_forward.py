@@ -139,7 +139,8 @@ def test_fused_convolve_resample_matches_convolve_then_average(upsample):
     backend = ScipyBackend()
     expected = block_average(backend.convolve_valid(images, kernel), upsample)
     got = backend.convolve_resample(images, kernel, upsample)
-    assert got.shape == expected.shape and got.dtype == np.float32
+    assert got.shape == expected.shape
+    assert got.dtype == np.float32
     np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-6)
     weights = np.array([700.0, 4200.0, 950.0])
     combined = backend.convolve_resample(images, kernel, upsample, weights=weights)
@@ -155,7 +156,8 @@ def test_fast_path_equals_cached_path(scene, noise_model):
     misses = model.cache_info["misses"]
     fast = model.render_clean(scene, cache=False)
     assert model.cache_info["misses"] == misses  # the fast path neither reads nor fills the cache
-    assert fast.dtype == np.float32 and fast.shape == cached.shape
+    assert fast.dtype == np.float32
+    assert fast.shape == cached.shape
     np.testing.assert_allclose(fast, cached, rtol=1e-5, atol=5e-3)
     a = model.render(scene, np.random.default_rng(7))
     b = model.render(scene, np.random.default_rng(7), cache=False)

@@ -10,7 +10,7 @@ import dataclasses
 from typing import TYPE_CHECKING
 
 import numpy as np
-from magicgui.widgets import Container, Label, PushButton
+from magicgui.widgets import CheckBox, Container, Label, PushButton
 
 from napari_symbac._widgets._forms import SettingsForm
 from napari_symbac.settings import PipelineSettings, SimulationSettings
@@ -22,6 +22,7 @@ __all__ = [
     "PREVIEW_LAYER",
     "RESULT_IMAGE_LAYER",
     "RESULT_LABELS_LAYER",
+    "RESULT_OPL_LAYER",
     "SYMBAC_METADATA_KEY",
     "SimulateWidget",
 ]
@@ -29,6 +30,7 @@ __all__ = [
 PREVIEW_LAYER = "simulation preview"
 RESULT_IMAGE_LAYER = "synthetic"
 RESULT_LABELS_LAYER = "synthetic labels"
+RESULT_OPL_LAYER = "synthetic optical path length"
 #: Layer-metadata key under which rendered layers carry their simulation and settings.
 SYMBAC_METADATA_KEY = "symbac"
 
@@ -50,10 +52,11 @@ class SimulateWidget(Container):
         self.form = SettingsForm(
             SimulationSettings, self.pipeline.simulation, name="settings", label="simulation"
         )
+        self.show_opl = CheckBox(name="show_opl", text="also show optical path length (eq. OPL1-3)")
         self.run_button = PushButton(text="Run simulation", name="run")
         self.cancel_button = PushButton(text="Cancel", name="cancel", enabled=False)
         self.status = Label(value="", name="status")
-        self.extend([self.form, self.run_button, self.cancel_button, self.status])
+        self.extend([self.form, self.show_opl, self.run_button, self.cancel_button, self.status])
         if hasattr(self.form, "geometry"):
             self.form.geometry.changed.connect(self._show_geometry_settings)
             self._show_geometry_settings()
@@ -90,10 +93,16 @@ class SimulateWidget(Container):
             return
         n_frames = sim_settings.n_frames
         self._n_frames = n_frames
+        with_opl = self.show_opl.value
 
-        @thread_worker(progress={"total": 2 * n_frames, "desc": "SyMBac simulate + render"})
+        @thread_worker(
+            progress={
+                "total": (3 if with_opl else 2) * n_frames,
+                "desc": "SyMBac simulate + render",
+            }
+        )
         def work():
-            from napari_symbac.pipeline import RenderedSeries, iter_render
+            from napari_symbac.pipeline import RenderedSeries, draw_frame, iter_render
             from napari_symbac.scene import draw_scene
             from napari_symbac.sim import Simulator
 
@@ -107,7 +116,15 @@ class SimulateWidget(Container):
                 frames.append(rendered)
                 yield ("rendered", len(frames), None)
             series = RenderedSeries.from_frames(frames)
-            return simulation, pipeline, series
+            opl = None
+            if with_opl:
+                opl = []
+                for index in range(n_frames):
+                    scene = draw_frame(simulation, pipeline, index)
+                    opl.append(scene.interior(scene.optical_path_length()))
+                    yield ("opl", index + 1, None)
+                opl = np.stack(opl)
+            return simulation, pipeline, series, opl
 
         self.worker = work()
         self.worker.yielded.connect(self._on_yielded)
@@ -136,11 +153,13 @@ class SimulateWidget(Container):
                 self.viewer.layers[PREVIEW_LAYER].data = labels
             else:
                 self.viewer.add_labels(labels, name=PREVIEW_LAYER)
-        else:
+        elif stage == "rendered":
             self.status.value = f"Rendered frame {done} of {self._n_frames}"
+        else:
+            self.status.value = f"Optical path length of frame {done}"
 
     def _on_returned(self, result) -> None:
-        self.simulation, self.pipeline, self.series = result
+        self.simulation, self.pipeline, self.series, opl = result
         self._remove_preview()
         metadata = {SYMBAC_METADATA_KEY: {"simulation": self.simulation, "settings": self.pipeline}}
         scale = (1.0, *(2 * (self.pipeline.microscope.pixel_size_um,)))
@@ -156,8 +175,26 @@ class SimulateWidget(Container):
                 self.viewer.add_image(data, name=name, scale=scale, metadata=metadata)
             else:
                 self.viewer.add_labels(data, name=name, scale=scale, metadata=metadata)
+        if opl is not None:
+            self._show_opl(opl, metadata)
         n_cells = len(self.simulation.lineage)
         self.status.value = f"Done: {len(self.simulation.frames)} frames, {n_cells} cells"
+
+    def _show_opl(self, opl: np.ndarray, metadata: dict) -> None:
+        """Show the render-resolution OPL aligned with the camera-resolution layers."""
+        pixel = self.pipeline.microscope.pixel_size_um
+        upsample = self.pipeline.render.upsample
+        # Camera pixel i covers render pixels upsample*i .. upsample*(i+1) - 1.
+        offset = pixel * (1 / (2 * upsample) - 0.5)
+        kwargs = {
+            "scale": (1.0, pixel / upsample, pixel / upsample),
+            "translate": (0.0, offset, offset),
+            "metadata": metadata,
+            "colormap": "magma",
+        }
+        if RESULT_OPL_LAYER in self.viewer.layers:
+            self.viewer.layers.remove(RESULT_OPL_LAYER)
+        self.viewer.add_image(opl, name=RESULT_OPL_LAYER, visible=False, **kwargs)
 
     def _on_aborted(self) -> None:
         self._remove_preview()

@@ -309,7 +309,7 @@ def fit_parameters(
 
     def solve_class_means(a: np.ndarray) -> np.ndarray:
         rows, rhs = [], []
-        for cname, value in CLASS_VALUES.items():
+        for _cname, value in CLASS_VALUES.items():
             rmask = real_classes == value
             smask = syn_classes == value
             if rmask.any() and smask.any():
@@ -398,7 +398,9 @@ def fit_parameters(
             r = _render_with(render, names, zz, start)
             a = components(r)
             r = with_intensities(r, solve_class_means(a))
-            t = objective_terms(synthetic(r, a, True), real, real_masks_for_terms, terms=tuple(weights))
+            t = objective_terms(
+                synthetic(r, a, True), real, real_masks_for_terms, terms=tuple(weights)
+            )
             return total_objective(t, weights)
 
         z = np.zeros(len(names))

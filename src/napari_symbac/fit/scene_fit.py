@@ -77,8 +77,10 @@ class TrenchPlacement:
 
     def __post_init__(self) -> None:
         for name in ("left_um", "width_um", "top_um", "depth_um"):
-            if not math.isfinite(getattr(self, name)):
+            value = float(getattr(self, name))
+            if not math.isfinite(value):
                 raise ValueError(f"TrenchPlacement.{name} must be finite")
+            object.__setattr__(self, name, value)
         if self.width_um <= 0 or self.depth_um <= 0:
             raise ValueError("TrenchPlacement.width_um and depth_um must be positive")
 
@@ -228,7 +230,7 @@ def otsu_cells(
         first = int(np.argmax(np.convolve(above, np.ones(3), "same") >= 2))
         top_um = first * px if first > 0 else -2.0
         trench = TrenchPlacement(c0 * px, (c1 - c0 + 1) * px, top_um, depth_um)
-        region[:, : c0] = False
+        region[:, :c0] = False
         region[:, c1 + 1 :] = False
         region[: max(first, 0), :] = False
     elif geometry != "open":
@@ -255,7 +257,7 @@ def otsu_cells(
         y = (rr + 0.5) * px
         cx, cy = x.mean(), y.mean()
         cov = np.cov(np.stack([x - cx, y - cy]))
-        evals, evecs = np.linalg.eigh(cov)
+        _evals, evecs = np.linalg.eigh(cov)
         vx, vy = evecs[:, 1]
         if vy < 0:
             vx, vy = -vx, -vy
@@ -267,7 +269,11 @@ def otsu_cells(
         width = min(max(width, 2 * px), length)
         # A region much longer than a cell is several touching cells: start with
         # equal rods along its axis (the fit moves and sizes them).
-        k = max(math.ceil(length / (0.75 * max_cell_length_um)), 1) if length > max_cell_length_um else 1
+        k = (
+            max(math.ceil(length / (0.75 * max_cell_length_um)), 1)
+            if length > max_cell_length_um
+            else 1
+        )
         for j in range(k):
             offset = (j + 0.5) * length / k - length / 2
             rows_list.append(
@@ -310,6 +316,8 @@ class SceneFit:
         Noise-free rendered image, baseline included (ADU, float32).
     residual
         ``real - synthetic`` (ADU, float32): the pixelwise residual for diagnosis.
+    synthetic_before
+        The rendered start (Otsu geometry, starting optics, intensities solved).
     terms
         ``{term: (before, after)}``; ``pixel`` is the reduced chi-square with the
         camera's variance (1 = fitted to the noise).
@@ -328,6 +336,7 @@ class SceneFit:
     scene: Scene = field(repr=False)
     synthetic: np.ndarray = field(repr=False)
     residual: np.ndarray = field(repr=False)
+    synthetic_before: np.ndarray | None = field(default=None, repr=False)
     terms: dict[str, tuple[float, float]] = field(default_factory=dict)
     objective_before: float = math.nan
     objective_after: float = math.nan
@@ -434,7 +443,6 @@ def fit_scene(
     # ---- parameter vector (scaled units) -------------------------------------------
     scale_geo = 0.05
     width0 = float(np.clip(np.median(otsu_w) + 0.1, 0.4, 2.0))  # Otsu is biased narrow
-    names_cell = ("x_um", "y_um", "angle_rad", "length_um")
     p0: list[float] = []
     lo: list[float] = []
     hi: list[float] = []
@@ -476,9 +484,7 @@ def fit_scene(
         p0.append(v)
         lo.append(a)
         hi.append(b)
-    scales = np.array(
-        [scale_geo] * (i_optics) + [_SCALE[name] for name in fit_optics], dtype=float
-    )
+    scales = np.array([scale_geo] * (i_optics) + [_SCALE[name] for name in fit_optics], dtype=float)
     x0 = np.array(p0)
     lo_a, hi_a = np.array(lo), np.array(hi)
     x0 = np.clip(x0, lo_a + 1e-9, hi_a - 1e-9)
@@ -578,12 +584,12 @@ def fit_scene(
         scene=scene,
         synthetic=synthetic,
         residual=(real - synthetic).astype(np.float32),
+        synthetic_before=(clean0 + camera.baseline_adu).reshape(shape).astype(np.float32),
         terms=terms,
         objective_before=before_pixel,
         objective_after=after_pixel,
         n_evaluations=budget.done,
     )
-
 
 
 def _levenberg_marquardt(
@@ -632,3 +638,31 @@ def _levenberg_marquardt(
         if not improved or gain < 1e-6:
             break
     return z
+
+
+def before_after_montage(real_image: np.ndarray, result: SceneFit) -> np.ndarray:
+    """An 8-bit RGB figure: real | start (Otsu) | fitted | residual, side by side.
+
+    The three images share one grey scale (0.5-99.5 percentiles of the real image);
+    the residual is shown on a symmetric scale, red positive, blue negative.
+    """
+    real = as_single_image(real_image, name="real_image")
+    low, high = np.percentile(real, [0.5, 99.5])
+    panels = []
+    before = result.synthetic_before if result.synthetic_before is not None else result.synthetic
+    for image in (real, before, result.synthetic):
+        grey = np.clip((np.asarray(image, float) - low) / max(high - low, 1e-9), 0, 1)
+        panels.append(np.repeat((grey * 255).astype(np.uint8)[..., None], 3, axis=-1))
+    res = np.asarray(result.residual, float)
+    limit = max(float(np.percentile(np.abs(res), 99)), 1e-9)
+    v = np.clip(res / limit, -1, 1)
+    rgb = np.full((*res.shape, 3), 255, np.uint8)
+    rgb[..., 0] = (255 * (1 - np.maximum(-v, 0))).astype(np.uint8)
+    rgb[..., 1] = (255 * (1 - np.abs(v))).astype(np.uint8)
+    rgb[..., 2] = (255 * (1 - np.maximum(v, 0))).astype(np.uint8)
+    panels.append(rgb)
+    gap = np.zeros((real.shape[0], 3, 3), np.uint8)
+    row = [panels[0]]
+    for panel in panels[1:]:
+        row.extend([gap, panel])
+    return np.concatenate(row, axis=1)

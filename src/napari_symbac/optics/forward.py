@@ -6,7 +6,9 @@ Stages, in order:
    eq. 6, with the defocus of eq. 14 folded in, convolved with each scene component
    (cells, media, device) separately (eq. 15), then area-averaged to camera pixels.
    Each convolved component is cached, keyed on the component's content and the
-   kernel's parameters.
+   kernel's parameters. The scipy backend fuses convolution and area average
+   (``convolve_resample``); ``render(..., cache=False)`` composes eq. 3 first and
+   convolves once (bulk rendering).
 2. ``intensity`` (eq. 3): ``I_c C + I_m M + I_t D``; by linearity this equals the
    convolution of the composed image, so changing an intensity only recombines
    cached arrays.

@@ -43,10 +43,11 @@ class FrameCellsLike(Protocol):
 
 
 def _fingerprint(array: np.ndarray) -> str:
-    digest = hashlib.blake2b(digest_size=16)
+    # SHA-256 runs at about 2 GB/s where the CPU has SHA instructions (twice blake2b).
+    digest = hashlib.sha256()
     digest.update(str((array.shape, array.dtype.str)).encode())
-    digest.update(np.ascontiguousarray(array).tobytes())
-    return digest.hexdigest()
+    digest.update(memoryview(np.ascontiguousarray(array)).cast("B"))
+    return digest.hexdigest()[:32]
 
 
 def _readonly(array: np.ndarray) -> np.ndarray:
@@ -135,7 +136,11 @@ class Scene:
         """
         cached = self.__dict__.get("_fingerprints")
         if cached is None:
-            cached = {name: _fingerprint(getattr(self, name)) for name in ("cells", "media", "device")}
+            known = self.__dict__.get("_known_fingerprints", {})
+            cached = {
+                name: known.get(name) or _fingerprint(getattr(self, name))
+                for name in ("cells", "media", "device")
+            }
             object.__setattr__(self, "_fingerprints", cached)
         return cached
 
@@ -333,10 +338,11 @@ def _coverage(centres_um: np.ndarray, pixel_um: float, low_um: float, high_um: f
 @functools.lru_cache(maxsize=16)
 def _trench_images(
     shape: tuple[int, int], border: int, px: float, margin_um: float, width_um: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Trench (media-filled) fraction and device fraction of every render pixel (read-only).
+) -> tuple[np.ndarray, np.ndarray, str]:
+    """Trench (media-filled) and device fractions of every render pixel (read-only).
 
-    They depend on the geometry only, so every frame of a trench shares them.
+    They depend on the geometry only, so every frame of a trench shares them (and
+    the device image's fingerprint).
     """
     yc = (np.arange(shape[0]) - border + 0.5) * px
     xc = (np.arange(shape[1]) - border + 0.5) * px
@@ -346,7 +352,7 @@ def _trench_images(
     device = 1.0 - trench_frac
     trench_frac.setflags(write=False)
     device.setflags(write=False)
-    return trench_frac, device
+    return trench_frac, device, _fingerprint(device)
 
 
 def draw_scene(
@@ -430,7 +436,7 @@ def draw_scene(
     # Physical coordinates of render-pixel centres, origin at the top-left of the field of view.
     yc = (np.arange(shape[0]) - border + 0.5) * px
     xc = (np.arange(shape[1]) - border + 0.5) * px
-    trench_frac, device = _trench_images(shape, border, px, m, trench.width_um)
+    trench_frac, device, device_fp = _trench_images(shape, border, px, m, trench.width_um)
 
     thickness = np.zeros(shape, np.float32)
     labels = np.zeros(shape, np.uint32)
@@ -474,7 +480,7 @@ def draw_scene(
         cells_frac[box] = frac
         labels[box][frac <= 0] = 0
         media[box] = np.maximum(trench_frac[box] - frac, np.float32(0.0))
-    return Scene(
+    scene = Scene(
         cells=cells_frac,
         media=media,
         device=device,
@@ -486,6 +492,9 @@ def draw_scene(
         depth_um=trench.depth_um,
         cell_ids=ids,
     )
+    # The device image is the cached, read-only array of this geometry: reuse its hash.
+    object.__setattr__(scene, "_known_fingerprints", {"device": device_fp})
+    return scene
 
 
 def vary_cell_brightness(scene: Scene, rng: np.random.Generator, cv: float = 0.3) -> Scene:

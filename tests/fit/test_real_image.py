@@ -1,0 +1,40 @@
+"""The fit on the real 100x trench (GPL-2 sample data read from ../shared/data/real)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import tifffile
+
+from napari_symbac.fit import fit_scene, otsu_cells
+from napari_symbac.settings import Camera, Microscope, RenderSettings
+
+
+@pytest.fixture(scope="module")
+def real_crop(real_data_dir) -> np.ndarray:
+    image = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")
+    assert image.shape == (256, 46)
+    return image[:128]  # closed end and the first cells
+
+
+def test_trench_is_found_where_it_is(real_crop):
+    microscope = Microscope(pixel_size_um=0.065)
+    cells, otsu_width, trench, _ = otsu_cells(real_crop.astype(float), microscope)
+    # ~23 px (1.5 um) wide trench near the middle of the 46 px crop, closed end at the top.
+    assert 1.2 < trench.width_um < 1.8
+    assert 0.3 < trench.left_um < 1.0
+    assert 0.5 < trench.top_um < 2.5
+    assert len(cells) >= 2
+    assert np.all((otsu_width > 0) & (otsu_width < 1.5))
+
+
+def test_scene_fit_lowers_the_residual_and_widens_the_otsu_cells(real_crop):
+    microscope = Microscope(pixel_size_um=0.065)
+    result = fit_scene(
+        real_crop, microscope, RenderSettings(), Camera(), irls_rounds=1, max_iterations=8
+    )
+    assert result.objective_after < result.objective_before / 2
+    assert np.sqrt(np.mean(result.residual**2)) < 0.5 * real_crop.std()
+    # Model-based width is wider than Otsu's (supplement section 1.3 bias).
+    assert result.cells.width_um[0] > np.median(result.otsu_width_um)
+    assert 0.7 < result.cells.width_um[0] < 1.4
