@@ -41,3 +41,31 @@ def _quiet_tqdm():
     import tqdm
 
     tqdm.tqdm.monitor_interval = 0
+
+
+def make_cells(y_um, x_um=0.7, angle_rad=0.0, length_um=3.0, width_um=1.0, ids=None):
+    """A :class:`~napari_symbac.sim.FrameCells` from scalars or per-cell sequences."""
+    import numpy as np
+
+    from napari_symbac.sim import FrameCells
+
+    y = np.atleast_1d(np.asarray(y_um, float))
+    n = y.size
+
+    def column(value):
+        return np.broadcast_to(np.asarray(value, float), (n,)).copy()
+
+    return FrameCells(
+        ids=np.arange(1, n + 1, dtype=np.int64) if ids is None else np.asarray(ids, np.int64),
+        x_um=column(x_um),
+        y_um=y,
+        angle_rad=column(angle_rad),
+        length_um=column(length_um),
+        width_um=column(width_um),
+    )
+
+
+@pytest.fixture
+def cells_factory():
+    """Build frames of cells by hand: ``cells_factory([2.0, 5.0], width_um=0.9)``."""
+    return make_cells

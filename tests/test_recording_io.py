@@ -60,3 +60,17 @@ def test_bad_files_are_named(tmp_path):
     text.write_text("x")
     with pytest.raises(ValueError, match="is not a TIFF file"):
         read_recording(text)
+
+
+@pytest.mark.parametrize(
+    ("method", "modality"), [("Phase", "phase"), ("Fluorescence", "fluorescence")]
+)
+def test_ome_contrast_method_gives_modality(tmp_path, method, modality):
+    path = tmp_path / "x.ome.tif"
+    tifffile.imwrite(
+        path,
+        np.zeros((16, 16), np.uint16),
+        metadata={"axes": "YX", "Channel": {"Name": "c", "ContrastMethod": method}},
+    )
+    assert read_recording(path).modality == modality
+    assert read_recording(tmp_path / "x.ome.tif").pixel_size_um is None

@@ -5,12 +5,18 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import numpy as np
+
 from napari_symbac.settings import PipelineSettings
 
-__all__ = ["colicoords_field", "synthetic_trench"]
+__all__ = ["colicoords_field", "synthetic_agar_pad", "synthetic_trench"]
 
 SAMPLE_FRAMES = 24
 SAMPLE_SEED = 2024
+#: Frames simulated for the agar-pad sample (one founder grows to ~80 cells) and how
+#: many of the last ones are rendered.
+AGAR_PAD_FRAMES = 44
+AGAR_PAD_SHOWN = 3
 
 
 def synthetic_trench() -> list[tuple]:
@@ -37,6 +43,47 @@ def synthetic_trench() -> list[tuple]:
     return [
         (series.images, {"name": "synthetic trench", "scale": scale}, "image"),
         (series.labels, {"name": "synthetic trench labels", "scale": scale}, "labels"),
+    ]
+
+
+def synthetic_agar_pad() -> list[tuple]:
+    """A rendered agar-pad colony (supplement 13.2): the last few frames, with masks.
+
+    One founder grows into a monolayer colony of about 80 cells in a 25 x 25 um field;
+    the last frames are rendered in phase contrast with a small PSF offset (halo and
+    shade-off) and a Perlin background texture. Returns napari layer-data tuples: the
+    ``(T, Y, X)`` image and its labels (values are cell ids), scaled to micrometres.
+    """
+    from napari_symbac.optics import ForwardModel
+    from napari_symbac.pipeline import draw_frame, noise_rng
+    from napari_symbac.settings import AgarPadGeometry
+    from napari_symbac.sim import simulate
+
+    defaults = PipelineSettings()
+    settings = dataclasses.replace(
+        defaults,
+        simulation=dataclasses.replace(
+            defaults.simulation,
+            geometry="agar_pad",
+            agar_pad=AgarPadGeometry(25.0, 25.0),
+            n_frames=AGAR_PAD_FRAMES,
+            seed=SAMPLE_SEED,
+        ),
+        render=dataclasses.replace(defaults.render, psf_offset=0.05, texture_amplitude=0.05),
+    )
+    simulation = simulate(settings.simulation)
+    model = ForwardModel(settings.microscope, settings.render, settings.camera)
+    rng = noise_rng(settings)
+    images, labels = [], []
+    for index in range(AGAR_PAD_FRAMES - AGAR_PAD_SHOWN, AGAR_PAD_FRAMES):
+        scene = draw_frame(simulation, settings, index)
+        images.append(model.render(scene, rng, cache=False))
+        labels.append(scene.camera_labels())
+    pixel = settings.microscope.pixel_size_um
+    scale = (1.0, pixel, pixel)
+    return [
+        (np.stack(images), {"name": "synthetic agar pad", "scale": scale}, "image"),
+        (np.stack(labels), {"name": "synthetic agar pad labels", "scale": scale}, "labels"),
     ]
 
 

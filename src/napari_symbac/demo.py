@@ -89,9 +89,7 @@ def run_demo(
         pixel_size_um=settings.microscope.pixel_size_um,
         frame_interval_min=settings.simulation.frame_interval_min,
     )
-    written = timed(
-        "write dataset", lambda: write_items(items, out / "dataset", DEMO_FORMATS)
-    )
+    written = timed("write dataset", lambda: write_items(items, out / "dataset", DEMO_FORMATS))
     preview = out / "preview.png"
     timed(
         "preview", lambda: iio.imwrite(preview, montage(series.images, series.labels, columns=20))

@@ -25,11 +25,15 @@ class Recording:
         Pixel size from the file's OME or ImageJ metadata, or ``None`` if absent.
     name
         File stem, for layer names.
+    modality
+        ``"phase"`` or ``"fluorescence"`` from the OME ``ContrastMethod`` of the first
+        channel, or ``None`` if the file does not say.
     """
 
     data: np.ndarray
     pixel_size_um: float | None
     name: str
+    modality: str | None = None
 
 
 def _pixel_size_um(tif) -> float | None:
@@ -57,6 +61,18 @@ def _pixel_size_um(tif) -> float | None:
     return None
 
 
+_CONTRAST_METHODS = {"Phase": "phase", "Fluorescence": "fluorescence"}
+
+
+def _modality(tif) -> str | None:
+    if not (tif.is_ome and tif.ome_metadata):
+        return None
+    import re
+
+    match = re.search(r'ContrastMethod="([^"]+)"', tif.ome_metadata)
+    return _CONTRAST_METHODS.get(match.group(1)) if match else None
+
+
 def read_recording(path: str | Path) -> Recording:
     """Read a TIFF recording and its pixel size.
 
@@ -76,6 +92,7 @@ def read_recording(path: str | Path) -> Recording:
         with tifffile.TiffFile(path) as tif:
             data = tif.asarray()
             pixel = _pixel_size_um(tif)
+            modality = _modality(tif)
     except tifffile.TiffFileError as err:
         raise ValueError(f"{path} is not a readable TIFF: {err}") from err
     name = path.name
@@ -83,7 +100,7 @@ def read_recording(path: str | Path) -> Recording:
         if name.lower().endswith(suffix):
             name = name[: -len(suffix)]
             break
-    return Recording(data=data, pixel_size_um=pixel, name=name)
+    return Recording(data=data, pixel_size_um=pixel, name=name, modality=modality)
 
 
 def napari_get_reader(path):
@@ -95,7 +112,10 @@ def napari_get_reader(path):
 
 def _read_layers(path) -> list[tuple]:
     recording = read_recording(path)
-    meta = {"name": recording.name, "metadata": {"pixel_size_um": recording.pixel_size_um}}
+    meta = {
+        "name": recording.name,
+        "metadata": {"pixel_size_um": recording.pixel_size_um, "modality": recording.modality},
+    }
     if recording.pixel_size_um:
         scale = (recording.pixel_size_um,) * 2
         meta["scale"] = (1.0,) * (recording.data.ndim - 2) + scale

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from napari_symbac.optics import ForwardModel
-from napari_symbac.scene import Scene, draw_scene
+from napari_symbac.scene import Field, Scene, add_media_texture, draw_scene, field_of
 from napari_symbac.settings import PipelineSettings
 from napari_symbac.sim import Simulation
 
@@ -74,28 +74,41 @@ def _curvature(simulation: Simulation) -> dict[int, tuple[float, float, float]] 
     return curvature or None
 
 
-def draw_frame(simulation: Simulation, settings: PipelineSettings, index: int) -> Scene:
-    """Draw the scene of frame ``index`` of ``simulation``."""
-    return draw_scene(
+def _draw(
+    simulation: Simulation,
+    settings: PipelineSettings,
+    index: int,
+    curvature: dict[int, tuple[float, float, float]] | None,
+    field: Field | None,
+) -> Scene:
+    scene = draw_scene(
         simulation.frames[index],
         settings.simulation.trench,
         settings.microscope,
         settings.render,
-        curvature=_curvature(simulation),
+        curvature=curvature,
+        field=field,
     )
+    return add_media_texture(scene, settings.render.texture_amplitude, simulation.settings.seed)
+
+
+def draw_frame(simulation: Simulation, settings: PipelineSettings, index: int) -> Scene:
+    """Draw the scene of frame ``index`` of ``simulation``, in any geometry.
+
+    A trench or chamber is drawn with ``settings.simulation.trench``; an agar pad or
+    an outline in the field of view of :func:`~napari_symbac.scene.field_of`
+    ``(simulation)``. With ``settings.render.texture_amplitude > 0`` the media carries
+    the Perlin texture of the simulation's seed (:func:`~napari_symbac.scene.add_media_texture`).
+    """
+    return _draw(simulation, settings, index, _curvature(simulation), field_of(simulation))
 
 
 def iter_scenes(simulation: Simulation, settings: PipelineSettings) -> Iterator[Scene]:
-    """Draw the scene of every frame of ``simulation``."""
+    """Draw the scene of every frame of ``simulation`` (as :func:`draw_frame`)."""
     curvature = _curvature(simulation)
-    for frame in simulation.frames:
-        yield draw_scene(
-            frame,
-            settings.simulation.trench,
-            settings.microscope,
-            settings.render,
-            curvature=curvature,
-        )
+    field = field_of(simulation)
+    for index in range(len(simulation.frames)):
+        yield _draw(simulation, settings, index, curvature, field)
 
 
 def iter_render(

@@ -529,6 +529,10 @@ class RenderSettings:
         ``"camera"`` (EMVA1288, eq. 17), ``"gaussian"`` or ``"none"``.
     gaussian_noise_sd_adu
         Standard deviation of the Gaussian noise model.
+    texture_amplitude
+        Perlin background texture of an agar pad (section 13.2.1): the media image is
+        multiplied by ``1 + texture_amplitude * T`` with ``T`` a unit-s.d. Perlin
+        texture drawn from the simulation seed (same seed, same texture); 0 = none.
     """
 
     upsample: int = 3
@@ -542,6 +546,7 @@ class RenderSettings:
     psf_offset: float = 0.0
     noise_model: NoiseModel = "camera"
     gaussian_noise_sd_adu: float = 20.0
+    texture_amplitude: float = 0.0
 
     def __post_init__(self) -> None:
         _require(
@@ -560,6 +565,7 @@ class RenderSettings:
             "defocus_sigma_um",
             "ring_contrast",
             "gaussian_noise_sd_adu",
+            "texture_amplitude",
         )
         _positive(self, "apodisation_sigma_um")
         _require(

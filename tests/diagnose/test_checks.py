@@ -49,3 +49,13 @@ def test_colicoords_fields_show_their_known_processing(real_data_dir):
     assert 0.09 <= brightfield.clipped_high_fraction <= 0.12
     assert 0.17 <= fluorescence.clipped_low_fraction <= 0.19
     assert brightfield.clipped_low_fraction == 0
+
+
+@pytest.mark.parametrize("sd", [5.0, 40.0])
+def test_noise_sd_of_a_smooth_scene(sd):
+    from napari_symbac.diagnose import estimate_noise_sd
+
+    rng = np.random.default_rng(int(sd))
+    y, x = np.mgrid[:200, :160]
+    scene = 1000 + 3 * x + 0.01 * (y - 100) ** 2
+    assert estimate_noise_sd(scene + rng.normal(0, sd, scene.shape)) == pytest.approx(sd, rel=0.05)

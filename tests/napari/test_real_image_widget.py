@@ -26,6 +26,21 @@ def test_open_paint_measure(make_napari_viewer, tmp_path, real_data_dir):
     assert widget.image.value.name == "trench"
     assert widget.pixel_size.value == pytest.approx(0.065, abs=1e-4)
 
+    fluorescence = tmp_path / "fluo.ome.tif"
+    tifffile.imwrite(
+        fluorescence,
+        source,
+        metadata={
+            "axes": "YX",
+            "PhysicalSizeX": 0.11,
+            "Channel": {"ContrastMethod": "Fluorescence"},
+        },
+    )
+    widget.file.value = fluorescence
+    assert widget.modality.value == "fluorescence"
+    assert widget.pixel_size.value == pytest.approx(0.11)
+    widget.image.value = viewer.layers["trench"]
+
     widget.paint_button.native.click()
     labels = viewer.layers[class_layer_name("trench")]
     assert labels.mode == "paint"

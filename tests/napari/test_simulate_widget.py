@@ -82,3 +82,18 @@ def test_optical_path_length_layer_is_aligned(widget, qtbot):
     empty_trench = 1.333 * widget.pipeline.simulation.trench.depth_um
     assert opl.data[-1].min() == pytest.approx(empty_trench, rel=1e-4)
     assert opl.data[-1][cells].mean() > empty_trench + 0.02
+
+
+def test_agar_pad_run_previews_and_renders_its_field(widget, qtbot):
+    widget.form.geometry.value = "agar_pad"
+    widget.form.agar_pad.field_width_um.value = 12.0
+    widget.form.agar_pad.field_height_um.value = 10.0
+    widget.form.n_frames.value = 5
+    assert not widget.form.agar_pad.native.isHidden()  # only the chosen geometry's form
+    assert widget.form.outline.native.isHidden()
+    widget.run_button.native.click()
+    qtbot.waitUntil(lambda: RESULT_LABELS_LAYER in widget.viewer.layers, timeout=120_000)
+    labels = widget.viewer.layers[RESULT_LABELS_LAYER].data
+    pixel = widget.pipeline.microscope.pixel_size_um
+    assert labels.shape[1:] == (round(10.0 / pixel), round(12.0 / pixel))
+    assert labels[-1].max() > 0

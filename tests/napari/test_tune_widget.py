@@ -95,3 +95,19 @@ def test_auto_fit_needs_painted_classes(rendered):
     tune.fit_button.native.click()
     assert "Paint classes on plain first" in tune.status.value
     assert tune.fit_worker is None
+
+
+def test_match_noise_measures_the_real_image(rendered):
+    import numpy as np
+
+    viewer, tune = rendered
+    rng = np.random.default_rng(1)
+    _, x = np.mgrid[:120, :60]
+    real = (2000 + 5 * x + rng.normal(0, 35.0, x.shape)).astype(np.float32)
+    viewer.add_image(real, name="noisy real")
+    tune.reference.value = viewer.layers["noisy real"]
+    tune.match_noise.value = True
+    assert tune.noise_model.value == "gaussian"
+    assert tune.sliders["gaussian_noise_sd_adu"].value == pytest.approx(35.0, rel=0.08)
+    assert tune.preview.render_settings.gaussian_noise_sd_adu == pytest.approx(35.0, rel=0.08)
+    assert "Noise matched" in tune.status.value

@@ -116,8 +116,11 @@ def test_mismatched_scene_and_bad_settings(scene):
         ForwardModel(MIC, dataclasses.replace(RS, apodisation_sigma_um=0.1))
 
 
-@pytest.mark.skipif(importlib.util.find_spec("torch") is None, reason="PyTorch not installed")
-def test_torch_backend_matches_scipy(scene):
+def test_torch_backend_matches_scipy_or_says_what_to_install(scene):
+    if importlib.util.find_spec("torch") is None:
+        with pytest.raises(ValueError, match="torch"):
+            ForwardModel(MIC, RS, backend="torch")
+        return
     a = ForwardModel(MIC, RS).render_clean(scene)
     b = ForwardModel(MIC, RS, backend="torch").render_clean(scene)
     np.testing.assert_allclose(a, b, rtol=1e-4, atol=0.05)

@@ -49,6 +49,9 @@ class RealImageWidget(Container):
             max=10,
             step=0.001,
         )
+        self.modality = ComboBox(
+            name="modality", label="modality", choices=["phase", "fluorescence"]
+        )
         self.paint_button = PushButton(name="paint", text="Paint classes")
         self.measure_button = PushButton(name="measure", text="Measure classes")
         legend = " ".join(
@@ -62,6 +65,7 @@ class RealImageWidget(Container):
                 self.image,
                 self.file,
                 self.pixel_size,
+                self.modality,
                 self.paint_button,
                 self.legend,
                 self.measure_button,
@@ -96,14 +100,17 @@ class RealImageWidget(Container):
         layer = self.viewer.add_image(
             recording.data,
             name=recording.name,
-            metadata={"pixel_size_um": recording.pixel_size_um},
+            metadata={"pixel_size_um": recording.pixel_size_um, "modality": recording.modality},
         )
         self.image.value = layer
 
     def _prefill_pixel_size(self, _value=None) -> None:
+        """Fill pixel size and modality from the layer's metadata (or its scale)."""
         layer = self.image.value
         if layer is None:
             return
+        if layer.metadata.get("modality") in self.modality.choices:
+            self.modality.value = layer.metadata["modality"]
         pixel = layer.metadata.get("pixel_size_um")
         if not pixel and layer.scale[-1] != 1:  # a layer already scaled to micrometres
             pixel = float(layer.scale[-1])

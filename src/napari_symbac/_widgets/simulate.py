@@ -103,12 +103,15 @@ class SimulateWidget(Container):
         )
         def work():
             from napari_symbac.pipeline import RenderedSeries, draw_frame, iter_render
-            from napari_symbac.scene import draw_scene
+            from napari_symbac.scene import draw_scene, field_of
             from napari_symbac.sim import Simulator
 
             simulator = Simulator(sim_settings, np.random.default_rng(sim_settings.seed))
+            field = field_of(sim_settings)
             for index, frame in enumerate(simulator.iter_frames()):
-                scene = draw_scene(frame, sim_settings.trench, pipeline.microscope, pipeline.render)
+                scene = draw_scene(
+                    frame, sim_settings.trench, pipeline.microscope, pipeline.render, field=field
+                )
                 yield ("simulated", index + 1, scene.camera_labels())
             simulation = simulator.result()
             frames = []

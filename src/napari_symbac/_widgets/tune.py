@@ -88,6 +88,9 @@ class TuneWidget(Container):
         }
         self.match_fourier = CheckBox(name="match_fourier", text="match Fourier spectrum")
         self.match_histogram = CheckBox(name="match_histogram", text="match histogram")
+        self.match_noise = CheckBox(
+            name="match_noise", text="match noise (Gaussian, sd measured on the real image)"
+        )
         self.status = Label(name="status", value="")
         self.fit_button = PushButton(name="fit", text="Auto-fit to the real image")
         self.cancel_fit_button = PushButton(name="cancel_fit", text="Cancel fit", enabled=False)
@@ -102,6 +105,7 @@ class TuneWidget(Container):
                 *self.sliders.values(),
                 self.match_fourier,
                 self.match_histogram,
+                self.match_noise,
                 self.fit_button,
                 self.cancel_fit_button,
                 self.status,
@@ -123,6 +127,8 @@ class TuneWidget(Container):
             widget.changed.connect(self._on_parameter)
         for widget in (self.reference, self.match_fourier, self.match_histogram):
             widget.changed.connect(self._on_matching)
+        self.reference.changed.connect(self._match_noise)
+        self.match_noise.changed.connect(self._match_noise)
         viewer.dims.events.current_step.connect(self._on_step)
         for event in (viewer.layers.events.inserted, viewer.layers.events.removed):
             event.connect(self._refresh_choices)
@@ -236,11 +242,7 @@ class TuneWidget(Container):
     def _on_matching(self, _value: Any = None) -> None:
         if self.preview is None:
             return
-        reference = self.reference.value
-        frame = None
-        if reference is not None:
-            data = np.asarray(reference.data)
-            frame = data[min(self._current_frame(), len(data) - 1)] if data.ndim == 3 else data
+        frame = self._reference_frame()
         try:
             self.preview.set_reference(
                 frame,
@@ -343,6 +345,36 @@ class TuneWidget(Container):
         self.fit_worker = None
         self.fit_button.enabled = True
         self.cancel_fit_button.enabled = False
+
+    def _reference_frame(self) -> np.ndarray | None:
+        reference = self.reference.value
+        if reference is None:
+            return None
+        data = np.asarray(reference.data)
+        return data[min(self._current_frame(), len(data) - 1)] if data.ndim == 3 else data
+
+    def _match_noise(self, _value: Any = None) -> None:
+        """Set Gaussian noise with the sd measured on the real image (SyMBac's match_noise)."""
+        from napari_symbac.diagnose import estimate_noise_sd
+
+        frame = self._reference_frame()
+        if not self.match_noise.value or frame is None or self.preview is None:
+            return
+        try:
+            sd = estimate_noise_sd(frame)
+        except ValueError as err:
+            self.status.value = f"Not applied: {err}"
+            return
+        slider = self.sliders["gaussian_noise_sd_adu"]
+        slider.max = max(slider.max, sd)
+        self._loading = True
+        try:
+            self.noise_model.value = "gaussian"
+            slider.value = sd
+        finally:
+            self._loading = False
+        self._on_parameter()
+        self.status.value = f"Noise matched: Gaussian, sd {sd:.1f} ADU"
 
     def _on_step(self, _event=None) -> None:
         if self.preview is not None and self._current_frame() in self._stale:

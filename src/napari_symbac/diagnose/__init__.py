@@ -3,6 +3,12 @@
 Model-free checks of the recording come first: :func:`check_image`.
 """
 
-from napari_symbac.diagnose.checks import ImageChecks, NoiseFit, check_image, fit_poisson_gaussian
+from napari_symbac.diagnose.checks import (
+    ImageChecks,
+    NoiseFit,
+    check_image,
+    estimate_noise_sd,
+    fit_poisson_gaussian,
+)
 
-__all__ = ["ImageChecks", "NoiseFit", "check_image", "fit_poisson_gaussian"]
+__all__ = ["ImageChecks", "NoiseFit", "check_image", "estimate_noise_sd", "fit_poisson_gaussian"]

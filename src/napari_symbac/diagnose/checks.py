@@ -15,7 +15,7 @@ from scipy import ndimage
 
 from napari_symbac.fit.inputs import as_image_stack
 
-__all__ = ["ImageChecks", "NoiseFit", "check_image", "fit_poisson_gaussian"]
+__all__ = ["ImageChecks", "NoiseFit", "check_image", "estimate_noise_sd", "fit_poisson_gaussian"]
 
 
 @dataclass(frozen=True)
@@ -132,6 +132,21 @@ def fit_poisson_gaussian(
     design = np.column_stack([centres, np.ones(len(centres))])
     (gain, offset), *_ = np.linalg.lstsq(design, np.asarray(medians), rcond=None)
     return NoiseFit(gain=float(gain), offset=float(offset), n_bins=len(centres))
+
+
+def estimate_noise_sd(image: np.ndarray) -> float:
+    """Standard deviation of white noise in one 2D image (Immerkaer 1996).
+
+    ``sigma = sqrt(pi / 2) / (6 (H - 2)(W - 2)) * sum |I * N|`` with ``N`` the 3 x 3
+    difference of two Laplacians, which cancels smooth structure; robust to edges
+    when they cover a small part of the image.
+    """
+    frame = as_image_stack(image)
+    if frame.shape[0] != 1:
+        raise ValueError(f"estimate_noise_sd needs one 2D frame, got {frame.shape[0]} frames")
+    kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], float)
+    response = ndimage.convolve(frame[0], kernel)[1:-1, 1:-1]
+    return float(np.sqrt(np.pi / 2) * np.abs(response).mean() / 6)
 
 
 def check_image(image: np.ndarray, *, hot_pixel_sigma: float = 8.0) -> ImageChecks:

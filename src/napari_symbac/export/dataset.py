@@ -361,7 +361,7 @@ class PipelineSource:
 
     def make_unit(self, unit: int) -> list[ExportItem]:
         from napari_symbac.optics import ForwardModel
-        from napari_symbac.scene import draw_scene
+        from napari_symbac.scene import add_media_texture, draw_scene, field_of
 
         s = self.settings
         pipeline = s.pipeline
@@ -383,12 +383,17 @@ class PipelineSource:
         names = self.unit_names(unit)
         items = []
         for k, frame in enumerate(frames):
-            scene = draw_scene(
-                simulation.frames[frame],
-                pipeline.simulation.trench,
-                varied.microscope,
-                varied.render,
-                curvature=curvature,
+            scene = add_media_texture(
+                draw_scene(
+                    simulation.frames[frame],
+                    pipeline.simulation.trench,
+                    varied.microscope,
+                    varied.render,
+                    curvature=curvature,
+                    field=field_of(simulation),
+                ),
+                varied.render.texture_amplitude,
+                simulation.settings.seed,
             )
             image = model.render(scene, rng, cache=False)
             labels = scene.camera_labels()

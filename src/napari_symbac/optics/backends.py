@@ -76,7 +76,7 @@ class ScipyBackend:
 
     def _kernel_fft(self, kernel: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         key = (hashlib.blake2b(kernel.tobytes(), digest_size=16).hexdigest(), kernel.shape, shape)
-        return self._cached(key, lambda: sp_fft.rfft2(kernel, s=shape, workers=-1))
+        return self._cached(key, lambda: sp_fft.rfft2(kernel, s=shape))
 
     def convolve_valid(
         self, images: np.ndarray, kernel: np.ndarray, *, sum_planes: bool = False
@@ -84,12 +84,12 @@ class ScipyBackend:
         images, kernel = _check(images, kernel)
         shape = _fft_shape(images)
         ky, kx = kernel.shape[1:]
-        fi = sp_fft.rfft2(images, s=shape, workers=-1)
+        fi = sp_fft.rfft2(images, s=shape)
         fk = self._kernel_fft(kernel, shape)
         product = fi * fk
         if sum_planes:
             product = product.sum(axis=0, keepdims=True)
-        full = sp_fft.irfft2(product, s=shape, workers=-1)
+        full = sp_fft.irfft2(product, s=shape)
         out = full[:, ky - 1 : images.shape[1], kx - 1 : images.shape[2]]
         out = np.ascontiguousarray(out, dtype=np.float32)
         return out[0] if sum_planes else out
@@ -122,7 +122,7 @@ class ScipyBackend:
             padded /= factor * factor
             shift = (ky + factor - 2, kx + factor - 2)
             padded = np.roll(padded, (-shift[0], -shift[1]), axis=(0, 1))
-            return sp_fft.rfft2(padded.astype(np.float32), workers=-1)
+            return sp_fft.rfft2(padded.astype(np.float32))
 
         return self._cached(key, make)
 
@@ -170,11 +170,11 @@ class ScipyBackend:
         m1 = sp_fft.next_fast_len(-(-images.shape[1] // factor))
         m2 = sp_fft.next_fast_len(-(-images.shape[2] // factor))
         shape = (m1 * factor, m2 * factor)
-        spectrum = sp_fft.rfft2(images, s=shape, workers=-1)
+        spectrum = sp_fft.rfft2(images, s=shape)
         spectrum *= self._resample_kernel_fft(kernel, factor, shape)
         # Decimate the rows: sum the aliases of the (full, complex) row frequencies.
         folded = spectrum.reshape(spectrum.shape[0], factor, m1, -1).sum(axis=1)
-        folded = sp_fft.ifft(folded, axis=1, workers=-1)
+        folded = sp_fft.ifft(folded, axis=1)
         # Decimate the columns of the now real rows: rebuild the Hermitian spectrum,
         # sum its aliases and transform back.
         n2 = shape[1]
@@ -182,7 +182,7 @@ class ScipyBackend:
         mirror = np.conj(folded[..., n2 - half : 0 : -1]) if n2 - half > 0 else folded[..., :0]
         full = np.concatenate([folded, mirror], axis=-1)
         cols_spec = full.reshape(*full.shape[:-1], factor, m2).sum(axis=-2)
-        out = sp_fft.irfft(cols_spec[..., : m2 // 2 + 1], n=m2, axis=-1, workers=-1)
+        out = sp_fft.irfft(cols_spec[..., : m2 // 2 + 1], n=m2, axis=-1)
         out = out[:, : rows // factor, : cols // factor] / (factor * factor)
         out = np.ascontiguousarray(out, dtype=np.float32)
         return out[0] if weights is not None else out

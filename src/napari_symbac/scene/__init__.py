@@ -1,7 +1,8 @@
 """Scene drawing: cells, media and device at render resolution, masks, kymographs.
 
 Implements supplement section 3: the 3-D spherocylinder cells (eq. OPL1-3), the
-curvature transform (eq. 1), instance and semantic masks (eq. 4-5).
+curvature transform (eq. 1), instance and semantic masks (eq. 4-5), and the 2-D
+fields of section 13 (agar pads, users' outlines; :func:`field_of`).
 """
 
 from napari_symbac.scene._draw import (
@@ -11,12 +12,22 @@ from napari_symbac.scene._draw import (
     spherocylinder_distance,
     vary_cell_brightness,
 )
+from napari_symbac.scene._field import (
+    OUTLINE_WALL_THICKNESS_UM,
+    Field,
+    add_media_texture,
+    field_of,
+)
 from napari_symbac.scene._kymograph import kymograph
 
 __all__ = [
+    "OUTLINE_WALL_THICKNESS_UM",
+    "Field",
     "FrameCellsLike",
     "Scene",
+    "add_media_texture",
     "draw_scene",
+    "field_of",
     "kymograph",
     "spherocylinder_distance",
     "vary_cell_brightness",

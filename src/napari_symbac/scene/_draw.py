@@ -18,6 +18,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from napari_symbac.scene._field import Field, field_images
 from napari_symbac.settings import Microscope, RenderSettings, TrenchGeometry
 
 __all__ = [
@@ -355,14 +356,21 @@ def _trench_images(
     return trench_frac, device, _fingerprint(device)
 
 
+@functools.lru_cache(maxsize=16)
+def _device_fingerprint(field: Field, shape: tuple[int, int], border: int, px: float) -> str:
+    return _fingerprint(field_images(field, shape, border, px)[1])
+
+
 def draw_scene(
     cells: FrameCellsLike,
     trench: TrenchGeometry,
     microscope: Microscope,
     render: RenderSettings,
     curvature: Mapping[int, tuple[float, float, float]] | None = None,
+    *,
+    field: Field | None = None,
 ) -> Scene:
-    """Draw one frame of a mother-machine trench as cells, media and device images.
+    """Draw one frame of a trench, chamber, agar pad or outline as cells, media and device.
 
     Cells are 3-D spherocylinders lying at mid-depth: the light crosses a chord of
     thickness ``2 sqrt(r^2 - d^2)`` (``d`` = distance to the axis segment), which is
@@ -370,7 +378,15 @@ def draw_scene(
     ``trench.margin_um`` of PDMS on the left, right and at the closed end (top); the
     open end is flush with the bottom edge (the trench runs on into the border).
     Around the field of view a border of ``render.psf_radius_px`` render pixels is
-    drawn, so the convolution of eq. 15 has no edge effects.
+    drawn, so the convolution of eq. 15 has no edge effects. A chamber (section
+    13.1) is a wide trench and is drawn the same way.
+
+    With a ``field`` (an agar pad or a user's outline, see :func:`field_of`) the
+    field of view is ``field.width_um x field.height_um`` from ``field.origin_um`` in
+    the cells' coordinates instead; there is no device except the walls of
+    ``field.walls_um`` (PDMS of ``field.wall_thickness_um``), media fills the rest
+    (an agar pad: agar everywhere the cells are not), and ``field.depth_um`` is the
+    optical depth.
 
     Parameters
     ----------
@@ -388,6 +404,8 @@ def draw_scene(
     curvature
         Optional mapping ``cell id -> (a_um, b, c)`` of eq. 1 (see
         :func:`spherocylinder_distance` for the units); cells not in it are straight.
+    field
+        A non-trench field of view (:class:`Field`); ``trench`` is then not used.
 
     Returns
     -------
@@ -425,9 +443,19 @@ def draw_scene(
     border = render.psf_radius_px
     cam_px = microscope.pixel_size_um
     px = cam_px / u
-    m = trench.margin_um
-    rows = round((trench.length_um + m) / cam_px)
-    cols = round((trench.width_um + 2 * m) / cam_px)
+    if field is None:
+        m = trench.margin_um
+        off_x = off_y = m
+        rows = round((trench.length_um + m) / cam_px)
+        cols = round((trench.width_um + 2 * m) / cam_px)
+        depth_um = trench.depth_um
+    else:
+        if not isinstance(field, Field):
+            raise ValueError(f"field must be a scene.Field, got {type(field).__name__}")
+        off_x, off_y = -field.origin_um[0], -field.origin_um[1]
+        rows = round(field.height_um / cam_px)
+        cols = round(field.width_um / cam_px)
+        depth_um = field.depth_um
     if rows < 1 or cols < 1:
         raise ValueError(f"the field of view is smaller than one camera pixel ({cam_px} um)")
     shape = (rows * u + 2 * border, cols * u + 2 * border)
@@ -436,14 +464,18 @@ def draw_scene(
     # Physical coordinates of render-pixel centres, origin at the top-left of the field of view.
     yc = (np.arange(shape[0]) - border + 0.5) * px
     xc = (np.arange(shape[1]) - border + 0.5) * px
-    trench_frac, device, device_fp = _trench_images(shape, border, px, m, trench.width_um)
+    if field is None:
+        trench_frac, device, device_fp = _trench_images(shape, border, px, m, trench.width_um)
+    else:
+        trench_frac, device = field_images(field, shape, border, px)
+        device_fp = _device_fingerprint(field, shape, border, px)
 
     thickness = np.zeros(shape, np.float32)
     labels = np.zeros(shape, np.uint32)
     boxes = []
     for i in range(n):
         r = width[i] / 2
-        cx, cy = m + x[i], m + y[i]
+        cx, cy = off_x + x[i], off_y + y[i]
         bend = curv.get(int(ids[i]))
         # Bounding box of the cell: the rotated rectangle of half-length ``length / 2``
         # along the axis and half-width ``r + |a|`` across it (the chord is zero outside).
@@ -473,7 +505,7 @@ def draw_scene(
     # Inside them (overlaps are recomputed identically):
     cells_frac = np.zeros(shape, np.float32)
     media = trench_frac.copy()
-    depth = np.float32(trench.depth_um)
+    depth = np.float32(depth_um)
     for box in boxes:
         frac = np.minimum(thickness[box] / depth, np.float32(1.0))
         frac = np.minimum(frac, trench_frac[box])  # cells cannot sit inside the PDMS
@@ -489,7 +521,7 @@ def draw_scene(
         upsample=u,
         camera_shape=(rows, cols),
         pixel_size_um=px,
-        depth_um=trench.depth_um,
+        depth_um=depth_um,
         cell_ids=ids,
     )
     # The device image is the cached, read-only array of this geometry: reuse its hash.
