@@ -12,7 +12,7 @@ import tifffile
 
 from napari_symbac.cli import build_parser, main
 
-COMMANDS = ["demo", "simulate", "render", "export", "defaults"]
+COMMANDS = ["demo", "simulate", "render", "fit", "export", "defaults"]
 
 
 def test_top_level_help_lists_every_command():
