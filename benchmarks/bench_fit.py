@@ -73,7 +73,11 @@ def main() -> None:
     start = time.perf_counter()
     fitted = fit_scene(image, microscope, START, camera)
     rows.append(
-        ("fit_scene (cells + trench + optics)", time.perf_counter() - start, fitted.n_evaluations)
+        (
+            "fit_scene (cells, curvature, trench, optics)",
+            time.perf_counter() - start,
+            fitted.n_evaluations,
+        )
     )
     print(f"256 x 46 trench, render frame {frame.shape}, kernel {kernel.shape}\n")
     print(f"| {'step':<42} | {'seconds':>8} | {'x FFT':>8} | {'renders':>7} |")

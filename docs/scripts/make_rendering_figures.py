@@ -8,8 +8,8 @@ the repository) and writes PNGs to docs/images/. Run from the repository root:
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
-from types import SimpleNamespace
 
 import matplotlib
 
@@ -18,91 +18,115 @@ import matplotlib.pyplot as plt
 import numpy as np
 import tifffile
 
+from napari_symbac.fit import class_statistics, fit_scene
 from napari_symbac.optics import ForwardModel
 from napari_symbac.optics.validation import membrane_dye_width, otsu_width
-from napari_symbac.scene import draw_scene, vary_cell_brightness
-from napari_symbac.settings import Camera, Microscope, RenderSettings, TrenchGeometry
+from napari_symbac.scene import vary_cell_brightness
+from napari_symbac.settings import Camera, Microscope, RenderSettings
 
 ROOT = Path(__file__).resolve().parents[2]
 REAL = Path(os.environ.get("NAPARI_SYMBAC_REAL_DATA", ROOT.parent / "shared" / "data" / "real"))
 OUT = ROOT / "docs" / "images"
 
-#: Parameters used for the phase-contrast comparison (printed into the figure title).
-TRENCH = TrenchGeometry(length_um=15.84, width_um=1.5, depth_um=1.2, margin_um=0.745)
+#: Optics of the 100x oil comparison; the rest is fitted (fit_scene) to the real trench.
 MICROSCOPE = Microscope()  # 100x oil, NA 1.45, 0.065 um/px, 0.65 um, Ph3
-RENDER = RenderSettings(
-    cell_intensity=700.0,
-    media_intensity=4200.0,
-    device_intensity=950.0,
-    apodisation_sigma_um=0.35,
-    ring_contrast=1.5,
-)
-CAMERA = Camera(baseline_adu=100.0, sensitivity_adu_per_e=2.9, dark_noise_e=8.0)
-
-
-def cells(seed: int) -> SimpleNamespace:
-    rng = np.random.default_rng(seed)
-    lengths = rng.uniform(2.4, 3.6, 6)
-    y = np.cumsum(lengths + 0.05) - lengths / 2 + 0.1
-    keep = y - lengths / 2 < TRENCH.length_um
-    n = int(keep.sum())
-    return SimpleNamespace(
-        ids=np.arange(1, n + 1),
-        x_um=np.full(n, 0.75) + rng.normal(0, 0.03, n),
-        y_um=y[keep],
-        angle_rad=rng.normal(0, 0.03, n),
-        length_um=lengths[keep],
-        width_um=rng.normal(1.0, 0.03, n),
-    )
+CAMERA = Camera()
+#: ColiCoords ds3 fluorescence (MIT), camera offset kept; pixel size assumed 0.08 um.
+FLUO = REAL / "colicoords" / "test_data" / "ds3"
 
 
 def stretch(image: np.ndarray, low: float = 500, high: float = 6000) -> np.ndarray:
     return np.clip((image.astype(float) - low) / (high - low), 0, 1)
 
 
+def fluorescence_intensities() -> dict[str, float]:
+    """Eq. 2 class means of the ColiCoords fluorescence frame 0 (cells: mask; media: the rest)."""
+    from scipy.ndimage import binary_dilation
+
+    flu = tifffile.imread(FLUO / "flu.tif")[0].astype(float)
+    mask = tifffile.imread(FLUO / "binary.tif")[0] > 0
+    media = ~binary_dilation(mask, iterations=4)
+    labels = np.where(mask, 1, np.where(media, 2, 0)).astype(np.uint8)
+    stats = class_statistics(flu, labels, required=("cell", "media"))
+    return {"cell": stats["cell"].mean, "media": stats["media"].mean}
+
+
 def comparison() -> None:
     real = tifffile.imread(REAL / "ecoli_100x_oil_exponential.tiff")
+    start = time.perf_counter()
+    fit = fit_scene(real, MICROSCOPE, RenderSettings(), CAMERA)
+    seconds = time.perf_counter() - start
+    render = fit.render
     rng = np.random.default_rng(1)
-    scene = draw_scene(cells(3), TRENCH, MICROSCOPE, RENDER)
-    phase = ForwardModel(MICROSCOPE, RENDER, CAMERA).render(scene, rng)
+    phase = ForwardModel(MICROSCOPE, render, CAMERA).render(fit.scene, rng)
+    flu = fluorescence_intensities()
+    # The ColiCoords background holds the camera offset: render with baseline 0 and
+    # the media class mean as the media intensity (no device in an agar-pad field).
     fluo_mic = Microscope(modality="fluorescence", wavelength_um=0.53)
-    fluo_render = RenderSettings(cell_intensity=3000, media_intensity=60, device_intensity=20)
-    fluo_scene = vary_cell_brightness(scene, rng, cv=0.3)
-    fluo = ForwardModel(fluo_mic, fluo_render, CAMERA).render(fluo_scene, rng)
-    fig, axes = plt.subplots(1, 4, figsize=(6.5, 7.5))
+    fluo_render = RenderSettings(
+        cell_intensity=flu["cell"], media_intensity=flu["media"], device_intensity=flu["media"]
+    )
+    fluo_camera = Camera(baseline_adu=0.0)
+    fluo_scene = vary_cell_brightness(fit.scene, rng, cv=0.3)
+    fluo = ForwardModel(fluo_mic, fluo_render, fluo_camera).render(fluo_scene, rng)
+    rms = float(np.sqrt(np.mean(fit.residual**2)))
+    fig, axes = plt.subplots(1, 5, figsize=(8, 7.5))
+    lim = float(np.abs(fit.residual).max())
     panels = [
-        ("real (100x oil)", stretch(real)),
-        ("synthetic phase", stretch(phase)),
-        ("synthetic fluo", stretch(fluo, 100, fluo.max())),
-        ("instance mask", scene.camera_labels()),
+        ("real (100x oil)", stretch(real), "gray", None),
+        ("fitted synthetic\nphase (+noise)", stretch(phase), "gray", None),
+        (f"residual\n(rms {rms:.0f} ADU)", fit.residual, "RdBu_r", (-lim, lim)),
+        ("synthetic fluo\n(ColiCoords I)", fluo, "gray", None),
+        ("instance mask", fit.scene.camera_labels(), "nipy_spectral", None),
     ]
-    for ax, (title, image) in zip(axes, panels):
-        ax.imshow(
-            image, cmap="gray" if "mask" not in title else "nipy_spectral", interpolation="nearest"
-        )
-        ax.set_title(title, fontsize=9)
+    for ax, (title, image, cmap, clim) in zip(axes, panels):
+        kw = {"vmin": clim[0], "vmax": clim[1]} if clim else {}
+        ax.imshow(image, cmap=cmap, interpolation="nearest", **kw)
+        ax.set_title(title, fontsize=8)
         ax.axis("off")
     fig.tight_layout()
     fig.savefig(OUT / "rendering_comparison.png", dpi=110)
     plt.close(fig)
-    # Column profiles: real vs synthetic phase.
+    # Column profiles: real vs fitted synthetic phase.
     fig, ax = plt.subplots(figsize=(5, 3))
     ax.plot(real[40:].mean(0), label="real")
-    ax.plot(phase[40:].mean(0), label="synthetic")
+    ax.plot(phase[40:].mean(0), label="fitted synthetic (+noise)")
+    ax.plot(fit.synthetic[40:].mean(0), ":", label="fitted synthetic (clean)")
     ax.set_xlabel("column (camera px)")
     ax.set_ylabel("mean ADU (rows 40-255)")
-    ax.legend()
+    ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(OUT / "rendering_profiles.png", dpi=110)
     plt.close(fig)
-    print("real: device", real[:, :4].mean(), "peak column", real[40:].mean(0).max())
-    print("synthetic: device", phase[:, :4].mean(), "peak column", phase[40:].mean(0).max())
+    print(f"fit_scene: {fit.n_evaluations} renders, {seconds:.0f} s")
+    print(f"pixel objective (reduced chi2) {fit.objective_before:.2f} -> {fit.objective_after:.2f}")
+    for name, (before, after) in fit.terms.items():
+        print(f"  term {name}: {before:.4g} -> {after:.4g}")
+    print(
+        f"residual mean {fit.residual.mean():+.1f} ADU, rms {rms:.0f} ADU, "
+        f"real s.d. {real.std():.0f}"
+    )
+    for name in (
+        "cell_intensity",
+        "media_intensity",
+        "device_intensity",
+        "apodisation_sigma_um",
+        "defocus_sigma_um",
+        "ring_contrast",
+        "psf_offset",
+    ):
+        print(f"  {name} = {getattr(render, name):.4g}")
+    print("trench", fit.trench)
+    print("cells", len(fit.cells.ids), "width", np.round(fit.cells.width_um, 3).tolist())
+    print("lengths", np.round(fit.cells.length_um, 2).tolist())
+    print("curvature", np.round(fit.curvature_um, 3).tolist())
+    print("fluorescence class means (ADU, offset included)", flu)
 
 
 def benchmarks() -> None:
     widths = np.round(np.arange(0.6, 1.41, 0.1), 2)
     s42 = Microscope(wavelength_um=0.75, numerical_aperture=0.97, refractive_index=1.0)
-    fig, axes = plt.subplots(1, 2, figsize=(8, 3.2))
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.6))
     for psf in ("born-wolf", "gaussian"):
         err = [membrane_dye_width(w, s42, psf).relative_error * 100 for w in widths]
         axes[0].plot(widths, err, "o-", label=f"{psf} (lambda 0.75, NA 0.97)")
@@ -113,15 +137,34 @@ def benchmarks() -> None:
     axes[0].set_ylabel("width error (%)")
     axes[0].set_title("Fig. S1.3: membrane-dye inter-peak width")
     axes[0].legend(fontsize=7)
-    for gamma in (0.0, 1.0, 2.0):
-        render = RenderSettings(ring_contrast=gamma)
-        offset = [w - otsu_width(w, Microscope(), render) for w in widths]
-        axes[1].plot(widths, offset, "o-", label=f"ring contrast {gamma}")
-        print("S1.4 gamma", gamma, dict(zip(widths.tolist(), np.round(offset, 3).tolist())))
+    cases = [
+        ("ours, ring contrast 0", RenderSettings(ring_contrast=0.0), {}, "o-"),
+        ("ours, ring contrast 1", RenderSettings(ring_contrast=1.0), {}, "o-"),
+        ("ours, ring contrast 2", RenderSettings(ring_contrast=2.0), {}, "o-"),
+        ("ours, rc 1, flat-top cell", RenderSettings(ring_contrast=1.0), {"profile": "flat"}, "x:"),
+        (
+            "SyMBac-like kernel, apod. 0.22 um",
+            RenderSettings(apodisation_sigma_um=0.22),
+            {"kernel": "symbac"},
+            "s--",
+        ),
+        (
+            "SyMBac-like kernel, apod. 0.31 um",
+            RenderSettings(apodisation_sigma_um=0.31),
+            {"kernel": "symbac"},
+            "s--",
+        ),
+    ]
+    for label, render, kw, style in cases:
+        offset = [w - otsu_width(w, Microscope(), render, **kw) for w in widths]
+        axes[1].plot(widths, offset, style, label=label)
+        print("S1.4", label, dict(zip(widths.tolist(), np.round(offset, 3).tolist())))
     axes[1].set_xlabel("true width (um)")
     axes[1].set_ylabel("true - Otsu width (um)")
     axes[1].set_title("Fig. S1.4: Otsu offset (100x phase)")
-    axes[1].legend(fontsize=7)
+    axes[1].axhline(0, color="k", lw=0.5)
+    axes[1].set_ylim(-0.12, 0.26)
+    axes[1].legend(fontsize=6, ncol=2, loc="lower center")
     fig.tight_layout()
     fig.savefig(OUT / "benchmarks_s1.png", dpi=110)
     plt.close(fig)

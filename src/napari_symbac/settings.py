@@ -533,6 +533,14 @@ class RenderSettings:
         Perlin background texture of an agar pad (section 13.2.1): the media image is
         multiplied by ``1 + texture_amplitude * T`` with ``T`` a unit-s.d. Perlin
         texture drawn from the simulation seed (same seed, same texture); 0 = none.
+    cell_brightness_cv
+        Per-cell brightness variability for fluorescence (section 13.2.2, stochastic
+        gene expression): when a simulation is rendered, each cell's image is
+        multiplied by a gain from a gamma distribution with mean 1 and this
+        coefficient of variation. The gain is drawn once per cell id from the
+        simulation seed, so a cell keeps its brightness in every frame and the same
+        seed gives the same gains; 0 = every cell alike (in phase contrast it varies
+        ``I_c`` per cell).
     """
 
     upsample: int = 3
@@ -547,6 +555,7 @@ class RenderSettings:
     noise_model: NoiseModel = "camera"
     gaussian_noise_sd_adu: float = 20.0
     texture_amplitude: float = 0.0
+    cell_brightness_cv: float = 0.0
 
     def __post_init__(self) -> None:
         _require(
@@ -566,6 +575,7 @@ class RenderSettings:
             "ring_contrast",
             "gaussian_noise_sd_adu",
             "texture_amplitude",
+            "cell_brightness_cv",
         )
         _positive(self, "apodisation_sigma_um")
         _require(

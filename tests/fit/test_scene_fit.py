@@ -4,18 +4,20 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from _fit_synthetic import TRENCH
+from _fit_synthetic import PIXEL_UM, TRENCH, TRUTH, make_cells
 
 from napari_symbac.fit import (
     FitCancelled,
     SceneFit,
     TrenchPlacement,
-    draw_fit_scene,
     fit_scene,
     otsu_cells,
     scene_classes,
 )
-from napari_symbac.settings import RenderSettings
+from napari_symbac.fit.scene_fit import _draw
+from napari_symbac.optics import ForwardModel
+from napari_symbac.scene import draw_scene
+from napari_symbac.settings import Camera, Microscope, RenderSettings, TrenchGeometry
 from napari_symbac.sim import FrameCells
 
 START = RenderSettings(apodisation_sigma_um=1.0, defocus_sigma_um=0.05, psf_offset=0.0)
@@ -45,10 +47,11 @@ def scene_fit(truth) -> SceneFit:
     )
 
 
-def test_draw_fit_scene_matches_draw_scene(truth):
+def test_fit_scene_draws_with_draw_scene(truth):
+    """Cells in image coordinates and a placed trench draw the pipeline's scene."""
     m = TRENCH.margin_um
     placement = TrenchPlacement(m, TRENCH.width_um, m, TRENCH.depth_um)
-    scene = draw_fit_scene(
+    scene = _draw(
         _to_image_coordinates(truth.cells, m),
         placement,
         truth.image.shape,
@@ -57,6 +60,29 @@ def test_draw_fit_scene_matches_draw_scene(truth):
     )
     for name in ("cells", "media", "device", "labels"):
         np.testing.assert_array_equal(getattr(scene, name), getattr(truth.scene, name))
+
+
+def test_fitted_scene_is_drawn_from_the_fitted_cells(scene_fit, truth):
+    fitted = scene_fit.cells
+    m = scene_fit.trench
+    again = draw_scene(
+        FrameCells(
+            fitted.ids,
+            fitted.x_um - m.left_um,
+            fitted.y_um - m.top_um,
+            fitted.angle_rad,
+            fitted.length_um,
+            fitted.width_um,
+        ),
+        TrenchGeometry(width_um=m.width_um, depth_um=m.depth_um, margin_um=0.0),
+        truth.microscope,
+        scene_fit.render,
+        scene_fit.curvature(),
+        trench_origin_um=(m.left_um, m.top_um),
+        camera_shape=truth.image.shape,
+    )
+    np.testing.assert_array_equal(again.cells, scene_fit.scene.cells)
+    np.testing.assert_array_equal(again.labels, scene_fit.scene.labels)
 
 
 def test_scene_fit_recovers_widths_and_lengths(scene_fit, truth):
@@ -71,6 +97,7 @@ def test_scene_fit_recovers_widths_and_lengths(scene_fit, truth):
     np.testing.assert_allclose(fitted.angle_rad[order], true.angle_rad, atol=0.03)
     assert scene_fit.trench.width_um == pytest.approx(TRENCH.width_um, abs=0.02)
     assert scene_fit.trench.left_um == pytest.approx(TRENCH.margin_um, abs=0.02)
+    assert np.all(np.abs(scene_fit.curvature_um) < 0.03)  # straight cells stay straight
 
 
 def test_scene_fit_reaches_the_noise_and_fits_intensities(scene_fit, truth):
@@ -101,5 +128,45 @@ def test_scene_fit_inputs_are_checked(truth):
         fit_scene(truth.image, truth.microscope, START, truth.camera, labels=np.zeros((5, 5)))
     with pytest.raises(ValueError, match="width_sd_um"):
         fit_scene(truth.image, truth.microscope, START, truth.camera, width_sd_um=-1.0)
+    with pytest.raises(ValueError, match="curvature_sd_um"):
+        fit_scene(truth.image, truth.microscope, START, truth.camera, curvature_sd_um=0.0)
     with pytest.raises(FitCancelled):
         fit_scene(truth.image, truth.microscope, START, truth.camera, cancel=lambda: True)
+
+
+#: Truth of the curvature test: a (um) of eq. 1 with b = 1, c = 0 (one bend) per cell.
+BENDS = np.array([0.12, 0.0, -0.15])
+#: A 120 x 46 crop of the 1.5 um trench, three cells, two of them bent.
+CURVED_TRENCH = TrenchGeometry(
+    length_um=120 * PIXEL_UM - 0.75, width_um=1.5, depth_um=1.2, margin_um=0.75
+)
+
+
+@pytest.fixture(scope="module")
+def curved():
+    cells = make_cells(
+        y_um=[1.2, 3.65, 5.95],
+        x_um=[0.7, 0.77, 0.8],
+        angle_rad=[0.0, 0.04, -0.03],
+        length_um=[2.2, 2.4, 1.8],
+        width_um=0.9,
+    )
+    bends = {int(i): (float(a), 1.0, 0.0) for i, a in zip(cells.ids, BENDS) if a}
+    microscope, camera = Microscope(pixel_size_um=PIXEL_UM), Camera()
+    scene = draw_scene(cells, CURVED_TRENCH, microscope, TRUTH, bends)
+    image = ForwardModel(microscope, TRUTH, camera).render(scene, np.random.default_rng(3))
+    fit = fit_scene(image, microscope, START, camera, irls_rounds=2, max_iterations=15)
+    return cells, fit
+
+
+def test_scene_fit_recovers_curvature(curved):
+    cells, fit = curved
+    order = np.argsort(fit.cells.y_um)
+    assert len(order) == len(cells)
+    np.testing.assert_allclose(fit.curvature_um[order], BENDS, atol=0.04)
+    assert abs(fit.curvature_um[order][1]) < 0.03  # the straight cell stays straight
+    np.testing.assert_allclose(fit.cells.width_um[order], cells.width_um, atol=0.020)
+    np.testing.assert_allclose(fit.cells.length_um[order], cells.length_um, atol=0.050)
+    assert fit.objective_after == pytest.approx(1.0, abs=0.1)
+    bent = fit.curvature()  # draw_scene's mapping: id -> (a, b, c), b = 1, c = 0
+    assert bent[int(fit.cells.ids[order[2]])] == (fit.curvature_um[order[2]], 1.0, 0.0)

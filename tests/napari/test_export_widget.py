@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import tifffile
 
@@ -56,3 +57,30 @@ def test_cancel_then_resume(widget, qtbot, tmp_path):
     qtbot.waitUntil(lambda: widget.worker is None and widget.report is not first, timeout=180_000)
     assert widget.report.complete
     assert widget.report.n_skipped == first.n_written
+
+
+def test_tuned_settings_travel_into_the_manifest(widget, qtbot, tmp_path):
+    import dataclasses
+    import json
+
+    from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
+    from napari_symbac.settings import PipelineSettings
+
+    base = PipelineSettings()
+    tuned = dataclasses.replace(
+        base, render=dataclasses.replace(base.render, cell_intensity=1234.5)
+    )
+    widget.viewer.add_image(
+        np.zeros((2, 8, 8), np.uint16),
+        name="synthetic",
+        metadata={SYMBAC_METADATA_KEY: {"simulation": None, "settings": tuned}},
+    )
+    widget.source.value = widget.viewer.layers["synthetic"]
+    settings = widget.settings()
+    assert settings.pipeline.render.cell_intensity == 1234.5
+    widget.n_items.value = 1
+    widget.folder.value = tmp_path / "ds"
+    widget.export_button.native.click()
+    qtbot.waitUntil(lambda: widget.report is not None, timeout=120_000)
+    manifest = json.loads((tmp_path / "ds" / "manifest.json").read_text())
+    assert manifest["settings"]["pipeline"]["render"]["cell_intensity"] == 1234.5

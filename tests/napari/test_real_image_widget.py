@@ -67,3 +67,20 @@ def test_measure_without_labels_says_what_to_do(make_napari_viewer):
     widget.paint_button.native.click()
     widget.measure_button.native.click()
     assert "missing the class(es) cell, media" in widget.result.value
+
+
+def test_paint_and_measure_a_time_series(make_napari_viewer):
+    rng = np.random.default_rng(2)
+    movie = rng.normal(1000, 20, (3, 40, 30))
+    movie[:, 10:20, 10:20] -= 400  # a dark cell in every frame
+    viewer = make_napari_viewer()
+    viewer.add_image(movie, name="movie")
+    widget = RealImageWidget(viewer)
+    widget.paint_button.native.click()
+    labels = viewer.layers[class_layer_name("movie")]
+    assert labels.data.shape == movie.shape
+    labels.paint((1, 15, 15), CLASS_VALUES["cell"], refresh=False)
+    labels.paint((2, 30, 25), CLASS_VALUES["media"], refresh=False)
+    widget.measure_button.native.click()
+    assert widget.statistics["cell"].mean == pytest.approx(600, abs=15)
+    assert widget.statistics["media"].mean == pytest.approx(1000, abs=15)

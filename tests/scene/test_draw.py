@@ -172,6 +172,41 @@ def test_duplicate_ids_and_bad_curvature_raise(cells_factory):
         draw_scene(cells_factory([3.0]), TRENCH, MIC, RS, curvature={1: (0.1, 0.0, 0.0)})
 
 
+def test_trench_origin_and_camera_shape_place_the_trench(cells_factory):
+    cells = cells_factory([3.0, 7.0])
+    bend = {1: (0.1, 1.0, 0.0)}
+    scene = draw_scene(cells, TRENCH, MIC, RS, bend)
+    m = TRENCH.margin_um
+    same = draw_scene(
+        cells, TRENCH, MIC, RS, bend, trench_origin_um=(m, m), camera_shape=scene.camera_shape
+    )
+    for name in ("cells", "media", "device", "labels"):
+        np.testing.assert_array_equal(getattr(same, name), getattr(scene, name))
+    # Move the trench (and its cells) by whole render pixels in a smaller field of view.
+    px = scene.pixel_size_um
+    di, dj = 6, -9
+    moved = draw_scene(
+        cells,
+        TRENCH,
+        MIC,
+        RS,
+        bend,
+        trench_origin_um=(m + dj * px, m + di * px),
+        camera_shape=(200, 40),
+    )
+    assert moved.camera_shape == (200, 40)
+    assert moved.shape == (200 * 3 + 24, 40 * 3 + 24)
+    rows, cols = 500, 100  # well inside both fields of view
+    for name in ("cells", "media", "device", "labels"):
+        new = getattr(moved, name)[di + 20 : di + 20 + rows, 20 : 20 + cols]
+        old = getattr(scene, name)[20 : 20 + rows, 20 - dj : 20 - dj + cols]
+        np.testing.assert_allclose(new, old, atol=1e-5, err_msg=name)
+    with pytest.raises(ValueError, match="finite"):
+        draw_scene(cells, TRENCH, MIC, RS, trench_origin_um=(math.nan, 0.0))
+    with pytest.raises(ValueError, match="smaller than one camera pixel"):
+        draw_scene(cells, TRENCH, MIC, RS, camera_shape=(0, 10))
+
+
 def test_empty_frame_and_scene_is_read_only(cells_factory):
     scene = draw_scene(cells_factory([]), TRENCH, MIC, RS)
     assert scene.labels.max() == 0

@@ -361,6 +361,7 @@ class PipelineSource:
 
     def make_unit(self, unit: int) -> list[ExportItem]:
         from napari_symbac.optics import ForwardModel
+        from napari_symbac.pipeline import apply_cell_brightness, camera_masks
         from napari_symbac.scene import add_media_texture, draw_scene, field_of
 
         s = self.settings
@@ -395,8 +396,11 @@ class PipelineSource:
                 varied.render.texture_amplitude,
                 simulation.settings.seed,
             )
+            scene = apply_cell_brightness(
+                scene, varied.render.cell_brightness_cv, simulation.settings.seed
+            )
             image = model.render(scene, rng, cache=False)
-            labels = scene.camera_labels()
+            labels, semantic = camera_masks(scene)
             present = np.unique(labels)
             item_params = {"simulation": sim_index, "frame": frame, **params}
             items.append(
@@ -405,7 +409,7 @@ class PipelineSource:
                     index=unit if s.kind == "frames" else unit * n_frames + frame,
                     image=image,
                     labels=labels,
-                    semantic=scene.semantic_mask(),
+                    semantic=semantic,
                     split=split,  # type: ignore[arg-type]
                     series=None if s.kind == "frames" else unit,
                     frame=None if s.kind == "frames" else frame,

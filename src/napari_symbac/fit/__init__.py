@@ -31,7 +31,6 @@ from napari_symbac.fit.parameters import (
 from napari_symbac.fit.scene_fit import (
     SceneFit,
     TrenchPlacement,
-    draw_fit_scene,
     fit_scene,
     otsu_cells,
 )
@@ -52,7 +51,6 @@ __all__ = [
     "as_label_stack",
     "as_single_image",
     "class_statistics",
-    "draw_fit_scene",
     "fit_parameters",
     "fit_scene",
     "objective_terms",

@@ -1,6 +1,6 @@
 """Scene fitting by analysis by synthesis (issue 5, item 4).
 
-Place and size spherocylinder cells (centre, angle, length, one shared or
+Place and size spherocylinder cells (centre, angle, length, curvature, one shared or
 hierarchical width) and the trench (left wall, width, closed end) so that the
 rendered image overlays the real recording pixel for pixel, jointly with the
 optical parameters. Starts from a plain segmentation of the real image (Otsu
@@ -35,14 +35,13 @@ from napari_symbac.fit.parameters import (
     parameter_bounds,
 )
 from napari_symbac.optics import ForwardModel
-from napari_symbac.scene import Scene, spherocylinder_distance
+from napari_symbac.scene import Field, Scene, draw_scene
 from napari_symbac.settings import Camera, Microscope, RenderSettings, TrenchGeometry
 from napari_symbac.sim import FrameCells
 
 __all__ = [
     "SceneFit",
     "TrenchPlacement",
-    "draw_fit_scene",
     "fit_scene",
     "otsu_cells",
 ]
@@ -52,6 +51,13 @@ _INTENSITIES = ("cell_intensity", "media_intensity", "device_intensity")
 #: pixel): the chord ``2 sqrt(r^2 - d^2)`` has a square-root cusp at a cell's edge, so
 #: steps much smaller than a render pixel give a Jacobian that only sees the cusp.
 DIFF_STEP = 0.3
+#: ``b`` and ``c`` of eq. 1 for fitted curvature: ``roll(l) = a sin(pi l / b + c)`` with
+#: ``l`` the fraction of the cell length from its top pole, so ``b = 1, c = 0`` is one
+#: symmetric bend (a crescent, the middle displaced by ``a`` from the poles' line).
+#: Only the amplitude ``a`` is fitted: at 65 nm pixels a sub-pixel bend of a ~2.5 um
+#: cell does not tell ``b`` and ``c`` apart from ``a``, the centre and the angle.
+CURVATURE_B = 1.0
+CURVATURE_C = 0.0
 
 
 @dataclass(frozen=True)
@@ -85,80 +91,43 @@ class TrenchPlacement:
             raise ValueError("TrenchPlacement.width_um and depth_um must be positive")
 
 
-def draw_fit_scene(
+def _draw(
     cells: FrameCells,
     trench: TrenchPlacement | None,
     camera_shape: tuple[int, int],
     microscope: Microscope,
     render: RenderSettings,
     depth_um: float = 1.2,
+    curvature: dict[int, tuple[float, float, float]] | None = None,
 ) -> Scene:
-    """Draw a scene with the trench anywhere in the image (as :func:`draw_scene`).
+    """Draw fitted cells (image coordinates) with :func:`draw_scene`.
 
-    The drawing rules are those of :func:`~napari_symbac.scene.draw_scene`
-    (section 3, eq. OPL1-3): chord ``2 sqrt(r^2 - d^2)`` through each spherocylinder,
-    divided by the depth and clipped to 1 and to the trench; media fills the rest of
-    the trench, device the rest of the field. ``trench=None`` draws an open field (agar
-    pad: media everywhere, no device). Cell coordinates are image coordinates.
+    The trench is placed by ``trench_origin_um`` in a field of view of the image's
+    shape; ``trench=None`` is an open field (agar pad: media everywhere, no device).
     """
-    u = render.upsample
-    border = render.psf_radius_px
-    px = microscope.pixel_size_um / u
     rows, cols = camera_shape
-    shape = (rows * u + 2 * border, cols * u + 2 * border)
-    yc = (np.arange(shape[0]) - border + 0.5) * px
-    xc = (np.arange(shape[1]) - border + 0.5) * px
     if trench is None:
-        trench_frac = np.ones(shape, np.float32)
-        depth = depth_um
-    else:
-        depth = trench.depth_um
-
-        def coverage(c: np.ndarray, low: float, high: float) -> np.ndarray:
-            lo = np.maximum(c - px / 2, low)
-            hi = np.minimum(c + px / 2, high)
-            return np.clip((hi - lo) / px, 0.0, 1.0)
-
-        trench_frac = np.outer(
-            coverage(yc, trench.top_um, np.inf),
-            coverage(xc, trench.left_um, trench.left_um + trench.width_um),
-        ).astype(np.float32)
-    thickness = np.zeros(shape, np.float32)
-    labels = np.zeros(shape, np.uint32)
-    for i in range(len(cells)):
-        width = float(cells.width_um[i])
-        length = max(float(cells.length_um[i]), width)
-        r = width / 2
-        cx, cy = float(cells.x_um[i]), float(cells.y_um[i])
-        reach = length / 2 + 2 * px
-        j0 = max(math.floor((cx - reach) / px) + border, 0)
-        j1 = min(math.ceil((cx + reach) / px) + border + 1, shape[1])
-        i0 = max(math.floor((cy - reach) / px) + border, 0)
-        i1 = min(math.ceil((cy + reach) / px) + border + 1, shape[0])
-        if j0 >= j1 or i0 >= i1:
-            continue
-        d = spherocylinder_distance(
-            xc[None, j0:j1], yc[i0:i1, None], (cx, cy), float(cells.angle_rad[i]), length, width
-        )
-        chord = (2 * np.sqrt(np.maximum(r * r - d * d, 0.0))).astype(np.float32)
-        box_t = thickness[i0:i1, j0:j1]
-        box_l = labels[i0:i1, j0:j1]
-        take = chord > box_t
-        box_t[take] = chord[take]
-        box_l[take] = cells.ids[i]
-    cells_frac = np.minimum(np.minimum(thickness / np.float32(depth), 1.0), trench_frac)
-    labels[cells_frac <= 0] = 0
-    return Scene(
-        cells=cells_frac,
-        media=np.maximum(trench_frac - cells_frac, 0.0),
-        device=1.0 - trench_frac,
-        labels=labels,
-        border_px=border,
-        upsample=u,
+        px = microscope.pixel_size_um
+        field = Field(cols * px, rows * px, depth_um=depth_um)
+        return draw_scene(cells, TrenchGeometry(), microscope, render, curvature, field=field)
+    relative = FrameCells(
+        ids=cells.ids,
+        x_um=cells.x_um - trench.left_um,
+        y_um=cells.y_um - trench.top_um,
+        angle_rad=cells.angle_rad,
+        length_um=cells.length_um,
+        width_um=cells.width_um,
+    )
+    # Length and margin do not matter: camera_shape sets the field of view.
+    geometry = TrenchGeometry(width_um=trench.width_um, depth_um=trench.depth_um, margin_um=0.0)
+    return draw_scene(
+        relative,
+        geometry,
+        microscope,
+        render,
+        curvature,
+        trench_origin_um=(trench.left_um, trench.top_um),
         camera_shape=(rows, cols),
-        pixel_size_um=px,
-        depth_um=depth,
-        cell_ids=cells.ids,
     )
 
 
@@ -233,6 +202,25 @@ def otsu_cells(
         region[:, :c0] = False
         region[:, c1 + 1 :] = False
         region[: max(first, 0), :] = False
+        # The dark shade-off of the walls can fall inside the columns found: trim
+        # edge columns (and the top row) that are below the Otsu threshold almost all
+        # along, as no cell is (cells leave bright septa and gaps between them).
+        dark = (smooth < threshold_otsu(smooth[region])) & region
+        for _ in range(3):
+            cols = np.flatnonzero(region.any(axis=0))
+            rows_in = np.flatnonzero(region.any(axis=1))
+            if cols.size < 6 or rows_in.size < 6:
+                break
+            trimmed = False
+            for c in (cols[0], cols[-1]):
+                if dark[:, c].sum() > 0.8 * rows_in.size:
+                    region[:, c] = False
+                    trimmed = True
+            if dark[rows_in[0]].sum() > 0.8 * cols.size:
+                region[rows_in[0]] = False
+                trimmed = True
+            if not trimmed:
+                break
     elif geometry != "open":
         raise ValueError(f"geometry must be 'trench' or 'open', got {geometry!r}")
     threshold = threshold_otsu(smooth[region])
@@ -326,6 +314,10 @@ class SceneFit:
         solved) and at the end.
     n_evaluations
         Renders used.
+    curvature_um
+        Fitted curvature amplitude ``a`` (um) of eq. 1 per cell, with ``b, c`` =
+        :data:`CURVATURE_B`, :data:`CURVATURE_C` (zeros when not fitted); see
+        :meth:`curvature`.
     """
 
     cells: FrameCells
@@ -341,11 +333,20 @@ class SceneFit:
     objective_before: float = math.nan
     objective_after: float = math.nan
     n_evaluations: int = 0
+    curvature_um: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def curvature(self) -> dict[int, tuple[float, float, float]]:
+        """The fitted curvature as ``draw_scene``'s mapping ``cell id -> (a_um, b, c)``."""
+        return {
+            int(i): (float(a), CURVATURE_B, CURVATURE_C)
+            for i, a in zip(self.cells.ids, self.curvature_um)
+            if a != 0
+        }
 
     def trench_geometry(self, image_rows: int, pixel_size_um: float) -> TrenchGeometry:
         """An approximate :class:`TrenchGeometry` for re-rendering with the pipeline.
 
-        ``draw_scene`` centres the trench with equal margins; the margin is taken from
+        The pipeline centres the trench with equal margins; the margin is taken from
         the fitted left wall.
         """
         if self.trench is None:
@@ -365,6 +366,7 @@ class SceneFit:
             name: np.asarray(getattr(self.cells, name)).tolist()
             for name in ("ids", "x_um", "y_um", "angle_rad", "length_um", "width_um")
         }
+        table["curvature_um"] = np.asarray(self.curvature_um).tolist()
         table["otsu_width_um"] = np.asarray(self.otsu_width_um).tolist()
         table["otsu_length_um"] = np.asarray(self.initial_cells.length_um).tolist()
         return table
@@ -381,6 +383,8 @@ def fit_scene(
     geometry: Literal["trench", "open"] = "trench",
     fit_optics: tuple[str, ...] = ("apodisation_sigma_um", "defocus_sigma_um", "psf_offset"),
     width_sd_um: float = 0.0,
+    fit_curvature: bool = True,
+    curvature_sd_um: float = 0.1,
     irls_rounds: int = 3,
     max_iterations: int = 25,
     progress: Callable[[int, int], None] | None = None,
@@ -409,6 +413,13 @@ def fit_scene(
         0 (default): one width shared by all cells. > 0: per-cell widths tied to the
         shared width by a Gaussian prior of this s.d. (hierarchical). Free per-cell
         widths would soak up PSF effects (docs/fitting.md).
+    fit_curvature
+        Fit each cell's curvature amplitude ``a`` of eq. 1 (one bend: ``b, c`` fixed
+        to :data:`CURVATURE_B`, :data:`CURVATURE_C`), bounded to +-0.5 um; cells
+        start straight.
+    curvature_sd_um
+        S.d. of a Gaussian prior on ``a`` centred on 0 (ridge), so that straight
+        cells and cells too short to show a bend stay straight.
     irls_rounds
         Rounds of iteratively reweighted least squares (variance held fixed within a
         round, eq. 17).
@@ -427,6 +438,8 @@ def fit_scene(
         labels = as_label_stack(labels, (1, *real.shape))[0]
     if not (math.isfinite(width_sd_um) and width_sd_um >= 0):
         raise ValueError(f"width_sd_um must be zero or positive, got {width_sd_um!r}")
+    if not (math.isfinite(curvature_sd_um) and curvature_sd_um > 0):
+        raise ValueError(f"curvature_sd_um must be positive, got {curvature_sd_um!r}")
     for name in fit_optics:
         parameter_bounds(name, microscope)
     px = microscope.pixel_size_um
@@ -458,6 +471,11 @@ def fit_scene(
             p0.append(v)
             lo.append(a)
             hi.append(b)
+    i_curv = len(p0)
+    n_curv = n if fit_curvature else 0
+    p0.extend([0.0] * n_curv)
+    lo.extend([-0.5] * n_curv)
+    hi.extend([0.5] * n_curv)
     i_width = len(p0)
     p0.append(width0)
     lo.append(0.3)
@@ -489,6 +507,9 @@ def fit_scene(
     lo_a, hi_a = np.array(lo), np.array(hi)
     x0 = np.clip(x0, lo_a + 1e-9, hi_a - 1e-9)
 
+    def bends(x: np.ndarray) -> np.ndarray:
+        return x[i_curv : i_curv + n_curv] if n_curv else np.zeros(n)
+
     def unpack(x: np.ndarray) -> tuple[FrameCells, TrenchPlacement | None, RenderSettings]:
         cell = x[: 4 * n].reshape(n, 4) if n else np.zeros((0, 4))
         width = np.full(n, x[i_width])
@@ -512,7 +533,7 @@ def fit_scene(
         )
         return frame, place, r
 
-    total = (irls_rounds * (max_iterations + 2) + 2) * (len(x0) + 1)
+    total = (irls_rounds * (max_iterations + 2) + 2) * (len(x0) + 1)  # an upper bound
     budget = _Budget(total, progress, cancel)
     model = ForwardModel(microscope, render, camera)
     y = (real - camera.baseline_adu).ravel()
@@ -520,7 +541,8 @@ def fit_scene(
     def design(x: np.ndarray) -> tuple[np.ndarray, Scene, RenderSettings]:
         budget.tick()
         frame, place, r = unpack(x)
-        scene = draw_fit_scene(frame, place, shape, microscope, r, depth)
+        curv = {i + 1: (float(a), CURVATURE_B, CURVATURE_C) for i, a in enumerate(bends(x))}
+        scene = _draw(frame, place, shape, microscope, r, depth, curv)
         comps = model.with_render(r).components(scene)
         a = np.stack([comps[k].ravel() for k in ("cells", "media", "device")], axis=1)
         return a.astype(np.float64), scene, r
@@ -529,9 +551,10 @@ def fit_scene(
         return _nnls(a * sw[:, None], y * sw)
 
     def prior(x: np.ndarray) -> np.ndarray:
+        terms = [x[i_curv : i_curv + n_curv] / curvature_sd_um]
         if width_sd_um > 0:
-            return x[i_dw : i_dw + n] / width_sd_um
-        return np.zeros(0)
+            terms.append(x[i_dw : i_dw + n] / width_sd_um)
+        return np.concatenate(terms)
 
     var = _variance(np.maximum(y, 0.0), render, camera)
     a0, _, _ = design(x0)
@@ -541,19 +564,31 @@ def fit_scene(
     var_before = _variance(clean0, render, camera)
     before_pixel = float(np.mean((y - clean0) ** 2 / var_before))
     x = x0.copy()
-    for _ in range(irls_rounds):
+    bend_index = np.arange(i_curv, i_curv + n_curv)
+    straight = np.setdiff1d(np.arange(x0.size), bend_index)
+    for round_ in range(irls_rounds):
         sw = 1 / np.sqrt(var)
+        # Curvature is held straight in the first round (when there are more): the
+        # centres and angles settle first, so that a bend cannot stand in for them
+        # (on the real trench, freeing it at once ended in a worse minimum).
+        free = straight if (round_ == 0 and irls_rounds > 1 and n_curv) else np.arange(x0.size)
+        z_all = (x - x0) / scales
 
-        def residual(z: np.ndarray, sw: np.ndarray = sw) -> np.ndarray:
-            xx = x0 + z * scales
+        def residual(
+            zf: np.ndarray, sw: np.ndarray = sw, free: np.ndarray = free, base: np.ndarray = z_all
+        ) -> np.ndarray:
+            zz = base.copy()
+            zz[free] = zf
+            xx = x0 + zz * scales
             a, _, _ = design(xx)
             return np.concatenate([(y - a @ solve(a, sw)) * sw, prior(xx)])
 
-        z = _levenberg_marquardt(
+        z = z_all.copy()
+        z[free] = _levenberg_marquardt(
             residual,
-            (x - x0) / scales,
-            (lo_a - x0) / scales,
-            (hi_a - x0) / scales,
+            z_all[free],
+            ((lo_a - x0) / scales)[free],
+            ((hi_a - x0) / scales)[free],
             max_iterations,
         )
         x = x0 + z * scales
@@ -589,6 +624,7 @@ def fit_scene(
         objective_before=before_pixel,
         objective_after=after_pixel,
         n_evaluations=budget.done,
+        curvature_um=np.array(bends(x), dtype=float),
     )
 
 

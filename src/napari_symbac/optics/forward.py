@@ -377,13 +377,13 @@ class ForwardModel:
             self._check_scene(scene)
             kernel = self.kernel(scene.pixel_size_um)
             trim = scene.border_px - r.psf_radius_px
-            stack = np.stack([scene.cells, scene.media, scene.device])
-            if trim:
-                stack = stack[:, trim:-trim, trim:-trim]
-            weights = np.array(
-                [r.cell_intensity, r.media_intensity, r.device_intensity], np.float32
-            )
-            image = self._convolve_resample(stack, kernel, scene.upsample, weights)
+            crop = (slice(trim, -trim),) * 2 if trim else (slice(None),) * 2
+            # eq. 3 at render resolution (no stacked copy of the three components),
+            # then one convolution of the composed image.
+            composed = np.float32(r.cell_intensity) * scene.cells[crop]
+            composed += np.float32(r.media_intensity) * scene.media[crop]
+            composed += np.float32(r.device_intensity) * scene.device[crop]
+            image = self._convolve_resample(composed[None], kernel, scene.upsample)[0]
         for stage in self.extra_stages:
             image = np.asarray(stage.apply(image, scene), dtype=np.float32)  # type: ignore[misc]
         return image.astype(np.float32, copy=False)

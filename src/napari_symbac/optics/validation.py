@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from napari_symbac.optics.backends import get_backend
-from napari_symbac.optics.psf import born_wolf_psf_3d, phase_contrast_psf
-from napari_symbac.settings import Microscope, RenderSettings
+from napari_symbac.optics.psf import born_wolf_psf_3d, jinc, phase_contrast_psf, radius_grid_um
+from napari_symbac.settings import CONDENSERS, Condenser, Microscope, RenderSettings
 
 __all__ = [
     "MembraneWidthResult",
@@ -22,6 +22,7 @@ __all__ = [
     "membrane_dye_width",
     "otsu_width",
     "spherocylinder_hull_volume",
+    "symbac_like_phase_kernel",
 ]
 
 
@@ -159,6 +160,37 @@ def membrane_dye_width(
     return MembraneWidthResult(width_um, _two_peaks(profile.astype(np.float64), pixel_size_um))
 
 
+def symbac_like_phase_kernel(
+    radius_px: int,
+    pixel_size_um: float,
+    wavelength_um: float,
+    numerical_aperture: float,
+    condenser: str | Condenser,
+    apodisation_sigma_um: float,
+) -> np.ndarray:
+    """Near-zero-DC phase kernel with SyMBac's normalisation, for comparison only.
+
+    Eq. 7 taken literally, as an *amplitude* difference of two Airy terms,
+    ``jinc(omega) - a^2 jinc(a omega)`` with ``a = ((R - W) / R)^2`` (the scaling of
+    the SyMBac implementation), scaled to a peak of 1, divided by its own sum and
+    apodised (eq. 11-12). Both Airy terms have the same integral, so their
+    difference is a band-pass filter (an annulus in frequency space): the sum it is
+    divided by nearly cancels, and the kernel passes almost no DC. It is returned
+    with the sign that makes cells (lower eq. 3 intensity) dark, i.e. SyMBac's
+    negative kernel applied to its OPL image, where cells are high. Not used by the
+    renderer (:func:`~napari_symbac.optics.psf.phase_contrast_psf` has DC gain 1).
+    """
+    cond = condenser if isinstance(condenser, Condenser) else CONDENSERS[condenser]
+    r = radius_grid_um(radius_px, pixel_size_um)
+    omega = 2 * math.pi * numerical_aperture * r / wavelength_um
+    a = ((cond.ring_radius_mm - cond.ring_width_mm) / cond.ring_radius_mm) ** 2
+    k = jinc(omega) - a**2 * jinc(a * omega)
+    k = k / k.max()
+    k = k / k.sum()
+    k = k * np.exp(-(r**2) / (2 * apodisation_sigma_um**2))
+    return k.astype(np.float32)
+
+
 def otsu_width(
     width_um: float,
     microscope: Microscope,
@@ -166,18 +198,39 @@ def otsu_width(
     length_um: float = 3.0,
     n_shifts: int = 8,
     depth_um: float = 1.5,
+    kernel: str = "model",
+    profile: str = "rounded",
 ) -> float:
     """Width of a single phase-contrast cell segmented by Otsu's method (Fig. S1.4).
 
     A cell in media of optical depth ``depth_um`` (no device) is rendered at camera sampling
-    without noise, thresholded with :func:`skimage.filters.threshold_otsu`, and its
-    width read as the mask's area-equivalent width at mid-length (the number of
-    mask pixels across the middle rows times the pixel size). The result is the
-    mean over ``n_shifts`` sub-pixel positions of the cell across the pixel grid, so
-    it is not quantised to whole camera pixels.
+    without noise, thresholded with :func:`skimage.filters.threshold_otsu` over the
+    whole frame (cell plus about 1.5 um of media on every side), and its width read
+    as the mask's width at mid-length (the number of pixels across the middle five
+    rows of the dark object on the cell's axis, holes filled, times the pixel size).
+    The result is the mean over ``n_shifts`` sub-pixel positions of the cell across
+    the pixel grid, so it is not quantised to whole camera pixels.
+
+    Parameters
+    ----------
+    kernel
+        ``"model"``: the renderer's kernel
+        (:func:`~napari_symbac.optics.psf.phase_contrast_psf`, DC gain 1);
+        ``"symbac"``: :func:`symbac_like_phase_kernel` (near-zero DC) with the
+        same apodisation.
+    profile
+        ``"rounded"``: cell material proportional to the chord of the 3-D
+        spherocylinder (eq. OPL2, as rendered); ``"flat"``: a flat-topped cell of
+        the same peak thickness (a binary mask), for comparison.
     """
+    if kernel not in ("model", "symbac"):
+        raise ValueError(f"kernel must be 'model' or 'symbac', got {kernel!r}")
+    if profile not in ("rounded", "flat"):
+        raise ValueError(f"profile must be 'rounded' or 'flat', got {profile!r}")
     widths = [
-        _otsu_width_once(width_um, microscope, render, length_um, k / n_shifts, depth_um)
+        _otsu_width_once(
+            width_um, microscope, render, length_um, k / n_shifts, depth_um, kernel, profile
+        )
         for k in range(n_shifts)
     ]
     return float(np.mean(widths))
@@ -190,8 +243,12 @@ def _otsu_width_once(
     length_um: float,
     shift_px: float,
     depth_um: float,
+    kernel_model: str = "model",
+    profile: str = "rounded",
 ) -> float:
+    from scipy.ndimage import binary_fill_holes
     from skimage.filters import threshold_otsu
+    from skimage.measure import label
 
     u = render.upsample
     px = microscope.pixel_size_um / u
@@ -203,28 +260,45 @@ def _otsu_width_once(
     r = width_um / 2
     half = length_um / 2 - r
     d = np.hypot(xx, np.abs(yy) - np.clip(np.abs(yy), 0, half))
-    cells = 2 * np.sqrt(np.maximum(r * r - d * d, 0)) / depth_um
+    if profile == "flat":
+        cells = (d <= r) * (width_um / depth_um)
+    else:
+        cells = 2 * np.sqrt(np.maximum(r * r - d * d, 0)) / depth_um
     opl = render.cell_intensity * cells + render.media_intensity * (1 - cells)
-    kernel = phase_contrast_psf(
-        radius,
-        px,
-        microscope.wavelength_um,
-        microscope.numerical_aperture,
-        microscope.condenser,
-        render.apodisation_sigma_um,
-        render.ring_contrast,
-        render.defocus_sigma_um,
-        render.psf_offset,
-    )
+    if kernel_model == "symbac":
+        kernel = symbac_like_phase_kernel(
+            radius,
+            px,
+            microscope.wavelength_um,
+            microscope.numerical_aperture,
+            microscope.condenser,
+            render.apodisation_sigma_um,
+        )
+    else:
+        kernel = phase_contrast_psf(
+            radius,
+            px,
+            microscope.wavelength_um,
+            microscope.numerical_aperture,
+            microscope.condenser,
+            render.apodisation_sigma_um,
+            render.ring_contrast,
+            render.defocus_sigma_um,
+            render.psf_offset,
+        )
     image = get_backend("scipy").convolve_valid(opl[None].astype(np.float32), kernel)[0]
     image = image.reshape(cam, u, cam, u).mean(axis=(1, 3))
     mask = image < threshold_otsu(image)  # cells are dark in phase contrast
-    from skimage.measure import label
-
     lab = label(mask)
-    centre = lab[cam // 2, cam // 2]
-    if centre == 0:
+    c = cam // 2
+    # Objects crossing the middle row inside the true cell; with an edge-detecting
+    # (near-zero-DC) kernel the dark class can be a ring around a lighter centre,
+    # so holes are filled before the width is read.
+    half_px = int(r / microscope.pixel_size_um)
+    ids = np.unique(lab[c, c - half_px : c + half_px + 1])
+    ids = ids[ids > 0]
+    if ids.size == 0:
         return 0.0
-    cell = lab == centre
-    mid = cell[cam // 2 - 2 : cam // 2 + 3]
+    cell = binary_fill_holes(np.isin(lab, ids))
+    mid = cell[c - 2 : c + 3]
     return float(mid.sum(axis=1).mean() * microscope.pixel_size_um)

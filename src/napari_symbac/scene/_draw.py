@@ -338,17 +338,23 @@ def _coverage(centres_um: np.ndarray, pixel_um: float, low_um: float, high_um: f
 
 @functools.lru_cache(maxsize=16)
 def _trench_images(
-    shape: tuple[int, int], border: int, px: float, margin_um: float, width_um: float
+    shape: tuple[int, int],
+    border: int,
+    px: float,
+    left_um: float,
+    top_um: float,
+    width_um: float,
 ) -> tuple[np.ndarray, np.ndarray, str]:
     """Trench (media-filled) and device fractions of every render pixel (read-only).
 
-    They depend on the geometry only, so every frame of a trench shares them (and
-    the device image's fingerprint).
+    ``left_um`` and ``top_um`` place the trench's left wall and closed end in the
+    field of view. They depend on the geometry only, so every frame of a trench shares
+    them (and the device image's fingerprint).
     """
     yc = (np.arange(shape[0]) - border + 0.5) * px
     xc = (np.arange(shape[1]) - border + 0.5) * px
     trench_frac = np.outer(
-        _coverage(yc, px, margin_um, np.inf), _coverage(xc, px, margin_um, margin_um + width_um)
+        _coverage(yc, px, top_um, np.inf), _coverage(xc, px, left_um, left_um + width_um)
     ).astype(np.float32)
     device = 1.0 - trench_frac
     trench_frac.setflags(write=False)
@@ -369,6 +375,8 @@ def draw_scene(
     curvature: Mapping[int, tuple[float, float, float]] | None = None,
     *,
     field: Field | None = None,
+    trench_origin_um: tuple[float, float] | None = None,
+    camera_shape: tuple[int, int] | None = None,
 ) -> Scene:
     """Draw one frame of a trench, chamber, agar pad or outline as cells, media and device.
 
@@ -406,6 +414,16 @@ def draw_scene(
         :func:`spherocylinder_distance` for the units); cells not in it are straight.
     field
         A non-trench field of view (:class:`Field`); ``trench`` is then not used.
+    trench_origin_um
+        Position ``(x, y)`` of the trench's top-left corner (left wall, closed end)
+        in the field of view, in um from its top-left corner; the cells' coordinates
+        stay relative to the trench. Default ``(margin_um, margin_um)``: the trench
+        centred with equal margins. Trench only (not with ``field``).
+    camera_shape
+        ``(rows, columns)`` of the camera image, for a field of view other than the
+        trench plus its margins (e.g. a crop of a real recording, see
+        :func:`~napari_symbac.fit.fit_scene`); ``trench.length_um`` and
+        ``trench.margin_um`` then do not set the size. Trench only.
 
     Returns
     -------
@@ -448,8 +466,16 @@ def draw_scene(
         off_x = off_y = m
         rows = round((trench.length_um + m) / cam_px)
         cols = round((trench.width_um + 2 * m) / cam_px)
+        if trench_origin_um is not None:
+            off_x, off_y = (float(v) for v in trench_origin_um)
+            if not (math.isfinite(off_x) and math.isfinite(off_y)):
+                raise ValueError(f"trench_origin_um must be finite, got {trench_origin_um!r}")
+        if camera_shape is not None:
+            rows, cols = (int(v) for v in camera_shape)
         depth_um = trench.depth_um
     else:
+        if trench_origin_um is not None or camera_shape is not None:
+            raise ValueError("trench_origin_um and camera_shape place a trench, not a field")
         if not isinstance(field, Field):
             raise ValueError(f"field must be a scene.Field, got {type(field).__name__}")
         off_x, off_y = -field.origin_um[0], -field.origin_um[1]
@@ -465,7 +491,9 @@ def draw_scene(
     yc = (np.arange(shape[0]) - border + 0.5) * px
     xc = (np.arange(shape[1]) - border + 0.5) * px
     if field is None:
-        trench_frac, device, device_fp = _trench_images(shape, border, px, m, trench.width_um)
+        trench_frac, device, device_fp = _trench_images(
+            shape, border, px, off_x, off_y, trench.width_um
+        )
     else:
         trench_frac, device = field_images(field, shape, border, px)
         device_fp = _device_fingerprint(field, shape, border, px)
