@@ -19,7 +19,6 @@ import numpy as np
 
 from napari_symbac.optics import ForwardModel
 from napari_symbac.pipeline import draw_frame, noise_rng
-from napari_symbac.scene import vary_cell_brightness
 from napari_symbac.settings import (
     AgarPadGeometry,
     OutlineGeometry,
@@ -52,12 +51,11 @@ def _render(simulation, render: RenderSettings, *, fluorescence: bool = False):
         settings = dataclasses.replace(
             settings,
             microscope=dataclasses.replace(settings.microscope, modality="fluorescence"),
+            render=dataclasses.replace(settings.render, cell_brightness_cv=0.4),
         )
     index = len(simulation.frames) - 1
     scene = draw_frame(simulation, settings, index)
     rng = noise_rng(settings)
-    if fluorescence:
-        scene = vary_cell_brightness(scene, rng, cv=0.4)
     model = ForwardModel(settings.microscope, settings.render, settings.camera)
     return model.render(scene, rng, cache=False), scene.camera_labels()
 

@@ -21,7 +21,7 @@ import tifffile
 from napari_symbac.fit import class_statistics, fit_scene
 from napari_symbac.optics import ForwardModel
 from napari_symbac.optics.validation import membrane_dye_width, otsu_width
-from napari_symbac.scene import vary_cell_brightness
+from napari_symbac.pipeline import apply_cell_brightness
 from napari_symbac.settings import Camera, Microscope, RenderSettings
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -67,7 +67,7 @@ def comparison() -> None:
         cell_intensity=flu["cell"], media_intensity=flu["media"], device_intensity=flu["media"]
     )
     fluo_camera = Camera(baseline_adu=0.0)
-    fluo_scene = vary_cell_brightness(fit.scene, rng, cv=0.3)
+    fluo_scene = apply_cell_brightness(fit.scene, cv=0.3, seed=1)
     fluo = ForwardModel(fluo_mic, fluo_render, fluo_camera).render(fluo_scene, rng)
     rms = float(np.sqrt(np.mean(fit.residual**2)))
     fig, axes = plt.subplots(1, 5, figsize=(8, 7.5))

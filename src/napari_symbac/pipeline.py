@@ -18,7 +18,6 @@ from napari_symbac.sim import Simulation
 __all__ = [
     "RenderedSeries",
     "apply_cell_brightness",
-    "camera_masks",
     "cell_brightness_gains",
     "draw_frame",
     "iter_render",
@@ -162,43 +161,6 @@ def iter_scenes(simulation: Simulation, settings: PipelineSettings) -> Iterator[
         yield _draw(simulation, settings, index, curvature, field)
 
 
-def camera_masks(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
-    """``(scene.camera_labels(), scene.semantic_mask())``, computed together and faster.
-
-    The same arrays, value for value: a camera pixel takes the label covering most
-    of its ``upsample x upsample`` render pixels (the first of equal counts), and
-    the semantic mask is 1 in cells except where a cell touches one of smaller id
-    (8-connectivity). Only blocks that are not uniform (cell edges) are counted,
-    and the labels are resampled once for both masks.
-    """
-    inner = scene.interior(scene.labels)
-    u = scene.upsample
-    rows, cols = scene.camera_shape
-    labels = np.array(inner[::u, ::u], np.uint32)
-    if u > 1:
-        mixed = np.zeros((rows, cols), bool)
-        for dy in range(u):
-            for dx in range(u):
-                if dy or dx:
-                    mixed |= inner[dy::u, dx::u] != labels
-        ri, ci = np.nonzero(mixed)
-        if ri.size:
-            blocks = inner.reshape(rows, u, cols, u)[ri, :, ci, :].reshape(ri.size, u * u)
-            counts = np.zeros(blocks.shape, np.uint8)  # how often each entry occurs
-            for k in range(u * u):
-                counts += blocks == blocks[:, k : k + 1]
-            labels[ri, ci] = blocks[np.arange(ri.size), np.argmax(counts, axis=-1)]
-    padded = np.pad(labels, 1)
-    conflict = np.zeros((rows, cols), bool)
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            if dy or dx:
-                neighbour = padded[1 + dy : 1 + dy + rows, 1 + dx : 1 + dx + cols]
-                conflict |= (neighbour > 0) & (neighbour < labels)
-    semantic = ((labels > 0) & ~conflict).astype(np.uint8)
-    return labels, semantic
-
-
 def iter_render(
     simulation: Simulation,
     settings: PipelineSettings,
@@ -213,7 +175,7 @@ def iter_render(
     rng = noise_rng(settings) if rng is None else rng
     model = ForwardModel(settings.microscope, settings.render, settings.camera)
     for scene in iter_scenes(simulation, settings):
-        yield (model.render(scene, rng, cache=False), *camera_masks(scene))
+        yield model.render(scene, rng, cache=False), scene.camera_labels(), scene.semantic_mask()
 
 
 def render_simulation(

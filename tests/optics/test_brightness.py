@@ -10,7 +10,6 @@ import pytest
 from napari_symbac.optics import ForwardModel
 from napari_symbac.pipeline import (
     apply_cell_brightness,
-    camera_masks,
     cell_brightness_gains,
     draw_frame,
     iter_render,
@@ -60,7 +59,7 @@ def _cell_means(image: np.ndarray, labels: np.ndarray, ids: np.ndarray) -> np.nd
 
 def test_cv_of_cell_means_matches_setting(grid_scene):
     model = ForwardModel(FLUO, DARK, Camera())
-    labels, _ = camera_masks(grid_scene)
+    labels = grid_scene.camera_labels()
     ids = grid_scene.cell_ids
     plain = _cell_means(model.render_clean(grid_scene, cache=False), labels, ids)
     for cv in (0.15, 0.3, 0.5):
@@ -156,7 +155,27 @@ def test_setting_validates_and_round_trips(tmp_path):
         assert loaded.render.cell_brightness_cv == 0.35
 
 
-def test_camera_masks_equal_scene_masks(cells_factory):
+def _reference_masks(scene) -> tuple[np.ndarray, np.ndarray]:
+    """Camera masks the plain way: a majority vote over every block, then the neighbours."""
+    b, u = scene.border_px, scene.upsample
+    rows, cols = scene.camera_shape
+    inner = scene.labels[b : b + rows * u, b : b + cols * u]
+    blocks = inner.reshape(rows, u, cols, u).transpose(0, 2, 1, 3).reshape(rows, cols, u * u)
+    counts = np.stack([(blocks == blocks[..., k : k + 1]).sum(-1) for k in range(u * u)], -1)
+    best = np.argmax(counts, axis=-1)  # the first (row-major) of equal counts
+    labels = np.take_along_axis(blocks, best[..., None], axis=-1)[..., 0].astype(np.uint32)
+    wide = labels.astype(np.int64)
+    padded = np.pad(wide, 1)
+    semantic = np.zeros(labels.shape, np.uint8)
+    for i in range(rows):
+        for j in range(cols):
+            own = wide[i, j]
+            around = padded[i : i + 3, j : j + 3]
+            semantic[i, j] = own > 0 and not np.any((around > 0) & (around < own))
+    return labels, semantic
+
+
+def test_camera_masks_equal_reference(cells_factory):
     trench = TrenchGeometry(length_um=15.0, width_um=1.4, margin_um=0.8)
     rng = np.random.default_rng(1)
     for upsample in (1, 2, 3, 4):
@@ -172,8 +191,18 @@ def test_camera_masks_equal_scene_masks(cells_factory):
                 ids=rng.permutation(np.arange(1, 40))[:n],
             )
             scene = draw_scene(cells, trench, Microscope(), render)
-            labels, semantic = camera_masks(scene)
+            labels, semantic = scene.camera_labels(), scene.semantic_mask()
             assert labels.dtype == np.uint32
             assert semantic.dtype == np.uint8
-            np.testing.assert_array_equal(labels, scene.camera_labels())
-            np.testing.assert_array_equal(semantic, scene.semantic_mask())
+            ref_labels, ref_semantic = _reference_masks(scene)
+            np.testing.assert_array_equal(labels, ref_labels)
+            np.testing.assert_array_equal(semantic, ref_semantic)
+            # Computed once per scene; every call returns a new, writable array.
+            again = scene.camera_labels()
+            assert again is not labels
+            assert again.flags.writeable
+            np.testing.assert_array_equal(again, labels)
+            # A scene with new cells or media has the same labels, so the same masks.
+            brighter = scene.replace_cells(scene.cells * 2)
+            np.testing.assert_array_equal(brighter.camera_labels(), ref_labels)
+            np.testing.assert_array_equal(brighter.semantic_mask(), ref_semantic)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from skimage.measure import label as cc_label
 
-from napari_symbac.scene import draw_scene, kymograph, vary_cell_brightness
+from napari_symbac.scene import draw_scene, kymograph
 from napari_symbac.settings import Microscope, RenderSettings, TrenchGeometry
 
 MIC = Microscope()
@@ -213,24 +213,6 @@ def test_empty_frame_and_scene_is_read_only(cells_factory):
     assert scene.semantic_mask().max() == 0
     with pytest.raises(ValueError, match="read-only"):
         scene.cells[0, 0] = 1.0
-
-
-def test_cell_brightness_variability(cells_factory):
-    scene = draw_scene(cells_factory(np.arange(1.8, 15, 1.3), length_um=1.2), TRENCH, MIC, RS)
-    a = vary_cell_brightness(scene, np.random.default_rng(3), cv=0.4)
-    b = vary_cell_brightness(scene, np.random.default_rng(3), cv=0.4)
-    np.testing.assert_array_equal(a.cells, b.cells)
-    gains = [
-        a.cells[scene.labels == i].max() / scene.cells[scene.labels == i].max()
-        for i in scene.cell_ids
-    ]
-    assert np.std(gains) > 0.1
-    # Each cell is scaled by one gain: the ratio is constant within a cell.
-    i = scene.cell_ids[0]
-    inside = (scene.labels == i) & (scene.cells > 0.05)
-    ratio = a.cells[inside] / scene.cells[inside]
-    assert np.ptp(ratio) < 1e-5
-    np.testing.assert_array_equal(a.media, scene.media)
 
 
 def test_kymograph():

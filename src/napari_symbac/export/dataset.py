@@ -361,7 +361,7 @@ class PipelineSource:
 
     def make_unit(self, unit: int) -> list[ExportItem]:
         from napari_symbac.optics import ForwardModel
-        from napari_symbac.pipeline import apply_cell_brightness, camera_masks
+        from napari_symbac.pipeline import apply_cell_brightness
         from napari_symbac.scene import add_media_texture, draw_scene, field_of
 
         s = self.settings
@@ -400,7 +400,7 @@ class PipelineSource:
                 scene, varied.render.cell_brightness_cv, simulation.settings.seed
             )
             image = model.render(scene, rng, cache=False)
-            labels, semantic = camera_masks(scene)
+            labels, semantic = scene.camera_labels(), scene.semantic_mask()
             present = np.unique(labels)
             item_params = {"simulation": sim_index, "frame": frame, **params}
             items.append(

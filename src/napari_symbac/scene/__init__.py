@@ -10,7 +10,6 @@ from napari_symbac.scene._draw import (
     Scene,
     draw_scene,
     spherocylinder_distance,
-    vary_cell_brightness,
 )
 from napari_symbac.scene._field import (
     OUTLINE_WALL_THICKNESS_UM,
@@ -30,5 +29,4 @@ __all__ = [
     "field_of",
     "kymograph",
     "spherocylinder_distance",
-    "vary_cell_brightness",
 ]

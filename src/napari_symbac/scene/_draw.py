@@ -13,7 +13,7 @@ import functools
 import hashlib
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any, Protocol
 
 import numpy as np
@@ -26,7 +26,6 @@ __all__ = [
     "Scene",
     "draw_scene",
     "spherocylinder_distance",
-    "vary_cell_brightness",
 ]
 
 _MAX_ID = np.iinfo(np.uint32).max
@@ -101,15 +100,11 @@ class Scene:
     def __post_init__(self) -> None:
         shape = None
         for name in ("cells", "media", "device"):
-            arr = np.asarray(getattr(self, name), dtype=np.float32)
-            if arr.ndim != 2:
-                raise ValueError(f"Scene.{name} must be a 2-D image, got shape {arr.shape}")
-            if not np.all(np.isfinite(arr)):
-                raise ValueError(f"Scene.{name} contains NaN or infinite values")
+            arr = _checked_image(name, getattr(self, name))
             if shape is not None and arr.shape != shape:
                 raise ValueError(f"Scene.{name} has shape {arr.shape}, expected {shape}")
             shape = arr.shape
-            object.__setattr__(self, name, _readonly(arr))
+            object.__setattr__(self, name, arr)
         labels = np.asarray(self.labels)
         if labels.shape != shape:
             raise ValueError(f"Scene.labels has shape {labels.shape}, expected {shape}")
@@ -127,6 +122,40 @@ class Scene:
                 f"upsample {self.upsample} and border_px {self.border_px} imply {expected}"
             )
         object.__setattr__(self, "cell_ids", _readonly(np.asarray(self.cell_ids, np.int64)))
+
+    @classmethod
+    def _unchecked(cls, **values: Any) -> Scene:
+        """A scene from values that already satisfy ``__post_init__`` (no checks, no copies).
+
+        For :func:`draw_scene` and the ``replace_*`` methods, whose images are
+        read-only, C-contiguous, finite float32 (labels uint32, ids int64) of matching
+        shapes by construction; skipping the checks saves several passes over the
+        images per frame.
+        """
+        scene = object.__new__(cls)
+        for name in _FIELDS:
+            object.__setattr__(scene, name, values[name])
+        return scene
+
+    def _replace(self, name: str, image: np.ndarray) -> Scene:
+        image = _checked_image(name, image)
+        if image.shape != self.shape:
+            raise ValueError(f"Scene.{name} has shape {image.shape}, expected {self.shape}")
+        values = {f: getattr(self, f) for f in _FIELDS}
+        values[name] = image
+        scene = Scene._unchecked(**values)
+        # The labels are the same array: so are the camera-resolution masks, and the
+        # content hashes of the images that did not change.
+        if "_masks" in self.__dict__:
+            object.__setattr__(scene, "_masks", self.__dict__["_masks"])
+        known = {
+            **self.__dict__.get("_known_fingerprints", {}),
+            **self.__dict__.get("_fingerprints", {}),
+        }
+        known.pop(name, None)
+        if known:
+            object.__setattr__(scene, "_known_fingerprints", known)
+        return scene
 
     @property
     def fingerprints(self) -> dict[str, str]:
@@ -155,43 +184,36 @@ class Scene:
         b = self.border_px
         return image[b : image.shape[0] - b, b : image.shape[1] - b]
 
+    def _camera_masks(self) -> tuple[np.ndarray, np.ndarray]:
+        # Computed once per scene (the labels are read-only, so they cannot go stale).
+        cached = self.__dict__.get("_masks")
+        if cached is None:
+            cached = _camera_masks(self.interior(self.labels), self.upsample, self.camera_shape)
+            for mask in cached:
+                mask.setflags(write=False)
+            object.__setattr__(self, "_masks", cached)
+        return cached
+
     def camera_labels(self) -> np.ndarray:
         """Instance mask at camera resolution (eq. 4-5 per cell), ``uint32``.
 
         Each camera pixel takes the label covering most of its ``upsample x upsample``
-        render pixels (background counts as a label), so touching cells keep touching
-        and ids are preserved exactly (no wrap-around, whatever the count).
+        render pixels (background counts as a label; of equal counts, the first in
+        row-major order within the block), so touching cells keep touching and ids are
+        preserved exactly (no wrap-around, whatever the count). Computed once per
+        scene, together with :meth:`semantic_mask`; each call returns a new array.
         """
-        inner = self.interior(self.labels)
-        u = self.upsample
-        rows, cols = self.camera_shape
-        blocks = inner.reshape(rows, u, cols, u).transpose(0, 2, 1, 3).reshape(rows, cols, u * u)
-        if u == 1:
-            return np.ascontiguousarray(blocks[..., 0])
-        counts = np.zeros(blocks.shape, np.int16)
-        for k in range(u * u):
-            counts[..., k] = (blocks == blocks[..., k : k + 1]).sum(axis=-1)
-        best = np.argmax(counts, axis=-1)
-        return np.take_along_axis(blocks, best[..., None], axis=-1)[..., 0].astype(np.uint32)
+        return self._camera_masks()[0].copy()
 
     def semantic_mask(self) -> np.ndarray:
         """Semantic mask at camera resolution, ``uint8`` (eq. 4-5).
 
         Pixels of cells are 1 and background 0; wherever two different cells touch
         (8-connectivity), the pixel of the cell with the larger id is set to 0, so
-        cells are always separated by zero pixels (the DeLTA convention).
+        cells are always separated by zero pixels (the DeLTA convention). Computed
+        from :meth:`camera_labels` once per scene; each call returns a new array.
         """
-        labels = self.camera_labels().astype(np.int64)
-        padded = np.pad(labels, 1)
-        rows, cols = labels.shape
-        conflict = np.zeros(labels.shape, bool)
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                if dy == 0 and dx == 0:
-                    continue
-                neighbour = padded[1 + dy : 1 + dy + rows, 1 + dx : 1 + dx + cols]
-                conflict |= (neighbour > 0) & (neighbour < labels)
-        return ((labels > 0) & ~conflict).astype(np.uint8)
+        return self._camera_masks()[1].copy()
 
     def optical_path_length(
         self,
@@ -227,33 +249,62 @@ class Scene:
 
     def replace_cells(self, cells: np.ndarray) -> Scene:
         """A copy of this scene with a new cells image (e.g. per-cell brightness)."""
-        return Scene(
-            cells=cells,
-            media=self.media,
-            device=self.device,
-            labels=self.labels,
-            border_px=self.border_px,
-            upsample=self.upsample,
-            camera_shape=self.camera_shape,
-            pixel_size_um=self.pixel_size_um,
-            depth_um=self.depth_um,
-            cell_ids=self.cell_ids,
-        )
+        return self._replace("cells", cells)
 
     def replace_media(self, media: np.ndarray) -> Scene:
         """A copy of this scene with a new media image (e.g. background texture)."""
-        return Scene(
-            cells=self.cells,
-            media=media,
-            device=self.device,
-            labels=self.labels,
-            border_px=self.border_px,
-            upsample=self.upsample,
-            camera_shape=self.camera_shape,
-            pixel_size_um=self.pixel_size_um,
-            depth_um=self.depth_um,
-            cell_ids=self.cell_ids,
-        )
+        return self._replace("media", media)
+
+
+_FIELDS = tuple(f.name for f in fields(Scene))
+
+
+def _camera_masks(
+    inner: np.ndarray, u: int, camera_shape: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Instance and semantic masks at camera resolution of the interior labels.
+
+    The majority vote runs only on the ``u x u`` blocks that are not uniform (cell
+    edges); the semantic mask reuses the instance mask.
+    """
+    rows, cols = camera_shape
+    labels = np.array(inner[::u, ::u], np.uint32)
+    if u > 1:
+        mixed = np.zeros((rows, cols), bool)
+        for dy in range(u):
+            for dx in range(u):
+                if dy or dx:
+                    mixed |= inner[dy::u, dx::u] != labels
+        ri, ci = np.nonzero(mixed)
+        if ri.size:
+            # (blocks, u * u) in row-major order within each block: argmax takes the
+            # first of equal counts.
+            blocks = inner.reshape(rows, u, cols, u)[ri, :, ci, :].reshape(ri.size, u * u)
+            counts = np.zeros(blocks.shape, np.uint8 if u * u < 256 else np.int64)
+            for k in range(u * u):
+                counts += blocks == blocks[:, k : k + 1]
+            labels[ri, ci] = blocks[np.arange(ri.size), np.argmax(counts, axis=-1)]
+    padded = np.pad(labels, 1)
+    conflict = np.zeros((rows, cols), bool)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dy or dx:
+                neighbour = padded[1 + dy : 1 + dy + rows, 1 + dx : 1 + dx + cols]
+                conflict |= (neighbour > 0) & (neighbour < labels)
+    semantic = ((labels > 0) & ~conflict).astype(np.uint8)
+    return labels, semantic
+
+
+def _checked_image(name: str, image: Any) -> np.ndarray:
+    """``image`` as a read-only, C-contiguous float32 2-D array of finite values."""
+    arr = np.asarray(image, dtype=np.float32)
+    if arr.ndim != 2:
+        raise ValueError(f"Scene.{name} must be a 2-D image, got shape {arr.shape}")
+    # A NaN or an infinity makes the sum non-finite; a finite sum means all are finite
+    # (the exact test runs only when the sum is not, e.g. on float32 overflow).
+    if not math.isfinite(np.add.reduce(arr, axis=None)) and not np.all(np.isfinite(arr)):
+        raise ValueError(f"Scene.{name} contains NaN or infinite values")
+    return _readonly(arr)
 
 
 def _column(cells: Any, name: str, n: int | None) -> np.ndarray:
@@ -306,6 +357,45 @@ def spherocylinder_distance(
         t = t - a_um * np.sin(ell * math.pi / b + c)
     s_on = np.clip(s, -half, half)
     return np.sqrt((s - s_on) ** 2 + t**2)
+
+
+def _chord(
+    xc: np.ndarray,
+    yc: np.ndarray,
+    centre_um: tuple[float, float],
+    angle_rad: float,
+    length_um: float,
+    width_um: float,
+    curvature: tuple[float, float, float] | None,
+) -> np.ndarray:
+    """float32 chord ``2 sqrt(r^2 - d^2)`` (0 beyond ``r``) over the grid ``yc x xc``.
+
+    The same float64 arithmetic as ``spherocylinder_distance`` followed by the chord,
+    value for value, with the temporaries reused in place.
+    """
+    r = width_um / 2
+    half = max(length_um / 2 - r, 0.0)
+    dx = xc - centre_um[0]
+    dy = yc - centre_um[1]
+    sin_a, cos_a = math.sin(angle_rad), math.cos(angle_rad)
+    s = np.add((dy * cos_a)[:, None], (dx * sin_a)[None, :])  # = dx sin + dy cos
+    t = np.subtract((dx * cos_a)[None, :], (dy * sin_a)[:, None])
+    if curvature is not None:
+        a_um, b, c = curvature
+        ell = np.clip((s + length_um / 2) / length_um, 0.0, 1.0)
+        t -= a_um * np.sin(ell * math.pi / b + c)
+    d = np.maximum(s, -half)  # s - clip(s, -half, half), squared
+    np.minimum(d, half, out=d)
+    np.subtract(s, d, out=d)
+    np.square(d, out=d)
+    np.square(t, out=t)
+    np.add(d, t, out=d)
+    np.sqrt(d, out=d)
+    np.multiply(d, d, out=d)
+    np.subtract(r * r, d, out=d)
+    np.maximum(d, 0.0, out=d)
+    np.sqrt(d, out=d)
+    return np.multiply(2, d, out=np.empty(d.shape, np.float32), casting="same_kind")
 
 
 def _check_curvature(curvature: Mapping[int, tuple[float, float, float]] | None) -> dict:
@@ -498,8 +588,6 @@ def draw_scene(
         trench_frac, device = field_images(field, shape, border, px)
         device_fp = _device_fingerprint(field, shape, border, px)
 
-    thickness = np.zeros(shape, np.float32)
-    labels = np.zeros(shape, np.uint32)
     boxes = []
     for i in range(n):
         r = width[i] / 2
@@ -516,31 +604,64 @@ def draw_scene(
         j1 = min(math.ceil((cx + reach_x) / px) + border + 1, shape[1])
         i0 = max(math.floor((cy - reach_y) / px) + border, 0)
         i1 = min(math.ceil((cy + reach_y) / px) + border + 1, shape[0])
-        if j0 >= j1 or i0 >= i1:
-            continue
-        d = spherocylinder_distance(
-            xc[None, j0:j1], yc[i0:i1, None], (cx, cy), angle[i], length[i], width[i], bend
-        )
-        chord = (2 * np.sqrt(np.maximum(r * r - d * d, 0.0))).astype(np.float32)
-        box_t = thickness[i0:i1, j0:j1]
-        box_l = labels[i0:i1, j0:j1]
-        take = chord > box_t
-        box_t[take] = chord[take]
-        box_l[take] = ids[i]
-        boxes.append((slice(i0, i1), slice(j0, j1)))
+        if j0 < j1 and i0 < i1:
+            boxes.append((i, i0, i1, j0, j1, cx, cy, bend))
 
-    # Outside the cells' boxes there is no cell: cells = 0, media = trench, label 0.
-    # Inside them (overlaps are recomputed identically):
     cells_frac = np.zeros(shape, np.float32)
+    labels = np.zeros(shape, np.uint32)
     media = trench_frac.copy()
-    depth = np.float32(depth_um)
-    for box in boxes:
-        frac = np.minimum(thickness[box] / depth, np.float32(1.0))
-        frac = np.minimum(frac, trench_frac[box])  # cells cannot sit inside the PDMS
-        cells_frac[box] = frac
-        labels[box][frac <= 0] = 0
-        media[box] = np.maximum(trench_frac[box] - frac, np.float32(0.0))
-    scene = Scene(
+    if boxes:
+        # The chord thickness of the thickest cell at each pixel (um) and its id are
+        # drawn into work images; outside the cells' boxes there is no cell (cells =
+        # 0, media = trench, label 0). When the boxes about fill their bounding
+        # rectangle (a trench), the work images are that rectangle, contiguous, and it
+        # is converted to fractions at once (each pixel once; where no box reaches,
+        # the thickness 0 gives the same cells, media and label as outside).
+        # Otherwise (cells scattered over a pad) they are the whole frame, converted
+        # box by box (overlaps are recomputed identically).
+        top = min(b[1] for b in boxes)
+        bottom = max(b[2] for b in boxes)
+        left = min(b[3] for b in boxes)
+        right = max(b[4] for b in boxes)
+        covered = sum((b[2] - b[1]) * (b[4] - b[3]) for b in boxes)
+        dense = (bottom - top) * (right - left) <= 2 * covered
+        if dense:
+            thickness = np.zeros((bottom - top, right - left), np.float32)
+            work_labels = np.zeros(thickness.shape, np.uint32)
+            regions = [(slice(top, bottom), slice(left, right))]
+        else:
+            top = left = 0
+            thickness = np.zeros(shape, np.float32)
+            work_labels = labels
+            regions = [(slice(b[1], b[2]), slice(b[3], b[4])) for b in boxes]
+        for i, i0, i1, j0, j1, cx, cy, bend in boxes:
+            local = (slice(i0 - top, i1 - top), slice(j0 - left, j1 - left))
+            chord = _chord(xc[j0:j1], yc[i0:i1], (cx, cy), angle[i], length[i], width[i], bend)
+            box_t = thickness[local]
+            take = chord > box_t
+            np.maximum(box_t, chord, out=box_t)  # = chord where it is larger
+            np.putmask(work_labels[local], take, np.uint32(ids[i]))
+        depth = np.float32(depth_um)
+        for region in regions:
+            local = (
+                slice(region[0].start - top, region[0].stop - top),
+                slice(region[1].start - left, region[1].stop - left),
+            )
+            trench_box = np.array(trench_frac[region])
+            frac = thickness[local] / depth
+            np.minimum(frac, np.float32(1.0), out=frac)
+            np.minimum(frac, trench_box, out=frac)  # cells cannot sit inside the PDMS
+            cells_frac[region] = frac
+            box_l = work_labels[local]
+            np.putmask(box_l, frac <= 0, np.uint32(0))
+            if dense:
+                labels[region] = box_l
+            np.subtract(trench_box, frac, out=trench_box)
+            media[region] = np.maximum(trench_box, np.float32(0.0), out=trench_box)
+    for image in (cells_frac, media, labels, ids):
+        image.setflags(write=False)
+    # Every image is C-contiguous, finite, of the right dtype and shape by construction.
+    scene = Scene._unchecked(
         cells=cells_frac,
         media=media,
         device=device,
@@ -555,29 +676,3 @@ def draw_scene(
     # The device image is the cached, read-only array of this geometry: reuse its hash.
     object.__setattr__(scene, "_known_fingerprints", {"device": device_fp})
     return scene
-
-
-def vary_cell_brightness(scene: Scene, rng: np.random.Generator, cv: float = 0.3) -> Scene:
-    """Give every cell its own brightness (fluorescence, section 13.2.2).
-
-    Each cell's image is multiplied by a gain drawn from a gamma distribution with
-    mean 1 and coefficient of variation ``cv`` (stochastic gene expression). The
-    gains are drawn in the order of ``scene.cell_ids``, so the same generator state
-    gives the same gains.
-    """
-    if not (math.isfinite(cv) and cv >= 0):
-        raise ValueError(f"cv must be zero or positive, got {cv!r}")
-    ids = scene.cell_ids
-    if cv == 0 or ids.size == 0:
-        gains = np.ones(ids.size)
-    else:
-        shape = 1.0 / cv**2
-        gains = rng.gamma(shape, 1.0 / shape, size=ids.size)
-    lut_ids = np.concatenate([[0], ids])
-    lut_gain = np.concatenate([[1.0], gains]).astype(np.float32)
-    order = np.argsort(lut_ids)
-    index = np.searchsorted(lut_ids[order], scene.labels.astype(np.int64))
-    index = np.clip(index, 0, lut_ids.size - 1)
-    found = lut_ids[order][index] == scene.labels
-    per_pixel = np.where(found, lut_gain[order][index], np.float32(1.0))
-    return scene.replace_cells(scene.cells * per_pixel.astype(np.float32))
