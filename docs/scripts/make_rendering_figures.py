@@ -54,7 +54,7 @@ def fluorescence_intensities() -> dict[str, float]:
 def comparison() -> None:
     real = tifffile.imread(REAL / "ecoli_100x_oil_exponential.tiff")
     start = time.perf_counter()
-    fit = fit_scene(real, MICROSCOPE, RenderSettings(), CAMERA)
+    fit = fit_scene(real, MICROSCOPE, RenderSettings(), CAMERA, closed_end="round")
     seconds = time.perf_counter() - start
     render = fit.render
     rng = np.random.default_rng(1)

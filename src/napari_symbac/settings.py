@@ -48,6 +48,7 @@ GrowthModel = Literal["sizer", "adder", "timer"]
 GeometryKind = Literal["trench", "chamber", "agar_pad", "outline"]
 Modality = Literal["phase", "fluorescence"]
 NoiseModel = Literal["camera", "gaussian", "none"]
+ClosedEnd = Literal["square", "round"]
 
 
 def _require(condition: bool, message: str) -> None:
@@ -152,16 +153,22 @@ class TrenchGeometry:
         this leave media above and below them.
     margin_um
         Device (PDMS) shown around the trench on the left, right and closed end.
+    closed_end
+        Shape of the closed end in the rendered image: ``"square"`` (corners of media)
+        or ``"round"`` (a semicircle of diameter ``width_um``, PDMS in the corners, as
+        moulded trenches are; docs/fitting.md). The simulator keeps a square end.
     """
 
     length_um: float = 16.0
     width_um: float = 1.4
     depth_um: float = 1.2
     margin_um: float = 0.8
+    closed_end: ClosedEnd = "square"
 
     def __post_init__(self) -> None:
         _positive(self, "length_um", "width_um", "depth_um")
         _non_negative(self, "margin_um")
+        _choice(self, "closed_end", typing.get_args(ClosedEnd))
 
 
 @dataclass(frozen=True)

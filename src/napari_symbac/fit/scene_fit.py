@@ -74,12 +74,16 @@ class TrenchPlacement:
         Position of the closed end (negative: above the image).
     depth_um
         Optical depth of the trench (``s_media``; not fitted).
+    closed_end
+        ``"square"`` or ``"round"`` (a semicircle of diameter ``width_um``), as
+        :attr:`TrenchGeometry.closed_end`; not fitted.
     """
 
     left_um: float
     width_um: float
     top_um: float
     depth_um: float = 1.2
+    closed_end: Literal["square", "round"] = "square"
 
     def __post_init__(self) -> None:
         for name in ("left_um", "width_um", "top_um", "depth_um"):
@@ -89,6 +93,10 @@ class TrenchPlacement:
             object.__setattr__(self, name, value)
         if self.width_um <= 0 or self.depth_um <= 0:
             raise ValueError("TrenchPlacement.width_um and depth_um must be positive")
+        if self.closed_end not in ("square", "round"):
+            raise ValueError(
+                f"TrenchPlacement.closed_end must be 'square' or 'round', got {self.closed_end!r}"
+            )
 
 
 def _draw(
@@ -119,7 +127,12 @@ def _draw(
         width_um=cells.width_um,
     )
     # Length and margin do not matter: camera_shape sets the field of view.
-    geometry = TrenchGeometry(width_um=trench.width_um, depth_um=trench.depth_um, margin_um=0.0)
+    geometry = TrenchGeometry(
+        width_um=trench.width_um,
+        depth_um=trench.depth_um,
+        margin_um=0.0,
+        closed_end=trench.closed_end,
+    )
     return draw_scene(
         relative,
         geometry,
@@ -147,6 +160,150 @@ def _longest_run(mask: np.ndarray) -> tuple[int, int] | None:
     return int(idx[0]), int(idx[-1])
 
 
+#: Septum split of the Otsu start (:func:`_split_at_septa`): a bright band across a
+#: region counts as a septum when its prominence in the intensity profile along the
+#: region's axis is at least this many s.d. of the profile's noise ...
+SEPTUM_NOISE_SD = 6.0
+#: ... and at least this fraction of the media-cell contrast of the image (phase-contrast
+#: texture inside real cells, nucleoids and the halo, reaches ~0.1 of it; septa ~0.4).
+SEPTUM_CONTRAST = 0.2
+
+
+def _pixel_noise(image: np.ndarray, where: np.ndarray) -> float:
+    """Robust s.d. of the pixel noise of ``image`` over ``where``.
+
+    The difference of a pixel and the mean of its four neighbours has variance
+    ``1.25 s^2`` for white noise and is nearly free of the (smooth) image structure;
+    its median absolute deviation gives ``s``.
+    """
+    neighbours = ndimage.convolve(
+        image, np.array([[0, 0.25, 0], [0.25, 0, 0.25], [0, 0.25, 0]]), mode="nearest"
+    )
+    high = (image - neighbours)[where]
+    if high.size < 10:
+        return 0.0
+    mad = np.median(np.abs(high - np.median(high)))
+    return float(1.4826 * mad / math.sqrt(1.25))
+
+
+def _septum_cuts(
+    profile: np.ndarray, noise: np.ndarray, min_prominence: float, min_length: int
+) -> list[int]:
+    """Positions of septa in a 1-D intensity profile along a region's axis.
+
+    Local maxima (bright septa between dark cell bodies) whose topographic prominence
+    is above ``min_prominence`` and above :data:`SEPTUM_NOISE_SD` times the profile's
+    noise there, accepted greedily by decreasing prominence as long as every piece
+    they cut the region into stays at least ``min_length`` bins long.
+    """
+    from scipy.signal import find_peaks
+
+    peaks, props = find_peaks(profile, prominence=min_prominence)
+    keep = props["prominences"] >= SEPTUM_NOISE_SD * noise[peaks]
+    peaks, prominences = peaks[keep], props["prominences"][keep]
+    cuts: list[int] = []
+    for peak in peaks[np.argsort(-prominences, kind="stable")]:
+        edges = np.array(sorted([0, len(profile), *cuts, int(peak)]))
+        if np.diff(edges).min() >= min_length:
+            cuts.append(int(peak))
+    return sorted(cuts)
+
+
+def _split_at_septa(
+    instances: np.ndarray,
+    image: np.ndarray,
+    region: np.ndarray,
+    pixel_size_um: float,
+    min_cell_length_um: float = 0.8,
+) -> np.ndarray:
+    """Split touching cells of an instance segmentation at bright septa.
+
+    Method (septum profile split): for each region, the image (raw, not smoothed) is
+    averaged over a band along the region's principal axis, as wide as the region
+    (90th percentile of the pixels' distance from the axis) and restricted to
+    ``region``, in bins of one pixel, and the profile is smoothed by a Gaussian of
+    one bin. In phase contrast touching cells are dark bodies separated by a bright
+    septum, so septa are local maxima of this profile. A maximum is a septum when its
+    prominence is at least :data:`SEPTUM_NOISE_SD` times the noise of the profile
+    (pixel noise from :func:`_pixel_noise` over the number of pixels averaged) and at
+    least :data:`SEPTUM_CONTRAST` times the media-cell contrast (median of
+    ``region`` outside the cells minus median inside), and every piece is at least
+    ``min_cell_length_um`` long (:func:`_septum_cuts`). The pieces are then drawn
+    by a watershed of the smoothed image inside the region's mask, seeded with the
+    region's pixels more than 0.2 um (along the axis) from every cut, so that a
+    tilted septum is followed rather than cut square. Deterministic; a region with
+    no septum is returned unchanged.
+
+    Parameters
+    ----------
+    instances
+        Instance labels (0 = background) of the thresholded cells.
+    image
+        The image (phase contrast: cells dark).
+    region
+        Where the profile may look (inside the trench).
+    pixel_size_um
+        Camera pixel size.
+    min_cell_length_um
+        Shortest piece a septum may leave at either side.
+
+    Returns
+    -------
+    numpy.ndarray
+        Instance labels, ``1..n`` in the order of the regions and, within a region,
+        along its axis.
+    """
+    from skimage.segmentation import watershed
+
+    mask = instances > 0
+    if not mask.any():
+        return instances
+    sigma = _pixel_noise(image, region)
+    outside = region & ~mask
+    contrast = float(np.median(image[outside]) - np.median(image[mask])) if outside.any() else 0.0
+    smooth = ndimage.gaussian_filter(image, 1.0)
+    rows, cols = np.indices(image.shape)
+    out = np.zeros_like(instances)
+    n_out = 0
+    seed_px = max(round(0.2 / pixel_size_um), 1)
+    min_length = max(round(min_cell_length_um / pixel_size_um), 2)
+    for index in range(1, int(instances.max()) + 1):
+        inside = instances == index
+        rr, cc = np.nonzero(inside)
+        if rr.size < 6:
+            continue
+        cy, cx = rr.mean(), cc.mean()
+        _evals, evecs = np.linalg.eigh(np.cov(np.stack([cc - cx, rr - cy])))
+        vx, vy = evecs[:, 1]
+        along = (cols - cx) * vx + (rows - cy) * vy
+        across = (rows - cy) * vx - (cols - cx) * vy
+        s0, s1 = along[inside].min(), along[inside].max()
+        half = np.percentile(np.abs(across[inside]), 90)
+        band = region & (np.abs(across) <= half) & (along >= s0) & (along <= s1)
+        bins = np.round(along[band] - s0).astype(int)
+        count = np.bincount(bins, minlength=int(s1 - s0 + 0.5) + 1).astype(float)
+        total = np.bincount(bins, image[band], minlength=count.size)
+        seen = count > 0
+        mean = np.interp(np.arange(count.size), np.flatnonzero(seen), total[seen] / count[seen])
+        profile = ndimage.gaussian_filter1d(mean, 1.0)
+        # s.d. of a bin mean after the 1-bin Gaussian (sum of squared weights ~ 0.28).
+        noise = sigma * math.sqrt(0.28) / np.sqrt(np.maximum(count, 1.0))
+        cuts = _septum_cuts(profile, noise, SEPTUM_CONTRAST * contrast, min_length)
+        if not cuts:
+            n_out += 1
+            out[inside] = n_out
+            continue
+        edges = [0, *cuts, count.size]
+        position = along - s0
+        markers = np.zeros_like(instances)
+        for j in range(len(edges) - 1):
+            core = inside & (position >= edges[j] + seed_px) & (position <= edges[j + 1] - seed_px)
+            markers[core] = n_out + j + 1
+        out += watershed(smooth, markers, mask=inside) * inside
+        n_out += len(edges) - 1
+    return out
+
+
 def otsu_cells(
     image: np.ndarray,
     microscope: Microscope,
@@ -160,8 +317,10 @@ def otsu_cells(
     Phase contrast is assumed (cells darker than the media around them). In a trench
     the trench is found first from the column profile (90th percentile of each
     column, longest run above 30 % of its range) and its closed end from the row
-    profile (Otsu threshold). A region longer than ``max_cell_length_um`` is taken
-    as several touching cells and starts as equal rods along its axis.
+    profile (Otsu threshold). Touching cells that the threshold and watershed leave
+    in one region are split at their bright septa (septum profile split,
+    :func:`_split_at_septa`). A region still longer than ``max_cell_length_um`` is
+    taken as several touching cells and starts as equal rods along its axis.
 
     Returns
     -------
@@ -236,6 +395,8 @@ def otsu_cells(
     markers, _ = ndimage.label(ndimage.binary_erosion(mask, iterations=erode_px))
     distance = ndimage.distance_transform_edt(mask)
     instances = watershed(-distance, markers, mask=mask)
+    # Touching cells whose neck survived the erosion: split at bright septa.
+    instances = _split_at_septa(instances, image, region, px)
     rows_list = []
     for index in range(1, int(instances.max()) + 1):
         rr, cc = np.nonzero(instances == index)
@@ -358,6 +519,7 @@ class SceneFit:
             width_um=self.trench.width_um,
             depth_um=self.trench.depth_um,
             margin_um=margin,
+            closed_end=self.trench.closed_end,
         )
 
     def cells_table(self) -> dict[str, list]:
@@ -381,6 +543,7 @@ def fit_scene(
     trench: TrenchPlacement | TrenchGeometry | None = None,
     labels: np.ndarray | None = None,
     geometry: Literal["trench", "open"] = "trench",
+    closed_end: Literal["square", "round"] | None = None,
     fit_optics: tuple[str, ...] = ("apodisation_sigma_um", "defocus_sigma_um", "psf_offset"),
     width_sd_um: float = 0.0,
     fit_curvature: bool = True,
@@ -407,6 +570,11 @@ def fit_scene(
         needs no labels), and used to report eq. 20 / class statistics terms.
     geometry
         ``"trench"`` (mother machine) or ``"open"`` (agar pad: no device).
+    closed_end
+        Shape of the trench's closed end drawn in the fit: ``"square"`` or ``"round"``
+        (a semicircle of diameter the trench width, PDMS in its corners; the real
+        trench's end is rounded, docs/fitting.md). Default: that of ``trench`` if
+        given, else ``"square"``.
     fit_optics
         Kernel parameters fitted jointly with the geometry (the intensities always are).
     width_sd_um
@@ -446,8 +614,12 @@ def fit_scene(
     depth = trench.depth_um if trench is not None else 1.2
     init_cells, otsu_w, found, _ = otsu_cells(real, microscope, geometry=geometry, depth_um=depth)
     if isinstance(trench, TrenchGeometry):
-        trench = TrenchPlacement(trench.margin_um, trench.width_um, trench.margin_um, depth)
+        trench = TrenchPlacement(
+            trench.margin_um, trench.width_um, trench.margin_um, depth, trench.closed_end
+        )
     placement = trench if trench is not None else found
+    if placement is not None and closed_end is not None:
+        placement = dataclasses.replace(placement, closed_end=closed_end)
     if geometry == "open":
         placement = None
     n = len(init_cells)
@@ -527,7 +699,9 @@ def fit_scene(
         place = None
         if placement is not None:
             top = x[i_trench + 2] if fit_top else placement.top_um
-            place = TrenchPlacement(x[i_trench], x[i_trench + 1], top, placement.depth_um)
+            place = TrenchPlacement(
+                x[i_trench], x[i_trench + 1], top, placement.depth_um, placement.closed_end
+            )
         r = dataclasses.replace(
             render, **{name: float(v) for name, v in zip(fit_optics, x[i_optics:])}
         )

@@ -426,6 +426,10 @@ def _coverage(centres_um: np.ndarray, pixel_um: float, low_um: float, high_um: f
     return np.clip((hi - lo) / pixel_um, 0.0, 1.0)
 
 
+#: Sub-rows per render pixel over which a round closed end's coverage is averaged.
+_END_SUBROWS = 16
+
+
 @functools.lru_cache(maxsize=16)
 def _trench_images(
     shape: tuple[int, int],
@@ -434,18 +438,36 @@ def _trench_images(
     left_um: float,
     top_um: float,
     width_um: float,
+    closed_end: str = "square",
 ) -> tuple[np.ndarray, np.ndarray, str]:
     """Trench (media-filled) and device fractions of every render pixel (read-only).
 
     ``left_um`` and ``top_um`` place the trench's left wall and closed end in the
     field of view. They depend on the geometry only, so every frame of a trench shares
-    them (and the device image's fingerprint).
+    them (and the device image's fingerprint). A ``"round"`` closed end is a
+    semicircle of diameter ``width_um`` (PDMS in the corners); its pixels' coverage
+    is exact across each of :data:`_END_SUBROWS` sub-rows and averaged over them.
     """
     yc = (np.arange(shape[0]) - border + 0.5) * px
     xc = (np.arange(shape[1]) - border + 0.5) * px
     trench_frac = np.outer(
         _coverage(yc, px, top_um, np.inf), _coverage(xc, px, left_um, left_um + width_um)
     ).astype(np.float32)
+    if closed_end == "round":
+        r = width_um / 2
+        cx, cy = left_um + r, top_um + r
+        # Rows that reach into the cap ``top <= y < top + r``; below it the square
+        # coverage above is exact.
+        cap = np.flatnonzero((yc + px / 2 > top_um) & (yc - px / 2 < cy))
+        if cap.size:
+            sub = (np.arange(_END_SUBROWS) + 0.5) / _END_SUBROWS - 0.5
+            ys = yc[cap, None] + sub[None, :] * px  # (rows, sub-rows)
+            half = np.where(ys >= cy, r, np.sqrt(np.clip(r * r - (cy - ys) ** 2, 0.0, None)))
+            half = np.where(ys < top_um, -1.0, half)  # above the end: no trench
+            lo = np.maximum(xc[None, None, :] - px / 2, cx - half[..., None])
+            hi = np.minimum(xc[None, None, :] + px / 2, cx + half[..., None])
+            frac = np.clip((hi - lo) / px, 0.0, 1.0).mean(axis=1)
+            trench_frac[cap] = frac.astype(np.float32)
     device = 1.0 - trench_frac
     trench_frac.setflags(write=False)
     device.setflags(write=False)
@@ -474,7 +496,8 @@ def draw_scene(
     thickness ``2 sqrt(r^2 - d^2)`` (``d`` = distance to the axis segment), which is
     the ``2 r sin(theta)`` of eq. OPL2. The field of view is the trench plus
     ``trench.margin_um`` of PDMS on the left, right and at the closed end (top); the
-    open end is flush with the bottom edge (the trench runs on into the border).
+    open end is flush with the bottom edge (the trench runs on into the border). The
+    closed end is square or, with ``trench.closed_end="round"``, a semicircle.
     Around the field of view a border of ``render.psf_radius_px`` render pixels is
     drawn, so the convolution of eq. 15 has no edge effects. A chamber (section
     13.1) is a wide trench and is drawn the same way.
@@ -582,7 +605,7 @@ def draw_scene(
     xc = (np.arange(shape[1]) - border + 0.5) * px
     if field is None:
         trench_frac, device, device_fp = _trench_images(
-            shape, border, px, off_x, off_y, trench.width_um
+            shape, border, px, off_x, off_y, trench.width_um, trench.closed_end
         )
     else:
         trench_frac, device = field_images(field, shape, border, px)
