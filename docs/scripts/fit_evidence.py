@@ -24,20 +24,12 @@ import tifffile
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests" / "fit"))
 
-from _fit_synthetic import TRENCH, make_truth  # noqa: E402
+from _fit_synthetic import START, TRENCH, make_truth  # noqa: E402
 
 from napari_symbac.fit import fit_parameters, fit_scene, scene_classes  # noqa: E402
 from napari_symbac.fit.scene_fit import before_after_montage  # noqa: E402
 from napari_symbac.settings import Camera, Microscope, RenderSettings  # noqa: E402
 
-START = RenderSettings(
-    cell_intensity=1700.0,
-    media_intensity=2100.0,
-    device_intensity=1100.0,
-    apodisation_sigma_um=1.2,
-    defocus_sigma_um=0.0,
-    psf_offset=0.0,
-)
 NAMES = ("cell_intensity", "media_intensity", "device_intensity")
 
 

@@ -7,34 +7,13 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from napari_symbac import __version__
+from napari_symbac._timing import StepTimer
 
 __all__ = ["main"]
-
-
-class _Timer:
-    """Collects (step, seconds) pairs and prints them as a table."""
-
-    def __init__(self) -> None:
-        self.steps: list[tuple[str, float]] = []
-
-    @contextmanager
-    def step(self, name: str) -> Iterator[None]:
-        start = time.perf_counter()
-        yield
-        self.steps.append((name, time.perf_counter() - start))
-
-    def report(self) -> str:
-        width = max(len(name) for name, _ in self.steps)
-        lines = [f"  {name:<{width}}  {seconds:7.2f} s" for name, seconds in self.steps]
-        total = sum(seconds for _, seconds in self.steps)
-        lines.append(f"  {'total':<{width}}  {total:7.2f} s")
-        return "\n".join(lines)
 
 
 def _tqdm_progress(
@@ -78,7 +57,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     out = Path(args.out or settings.save_dir or "simulation")
     # simulate() saves to save_dir itself, atomically, once the run is complete.
     settings = dataclasses.replace(settings, **overrides, save_dir=str(out))
-    timer = _Timer()
+    timer = StepTimer()
     update, bar = _tqdm_progress("simulate", settings.n_frames)
     with timer.step("simulate and save"):
         simulation = simulate(settings, progress=update)
@@ -98,7 +77,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
     from napari_symbac.pipeline import render_simulation
     from napari_symbac.sim import load_simulation
 
-    timer = _Timer()
+    timer = StepTimer()
     with timer.step("load"):
         simulation = load_simulation(args.simulation)
         settings = dataclasses.replace(_load_pipeline(args.config), simulation=simulation.settings)
@@ -126,7 +105,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
     from napari_symbac.export import export_dataset, load_export_settings
 
     settings = load_export_settings(args.config)
-    timer = _Timer()
+    timer = StepTimer()
     update, bar = _tqdm_progress("export", settings.n_items)
     with timer.step("export"):
         report = export_dataset(
@@ -155,7 +134,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     from napari_symbac.io import read_recording
     from napari_symbac.settings import Microscope, load_settings, save_settings
 
-    timer = _Timer()
+    timer = StepTimer()
     with timer.step("load"):
         image = read_recording(args.image).data
         if args.frame is not None:

@@ -8,10 +8,10 @@ each step took. Needs nothing outside the package.
 from __future__ import annotations
 
 import dataclasses
-import time
 from collections.abc import Callable
 from pathlib import Path
 
+from napari_symbac._timing import StepTimer
 from napari_symbac.settings import PipelineSettings, save_settings
 
 __all__ = ["DEMO_FORMATS", "run_demo"]
@@ -61,15 +61,14 @@ def run_demo(
     )
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    timings: list[tuple[str, float]] = []
+    timer = StepTimer()
 
     def timed(name: str, func, total: int | None = None):
         update, handle = (None, None)
         if progress_factory is not None and total is not None:
             update, handle = progress_factory(name, total)
-        start = time.perf_counter()
-        result = func(update) if total is not None else func()
-        timings.append((name, time.perf_counter() - start))
+        with timer.step(name):
+            result = func(update) if total is not None else func()
         if handle is not None:
             handle.close()
         return result
@@ -106,8 +105,6 @@ def run_demo(
         f"({written.n_written} written, {written.n_skipped} already there)",
         f"  {preview}  preview montage with mask outlines",
         "timings:",
+        timer.report(),
     ]
-    width = max(len(name) for name, _ in timings)
-    lines += [f"  {name:<{width}}  {seconds:7.2f} s" for name, seconds in timings]
-    lines.append(f"  {'total':<{width}}  {sum(s for _, s in timings):7.2f} s")
     return "\n".join(lines)

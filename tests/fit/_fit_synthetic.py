@@ -24,6 +24,15 @@ TRUTH = RenderSettings(
     ring_contrast=0.5,
     psf_offset=0.05,
 )
+#: A deliberately wrong start: intensities 20 % off, apodisation and defocus far away.
+START = RenderSettings(
+    cell_intensity=1700.0,
+    media_intensity=2100.0,
+    device_intensity=1100.0,
+    apodisation_sigma_um=1.2,
+    defocus_sigma_um=0.0,
+    psf_offset=0.0,
+)
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from _fit_synthetic import TRENCH, make_cells
+from _fit_synthetic import START, TRENCH, make_cells
 
 from napari_symbac.fit import (
     CLASS_VALUES,
@@ -16,17 +16,7 @@ from napari_symbac.fit import (
     scene_classes,
 )
 from napari_symbac.scene import draw_scene
-from napari_symbac.settings import Microscope, RenderSettings
-
-#: A deliberately wrong start: intensities 20 % off, apodisation and defocus far away.
-START = RenderSettings(
-    cell_intensity=1700.0,
-    media_intensity=2100.0,
-    device_intensity=1100.0,
-    apodisation_sigma_um=1.2,
-    defocus_sigma_um=0.0,
-    psf_offset=0.0,
-)
+from napari_symbac.settings import Microscope
 
 
 @pytest.fixture(scope="module")

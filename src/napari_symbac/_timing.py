@@ -1,0 +1,31 @@
+"""Timing of named steps, reported as a table (used by the CLI and the demo)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+__all__ = ["StepTimer"]
+
+
+class StepTimer:
+    """Collects ``(step, seconds)`` pairs and formats them as a table with a total."""
+
+    def __init__(self) -> None:
+        self.steps: list[tuple[str, float]] = []
+
+    @contextmanager
+    def step(self, name: str) -> Iterator[None]:
+        """Time the body of the ``with`` block as step ``name``."""
+        start = time.perf_counter()
+        yield
+        self.steps.append((name, time.perf_counter() - start))
+
+    def report(self) -> str:
+        """One indented line per step, then the total."""
+        width = max(len(name) for name, _ in self.steps)
+        lines = [f"  {name:<{width}}  {seconds:7.2f} s" for name, seconds in self.steps]
+        total = sum(seconds for _, seconds in self.steps)
+        lines.append(f"  {'total':<{width}}  {total:7.2f} s")
+        return "\n".join(lines)
