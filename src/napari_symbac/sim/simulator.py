@@ -343,6 +343,8 @@ class Simulator:
                 body.velocity = (vx, vy)
                 body.angular_velocity = w
             self._space.step(1.0)
+            if self.layout.box_walls_um is not None:
+                _hold_inside_walls(bodies, shown, widths, self.layout.box_walls_um)
         for body in bodies:
             body.velocity = (0.0, 0.0)
             body.angular_velocity = 0.0
@@ -545,6 +547,35 @@ def _clamp_at_walls(
     at_top = (pos[:, 1] - reach_y <= GROUP_GAP_UM) & (velocity[:, 1] < 0)
     velocity[at_left | at_right, 0] = 0.0
     velocity[at_top, 1] = 0.0
+
+
+def _hold_inside_walls(
+    bodies: list[pymunk.Body],
+    length: np.ndarray,
+    width: np.ndarray,
+    walls: tuple[float, float],
+) -> None:
+    """Move any cell that the solver left across a side wall or the closed end back
+    inside: the PDMS walls are rigid.
+
+    :func:`_clamp_at_walls` stops the predicted flow only of cells touching a wall; a
+    horizontal cell along the closed end can still be pushed into a side wall by the
+    growth of its neighbours faster than the contacts (bias, 15 iterations) push it
+    back (0.5 um deep in a 10 um chamber before this projection). Moving the body's
+    position, not its velocity, keeps the constraint exact in every iteration.
+    """
+    left, right = walls
+    along = (length - width) / 2
+    for body, half_length, w in zip(bodies, along.tolist(), width.tolist()):
+        x, y = body.position
+        x, y = x / SCALE, y / SCALE
+        angle = -body.angle
+        reach_x = abs(math.sin(angle)) * half_length + w / 2
+        reach_y = abs(math.cos(angle)) * half_length + w / 2
+        new_x = min(max(x, left + reach_x), right - reach_x) if right - left > 2 * reach_x else x
+        new_y = max(y, reach_y)
+        if new_x != x or new_y != y:
+            body.position = (new_x * SCALE, new_y * SCALE)
 
 
 def _clamp_at_contacts(velocity: np.ndarray, bodies: list[pymunk.Body]) -> None:
