@@ -204,6 +204,14 @@ class ExportSettings:
     pipeline: PipelineSettings = field(default_factory=PipelineSettings)
 
     def __post_init__(self) -> None:
+        for name, cls in (("pipeline", PipelineSettings), ("randomise", Randomisation)):
+            value = getattr(self, name)
+            if not isinstance(value, cls):
+                raise TypeError(
+                    f"ExportSettings.{name} must be a {cls.__name__}, got "
+                    f"{type(value).__name__}: pass {cls.__name__}(...), or build the whole "
+                    "settings from a mapping with export_settings_from_dict(...)"
+                )
         if isinstance(self.n_items, bool) or not isinstance(self.n_items, int) or self.n_items < 1:
             _fail(f"ExportSettings.n_items must be an integer >= 1, got {self.n_items!r}")
         if self.kind not in ("frames", "timeseries"):

@@ -95,9 +95,10 @@ class TiffWriter(FormatWriter):
         base = out_dir / self.name / item.split
         paths = [base / "images" / f"{item.name}.tif", base / "labels" / f"{item.name}.tif"]
         paths.append(base / "semantic" / f"{item.name}.tif")
-        write_tiff(paths[0], item.image_uint16())
-        write_tiff(paths[1], item.instance_mask())
-        write_tiff(paths[2], item.semantic)
+        px = item.pixel_size_um
+        write_tiff(paths[0], item.image_uint16(), pixel_size_um=px)
+        write_tiff(paths[1], item.instance_mask(), pixel_size_um=px, kind="labels")
+        write_tiff(paths[2], item.semantic, pixel_size_um=px, kind="semantic")
         return [_rel(out_dir, p) for p in paths]
 
 
@@ -154,8 +155,8 @@ class OmniposeWriter(FormatWriter):
     def write_item(self, out_dir: Path, item: ExportItem) -> list[str]:
         base = out_dir / self.name / item.split
         paths = [base / f"{item.name}.tif", base / f"{item.name}_masks.tif"]
-        write_tiff(paths[0], item.image_uint16())
-        write_tiff(paths[1], item.instance_mask())
+        write_tiff(paths[0], item.image_uint16(), pixel_size_um=item.pixel_size_um)
+        write_tiff(paths[1], item.instance_mask(), pixel_size_um=item.pixel_size_um, kind="labels")
         return [_rel(out_dir, p) for p in paths]
 
 
@@ -167,8 +168,8 @@ class StarDistWriter(FormatWriter):
     def write_item(self, out_dir: Path, item: ExportItem) -> list[str]:
         base = out_dir / self.name / item.split
         paths = [base / "images" / f"{item.name}.tif", base / "masks" / f"{item.name}.tif"]
-        write_tiff(paths[0], item.image_uint16())
-        write_tiff(paths[1], item.instance_mask())
+        write_tiff(paths[0], item.image_uint16(), pixel_size_um=item.pixel_size_um)
+        write_tiff(paths[1], item.instance_mask(), pixel_size_um=item.pixel_size_um, kind="labels")
         return [_rel(out_dir, p) for p in paths]
 
 
@@ -373,10 +374,11 @@ class CtcWriter(FormatWriter):
         t = f"{item.frame:0{_frame_digits(item.n_frames or item.frame + 1)}d}"
         paths = [images / f"t{t}.tif", gt / "TRA" / f"man_track{t}.tif"]
         paths.append(gt / "SEG" / f"man_seg{t}.tif")
-        write_tiff(paths[0], item.image_uint16())
+        px = item.pixel_size_um
+        write_tiff(paths[0], item.image_uint16(), pixel_size_um=px)
         mask = item.instance_mask()
-        write_tiff(paths[1], mask)
-        write_tiff(paths[2], mask)
+        write_tiff(paths[1], mask, pixel_size_um=px, kind="labels")
+        write_tiff(paths[2], mask, pixel_size_um=px, kind="labels")
         return [_rel(out_dir, p) for p in paths]
 
     def finalize(self, out_dir: Path, records: Sequence[Record]) -> list[str]:
