@@ -157,6 +157,8 @@ def run_units(
         for item in source.make_unit(unit):
             if item.name not in skip:
                 entries.append(write_item(out, item, writers))
+            for writer in writers:
+                writer.remember(item)
     return entries
 
 
@@ -486,11 +488,9 @@ def _run_export(
                 f"(e.g. {', '.join(missing)}): run it again to complete them",
                 out,
             )
-        written = []
-        for writer in writers:
-            written.extend(writer.finalize(out, entries))
-        finish_manifest(out, entries)
-        files = (*written, "manifest.json")
+        written = {writer.name: writer.finalize(out, entries) for writer in writers}
+        finish_manifest(out, entries, written)
+        files = (*(f for paths in written.values() for f in paths), "manifest.json")
     return ExportReport(
         out_dir=out,
         n_items=total,
