@@ -505,24 +505,38 @@ def _run_export(
 
 
 class _ListSource:
-    """An :class:`ItemSource` over items already in memory (one unit per item)."""
+    """An :class:`ItemSource` over items already in memory.
+
+    A unit is one independent image, or the consecutive frames of one time series (so
+    that writers which need the previous frame, DeLTA tracking, see the whole series).
+    """
 
     def __init__(self, items: Sequence[ExportItem], header: dict[str, Any]) -> None:
-        self.items = list(items)
-        names = [item.name for item in self.items]
+        names = [item.name for item in items]
         if len(set(names)) != len(names):
             raise ValueError("write_items: item names must be unique")
+        self.units: list[list[ExportItem]] = []
+        for item in items:
+            last = self.units[-1][-1] if self.units else None
+            if (
+                last is not None
+                and item.is_timeseries
+                and (last.series, last.split) == (item.series, item.split)
+            ):
+                self.units[-1].append(item)
+            else:
+                self.units.append([item])
         self._header = header
 
     @property
     def n_units(self) -> int:
-        return len(self.items)
+        return len(self.units)
 
     def unit_names(self, unit: int) -> list[str]:
-        return [self.items[unit].name]
+        return [item.name for item in self.units[unit]]
 
     def make_unit(self, unit: int) -> list[ExportItem]:
-        return [self.items[unit]]
+        return list(self.units[unit])
 
     def header(self) -> dict[str, Any]:
         return self._header
