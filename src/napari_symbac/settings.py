@@ -74,6 +74,24 @@ def _non_negative(obj: object, *names: str) -> None:
         )
 
 
+def _nested(obj: object, **classes: type) -> None:
+    """Require each named field of ``obj`` to be an instance of its settings class.
+
+    Raises
+    ------
+    TypeError
+        Naming the field, the class it needs and how to build it from a mapping.
+    """
+    for name, cls in classes.items():
+        value = getattr(obj, name)
+        if not isinstance(value, cls):
+            raise TypeError(
+                f"{type(obj).__name__}.{name} must be a {cls.__name__}, got "
+                f"{type(value).__name__} {value!r}: pass {cls.__name__}(...), or build "
+                f"the whole settings from a mapping with from_dict({type(obj).__name__}, ...)"
+            )
+
+
 def _choice(obj: object, name: str, allowed: typing.Iterable[str]) -> None:
     value = getattr(obj, name)
     allowed = tuple(allowed)
@@ -362,6 +380,9 @@ class SimulationSettings:
     save_dir: str | None = None
 
     def __post_init__(self) -> None:
+        _nested(
+            self, trench=TrenchGeometry, agar_pad=AgarPadGeometry, outline=OutlineGeometry
+        )
         _require(
             isinstance(self.n_frames, int) and self.n_frames >= 1,
             f"SimulationSettings.n_frames must be an integer >= 1, got {self.n_frames!r}",
@@ -637,6 +658,13 @@ class PipelineSettings:
     camera: Camera = field(default_factory=Camera)
 
     def __post_init__(self) -> None:
+        _nested(
+            self,
+            simulation=SimulationSettings,
+            microscope=Microscope,
+            render=RenderSettings,
+            camera=Camera,
+        )
         _require(
             self.render.apodisation_sigma_um >= self.microscope.min_apodisation_sigma_um,
             f"RenderSettings.apodisation_sigma_um={self.render.apodisation_sigma_um} is below "
@@ -739,7 +767,8 @@ def save_settings(settings: Any, path: str | Path) -> Path:
 def load_settings(path: str | Path, cls: type[T]) -> T:
     """Read settings of type ``cls`` from a YAML or JSON file written by :func:`save_settings`.
 
-    A file may also hold only some fields (the rest take their defaults).
+    A file may also hold only some fields (the rest take their defaults); an empty
+    file is an error, so that a wrong or blank file never silently means the defaults.
     """
     path = Path(path)
     if not path.is_file():
@@ -749,4 +778,10 @@ def load_settings(path: str | Path, cls: type[T]) -> T:
         data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
     except (json.JSONDecodeError, yaml.YAMLError) as err:
         raise ValueError(f"{path} is not valid YAML/JSON: {err}") from err
-    return from_dict(cls, data or {})
+    if data is None:
+        raise ValueError(
+            f"settings file {path} is empty: write the fields to change in it (start from "
+            "`napari-symbac defaults KIND --out FILE`), or leave the file out to use the "
+            "defaults"
+        )
+    return from_dict(cls, data)

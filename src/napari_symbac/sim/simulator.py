@@ -683,6 +683,17 @@ def simulate(
     Simulation
         Settings, ``settings.n_frames`` frames of cells, and the lineage.
     """
+    if not isinstance(settings, SimulationSettings):
+        raise TypeError(
+            f"simulate() needs SimulationSettings, got {type(settings).__name__}: pass "
+            "SimulationSettings(...) or load_settings(path, SimulationSettings)"
+        )
+    if rng is not None and not isinstance(rng, np.random.Generator):
+        raise TypeError(
+            f"simulate(rng=...) needs a numpy.random.Generator, got {type(rng).__name__} "
+            f"{rng!r}: pass numpy.random.default_rng({rng!r}), or set the seed in the "
+            "settings (SimulationSettings(seed=...)) and leave rng out"
+        )
     if settings.save_dir is not None:
         check_save_dir(settings.save_dir)
     simulator = Simulator(settings, rng)
