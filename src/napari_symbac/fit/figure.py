@@ -61,7 +61,7 @@ def before_after_figure(
     99.5th percentiles); the residual ``real - fit`` is blue (fit too bright) to red
     (fit too dark), symmetric about zero at its 99th percentile of ``|residual|``, with
     a labelled colour bar. Panels are upscaled by whole pixels (nearest neighbour) so a
-    thin trench is readable.
+    thin trench is readable; tall panels sit side by side, wide ones in two columns.
 
     Parameters
     ----------
@@ -93,22 +93,26 @@ def before_after_figure(
     panels = [_upscale(_grey(a, low, high), scale) for a in images]
     panels.append(_upscale(_diverging(residual, limit), scale))
     height, width = panels[0].shape[:2]
-    bar_x = len(panels) * (width + _GAP_PX)
-    canvas = np.full((_TITLE_PX + height, bar_x + _BAR_PX + _BAR_TEXT_PX, 3), 255, np.uint8)
-    for index, panel in enumerate(panels):
-        x = index * (width + _GAP_PX)
-        canvas[_TITLE_PX:, x : x + width] = panel
+    # Tall panels (a trench) side by side; wide ones (a field) in two columns.
+    columns = len(panels) if height >= width else 2
+    rows = math.ceil(len(panels) / columns)
+    cell_h, cell_w = _TITLE_PX + height + _GAP_PX, width + _GAP_PX
+    bar_x = columns * cell_w
+    canvas = np.full((rows * cell_h, bar_x + _BAR_PX + _BAR_TEXT_PX, 3), 255, np.uint8)
+    origins = [(cell_h * (i // columns), cell_w * (i % columns)) for i in range(len(panels))]
+    for (y, x), panel in zip(origins, panels, strict=True):
+        canvas[y + _TITLE_PX : y + _TITLE_PX + height, x : x + width] = panel
+    bar_y = origins[-1][0] + _TITLE_PX  # beside the residual's row
     ramp = np.linspace(limit, -limit, height)[:, None] * np.ones((1, _BAR_PX))
-    canvas[_TITLE_PX:, bar_x : bar_x + _BAR_PX] = _diverging(ramp, limit)
+    canvas[bar_y : bar_y + height, bar_x : bar_x + _BAR_PX] = _diverging(ramp, limit)
 
     picture = Image.fromarray(canvas)
     draw = ImageDraw.Draw(picture)
     font = ImageFont.load_default(size=_FONT_PX)
-    for index, title in enumerate(titles):
-        x = index * (width + _GAP_PX)
-        draw.text((x + 2, 4), title, fill=(0, 0, 0), font=font)
+    for (y, x), title in zip(origins, titles, strict=False):
+        draw.text((x + 2, y + 4), title, fill=(0, 0, 0), font=font)
     for value, row in ((limit, 0), (0.0, height // 2), (-limit, height - 1)):
-        y = _TITLE_PX + min(max(row - _FONT_PX // 2, 0), height - _FONT_PX)
+        y = bar_y + min(max(row - _FONT_PX // 2, 0), height - _FONT_PX)
         draw.text((bar_x + _BAR_PX + 4, y), f"{value:+.3g}", fill=(0, 0, 0), font=font)
-    draw.text((bar_x, 4), residual_unit, fill=(0, 0, 0), font=font)
+    draw.text((bar_x, bar_y - _TITLE_PX + 4), residual_unit, fill=(0, 0, 0), font=font)
     return np.asarray(picture)

@@ -62,9 +62,10 @@ def parameter_table(result: Any) -> list[dict[str, Any]]:
 
 def fit_problems(result: Any) -> list[str]:
     """What did not converge, what sits at a bound, and a fit worse than its start."""
-    problems = [f"warning: {w}" for w in getattr(result, "warnings", ()) or ()]
+    warnings = [str(w) for w in getattr(result, "warnings", ()) or ()]
+    problems = [f"warning: {w}" for w in warnings]
     at_bounds = tuple(getattr(result, "at_bounds", ()) or ())
-    if at_bounds:
+    if at_bounds and not any("bound" in w for w in warnings):
         problems.append(
             "at a bound (its value is a limit, not a measurement; its standard error means "
             f"nothing): {', '.join(at_bounds)}"
