@@ -150,8 +150,37 @@ def _camera_for(
     )
 
 
+#: Ratio of the fit's gain to the model-free gain above which the report warns.
+_GAIN_RATIO = 1.5
+
+
+def _model_free_gain(frame: np.ndarray, fitted) -> tuple[str, str | None]:
+    """The high-pass photon-transfer gain beside the one the fit took from its residual.
+
+    A residual that holds structure the model lacks inflates the fit's gain, and then a
+    reduced chi-square near 1 says nothing; the model-free estimate does not see the
+    model at all.
+    """
+    from napari_symbac.fit.camera_estimate import estimate_camera
+
+    try:
+        estimate = estimate_camera(frame, camera=fitted, bit_depth=fitted.bit_depth)
+    except ValueError as err:
+        return f"not available ({err})", None
+    free, fit = estimate.camera.sensitivity_adu_per_e, fitted.sensitivity_adu_per_e
+    text = f"sensitivity {free:.3g} +- {estimate.sensitivity_se_adu_per_e:.2g} ADU/e-"
+    if fit > _GAIN_RATIO * free:
+        return text, (
+            f"the fit's camera gain ({fit:.3g} ADU/e-) is {fit / free:.1f}x the model-free "
+            f"estimate ({free:.3g}): the residual holds structure the model lacks, so a "
+            "chi-square near 1 does not mean the model explains the image; pass --camera "
+            "or --dark to fix the camera"
+        )
+    return text, None
+
+
 def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, keys, stages, timer):
-    """Check, fit and prepare the outputs of one frame: returns (writers, result, notes)."""
+    """Check, fit and prepare the outputs of one frame: returns (writers, result)."""
     import tifffile
 
     from napari_symbac.fit import fit_scene
@@ -163,7 +192,12 @@ def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, ke
         check_instance_masks,
         check_modality,
     )
-    from napari_symbac.fit.report import cells_records, parameter_table, report_text
+    from napari_symbac.fit.report import (
+        camera_text,
+        cells_records,
+        parameter_table,
+        report_text,
+    )
     from napari_symbac.settings import save_settings
 
     name = Path(args.image).name
@@ -245,10 +279,15 @@ def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, ke
         ),
         "pixel size": pixel_note,
         "camera": camera_note,
-        "camera used": str(camera_used),
+        "camera used": camera_text(camera_used),
         "censored pixels": censor_note,
     }
-    report = report_text(result, facts)
+    problems = []
+    if camera is None:  # the engine estimated it from its residual: check it model-free
+        check, problem = _model_free_gain(frame, camera_used)
+        facts["camera (model-free)"] = check
+        problems += [problem] if problem else []
+    report = report_text(result, facts, problems)
     if notes:
         report += "\nNOTES\n" + "".join(f"- {n}\n" for n in notes)
     figure = before_after_figure(

@@ -10,13 +10,20 @@ import math
 import os
 import shutil
 import tempfile
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = ["cells_records", "fit_problems", "parameter_table", "report_text", "write_atomically"]
+__all__ = [
+    "camera_text",
+    "cells_records",
+    "fit_problems",
+    "parameter_table",
+    "report_text",
+    "write_atomically",
+]
 
 #: Reduced chi-square above which the report says the model misses structure.
 CHI2_MISFIT = 2.0
@@ -28,6 +35,15 @@ def _plain(value: Any) -> Any:
     if isinstance(value, float) and not math.isfinite(value):
         return None
     return value
+
+
+def camera_text(camera: Any) -> str:
+    """A camera in words with units."""
+    return (
+        f"sensitivity {camera.sensitivity_adu_per_e:.3g} ADU/e-, baseline "
+        f"{camera.baseline_adu:.1f} ADU, dark noise {camera.dark_noise_e:.3g} e-, "
+        f"{camera.bit_depth} bits"
+    )
 
 
 def cells_records(result: Any) -> list[dict[str, Any]]:
@@ -83,8 +99,14 @@ def fit_problems(result: Any) -> list[str]:
     return problems
 
 
-def report_text(result: Any, facts: Mapping[str, str]) -> str:
-    """report.txt: the inputs as used, the camera, the outcome, then the problems plainly."""
+def report_text(
+    result: Any, facts: Mapping[str, str], extra_problems: Sequence[str] = ()
+) -> str:
+    """report.txt: the inputs as used, the camera, the outcome, then the problems plainly.
+
+    ``extra_problems`` are findings of the caller (e.g. a camera check) listed with
+    those of :func:`fit_problems`.
+    """
     lines = ["napari-symbac fit report", ""]
     width = max(len(k) for k in facts) if facts else 0
     lines += [f"{key:<{width}}  {value}" for key, value in facts.items()]
@@ -97,7 +119,7 @@ def report_text(result: Any, facts: Mapping[str, str]) -> str:
     for term, (before, after) in getattr(result, "terms", {}).items():
         lines.append(f"  {term}: {before:.4g} -> {after:.4g}")
     lines += ["", "PROBLEMS"]
-    problems = fit_problems(result)
+    problems = [*fit_problems(result), *extra_problems]
     if not hasattr(result, "warnings"):
         problems.append(
             "this fit engine reports no convergence diagnostics (no warnings / at_bounds): "
