@@ -191,64 +191,9 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
-    import dataclasses
-    import json
+    from napari_symbac._cli_fit import run_fit
 
-    import imageio.v3 as iio
-    import numpy as np
-    import tifffile
-
-    from napari_symbac.fit import fit_scene
-    from napari_symbac.fit.scene_fit import before_after_montage
-    from napari_symbac.io import read_recording
-    from napari_symbac.settings import Microscope, load_settings, save_settings
-
-    timer = StepTimer()
-    with timer.step("load"):
-        image = read_recording(args.image).data
-        if args.frame is not None:
-            image = image[args.frame]
-        labels = None if args.labels is None else tifffile.imread(args.labels)
-        base = _load_pipeline(args.config)
-        microscope = load_settings(args.microscope, Microscope)
-    update, bar = _tqdm_progress("fit")
-    with timer.step("fit"):
-        result = fit_scene(
-            image, microscope, base.render, base.camera, labels=labels, progress=update
-        )
-    bar.close()
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    with timer.step("write"):
-        settings = dataclasses.replace(base, microscope=microscope, render=result.render)
-        note = ""
-        if result.trench is not None:
-            try:
-                trench = result.trench_geometry(image.shape[-2], microscope.pixel_size_um)
-                width = float(np.median(result.cells.width_um))
-                simulation = dataclasses.replace(
-                    base.simulation, trench=trench, cell_width_um=width
-                )
-                settings = dataclasses.replace(settings, simulation=simulation)
-            except ValueError as err:
-                note = f" (simulation settings kept: {err})"
-        save_settings(settings, out / "settings.yaml")
-        table = {
-            "cells": result.cells_table(),
-            "trench": None if result.trench is None else dataclasses.asdict(result.trench),
-            "terms": {k: list(v) for k, v in result.terms.items()},
-            "coordinates": "um from the top-left corner of the image",
-        }
-        (out / "cells.json").write_text(json.dumps(table, indent=2, default=float))
-        tifffile.imwrite(out / "residual.tif", result.residual)
-        iio.imwrite(out / "before_after.png", before_after_montage(image, result))
-    before, after = result.objective_before, result.objective_after
-    print(
-        f"fitted {len(result.cells)} cells; pixel chi2 {before:.3g} -> {after:.3g}; wrote "
-        f"settings.yaml, cells.json, residual.tif, before_after.png to {out}{note}"
-    )
-    print(timer.report())
-    return 0
+    return run_fit(args)
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -371,17 +316,43 @@ def build_parser() -> argparse.ArgumentParser:
     fit = sub.add_parser(
         "fit",
         help="fit cells, trench and optics to a real image (analysis by synthesis)",
-        description="Segment a real phase-contrast trench (Otsu), then fit every cell, the "
-        "trench and the optical parameters so the rendered image overlays it; writes the "
-        "fitted PipelineSettings (settings.yaml, reusable by render/export), the fitted "
-        "cells (cells.json), the residual (residual.tif) and before_after.png.",
+        description="Fit every cell, the trench (or an open field) and the optics so the "
+        "rendered image overlays a real one. Writes settings.yaml (PipelineSettings, reusable "
+        "by render/export), cells.json (each cell with standard errors when the fit gives "
+        "them), residual.tif, before_after.png and report.txt (what did not converge or "
+        "sits at a bound). Refuses inputs it cannot fit, saying what to pass instead.",
     )
-    fit.add_argument("image", help="real image (TIFF), one frame")
-    fit.add_argument("--labels", help="painted class labels TIFF (1 cell, 2 media, 3 device)")
+    fit.add_argument("image", help="real image (TIFF): one frame or a (T, Y, X) series")
     fit.add_argument("--microscope", required=True, help="Microscope YAML/JSON")
-    fit.add_argument("--config", help="PipelineSettings YAML/JSON with starting render/camera")
-    fit.add_argument("--frame", type=int, help="frame of a time series to fit")
     fit.add_argument("--out", required=True, help="output folder")
+    start = fit.add_mutually_exclusive_group()
+    start.add_argument("--labels", help="painted class labels TIFF (1 cell, 2 media, 3 device)")
+    start.add_argument("--masks", help="instance masks TIFF (0 background, 1..N cells)")
+    fit.add_argument(
+        "--modality",
+        choices=["phase", "fluorescence"],
+        help="default: the TIFF's OME metadata, else the microscope file",
+    )
+    fit.add_argument(
+        "--geometry",
+        choices=["trench", "field"],
+        help="mother-machine trench or open field (default: field when the config's "
+        "simulation geometry is agar_pad, else trench)",
+    )
+    fit.add_argument(
+        "--frames", help="frames of a series to fit, e.g. 0, 0,2,5 or 0-3 (each fitted alone)"
+    )
+    fit.add_argument(
+        "--config", help="PipelineSettings YAML/JSON: starting render, camera, trench closed end"
+    )
+    camera = fit.add_mutually_exclusive_group()
+    camera.add_argument("--camera", help="Camera YAML/JSON (gain, baseline, read noise)")
+    camera.add_argument(
+        "--dark", help="dark frames TIFF: baseline and read noise from them, gain from the image"
+    )
+    fit.add_argument(
+        "--max-iterations", type=int, help="iterations per round of the fit (fewer: faster)"
+    )
     fit.set_defaults(func=_cmd_fit)
 
     defaults = sub.add_parser(

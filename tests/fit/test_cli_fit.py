@@ -1,4 +1,4 @@
-"""`napari-symbac fit`: fitted settings reusable by render/export, cells, residual, figure."""
+"""`napari-symbac fit`: outputs reusable by render/export, honest reports, clear refusals."""
 
 from __future__ import annotations
 
@@ -8,51 +8,296 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 import tifffile
+import yaml
+from scipy import ndimage
 
 from napari_symbac.cli import main
 from napari_symbac.fit import scene_classes
-from napari_symbac.settings import PipelineSettings, load_settings, save_settings
+from napari_symbac.settings import (
+    Camera,
+    Microscope,
+    PipelineSettings,
+    load_settings,
+    save_settings,
+)
+
+OUTPUTS = {"settings.yaml", "cells.json", "residual.tif", "before_after.png", "report.txt"}
 
 
-def test_fit_command_writes_settings_cells_residual_and_figure(tmp_path, truth, capsys):
+@pytest.fixture
+def inputs(tmp_path, truth):
+    """The rendered truth trench as a TIFF, its painted classes and its microscope."""
     image = tmp_path / "real.tif"
     labels = tmp_path / "labels.tif"
     tifffile.imwrite(image, truth.image)
     tifffile.imwrite(labels, scene_classes(truth.scene).astype(np.uint8))
     microscope = save_settings(truth.microscope, tmp_path / "microscope.yaml")
+    return image, labels, microscope
+
+
+def _fit(*args) -> int:
+    return main(["fit", *map(str, args)])
+
+
+def _fact(report: str, key: str) -> str:
+    """The value of one ``key  value`` line at the top of report.txt."""
+    for line in report.splitlines():
+        if line.startswith(key + "  "):
+            return line[len(key) :].strip()
+    raise AssertionError(f"report.txt has no line {key!r}:\n{report}")
+
+
+# --------------------------------------------------------------------------------------
+# Outputs
+# --------------------------------------------------------------------------------------
+
+
+def test_fit_writes_settings_cells_residual_figure_and_report(tmp_path, truth, inputs, capsys):
+    image, labels, microscope = inputs
     out = tmp_path / "fit"
-    code = main(
-        [
-            "fit",
-            str(image),
-            "--labels",
-            str(labels),
-            "--microscope",
-            str(microscope),
-            "--out",
-            str(out),
-        ]
-    )
-    assert code == 0
-    assert "pixel chi2" in capsys.readouterr().out
+    assert _fit(image, "--labels", labels, "--microscope", microscope, "--out", out) == 0
+    captured = capsys.readouterr()
+    assert "pixel chi2" in captured.out
+    # piped (not a terminal): one line per stage instead of a bar
+    assert "napari-symbac fit: fitting frame 0" in captured.err
+    assert "napari-symbac fit: writing outputs" in captured.err
+    assert {p.name for p in out.iterdir()} == OUTPUTS
+
     settings = load_settings(out / "settings.yaml", PipelineSettings)
     assert settings.render.media_intensity == pytest.approx(2600, rel=0.03)
     assert settings.simulation.trench.width_um == pytest.approx(1.5, abs=0.03)
+    assert settings.microscope == truth.microscope
+
     table = json.loads((out / "cells.json").read_text())
-    assert len(table["cells"]["ids"]) == 3
-    assert {"pixel", "eq20"} <= set(table["terms"])
+    assert len(table["cells"]) == 3
+    for cell in table["cells"]:
+        assert {"id", "x_um", "y_um", "length_um", "width_um", "angle_rad", "curvature_um"} <= set(
+            cell
+        )
+    lengths = sorted(c["length_um"] for c in table["cells"])
+    assert lengths == pytest.approx(sorted(truth.cells.length_um), abs=0.15)
+    assert "pixel" in table["terms"]
+
     residual = tifffile.imread(out / "residual.tif")
     assert residual.shape == truth.image.shape
+    assert residual.dtype == np.float32
+    assert abs(float(residual.mean())) < 0.1 * float(residual.std())
+
     figure = iio.imread(out / "before_after.png")
-    assert figure.shape[0] == truth.image.shape[0]
+    assert figure.ndim == 3
     assert figure.shape[2] == 3
-    assert figure.shape[1] == 4 * truth.image.shape[1] + 9
+    assert figure.shape[0] >= 4 * truth.image.shape[0]  # upscaled panels plus titles
+
+    report = (out / "report.txt").read_text()
+    assert "cells fitted: 3" in report
+    assert _fact(report, "start") == "painted labels"
+    assert "PROBLEMS" in report
+    assert "ADU/e-" in _fact(report, "camera used")
 
 
-def test_fit_command_rejects_an_rgb_image(tmp_path, truth, capsys):
+def test_fit_settings_are_reusable_by_render(tmp_path, inputs):
+    image, labels, microscope = inputs
+    out = tmp_path / "fit"
+    assert _fit(image, "--labels", labels, "--microscope", microscope, "--out", out,
+                "--max-iterations", 2) == 0  # fmt: skip
+    simulation = tmp_path / "sim"
+    assert main(["simulate", "--out", str(simulation), "--frames", "2", "--seed", "1"]) == 0
+    rendered = tmp_path / "rendered"
+    assert main(["render", str(simulation), "--config", str(out / "settings.yaml"),
+                 "--out", str(rendered)]) == 0  # fmt: skip
+    assert tifffile.imread(rendered / "images.tif").shape[0] == 2
+
+
+def test_camera_file_and_dark_frames_are_used(tmp_path, truth, inputs):
+    image, labels, microscope = inputs
+    camera = Camera(baseline_adu=100.0, sensitivity_adu_per_e=2.9)
+    camera = save_settings(camera, tmp_path / "c.yaml")
+    out = tmp_path / "with-camera"
+    assert _fit(image, "--labels", labels, "--microscope", microscope, "--out", out,
+                "--camera", camera, "--max-iterations", 3) == 0  # fmt: skip
+    assert _fact((out / "report.txt").read_text(), "camera") == f"from --camera {camera}"
+    settings = load_settings(out / "settings.yaml", PipelineSettings)
+    assert settings.camera.sensitivity_adu_per_e == pytest.approx(2.9, rel=0.05)
+
+    from napari_symbac.optics.camera import apply_camera_noise
+
+    dark = tmp_path / "dark.tif"
+    tifffile.imwrite(dark, apply_camera_noise(np.zeros((3, 64, 64)), truth.camera,
+                                              np.random.default_rng(0)))  # fmt: skip
+    out = tmp_path / "with-dark"
+    assert _fit(image, "--labels", labels, "--microscope", microscope, "--out", out,
+                "--dark", dark, "--max-iterations", 3) == 0  # fmt: skip
+    report = (out / "report.txt").read_text()
+    assert "(dark frames)" in report
+    assert "baseline 100." in report  # the dark frames' mean, 100 ADU
+
+
+def test_config_camera_is_honoured(tmp_path, inputs):
+    image, labels, microscope = inputs
+    config = tmp_path / "config.yaml"
+    config.write_text(yaml.safe_dump({"camera": {"sensitivity_adu_per_e": 3.1}}))
+    out = tmp_path / "fit"
+    assert _fit(image, "--labels", labels, "--microscope", microscope, "--out", out,
+                "--config", config, "--max-iterations", 1) == 0  # fmt: skip
+    assert _fact((out / "report.txt").read_text(), "camera") == f"from --config {config}"
+
+
+def test_tiff_pixel_size_wins_and_the_disagreement_is_said(tmp_path, truth, inputs, capsys):
+    _, labels, _ = inputs
+    image = tmp_path / "real.tif"
+    tifffile.imwrite(image, truth.image, imagej=True, resolution=(1 / 0.07, 1 / 0.07),
+                     metadata={"unit": "um"})  # fmt: skip
+    microscope = save_settings(truth.microscope, tmp_path / "microscope.yaml")  # 0.065 um
+    out = tmp_path / "fit"
+    assert _fit(image, "--microscope", microscope, "--labels", labels, "--out", out,
+                "--max-iterations", 3) == 0  # fmt: skip
+    assert "disagrees with the 0.065 um of --microscope" in capsys.readouterr().err
+    assert load_settings(out / "settings.yaml", PipelineSettings).microscope.pixel_size_um == (
+        pytest.approx(0.07, rel=1e-6)
+    )
+    assert "from the TIFF" in (out / "report.txt").read_text()
+
+
+def test_frames_of_a_series_are_fitted_each_into_its_folder(tmp_path, truth, inputs, capsys):
+    _, labels, microscope = inputs  # one 2D label image serves every frame
+    image = tmp_path / "series.tif"
+    tifffile.imwrite(image, np.stack([truth.image, truth.image]))
+    out = tmp_path / "fit"
+    assert _fit(image, "--microscope", microscope, "--labels", labels, "--out", out,
+                "--frames", "0-1", "--max-iterations", 3) == 0  # fmt: skip
+    assert {p.name for p in out.iterdir()} == {"frame_0000", "frame_0001"}
+    for folder in out.iterdir():
+        assert {p.name for p in folder.iterdir()} == OUTPUTS
+    assert "frame 1: fitted" in capsys.readouterr().out
+
+
+def test_real_trench_with_config_closed_end_round(tmp_path, real_data_dir):
+    """The SyMBac trench: `closed_end: round` of the config reaches the fit."""
+    config = tmp_path / "config.yaml"
+    config.write_text(yaml.safe_dump({"simulation": {"trench": {"closed_end": "round"}}}))
+    microscope = save_settings(Microscope(pixel_size_um=0.065), tmp_path / "microscope.yaml")
+    out = tmp_path / "fit"
+    image = real_data_dir / "ecoli_100x_oil_exponential.tiff"
+    assert _fit(image, "--microscope", microscope, "--config", config, "--out", out,
+                "--max-iterations", 2) == 0  # fmt: skip
+    report = (out / "report.txt").read_text()
+    assert _fact(report, "geometry") == "trench (closed end: round)"
+    settings = load_settings(out / "settings.yaml", PipelineSettings)
+    assert settings.simulation.trench.closed_end == "round"
+    table = json.loads((out / "cells.json").read_text())
+    assert 3 <= len(table["cells"]) <= 8
+    assert table["trench"]["closed_end"] == "round"
+
+
+def test_real_colicoords_fluorescence_field_with_masks(tmp_path, real_data_dir):
+    """A crop of ColiCoords ds1 field 1 (4 whole cells), background-subtracted."""
+    root = real_data_dir / "colicoords" / "test_data" / "ds1"
+    flu = tifffile.imread(root / "fluorescence" / "00001.tif")[90:200, 60:320]
+    masks = tifffile.imread(root / "binary" / "00001_Probabilities_filtered.tif")[90:200, 60:320]
+    image, mask_file = tmp_path / "flu.tif", tmp_path / "masks.tif"
+    tifffile.imwrite(image, flu)
+    tifffile.imwrite(mask_file, masks)
+    microscope = save_settings(Microscope(pixel_size_um=0.08), tmp_path / "microscope.yaml")
+    out = tmp_path / "fit"
+    assert _fit(image, "--microscope", microscope, "--modality", "fluorescence",
+                "--geometry", "field", "--masks", mask_file, "--out", out,
+                "--max-iterations", 3) == 0  # fmt: skip
+    report = (out / "report.txt").read_text()
+    assert _fact(report, "modality") == "fluorescence (image polarity: bright cells)"
+    zeros = int((flu == 0).sum())
+    assert _fact(report, "censored pixels").startswith(f"{zeros} (")  # background-subtracted
+    assert load_settings(out / "settings.yaml", PipelineSettings).microscope.modality == (
+        "fluorescence"
+    )
+    n_masks = ndimage.label(masks > 0)[1]
+    assert len(json.loads((out / "cells.json").read_text())["cells"]) == n_masks
+
+
+# --------------------------------------------------------------------------------------
+# Refusals: message, exit code 2, nothing written
+# --------------------------------------------------------------------------------------
+
+
+def _refused(capsys, out, *args) -> str:
+    code = _fit(*args, "--out", out)
+    assert code == 2
+    assert not out.exists()
+    assert not list(out.parent.glob(f".{out.name}.partial-*"))
+    error = capsys.readouterr().err
+    assert "Traceback" not in error
+    return error
+
+
+def test_refuses_negative_values(tmp_path, truth, inputs, capsys):
+    _, _, microscope = inputs
+    image = tmp_path / "negative.tif"
+    tifffile.imwrite(image, truth.image.astype(np.float32) - 2000.0)
+    error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope)
+    assert "negative values" in error
+    assert "--camera" in error
+
+
+def test_refuses_a_fluorescence_field_fitted_as_phase(tmp_path, real_data_dir, capsys):
+    image = real_data_dir / "colicoords" / "test_data" / "ds1" / "fluorescence" / "00001.tif"
+    microscope = save_settings(Microscope(pixel_size_um=0.08), tmp_path / "microscope.yaml")
+    error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope,
+                     "--geometry", "field")  # fmt: skip
+    assert "does not look like phase" in error
+    assert "--modality fluorescence" in error
+
+
+def test_refuses_masks_whose_cells_contradict_the_modality(tmp_path, real_data_dir, capsys):
+    root = real_data_dir / "colicoords" / "test_data" / "ds1"
+    microscope = save_settings(Microscope(pixel_size_um=0.08), tmp_path / "microscope.yaml")
+    error = _refused(capsys, tmp_path / "o", root / "brightfield" / "00001.tif",
+                     "--microscope", microscope, "--modality", "fluorescence",
+                     "--masks", root / "binary" / "00001_Probabilities_filtered.tif")  # fmt: skip
+    assert "masked cells are darker" in error
+    assert "--modality phase" in error
+
+
+def test_refuses_labels_without_media(tmp_path, inputs, capsys):
+    image, labels, microscope = inputs
+    painted = tifffile.imread(labels)
+    painted[painted == 2] = 0
+    no_media = tmp_path / "no_media.tif"
+    tifffile.imwrite(no_media, painted)
+    error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope,
+                     "--labels", no_media)  # fmt: skip
+    assert "no media class (2)" in error
+
+
+@pytest.mark.parametrize("option", ["--labels", "--masks"])
+def test_refuses_labels_or_masks_of_the_wrong_shape(tmp_path, inputs, capsys, option):
+    image, labels, microscope = inputs
+    wrong = tmp_path / "wrong.tif"
+    tifffile.imwrite(wrong, tifffile.imread(labels)[:-3])
+    error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope, option, wrong)
+    assert "has shape (125, 46) but the image frame has shape (128, 46)" in error
+
+
+def test_refuses_a_series_without_frames_and_frames_out_of_range(tmp_path, truth, capsys):
+    image = tmp_path / "series.tif"
+    tifffile.imwrite(image, np.stack([truth.image, truth.image]))
+    microscope = save_settings(truth.microscope, tmp_path / "microscope.yaml")
+    error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope)
+    assert "has 2 frames: pass --frames" in error
+    error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope, "--frames", "5")
+    assert "numbered 0-1" in error
+    error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope, "--frames", "x")
+    assert "not a frame list" in error
+
+
+def test_refuses_an_rgb_image(tmp_path, truth, inputs, capsys):
+    _, _, microscope = inputs
     image = tmp_path / "rgb.tif"
     tifffile.imwrite(image, np.repeat(truth.image[..., None], 3, axis=-1))
-    microscope = save_settings(truth.microscope, tmp_path / "microscope.yaml")
-    code = main(["fit", str(image), "--microscope", str(microscope), "--out", str(tmp_path / "o")])
-    assert code == 2
-    assert "RGB" in capsys.readouterr().err
+    assert "RGB" in _refused(capsys, tmp_path / "o", image, "--microscope", microscope)
+
+
+def test_labels_and_masks_together_are_a_usage_error(tmp_path, inputs):
+    image, labels, microscope = inputs
+    with pytest.raises(SystemExit) as exit_info:
+        _fit(image, "--microscope", microscope, "--labels", labels, "--masks", labels,
+             "--out", tmp_path / "o")  # fmt: skip
+    assert exit_info.value.code == 2

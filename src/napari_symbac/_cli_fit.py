@@ -1,0 +1,381 @@
+"""The ``napari-symbac fit`` command: checks, fit, outputs (cli.py parses the arguments).
+
+Everything the user passed is checked before the fit starts, and the outputs are written
+into ``--out`` only once all of them are ready, so a refusal or a failure leaves nothing
+half-written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import inspect
+import json
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from napari_symbac._timing import StepTimer
+
+__all__ = ["parse_frames", "run_fit"]
+
+_GEOMETRIES = {"trench": "trench", "field": "open"}
+
+
+def parse_frames(spec: str | None, n_frames: int, name: str) -> list[int]:
+    """``"3"``, ``"0,2,5"`` or ``"0-3"`` (inclusive) -> frame indices, checked."""
+    if spec is None:
+        if n_frames > 1:
+            raise ValueError(
+                f"{name} has {n_frames} frames: pass --frames to pick them (e.g. --frames 0, "
+                "--frames 0,2 or --frames 0-3)"
+            )
+        return [0]
+    frames: list[int] = []
+    try:
+        for part in spec.split(","):
+            if "-" in part.strip()[1:]:
+                first, last = part.split("-", 1)
+                frames += range(int(first), int(last) + 1)
+            else:
+                frames.append(int(part))
+    except ValueError:
+        raise ValueError(
+            f"--frames {spec!r} is not a frame list: write e.g. 0, 0,2,5 or 0-3"
+        ) from None
+    bad = [f for f in frames if not 0 <= f < n_frames]
+    if bad or not frames:
+        raise ValueError(
+            f"--frames {spec!r} asks for frame(s) {bad or frames} but {name} has {n_frames} "
+            f"frame(s), numbered 0-{n_frames - 1}"
+        )
+    return sorted(set(frames))
+
+
+def _explicit_keys(config: str | None) -> dict[str, Any]:
+    """The raw mapping of a config file, to know which settings the user actually gave."""
+    if config is None:
+        return {}
+    import yaml
+
+    data = yaml.safe_load(Path(config).read_text(encoding="utf-8")) or {}
+    return data if isinstance(data, dict) else {}
+
+
+def _read_stack(path: str, what: str) -> np.ndarray:
+    import tifffile
+
+    try:
+        return np.asarray(tifffile.imread(path))
+    except (tifffile.TiffFileError, ValueError) as err:
+        raise ValueError(f"{what} {path} is not a readable TIFF: {err}") from err
+
+
+def _per_frame(array: np.ndarray | None, frame: int, n_frames: int, shape: tuple) -> Any:
+    """A 2D label/mask for every frame, or a (T, Y, X) one indexed like the image."""
+    if array is None:
+        return None
+    if array.ndim == 3 and array.shape[0] == n_frames and array.shape[1:] == shape:
+        return array[frame]
+    return array
+
+
+class _Stages:
+    """Progress: a tqdm bar on a terminal, one line per stage when piped."""
+
+    def __init__(self, stream=None) -> None:
+        self.stream = sys.stderr if stream is None else stream
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+
+    def stage(self, text: str) -> None:
+        if not self.tty:
+            print(f"napari-symbac fit: {text}", file=self.stream, flush=True)
+
+    def bar(self, desc: str) -> tuple[Callable[[int, int], None], Callable[[], None]]:
+        if not self.tty:
+            return (lambda done, total: None), (lambda: None)
+        from tqdm import tqdm
+
+        bar = tqdm(total=None, desc=desc, unit="step", leave=False, file=self.stream)
+
+        def update(done: int, total: int) -> None:
+            bar.total = total
+            bar.n = done
+            bar.refresh()
+
+        return update, bar.close
+
+
+def _camera_for(
+    args: argparse.Namespace,
+    frame: np.ndarray,
+    base_camera,
+    config_has_camera: bool,
+    engine_estimates: bool,
+):
+    """The camera to pass to the fit and a sentence saying where it came from."""
+    from napari_symbac.fit.camera_estimate import censored_pixels, estimate_camera
+    from napari_symbac.settings import Camera, load_settings
+
+    bit_depth = 8 if frame.dtype == np.uint8 else 16
+    if args.camera is not None:
+        camera = load_settings(args.camera, Camera)
+        return camera, f"from --camera {args.camera}"
+    if args.dark is not None:
+        dark = _read_stack(args.dark, "--dark")
+        valid = ~censored_pixels(frame)
+        estimate = estimate_camera(frame, valid=valid, dark_frames=dark, bit_depth=bit_depth)
+        return estimate.camera, f"{estimate.summary()} (--dark {args.dark})"
+    if config_has_camera:
+        return base_camera, f"from --config {args.config}"
+    if engine_estimates:
+        return None, "estimated by the fit from its residual (no --camera, --dark or config camera)"
+    # One image fixes only the slope and K * offset - read variance: keep the configured
+    # (or default) baseline, lowered to the image's darkest values if it lies above them.
+    lowest = float(np.percentile(frame, 0.1))
+    reference = base_camera
+    if reference.baseline_adu > lowest:
+        reference = dataclasses.replace(reference, baseline_adu=max(lowest, 0.0))
+    reference = dataclasses.replace(reference, bit_depth=bit_depth)
+    try:
+        estimate = estimate_camera(frame, camera=reference, bit_depth=bit_depth)
+    except ValueError as err:
+        return base_camera, f"{base_camera} (defaults: no estimate from the image: {err})"
+    return estimate.camera, (
+        f"{estimate.summary()}: gain and read noise estimated from the image, baseline from "
+        "the default camera settings (pass --camera or --dark to give the real one)"
+    )
+
+
+#: Ratio of the fit's gain to the model-free gain above which the report warns.
+_GAIN_RATIO = 1.5
+
+
+def _model_free_gain(frame: np.ndarray, fitted) -> tuple[str, str | None]:
+    """The high-pass photon-transfer gain beside the one the fit took from its residual.
+
+    A residual that holds structure the model lacks inflates the fit's gain, and then a
+    reduced chi-square near 1 says nothing; the model-free estimate does not see the
+    model at all.
+    """
+    from napari_symbac.fit.camera_estimate import estimate_camera
+
+    try:
+        estimate = estimate_camera(frame, camera=fitted, bit_depth=fitted.bit_depth)
+    except ValueError as err:
+        return f"not available ({err})", None
+    free, fit = estimate.camera.sensitivity_adu_per_e, fitted.sensitivity_adu_per_e
+    text = f"sensitivity {free:.3g} +- {estimate.sensitivity_se_adu_per_e:.2g} ADU/e-"
+    if fit > _GAIN_RATIO * free:
+        return text, (
+            f"the fit's camera gain ({fit:.3g} ADU/e-) is {fit / free:.1f}x the model-free "
+            f"estimate ({free:.3g}): the residual holds structure the model lacks, so a "
+            "chi-square near 1 does not mean the model explains the image; pass --camera "
+            "or --dark to fix the camera"
+        )
+    return text, None
+
+
+def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, keys, stages, timer):
+    """Check, fit and prepare the outputs of one frame: returns (writers, result)."""
+    import tifffile
+
+    from napari_symbac.fit import fit_scene
+    from napari_symbac.fit.camera_estimate import censored_pixels
+    from napari_symbac.fit.figure import before_after_figure
+    from napari_symbac.fit.preflight import (
+        check_class_labels,
+        check_fit_image,
+        check_instance_masks,
+        check_modality,
+    )
+    from napari_symbac.fit.report import (
+        camera_text,
+        cells_records,
+        parameter_table,
+        report_text,
+    )
+    from napari_symbac.settings import save_settings
+
+    name = Path(args.image).name
+    check_fit_image(frame, name)
+    if labels is not None:
+        check_class_labels(labels, frame.shape, f"--labels {Path(args.labels).name}")
+    if masks is not None:
+        check_instance_masks(masks, frame.shape, f"--masks {Path(args.masks).name}")
+    polarity = check_modality(frame, microscope.modality, labels=labels, masks=masks)
+
+    accepted = set(inspect.signature(fit_scene).parameters)
+    engine_estimates = "valid" in accepted
+    camera, camera_note = _camera_for(
+        args, frame, base.camera, "camera" in keys, engine_estimates
+    )
+    censored = censored_pixels(frame, camera)
+    geometry = _GEOMETRIES[args.geometry]
+    options: dict[str, Any] = {"geometry": geometry, "labels": labels}
+    if geometry == "trench":
+        options["closed_end"] = base.simulation.trench.closed_end
+    if args.max_iterations is not None:
+        options["max_iterations"] = args.max_iterations
+    if masks is not None:
+        if "masks" not in accepted:
+            raise ValueError(
+                "this version of the fit engine takes no instance masks: pass --labels "
+                "(1 cell, 2 media, 3 device) instead"
+            )
+        options["masks"] = masks
+    if "valid" in accepted:
+        options["valid"] = ~censored
+    censor_note = f"{int(censored.sum())} ({100 * censored.mean():.2f} %)"
+    censor_note += (
+        " left out of the likelihood" if "valid" in accepted else
+        " NOT left out (this fit engine takes no valid mask)"
+    )
+
+    stages.stage(f"fitting frame {index} ({frame.shape[0]} x {frame.shape[1]} px)")
+    update, close = stages.bar(f"fit frame {index}")
+    with timer.step(f"fit frame {index}"):
+        try:
+            result = fit_scene(
+                frame, microscope, base.render, camera, progress=update, **options
+            )
+        finally:
+            close()
+
+    camera_used = getattr(result, "camera", None) or camera or base.camera
+    settings = dataclasses.replace(
+        base, microscope=microscope, render=result.render, camera=camera_used
+    )
+    notes = []
+    if result.trench is not None:
+        try:
+            trench = result.trench_geometry(frame.shape[0], microscope.pixel_size_um)
+            width = float(np.median(result.cells.width_um)) if len(result.cells) else None
+            simulation = dataclasses.replace(base.simulation, trench=trench)
+            if width is not None:
+                simulation = dataclasses.replace(simulation, cell_width_um=width)
+            settings = dataclasses.replace(settings, simulation=simulation)
+        except ValueError as err:
+            notes.append(f"simulation settings kept from the config: {err}")
+
+    table = {
+        "cells": cells_records(result),
+        "coordinates": "um from the top-left corner of the image; angle in radians",
+        "trench": None if result.trench is None else dataclasses.asdict(result.trench),
+        "parameters": parameter_table(result),
+        "terms": {k: list(v) for k, v in result.terms.items()},
+    }
+    facts = {
+        "image": f"{args.image} (frame {index}, {frame.shape[0]} x {frame.shape[1]} px)",
+        "modality": f"{microscope.modality} (image polarity: {polarity})",
+        "geometry": args.geometry + (
+            f" (closed end: {options['closed_end']})" if geometry == "trench" else ""
+        ),
+        "start": "painted labels" if labels is not None else (
+            "instance masks" if masks is not None else "automatic segmentation"
+        ),
+        "pixel size": pixel_note,
+        "camera": camera_note,
+        "camera used": camera_text(camera_used),
+        "censored pixels": censor_note,
+    }
+    problems = []
+    if camera is None:  # the engine estimated it from its residual: check it model-free
+        check, problem = _model_free_gain(frame, camera_used)
+        facts["camera (model-free)"] = check
+        problems += [problem] if problem else []
+    report = report_text(result, facts, problems)
+    if notes:
+        report += "\nNOTES\n" + "".join(f"- {n}\n" for n in notes)
+    figure = before_after_figure(
+        frame, result.synthetic, result.residual, getattr(result, "synthetic_before", None)
+    )
+
+    def write_png(path: Path) -> None:
+        import imageio.v3 as iio
+
+        iio.imwrite(path, figure)
+
+    writers = {
+        "settings.yaml": lambda p: save_settings(settings, p),
+        "cells.json": lambda p: p.write_text(json.dumps(table, indent=2, default=float)),
+        "residual.tif": lambda p: tifffile.imwrite(p, np.asarray(result.residual, np.float32)),
+        "before_after.png": write_png,
+        "report.txt": lambda p: p.write_text(report),
+    }
+    return writers, result
+
+
+def run_fit(args: argparse.Namespace) -> int:
+    """Run ``napari-symbac fit`` with parsed arguments; returns the exit code."""
+    from napari_symbac.fit.preflight import resolve_pixel_size
+    from napari_symbac.fit.report import write_atomically
+    from napari_symbac.io import read_recording
+    from napari_symbac.settings import Microscope, PipelineSettings, load_settings
+
+    timer = StepTimer()
+    stages = _Stages()
+    stages.stage("loading inputs")
+    with timer.step("load"):
+        recording = read_recording(args.image)
+        data = np.asarray(recording.data)
+        name = Path(args.image).name
+        if data.ndim == 3 and data.shape[-1] in (3, 4):
+            raise ValueError(
+                f"{name} looks like an RGB(A) image {data.shape}: save one grey channel "
+                "(the camera's raw frame) as the TIFF"
+            )
+        if data.ndim not in (2, 3):
+            raise ValueError(f"{name} must be one 2D frame or a (T, Y, X) series, got {data.shape}")
+        stack = data if data.ndim == 3 else data[None]
+        frames = parse_frames(args.frames, stack.shape[0], name)
+        keys = _explicit_keys(args.config)
+        base = PipelineSettings() if args.config is None else load_settings(
+            args.config, PipelineSettings
+        )
+        microscope = load_settings(args.microscope, Microscope)
+        modality = args.modality or recording.modality or microscope.modality
+        if modality != microscope.modality:
+            microscope = dataclasses.replace(microscope, modality=modality)
+        microscope, pixel_note = resolve_pixel_size(recording.pixel_size_um, microscope)
+        if "disagrees" in pixel_note:
+            print(f"napari-symbac fit: note: {pixel_note}", file=sys.stderr)
+        if args.geometry is None:
+            explicit = keys.get("simulation", {}) or {}
+            args.geometry = "field" if explicit.get("geometry") == "agar_pad" else "trench"
+        labels = None if args.labels is None else _read_stack(args.labels, "--labels")
+        masks = None if args.masks is None else _read_stack(args.masks, "--masks")
+
+    writers: dict[str, Callable[[Path], None]] = {}
+    summaries = []
+    for index in frames:
+        frame = stack[index]
+        writers_one, result = _fit_one(
+            args,
+            frame,
+            index,
+            _per_frame(labels, index, stack.shape[0], frame.shape),
+            _per_frame(masks, index, stack.shape[0], frame.shape),
+            microscope,
+            pixel_note,
+            base,
+            keys,
+            stages,
+            timer,
+        )
+        prefix = "" if len(frames) == 1 else f"frame_{index:04d}/"
+        writers.update({prefix + k: v for k, v in writers_one.items()})
+        summaries.append(
+            f"frame {index}: fitted {len(result.cells)} cells; pixel chi2 "
+            f"{result.objective_before:.3g} -> {result.objective_after:.3g}"
+        )
+    stages.stage("writing outputs")
+    with timer.step("write"):
+        written = write_atomically(args.out, writers)
+    print("\n".join(summaries))
+    print(f"wrote {', '.join(sorted({p.name for p in written}))} to {args.out}")
+    print(timer.report())
+    return 0

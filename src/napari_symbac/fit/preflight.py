@@ -1,0 +1,217 @@
+"""Checks of a fit's inputs before any work: refuse what cannot be fitted, say what to pass.
+
+Each check raises :class:`ValueError` with a message naming the problem and the fix, so
+that the ``napari-symbac fit`` command can print it and exit non-zero before it writes
+anything.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Literal
+
+import numpy as np
+from scipy import ndimage
+
+from napari_symbac.settings import Microscope
+
+__all__ = [
+    "check_class_labels",
+    "check_fit_image",
+    "check_instance_masks",
+    "check_modality",
+    "image_polarity",
+    "resolve_pixel_size",
+]
+
+Polarity = Literal["bright cells", "dark cells", "unclear"]
+
+#: Tails of the histogram, in noise SDs from the median, that decide the polarity: the
+#: cells' side reaches past ``_FAR``, the other side stays within ``_NEAR`` (noise only).
+_NEAR, _FAR = 5.0, 10.0
+_HIGH_PASS = np.outer([1.0, -2.0, 1.0], [1.0, -2.0, 1.0]) / 6.0
+#: Pixels of the ring around cells used to compare cells with their surroundings.
+_RING_PX = 3
+
+
+def check_fit_image(image: np.ndarray, name: str = "image") -> None:
+    """Refuse images the forward model cannot produce.
+
+    Raises
+    ------
+    ValueError
+        For negative values (the model renders camera counts, baseline included).
+    """
+    low = float(np.min(image))
+    if low < 0:
+        raise ValueError(
+            f"{name} has negative values (minimum {low:.4g}): the fit needs camera counts "
+            "(ADU, camera baseline included). Pass the raw recording, or add a constant so "
+            "that all values are >= 0 and give that constant as baseline_adu with --camera"
+        )
+
+
+def _noise_sd(image: np.ndarray) -> float:
+    z = ndimage.correlate(np.asarray(image, np.float64), _HIGH_PASS)[1:-1, 1:-1]
+    return 1.4826 * float(np.median(np.abs(z - np.median(z))))
+
+
+def image_polarity(image: np.ndarray) -> Polarity:
+    """Whether the objects in a 2D image are brighter or darker than its background.
+
+    The median is taken as the background. Fluorescence has bright objects and nothing
+    darker than the background beyond noise; bright field has dark objects and nothing
+    brighter. Phase contrast has both (dark cells with bright halos) and gives
+    ``"unclear"``, as does any image whose cells cover most of it.
+
+    On the real data: ColiCoords fluorescence fields reach 1.1-2.4 noise SDs below the
+    median and 13-300 above; their bright-field fields 16-29 below and 2 above; phase
+    contrast (SyMBac trench, Omnipose colonies) 13-73 below and 24-94 above.
+    """
+    frame = np.asarray(image, np.float64)
+    sd = _noise_sd(frame)
+    low, median, high = np.percentile(frame, [0.5, 50.0, 99.5])
+    if not sd > 0:
+        return "unclear"
+    below, above = (median - low) / sd, (high - median) / sd
+    if below < _NEAR and above > _FAR:
+        return "bright cells"
+    if above < _NEAR and below > _FAR:
+        return "dark cells"
+    return "unclear"
+
+
+def _class_polarity(image: np.ndarray, cells: np.ndarray, background: np.ndarray) -> Polarity:
+    if not cells.any() or not background.any():
+        return "unclear"
+    difference = float(np.median(image[cells]) - np.median(image[background]))
+    sd = max(_noise_sd(image), 1e-12)
+    if abs(difference) < 3 * sd:
+        return "unclear"
+    return "bright cells" if difference > 0 else "dark cells"
+
+
+def check_modality(
+    image: np.ndarray,
+    modality: str,
+    *,
+    labels: np.ndarray | None = None,
+    masks: np.ndarray | None = None,
+) -> Polarity:
+    """Refuse a modality that contradicts the image (e.g. a fluorescence field as phase).
+
+    Phase contrast and bright field show cells darker than the media right around them,
+    fluorescence brighter. With painted ``labels`` the cells (1) are compared with the
+    media (2); with instance ``masks`` with a ring of 3 pixels around the cells; with
+    neither, the histogram's tails decide (:func:`image_polarity`) and an unclear image
+    passes.
+
+    Returns
+    -------
+    str
+        The polarity found.
+
+    Raises
+    ------
+    ValueError
+        When the polarity contradicts ``modality``, naming the modality to pass.
+    """
+    frame = np.asarray(image, np.float64)
+    if labels is not None:
+        polarity = _class_polarity(frame, labels == 1, labels == 2)
+        evidence = "the painted cells (1) are {} than the media (2)"
+    elif masks is not None:
+        cells = masks > 0
+        ring = ndimage.binary_dilation(cells, iterations=_RING_PX) & ~cells
+        polarity = _class_polarity(frame, cells, ring)
+        evidence = "the masked cells are {} than the pixels around them"
+    else:
+        polarity = image_polarity(frame)
+        evidence = (
+            "the image shows {} objects on its background and no "
+            "objects of the other sign"
+        )
+    expected = "bright cells" if modality == "fluorescence" else "dark cells"
+    if polarity not in ("unclear", expected):
+        other = "phase" if modality == "fluorescence" else "fluorescence"
+        word = "brighter" if polarity == "bright cells" else "darker"
+        if labels is None and masks is None:
+            word = "bright" if polarity == "bright cells" else "dark"
+        raise ValueError(
+            f"the image does not look like {modality}: {evidence.format(word)}. "
+            f"Pass --modality {other} (or, if it really is {modality}, paint --labels so the "
+            "cells and media settle it)"
+        )
+    return polarity
+
+
+def check_class_labels(labels: np.ndarray, shape: tuple[int, ...], name: str = "labels") -> None:
+    """Painted class labels: the image's shape, classes 0-3, with cells and media painted."""
+    if labels.shape != shape:
+        raise ValueError(
+            f"{name} has shape {labels.shape} but the image frame has shape {shape}: paint "
+            "the labels on the same image (or crop both alike)"
+        )
+    if not np.issubdtype(labels.dtype, np.integer):
+        raise ValueError(f"{name} must hold integer classes 0-3, got dtype {labels.dtype}")
+    present = set(np.unique(labels).tolist())
+    if not present <= {0, 1, 2, 3}:
+        raise ValueError(
+            f"{name} holds classes {sorted(present - {0, 1, 2, 3})}; classes are 0 unpainted, "
+            "1 cell, 2 media, 3 device (an instance mask goes to --masks instead)"
+        )
+    if 2 not in present:
+        raise ValueError(
+            f"{name} has no media class (2): paint some of the background between or around "
+            "the cells as media (2), or pass --masks with instance masks instead"
+        )
+    if 1 not in present:
+        raise ValueError(f"{name} has no cell class (1): paint at least one cell as 1")
+
+
+def check_instance_masks(masks: np.ndarray, shape: tuple[int, ...], name: str = "masks") -> None:
+    """Instance masks: the image's shape, integer ids, background 0 and some cells."""
+    if masks.shape != shape:
+        raise ValueError(
+            f"{name} has shape {masks.shape} but the image frame has shape {shape}: give the "
+            "masks of this image (or crop both alike)"
+        )
+    if not (np.issubdtype(masks.dtype, np.integer) or masks.dtype == bool):
+        raise ValueError(f"{name} must hold integer cell ids (0 background), got {masks.dtype}")
+    if masks.min() < 0:
+        raise ValueError(f"{name} has negative ids: cell ids must be >= 1, background 0")
+    if not (masks > 0).any():
+        raise ValueError(f"{name} holds no cell (all 0): pass masks with cells in them")
+    if (masks > 0).all():
+        raise ValueError(f"{name} has no background (0) pixel: the fit needs some background")
+
+
+def resolve_pixel_size(
+    file_pixel_um: float | None, microscope: Microscope, *, tolerance: float = 0.01
+) -> tuple[Microscope, str]:
+    """The TIFF's own pixel size wins over the microscope file; say when they disagree.
+
+    Returns
+    -------
+    microscope, note
+        The microscope with the pixel size used, and a sentence saying where the pixel
+        size came from (and the disagreement, if any).
+    """
+    given = microscope.pixel_size_um
+    if file_pixel_um is None or not math.isfinite(file_pixel_um) or file_pixel_um <= 0:
+        return microscope, f"pixel size {given:.4g} um from --microscope (the TIFF records none)"
+    if abs(file_pixel_um - given) <= tolerance * given:
+        return microscope, f"pixel size {file_pixel_um:.4g} um (TIFF and --microscope agree)"
+    try:
+        microscope = dataclasses.replace(microscope, pixel_size_um=float(file_pixel_um))
+    except ValueError as err:
+        raise ValueError(
+            f"the TIFF's pixel size {file_pixel_um:.4g} um does not suit the microscope "
+            f"({err}); fix the TIFF's metadata or the microscope file"
+        ) from err
+    return microscope, (
+        f"pixel size {file_pixel_um:.4g} um from the TIFF, which disagrees with the "
+        f"{given:.4g} um of --microscope: the TIFF's value is used (edit the microscope "
+        "file, or the TIFF's metadata, whichever is wrong)"
+    )

@@ -1,0 +1,167 @@
+"""What a scene fit writes: the cells table, a plain-words report, and an atomic folder.
+
+Works with any :class:`~napari_symbac.fit.SceneFit`: standard errors, warnings and
+parameters at bounds are reported when the result carries them (``getattr``).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import tempfile
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "camera_text",
+    "cells_records",
+    "fit_problems",
+    "parameter_table",
+    "report_text",
+    "write_atomically",
+]
+
+#: Reduced chi-square above which the report says the model misses structure.
+CHI2_MISFIT = 2.0
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def camera_text(camera: Any) -> str:
+    """A camera in words with units."""
+    return (
+        f"sensitivity {camera.sensitivity_adu_per_e:.3g} ADU/e-, baseline "
+        f"{camera.baseline_adu:.1f} ADU, dark noise {camera.dark_noise_e:.3g} e-, "
+        f"{camera.bit_depth} bits"
+    )
+
+
+def cells_records(result: Any) -> list[dict[str, Any]]:
+    """One dict per cell: id, centre, length, width, angle, curvature and every other
+    per-cell column of ``result.cells_table()`` (standard errors when it has them)."""
+    table = result.cells_table()
+    ids = list(table.get("ids", []))
+    records = []
+    for index, cell_id in enumerate(ids):
+        record: dict[str, Any] = {"id": _plain(cell_id)}
+        for key, column in table.items():
+            if key != "ids" and len(column) == len(ids):
+                record[key] = _plain(column[index])
+        records.append(record)
+    return records
+
+
+def parameter_table(result: Any) -> list[dict[str, Any]]:
+    """``[{name, value, se}]`` of the fitted parameters, empty when the result has none."""
+    names = tuple(getattr(result, "parameter_names", ()) or ())
+    values = getattr(result, "parameters", None)
+    errors = getattr(result, "standard_errors", None)
+    if not names or values is None:
+        return []
+    values = np.asarray(values, float)
+    errors = np.full(values.shape, np.nan) if errors is None else np.asarray(errors, float)
+    return [
+        {"name": name, "value": _plain(float(v)), "se": _plain(float(e))}
+        for name, v, e in zip(names, values, errors, strict=False)
+    ]
+
+
+def fit_problems(result: Any) -> list[str]:
+    """What did not converge, what sits at a bound, and a fit worse than its start."""
+    warnings = [str(w) for w in getattr(result, "warnings", ()) or ()]
+    problems = [f"warning: {w}" for w in warnings]
+    at_bounds = tuple(getattr(result, "at_bounds", ()) or ())
+    if at_bounds and not any("bound" in w for w in warnings):
+        problems.append(
+            "at a bound (its value is a limit, not a measurement; its standard error means "
+            f"nothing): {', '.join(at_bounds)}"
+        )
+    before, after = result.objective_before, result.objective_after
+    if math.isfinite(before) and math.isfinite(after) and after > before:
+        problems.append(
+            f"the fit ended worse than its start (chi-square {before:.3g} -> {after:.3g})"
+        )
+    if math.isfinite(after) and after > CHI2_MISFIT:
+        problems.append(
+            f"reduced chi-square {after:.3g} > {CHI2_MISFIT:g}: the model misses structure "
+            "beyond the camera noise (see residual.tif; `napari-symbac diagnose` looks for it)"
+        )
+    return problems
+
+
+def report_text(
+    result: Any, facts: Mapping[str, str], extra_problems: Sequence[str] = ()
+) -> str:
+    """report.txt: the inputs as used, the camera, the outcome, then the problems plainly.
+
+    ``extra_problems`` are findings of the caller (e.g. a camera check) listed with
+    those of :func:`fit_problems`.
+    """
+    lines = ["napari-symbac fit report", ""]
+    width = max(len(k) for k in facts) if facts else 0
+    lines += [f"{key:<{width}}  {value}" for key, value in facts.items()]
+    lines += [
+        "",
+        f"cells fitted: {len(result.cells)}",
+        "pixel chi-square (reduced; 1 = fitted to the noise): "
+        f"{result.objective_before:.4g} (start) -> {result.objective_after:.4g} (fit)",
+    ]
+    for term, (before, after) in getattr(result, "terms", {}).items():
+        lines.append(f"  {term}: {before:.4g} -> {after:.4g}")
+    lines += ["", "PROBLEMS"]
+    problems = [*fit_problems(result), *extra_problems]
+    if not hasattr(result, "warnings"):
+        problems.append(
+            "this fit engine reports no convergence diagnostics (no warnings / at_bounds): "
+            "check the figure and the residual by eye"
+        )
+    lines += [f"- {p}" for p in problems] if problems else ["none: converged, nothing at a bound"]
+    parameters = parameter_table(result)
+    if parameters:
+        lines += ["", "PARAMETERS (value +- standard error)"]
+        for row in parameters:
+            se = "n/a" if row["se"] is None else f"{row['se']:.3g}"
+            lines.append(f"  {row['name']}: {row['value']:.6g} +- {se}")
+    return "\n".join(lines) + "\n"
+
+
+def write_atomically(out: str | Path, writers: Mapping[str, Callable[[Path], None]]) -> list[Path]:
+    """Write every file into a hidden folder beside ``out``, then move them all in.
+
+    ``writers`` maps a relative path to a function that writes it. If any writer fails,
+    nothing lands in ``out`` (a folder that did not exist is not created).
+
+    Returns
+    -------
+    list of Path
+        The files written, in ``out``.
+    """
+    out = Path(out)
+    parent = out.resolve().parent
+    parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=parent))
+    try:
+        for name, write in writers.items():
+            target = staging / name
+            target.parent.mkdir(parents=True, exist_ok=True)
+            write(target)
+        out.mkdir(exist_ok=True)
+        written = []
+        for name in writers:
+            final = out / name
+            final.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(staging / name, final)
+            written.append(final)
+        return written
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)

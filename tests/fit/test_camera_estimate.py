@@ -1,0 +1,198 @@
+"""The camera from the data: censored pixels and photon transfer (eq. 17-19)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import tifffile
+
+from napari_symbac.fit.camera_estimate import censored_pixels, estimate_camera
+from napari_symbac.optics import ForwardModel
+from napari_symbac.optics.camera import apply_camera_noise
+from napari_symbac.settings import Camera
+
+CAMERAS = [
+    Camera(),  # 2.9 ADU/e-, 8 e- read noise, baseline 100
+    Camera(baseline_adu=500.0, sensitivity_adu_per_e=0.5, dark_noise_e=3.0),
+    Camera(baseline_adu=100.0, sensitivity_adu_per_e=5.0, dark_noise_e=1.5, bit_depth=12),
+]
+
+
+def _smooth_signal(shape=(256, 256), low=200.0, high=3200.0) -> np.ndarray:
+    """A smooth landscape of signal levels (ADU above the baseline)."""
+    yy, xx = np.mgrid[: shape[0], : shape[1]]
+    return low + (high - low) * (0.5 + 0.5 * np.sin(xx / 40.0) * np.cos(yy / 50.0))
+
+
+# --------------------------------------------------------------------------------------
+# censored_pixels
+# --------------------------------------------------------------------------------------
+
+
+def test_censored_marks_the_digitiser_maximum():
+    image = np.full((32, 32), 1000, np.uint16)
+    image[:4] = 65535
+    image[10, 10] = 2000
+    censored = censored_pixels(image)
+    assert censored[:4].all()
+    assert censored.sum() == 4 * 32
+
+
+def test_censored_finds_a_saturation_spike_below_the_file_maximum():
+    rng = np.random.default_rng(0)
+    image = np.clip(rng.normal(3000, 600, (64, 64)), 0, 4095).astype(np.uint16)
+    assert (image == 4095).mean() > 0.01  # a 12-bit camera in a 16-bit file
+    censored = censored_pixels(image)
+    assert np.array_equal(censored, image == 4095)
+    # the camera's own bit depth says the same without the histogram
+    assert np.array_equal(censored_pixels(image, Camera(bit_depth=12)), image == 4095)
+
+
+def test_censored_marks_zeros_of_background_subtraction():
+    rng = np.random.default_rng(1)
+    image = np.clip(rng.normal(20, 30, (64, 64)), 0, None)  # float, ~25 % clipped at 0
+    censored = censored_pixels(image)
+    assert np.array_equal(censored, image == 0)
+    assert 0.2 < censored.mean() < 0.3
+
+
+def test_censored_leaves_a_smooth_unclipped_image_alone():
+    rng = np.random.default_rng(2)
+    image = apply_camera_noise(_smooth_signal((64, 64)), Camera(), rng)
+    assert not censored_pixels(image).any()
+
+
+def test_censored_real_colicoords_fields_match_their_readme(real_data_dir):
+    root = real_data_dir / "colicoords" / "test_data" / "ds1"
+    brightfield = tifffile.imread(root / "brightfield" / "00001.tif")
+    fluorescence = tifffile.imread(root / "fluorescence" / "00001.tif")
+    # README: brightfield 9-12 % clipped at 65535, fluorescence 17-19 % at 0
+    bright = censored_pixels(brightfield)
+    assert 0.08 < bright.mean() < 0.13
+    assert np.all(brightfield[bright] == 65535)
+    dark = censored_pixels(fluorescence)
+    assert 0.16 < dark.mean() < 0.20
+    assert np.all(fluorescence[dark] == 0)
+
+
+# --------------------------------------------------------------------------------------
+# estimate_camera
+# --------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("camera", CAMERAS, ids=["default", "low-gain", "12-bit"])
+def test_gain_from_one_image_within_5_percent(camera):
+    image = apply_camera_noise(_smooth_signal(), camera, np.random.default_rng(3))
+    estimate = estimate_camera(image, camera=camera)
+    assert estimate.camera.sensitivity_adu_per_e == pytest.approx(
+        camera.sensitivity_adu_per_e, rel=0.05
+    )
+    assert estimate.sensitivity_se_adu_per_e < 0.03 * camera.sensitivity_adu_per_e
+    assert estimate.offset_source == "camera settings"
+    assert estimate.camera.baseline_adu == camera.baseline_adu
+    assert estimate.camera.bit_depth == camera.bit_depth
+    assert estimate.method == "high-pass"
+
+
+@pytest.mark.parametrize("camera", CAMERAS, ids=["default", "low-gain", "12-bit"])
+def test_dark_frames_give_offset_and_read_noise(camera):
+    rng = np.random.default_rng(4)
+    image = apply_camera_noise(_smooth_signal(), camera, rng)
+    dark = apply_camera_noise(np.zeros((4, 64, 64)), camera, rng)
+    estimate = estimate_camera(image, dark_frames=dark, bit_depth=camera.bit_depth)
+    assert estimate.offset_source == "dark frames"
+    assert estimate.method == "high-pass + dark frames"
+    assert estimate.camera.baseline_adu == pytest.approx(camera.baseline_adu, abs=0.5)
+    # read noise in ADU is measured directly; in electrons it carries the gain's error
+    assert estimate.camera.dark_noise_e == pytest.approx(camera.dark_noise_e, rel=0.08)
+
+
+def test_model_mean_uses_the_residual_and_the_trench_render(truth):
+    """The fit's noise-free image: y - mu over a series of rendered trench frames."""
+    model = ForwardModel(truth.microscope, truth.render, truth.camera)
+    clean = model.render_clean(truth.scene).astype(np.float64) + truth.camera.baseline_adu
+    frames = np.stack([model.render(truth.scene, np.random.default_rng(10 + i)) for i in range(8)])
+    estimate = estimate_camera(frames, model_mean=np.broadcast_to(clean, frames.shape))
+    assert estimate.method == "model residual"
+    assert estimate.n_points == frames.size
+    assert estimate.camera.sensitivity_adu_per_e == pytest.approx(2.9, rel=0.05)
+    # the intercept is sigma_r^2 - K offset = (2.9 * 8)^2 - 2.9 * 100 = 248 ADU^2
+    se = estimate.sensitivity_se_adu_per_e
+    assert abs(estimate.camera.sensitivity_adu_per_e - 2.9) < 4 * se
+
+
+def test_series_of_rendered_trench_frames_without_a_model(truth):
+    model = ForwardModel(truth.microscope, truth.render, truth.camera)
+    frames = np.stack([model.render(truth.scene, np.random.default_rng(20 + i)) for i in range(8)])
+    estimate = estimate_camera(frames, camera=truth.camera)
+    assert estimate.camera.sensitivity_adu_per_e == pytest.approx(2.9, rel=0.05)
+    assert estimate.n_points > 8 * 30 * 100
+
+
+def test_valid_mask_and_censoring_keep_clipped_pixels_out():
+    camera = Camera(bit_depth=12)
+    signal = _smooth_signal(low=300.0, high=5000.0)  # the top is clipped at 4095
+    image = apply_camera_noise(signal, camera, np.random.default_rng(5))
+    assert (image == 4095).mean() > 0.05
+    estimate = estimate_camera(image, camera=camera)
+    assert estimate.camera.sensitivity_adu_per_e == pytest.approx(2.9, rel=0.05)
+    half = np.zeros(image.shape, bool)
+    half[:, :128] = True
+    masked = estimate_camera(image, camera=camera, valid=half)
+    assert masked.n_points < 0.6 * estimate.n_points
+
+
+def test_same_input_same_estimate():
+    image = apply_camera_noise(_smooth_signal(), Camera(), np.random.default_rng(6))
+    assert estimate_camera(image) == estimate_camera(image)
+
+
+def test_offset_from_the_darkest_region_is_labelled():
+    image = apply_camera_noise(_smooth_signal(low=0.0), Camera(), np.random.default_rng(7))
+    estimate = estimate_camera(image)
+    assert estimate.offset_source == "darkest region of the image"
+    # the darkest region holds a little light: its level bounds the baseline (100) from
+    # above, within 2 % of the image's signal range (3000 ADU)
+    assert 100.0 <= estimate.camera.baseline_adu < 160.0
+
+
+def test_rescaled_image_is_refused():
+    image = apply_camera_noise(_smooth_signal(), Camera(), np.random.default_rng(8))
+    flattened = 65535.0 - image.astype(float)  # variance now falls with the mean
+    with pytest.raises(ValueError, match="not raw camera counts"):
+        estimate_camera(flattened)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"valid": np.ones((5, 5), bool)}, "valid has shape"),
+        ({"model_mean": np.ones((5, 5))}, "model_mean has shape"),
+    ],
+)
+def test_bad_inputs_name_the_problem(kwargs, message):
+    image = apply_camera_noise(_smooth_signal((64, 64)), Camera(), np.random.default_rng(9))
+    with pytest.raises(ValueError, match=message):
+        estimate_camera(image, **kwargs)
+    with pytest.raises(ValueError, match="NaN"):
+        estimate_camera(np.full((32, 32), np.nan))
+    with pytest.raises(ValueError, match="usable pixels"):
+        estimate_camera(image[:20, :20])
+
+
+def test_real_colicoords_ds3_fluorescence(real_data_dir):
+    """Four fluorescence frames with the camera offset kept (README of the data)."""
+    stack = tifffile.imread(real_data_dir / "colicoords" / "test_data" / "ds3" / "flu.tif")
+    estimate = estimate_camera(stack)
+    assert not censored_pixels(stack).any()
+    assert estimate.offset_source == "darkest region of the image"
+    # the offset is kept: the darkest region sits far above zero, below the median
+    assert 1000 < estimate.camera.baseline_adu < float(np.median(stack))
+    gain = estimate.camera.sensitivity_adu_per_e
+    assert estimate.sensitivity_se_adu_per_e < 0.05 * gain
+    assert estimate.n_bins >= 10
+    # two halves of the series agree within their standard errors
+    first, second = estimate_camera(stack[:2]), estimate_camera(stack[2:])
+    difference = first.camera.sensitivity_adu_per_e - second.camera.sensitivity_adu_per_e
+    combined = np.hypot(first.sensitivity_se_adu_per_e, second.sensitivity_se_adu_per_e)
+    assert abs(difference) < 4 * combined
