@@ -1,8 +1,9 @@
 """Projected Levenberg-Marquardt over the scene parameters, intensities solved exactly.
 
-The cost is ``chi^2 = sum_valid w (y - mu)^2 + sum_k (x_k / sd_k)^2`` (Gaussian
-likelihood with the camera's variance ``1 / w``, eq. 17, and Gaussian priors on the
-curvature and per-cell widths). Each iteration builds the Jacobian once (per-cell
+The cost is ``chi^2 = sum_valid w (y - mu)^2 + sum_k (x_k / sd_k)^2 + sum_pairs o^2``
+(Gaussian likelihood with the camera's variance ``1 / w``, eq. 17, Gaussian priors
+on the curvature and per-cell widths, and the overlap penalty of
+:mod:`~napari_symbac.fit.overlap`). Each iteration builds the Jacobian once (per-cell
 patches, :meth:`SceneModel.jacobian`), takes the damped Gauss-Newton step on the
 parameters and the intensities jointly, and re-solves the intensities exactly at
 the trial point (variable projection), keeping the step only if ``chi^2`` falls.
@@ -16,6 +17,7 @@ import numpy as np
 from scipy import sparse
 
 from napari_symbac.fit.engine import SceneModel, solve_intensities
+from napari_symbac.fit.overlap import overlap_terms
 from napari_symbac.scene import Scene
 from napari_symbac.settings import RenderSettings
 
@@ -53,6 +55,7 @@ def evaluate(
     res = y - a @ intensities
     chi2 = float(np.sum(w * res * res))
     prior = float(np.sum((x / prior_sd) ** 2))
+    prior += float(np.sum(overlap_terms(x, model.layout)[0] ** 2))
     return State(x, a, intensities, scene, r, chi2, prior)
 
 
@@ -101,6 +104,11 @@ def levenberg_marquardt(
         tie = scales[idx] / prior_sd[idx]
         jtj[np.arange(m), np.arange(m)] += tie**2
         grad[:m] += tie * (state.x[idx] / prior_sd[idx])
+        pen, pen_jac = overlap_terms(state.x, model.layout, scales)
+        if pen.size:
+            pj = pen_jac[:, idx]
+            jtj[:m, :m] += pj.T @ pj
+            grad[:m] += pj.T @ pen
         diag = np.diag(jtj) + 1e-9 * max(float(np.mean(np.diag(jtj))), 1e-12)
         improved = False
         gain = 0.0

@@ -9,14 +9,16 @@ Bayesian information criterion ``BIC = chi^2 + k ln N`` falls (``k`` parameters,
 
 * **remove** a cell whose removal raises ``chi^2`` by less than its price (a hidden
   duplicate raises it by about 0);
-* **merge** two aligned neighbours whose facing poles are within a cell width into
-  one rod from the far pole of one to the far pole of the other;
+* **merge** two aligned neighbours (axes within 0.5 rad, pole-to-pole segments
+  within a cell width, overlapping or end to end) into one rod between the two
+  poles furthest apart;
 * **split** a rod longer than 1.6 times the median cell length in two halves;
 * **add** a cell on a blob of significant residual of the cells' polarity where the
-  model has no cell.
+  model has no cell but room for one (media: inside the trench, on the pad).
 
 Merged, split and added cells are refitted locally (their own parameters only)
-before the comparison.
+before the comparison, and, when that brings them close to acceptance, with every
+parameter free.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ import numpy as np
 from scipy import ndimage
 
 from napari_symbac.fit.lm import State
+from napari_symbac.fit.overlap import segment_distance
 from napari_symbac.fit.problem import Problem
 from napari_symbac.fit.start import cells_from_instances
 
@@ -34,6 +37,9 @@ __all__ = ["improve_scene"]
 
 #: Iterations of the local refit of a proposed cell.
 LOCAL_ITERATIONS = 8
+#: A proposal within this many cell prices of acceptance after its local refit is
+#: refitted with every parameter free before the BIC decides.
+GLOBAL_MARGIN = 10.0
 
 
 def _poles(block: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -70,6 +76,11 @@ def _try(
     trial = problem.evaluate(Problem.join(blocks, shared))
     if refit:
         trial, _ = problem.refit(trial, _local_free(problem, len(blocks), refit), LOCAL_ITERATIONS)
+        dn = len(blocks) - problem.n_cells(state.x)
+        price = problem.bic_per_cell
+        if trial.cost + dn * price < state.cost + GLOBAL_MARGIN * price:
+            # Close: let the neighbours, the width and the optics settle too.
+            trial, _ = problem.refit(trial, None, LOCAL_ITERATIONS)
     return trial
 
 
@@ -100,14 +111,15 @@ def _merge_pass(problem: Problem, state: State, log: list[str]) -> tuple[State, 
     for i in range(n):
         for j in range(i + 1, n):
             pi, pj = _poles(blocks[i]), _poles(blocks[j])
-            gaps = [
-                (np.hypot(*(a - b)), ia, ib) for ia, a in enumerate(pi) for ib, b in enumerate(pj)
-            ]
-            gap, ia, ib = min(gaps)
             turn = abs((blocks[i, 2] - blocks[j, 2] + math.pi / 2) % math.pi - math.pi / 2)
-            if gap > width or turn > 0.5:
+            if turn > 0.5 or segment_distance(pi, pj) > width:
                 continue
-            merged = _rod(pi[1 - ia], pj[1 - ib], blocks[i])
+            poles = [*pi, *pj]
+            far = max(
+                ((a, b) for ia, a in enumerate(poles) for b in poles[ia + 1 :]),
+                key=lambda pair: float(np.hypot(*(pair[0] - pair[1]))),
+            )
+            merged = _rod(far[0], far[1], blocks[i])
             trial_blocks = np.delete(blocks, j, axis=0)
             trial_blocks[i] = merged
             trial = _try(problem, state, trial_blocks, shared, [i])
@@ -152,7 +164,9 @@ def _add_pass(
     from napari_symbac.optics.forward import block_average
 
     model_cells = block_average(state.scene.interior(state.scene.cells), state.scene.upsample)
-    blob = (z > 3.0) & (model_cells < 0.05) & (problem.w.reshape(rows, cols) > 0)
+    scene = state.scene
+    room = block_average(scene.interior(scene.media + scene.cells), scene.upsample)
+    blob = (z > 3.0) & (model_cells < 0.05) & (room > 0.5) & (problem.w.reshape(rows, cols) > 0)
     blob = ndimage.binary_opening(blob)
     labels, count = ndimage.label(blob)
     if count == 0:
