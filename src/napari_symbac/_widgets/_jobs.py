@@ -20,6 +20,7 @@ Why not ``thread_worker(progress=...)`` directly:
 from __future__ import annotations
 
 import dataclasses
+import threading
 from collections.abc import Callable, Generator
 from typing import Any
 
@@ -77,6 +78,12 @@ class Job:
     owner
         The widget's Qt object; when it is destroyed the worker is told to quit and no
         callback runs any more.
+
+    Attributes
+    ----------
+    cancelled
+        A :class:`threading.Event` set by :meth:`quit` and when ``owner`` is destroyed;
+        work that runs outside the generator's yields (a blocking call) polls it.
     """
 
     def __init__(
@@ -92,6 +99,7 @@ class Job:
         on_abort: Callable[[], None] | None = None,
         on_finish: Callable[[], None] | None = None,
         owner: Any = None,
+        cancelled: threading.Event | None = None,
     ) -> None:
         from napari.qt.threading import thread_worker
         from napari.utils import progress
@@ -108,6 +116,7 @@ class Job:
         self._busy = False
         self._closed = False
         self.done = False
+        self.cancelled = threading.Event() if cancelled is None else cancelled
 
         def guarded():
             try:
@@ -131,12 +140,14 @@ class Job:
         self.worker.start()
 
     def quit(self) -> None:
-        """Ask the worker to stop at its next yield."""
+        """Ask the worker to stop at its next yield (and blocking work to cancel)."""
+        self.cancelled.set()
         self.worker.quit()
 
     def _on_owner_destroyed(self, _obj=None) -> None:
         self._closed = True
         self._queue.clear()
+        self.cancelled.set()
         self.worker.quit()
         self._close_progress()
 
@@ -159,7 +170,13 @@ class Job:
         self._busy = True
         try:
             while self._queue and not self._closed:
-                self._handle(*self._queue.pop(0))
+                kind, payload = self._queue.pop(0)
+                try:
+                    self._handle(kind, payload)
+                except Exception as err:  # a bug in a callback: report, keep the widget
+                    notify_error(describe_error(err, f"{self._what} (showing its result)"))
+                    if kind != "finish" and not self.done:
+                        continue
         finally:
             self._busy = False
 
