@@ -532,6 +532,26 @@ class RenderSettings:
         Weight moved from the bright-field part of the phase kernel to a negative
         uniform disk over its radius (a constant inside the radius, kernel sum kept
         at 1); positive values add long-range halo and shade-off (section 13.2).
+    ring_model
+        Shape of the ring part of the phase kernel: ``"airy"`` (intensity pattern of
+        the obscured Airy of eq. 7, the shape before ``"annulus"`` existed) or
+        ``"annulus"`` (weak-phase transfer function of partially coherent annular
+        illumination through the phase plate, ``optics.psf.annulus_transfer_function``;
+        its halo reaches ``~ lambda / (W NA)``, several um, so give it a
+        ``psf_radius_px`` of a few um).
+    phase_ring_width_scale
+        Width of the phase plate's ring over the width of the condenser annulus'
+        image (>= 1, at most 3; ``"annulus"`` model only). Wider rings pass fewer
+        low frequencies: a narrower halo.
+    cell_phase_adu, device_phase_adu
+        Phase signal of a full-depth column of cells (device) against media, in ADU:
+        ``I_0 (2 sin(theta) / a) 2 pi (n - n_media) depth / lambda`` for a plate of
+        amplitude transmission ``a`` and phase shift ``theta``, the weight of the
+        zero-sum ring part, separate from the bright-field contrast of the
+        intensities. ``None`` for both (default): the ring part is tied to the
+        intensities, ``P_k = ring_contrast (I_media - I_k)`` (one kernel
+        ``h = k_bf + gamma k_ring``); a number for either sets them apart (the other
+        ``None`` counts as 0) and ``ring_contrast`` is not used.
     noise_model
         ``"camera"`` (EMVA1288, eq. 17), ``"gaussian"`` or ``"none"``.
     gaussian_noise_sd_adu
@@ -559,6 +579,10 @@ class RenderSettings:
     defocus_sigma_um: float = 0.0
     ring_contrast: float = 0.5
     psf_offset: float = 0.0
+    ring_model: str = "airy"
+    phase_ring_width_scale: float = 1.0
+    cell_phase_adu: float | None = None
+    device_phase_adu: float | None = None
     noise_model: NoiseModel = "camera"
     gaussian_noise_sd_adu: float = 20.0
     texture_amplitude: float = 0.0
@@ -590,6 +614,34 @@ class RenderSettings:
             f"RenderSettings.psf_offset must be a finite number, got {self.psf_offset!r}",
         )
         _choice(self, "noise_model", typing.get_args(NoiseModel))
+        _choice(self, "ring_model", ("airy", "annulus"))
+        _require(
+            isinstance(self.phase_ring_width_scale, (int, float))
+            and 1.0 <= self.phase_ring_width_scale <= 3.0,
+            "RenderSettings.phase_ring_width_scale must be in [1, 3] (the plate ring covers "
+            f"the annulus image), got {self.phase_ring_width_scale!r}",
+        )
+        for name in ("cell_phase_adu", "device_phase_adu"):
+            value = getattr(self, name)
+            _require(
+                value is None
+                or (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0),
+                f"RenderSettings.{name} must be None or a finite number >= 0, got {value!r}",
+            )
+
+    @property
+    def phase_separate(self) -> bool:
+        """True when the ring part has its own amplitudes (``*_phase_adu``)."""
+        return self.cell_phase_adu is not None or self.device_phase_adu is not None
+
+    def phase_amplitudes(self) -> tuple[float, float]:
+        """``(P_cell, P_device)``, the ring part's weights in ADU (see the class notes)."""
+        if self.phase_separate:
+            return (float(self.cell_phase_adu or 0.0), float(self.device_phase_adu or 0.0))
+        return (
+            self.ring_contrast * (self.media_intensity - self.cell_intensity),
+            self.ring_contrast * (self.media_intensity - self.device_intensity),
+        )
 
 
 @dataclass(frozen=True)
