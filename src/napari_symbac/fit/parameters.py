@@ -34,9 +34,11 @@ from napari_symbac.settings import Camera, Microscope, RenderSettings
 __all__ = [
     "DEFAULT_FIT",
     "DEFAULT_FIT_STATISTICS",
+    "MAX_PHASE_OVER_MEDIA",
     "FitCancelled",
     "FitResult",
     "fit_parameters",
+    "fit_warnings",
     "parameter_bounds",
     "scene_classes",
 ]
@@ -52,16 +54,23 @@ DEFAULT_FIT = ("apodisation_sigma_um", "defocus_sigma_um", "psf_offset")
 #: Default with the statistics terms, which barely constrain the PSF offset: the
 #: supplement's own pair (section 7).
 DEFAULT_FIT_STATISTICS = ("apodisation_sigma_um", "defocus_sigma_um")
-_FITTABLE = (*DEFAULT_FIT, "ring_contrast", "gaussian_noise_sd_adu")
+_FITTABLE = (*DEFAULT_FIT, "ring_contrast", "phase_ring_width_scale", "gaussian_noise_sd_adu")
 #: Natural scale of each parameter: the optimiser works in these units.
 _SCALE = {
     "apodisation_sigma_um": 0.1,
     "defocus_sigma_um": 0.05,
     "ring_contrast": 0.1,
     "psf_offset": 0.05,
+    "phase_ring_width_scale": 0.1,
     "gaussian_noise_sd_adu": 10.0,
 }
 _INTENSITIES = ("cell_intensity", "media_intensity", "device_intensity")
+_PHASE_AMPLITUDES = ("cell_phase_adu", "device_phase_adu")
+#: Largest phase signal of a full-depth column against the media level, ``P / I_m``:
+#: ``(2 sin(theta) / a) 2 pi dn depth / lambda`` with the darkest plates made
+#: (intensity transmission 4 %, ``a = 0.2``), ``dn = n_cell - n_media <= 0.1`` and a
+#: depth of at most 1.2 um at 0.5 um: ``10 x 1.5 = 15``.
+MAX_PHASE_OVER_MEDIA = 15.0
 
 
 class FitCancelled(RuntimeError):
@@ -90,6 +99,11 @@ class FitResult:
         ``real - synthetic`` (ADU) when the pixel term was used, else ``None``.
     message
         The optimiser's last message.
+    warnings
+        Plain-language problems with the result: a fitted parameter at (or within
+        0.1 % of the range of) one of its bounds, a phase amplitude beyond its
+        physical bound, or an objective that ended worse than it started. Empty
+        when the fit is trustworthy by these checks.
     """
 
     render: RenderSettings
@@ -101,6 +115,7 @@ class FitResult:
     fitted: tuple[str, ...] = ()
     residual: np.ndarray | None = field(default=None, repr=False)
     message: str = ""
+    warnings: tuple[str, ...] = ()
 
     @property
     def terms_before(self) -> dict[str, float]:
@@ -118,9 +133,11 @@ class FitResult:
         for name, (before, after) in self.terms.items():
             lines.append(f"{name:<14}{before:12.4g}{after:12.4g}")
         lines.append(f"{'objective':<14}{self.objective_before:12.4g}{self.objective_after:12.4g}")
-        for name in (*_INTENSITIES, *self.fitted):
-            lines.append(f"{name:<24}{getattr(self.render, name):12.5g}")
+        names = (*_INTENSITIES, *(_PHASE_AMPLITUDES if self.render.phase_separate else ()))
+        for name in (*names, *self.fitted):
+            lines.append(f"{name:<24}{float(getattr(self.render, name) or 0.0):12.5g}")
         lines.append(f"evaluations: {self.n_evaluations}")
+        lines.extend(f"WARNING: {w}" for w in self.warnings)
         return "\n".join(lines)
 
 
@@ -131,7 +148,13 @@ def parameter_bounds(
 
     The apodisation sigma cannot be below the diffraction bound of eq. 13,
     ``0.9 lambda n / (2 NA)``; defocus (eq. 14) is non-negative and, for a usable
-    recording, below half a micrometre.
+    recording, below half a micrometre. The plate's ring covers the annulus image
+    (width scale >= 1) and is at most three times as wide (wider rings block the
+    detail they are meant to pass). ``ring_contrast`` (the coupled model,
+    ``gamma = P / (I_m - I_c)``) is the ratio of phase to bright-field contrast and
+    has no finite physical bound when the cells barely absorb; ``[0, 3]`` is the
+    range where it stays identifiable: beyond it give the phase signal its own
+    amplitudes (``RenderSettings.cell_phase_adu``), which the fit solves exactly.
     """
     if name == "apodisation_sigma_um":
         low = microscope.min_apodisation_sigma_um if microscope.modality == "phase" else 0.05
@@ -142,6 +165,8 @@ def parameter_bounds(
         return (0.0, 3.0)
     if name == "psf_offset":
         return (-0.5, 0.5)
+    if name == "phase_ring_width_scale":
+        return (1.0, 3.0)
     if name == "gaussian_noise_sd_adu":
         return (0.0, max(5 * real_sd_adu, 1.0))
     raise ValueError(f"cannot fit {name!r}; fittable parameters are {', '.join(_FITTABLE)}")
@@ -302,27 +327,43 @@ def fit_parameters(
     noise_z = rng.standard_normal(scene.camera_shape)
     real_masks_for_terms = (real_classes, syn_classes)
 
+    separate = microscope.modality == "phase" and render.phase_separate
+    amplitude_names = (*_INTENSITIES, *(_PHASE_AMPLITUDES if separate else ()))
+    n_amp = len(amplitude_names)
+
     def components(r: RenderSettings) -> np.ndarray:
         budget.tick()
         comps = base.with_render(r).components(scene)
-        return np.stack([comps["cells"], comps["media"], comps["device"]]).astype(np.float64)
+        parts = [comps["cells"], comps["media"], comps["device"]]
+        if separate:
+            parts += [-comps["cells_phase"], -comps["device_phase"]]
+        return np.stack(parts).astype(np.float64)
 
-    def solve_class_means(a: np.ndarray) -> np.ndarray:
+    def amplitudes(r: RenderSettings) -> np.ndarray:
+        values = [getattr(r, k) for k in _INTENSITIES]
+        if separate:
+            values += list(r.phase_amplitudes())
+        return np.array(values, np.float64)
+
+    def solve_class_means(a: np.ndarray, r: RenderSettings) -> np.ndarray:
+        # Class means pin the three intensities; the phase amplitudes (if separate)
+        # stay at their values, their image subtracted from the target.
+        fixed = amplitudes(r)[3:]
         rows, rhs = [], []
         for _cname, value in CLASS_VALUES.items():
             rmask = real_classes == value
             smask = syn_classes == value
             if rmask.any() and smask.any():
-                rows.append(a[:, smask].mean(axis=1))
-                rhs.append(real[rmask].mean() - camera.baseline_adu)
-        return _nnls(np.array(rows), np.array(rhs))
+                means = a[:, smask].mean(axis=1)
+                rows.append(means[:3])
+                rhs.append(real[rmask].mean() - camera.baseline_adu - means[3:] @ fixed)
+        return np.concatenate([_nnls(np.array(rows), np.array(rhs)), fixed])
 
     def with_intensities(r: RenderSettings, intens: np.ndarray) -> RenderSettings:
-        return dataclasses.replace(r, **{k: float(v) for k, v in zip(_INTENSITIES, intens)})
+        return dataclasses.replace(r, **{k: float(v) for k, v in zip(amplitude_names, intens)})
 
     def synthetic(r: RenderSettings, a: np.ndarray, noisy: bool) -> np.ndarray:
-        intens = np.array([getattr(r, k) for k in _INTENSITIES])
-        clean = np.tensordot(intens, a, axes=1)
+        clean = np.tensordot(amplitudes(r), a, axes=1)
         if not noisy:
             return clean + camera.baseline_adu
         var = _variance(clean, r, camera)
@@ -340,7 +381,7 @@ def fit_parameters(
         return out
 
     a0 = components(render)
-    clean0 = np.tensordot(np.array([getattr(render, k) for k in _INTENSITIES]), a0, axes=1)
+    clean0 = np.tensordot(amplitudes(render), a0, axes=1)
     var0 = _variance(clean0, render, camera) if pixel_mode else None
     terms_before = all_terms(render, a0, var0)
     message = ""
@@ -355,7 +396,7 @@ def fit_parameters(
 
             def residual(zz: np.ndarray, sw: np.ndarray = sw) -> np.ndarray:
                 r = _render_with(render, names, zz, start)
-                a = components(r).reshape(3, -1).T
+                a = components(r).reshape(n_amp, -1).T
                 intens = _nnls(a * sw[:, None], y.ravel() * sw)
                 return (y.ravel() - a @ intens) * sw
 
@@ -379,7 +420,7 @@ def fit_parameters(
                 message = str(sol.message)
             current = _render_with(render, names, z, start)
             a = components(current)
-            am = a.reshape(3, -1).T
+            am = a.reshape(n_amp, -1).T
             intens = _nnls(am * sw[:, None], y.ravel() * sw)
             current = with_intensities(current, intens)
             clean = (am @ intens).reshape(real.shape)
@@ -397,7 +438,7 @@ def fit_parameters(
             zz = np.clip(zz, z_lo, z_hi)
             r = _render_with(render, names, zz, start)
             a = components(r)
-            r = with_intensities(r, solve_class_means(a))
+            r = with_intensities(r, solve_class_means(a, r))
             t = objective_terms(
                 synthetic(r, a, True), real, real_masks_for_terms, terms=tuple(weights)
             )
@@ -419,24 +460,81 @@ def fit_parameters(
             message = str(sol.message)
         final = _render_with(render, names, z, start)
         a_final = components(final)
-        final = with_intensities(final, solve_class_means(a_final))
+        final = with_intensities(final, solve_class_means(a_final, final))
         terms_after = all_terms(final, a_final, None)
         residual_image = None
 
     terms_table = {k: (terms_before[k], terms_after[k]) for k in terms_after}
     if progress is not None:
         progress(budget.total, budget.total)
+    objective_before = total_objective(terms_before, weights)
+    objective_after = total_objective(terms_after, weights)
     return FitResult(
         render=final,
         terms=terms_table,
-        objective_before=total_objective(terms_before, weights),
-        objective_after=total_objective(terms_after, weights),
+        objective_before=objective_before,
+        objective_after=objective_after,
+        warnings=fit_warnings(
+            final, names, bounds, objective_before, objective_after, separate=separate
+        ),
         n_evaluations=budget.done,
         weights=weights,
         fitted=names,
         residual=residual_image,
         message=message,
     )
+
+
+def fit_warnings(
+    render: RenderSettings,
+    names: tuple[str, ...],
+    bounds: list[tuple[float, float]],
+    objective_before: float,
+    objective_after: float,
+    *,
+    separate: bool = False,
+) -> tuple[str, ...]:
+    """Warnings about a fitted result (see :attr:`FitResult.warnings`).
+
+    Parameters
+    ----------
+    render
+        The fitted settings.
+    names, bounds
+        The free nonlinear parameters and their bounds.
+    objective_before, objective_after
+        The objective at the start and at the end.
+    separate
+        Whether the phase amplitudes were fitted (checked against
+        :data:`MAX_PHASE_OVER_MEDIA`).
+    """
+    out = []
+    for name, (lo, hi) in zip(names, bounds):
+        value = float(getattr(render, name))
+        tol = 1e-3 * (hi - lo)
+        side = "lower" if value <= lo + tol else "upper" if value >= hi - tol else None
+        if side is not None:
+            bound = lo if side == "lower" else hi
+            out.append(
+                f"{name} = {value:.4g} ended at its {side} bound ({bound:.4g}): the model "
+                "cannot reach the image inside its physical range there (check the "
+                "scene, the microscope settings and the labels)"
+            )
+    if separate and render.media_intensity > 0:
+        for name, value in zip(_PHASE_AMPLITUDES, render.phase_amplitudes()):
+            ratio = value / render.media_intensity
+            if ratio > MAX_PHASE_OVER_MEDIA:
+                out.append(
+                    f"{name} = {value:.4g} ADU is {ratio:.1f} x the media level, beyond the "
+                    f"physical bound {MAX_PHASE_OVER_MEDIA:g} (plate transmission >= 4 %, "
+                    "n_cell - n_media <= 0.1)"
+                )
+    if np.isfinite(objective_before) and objective_after > objective_before * (1 + 1e-9):
+        out.append(
+            f"the fit ended worse than its start (objective {objective_before:.4g} -> "
+            f"{objective_after:.4g}): keep the starting settings or give a better start"
+        )
+    return tuple(out)
 
 
 def _weights(terms: tuple[str, ...] | Mapping[str, float]) -> dict[str, float]:
