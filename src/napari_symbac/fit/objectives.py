@@ -28,6 +28,7 @@ __all__ = [
     "TERM_NAMES",
     "class_masks",
     "edge_profile",
+    "noise_variance",
     "objective_terms",
     "total_objective",
 ]
@@ -122,7 +123,7 @@ def edge_profile(
         return np.where(count > 0, total / np.maximum(count, 1), np.nan)
 
 
-def _noise_variance(image: np.ndarray) -> float:
+def noise_variance(image: np.ndarray) -> float:
     """Robust white-noise variance of an image (MAD of a second difference)."""
     d = image[:, 2:] - 2 * image[:, 1:-1] + image[:, :-2]
     mad = np.median(np.abs(d - np.median(d)))
@@ -246,7 +247,7 @@ def objective_terms(
                 raise ValueError(
                     f"the pixel term needs images of one shape, got {syn.shape} and {ref.shape}"
                 )
-            var = _noise_variance(ref) if variance is None else np.asarray(variance, float)
+            var = noise_variance(ref) if variance is None else np.asarray(variance, float)
             value = float(np.mean((syn - ref) ** 2 / np.maximum(var, 1e-12)))
         out[name] = float(value)
     return out

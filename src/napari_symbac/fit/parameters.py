@@ -24,15 +24,17 @@ from napari_symbac.fit.inputs import CLASS_VALUES, as_label_stack, as_single_ima
 from napari_symbac.fit.objectives import (
     DEFAULT_TERMS,
     TERM_NAMES,
+    noise_variance,
     objective_terms,
     total_objective,
 )
 from napari_symbac.optics import ForwardModel
 from napari_symbac.optics.forward import block_average
-from napari_symbac.settings import Camera, Microscope, RenderSettings
+from napari_symbac.settings import CONDENSERS, Camera, Microscope, RenderSettings
 
 __all__ = [
     "DEFAULT_FIT",
+    "DEFAULT_FIT_PARTIALLY_COHERENT",
     "DEFAULT_FIT_STATISTICS",
     "MAX_PHASE_OVER_MEDIA",
     "FitCancelled",
@@ -54,7 +56,25 @@ DEFAULT_FIT = ("apodisation_sigma_um", "defocus_sigma_um", "psf_offset")
 #: Default with the statistics terms, which barely constrain the PSF offset: the
 #: supplement's own pair (section 7).
 DEFAULT_FIT_STATISTICS = ("apodisation_sigma_um", "defocus_sigma_um")
-_FITTABLE = (*DEFAULT_FIT, "ring_contrast", "phase_ring_width_scale", "gaussian_noise_sd_adu")
+#: Default of the partially coherent phase model (``phase_model="partially_coherent"``):
+#: the sample's phase, the plate and the shape of the pupil; the media level is
+#: solved exactly, the cells' and device's bright-field transmission kept.
+DEFAULT_FIT_PARTIALLY_COHERENT = (
+    "cell_phase_rad",
+    "plate_transmission",
+    "apodisation_sigma_um",
+    "phase_ring_width_scale",
+)
+_FITTABLE = (
+    *DEFAULT_FIT,
+    "ring_contrast",
+    "phase_ring_width_scale",
+    "cell_phase_rad",
+    "device_phase_rad",
+    "plate_transmission",
+    "plate_phase_rad",
+    "gaussian_noise_sd_adu",
+)
 #: Natural scale of each parameter: the optimiser works in these units.
 _SCALE = {
     "apodisation_sigma_um": 0.1,
@@ -62,6 +82,10 @@ _SCALE = {
     "ring_contrast": 0.1,
     "psf_offset": 0.05,
     "phase_ring_width_scale": 0.1,
+    "cell_phase_rad": 0.1,
+    "device_phase_rad": 0.1,
+    "plate_transmission": 0.03,
+    "plate_phase_rad": 0.1,
     "gaussian_noise_sd_adu": 10.0,
 }
 _INTENSITIES = ("cell_intensity", "media_intensity", "device_intensity")
@@ -141,16 +165,34 @@ class FitResult:
         return "\n".join(lines)
 
 
+def _sharp_ring_sigma_um(microscope: Microscope) -> float:
+    """Apodisation sigma whose pupil-edge softness is a tenth of the ring's half width."""
+    cond = CONDENSERS[microscope.condenser]
+    half = 0.5 * (cond.outer_fraction - cond.inner_fraction)
+    cutoff = microscope.numerical_aperture / microscope.wavelength_um
+    return 10.0 / (2 * math.pi * cutoff * half)
+
+
 def parameter_bounds(
-    name: str, microscope: Microscope, real_sd_adu: float = 1000.0
+    name: str,
+    microscope: Microscope,
+    real_sd_adu: float = 1000.0,
+    *,
+    coherent: bool = False,
 ) -> tuple[float, float]:
     """Physical bounds of a fitted parameter.
 
     The apodisation sigma cannot be below the diffraction bound of eq. 13,
     ``0.9 lambda n / (2 NA)``; defocus (eq. 14) is non-negative and, for a usable
-    recording, below half a micrometre. The plate's ring covers the annulus image
-    (width scale >= 1) and is at most three times as wide (wider rings block the
-    detail they are meant to pass). ``ring_contrast`` (the coupled model,
+    recording, below half a micrometre. The plate's ring width is relative to the
+    catalogue annulus of the condenser setting (:data:`~napari_symbac.settings.CONDENSERS`):
+    makers' rings differ from it, so from half to three times (wider rings block the
+    detail they are meant to pass; below half the ring would miss the direct light
+    of the annulus' own source points). In the partially coherent model the
+    apodisation sigma sets the softness of the pupil's and ring's edges,
+    ``1 / (2 pi sigma NA / lambda)`` in pupil units; beyond the sigma at which that is
+    a tenth of the ring's half width the edges are sharp and the image no longer
+    changes, which is its upper bound there. ``ring_contrast`` (the coupled model,
     ``gamma = P / (I_m - I_c)``) is the ratio of phase to bright-field contrast and
     has no finite physical bound when the cells barely absorb; ``[0, 3]`` is the
     range where it stays identifiable: beyond it give the phase signal its own
@@ -158,6 +200,8 @@ def parameter_bounds(
     """
     if name == "apodisation_sigma_um":
         low = microscope.min_apodisation_sigma_um if microscope.modality == "phase" else 0.05
+        if coherent:
+            return (low, max(3.0, _sharp_ring_sigma_um(microscope)))
         return (low, max(3.0, 4 * low))
     if name == "defocus_sigma_um":
         return (0.0, 0.5)
@@ -166,7 +210,19 @@ def parameter_bounds(
     if name == "psf_offset":
         return (-0.5, 0.5)
     if name == "phase_ring_width_scale":
-        return (1.0, 3.0)
+        return (0.5, 3.0)
+    if name in ("cell_phase_rad", "device_phase_rad"):
+        # 2 pi dn depth / lambda: dn <= 0.1 (cells in water; PDMS 1.41 vs 1.333
+        # is 0.08), depth <= 1.5 um, lambda >= 0.45 um.
+        return (0.0, 2.1)
+    if name == "plate_transmission":
+        # Intensity transmission of the ring: the darkest commercial plates pass
+        # ~3 %, an unattenuated ring (pure phase plate) 100 %.
+        return (0.02, 1.0)
+    if name == "plate_phase_rad":
+        # lambda/4 plates: pi/2 at the design wavelength, ~ +-50 % across the
+        # visible band.
+        return (math.pi / 4, 3 * math.pi / 4)
     if name == "gaussian_noise_sd_adu":
         return (0.0, max(5 * real_sd_adu, 1.0))
     raise ValueError(f"cannot fit {name!r}; fittable parameters are {', '.join(_FITTABLE)}")
@@ -304,7 +360,10 @@ def fit_parameters(
         labels = scene_classes(scene)
     real_classes = as_label_stack(labels, (1, *real.shape), required=required)[0]
     if fit is None:
-        fit = DEFAULT_FIT if pixel_mode else DEFAULT_FIT_STATISTICS
+        if microscope.modality == "phase" and render.phase_model == "partially_coherent":
+            fit = DEFAULT_FIT_PARTIALLY_COHERENT
+        else:
+            fit = DEFAULT_FIT if pixel_mode else DEFAULT_FIT_STATISTICS
     names = tuple(dict.fromkeys(fit))
     if render.noise_model == "gaussian" and not pixel_mode:
         names = (*names, "gaussian_noise_sd_adu") if "gaussian_noise_sd_adu" not in names else names
@@ -318,7 +377,12 @@ def fit_parameters(
     syn_classes = scene_classes(scene)
     real_sd = float(real.std())
     start = {n: float(getattr(render, n)) for n in names}
-    bounds = [parameter_bounds(n, microscope, real_sd) for n in names]
+    bounds = [
+        parameter_bounds(
+            n, microscope, real_sd, coherent=render.phase_model == "partially_coherent"
+        )
+        for n in names
+    ]
     for n, (lo, hi) in zip(names, bounds):
         start[n] = float(np.clip(start[n], lo, hi))
     z_lo = np.array([(lo - start[n]) / _SCALE[n] for n, (lo, _) in zip(names, bounds)])
@@ -327,12 +391,19 @@ def fit_parameters(
     noise_z = rng.standard_normal(scene.camera_shape)
     real_masks_for_terms = (real_classes, syn_classes)
 
-    separate = microscope.modality == "phase" and render.phase_separate
-    amplitude_names = (*_INTENSITIES, *(_PHASE_AMPLITUDES if separate else ()))
+    coherent = microscope.modality == "phase" and render.phase_model == "partially_coherent"
+    separate = microscope.modality == "phase" and render.phase_separate and not coherent
+    if coherent:
+        amplitude_names: tuple[str, ...] = ("media_intensity",)
+    else:
+        amplitude_names = (*_INTENSITIES, *(_PHASE_AMPLITUDES if separate else ()))
     n_amp = len(amplitude_names)
+    n_solved = 1 if coherent else 3  # solved by the class means; the rest kept
 
     def components(r: RenderSettings) -> np.ndarray:
         budget.tick()
+        if coherent:
+            return base.with_render(r).phase_image(scene)[None]
         comps = base.with_render(r).components(scene)
         parts = [comps["cells"], comps["media"], comps["device"]]
         if separate:
@@ -340,6 +411,8 @@ def fit_parameters(
         return np.stack(parts).astype(np.float64)
 
     def amplitudes(r: RenderSettings) -> np.ndarray:
+        if coherent:
+            return np.array([r.media_intensity], np.float64)
         values = [getattr(r, k) for k in _INTENSITIES]
         if separate:
             values += list(r.phase_amplitudes())
@@ -348,18 +421,28 @@ def fit_parameters(
     def solve_class_means(a: np.ndarray, r: RenderSettings) -> np.ndarray:
         # Class means pin the three intensities; the phase amplitudes (if separate)
         # stay at their values, their image subtracted from the target.
-        fixed = amplitudes(r)[3:]
+        fixed = amplitudes(r)[n_solved:]
         rows, rhs = [], []
         for _cname, value in CLASS_VALUES.items():
             rmask = real_classes == value
             smask = syn_classes == value
             if rmask.any() and smask.any():
                 means = a[:, smask].mean(axis=1)
-                rows.append(means[:3])
-                rhs.append(real[rmask].mean() - camera.baseline_adu - means[3:] @ fixed)
+                rows.append(means[:n_solved])
+                rhs.append(real[rmask].mean() - camera.baseline_adu - means[n_solved:] @ fixed)
         return np.concatenate([_nnls(np.array(rows), np.array(rhs)), fixed])
 
     def with_intensities(r: RenderSettings, intens: np.ndarray) -> RenderSettings:
+        if coherent:
+            # the media level scales the image; the cells' and device's bright-field
+            # transmission (their ratios to it) stay as they were
+            scale = float(intens[0]) / r.media_intensity
+            return dataclasses.replace(
+                r,
+                cell_intensity=r.cell_intensity * scale,
+                media_intensity=float(intens[0]),
+                device_intensity=r.device_intensity * scale,
+            )
         return dataclasses.replace(r, **{k: float(v) for k, v in zip(amplitude_names, intens)})
 
     def synthetic(r: RenderSettings, a: np.ndarray, noisy: bool) -> np.ndarray:
@@ -425,12 +508,16 @@ def fit_parameters(
             current = with_intensities(current, intens)
             clean = (am @ intens).reshape(real.shape)
             if render.noise_model == "gaussian":
-                sd = float(np.sqrt(max(np.mean((y - clean) ** 2) - 1 / 12, 0.0)))
+                # The noise of the recording, not the model's misfit: a robust
+                # estimate from pixel-to-pixel differences (smooth misfit cancels).
+                sd = float(np.sqrt(max(noise_variance(real) - 1 / 12, 0.0)))
                 current = dataclasses.replace(current, gaussian_noise_sd_adu=sd)
             var = _variance(clean, current, camera)
         final = current
         a_final = components(final)
         terms_after = all_terms(final, a_final, var)
+        # before and after weighed with one variance, so they compare
+        terms_before = all_terms(render, a0, var)
         residual_image = (real - synthetic(final, a_final, False)).astype(np.float32)
     else:
 

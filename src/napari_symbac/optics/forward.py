@@ -20,6 +20,14 @@ Stages, in order:
    composed image, so changing an intensity only recombines cached arrays.
 3. any ``extra_stages`` (pointwise effects found by fitting / diagnosis).
 4. ``camera`` (eq. 17): noise, baseline, rounding and clipping to the bit depth.
+
+With ``RenderSettings.phase_model = "partially_coherent"`` stages 1-2 are one
+nonlinear stage, ``phase_image``: the sample's complex transmission imaged through
+the condenser annulus and the phase plate
+(:func:`~napari_symbac.optics.partial_coherence.annular_phase_image`), the defocus
+of eq. 14 as a Gaussian blur of that image, the area average to camera pixels and
+the media level. Nothing is cached per component there (the image is not linear
+in the scene).
 """
 
 from __future__ import annotations
@@ -34,6 +42,7 @@ import numpy as np
 
 from napari_symbac.optics.backends import ConvolutionBackend, get_backend
 from napari_symbac.optics.camera import apply_camera_noise, apply_gaussian_noise, quantise
+from napari_symbac.optics.partial_coherence import annular_phase_image
 from napari_symbac.optics.psf import (
     airy_psf,
     defocus,
@@ -199,21 +208,119 @@ class ForwardModel:
             intensity_params.update(
                 cell_phase_adu=r.phase_amplitudes()[0], device_phase_adu=r.phase_amplitudes()[1]
             )
+        if m.modality == "phase" and r.phase_model == "partially_coherent":
+            return (
+                Stage(
+                    "phase_image",
+                    False,
+                    {
+                        "wavelength_um": m.wavelength_um,
+                        "numerical_aperture": m.numerical_aperture,
+                        "condenser": m.condenser,
+                        "upsample": r.upsample,
+                        "cell_phase_rad": r.cell_phase_rad,
+                        "device_phase_rad": r.device_phase_rad,
+                        "plate_transmission": r.plate_transmission,
+                        "plate_phase_rad": r.plate_phase_rad,
+                        "phase_ring_width_scale": r.phase_ring_width_scale,
+                        "apodisation_sigma_um": r.apodisation_sigma_um,
+                        "defocus_sigma_um": r.defocus_sigma_um,
+                        "source_points": r.source_points,
+                        **intensity_params,
+                    },
+                ),
+                *self.extra_stages,
+                self._camera_stage(),
+            )
         return (
             Stage("psf", True, psf_params),
             Stage("resample", True, {"upsample": r.upsample}),
             Stage("intensity", False, intensity_params),
             *self.extra_stages,
-            Stage(
-                "camera",
-                False,
-                {
-                    "noise_model": r.noise_model,
-                    **_camera_dict(self.camera),
-                    "gaussian_noise_sd_adu": r.gaussian_noise_sd_adu,
-                },
-            ),
+            self._camera_stage(),
         )
+
+    def _camera_stage(self) -> Stage:
+        r = self.render_settings
+        return Stage(
+            "camera",
+            False,
+            {
+                "noise_model": r.noise_model,
+                **_camera_dict(self.camera),
+                "gaussian_noise_sd_adu": r.gaussian_noise_sd_adu,
+            },
+        )
+
+    @property
+    def partially_coherent(self) -> bool:
+        """Whether the phase image is formed by the partially coherent model."""
+        return (
+            self.microscope.modality == "phase"
+            and self.render_settings.phase_model == "partially_coherent"
+        )
+
+    def phase_image(self, scene: Any) -> np.ndarray:
+        """The ``phase_image`` stage: camera-resolution image, 1 = empty field (float64).
+
+        Only for ``phase_model="partially_coherent"``; the scene's border (at least
+        the PSF radius) pads the sample against the FFT's wrap-around.
+        """
+        if not self.partially_coherent:
+            raise ValueError(
+                "phase_image needs RenderSettings.phase_model='partially_coherent' and a "
+                "phase microscope"
+            )
+        self._check_scene(scene)
+        m, r = self.microscope, self.render_settings
+        if r.media_intensity <= 0:
+            raise ValueError(
+                "the partially coherent model needs media_intensity > 0 (the level of the "
+                "empty field)"
+            )
+        key = (
+            "phase_image",
+            scene.fingerprints["cells"],
+            scene.fingerprints["device"],
+            self._kernel_key(scene.pixel_size_um),
+            r.cell_intensity / r.media_intensity,
+            r.device_intensity / r.media_intensity,
+            r.cell_phase_rad,
+            r.device_phase_rad,
+            r.plate_transmission,
+            r.plate_phase_rad,
+            r.source_points,
+        )
+        cached = self._cache.get(key)
+        if cached is not None:
+            return cached
+        b = (
+            r.cell_intensity * scene.cells.astype(np.float64)
+            + r.media_intensity * scene.media
+            + r.device_intensity * scene.device
+        ) / r.media_intensity
+        phi = r.cell_phase_rad * scene.cells.astype(np.float64)
+        phi += r.device_phase_rad * scene.device
+        image = annular_phase_image(
+            b,
+            phi,
+            scene.pixel_size_um,
+            m.wavelength_um,
+            m.numerical_aperture,
+            m.condenser,
+            r.plate_transmission,
+            r.plate_phase_rad,
+            r.apodisation_sigma_um,
+            r.phase_ring_width_scale,
+            r.source_points,
+        )
+        if r.defocus_sigma_um > 0:
+            from scipy.ndimage import gaussian_filter
+
+            image = gaussian_filter(image, r.defocus_sigma_um / scene.pixel_size_um)
+        out = block_average(scene.interior(image), scene.upsample).astype(np.float64)
+        self._cache.put(key, out)
+        return out
 
     def with_render(self, render: RenderSettings) -> ForwardModel:
         """A model with new render settings sharing this one's caches.
@@ -397,6 +504,11 @@ class ForwardModel:
         With separate phase amplitudes also ``cells_phase`` and ``device_phase``: cells
         and device through the ring kernel.
         """
+        if self.partially_coherent:
+            raise ValueError(
+                "the partially coherent phase model is not a sum of convolved components: "
+                "use phase_image() or render_clean()"
+            )
         self._check_scene(scene)
         kkey = self._kernel_key(scene.pixel_size_um)
         out = self._convolved(scene, COMPONENTS, self.kernel(scene.pixel_size_um), kkey)
@@ -440,10 +552,13 @@ class ForwardModel:
         where every frame is new) the components are weighted first and the
         composed image is convolved once (eq. 3 and 15 are linear): one transform
         pair per frame instead of one per changed component, no cache traffic.
-        Both give the same image up to float32 rounding.
+        Both give the same image up to float32 rounding. The partially coherent
+        phase model has one path (:meth:`phase_image` times ``media_intensity``).
         """
         r = self.render_settings
-        if cache:
+        if self.partially_coherent:
+            image = (r.media_intensity * self.phase_image(scene)).astype(np.float32)
+        elif cache:
             comps = self.components(scene)
             image = (
                 np.float32(r.cell_intensity) * comps["cells"]
