@@ -176,21 +176,62 @@ class AgarPadGeometry:
     """An open agar-pad field in which a monolayer colony grows (supplement 13.2).
 
     Coordinates of cells are measured from the top-left corner of the field (x to the
-    right, y down the image rows); founders start at the centre. There are no walls:
-    cells whose centre leaves the field are removed (fate ``"exited"``), which also
-    bounds the cost of a long run.
+    right, y down the image rows). With one colony and no scattered cells (the
+    default) the founders start in a small grid at the centre; otherwise the
+    ``SimulationSettings.n_founders`` founders are shared out over ``n_colonies``
+    colonies whose centres are drawn at random over the field (the run's seed), and
+    ``scattered_cells`` more founders are dropped alone at random places, as on a
+    real pad. There are no walls: cells whose centre leaves the field are removed
+    (fate ``"exited"``), which also bounds the cost of a long run.
+
+    Colony size is set by the founders per colony and the number of frames; density
+    by ``founder_spacing_um`` (founders further apart leave gaps the colony fills
+    later) and by ``SimulationSettings.gravity`` (towards the field centre).
 
     Parameters
     ----------
     field_width_um, field_height_um
         Size of the simulated field of view.
+    n_colonies
+        Colonies the founders are shared between (at least 1, at most
+        ``n_founders``).
+    scattered_cells
+        Extra founders placed alone, each at least ``colony_separation_um`` from
+        every colony centre and half of it from each other.
+    founder_spacing_um
+        Distance between the founders of one colony; 0 means the mean division
+        length (``cell_max_length_um``).
+    colony_separation_um
+        Smallest distance between two colony centres.
+    edge_margin_um
+        Colony centres and scattered cells stay this far inside the field.
     """
 
     field_width_um: float = 40.0
     field_height_um: float = 40.0
+    n_colonies: int = 1
+    scattered_cells: int = 0
+    founder_spacing_um: float = 0.0
+    colony_separation_um: float = 10.0
+    edge_margin_um: float = 3.0
 
     def __post_init__(self) -> None:
         _positive(self, "field_width_um", "field_height_um")
+        _non_negative(self, "founder_spacing_um", "colony_separation_um", "edge_margin_um")
+        _require(
+            isinstance(self.n_colonies, int) and self.n_colonies >= 1,
+            f"AgarPadGeometry.n_colonies must be an integer >= 1, got {self.n_colonies!r}",
+        )
+        _require(
+            isinstance(self.scattered_cells, int) and self.scattered_cells >= 0,
+            "AgarPadGeometry.scattered_cells must be an integer >= 0, got "
+            f"{self.scattered_cells!r}",
+        )
+        _require(
+            2 * self.edge_margin_um < min(self.field_width_um, self.field_height_um),
+            f"AgarPadGeometry.edge_margin_um={self.edge_margin_um} leaves no room in a "
+            f"{self.field_width_um} x {self.field_height_um} um field: lower it",
+        )
 
 
 @dataclass(frozen=True)
@@ -540,9 +581,9 @@ class RenderSettings:
         its halo reaches ``~ lambda / (W NA)``, several um, so give it a
         ``psf_radius_px`` of a few um).
     phase_ring_width_scale
-        Width of the phase plate's ring over the width of the condenser annulus'
-        image (>= 1, at most 3; ``"annulus"`` model only). Wider rings pass fewer
-        low frequencies: a narrower halo.
+        Width of the phase plate's ring over the width of the condenser's catalogue
+        annulus (:data:`CONDENSERS`), 0.5-3 (makers differ); the ring stays centred
+        on the annulus. Wider rings pass fewer low frequencies: a narrower halo.
     cell_phase_adu, device_phase_adu
         Phase signal of a full-depth column of cells (device) against media, in ADU:
         ``I_0 (2 sin(theta) / a) 2 pi (n - n_media) depth / lambda`` for a plate of
@@ -667,9 +708,9 @@ class RenderSettings:
         )
         _require(
             isinstance(self.phase_ring_width_scale, (int, float))
-            and 1.0 <= self.phase_ring_width_scale <= 3.0,
-            "RenderSettings.phase_ring_width_scale must be in [1, 3] (the plate ring covers "
-            f"the annulus image), got {self.phase_ring_width_scale!r}",
+            and 0.5 <= self.phase_ring_width_scale <= 3.0,
+            "RenderSettings.phase_ring_width_scale must be in [0.5, 3] (relative to the "
+            f"condenser's catalogue annulus), got {self.phase_ring_width_scale!r}",
         )
         for name in ("cell_phase_adu", "device_phase_adu"):
             value = getattr(self, name)

@@ -77,7 +77,7 @@ def annular_phase_image(
         ``sigma`` of eq. 11-12 (image-space Gaussian): soft pupil and ring edges of
         width ``1 / (2 pi sigma)`` in spatial frequency.
     ring_width_scale
-        Plate ring width over the annulus image's width (>= 1).
+        Plate ring width over the catalogue annulus width (>= 0.5).
     n_source_points
         Points of the annulus summed (angles x 2 radii).
 
@@ -101,8 +101,8 @@ def annular_phase_image(
         raise ValueError(f"plate_phase_rad must be finite, got {plate_phase_rad!r}")
     if not (math.isfinite(apodisation_sigma_um) and apodisation_sigma_um > 0):
         raise ValueError(f"apodisation_sigma_um must be positive, got {apodisation_sigma_um!r}")
-    if not (math.isfinite(ring_width_scale) and ring_width_scale >= 1):
-        raise ValueError(f"ring_width_scale must be >= 1, got {ring_width_scale!r}")
+    if not (math.isfinite(ring_width_scale) and ring_width_scale >= 0.5):
+        raise ValueError(f"ring_width_scale must be >= 0.5, got {ring_width_scale!r}")
     if pixel_size_um > wavelength_um / (4 * numerical_aperture) * 1.0001:
         raise ValueError(
             f"pixel size {pixel_size_um} um does not sample the image band of NA "

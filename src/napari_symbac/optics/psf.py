@@ -177,9 +177,10 @@ def annulus_transfer_function(
     condenser
         The annulus radii ``R - W`` and ``R`` (eq. 7) as fractions of the pupil.
     ring_width_scale
-        Width of the plate's ring over the width of the annulus image it must cover
-        (>= 1; plates are made wider than the annulus image for alignment
-        tolerance); the ring stays centred on the annulus.
+        Width of the plate's ring over the condenser's catalogue annulus width
+        (>= 0.5: the ring must hold the direct light of the source points, which sit
+        at a quarter of the annulus width either side of its centre line); the ring
+        stays centred on the annulus.
     n_source_points
         Source points on the annulus (angles x 2 radii).
 
@@ -194,10 +195,10 @@ def annulus_transfer_function(
         wavelength_um=wavelength_um,
         numerical_aperture=numerical_aperture,
     )
-    if not (math.isfinite(ring_width_scale) and ring_width_scale >= 1):
+    if not (math.isfinite(ring_width_scale) and ring_width_scale >= 0.5):
         raise ValueError(
-            f"ring_width_scale must be >= 1 (the plate ring covers the annulus image), "
-            f"got {ring_width_scale!r}"
+            f"ring_width_scale must be >= 0.5 (the ring must hold the direct light of the "
+            f"annulus' source points), got {ring_width_scale!r}"
         )
     if n_source_points < 8:
         raise ValueError(f"n_source_points must be at least 8, got {n_source_points!r}")
