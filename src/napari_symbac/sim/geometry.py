@@ -52,6 +52,9 @@ class Layout:
     box_walls_um
         ``(left, right)`` x of the side walls of a trench or chamber (closed end at
         y = 0), or ``None``.
+    gravity_centres_um
+        Agar pad: the colony centres and scattered founders' places; gravity pulls
+        each cell towards the nearest (empty: ``gravity_centre_um`` alone).
     flow
         How growth pushes cells: ``"axial"`` along the trench from its closed end, or
         ``"radial"`` out from the colony's centroid, or ``"none"`` (contacts only).
@@ -65,6 +68,7 @@ class Layout:
     max_width_um: float
     flow: str = "axial"
     box_walls_um: tuple[float, float] | None = None
+    gravity_centres_um: tuple[tuple[float, float], ...] = ()
 
 
 def _row(centre_x: float, y: float, n: int, spacing: float) -> list[tuple[float, float]]:
@@ -118,9 +122,18 @@ def make_layout(settings: SimulationSettings, rng: np.random.Generator) -> Layou
     if s.geometry == "agar_pad":
         pad = s.agar_pad
         fw, fh = pad.field_width_um, pad.field_height_um
-        spots = _agar_pad_spots(pad, n, s.cell_max_length_um, rng)
+        spots, centres = _agar_pad_spots(pad, n, s.cell_max_length_um, rng)
         founders = tuple((x, y, float(rng.uniform(-math.pi, math.pi))) for x, y in spots)
-        return Layout((), (), (0.0, 0.0, fw, fh), founders, (fw / 2, fh / 2), math.inf, "none")
+        return Layout(
+            (),
+            (),
+            (0.0, 0.0, fw, fh),
+            founders,
+            (fw / 2, fh / 2),
+            math.inf,
+            "none",
+            gravity_centres_um=centres,
+        )
 
     # outline
     lines = outline_polylines_um(s.outline)
@@ -227,8 +240,8 @@ def _grid(centre: tuple[float, float], n: int, spacing: float) -> list[tuple[flo
 
 def _agar_pad_spots(
     pad: AgarPadGeometry, n: int, max_length_um: float, rng: np.random.Generator
-) -> list[tuple[float, float]]:
-    """Founder positions on an agar pad: colonies at random centres, scattered cells.
+) -> tuple[list[tuple[float, float]], tuple[tuple[float, float], ...]]:
+    """Founder positions on an agar pad, and the colony centres and scattered places.
 
     One colony without scattered cells keeps the centred grid (no random draw).
     Otherwise colony centres and scattered cells are drawn uniformly inside the
@@ -244,7 +257,7 @@ def _agar_pad_spots(
             f"n_founders={n}: every colony needs a founder; raise n_founders"
         )
     if pad.n_colonies == 1 and pad.scattered_cells == 0:
-        return _grid((fw / 2, fh / 2), n, spacing)
+        return _grid((fw / 2, fh / 2), n, spacing), ((fw / 2, fh / 2),)
     m = pad.edge_margin_um
     placed: list[tuple[float, float, float]] = []  # x, y, exclusion radius
 
@@ -269,5 +282,5 @@ def _agar_pad_spots(
         spots.append(
             draw(pad.colony_separation_um / 2, f"scattered cell {i + 1} of {pad.scattered_cells}")
         )
-    return spots
+    return spots, tuple((x, y) for x, y, _ in placed)
 
