@@ -400,8 +400,9 @@ class Simulator:
         * Agar pad: no prediction (an isotropic dilation would also widen the gaps
           of a loose colony); pymunk's contacts push the cells apart.
 
-        Gravity on the agar pad pulls towards (negative: away from) the field
-        centre, in the other 2D geometries along -y (negative: +y).
+        Gravity on the agar pad pulls each cell towards (negative: away from) the
+        nearest colony centre or scattered founder's place (one colony: the field
+        centre), in the other 2D geometries along -y (negative: +y).
         """
         velocity = np.zeros_like(pos)
         if self.layout.flow in ("radial", "none"):
@@ -413,8 +414,13 @@ class Simulator:
                 # walled 2D geometries: gravity acts along the y axis
                 velocity[:, 1] -= drift * (GRAVITY_COMPRESSION if drift > 0 else 1.0)
             elif drift != 0:
-                centre = np.asarray(self.layout.gravity_centre_um)
-                d = centre - pos
+                # each cell is pulled to the nearest centre (its own colony's)
+                centres = np.asarray(
+                    self.layout.gravity_centres_um or (self.layout.gravity_centre_um,)
+                )
+                offsets = centres[None, :, :] - pos[:, None, :]
+                nearest = np.argmin(np.hypot(offsets[..., 0], offsets[..., 1]), axis=1)
+                d = offsets[np.arange(len(pos)), nearest]
                 dist = np.hypot(d[:, 0], d[:, 1])
                 unit = d / np.where(dist > 0, dist, 1.0)[:, None]
                 if drift > 0:
