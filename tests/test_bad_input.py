@@ -153,6 +153,18 @@ def test_export_scheduler_that_does_not_answer(tmp_path, export_config, monkeypa
     assert time.monotonic() - start < 60  # not the 30 s default per attempt, retried
 
 
+def test_export_scheduler_address_that_is_not_one(tmp_path, export_config, capsys):
+    out = tmp_path / "dataset"
+    code, err = _run(
+        ["export", "--config", str(export_config), "--out", str(out), "--scheduler", "nohost"],
+        capsys,
+    )
+    assert code == 2
+    assert "the scheduler address 'nohost' is not a dask address" in err
+    assert "tcp://10.0.0.5:8786" in err
+    assert not out.exists()
+
+
 def test_export_disk_full_names_path(tmp_path, export_config, monkeypatch, capsys):
     monkeypatch.setattr(tifffile, "imwrite", _enospc)
     out = tmp_path / "dataset"
@@ -287,6 +299,23 @@ def test_empty_config_is_an_error(tmp_path, text, capsys):
     assert f"settings file {config} is empty" in err
     assert "napari-symbac defaults" in err
     assert not out.exists()
+
+
+def test_config_that_is_a_folder(tmp_path, capsys):
+    code, err = _run(["simulate", "--config", str(tmp_path), "--out", "x"], capsys)
+    assert code == 2
+    assert f"settings file {tmp_path} is a folder" in err
+
+
+def test_unwritable_output_names_path_and_fix(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    out = blocker / "demo"  # a folder inside a file cannot be made
+    code, err = _run(["demo", "--out", str(out), "--frames", "2"], capsys)
+    assert code == 2
+    assert str(out) in err
+    assert "check that the path is right" in err
+    assert blocker.read_text() == "x"
 
 
 def test_missing_config_names_file(tmp_path, capsys):

@@ -419,10 +419,14 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _one_line(err: BaseException) -> str:
-    """The error's message on one line, with the file name an OSError carries."""
+    """The error's message on one line; a bare OSError gets its path and a fix."""
     text = str(err)
-    if isinstance(err, OSError) and err.filename and str(err.filename) not in text:
-        text = f"{text} ({err.filename})"
+    if isinstance(err, OSError) and err.strerror and text.startswith("[Errno"):
+        where = err.filename or "the path given"
+        text = (
+            f"{err.strerror}: {where}; check that the path is right, that its folder "
+            "exists and that you may write there"
+        )
     return " ".join(text.split()) or type(err).__name__
 
 

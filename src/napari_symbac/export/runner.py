@@ -293,10 +293,7 @@ def connect_scheduler(address: str, timeout_s: float | None = None) -> Any:
     from distributed import Client
 
     timeout_s = SCHEDULER_TIMEOUT_S if timeout_s is None else timeout_s
-    if not isinstance(address, str) or not address.strip():
-        raise ValueError(
-            f"scheduler must be an address such as 'tcp://10.0.0.5:8786', got {address!r}"
-        )
+    _check_scheduler_address(address)
     quiet = logging.getLogger("distributed")
     level = quiet.level
     quiet.setLevel(logging.CRITICAL + 1)
@@ -311,6 +308,24 @@ def connect_scheduler(address: str, timeout_s: float | None = None) -> Any:
         ) from err
     finally:
         quiet.setLevel(level)
+
+
+def _check_scheduler_address(address: object) -> None:
+    """Refuse an address dask cannot parse, before a client is built for it."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    example = "such as tcp://10.0.0.5:8786"
+    if not isinstance(address, str) or not address.strip():
+        raise ValueError(f"the scheduler address must be text {example}, got {address!r}")
+    try:
+        protocol, location = parse_address(address)
+        if protocol in ("tcp", "tls"):
+            parse_host_port(location)
+    except ValueError as err:
+        raise ValueError(
+            f"the scheduler address {address!r} is not a dask address ({err}): give one "
+            f"{example}"
+        ) from err
 
 
 def check_workers(workers: int | None) -> int:
