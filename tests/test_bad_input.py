@@ -281,6 +281,18 @@ def test_simulate_huge_run_asks_for_yes(tmp_path, capsys):
     assert not out.exists()
 
 
+def test_yes_starts_a_large_run(tmp_path, monkeypatch, capsys):
+    from napari_symbac import cli
+
+    monkeypatch.setattr(cli, "LARGE_RUN_FRAMES", 2)
+    out = tmp_path / "simulation"
+    code, err = _run(["simulate", "--frames", "3", "--out", str(out)], capsys)
+    assert code == 2
+    assert "add --yes" in err
+    assert main(["simulate", "--frames", "3", "--out", str(out), "--yes"]) == 0
+    assert (out / "simulation.json").is_file()
+
+
 def test_simulate_huge_config_asks_for_yes(tmp_path, capsys):
     config = tmp_path / "simulation.yaml"
     config.write_text("n_frames: 10000000\n")

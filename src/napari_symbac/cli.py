@@ -66,9 +66,9 @@ def _confirm_large_run(frames: int, what: str, yes: bool) -> None:
         return
     hours = frames / _FRAMES_PER_S / 3600
     raise ValueError(
-        f"{what} means {frames:,} simulated and rendered frames, roughly {hours:,.1f} h at "
-        f"~{_FRAMES_PER_S:g} frames/s on a 2-core machine: add --yes to start it anyway, or "
-        "lower the number of frames"
+        f"{what} is roughly {hours:,.1f} h of work ({frames:,} frames to simulate or render "
+        f"at ~{_FRAMES_PER_S:g} frames/s on a 2-core machine): add --yes to start it "
+        "anyway, or lower the number of frames"
     )
 
 
