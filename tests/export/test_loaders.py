@@ -330,3 +330,29 @@ def test_napari_writer_keeps_pixel_size_and_labels(tmp_path):
     np.testing.assert_array_equal(data, labels[0])
     with pytest.raises(ValueError, match="one image layer and one labels layer"):
         write_dataset(str(tmp_path / "other"), layers[:1])
+
+
+def test_render_command_writes_calibrated_tiffs(tmp_path):
+    from napari_symbac.cli import main
+    from napari_symbac.io import napari_get_reader, read_recording
+    from napari_symbac.settings import PipelineSettings
+
+    assert main(["simulate", "--frames", "3", "--out", str(tmp_path / "sim")]) == 0
+    assert main(["render", str(tmp_path / "sim"), "--out", str(tmp_path / "r")]) == 0
+    pixel = PipelineSettings().microscope.pixel_size_um
+    kinds = {}
+    for name in ("images", "labels", "semantic"):
+        path = str(tmp_path / "r" / f"{name}.tif")
+        assert read_recording(path).pixel_size_um == pytest.approx(pixel, rel=1e-6)
+        [(data, meta, kinds[name])] = napari_get_reader(path)(path)
+        assert data.shape[0] == 3
+        assert meta["scale"] == pytest.approx((1.0, pixel, pixel))
+    assert kinds == {"images": "image", "labels": "labels", "semantic": "labels"}
+    with tifffile.TiffFile(tmp_path / "r" / "images.tif") as tif:
+        frame_s = 60 * PipelineSettings().simulation.frame_interval_min
+        assert tif.imagej_metadata["finterval"] == pytest.approx(frame_s)
+    assert sorted(p.name for p in (tmp_path / "r").iterdir()) == [
+        "images.tif",
+        "labels.tif",
+        "semantic.tif",
+    ]
