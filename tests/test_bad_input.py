@@ -129,9 +129,9 @@ def test_api_workers_below_one(tmp_path, workers):
 
 
 def test_export_scheduler_that_does_not_answer(tmp_path, export_config, monkeypatch, capsys):
-    from napari_symbac.export import runner
+    from napari_symbac.export import cluster
 
-    monkeypatch.setattr(runner, "SCHEDULER_TIMEOUT_S", 2.0)
+    monkeypatch.setattr(cluster, "SCHEDULER_TIMEOUT_S", 2.0)
     out = tmp_path / "dataset"
     start = time.monotonic()
     code, err = _run(
