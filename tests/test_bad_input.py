@@ -177,6 +177,34 @@ def test_export_disk_full_names_path(tmp_path, export_config, monkeypatch, capsy
     assert not list(out.rglob("*.tif"))
 
 
+@pytest.mark.parametrize(
+    ("code", "message"),
+    [
+        (errno.EACCES, "permission denied while writing"),
+        (errno.EROFS, "is on a read-only file system: choose an output folder on a writable"),
+        (errno.EDQUOT, "the disk is full"),
+        (errno.EIO, "could not write"),
+    ],
+)
+def test_export_write_errors_name_path_and_fix(
+    tmp_path, export_config, monkeypatch, capsys, code, message
+):
+    def refuse(*_args, **_kwargs):
+        raise OSError(code, os.strerror(code))
+
+    monkeypatch.setattr(tifffile, "imwrite", refuse)
+    out = tmp_path / "dataset"
+    exit_code, err = _run(
+        ["export", "--config", str(export_config), "--out", str(out), "--workers", "1"], capsys
+    )
+    assert exit_code == 2
+    assert message in err
+    assert str(out / "tiff") in err
+    assert "run the same export again" in err
+    assert err.count("\n") == 1  # one line
+    assert not list(out.rglob("*.tif"))
+
+
 def test_export_huge_run_asks_for_yes(tmp_path, capsys):
     config = tmp_path / "export.yaml"
     save_settings(ExportSettings(n_items=LARGE_RUN_FRAMES + 1, formats=["tiff"]), config)
