@@ -171,6 +171,19 @@ def test_trackmate_settings_and_image_beside_it(series_export, series_items_):
     }
     for spot in root.iter("Spot"):
         assert declared <= set(spot.attrib)
+    # what TrackMate 7's TmXmlReader parses: dimensions of its Dimension enum, every
+    # spot, edge and track attribute but the names a number, a GUI state
+    dimensions = {"NONE", "QUALITY", "COST", "INTENSITY", "POSITION", "LENGTH", "AREA", "TIME"}
+    for feature in root.iter("Feature"):
+        assert feature.get("dimension") in dimensions
+        assert feature.get("isint") in ("true", "false")
+    for element in (*root.iter("Spot"), *root.iter("Edge"), *root.iter("Track")):
+        for key, value in element.attrib.items():
+            if key != "name":
+                float(value)
+    assert root.find("GUIState") is not None
+    filtered = {t.get("TRACK_ID") for t in root.iter("TrackID")}
+    assert filtered == {t.get("TRACK_ID") for t in root.iter("Track")}
     image_data = settings.find("ImageData")
     stack_path = xml.parent / image_data.get("folder") / image_data.get("filename")
     with tifffile.TiffFile(stack_path) as tif:
