@@ -19,7 +19,7 @@ from napari_symbac.export import (
     load_export_settings,
     regenerate,
 )
-from napari_symbac.export.dataset import PipelineSource, _simulation, split_of
+from napari_symbac.export.dataset import PipelineSource, _simulation, sequence_of, split_of
 from napari_symbac.settings import PipelineSettings, SimulationSettings, save_settings, to_dict
 
 PIPELINE = PipelineSettings(simulation=SimulationSettings(n_frames=10))
@@ -83,6 +83,14 @@ def test_split_is_exact_and_seeded():
         if split_of(_settings(n_items=50, val_fraction=0.2, seed=8), u) == "val"
     ]
     assert other != val
+
+
+def test_sequences_are_numbered_per_split():
+    """CTC needs 01, 02, ... in each split: sequence_of ranks a unit within its split."""
+    settings = _settings(n_items=40, val_fraction=0.3)
+    for split in ("train", "val"):
+        units = [u for u in range(40) if split_of(settings, u) == split]
+        assert [sequence_of(settings, u) for u in units] == list(range(len(units)))
 
 
 @pytest.fixture(scope="module")
