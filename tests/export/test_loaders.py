@@ -369,3 +369,14 @@ def test_render_command_writes_calibrated_tiffs(tmp_path):
         "labels.tif",
         "semantic.tif",
     ]
+
+
+def test_weight_png_never_has_a_maximum_of_255():
+    """DeLTA divides an image whose maximum is 255 by 255; weights must not be read so."""
+    from napari_symbac.export.weights import to_weight_png
+
+    stored = to_weight_png(np.array([[1.0, 2.55], [2.0, 1.5]]))
+    assert stored.max() == 256
+    np.testing.assert_array_equal(stored.ravel()[[0, 2, 3]], [100, 200, 150])
+    with pytest.raises(ValueError, match="16-bit PNG"):
+        to_weight_png(np.array([[-1.0]]))
