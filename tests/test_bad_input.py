@@ -129,9 +129,9 @@ def test_api_workers_below_one(tmp_path, workers):
 
 
 def test_export_scheduler_that_does_not_answer(tmp_path, export_config, monkeypatch, capsys):
-    from napari_symbac.export import runner
+    from napari_symbac.export import cluster
 
-    monkeypatch.setattr(runner, "SCHEDULER_TIMEOUT_S", 2.0)
+    monkeypatch.setattr(cluster, "SCHEDULER_TIMEOUT_S", 2.0)
     out = tmp_path / "dataset"
     start = time.monotonic()
     code, err = _run(
@@ -153,6 +153,18 @@ def test_export_scheduler_that_does_not_answer(tmp_path, export_config, monkeypa
     assert time.monotonic() - start < 60  # not the 30 s default per attempt, retried
 
 
+def test_export_scheduler_address_that_is_not_one(tmp_path, export_config, capsys):
+    out = tmp_path / "dataset"
+    code, err = _run(
+        ["export", "--config", str(export_config), "--out", str(out), "--scheduler", "nohost"],
+        capsys,
+    )
+    assert code == 2
+    assert "the scheduler address 'nohost' is not a dask address" in err
+    assert "tcp://10.0.0.5:8786" in err
+    assert not out.exists()
+
+
 def test_export_disk_full_names_path(tmp_path, export_config, monkeypatch, capsys):
     monkeypatch.setattr(tifffile, "imwrite", _enospc)
     out = tmp_path / "dataset"
@@ -162,6 +174,34 @@ def test_export_disk_full_names_path(tmp_path, export_config, monkeypatch, capsy
     assert code == 2
     assert "disk is full" in err
     assert str(out / "tiff") in err
+    assert not list(out.rglob("*.tif"))
+
+
+@pytest.mark.parametrize(
+    ("code", "message"),
+    [
+        (errno.EACCES, "permission denied while writing"),
+        (errno.EROFS, "is on a read-only file system: choose an output folder on a writable"),
+        (errno.EDQUOT, "the disk is full"),
+        (errno.EIO, "could not write"),
+    ],
+)
+def test_export_write_errors_name_path_and_fix(
+    tmp_path, export_config, monkeypatch, capsys, code, message
+):
+    def refuse(*_args, **_kwargs):
+        raise OSError(code, os.strerror(code))
+
+    monkeypatch.setattr(tifffile, "imwrite", refuse)
+    out = tmp_path / "dataset"
+    exit_code, err = _run(
+        ["export", "--config", str(export_config), "--out", str(out), "--workers", "1"], capsys
+    )
+    assert exit_code == 2
+    assert message in err
+    assert str(out / "tiff") in err
+    assert "run the same export again" in err
+    assert err.count("\n") == 1  # one line
     assert not list(out.rglob("*.tif"))
 
 
@@ -180,7 +220,7 @@ def test_ctrl_c_during_multi_worker_export(tmp_path):
     """Ctrl-C (SIGINT to the whole process group, as a terminal sends it): one line, 130."""
     config = tmp_path / "export.yaml"
     save_settings(
-        ExportSettings(n_items=600, formats=["tiff"], pipeline=TINY, val_fraction=0), config
+        ExportSettings(n_items=300, formats=["tiff"], pipeline=TINY, val_fraction=0), config
     )
     out = tmp_path / "dataset"
     command = [sys.executable, "-m", "napari_symbac.cli", "export", "--config", str(config)]
@@ -208,13 +248,13 @@ def test_ctrl_c_during_multi_worker_export(tmp_path):
         "when run again)"
     ]
     done = len(os.listdir(items))
-    assert 4 <= done < 600
+    assert 4 <= done < 300
     resumed = subprocess.run(
         [*command, "--out", str(out), "--workers", "1"], capture_output=True, text=True
     )
     assert resumed.returncode == 0, resumed.stderr
-    assert "complete; 600 items" in resumed.stdout
-    assert f"{600 - done} written, {done} already there" in resumed.stdout
+    assert "complete; 300 items" in resumed.stdout
+    assert f"{300 - done} written, {done} already there" in resumed.stdout
 
 
 # --------------------------------------------------------------------------------------
@@ -269,6 +309,18 @@ def test_simulate_huge_run_asks_for_yes(tmp_path, capsys):
     assert not out.exists()
 
 
+def test_yes_starts_a_large_run(tmp_path, monkeypatch, capsys):
+    from napari_symbac import cli
+
+    monkeypatch.setattr(cli, "LARGE_RUN_FRAMES", 2)
+    out = tmp_path / "simulation"
+    code, err = _run(["simulate", "--frames", "3", "--out", str(out)], capsys)
+    assert code == 2
+    assert "add --yes" in err
+    assert main(["simulate", "--frames", "3", "--out", str(out), "--yes"]) == 0
+    assert (out / "simulation.json").is_file()
+
+
 def test_simulate_huge_config_asks_for_yes(tmp_path, capsys):
     config = tmp_path / "simulation.yaml"
     config.write_text("n_frames: 10000000\n")
@@ -287,6 +339,23 @@ def test_empty_config_is_an_error(tmp_path, text, capsys):
     assert f"settings file {config} is empty" in err
     assert "napari-symbac defaults" in err
     assert not out.exists()
+
+
+def test_config_that_is_a_folder(tmp_path, capsys):
+    code, err = _run(["simulate", "--config", str(tmp_path), "--out", "x"], capsys)
+    assert code == 2
+    assert f"settings file {tmp_path} is a folder" in err
+
+
+def test_unwritable_output_names_path_and_fix(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    out = blocker / "demo"  # a folder inside a file cannot be made
+    code, err = _run(["demo", "--out", str(out), "--frames", "2"], capsys)
+    assert code == 2
+    assert str(out) in err
+    assert "check that the path is right" in err
+    assert blocker.read_text() == "x"
 
 
 def test_missing_config_names_file(tmp_path, capsys):

@@ -66,9 +66,9 @@ def _confirm_large_run(frames: int, what: str, yes: bool) -> None:
         return
     hours = frames / _FRAMES_PER_S / 3600
     raise ValueError(
-        f"{what} means {frames:,} simulated and rendered frames, roughly {hours:,.1f} h at "
-        f"~{_FRAMES_PER_S:g} frames/s on a 2-core machine: add --yes to start it anyway, or "
-        "lower the number of frames"
+        f"{what} is roughly {hours:,.1f} h of work ({frames:,} frames to simulate or render "
+        f"at ~{_FRAMES_PER_S:g} frames/s on a 2-core machine): add --yes to start it "
+        "anyway, or lower the number of frames"
     )
 
 
@@ -390,10 +390,14 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _one_line(err: BaseException) -> str:
-    """The error's message on one line, with the file name an OSError carries."""
+    """The error's message on one line; a bare OSError gets its path and a fix."""
     text = str(err)
-    if isinstance(err, OSError) and err.filename and str(err.filename) not in text:
-        text = f"{text} ({err.filename})"
+    if isinstance(err, OSError) and err.strerror and text.startswith("[Errno"):
+        where = err.filename or "the path given"
+        text = (
+            f"{err.strerror}: {where}; check that the path is right, that its folder "
+            "exists and that you may write there"
+        )
     return " ".join(text.split()) or type(err).__name__
 
 

@@ -189,16 +189,34 @@ def _read_layers(path) -> list[tuple]:
     return [(recording.data, meta, "image")]
 
 
+def _layer_pixel_size_um(meta: dict) -> float:
+    """Pixel size of a layer: its ``pixel_size_um`` metadata, else its scale, else 1."""
+    recorded = (meta.get("metadata") or {}).get("pixel_size_um")
+    if isinstance(recorded, (int, float)) and recorded > 0:
+        return float(recorded)
+    scale = meta.get("scale")
+    if scale is not None and len(scale) >= 2 and float(scale[-1]) > 0:
+        return float(scale[-1])
+    return 1.0
+
+
 def write_dataset(path: str, layer_data: list[tuple]) -> list[str]:
     """npe2 writer: one image layer and its labels layer as a training-dataset folder.
 
     Writes the plain-TIFF and Omnipose/Cellpose layouts (see ``docs/export.md``);
-    a ``(T, Y, X)`` image gives one image/mask pair per frame.
+    a ``(T, Y, X)`` image gives one image/mask pair per frame. The pixel size (the
+    image layer's ``pixel_size_um`` metadata, or its scale) goes into every TIFF.
     """
     from napari_symbac.export import series_items, write_items
 
-    by_kind = {kind: data for data, _meta, kind in layer_data}
-    image, labels = np.asarray(by_kind["image"]), np.asarray(by_kind["labels"])
+    by_kind = {kind: (data, meta) for data, meta, kind in layer_data}
+    if set(by_kind) != {"image", "labels"}:
+        raise ValueError(
+            "the dataset writer takes one image layer and one labels layer; select both "
+            f"(got {', '.join(sorted(by_kind)) or 'nothing'})"
+        )
+    (image, image_meta), (labels, _labels_meta) = by_kind["image"], by_kind["labels"]
+    image, labels = np.asarray(image), np.asarray(labels)
     if image.ndim == 2:
         image, labels = image[None], labels[None]
     if image.shape != labels.shape:
@@ -210,6 +228,9 @@ def write_dataset(path: str, layer_data: list[tuple]) -> list[str]:
             f"the image layer is {image.dtype}; datasets hold camera counts (uint16): "
             "write a rendered synthetic layer"
         )
-    report = write_items(series_items(image, labels.astype(np.uint32)), path, ("tiff", "omnipose"))
+    items = series_items(
+        image, labels.astype(np.uint32), pixel_size_um=_layer_pixel_size_um(image_meta)
+    )
+    report = write_items(items, path, ("tiff", "omnipose"))
     root = Path(path)
     return [str(p) for p in sorted(root.rglob("*")) if p.is_file()] if report.complete else []

@@ -903,6 +903,7 @@ def save_settings(settings: Any, path: str | Path) -> Path:
         text = json.dumps(data, indent=2)
     else:
         raise ValueError(f"cannot save settings to {path}: use a .yaml, .yml or .json file")
+    path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(text, encoding="utf-8")
     return path
 
@@ -914,6 +915,8 @@ def load_settings(path: str | Path, cls: type[T]) -> T:
     file is an error, so that a wrong or blank file never silently means the defaults.
     """
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"settings file {path} is a folder: give the path of a .yaml/.json file")
     if not path.is_file():
         raise FileNotFoundError(f"settings file {path} does not exist")
     text = path.read_text(encoding="utf-8")

@@ -19,7 +19,7 @@ from napari_symbac.export import (
     load_export_settings,
     regenerate,
 )
-from napari_symbac.export.dataset import PipelineSource, _simulation, split_of
+from napari_symbac.export.dataset import PipelineSource, _simulation, sequence_of, split_of
 from napari_symbac.settings import PipelineSettings, SimulationSettings, save_settings, to_dict
 
 PIPELINE = PipelineSettings(simulation=SimulationSettings(n_frames=10))
@@ -83,6 +83,14 @@ def test_split_is_exact_and_seeded():
         if split_of(_settings(n_items=50, val_fraction=0.2, seed=8), u) == "val"
     ]
     assert other != val
+
+
+def test_sequences_are_numbered_per_split():
+    """CTC needs 01, 02, ... in each split: sequence_of ranks a unit within its split."""
+    settings = _settings(n_items=40, val_fraction=0.3)
+    for split in ("train", "val"):
+        units = [u for u in range(40) if split_of(settings, u) == split]
+        assert [sequence_of(settings, u) for u in units] == list(range(len(units)))
 
 
 @pytest.fixture(scope="module")
@@ -151,7 +159,9 @@ def test_real_pipeline_parallel_equals_serial(tmp_path, frames_export):
 
 
 def test_real_time_series_tracking_ground_truth(tmp_path):
-    settings = _settings(n_items=1, kind="timeseries", formats=["ctc"], val_fraction=0.0)
+    settings = _settings(
+        n_items=1, kind="timeseries", formats=["ctc", "delta"], val_fraction=0.0
+    )
     report = export_dataset(settings, tmp_path, workers=1)
     assert report.n_items == 10
     simulation = _simulation(settings.pipeline, settings.seed, 0)
@@ -170,6 +180,11 @@ def test_real_time_series_tracking_ground_truth(tmp_path):
             tmp_path / "ctc" / "train" / "01_GT" / "TRA" / f"man_track{begin:03d}.tif"
         )
         assert label in mask
+    # DeLTA tracking: one sample per cell of every frame but the last
+    entries = json.loads((tmp_path / "manifest.json").read_text())["items"]
+    samples = sorted(p.name for p in (tmp_path / "delta" / "train" / "tracking" / "seg").iterdir())
+    assert len(samples) == sum(len(e["objects"]) for e in entries[:-1])
+    assert samples[0].startswith("s0000_t0001_cell")
     # the first frame of every series is its own item with the series' drawn parameters
     items = PipelineSource(settings).make_unit(0)
     assert [it.frame for it in items] == list(range(10))

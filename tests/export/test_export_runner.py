@@ -266,11 +266,11 @@ def test_local_cluster_on_loopback_and_user_scheduler(tmp_path, reference):
     """The default cluster binds 127.0.0.1 with separate processes; a scheduler address works."""
     from distributed import Client
 
-    from napari_symbac.export.runner import _local_cluster
+    from napari_symbac.export.cluster import local_cluster
 
     cloudpickle.register_pickle_by_value(_export_synthetic)
     try:
-        with _local_cluster(2) as cluster, Client(cluster) as client:
+        with local_cluster(2) as cluster, Client(cluster) as client:
             assert cluster.scheduler_address.startswith("tcp://127.0.0.1:")
             workers = client.scheduler_info()["workers"]
             assert len(workers) == 2

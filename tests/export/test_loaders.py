@@ -171,6 +171,19 @@ def test_trackmate_settings_and_image_beside_it(series_export, series_items_):
     }
     for spot in root.iter("Spot"):
         assert declared <= set(spot.attrib)
+    # what TrackMate 7's TmXmlReader parses: dimensions of its Dimension enum, every
+    # spot, edge and track attribute but the names a number, a GUI state
+    dimensions = {"NONE", "QUALITY", "COST", "INTENSITY", "POSITION", "LENGTH", "AREA", "TIME"}
+    for feature in root.iter("Feature"):
+        assert feature.get("dimension") in dimensions
+        assert feature.get("isint") in ("true", "false")
+    for element in (*root.iter("Spot"), *root.iter("Edge"), *root.iter("Track")):
+        for key, value in element.attrib.items():
+            if key != "name":
+                float(value)
+    assert root.find("GUIState") is not None
+    filtered = {t.get("TRACK_ID") for t in root.iter("TrackID")}
+    assert filtered == {t.get("TRACK_ID") for t in root.iter("Track")}
     image_data = settings.find("ImageData")
     stack_path = xml.parent / image_data.get("folder") / image_data.get("filename")
     with tifffile.TiffFile(stack_path) as tif:
@@ -310,3 +323,60 @@ def test_delta_frames_kind_has_no_tracking(tmp_path):
     write_items(items, tmp_path, ["delta"])
     assert not (tmp_path / "delta" / "train" / "tracking").exists()
     assert len(os.listdir(tmp_path / "delta" / "train" / "wei")) == 2
+
+
+def test_napari_writer_keeps_pixel_size_and_labels(tmp_path):
+    from napari_symbac.io import napari_get_reader, write_dataset
+
+    image = np.full((2, 16, 12), 900, np.uint16)
+    labels = np.zeros((2, 16, 12), np.uint32)
+    labels[:, 4:9, 3:8] = 7
+    layers = [
+        (image, {"scale": (1.0, 0.11, 0.11), "metadata": {}}, "image"),
+        (labels, {"scale": (1.0, 0.11, 0.11)}, "labels"),
+    ]
+    written = write_dataset(str(tmp_path / "ds"), layers)
+    mask = next(p for p in written if p.endswith("_masks.tif"))
+    [(data, meta, kind)] = napari_get_reader(mask)(mask)
+    assert kind == "labels"
+    assert meta["scale"] == pytest.approx((0.11, 0.11))
+    np.testing.assert_array_equal(data, labels[0])
+    with pytest.raises(ValueError, match="one image layer and one labels layer"):
+        write_dataset(str(tmp_path / "other"), layers[:1])
+
+
+def test_render_command_writes_calibrated_tiffs(tmp_path):
+    from napari_symbac.cli import main
+    from napari_symbac.io import napari_get_reader, read_recording
+    from napari_symbac.settings import PipelineSettings
+
+    assert main(["simulate", "--frames", "3", "--out", str(tmp_path / "sim")]) == 0
+    assert main(["render", str(tmp_path / "sim"), "--out", str(tmp_path / "r")]) == 0
+    pixel = PipelineSettings().microscope.pixel_size_um
+    kinds = {}
+    for name in ("images", "labels", "semantic"):
+        path = str(tmp_path / "r" / f"{name}.tif")
+        assert read_recording(path).pixel_size_um == pytest.approx(pixel, rel=1e-6)
+        [(data, meta, kinds[name])] = napari_get_reader(path)(path)
+        assert data.shape[0] == 3
+        assert meta["scale"] == pytest.approx((1.0, pixel, pixel))
+    assert kinds == {"images": "image", "labels": "labels", "semantic": "labels"}
+    with tifffile.TiffFile(tmp_path / "r" / "images.tif") as tif:
+        frame_s = 60 * PipelineSettings().simulation.frame_interval_min
+        assert tif.imagej_metadata["finterval"] == pytest.approx(frame_s)
+    assert sorted(p.name for p in (tmp_path / "r").iterdir()) == [
+        "images.tif",
+        "labels.tif",
+        "semantic.tif",
+    ]
+
+
+def test_weight_png_never_has_a_maximum_of_255():
+    """DeLTA divides an image whose maximum is 255 by 255; weights must not be read so."""
+    from napari_symbac.export.weights import to_weight_png
+
+    stored = to_weight_png(np.array([[1.0, 2.55], [2.0, 1.5]]))
+    assert stored.max() == 256
+    np.testing.assert_array_equal(stored.ravel()[[0, 2, 3]], [100, 200, 150])
+    with pytest.raises(ValueError, match="16-bit PNG"):
+        to_weight_png(np.array([[-1.0]]))

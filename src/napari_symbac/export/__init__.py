@@ -40,6 +40,7 @@ from napari_symbac.export.runner import (
     run_export,
     write_items,
 )
+from napari_symbac.export.visibility import Visibility, contrast_to_noise
 
 __all__ = [
     "FORMATS",
@@ -52,6 +53,8 @@ __all__ = [
     "PipelineSource",
     "Randomisation",
     "Range",
+    "Visibility",
+    "contrast_to_noise",
     "export_dataset",
     "get_writer",
     "instance_dtype",

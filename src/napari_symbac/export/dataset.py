@@ -32,6 +32,12 @@ import numpy as np
 
 from napari_symbac.export.formats import FORMATS
 from napari_symbac.export.item import ExportItem
+from napari_symbac.export.visibility import (
+    Visibility,
+    camera_medium,
+    contrast_to_noise,
+    faint_cells,
+)
 from napari_symbac.settings import PipelineSettings, from_dict, load_settings, to_dict
 
 __all__ = [
@@ -191,6 +197,10 @@ class ExportSettings:
         ``"polygon"`` or ``"rle"`` for the COCO format.
     pipeline
         Simulation, microscope, render and camera settings.
+    visibility
+        What to do with cells the image barely shows (per-cell contrast-to-noise below
+        a threshold): flag them in the manifest (default) or drop them from the masks;
+        see :mod:`napari_symbac.export.visibility`.
     """
 
     n_items: int = 100
@@ -203,9 +213,14 @@ class ExportSettings:
     randomise: Randomisation = field(default_factory=Randomisation)
     coco_segmentation: Literal["polygon", "rle"] = "polygon"
     pipeline: PipelineSettings = field(default_factory=PipelineSettings)
+    visibility: Visibility = field(default_factory=Visibility)
 
     def __post_init__(self) -> None:
-        for name, cls in (("pipeline", PipelineSettings), ("randomise", Randomisation)):
+        for name, cls in (
+            ("pipeline", PipelineSettings),
+            ("randomise", Randomisation),
+            ("visibility", Visibility),
+        ):
             value = getattr(self, name)
             if not isinstance(value, cls):
                 raise TypeError(
@@ -251,6 +266,12 @@ class ExportSettings:
             _fail(
                 f"ExportSettings.first_frame={self.first_frame!r} must be in [0, n_frames="
                 f"{n_frames}) of pipeline.simulation"
+            )
+        if self.visibility.action == "drop" and self.kind == "timeseries":
+            _fail(
+                "ExportSettings.visibility.action='drop' removes faint cells frame by frame, "
+                "which would break their tracks: use 'flag' for kind='timeseries' (faint "
+                "cells are listed in the manifest)"
             )
         if self.coco_segmentation not in ("polygon", "rle"):
             _fail(
@@ -424,6 +445,10 @@ class PipelineSource:
             )
             image = model.render(scene, rng, cache=False)
             labels, semantic = scene.camera_labels(), scene.semantic_mask()
+            cnr, faint = self._visibility(image, labels, scene)
+            if faint and s.visibility.action == "drop":
+                semantic[np.isin(labels, faint)] = 0
+                labels[np.isin(labels, faint)] = 0
             present = np.unique(labels)
             item_params = {"simulation": sim_index, "frame": frame, **params}
             items.append(
@@ -443,9 +468,19 @@ class PipelineSource:
                     pixel_size_um=pipeline.microscope.pixel_size_um,
                     frame_interval_min=pipeline.simulation.frame_interval_min,
                     params=item_params,
+                    contrast_to_noise=cnr,
+                    faint_cells=tuple(faint),
                 )
             )
         return items
+
+    def _visibility(self, image, labels, scene) -> tuple[dict[int, float], list[int]]:
+        """Per-cell contrast-to-noise and the faint cells (none when not measured)."""
+        rule = self.settings.visibility
+        if rule.action == "keep":
+            return {}, []
+        cnr = contrast_to_noise(image, labels, rule.ring_px, medium=camera_medium(scene))
+        return cnr, faint_cells(cnr, rule.min_contrast_to_noise)
 
 
 def regenerate(manifest_dir: str | os.PathLike, name: str) -> ExportItem:

@@ -84,6 +84,10 @@ class ExportItem:
         Physical calibration written to OME-Zarr and TrackMate files.
     params
         Parameters drawn for this item (recorded in the manifest so it can be regenerated).
+    contrast_to_noise, faint_cells
+        Per-cell contrast-to-noise ratio and the cells below the dataset's visibility
+        threshold (:mod:`napari_symbac.export.visibility`), recorded in the manifest;
+        empty when not measured.
     """
 
     name: str
@@ -101,6 +105,8 @@ class ExportItem:
     frame_interval_min: float = 1.0
     params: Mapping[str, Any] = field(default_factory=dict)
     sequence: int | None = None
+    contrast_to_noise: Mapping[int, float] = field(default_factory=dict)
+    faint_cells: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         if not self.name or any(c in self.name for c in "/\\:") or self.name.startswith("."):

@@ -16,6 +16,7 @@ export skips finished items and (re)writes the others.
 from __future__ import annotations
 
 import json
+import math
 import os
 import platform
 from collections.abc import Iterable, Mapping, Sequence
@@ -74,6 +75,12 @@ def write_item(out_dir: Path, item: ExportItem, writers: Sequence[FormatWriter])
         "files": files,
         "objects": item_objects(item),
     }
+    if item.contrast_to_noise:
+        entry["contrast_to_noise"] = {
+            str(cell): round(value, 3) if math.isfinite(value) else None
+            for cell, value in sorted(item.contrast_to_noise.items())
+        }
+        entry["faint_cells"] = [int(c) for c in item.faint_cells]
     write_json(out_dir / ITEMS_DIR / f"{item.name}.json", entry)
     return entry
 

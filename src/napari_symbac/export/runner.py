@@ -8,12 +8,8 @@ a local cluster and a remote scheduler all write the same bytes.
 
 from __future__ import annotations
 
-import contextlib
-import logging
 import math
 import os
-import signal
-import threading
 import time
 import uuid
 from collections.abc import Callable, Iterable, Sequence
@@ -22,6 +18,12 @@ from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 from napari_symbac.export.atomic import ExportError, remove_stale_temporaries
+from napari_symbac.export.cluster import (
+    check_workers,
+    close_quietly,
+    connect_scheduler,
+    local_cluster,
+)
 from napari_symbac.export.formats import FormatWriter, get_writer
 from napari_symbac.export.item import ExportItem
 from napari_symbac.export.manifest import (
@@ -166,41 +168,6 @@ def _chunks(units: list[int], size: int) -> list[list[int]]:
     return [units[i : i + size] for i in range(0, len(units), size)]
 
 
-@contextlib.contextmanager
-def _children_ignore_interrupts():
-    """Ignore SIGINT while worker processes start, so they inherit the ignore.
-
-    Ctrl-C in a terminal interrupts every process of the foreground group; the workers
-    would each print a ``KeyboardInterrupt`` traceback. With SIGINT ignored they carry
-    on until this process, which handles the interrupt, shuts them down. Only the main
-    thread can change signal handlers; elsewhere (a GUI worker thread) nothing changes.
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
-def _local_cluster(workers: int):
-    from distributed import LocalCluster
-
-    with _children_ignore_interrupts():
-        return LocalCluster(
-            n_workers=workers,
-            threads_per_worker=1,
-            processes=True,
-            host="127.0.0.1",
-            dashboard_address=None,
-            silence_logs=logging.ERROR,
-            # one item needs little memory; do not let dask pause workers on small machines
-            memory_limit=0,
-        )
-
-
 def _run_dask(
     source: ItemSource,
     batches: list[list[int]],
@@ -218,7 +185,7 @@ def _run_dask(
 
     cluster = None
     if client is None:
-        cluster = _local_cluster(workers)
+        cluster = local_cluster(workers)
         client = Client(cluster)
     cancelled = False
     try:
@@ -251,87 +218,8 @@ def _run_dask(
         finally:
             client.cancel(futures)
     finally:
-        _close_quietly(client, cluster)
+        close_quietly(client, cluster)
     return cancelled, n_workers
-
-
-def _close_quietly(client: Any, cluster: Any) -> None:
-    """Close a client (and its local cluster) without the workers' shutdown chatter.
-
-    On Ctrl-C the worker processes receive the interrupt too; their
-    ``KeyboardInterrupt`` / ``CancelledError`` logs would bury the one line the
-    command prints, so dask's loggers are silenced while everything shuts down.
-    """
-    loggers = [logging.getLogger(name) for name in ("distributed", "tornado", "asyncio")]
-    levels = [logger.level for logger in loggers]
-    for logger in loggers:
-        logger.setLevel(logging.CRITICAL + 1)
-    try:
-        with contextlib.suppress(Exception):
-            client.close(timeout=10)
-        if cluster is not None:
-            with contextlib.suppress(Exception):
-                cluster.close(timeout=10)
-    finally:
-        for logger, level in zip(loggers, levels):
-            logger.setLevel(level)
-
-
-#: Seconds to wait for a ``scheduler`` address to answer before giving up.
-SCHEDULER_TIMEOUT_S = 10.0
-
-
-def connect_scheduler(address: str, timeout_s: float | None = None) -> Any:
-    """A :class:`distributed.Client` of the scheduler at ``address``, or a clear error.
-
-    Raises
-    ------
-    ExportError
-        If nothing answers at ``address`` within ``timeout_s`` (default
-        :data:`SCHEDULER_TIMEOUT_S`); nothing has been written at that point.
-    """
-    from distributed import Client
-
-    timeout_s = SCHEDULER_TIMEOUT_S if timeout_s is None else timeout_s
-    if not isinstance(address, str) or not address.strip():
-        raise ValueError(
-            f"scheduler must be an address such as 'tcp://10.0.0.5:8786', got {address!r}"
-        )
-    quiet = logging.getLogger("distributed")
-    level = quiet.level
-    quiet.setLevel(logging.CRITICAL + 1)
-    try:
-        return Client(address, timeout=timeout_s, set_as_default=False)
-    except (OSError, TimeoutError, ValueError) as err:
-        raise ExportError(
-            f"no dask scheduler answered at {address} within {timeout_s:g} s ({err}): start "
-            "one there (`dask scheduler` plus `dask worker ADDRESS`), check the address, or "
-            "leave out the scheduler to use local worker processes; nothing was written",
-            None,
-        ) from err
-    finally:
-        quiet.setLevel(level)
-
-
-def check_workers(workers: int | None) -> int:
-    """The number of local worker processes to start for ``workers``.
-
-    ``None`` means one per core; more than the machine's cores is capped to them (extra
-    processes only compete for the same cores).
-
-    Raises
-    ------
-    ValueError
-        If ``workers`` is not an integer >= 1.
-    """
-    cores = os.cpu_count() or 1
-    if workers is None:
-        return cores
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise ValueError(
-            f"workers must be an integer >= 1 (1 runs in this process), got {workers!r}"
-        )
-    return min(workers, cores)
 
 
 def check_out_dir(out_dir: str | os.PathLike) -> Path:
@@ -416,7 +304,7 @@ def run_export(
         )
     finally:
         if client is not None:
-            _close_quietly(client, None)
+            close_quietly(client, None)
 
 
 def _run_export(

@@ -119,11 +119,18 @@ def tracking_weights(
 
 
 def to_weight_png(weights: np.ndarray) -> np.ndarray:
-    """``round(WEIGHT_SCALE * weights)`` as uint16, for a 16-bit PNG."""
+    """``round(WEIGHT_SCALE * weights)`` as uint16, for a 16-bit PNG.
+
+    DeLTA's reader divides an image whose maximum is exactly 255 by 255 (taking it for
+    an 8-bit mask), so a map whose maximum would round to 255 stores 256 there instead
+    (a 0.4 % change of those pixels' weight).
+    """
     scaled = np.rint(np.asarray(weights, dtype=np.float64) * WEIGHT_SCALE)
     if scaled.size and (scaled.min() < 0 or scaled.max() > np.iinfo(np.uint16).max):
         raise ValueError(
             f"weights must lie in [0, {np.iinfo(np.uint16).max / WEIGHT_SCALE:g}] to be "
             "stored in a 16-bit PNG"
         )
+    if scaled.size and scaled.max() == 255:
+        scaled[scaled == 255] = 256
     return scaled.astype(np.uint16)
