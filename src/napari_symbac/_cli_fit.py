@@ -65,6 +65,30 @@ def _explicit_keys(config: str | None) -> dict[str, Any]:
     return data if isinstance(data, dict) else {}
 
 
+def _config_note(config: str | None, keys: dict[str, Any], geometry: str) -> str:
+    """Which parts of --config the fit used, and which it could not."""
+    if config is None:
+        return "none (built-in defaults for the starting render settings)"
+    used = ["render settings as the start" if "render" in keys else "default render start"]
+    if "camera" in keys:
+        used.append("camera")
+    if geometry == "trench":
+        used.append("trench closed end")
+    ignored = []
+    if "microscope" in keys:
+        ignored.append("its microscope (--microscope wins)")
+    simulation = keys.get("simulation") or {}
+    if set(simulation) - {"trench", "geometry"} or set(simulation.get("trench") or {}) - {
+        "closed_end"
+    }:
+        ignored.append(
+            "its other simulation settings in the fit (the fit finds trench and cells; the "
+            "rest is kept in settings.yaml)"
+        )
+    note = f"{config}: used {', '.join(used)}"
+    return note + (f"; not used: {'; '.join(ignored)}" if ignored else "")
+
+
 def _read_stack(path: str, what: str) -> np.ndarray:
     import tifffile
 
@@ -278,6 +302,7 @@ def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, ke
             "instance masks" if masks is not None else "automatic segmentation"
         ),
         "pixel size": pixel_note,
+        "config": _config_note(args.config, keys, geometry),
         "camera": camera_note,
         "camera used": camera_text(camera_used),
         "censored pixels": censor_note,

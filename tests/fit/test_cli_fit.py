@@ -182,6 +182,7 @@ def test_real_trench_with_config_closed_end_round(tmp_path, real_data_dir):
                 "--max-iterations", 2) == 0  # fmt: skip
     report = (out / "report.txt").read_text()
     assert _fact(report, "geometry") == "trench (closed end: round)"
+    assert "used default render start, trench closed end" in _fact(report, "config")
     settings = load_settings(out / "settings.yaml", PipelineSettings)
     assert settings.simulation.trench.closed_end == "round"
     table = json.loads((out / "cells.json").read_text())
@@ -301,3 +302,25 @@ def test_labels_and_masks_together_are_a_usage_error(tmp_path, inputs):
         _fit(image, "--microscope", microscope, "--labels", labels, "--masks", labels,
              "--out", tmp_path / "o")  # fmt: skip
     assert exit_info.value.code == 2
+
+
+def test_progress_is_a_bar_on_a_terminal_and_lines_when_piped():
+    import io
+
+    from napari_symbac._cli_fit import _Stages
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    piped, terminal = io.StringIO(), Terminal()
+    for stream in (piped, terminal):
+        stages = _Stages(stream)
+        stages.stage("fitting frame 0")
+        update, close = stages.bar("fit frame 0")
+        update(3, 10)
+        close()
+    assert piped.getvalue() == "napari-symbac fit: fitting frame 0\n"
+    assert "fit frame 0" in terminal.getvalue()
+    assert "3/10" in terminal.getvalue()  # the tqdm bar
+    assert "napari-symbac fit: fitting" not in terminal.getvalue()
