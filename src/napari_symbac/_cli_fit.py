@@ -193,6 +193,10 @@ def _model_free_gain(frame: np.ndarray, fitted) -> tuple[str, str | None]:
         return f"not available ({err})", None
     free, fit = estimate.camera.sensitivity_adu_per_e, fitted.sensitivity_adu_per_e
     text = f"sensitivity {free:.3g} +- {estimate.sensitivity_se_adu_per_e:.2g} ADU/e-"
+    correlation = estimate.neighbour_variance_ratio
+    if correlation > 1:  # correlated noise biases the model-free gain low by about this
+        text += f" (noise correlated between neighbours: up to {free * correlation:.3g})"
+        free *= correlation
     if fit > _GAIN_RATIO * free:
         return text, (
             f"the fit's camera gain ({fit:.3g} ADU/e-) is {fit / free:.1f}x the model-free "
