@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy import ndimage
 
 from napari_symbac._timing import StepTimer
 
@@ -232,8 +233,12 @@ def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, ke
     check_fit_image(frame, name)
     if labels is not None:
         check_class_labels(labels, frame.shape, f"--labels {Path(args.labels).name}")
+    notes = []
     if masks is not None:
         check_instance_masks(masks, frame.shape, f"--masks {Path(args.masks).name}")
+        if set(np.unique(masks).tolist()) <= {0, 1}:  # a binary mask: one id per component
+            masks, n_cells = ndimage.label(masks > 0)
+            notes.append(f"--masks held only 0/1: its {n_cells} connected regions are the cells")
     polarity = check_modality(frame, microscope.modality, labels=labels, masks=masks)
 
     accepted = set(inspect.signature(fit_scene).parameters)
@@ -277,17 +282,19 @@ def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, ke
     settings = dataclasses.replace(
         base, microscope=microscope, render=result.render, camera=camera_used
     )
-    notes = []
-    if result.trench is not None:
-        try:
+    try:
+        simulation = base.simulation
+        if result.trench is not None:
             trench = result.trench_geometry(frame.shape[0], microscope.pixel_size_um)
-            width = float(np.median(result.cells.width_um)) if len(result.cells) else None
-            simulation = dataclasses.replace(base.simulation, trench=trench)
-            if width is not None:
-                simulation = dataclasses.replace(simulation, cell_width_um=width)
-            settings = dataclasses.replace(settings, simulation=simulation)
-        except ValueError as err:
-            notes.append(f"simulation settings kept from the config: {err}")
+            simulation = dataclasses.replace(simulation, trench=trench)
+        elif simulation.geometry in ("trench", "chamber"):  # a field fit renders as a pad
+            simulation = dataclasses.replace(simulation, geometry="agar_pad")
+        if len(result.cells):
+            width = float(np.median(result.cells.width_um))
+            simulation = dataclasses.replace(simulation, cell_width_um=width)
+        settings = dataclasses.replace(settings, simulation=simulation)
+    except ValueError as err:
+        notes.append(f"simulation settings kept from the config: {err}")
 
     table = {
         "cells": cells_records(result),

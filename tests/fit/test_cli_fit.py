@@ -212,6 +212,20 @@ def test_real_colicoords_fluorescence_field_with_masks(tmp_path, real_data_dir):
     )
     n_masks = ndimage.label(masks > 0)[1]
     assert len(json.loads((out / "cells.json").read_text())["cells"]) == n_masks
+    # a field fit re-renders as an agar pad with the fitted cell width
+    simulation = load_settings(out / "settings.yaml", PipelineSettings).simulation
+    assert simulation.geometry == "agar_pad"
+    widths = [c["width_um"] for c in json.loads((out / "cells.json").read_text())["cells"]]
+    assert simulation.cell_width_um == pytest.approx(float(np.median(widths)))
+
+    # a binary mask (0/1) of the same cells: its connected regions are the cells
+    binary = tmp_path / "binary.tif"
+    tifffile.imwrite(binary, (masks > 0).astype(np.uint8))
+    out = tmp_path / "fit-binary"
+    assert _fit(image, "--microscope", microscope, "--modality", "fluorescence",
+                "--geometry", "field", "--masks", binary, "--out", out,
+                "--max-iterations", 3) == 0  # fmt: skip
+    assert f"its {n_masks} connected regions are the cells" in (out / "report.txt").read_text()
 
 
 # --------------------------------------------------------------------------------------
