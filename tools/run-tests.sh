@@ -33,5 +33,8 @@ fi
 .venv/bin/python -m pip install -q -e ".[test]"
 
 .venv/bin/ruff check src tests benchmarks tools
+# Qt's offscreen platform draws the vispy canvas through the X display of the Xvfb
+# server that pytest-xvfb starts; --xvfb-backend makes a missing Xvfb an error instead
+# of a silent run without OpenGL (vispy's GL_EXTENSIONS query then returns None).
 export QT_QPA_PLATFORM=offscreen
-exec .venv/bin/python -m pytest "$@"
+exec .venv/bin/python -m pytest --xvfb-backend xvfb "$@"

@@ -31,6 +31,62 @@ def _tqdm_progress(
     return update, bar
 
 
+def _at_least_one(text: str) -> int:
+    """argparse type: an integer >= 1 (a clear usage error otherwise)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
+def _output_folder(path: str | Path, option: str = "--out") -> Path:
+    """``path`` as a folder to write into; refuses an existing file."""
+    out = Path(path)
+    if out.exists() and not out.is_dir():
+        raise ValueError(
+            f"{option} {out} is a file, not a folder: give the path of a folder (it is "
+            "created if missing), or move the file away"
+        )
+    return out
+
+
+#: Simulated plus rendered frames above which a run needs ``--yes``.
+LARGE_RUN_FRAMES = 100_000
+#: Frames per second assumed for the estimate in the ``--yes`` message (simulation and
+#: rendering on a 2-core machine run at about 50-70 frames/s).
+_FRAMES_PER_S = 50.0
+
+
+def _confirm_large_run(frames: int, what: str, yes: bool) -> None:
+    """Refuse a run of more than :data:`LARGE_RUN_FRAMES` frames unless ``--yes`` is given."""
+    if frames <= LARGE_RUN_FRAMES or yes:
+        return
+    hours = frames / _FRAMES_PER_S / 3600
+    raise ValueError(
+        f"{what} means {frames:,} simulated and rendered frames, roughly {hours:,.1f} h at "
+        f"~{_FRAMES_PER_S:g} frames/s on a 2-core machine: add --yes to start it anyway, or "
+        "lower the number of frames"
+    )
+
+
+def _local_workers(workers: int | None) -> int | None:
+    """``--workers``, capped to the cores of this machine (with a note when capped)."""
+    import os
+
+    cores = os.cpu_count() or 1
+    if workers is not None and workers > cores:
+        print(
+            f"napari-symbac export: note: --workers {workers} capped to {cores}, the cores "
+            "of this machine (use --scheduler to run on more machines)",
+            file=sys.stderr,
+        )
+        return cores
+    return workers
+
+
 # --------------------------------------------------------------------------------------
 # Commands
 # --------------------------------------------------------------------------------------
@@ -54,7 +110,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         else load_settings(args.config, SimulationSettings)
     )
     overrides = {k: v for k, v in (("n_frames", args.frames), ("seed", args.seed)) if v is not None}
-    out = Path(args.out or settings.save_dir or "simulation")
+    out = _output_folder(args.out or settings.save_dir or "simulation")
+    n_frames = overrides.get("n_frames", settings.n_frames)
+    _confirm_large_run(n_frames, f"simulating {n_frames:,} frames", args.yes)
     # simulate() saves to save_dir itself, atomically, once the run is complete.
     settings = dataclasses.replace(settings, **overrides, save_dir=str(out))
     timer = StepTimer()
@@ -72,11 +130,11 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 def _cmd_render(args: argparse.Namespace) -> int:
     import dataclasses
 
-    import tifffile
-
+    from napari_symbac.export.atomic import write_tiff
     from napari_symbac.pipeline import render_simulation
     from napari_symbac.sim import load_simulation
 
+    out = _output_folder(args.out)
     timer = StepTimer()
     with timer.step("load"):
         simulation = load_simulation(args.simulation)
@@ -85,17 +143,20 @@ def _cmd_render(args: argparse.Namespace) -> int:
     with timer.step("render"):
         series = render_simulation(simulation, settings, progress=update)
     bar.close()
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    calibration = {
+        "pixel_size_um": settings.microscope.pixel_size_um,
+        "frame_interval_min": settings.simulation.frame_interval_min,
+        "compression": "zlib",
+    }
     with timer.step("write"):
+        # each file atomically: a full disk leaves no partial file, and names the path
         for name, array in (
             ("images", series.images),
             ("labels", series.labels),
             ("semantic", series.semantic),
         ):
-            tmp = out / f".{name}.tif.partial"
-            tifffile.imwrite(tmp, array, imagej=array.dtype != "uint32", compression="zlib")
-            tmp.replace(out / f"{name}.tif")
+            kind = "image" if name == "images" else name
+            write_tiff(out / f"{name}.tif", array, kind=kind, **calibration)
     print(f"wrote images.tif, labels.tif, semantic.tif {series.images.shape} to {out}")
     print(timer.report())
     return 0
@@ -105,13 +166,21 @@ def _cmd_export(args: argparse.Namespace) -> int:
     from napari_symbac.export import export_dataset, load_export_settings
 
     settings = load_export_settings(args.config)
+    out = _output_folder(args.out)
+    sim_frames = settings.pipeline.simulation.n_frames
+    n_simulated = sim_frames * (
+        settings.n_items if settings.kind == "timeseries" else settings.n_simulations
+    )
+    _confirm_large_run(
+        n_simulated + settings.n_images, f"exporting {settings.n_images:,} images", args.yes
+    )
     timer = StepTimer()
-    update, bar = _tqdm_progress("export", settings.n_items)
+    update, bar = _tqdm_progress("export", settings.n_images)
     with timer.step("export"):
         report = export_dataset(
             settings,
-            args.out,
-            workers=args.workers,
+            out,
+            workers=_local_workers(args.workers),
             scheduler=args.scheduler,
             progress=update,
         )
@@ -130,6 +199,8 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 def _cmd_demo(args: argparse.Namespace) -> int:
     from napari_symbac.demo import run_demo
 
+    _output_folder(args.out)
+    _confirm_large_run(2 * args.frames, f"a demo of {args.frames:,} frames", args.yes)
     report = run_demo(
         args.out, n_frames=args.frames, seed=args.seed, progress_factory=_tqdm_progress
     )
@@ -168,6 +239,11 @@ def _cmd_defaults(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------------------
 
 
+_YES_HELP = (
+    f"start a run of more than {LARGE_RUN_FRAMES:,} frames without refusing (hours of work)"
+)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="napari-symbac",
@@ -184,8 +260,11 @@ def build_parser() -> argparse.ArgumentParser:
         "and a preview montage, and print what was written and how long each step took.",
     )
     demo.add_argument("--out", default="symbac-demo", help="output folder (default: %(default)s)")
-    demo.add_argument("--frames", type=int, default=40, help="frames to simulate (default: 40)")
+    demo.add_argument(
+        "--frames", type=_at_least_one, default=40, help="frames to simulate (default: 40)"
+    )
     demo.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    demo.add_argument("--yes", action="store_true", help=_YES_HELP)
     demo.set_defaults(func=_cmd_demo)
 
     simulate = sub.add_parser(
@@ -196,8 +275,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     simulate.add_argument("--config", help="SimulationSettings YAML/JSON (default: built-in)")
     simulate.add_argument("--out", help="output folder (default: save_dir of the config)")
-    simulate.add_argument("--frames", type=int, help="override n_frames")
+    simulate.add_argument("--frames", type=_at_least_one, help="override n_frames")
     simulate.add_argument("--seed", type=int, help="override the seed")
+    simulate.add_argument("--yes", action="store_true", help=_YES_HELP)
     simulate.set_defaults(func=_cmd_simulate)
 
     render = sub.add_parser(
@@ -221,9 +301,16 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("--config", required=True, help="ExportSettings YAML/JSON")
     export.add_argument("--out", required=True, help="output folder")
     export.add_argument(
-        "--workers", type=int, help="local worker processes (default: one per core)"
+        "--workers",
+        type=_at_least_one,
+        help="local worker processes, at most one per core (default: one per core)",
     )
-    export.add_argument("--scheduler", help="address of an existing dask scheduler")
+    export.add_argument(
+        "--scheduler",
+        help="address of an existing dask scheduler (tcp://HOST:PORT); its workers must see "
+        "--out at the same path",
+    )
+    export.add_argument("--yes", action="store_true", help=_YES_HELP)
     export.set_defaults(func=_cmd_export)
 
     fit = sub.add_parser(
@@ -284,16 +371,30 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``napari-symbac`` command."""
+    from napari_symbac.export.atomic import ExportError
+
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except (ValueError, OSError) as err:
-        print(f"napari-symbac {args.command}: error: {err}", file=sys.stderr)
+    except (ValueError, TypeError, OSError, ExportError) as err:
+        print(f"napari-symbac {args.command}: error: {_one_line(err)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"napari-symbac {args.command}: interrupted", file=sys.stderr)
+        print(
+            f"napari-symbac {args.command}: interrupted; finished files are kept (an "
+            "export resumes when run again)",
+            file=sys.stderr,
+        )
         return 130
+
+
+def _one_line(err: BaseException) -> str:
+    """The error's message on one line, with the file name an OSError carries."""
+    text = str(err)
+    if isinstance(err, OSError) and err.filename and str(err.filename) not in text:
+        text = f"{text} ({err.filename})"
+    return " ".join(text.split()) or type(err).__name__
 
 
 if __name__ == "__main__":  # pragma: no cover

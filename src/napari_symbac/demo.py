@@ -8,6 +8,7 @@ each step took. Needs nothing outside the package.
 from __future__ import annotations
 
 import dataclasses
+import shutil
 from collections.abc import Callable
 from pathlib import Path
 
@@ -36,7 +37,9 @@ def run_demo(
     ----------
     out
         Output folder; created if needed. Running the demo again with the same
-        settings finds the dataset complete and rewrites only the preview.
+        settings finds the dataset complete and rewrites only the preview. If the
+        run fails (disk full, interrupted) and it created the folder, the folder is
+        removed again.
     n_frames
         Number of frames to simulate and render.
     seed
@@ -47,12 +50,6 @@ def run_demo(
         ``factory(description, total) -> (update, handle)``; ``update(done, total)``
         is called during long steps and ``handle.close()`` at the end of each.
     """
-    import imageio.v3 as iio
-
-    from napari_symbac.export import series_items, write_items
-    from napari_symbac.pipeline import montage, render_simulation
-    from napari_symbac.sim import save_simulation, simulate
-
     if n_frames < 1:
         raise ValueError(f"n_frames must be at least 1, got {n_frames}")
     base = settings or PipelineSettings()
@@ -60,7 +57,31 @@ def run_demo(
         base, simulation=dataclasses.replace(base.simulation, n_frames=n_frames, seed=seed)
     )
     out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"the demo's output {out} is a file: give the path of a folder")
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
+    try:
+        return _run(out, settings, n_frames, seed, progress_factory)
+    except BaseException:
+        if created:  # a failed first run (full disk, Ctrl-C) leaves nothing behind
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+
+
+def _run(
+    out: Path,
+    settings: PipelineSettings,
+    n_frames: int,
+    seed: int,
+    progress_factory: ProgressFactory | None,
+) -> str:
+    import imageio.v3 as iio
+
+    from napari_symbac.export import series_items, write_items
+    from napari_symbac.pipeline import montage, render_simulation
+    from napari_symbac.sim import save_simulation, simulate
+
     timer = StepTimer()
 
     def timed(name: str, func, total: int | None = None):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,12 +29,18 @@ class Recording:
     modality
         ``"phase"`` or ``"fluorescence"`` from the OME ``ContrastMethod`` of the first
         channel, or ``None`` if the file does not say.
+    kind
+        ``"labels"`` for instance masks (marked ``napari_symbac=labels`` in the file's
+        metadata by the dataset writers, or named like a mask: ``*_masks.tif``,
+        ``man_seg*.tif``, ``man_track*.tif``, or in a ``labels/`` or ``masks/`` folder),
+        ``"semantic"`` for semantic masks, else ``"image"``.
     """
 
     data: np.ndarray
     pixel_size_um: float | None
     name: str
     modality: str | None = None
+    kind: str = "image"
 
 
 def _pixel_size_um(tif) -> float | None:
@@ -73,14 +80,59 @@ def _modality(tif) -> str | None:
     return _CONTRAST_METHODS.get(match.group(1)) if match else None
 
 
+_MASK_FOLDERS = ("labels", "masks")
+
+
+def _kind(tif, path: Path) -> str:
+    from napari_symbac.export.atomic import TIFF_KIND_KEY, TIFF_KINDS
+
+    for metadata in (tif.imagej_metadata, *(tif.shaped_metadata or ())):
+        if metadata and metadata.get(TIFF_KIND_KEY) in TIFF_KINDS:
+            return str(metadata[TIFF_KIND_KEY])
+    name = path.name.lower()
+    if (
+        name.split(".")[0].endswith("_masks")
+        or name.startswith(("man_seg", "man_track"))
+        or path.parent.name.lower() in _MASK_FOLDERS
+    ):
+        return "labels"
+    return "image"
+
+
+def _check_complete(tif, path: Path) -> None:
+    """Refuse a file that ends before its image data does (a truncated copy or download).
+
+    tifffile reads what it can of such a file and only logs a warning, which would
+    silently give fewer frames than the file holds.
+    """
+    size = tif.filehandle.size
+    expected_pages = (tif.imagej_metadata or {}).get("images")
+    ends = [
+        offset + count
+        for page in tif.pages
+        for offset, count in zip(page.dataoffsets, page.databytecounts)
+    ]
+    if max(ends, default=0) > size or (
+        isinstance(expected_pages, int) and expected_pages > len(tif.pages)
+    ):
+        raise ValueError(
+            f"{path} is truncated: the file ends ({size} bytes) before its image data "
+            "does; copy or download it again"
+        )
+
+
 def read_recording(path: str | Path) -> Recording:
-    """Read a TIFF recording and its pixel size.
+    """Read a TIFF recording, its pixel size and whether it holds an image or masks.
 
     Raises
     ------
+    FileNotFoundError
+        If ``path`` does not exist.
     ValueError
-        If the file is not a TIFF or holds no image.
+        If the file is not a TIFF, is truncated or corrupt (the message names the file).
     """
+    import logging
+
     import tifffile
 
     path = Path(path)
@@ -88,19 +140,31 @@ def read_recording(path: str | Path) -> Recording:
         raise FileNotFoundError(f"{path} does not exist")
     if not path.name.lower().endswith(_TIFF_SUFFIXES):
         raise ValueError(f"{path.name} is not a TIFF file (.tif/.tiff)")
+    log = logging.getLogger("tifffile")
+    level = log.level
+    log.setLevel(logging.CRITICAL + 1)  # corruption is reported below, with the file name
     try:
         with tifffile.TiffFile(path) as tif:
+            _check_complete(tif, path)
             data = tif.asarray()
             pixel = _pixel_size_um(tif)
             modality = _modality(tif)
-    except tifffile.TiffFileError as err:
-        raise ValueError(f"{path} is not a readable TIFF: {err}") from err
+            kind = _kind(tif, path)
+    except (tifffile.TiffFileError, ValueError, EOFError, struct.error, IndexError) as err:
+        if str(path) in str(err):
+            raise ValueError(str(err)) from err
+        raise ValueError(
+            f"{path} is not a readable TIFF ({err}): it may be truncated or not a TIFF; "
+            "copy it again or convert it to TIFF"
+        ) from err
+    finally:
+        log.setLevel(level)
     name = path.name
     for suffix in _TIFF_SUFFIXES:
         if name.lower().endswith(suffix):
             name = name[: -len(suffix)]
             break
-    return Recording(data=data, pixel_size_um=pixel, name=name, modality=modality)
+    return Recording(data=data, pixel_size_um=pixel, name=name, modality=modality, kind=kind)
 
 
 def napari_get_reader(path):
@@ -119,6 +183,9 @@ def _read_layers(path) -> list[tuple]:
     if recording.pixel_size_um:
         scale = (recording.pixel_size_um,) * 2
         meta["scale"] = (1.0,) * (recording.data.ndim - 2) + scale
+    is_mask = recording.kind in ("labels", "semantic")
+    if is_mask and np.issubdtype(recording.data.dtype, np.integer):
+        return [(recording.data, meta, "labels")]
     return [(recording.data, meta, "image")]
 
 

@@ -161,6 +161,27 @@ def iter_scenes(simulation: Simulation, settings: PipelineSettings) -> Iterator[
         yield _draw(simulation, settings, index, curvature, field)
 
 
+def _check_render_inputs(
+    simulation: Simulation, settings: PipelineSettings, rng: np.random.Generator | None
+) -> None:
+    """Refuse arguments of the wrong type with a message naming the fix."""
+    if not isinstance(simulation, Simulation):
+        raise TypeError(
+            f"render needs a Simulation, got {type(simulation).__name__}: pass the result "
+            "of napari_symbac.sim.simulate(...) or load_simulation(folder)"
+        )
+    if not isinstance(settings, PipelineSettings):
+        raise TypeError(
+            f"render needs PipelineSettings, got {type(settings).__name__}: pass "
+            "PipelineSettings(...) or load_settings(path, PipelineSettings)"
+        )
+    if rng is not None and not isinstance(rng, np.random.Generator):
+        raise TypeError(
+            f"rng must be a numpy.random.Generator, got {type(rng).__name__} {rng!r}: pass "
+            "numpy.random.default_rng(seed), or leave it out to seed from the settings"
+        )
+
+
 def iter_render(
     simulation: Simulation,
     settings: PipelineSettings,
@@ -172,6 +193,7 @@ def iter_render(
     image, the uint32 instance mask (values are cell ids) and the uint8 semantic mask.
     ``rng`` drives the noise and defaults to :func:`noise_rng` of ``settings``.
     """
+    _check_render_inputs(simulation, settings, rng)
     rng = noise_rng(settings) if rng is None else rng
     model = ForwardModel(settings.microscope, settings.render, settings.camera)
     for scene in iter_scenes(simulation, settings):
@@ -198,6 +220,7 @@ def render_simulation(
     progress
         Called as ``progress(done, total)`` after each frame.
     """
+    _check_render_inputs(simulation, settings, rng)
     frames = []
     total = len(simulation.frames)
     for frame in iter_render(simulation, settings, rng):

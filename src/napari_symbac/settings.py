@@ -74,6 +74,24 @@ def _non_negative(obj: object, *names: str) -> None:
         )
 
 
+def _nested(obj: object, **classes: type) -> None:
+    """Require each named field of ``obj`` to be an instance of its settings class.
+
+    Raises
+    ------
+    TypeError
+        Naming the field, the class it needs and how to build it from a mapping.
+    """
+    for name, cls in classes.items():
+        value = getattr(obj, name)
+        if not isinstance(value, cls):
+            raise TypeError(
+                f"{type(obj).__name__}.{name} must be a {cls.__name__}, got "
+                f"{type(value).__name__} {value!r}: pass {cls.__name__}(...), or build "
+                f"the whole settings from a mapping with from_dict({type(obj).__name__}, ...)"
+            )
+
+
 def _choice(obj: object, name: str, allowed: typing.Iterable[str]) -> None:
     value = getattr(obj, name)
     allowed = tuple(allowed)
@@ -176,21 +194,62 @@ class AgarPadGeometry:
     """An open agar-pad field in which a monolayer colony grows (supplement 13.2).
 
     Coordinates of cells are measured from the top-left corner of the field (x to the
-    right, y down the image rows); founders start at the centre. There are no walls:
-    cells whose centre leaves the field are removed (fate ``"exited"``), which also
-    bounds the cost of a long run.
+    right, y down the image rows). With one colony and no scattered cells (the
+    default) the founders start in a small grid at the centre; otherwise the
+    ``SimulationSettings.n_founders`` founders are shared out over ``n_colonies``
+    colonies whose centres are drawn at random over the field (the run's seed), and
+    ``scattered_cells`` more founders are dropped alone at random places, as on a
+    real pad. There are no walls: cells whose centre leaves the field are removed
+    (fate ``"exited"``), which also bounds the cost of a long run.
+
+    Colony size is set by the founders per colony and the number of frames; density
+    by ``founder_spacing_um`` (founders further apart leave gaps the colony fills
+    later) and by ``SimulationSettings.gravity`` (towards the field centre).
 
     Parameters
     ----------
     field_width_um, field_height_um
         Size of the simulated field of view.
+    n_colonies
+        Colonies the founders are shared between (at least 1, at most
+        ``n_founders``).
+    scattered_cells
+        Extra founders placed alone, each at least ``colony_separation_um`` from
+        every colony centre and half of it from each other.
+    founder_spacing_um
+        Distance between the founders of one colony; 0 means the mean division
+        length (``cell_max_length_um``).
+    colony_separation_um
+        Smallest distance between two colony centres.
+    edge_margin_um
+        Colony centres and scattered cells stay this far inside the field.
     """
 
     field_width_um: float = 40.0
     field_height_um: float = 40.0
+    n_colonies: int = 1
+    scattered_cells: int = 0
+    founder_spacing_um: float = 0.0
+    colony_separation_um: float = 10.0
+    edge_margin_um: float = 3.0
 
     def __post_init__(self) -> None:
         _positive(self, "field_width_um", "field_height_um")
+        _non_negative(self, "founder_spacing_um", "colony_separation_um", "edge_margin_um")
+        _require(
+            isinstance(self.n_colonies, int) and self.n_colonies >= 1,
+            f"AgarPadGeometry.n_colonies must be an integer >= 1, got {self.n_colonies!r}",
+        )
+        _require(
+            isinstance(self.scattered_cells, int) and self.scattered_cells >= 0,
+            "AgarPadGeometry.scattered_cells must be an integer >= 0, got "
+            f"{self.scattered_cells!r}",
+        )
+        _require(
+            2 * self.edge_margin_um < min(self.field_width_um, self.field_height_um),
+            f"AgarPadGeometry.edge_margin_um={self.edge_margin_um} leaves no room in a "
+            f"{self.field_width_um} x {self.field_height_um} um field: lower it",
+        )
 
 
 @dataclass(frozen=True)
@@ -362,6 +421,9 @@ class SimulationSettings:
     save_dir: str | None = None
 
     def __post_init__(self) -> None:
+        _nested(
+            self, trench=TrenchGeometry, agar_pad=AgarPadGeometry, outline=OutlineGeometry
+        )
         _require(
             isinstance(self.n_frames, int) and self.n_frames >= 1,
             f"SimulationSettings.n_frames must be an integer >= 1, got {self.n_frames!r}",
@@ -532,6 +594,52 @@ class RenderSettings:
         Weight moved from the bright-field part of the phase kernel to a negative
         uniform disk over its radius (a constant inside the radius, kernel sum kept
         at 1); positive values add long-range halo and shade-off (section 13.2).
+    ring_model
+        Shape of the ring part of the phase kernel: ``"airy"`` (intensity pattern of
+        the obscured Airy of eq. 7, the shape before ``"annulus"`` existed) or
+        ``"annulus"`` (weak-phase transfer function of partially coherent annular
+        illumination through the phase plate, ``optics.psf.annulus_transfer_function``;
+        its halo reaches ``~ lambda / (W NA)``, several um, so give it a
+        ``psf_radius_px`` of a few um).
+    phase_ring_width_scale
+        Width of the phase plate's ring over the width of the condenser's catalogue
+        annulus (:data:`CONDENSERS`), 0.5-3 (makers differ); the ring stays centred
+        on the annulus. Wider rings pass fewer low frequencies: a narrower halo.
+    cell_phase_adu, device_phase_adu
+        Phase signal of a full-depth column of cells (device) against media, in ADU:
+        ``I_0 (2 sin(theta) / a) 2 pi (n - n_media) depth / lambda`` for a plate of
+        amplitude transmission ``a`` and phase shift ``theta``, the weight of the
+        zero-sum ring part, separate from the bright-field contrast of the
+        intensities. ``None`` for both (default): the ring part is tied to the
+        intensities, ``P_k = ring_contrast (I_media - I_k)`` (one kernel
+        ``h = k_bf + gamma k_ring``); a number for either sets them apart (the other
+        ``None`` counts as 0) and ``ring_contrast`` is not used.
+    phase_model
+        ``"linear"`` (default): the image is the sample convolved with the phase
+        kernel (eq. 7-15; weak-phase approximation, cached per component).
+        ``"partially_coherent"``: the sample's complex transmission
+        ``sqrt(B) exp(i phi)`` imaged through the annular illumination and the phase
+        plate, summed over source points
+        (``optics.partial_coherence.annular_phase_image``): reaches the halo,
+        bright gaps and weak shade-off of dense colonies that the linear model
+        cannot. Uses ``cell_phase_rad``, ``device_phase_rad``,
+        ``plate_transmission``, ``plate_phase_rad``, ``phase_ring_width_scale``,
+        ``apodisation_sigma_um``, ``defocus_sigma_um`` and ``source_points``; the
+        intensities give the bright-field transmission ``B = I_k / I_media`` and the
+        level of the empty field (``media_intensity``); ``ring_contrast``,
+        ``psf_offset``, ``ring_model`` and the ``*_phase_adu`` are not used.
+    cell_phase_rad, device_phase_rad
+        Phase delay of a full-depth column of cells (device) against the media,
+        ``2 pi (n - n_media) depth / lambda`` (eq. OPL1-3), partially coherent model.
+    plate_transmission
+        Intensity transmission of the phase plate's ring (``(0, 1]``; commercial
+        plates 0.05-0.3), partially coherent model.
+    plate_phase_rad
+        Phase advance of the plate's ring; ``pi / 2`` is positive (dark-medium)
+        phase contrast. Partially coherent model.
+    source_points
+        Points of the condenser annulus summed by the partially coherent model
+        (angles x 2 radii; >= 8).
     noise_model
         ``"camera"`` (EMVA1288, eq. 17), ``"gaussian"`` or ``"none"``.
     gaussian_noise_sd_adu
@@ -559,6 +667,16 @@ class RenderSettings:
     defocus_sigma_um: float = 0.0
     ring_contrast: float = 0.5
     psf_offset: float = 0.0
+    ring_model: str = "airy"
+    phase_ring_width_scale: float = 1.0
+    cell_phase_adu: float | None = None
+    device_phase_adu: float | None = None
+    phase_model: str = "linear"
+    cell_phase_rad: float = 0.6
+    device_phase_rad: float = 0.0
+    plate_transmission: float = 0.25
+    plate_phase_rad: float = 1.5707963267948966
+    source_points: int = 24
     noise_model: NoiseModel = "camera"
     gaussian_noise_sd_adu: float = 20.0
     texture_amplitude: float = 0.0
@@ -590,6 +708,52 @@ class RenderSettings:
             f"RenderSettings.psf_offset must be a finite number, got {self.psf_offset!r}",
         )
         _choice(self, "noise_model", typing.get_args(NoiseModel))
+        _choice(self, "ring_model", ("airy", "annulus"))
+        _choice(self, "phase_model", ("linear", "partially_coherent"))
+        _non_negative(self, "cell_phase_rad", "device_phase_rad")
+        _require(
+            isinstance(self.plate_transmission, (int, float))
+            and 0 < self.plate_transmission <= 1,
+            "RenderSettings.plate_transmission must be in (0, 1] (an intensity "
+            f"transmission), got {self.plate_transmission!r}",
+        )
+        _require(
+            isinstance(self.plate_phase_rad, (int, float))
+            and 0 < self.plate_phase_rad < math.pi,
+            "RenderSettings.plate_phase_rad must be in (0, pi) (pi/2: positive phase "
+            f"contrast), got {self.plate_phase_rad!r}",
+        )
+        _require(
+            isinstance(self.source_points, int) and self.source_points >= 8,
+            f"RenderSettings.source_points must be an integer >= 8, got {self.source_points!r}",
+        )
+        _require(
+            isinstance(self.phase_ring_width_scale, (int, float))
+            and 0.5 <= self.phase_ring_width_scale <= 3.0,
+            "RenderSettings.phase_ring_width_scale must be in [0.5, 3] (relative to the "
+            f"condenser's catalogue annulus), got {self.phase_ring_width_scale!r}",
+        )
+        for name in ("cell_phase_adu", "device_phase_adu"):
+            value = getattr(self, name)
+            _require(
+                value is None
+                or (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0),
+                f"RenderSettings.{name} must be None or a finite number >= 0, got {value!r}",
+            )
+
+    @property
+    def phase_separate(self) -> bool:
+        """True when the ring part has its own amplitudes (``*_phase_adu``)."""
+        return self.cell_phase_adu is not None or self.device_phase_adu is not None
+
+    def phase_amplitudes(self) -> tuple[float, float]:
+        """``(P_cell, P_device)``, the ring part's weights in ADU (see the class notes)."""
+        if self.phase_separate:
+            return (float(self.cell_phase_adu or 0.0), float(self.device_phase_adu or 0.0))
+        return (
+            self.ring_contrast * (self.media_intensity - self.cell_intensity),
+            self.ring_contrast * (self.media_intensity - self.device_intensity),
+        )
 
 
 @dataclass(frozen=True)
@@ -637,6 +801,13 @@ class PipelineSettings:
     camera: Camera = field(default_factory=Camera)
 
     def __post_init__(self) -> None:
+        _nested(
+            self,
+            simulation=SimulationSettings,
+            microscope=Microscope,
+            render=RenderSettings,
+            camera=Camera,
+        )
         _require(
             self.render.apodisation_sigma_um >= self.microscope.min_apodisation_sigma_um,
             f"RenderSettings.apodisation_sigma_um={self.render.apodisation_sigma_um} is below "
@@ -739,7 +910,8 @@ def save_settings(settings: Any, path: str | Path) -> Path:
 def load_settings(path: str | Path, cls: type[T]) -> T:
     """Read settings of type ``cls`` from a YAML or JSON file written by :func:`save_settings`.
 
-    A file may also hold only some fields (the rest take their defaults).
+    A file may also hold only some fields (the rest take their defaults); an empty
+    file is an error, so that a wrong or blank file never silently means the defaults.
     """
     path = Path(path)
     if not path.is_file():
@@ -749,4 +921,10 @@ def load_settings(path: str | Path, cls: type[T]) -> T:
         data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
     except (json.JSONDecodeError, yaml.YAMLError) as err:
         raise ValueError(f"{path} is not valid YAML/JSON: {err}") from err
-    return from_dict(cls, data or {})
+    if data is None:
+        raise ValueError(
+            f"settings file {path} is empty: write the fields to change in it (start from "
+            "`napari-symbac defaults KIND --out FILE`), or leave the file out to use the "
+            "defaults"
+        )
+    return from_dict(cls, data)

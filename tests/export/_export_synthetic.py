@@ -89,6 +89,11 @@ class SyntheticSource:
     def _split(self, unit: int) -> str:
         return "val" if self.val_every and unit % self.val_every == self.val_every - 1 else "train"
 
+    def _sequence(self, unit: int) -> int:
+        """Rank of the unit among the units of its split."""
+        n_val_before = unit // self.val_every if self.val_every else 0
+        return n_val_before if self._split(unit) == "val" else unit - n_val_before
+
     def make_unit(self, unit: int) -> list[ExportItem]:
         armed = self.fail_flag is None or Path(self.fail_flag).exists()
         if self.fail_at is not None and unit == self.fail_at and armed:
@@ -135,6 +140,7 @@ class SyntheticSource:
                     labels=labels,
                     split=self._split(unit),
                     series=unit,
+                    sequence=self._sequence(unit),
                     frame=t,
                     n_frames=TIMESERIES_FRAMES,
                     parents=parents,

@@ -264,8 +264,8 @@ def test_ctc_layout_and_man_track(series_export, series_items_):
     for series in (0, 1):
         frames = [it for it in series_items_ if it.series == series]
         split = frames[0].split
-        seq = series_export / "ctc" / split / f"{series + 1:02d}"
-        gt = series_export / "ctc" / split / f"{series + 1:02d}_GT"
+        seq = series_export / "ctc" / split / f"{frames[0].sequence + 1:02d}"
+        gt = series_export / "ctc" / split / f"{frames[0].sequence + 1:02d}_GT"
         for it in frames:
             image = tifffile.imread(seq / f"t{it.frame:03d}.tif")
             tra = tifffile.imread(gt / "TRA" / f"man_track{it.frame:03d}.tif")

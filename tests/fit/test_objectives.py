@@ -72,10 +72,17 @@ def test_unknown_term_and_bad_masks_are_rejected(truth):
         objective_terms(truth.image, truth.image, {"cells": classes == 1})
 
 
-def test_rough_strokes_leave_the_edge_profile_undefined(truth):
+def test_rough_strokes_give_every_term_a_value(truth):
+    """Strokes that never meet a cell's edge: no term is nan, and each still compares."""
     strokes = np.zeros(truth.image.shape, np.int64)
     strokes[20:24, 18:22] = CLASS_VALUES["cell"]  # interior of a cell, far from media
     strokes[60:62, 24:25] = CLASS_VALUES["media"]
-    terms = objective_terms(truth.image, truth.image, strokes, terms=("edge_profile", "eq20"))
-    assert np.isnan(terms["edge_profile"])
-    assert terms["eq20"] == 0
+    names = tuple(t for t in TERM_NAMES if t != "pixel")
+    same = objective_terms(truth.image, truth.image, strokes, terms=names)
+    assert all(np.isfinite(v) for v in same.values()), same
+    assert same["edge_profile"] == 0
+    assert same["eq20"] == 0
+    flatter = truth.image.astype(float) * 0.5 + float(truth.image.mean()) * 0.5
+    other = objective_terms(flatter, truth.image, strokes, terms=names)
+    assert all(np.isfinite(v) for v in other.values()), other
+    assert other["edge_profile"] == pytest.approx(0.5, rel=1e-6)  # half the contrast

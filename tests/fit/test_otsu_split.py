@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from _fit_synthetic import PIXEL_UM, TRUTH, make_cells
 
-import napari_symbac.fit.scene_fit as scene_fit
+import napari_symbac.fit.start as start
 from napari_symbac.fit import otsu_cells
 from napari_symbac.optics import ForwardModel
 from napari_symbac.scene import draw_scene
@@ -47,7 +47,7 @@ def test_touching_cells_are_split_at_their_septa(seed, monkeypatch):
     distance = np.hypot(found.x_um[order] - true_x, found.y_um[order] - true_y)
     assert np.all(distance < 0.3), distance
     # Without the septum split the same image is one region (equal rods, wrong centres).
-    monkeypatch.setattr(scene_fit, "_split_at_septa", lambda instances, *args, **kw: instances)
+    monkeypatch.setattr(start, "_split_at_septa", lambda instances, *args, **kw: instances)
     plain, _, _, plain_instances = otsu_cells(image, microscope)
     assert plain_instances.max() < 4
     if len(plain) == 4:
@@ -68,7 +68,7 @@ def test_septum_cuts_respect_prominence_and_length():
         1000 + 200 * np.exp(-0.5 * ((x - 50) / 2) ** 2) + 30 * np.exp(-0.5 * ((x - 25) / 2) ** 2)
     )
     noise = np.full(x.size, 3.0)
-    assert scene_fit._septum_cuts(profile, noise, 100.0, 20) == [50]
-    assert scene_fit._septum_cuts(profile, noise, 10.0, 20) == [25, 50]  # low bar: both
-    assert scene_fit._septum_cuts(profile, noise, 10.0, 30) == [50]  # 25 leaves < 30 bins
-    assert scene_fit._septum_cuts(profile, np.full(x.size, 50.0), 10.0, 20) == []  # noise
+    assert start._septum_cuts(profile, noise, 100.0, 20) == [50]
+    assert start._septum_cuts(profile, noise, 10.0, 20) == [25, 50]  # low bar: both
+    assert start._septum_cuts(profile, noise, 10.0, 30) == [50]  # 25 leaves < 30 bins
+    assert start._septum_cuts(profile, np.full(x.size, 50.0), 10.0, 20) == []  # noise

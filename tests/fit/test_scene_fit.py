@@ -14,7 +14,7 @@ from napari_symbac.fit import (
     otsu_cells,
     scene_classes,
 )
-from napari_symbac.fit.scene_fit import _draw
+from napari_symbac.fit.placement import draw_fitted as _draw
 from napari_symbac.optics import ForwardModel
 from napari_symbac.scene import draw_scene
 from napari_symbac.settings import Camera, Microscope, RenderSettings, TrenchGeometry

@@ -13,7 +13,7 @@ from typing import Any, Literal
 
 from magicgui.widgets import CheckBox, ComboBox, Container, FloatSpinBox, LineEdit, SpinBox, Widget
 
-__all__ = ["SettingsForm"]
+__all__ = ["SettingsForm", "parameter_docs"]
 
 _UNIT_SUFFIXES = {
     "_um2": "um²",
@@ -28,7 +28,36 @@ _UNIT_SUFFIXES = {
 }
 
 
+#: Readable labels for field names that say little on their own (units where they have one).
+_READABLE = {
+    "n_frames": "frames",
+    "n_founders": "founder cells",
+    "interdivision_time_var_min2": "interdivision time variance (min²)",
+    "septum_sd": "septum position sd (fraction)",
+    "angle_jitter_rad": "angle jitter (rad)",
+    "phys_iters": "physics iterations per frame",
+    "lysis_p": "lysis probability per frame",
+    "do_transformation": "bend cells (eq. 1)",
+    "save_dir": "save folder",
+    "upsample": "render upsampling (x camera)",
+    "cell_intensity": "cell intensity (ADU)",
+    "media_intensity": "media intensity (ADU)",
+    "device_intensity": "device intensity (ADU)",
+    "psf_offset": "PSF offset (weight)",
+    "texture_amplitude": "agar texture amplitude",
+    "cell_brightness_cv": "cell brightness CV",
+    "numerical_aperture": "numerical aperture (NA)",
+    "refractive_index": "immersion refractive index",
+    "bit_depth": "bit depth (bits)",
+    "magnification": "magnification (x)",
+    "dxf_path": "DXF file",
+    "dxf_layer": "DXF layer",
+}
+
+
 def _label(name: str) -> str:
+    if name in _READABLE:
+        return _READABLE[name]
     for suffix, unit in sorted(_UNIT_SUFFIXES.items(), key=lambda kv: -len(kv[0])):
         if name.endswith(suffix):
             return f"{name[: -len(suffix)].replace('_', ' ')} ({unit})"
@@ -44,6 +73,34 @@ def _float_step(value: float) -> float:
 def _is_text(annotation: Any) -> bool:
     args = set(typing.get_args(annotation)) - {type(None)}
     return annotation is str or args == {str}
+
+
+def parameter_docs(cls: type) -> dict[str, str]:
+    """``{field: description}`` from the numpy-style "Parameters" section of ``cls``."""
+    lines = (cls.__doc__ or "").splitlines()
+    docs: dict[str, list[str]] = {}
+    inside, current, indent = False, [], None
+    for line in lines:
+        text = line.strip()
+        if text == "Parameters":
+            inside = True
+            continue
+        if not inside or set(text) == {"-"}:
+            continue
+        if text and indent is None:
+            indent = len(line) - len(line.lstrip())
+        if text and len(line) - len(line.lstrip()) == indent:
+            if text.endswith(":") or text in ("Returns", "Attributes", "Raises", "Notes"):
+                break
+            current = [name.strip() for name in text.split(":")[0].split(",")]
+            for name in current:
+                docs[name] = []
+        elif text:
+            for name in current:
+                docs[name].append(text)
+        elif indent is not None and not current:
+            break
+    return {name: " ".join(words).replace("``", "") for name, words in docs.items() if words}
 
 
 def _field_widget(name: str, annotation: Any, value: Any) -> Widget | None:
@@ -96,6 +153,7 @@ class SettingsForm(Container):
         value = cls() if value is None else value
         hints = typing.get_type_hints(cls)
         choices = choices or {}
+        tooltips = parameter_docs(cls)
         for field in dataclasses.fields(cls):
             current = getattr(value, field.name)
             if field.name in choices:
@@ -110,6 +168,7 @@ class SettingsForm(Container):
             if widget is None:
                 self._fixed[field.name] = current
             else:
+                widget.tooltip = tooltips.get(field.name) or _label(field.name)
                 self.append(widget)
         self._remember_exact(value)
 

@@ -1,4 +1,5 @@
-"""Dock widget: load a real recording, paint cell / media / device classes, measure them.
+"""Dock widget: your recording: open it, give its pixel size and microscope, paint and
+measure cell / media / device classes.
 
 Headless equivalents: :func:`napari_symbac.io.read_recording` and
 :func:`napari_symbac.fit.class_statistics`.
@@ -9,9 +10,13 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-from magicgui.widgets import ComboBox, Container, FileEdit, FloatSpinBox, Label, PushButton
+from magicgui.widgets import ComboBox, Container, FileEdit, Label, PushButton
 
+from napari_symbac._widgets._forms import SettingsForm
+from napari_symbac._widgets._jobs import notify_warning
+from napari_symbac._widgets._recording import pixel_size_problem
 from napari_symbac.fit import CLASS_VALUES, class_statistics
+from napari_symbac.settings import Camera, Microscope
 
 if TYPE_CHECKING:
     import napari
@@ -28,32 +33,53 @@ def class_layer_name(image_name: str) -> str:
 
 
 class RealImageWidget(Container):
-    """Choose a real image, paint rough class labels on it, and measure the classes.
+    """Your recording: its pixel size and microscope, rough class labels, their statistics.
 
-    * **image**: any image layer, or open a TIFF (pixel size read from its metadata).
+    * **real image**: any image layer, or open a TIFF (pixel size and modality read
+      from its metadata). A file without a pixel size shows a warning and asks for it;
+      the value entered is remembered with the layer (``layer.metadata``) and sets the
+      layer's scale, so real and synthetic layers share micrometre coordinates.
+    * **microscope**: pixel size, objective, wavelength, condenser and modality; the
+      other widgets simulate, tune, fit and export with it.
     * **Paint classes**: adds a labels layer with the classes cell (1), media (2) and
       device (3), in fixed colours, in paint mode with the cell class selected.
-    * **Measure**: mean and variance of each painted class (eq. 2).
+    * **Measure**: mean and variance of each painted class (eq. 2), stored with the
+      layer as the starting intensities of the simulation.
     """
 
     def __init__(self, viewer: napari.viewer.Viewer):
-        super().__init__(name="symbac_real_image")
+        super().__init__(name="symbac_real_image", scrollable=False)
         self.viewer = viewer
-        self.image = ComboBox(name="image", label="real image", choices=self._image_layers)
-        self.file = FileEdit(name="file", label="or open", filter="*.tif *.tiff", mode="r")
-        self.pixel_size = FloatSpinBox(
-            name="pixel_size_um",
-            label="pixel size (um)",
-            value=0.065,
-            min=0.001,
-            max=10,
-            step=0.001,
+        self.image = ComboBox(
+            name="image",
+            label="real image",
+            choices=self._image_layers,
+            tooltip="The recording to match: an image layer (not a synthetic one).",
         )
-        self.modality = ComboBox(
-            name="modality", label="modality", choices=["phase", "fluorescence"]
+        self.file = FileEdit(
+            name="file",
+            label="or open",
+            filter="*.tif *.tiff",
+            mode="r",
+            tooltip="Open a TIFF recording; its pixel size and modality are read if recorded.",
         )
-        self.paint_button = PushButton(name="paint", text="Paint classes")
-        self.measure_button = PushButton(name="measure", text="Measure classes")
+        self.microscope = SettingsForm(Microscope, name="microscope", label="microscope")
+        self.microscope.pixel_size_um.min = 0.0
+        self.microscope.pixel_size_um.max = 100.0
+        self.microscope.pixel_size_um.step = 0.001
+        self.pixel_size = self.microscope.pixel_size_um
+        self.modality = self.microscope.modality
+        self.warning = Label(name="warning", value="")
+        self.paint_button = PushButton(
+            name="paint",
+            text="Paint classes",
+            tooltip="Add a labels layer on the image: paint a few strokes of each class.",
+        )
+        self.measure_button = PushButton(
+            name="measure",
+            text="Measure classes",
+            tooltip="Mean and spread of the image inside each painted class (eq. 2).",
+        )
         legend = " ".join(
             f"<b style='color:{colour}'>{value} {name}</b>"
             for (name, colour), value in zip(CLASS_COLOURS.items(), CLASS_VALUES.values())
@@ -64,8 +90,8 @@ class RealImageWidget(Container):
             [
                 self.image,
                 self.file,
-                self.pixel_size,
-                self.modality,
+                self.warning,
+                self.microscope,
                 self.paint_button,
                 self.legend,
                 self.measure_button,
@@ -73,18 +99,26 @@ class RealImageWidget(Container):
             ]
         )
         self.file.changed.connect(self._open_file)
-        self.image.changed.connect(self._prefill_pixel_size)
+        self.image.changed.connect(self._load_layer)
+        self.microscope.changed.connect(self._store)
         self.paint_button.changed.connect(self.paint)
         self.measure_button.changed.connect(self.measure)
         viewer.layers.events.inserted.connect(self.image.reset_choices)
         viewer.layers.events.removed.connect(self.image.reset_choices)
         self.statistics = None
-        self._prefill_pixel_size()
+        self._loading = False
+        self._load_layer()
 
     def _image_layers(self, _widget=None) -> list:
         from napari.layers import Image
 
-        return [layer for layer in self.viewer.layers if isinstance(layer, Image)]
+        from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
+
+        return [
+            layer
+            for layer in self.viewer.layers
+            if isinstance(layer, Image) and SYMBAC_METADATA_KEY not in layer.metadata
+        ]
 
     def _open_file(self) -> None:
         from napari_symbac.io import read_recording
@@ -96,26 +130,74 @@ class RealImageWidget(Container):
             recording = read_recording(path)
         except (ValueError, OSError) as err:
             self.result.value = f"Cannot open {path.name}: {err}"
+            notify_warning(f"Cannot open {path.name}: {err}")
             return
+        kwargs = {}
+        if recording.pixel_size_um:
+            kwargs["scale"] = (1.0,) * (recording.data.ndim - 2) + (recording.pixel_size_um,) * 2
         layer = self.viewer.add_image(
             recording.data,
             name=recording.name,
             metadata={"pixel_size_um": recording.pixel_size_um, "modality": recording.modality},
+            **kwargs,
         )
         self.image.value = layer
 
-    def _prefill_pixel_size(self, _value=None) -> None:
-        """Fill pixel size and modality from the layer's metadata (or its scale)."""
+    def _load_layer(self, _value=None) -> None:
+        """Show the chosen layer's pixel size, modality and microscope (never another's)."""
         layer = self.image.value
         if layer is None:
             return
-        if layer.metadata.get("modality") in self.modality.choices:
-            self.modality.value = layer.metadata["modality"]
-        pixel = layer.metadata.get("pixel_size_um")
+        meta = layer.metadata
+        pixel = meta.get("pixel_size_um")
         if not pixel and layer.scale[-1] != 1:  # a layer already scaled to micrometres
             pixel = float(layer.scale[-1])
-        if pixel:
-            self.pixel_size.value = pixel
+        self._loading = True
+        try:
+            if isinstance(meta.get("microscope"), Microscope):
+                self.microscope.value = meta["microscope"]
+            if meta.get("modality") in self.modality.choices:
+                self.modality.value = meta["modality"]
+            self.pixel_size.value = pixel or 0.0
+        finally:
+            self._loading = False
+        self._store()
+
+    def _store(self, _value=None) -> None:
+        """Remember the form with the layer, or show why it cannot be used."""
+        if self._loading:
+            return
+        layer = self.image.value
+        if layer is None:
+            return
+        pixel = float(self.pixel_size.value)
+        problem = pixel_size_problem(pixel)
+        if problem is None:
+            try:
+                microscope = self.microscope.value
+            except ValueError as err:
+                problem = str(err)
+        if problem is not None:
+            self.warning.value = f"<b style='color:#ffb000'>&#9888; {layer.name}: {problem}</b>"
+            if self.warning.value != getattr(self, "_warned", None):
+                notify_warning(f"{layer.name}: {problem}")
+            self._warned = self.warning.value
+            layer.metadata["pixel_size_um"] = None
+            return
+        self.warning.value = ""
+        self._warned = None
+        layer.metadata.update(
+            pixel_size_um=pixel, modality=microscope.modality, microscope=microscope
+        )
+        scale = (*layer.scale[:-2], pixel, pixel)
+        targets = [layer]
+        if class_layer_name(layer.name) in self.viewer.layers:
+            targets.append(self.viewer.layers[class_layer_name(layer.name)])
+        for target in targets:
+            if tuple(target.scale) != scale:
+                target.scale = scale
+        if not any(_is_synthetic(other) for other in self.viewer.layers):
+            self.viewer.reset_view()
 
     def paint(self) -> None:
         """Add (or select) the class-labels layer for the chosen image, ready to paint."""
@@ -144,7 +226,7 @@ class RealImageWidget(Container):
         self.viewer.layers.selection.active = labels
 
     def measure(self) -> None:
-        """Mean and variance of each painted class (eq. 2), shown in the widget."""
+        """Mean and variance of each painted class (eq. 2), shown and kept with the layer."""
         layer = self.image.value
         if layer is None or class_layer_name(layer.name) not in self.viewer.layers:
             self.result.value = "Paint classes first"
@@ -154,8 +236,19 @@ class RealImageWidget(Container):
             self.statistics = class_statistics(layer.data, labels, required=("cell", "media"))
         except ValueError as err:
             self.result.value = str(err)
+            notify_warning(str(err))
             return
+        baseline = Camera().baseline_adu
+        layer.metadata["class_means_adu"] = {
+            name: stat.mean - baseline for name, stat in self.statistics.items()
+        }
         self.result.value = "<br>".join(
             f"{name}: mean {stat.mean:.1f}, sd {np.sqrt(stat.variance):.1f} ({stat.n_pixels} px)"
             for name, stat in self.statistics.items()
         )
+
+
+def _is_synthetic(layer) -> bool:
+    from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
+
+    return SYMBAC_METADATA_KEY in layer.metadata

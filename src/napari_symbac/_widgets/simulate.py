@@ -10,9 +10,15 @@ import dataclasses
 from typing import TYPE_CHECKING
 
 import numpy as np
-from magicgui.widgets import CheckBox, Container, Label, PushButton
+from magicgui.widgets import CheckBox, ComboBox, Container, Label, PushButton
 
 from napari_symbac._widgets._forms import SettingsForm
+from napari_symbac._widgets._jobs import Job
+from napari_symbac._widgets._recording import (
+    modality_render,
+    recording_microscope,
+    recordings,
+)
 from napari_symbac.settings import PipelineSettings, SimulationSettings
 
 if TYPE_CHECKING:
@@ -43,29 +49,88 @@ class SimulateWidget(Container):
     ``synthetic`` image layer with its ``synthetic labels`` instance masks (cell ids
     consistent over time). Cancelling removes the preview and leaves earlier results
     untouched.
+
+    With a recording chosen (a real image whose pixel size was set in *Real image and
+    classes*), its pixel size, microscope and modality are simulated, and its measured
+    class means start the intensities; every layer is scaled to micrometres.
     """
 
     def __init__(self, viewer: napari.viewer.Viewer, settings: PipelineSettings | None = None):
         super().__init__(name="symbac_simulate", labels=True)
         self.viewer = viewer
         self.pipeline = settings or PipelineSettings()
+        self.recording = ComboBox(
+            name="recording",
+            label="your recording",
+            choices=lambda _w=None: recordings(viewer),
+            nullable=True,
+            tooltip=(
+                "Simulate with this recording's pixel size, microscope and modality "
+                "(set them in 'Real image and classes'); none: the built-in microscope."
+            ),
+        )
         self.form = SettingsForm(
             SimulationSettings, self.pipeline.simulation, name="settings", label="simulation"
         )
-        self.show_opl = CheckBox(name="show_opl", text="also show optical path length (eq. OPL1-3)")
-        self.run_button = PushButton(text="Run simulation", name="run")
-        self.cancel_button = PushButton(text="Cancel", name="cancel", enabled=False)
+        self.show_opl = CheckBox(
+            name="show_opl",
+            text="also show optical path length (eq. OPL1-3)",
+            tooltip="Add a hidden layer of the optical path length at render resolution.",
+        )
+        self.run_button = PushButton(
+            text="Run simulation", name="run", tooltip="Simulate growth, then render every frame."
+        )
+        self.cancel_button = PushButton(
+            text="Cancel", name="cancel", enabled=False, tooltip="Stop; nothing is kept."
+        )
         self.status = Label(value="", name="status")
-        self.extend([self.form, self.show_opl, self.run_button, self.cancel_button, self.status])
+        self.extend(
+            [
+                self.recording,
+                self.form,
+                self.show_opl,
+                self.run_button,
+                self.cancel_button,
+                self.status,
+            ]
+        )
+        for event in (viewer.layers.events.inserted, viewer.layers.events.removed):
+            event.connect(self._refresh_recordings)
+        self._refresh_recordings()
         if hasattr(self.form, "geometry"):
             self.form.geometry.changed.connect(self._show_geometry_settings)
             self._show_geometry_settings()
         self.run_button.changed.connect(self.run)
         self.cancel_button.changed.connect(self.cancel)
-        self.worker = None
+        self.worker: Job | None = None
         self.simulation = None
         self.series = None
         self._n_frames = 0
+
+    def _refresh_recordings(self, _event=None) -> None:
+        """Offer the viewer's recordings; pick the newest when none is chosen."""
+        self.recording.reset_choices()
+        choices = [c for c in self.recording.choices if c is not None]
+        if self.recording.value is None and choices:
+            self.recording.value = choices[-1]
+
+    def pipeline_settings(self) -> PipelineSettings:
+        """The settings to run: the form, and the chosen recording's microscope.
+
+        Raises
+        ------
+        ValueError
+            If the form's settings are invalid.
+        """
+        pipeline = dataclasses.replace(self.pipeline, simulation=self.form.value)
+        layer = self.recording.value
+        if layer is None:
+            return pipeline
+        microscope = recording_microscope(layer, pipeline.microscope)
+        render = modality_render(
+            pipeline.render, microscope.modality, layer.metadata.get("class_means_adu")
+        )
+        return dataclasses.replace(pipeline, microscope=microscope, render=render)
 
     def _show_geometry_settings(self, _value=None) -> None:
         """Show only the sub-form of the chosen geometry (the trench also sizes a chamber)."""
@@ -83,24 +148,20 @@ class SimulateWidget(Container):
 
     def run(self) -> None:
         """Validate the form and start simulating and rendering in a worker thread."""
-        from napari.qt.threading import thread_worker
-
+        if self.worker is not None:
+            return
         try:
-            sim_settings = self.form.value
-            pipeline = dataclasses.replace(self.pipeline, simulation=sim_settings)
+            pipeline = self.pipeline_settings()
         except ValueError as err:
             self.status.value = f"Invalid settings: {err}"
             return
+        sim_settings = pipeline.simulation
         n_frames = sim_settings.n_frames
         self._n_frames = n_frames
+        self._pixel_um = pipeline.microscope.pixel_size_um
         with_opl = self.show_opl.value
+        steps = (3 if with_opl else 2) * n_frames
 
-        @thread_worker(
-            progress={
-                "total": (3 if with_opl else 2) * n_frames,
-                "desc": "SyMBac simulate + render",
-            }
-        )
         def work():
             from napari_symbac.pipeline import RenderedSeries, draw_frame, iter_render
             from napari_symbac.scene import draw_scene, field_of
@@ -112,12 +173,12 @@ class SimulateWidget(Container):
                 scene = draw_scene(
                     frame, sim_settings.trench, pipeline.microscope, pipeline.render, field=field
                 )
-                yield ("simulated", index + 1, scene.camera_labels())
+                yield index + 1, ("simulated", index + 1, scene.camera_labels())
             simulation = simulator.result()
             frames = []
             for rendered in iter_render(simulation, pipeline):
                 frames.append(rendered)
-                yield ("rendered", len(frames), None)
+                yield n_frames + len(frames), ("rendered", len(frames), None)
             series = RenderedSeries.from_frames(frames)
             opl = None
             if with_opl:
@@ -125,16 +186,22 @@ class SimulateWidget(Container):
                 for index in range(n_frames):
                     scene = draw_frame(simulation, pipeline, index)
                     opl.append(scene.interior(scene.optical_path_length()))
-                    yield ("opl", index + 1, None)
+                    yield 2 * n_frames + index + 1, ("opl", index + 1, None)
                 opl = np.stack(opl)
             return simulation, pipeline, series, opl
 
-        self.worker = work()
-        self.worker.yielded.connect(self._on_yielded)
-        self.worker.returned.connect(self._on_returned)
-        self.worker.aborted.connect(self._on_aborted)
-        self.worker.errored.connect(self._on_errored)
-        self.worker.finished.connect(self._on_finished)
+        self.worker = Job(
+            work,
+            total=steps,
+            description="SyMBac simulate + render",
+            what="Simulation",
+            on_yield=self._on_yielded,
+            on_return=self._on_returned,
+            on_error=self._on_errored,
+            on_abort=self._on_aborted,
+            on_finish=self._on_finished,
+            owner=self.native,
+        )
         self.run_button.enabled = False
         self.cancel_button.enabled = True
         self.status.value = "Simulating..."
@@ -151,12 +218,15 @@ class SimulateWidget(Container):
     def _on_yielded(self, message) -> None:
         stage, done, labels = message
         if stage == "simulated":
-            self.status.value = f"Simulated frame {done}"
+            self.status.value = f"Simulated frame {done} of {self._n_frames}"
             if PREVIEW_LAYER in self.viewer.layers:
                 self.viewer.layers[PREVIEW_LAYER].data = labels
             else:
-                self.viewer.add_labels(labels, name=PREVIEW_LAYER)
+                self.viewer.add_labels(
+                    labels, name=PREVIEW_LAYER, scale=(self._pixel_um, self._pixel_um)
+                )
         elif stage == "rendered":
+            self._remove_preview()
             self.status.value = f"Rendered frame {done} of {self._n_frames}"
         else:
             self.status.value = f"Optical path length of frame {done}"
@@ -171,10 +241,8 @@ class SimulateWidget(Container):
             (RESULT_LABELS_LAYER, self.series.labels, "labels"),
         ):
             if name in self.viewer.layers:
-                layer = self.viewer.layers[name]
-                layer.data = data
-                layer.metadata.update(metadata)
-            elif kind == "image":
+                self.viewer.layers.remove(name)  # new shape, scale or modality
+            if kind == "image":
                 self.viewer.add_image(data, name=name, scale=scale, metadata=metadata)
             else:
                 self.viewer.add_labels(data, name=name, scale=scale, metadata=metadata)
@@ -203,7 +271,7 @@ class SimulateWidget(Container):
         self._remove_preview()
         self.status.value = "Cancelled: nothing was kept"
 
-    def _on_errored(self, err: Exception) -> None:
+    def _on_errored(self, err: BaseException) -> None:
         self._remove_preview()
         self.status.value = f"Failed: {err}"
 

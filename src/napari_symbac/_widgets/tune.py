@@ -6,6 +6,7 @@ Headless equivalent: :class:`napari_symbac.fit.live.LivePreview`.
 from __future__ import annotations
 
 import dataclasses
+import threading
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -17,16 +18,27 @@ from magicgui.widgets import (
     Image,
     Label,
     PushButton,
+    SpinBox,
     Table,
 )
 
+from napari_symbac._widgets._jobs import Job, notify_warning
+from napari_symbac._widgets._recording import modality_render
 from napari_symbac._widgets.real_image import class_layer_name
 from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
 
 if TYPE_CHECKING:
     import napari
 
-__all__ = ["SLIDERS", "TuneWidget", "terms_plot"]
+__all__ = ["FIT_RESIDUAL_LAYER", "FIT_SYNTHETIC_LAYER", "SLIDERS", "TuneWidget", "terms_plot"]
+
+#: Layers the auto-fit adds: the fitted scene rendered, and real minus it.
+FIT_SYNTHETIC_LAYER = "auto-fit synthetic"
+FIT_RESIDUAL_LAYER = "auto-fit residual"
+
+#: Largest relative difference in size between the real image and the rendered frames
+#: that matching pads or crops away (the rendered trench has a margin of a pixel or two).
+MATCH_SIZE_TOLERANCE = 0.1
 
 #: Slider name -> (label, minimum, maximum). Each name is a RenderSettings field.
 SLIDERS: dict[str, tuple[str, float, float]] = {
@@ -45,18 +57,53 @@ def terms_plot(terms: dict[str, tuple[float, float]], width: int = 240) -> np.nd
     """A small RGB bar chart of objective terms: grey before, orange after (per term).
 
     Each pair of bars is scaled to the larger of the two, so every term shows how
-    much the fit reduced it.
+    much the fit reduced it. A term that is not a finite number (NaN: e.g. an edge
+    profile with too few painted edge pixels) is drawn as a red stripe, not a bar.
     """
     bar, gap = 7, 5
     height = max(1, len(terms)) * (2 * bar + gap) + gap
     image = np.full((height, width, 3), 40, np.uint8)
     for row, (before, after) in enumerate(terms.values()):
         top = gap + row * (2 * bar + gap)
-        scale = max(abs(before), abs(after)) or 1.0
+        finite = [abs(v) for v in (before, after) if np.isfinite(v)]
+        scale = max(finite, default=0.0) or 1.0
         for offset, value, colour in ((0, before, (150, 150, 150)), (bar, after, (255, 150, 40))):
+            rows = slice(top + offset, top + offset + bar - 1)
+            if not np.isfinite(value):
+                image[rows, 1 : width - 1 : 4] = (220, 40, 40)
+                continue
             length = round((width - 2) * abs(value) / scale)
-            image[top + offset : top + offset + bar - 1, 1 : 1 + length] = colour
+            image[rows, 1 : 1 + length] = colour
     return image
+
+
+def _fit_to_shape(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Centre-crop or reflect-pad ``image`` to ``shape`` (sizes within 10 %).
+
+    Raises
+    ------
+    ValueError
+        If a side differs by more than :data:`MATCH_SIZE_TOLERANCE`.
+    """
+    for have, want in zip(image.shape, shape):
+        if abs(have - want) > MATCH_SIZE_TOLERANCE * want:
+            raise ValueError(
+                f"the real image ({image.shape[0]} x {image.shape[1]} px) and the rendered "
+                f"frames ({shape[0]} x {shape[1]} px) differ by more than "
+                f"{MATCH_SIZE_TOLERANCE:.0%}: simulate a field of the recording's size "
+                "(trench length = rows x pixel size) or crop the real image to it"
+            )
+    out = image
+    for axis, want in enumerate(shape):
+        have = out.shape[axis]
+        if have > want:
+            start = (have - want) // 2
+            out = np.take(out, range(start, start + want), axis=axis)
+        elif have < want:
+            pad = [(0, 0), (0, 0)]
+            pad[axis] = ((want - have) // 2, want - have - (want - have) // 2)
+            out = np.pad(out, pad, mode="reflect")
+    return out
 
 
 class TuneWidget(Container):
@@ -86,16 +133,46 @@ class TuneWidget(Container):
             name: FloatSlider(name=name, label=label, min=low, max=high, readout=True)
             for name, (label, low, high) in SLIDERS.items()
         }
+        from napari_symbac._widgets._forms import parameter_docs
+        from napari_symbac.settings import RenderSettings
+
+        docs = parameter_docs(RenderSettings)
+        for name, slider in self.sliders.items():
+            slider.tooltip = docs.get(name, slider.label)
+        self.source.tooltip = "The rendered layer to tune (made by Simulate and render)."
+        self.reference.tooltip = "The real recording to compare with, match to and fit to."
+        self.modality.tooltip = (
+            "phase: dark cells on bright media; fluorescence: bright cells on a dark "
+            "background (switching sets intensities of that polarity)."
+        )
+        self.noise_model.tooltip = "camera: shot + read noise (eq. 17); gaussian: fixed sd."
         self.match_fourier = CheckBox(name="match_fourier", text="match Fourier spectrum")
         self.match_histogram = CheckBox(name="match_histogram", text="match histogram")
         self.match_noise = CheckBox(
             name="match_noise", text="match noise (Gaussian, sd measured on the real image)"
         )
         self.status = Label(name="status", value="")
-        self.fit_button = PushButton(name="fit", text="Auto-fit to the real image")
-        self.cancel_fit_button = PushButton(name="cancel_fit", text="Cancel fit", enabled=False)
+        self.fit_iterations = SpinBox(
+            name="fit_iterations",
+            label="fit iterations",
+            value=25,
+            min=1,
+            max=500,
+            tooltip="Gauss-Newton iterations per reweighting round of the scene fit.",
+        )
+        self.fit_button = PushButton(
+            name="fit",
+            text="Auto-fit to the real image",
+            tooltip=(
+                "Fit cells, trench, optics and intensities so the rendered image overlays "
+                "the real one (analysis by synthesis); painted classes add eq. 20 terms."
+            ),
+        )
+        self.cancel_fit_button = PushButton(
+            name="cancel_fit", text="Cancel fit", enabled=False, tooltip="Stop the fit."
+        )
         self.terms_table = Table(name="terms", label="objective terms")
-        self.terms_image = Image(name="terms_plot", label="before / after")
+        self.terms_image = Image(name="terms_plot", label="before (grey) / after (orange)")
         self.extend(
             [
                 self.source,
@@ -106,6 +183,7 @@ class TuneWidget(Container):
                 self.match_fourier,
                 self.match_histogram,
                 self.match_noise,
+                self.fit_iterations,
                 self.fit_button,
                 self.cancel_fit_button,
                 self.status,
@@ -116,9 +194,9 @@ class TuneWidget(Container):
         self.terms_image.visible = False
         self.fit_button.changed.connect(self.auto_fit)
         self.cancel_fit_button.changed.connect(self.cancel_fit)
-        self.fit_worker = None
+        self.fit_worker: Job | None = None
         self.fit_result = None
-        self._fit_cancelled = False
+        self._modality = None
         self.preview = None
         self._stale: set[int] = set()
         self._loading = False
@@ -193,6 +271,7 @@ class TuneWidget(Container):
             self.noise_model.value = settings.render.noise_model
         finally:
             self._loading = False
+        self._modality = settings.microscope.modality
         self._stale = set()
         self.status.value = ""
 
@@ -226,24 +305,43 @@ class TuneWidget(Container):
         if self.fit_worker is not None:
             self.status.value = "Fitting: wait for the fit or cancel it"
             return
+        if self.modality.value != self._modality:
+            self._switch_modality(self.modality.value)
         changes = {name: slider.value for name, slider in self.sliders.items()}
         changes["noise_model"] = self.noise_model.value
         changes["modality"] = self.modality.value
         try:
             self.preview.update(**changes)
+            self._stale = set(range(self.preview.n_frames))
+            self._show(self._current_frame())
         except ValueError as err:
             self.status.value = f"Not applied: {err}"
             return
         self.status.value = ""
-        self._stale = set(range(self.preview.n_frames))
-        self._show(self._current_frame())
         self._store_settings()
+
+    def _switch_modality(self, modality: str) -> None:
+        """Intensities of the new modality's polarity: the recording's class means when
+        it is of that modality, else the modality's defaults (fluorescence: bright cells
+        on a dark background)."""
+        reference = self.reference.value
+        means = None
+        if reference is not None and reference.metadata.get("modality") == modality:
+            means = reference.metadata.get("class_means_adu")
+        render = modality_render(self.preview.render_settings, modality, means)
+        self._loading = True
+        try:
+            for name, slider in self.sliders.items():
+                _set_slider(slider, float(getattr(render, name)))
+        finally:
+            self._loading = False
+        self._modality = modality
 
     def _on_matching(self, _value: Any = None) -> None:
         if self.preview is None:
             return
-        frame = self._reference_frame()
         try:
+            frame = self._reference_frame()
             self.preview.set_reference(
                 frame,
                 fourier=self.match_fourier.value,
@@ -257,107 +355,207 @@ class TuneWidget(Container):
     # -- auto-fit -------------------------------------------------------------------------
 
     def auto_fit(self) -> None:
-        """Fit the parameters to the chosen real image's painted classes, in a worker."""
-        from napari.qt.threading import thread_worker
+        """Fit the scene (cells, trench, optics, intensities) to the real image, in a worker.
 
-        from napari_symbac.fit import fit_parameters
-
-        reference = self.reference.value
-        if self.preview is None or reference is None:
-            self.status.value = "Choose a rendered layer and a real image first"
+        Runs :func:`napari_symbac.fit.fit_scene` on the chosen real image with its
+        recording's microscope (pixel size set in *Real image and classes*) and the
+        painted classes when there are any. Progress and cancel go through napari's
+        activity dock and the Cancel fit button; the fitted render settings become the
+        rendered layer's settings (so Export uses them).
+        """
+        if self.fit_worker is not None:
             return
-        if class_layer_name(reference.name) not in self.viewer.layers:
-            self.status.value = (
-                f"Paint classes on {reference.name} first (Real image and classes widget)"
-            )
+        try:
+            job_input = self._fit_input()
+        except ValueError as err:
+            self.status.value = str(err)
+            notify_warning(str(err))
             return
-        index = self._current_frame()
-        real = np.asarray(reference.data)
-        classes = np.asarray(self.viewer.layers[class_layer_name(reference.name)].data)
-        if real.ndim == 3:
-            real, classes = real[min(index, len(real) - 1)], classes[min(index, len(classes) - 1)]
-        preview = self.preview
-        scene = preview.scene(index)
-        self._fit_cancelled = False
+        real, labels, microscope, render, camera, geometry = job_input
+        iterations = self.fit_iterations.value
+        cancelled = threading.Event()
 
-        @thread_worker(progress={"total": 0, "desc": "SyMBac auto-fit"})
         def work():
-            return fit_parameters(
-                real,
-                classes,
-                scene,
-                preview.model.microscope,
-                preview.render_settings,
-                preview.model.camera,
-                model=preview.model,
-                cancel=lambda: self._fit_cancelled,
+            from napari_symbac.fit import fit_scene
+
+            return (
+                yield from _blocking_steps(
+                    lambda progress, cancel: fit_scene(
+                        real,
+                        microscope,
+                        render,
+                        camera,
+                        labels=labels,
+                        geometry=geometry,
+                        max_iterations=iterations,
+                        progress=progress,
+                        cancel=cancel,
+                    ),
+                    cancelled.is_set,
+                )
             )
 
-        self.fit_worker = work()
-        self.fit_worker.returned.connect(self._on_fit_returned)
-        self.fit_worker.errored.connect(self._on_fit_errored)
-        self.fit_worker.finished.connect(self._on_fit_finished)
+        self.fit_worker = Job(
+            work,
+            cancelled=cancelled,
+            total=0,
+            description="SyMBac auto-fit",
+            what="Auto-fit",
+            on_yield=self._on_fit_progress,
+            on_return=self._on_fit_returned,
+            on_error=self._on_fit_errored,
+            on_finish=self._on_fit_finished,
+            owner=self.native,
+        )
         self.fit_button.enabled = False
         self.cancel_fit_button.enabled = True
         self.status.value = "Fitting..."
         self.fit_worker.start()
 
+    def _fit_input(self) -> tuple:
+        """Real frame, painted classes (or ``None``), microscope, render, camera, geometry.
+
+        Raises
+        ------
+        ValueError
+            With what to do, when something needed is missing.
+        """
+        reference = self.reference.value
+        if self.preview is None or reference is None:
+            raise ValueError("Choose a rendered layer and a real image first")
+        settings = self.source.value.metadata[SYMBAC_METADATA_KEY]["settings"]
+        microscope = self.preview.model.microscope
+        pixel = reference.metadata.get("pixel_size_um")
+        if pixel:
+            microscope = dataclasses.replace(microscope, pixel_size_um=float(pixel))
+        modality = reference.metadata.get("modality") or microscope.modality
+        if modality != "phase":
+            raise ValueError(
+                f"Auto-fit models phase contrast; {reference.name} is {modality}: tune the "
+                "intensities from its measured class means instead"
+            )
+        index = self._current_frame()
+        real = np.asarray(reference.data)
+        if real.ndim == 3:
+            real = real[min(index, len(real) - 1)]
+        labels = None
+        name = class_layer_name(reference.name)
+        if name in self.viewer.layers:
+            labels = np.asarray(self.viewer.layers[name].data)
+            if labels.ndim == 3:
+                labels = labels[min(index, len(labels) - 1)]
+            if not labels.any():
+                labels = None
+        geometry = "trench" if settings.simulation.geometry in ("trench", "chamber") else "open"
+        return (
+            real,
+            labels,
+            microscope,
+            self.preview.render_settings,
+            self.preview.model.camera,
+            geometry,
+        )
+
     def cancel_fit(self) -> None:
         """Stop the fit before its next render; the parameters stay as they were."""
-        self._fit_cancelled = True
+        if self.fit_worker is not None:
+            self.fit_worker.quit()
+            self.status.value = "Cancelling the fit..."
+
+    def _on_fit_progress(self, message) -> None:
+        done, total = message
+        self.status.value = f"Fitting: {done} of about {total} renders"
 
     def _on_fit_returned(self, result) -> None:
         self.fit_result = result
-        fitted = {name: getattr(result.render, name) for name in SLIDERS}
+        fitted = {name: float(getattr(result.render, name)) for name in SLIDERS}
         self._loading = True
         try:
             for name, value in fitted.items():
-                slider = self.sliders[name]
-                slider.max = max(slider.max, float(value))
-                slider.value = float(value)
+                if np.isfinite(value):
+                    _set_slider(self.sliders[name], value)
         finally:
             self._loading = False
-        self.preview.update(**dataclasses.asdict(result.render))
-        self._stale = set(range(self.preview.n_frames))
-        self._show(self._current_frame())
-        self._store_settings()
+        try:
+            self.preview.update(**dataclasses.asdict(result.render))
+            self._stale = set(range(self.preview.n_frames))
+            self._show(self._current_frame())
+            self._store_settings()
+        except ValueError as err:
+            notify_warning(f"The fitted settings were not applied to the preview: {err}")
+        self._show_fit_layers(result)
+        nan_terms = [
+            name
+            for name, pair in result.terms.items()
+            if not all(np.isfinite(value) for value in pair)
+        ]
         self.terms_table.value = {
             "term": list(result.terms),
-            "before": [f"{before:.4g}" for before, _ in result.terms.values()],
-            "after": [f"{after:.4g}" for _, after in result.terms.values()],
+            "before": [_format(before) for before, _ in result.terms.values()],
+            "after": [_format(after) for _, after in result.terms.values()],
         }
         self.terms_image.value = terms_plot(result.terms)
         self.terms_image.visible = True
         self.status.value = (
             f"Fitted in {result.n_evaluations} renders: objective "
-            f"{result.objective_before:.4g} -> {result.objective_after:.4g}"
+            f"{_format(result.objective_before)} -> {_format(result.objective_after)}"
         )
+        if nan_terms:
+            message = (
+                f"Not computable (NaN): {', '.join(nan_terms)}; paint longer strokes of each "
+                "class across the edges to get them"
+            )
+            self.status.value += f"<br>{message}"
+            notify_warning(message)
 
-    def _on_fit_errored(self, err: Exception) -> None:
+    def _show_fit_layers(self, result) -> None:
+        """The fitted synthetic image and the residual, over the real image."""
+        reference = self.reference.value
+        kwargs = {
+            "scale": tuple(reference.scale[-2:]),
+            "translate": tuple(reference.translate[-2:]),
+        }
+        for name, data, extra in (
+            (FIT_SYNTHETIC_LAYER, result.synthetic, {}),
+            (FIT_RESIDUAL_LAYER, result.residual, {"colormap": "PiYG", "visible": False}),
+        ):
+            if name in self.viewer.layers:
+                self.viewer.layers.remove(name)
+            self.viewer.add_image(np.asarray(data), name=name, **kwargs, **extra)
+
+    def _on_fit_errored(self, err: BaseException) -> bool:
         from napari_symbac.fit import FitCancelled
 
         if isinstance(err, FitCancelled):
             self.status.value = "Fit cancelled: parameters unchanged"
-        else:
-            self.status.value = f"Fit failed: {err}"
+            return True
+        self.status.value = f"Fit failed: {err}"
+        return False
 
     def _on_fit_finished(self) -> None:
         self.fit_worker = None
         self.fit_button.enabled = True
         self.cancel_fit_button.enabled = False
+        if self.status.value.startswith(("Fitting", "Cancelling")):
+            self.status.value = "Fit stopped"
 
-    def _reference_frame(self) -> np.ndarray | None:
+    def _reference_frame(self, fit_shape: bool = True) -> np.ndarray | None:
+        """The real frame shown, padded or cropped to the rendered frames' size."""
         reference = self.reference.value
         if reference is None:
             return None
         data = np.asarray(reference.data)
-        return data[min(self._current_frame(), len(data) - 1)] if data.ndim == 3 else data
+        frame = data[min(self._current_frame(), len(data) - 1)] if data.ndim == 3 else data
+        source = self.source.value
+        if fit_shape and source is not None and frame.shape != source.data.shape[-2:]:
+            frame = _fit_to_shape(frame, source.data.shape[-2:])
+        return frame
 
     def _match_noise(self, _value: Any = None) -> None:
         """Set Gaussian noise with the sd measured on the real image (SyMBac's match_noise)."""
         from napari_symbac.diagnose import estimate_noise_sd
 
-        frame = self._reference_frame()
+        frame = self._reference_frame(fit_shape=False)
         if not self.match_noise.value or frame is None or self.preview is None:
             return
         try:
@@ -366,11 +564,10 @@ class TuneWidget(Container):
             self.status.value = f"Not applied: {err}"
             return
         slider = self.sliders["gaussian_noise_sd_adu"]
-        slider.max = max(slider.max, sd)
         self._loading = True
         try:
             self.noise_model.value = "gaussian"
-            slider.value = sd
+            _set_slider(slider, sd)
         finally:
             self._loading = False
         self._on_parameter()
@@ -379,3 +576,39 @@ class TuneWidget(Container):
     def _on_step(self, _event=None) -> None:
         if self.preview is not None and self._current_frame() in self._stale:
             self._show(self._current_frame())
+
+
+def _format(value: float) -> str:
+    return f"{value:.4g}" if np.isfinite(value) else "NaN"
+
+
+def _blocking_steps(run, cancelled):
+    """Run ``run(progress, cancel)`` in a thread; yield ``(done, (done, total))`` updates.
+
+    A generator for :class:`~napari_symbac._widgets._jobs.Job`; returns ``run``'s result
+    and raises its exception.
+    """
+    import queue
+    from concurrent.futures import ThreadPoolExecutor
+
+    updates: queue.Queue = queue.Queue()
+    with ThreadPoolExecutor(1) as pool:
+        future = pool.submit(run, lambda done, total: updates.put((done, total)), cancelled)
+        while not future.done() or not updates.empty():
+            try:
+                done, total = updates.get(timeout=0.05)
+            except queue.Empty:
+                continue
+            yield done, (done, total)
+        return future.result()
+
+
+def _set_slider(slider: FloatSlider, value: float) -> None:
+    """Set ``slider`` to ``value``, widening its range (with room) when it lies outside:
+    the slider rounds its limits, so a limit set to exactly ``value`` can reject it."""
+    room = 0.25 * abs(value) + 1e-3
+    if value > slider.max:
+        slider.max = value + room
+    if value < slider.min:
+        slider.min = value - room
+    slider.value = value

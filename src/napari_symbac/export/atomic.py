@@ -23,10 +23,13 @@ from typing import Any
 import numpy as np
 
 __all__ = [
+    "TIFF_KINDS",
+    "TIFF_KIND_KEY",
     "ExportError",
     "atomic_path",
     "explain_os_error",
     "remove_stale_temporaries",
+    "tiff_metadata",
     "write_bytes",
     "write_json",
     "write_png",
@@ -145,11 +148,76 @@ def write_json(path: str | os.PathLike, data: Any, *, indent: int | None = None)
     return write_text(path, json.dumps(data, indent=indent, allow_nan=False) + "\n")
 
 
-def write_tiff(path: str | os.PathLike, array: np.ndarray, **kwargs: Any) -> Path:
-    """Write ``array`` as an uncompressed TIFF atomically (no timestamps: reproducible bytes)."""
+#: What a TIFF holds, recorded in its metadata under :data:`TIFF_KIND_KEY`.
+TIFF_KINDS = ("image", "labels", "semantic")
+#: Metadata key (ImageJ description or tifffile JSON description) naming the kind.
+TIFF_KIND_KEY = "napari_symbac"
+_IMAGEJ_DTYPES = (np.uint8, np.uint16, np.float32)
+
+
+def tiff_metadata(
+    array: np.ndarray,
+    *,
+    pixel_size_um: float | None = None,
+    kind: str = "image",
+    frame_interval_min: float | None = None,
+) -> dict[str, Any]:
+    """Keyword arguments of :func:`tifffile.imwrite` that record pixel size and kind.
+
+    uint8, uint16 and float32 arrays are written as ImageJ hyperstacks (``resolution`` in
+    pixels per micrometre, ``unit=um``, ``finterval`` in seconds for ``(T, Y, X)``
+    stacks), which ImageJ/Fiji, tifffile, napari and this plugin's reader all read.
+    Wider label images (uint32), which ImageJ cannot hold, carry the resolution in
+    pixels per centimetre (TIFF ``ResolutionUnit`` 3) and a JSON description. Both
+    name the kind (``image``, ``labels``, ``semantic``) under :data:`TIFF_KIND_KEY`,
+    so the reader reopens masks as napari Labels layers.
+    """
+    if kind not in TIFF_KINDS:
+        raise ValueError(f"TIFF kind must be one of {TIFF_KINDS}, got {kind!r}")
+    if pixel_size_um is not None and not (
+        isinstance(pixel_size_um, (int, float)) and np.isfinite(pixel_size_um) and pixel_size_um > 0
+    ):
+        raise ValueError(f"pixel_size_um must be a positive number, got {pixel_size_um!r}")
+    axes = "TYX"[-array.ndim :] if array.ndim <= 3 else None
+    if array.dtype in _IMAGEJ_DTYPES and axes is not None:
+        metadata: dict[str, Any] = {"axes": axes, TIFF_KIND_KEY: kind}
+        kwargs: dict[str, Any] = {"imagej": True, "metadata": metadata}
+        if pixel_size_um is not None:
+            kwargs["resolution"] = (1 / pixel_size_um, 1 / pixel_size_um)
+            metadata["unit"] = "um"
+        if frame_interval_min is not None and array.ndim == 3:
+            metadata["finterval"] = float(frame_interval_min) * 60.0
+        return kwargs
+    metadata = {TIFF_KIND_KEY: kind}
+    kwargs = {"metadata": metadata}
+    if pixel_size_um is not None:
+        per_cm = 1e4 / pixel_size_um
+        kwargs |= {"resolution": (per_cm, per_cm), "resolutionunit": "CENTIMETER"}
+        metadata["pixel_size_um"] = float(pixel_size_um)
+    return kwargs
+
+
+def write_tiff(
+    path: str | os.PathLike,
+    array: np.ndarray,
+    *,
+    pixel_size_um: float | None = None,
+    kind: str = "image",
+    frame_interval_min: float | None = None,
+    compression: str | None = None,
+) -> Path:
+    """Write ``array`` as a TIFF atomically (no timestamps: reproducible bytes).
+
+    Pixel size and kind are recorded as :func:`tiff_metadata` describes.
+    """
     import tifffile
 
     array = np.ascontiguousarray(array)
+    kwargs = tiff_metadata(
+        array, pixel_size_um=pixel_size_um, kind=kind, frame_interval_min=frame_interval_min
+    )
+    if compression is not None:
+        kwargs["compression"] = compression
     return _atomic(path, lambda tmp: tifffile.imwrite(tmp, array, **kwargs))
 
 

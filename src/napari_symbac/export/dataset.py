@@ -40,6 +40,7 @@ __all__ = [
     "Randomisation",
     "Range",
     "load_export_settings",
+    "sequence_of",
     "split_of",
     "unit_rng",
 ]
@@ -204,6 +205,14 @@ class ExportSettings:
     pipeline: PipelineSettings = field(default_factory=PipelineSettings)
 
     def __post_init__(self) -> None:
+        for name, cls in (("pipeline", PipelineSettings), ("randomise", Randomisation)):
+            value = getattr(self, name)
+            if not isinstance(value, cls):
+                raise TypeError(
+                    f"ExportSettings.{name} must be a {cls.__name__}, got "
+                    f"{type(value).__name__}: pass {cls.__name__}(...), or build the whole "
+                    "settings from a mapping with export_settings_from_dict(...)"
+                )
         if isinstance(self.n_items, bool) or not isinstance(self.n_items, int) or self.n_items < 1:
             _fail(f"ExportSettings.n_items must be an integer >= 1, got {self.n_items!r}")
         if self.kind not in ("frames", "timeseries"):
@@ -291,6 +300,20 @@ def split_of(settings: ExportSettings, unit: int) -> str:
     """``"val"`` for the ``round(val_fraction * n_items)`` units drawn for validation."""
     val = _val_units(settings.seed, settings.n_items, float(settings.val_fraction))
     return "val" if unit in val else "train"
+
+
+@lru_cache(maxsize=8)
+def _sorted_val_units(seed: int, n_units: int, val_fraction: float) -> tuple[int, ...]:
+    return tuple(sorted(_val_units(seed, n_units, val_fraction)))
+
+
+def sequence_of(settings: ExportSettings, unit: int) -> int:
+    """The number of unit ``unit`` among the units of its split (0, 1, ... per split)."""
+    import bisect
+
+    val = _sorted_val_units(settings.seed, settings.n_items, float(settings.val_fraction))
+    before = bisect.bisect_left(val, unit)  # validation units before this one
+    return before if split_of(settings, unit) == "val" else unit - before
 
 
 _SIMULATIONS: dict[str, Any] = {}
@@ -412,6 +435,7 @@ class PipelineSource:
                     semantic=semantic,
                     split=split,  # type: ignore[arg-type]
                     series=None if s.kind == "frames" else unit,
+                    sequence=None if s.kind == "frames" else sequence_of(s, unit),
                     frame=None if s.kind == "frames" else frame,
                     n_frames=None if s.kind == "frames" else n_frames,
                     parents={int(c): parents.get(int(c), 0) for c in present if c},

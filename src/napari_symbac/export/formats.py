@@ -65,6 +65,12 @@ class FormatWriter:
         """Write dataset-level files from the manifest entries of all items."""
         return []
 
+    def remember(self, item: ExportItem) -> None:
+        """Called with every item of a unit in order, written or not (resumed runs).
+
+        Writers whose items depend on the previous frame (DeLTA tracking) keep it.
+        """
+
     def _check(self, item: ExportItem) -> None:
         if self.timeseries_only and not item.is_timeseries:
             raise ValueError(
@@ -95,9 +101,10 @@ class TiffWriter(FormatWriter):
         base = out_dir / self.name / item.split
         paths = [base / "images" / f"{item.name}.tif", base / "labels" / f"{item.name}.tif"]
         paths.append(base / "semantic" / f"{item.name}.tif")
-        write_tiff(paths[0], item.image_uint16())
-        write_tiff(paths[1], item.instance_mask())
-        write_tiff(paths[2], item.semantic)
+        px = item.pixel_size_um
+        write_tiff(paths[0], item.image_uint16(), pixel_size_um=px)
+        write_tiff(paths[1], item.instance_mask(), pixel_size_um=px, kind="labels")
+        write_tiff(paths[2], item.semantic, pixel_size_um=px, kind="semantic")
         return [_rel(out_dir, p) for p in paths]
 
 
@@ -125,21 +132,83 @@ class PngWriter(FormatWriter):
 
 
 class DeltaWriter(FormatWriter):
-    """DeLTA 2.x segmentation training set: ``delta/{split}/{img,seg}/{name}.png``.
+    """DeLTA 2.x training sets, segmentation and (for time series) tracking.
 
-    ``img`` is the 16-bit image, ``seg`` an 8-bit binary mask (255 in cells) with touching
-    cells separated by background pixels, as ``delta.data.trainGenerator_seg`` expects.
-    Weight maps (``wei/``) are computed by DeLTA itself (``delta.data.seg_weights``).
+    Segmentation, as ``delta.data.trainGenerator_seg(batch, img, seg, wei, ...)`` reads
+    it: ``delta/{split}/{img,seg,wei}/{name}.png`` with ``img`` the 16-bit image, ``seg``
+    an 8-bit mask (255 in cells, touching cells separated by background) and ``wei`` the
+    U-Net border weight map (:func:`~napari_symbac.export.weights.segmentation_weights`,
+    16-bit, ``100 * w``).
+
+    Tracking, for every frame ``t >= 1`` of a time series and every cell ``c`` of frame
+    ``t - 1``, as ``delta.data.trainGenerator_track(batch, img, seg, previmg, segall,
+    mot_dau, wei, ...)`` reads it: ``delta/{split}/tracking/{img,seg,previmg,segall,
+    mot_dau,wei}/{name}_cell{c}.png`` with ``img`` frame ``t``, ``previmg`` frame
+    ``t - 1``, ``seg`` the seed (cell ``c`` in frame ``t - 1``), ``segall`` every cell
+    of frame ``t``, ``mot_dau`` cell ``c`` and the daughters it divided into in frame
+    ``t`` (empty if it left the trench) and ``wei`` the tracking weight map
+    (:func:`~napari_symbac.export.weights.tracking_weights`).
     """
 
     name = "delta"
 
+    def __init__(self) -> None:
+        self._previous: ExportItem | None = None
+
+    def remember(self, item: ExportItem) -> None:
+        self._previous = item
+
     def write_item(self, out_dir: Path, item: ExportItem) -> list[str]:
+        from napari_symbac.export.weights import segmentation_weights, to_weight_png
+
         base = out_dir / self.name / item.split
-        paths = [base / "img" / f"{item.name}.png", base / "seg" / f"{item.name}.png"]
+        paths = [base / d / f"{item.name}.png" for d in ("img", "seg", "wei")]
         write_png(paths[0], item.image_uint16())
         write_png(paths[1], (item.semantic * 255).astype(np.uint8))
+        write_png(paths[2], to_weight_png(segmentation_weights(item.labels * item.semantic)))
+        paths += self._write_tracking(base / "tracking", item)
         return [_rel(out_dir, p) for p in paths]
+
+    def _write_tracking(self, base: Path, item: ExportItem) -> list[Path]:
+        from napari_symbac.export.weights import to_weight_png, tracking_weights
+
+        previous = self._previous
+        if not (
+            item.is_timeseries
+            and item.frame
+            and previous is not None
+            and previous.series == item.series
+            and previous.frame == item.frame - 1
+        ):
+            return []
+        separated = item.labels * item.semantic
+        daughters: dict[int, list[int]] = defaultdict(list)
+        before = set(np.unique(previous.labels).tolist())
+        for cell in np.unique(item.labels):
+            parent = int(item.parents.get(int(cell), 0))
+            if cell and int(cell) not in before and parent:
+                daughters[parent].append(int(cell))
+        width = max(6, len(str(item.max_label)))
+        all_cells = (item.semantic * 255).astype(np.uint8)
+        image, previous_image = item.image_uint16(), previous.image_uint16()
+        paths = []
+        for cell in np.unique(previous.labels):
+            if not cell:
+                continue
+            track = np.isin(separated, [int(cell), *daughters.get(int(cell), [])])
+            name = f"{item.name}_cell{int(cell):0{width}d}.png"
+            files = {
+                "img": image,
+                "seg": ((previous.labels == cell) * 255).astype(np.uint8),
+                "previmg": previous_image,
+                "segall": all_cells,
+                "mot_dau": (track * 255).astype(np.uint8),
+                "wei": to_weight_png(tracking_weights(track, separated > 0)),
+            }
+            for folder, array in files.items():
+                paths.append(base / folder / name)
+                write_png(paths[-1], array)
+        return paths
 
 
 class OmniposeWriter(FormatWriter):
@@ -154,8 +223,8 @@ class OmniposeWriter(FormatWriter):
     def write_item(self, out_dir: Path, item: ExportItem) -> list[str]:
         base = out_dir / self.name / item.split
         paths = [base / f"{item.name}.tif", base / f"{item.name}_masks.tif"]
-        write_tiff(paths[0], item.image_uint16())
-        write_tiff(paths[1], item.instance_mask())
+        write_tiff(paths[0], item.image_uint16(), pixel_size_um=item.pixel_size_um)
+        write_tiff(paths[1], item.instance_mask(), pixel_size_um=item.pixel_size_um, kind="labels")
         return [_rel(out_dir, p) for p in paths]
 
 
@@ -167,8 +236,8 @@ class StarDistWriter(FormatWriter):
     def write_item(self, out_dir: Path, item: ExportItem) -> list[str]:
         base = out_dir / self.name / item.split
         paths = [base / "images" / f"{item.name}.tif", base / "masks" / f"{item.name}.tif"]
-        write_tiff(paths[0], item.image_uint16())
-        write_tiff(paths[1], item.instance_mask())
+        write_tiff(paths[0], item.image_uint16(), pixel_size_um=item.pixel_size_um)
+        write_tiff(paths[1], item.instance_mask(), pixel_size_um=item.pixel_size_um, kind="labels")
         return [_rel(out_dir, p) for p in paths]
 
 
@@ -355,74 +424,155 @@ class CtcWriter(FormatWriter):
     ``ctc/{split}/{SS}/t{TTT}.tif`` (uint16 images), ``ctc/{split}/{SS}_GT/TRA/man_track{TTT}.tif``
     and ``.../SEG/man_seg{TTT}.tif`` (instance masks, value = track label = cell id) and
     ``ctc/{split}/{SS}_GT/TRA/man_track.txt`` with one ``L B E P`` line per track (label,
-    first frame, last frame, parent label or 0). ``SS`` numbers series from 01; frames
-    have at least three digits.
+    first frame, last frame, parent label or 0). ``SS`` numbers the series of each split
+    from 01 (:attr:`ExportItem.sequence`), as the CTC tools expect; frames have at least
+    three digits.
     """
 
     name = "ctc"
     timeseries_only = True
 
-    def _dirs(self, out_dir: Path, split: str, series: int) -> tuple[Path, Path]:
-        seq = f"{series + 1:02d}"
+    def _dirs(self, out_dir: Path, split: str, sequence: int) -> tuple[Path, Path]:
+        seq = f"{sequence + 1:02d}"
         base = out_dir / self.name / split
         return base / seq, base / f"{seq}_GT"
 
     def write_item(self, out_dir: Path, item: ExportItem) -> list[str]:
         self._check(item)
-        images, gt = self._dirs(out_dir, item.split, item.series)
+        images, gt = self._dirs(out_dir, item.split, item.sequence)
         t = f"{item.frame:0{_frame_digits(item.n_frames or item.frame + 1)}d}"
         paths = [images / f"t{t}.tif", gt / "TRA" / f"man_track{t}.tif"]
         paths.append(gt / "SEG" / f"man_seg{t}.tif")
-        write_tiff(paths[0], item.image_uint16())
+        px = item.pixel_size_um
+        write_tiff(paths[0], item.image_uint16(), pixel_size_um=px)
         mask = item.instance_mask()
-        write_tiff(paths[1], mask)
-        write_tiff(paths[2], mask)
+        write_tiff(paths[1], mask, pixel_size_um=px, kind="labels")
+        write_tiff(paths[2], mask, pixel_size_um=px, kind="labels")
         return [_rel(out_dir, p) for p in paths]
 
     def finalize(self, out_dir: Path, records: Sequence[Record]) -> list[str]:
         written = []
-        for (split, series), group in _series_groups(records).items():
+        for (split, _series), group in _series_groups(records).items():
             lines = [f"{cell} {b} {e} {p}" for cell, (b, e, p) in _tracks(group).items()]
-            path = self._dirs(out_dir, split, series)[1] / "TRA" / "man_track.txt"
+            sequence = int(group[0].get("sequence", _series))
+            path = self._dirs(out_dir, split, sequence)[1] / "TRA" / "man_track.txt"
             write_text(path, "\n".join(lines) + ("\n" if lines else ""))
             written.append(_rel(out_dir, path))
         return written
 
 
-class TrackMateWriter(FormatWriter):
-    """TrackMate XML, one file per series: ``trackmate/{split}/s{SSSS}.xml``.
+#: TrackMate feature declarations: key -> (name, short name, dimension, is integer).
+_TRACKMATE_FEATURES = {
+    "SpotFeatures": {
+        "QUALITY": ("Quality", "Quality", "QUALITY", False),
+        "POSITION_X": ("X", "X", "POSITION", False),
+        "POSITION_Y": ("Y", "Y", "POSITION", False),
+        "POSITION_Z": ("Z", "Z", "POSITION", False),
+        "POSITION_T": ("T", "T", "TIME", False),
+        "FRAME": ("Frame", "Frame", "NONE", True),
+        "RADIUS": ("Radius", "R", "LENGTH", False),
+        "VISIBILITY": ("Visibility", "Visibility", "NONE", True),
+        "AREA": ("Area", "Area", "AREA", False),
+    },
+    "EdgeFeatures": {
+        "SPOT_SOURCE_ID": ("Source spot ID", "Source ID", "NONE", True),
+        "SPOT_TARGET_ID": ("Target spot ID", "Target ID", "NONE", True),
+        "LINK_COST": ("Edge cost", "Cost", "COST", False),
+    },
+    "TrackFeatures": {
+        "TRACK_INDEX": ("Track index", "Index", "NONE", True),
+        "TRACK_ID": ("Track ID", "ID", "NONE", True),
+        "NUMBER_SPOTS": ("Number of spots in track", "N spots", "NONE", True),
+        "NUMBER_SPLITS": ("Number of split events", "N splits", "NONE", True),
+    },
+}
 
-    Each cell in each frame is a spot at its centroid (physical units, micrometres and
-    minutes) named ``cell_{id}``; consecutive frames of a cell are linked, and a mother's
-    last spot links to each daughter's first spot. A TrackMate track is a lineage tree.
+
+def _number(value: float) -> str:
+    return repr(round(float(value), 6))
+
+
+class TrackMateWriter(FormatWriter):
+    """TrackMate XML, one file per series, beside the image stack it annotates.
+
+    ``trackmate/{split}/s{SSSS}.xml`` and ``trackmate/{split}/s{SSSS}.tif`` (the series
+    as one ``(T, Y, X)`` uint16 ImageJ stack with pixel size and frame interval, which
+    the XML's ``ImageData`` names; the frames are also kept one per file in
+    ``s{SSSS}_frames/`` so that an interrupted export resumes). Each cell in each frame
+    is a spot at its centroid (micrometres and minutes) named ``cell_{id}``, with
+    ``RADIUS`` and ``AREA`` from its mask; consecutive frames of a cell are linked, and
+    a mother's last spot to each daughter's first, so a TrackMate track is a lineage
+    tree. The file follows TrackMate 7's layout: ``Model`` with ``FeatureDeclarations``,
+    ``AllSpots``, ``AllTracks``, ``FilteredTracks``; ``Settings`` with ``ImageData``,
+    ``BasicSettings``, the manual detector and tracker, ``InitialSpotFilter``, the
+    (empty) spot and track filter collections and ``AnalyzerCollection``.
     """
 
     name = "trackmate"
     timeseries_only = True
 
+    @staticmethod
+    def _stem(series: int) -> str:
+        return f"s{series:04d}"
+
     def write_item(self, out_dir: Path, item: ExportItem) -> list[str]:
         self._check(item)
-        return []  # everything comes from the manifest entries, in finalize
+        width = max(4, len(str(max(int(item.n_frames or 1) - 1, 0))))
+        folder = out_dir / self.name / item.split / f"{self._stem(item.series)}_frames"
+        path = folder / f"t{item.frame:0{width}d}.tif"
+        write_tiff(path, item.image_uint16(), pixel_size_um=item.pixel_size_um)
+        return [_rel(out_dir, path)]
 
     def finalize(self, out_dir: Path, records: Sequence[Record]) -> list[str]:
+        import tifffile
+
         written = []
         for (split, series), group in _series_groups(records).items():
-            path = out_dir / self.name / split / f"s{series:04d}.xml"
-            write_bytes(path, self._xml(group))
-            written.append(_rel(out_dir, path))
+            base = out_dir / self.name / split
+            stem = self._stem(series)
+            frames = [
+                next(f for f in record["files"][self.name] if f"/{stem}_frames/" in f)
+                for record in group
+            ]
+            stack = np.stack([tifffile.imread(out_dir / f) for f in frames])
+            image = base / f"{stem}.tif"
+            write_tiff(
+                image,
+                stack,
+                pixel_size_um=float(group[0].get("pixel_size_um", 1.0)),
+                frame_interval_min=float(group[0].get("frame_interval_min", 1.0)),
+            )
+            xml = base / f"{stem}.xml"
+            write_bytes(xml, self._xml(group, image.name))
+            written += [_rel(out_dir, image), _rel(out_dir, xml)]
         return written
 
     @staticmethod
-    def _xml(group: Sequence[Record]) -> bytes:
+    def _xml(group: Sequence[Record], image_name: str) -> bytes:
         px = float(group[0].get("pixel_size_um", 1.0))
         dt = float(group[0].get("frame_interval_min", 1.0))
         height, width = group[0]["shape"]
         n_frames = int(group[0].get("n_frames") or len(group))
         spot_of: dict[tuple[int, int], int] = {}
         root = ET.Element("TrackMate", version="7.11.1")
+        ET.SubElement(root, "Log").text = "Ground truth written by napari-symbac."
         model = ET.SubElement(root, "Model", spatialunits="µm", timeunits="min")
+        declarations = ET.SubElement(model, "FeatureDeclarations")
+        for kind, features in _TRACKMATE_FEATURES.items():
+            element = ET.SubElement(declarations, kind)
+            for key, (name, short, dimension, is_int) in features.items():
+                ET.SubElement(
+                    element,
+                    "Feature",
+                    feature=key,
+                    name=name,
+                    shortname=short,
+                    dimension=dimension,
+                    isint=str(is_int).lower(),
+                )
         all_spots = ET.SubElement(model, "AllSpots", nspots="0")
         n_spots = 0
+        radius_max = 0.0
         for record in group:
             frame = int(record["frame"])
             in_frame = ET.SubElement(all_spots, "SpotsInFrame", frame=str(frame))
@@ -430,19 +580,22 @@ class TrackMateWriter(FormatWriter):
                 spot_id = n_spots
                 n_spots += 1
                 spot_of[(cell, frame)] = spot_id
+                radius = float(np.sqrt(area / np.pi)) * px
+                radius_max = max(radius_max, radius)
                 ET.SubElement(
                     in_frame,
                     "Spot",
                     ID=str(spot_id),
                     name=f"cell_{cell}",
-                    POSITION_X=repr(round(x * px, 6)),
-                    POSITION_Y=repr(round(y * px, 6)),
-                    POSITION_Z="0.0",
-                    POSITION_T=repr(round(frame * dt, 6)),
-                    FRAME=str(frame),
-                    RADIUS=repr(round(float(np.sqrt(area / np.pi)) * px, 6)),
                     QUALITY="1.0",
+                    POSITION_X=_number(x * px),
+                    POSITION_Y=_number(y * px),
+                    POSITION_Z="0.0",
+                    POSITION_T=_number(frame * dt),
+                    FRAME=str(frame),
+                    RADIUS=_number(radius),
                     VISIBILITY="1",
+                    AREA=_number(area * px * px),
                 )
         all_spots.set("nspots", str(n_spots))
         tracks = _tracks(group)
@@ -473,20 +626,15 @@ class TrackMateWriter(FormatWriter):
         all_tracks = ET.SubElement(model, "AllTracks")
         filtered = ET.SubElement(model, "FilteredTracks")
         for track_id, (_root, track_edges) in enumerate(sorted(components.items())):
+            sources = [a for a, _ in track_edges]
             track = ET.SubElement(
                 all_tracks,
                 "Track",
                 name=f"Track_{track_id}",
-                TRACK_ID=str(track_id),
                 TRACK_INDEX=str(track_id),
+                TRACK_ID=str(track_id),
                 NUMBER_SPOTS=str(len({s for e in track_edges for s in e})),
-                NUMBER_SPLITS=str(
-                    sum(
-                        1
-                        for s in {a for a, _ in track_edges}
-                        if [a for a, _ in track_edges].count(s) > 1
-                    )
-                ),
+                NUMBER_SPLITS=str(sum(1 for s in set(sources) if sources.count(s) > 1)),
             )
             for a, b in sorted(track_edges):
                 ET.SubElement(
@@ -497,7 +645,8 @@ class TrackMateWriter(FormatWriter):
         ET.SubElement(
             settings,
             "ImageData",
-            filename="",
+            # an empty folder is the folder of the XML file, so the dataset can move
+            filename=image_name,
             folder="",
             width=str(width),
             height=str(height),
@@ -508,6 +657,32 @@ class TrackMateWriter(FormatWriter):
             voxeldepth="1.0",
             timeinterval=repr(dt),
         )
+        ET.SubElement(
+            settings,
+            "BasicSettings",
+            xstart="0",
+            xend=str(width - 1),
+            ystart="0",
+            yend=str(height - 1),
+            zstart="0",
+            zend="0",
+            tstart="0",
+            tend=str(n_frames - 1),
+        )
+        ET.SubElement(
+            settings,
+            "DetectorSettings",
+            DETECTOR_NAME="MANUAL_DETECTOR",
+            RADIUS=_number(radius_max or px),
+        )
+        ET.SubElement(settings, "InitialSpotFilter", feature="QUALITY", value="0.0", isabove="true")
+        ET.SubElement(settings, "SpotFilterCollection")
+        ET.SubElement(settings, "TrackerSettings", TRACKER_NAME="MANUAL_TRACKER")
+        ET.SubElement(settings, "TrackFilterCollection")
+        analyzers = ET.SubElement(settings, "AnalyzerCollection")
+        for kind in ("SpotAnalyzers", "EdgeAnalyzers", "TrackAnalyzers"):
+            ET.SubElement(analyzers, kind)
+        ET.SubElement(root, "GUIState", state="ConfigureViews")
         ET.indent(root)
         return ET.tostring(root, encoding="UTF-8", xml_declaration=True) + b"\n"
 

@@ -70,6 +70,10 @@ class ExportItem:
     series, frame, n_frames
         For time series: which series (>= 0), which frame of it and how many frames it
         has. ``None`` for independent images.
+    sequence
+        For time series: the number (>= 0) of the series among the series of its
+        split, so each split's CTC sequences are ``01, 02, ...``; defaults to
+        ``series``.
     parents
         Parent cell id of each cell id (0 = no parent) for the tracking formats; ids not
         listed have no parent.
@@ -96,6 +100,7 @@ class ExportItem:
     pixel_size_um: float = 1.0
     frame_interval_min: float = 1.0
     params: Mapping[str, Any] = field(default_factory=dict)
+    sequence: int | None = None
 
     def __post_init__(self) -> None:
         if not self.name or any(c in self.name for c in "/\\:") or self.name.startswith("."):
@@ -117,6 +122,13 @@ class ExportItem:
             raise ValueError(f"ExportItem.split must be 'train' or 'val', got {self.split!r}")
         if (self.series is None) != (self.frame is None):
             raise ValueError(f"ExportItem {self.name}: give both series and frame, or neither")
+        if self.sequence is None:
+            object.__setattr__(self, "sequence", self.series)
+        elif self.series is None or self.sequence < 0:
+            raise ValueError(
+                f"ExportItem {self.name}: sequence is the non-negative number of a time "
+                f"series in its split, got {self.sequence!r} (series={self.series!r})"
+            )
         semantic = semantic_from_labels(labels) if self.semantic is None else self.semantic
         semantic = np.asarray(semantic)
         if semantic.shape != image.shape:

@@ -3,7 +3,8 @@
 Layout under the output folder::
 
     manifest.json              dataset header: settings, seed, versions, status, and (once
-                               complete) every item's entry
+                               complete) the dataset-level files of each format and
+                               every item's entry
     manifest_items/NAME.json   one entry per finished item: split, parameters drawn, files,
                                and a per-cell summary (id, parent, centroid, area)
 
@@ -62,6 +63,7 @@ def write_item(out_dir: Path, item: ExportItem, writers: Sequence[FormatWriter])
         "index": int(item.index),
         "split": item.split,
         "series": item.series,
+        "sequence": item.sequence,
         "frame": item.frame,
         "n_frames": item.n_frames,
         "shape": [int(s) for s in item.image.shape],
@@ -167,12 +169,22 @@ def check_or_start_manifest(out_dir: Path, header: Mapping[str, Any]) -> dict[st
     return document
 
 
-def finish_manifest(out_dir: Path, entries: Sequence[Mapping[str, Any]]) -> Path:
-    """Mark the manifest complete and list every item's entry in it."""
+def finish_manifest(
+    out_dir: Path,
+    entries: Sequence[Mapping[str, Any]],
+    files: Mapping[str, Sequence[str]] | None = None,
+) -> Path:
+    """Mark the manifest complete and list every item's entry and dataset-level file.
+
+    ``files`` maps a format to the dataset-level files it wrote (COCO JSON,
+    ``man_track.txt``, TrackMate XML and image stacks), relative to ``out_dir``; they
+    are recorded under ``"files"``, so the manifest names every file of the dataset.
+    """
     path = Path(out_dir) / MANIFEST
     document = json.loads(path.read_text("utf-8"))
     document["status"] = "complete"
     document["n_items"] = len(entries)
+    document["files"] = {name: list(paths) for name, paths in (files or {}).items()}
     document["items"] = list(entries)
     write_json(path, document, indent=1)
     return path

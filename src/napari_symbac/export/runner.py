@@ -8,9 +8,12 @@ a local cluster and a remote scheduler all write the same bytes.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import os
+import signal
+import threading
 import time
 import uuid
 from collections.abc import Callable, Iterable, Sequence
@@ -154,6 +157,8 @@ def run_units(
         for item in source.make_unit(unit):
             if item.name not in skip:
                 entries.append(write_item(out, item, writers))
+            for writer in writers:
+                writer.remember(item)
     return entries
 
 
@@ -161,19 +166,39 @@ def _chunks(units: list[int], size: int) -> list[list[int]]:
     return [units[i : i + size] for i in range(0, len(units), size)]
 
 
+@contextlib.contextmanager
+def _children_ignore_interrupts():
+    """Ignore SIGINT while worker processes start, so they inherit the ignore.
+
+    Ctrl-C in a terminal interrupts every process of the foreground group; the workers
+    would each print a ``KeyboardInterrupt`` traceback. With SIGINT ignored they carry
+    on until this process, which handles the interrupt, shuts them down. Only the main
+    thread can change signal handlers; elsewhere (a GUI worker thread) nothing changes.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def _local_cluster(workers: int):
     from distributed import LocalCluster
 
-    return LocalCluster(
-        n_workers=workers,
-        threads_per_worker=1,
-        processes=True,
-        host="127.0.0.1",
-        dashboard_address=None,
-        silence_logs=logging.ERROR,
-        # one item needs little memory; do not let dask pause workers on small machines
-        memory_limit=0,
-    )
+    with _children_ignore_interrupts():
+        return LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address=None,
+            silence_logs=logging.ERROR,
+            # one item needs little memory; do not let dask pause workers on small machines
+            memory_limit=0,
+        )
 
 
 def _run_dask(
@@ -185,18 +210,16 @@ def _run_dask(
     options: dict[str, Any],
     *,
     workers: int,
-    scheduler: str | None,
+    client: Any,
     on_entries: Callable[[list[dict[str, Any]]], None],
     cancel: Cancel | None,
 ) -> tuple[bool, int]:
     from distributed import Client, as_completed
 
     cluster = None
-    if scheduler is None:
+    if client is None:
         cluster = _local_cluster(workers)
         client = Client(cluster)
-    else:
-        client = Client(scheduler)
     cancelled = False
     try:
         n_workers = len(client.scheduler_info().get("workers", {})) or workers
@@ -228,10 +251,105 @@ def _run_dask(
         finally:
             client.cancel(futures)
     finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+        _close_quietly(client, cluster)
     return cancelled, n_workers
+
+
+def _close_quietly(client: Any, cluster: Any) -> None:
+    """Close a client (and its local cluster) without the workers' shutdown chatter.
+
+    On Ctrl-C the worker processes receive the interrupt too; their
+    ``KeyboardInterrupt`` / ``CancelledError`` logs would bury the one line the
+    command prints, so dask's loggers are silenced while everything shuts down.
+    """
+    loggers = [logging.getLogger(name) for name in ("distributed", "tornado", "asyncio")]
+    levels = [logger.level for logger in loggers]
+    for logger in loggers:
+        logger.setLevel(logging.CRITICAL + 1)
+    try:
+        with contextlib.suppress(Exception):
+            client.close(timeout=10)
+        if cluster is not None:
+            with contextlib.suppress(Exception):
+                cluster.close(timeout=10)
+    finally:
+        for logger, level in zip(loggers, levels):
+            logger.setLevel(level)
+
+
+#: Seconds to wait for a ``scheduler`` address to answer before giving up.
+SCHEDULER_TIMEOUT_S = 10.0
+
+
+def connect_scheduler(address: str, timeout_s: float | None = None) -> Any:
+    """A :class:`distributed.Client` of the scheduler at ``address``, or a clear error.
+
+    Raises
+    ------
+    ExportError
+        If nothing answers at ``address`` within ``timeout_s`` (default
+        :data:`SCHEDULER_TIMEOUT_S`); nothing has been written at that point.
+    """
+    from distributed import Client
+
+    timeout_s = SCHEDULER_TIMEOUT_S if timeout_s is None else timeout_s
+    if not isinstance(address, str) or not address.strip():
+        raise ValueError(
+            f"scheduler must be an address such as 'tcp://10.0.0.5:8786', got {address!r}"
+        )
+    quiet = logging.getLogger("distributed")
+    level = quiet.level
+    quiet.setLevel(logging.CRITICAL + 1)
+    try:
+        return Client(address, timeout=timeout_s, set_as_default=False)
+    except (OSError, TimeoutError, ValueError) as err:
+        raise ExportError(
+            f"no dask scheduler answered at {address} within {timeout_s:g} s ({err}): start "
+            "one there (`dask scheduler` plus `dask worker ADDRESS`), check the address, or "
+            "leave out the scheduler to use local worker processes; nothing was written",
+            None,
+        ) from err
+    finally:
+        quiet.setLevel(level)
+
+
+def check_workers(workers: int | None) -> int:
+    """The number of local worker processes to start for ``workers``.
+
+    ``None`` means one per core; more than the machine's cores is capped to them (extra
+    processes only compete for the same cores).
+
+    Raises
+    ------
+    ValueError
+        If ``workers`` is not an integer >= 1.
+    """
+    cores = os.cpu_count() or 1
+    if workers is None:
+        return cores
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(
+            f"workers must be an integer >= 1 (1 runs in this process), got {workers!r}"
+        )
+    return min(workers, cores)
+
+
+def check_out_dir(out_dir: str | os.PathLike) -> Path:
+    """``out_dir`` as an absolute path, refusing a path that exists and is not a folder.
+
+    Raises
+    ------
+    ExportError
+        If ``out_dir`` is an existing file.
+    """
+    out = Path(out_dir).resolve()
+    if out.exists() and not out.is_dir():
+        raise ExportError(
+            f"the output path {out} is a file, not a folder: give the path of a folder "
+            "(it is created if missing), or move the file away",
+            out,
+        )
+    return out
 
 
 def run_export(
@@ -260,10 +378,12 @@ def run_export(
         Writer options (``coco_segmentation``).
     workers
         Worker processes of a local dask cluster (on 127.0.0.1 only); ``None`` is one
-        per core, ``1`` (or fewer units than two) runs serially in this process.
+        per core, ``1`` (or fewer units than two) runs serially in this process; more
+        than the machine's cores is capped to them.
     scheduler
         Address of a running dask scheduler (``tcp://host:8786``) to use instead; its
-        workers must see ``out_dir`` at the same path.
+        workers must see ``out_dir`` at the same path. It is contacted (for at most
+        :data:`SCHEDULER_TIMEOUT_S`) before anything is written.
     progress
         Called as ``progress(done, total)`` in items (finished ones from an earlier run
         count as done).
@@ -276,13 +396,42 @@ def run_export(
     Raises
     ------
     ExportError
-        Disk full, permission denied, or a folder holding a different export.
+        Disk full, permission denied, ``out_dir`` is a file or holds a different export,
+        or no scheduler answers at ``scheduler``.
+    ValueError
+        ``workers`` below 1 or an unknown format.
     """
     start = time.perf_counter()
-    out = Path(out_dir).resolve()
+    out = check_out_dir(out_dir)
     options = dict(options or {})
     formats = tuple(formats)
     writers = _writers(formats, options)  # validates the names early
+    n_workers = check_workers(workers)
+    # connect before writing anything: a wrong address leaves no folder behind
+    client = None if scheduler is None else connect_scheduler(scheduler)
+    try:
+        return _run_export(
+            source, out, formats, writers, options, n_workers, client, progress, cancel,
+            batch_size, start,
+        )
+    finally:
+        if client is not None:
+            _close_quietly(client, None)
+
+
+def _run_export(
+    source: ItemSource,
+    out: Path,
+    formats: tuple[str, ...],
+    writers: list[FormatWriter],
+    options: dict[str, Any],
+    n_workers: int,
+    client: Any,
+    progress: Progress | None,
+    cancel: Cancel | None,
+    batch_size: int | None,
+    start: float,
+) -> ExportReport:
     check_or_start_manifest(out, {**source.header(), "formats": list(formats)})
     remove_stale_temporaries(out)
 
@@ -305,9 +454,8 @@ def run_export(
     def skip_of(units: Iterable[int]) -> list[str]:
         return [n for u in units for n in names_of[u] if n in done]
 
-    n_workers = (os.cpu_count() or 1) if workers is None else max(1, int(workers))
     cancelled = False
-    if pending and (scheduler is not None or (n_workers > 1 and len(pending) > 1)):
+    if pending and (client is not None or (n_workers > 1 and len(pending) > 1)):
         if batch_size is None:
             batch_size = max(1, min(32, len(pending) // (4 * n_workers)))
         cancelled, n_workers = _run_dask(
@@ -318,7 +466,7 @@ def run_export(
             formats,
             options,
             workers=n_workers,
-            scheduler=scheduler,
+            client=client,
             on_entries=on_entries,
             cancel=cancel,
         )
@@ -340,11 +488,9 @@ def run_export(
                 f"(e.g. {', '.join(missing)}): run it again to complete them",
                 out,
             )
-        written = []
-        for writer in writers:
-            written.extend(writer.finalize(out, entries))
-        finish_manifest(out, entries)
-        files = (*written, "manifest.json")
+        written = {writer.name: writer.finalize(out, entries) for writer in writers}
+        finish_manifest(out, entries, written)
+        files = (*(f for paths in written.values() for f in paths), "manifest.json")
     return ExportReport(
         out_dir=out,
         n_items=total,
@@ -359,24 +505,38 @@ def run_export(
 
 
 class _ListSource:
-    """An :class:`ItemSource` over items already in memory (one unit per item)."""
+    """An :class:`ItemSource` over items already in memory.
+
+    A unit is one independent image, or the consecutive frames of one time series (so
+    that writers which need the previous frame, DeLTA tracking, see the whole series).
+    """
 
     def __init__(self, items: Sequence[ExportItem], header: dict[str, Any]) -> None:
-        self.items = list(items)
-        names = [item.name for item in self.items]
+        names = [item.name for item in items]
         if len(set(names)) != len(names):
             raise ValueError("write_items: item names must be unique")
+        self.units: list[list[ExportItem]] = []
+        for item in items:
+            last = self.units[-1][-1] if self.units else None
+            if (
+                last is not None
+                and item.is_timeseries
+                and (last.series, last.split) == (item.series, item.split)
+            ):
+                self.units[-1].append(item)
+            else:
+                self.units.append([item])
         self._header = header
 
     @property
     def n_units(self) -> int:
-        return len(self.items)
+        return len(self.units)
 
     def unit_names(self, unit: int) -> list[str]:
-        return [self.items[unit].name]
+        return [item.name for item in self.units[unit]]
 
     def make_unit(self, unit: int) -> list[ExportItem]:
-        return [self.items[unit]]
+        return list(self.units[unit])
 
     def header(self) -> dict[str, Any]:
         return self._header

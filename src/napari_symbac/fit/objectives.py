@@ -28,6 +28,7 @@ __all__ = [
     "TERM_NAMES",
     "class_masks",
     "edge_profile",
+    "noise_variance",
     "objective_terms",
     "total_objective",
 ]
@@ -100,16 +101,13 @@ def edge_profile(
 
     The signed distance ``d`` (Euclidean, pixels) is negative inside the ``cell`` mask
     and positive outside; only pixels of the cell and media classes count (the device
-    and unpainted pixels are left out). Returns the mean in each unit-wide bin centred
-    on ``bins_px``, or ``None`` when there are fewer than 10 cell pixels touching
-    media pixels (rough strokes that never meet a cell's edge).
+    and unpainted pixels are left out). Returns the mean in each unit-wide bin starting
+    at ``bins_px``, ``nan`` in bins without pixels (rough strokes that never meet a
+    cell's edge leave the bins near 0 empty), or ``None`` without both classes.
     """
     cell = masks.get("cell")
     media = masks.get("media")
-    if cell is None or media is None:
-        return None
-    touching = cell & ndimage.binary_dilation(media)
-    if touching.sum() < 10:
+    if cell is None or media is None or not cell.any() or not media.any():
         return None
     inside = ndimage.distance_transform_edt(cell)
     outside = ndimage.distance_transform_edt(~cell)
@@ -121,12 +119,11 @@ def edge_profile(
     ok = (index >= 0) & (index < bins_px.size)
     total = np.bincount(index[ok], value[ok], minlength=bins_px.size)
     count = np.bincount(index[ok], minlength=bins_px.size)
-    if np.any(count == 0):
-        return None
-    return total / count
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, total / np.maximum(count, 1), np.nan)
 
 
-def _noise_variance(image: np.ndarray) -> float:
+def noise_variance(image: np.ndarray) -> float:
     """Robust white-noise variance of an image (MAD of a second difference)."""
     d = image[:, 2:] - 2 * image[:, 1:-1] + image[:, :-2]
     mad = np.median(np.abs(d - np.median(d)))
@@ -179,7 +176,10 @@ def objective_terms(
       over the quantiles ``q = 0.01 .. 0.99`` (a normalised 1-Wasserstein distance);
     * ``edge_profile = rms_d (E_syn(d) - E_real(d)) / |I_media - I_cell|``, ``E(d)`` the
       mean intensity at signed distance ``d`` from the cell boundary (see
-      :func:`edge_profile`);
+      :func:`edge_profile`), over the distance bins that both images fill; with
+      fewer than 3 such bins (rough strokes that never meet a cell's edge) it falls
+      back to the error of the edge's contrast, ``|(S_media - S_cell) - (I_media -
+      I_cell)| / |I_media - I_cell|``, so it is defined whenever both classes are;
     * ``pixel = mean((syn - real)^2 / variance)`` (1 for a perfect model at the noise).
     """
     syn = as_single_image(synthetic, name="synthetic")
@@ -233,16 +233,21 @@ def objective_terms(
         elif name == "edge_profile":
             er = edge_profile(ref, real_masks)
             es = edge_profile(syn, syn_masks)
-            if er is not None and es is not None and "cell" in real_stats:
-                media = real_stats.get("media", (float(er[-1]), 0.0))[0]
-                contrast = max(abs(media - real_stats["cell"][0]), 1e-12)
-                value = float(np.sqrt(np.mean((es - er) ** 2)) / contrast)
+            if er is not None and es is not None and {"cell", "media"} <= set(shared):
+                contrast = max(abs(real_stats["media"][0] - real_stats["cell"][0]), 1e-12)
+                both = np.isfinite(er) & np.isfinite(es)
+                if both.sum() >= 3:
+                    value = float(np.sqrt(np.mean((es[both] - er[both]) ** 2)) / contrast)
+                else:
+                    syn_contrast = syn_stats["media"][0] - syn_stats["cell"][0]
+                    real_contrast = real_stats["media"][0] - real_stats["cell"][0]
+                    value = abs(syn_contrast - real_contrast) / contrast
         elif name == "pixel":
             if syn.shape != ref.shape:
                 raise ValueError(
                     f"the pixel term needs images of one shape, got {syn.shape} and {ref.shape}"
                 )
-            var = _noise_variance(ref) if variance is None else np.asarray(variance, float)
+            var = noise_variance(ref) if variance is None else np.asarray(variance, float)
             value = float(np.mean((syn - ref) ** 2 / np.maximum(var, 1e-12)))
         out[name] = float(value)
     return out

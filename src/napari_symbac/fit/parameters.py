@@ -24,19 +24,23 @@ from napari_symbac.fit.inputs import CLASS_VALUES, as_label_stack, as_single_ima
 from napari_symbac.fit.objectives import (
     DEFAULT_TERMS,
     TERM_NAMES,
+    noise_variance,
     objective_terms,
     total_objective,
 )
 from napari_symbac.optics import ForwardModel
 from napari_symbac.optics.forward import block_average
-from napari_symbac.settings import Camera, Microscope, RenderSettings
+from napari_symbac.settings import CONDENSERS, Camera, Microscope, RenderSettings
 
 __all__ = [
     "DEFAULT_FIT",
+    "DEFAULT_FIT_PARTIALLY_COHERENT",
     "DEFAULT_FIT_STATISTICS",
+    "MAX_PHASE_OVER_MEDIA",
     "FitCancelled",
     "FitResult",
     "fit_parameters",
+    "fit_warnings",
     "parameter_bounds",
     "scene_classes",
 ]
@@ -52,16 +56,45 @@ DEFAULT_FIT = ("apodisation_sigma_um", "defocus_sigma_um", "psf_offset")
 #: Default with the statistics terms, which barely constrain the PSF offset: the
 #: supplement's own pair (section 7).
 DEFAULT_FIT_STATISTICS = ("apodisation_sigma_um", "defocus_sigma_um")
-_FITTABLE = (*DEFAULT_FIT, "ring_contrast", "gaussian_noise_sd_adu")
+#: Default of the partially coherent phase model (``phase_model="partially_coherent"``):
+#: the sample's phase, the plate and the shape of the pupil; the media level is
+#: solved exactly, the cells' and device's bright-field transmission kept.
+DEFAULT_FIT_PARTIALLY_COHERENT = (
+    "cell_phase_rad",
+    "plate_transmission",
+    "apodisation_sigma_um",
+    "phase_ring_width_scale",
+)
+_FITTABLE = (
+    *DEFAULT_FIT,
+    "ring_contrast",
+    "phase_ring_width_scale",
+    "cell_phase_rad",
+    "device_phase_rad",
+    "plate_transmission",
+    "plate_phase_rad",
+    "gaussian_noise_sd_adu",
+)
 #: Natural scale of each parameter: the optimiser works in these units.
 _SCALE = {
     "apodisation_sigma_um": 0.1,
     "defocus_sigma_um": 0.05,
     "ring_contrast": 0.1,
     "psf_offset": 0.05,
+    "phase_ring_width_scale": 0.1,
+    "cell_phase_rad": 0.1,
+    "device_phase_rad": 0.1,
+    "plate_transmission": 0.03,
+    "plate_phase_rad": 0.1,
     "gaussian_noise_sd_adu": 10.0,
 }
 _INTENSITIES = ("cell_intensity", "media_intensity", "device_intensity")
+_PHASE_AMPLITUDES = ("cell_phase_adu", "device_phase_adu")
+#: Largest phase signal of a full-depth column against the media level, ``P / I_m``:
+#: ``(2 sin(theta) / a) 2 pi dn depth / lambda`` with the darkest plates made
+#: (intensity transmission 4 %, ``a = 0.2``), ``dn = n_cell - n_media <= 0.1`` and a
+#: depth of at most 1.2 um at 0.5 um: ``10 x 1.5 = 15``.
+MAX_PHASE_OVER_MEDIA = 15.0
 
 
 class FitCancelled(RuntimeError):
@@ -90,6 +123,11 @@ class FitResult:
         ``real - synthetic`` (ADU) when the pixel term was used, else ``None``.
     message
         The optimiser's last message.
+    warnings
+        Plain-language problems with the result: a fitted parameter at (or within
+        0.1 % of the range of) one of its bounds, a phase amplitude beyond its
+        physical bound, or an objective that ended worse than it started. Empty
+        when the fit is trustworthy by these checks.
     """
 
     render: RenderSettings
@@ -101,6 +139,7 @@ class FitResult:
     fitted: tuple[str, ...] = ()
     residual: np.ndarray | None = field(default=None, repr=False)
     message: str = ""
+    warnings: tuple[str, ...] = ()
 
     @property
     def terms_before(self) -> dict[str, float]:
@@ -118,23 +157,51 @@ class FitResult:
         for name, (before, after) in self.terms.items():
             lines.append(f"{name:<14}{before:12.4g}{after:12.4g}")
         lines.append(f"{'objective':<14}{self.objective_before:12.4g}{self.objective_after:12.4g}")
-        for name in (*_INTENSITIES, *self.fitted):
-            lines.append(f"{name:<24}{getattr(self.render, name):12.5g}")
+        names = (*_INTENSITIES, *(_PHASE_AMPLITUDES if self.render.phase_separate else ()))
+        for name in (*names, *self.fitted):
+            lines.append(f"{name:<24}{float(getattr(self.render, name) or 0.0):12.5g}")
         lines.append(f"evaluations: {self.n_evaluations}")
+        lines.extend(f"WARNING: {w}" for w in self.warnings)
         return "\n".join(lines)
 
 
+def _sharp_ring_sigma_um(microscope: Microscope) -> float:
+    """Apodisation sigma whose pupil-edge softness is a tenth of the ring's half width."""
+    cond = CONDENSERS[microscope.condenser]
+    half = 0.5 * (cond.outer_fraction - cond.inner_fraction)
+    cutoff = microscope.numerical_aperture / microscope.wavelength_um
+    return 10.0 / (2 * math.pi * cutoff * half)
+
+
 def parameter_bounds(
-    name: str, microscope: Microscope, real_sd_adu: float = 1000.0
+    name: str,
+    microscope: Microscope,
+    real_sd_adu: float = 1000.0,
+    *,
+    coherent: bool = False,
 ) -> tuple[float, float]:
     """Physical bounds of a fitted parameter.
 
     The apodisation sigma cannot be below the diffraction bound of eq. 13,
     ``0.9 lambda n / (2 NA)``; defocus (eq. 14) is non-negative and, for a usable
-    recording, below half a micrometre.
+    recording, below half a micrometre. The plate's ring width is relative to the
+    catalogue annulus of the condenser setting (:data:`~napari_symbac.settings.CONDENSERS`):
+    makers' rings differ from it, so from half to three times (wider rings block the
+    detail they are meant to pass; below half the ring would miss the direct light
+    of the annulus' own source points). In the partially coherent model the
+    apodisation sigma sets the softness of the pupil's and ring's edges,
+    ``1 / (2 pi sigma NA / lambda)`` in pupil units; beyond the sigma at which that is
+    a tenth of the ring's half width the edges are sharp and the image no longer
+    changes, which is its upper bound there. ``ring_contrast`` (the coupled model,
+    ``gamma = P / (I_m - I_c)``) is the ratio of phase to bright-field contrast and
+    has no finite physical bound when the cells barely absorb; ``[0, 3]`` is the
+    range where it stays identifiable: beyond it give the phase signal its own
+    amplitudes (``RenderSettings.cell_phase_adu``), which the fit solves exactly.
     """
     if name == "apodisation_sigma_um":
         low = microscope.min_apodisation_sigma_um if microscope.modality == "phase" else 0.05
+        if coherent:
+            return (low, max(3.0, _sharp_ring_sigma_um(microscope)))
         return (low, max(3.0, 4 * low))
     if name == "defocus_sigma_um":
         return (0.0, 0.5)
@@ -142,6 +209,20 @@ def parameter_bounds(
         return (0.0, 3.0)
     if name == "psf_offset":
         return (-0.5, 0.5)
+    if name == "phase_ring_width_scale":
+        return (0.5, 3.0)
+    if name in ("cell_phase_rad", "device_phase_rad"):
+        # 2 pi dn depth / lambda: dn <= 0.1 (cells in water; PDMS 1.41 vs 1.333
+        # is 0.08), depth <= 1.5 um, lambda >= 0.45 um.
+        return (0.0, 2.1)
+    if name == "plate_transmission":
+        # Intensity transmission of the ring: the darkest commercial plates pass
+        # ~3 %, an unattenuated ring (pure phase plate) 100 %.
+        return (0.02, 1.0)
+    if name == "plate_phase_rad":
+        # lambda/4 plates: pi/2 at the design wavelength, ~ +-50 % across the
+        # visible band.
+        return (math.pi / 4, 3 * math.pi / 4)
     if name == "gaussian_noise_sd_adu":
         return (0.0, max(5 * real_sd_adu, 1.0))
     raise ValueError(f"cannot fit {name!r}; fittable parameters are {', '.join(_FITTABLE)}")
@@ -279,7 +360,10 @@ def fit_parameters(
         labels = scene_classes(scene)
     real_classes = as_label_stack(labels, (1, *real.shape), required=required)[0]
     if fit is None:
-        fit = DEFAULT_FIT if pixel_mode else DEFAULT_FIT_STATISTICS
+        if microscope.modality == "phase" and render.phase_model == "partially_coherent":
+            fit = DEFAULT_FIT_PARTIALLY_COHERENT
+        else:
+            fit = DEFAULT_FIT if pixel_mode else DEFAULT_FIT_STATISTICS
     names = tuple(dict.fromkeys(fit))
     if render.noise_model == "gaussian" and not pixel_mode:
         names = (*names, "gaussian_noise_sd_adu") if "gaussian_noise_sd_adu" not in names else names
@@ -293,7 +377,12 @@ def fit_parameters(
     syn_classes = scene_classes(scene)
     real_sd = float(real.std())
     start = {n: float(getattr(render, n)) for n in names}
-    bounds = [parameter_bounds(n, microscope, real_sd) for n in names]
+    bounds = [
+        parameter_bounds(
+            n, microscope, real_sd, coherent=render.phase_model == "partially_coherent"
+        )
+        for n in names
+    ]
     for n, (lo, hi) in zip(names, bounds):
         start[n] = float(np.clip(start[n], lo, hi))
     z_lo = np.array([(lo - start[n]) / _SCALE[n] for n, (lo, _) in zip(names, bounds)])
@@ -302,27 +391,62 @@ def fit_parameters(
     noise_z = rng.standard_normal(scene.camera_shape)
     real_masks_for_terms = (real_classes, syn_classes)
 
+    coherent = microscope.modality == "phase" and render.phase_model == "partially_coherent"
+    separate = microscope.modality == "phase" and render.phase_separate and not coherent
+    if coherent:
+        amplitude_names: tuple[str, ...] = ("media_intensity",)
+    else:
+        amplitude_names = (*_INTENSITIES, *(_PHASE_AMPLITUDES if separate else ()))
+    n_amp = len(amplitude_names)
+    n_solved = 1 if coherent else 3  # solved by the class means; the rest kept
+
     def components(r: RenderSettings) -> np.ndarray:
         budget.tick()
+        if coherent:
+            return base.with_render(r).phase_image(scene)[None]
         comps = base.with_render(r).components(scene)
-        return np.stack([comps["cells"], comps["media"], comps["device"]]).astype(np.float64)
+        parts = [comps["cells"], comps["media"], comps["device"]]
+        if separate:
+            parts += [-comps["cells_phase"], -comps["device_phase"]]
+        return np.stack(parts).astype(np.float64)
 
-    def solve_class_means(a: np.ndarray) -> np.ndarray:
+    def amplitudes(r: RenderSettings) -> np.ndarray:
+        if coherent:
+            return np.array([r.media_intensity], np.float64)
+        values = [getattr(r, k) for k in _INTENSITIES]
+        if separate:
+            values += list(r.phase_amplitudes())
+        return np.array(values, np.float64)
+
+    def solve_class_means(a: np.ndarray, r: RenderSettings) -> np.ndarray:
+        # Class means pin the three intensities; the phase amplitudes (if separate)
+        # stay at their values, their image subtracted from the target.
+        fixed = amplitudes(r)[n_solved:]
         rows, rhs = [], []
         for _cname, value in CLASS_VALUES.items():
             rmask = real_classes == value
             smask = syn_classes == value
             if rmask.any() and smask.any():
-                rows.append(a[:, smask].mean(axis=1))
-                rhs.append(real[rmask].mean() - camera.baseline_adu)
-        return _nnls(np.array(rows), np.array(rhs))
+                means = a[:, smask].mean(axis=1)
+                rows.append(means[:n_solved])
+                rhs.append(real[rmask].mean() - camera.baseline_adu - means[n_solved:] @ fixed)
+        return np.concatenate([_nnls(np.array(rows), np.array(rhs)), fixed])
 
     def with_intensities(r: RenderSettings, intens: np.ndarray) -> RenderSettings:
-        return dataclasses.replace(r, **{k: float(v) for k, v in zip(_INTENSITIES, intens)})
+        if coherent:
+            # the media level scales the image; the cells' and device's bright-field
+            # transmission (their ratios to it) stay as they were
+            scale = float(intens[0]) / r.media_intensity
+            return dataclasses.replace(
+                r,
+                cell_intensity=r.cell_intensity * scale,
+                media_intensity=float(intens[0]),
+                device_intensity=r.device_intensity * scale,
+            )
+        return dataclasses.replace(r, **{k: float(v) for k, v in zip(amplitude_names, intens)})
 
     def synthetic(r: RenderSettings, a: np.ndarray, noisy: bool) -> np.ndarray:
-        intens = np.array([getattr(r, k) for k in _INTENSITIES])
-        clean = np.tensordot(intens, a, axes=1)
+        clean = np.tensordot(amplitudes(r), a, axes=1)
         if not noisy:
             return clean + camera.baseline_adu
         var = _variance(clean, r, camera)
@@ -340,7 +464,7 @@ def fit_parameters(
         return out
 
     a0 = components(render)
-    clean0 = np.tensordot(np.array([getattr(render, k) for k in _INTENSITIES]), a0, axes=1)
+    clean0 = np.tensordot(amplitudes(render), a0, axes=1)
     var0 = _variance(clean0, render, camera) if pixel_mode else None
     terms_before = all_terms(render, a0, var0)
     message = ""
@@ -355,7 +479,7 @@ def fit_parameters(
 
             def residual(zz: np.ndarray, sw: np.ndarray = sw) -> np.ndarray:
                 r = _render_with(render, names, zz, start)
-                a = components(r).reshape(3, -1).T
+                a = components(r).reshape(n_amp, -1).T
                 intens = _nnls(a * sw[:, None], y.ravel() * sw)
                 return (y.ravel() - a @ intens) * sw
 
@@ -379,17 +503,21 @@ def fit_parameters(
                 message = str(sol.message)
             current = _render_with(render, names, z, start)
             a = components(current)
-            am = a.reshape(3, -1).T
+            am = a.reshape(n_amp, -1).T
             intens = _nnls(am * sw[:, None], y.ravel() * sw)
             current = with_intensities(current, intens)
             clean = (am @ intens).reshape(real.shape)
             if render.noise_model == "gaussian":
-                sd = float(np.sqrt(max(np.mean((y - clean) ** 2) - 1 / 12, 0.0)))
+                # The noise of the recording, not the model's misfit: a robust
+                # estimate from pixel-to-pixel differences (smooth misfit cancels).
+                sd = float(np.sqrt(max(noise_variance(real) - 1 / 12, 0.0)))
                 current = dataclasses.replace(current, gaussian_noise_sd_adu=sd)
             var = _variance(clean, current, camera)
         final = current
         a_final = components(final)
         terms_after = all_terms(final, a_final, var)
+        # before and after weighed with one variance, so they compare
+        terms_before = all_terms(render, a0, var)
         residual_image = (real - synthetic(final, a_final, False)).astype(np.float32)
     else:
 
@@ -397,7 +525,7 @@ def fit_parameters(
             zz = np.clip(zz, z_lo, z_hi)
             r = _render_with(render, names, zz, start)
             a = components(r)
-            r = with_intensities(r, solve_class_means(a))
+            r = with_intensities(r, solve_class_means(a, r))
             t = objective_terms(
                 synthetic(r, a, True), real, real_masks_for_terms, terms=tuple(weights)
             )
@@ -419,24 +547,81 @@ def fit_parameters(
             message = str(sol.message)
         final = _render_with(render, names, z, start)
         a_final = components(final)
-        final = with_intensities(final, solve_class_means(a_final))
+        final = with_intensities(final, solve_class_means(a_final, final))
         terms_after = all_terms(final, a_final, None)
         residual_image = None
 
     terms_table = {k: (terms_before[k], terms_after[k]) for k in terms_after}
     if progress is not None:
         progress(budget.total, budget.total)
+    objective_before = total_objective(terms_before, weights)
+    objective_after = total_objective(terms_after, weights)
     return FitResult(
         render=final,
         terms=terms_table,
-        objective_before=total_objective(terms_before, weights),
-        objective_after=total_objective(terms_after, weights),
+        objective_before=objective_before,
+        objective_after=objective_after,
+        warnings=fit_warnings(
+            final, names, bounds, objective_before, objective_after, separate=separate
+        ),
         n_evaluations=budget.done,
         weights=weights,
         fitted=names,
         residual=residual_image,
         message=message,
     )
+
+
+def fit_warnings(
+    render: RenderSettings,
+    names: tuple[str, ...],
+    bounds: list[tuple[float, float]],
+    objective_before: float,
+    objective_after: float,
+    *,
+    separate: bool = False,
+) -> tuple[str, ...]:
+    """Warnings about a fitted result (see :attr:`FitResult.warnings`).
+
+    Parameters
+    ----------
+    render
+        The fitted settings.
+    names, bounds
+        The free nonlinear parameters and their bounds.
+    objective_before, objective_after
+        The objective at the start and at the end.
+    separate
+        Whether the phase amplitudes were fitted (checked against
+        :data:`MAX_PHASE_OVER_MEDIA`).
+    """
+    out = []
+    for name, (lo, hi) in zip(names, bounds):
+        value = float(getattr(render, name))
+        tol = 1e-3 * (hi - lo)
+        side = "lower" if value <= lo + tol else "upper" if value >= hi - tol else None
+        if side is not None:
+            bound = lo if side == "lower" else hi
+            out.append(
+                f"{name} = {value:.4g} ended at its {side} bound ({bound:.4g}): the model "
+                "cannot reach the image inside its physical range there (check the "
+                "scene, the microscope settings and the labels)"
+            )
+    if separate and render.media_intensity > 0:
+        for name, value in zip(_PHASE_AMPLITUDES, render.phase_amplitudes()):
+            ratio = value / render.media_intensity
+            if ratio > MAX_PHASE_OVER_MEDIA:
+                out.append(
+                    f"{name} = {value:.4g} ADU is {ratio:.1f} x the media level, beyond the "
+                    f"physical bound {MAX_PHASE_OVER_MEDIA:g} (plate transmission >= 4 %, "
+                    "n_cell - n_media <= 0.1)"
+                )
+    if np.isfinite(objective_before) and objective_after > objective_before * (1 + 1e-9):
+        out.append(
+            f"the fit ended worse than its start (objective {objective_before:.4g} -> "
+            f"{objective_after:.4g}): keep the starting settings or give a better start"
+        )
+    return tuple(out)
 
 
 def _weights(terms: tuple[str, ...] | Mapping[str, float]) -> dict[str, float]:

@@ -1,13 +1,25 @@
-"""Scene fitting by analysis by synthesis (issue 5, item 4).
+"""Scene fitting by analysis by synthesis (issue 10).
 
 Place and size spherocylinder cells (centre, angle, length, curvature, one shared or
 hierarchical width) and the trench (left wall, width, closed end) so that the
 rendered image overlays the real recording pixel for pixel, jointly with the
-optical parameters. Starts from a plain segmentation of the real image (Otsu
-threshold, watershed, region moments). For every geometry and kernel the
-intensities are solved exactly by non-negative least squares (eq. 3 is linear in
-them); the noise weights follow the camera model (eq. 17) by iteratively
-reweighted least squares.
+optical parameters and the camera's noise.
+
+The stages, each in its own module:
+
+* start (:mod:`~napari_symbac.fit.start`): cells from an instance mask, from painted
+  labels or from a plain segmentation, with the polarity from the labels or the
+  modality;
+* censoring and noise (:mod:`~napari_symbac.fit.noise`): clipped pixels are left
+  out; the camera's gain and read noise (eq. 17) are given or estimated from the
+  residual variance against the model mean;
+* the model and its solver (:mod:`~napari_symbac.fit.engine`,
+  :mod:`~napari_symbac.fit.lm`): intensities in closed form (eq. 3 is linear in
+  them), per-cell patches for the Jacobian, Levenberg-Marquardt, rounds of
+  iteratively reweighted least squares;
+* moves (:mod:`~napari_symbac.fit.moves`): remove, merge, split and add cells where
+  the BIC says so;
+* uncertainty: the Fisher information at the optimum and the standard errors.
 
 Coordinates of fitted cells are in micrometres from the top-left corner of the
 image (x along columns, y down the rows), angle as in
@@ -23,424 +35,34 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-from scipy import ndimage
+from scipy import sparse
 
+from napari_symbac.fit.engine import CURVATURE_B, CURVATURE_C, Layout
 from napari_symbac.fit.inputs import as_label_stack, as_single_image
+from napari_symbac.fit.lm import State
+from napari_symbac.fit.moves import improve_scene
+from napari_symbac.fit.noise import camera_from_residuals, default_valid, variance
 from napari_symbac.fit.objectives import objective_terms
-from napari_symbac.fit.parameters import (
-    _SCALE,
-    _Budget,
-    _nnls,
-    _variance,
-    parameter_bounds,
-)
-from napari_symbac.optics import ForwardModel
-from napari_symbac.scene import Field, Scene, draw_scene
+from napari_symbac.fit.parameters import DEFAULT_FIT, _Budget, _variance, parameter_bounds
+from napari_symbac.fit.placement import TrenchPlacement
+from napari_symbac.fit.problem import Problem
+from napari_symbac.fit.start import _pixel_noise, otsu_cells, polarity_of, start_scene
+from napari_symbac.scene import Scene
 from napari_symbac.settings import Camera, Microscope, RenderSettings, TrenchGeometry
 from napari_symbac.sim import FrameCells
 
 __all__ = [
     "SceneFit",
     "TrenchPlacement",
+    "before_after_montage",
     "fit_scene",
     "otsu_cells",
 ]
 
 _INTENSITIES = ("cell_intensity", "media_intensity", "device_intensity")
-#: Finite-difference step in scaled units (0.3 x 0.05 um = 15 nm, ~ 2/3 of a render
-#: pixel): the chord ``2 sqrt(r^2 - d^2)`` has a square-root cusp at a cell's edge, so
-#: steps much smaller than a render pixel give a Jacobian that only sees the cusp.
-DIFF_STEP = 0.3
-#: ``b`` and ``c`` of eq. 1 for fitted curvature: ``roll(l) = a sin(pi l / b + c)`` with
-#: ``l`` the fraction of the cell length from its top pole, so ``b = 1, c = 0`` is one
-#: symmetric bend (a crescent, the middle displaced by ``a`` from the poles' line).
-#: Only the amplitude ``a`` is fitted: at 65 nm pixels a sub-pixel bend of a ~2.5 um
-#: cell does not tell ``b`` and ``c`` apart from ``a``, the centre and the angle.
-CURVATURE_B = 1.0
-CURVATURE_C = 0.0
-
-
-@dataclass(frozen=True)
-class TrenchPlacement:
-    """Where the trench lies in the image (um from the image's top-left corner).
-
-    Attributes
-    ----------
-    left_um
-        Position of the left wall.
-    width_um
-        Trench width.
-    top_um
-        Position of the closed end (negative: above the image).
-    depth_um
-        Optical depth of the trench (``s_media``; not fitted).
-    closed_end
-        ``"square"`` or ``"round"`` (a semicircle of diameter ``width_um``), as
-        :attr:`TrenchGeometry.closed_end`; not fitted.
-    """
-
-    left_um: float
-    width_um: float
-    top_um: float
-    depth_um: float = 1.2
-    closed_end: Literal["square", "round"] = "square"
-
-    def __post_init__(self) -> None:
-        for name in ("left_um", "width_um", "top_um", "depth_um"):
-            value = float(getattr(self, name))
-            if not math.isfinite(value):
-                raise ValueError(f"TrenchPlacement.{name} must be finite")
-            object.__setattr__(self, name, value)
-        if self.width_um <= 0 or self.depth_um <= 0:
-            raise ValueError("TrenchPlacement.width_um and depth_um must be positive")
-        if self.closed_end not in ("square", "round"):
-            raise ValueError(
-                f"TrenchPlacement.closed_end must be 'square' or 'round', got {self.closed_end!r}"
-            )
-
-
-def _draw(
-    cells: FrameCells,
-    trench: TrenchPlacement | None,
-    camera_shape: tuple[int, int],
-    microscope: Microscope,
-    render: RenderSettings,
-    depth_um: float = 1.2,
-    curvature: dict[int, tuple[float, float, float]] | None = None,
-) -> Scene:
-    """Draw fitted cells (image coordinates) with :func:`draw_scene`.
-
-    The trench is placed by ``trench_origin_um`` in a field of view of the image's
-    shape; ``trench=None`` is an open field (agar pad: media everywhere, no device).
-    """
-    rows, cols = camera_shape
-    if trench is None:
-        px = microscope.pixel_size_um
-        field = Field(cols * px, rows * px, depth_um=depth_um)
-        return draw_scene(cells, TrenchGeometry(), microscope, render, curvature, field=field)
-    relative = FrameCells(
-        ids=cells.ids,
-        x_um=cells.x_um - trench.left_um,
-        y_um=cells.y_um - trench.top_um,
-        angle_rad=cells.angle_rad,
-        length_um=cells.length_um,
-        width_um=cells.width_um,
-    )
-    # Length and margin do not matter: camera_shape sets the field of view.
-    geometry = TrenchGeometry(
-        width_um=trench.width_um,
-        depth_um=trench.depth_um,
-        margin_um=0.0,
-        closed_end=trench.closed_end,
-    )
-    return draw_scene(
-        relative,
-        geometry,
-        microscope,
-        render,
-        curvature,
-        trench_origin_um=(trench.left_um, trench.top_um),
-        camera_shape=(rows, cols),
-    )
-
-
-def _spherocylinder_width(area_um2: float, length_um: float) -> float:
-    """Width of the spherocylinder of given area and length: ``A = w L - (1 - pi/4) w^2``."""
-    k = 1 - math.pi / 4
-    disc = max(length_um**2 - 4 * k * area_um2, 0.0)
-    return (length_um - math.sqrt(disc)) / (2 * k)
-
-
-def _longest_run(mask: np.ndarray) -> tuple[int, int] | None:
-    labels, n = ndimage.label(mask)
-    if n == 0:
-        return None
-    sizes = ndimage.sum(mask, labels, range(1, n + 1))
-    idx = np.flatnonzero(labels == int(np.argmax(sizes)) + 1)
-    return int(idx[0]), int(idx[-1])
-
-
-#: Septum split of the Otsu start (:func:`_split_at_septa`): a bright band across a
-#: region counts as a septum when its prominence in the intensity profile along the
-#: region's axis is at least this many s.d. of the profile's noise ...
-SEPTUM_NOISE_SD = 6.0
-#: ... and at least this fraction of the media-cell contrast of the image (phase-contrast
-#: texture inside real cells, nucleoids and the halo, reaches ~0.1 of it; septa ~0.4).
-SEPTUM_CONTRAST = 0.2
-
-
-def _pixel_noise(image: np.ndarray, where: np.ndarray) -> float:
-    """Robust s.d. of the pixel noise of ``image`` over ``where``.
-
-    The difference of a pixel and the mean of its four neighbours has variance
-    ``1.25 s^2`` for white noise and is nearly free of the (smooth) image structure;
-    its median absolute deviation gives ``s``.
-    """
-    neighbours = ndimage.convolve(
-        image, np.array([[0, 0.25, 0], [0.25, 0, 0.25], [0, 0.25, 0]]), mode="nearest"
-    )
-    high = (image - neighbours)[where]
-    if high.size < 10:
-        return 0.0
-    mad = np.median(np.abs(high - np.median(high)))
-    return float(1.4826 * mad / math.sqrt(1.25))
-
-
-def _septum_cuts(
-    profile: np.ndarray, noise: np.ndarray, min_prominence: float, min_length: int
-) -> list[int]:
-    """Positions of septa in a 1-D intensity profile along a region's axis.
-
-    Local maxima (bright septa between dark cell bodies) whose topographic prominence
-    is above ``min_prominence`` and above :data:`SEPTUM_NOISE_SD` times the profile's
-    noise there, accepted greedily by decreasing prominence as long as every piece
-    they cut the region into stays at least ``min_length`` bins long.
-    """
-    from scipy.signal import find_peaks
-
-    peaks, props = find_peaks(profile, prominence=min_prominence)
-    keep = props["prominences"] >= SEPTUM_NOISE_SD * noise[peaks]
-    peaks, prominences = peaks[keep], props["prominences"][keep]
-    cuts: list[int] = []
-    for peak in peaks[np.argsort(-prominences, kind="stable")]:
-        edges = np.array(sorted([0, len(profile), *cuts, int(peak)]))
-        if np.diff(edges).min() >= min_length:
-            cuts.append(int(peak))
-    return sorted(cuts)
-
-
-def _split_at_septa(
-    instances: np.ndarray,
-    image: np.ndarray,
-    region: np.ndarray,
-    pixel_size_um: float,
-    min_cell_length_um: float = 0.8,
-) -> np.ndarray:
-    """Split touching cells of an instance segmentation at bright septa.
-
-    Method (septum profile split): for each region, the image (raw, not smoothed) is
-    averaged over a band along the region's principal axis, as wide as the region
-    (90th percentile of the pixels' distance from the axis) and restricted to
-    ``region``, in bins of one pixel, and the profile is smoothed by a Gaussian of
-    one bin. In phase contrast touching cells are dark bodies separated by a bright
-    septum, so septa are local maxima of this profile. A maximum is a septum when its
-    prominence is at least :data:`SEPTUM_NOISE_SD` times the noise of the profile
-    (pixel noise from :func:`_pixel_noise` over the number of pixels averaged) and at
-    least :data:`SEPTUM_CONTRAST` times the media-cell contrast (median of
-    ``region`` outside the cells minus median inside), and every piece is at least
-    ``min_cell_length_um`` long (:func:`_septum_cuts`). The pieces are then drawn
-    by a watershed of the smoothed image inside the region's mask, seeded with the
-    region's pixels more than 0.2 um (along the axis) from every cut, so that a
-    tilted septum is followed rather than cut square. Deterministic; a region with
-    no septum is returned unchanged.
-
-    Parameters
-    ----------
-    instances
-        Instance labels (0 = background) of the thresholded cells.
-    image
-        The image (phase contrast: cells dark).
-    region
-        Where the profile may look (inside the trench).
-    pixel_size_um
-        Camera pixel size.
-    min_cell_length_um
-        Shortest piece a septum may leave at either side.
-
-    Returns
-    -------
-    numpy.ndarray
-        Instance labels, ``1..n`` in the order of the regions and, within a region,
-        along its axis.
-    """
-    from skimage.segmentation import watershed
-
-    mask = instances > 0
-    if not mask.any():
-        return instances
-    sigma = _pixel_noise(image, region)
-    outside = region & ~mask
-    contrast = float(np.median(image[outside]) - np.median(image[mask])) if outside.any() else 0.0
-    smooth = ndimage.gaussian_filter(image, 1.0)
-    rows, cols = np.indices(image.shape)
-    out = np.zeros_like(instances)
-    n_out = 0
-    seed_px = max(round(0.2 / pixel_size_um), 1)
-    min_length = max(round(min_cell_length_um / pixel_size_um), 2)
-    for index in range(1, int(instances.max()) + 1):
-        inside = instances == index
-        rr, cc = np.nonzero(inside)
-        if rr.size < 6:
-            continue
-        cy, cx = rr.mean(), cc.mean()
-        _evals, evecs = np.linalg.eigh(np.cov(np.stack([cc - cx, rr - cy])))
-        vx, vy = evecs[:, 1]
-        along = (cols - cx) * vx + (rows - cy) * vy
-        across = (rows - cy) * vx - (cols - cx) * vy
-        s0, s1 = along[inside].min(), along[inside].max()
-        half = np.percentile(np.abs(across[inside]), 90)
-        band = region & (np.abs(across) <= half) & (along >= s0) & (along <= s1)
-        bins = np.round(along[band] - s0).astype(int)
-        count = np.bincount(bins, minlength=int(s1 - s0 + 0.5) + 1).astype(float)
-        total = np.bincount(bins, image[band], minlength=count.size)
-        seen = count > 0
-        mean = np.interp(np.arange(count.size), np.flatnonzero(seen), total[seen] / count[seen])
-        profile = ndimage.gaussian_filter1d(mean, 1.0)
-        # s.d. of a bin mean after the 1-bin Gaussian (sum of squared weights ~ 0.28).
-        noise = sigma * math.sqrt(0.28) / np.sqrt(np.maximum(count, 1.0))
-        cuts = _septum_cuts(profile, noise, SEPTUM_CONTRAST * contrast, min_length)
-        if not cuts:
-            n_out += 1
-            out[inside] = n_out
-            continue
-        edges = [0, *cuts, count.size]
-        position = along - s0
-        markers = np.zeros_like(instances)
-        for j in range(len(edges) - 1):
-            core = inside & (position >= edges[j] + seed_px) & (position <= edges[j + 1] - seed_px)
-            markers[core] = n_out + j + 1
-        out += watershed(smooth, markers, mask=inside) * inside
-        n_out += len(edges) - 1
-    return out
-
-
-def otsu_cells(
-    image: np.ndarray,
-    microscope: Microscope,
-    *,
-    geometry: Literal["trench", "open"] = "trench",
-    depth_um: float = 1.2,
-    max_cell_length_um: float = 4.0,
-) -> tuple[FrameCells, np.ndarray, TrenchPlacement | None, np.ndarray]:
-    """Plain segmentation: Otsu threshold, watershed, region moments.
-
-    Phase contrast is assumed (cells darker than the media around them). In a trench
-    the trench is found first from the column profile (90th percentile of each
-    column, longest run above 30 % of its range) and its closed end from the row
-    profile (Otsu threshold). Touching cells that the threshold and watershed leave
-    in one region are split at their bright septa (septum profile split,
-    :func:`_split_at_septa`). A region still longer than ``max_cell_length_um`` is
-    taken as several touching cells and starts as equal rods along its axis.
-
-    Returns
-    -------
-    cells
-        One spherocylinder per region: centroid, principal-axis angle, extent along
-        the axis (length) and the width of the spherocylinder with the region's area
-        and length (image coordinates, um).
-    otsu_width_um
-        That width per cell: the Otsu estimate of the cell width (section 1.3).
-    trench
-        The trench placement, or ``None`` for ``geometry="open"``.
-    mask
-        The instance labels of the segmentation (camera pixels).
-    """
-    from skimage.filters import threshold_otsu
-    from skimage.morphology import remove_small_objects
-
-    px = microscope.pixel_size_um
-    smooth = ndimage.gaussian_filter(image, 1.0)
-    region = np.ones(image.shape, bool)
-    trench = None
-    if geometry == "trench":
-        # Device columns are dark all along; trench columns hold bright media or halo
-        # somewhere: the 90th percentile of each column separates them.
-        columns = np.percentile(smooth, 90, axis=0)
-        low, high = np.percentile(columns, 10), columns.max()
-        above = columns > low + 0.3 * (high - low)
-        above = ndimage.binary_closing(above, np.ones(7, bool)) | above  # dips between halos
-        run = _longest_run(above)
-        if run is None:
-            raise ValueError("no trench found in the image: is it a mother-machine trench?")
-        c0, c1 = run
-        inside = smooth[:, c0 : c1 + 1].mean(axis=1)
-        above = inside > threshold_otsu(inside)
-        first = int(np.argmax(np.convolve(above, np.ones(3), "same") >= 2))
-        top_um = first * px if first > 0 else -2.0
-        trench = TrenchPlacement(c0 * px, (c1 - c0 + 1) * px, top_um, depth_um)
-        region[:, :c0] = False
-        region[:, c1 + 1 :] = False
-        region[: max(first, 0), :] = False
-        # The dark shade-off of the walls can fall inside the columns found: trim
-        # edge columns (and the top row) that are below the Otsu threshold almost all
-        # along, as no cell is (cells leave bright septa and gaps between them).
-        dark = (smooth < threshold_otsu(smooth[region])) & region
-        for _ in range(3):
-            cols = np.flatnonzero(region.any(axis=0))
-            rows_in = np.flatnonzero(region.any(axis=1))
-            if cols.size < 6 or rows_in.size < 6:
-                break
-            trimmed = False
-            for c in (cols[0], cols[-1]):
-                if dark[:, c].sum() > 0.8 * rows_in.size:
-                    region[:, c] = False
-                    trimmed = True
-            if dark[rows_in[0]].sum() > 0.8 * cols.size:
-                region[rows_in[0]] = False
-                trimmed = True
-            if not trimmed:
-                break
-    elif geometry != "open":
-        raise ValueError(f"geometry must be 'trench' or 'open', got {geometry!r}")
-    threshold = threshold_otsu(smooth[region])
-    mask = (smooth < threshold) & region
-    mask = ndimage.binary_opening(mask)
-    mask = remove_small_objects(mask, max_size=max(int(0.4 / px**2), 4))
-    # Cells in phase contrast are separated by bright septa: the components of the
-    # mask eroded by ~0.1 um (which breaks thin necks between touching cells) are the
-    # markers of a watershed that grows them back inside the mask.
-    from skimage.segmentation import watershed
-
-    erode_px = max(round(0.1 / px), 1)
-    markers, _ = ndimage.label(ndimage.binary_erosion(mask, iterations=erode_px))
-    distance = ndimage.distance_transform_edt(mask)
-    instances = watershed(-distance, markers, mask=mask)
-    # Touching cells whose neck survived the erosion: split at bright septa.
-    instances = _split_at_septa(instances, image, region, px)
-    rows_list = []
-    for index in range(1, int(instances.max()) + 1):
-        rr, cc = np.nonzero(instances == index)
-        if rr.size < 6:
-            continue
-        x = (cc + 0.5) * px
-        y = (rr + 0.5) * px
-        cx, cy = x.mean(), y.mean()
-        cov = np.cov(np.stack([x - cx, y - cy]))
-        _evals, evecs = np.linalg.eigh(cov)
-        vx, vy = evecs[:, 1]
-        if vy < 0:
-            vx, vy = -vx, -vy
-        angle = math.atan2(vx, vy)
-        along = (x - cx) * vx + (y - cy) * vy
-        length = float(along.max() - along.min() + px)
-        area = rr.size * px * px
-        width = _spherocylinder_width(area, length)
-        width = min(max(width, 2 * px), length)
-        # A region much longer than a cell is several touching cells: start with
-        # equal rods along its axis (the fit moves and sizes them).
-        k = (
-            max(math.ceil(length / (0.75 * max_cell_length_um)), 1)
-            if length > max_cell_length_um
-            else 1
-        )
-        for j in range(k):
-            offset = (j + 0.5) * length / k - length / 2
-            rows_list.append(
-                (cx + offset * vx, cy + offset * vy, angle, max(length / k, width), width)
-            )
-    if not rows_list:
-        raise ValueError("the Otsu segmentation found no cells in the image")
-    rows_list.sort(key=lambda row: (row[1], row[0]))
-    table = np.array(rows_list)
-    cells = FrameCells(
-        ids=np.arange(1, len(table) + 1),
-        x_um=table[:, 0],
-        y_um=table[:, 1],
-        angle_rad=table[:, 2],
-        length_um=table[:, 3],
-        width_um=table[:, 4],
-    )
-    return cells, table[:, 4].copy(), trench, instances
+#: Fitted optics by default: phase as :data:`~napari_symbac.fit.DEFAULT_FIT`; in
+#: fluorescence the phase ring's parameters do not exist, defocus remains.
+DEFAULT_FIT_OPTICS = {"phase": DEFAULT_FIT, "fluorescence": ("defocus_sigma_um",)}
 
 
 @dataclass(frozen=True)
@@ -477,8 +99,35 @@ class SceneFit:
         Renders used.
     curvature_um
         Fitted curvature amplitude ``a`` (um) of eq. 1 per cell, with ``b, c`` =
-        :data:`CURVATURE_B`, :data:`CURVATURE_C` (zeros when not fitted); see
-        :meth:`curvature`.
+        :data:`~napari_symbac.fit.engine.CURVATURE_B`, ``CURVATURE_C`` (zeros when not
+        fitted); see :meth:`curvature`.
+    camera
+        The camera of the likelihood: the one given, or the one estimated from the
+        residual variance against the model mean (gain, read noise; the baseline is
+        the given or guessed offset).
+    parameter_names
+        Names of all fitted parameters: ``cell<id>.x_um`` ... per cell (see
+        :class:`~napari_symbac.fit.engine.Layout`), the shared ones, then the three
+        intensities (ADU above the baseline).
+    parameters, standard_errors
+        Their values and standard errors (same order), the errors from the inverse
+        of :attr:`information`.
+    information
+        Fisher information at the optimum, ``J^T W J + P`` with ``J = d mu / d theta``
+        over the valid pixels (:meth:`jacobian`), ``W`` the inverse camera variance
+        and ``P`` the precision of the Gaussian priors (curvature, per-cell widths).
+        A score test of an extra parameter ``phi`` uses
+        ``J_phi^T W r`` and the Schur complement ``J_phi^T W J_phi -
+        J_phi^T W J (information)^-1 J^T W J_phi``, with ``r`` = :attr:`residual`.
+    at_bounds
+        Parameters that ended at a bound.
+    warnings
+        Plain words: what did not converge, what sits at a bound, a fit worse than
+        its start, a reduced chi-square far from 1.
+    valid
+        The pixels used in the likelihood (False: censored, e.g. clipped).
+    moves
+        The accepted add / remove / split / merge moves, in order.
     """
 
     cells: FrameCells
@@ -495,6 +144,36 @@ class SceneFit:
     objective_after: float = math.nan
     n_evaluations: int = 0
     curvature_um: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    camera: Camera | None = None
+    parameter_names: tuple[str, ...] = ()
+    parameters: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    standard_errors: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    information: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
+    jacobian_matrix: sparse.csc_matrix | None = field(default=None, repr=False)
+    at_bounds: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
+    valid: np.ndarray | None = field(default=None, repr=False)
+    moves: tuple[str, ...] = ()
+
+    def jacobian(self) -> sparse.csc_matrix:
+        """``d mu / d theta`` at the optimum (ADU per unit of each parameter).
+
+        Sparse, one row per camera pixel (row-major, censored pixels included) and
+        one column per :attr:`parameter_names`; ``mu`` is the clean image above the
+        baseline. Cell columns are non-zero only near their cell.
+        """
+        if self.jacobian_matrix is None:
+            raise ValueError("this fit holds no Jacobian")
+        return self.jacobian_matrix
+
+    def standard_error(self, name: str) -> float:
+        """Standard error of one parameter by name."""
+        try:
+            return float(self.standard_errors[self.parameter_names.index(name)])
+        except ValueError:
+            raise ValueError(
+                f"no fitted parameter {name!r}; names are in SceneFit.parameter_names"
+            ) from None
 
     def curvature(self) -> dict[int, tuple[float, float, float]]:
         """The fitted curvature as ``draw_scene``'s mapping ``cell id -> (a_um, b, c)``."""
@@ -523,15 +202,36 @@ class SceneFit:
         )
 
     def cells_table(self) -> dict[str, list]:
-        """The fitted cells and their Otsu widths as plain lists (for JSON)."""
+        """The fitted cells, their standard errors (``*_se``) and start sizes as lists (JSON)."""
         table: dict[str, list] = {
             name: np.asarray(getattr(self.cells, name)).tolist()
             for name in ("ids", "x_um", "y_um", "angle_rad", "length_um", "width_um")
         }
         table["curvature_um"] = np.asarray(self.curvature_um).tolist()
-        table["otsu_width_um"] = np.asarray(self.otsu_width_um).tolist()
-        table["otsu_length_um"] = np.asarray(self.initial_cells.length_um).tolist()
+        # Each fitted cell next to the start cell nearest to it (moves may have
+        # changed the count).
+        start = self.initial_cells
+        nearest = [
+            int(np.argmin(np.hypot(start.x_um - x, start.y_um - y))) if len(start) else -1
+            for x, y in zip(self.cells.x_um, self.cells.y_um)
+        ]
+        table["otsu_width_um"] = [float(self.otsu_width_um[k]) for k in nearest]
+        table["otsu_length_um"] = [float(start.length_um[k]) for k in nearest]
+        names = {"x_um": "x_um", "y_um": "y_um", "angle_rad": "angle_rad", "length_um": "length_um"}
+        for column, name in names.items():
+            table[f"{column}_se"] = [
+                self._se_or_nan(f"cell{int(i)}.{name}") for i in self.cells.ids
+            ]
+        table["width_um_se"] = [
+            self._se_or_nan(f"cell{int(i)}.dwidth_um", "width_um") for i in self.cells.ids
+        ]
         return table
+
+    def _se_or_nan(self, name: str, fallback: str | None = None) -> float:
+        for key in (name, fallback):
+            if key is not None and key in self.parameter_names:
+                return float(self.standard_errors[self.parameter_names.index(key)])
+        return math.nan
 
 
 def fit_scene(
@@ -540,314 +240,346 @@ def fit_scene(
     render: RenderSettings,
     camera: Camera | None = None,
     *,
-    trench: TrenchPlacement | TrenchGeometry | None = None,
-    labels: np.ndarray | None = None,
     geometry: Literal["trench", "open"] = "trench",
+    labels: np.ndarray | None = None,
+    masks: np.ndarray | None = None,
+    trench: TrenchPlacement | TrenchGeometry | None = None,
     closed_end: Literal["square", "round"] | None = None,
-    fit_optics: tuple[str, ...] = ("apodisation_sigma_um", "defocus_sigma_um", "psf_offset"),
+    fit_optics: tuple[str, ...] | None = None,
+    valid: np.ndarray | None = None,
     width_sd_um: float = 0.0,
     fit_curvature: bool = True,
     curvature_sd_um: float = 0.1,
     irls_rounds: int = 3,
     max_iterations: int = 25,
+    moves: bool = True,
     progress: Callable[[int, int], None] | None = None,
     cancel: Callable[[], bool] | None = None,
 ) -> SceneFit:
-    """Fit cells, trench and optics so the rendered image overlays the real one.
+    """Fit cells, trench, optics and camera so the rendered image overlays the real one.
 
     Parameters
     ----------
     real_image
-        One 2D frame (ADU, camera baseline included), phase contrast.
-    microscope, render, camera
+        One 2D frame (ADU, camera baseline included), phase contrast or fluorescence
+        (``microscope.modality``).
+    microscope, render
         Starting model; ``render`` gives the starting kernel parameters.
+    camera
+        The camera (eq. 17-19). ``None``: estimated from the data, the gain and read
+        noise from the residual variance against the model mean after the first
+        round (:func:`~napari_symbac.fit.noise.camera_from_residuals`), the baseline
+        guessed (100 ADU, or the image's 0.1 % quantile when lower, e.g. 0 for a
+        background-subtracted image).
+    geometry
+        ``"trench"`` (mother machine) or ``"open"`` (agar pad: no device).
+    labels
+        Painted classes (1 cell, 2 media, 3 device, 0 unpainted): give the polarity,
+        the start (connected cell strokes) when there is no ``masks``, and the eq. 20
+        / class-statistics terms of :attr:`SceneFit.terms`.
+    masks
+        An instance mask (or binary mask) to start from: the user's or any
+        segmenter's.
     trench
         Starting trench placement (:class:`TrenchPlacement` in image coordinates, or a
         :class:`TrenchGeometry` read as ``left = top = margin_um``); default: found
         from the image.
-    labels
-        Optional painted class map; only checked for shape here (the segmentation
-        needs no labels), and used to report eq. 20 / class statistics terms.
-    geometry
-        ``"trench"`` (mother machine) or ``"open"`` (agar pad: no device).
     closed_end
-        Shape of the trench's closed end drawn in the fit: ``"square"`` or ``"round"``
-        (a semicircle of diameter the trench width, PDMS in its corners; the real
-        trench's end is rounded, docs/fitting.md). Default: that of ``trench`` if
-        given, else ``"square"``.
+        Shape of the trench's closed end: ``"square"`` or ``"round"``; default: that
+        of ``trench`` if given, else ``"square"``.
     fit_optics
-        Kernel parameters fitted jointly with the geometry (the intensities always are).
+        Kernel parameters fitted jointly (any :func:`parameter_bounds` knows); the
+        intensities always are. Default: :data:`DEFAULT_FIT_OPTICS` of the modality.
+    valid
+        Pixels to use (False: censored). Default:
+        :func:`~napari_symbac.fit.noise.default_valid` (clipped pixels left out).
     width_sd_um
         0 (default): one width shared by all cells. > 0: per-cell widths tied to the
-        shared width by a Gaussian prior of this s.d. (hierarchical). Free per-cell
-        widths would soak up PSF effects (docs/fitting.md).
-    fit_curvature
-        Fit each cell's curvature amplitude ``a`` of eq. 1 (one bend: ``b, c`` fixed
-        to :data:`CURVATURE_B`, :data:`CURVATURE_C`), bounded to +-0.5 um; cells
-        start straight.
-    curvature_sd_um
-        S.d. of a Gaussian prior on ``a`` centred on 0 (ridge), so that straight
-        cells and cells too short to show a bend stay straight.
+        shared width by a Gaussian prior of this s.d. (hierarchical).
+    fit_curvature, curvature_sd_um
+        Fit each cell's curvature amplitude ``a`` of eq. 1 (one bend), with a
+        Gaussian prior of this s.d. centred on 0; cells start straight and stay
+        straight in the first round.
     irls_rounds
-        Rounds of iteratively reweighted least squares (variance held fixed within a
-        round, eq. 17).
+        Rounds of iteratively reweighted least squares (variance, and the estimated
+        camera, held fixed within a round).
     max_iterations
-        Gauss-Newton iterations per round.
+        Levenberg-Marquardt iterations per round.
+    moves
+        Add, remove, split and merge cells by the BIC after the first round
+        (:mod:`~napari_symbac.fit.moves`).
     progress, cancel
-        As in :func:`~napari_symbac.fit.fit_parameters`.
+        ``progress(done, total)`` after every render (``total`` an upper bound);
+        ``cancel()`` returning True raises :class:`~napari_symbac.fit.FitCancelled`.
 
     Returns
     -------
     SceneFit
     """
-    camera = Camera() if camera is None else camera
     real = as_single_image(real_image, name="real_image")
+    if geometry not in ("trench", "open"):
+        raise ValueError(f"geometry must be 'trench' or 'open', got {geometry!r}")
     if labels is not None:
         labels = as_label_stack(labels, (1, *real.shape))[0]
     if not (math.isfinite(width_sd_um) and width_sd_um >= 0):
         raise ValueError(f"width_sd_um must be zero or positive, got {width_sd_um!r}")
     if not (math.isfinite(curvature_sd_um) and curvature_sd_um > 0):
         raise ValueError(f"curvature_sd_um must be positive, got {curvature_sd_um!r}")
+    if irls_rounds < 1 or max_iterations < 1:
+        raise ValueError("irls_rounds and max_iterations must be at least 1")
+    modality = microscope.modality
+    if fit_optics is None:
+        fit_optics = DEFAULT_FIT_OPTICS.get(modality, ())
+    fit_optics = tuple(fit_optics)
     for name in fit_optics:
         parameter_bounds(name, microscope)
+    if valid is None:
+        valid = default_valid(real, modality, camera.bit_depth if camera else 16)
+    else:
+        valid = np.asarray(valid, bool)
+        if valid.shape != real.shape:
+            raise ValueError(f"valid of shape {valid.shape} does not match the image {real.shape}")
+    valid = valid & np.isfinite(real)
+    if valid.sum() < 10:
+        raise ValueError("fewer than 10 valid pixels: check the valid mask")
     px = microscope.pixel_size_um
     depth = trench.depth_um if trench is not None else 1.2
-    init_cells, otsu_w, found, _ = otsu_cells(real, microscope, geometry=geometry, depth_um=depth)
     if isinstance(trench, TrenchGeometry):
         trench = TrenchPlacement(
             trench.margin_um, trench.width_um, trench.margin_um, depth, trench.closed_end
         )
-    placement = trench if trench is not None else found
+    polarity = polarity_of(real, modality, labels)
+    init_cells, otsu_w, found, _ = start_scene(
+        real,
+        microscope,
+        geometry=geometry,
+        labels=labels,
+        masks=masks,
+        trench=trench,
+        depth_um=depth,
+        valid=valid,
+    )
+    placement = None if geometry == "open" else (trench if trench is not None else found)
     if placement is not None and closed_end is not None:
         placement = dataclasses.replace(placement, closed_end=closed_end)
-    if geometry == "open":
-        placement = None
-    n = len(init_cells)
     shape = real.shape
-    fit_top = placement is not None and placement.top_um > 0
-    # ---- parameter vector (scaled units) -------------------------------------------
-    scale_geo = 0.05
-    width0 = float(np.clip(np.median(otsu_w) + 0.1, 0.4, 2.0))  # Otsu is biased narrow
-    p0: list[float] = []
-    lo: list[float] = []
-    hi: list[float] = []
-    for i in range(n):
-        vals = (
-            init_cells.x_um[i],
-            init_cells.y_um[i],
-            init_cells.angle_rad[i],
-            max(init_cells.length_um[i] + 0.1, width0),
-        )
-        bounds_i = ((-2, shape[1] * px + 2), (-3, shape[0] * px + 3), (-1.6, 1.6), (0.3, 12.0))
-        for v, (a, b) in zip(vals, bounds_i):
-            p0.append(v)
-            lo.append(a)
-            hi.append(b)
-    i_curv = len(p0)
-    n_curv = n if fit_curvature else 0
-    p0.extend([0.0] * n_curv)
-    lo.extend([-0.5] * n_curv)
-    hi.extend([0.5] * n_curv)
-    i_width = len(p0)
-    p0.append(width0)
-    lo.append(0.3)
-    hi.append(2.5)
-    i_dw = len(p0)
-    if width_sd_um > 0:
-        p0.extend([0.0] * n)
-        lo.extend([-1.0] * n)
-        hi.extend([1.0] * n)
-    i_trench = len(p0)
+    n = len(init_cells)
+    layout = Layout(
+        n=n,
+        fit_curvature=fit_curvature,
+        per_cell_width=width_sd_um > 0,
+        trench=placement is not None,
+        fit_top=placement is not None and placement.top_um > 0,
+        optics=fit_optics,
+    )
+    width_um, height_um = shape[1] * px, shape[0] * px
+    cell_lower = [-2.0, -3.0, -1.6, 0.3] + [-0.5] * fit_curvature + [-1.0] * (width_sd_um > 0)
+    cell_upper = [width_um + 2, height_um + 3, 1.6, 12.0]
+    cell_upper += [0.5] * fit_curvature + [1.0] * (width_sd_um > 0)
+    cell_sd = [math.inf] * 4 + [curvature_sd_um] * fit_curvature
+    cell_sd += [width_sd_um] * (width_sd_um > 0)
+    # Otsu is biased narrow (section 1.3): start a little wider.
+    width0 = float(np.clip(np.median(otsu_w) + 0.1, 0.4, 2.0))
+    g0, g_lo, g_hi = [width0], [0.3], [2.5]
     if placement is not None:
-        p0.extend([placement.left_um, placement.width_um])
-        lo.extend([-1.0, 0.3])
-        hi.extend([shape[1] * px, shape[1] * px + 1])
-        if fit_top:
-            p0.append(placement.top_um)
-            lo.append(-1.0)
-            hi.append(shape[0] * px)
-    i_optics = len(p0)
-    start_optics = {name: float(getattr(render, name)) for name in fit_optics}
+        g0 += [placement.left_um, placement.width_um]
+        g_lo += [-1.0, 0.3]
+        g_hi += [width_um, width_um + 1]
+        if layout.fit_top:
+            g0.append(placement.top_um)
+            g_lo.append(-1.0)
+            g_hi.append(height_um)
     for name in fit_optics:
-        a, b = parameter_bounds(name, microscope)
-        v = float(np.clip(start_optics[name], a, b))
-        p0.append(v)
-        lo.append(a)
-        hi.append(b)
-    scales = np.array([scale_geo] * (i_optics) + [_SCALE[name] for name in fit_optics], dtype=float)
-    x0 = np.array(p0)
-    lo_a, hi_a = np.array(lo), np.array(hi)
-    x0 = np.clip(x0, lo_a + 1e-9, hi_a - 1e-9)
-
-    def bends(x: np.ndarray) -> np.ndarray:
-        return x[i_curv : i_curv + n_curv] if n_curv else np.zeros(n)
-
-    def unpack(x: np.ndarray) -> tuple[FrameCells, TrenchPlacement | None, RenderSettings]:
-        cell = x[: 4 * n].reshape(n, 4) if n else np.zeros((0, 4))
-        width = np.full(n, x[i_width])
-        if width_sd_um > 0:
-            width = width + x[i_dw : i_dw + n]
-        width = np.maximum(width, 0.2)
-        frame = FrameCells(
-            ids=np.arange(1, n + 1),
-            x_um=cell[:, 0],
-            y_um=cell[:, 1],
-            angle_rad=cell[:, 2],
-            length_um=np.maximum(cell[:, 3], width),
-            width_um=width,
-        )
-        place = None
-        if placement is not None:
-            top = x[i_trench + 2] if fit_top else placement.top_um
-            place = TrenchPlacement(
-                x[i_trench], x[i_trench + 1], top, placement.depth_um, placement.closed_end
-            )
-        r = dataclasses.replace(
-            render, **{name: float(v) for name, v in zip(fit_optics, x[i_optics:])}
-        )
-        return frame, place, r
-
-    total = (irls_rounds * (max_iterations + 2) + 2) * (len(x0) + 1)  # an upper bound
+        lo, hi = parameter_bounds(name, microscope)
+        g0.append(float(np.clip(getattr(render, name), lo, hi)))
+        g_lo.append(lo)
+        g_hi.append(hi)
+    blocks = np.zeros((n, layout.per_cell))
+    blocks[:, 0], blocks[:, 1] = init_cells.x_um, init_cells.y_um
+    blocks[:, 2] = init_cells.angle_rad
+    blocks[:, 3] = np.maximum(init_cells.length_um + 0.1, width0)
+    estimate = camera is None
+    baseline = camera.baseline_adu if camera is not None else _baseline_guess(real, valid)
+    y = (real - baseline).ravel().astype(np.float64)
+    flat_valid = valid.ravel()
+    if camera is None:
+        noise = _pixel_noise(real, valid) or float(np.std(real[valid])) or 1.0
+        w = flat_valid / noise**2
+        camera_used = Camera(baseline_adu=baseline)
+    else:
+        w = flat_valid / _variance(np.maximum(y, 0.0), render, camera)
+        camera_used = camera
+    per_cell = layout.per_cell
+    total = irls_rounds * (max_iterations + 2) * (n * per_cell + 12) * 2
     budget = _Budget(total, progress, cancel)
-    model = ForwardModel(microscope, render, camera)
-    y = (real - camera.baseline_adu).ravel()
+    problem = Problem(
+        shape=shape,
+        microscope=microscope,
+        render=render,
+        camera=camera_used,
+        placement=placement,
+        depth_um=depth,
+        layout=layout,
+        y=y,
+        w=w.astype(np.float64),
+        cell_lower=np.array(cell_lower),
+        cell_upper=np.array(cell_upper),
+        cell_prior_sd=np.array(cell_sd),
+        global_lower=np.array(g_lo),
+        global_upper=np.array(g_hi),
+        global_prior_sd=np.full(len(g0), math.inf),
+        tick=budget.tick,
+    )
+    x0 = np.clip(
+        Problem.join(blocks, np.array(g0)), problem.lower(n) + 1e-9, problem.upper(n) - 1e-9
+    )
+    start = problem.evaluate(x0)
+    state = start
+    warnings: list[str] = []
+    log: list[str] = []
 
-    def design(x: np.ndarray) -> tuple[np.ndarray, Scene, RenderSettings]:
-        budget.tick()
-        frame, place, r = unpack(x)
-        curv = {i + 1: (float(a), CURVATURE_B, CURVATURE_C) for i, a in enumerate(bends(x))}
-        scene = _draw(frame, place, shape, microscope, r, depth, curv)
-        comps = model.with_render(r).components(scene)
-        a = np.stack([comps[k].ravel() for k in ("cells", "media", "device")], axis=1)
-        return a.astype(np.float64), scene, r
+    def reweight(state: State) -> tuple[Problem, State]:
+        nonlocal camera_used
+        mu = state.mu
+        if estimate:
+            camera_used = camera_from_residuals(
+                mu[flat_valid], (y - mu)[flat_valid], baseline, camera_used.bit_depth
+            )
+            var = variance(mu, camera_used)
+        else:
+            var = _variance(mu, render, camera_used)
+        new = problem.with_weights(flat_valid / var, camera_used)
+        return new, new.evaluate(state.x)
 
-    def solve(a: np.ndarray, sw: np.ndarray) -> np.ndarray:
-        return _nnls(a * sw[:, None], y * sw)
-
-    def prior(x: np.ndarray) -> np.ndarray:
-        terms = [x[i_curv : i_curv + n_curv] / curvature_sd_um]
-        if width_sd_um > 0:
-            terms.append(x[i_dw : i_dw + n] / width_sd_um)
-        return np.concatenate(terms)
-
-    var = _variance(np.maximum(y, 0.0), render, camera)
-    a0, _, _ = design(x0)
-    sw0 = 1 / np.sqrt(var)
-    i0 = solve(a0, sw0)
-    clean0 = a0 @ i0
-    var_before = _variance(clean0, render, camera)
-    before_pixel = float(np.mean((y - clean0) ** 2 / var_before))
-    x = x0.copy()
-    bend_index = np.arange(i_curv, i_curv + n_curv)
-    straight = np.setdiff1d(np.arange(x0.size), bend_index)
-    for round_ in range(irls_rounds):
-        sw = 1 / np.sqrt(var)
-        # Curvature is held straight in the first round (when there are more): the
-        # centres and angles settle first, so that a bend cannot stand in for them
-        # (on the real trench, freeing it at once ended in a worse minimum).
-        free = straight if (round_ == 0 and irls_rounds > 1 and n_curv) else np.arange(x0.size)
-        z_all = (x - x0) / scales
-
-        def residual(
-            zf: np.ndarray, sw: np.ndarray = sw, free: np.ndarray = free, base: np.ndarray = z_all
-        ) -> np.ndarray:
-            zz = base.copy()
-            zz[free] = zf
-            xx = x0 + zz * scales
-            a, _, _ = design(xx)
-            return np.concatenate([(y - a @ solve(a, sw)) * sw, prior(xx)])
-
-        z = z_all.copy()
-        z[free] = _levenberg_marquardt(
-            residual,
-            z_all[free],
-            ((lo_a - x0) / scales)[free],
-            ((hi_a - x0) / scales)[free],
-            max_iterations,
-        )
-        x = x0 + z * scales
-        a, _, r = design(x)
-        clean = a @ solve(a, sw)
-        var = _variance(clean, r, camera)
-    a, scene, r = design(x)
-    sw = 1 / np.sqrt(var)
-    intens = solve(a, sw)
+    rounds = irls_rounds + (1 if irls_rounds == 1 and moves else 0)
+    for round_ in range(rounds):
+        free = np.ones(state.x.size, bool)
+        if round_ == 0 and rounds > 1 and fit_curvature:
+            # Curvature held straight in the first round: the centres and angles settle
+            # first, so that a bend cannot stand in for them.
+            free[: problem.n_cells(state.x) * per_cell] = np.tile(
+                [True] * 4 + [False] + [True] * (width_sd_um > 0), problem.n_cells(state.x)
+            )
+        state, converged = problem.refit(state, free, max_iterations)
+        if not converged:
+            warnings.append(
+                f"round {round_ + 1}: the fit stopped at the iteration limit "
+                f"({max_iterations}) before converging"
+            )
+        problem, state = reweight(state)
+        if round_ == 0 and moves:
+            state, log = improve_scene(problem, state, polarity)
+    # ---- results -----------------------------------------------------------------
+    x = state.x
+    n = problem.n_cells(x)
+    model = problem.model(n)
+    cells, curvature, place, r = model.unpack(x)
+    intens = state.intensities
     final_render = dataclasses.replace(r, **{k: float(v) for k, v in zip(_INTENSITIES, intens)})
-    frame, place, _ = unpack(x)
-    synthetic = ((a @ intens) + camera.baseline_adu).reshape(shape).astype(np.float32)
-    after_pixel = float(np.mean((y - a @ intens) ** 2 / _variance(a @ intens, r, camera)))
-    terms = {"pixel": (before_pixel, after_pixel)}
+    mu = state.mu
+    mu0 = start.mu
+    var_after = problem.w
+    chi_after = float(np.sum(var_after * (y - mu) ** 2) / max(problem.n_valid, 1))
+    w_before = flat_valid / (
+        variance(mu0, camera_used) if estimate else _variance(mu0, render, camera_used)
+    )
+    chi_before = float(np.sum(w_before * (y - mu0) ** 2) / max(problem.n_valid, 1))
+    synthetic = (mu + baseline).reshape(shape).astype(np.float32)
+    before_img = (mu0 + baseline).reshape(shape)
+    terms = {"pixel": (chi_before, chi_after)}
     if labels is not None:
-        before_img = (clean0 + camera.baseline_adu).reshape(shape)
         tb = objective_terms(before_img, real, labels, terms=("eq20", "class_stats"))
         ta = objective_terms(synthetic, real, labels, terms=("eq20", "class_stats"))
         terms.update({k: (tb[k], ta[k]) for k in ta})
+    names, values, se, info, jac = _uncertainty(problem, state)
+    lower, upper = problem.lower(n), problem.upper(n)
+    tol = 1e-3 * model.layout.scales()
+    at_bounds = tuple(
+        name
+        for name, v, lo, hi, t in zip(names, x, lower, upper, tol)
+        if v <= lo + t or v >= hi - t
+    )
+    if at_bounds:
+        warnings.append(f"at a bound: {', '.join(at_bounds)}")
+    if chi_after > chi_before:
+        warnings.append(
+            f"the fit is worse than its start (reduced chi-square {chi_after:.3g} > "
+            f"{chi_before:.3g})"
+        )
+    if chi_after > 2.0:
+        warnings.append(
+            f"reduced chi-square {chi_after:.3g}: the model misses structure of the image, "
+            "so the standard errors are too small"
+        )
     if progress is not None:
         progress(budget.total, budget.total)
     return SceneFit(
-        cells=frame,
+        cells=cells,
         initial_cells=init_cells,
         otsu_width_um=otsu_w,
         trench=place,
         render=final_render,
-        scene=scene,
+        scene=state.scene,
         synthetic=synthetic,
         residual=(real - synthetic).astype(np.float32),
-        synthetic_before=(clean0 + camera.baseline_adu).reshape(shape).astype(np.float32),
+        synthetic_before=before_img.astype(np.float32),
         terms=terms,
-        objective_before=before_pixel,
-        objective_after=after_pixel,
+        objective_before=chi_before,
+        objective_after=chi_after,
         n_evaluations=budget.done,
-        curvature_um=np.array(bends(x), dtype=float),
+        curvature_um=np.array([curvature.get(i, (0.0,))[0] for i in cells.ids], float),
+        camera=camera_used,
+        parameter_names=names,
+        parameters=values,
+        standard_errors=se,
+        information=info,
+        jacobian_matrix=jac,
+        at_bounds=at_bounds,
+        warnings=tuple(warnings),
+        valid=valid,
+        moves=tuple(log),
     )
 
 
-def _levenberg_marquardt(
-    residual: Callable[[np.ndarray], np.ndarray],
-    z0: np.ndarray,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    max_iterations: int,
-    step: float = DIFF_STEP,
-) -> np.ndarray:
-    """Projected Levenberg-Marquardt with a forward-difference Jacobian.
+def _baseline_guess(real: np.ndarray, valid: np.ndarray) -> float:
+    """Camera offset of an unknown camera: 100 ADU, or the 0.1 % quantile when lower."""
+    low = float(np.quantile(real[valid], 0.001))
+    return float(min(Camera().baseline_adu, max(low, 0.0)))
 
-    Steps are clipped to the bounds; the damping ``lambda diag(J^T J)`` (Marquardt
-    scaling) shrinks after an accepted step and grows after a rejected one. Stops after
-    ``max_iterations`` Jacobians or when the cost falls by less than 1e-6 relative.
-    (scipy's trust-region solver stalled on these renders: the Coleman-Li scaling near
-    the bounds and the cusps at cell edges made it reject every step.)
+
+def _uncertainty(
+    problem: Problem, state: State
+) -> tuple[tuple[str, ...], np.ndarray, np.ndarray, np.ndarray, sparse.csc_matrix]:
+    """Names, values, standard errors, Fisher information and ``d mu / d theta``.
+
+    The Jacobian of every parameter (forward differences, per-cell patches) is
+    taken in physical units; the information is ``J^T W J`` over the valid pixels
+    plus the prior precisions; the standard errors are the square roots of the
+    diagonal of its (pseudo-)inverse.
     """
-    z = np.clip(z0, lower, upper)
-    r = residual(z)
-    cost = float(r @ r)
-    lam = 1e-2
-    for _ in range(max_iterations):
-        jac = np.empty((r.size, z.size))
-        for k in range(z.size):
-            zk = z.copy()
-            h = step if zk[k] + step <= upper[k] else -step
-            zk[k] += h
-            jac[:, k] = (residual(zk) - r) / h
-        jtj = jac.T @ jac
-        grad = jac.T @ r
-        diag = np.diag(jtj) + 1e-9 * max(float(np.mean(np.diag(jtj))), 1e-12)
-        improved = False
-        for _attempt in range(6):
-            delta = -np.linalg.solve(jtj + lam * np.diag(diag), grad)
-            trial = np.clip(z + delta, lower, upper)
-            r_trial = residual(trial)
-            cost_trial = float(r_trial @ r_trial)
-            if cost_trial < cost:
-                improved = True
-                gain = (cost - cost_trial) / max(cost, 1e-300)
-                z, r, cost = trial, r_trial, cost_trial
-                lam = max(lam / 3, 1e-6)
-                break
-            lam *= 4
-        if not improved or gain < 1e-6:
-            break
-    return z
+    n = problem.n_cells(state.x)
+    model = problem.model(n)
+    free = np.ones(state.x.size, bool)
+    jac_z = model.jacobian(
+        state.x,
+        state.a,
+        state.intensities,
+        state.scene,
+        state.render,
+        free,
+        upper=problem.upper(n),
+    )
+    scales = np.concatenate([model.layout.scales(), np.ones(3)])
+    jac = (jac_z @ sparse.diags(1.0 / scales)).tocsc()
+    jw = sparse.diags(np.sqrt(problem.w)) @ jac
+    info = (jw.T @ jw).toarray()
+    sd = np.concatenate([problem.prior_sd(n), np.full(3, math.inf)])
+    info[np.diag_indices_from(info)] += 1.0 / sd**2
+    cov = np.linalg.pinv(info, rcond=1e-12, hermitian=True)
+    se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    names = (*model.layout.names(np.arange(1, n + 1)), *_INTENSITIES)
+    values = np.concatenate([state.x, state.intensities])
+    return names, values, se, info, jac
 
 
 def before_after_montage(real_image: np.ndarray, result: SceneFit) -> np.ndarray:

@@ -5,15 +5,29 @@ Stages, in order:
 1. ``psf`` (linear): the phase-contrast kernel of eq. 7-13 or the Airy pattern of
    eq. 6, with the defocus of eq. 14 folded in, convolved with each scene component
    (cells, media, device) separately (eq. 15), then area-averaged to camera pixels.
+   When the render settings give the phase signal its own amplitudes
+   (``RenderSettings.phase_separate``), the bright-field part ``h_dc`` and the
+   zero-sum ring part ``h_ring`` are two kernels: cells, media and device go through
+   ``h_dc`` and cells and device also through ``h_ring`` (``cells_phase``,
+   ``device_phase``; the media's ring image is minus their sum, since the fractions
+   add to 1 and ``h_ring`` sums to 0).
    Each convolved component is cached, keyed on the component's content and the
    kernel's parameters. The scipy backend fuses convolution and area average
    (``convolve_resample``); ``render(..., cache=False)`` composes eq. 3 first and
    convolves once (bulk rendering).
-2. ``intensity`` (eq. 3): ``I_c C + I_m M + I_t D``; by linearity this equals the
-   convolution of the composed image, so changing an intensity only recombines
-   cached arrays.
+2. ``intensity`` (eq. 3): ``I_c C + I_m M + I_t D`` (``- P_c C_phase - P_t D_phase``
+   with separate phase amplitudes); by linearity this equals the convolution of the
+   composed image, so changing an intensity only recombines cached arrays.
 3. any ``extra_stages`` (pointwise effects found by fitting / diagnosis).
 4. ``camera`` (eq. 17): noise, baseline, rounding and clipping to the bit depth.
+
+With ``RenderSettings.phase_model = "partially_coherent"`` stages 1-2 are one
+nonlinear stage, ``phase_image``: the sample's complex transmission imaged through
+the condenser annulus and the phase plate
+(:func:`~napari_symbac.optics.partial_coherence.annular_phase_image`), the defocus
+of eq. 14 as a Gaussian blur of that image, the area average to camera pixels and
+the media level. Nothing is cached per component there (the image is not linear
+in the scene).
 """
 
 from __future__ import annotations
@@ -28,7 +42,13 @@ import numpy as np
 
 from napari_symbac.optics.backends import ConvolutionBackend, get_backend
 from napari_symbac.optics.camera import apply_camera_noise, apply_gaussian_noise, quantise
-from napari_symbac.optics.psf import airy_psf, defocus, phase_contrast_psf
+from napari_symbac.optics.partial_coherence import annular_phase_image
+from napari_symbac.optics.psf import (
+    airy_psf,
+    defocus,
+    phase_contrast_kernels,
+    phase_contrast_psf,
+)
 from napari_symbac.settings import Camera, Microscope, RenderSettings
 
 __all__ = ["COMPONENTS", "ForwardModel", "Stage", "block_average"]
@@ -176,30 +196,131 @@ class ForwardModel:
                 apodisation_sigma_um=r.apodisation_sigma_um,
                 ring_contrast=r.ring_contrast,
                 psf_offset=r.psf_offset,
+                ring_model=r.ring_model,
+                phase_ring_width_scale=r.phase_ring_width_scale,
+            )
+        intensity_params = {
+            "cell_intensity": r.cell_intensity,
+            "media_intensity": r.media_intensity,
+            "device_intensity": r.device_intensity,
+        }
+        if m.modality == "phase" and r.phase_separate:
+            intensity_params.update(
+                cell_phase_adu=r.phase_amplitudes()[0], device_phase_adu=r.phase_amplitudes()[1]
+            )
+        if m.modality == "phase" and r.phase_model == "partially_coherent":
+            return (
+                Stage(
+                    "phase_image",
+                    False,
+                    {
+                        "wavelength_um": m.wavelength_um,
+                        "numerical_aperture": m.numerical_aperture,
+                        "condenser": m.condenser,
+                        "upsample": r.upsample,
+                        "cell_phase_rad": r.cell_phase_rad,
+                        "device_phase_rad": r.device_phase_rad,
+                        "plate_transmission": r.plate_transmission,
+                        "plate_phase_rad": r.plate_phase_rad,
+                        "phase_ring_width_scale": r.phase_ring_width_scale,
+                        "apodisation_sigma_um": r.apodisation_sigma_um,
+                        "defocus_sigma_um": r.defocus_sigma_um,
+                        "source_points": r.source_points,
+                        **intensity_params,
+                    },
+                ),
+                *self.extra_stages,
+                self._camera_stage(),
             )
         return (
             Stage("psf", True, psf_params),
             Stage("resample", True, {"upsample": r.upsample}),
-            Stage(
-                "intensity",
-                False,
-                {
-                    "cell_intensity": r.cell_intensity,
-                    "media_intensity": r.media_intensity,
-                    "device_intensity": r.device_intensity,
-                },
-            ),
+            Stage("intensity", False, intensity_params),
             *self.extra_stages,
-            Stage(
-                "camera",
-                False,
-                {
-                    "noise_model": r.noise_model,
-                    **_camera_dict(self.camera),
-                    "gaussian_noise_sd_adu": r.gaussian_noise_sd_adu,
-                },
-            ),
+            self._camera_stage(),
         )
+
+    def _camera_stage(self) -> Stage:
+        r = self.render_settings
+        return Stage(
+            "camera",
+            False,
+            {
+                "noise_model": r.noise_model,
+                **_camera_dict(self.camera),
+                "gaussian_noise_sd_adu": r.gaussian_noise_sd_adu,
+            },
+        )
+
+    @property
+    def partially_coherent(self) -> bool:
+        """Whether the phase image is formed by the partially coherent model."""
+        return (
+            self.microscope.modality == "phase"
+            and self.render_settings.phase_model == "partially_coherent"
+        )
+
+    def phase_image(self, scene: Any) -> np.ndarray:
+        """The ``phase_image`` stage: camera-resolution image, 1 = empty field (float64).
+
+        Only for ``phase_model="partially_coherent"``; the scene's border (at least
+        the PSF radius) pads the sample against the FFT's wrap-around.
+        """
+        if not self.partially_coherent:
+            raise ValueError(
+                "phase_image needs RenderSettings.phase_model='partially_coherent' and a "
+                "phase microscope"
+            )
+        self._check_scene(scene)
+        m, r = self.microscope, self.render_settings
+        if r.media_intensity <= 0:
+            raise ValueError(
+                "the partially coherent model needs media_intensity > 0 (the level of the "
+                "empty field)"
+            )
+        key = (
+            "phase_image",
+            scene.fingerprints["cells"],
+            scene.fingerprints["device"],
+            self._kernel_key(scene.pixel_size_um),
+            r.cell_intensity / r.media_intensity,
+            r.device_intensity / r.media_intensity,
+            r.cell_phase_rad,
+            r.device_phase_rad,
+            r.plate_transmission,
+            r.plate_phase_rad,
+            r.source_points,
+        )
+        cached = self._cache.get(key)
+        if cached is not None:
+            return cached
+        b = (
+            r.cell_intensity * scene.cells.astype(np.float64)
+            + r.media_intensity * scene.media
+            + r.device_intensity * scene.device
+        ) / r.media_intensity
+        phi = r.cell_phase_rad * scene.cells.astype(np.float64)
+        phi += r.device_phase_rad * scene.device
+        image = annular_phase_image(
+            b,
+            phi,
+            scene.pixel_size_um,
+            m.wavelength_um,
+            m.numerical_aperture,
+            m.condenser,
+            r.plate_transmission,
+            r.plate_phase_rad,
+            r.apodisation_sigma_um,
+            r.phase_ring_width_scale,
+            r.source_points,
+        )
+        if r.defocus_sigma_um > 0:
+            from scipy.ndimage import gaussian_filter
+
+            image = gaussian_filter(image, r.defocus_sigma_um / scene.pixel_size_um)
+        out = block_average(scene.interior(image), scene.upsample).astype(np.float64)
+        self._cache.put(key, out)
+        return out
 
     def with_render(self, render: RenderSettings) -> ForwardModel:
         """A model with new render settings sharing this one's caches.
@@ -262,13 +383,60 @@ class ForwardModel:
             r.defocus_sigma_um,
         )
         if m.modality == "phase":
-            key += (m.condenser, r.apodisation_sigma_um, r.ring_contrast, r.psf_offset)
+            gamma = "separate" if r.phase_separate else r.ring_contrast
+            key += (m.condenser, r.apodisation_sigma_um, gamma, r.psf_offset, r.ring_model)
+            key += (r.phase_ring_width_scale,)
         return key
 
-    def kernel(self, pixel_size_um: float | None = None) -> np.ndarray:
-        """The 2-D kernel of the ``psf`` stage (defocus included), float32, sum 1."""
+    @property
+    def separate_phase(self) -> bool:
+        """Whether the ring part is rendered with its own amplitudes (two kernels)."""
+        return self.microscope.modality == "phase" and self.render_settings.phase_separate
+
+    def _kernel_pair(self, px: float) -> tuple[np.ndarray, np.ndarray]:
+        key = ("pair", *self._kernel_key(px))
+        pair = self._kernels.get(key)
+        if pair is None:
+            m, r = self.microscope, self.render_settings
+            pair = phase_contrast_kernels(
+                r.psf_radius_px,
+                px,
+                m.wavelength_um,
+                m.numerical_aperture,
+                m.condenser,
+                r.apodisation_sigma_um,
+                defocus_sigma_um=r.defocus_sigma_um,
+                offset=r.psf_offset,
+                min_apodisation_sigma_um=m.min_apodisation_sigma_um,
+                ring_model=r.ring_model,
+                ring_width_scale=r.phase_ring_width_scale,
+            )
+            for k in pair:
+                k.setflags(write=False)
+            self._kernels[key] = pair
+        return pair
+
+    def ring_kernel(self, pixel_size_um: float | None = None) -> np.ndarray:
+        """The zero-sum ring kernel ``h_ring`` of a model with separate phase amplitudes."""
+        if not self.separate_phase:
+            raise ValueError(
+                "the ring kernel is separate only with RenderSettings.cell_phase_adu or "
+                "device_phase_adu set (phase modality); use kernel() otherwise"
+            )
         m, r = self.microscope, self.render_settings
         px = m.pixel_size_um / r.upsample if pixel_size_um is None else pixel_size_um
+        return self._kernel_pair(px)[1]
+
+    def kernel(self, pixel_size_um: float | None = None) -> np.ndarray:
+        """The 2-D kernel of the ``psf`` stage (defocus included), float32, sum 1.
+
+        With separate phase amplitudes this is the bright-field part ``h_dc``; the
+        ring part is :meth:`ring_kernel`.
+        """
+        m, r = self.microscope, self.render_settings
+        px = m.pixel_size_um / r.upsample if pixel_size_um is None else pixel_size_um
+        if self.separate_phase:
+            return self._kernel_pair(px)[0]
         key = self._kernel_key(px)
         kernel = self._kernels.get(key)
         if kernel is None:
@@ -284,6 +452,8 @@ class ForwardModel:
                     defocus_sigma_um=r.defocus_sigma_um,
                     offset=r.psf_offset,
                     min_apodisation_sigma_um=m.min_apodisation_sigma_um,
+                    ring_model=r.ring_model,
+                    ring_width_scale=r.phase_ring_width_scale,
                 )
             else:
                 kernel = airy_psf(r.psf_radius_px, px, m.wavelength_um, m.numerical_aperture)
@@ -329,14 +499,33 @@ class ForwardModel:
         return block_average(self.backend.convolve_valid(stack, kernel), factor)
 
     def components(self, scene: Any) -> dict[str, np.ndarray]:
-        """Convolved, camera-resolution cells / media / device images (cached, read-only)."""
+        """Convolved, camera-resolution cells / media / device images (cached, read-only).
+
+        With separate phase amplitudes also ``cells_phase`` and ``device_phase``: cells
+        and device through the ring kernel.
+        """
+        if self.partially_coherent:
+            raise ValueError(
+                "the partially coherent phase model is not a sum of convolved components: "
+                "use phase_image() or render_clean()"
+            )
         self._check_scene(scene)
-        kernel = self.kernel(scene.pixel_size_um)
         kkey = self._kernel_key(scene.pixel_size_um)
+        out = self._convolved(scene, COMPONENTS, self.kernel(scene.pixel_size_um), kkey)
+        if self.separate_phase:
+            ring = self._convolved(
+                scene, ("cells", "device"), self.ring_kernel(scene.pixel_size_um), ("ring", *kkey)
+            )
+            out["cells_phase"], out["device_phase"] = ring["cells"], ring["device"]
+        return out
+
+    def _convolved(
+        self, scene: Any, names: tuple[str, ...], kernel: np.ndarray, kkey: tuple
+    ) -> dict[str, np.ndarray]:
         trim = scene.border_px - self.render_settings.psf_radius_px
         out: dict[str, np.ndarray] = {}
         missing: list[str] = []
-        for name in COMPONENTS:
+        for name in names:
             key = (scene.fingerprints[name], kkey, trim)
             cached = self._cache.get(key)
             if cached is None:
@@ -363,16 +552,23 @@ class ForwardModel:
         where every frame is new) the components are weighted first and the
         composed image is convolved once (eq. 3 and 15 are linear): one transform
         pair per frame instead of one per changed component, no cache traffic.
-        Both give the same image up to float32 rounding.
+        Both give the same image up to float32 rounding. The partially coherent
+        phase model has one path (:meth:`phase_image` times ``media_intensity``).
         """
         r = self.render_settings
-        if cache:
+        if self.partially_coherent:
+            image = (r.media_intensity * self.phase_image(scene)).astype(np.float32)
+        elif cache:
             comps = self.components(scene)
             image = (
                 np.float32(r.cell_intensity) * comps["cells"]
                 + np.float32(r.media_intensity) * comps["media"]
                 + np.float32(r.device_intensity) * comps["device"]
             )
+            if self.separate_phase:
+                p_cell, p_device = r.phase_amplitudes()
+                image -= np.float32(p_cell) * comps["cells_phase"]
+                image -= np.float32(p_device) * comps["device_phase"]
         else:
             self._check_scene(scene)
             kernel = self.kernel(scene.pixel_size_um)
@@ -384,6 +580,12 @@ class ForwardModel:
             composed += np.float32(r.media_intensity) * scene.media[crop]
             composed += np.float32(r.device_intensity) * scene.device[crop]
             image = self._convolve_resample(composed[None], kernel, scene.upsample)[0]
+            if self.separate_phase:
+                p_cell, p_device = r.phase_amplitudes()
+                phase = np.float32(p_cell) * scene.cells[crop]
+                phase += np.float32(p_device) * scene.device[crop]
+                ring = self.ring_kernel(scene.pixel_size_um)
+                image = image - self._convolve_resample(phase[None], ring, scene.upsample)[0]
         for stage in self.extra_stages:
             image = np.asarray(stage.apply(image, scene), dtype=np.float32)  # type: ignore[misc]
         return image.astype(np.float32, copy=False)

@@ -24,12 +24,15 @@ from scipy import special
 from napari_symbac.settings import CONDENSERS, Condenser
 
 __all__ = [
+    "RING_MODELS",
     "airy_psf",
+    "annulus_transfer_function",
     "apodise",
     "born_wolf_psf_3d",
     "defocus",
     "gaussian_kernel",
     "jinc",
+    "phase_contrast_kernels",
     "phase_contrast_parts",
     "phase_contrast_psf",
     "radius_grid_um",
@@ -128,6 +131,94 @@ def _condenser(condenser: str | Condenser) -> Condenser:
     return CONDENSERS[condenser]
 
 
+#: Shapes of the ring part of the phase kernel (``RenderSettings.ring_model``).
+RING_MODELS = ("airy", "annulus")
+
+
+def annulus_transfer_function(
+    size_px: int,
+    pixel_size_um: float,
+    wavelength_um: float,
+    numerical_aperture: float,
+    condenser: str | Condenser,
+    ring_width_scale: float = 1.0,
+    n_source_points: int = 64,
+) -> np.ndarray:
+    """Weak-phase transfer function of annular illumination through a phase plate.
+
+    Partially coherent (Koehler) imaging with the condenser annulus as source: a
+    source point ``s`` on the annulus sends its direct (undiffracted) light through
+    the conjugate phase ring of the plate, which multiplies it by ``a exp(i theta)``
+    (amplitude transmission ``a``, phase shift ``theta``). A weak phase object
+    ``exp(i phi) ~ 1 + i phi`` diffracts light of spatial frequency ``f`` to the pupil
+    point ``s + f``. To first order in ``phi`` the image of that source point is
+    ``|a|^2 + 2 a sin(theta) [phi conv h_s]``, where ``h_s`` passes ``f`` fully when
+    ``s + f`` lies inside the pupil but outside the ring (the diffracted wave is not
+    shifted), and not at all when it falls in the ring (direct and diffracted waves
+    shifted alike: no contrast) or outside the pupil; the odd part from
+    ``theta != pi/2`` cancels over the symmetric annulus. Summing over the source
+    points (the incoherent sum of eq. 7's annulus) gives
+
+    ``H(f) = < P(s + f) [1 - R(s + f)] >_s``
+
+    with ``P`` the pupil (radius ``NA / lambda``) and ``R`` the plate ring. ``H(0) = 0``
+    (no contrast for a uniform phase: the shade-off of large objects) and ``H -> 1``
+    at frequencies beyond the ring's width (the detail): the halo and the
+    shade-off are the frequencies between. The overall gain ``2 sin(theta) / a``
+    multiplies the ring part of the kernel (``RenderSettings.ring_contrast`` or the
+    ``*_phase_adu`` amplitudes), so it does not appear here.
+
+    Parameters
+    ----------
+    size_px
+        Side of the (square, odd) frequency grid, the kernel's side.
+    pixel_size_um, wavelength_um, numerical_aperture
+        Render pixel size, vacuum wavelength, objective NA (eq. 8).
+    condenser
+        The annulus radii ``R - W`` and ``R`` (eq. 7) as fractions of the pupil.
+    ring_width_scale
+        Width of the plate's ring over the condenser's catalogue annulus width
+        (>= 0.5: the ring must hold the direct light of the source points, which sit
+        at a quarter of the annulus width either side of its centre line); the ring
+        stays centred on the annulus.
+    n_source_points
+        Source points on the annulus (angles x 2 radii).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``H`` on the unshifted FFT frequency grid (``numpy.fft.fftfreq`` order), in
+        ``[0, 1]``.
+    """
+    _check_positive(
+        pixel_size_um=pixel_size_um,
+        wavelength_um=wavelength_um,
+        numerical_aperture=numerical_aperture,
+    )
+    if not (math.isfinite(ring_width_scale) and ring_width_scale >= 0.5):
+        raise ValueError(
+            f"ring_width_scale must be >= 0.5 (the ring must hold the direct light of the "
+            f"annulus' source points), got {ring_width_scale!r}"
+        )
+    if n_source_points < 8:
+        raise ValueError(f"n_source_points must be at least 8, got {n_source_points!r}")
+    cond = _condenser(condenser)
+    rho_o, rho_i = cond.outer_fraction, cond.inner_fraction
+    centre, half = 0.5 * (rho_o + rho_i), 0.5 * (rho_o - rho_i)
+    plate_i, plate_o = centre - half * ring_width_scale, centre + half * ring_width_scale
+    cutoff = numerical_aperture / wavelength_um
+    freq = np.fft.fftfreq(size_px, pixel_size_um) / cutoff
+    fx, fy = np.meshgrid(freq, freq)
+    n_angles = n_source_points // 2
+    radii = centre + half * np.array([-0.5, 0.5])
+    transfer = np.zeros((size_px, size_px))
+    for radius in radii:
+        for angle in np.arange(n_angles) * (2 * math.pi / n_angles):
+            u = np.hypot(fx + radius * math.cos(angle), fy + radius * math.sin(angle))
+            transfer += (u <= 1) & ((u < plate_i) | (u > plate_o))
+    return transfer / (n_angles * radii.size)
+
+
 def phase_contrast_parts(
     radius_px: int,
     pixel_size_um: float,
@@ -135,6 +226,8 @@ def phase_contrast_parts(
     numerical_aperture: float,
     condenser: str | Condenser,
     apodisation_sigma_um: float,
+    ring_model: str = "airy",
+    ring_width_scale: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Bright-field and ring parts of the phase-contrast kernel (eq. 7-8, 11-12).
 
@@ -144,16 +237,18 @@ def phase_contrast_parts(
         Apodised Airy pattern ``jinc(omega)^2 G(r, sigma_1)``, normalised to sum 1:
         the diffraction-limited bright-field image of the sample.
     k_ring
-        Zero-sum ring part ``k_bf - P_ring``. ``P_ring`` is the intensity pattern of
-        the obscured Airy of eq. 7, ``[rho_o^2 jinc(rho_o omega) -
-        rho_i^2 jinc(rho_i omega)]^2 G(r, sigma_1)`` with ``rho_o``, ``rho_i`` the
-        outer and inner radii of the condenser annulus as fractions of the pupil,
-        normalised by its own sum, like the bright-field part. ``P_ring`` spreads
-        its light far into its rings, so ``k_ring`` is "detail minus surround": it
-        moves light from the neighbourhood of dark objects into a halo and makes
-        the interiors of large objects lighter (shade-off). Because both parts sum
-        to 1, ring width ``W``, radius ``R`` and apodisation ``sigma_1`` change *where*
-        the halo light goes, never *how much*: the amount is ``gamma`` alone.
+        Zero-sum ring part. ``ring_model="airy"`` (the shape used before the
+        ``annulus`` model existed): ``k_bf - P_ring`` with ``P_ring`` the intensity
+        pattern of the obscured Airy of eq. 7, ``[rho_o^2 jinc(rho_o omega) -
+        rho_i^2 jinc(rho_i omega)]^2 G(r, sigma_1)``, normalised by its own sum.
+        ``ring_model="annulus"``: the inverse transform of the partially coherent
+        weak-phase transfer function :func:`annulus_transfer_function`, apodised with
+        ``G(r, sigma_1)`` (eq. 11-12) and made zero-sum; its transfer function is ~1
+        at high frequencies, so its weight is the phase-plate gain itself. Either way
+        ``k_ring`` is "detail minus surround": it moves light from the neighbourhood
+        of dark objects into a halo and makes the interiors of large objects lighter
+        (shade-off), and ring width, radius and apodisation change *where* the halo
+        light goes, never *how much*: that is the ring part's weight alone.
         (SyMBac divides the amplitude difference by its own sum, which nearly
         cancels, so shape parameters there act as hidden contrast knobs.)
     """
@@ -162,15 +257,25 @@ def phase_contrast_parts(
         numerical_aperture=numerical_aperture,
         apodisation_sigma_um=apodisation_sigma_um,
     )
+    if ring_model not in RING_MODELS:
+        raise ValueError(f"unknown ring_model {ring_model!r}; choose one of {RING_MODELS}")
     cond = _condenser(condenser)
     r = radius_grid_um(radius_px, pixel_size_um)
     omega = 2 * math.pi * numerical_aperture * r / wavelength_um  # eq. 8 (vacuum lambda)
     g = np.exp(-(r**2) / (2 * apodisation_sigma_um**2))  # eq. 11
     k_bf = jinc(omega) ** 2 * g
     k_bf /= k_bf.sum()
-    rho_o, rho_i = cond.outer_fraction, cond.inner_fraction
-    ring = (rho_o**2 * jinc(rho_o * omega) - rho_i**2 * jinc(rho_i * omega)) ** 2 * g  # eq. 7
-    k_ring = k_bf - ring / ring.sum()
+    if ring_model == "airy":
+        rho_o, rho_i = cond.outer_fraction, cond.inner_fraction
+        ring = (rho_o**2 * jinc(rho_o * omega) - rho_i**2 * jinc(rho_i * omega)) ** 2 * g  # eq. 7
+        k_ring = k_bf - ring / ring.sum()
+    else:
+        size = 2 * radius_px + 1
+        transfer = annulus_transfer_function(
+            size, pixel_size_um, wavelength_um, numerical_aperture, cond, ring_width_scale
+        )
+        k_ring = np.fft.fftshift(np.real(np.fft.ifft2(transfer))) * g
+        k_ring -= g * (k_ring.sum() / g.sum())  # zero sum, the tails still apodised
     return k_bf.astype(np.float32), k_ring.astype(np.float32)
 
 
@@ -185,6 +290,8 @@ def phase_contrast_psf(
     defocus_sigma_um: float = 0.0,
     offset: float = 0.0,
     min_apodisation_sigma_um: float | None = None,
+    ring_model: str = "airy",
+    ring_width_scale: float = 1.0,
 ) -> np.ndarray:
     """Phase-contrast kernel ``h = k_bf + gamma k_ring + offset term`` (eq. 7-14, 13.2).
 
@@ -215,31 +322,116 @@ def phase_contrast_psf(
     min_apodisation_sigma_um
         Lower bound of eq. 13; when given, a smaller ``apodisation_sigma_um`` is a
         ``ValueError``.
+    ring_model, ring_width_scale
+        Shape of the ring part, see :func:`phase_contrast_parts`.
 
     Returns
     -------
     numpy.ndarray
         float32 kernel whose sum is exactly 1, so flat regions keep their intensity.
     """
+    _check_apodisation(apodisation_sigma_um, min_apodisation_sigma_um)
+    if not math.isfinite(ring_contrast):
+        raise ValueError(f"ring_contrast must be finite, got {ring_contrast!r}")
+    k_bf, k_ring = _dc_and_ring(
+        radius_px,
+        pixel_size_um,
+        wavelength_um,
+        numerical_aperture,
+        condenser,
+        apodisation_sigma_um,
+        offset,
+        ring_model,
+        ring_width_scale,
+    )
+    h = k_bf + ring_contrast * k_ring
+    h = defocus(h, pixel_size_um, defocus_sigma_um).astype(np.float64)
+    return (h / h.sum()).astype(np.float32)
+
+
+def phase_contrast_kernels(
+    radius_px: int,
+    pixel_size_um: float,
+    wavelength_um: float,
+    numerical_aperture: float,
+    condenser: str | Condenser,
+    apodisation_sigma_um: float,
+    defocus_sigma_um: float = 0.0,
+    offset: float = 0.0,
+    min_apodisation_sigma_um: float | None = None,
+    ring_model: str = "annulus",
+    ring_width_scale: float = 1.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The two parts of the phase kernel, kept apart: ``(h_dc, h_ring)``.
+
+    ``h_dc`` is the bright-field part with the offset term (sum 1) and ``h_ring`` the
+    zero-sum ring part (:func:`phase_contrast_parts`), both with the defocus of
+    eq. 14. The forward model weights them with separate amplitudes when the phase
+    signal of the sample is set apart from its bright-field (absorption) contrast
+    (``RenderSettings.cell_phase_adu``): the image is ``sum_k I_k X_k conv h_dc -
+    sum_k P_k X_k conv h_ring``, all amplitudes linear, so none of them is
+    hidden in a ratio. ``phase_contrast_psf`` is ``h_dc + gamma h_ring``.
+    """
+    _check_apodisation(apodisation_sigma_um, min_apodisation_sigma_um)
+    k_bf, k_ring = _dc_and_ring(
+        radius_px,
+        pixel_size_um,
+        wavelength_um,
+        numerical_aperture,
+        condenser,
+        apodisation_sigma_um,
+        offset,
+        ring_model,
+        ring_width_scale,
+    )
+    dc = defocus(k_bf, pixel_size_um, defocus_sigma_um).astype(np.float64)
+    ring = k_ring
+    if defocus_sigma_um > 0:
+        from scipy.ndimage import gaussian_filter
+
+        ring = gaussian_filter(k_ring, defocus_sigma_um / pixel_size_um, mode="constant")
+        ring -= ring.mean()
+    return (dc / dc.sum()).astype(np.float32), ring.astype(np.float32)
+
+
+def _check_apodisation(apodisation_sigma_um: float, min_apodisation_sigma_um: float | None) -> None:
     if min_apodisation_sigma_um is not None and apodisation_sigma_um < min_apodisation_sigma_um:
         raise ValueError(
             f"apodisation_sigma_um={apodisation_sigma_um} is below the diffraction bound of "
             f"eq. 13 ({min_apodisation_sigma_um:.3f} um): the phase PSF cannot be narrower "
             f"than the Airy disk"
         )
-    if not math.isfinite(ring_contrast):
-        raise ValueError(f"ring_contrast must be finite, got {ring_contrast!r}")
+
+
+def _dc_and_ring(
+    radius_px: int,
+    pixel_size_um: float,
+    wavelength_um: float,
+    numerical_aperture: float,
+    condenser: str | Condenser,
+    apodisation_sigma_um: float,
+    offset: float,
+    ring_model: str,
+    ring_width_scale: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """float64 ``(k_bf - offset (U - k_bf), k_ring)`` before defocus."""
     if not math.isfinite(offset):
         raise ValueError(f"offset must be finite, got {offset!r}")
     k_bf, k_ring = phase_contrast_parts(
-        radius_px, pixel_size_um, wavelength_um, numerical_aperture, condenser, apodisation_sigma_um
+        radius_px,
+        pixel_size_um,
+        wavelength_um,
+        numerical_aperture,
+        condenser,
+        apodisation_sigma_um,
+        ring_model,
+        ring_width_scale,
     )
-    h = k_bf.astype(np.float64) + ring_contrast * k_ring.astype(np.float64)
+    dc = k_bf.astype(np.float64)
     if offset:
         disk = (radius_grid_um(radius_px, 1.0) <= radius_px).astype(np.float64)
-        h -= offset * (disk / disk.sum() - k_bf)
-    h = defocus(h, pixel_size_um, defocus_sigma_um).astype(np.float64)
-    return (h / h.sum()).astype(np.float32)
+        dc = dc - offset * (disk / disk.sum() - dc)
+    return dc, k_ring.astype(np.float64)
 
 
 def born_wolf_psf_3d(

@@ -18,6 +18,7 @@ from napari_symbac.scene._field import (
     field_of,
 )
 from napari_symbac.scene._kymograph import kymograph
+from napari_symbac.scene._masks import cell_thickness_from_masks, scene_from_masks
 
 __all__ = [
     "OUTLINE_WALL_THICKNESS_UM",
@@ -25,8 +26,10 @@ __all__ = [
     "FrameCellsLike",
     "Scene",
     "add_media_texture",
+    "cell_thickness_from_masks",
     "draw_scene",
     "field_of",
     "kymograph",
+    "scene_from_masks",
     "spherocylinder_distance",
 ]

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from napari_symbac.settings import OutlineGeometry, SimulationSettings
+from napari_symbac.settings import AgarPadGeometry, OutlineGeometry, SimulationSettings
 
 __all__ = ["Layout", "make_layout", "read_dxf_walls"]
 
@@ -52,6 +52,9 @@ class Layout:
     box_walls_um
         ``(left, right)`` x of the side walls of a trench or chamber (closed end at
         y = 0), or ``None``.
+    gravity_centres_um
+        Agar pad: the colony centres and scattered founders' places; gravity pulls
+        each cell towards the nearest (empty: ``gravity_centre_um`` alone).
     flow
         How growth pushes cells: ``"axial"`` along the trench from its closed end, or
         ``"radial"`` out from the colony's centroid, or ``"none"`` (contacts only).
@@ -65,6 +68,7 @@ class Layout:
     max_width_um: float
     flow: str = "axial"
     box_walls_um: tuple[float, float] | None = None
+    gravity_centres_um: tuple[tuple[float, float], ...] = ()
 
 
 def _row(centre_x: float, y: float, n: int, spacing: float) -> list[tuple[float, float]]:
@@ -116,19 +120,20 @@ def make_layout(settings: SimulationSettings, rng: np.random.Generator) -> Layou
         return Layout(walls, segments, exit_box, founders, None, w - 0.02, flow, (0.0, w))
 
     if s.geometry == "agar_pad":
-        fw, fh = s.agar_pad.field_width_um, s.agar_pad.field_height_um
-        side = math.ceil(math.sqrt(n))
-        spots = []
-        for i in range(n):
-            row, col = divmod(i, side)
-            spots.append(
-                (
-                    fw / 2 + (col - (side - 1) / 2) * s.cell_max_length_um,
-                    fh / 2 + (row - (side - 1) / 2) * s.cell_max_length_um,
-                )
-            )
+        pad = s.agar_pad
+        fw, fh = pad.field_width_um, pad.field_height_um
+        spots, centres = _agar_pad_spots(pad, n, s.cell_max_length_um, rng)
         founders = tuple((x, y, float(rng.uniform(-math.pi, math.pi))) for x, y in spots)
-        return Layout((), (), (0.0, 0.0, fw, fh), founders, (fw / 2, fh / 2), math.inf, "none")
+        return Layout(
+            (),
+            (),
+            (0.0, 0.0, fw, fh),
+            founders,
+            (fw / 2, fh / 2),
+            math.inf,
+            "none",
+            gravity_centres_um=centres,
+        )
 
     # outline
     lines = outline_polylines_um(s.outline)
@@ -217,3 +222,65 @@ def read_dxf_walls(
     allpts = np.concatenate(lines)
     x0, y1 = allpts[:, 0].min(), allpts[:, 1].max()
     return [np.column_stack([p[:, 0] - x0, y1 - p[:, 1]]) for p in lines]
+
+
+def _grid(centre: tuple[float, float], n: int, spacing: float) -> list[tuple[float, float]]:
+    side = math.ceil(math.sqrt(n))
+    out = []
+    for i in range(n):
+        row, col = divmod(i, side)
+        out.append(
+            (
+                centre[0] + (col - (side - 1) / 2) * spacing,
+                centre[1] + (row - (side - 1) / 2) * spacing,
+            )
+        )
+    return out
+
+
+def _agar_pad_spots(
+    pad: AgarPadGeometry, n: int, max_length_um: float, rng: np.random.Generator
+) -> tuple[list[tuple[float, float]], tuple[tuple[float, float], ...]]:
+    """Founder positions on an agar pad, and the colony centres and scattered places.
+
+    One colony without scattered cells keeps the centred grid (no random draw).
+    Otherwise colony centres and scattered cells are drawn uniformly inside the
+    field's margin by rejection (``colony_separation_um`` from colony centres, half
+    of it between scattered cells); each colony's founders form a small grid
+    ``founder_spacing_um`` apart around its centre.
+    """
+    fw, fh = pad.field_width_um, pad.field_height_um
+    spacing = pad.founder_spacing_um or max_length_um
+    if pad.n_colonies > n:
+        raise ValueError(
+            f"AgarPadGeometry.n_colonies={pad.n_colonies} exceeds SimulationSettings."
+            f"n_founders={n}: every colony needs a founder; raise n_founders"
+        )
+    if pad.n_colonies == 1 and pad.scattered_cells == 0:
+        return _grid((fw / 2, fh / 2), n, spacing), ((fw / 2, fh / 2),)
+    m = pad.edge_margin_um
+    placed: list[tuple[float, float, float]] = []  # x, y, exclusion radius
+
+    def draw(radius: float, what: str) -> tuple[float, float]:
+        for _ in range(2000):
+            x, y = rng.uniform(m, fw - m), rng.uniform(m, fh - m)
+            if all(math.hypot(x - px, y - py) >= max(radius, pr) for px, py, pr in placed):
+                placed.append((x, y, radius))
+                return x, y
+        raise ValueError(
+            f"cannot place {what} on a {fw} x {fh} um pad with colony_separation_um="
+            f"{pad.colony_separation_um}: use fewer colonies or scattered cells, a smaller "
+            "separation or a larger field"
+        )
+
+    spots: list[tuple[float, float]] = []
+    shares = [n // pad.n_colonies + (i < n % pad.n_colonies) for i in range(pad.n_colonies)]
+    for i, share in enumerate(shares):
+        centre = draw(pad.colony_separation_um, f"colony {i + 1} of {pad.n_colonies}")
+        spots.extend(_grid(centre, share, spacing))
+    for i in range(pad.scattered_cells):
+        spots.append(
+            draw(pad.colony_separation_um / 2, f"scattered cell {i + 1} of {pad.scattered_cells}")
+        )
+    return spots, tuple((x, y) for x, y, _ in placed)
+

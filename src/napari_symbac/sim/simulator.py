@@ -343,6 +343,8 @@ class Simulator:
                 body.velocity = (vx, vy)
                 body.angular_velocity = w
             self._space.step(1.0)
+            if self.layout.box_walls_um is not None:
+                _hold_inside_walls(bodies, shown, widths, self.layout.box_walls_um)
         for body in bodies:
             body.velocity = (0.0, 0.0)
             body.angular_velocity = 0.0
@@ -398,8 +400,9 @@ class Simulator:
         * Agar pad: no prediction (an isotropic dilation would also widen the gaps
           of a loose colony); pymunk's contacts push the cells apart.
 
-        Gravity on the agar pad pulls towards (negative: away from) the field
-        centre, in the other 2D geometries along -y (negative: +y).
+        Gravity on the agar pad pulls each cell towards (negative: away from) the
+        nearest colony centre or scattered founder's place (one colony: the field
+        centre), in the other 2D geometries along -y (negative: +y).
         """
         velocity = np.zeros_like(pos)
         if self.layout.flow in ("radial", "none"):
@@ -411,8 +414,13 @@ class Simulator:
                 # walled 2D geometries: gravity acts along the y axis
                 velocity[:, 1] -= drift * (GRAVITY_COMPRESSION if drift > 0 else 1.0)
             elif drift != 0:
-                centre = np.asarray(self.layout.gravity_centre_um)
-                d = centre - pos
+                # each cell is pulled to the nearest centre (its own colony's)
+                centres = np.asarray(
+                    self.layout.gravity_centres_um or (self.layout.gravity_centre_um,)
+                )
+                offsets = centres[None, :, :] - pos[:, None, :]
+                nearest = np.argmin(np.hypot(offsets[..., 0], offsets[..., 1]), axis=1)
+                d = offsets[np.arange(len(pos)), nearest]
                 dist = np.hypot(d[:, 0], d[:, 1])
                 unit = d / np.where(dist > 0, dist, 1.0)[:, None]
                 if drift > 0:
@@ -547,6 +555,35 @@ def _clamp_at_walls(
     velocity[at_top, 1] = 0.0
 
 
+def _hold_inside_walls(
+    bodies: list[pymunk.Body],
+    length: np.ndarray,
+    width: np.ndarray,
+    walls: tuple[float, float],
+) -> None:
+    """Move any cell that the solver left across a side wall or the closed end back
+    inside: the PDMS walls are rigid.
+
+    :func:`_clamp_at_walls` stops the predicted flow only of cells touching a wall; a
+    horizontal cell along the closed end can still be pushed into a side wall by the
+    growth of its neighbours faster than the contacts (bias, 15 iterations) push it
+    back (0.5 um deep in a 10 um chamber before this projection). Moving the body's
+    position, not its velocity, keeps the constraint exact in every iteration.
+    """
+    left, right = walls
+    along = (length - width) / 2
+    for body, half_length, w in zip(bodies, along.tolist(), width.tolist()):
+        x, y = body.position
+        x, y = x / SCALE, y / SCALE
+        angle = -body.angle
+        reach_x = abs(math.sin(angle)) * half_length + w / 2
+        reach_y = abs(math.cos(angle)) * half_length + w / 2
+        new_x = min(max(x, left + reach_x), right - reach_x) if right - left > 2 * reach_x else x
+        new_y = max(y, reach_y)
+        if new_x != x or new_y != y:
+            body.position = (new_x * SCALE, new_y * SCALE)
+
+
 def _clamp_at_contacts(velocity: np.ndarray, bodies: list[pymunk.Body]) -> None:
     """Remove the part of each predicted velocity that points into a static wall the
     cell touched in the last physics iteration (any wall shape)."""
@@ -652,6 +689,17 @@ def simulate(
     Simulation
         Settings, ``settings.n_frames`` frames of cells, and the lineage.
     """
+    if not isinstance(settings, SimulationSettings):
+        raise TypeError(
+            f"simulate() needs SimulationSettings, got {type(settings).__name__}: pass "
+            "SimulationSettings(...) or load_settings(path, SimulationSettings)"
+        )
+    if rng is not None and not isinstance(rng, np.random.Generator):
+        raise TypeError(
+            f"simulate(rng=...) needs a numpy.random.Generator, got {type(rng).__name__} "
+            f"{rng!r}: pass numpy.random.default_rng({rng!r}), or set the seed in the "
+            "settings (SimulationSettings(seed=...)) and leave rng out"
+        )
     if settings.save_dir is not None:
         check_save_dir(settings.save_dir)
     simulator = Simulator(settings, rng)

@@ -1,0 +1,207 @@
+"""Background jobs of the dock widgets: one thread worker, its progress bar, its errors.
+
+Why not ``thread_worker(progress=...)`` directly:
+
+* napari's progress bar calls ``QApplication.processEvents()`` on every update, which
+  delivers the next queued ``yielded`` signal inside the handler of the previous one.
+  A worker that yields faster than the GUI draws (a loaded machine, a long simulation)
+  then recurses until ``RecursionError``. Here events are queued and handled one at a
+  time; of several yields waiting, only the newest is shown.
+* superqt treats any ``RuntimeError`` raised in a generator worker (``ExportError``,
+  ``RecursionError``) as "the worker was deleted": no ``errored``, no ``finished``, and
+  the widget stays disabled. Here the generator never raises: its error is returned as
+  a value and reported.
+* Every error reaches the user as a napari notification (message and what to do), the
+  widget gets its buttons back, and nothing is re-raised.
+* When the widget is closed (the viewer closed mid-run), the worker is asked to quit and
+  its remaining events are dropped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+from collections.abc import Callable, Generator
+from typing import Any
+
+__all__ = ["Job", "notify_error", "notify_warning"]
+
+
+@dataclasses.dataclass(frozen=True)
+class _Failure:
+    """An exception raised inside the worker, carried out as a plain value."""
+
+    error: BaseException
+
+
+def notify_error(message: str) -> None:
+    """Show ``message`` as a napari error notification (never raises)."""
+    from napari.utils.notifications import show_error
+
+    show_error(message)
+
+
+def notify_warning(message: str) -> None:
+    """Show ``message`` as a napari warning notification (never raises)."""
+    from napari.utils.notifications import show_warning
+
+    show_warning(message)
+
+
+def describe_error(err: BaseException, what: str) -> str:
+    """``what`` failed: the error's message, and the fix it names or a generic one."""
+    text = str(err) or type(err).__name__
+    if isinstance(err, ValueError):
+        return f"{what} failed: {text}"
+    return (
+        f"{what} failed ({type(err).__name__}): {text}. Check the settings and the folder, "
+        "then run it again; the log has the details."
+    )
+
+
+class Job:
+    """Run ``generator()`` in a napari thread worker, driving a progress bar.
+
+    Parameters
+    ----------
+    generator
+        A function returning a generator; each item it yields is ``(done, message)``
+        (``done`` steps of ``total``) and its return value is the result.
+    total
+        Steps in all (``0``: an indeterminate bar).
+    description
+        Title of the progress bar in napari's activity dock.
+    on_yield, on_return, on_error, on_abort, on_finish
+        Callbacks in the GUI thread: the newest ``message``; the result; the exception
+        (after it was shown as a notification unless ``on_error`` returns ``True``); a
+        cancel; and always, last.
+    owner
+        The widget's Qt object; when it is destroyed the worker is told to quit and no
+        callback runs any more.
+
+    Attributes
+    ----------
+    cancelled
+        A :class:`threading.Event` set by :meth:`quit` and when ``owner`` is destroyed;
+        work that runs outside the generator's yields (a blocking call) polls it.
+    """
+
+    def __init__(
+        self,
+        generator: Callable[[], Generator[tuple[int, Any], None, Any]],
+        *,
+        total: int,
+        description: str,
+        what: str,
+        on_yield: Callable[[Any], None] | None = None,
+        on_return: Callable[[Any], None] | None = None,
+        on_error: Callable[[BaseException], bool | None] | None = None,
+        on_abort: Callable[[], None] | None = None,
+        on_finish: Callable[[], None] | None = None,
+        owner: Any = None,
+        cancelled: threading.Event | None = None,
+    ) -> None:
+        from napari.qt.threading import thread_worker
+        from napari.utils import progress
+
+        self._what = what
+        self._callbacks = {
+            "yield": on_yield,
+            "return": on_return,
+            "error": on_error,
+            "abort": on_abort,
+            "finish": on_finish,
+        }
+        self._queue: list[tuple[str, Any]] = []
+        self._busy = False
+        self._closed = False
+        self.done = False
+        self.cancelled = threading.Event() if cancelled is None else cancelled
+
+        def guarded():
+            try:
+                result = yield from generator()
+            except Exception as err:  # reported in the GUI thread, never re-raised
+                return _Failure(err)
+            return result
+
+        self.progress = progress(total=total, desc=description)
+        self.worker = thread_worker(guarded)()
+        self.worker.yielded.connect(lambda item: self._post("yield", item))
+        self.worker.returned.connect(lambda result: self._post("return", result))
+        self.worker.errored.connect(lambda err: self._post("error", err))
+        self.worker.aborted.connect(lambda: self._post("abort", None))
+        self.worker.finished.connect(lambda: self._post("finish", None))
+        if owner is not None:
+            owner.destroyed.connect(self._on_owner_destroyed)
+
+    def start(self) -> None:
+        """Start the worker thread."""
+        self.worker.start()
+
+    def quit(self) -> None:
+        """Ask the worker to stop at its next yield (and blocking work to cancel)."""
+        self.cancelled.set()
+        self.worker.quit()
+
+    def _on_owner_destroyed(self, _obj=None) -> None:
+        self._closed = True
+        self._queue.clear()
+        self.cancelled.set()
+        self.worker.quit()
+        self._close_progress()
+
+    def _close_progress(self) -> None:
+        if self.progress is not None:
+            self.progress.close()
+            self.progress = None
+
+    # -- event queue ----------------------------------------------------------------------
+
+    def _post(self, kind: str, payload: Any) -> None:
+        if self._closed:
+            return
+        if kind == "yield" and self._queue and self._queue[-1][0] == "yield":
+            self._queue[-1] = (kind, payload)  # only the newest progress matters
+        else:
+            self._queue.append((kind, payload))
+        if self._busy:  # we are inside a handler (processEvents): it drains the queue
+            return
+        self._busy = True
+        try:
+            while self._queue and not self._closed:
+                kind, payload = self._queue.pop(0)
+                try:
+                    self._handle(kind, payload)
+                except Exception as err:  # a bug in a callback: report, keep the widget
+                    notify_error(describe_error(err, f"{self._what} (showing its result)"))
+                    if kind != "finish" and not self.done:
+                        continue
+        finally:
+            self._busy = False
+
+    def _handle(self, kind: str, payload: Any) -> None:
+        callback = self._callbacks[kind]
+        if kind == "yield":
+            done, message = payload
+            if self.progress is not None and done > self.progress.n:
+                self.progress.update(done - self.progress.n)
+            if callback is not None:
+                callback(message)
+        elif kind == "return" and isinstance(payload, _Failure):
+            self._report(payload.error)
+        elif kind == "error":
+            self._report(payload)
+        elif kind == "finish":
+            self.done = True
+            self._close_progress()
+            if callback is not None:
+                callback()
+        elif callback is not None:
+            callback(payload) if kind == "return" else callback()
+
+    def _report(self, err: BaseException) -> None:
+        callback = self._callbacks["error"]
+        handled = callback(err) if callback is not None else None
+        if not handled:
+            notify_error(describe_error(err, self._what))

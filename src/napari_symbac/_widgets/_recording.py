@@ -1,0 +1,107 @@
+"""The user's recording as the widgets share it: kept in the real image layer's metadata.
+
+A real image layer is "a recording" once the *Real image and classes* widget has set
+its pixel size; the layer then carries
+
+* ``pixel_size_um`` (and the layer's scale is set to it, so real and synthetic layers
+  share physical coordinates),
+* ``modality`` (``"phase"`` or ``"fluorescence"``),
+* ``microscope``: the :class:`~napari_symbac.settings.Microscope` to simulate with,
+* ``class_statistics`` once the painted classes were measured (eq. 2).
+
+Simulate, Tune, Auto-fit and Export read these from the layer; no hidden state joins
+the widgets.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from napari_symbac.settings import Microscope, RenderSettings
+
+__all__ = [
+    "PLAUSIBLE_PIXEL_UM",
+    "is_recording",
+    "modality_render",
+    "pixel_size_problem",
+    "recording_microscope",
+    "recordings",
+]
+
+#: Pixel sizes (um, in the sample plane) of real bacterial micrographs: 20 nm (super-
+#: resolution camera pixels at 250x) to 1 um (a 10x objective).
+PLAUSIBLE_PIXEL_UM = (0.02, 1.0)
+
+#: Starting intensities of eq. 3 (ADU above the baseline) per modality when nothing was
+#: measured: phase contrast shows dark cells on bright media, fluorescence bright cells
+#: on a dark background (media and PDMS only autofluoresce).
+_DEFAULT_INTENSITIES = {
+    "phase": {"cell_intensity": 1400.0, "media_intensity": 2600.0, "device_intensity": 900.0},
+    "fluorescence": {"cell_intensity": 3000.0, "media_intensity": 150.0, "device_intensity": 60.0},
+}
+
+
+def pixel_size_problem(pixel_size_um: float | None) -> str | None:
+    """Why ``pixel_size_um`` cannot be used as it is, or ``None`` when it is plausible."""
+    low, high = PLAUSIBLE_PIXEL_UM
+    if not pixel_size_um:
+        return (
+            "no pixel size: the file does not record one. Enter it (camera pixel / "
+            "magnification, e.g. 6.5 um / 100x = 0.065 um)"
+        )
+    if not low <= pixel_size_um <= high:
+        return (
+            f"pixel size {pixel_size_um:g} um is outside {low:g}-{high:g} um, implausible for "
+            "a bacterial micrograph: check it (in um, camera pixel / magnification)"
+        )
+    return None
+
+
+def is_recording(layer: Any) -> bool:
+    """A real image layer (not made by the simulation) with a usable pixel size."""
+    from napari.layers import Image
+
+    from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
+
+    return (
+        isinstance(layer, Image)
+        and SYMBAC_METADATA_KEY not in layer.metadata
+        and pixel_size_problem(layer.metadata.get("pixel_size_um")) is None
+    )
+
+
+def recordings(viewer: Any) -> list:
+    """The recordings among the viewer's layers."""
+    return [layer for layer in viewer.layers if is_recording(layer)]
+
+
+def recording_microscope(layer: Any, base: Microscope | None = None) -> Microscope:
+    """The microscope of a recording layer: its stored one, with its pixel size and modality."""
+    meta = layer.metadata
+    microscope = meta.get("microscope") or base or Microscope()
+    return dataclasses.replace(
+        microscope,
+        pixel_size_um=float(meta["pixel_size_um"]),
+        modality=meta.get("modality") or microscope.modality,
+    )
+
+
+def modality_render(
+    render: RenderSettings, modality: str, statistics: dict | None = None
+) -> RenderSettings:
+    """``render`` with intensities for ``modality``: measured class means when given.
+
+    The class means of the painted recording (eq. 2, baseline subtracted with the
+    camera's) start eq. 3's intensities; otherwise the modality's defaults, which have
+    the right polarity (fluorescence: bright cells on a dark background). Phase-only
+    kernel terms (phase ring, offset) are switched off for fluorescence.
+    """
+    changes: dict[str, float] = dict(_DEFAULT_INTENSITIES[modality])
+    if modality == "fluorescence":
+        changes.update(ring_contrast=0.0, psf_offset=0.0)
+    if statistics:
+        for cls in ("cell", "media", "device"):
+            if cls in statistics:
+                changes[f"{cls}_intensity"] = max(float(statistics[cls]), 0.0)
+    return dataclasses.replace(render, **changes)

@@ -1,0 +1,111 @@
+"""What every effect of the catalogue provides."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from napari_symbac.diagnose.model import Geometry
+from napari_symbac.optics.forward import Stage
+
+__all__ = ["Effect", "EffectStageSpec", "gaussian"]
+
+
+def gaussian(image: np.ndarray, sigma_px: float) -> np.ndarray:
+    """Gaussian blur of each frame of a ``(T, Y, X)`` stack (reflecting edges)."""
+    from scipy import ndimage
+
+    return ndimage.gaussian_filter(image, (0, sigma_px, sigma_px), mode="reflect")
+
+
+@dataclass(frozen=True)
+class EffectStageSpec:
+    """A fitted effect as written to the settings file: name and plain parameters."""
+
+    name: str
+    parameters: dict[str, Any]
+
+
+class Effect:
+    """A physical effect the base model leaves out.
+
+    Subclasses set the class attributes and implement :meth:`mean` (effects on the
+    mean image), or set ``kind`` to ``"variance"`` / ``"censor"``.
+
+    Attributes
+    ----------
+    name
+        Identifier (module name).
+    explanation
+        What it is, in a microscopist's words.
+    signature
+        Where it shows in the discrepancy statistics.
+    kind
+        ``"mean"``, ``"variance"`` or ``"censor"``.
+    needs_series
+        Only testable on a time series.
+    modalities
+        Modalities where the effect applies.
+    """
+
+    name: ClassVar[str] = ""
+    explanation: ClassVar[str] = ""
+    signature: ClassVar[str] = ""
+    kind: ClassVar[str] = "mean"
+    needs_series: ClassVar[bool] = False
+    modalities: ClassVar[tuple[str, ...]] = ("phase", "fluorescence")
+
+    def __init__(self, geometry: Geometry) -> None:
+        self.geometry = geometry
+
+    # ------------------------------------------------------------------ model
+    def n_params(self) -> int:
+        """Number of parameters (may depend on the geometry: per cell, per column)."""
+        raise NotImplementedError
+
+    def mean(
+        self, theta: np.ndarray, mu: np.ndarray, parts: np.ndarray, geo: Geometry
+    ) -> np.ndarray:
+        """The mean image with the effect applied; ``theta = 0`` returns ``mu``.
+
+        ``parts`` is ``(3, T, Y, X)``: the cells, media and device contributions
+        (intensity times convolved component) of the base model.
+        """
+        return mu
+
+    def null(self) -> np.ndarray:
+        """Parameters of "no effect"."""
+        return np.zeros(self.n_params())
+
+    def steps(self, theta: np.ndarray) -> np.ndarray:
+        """Finite-difference steps (the effect is linear or nearly so in its parameters)."""
+        return np.full(len(theta), 1e-3)
+
+    def clip(self, theta: np.ndarray) -> np.ndarray:
+        """Keep parameters in their physical range."""
+        return theta
+
+    # ------------------------------------------------------------------ report
+    def summary(self, theta: np.ndarray, mu: np.ndarray) -> dict[str, Any]:
+        """Plain, named parameters for diagnosis.json (units in the names)."""
+        return {f"theta_{k}": float(v) for k, v in enumerate(theta)}
+
+    def magnitude(self, summary: dict[str, Any]) -> float:
+        """The one number the benchmark compares with the truth."""
+        return float(next(iter(summary.values())))
+
+    def stage_spec(self, summary: dict[str, Any]) -> EffectStageSpec:
+        """The settings-file description of the fitted effect."""
+        return EffectStageSpec(self.name, dict(summary))
+
+    # ------------------------------------------------------------------ benchmark
+    def direction(self, rng: np.random.Generator) -> np.ndarray:
+        """A random parameter direction for the concealed-effect generator."""
+        return rng.normal(size=self.n_params())
+
+
+def build_stage(spec: EffectStageSpec, apply: Any) -> Stage:
+    """A forward-model :class:`~napari_symbac.optics.forward.Stage` from a spec."""
+    return Stage(spec.name, False, dict(spec.parameters), apply)

@@ -1,0 +1,79 @@
+"""Cells bent along their length (eq. 1) that the model draws straight."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from napari_symbac.diagnose.effects.base import Effect
+from napari_symbac.diagnose.model import Geometry
+
+__all__ = ["CellCurvature"]
+
+
+def _bend_fields(geometry: Geometry) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per cell: bow profile ``1 - (2 s / L)^2`` and unit normal ``(n_x, n_y)`` fields."""
+    ids = geometry.cell_ids
+    n_t, rows, cols = geometry.shape
+    bow = np.zeros((len(ids), n_t, rows, cols))
+    nx = np.zeros((len(ids), n_t, 1, 1))
+    ny = np.zeros((len(ids), n_t, 1, 1))
+    yy, xx = np.mgrid[0:rows, 0:cols].astype(float)
+    for i, cid in enumerate(ids):
+        for k in range(n_t):
+            inside = geometry.labels[k] == cid
+            if inside.sum() < 3:
+                continue
+            py, px = yy[inside], xx[inside]
+            cy, cx = py.mean(), px.mean()
+            cov = np.cov(np.stack([px - cx, py - cy]))
+            evals, evecs = np.linalg.eigh(cov)
+            ax, ay = evecs[:, 1]
+            s = (xx - cx) * ax + (yy - cy) * ay
+            half = max(np.abs((px - cx) * ax + (py - cy) * ay).max(), 1.0)
+            region = geometry.nearest[k] == cid
+            bow[i, k] = np.where(region, np.clip(1 - (s / half) ** 2, -1, 1), 0.0)
+            nx[i, k], ny[i, k] = -ay, ax
+    return bow, nx, ny
+
+
+class CellCurvature(Effect):
+    """Each cell's centre-line bows sideways by ``a_i`` px at its middle (eq. 1).
+
+    First order: ``mu - sum_i a_i (1 - (2 s / L)^2) n_i . grad(mu)`` near cell ``i``
+    with ``s`` the position along its axis, ``L`` its length and ``n_i`` its normal.
+    """
+
+    name = "cell_curvature"
+    explanation = (
+        "Cells are bent (banana-shaped) while the model draws them straight: one side of "
+        "each cell is displaced outwards in the middle, the other inwards."
+    )
+    signature = "opposite-signed residuals along the two long sides of cells (dipoles)"
+
+    def __init__(self, geometry: Geometry) -> None:
+        super().__init__(geometry)
+        self._bow, self._nx, self._ny = _bend_fields(geometry)
+
+    def n_params(self) -> int:
+        return len(self._bow)
+
+    def steps(self, theta):  # noqa: D102
+        return np.full(len(theta), 0.05)
+
+    def mean(self, theta, mu, parts, geo):  # noqa: D102
+        if not len(theta):
+            return mu
+        gy, gx = np.gradient(mu, axis=(1, 2))
+        shift_x = np.tensordot(theta, self._bow * self._nx, axes=1)
+        shift_y = np.tensordot(theta, self._bow * self._ny, axes=1)
+        return mu - shift_x * gx - shift_y * gy
+
+    def summary(self, theta, mu):  # noqa: D102
+        px = self.geometry.pixel_size_um
+        return {
+            "rms_bow_um": float(np.sqrt(np.mean(np.square(theta))) * px) if len(theta) else 0.0,
+            "bow_um": {int(i): float(a * px) for i, a in zip(self.geometry.cell_ids, theta)},
+        }
+
+    def magnitude(self, summary):  # noqa: D102
+        return summary["rms_bow_um"]

@@ -1,0 +1,383 @@
+"""The model that diagnosis criticises: the base fit, linearised, plus effect stages.
+
+The base fit (:func:`~napari_symbac.fit.fit_scene` or any other) supplies a scene per
+frame and the forward-model settings. From them this module builds, at camera
+resolution, everything the tests need:
+
+* the *nuisance design*: the convolved cells / media / device components (eq. 3: the
+  intensities are linear coefficients) and the derivatives of the rendered image with
+  respect to a few optics parameters (central finite differences, one pair of renders
+  each), so the nuisance parameters can be re-fitted by weighted least squares on any
+  subset of pixels (held-out checks) without re-running the base fit;
+* the camera variance of eq. 17, ``v = g s mu + h (s sigma_d)^2 + 1/12`` (``g = h = 1``
+  for the declared camera);
+* :class:`Geometry`: the scene's cell fraction and labels at camera resolution, the
+  signed distance to the nearest cell edge and normalised coordinates;
+* :func:`fit_model`: iteratively reweighted Gauss-Newton of the nuisance parameters and
+  of the parameters of any effects (:class:`~napari_symbac.diagnose.effects.Effect`)
+  on a pixel mask, with the variance held fixed inside each weighted solve and updated
+  between rounds (a variance that moves inside the solve biases the background, see
+  ``diagnosis-notes.md``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from scipy import ndimage, optimize, special
+
+from napari_symbac.optics.forward import ForwardModel, block_average
+from napari_symbac.settings import Camera, Microscope, RenderSettings
+
+if TYPE_CHECKING:
+    from napari_symbac.diagnose.effects.base import Effect
+
+__all__ = [
+    "BaseDesign",
+    "FittedModel",
+    "Geometry",
+    "NUISANCE_OPTICS",
+    "build_design",
+    "deviance",
+    "fit_model",
+    "variance",
+]
+
+#: Optics parameters re-fitted (linearised) as nuisance; step of the finite difference.
+NUISANCE_OPTICS: dict[str, dict[str, float]] = {
+    "phase": {"defocus_sigma_um": 0.02, "apodisation_sigma_um": 0.05, "psf_offset": 0.01},
+    "fluorescence": {"defocus_sigma_um": 0.02},
+}
+
+
+@dataclass(frozen=True, eq=False)
+class Geometry:
+    """Camera-resolution geometry of the fitted scene(s), ``(T, Y, X)`` arrays.
+
+    Attributes
+    ----------
+    cell_fraction
+        Block average of the scene's cell material fraction (before the PSF).
+    labels
+        Instance mask (cell ids, 0 = none).
+    distance_px
+        Signed distance to the nearest cell edge in pixels (negative inside cells).
+    nearest
+        Id of the nearest cell (0 where no cell is within ``region_px``).
+    xn, yn
+        Column and row coordinates scaled to ``[-1, 1]`` (``(Y, X)``).
+    t
+        Frame index minus its mean (``(T,)``).
+    pixel_size_um
+        Camera pixel size in the sample.
+    modality
+        ``"phase"`` or ``"fluorescence"``.
+    """
+
+    cell_fraction: np.ndarray
+    labels: np.ndarray
+    distance_px: np.ndarray
+    nearest: np.ndarray
+    xn: np.ndarray
+    yn: np.ndarray
+    t: np.ndarray
+    pixel_size_um: float
+    modality: str
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return self.labels.shape  # type: ignore[return-value]
+
+    @property
+    def cell_ids(self) -> np.ndarray:
+        ids = np.unique(self.labels)
+        return ids[ids > 0]
+
+
+def geometry_from_labels(
+    labels: np.ndarray,
+    cell_fraction: np.ndarray,
+    pixel_size_um: float,
+    modality: str,
+    region_px: float = 4.0,
+) -> Geometry:
+    """:class:`Geometry` from ``(T, Y, X)`` camera labels and cell fractions."""
+    labels = np.asarray(labels).astype(np.int64)
+    n_t, rows, cols = labels.shape
+    distance = np.zeros(labels.shape, np.float32)
+    nearest = np.zeros(labels.shape, np.int64)
+    for k in range(n_t):
+        inside = labels[k] > 0
+        if inside.any():
+            out_d, (iy, ix) = ndimage.distance_transform_edt(~inside, return_indices=True)
+            in_d = ndimage.distance_transform_edt(inside)
+            distance[k] = np.where(inside, -in_d + 0.5, out_d - 0.5)
+            near = labels[k][iy, ix]
+            nearest[k] = np.where(out_d <= region_px, near, 0)
+        else:
+            distance[k] = 1e3
+    yn = np.broadcast_to(np.linspace(-1, 1, rows)[:, None], (rows, cols))
+    xn = np.broadcast_to(np.linspace(-1, 1, cols)[None, :], (rows, cols))
+    t = np.arange(n_t, dtype=float)
+    return Geometry(
+        cell_fraction=np.asarray(cell_fraction, np.float64),
+        labels=labels,
+        distance_px=distance,
+        nearest=nearest,
+        xn=xn,
+        yn=yn,
+        t=t - t.mean(),
+        pixel_size_um=float(pixel_size_um),
+        modality=modality,
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class BaseDesign:
+    """Nuisance design of the base model (all arrays ``(T, Y, X)``).
+
+    Attributes
+    ----------
+    components
+        ``(3, T, Y, X)``: convolved cells, media, device at unit intensity (eq. 3, 15).
+    optics
+        ``(k, T, Y, X)``: derivative of the rendered image with respect to each of
+        ``optics_names`` (ADU per unit), at the fitted intensities.
+    optics_names
+        Names of the optics nuisance parameters (:data:`NUISANCE_OPTICS`).
+    intensities
+        The base fit's ``(I_cells, I_media, I_device)``.
+    camera
+        The declared camera.
+    geometry
+        :class:`Geometry` of the scene(s).
+    """
+
+    components: np.ndarray
+    optics: np.ndarray
+    optics_names: tuple[str, ...]
+    intensities: np.ndarray
+    camera: Camera
+    geometry: Geometry
+
+    @property
+    def n_nuisance(self) -> int:
+        return 3 + len(self.optics_names)
+
+    def columns(self) -> np.ndarray:
+        """``(p, T, Y, X)``: all nuisance columns."""
+        return np.concatenate([self.components, self.optics], axis=0)
+
+    def start(self) -> np.ndarray:
+        """Nuisance coefficients of the base fit (intensities, no optics change)."""
+        return np.concatenate([self.intensities, np.zeros(len(self.optics_names))])
+
+
+def build_design(
+    scenes: Sequence[Any],
+    microscope: Microscope,
+    render: RenderSettings,
+    camera: Camera,
+    *,
+    optics: Sequence[str] | None = None,
+) -> BaseDesign:
+    """The nuisance design from fitted scenes (one per frame) and forward-model settings.
+
+    Needs nothing else from the base fit: the intensities are re-fitted linearly and
+    the optics parameters in ``optics`` (default :data:`NUISANCE_OPTICS`) by one
+    linearisation (central differences of two renders each).
+    """
+    if not scenes:
+        raise ValueError("build_design needs at least one scene")
+    names = tuple(NUISANCE_OPTICS[microscope.modality] if optics is None else optics)
+    model = ForwardModel(microscope, render, camera)
+    intensities = np.array(
+        [render.cell_intensity, render.media_intensity, render.device_intensity], float
+    )
+    comps, derivs, fractions, labels = [], [], [], []
+    for scene in scenes:
+        parts = model.components(scene)
+        comps.append(np.stack([parts[c] for c in ("cells", "media", "device")]))
+        frame_derivs = []
+        for name in names:
+            step = NUISANCE_OPTICS.get(microscope.modality, {}).get(name, 0.02)
+            value = getattr(render, name)
+            lo = max(value - step, 1e-6) if name != "psf_offset" else value - step
+            if name == "apodisation_sigma_um":
+                lo = max(lo, microscope.min_apodisation_sigma_um)
+            hi = value + step
+            up = model.with_render(dataclasses.replace(render, **{name: hi}))
+            down = model.with_render(dataclasses.replace(render, **{name: lo}))
+            frame_derivs.append(
+                (up.render_clean(scene) - down.render_clean(scene)).astype(np.float64) / (hi - lo)
+            )
+        derivs.append(np.stack(frame_derivs) if frame_derivs else np.zeros((0, *parts["cells"].shape)))
+        fractions.append(block_average(scene.interior(scene.cells), scene.upsample))
+        labels.append(scene.camera_labels())
+    components = np.stack(comps, axis=1).astype(np.float64)
+    optics_cols = np.stack(derivs, axis=1) if names else np.zeros((0, *components.shape[1:]))
+    geometry = geometry_from_labels(
+        np.stack(labels), np.stack(fractions), microscope.pixel_size_um, microscope.modality
+    )
+    return BaseDesign(components, optics_cols, names, intensities, camera, geometry)
+
+
+def variance(mu: np.ndarray, camera: Camera, gain: float = 1.0, read: float = 1.0) -> np.ndarray:
+    """Camera variance of eq. 17 in ADU^2 with optional gain / read-noise factors."""
+    s = camera.sensitivity_adu_per_e
+    return gain * s * np.maximum(mu, 0.0) + read * (s * camera.dark_noise_e) ** 2 + 1.0 / 12.0
+
+
+@dataclass(frozen=True, eq=False)
+class Censor:
+    """Pixels at or beyond ``level_adu`` (above the baseline) were clipped there."""
+
+    level_adu: float
+    high: bool = True
+
+    def mask(self, y: np.ndarray) -> np.ndarray:
+        return y >= self.level_adu - 0.5 if self.high else y <= self.level_adu + 0.5
+
+
+@dataclass(frozen=True, eq=False)
+class FittedModel:
+    """A fitted model: nuisance coefficients, effects with parameters, camera factors."""
+
+    beta: np.ndarray
+    effects: tuple[tuple[Effect, np.ndarray], ...]
+    gain: float = 1.0
+    read: float = 1.0
+    censor: Censor | None = None
+    mu: np.ndarray = field(default=None, repr=False)  # type: ignore[assignment]
+    var: np.ndarray = field(default=None, repr=False)  # type: ignore[assignment]
+
+
+def predict(design: BaseDesign, beta: np.ndarray, effects: Sequence[tuple[Effect, np.ndarray]]) -> np.ndarray:
+    """Mean image of the base model with coefficients ``beta`` and the effects applied."""
+    cols = design.columns()
+    mu = np.tensordot(beta, cols, axes=1)
+    parts = beta[:3, None, None, None] * design.components
+    for effect, theta in effects:
+        mu = effect.mean(np.asarray(theta, float), mu, parts, design.geometry)
+    return mu
+
+
+def _jacobian(design: BaseDesign, beta: np.ndarray, effects: list, mu: np.ndarray) -> np.ndarray:
+    cols = [design.columns()[j] for j in range(len(beta))]
+    if effects:
+        # the chain is affine in beta for the catalogue's effects: exact differences
+        cols = []
+        for j in range(len(beta)):
+            b = beta.copy()
+            b[j] += 1.0
+            cols.append(predict(design, b, effects) - mu)
+    for i, (effect, theta) in enumerate(effects):
+        steps = effect.steps(theta)
+        for k in range(len(theta)):
+            up = [list(e) for e in effects]
+            down = [list(e) for e in effects]
+            tu, td = np.array(theta, float), np.array(theta, float)
+            tu[k] += steps[k]
+            td[k] -= steps[k]
+            up[i][1], down[i][1] = tu, td
+            cols.append(
+                (predict(design, beta, [tuple(e) for e in up]) - predict(design, beta, [tuple(e) for e in down]))
+                / (2 * steps[k])
+            )
+    return np.stack(cols) if cols else np.zeros((0, *mu.shape))
+
+
+def _fit_camera(r2: np.ndarray, mu: np.ndarray, camera: Camera) -> tuple[float, float]:
+    """Maximum-likelihood gain and read-noise factors given squared residuals."""
+    s = camera.sensitivity_adu_per_e
+    a, b = s * np.maximum(mu, 0.0), (s * camera.dark_noise_e) ** 2
+
+    def nll(p: np.ndarray) -> float:
+        v = np.exp(p[0]) * a + np.exp(p[1]) * b + 1.0 / 12.0
+        return float(np.sum(r2 / v + np.log(v)))
+
+    res = optimize.minimize(nll, np.zeros(2), method="Nelder-Mead", options={"xatol": 1e-5, "fatol": 1e-6})
+    return float(np.exp(res.x[0])), float(np.exp(res.x[1]))
+
+
+def fit_model(
+    design: BaseDesign,
+    y: np.ndarray,
+    mask: np.ndarray,
+    effects: Sequence[tuple[Effect, np.ndarray]] = (),
+    *,
+    fit_camera: bool = False,
+    censor: Censor | None = None,
+    rounds: int = 4,
+    beta0: np.ndarray | None = None,
+) -> FittedModel:
+    """Iteratively reweighted Gauss-Newton fit on the pixels in ``mask``.
+
+    Parameters
+    ----------
+    design
+        The nuisance design.
+    y
+        Observed image above the baseline, ``(T, Y, X)`` ADU.
+    mask
+        Pixels to fit (e.g. one colour of a checkerboard).
+    effects
+        ``(effect, start parameters)`` pairs, applied in order to the base mean.
+    fit_camera
+        Also fit the gain and read-noise factors of the variance (``camera_noise``).
+    censor
+        Clipped pixels (``saturation``): left out of the fit of the mean.
+    """
+    beta = design.start() if beta0 is None else np.array(beta0, float)
+    effects = [(e, np.array(t, float)) for e, t in effects]
+    gain = read = 1.0
+    fit_mask = mask & ~censor.mask(y) if censor is not None else mask
+    idx = np.flatnonzero(fit_mask.ravel())
+    yv = y.ravel()[idx]
+    for _ in range(rounds):
+        mu = predict(design, beta, effects)
+        v = variance(mu, design.camera, gain, read).ravel()[idx]
+        for _inner in range(2 if effects else 1):
+            mu = predict(design, beta, effects)
+            jac = _jacobian(design, beta, effects, mu)
+            a = jac.reshape(len(jac), -1)[:, idx].T
+            w = 1.0 / v
+            r = yv - mu.ravel()[idx]
+            aw = a * w[:, None]
+            normal = a.T @ aw
+            rhs = aw.T @ r
+            scale = np.sqrt(np.maximum(np.diag(normal), 1e-300))
+            step = np.linalg.lstsq(normal / np.outer(scale, scale), rhs / scale, rcond=1e-12)[0] / scale
+            beta = beta + step[: len(beta)]
+            pos = len(beta)
+            for i, (e, theta) in enumerate(effects):
+                effects[i] = (e, e.clip(theta + step[pos : pos + len(theta)]))
+                pos += len(theta)
+        if fit_camera:
+            mu = predict(design, beta, effects)
+            r2 = (yv - mu.ravel()[idx]) ** 2
+            gain, read = _fit_camera(r2, mu.ravel()[idx], design.camera)
+    mu = predict(design, beta, effects)
+    return FittedModel(
+        beta, tuple(effects), gain, read, censor, mu, variance(mu, design.camera, gain, read)
+    )
+
+
+def deviance(y: np.ndarray, model: FittedModel, mask: np.ndarray) -> np.ndarray:
+    """Per-pixel ``-2 log L`` (Gaussian; censored pixels ``-2 log P(clipped)``) on ``mask``."""
+    mu, v = model.mu[mask], model.var[mask]
+    yy = y[mask]
+    dev = (yy - mu) ** 2 / v + np.log(2 * math.pi * v)
+    if model.censor is not None:
+        clipped = model.censor.mask(yy)
+        z = (model.censor.level_adu - 0.5 - mu) / np.sqrt(v)
+        if not model.censor.high:
+            z = -(model.censor.level_adu + 0.5 - mu) / np.sqrt(v)
+        tail = special.log_ndtr(-z)
+        dev = np.where(clipped, -2 * tail, dev)
+    return dev

@@ -1,0 +1,307 @@
+"""The diagnosis: statistics, ranking, stepwise acceptance, results (issue 11)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from napari_symbac.diagnose.effects import CATALOGUE
+from napari_symbac.diagnose.effects.base import Effect
+from napari_symbac.diagnose.model import BaseDesign, FittedModel, build_design, deviance
+from napari_symbac.diagnose.selection import ModelSpec, checkerboard, held_out, rank
+from napari_symbac.diagnose.statistics import Mismatch, discrepancy_statistics
+from napari_symbac.settings import Camera, Microscope, RenderSettings
+
+__all__ = ["Diagnosis", "EffectResult", "diagnose", "diagnose_scenes"]
+
+
+@dataclass
+class EffectResult:
+    """One candidate effect: evidence, whether accepted, fitted parameters, held-out numbers."""
+
+    name: str
+    explanation: str
+    signature: str
+    evidence: float
+    dof: int
+    accepted: bool
+    params: dict[str, Any]
+    held_out_before: float
+    held_out_after: float
+    held_out_gain_nats: float = 0.0
+    null_threshold_nats: float = float("nan")
+    step: int = 0
+    effect_map: np.ndarray | None = field(default=None, repr=False)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "explanation": self.explanation,
+            "evidence": _finite(self.evidence),
+            "accepted": self.accepted,
+            "params": self.params,
+            "held_out_before": _finite(self.held_out_before),
+            "held_out_after": _finite(self.held_out_after),
+            "held_out_gain_nats": _finite(self.held_out_gain_nats),
+            "null_threshold_nats": _finite(self.null_threshold_nats),
+            "score_dof": self.dof,
+            "signature": self.signature,
+        }
+
+
+def _finite(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
+
+
+@dataclass
+class Diagnosis:
+    """Outcome of :func:`diagnose`.
+
+    Attributes
+    ----------
+    base_fit, final_fit
+        ``{"metric", "value", "held_out"}``: reduced chi-square on all pixels and the
+        mean held-out deviance per pixel (``-2 log L``, checkerboard odd pixels).
+    mismatches
+        Discrepancy statistics of the base fit, most significant first.
+    effects
+        Every candidate tested, accepted first, then by evidence.
+    residual_before, residual_after
+        Standardised residuals ``(T, Y, X)`` of the base and final models.
+    threshold
+        Evidence (``-log10 p``) a score test needs (Bonferroni over the candidates).
+    """
+
+    base_fit: dict[str, Any]
+    final_fit: dict[str, Any]
+    mismatches: list[Mismatch]
+    effects: list[EffectResult]
+    residual_before: np.ndarray = field(repr=False)
+    residual_after: np.ndarray = field(repr=False)
+    final_model: FittedModel = field(repr=False)
+    threshold: float = 0.0
+    skipped: tuple[str, ...] = ()
+
+    @property
+    def accepted(self) -> list[EffectResult]:
+        return [e for e in self.effects if e.accepted]
+
+    def as_dict(self) -> dict[str, Any]:
+        """The ``diagnosis.json`` document of issue 11."""
+        return {
+            "base_fit": self.base_fit,
+            "mismatches": [m.as_dict() for m in self.mismatches],
+            "effects": [e.as_dict() for e in self.effects],
+            "final_fit": self.final_fit,
+            "evidence_threshold": self.threshold,
+            "significance_units": "-log10 p",
+            "held_out_units": "mean -2 log-likelihood per held-out pixel (checkerboard)",
+            "not_tested": list(self.skipped),
+        }
+
+    def report(self) -> str:
+        """A short plain-text report."""
+        lines = [
+            "Diagnosis of the mismatch between the fitted model and the recording",
+            f"base fit: reduced chi-square {self.base_fit['value']:.4f}, held-out deviance "
+            f"{self.base_fit['held_out']:.5f} per pixel",
+            "",
+            "Most significant discrepancy statistics (-log10 p; > 2 is unusual for noise):",
+        ]
+        for m in self.mismatches[:8]:
+            lines.append(f"  {m.significance:8.2f}  {m.where}: {m.statistic} = {m.value:.4g}")
+        lines += ["", f"Effects (score-test evidence needed: {self.threshold:.2f}):"]
+        for e in self.effects:
+            verdict = "ACCEPTED" if e.accepted else "not accepted"
+            lines.append(f"  {e.name:28s} evidence {e.evidence:8.2f}  {verdict}")
+            if e.accepted or math.isfinite(e.null_threshold_nats):
+                lines.append(
+                    f"      held-out gain {e.held_out_gain_nats:.1f} nats "
+                    f"(noise alone would give < {e.null_threshold_nats:.1f}); "
+                    f"deviance {e.held_out_before:.5f} -> {e.held_out_after:.5f}"
+                )
+            if e.accepted:
+                lines.append(f"      {e.explanation}")
+                short = {k: v for k, v in e.params.items() if not isinstance(v, (list, dict))}
+                lines.append(f"      parameters: {short}")
+        if not self.accepted:
+            lines += ["", "Nothing significant: no effect improved the held-out pixels beyond noise."]
+        if self.skipped:
+            lines.append(f"not tested (need a time series or another modality): {', '.join(self.skipped)}")
+        lines += [
+            "",
+            f"final fit: reduced chi-square {self.final_fit['value']:.4f}, held-out deviance "
+            f"{self.final_fit['held_out']:.5f} per pixel",
+        ]
+        return "\n".join(lines)
+
+
+def _fit_summary(y: np.ndarray, model: FittedModel, spec: ModelSpec, design: BaseDesign, valid: np.ndarray) -> dict:
+    even, odd = checkerboard(y.shape)
+    held = spec.fit(design, y, even & valid)
+    chi2 = float(np.mean(((y - model.mu) ** 2 / model.var)[valid]))
+    return {
+        "metric": "reduced chi-square (camera variance of eq. 17)",
+        "value": chi2,
+        "held_out": float(deviance(y, held, odd & valid).mean()),
+    }
+
+
+def diagnose(
+    images: np.ndarray,
+    design: BaseDesign,
+    *,
+    candidates: Sequence[str] | None = None,
+    alpha: float = 0.01,
+    n_bootstrap: int = 30,
+    max_steps: int = 3,
+    max_tries: int = 3,
+    rng: np.random.Generator | None = None,
+    valid: np.ndarray | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    cancel: Callable[[], bool] | None = None,
+) -> Diagnosis:
+    """Locate, name, fit and verify the effects missing from a base fit.
+
+    Parameters
+    ----------
+    images
+        The recording, ``(Y, X)`` or ``(T, Y, X)`` ADU with the camera baseline.
+    design
+        The base model (:func:`~napari_symbac.diagnose.model.build_design`).
+    candidates
+        Effect names to try (default: the whole catalogue).
+    alpha
+        Family-wise level of the score tests (Bonferroni) and level of the bootstrap
+        held-out criterion.
+    n_bootstrap
+        Parametric-bootstrap replicates per held-out check.
+    max_steps, max_tries
+        Effects accepted at most; candidates fitted per step.
+    rng
+        Generator of the bootstrap (same seed, same result).
+    """
+    y = np.asarray(images, np.float64)
+    if y.ndim == 2:
+        y = y[None]
+    if y.shape != design.geometry.shape:
+        raise ValueError(
+            f"the image has shape {y.shape} but the fitted scenes {design.geometry.shape}: "
+            "fit the scene of every frame"
+        )
+    rng = np.random.default_rng(0) if rng is None else rng
+    baseline = design.camera.baseline_adu
+    y = y - baseline
+    valid = np.ones(y.shape, bool) if valid is None else np.broadcast_to(valid, y.shape)
+    names = list(CATALOGUE) if candidates is None else list(candidates)
+    unknown = [n for n in names if n not in CATALOGUE]
+    if unknown:
+        raise ValueError(f"unknown effects {unknown}; the catalogue has {sorted(CATALOGUE)}")
+    geo = design.geometry
+    skipped = []
+    pool: list[Effect] = []
+    for n in names:
+        cls = CATALOGUE[n]
+        if (cls.needs_series and geo.shape[0] < 3) or geo.modality not in cls.modalities:
+            skipped.append(n)
+            continue
+        effect = cls(geo)
+        if effect.kind == "mean" and effect.n_params() == 0:
+            skipped.append(n)
+            continue
+        pool.append(effect)
+    threshold = float(-np.log10(alpha / max(len(pool), 1)))
+    spec = ModelSpec()
+    current = spec.fit(design, y, valid)
+    base_model = current
+    r0 = (y - current.mu) / np.sqrt(current.var)
+    mismatches = discrepancy_statistics(r0, current.mu, geo, valid)
+    base_summary = _fit_summary(y, current, spec, design, valid)
+    results: dict[str, EffectResult] = {}
+    total = max_steps * (max_tries + 1)
+    done = 0
+    for step in range(1, max_steps + 1):
+        remaining = [e for e in pool if not (e.name in results and results[e.name].accepted)]
+        if not remaining:
+            break
+        ranked = rank(remaining, design, y, current, valid)
+        for effect, test in ranked:
+            old = results.get(effect.name)
+            if old is None or not old.accepted:
+                results[effect.name] = EffectResult(
+                    effect.name, effect.explanation, effect.signature, test.evidence, test.dof,
+                    False, {}, base_summary["held_out"], base_summary["held_out"],
+                )
+        accepted_now = None
+        for effect, test in ranked[:max_tries]:
+            if test.evidence < threshold:
+                break
+            if cancel is not None and cancel():
+                raise InterruptedError("diagnosis cancelled")
+            check = held_out(
+                effect, design, y, spec, current, valid, rng,
+                n_bootstrap=n_bootstrap, alpha=alpha, baseline_adu=baseline, cancel=cancel,
+            )
+            done += 1
+            if progress is not None:
+                progress(done, total)
+            res = results[effect.name]
+            res.held_out_before, res.held_out_after = check.before, check.after
+            res.held_out_gain_nats, res.null_threshold_nats = check.gain_nats, check.threshold_nats
+            res.step = step
+            if check.passed:
+                accepted_now = effect
+                break
+        if accepted_now is None:
+            break
+        spec = spec.with_effect(accepted_now, y)
+        before_mu = current.mu
+        current = spec.fit(design, y, valid)
+        res = results[accepted_now.name]
+        res.accepted = True
+        res.params = _params(accepted_now, current, spec, design)
+        res.effect_map = current.mu - before_mu if accepted_now.kind == "mean" else np.sqrt(current.var) - np.sqrt(base_model.var)
+    # parameters of accepted effects after the last joint fit
+    for e in spec.effects:
+        results[e.name].params = _params(e, current, spec, design)
+    r1 = (y - current.mu) / np.sqrt(current.var)
+    valid_final = valid & ~spec.censor.mask(y) if spec.censor is not None else valid
+    final_summary = _fit_summary(y, current, spec, design, valid)
+    final_summary["value"] = float(np.mean(r1[valid_final] ** 2))
+    ordered = sorted(results.values(), key=lambda e: (not e.accepted, e.step if e.accepted else 0, -e.evidence))
+    return Diagnosis(
+        base_summary, final_summary, mismatches, ordered, r0, r1, current, threshold, tuple(skipped)
+    )
+
+
+def _params(effect: Effect, model: FittedModel, spec: ModelSpec, design: BaseDesign) -> dict[str, Any]:
+    if effect.kind == "variance":
+        return effect.summary(np.array([model.gain, model.read]), model.mu)
+    if effect.kind == "censor":
+        c = spec.censor
+        assert c is not None
+        return {
+            "clip_level_adu": c.level_adu + design.camera.baseline_adu,
+            "high": c.high,
+        }
+    theta = next(t for e, t in model.effects if e is effect)
+    out = effect.summary(theta, model.mu)
+    if effect.name == "photobleaching":
+        out["cell_intensity_adu"] = float(model.beta[0])
+    return out
+
+
+def diagnose_scenes(
+    images: np.ndarray,
+    scenes: Sequence[Any],
+    microscope: Microscope,
+    render: RenderSettings,
+    camera: Camera,
+    **kwargs: Any,
+) -> Diagnosis:
+    """:func:`diagnose` from fitted scenes (one per frame) and forward-model settings."""
+    return diagnose(images, build_design(scenes, microscope, render, camera), **kwargs)

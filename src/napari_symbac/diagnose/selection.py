@@ -1,0 +1,223 @@
+"""Ranking, fitting and accepting effects.
+
+1. **Score (Rao / Lagrange-multiplier) tests** at "no effect" from the current fit:
+   ``U = J_t^T W r`` with ``J_t = d mu / d theta`` (central differences through the
+   forward model), ``W = 1 / v``; the nuisance parameters are projected out with the
+   efficient information ``I_eff = I_tt - I_tn I_nn^-1 I_nt``, and
+   ``U^T I_eff^-1 U ~ chi2(k)``. Variance effects use
+   ``U = sum 0.5 (r^2 / v^2 - 1 / v) dv / d theta``; clipping is an exact Poisson test
+   of the pixel count at the extreme value. Evidence is ``-log10 p`` (log survival
+   functions, so strong effects do not all tie at p = 0).
+2. **Held-out check**: nuisance and effect are fitted on the even pixels of a
+   checkerboard and scored on the odd ones (Gaussian log-likelihood; valid while pixel
+   noise is independent, which eq. 17 assumes).
+3. **Calibration**: a parametric bootstrap of the held-out gain under the current model
+   (simulate, refit both models, score): an effect is accepted only when its score test
+   passes at ``alpha`` (Bonferroni over the candidates) *and* its held-out gain exceeds
+   the bootstrap mean by ``z_{1 - alpha}`` bootstrap s.d.
+4. **Stepwise**: accept the best candidate, refit, re-test the others.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+from napari_symbac.diagnose.effects import camera_noise, saturation
+from napari_symbac.diagnose.effects.base import Effect
+from napari_symbac.diagnose.model import (
+    BaseDesign,
+    Censor,
+    FittedModel,
+    _jacobian,
+    deviance,
+    fit_model,
+    predict,
+)
+from napari_symbac.diagnose.statistics import neg_log10_p_chi2
+
+__all__ = ["ModelSpec", "ScoreTest", "HeldOut", "score_test", "held_out", "checkerboard"]
+
+
+def checkerboard(shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Even and odd pixels of a checkerboard over ``(T, Y, X)`` (alternating per frame)."""
+    t, y, x = np.indices(shape)
+    even = (t + y + x) % 2 == 0
+    return even, ~even
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """Which effects a model carries (parameters are fitted, not stored here)."""
+
+    effects: tuple[Effect, ...] = ()
+    fit_camera: bool = False
+    censor: Censor | None = None
+
+    def with_effect(self, effect: Effect, y: np.ndarray) -> ModelSpec:
+        if effect.kind == "variance":
+            return ModelSpec(self.effects, True, self.censor)
+        if effect.kind == "censor":
+            return ModelSpec(self.effects, self.fit_camera, effect_censor(effect))
+        return ModelSpec((*self.effects, effect), self.fit_camera, self.censor)
+
+    def fit(
+        self, design: BaseDesign, y: np.ndarray, mask: np.ndarray, start: FittedModel | None = None
+    ) -> FittedModel:
+        thetas = {id(e): t for e, t in (start.effects if start is not None else ())}
+        pairs = [(e, thetas.get(id(e), e.null())) for e in self.effects]
+        return fit_model(
+            design,
+            y,
+            mask,
+            pairs,
+            fit_camera=self.fit_camera,
+            censor=self.censor,
+            beta0=None if start is None else start.beta,
+        )
+
+
+def effect_censor(effect: Effect) -> Censor:
+    censor = getattr(effect, "censor", None)
+    if censor is None:
+        raise ValueError("a saturation candidate needs its detected level (effect.censor)")
+    return censor
+
+
+@dataclass(frozen=True)
+class ScoreTest:
+    """Score test of one candidate against the current model."""
+
+    statistic: float
+    dof: int
+    evidence: float
+    detectable_sd: float = float("nan")
+
+
+def score_test(
+    effect: Effect, design: BaseDesign, y: np.ndarray, current: FittedModel, valid: np.ndarray
+) -> ScoreTest:
+    """Efficient score test of ``effect`` at "no effect" given the fitted ``current`` model."""
+    mu, v = current.mu, current.var
+    if effect.kind == "variance":
+        r = (y - mu)[valid]
+        u, info = camera_noise.score(r, v[valid], mu[valid], design.camera)
+        stat = float(u @ np.linalg.pinv(info) @ u)
+        return ScoreTest(stat, 2, neg_log10_p_chi2(stat, 2))
+    if effect.kind == "censor":
+        censor, evidence, _ = saturation.detect(y, mu, v)
+        effect.censor = censor  # type: ignore[attr-defined]
+        return ScoreTest(evidence, 1, evidence if censor is not None else 0.0)
+    theta0 = effect.null()
+    effects = list(current.effects)
+    base_mu = predict(design, current.beta, [*effects, (effect, theta0)])
+    steps = effect.steps(theta0)
+    cols = []
+    for k in range(len(theta0)):
+        up, down = theta0.copy(), theta0.copy()
+        up[k] += steps[k]
+        down[k] -= steps[k]
+        cols.append(
+            (
+                predict(design, current.beta, [*effects, (effect, up)])
+                - predict(design, current.beta, [*effects, (effect, down)])
+            )
+            / (2 * steps[k])
+        )
+    if not cols:
+        return ScoreTest(0.0, 0, 0.0)
+    jt = np.stack(cols)[:, valid]
+    jn = _jacobian(design, current.beta, effects, base_mu)[:, valid]
+    w = 1.0 / v[valid]
+    r = (y - mu)[valid]
+    u = jt @ (w * r)
+    itt = (jt * w) @ jt.T
+    itn = (jt * w) @ jn.T
+    inn = (jn * w) @ jn.T
+    ieff = itt - itn @ np.linalg.pinv(inn, rcond=1e-10) @ itn.T
+    evals, evecs = np.linalg.eigh(ieff)
+    keep = evals > evals.max() * 1e-9 if evals.size and evals.max() > 0 else np.zeros(0, bool)
+    if not keep.any():
+        return ScoreTest(0.0, 0, 0.0)
+    proj = evecs[:, keep].T @ u
+    stat = float(np.sum(proj**2 / evals[keep]))
+    dof = int(keep.sum())
+    return ScoreTest(stat, dof, neg_log10_p_chi2(stat, dof))
+
+
+@dataclass
+class HeldOut:
+    """Held-out comparison of the current model with and without a candidate."""
+
+    before: float
+    after: float
+    gain_nats: float
+    null_mean_nats: float
+    null_sd_nats: float
+    threshold_nats: float
+    passed: bool
+    fitted: FittedModel | None = field(default=None, repr=False)
+
+
+def _gain(
+    design: BaseDesign, y: np.ndarray, train: np.ndarray, test: np.ndarray, base: ModelSpec, alt: ModelSpec
+) -> tuple[float, float, float, FittedModel]:
+    m0 = base.fit(design, y, train)
+    m1 = alt.fit(design, y, train)
+    d0 = deviance(y, m0, test)
+    d1 = deviance(y, m1, test)
+    return float(d0.mean()), float(d1.mean()), 0.5 * float(d0.sum() - d1.sum()), m1
+
+
+def held_out(
+    effect: Effect,
+    design: BaseDesign,
+    y: np.ndarray,
+    current: ModelSpec,
+    current_fit: FittedModel,
+    valid: np.ndarray,
+    rng: np.random.Generator,
+    *,
+    n_bootstrap: int = 30,
+    alpha: float = 0.01,
+    baseline_adu: float = 0.0,
+    cancel: Callable[[], bool] | None = None,
+) -> HeldOut:
+    """Held-out gain of adding ``effect`` and its parametric-bootstrap null."""
+    even, odd = checkerboard(y.shape)
+    train, test = even & valid, odd & valid
+    alt = current.with_effect(effect, y)
+    before, after, gain, fitted = _gain(design, y, train, test, current, alt)
+    null = []
+    sd = np.sqrt(current_fit.var)
+    for _ in range(n_bootstrap):
+        if cancel is not None and cancel():
+            raise InterruptedError("diagnosis cancelled")
+        sim = np.rint(current_fit.mu + sd * rng.standard_normal(y.shape) + baseline_adu) - baseline_adu
+        if current.censor is not None:
+            c = current.censor
+            sim = np.minimum(sim, c.level_adu) if c.high else np.maximum(sim, c.level_adu)
+        sim_alt = alt
+        if effect.kind == "censor":
+            censor, _, _ = saturation.detect(sim, current_fit.mu, current_fit.var)
+            if censor is None:
+                null.append(0.0)
+                continue
+            sim_alt = ModelSpec(current.effects, current.fit_camera, censor)
+        null.append(_gain(design, sim, train, test, current, sim_alt)[2])
+    null_arr = np.asarray(null) if null else np.zeros(1)
+    mean, sdev = float(null_arr.mean()), float(null_arr.std(ddof=1)) if len(null_arr) > 1 else 0.0
+    threshold = mean + float(stats.norm.isf(alpha)) * max(sdev, 1e-9)
+    return HeldOut(before, after, gain, mean, sdev, threshold, gain > max(threshold, 0.0), fitted)
+
+
+def rank(
+    candidates: Sequence[Effect], design: BaseDesign, y: np.ndarray, current: FittedModel, valid: np.ndarray
+) -> list[tuple[Effect, ScoreTest]]:
+    """Score tests of all candidates, strongest evidence first."""
+    tests = [(e, score_test(e, design, y, current, valid)) for e in candidates]
+    tests.sort(key=lambda et: -et[1].evidence)
+    return tests

@@ -1,0 +1,384 @@
+"""The scene model of the fit and its Levenberg-Marquardt solver.
+
+The clean image is linear in the intensities (eq. 3, 15):
+``mu = I_c C + I_m M + I_d D`` with ``C, M, D`` the convolved, area-averaged cells,
+media and device fractions. Since media = trench - cells, a change of one cell's
+parameters changes ``C`` (and ``M = T - C``) only within the cell's bounding box
+plus the PSF radius (linearity of the convolution), so each cell's Jacobian
+columns come from rendering that patch alone (:meth:`SceneModel.cell_delta`).
+The intensities are solved exactly at every evaluation (a 3 x 3 normal-equation
+solve with an exact non-negativity fallback, :func:`solve_intensities`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal, sparse
+
+from napari_symbac.fit.placement import TrenchPlacement, draw_fitted
+from napari_symbac.optics import ForwardModel
+from napari_symbac.scene import Scene
+from napari_symbac.scene._draw import _chord
+from napari_symbac.settings import Camera, Microscope, RenderSettings
+from napari_symbac.sim import FrameCells
+
+__all__ = ["CURVATURE_B", "CURVATURE_C", "DIFF_STEP", "Layout", "SceneModel", "solve_intensities"]
+
+#: Finite-difference step in scaled units (0.3 x 0.05 um = 15 nm, ~ 2/3 of a render
+#: pixel): the chord ``2 sqrt(r^2 - d^2)`` has a square-root cusp at a cell's edge, so
+#: steps much smaller than a render pixel give a Jacobian that only sees the cusp.
+DIFF_STEP = 0.3
+#: ``b`` and ``c`` of eq. 1 for fitted curvature: ``roll(l) = a sin(pi l / b + c)``,
+#: ``l`` the fraction of the cell length from its top pole; only ``a`` is fitted.
+CURVATURE_B = 1.0
+CURVATURE_C = 0.0
+#: Scale (optimiser units) of the geometric parameters: um and rad.
+SCALE_GEOMETRY = 0.05
+_OPTICS_SCALE = {
+    "apodisation_sigma_um": 0.1,
+    "defocus_sigma_um": 0.05,
+    "ring_contrast": 0.1,
+    "psf_offset": 0.05,
+}
+_INTENSITIES = ("cell_intensity", "media_intensity", "device_intensity")
+
+
+def solve_intensities(a: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Non-negative weighted least squares ``min sum w (y - a I)^2``, ``I >= 0``, exactly.
+
+    Eq. 3 is linear in the three intensities: the normal equations are 3 x 3. The
+    unconstrained solution is returned when it is non-negative; otherwise every
+    subset of free intensities (the others held at 0) is solved and the feasible
+    one of least cost is returned (the exact NNLS solution for 3 unknowns).
+    All-zero columns (no device in an open field) get intensity 0.
+    """
+    aw = a * w[:, None]
+    gram = a.T @ aw
+    rhs = aw.T @ y
+    k = a.shape[1]
+    used = [j for j in range(k) if gram[j, j] > 0]
+    best, best_cost = np.zeros(k), 0.0  # cost relative to I = 0
+    for size in range(len(used), 0, -1):
+        for subset in itertools.combinations(used, size):
+            idx = list(subset)
+            try:
+                sol = np.linalg.solve(gram[np.ix_(idx, idx)], rhs[idx])
+            except np.linalg.LinAlgError:
+                continue
+            cost = -float(sol @ rhs[idx])  # sol' G sol - 2 sol' h at sol = G^-1 h
+            if np.all(sol >= 0) and cost < best_cost:
+                best = np.zeros(k)
+                best[idx] = sol
+                best_cost = cost
+        if size == len(used) and best_cost < 0:
+            break  # the unconstrained optimum is feasible
+    return best
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Order of the parameter vector: per-cell blocks, then the shared parameters.
+
+    Each cell holds ``x_um, y_um, angle_rad, length_um`` then, when fitted, its
+    curvature amplitude ``curvature_um`` and its width offset ``dwidth_um``. Then
+    come the shared ``width_um``, the trench's ``left_um, width_um`` (and ``top_um``)
+    and the optical parameters.
+    """
+
+    n: int
+    fit_curvature: bool
+    per_cell_width: bool
+    trench: bool
+    fit_top: bool
+    optics: tuple[str, ...]
+
+    @property
+    def cell_names(self) -> tuple[str, ...]:
+        names = ["x_um", "y_um", "angle_rad", "length_um"]
+        if self.fit_curvature:
+            names.append("curvature_um")
+        if self.per_cell_width:
+            names.append("dwidth_um")
+        return tuple(names)
+
+    @property
+    def per_cell(self) -> int:
+        return len(self.cell_names)
+
+    @property
+    def global_names(self) -> tuple[str, ...]:
+        names = ["width_um"]
+        if self.trench:
+            names += ["trench.left_um", "trench.width_um"]
+            if self.fit_top:
+                names.append("trench.top_um")
+        return (*names, *self.optics)
+
+    @property
+    def size(self) -> int:
+        return self.n * self.per_cell + len(self.global_names)
+
+    def names(self, ids: np.ndarray) -> tuple[str, ...]:
+        """Parameter names, ``cell<id>.<name>`` for the cells' parameters."""
+        cells = [f"cell{int(i)}.{name}" for i in ids for name in self.cell_names]
+        return (*cells, *self.global_names)
+
+    def owner(self, k: int) -> int:
+        """Index of the cell that parameter ``k`` belongs to, -1 for a shared one."""
+        return k // self.per_cell if k < self.n * self.per_cell else -1
+
+    def with_cells(self, n: int) -> Layout:
+        return dataclasses.replace(self, n=n)
+
+    def scales(self) -> np.ndarray:
+        g = [SCALE_GEOMETRY] * (len(self.global_names) - len(self.optics))
+        g += [_OPTICS_SCALE.get(name, 0.05) for name in self.optics]
+        return np.concatenate([np.full(self.n * self.per_cell, SCALE_GEOMETRY), g])
+
+
+class SceneModel:
+    """Renders a parameter vector (see :class:`Layout`) into the design ``[C, M, D]``.
+
+    Parameters
+    ----------
+    shape
+        Camera shape of the real image.
+    microscope, render, camera
+        The forward model's settings (``render`` gives the kernel parameters that
+        are not fitted).
+    placement
+        Trench placement (``None``: open field); its depth and closed end are kept.
+    depth_um
+        Optical depth of the media layer.
+    layout
+        Order of the parameter vector.
+    """
+
+    def __init__(
+        self,
+        shape: tuple[int, int],
+        microscope: Microscope,
+        render: RenderSettings,
+        camera: Camera,
+        placement: TrenchPlacement | None,
+        depth_um: float,
+        layout: Layout,
+        tick: Callable[[], None] | None = None,
+    ) -> None:
+        self.shape = shape
+        self.microscope = microscope
+        self.render = render
+        self.placement = placement
+        self.depth_um = depth_um
+        self.layout = layout
+        self.forward = ForwardModel(microscope, render, camera)
+        self.tick = tick if tick is not None else (lambda: None)
+        self.n_full = 0
+        self.n_patch = 0
+
+    # ------------------------------------------------------------------ unpack
+    def unpack(
+        self, x: np.ndarray
+    ) -> tuple[
+        FrameCells, dict[int, tuple[float, float, float]], TrenchPlacement | None, RenderSettings
+    ]:
+        """Cells, curvature, trench placement and render settings of ``x``."""
+        lay = self.layout
+        n, pc = lay.n, lay.per_cell
+        block = x[: n * pc].reshape(n, pc) if n else np.zeros((0, pc))
+        g = x[n * pc :]
+        width = np.full(n, g[0])
+        if lay.per_cell_width:
+            width = width + block[:, pc - 1]
+        width = np.maximum(width, 0.2)
+        cells = FrameCells(
+            ids=np.arange(1, n + 1),
+            x_um=block[:, 0].copy(),
+            y_um=block[:, 1].copy(),
+            angle_rad=block[:, 2].copy(),
+            length_um=np.maximum(block[:, 3], width),
+            width_um=width,
+        )
+        curvature = {}
+        if lay.fit_curvature:
+            for i in range(n):
+                if block[i, 4] != 0:
+                    curvature[i + 1] = (float(block[i, 4]), CURVATURE_B, CURVATURE_C)
+        place = None
+        j = 1
+        if lay.trench and self.placement is not None:
+            top = g[3] if lay.fit_top else self.placement.top_um
+            place = TrenchPlacement(
+                float(g[1]),
+                float(g[2]),
+                float(top),
+                self.placement.depth_um,
+                self.placement.closed_end,
+            )
+            j = 4 if lay.fit_top else 3
+        values = {name: float(v) for name, v in zip(lay.optics, g[j:])}
+        return cells, curvature, place, dataclasses.replace(self.render, **values)
+
+    # ---------------------------------------------------------------- full render
+    def design(self, x: np.ndarray) -> tuple[np.ndarray, Scene, RenderSettings]:
+        """``(pixels, 3)`` design ``[C, M, D]`` (float64), the scene and the render settings."""
+        self.tick()
+        self.n_full += 1
+        cells, curvature, place, r = self.unpack(x)
+        scene = draw_fitted(cells, place, self.shape, self.microscope, r, self.depth_um, curvature)
+        comps = self.forward.with_render(r).components(scene)
+        a = np.stack([comps[k].ravel() for k in ("cells", "media", "device")], axis=1)
+        return a.astype(np.float64), scene, r
+
+    # ---------------------------------------------------------------- patch render
+    def _cell_box(
+        self, x: np.ndarray, i: int, scene: Scene
+    ) -> tuple[int, int, int, int, tuple[float, ...]]:
+        """Render-pixel box (scene coordinates) of cell ``i`` and its drawing arguments."""
+        lay = self.layout
+        pc = lay.per_cell
+        b = x[i * pc : (i + 1) * pc]
+        g0 = x[lay.n * pc]
+        width = max(g0 + (b[pc - 1] if lay.per_cell_width else 0.0), 0.2)
+        length = max(b[3], width)
+        bend = float(b[4]) if lay.fit_curvature else 0.0
+        px = scene.pixel_size_um
+        border = scene.border_px
+        half_len, half_wid = length / 2, width / 2 + abs(bend)
+        sin_a, cos_a = abs(math.sin(b[2])), abs(math.cos(b[2]))
+        reach_x = min(half_len * sin_a + half_wid * cos_a, half_len + half_wid) + 2 * px
+        reach_y = min(half_len * cos_a + half_wid * sin_a, half_len + half_wid) + 2 * px
+        j0 = math.floor((b[0] - reach_x) / px) + border
+        j1 = math.ceil((b[0] + reach_x) / px) + border + 1
+        i0 = math.floor((b[1] - reach_y) / px) + border
+        i1 = math.ceil((b[1] + reach_y) / px) + border + 1
+        args = (float(b[0]), float(b[1]), float(b[2]), float(length), float(width), bend)
+        return i0, i1, j0, j1, args
+
+    def cell_delta(
+        self, x: np.ndarray, x_new: np.ndarray, i: int, scene: Scene, kernel: np.ndarray
+    ) -> tuple[int, int, np.ndarray]:
+        """Change of the convolved cells image ``C`` when cell ``i`` moves from ``x`` to ``x_new``.
+
+        Only cell ``i``'s parameters may differ between ``x`` and ``x_new``. The cells
+        fraction is redrawn in the union of the cell's old and new boxes (as
+        :func:`~napari_symbac.scene.draw_scene` does: the thickest chord of any cell,
+        over the depth, capped by 1 and by the trench), the difference is convolved
+        with the kernel in full and area-averaged to camera pixels.
+
+        Returns
+        -------
+        row0, col0, patch
+            Camera-pixel position of the patch's top-left corner (may be negative or
+            reach past the image: clip when adding) and the patch (float64).
+        """
+        self.n_patch += 1
+        u, bd = scene.upsample, scene.border_px
+        S0, S1 = scene.shape
+        a0, a1, b0, b1, _ = self._cell_box(x, i, scene)
+        c0, c1, d0, d1, _ = self._cell_box(x_new, i, scene)
+        i0, i1, j0, j1 = min(a0, c0), max(a1, c1), min(b0, d0), max(b1, d1)
+        s0 = 2 * bd + u * math.floor((i0 - 2 * bd) / u)
+        s1 = u * math.ceil(i1 / u)
+        t0 = 2 * bd + u * math.floor((j0 - 2 * bd) / u)
+        t1 = u * math.ceil(j1 / u)
+        r0, r1 = max(s0, 0), min(s1, S0)
+        q0, q1 = max(t0, 0), min(t1, S1)
+        delta = np.zeros((s1 - s0, t1 - t0), np.float32)
+        if r0 < r1 and q0 < q1:
+            px = scene.pixel_size_um
+            yc = (np.arange(r0, r1) - bd + 0.5) * px
+            xc = (np.arange(q0, q1) - bd + 0.5) * px
+            thick = np.zeros((r1 - r0, q1 - q0), np.float32)
+            for j in range(self.layout.n):
+                source = x_new if j == i else x
+                e0, e1, f0, f1, (cx, cy, ang, ln, wd, bend) = self._cell_box(source, j, scene)
+                if e1 <= r0 or e0 >= r1 or f1 <= q0 or f0 >= q1:
+                    continue
+                chord = _chord(
+                    xc,
+                    yc,
+                    (cx, cy),
+                    ang,
+                    ln,
+                    wd,
+                    (bend, CURVATURE_B, CURVATURE_C) if bend else None,
+                )
+                np.maximum(thick, chord, out=thick)
+            old = scene.cells[r0:r1, q0:q1]
+            trench = old + scene.media[r0:r1, q0:q1]
+            new = np.minimum(np.minimum(thick / np.float32(self.depth_um), 1.0), trench)
+            delta[r0 - s0 : r1 - s0, q0 - t0 : q1 - t0] = new - old
+        full = signal.fftconvolve(delta.astype(np.float64), kernel.astype(np.float64), mode="full")
+        h, w = full.shape
+        patch = full.reshape(h // u, u, w // u, u).mean(axis=(1, 3))
+        return (s0 - 2 * bd) // u, (t0 - 2 * bd) // u, patch
+
+    # ----------------------------------------------------------------- Jacobian
+    def jacobian(
+        self,
+        x: np.ndarray,
+        a: np.ndarray,
+        intensities: np.ndarray,
+        scene: Scene,
+        render: RenderSettings,
+        free: np.ndarray,
+        step: float = DIFF_STEP,
+        upper: np.ndarray | None = None,
+    ) -> sparse.csc_matrix:
+        """``d mu / d z`` (ADU per optimiser unit) for the free parameters and the intensities.
+
+        Rows are all camera pixels (row-major), columns the free parameters in order,
+        then the three intensities (per ADU). Cell parameters come from
+        :meth:`cell_delta` (forward differences of ``step`` scaled units, backwards at
+        an upper bound); shared parameters from full renders.
+        """
+        scales = self.layout.scales()
+        kernel = self.forward.with_render(render).kernel(scene.pixel_size_um)
+        rows, cols = self.shape
+        npx = rows * cols
+        mu = a @ intensities
+        contrast = intensities[0] - intensities[1]
+        data, indices, indptr = [], [], [0]
+        for k in np.flatnonzero(free):
+            h = step
+            if upper is not None and x[k] + h * scales[k] > upper[k]:
+                h = -step
+            xk = x.copy()
+            xk[k] += h * scales[k]
+            owner = self.layout.owner(int(k))
+            if owner >= 0:
+                self.tick()
+                p0, c0, patch = self.cell_delta(x, xk, owner, scene, kernel)
+                ph, pw = patch.shape
+                rr0, rr1 = max(p0, 0), min(p0 + ph, rows)
+                cc0, cc1 = max(c0, 0), min(c0 + pw, cols)
+                sub = patch[rr0 - p0 : rr1 - p0, cc0 - c0 : cc1 - c0] * (contrast / h)
+                rr, cc = np.mgrid[rr0:rr1, cc0:cc1]
+                idx = (rr * cols + cc).ravel()
+                val = sub.ravel()
+                keep = val != 0
+                indices.append(idx[keep])
+                data.append(val[keep])
+            else:
+                ak, _, _ = self.design(xk)
+                col = (ak @ intensities - mu) / h
+                nz = np.flatnonzero(col)
+                indices.append(nz)
+                data.append(col[nz])
+            indptr.append(indptr[-1] + indices[-1].size)
+        for j in range(a.shape[1]):
+            nz = np.flatnonzero(a[:, j])
+            indices.append(nz)
+            data.append(a[nz, j])
+            indptr.append(indptr[-1] + nz.size)
+        return sparse.csc_matrix(
+            (np.concatenate(data), np.concatenate(indices), np.array(indptr)),
+            shape=(npx, len(indptr) - 1),
+        )

@@ -1,0 +1,212 @@
+"""Moves that change the number of cells, accepted by the BIC.
+
+A fitted scene can hold a cell too many (a short duplicate hidden inside a longer
+rod: the scene takes the thickest chord per pixel, so it changes nothing), two
+rods where there is one cell, one rod where a septum shows two, or miss a cell.
+Each move is proposed where the model or the residual says so and kept when the
+Bayesian information criterion ``BIC = chi^2 + k ln N`` falls (``k`` parameters,
+``N`` valid pixels; one cell costs ``per_cell * ln N``):
+
+* **remove** a cell whose removal raises ``chi^2`` by less than its price (a hidden
+  duplicate raises it by about 0);
+* **merge** two aligned neighbours (axes within 0.5 rad, pole-to-pole segments
+  within a cell width, overlapping or end to end) into one rod between the two
+  poles furthest apart;
+* **split** a rod longer than 1.6 times the median cell length in two halves;
+* **add** a cell on a blob of significant residual of the cells' polarity where the
+  model has no cell but room for one (media: inside the trench, on the pad).
+
+Merged, split and added cells are refitted locally (their own parameters only)
+before the comparison, and, when that brings them close to acceptance, with every
+parameter free.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import ndimage
+
+from napari_symbac.fit.lm import State
+from napari_symbac.fit.overlap import segment_distance
+from napari_symbac.fit.problem import Problem
+from napari_symbac.fit.start import cells_from_instances
+
+__all__ = ["improve_scene"]
+
+#: Iterations of the local refit of a proposed cell.
+LOCAL_ITERATIONS = 8
+#: A proposal within this many cell prices of acceptance after its local refit is
+#: refitted with every parameter free before the BIC decides.
+GLOBAL_MARGIN = 10.0
+
+
+def _poles(block: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    cx, cy, angle, length = block[:4]
+    d = np.array([math.sin(angle), math.cos(angle)]) * length / 2
+    c = np.array([cx, cy])
+    return c - d, c + d
+
+
+def _rod(p: np.ndarray, q: np.ndarray, template: np.ndarray) -> np.ndarray:
+    """A cell block from pole ``p`` to pole ``q`` (other entries from ``template``)."""
+    block = template.copy()
+    d = q - p
+    if d[1] < 0:
+        d = -d
+    block[0], block[1] = (p + q) / 2
+    block[2] = math.atan2(d[0], d[1])
+    block[3] = float(np.hypot(*d))
+    block[4:] = 0.0
+    return block
+
+
+def _local_free(problem: Problem, n: int, cells: list[int]) -> np.ndarray:
+    pc = problem.layout.per_cell
+    free = np.zeros(n * pc + len(problem.layout.global_names), bool)
+    for i in cells:
+        free[i * pc : (i + 1) * pc] = True
+    return free
+
+
+def _try(
+    problem: Problem, state: State, blocks: np.ndarray, shared: np.ndarray, refit: list[int]
+) -> State:
+    trial = problem.evaluate(Problem.join(blocks, shared))
+    if refit:
+        trial, _ = problem.refit(trial, _local_free(problem, len(blocks), refit), LOCAL_ITERATIONS)
+        dn = len(blocks) - problem.n_cells(state.x)
+        price = problem.bic_per_cell
+        if trial.cost + dn * price < state.cost + GLOBAL_MARGIN * price:
+            # Close: let the neighbours, the width and the optics settle too.
+            trial, _ = problem.refit(trial, None, LOCAL_ITERATIONS)
+    return trial
+
+
+def _accept(problem: Problem, state: State, trial: State, dn: int) -> bool:
+    return trial.cost + dn * problem.bic_per_cell < state.cost
+
+
+def _remove_pass(problem: Problem, state: State, log: list[str]) -> tuple[State, bool]:
+    blocks, shared = problem.blocks(state.x)
+    n = len(blocks)
+    if n <= 1:
+        return state, False
+    best = None
+    for i in range(n):
+        trial = problem.evaluate(Problem.join(np.delete(blocks, i, axis=0), shared))
+        if _accept(problem, state, trial, -1) and (best is None or trial.cost < best[1].cost):
+            best = (i, trial)
+    if best is None:
+        return state, False
+    log.append(f"removed cell at ({blocks[best[0], 0]:.2f}, {blocks[best[0], 1]:.2f}) um")
+    return best[1], True
+
+
+def _merge_pass(problem: Problem, state: State, log: list[str]) -> tuple[State, bool]:
+    blocks, shared = problem.blocks(state.x)
+    n = len(blocks)
+    width = shared[0]
+    for i in range(n):
+        for j in range(i + 1, n):
+            pi, pj = _poles(blocks[i]), _poles(blocks[j])
+            turn = abs((blocks[i, 2] - blocks[j, 2] + math.pi / 2) % math.pi - math.pi / 2)
+            if turn > 0.5 or segment_distance(pi, pj) > width:
+                continue
+            poles = [*pi, *pj]
+            far = max(
+                ((a, b) for ia, a in enumerate(poles) for b in poles[ia + 1 :]),
+                key=lambda pair: float(np.hypot(*(pair[0] - pair[1]))),
+            )
+            merged = _rod(far[0], far[1], blocks[i])
+            trial_blocks = np.delete(blocks, j, axis=0)
+            trial_blocks[i] = merged
+            trial = _try(problem, state, trial_blocks, shared, [i])
+            if _accept(problem, state, trial, -1):
+                log.append(f"merged cells at y = {blocks[i, 1]:.2f} and {blocks[j, 1]:.2f} um")
+                return trial, True
+    return state, False
+
+
+def _split_pass(problem: Problem, state: State, log: list[str]) -> tuple[State, bool]:
+    blocks, shared = problem.blocks(state.x)
+    n = len(blocks)
+    if n == 0:
+        return state, False
+    width = shared[0]
+    limit = 1.6 * float(np.median(blocks[:, 3]))
+    for i in np.argsort(-blocks[:, 3], kind="stable"):
+        threshold = max(limit, 2.2 * width) if n > 1 else 2.2 * width
+        if blocks[i, 3] < threshold:
+            continue
+        p, q = _poles(blocks[i])
+        mid = (p + q) / 2
+        gap = 0.05 * (q - p) / max(np.hypot(*(q - p)), 1e-9)
+        a, b = _rod(p, mid - gap, blocks[i]), _rod(mid + gap, q, blocks[i])
+        trial_blocks = np.insert(np.delete(blocks, i, axis=0), i, [a, b], axis=0)
+        trial = _try(problem, state, trial_blocks, shared, [int(i), int(i) + 1])
+        if _accept(problem, state, trial, +1):
+            log.append(f"split the cell at ({blocks[i, 0]:.2f}, {blocks[i, 1]:.2f}) um")
+            return trial, True
+    return state, False
+
+
+def _add_pass(
+    problem: Problem, state: State, polarity: str, log: list[str], max_tries: int = 8
+) -> tuple[State, bool]:
+    blocks, shared = problem.blocks(state.x)
+    rows, cols = problem.shape
+    px = problem.microscope.pixel_size_um
+    sign = -1.0 if polarity == "dark" else 1.0
+    z = sign * (problem.y - state.mu) * np.sqrt(problem.w)
+    z = ndimage.gaussian_filter(z.reshape(rows, cols), 1.0) * 2.0  # ~ unit s.d. again
+    from napari_symbac.optics.forward import block_average
+
+    model_cells = block_average(state.scene.interior(state.scene.cells), state.scene.upsample)
+    scene = state.scene
+    room = block_average(scene.interior(scene.media + scene.cells), scene.upsample)
+    blob = (z > 3.0) & (model_cells < 0.05) & (room > 0.5) & (problem.w.reshape(rows, cols) > 0)
+    blob = ndimage.binary_opening(blob)
+    labels, count = ndimage.label(blob)
+    if count == 0:
+        return state, False
+    min_px = max(int(0.3 / px**2), 6)
+    sizes = ndimage.sum(blob, labels, range(1, count + 1))
+    order = np.argsort(-sizes, kind="stable")[:max_tries]
+    for index in order:
+        if sizes[index] < min_px:
+            break
+        one = (labels == index + 1).astype(np.int64)
+        try:
+            new, _ = cells_from_instances(one, px, max_cell_length_um=math.inf)
+        except ValueError:
+            continue
+        block = np.zeros(problem.layout.per_cell)
+        block[:4] = new.x_um[0], new.y_um[0], new.angle_rad[0], max(new.length_um[0], shared[0])
+        trial_blocks = np.vstack([blocks, block]) if len(blocks) else block[None]
+        trial = _try(problem, state, trial_blocks, shared, [len(trial_blocks) - 1])
+        if _accept(problem, state, trial, +1):
+            log.append(f"added a cell at ({block[0]:.2f}, {block[1]:.2f}) um")
+            return trial, True
+    return state, False
+
+
+def improve_scene(
+    problem: Problem, state: State, polarity: str, max_moves: int = 20
+) -> tuple[State, list[str]]:
+    """Apply remove, merge, split and add moves while the BIC falls.
+
+    Returns the final state and a log of the accepted moves (plain words).
+    """
+    log: list[str] = []
+    for _ in range(max_moves):
+        for move in (_remove_pass, _merge_pass, _split_pass):
+            state, changed = move(problem, state, log)
+            if changed:
+                break
+        else:
+            state, changed = _add_pass(problem, state, polarity, log)
+        if not changed:
+            break
+    return state, log

@@ -1,0 +1,470 @@
+"""Starting scenes for the scene fit: cells from a segmentation, labels or a mask.
+
+Every start ends in :func:`cells_from_instances` (region moments of an instance
+mask). The instance mask comes from the user (``masks``: theirs or any
+segmenter's), from painted labels (connected components of class 1, split at
+septa) or from a plain Otsu segmentation (:func:`otsu_cells`). The polarity
+(cells darker or brighter than their surroundings) comes from painted labels when
+there are any, else from the modality (phase: dark; fluorescence: bright); it is
+never assumed.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import numpy as np
+from scipy import ndimage
+
+from napari_symbac.fit.placement import TrenchPlacement
+from napari_symbac.settings import Microscope
+from napari_symbac.sim import FrameCells
+
+__all__ = ["cells_from_instances", "otsu_cells", "polarity_of", "start_scene"]
+
+
+def _spherocylinder_width(area_um2: float, length_um: float) -> float:
+    """Width of the spherocylinder of given area and length: ``A = w L - (1 - pi/4) w^2``."""
+    k = 1 - math.pi / 4
+    disc = max(length_um**2 - 4 * k * area_um2, 0.0)
+    return (length_um - math.sqrt(disc)) / (2 * k)
+
+
+def _longest_run(mask: np.ndarray) -> tuple[int, int] | None:
+    labels, n = ndimage.label(mask)
+    if n == 0:
+        return None
+    sizes = ndimage.sum(mask, labels, range(1, n + 1))
+    idx = np.flatnonzero(labels == int(np.argmax(sizes)) + 1)
+    return int(idx[0]), int(idx[-1])
+
+
+#: Septum split of the Otsu start (:func:`_split_at_septa`): a bright band across a
+#: region counts as a septum when its prominence in the intensity profile along the
+#: region's axis is at least this many s.d. of the profile's noise ...
+SEPTUM_NOISE_SD = 6.0
+#: ... and at least this fraction of the media-cell contrast of the image (phase-contrast
+#: texture inside real cells, nucleoids and the halo, reaches ~0.1 of it; septa ~0.4).
+SEPTUM_CONTRAST = 0.2
+
+
+def _pixel_noise(image: np.ndarray, where: np.ndarray) -> float:
+    """Robust s.d. of the pixel noise of ``image`` over ``where``.
+
+    The difference of a pixel and the mean of its four neighbours has variance
+    ``1.25 s^2`` for white noise and is nearly free of the (smooth) image structure;
+    its median absolute deviation gives ``s``.
+    """
+    neighbours = ndimage.convolve(
+        image, np.array([[0, 0.25, 0], [0.25, 0, 0.25], [0, 0.25, 0]]), mode="nearest"
+    )
+    high = (image - neighbours)[where]
+    if high.size < 10:
+        return 0.0
+    mad = np.median(np.abs(high - np.median(high)))
+    return float(1.4826 * mad / math.sqrt(1.25))
+
+
+def _septum_cuts(
+    profile: np.ndarray, noise: np.ndarray, min_prominence: float, min_length: int
+) -> list[int]:
+    """Positions of septa in a 1-D intensity profile along a region's axis.
+
+    Local maxima (bright septa between dark cell bodies) whose topographic prominence
+    is above ``min_prominence`` and above :data:`SEPTUM_NOISE_SD` times the profile's
+    noise there, accepted greedily by decreasing prominence as long as every piece
+    they cut the region into stays at least ``min_length`` bins long.
+    """
+    from scipy.signal import find_peaks
+
+    peaks, props = find_peaks(profile, prominence=min_prominence)
+    keep = props["prominences"] >= SEPTUM_NOISE_SD * noise[peaks]
+    peaks, prominences = peaks[keep], props["prominences"][keep]
+    cuts: list[int] = []
+    for peak in peaks[np.argsort(-prominences, kind="stable")]:
+        edges = np.array(sorted([0, len(profile), *cuts, int(peak)]))
+        if np.diff(edges).min() >= min_length:
+            cuts.append(int(peak))
+    return sorted(cuts)
+
+
+def _split_at_septa(
+    instances: np.ndarray,
+    image: np.ndarray,
+    region: np.ndarray,
+    pixel_size_um: float,
+    min_cell_length_um: float = 0.8,
+) -> np.ndarray:
+    """Split touching cells of an instance segmentation at bright septa.
+
+    Method (septum profile split): for each region, the image (raw, not smoothed) is
+    averaged over a band along the region's principal axis, as wide as the region
+    (90th percentile of the pixels' distance from the axis) and restricted to
+    ``region``, in bins of one pixel, and the profile is smoothed by a Gaussian of
+    one bin. In phase contrast touching cells are dark bodies separated by a bright
+    septum, so septa are local maxima of this profile. A maximum is a septum when its
+    prominence is at least :data:`SEPTUM_NOISE_SD` times the noise of the profile
+    (pixel noise from :func:`_pixel_noise` over the number of pixels averaged) and at
+    least :data:`SEPTUM_CONTRAST` times the media-cell contrast (median of
+    ``region`` outside the cells minus median inside), and every piece is at least
+    ``min_cell_length_um`` long (:func:`_septum_cuts`). The pieces are then drawn
+    by a watershed of the smoothed image inside the region's mask, seeded with the
+    region's pixels more than 0.2 um (along the axis) from every cut, so that a
+    tilted septum is followed rather than cut square. Deterministic; a region with
+    no septum is returned unchanged.
+
+    Parameters
+    ----------
+    instances
+        Instance labels (0 = background) of the thresholded cells.
+    image
+        The image (phase contrast: cells dark).
+    region
+        Where the profile may look (inside the trench).
+    pixel_size_um
+        Camera pixel size.
+    min_cell_length_um
+        Shortest piece a septum may leave at either side.
+
+    Returns
+    -------
+    numpy.ndarray
+        Instance labels, ``1..n`` in the order of the regions and, within a region,
+        along its axis.
+    """
+    from skimage.segmentation import watershed
+
+    mask = instances > 0
+    if not mask.any():
+        return instances
+    sigma = _pixel_noise(image, region)
+    outside = region & ~mask
+    contrast = float(np.median(image[outside]) - np.median(image[mask])) if outside.any() else 0.0
+    smooth = ndimage.gaussian_filter(image, 1.0)
+    rows, cols = np.indices(image.shape)
+    out = np.zeros_like(instances)
+    n_out = 0
+    seed_px = max(round(0.2 / pixel_size_um), 1)
+    min_length = max(round(min_cell_length_um / pixel_size_um), 2)
+    for index in range(1, int(instances.max()) + 1):
+        inside = instances == index
+        rr, cc = np.nonzero(inside)
+        if rr.size < 6:
+            continue
+        cy, cx = rr.mean(), cc.mean()
+        _evals, evecs = np.linalg.eigh(np.cov(np.stack([cc - cx, rr - cy])))
+        vx, vy = evecs[:, 1]
+        along = (cols - cx) * vx + (rows - cy) * vy
+        across = (rows - cy) * vx - (cols - cx) * vy
+        s0, s1 = along[inside].min(), along[inside].max()
+        half = np.percentile(np.abs(across[inside]), 90)
+        band = region & (np.abs(across) <= half) & (along >= s0) & (along <= s1)
+        bins = np.round(along[band] - s0).astype(int)
+        count = np.bincount(bins, minlength=int(s1 - s0 + 0.5) + 1).astype(float)
+        total = np.bincount(bins, image[band], minlength=count.size)
+        seen = count > 0
+        mean = np.interp(np.arange(count.size), np.flatnonzero(seen), total[seen] / count[seen])
+        profile = ndimage.gaussian_filter1d(mean, 1.0)
+        # s.d. of a bin mean after the 1-bin Gaussian (sum of squared weights ~ 0.28).
+        noise = sigma * math.sqrt(0.28) / np.sqrt(np.maximum(count, 1.0))
+        cuts = _septum_cuts(profile, noise, SEPTUM_CONTRAST * contrast, min_length)
+        if not cuts:
+            n_out += 1
+            out[inside] = n_out
+            continue
+        edges = [0, *cuts, count.size]
+        position = along - s0
+        markers = np.zeros_like(instances)
+        for j in range(len(edges) - 1):
+            core = inside & (position >= edges[j] + seed_px) & (position <= edges[j + 1] - seed_px)
+            markers[core] = n_out + j + 1
+        out += watershed(smooth, markers, mask=inside) * inside
+        n_out += len(edges) - 1
+    return out
+
+
+def otsu_cells(
+    image: np.ndarray,
+    microscope: Microscope,
+    *,
+    geometry: Literal["trench", "open"] = "trench",
+    depth_um: float = 1.2,
+    max_cell_length_um: float = 4.0,
+    polarity: Literal["dark", "bright"] = "dark",
+    trench: TrenchPlacement | None = None,
+    valid: np.ndarray | None = None,
+) -> tuple[FrameCells, np.ndarray, TrenchPlacement | None, np.ndarray]:
+    """Plain segmentation: Otsu threshold, watershed, region moments.
+
+    ``polarity="dark"``: cells darker than the media around them (phase contrast);
+    ``"bright"``: cells brighter than their background (fluorescence), handled as the
+    negated image. Pixels outside ``valid`` (clipped) are left out of the
+    thresholds. In a trench, unless ``trench`` gives its placement,
+    the trench is found first from the column profile (90th percentile of each
+    column, longest run above 30 % of its range) and its closed end from the row
+    profile (Otsu threshold). Touching cells that the threshold and watershed leave
+    in one region are split at their bright septa (septum profile split,
+    :func:`_split_at_septa`). A region still longer than ``max_cell_length_um`` is
+    taken as several touching cells and starts as equal rods along its axis.
+
+    Returns
+    -------
+    cells
+        One spherocylinder per region: centroid, principal-axis angle, extent along
+        the axis (length) and the width of the spherocylinder with the region's area
+        and length (image coordinates, um).
+    otsu_width_um
+        That width per cell: the Otsu estimate of the cell width (section 1.3).
+    trench
+        The trench placement, or ``None`` for ``geometry="open"``.
+    mask
+        The instance labels of the segmentation (camera pixels).
+    """
+    from skimage.filters import threshold_otsu
+    from skimage.morphology import remove_small_objects
+
+    px = microscope.pixel_size_um
+    if polarity not in ("dark", "bright"):
+        raise ValueError(f"polarity must be 'dark' or 'bright', got {polarity!r}")
+    image = np.asarray(image, float)
+    if polarity == "bright":
+        image = -image
+    if valid is not None and not valid.all() and valid.any():
+        image = np.where(valid, image, np.median(image[valid]))
+    smooth = ndimage.gaussian_filter(image, 1.0)
+    region = np.ones(image.shape, bool)
+    if geometry == "trench" and trench is not None:
+        c0 = max(round(trench.left_um / px), 0)
+        c1 = min(round((trench.left_um + trench.width_um) / px), image.shape[1])
+        region[:, :c0] = False
+        region[:, c1:] = False
+        region[: max(round(trench.top_um / px), 0)] = False
+    elif geometry == "trench" and polarity == "bright":
+        raise ValueError(
+            "a fluorescence image shows no trench walls to find: pass trench=TrenchPlacement(...)"
+            " or geometry='open'"
+        )
+    elif geometry == "trench":
+        # Device columns are dark all along; trench columns hold bright media or halo
+        # somewhere: the 90th percentile of each column separates them.
+        columns = np.percentile(smooth, 90, axis=0)
+        low, high = np.percentile(columns, 10), columns.max()
+        above = columns > low + 0.3 * (high - low)
+        above = ndimage.binary_closing(above, np.ones(7, bool)) | above  # dips between halos
+        run = _longest_run(above)
+        if run is None:
+            raise ValueError("no trench found in the image: is it a mother-machine trench?")
+        c0, c1 = run
+        inside = smooth[:, c0 : c1 + 1].mean(axis=1)
+        above = inside > threshold_otsu(inside)
+        first = int(np.argmax(np.convolve(above, np.ones(3), "same") >= 2))
+        top_um = first * px if first > 0 else -2.0
+        trench = TrenchPlacement(c0 * px, (c1 - c0 + 1) * px, top_um, depth_um)
+        region[:, :c0] = False
+        region[:, c1 + 1 :] = False
+        region[: max(first, 0), :] = False
+        # The dark shade-off of the walls can fall inside the columns found: trim
+        # edge columns (and the top row) that are below the Otsu threshold almost all
+        # along, as no cell is (cells leave bright septa and gaps between them).
+        dark = (smooth < threshold_otsu(smooth[region])) & region
+        for _ in range(3):
+            cols = np.flatnonzero(region.any(axis=0))
+            rows_in = np.flatnonzero(region.any(axis=1))
+            if cols.size < 6 or rows_in.size < 6:
+                break
+            trimmed = False
+            for c in (cols[0], cols[-1]):
+                if dark[:, c].sum() > 0.8 * rows_in.size:
+                    region[:, c] = False
+                    trimmed = True
+            if dark[rows_in[0]].sum() > 0.8 * cols.size:
+                region[rows_in[0]] = False
+                trimmed = True
+            if not trimmed:
+                break
+    elif geometry != "open":
+        raise ValueError(f"geometry must be 'trench' or 'open', got {geometry!r}")
+    threshold = threshold_otsu(smooth[region])
+    mask = (smooth < threshold) & region
+    mask = ndimage.binary_opening(mask)
+    mask = remove_small_objects(mask, max_size=max(int(0.4 / px**2), 4))
+    # Cells in phase contrast are separated by bright septa: the components of the
+    # mask eroded by ~0.1 um (which breaks thin necks between touching cells) are the
+    # markers of a watershed that grows them back inside the mask.
+    from skimage.segmentation import watershed
+
+    erode_px = max(round(0.1 / px), 1)
+    markers, _ = ndimage.label(ndimage.binary_erosion(mask, iterations=erode_px))
+    distance = ndimage.distance_transform_edt(mask)
+    instances = watershed(-distance, markers, mask=mask)
+    # Touching cells whose neck survived the erosion: split at bright septa.
+    instances = _split_at_septa(instances, image, region, px)
+    cells, widths = cells_from_instances(instances, px, max_cell_length_um)
+    return cells, widths, (trench if geometry == "trench" else None), instances
+
+
+def cells_from_instances(
+    instances: np.ndarray, pixel_size_um: float, max_cell_length_um: float = 4.0
+) -> tuple[FrameCells, np.ndarray]:
+    """One spherocylinder per region of an instance mask (region moments).
+
+    Centroid, principal-axis angle, extent along the axis (length) and the width of
+    the spherocylinder with the region's area and length (image coordinates, um).
+    A region longer than ``max_cell_length_um`` is taken as several touching cells
+    and starts as equal rods along its axis. Regions of fewer than 6 pixels are
+    left out.
+
+    Returns
+    -------
+    cells, widths
+        The cells (sorted by ``y`` then ``x``) and their moment widths (um).
+    """
+    px = pixel_size_um
+    rows_list = []
+    instances = np.asarray(instances)
+    for index, box in enumerate(ndimage.find_objects(instances.astype(np.int64)), start=1):
+        if box is None:
+            continue
+        rr, cc = np.nonzero(instances[box] == index)
+        rr, cc = rr + box[0].start, cc + box[1].start
+        if rr.size < 6:
+            continue
+        x = (cc + 0.5) * px
+        y = (rr + 0.5) * px
+        cx, cy = x.mean(), y.mean()
+        cov = np.cov(np.stack([x - cx, y - cy]))
+        _evals, evecs = np.linalg.eigh(cov)
+        vx, vy = evecs[:, 1]
+        if vy < 0:
+            vx, vy = -vx, -vy
+        angle = math.atan2(vx, vy)
+        along = (x - cx) * vx + (y - cy) * vy
+        length = float(along.max() - along.min() + px)
+        area = rr.size * px * px
+        width = _spherocylinder_width(area, length)
+        width = min(max(width, 2 * px), length)
+        # A region much longer than a cell is several touching cells: start with
+        # equal rods along its axis (the fit moves and sizes them).
+        k = (
+            max(math.ceil(length / (0.75 * max_cell_length_um)), 1)
+            if length > max_cell_length_um
+            else 1
+        )
+        for j in range(k):
+            offset = (j + 0.5) * length / k - length / 2
+            rows_list.append(
+                (cx + offset * vx, cy + offset * vy, angle, max(length / k, width), width)
+            )
+    if not rows_list:
+        raise ValueError("the start found no cells in the image (no region of 6 pixels or more)")
+    rows_list.sort(key=lambda row: (row[1], row[0]))
+    table = np.array(rows_list)
+    cells = FrameCells(
+        ids=np.arange(1, len(table) + 1),
+        x_um=table[:, 0],
+        y_um=table[:, 1],
+        angle_rad=table[:, 2],
+        length_um=table[:, 3],
+        width_um=table[:, 4],
+    )
+    return cells, table[:, 4].copy()
+
+
+def polarity_of(
+    image: np.ndarray, modality: str, labels: np.ndarray | None = None
+) -> Literal["dark", "bright"]:
+    """Whether cells are darker or brighter than their surroundings.
+
+    From painted labels when they hold both cells (1) and media (2): the sign of the
+    difference of the class medians. Otherwise from the modality: phase contrast
+    shows dark cells, fluorescence bright ones.
+    """
+    if labels is not None:
+        cell, media = labels == 1, labels == 2
+        if cell.any() and media.any():
+            return "dark" if np.median(image[cell]) < np.median(image[media]) else "bright"
+    if modality == "fluorescence":
+        return "bright"
+    if modality == "phase":
+        return "dark"
+    raise ValueError(f"unknown modality {modality!r}: paint cells and media to give the polarity")
+
+
+def start_scene(
+    image: np.ndarray,
+    microscope: Microscope,
+    *,
+    geometry: Literal["trench", "open"] = "trench",
+    labels: np.ndarray | None = None,
+    masks: np.ndarray | None = None,
+    trench: TrenchPlacement | None = None,
+    depth_um: float = 1.2,
+    valid: np.ndarray | None = None,
+    max_cell_length_um: float = 4.0,
+) -> tuple[FrameCells, np.ndarray, TrenchPlacement | None, np.ndarray]:
+    """The starting cells of a scene fit, from a mask, painted labels or the image.
+
+    Parameters
+    ----------
+    image
+        The real frame (ADU).
+    microscope
+        Pixel size and modality (which gives the polarity without labels).
+    geometry
+        ``"trench"`` or ``"open"``.
+    labels
+        Painted classes (1 cell, 2 media, 3 device, 0 unpainted). Without ``masks``,
+        the connected components of the cell class are the cells (split at septa).
+    masks
+        Instance mask (0 background, one integer per cell), or a binary mask whose
+        connected components are the cells. Used as given (no split).
+    trench
+        Trench placement; found from the image (phase) when ``None``.
+    depth_um, valid, max_cell_length_um
+        As in :func:`otsu_cells`.
+
+    Returns
+    -------
+    cells, widths, trench, instances
+        As :func:`otsu_cells`.
+    """
+    polarity = polarity_of(image, microscope.modality, labels)
+    px = microscope.pixel_size_um
+    if masks is None and labels is None:
+        return otsu_cells(
+            image,
+            microscope,
+            geometry=geometry,
+            depth_um=depth_um,
+            max_cell_length_um=max_cell_length_um,
+            polarity=polarity,
+            trench=trench,
+            valid=valid,
+        )
+    found = trench
+    if geometry == "trench" and trench is None:
+        if polarity == "bright":
+            raise ValueError(
+                "a fluorescence image shows no trench walls to find: pass "
+                "trench=TrenchPlacement(...) or geometry='open'"
+            )
+        found = otsu_cells(image, microscope, geometry="trench", depth_um=depth_um)[2]
+    if geometry == "open":
+        found = None
+    if masks is not None:
+        masks = np.asarray(masks)
+        if masks.shape != image.shape:
+            raise ValueError(f"masks of shape {masks.shape} do not match the image {image.shape}")
+        if masks.dtype == bool or masks.max() <= 1:
+            instances = ndimage.label(masks > 0)[0]
+        else:
+            instances = masks.astype(np.int64)
+        # an instance mask keeps its cells as they are: no rods split off long regions
+        cells, widths = cells_from_instances(instances, px, max_cell_length_um=math.inf)
+        return cells, widths, found, instances
+    instances = ndimage.label(labels == 1)[0]
+    work = np.asarray(image, float) * (1.0 if polarity == "dark" else -1.0)
+    instances = _split_at_septa(instances, work, np.ones(image.shape, bool), px)
+    cells, widths = cells_from_instances(instances, px, max_cell_length_um)
+    return cells, widths, found, instances

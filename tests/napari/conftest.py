@@ -1,0 +1,19 @@
+"""Widget tests need a real X server (Xvfb): without one, vispy gets no OpenGL context
+and adding the first layer fails deep inside ``glGetParameter``. Fail early and say so."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _x_display(xvfb):
+    """The X display the Qt canvas draws on (started by pytest-xvfb)."""
+    if xvfb is None and not os.environ.get("DISPLAY"):
+        pytest.fail(
+            "no X display for the napari canvas: install Xvfb "
+            "(apt-get install xvfb; pytest-xvfb then starts it) or run under xvfb-run"
+        )
+    return os.environ["DISPLAY"]

@@ -1,0 +1,420 @@
+"""The bad-input corpus (issue 13): every case a clear error naming the problem and the fix.
+
+Each case is run as a user would (the ``napari-symbac`` command through ``main``, or the
+Python API) and checked for: the message, a non-zero exit code, no traceback, and nothing
+half-written. ``docs/export.md`` ("Bad input and faults") lists the same cases as a table.
+Faults of the machine (a full disk) are injected with ``monkeypatch``; everything else is
+real input.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tifffile
+
+from napari_symbac.cli import LARGE_RUN_FRAMES, main
+from napari_symbac.export import ExportSettings, series_items, write_items
+from napari_symbac.settings import (
+    PipelineSettings,
+    SimulationSettings,
+    TrenchGeometry,
+    save_settings,
+)
+
+TINY = PipelineSettings(simulation=SimulationSettings(n_frames=3))
+
+
+def _run(argv: list[str], capsys) -> tuple[int, str]:
+    """Exit code and stderr of ``napari-symbac ARGV``; argparse errors count as exits."""
+    try:
+        code = main(argv)
+    except SystemExit as exit_info:
+        code = exit_info.code
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return code, err
+
+
+def _files(folder: Path) -> list[str]:
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*")) if folder.exists() else []
+
+
+@pytest.fixture
+def export_config(tmp_path) -> Path:
+    path = tmp_path / "export.yaml"
+    save_settings(ExportSettings(n_items=2, formats=["tiff"], pipeline=TINY, val_fraction=0), path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def saved_simulation(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("sim") / "simulation"
+    assert main(["simulate", "--frames", "3", "--out", str(out)]) == 0
+    return out
+
+
+def _enospc(*_args, **_kwargs):
+    raise OSError(errno.ENOSPC, "No space left on device")
+
+
+# --------------------------------------------------------------------------------------
+# export
+# --------------------------------------------------------------------------------------
+
+
+def test_export_to_folder_of_another_export(tmp_path, export_config, capsys):
+    out = tmp_path / "dataset"
+    image = np.full((1, 8, 8), 100, np.uint16)
+    write_items(series_items(image, np.zeros((1, 8, 8), np.uint32)), out, ["tiff"])
+    before = _files(out)
+    code, err = _run(["export", "--config", str(export_config), "--out", str(out)], capsys)
+    assert code == 2
+    assert "already holds an export made with different settings" in err
+    assert "export to a new folder" in err
+    assert _files(out) == before
+
+
+def test_export_out_is_a_file(tmp_path, export_config, capsys):
+    out = tmp_path / "dataset.tif"
+    out.write_bytes(b"not a folder")
+    code, err = _run(["export", "--config", str(export_config), "--out", str(out)], capsys)
+    assert code == 2
+    assert "is a file, not a folder" in err
+    assert "run the same export again" not in err  # the old, wrong advice
+    assert out.read_bytes() == b"not a folder"
+
+
+@pytest.mark.parametrize("workers", ["0", "-1", "two"])
+def test_export_workers_below_one(tmp_path, export_config, workers, capsys):
+    out = tmp_path / "dataset"
+    code, err = _run(
+        ["export", "--config", str(export_config), "--out", str(out), "--workers", workers],
+        capsys,
+    )
+    assert code == 2
+    assert "--workers" in err
+    assert ">= 1" in err or "at least 1" in err
+    assert not out.exists()
+
+
+def test_export_workers_capped_to_cores(tmp_path, export_config, monkeypatch, capsys):
+    monkeypatch.setattr(os, "cpu_count", lambda: 1)
+    out = tmp_path / "dataset"
+    code = main(
+        ["export", "--config", str(export_config), "--out", str(out), "--workers", "1000"]
+    )
+    captured = capsys.readouterr()
+    assert code == 0
+    assert "--workers 1000 capped to 1" in captured.err
+    assert "with 1 worker(s)" in captured.out
+
+
+@pytest.mark.parametrize("workers", [0, -1, 2.5, True])
+def test_api_workers_below_one(tmp_path, workers):
+    from napari_symbac.export import export_dataset
+
+    settings = ExportSettings(n_items=1, formats=["tiff"], pipeline=TINY)
+    with pytest.raises(ValueError, match=r"workers must be an integer >= 1"):
+        export_dataset(settings, tmp_path / "dataset", workers=workers)
+    assert not (tmp_path / "dataset").exists()
+
+
+def test_export_scheduler_that_does_not_answer(tmp_path, export_config, monkeypatch, capsys):
+    from napari_symbac.export import runner
+
+    monkeypatch.setattr(runner, "SCHEDULER_TIMEOUT_S", 2.0)
+    out = tmp_path / "dataset"
+    start = time.monotonic()
+    code, err = _run(
+        [
+            "export",
+            "--config",
+            str(export_config),
+            "--out",
+            str(out),
+            "--scheduler",
+            "tcp://127.0.0.1:9",  # the discard port: nothing listens
+        ],
+        capsys,
+    )
+    assert code == 2
+    assert "no dask scheduler answered at tcp://127.0.0.1:9 within 2 s" in err
+    assert "nothing was written" in err
+    assert not out.exists()
+    assert time.monotonic() - start < 60  # not the 30 s default per attempt, retried
+
+
+def test_export_disk_full_names_path(tmp_path, export_config, monkeypatch, capsys):
+    monkeypatch.setattr(tifffile, "imwrite", _enospc)
+    out = tmp_path / "dataset"
+    code, err = _run(
+        ["export", "--config", str(export_config), "--out", str(out), "--workers", "1"], capsys
+    )
+    assert code == 2
+    assert "disk is full" in err
+    assert str(out / "tiff") in err
+    assert not list(out.rglob("*.tif"))
+
+
+def test_export_huge_run_asks_for_yes(tmp_path, capsys):
+    config = tmp_path / "export.yaml"
+    save_settings(ExportSettings(n_items=LARGE_RUN_FRAMES + 1, formats=["tiff"]), config)
+    out = tmp_path / "dataset"
+    code, err = _run(["export", "--config", str(config), "--out", str(out)], capsys)
+    assert code == 2
+    assert "add --yes to start it anyway" in err
+    assert not out.exists()
+
+
+@pytest.mark.slow
+def test_ctrl_c_during_multi_worker_export(tmp_path):
+    """Ctrl-C (SIGINT to the whole process group, as a terminal sends it): one line, 130."""
+    config = tmp_path / "export.yaml"
+    save_settings(
+        ExportSettings(n_items=600, formats=["tiff"], pipeline=TINY, val_fraction=0), config
+    )
+    out = tmp_path / "dataset"
+    command = [sys.executable, "-m", "napari_symbac.cli", "export", "--config", str(config)]
+    process = subprocess.Popen(
+        [*command, "--out", str(out), "--workers", "2"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    items = out / "manifest_items"
+    try:
+        while not (items.is_dir() and len(os.listdir(items)) >= 4):
+            assert process.poll() is None, process.communicate()
+            time.sleep(0.05)
+        os.killpg(process.pid, signal.SIGINT)
+        _stdout, stderr = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+    assert process.returncode == 130, stderr
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    assert lines == [
+        "napari-symbac export: interrupted; finished files are kept (an export resumes "
+        "when run again)"
+    ]
+    done = len(os.listdir(items))
+    assert 4 <= done < 600
+    resumed = subprocess.run(
+        [*command, "--out", str(out), "--workers", "1"], capture_output=True, text=True
+    )
+    assert resumed.returncode == 0, resumed.stderr
+    assert "complete; 600 items" in resumed.stdout
+    assert f"{600 - done} written, {done} already there" in resumed.stdout
+
+
+# --------------------------------------------------------------------------------------
+# render, demo, simulate
+# --------------------------------------------------------------------------------------
+
+
+def test_render_disk_full_leaves_no_partial_file(
+    tmp_path, saved_simulation, monkeypatch, capsys
+):
+    monkeypatch.setattr(tifffile, "imwrite", _enospc)
+    out = tmp_path / "rendered"
+    code, err = _run(["render", str(saved_simulation), "--out", str(out)], capsys)
+    assert code == 2
+    assert "disk is full" in err
+    assert str(out / "images.tif") in err
+    assert _files(out) == []
+
+
+def test_render_out_is_a_file(tmp_path, saved_simulation, capsys):
+    out = tmp_path / "rendered"
+    out.write_text("x")
+    code, err = _run(["render", str(saved_simulation), "--out", str(out)], capsys)
+    assert code == 2
+    assert "--out" in err
+    assert "is a file, not a folder" in err
+
+
+def test_demo_disk_full_leaves_no_folder(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(tifffile, "imwrite", _enospc)
+    out = tmp_path / "demo"
+    code, err = _run(["demo", "--out", str(out), "--frames", "2"], capsys)
+    assert code == 2
+    assert "disk is full" in err
+    assert "dataset" in err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("command", ["demo", "simulate"])
+def test_frames_below_one(tmp_path, command, capsys):
+    code, err = _run([command, "--out", str(tmp_path / "x"), "--frames", "0"], capsys)
+    assert code == 2
+    assert "--frames: must be at least 1, got 0" in err
+
+
+def test_simulate_huge_run_asks_for_yes(tmp_path, capsys):
+    out = tmp_path / "simulation"
+    code, err = _run(["simulate", "--frames", "10000000", "--out", str(out)], capsys)
+    assert code == 2
+    assert "10,000,000" in err
+    assert "add --yes" in err
+    assert not out.exists()
+
+
+def test_simulate_huge_config_asks_for_yes(tmp_path, capsys):
+    config = tmp_path / "simulation.yaml"
+    config.write_text("n_frames: 10000000\n")
+    code, err = _run(["simulate", "--config", str(config), "--out", str(tmp_path / "s")], capsys)
+    assert code == 2
+    assert "add --yes" in err
+
+
+@pytest.mark.parametrize("text", ["", "\n", "# only a comment\n"])
+def test_empty_config_is_an_error(tmp_path, text, capsys):
+    config = tmp_path / "simulation.yaml"
+    config.write_text(text)
+    out = tmp_path / "simulation"
+    code, err = _run(["simulate", "--config", str(config), "--out", str(out)], capsys)
+    assert code == 2
+    assert f"settings file {config} is empty" in err
+    assert "napari-symbac defaults" in err
+    assert not out.exists()
+
+
+def test_missing_config_names_file(tmp_path, capsys):
+    config = tmp_path / "nope.yaml"
+    code, err = _run(["export", "--config", str(config), "--out", str(tmp_path / "d")], capsys)
+    assert code == 2
+    assert f"settings file {config} does not exist" in err
+
+
+def test_config_with_wrong_type_for_nested_settings(tmp_path, capsys):
+    config = tmp_path / "simulation.yaml"
+    config.write_text("trench: 5\n")
+    code, err = _run(["simulate", "--config", str(config), "--out", str(tmp_path / "s")], capsys)
+    assert code == 2
+    assert "SimulationSettings.trench must be a mapping of TrenchGeometry fields, got 5" in err
+
+
+# --------------------------------------------------------------------------------------
+# Files
+# --------------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def truncated_tiff(tmp_path) -> Path:
+    path = tmp_path / "movie.tif"
+    tifffile.imwrite(path, np.zeros((4, 32, 32), np.uint16), imagej=True)
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    return path
+
+
+def test_truncated_tiff_names_the_file(truncated_tiff):
+    from napari_symbac.io import read_recording
+
+    with pytest.raises(ValueError, match="is truncated") as info:
+        read_recording(truncated_tiff)
+    assert str(truncated_tiff) in str(info.value)
+    assert "copy or download it again" in str(info.value)
+
+
+def test_truncated_tiff_through_the_reader(truncated_tiff):
+    from napari_symbac.io import napari_get_reader
+
+    reader = napari_get_reader(str(truncated_tiff))
+    with pytest.raises(ValueError, match=str(truncated_tiff).replace("\\", "\\\\")):
+        reader(str(truncated_tiff))
+
+
+def test_not_a_tiff_names_the_file(tmp_path):
+    from napari_symbac.io import read_recording
+
+    path = tmp_path / "notes.tif"
+    path.write_text("hello")
+    with pytest.raises(ValueError, match="is not a readable TIFF") as info:
+        read_recording(path)
+    assert str(path) in str(info.value)
+
+
+# --------------------------------------------------------------------------------------
+# API types
+# --------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (
+            lambda: SimulationSettings(trench={"width_um": 2.0}),
+            r"SimulationSettings\.trench must be a TrenchGeometry, got dict",
+        ),
+        (
+            lambda: PipelineSettings(simulation={"n_frames": 5}),
+            r"PipelineSettings\.simulation must be a SimulationSettings",
+        ),
+        (
+            lambda: ExportSettings(pipeline={"simulation": {}}),
+            r"ExportSettings\.pipeline must be a PipelineSettings",
+        ),
+    ],
+)
+def test_nested_settings_given_as_mappings(make, message):
+    with pytest.raises(TypeError, match=message) as info:
+        make()
+    assert "from_dict" in str(info.value)
+
+
+def test_nested_settings_from_dict_still_work():
+    from napari_symbac.settings import from_dict
+
+    settings = from_dict(SimulationSettings, {"trench": {"width_um": 2.0}})
+    assert settings.trench == TrenchGeometry(width_um=2.0)
+
+
+def test_simulate_with_an_int_rng():
+    from napari_symbac.sim import simulate
+
+    with pytest.raises(TypeError, match=r"numpy\.random\.Generator, got int 5") as info:
+        simulate(SimulationSettings(n_frames=2), rng=5)
+    assert "default_rng(5)" in str(info.value)
+
+
+def test_simulate_with_settings_of_the_wrong_type():
+    from napari_symbac.sim import simulate
+
+    with pytest.raises(TypeError, match="simulate\\(\\) needs SimulationSettings, got dict"):
+        simulate({"n_frames": 2})
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        ((None, PipelineSettings()), "render needs a Simulation, got NoneType"),
+        (("sim", PipelineSettings()), "render needs a Simulation, got str"),
+    ],
+)
+def test_render_simulation_with_wrong_types(args, message):
+    from napari_symbac.pipeline import render_simulation
+
+    with pytest.raises(TypeError, match=message):
+        render_simulation(*args)
+
+
+def test_render_simulation_with_wrong_settings_and_rng():
+    from napari_symbac.pipeline import render_simulation
+    from napari_symbac.sim import simulate
+
+    simulation = simulate(SimulationSettings(n_frames=1))
+    with pytest.raises(TypeError, match="render needs PipelineSettings, got dict"):
+        render_simulation(simulation, {})
+    with pytest.raises(TypeError, match=r"rng must be a numpy\.random\.Generator, got int"):
+        render_simulation(simulation, PipelineSettings(), rng=3)
