@@ -208,6 +208,27 @@ def _model_free_gain(frame: np.ndarray, fitted) -> tuple[str, str | None]:
     return text, None
 
 
+def _cell_problems(result, shape: tuple[int, int], pixel_um: float, masks) -> list[str]:
+    """Cells outside the image, and a count that differs from the masks given."""
+    problems = []
+    cells = result.cells
+    height_um, width_um = shape[0] * pixel_um, shape[1] * pixel_um
+    for cell_id, x, y in zip(cells.ids, cells.x_um, cells.y_um, strict=True):
+        if not (0 <= x <= width_um and 0 <= y <= height_um):
+            problems.append(
+                f"cell {int(cell_id)} has its centre outside the image (x {x:.2f} um, "
+                f"y {y:.2f} um; the image is {width_um:.2f} x {height_um:.2f} um)"
+            )
+    if masks is not None:
+        n_masks = int(np.count_nonzero(np.unique(masks)))
+        if len(cells) != n_masks:
+            problems.append(
+                f"the fit ended with {len(cells)} cells from the {n_masks} of --masks (its "
+                "moves added or removed cells): check the figure"
+            )
+    return problems
+
+
 def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, keys, stages, timer):
     """Check, fit and prepare the outputs of one frame: returns (writers, result)."""
     import tifffile
@@ -318,7 +339,7 @@ def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, ke
         "camera used": camera_text(camera_used),
         "censored pixels": censor_note,
     }
-    problems = []
+    problems = _cell_problems(result, frame.shape, microscope.pixel_size_um, masks)
     if camera is None:  # the engine estimated it from its residual: check it model-free
         check, problem = _model_free_gain(frame, camera_used)
         facts["camera (model-free)"] = check

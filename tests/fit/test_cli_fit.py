@@ -211,7 +211,16 @@ def test_real_colicoords_fluorescence_field_with_masks(tmp_path, real_data_dir):
         "fluorescence"
     )
     n_masks = ndimage.label(masks > 0)[1]
-    assert len(json.loads((out / "cells.json").read_text())["cells"]) == n_masks
+    cells = json.loads((out / "cells.json").read_text())["cells"]
+    # every mask holds the centre of a fitted cell
+    rows = [round(c["y_um"] / 0.08) for c in cells]
+    cols = [round(c["x_um"] / 0.08) for c in cells]
+    inside = {int(masks[r, c]) for r, c in zip(rows, cols, strict=True)
+              if 0 <= r < masks.shape[0] and 0 <= c < masks.shape[1]}  # fmt: skip
+    assert set(np.unique(masks[masks > 0]).tolist()) <= inside
+    # a count that differs from the masks' is said plainly in report.txt
+    if len(cells) != n_masks:
+        assert f"the fit ended with {len(cells)} cells from the {n_masks} of --masks" in report
     # a field fit re-renders as an agar pad with the fitted cell width
     simulation = load_settings(out / "settings.yaml", PipelineSettings).simulation
     assert simulation.geometry == "agar_pad"
