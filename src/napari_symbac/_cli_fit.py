@@ -217,7 +217,8 @@ def _cell_problems(result, shape: tuple[int, int], pixel_um: float, masks) -> li
         if not (0 <= x <= width_um and 0 <= y <= height_um):
             problems.append(
                 f"cell {int(cell_id)} has its centre outside the image (x {x:.2f} um, "
-                f"y {y:.2f} um; the image is {width_um:.2f} x {height_um:.2f} um)"
+                f"y {y:.2f} um; the image is {width_um:.2f} x {height_um:.2f} um): a cell "
+                "cut by the edge, or a spurious one; check the figure"
             )
     if masks is not None:
         n_masks = int(np.count_nonzero(np.unique(masks)))
