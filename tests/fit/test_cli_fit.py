@@ -171,6 +171,7 @@ def test_frames_of_a_series_are_fitted_each_into_its_folder(tmp_path, truth, inp
     assert "frame 1: fitted" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_real_trench_with_config_closed_end_round(tmp_path, real_data_dir):
     """The SyMBac trench: `closed_end: round` of the config reaches the fit."""
     config = tmp_path / "config.yaml"
@@ -190,6 +191,7 @@ def test_real_trench_with_config_closed_end_round(tmp_path, real_data_dir):
     assert table["trench"]["closed_end"] == "round"
 
 
+@pytest.mark.slow
 def test_real_colicoords_fluorescence_field_with_masks(tmp_path, real_data_dir):
     """A crop of ColiCoords ds1 field 1 (4 whole cells), background-subtracted."""
     root = real_data_dir / "colicoords" / "test_data" / "ds1"
