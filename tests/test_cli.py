@@ -121,3 +121,24 @@ def test_defaults_round_trip(tmp_path):
     path = tmp_path / "pipeline.yaml"
     assert main(["defaults", "pipeline", "--out", str(path)]) == 0
     assert load_settings(path, PipelineSettings) == PipelineSettings()
+
+
+def test_fit_refusal_from_the_shell_is_a_message_not_a_traceback(tmp_path):
+    """The console script as a user pipes it: message, exit 2, nothing written."""
+    image = tmp_path / "negative.tif"
+    tifffile.imwrite(image, np.full((32, 32), -5.0, np.float32))
+    microscope = tmp_path / "microscope.yaml"
+    microscope.write_text("pixel_size_um: 0.065\n")
+    out = tmp_path / "out"
+    command = [Path(sys.executable).with_name("napari-symbac"), "fit", str(image)]
+    command += ["--microscope", str(microscope), "--out", str(out)]
+    result = subprocess.run(
+        command,
+        capture_output=True,
+        text=True,
+    )
+    assert result.returncode == 2
+    assert "napari-symbac fit: loading inputs" in result.stderr  # one line per stage, piped
+    assert "has negative values" in result.stderr
+    assert "Traceback" not in result.stderr
+    assert not out.exists()

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy import ndimage
 
 from napari_symbac._timing import StepTimer
 
@@ -63,6 +64,30 @@ def _explicit_keys(config: str | None) -> dict[str, Any]:
 
     data = yaml.safe_load(Path(config).read_text(encoding="utf-8")) or {}
     return data if isinstance(data, dict) else {}
+
+
+def _config_note(config: str | None, keys: dict[str, Any], geometry: str) -> str:
+    """Which parts of --config the fit used, and which it could not."""
+    if config is None:
+        return "none (built-in defaults for the starting render settings)"
+    used = ["render settings as the start" if "render" in keys else "default render start"]
+    if "camera" in keys:
+        used.append("camera")
+    if geometry == "trench":
+        used.append("trench closed end")
+    ignored = []
+    if "microscope" in keys:
+        ignored.append("its microscope (--microscope wins)")
+    simulation = keys.get("simulation") or {}
+    if set(simulation) - {"trench", "geometry"} or set(simulation.get("trench") or {}) - {
+        "closed_end"
+    }:
+        ignored.append(
+            "its other simulation settings in the fit (the fit finds trench and cells; the "
+            "rest is kept in settings.yaml)"
+        )
+    note = f"{config}: used {', '.join(used)}"
+    return note + (f"; not used: {'; '.join(ignored)}" if ignored else "")
 
 
 def _read_stack(path: str, what: str) -> np.ndarray:
@@ -169,6 +194,10 @@ def _model_free_gain(frame: np.ndarray, fitted) -> tuple[str, str | None]:
         return f"not available ({err})", None
     free, fit = estimate.camera.sensitivity_adu_per_e, fitted.sensitivity_adu_per_e
     text = f"sensitivity {free:.3g} +- {estimate.sensitivity_se_adu_per_e:.2g} ADU/e-"
+    correlation = estimate.neighbour_variance_ratio
+    if correlation > 1:  # correlated noise biases the model-free gain low by about this
+        text += f" (noise correlated between neighbours: up to {free * correlation:.3g})"
+        free *= correlation
     if fit > _GAIN_RATIO * free:
         return text, (
             f"the fit's camera gain ({fit:.3g} ADU/e-) is {fit / free:.1f}x the model-free "
@@ -177,6 +206,28 @@ def _model_free_gain(frame: np.ndarray, fitted) -> tuple[str, str | None]:
             "or --dark to fix the camera"
         )
     return text, None
+
+
+def _cell_problems(result, shape: tuple[int, int], pixel_um: float, masks) -> list[str]:
+    """Cells outside the image, and a count that differs from the masks given."""
+    problems = []
+    cells = result.cells
+    height_um, width_um = shape[0] * pixel_um, shape[1] * pixel_um
+    for cell_id, x, y in zip(cells.ids, cells.x_um, cells.y_um, strict=True):
+        if not (0 <= x <= width_um and 0 <= y <= height_um):
+            problems.append(
+                f"cell {int(cell_id)} has its centre outside the image (x {x:.2f} um, "
+                f"y {y:.2f} um; the image is {width_um:.2f} x {height_um:.2f} um): a cell "
+                "cut by the edge, or a spurious one; check the figure"
+            )
+    if masks is not None:
+        n_masks = int(np.count_nonzero(np.unique(masks)))
+        if len(cells) != n_masks:
+            problems.append(
+                f"the fit ended with {len(cells)} cells from the {n_masks} of --masks (its "
+                "moves added or removed cells): check the figure"
+            )
+    return problems
 
 
 def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, keys, stages, timer):
@@ -204,8 +255,12 @@ def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, ke
     check_fit_image(frame, name)
     if labels is not None:
         check_class_labels(labels, frame.shape, f"--labels {Path(args.labels).name}")
+    notes = []
     if masks is not None:
         check_instance_masks(masks, frame.shape, f"--masks {Path(args.masks).name}")
+        if set(np.unique(masks).tolist()) <= {0, 1}:  # a binary mask: one id per component
+            masks, n_cells = ndimage.label(masks > 0)
+            notes.append(f"--masks held only 0/1: its {n_cells} connected regions are the cells")
     polarity = check_modality(frame, microscope.modality, labels=labels, masks=masks)
 
     accepted = set(inspect.signature(fit_scene).parameters)
@@ -249,17 +304,19 @@ def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, ke
     settings = dataclasses.replace(
         base, microscope=microscope, render=result.render, camera=camera_used
     )
-    notes = []
-    if result.trench is not None:
-        try:
+    try:
+        simulation = base.simulation
+        if result.trench is not None:
             trench = result.trench_geometry(frame.shape[0], microscope.pixel_size_um)
-            width = float(np.median(result.cells.width_um)) if len(result.cells) else None
-            simulation = dataclasses.replace(base.simulation, trench=trench)
-            if width is not None:
-                simulation = dataclasses.replace(simulation, cell_width_um=width)
-            settings = dataclasses.replace(settings, simulation=simulation)
-        except ValueError as err:
-            notes.append(f"simulation settings kept from the config: {err}")
+            simulation = dataclasses.replace(simulation, trench=trench)
+        elif simulation.geometry in ("trench", "chamber"):  # a field fit renders as a pad
+            simulation = dataclasses.replace(simulation, geometry="agar_pad")
+        if len(result.cells):
+            width = float(np.median(result.cells.width_um))
+            simulation = dataclasses.replace(simulation, cell_width_um=width)
+        settings = dataclasses.replace(settings, simulation=simulation)
+    except ValueError as err:
+        notes.append(f"simulation settings kept from the config: {err}")
 
     table = {
         "cells": cells_records(result),
@@ -278,11 +335,12 @@ def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, ke
             "instance masks" if masks is not None else "automatic segmentation"
         ),
         "pixel size": pixel_note,
+        "config": _config_note(args.config, keys, geometry),
         "camera": camera_note,
         "camera used": camera_text(camera_used),
         "censored pixels": censor_note,
     }
-    problems = []
+    problems = _cell_problems(result, frame.shape, microscope.pixel_size_um, masks)
     if camera is None:  # the engine estimated it from its residual: check it model-free
         check, problem = _model_free_gain(frame, camera_used)
         facts["camera (model-free)"] = check

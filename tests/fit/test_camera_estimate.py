@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import tifffile
+from scipy import ndimage
 
 from napari_symbac.fit.camera_estimate import censored_pixels, estimate_camera
 from napari_symbac.optics import ForwardModel
@@ -142,6 +143,25 @@ def test_valid_mask_and_censoring_keep_clipped_pixels_out():
     assert masked.n_points < 0.6 * estimate.n_points
 
 
+def test_correlated_noise_is_detected_and_said():
+    """Noise shared between horizontal neighbours (as from interpolation) biases the
+    single-image gain low; the lag-2 / lag-1 variance ratio shows it."""
+    signal = _smooth_signal()
+    white = apply_camera_noise(signal, Camera(), np.random.default_rng(11)).astype(float)
+    noise = white - signal - 100.0
+    shared = ndimage.correlate1d(noise, [0.3, 1.0, 0.3], axis=1) / np.sqrt(1.18)
+    correlated = shared + signal + 100.0
+    clean = estimate_camera(white, camera=Camera())
+    assert abs(clean.neighbour_variance_ratio - 1) < 0.1
+    assert "not white" not in clean.summary()
+    biased = estimate_camera(correlated, camera=Camera())
+    assert biased.camera.sensitivity_adu_per_e < 0.5 * 2.9  # the bias the ratio warns of
+    assert biased.neighbour_variance_ratio > 2.0
+    assert "the noise is not white" in biased.summary()
+    model = estimate_camera(white, model_mean=signal + 100.0)
+    assert np.isnan(model.neighbour_variance_ratio)
+
+
 def test_same_input_same_estimate():
     image = apply_camera_noise(_smooth_signal(), Camera(), np.random.default_rng(6))
     assert estimate_camera(image) == estimate_camera(image)
@@ -191,6 +211,9 @@ def test_real_colicoords_ds3_fluorescence(real_data_dir):
     gain = estimate.camera.sensitivity_adu_per_e
     assert estimate.sensitivity_se_adu_per_e < 0.05 * gain
     assert estimate.n_bins >= 10
+    # its noise is correlated between neighbouring pixels (all ColiCoords fields are)
+    assert estimate.neighbour_variance_ratio > 1.1
+    assert "not white" in estimate.summary()
     # two halves of the series agree within their standard errors
     first, second = estimate_camera(stack[:2]), estimate_camera(stack[2:])
     difference = first.camera.sensitivity_adu_per_e - second.camera.sensitivity_adu_per_e

@@ -171,6 +171,7 @@ def test_frames_of_a_series_are_fitted_each_into_its_folder(tmp_path, truth, inp
     assert "frame 1: fitted" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_real_trench_with_config_closed_end_round(tmp_path, real_data_dir):
     """The SyMBac trench: `closed_end: round` of the config reaches the fit."""
     config = tmp_path / "config.yaml"
@@ -182,6 +183,7 @@ def test_real_trench_with_config_closed_end_round(tmp_path, real_data_dir):
                 "--max-iterations", 2) == 0  # fmt: skip
     report = (out / "report.txt").read_text()
     assert _fact(report, "geometry") == "trench (closed end: round)"
+    assert "used default render start, trench closed end" in _fact(report, "config")
     settings = load_settings(out / "settings.yaml", PipelineSettings)
     assert settings.simulation.trench.closed_end == "round"
     table = json.loads((out / "cells.json").read_text())
@@ -189,6 +191,7 @@ def test_real_trench_with_config_closed_end_round(tmp_path, real_data_dir):
     assert table["trench"]["closed_end"] == "round"
 
 
+@pytest.mark.slow
 def test_real_colicoords_fluorescence_field_with_masks(tmp_path, real_data_dir):
     """A crop of ColiCoords ds1 field 1 (4 whole cells), background-subtracted."""
     root = real_data_dir / "colicoords" / "test_data" / "ds1"
@@ -210,7 +213,30 @@ def test_real_colicoords_fluorescence_field_with_masks(tmp_path, real_data_dir):
         "fluorescence"
     )
     n_masks = ndimage.label(masks > 0)[1]
-    assert len(json.loads((out / "cells.json").read_text())["cells"]) == n_masks
+    cells = json.loads((out / "cells.json").read_text())["cells"]
+    # every mask holds the centre of a fitted cell
+    rows = [round(c["y_um"] / 0.08) for c in cells]
+    cols = [round(c["x_um"] / 0.08) for c in cells]
+    inside = {int(masks[r, c]) for r, c in zip(rows, cols, strict=True)
+              if 0 <= r < masks.shape[0] and 0 <= c < masks.shape[1]}  # fmt: skip
+    assert set(np.unique(masks[masks > 0]).tolist()) <= inside
+    # a count that differs from the masks' is said plainly in report.txt
+    if len(cells) != n_masks:
+        assert f"the fit ended with {len(cells)} cells from the {n_masks} of --masks" in report
+    # a field fit re-renders as an agar pad with the fitted cell width
+    simulation = load_settings(out / "settings.yaml", PipelineSettings).simulation
+    assert simulation.geometry == "agar_pad"
+    widths = [c["width_um"] for c in json.loads((out / "cells.json").read_text())["cells"]]
+    assert simulation.cell_width_um == pytest.approx(float(np.median(widths)))
+
+    # a binary mask (0/1) of the same cells: its connected regions are the cells
+    binary = tmp_path / "binary.tif"
+    tifffile.imwrite(binary, (masks > 0).astype(np.uint8))
+    out = tmp_path / "fit-binary"
+    assert _fit(image, "--microscope", microscope, "--modality", "fluorescence",
+                "--geometry", "field", "--masks", binary, "--out", out,
+                "--max-iterations", 3) == 0  # fmt: skip
+    assert f"its {n_masks} connected regions are the cells" in (out / "report.txt").read_text()
 
 
 # --------------------------------------------------------------------------------------
@@ -301,3 +327,25 @@ def test_labels_and_masks_together_are_a_usage_error(tmp_path, inputs):
         _fit(image, "--microscope", microscope, "--labels", labels, "--masks", labels,
              "--out", tmp_path / "o")  # fmt: skip
     assert exit_info.value.code == 2
+
+
+def test_progress_is_a_bar_on_a_terminal_and_lines_when_piped():
+    import io
+
+    from napari_symbac._cli_fit import _Stages
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    piped, terminal = io.StringIO(), Terminal()
+    for stream in (piped, terminal):
+        stages = _Stages(stream)
+        stages.stage("fitting frame 0")
+        update, close = stages.bar("fit frame 0")
+        update(3, 10)
+        close()
+    assert piped.getvalue() == "napari-symbac fit: fitting frame 0\n"
+    assert "fit frame 0" in terminal.getvalue()
+    assert "3/10" in terminal.getvalue()  # the tqdm bar
+    assert "napari-symbac fit: fitting" not in terminal.getvalue()

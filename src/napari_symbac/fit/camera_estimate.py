@@ -41,6 +41,11 @@ SPIKE_RATIO = 5.0
 #: is linear along rows or along columns, and ``sum(w**2) = 36`` makes ``z = (w * y) / 6``
 #: carry exactly the local pixel variance.
 _HIGH_PASS = np.outer([1.0, -2.0, 1.0], [1.0, -2.0, 1.0]) / 6.0
+#: The same second difference at a spacing of 2 pixels: blind to correlation between
+#: neighbouring pixels, so the ratio of the two variances tests that the noise is white.
+_HIGH_PASS_LAG2 = np.outer([1.0, 0.0, -2.0, 0.0, 1.0], [1.0, 0.0, -2.0, 0.0, 1.0]) / 6.0
+#: Ratio of lag-2 to lag-1 high-pass variance beyond which the summary warns.
+_WHITE_TOLERANCE = 0.1
 #: Truncation of the robust variance (in robust standard deviations).
 _CLIP_SD = 4.0
 #: Variance of a standard normal truncated to +-4 (corrects the clipped mean square).
@@ -145,6 +150,12 @@ class CameraEstimate:
         Pixels used in the photon-transfer fit.
     n_bins
         Mean-level bins the line was fitted through (after dropping outlier bins).
+    neighbour_variance_ratio
+        High-pass method only (``nan`` otherwise): median over the bins of the variance
+        seen by a second difference at a spacing of 2 pixels over that at 1 pixel. 1 for
+        white noise; above 1 when neighbouring pixels' noise is positively correlated
+        (interpolation, binning, read-out coupling), which biases the single-image gain
+        low by about this factor.
     """
 
     camera: Camera
@@ -156,16 +167,24 @@ class CameraEstimate:
     offset_source: Literal["dark frames", "camera settings", "darkest region of the image"]
     n_points: int
     n_bins: int
+    neighbour_variance_ratio: float = math.nan
 
     def summary(self) -> str:
         """One line for a report."""
         cam = self.camera
-        return (
+        text = (
             f"camera ({self.method}, {self.n_points} px): sensitivity "
             f"{cam.sensitivity_adu_per_e:.3g} +- {self.sensitivity_se_adu_per_e:.2g} ADU/e-, "
             f"baseline {cam.baseline_adu:.1f} ADU ({self.offset_source}), dark noise "
             f"{cam.dark_noise_e:.3g} +- {self.dark_noise_se_e:.2g} e-"
         )
+        if abs(self.neighbour_variance_ratio - 1) > _WHITE_TOLERANCE:
+            text += (
+                f"; the noise is not white (lag-2 / lag-1 variance "
+                f"{self.neighbour_variance_ratio:.2f}), so this gain is biased by about that "
+                "factor: prefer dark frames or the fit's model residual"
+            )
+        return text
 
 
 def _robust_variance(values: np.ndarray) -> float:
@@ -226,7 +245,7 @@ def _line_fit(
 
 def _high_pass_points(
     stack: np.ndarray, usable: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per-pixel mean level and high-pass residual of every frame (no model).
 
     ``z = (w * y) / 6`` has the local pixel variance and zero mean wherever the
@@ -234,16 +253,41 @@ def _high_pass_points(
     for homoscedastic noise because ``sum(w) = 0``. Pixels whose 3 x 3 neighbourhood
     touches a censored or invalid pixel, or the border, are left out; edges are outliers
     that the robust variance drops.
+
+    Returns
+    -------
+    level, z
+        For every usable pixel.
+    wide, z_lag2
+        A boolean selecting, from those pixels, the ones whose 5 x 5 neighbourhood is
+        usable too, and there the same residual at a spacing of 2 pixels (the white-noise
+        test of ``neighbour_variance_ratio``).
     """
-    levels, residuals = [], []
-    footprint = np.ones((3, 3), bool)
+    levels, residuals, wides, residuals_lag2 = [], [], [], []
     for frame, ok in zip(stack, usable, strict=True):
-        ok = ndimage.binary_erosion(ok, footprint, border_value=0)
-        z = ndimage.correlate(frame, _HIGH_PASS, mode="reflect")
-        level = ndimage.uniform_filter(frame, 3, mode="reflect")
-        levels.append(level[ok])
-        residuals.append(z[ok])
-    return np.concatenate(levels), np.concatenate(residuals)
+        ok3 = ndimage.binary_erosion(ok, np.ones((3, 3), bool), border_value=0)
+        ok5 = ndimage.binary_erosion(ok, np.ones((5, 5), bool), border_value=0)
+        levels.append(ndimage.uniform_filter(frame, 3, mode="reflect")[ok3])
+        residuals.append(ndimage.correlate(frame, _HIGH_PASS, mode="reflect")[ok3])
+        wides.append(ok5[ok3])
+        residuals_lag2.append(ndimage.correlate(frame, _HIGH_PASS_LAG2, mode="reflect")[ok5])
+    return (
+        np.concatenate(levels),
+        np.concatenate(residuals),
+        np.concatenate(wides),
+        np.concatenate(residuals_lag2),
+    )
+
+
+def _white_noise_ratio(
+    level: np.ndarray, z: np.ndarray, z_lag2: np.ndarray, n_bins: int, min_per_bin: int
+) -> float:
+    """Median over level bins of the lag-2 over the lag-1 high-pass variance."""
+    if level.size < 3 * min_per_bin:
+        return math.nan
+    lag1 = _binned_variances(level, z, n_bins, min_per_bin)[1]
+    lag2 = _binned_variances(level, z_lag2, n_bins, min_per_bin)[1]
+    return float(np.median(lag2 / np.maximum(lag1, 1e-300)))
 
 
 def estimate_camera(
@@ -325,9 +369,11 @@ def estimate_camera(
         if not np.all(np.isfinite(mu)):
             raise ValueError("model_mean contains NaN or infinite values")
         level, deviation = mu[usable], (stack - mu)[usable]
+        ratio = math.nan
         method = "model residual"
     else:
-        level, deviation = _high_pass_points(stack, usable)
+        level, deviation, wide, deviation_lag2 = _high_pass_points(stack, usable)
+        ratio = _white_noise_ratio(level[wide], deviation[wide], deviation_lag2, n_bins, 200)
         method = "high-pass"
     min_per_bin = 200
     if level.size < 3 * min_per_bin:
@@ -399,4 +445,5 @@ def estimate_camera(
         offset_source=source,
         n_points=int(level.size),
         n_bins=int(kept.sum()),
+        neighbour_variance_ratio=ratio,
     )

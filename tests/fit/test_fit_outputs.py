@@ -1,0 +1,150 @@
+"""Pieces of the fit command: input checks, the figure, the report, atomic writing."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import tifffile
+
+from napari_symbac.fit.figure import before_after_figure, panel_scale
+from napari_symbac.fit.preflight import (
+    check_class_labels,
+    check_fit_image,
+    check_instance_masks,
+    check_modality,
+    image_polarity,
+    resolve_pixel_size,
+)
+from napari_symbac.fit.report import cells_records, fit_problems, report_text, write_atomically
+from napari_symbac.settings import Microscope
+
+
+def test_polarity_of_real_images(real_data_dir):
+    root = real_data_dir / "colicoords" / "test_data" / "ds1"
+    fluorescence = tifffile.imread(root / "fluorescence" / "00001.tif")
+    brightfield = tifffile.imread(root / "brightfield" / "00001.tif")
+    trench = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")
+    assert image_polarity(fluorescence) == "bright cells"
+    assert image_polarity(brightfield) == "dark cells"
+    assert image_polarity(trench) == "unclear"  # phase: dark cells with bright halos
+    assert check_modality(trench, "phase") == "unclear"
+    with pytest.raises(ValueError, match="--modality fluorescence"):
+        check_modality(fluorescence, "phase")
+    with pytest.raises(ValueError, match="--modality phase"):
+        check_modality(brightfield, "fluorescence")
+
+
+def test_labels_settle_the_polarity():
+    rng = np.random.default_rng(0)
+    image = rng.normal(1000, 10, (40, 40))
+    labels = np.full((40, 40), 2, np.uint8)
+    labels[10:20, 10:30] = 1
+    image[labels == 1] += 300  # bright cells
+    assert check_modality(image, "fluorescence", labels=labels) == "bright cells"
+    with pytest.raises(ValueError, match="painted cells \\(1\\) are brighter than the media"):
+        check_modality(image, "phase", labels=labels)
+
+
+def test_input_checks_name_the_problem():
+    with pytest.raises(ValueError, match="negative values"):
+        check_fit_image(np.array([[-1.0, 2.0]]))
+    labels = np.ones((4, 4), np.uint8)
+    with pytest.raises(ValueError, match="no media class"):
+        check_class_labels(labels, (4, 4))
+    with pytest.raises(ValueError, match="classes \\[7\\]"):
+        check_class_labels(np.full((4, 4), 7, np.uint8), (4, 4))
+    with pytest.raises(ValueError, match="has shape \\(4, 4\\)"):
+        check_class_labels(labels, (5, 4))
+    with pytest.raises(ValueError, match="no cell"):
+        check_instance_masks(np.zeros((4, 4), np.uint16), (4, 4))
+    with pytest.raises(ValueError, match="no background"):
+        check_instance_masks(np.ones((4, 4), np.uint16), (4, 4))
+
+
+def test_pixel_size_from_the_tiff_wins():
+    microscope = Microscope(pixel_size_um=0.065)
+    same, note = resolve_pixel_size(0.0651, microscope)
+    assert same is microscope
+    assert "agree" in note
+    used, note = resolve_pixel_size(0.08, microscope)
+    assert used.pixel_size_um == 0.08
+    assert "disagrees" in note
+    kept, note = resolve_pixel_size(None, microscope)
+    assert kept is microscope
+    assert "records none" in note
+
+
+def test_figure_is_upscaled_titled_and_has_a_colour_bar():
+    rng = np.random.default_rng(1)
+    real = rng.normal(1000, 30, (60, 20))
+    residual = np.zeros_like(real)
+    residual[:5] = 100.0  # a red stripe
+    figure = before_after_figure(real, real, residual, start=real)
+    scale = panel_scale(real.shape)
+    assert scale == 10
+    assert figure.dtype == np.uint8
+    assert figure.shape[0] > 60 * scale  # panels plus a title row
+    # four tall panels side by side, then the colour bar
+    assert figure.shape[1] > 4 * 20 * scale
+    bar = figure[28 : 28 + 60 * scale, 4 * (20 * scale + 8) + 5]  # below the title row
+    assert bar[0, 0] > bar[0, 2]  # red (positive) at the top
+    assert bar[-1, 2] > bar[-1, 0]  # blue at the bottom
+    assert (figure < 100).all(axis=-1)[:28].any()  # dark title text
+    wide = before_after_figure(rng.normal(size=(20, 60)), np.zeros((20, 60)), np.zeros((20, 60)))
+    assert wide.shape[0] > wide.shape[1] / 3  # wide fields in two columns
+
+
+def _result(**extra):
+    cells = {
+        "ids": [1, 2],
+        "x_um": [1.0, 2.0],
+        "length_um": [2.5, 3.0],
+        "x_um_se": [0.01, math.nan],
+    }
+    base = {
+        "cells": [0, 1],
+        "cells_table": lambda: cells,
+        "objective_before": 3.0,
+        "objective_after": 1.1,
+        "terms": {"pixel": (3.0, 1.1)},
+    }
+    return SimpleNamespace(**{**base, **extra})
+
+
+def test_cells_records_and_report_say_what_went_wrong():
+    result = _result(
+        warnings=("round 2 stopped at the iteration limit",), at_bounds=("cell2.angle_rad",)
+    )
+    records = cells_records(result)
+    assert records[1] == {"id": 2, "x_um": 2.0, "length_um": 3.0, "x_um_se": None}
+    problems = fit_problems(result)
+    assert any("iteration limit" in p for p in problems)
+    assert any("at a bound" in p and "cell2.angle_rad" in p for p in problems)
+    text = report_text(result, {"image": "x.tif"})
+    assert "cells fitted: 2" in text
+    assert "- warning: round 2" in text
+    worse = _result(objective_after=4.0, warnings=(), at_bounds=())
+    assert any("worse than its start" in p for p in fit_problems(worse))
+    assert any("misses structure" in p for p in fit_problems(worse))
+    clean = report_text(_result(warnings=(), at_bounds=()), {})
+    assert "none: converged, nothing at a bound" in clean
+    assert "no convergence diagnostics" in report_text(_result(), {})
+
+
+def test_atomic_write_leaves_nothing_on_failure(tmp_path):
+    out = tmp_path / "out"
+
+    def fail(path):
+        raise OSError("disk full")
+
+    with pytest.raises(OSError, match="disk full"):
+        write_atomically(out, {"a.txt": lambda p: p.write_text("a"), "b.txt": fail})
+    assert not out.exists()
+    assert list(tmp_path.iterdir()) == []
+    writers = {"a.txt": lambda p: p.write_text("a"), "d/b.txt": lambda p: p.write_text("b")}
+    written = write_atomically(out, writers)
+    assert sorted(p.relative_to(out).as_posix() for p in written) == ["a.txt", "d/b.txt"]
+    assert (out / "d" / "b.txt").read_text() == "b"
