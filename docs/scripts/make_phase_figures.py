@@ -10,7 +10,11 @@ Writes
   residual, one row per image;
 * ``docs/images/phase_profiles.png``: mean intensity against the signed distance to
   the cells' outline and to the colony's outline, real vs both fits;
-* ``docs/images/phase_fit_numbers.json``: class medians, fitted values, timings.
+* ``docs/images/phase_fit_numbers.json``: class medians, fitted values, timings;
+* ``docs/images/phase_agar_pad.png`` (``python docs/scripts/make_phase_figures.py pad``,
+  after the fits): simulated agar-pad colonies (three colonies, scattered cells) rendered
+  with the optics fitted to Sample000193, beside that real colony, and their class
+  medians (``phase_agar_pad_numbers.json``).
 
 Run from the repository root: ``python docs/scripts/make_phase_figures.py`` (a few
 minutes on 2 shared cores). The Omnipose images are MIT-licensed (their
@@ -196,5 +200,63 @@ def main(names: tuple[str, ...] = SAMPLES) -> None:
     plt.close(fig)
 
 
+def synthetic_pad() -> None:
+    """Simulated colonies rendered with the optics fitted to Sample000193."""
+    from napari_symbac.pipeline import draw_frame, noise_rng
+    from napari_symbac.settings import AgarPadGeometry, PipelineSettings, SimulationSettings
+    from napari_symbac.sim import simulate
+
+    numbers = json.loads((OUT / "phase_fit_numbers.json").read_text())["Sample000193"]
+    px = numbers["pixel_size_um"]
+    microscope, render = settings(px, "partially_coherent")
+    fitted = numbers["partially_coherent"]["fitted"]
+    render = RenderSettings(
+        **{**render.__dict__, **fitted, "gaussian_noise_sd_adu": 1.2, "media_intensity": 76.0,
+           "cell_intensity": 76.0, "device_intensity": 76.0},
+    )  # fmt: skip
+    simulation = simulate(
+        SimulationSettings(
+            geometry="agar_pad",
+            n_frames=34,
+            n_founders=6,
+            gravity=2.0,
+            agar_pad=AgarPadGeometry(
+                40.0, 40.0, n_colonies=3, scattered_cells=4, colony_separation_um=12.0
+            ),
+            seed=4,
+        )
+    )
+    pipeline = PipelineSettings(
+        simulation=simulation.settings, microscope=microscope, render=render, camera=CAMERA
+    )
+    scene = draw_frame(simulation, pipeline, len(simulation.frames) - 1)
+    image = ForwardModel(microscope, render, CAMERA).render(scene, noise_rng(pipeline))
+    labels = scene.camera_labels().astype(np.int64)
+    real, real_labels = load("Sample000193")
+    medians = {
+        "synthetic": class_medians(image.astype(np.float64), labels, FAR_UM / px),
+        "real Sample000193": class_medians(real, real_labels, FAR_UM / px),
+        "cells": int(len(np.unique(labels)) - 1),
+    }
+    (OUT / "phase_agar_pad_numbers.json").write_text(json.dumps(medians, indent=1))
+    print(json.dumps(medians, indent=1))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 5.6))
+    for ax, img, title in (
+        (axes[0], real, "real: Sample000193 (Omnipose, MIT)"),
+        (axes[1], image, f"simulated: 3 colonies + 4 scattered cells, {medians['cells']} cells"),
+    ):
+        low, high = np.percentile(img, [1, 99])
+        ax.imshow(img, cmap="gray", vmin=low, vmax=high)
+        ax.set_title(title, fontsize=9, loc="left")
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.tight_layout()
+    fig.savefig(OUT / "phase_agar_pad.png", dpi=80)
+    plt.close(fig)
+
+
 if __name__ == "__main__":
-    main(tuple(sys.argv[1:]) or SAMPLES)
+    if sys.argv[1:] == ["pad"]:
+        synthetic_pad()
+    else:
+        main(tuple(sys.argv[1:]) or SAMPLES)
