@@ -82,3 +82,21 @@ def test_fit_on_a_real_crop_reproduces_the_class_medians(colony):
     # and the start (default-like optics) was far from it
     start = ForwardModel(microscope, render, CAMERA).render(scene, np.random.default_rng(0))
     assert np.abs(normalise_percentiles(start) - normalise_percentiles(synthetic)).mean() > 0.02
+
+
+def test_fit_warnings_name_bounds_and_a_worse_end():
+    from napari_symbac.fit.parameters import fit_warnings
+
+    render = RenderSettings(defocus_sigma_um=0.5, psf_offset=0.1)
+    bounds = [(0.0, 0.5), (-0.5, 0.5)]
+    names = ("defocus_sigma_um", "psf_offset")
+    warnings = fit_warnings(render, names, bounds, 2.0, 1.0)
+    assert len(warnings) == 1
+    assert "defocus_sigma_um" in warnings[0]
+    assert "upper bound" in warnings[0]
+    worse = fit_warnings(RenderSettings(defocus_sigma_um=0.2), names, bounds, 1.0, 1.5)
+    assert len(worse) == 1
+    assert "worse than its start" in worse[0]
+    assert fit_warnings(RenderSettings(defocus_sigma_um=0.2), names, bounds, 2.0, 1.0) == ()
+    strong = RenderSettings(media_intensity=100.0, cell_phase_adu=2000.0)
+    assert "physical bound" in fit_warnings(strong, (), [], 1.0, 1.0, separate=True)[0]
