@@ -224,11 +224,11 @@ def synthetic_pad() -> None:
     simulation = simulate(
         SimulationSettings(
             geometry="agar_pad",
-            n_frames=34,
+            n_frames=40,
             n_founders=6,
-            gravity=2.0,
+            gravity=8.0,
             agar_pad=AgarPadGeometry(
-                40.0, 40.0, n_colonies=3, scattered_cells=4, colony_separation_um=12.0
+                40.0, 40.0, n_colonies=3, scattered_cells=4, colony_separation_um=14.0
             ),
             seed=4,
         )
