@@ -322,9 +322,14 @@ def fit_parameters(
         the image pixel by pixel, by iteratively reweighted least squares with the
         camera's variance (eq. 17) held fixed in each round.
     fit
-        Nonlinear parameters to fit; the intensities are always solved exactly.
-        Default :data:`DEFAULT_FIT` with the pixel term, else
-        :data:`DEFAULT_FIT_STATISTICS`.
+        Nonlinear parameters to fit; the intensities are always solved exactly
+        (with ``render.cell_phase_adu`` / ``device_phase_adu`` set, the phase
+        amplitudes too, in the pixel fit). Default :data:`DEFAULT_FIT` with the pixel
+        term, else :data:`DEFAULT_FIT_STATISTICS`; with
+        ``render.phase_model="partially_coherent"``
+        :data:`DEFAULT_FIT_PARTIALLY_COHERENT`, and there the media level is the one
+        linear amplitude (the cells' and device's bright-field transmission, their
+        intensities over the media's, stay as given).
         ``gaussian_noise_sd_adu`` is added when ``render.noise_model == "gaussian"``.
     rng
         Generator for the fixed noise field of the statistics terms (common random
@@ -346,6 +351,8 @@ def fit_parameters(
     Returns
     -------
     FitResult
+        With :attr:`FitResult.warnings` naming any parameter that ended at a bound
+        and an objective that ended worse than it started.
     """
     camera = Camera() if camera is None else camera
     real = as_single_image(real_image, name="real_image")
