@@ -20,7 +20,7 @@ from napari_symbac.optics import ForwardModel
 from napari_symbac.scene import scene_from_masks
 from napari_symbac.settings import Camera, Microscope, RenderSettings
 
-CROP = (slice(300, 460), slice(80, 240))  # the colony's left edge and the pad beside it
+CROP = (slice(280, 460), slice(40, 220))  # the colony's left edge and the pad beside it
 CAMERA = Camera(baseline_adu=0.0, sensitivity_adu_per_e=1.0, dark_noise_e=0.0, bit_depth=8)
 
 
@@ -71,7 +71,7 @@ def test_fit_on_a_real_crop_reproduces_the_class_medians(colony):
     synthetic = ForwardModel(microscope, result.render, CAMERA).render(
         scene, np.random.default_rng(0)
     )
-    far = 1.5 / px
+    far = 2.0 / px
     real = class_medians(image, labels, far)
     fitted = class_medians(synthetic.astype(np.float64), labels, far)
     for name in ("cells", "background"):
