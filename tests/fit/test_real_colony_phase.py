@@ -100,3 +100,22 @@ def test_fit_warnings_name_bounds_and_a_worse_end():
     assert fit_warnings(RenderSettings(defocus_sigma_um=0.2), names, bounds, 2.0, 1.0) == ()
     strong = RenderSettings(media_intensity=100.0, cell_phase_adu=2000.0)
     assert "physical bound" in fit_warnings(strong, (), [], 1.0, 1.0, separate=True)[0]
+
+
+def test_distance_profile_and_class_medians_on_a_known_image():
+    from napari_symbac.fit.masks import distance_profile
+
+    labels = np.zeros((60, 60), np.int64)
+    labels[20:40, 20:40] = 1
+    image = np.where(labels > 0, 0.0, 10.0)
+    image[19, 20:40] = 20.0  # a bright line just outside the top edge
+    profile = distance_profile(image, labels > 0, np.array([-3.0, -1.0, 0.0, 1.0, 3.0]))
+    assert profile[0] == 0.0
+    assert profile[1] == 0.0
+    assert profile[2] > 10.0  # the bright line is in the first bin outside
+    assert profile[3] == 10.0
+    medians = class_medians(image, labels, far_px=10)
+    assert medians["cells"] == 0.0
+    assert medians["background"] == pytest.approx(1.0)  # the 99th percentile: the line is < 1 %
+    with pytest.raises(ValueError, match="far_px"):
+        class_medians(image, labels, far_px=100)
