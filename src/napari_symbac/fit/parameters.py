@@ -57,11 +57,14 @@ DEFAULT_FIT = ("apodisation_sigma_um", "defocus_sigma_um", "psf_offset")
 #: supplement's own pair (section 7).
 DEFAULT_FIT_STATISTICS = ("apodisation_sigma_um", "defocus_sigma_um")
 #: Default of the partially coherent phase model (``phase_model="partially_coherent"``):
-#: the sample's phase, the plate and the shape of the pupil; the media level is
-#: solved exactly, the cells' and device's bright-field transmission kept.
+#: the sample's phase and the shape of the pupil; the media level is solved exactly,
+#: the cells' and device's bright-field transmission kept. The plate's transmission
+#: is left at its value: near the weak-phase limit only ``phi / sqrt(T)`` shows, so
+#: phase and plate trade off along a valley (on a real colony the pair ran to
+#: ``T = 0.02``, ``phi = 0.19`` with the same class medians as ``T = 0.25``); add it
+#: to ``fit`` when the phase is known.
 DEFAULT_FIT_PARTIALLY_COHERENT = (
     "cell_phase_rad",
-    "plate_transmission",
     "apodisation_sigma_um",
     "phase_ring_width_scale",
 )
@@ -319,9 +322,14 @@ def fit_parameters(
         the image pixel by pixel, by iteratively reweighted least squares with the
         camera's variance (eq. 17) held fixed in each round.
     fit
-        Nonlinear parameters to fit; the intensities are always solved exactly.
-        Default :data:`DEFAULT_FIT` with the pixel term, else
-        :data:`DEFAULT_FIT_STATISTICS`.
+        Nonlinear parameters to fit; the intensities are always solved exactly
+        (with ``render.cell_phase_adu`` / ``device_phase_adu`` set, the phase
+        amplitudes too, in the pixel fit). Default :data:`DEFAULT_FIT` with the pixel
+        term, else :data:`DEFAULT_FIT_STATISTICS`; with
+        ``render.phase_model="partially_coherent"``
+        :data:`DEFAULT_FIT_PARTIALLY_COHERENT`, and there the media level is the one
+        linear amplitude (the cells' and device's bright-field transmission, their
+        intensities over the media's, stay as given).
         ``gaussian_noise_sd_adu`` is added when ``render.noise_model == "gaussian"``.
     rng
         Generator for the fixed noise field of the statistics terms (common random
@@ -343,6 +351,8 @@ def fit_parameters(
     Returns
     -------
     FitResult
+        With :attr:`FitResult.warnings` naming any parameter that ended at a bound
+        and an objective that ended worse than it started.
     """
     camera = Camera() if camera is None else camera
     real = as_single_image(real_image, name="real_image")

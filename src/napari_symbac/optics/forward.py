@@ -49,7 +49,7 @@ from napari_symbac.optics.psf import (
     phase_contrast_kernels,
     phase_contrast_psf,
 )
-from napari_symbac.settings import Camera, Microscope, RenderSettings
+from napari_symbac.settings import CONDENSERS, Camera, Microscope, RenderSettings
 
 __all__ = ["COMPONENTS", "ForwardModel", "Stage", "block_average"]
 
@@ -260,11 +260,19 @@ class ForwardModel:
             and self.render_settings.phase_model == "partially_coherent"
         )
 
+    def halo_reach_um(self) -> float:
+        """``lambda / (W NA)``: how far the phase plate's halo reaches (W: ring width / pupil)."""
+        m, r = self.microscope, self.render_settings
+        cond = CONDENSERS[m.condenser]
+        width = (cond.outer_fraction - cond.inner_fraction) * r.phase_ring_width_scale
+        return m.wavelength_um / (width * m.numerical_aperture)
+
     def phase_image(self, scene: Any) -> np.ndarray:
         """The ``phase_image`` stage: camera-resolution image, 1 = empty field (float64).
 
-        Only for ``phase_model="partially_coherent"``; the scene's border (at least
-        the PSF radius) pads the sample against the FFT's wrap-around.
+        Only for ``phase_model="partially_coherent"``; the scene's border, extended
+        mirror-wise to :meth:`halo_reach_um` where it is narrower, pads the sample
+        against the FFT's wrap-around.
         """
         if not self.partially_coherent:
             raise ValueError(
@@ -301,6 +309,13 @@ class ForwardModel:
         ) / r.media_intensity
         phi = r.cell_phase_rad * scene.cells.astype(np.float64)
         phi += r.device_phase_rad * scene.device
+        # The halo reaches ~ lambda / (W NA) (W the ring's width as a fraction of the
+        # pupil); where the scene's border is narrower, extend it mirror-wise so the
+        # FFT's wrap-around does not fold the far side's halo in.
+        extra = max(0, math.ceil(self.halo_reach_um() / scene.pixel_size_um) - scene.border_px)
+        if extra:
+            b = np.pad(b, extra, mode="symmetric")
+            phi = np.pad(phi, extra, mode="symmetric")
         image = annular_phase_image(
             b,
             phi,
@@ -318,6 +333,8 @@ class ForwardModel:
             from scipy.ndimage import gaussian_filter
 
             image = gaussian_filter(image, r.defocus_sigma_um / scene.pixel_size_um)
+        if extra:
+            image = image[extra:-extra, extra:-extra]
         out = block_average(scene.interior(image), scene.upsample).astype(np.float64)
         self._cache.put(key, out)
         return out

@@ -22,12 +22,12 @@ __all__ = ["cell_thickness_from_masks", "scene_from_masks"]
 def cell_thickness_from_masks(labels: np.ndarray) -> np.ndarray:
     """Fraction of full depth filled by cell material, from instance labels.
 
-    For each region, with ``d`` the Euclidean distance (pixels) from a pixel centre
-    to the nearest pixel outside the region and ``r = max d`` its half width, the
-    thickness is the chord of a cylinder of radius ``r``:
-    ``sqrt(1 - (1 - d / r)^2)`` (1 on the centre line, falling to ``sqrt(2 / r - 1/r^2)``
-    on the outermost pixels and 0 outside). Regions are treated one by one, so
-    touching cells do not merge.
+    For each region, with ``e`` the distance (pixels) of a pixel centre from the
+    region's edge (the Euclidean distance to the nearest outside pixel's centre
+    minus one half) and ``r = max e`` its half width, the thickness is the chord of
+    a cylinder of radius ``r``: ``sqrt(1 - (1 - e / r)^2)`` (1 on the centre line,
+    ``sqrt(1 / r - 1 / (4 r^2))`` on the outermost pixels, 0 outside). Regions are
+    treated one by one, so touching cells do not merge.
 
     Parameters
     ----------
@@ -54,9 +54,11 @@ def cell_thickness_from_masks(labels: np.ndarray) -> np.ndarray:
             slice(max(b.start - 1, 0), min(b.stop + 1, n)) for b, n in zip(box, labels.shape)
         )
         region = labels[grown] == index
-        distance = ndimage.distance_transform_edt(np.pad(region, 1))[1:-1, 1:-1]
-        radius = max(float(distance.max()), 1.0)
-        chord = np.sqrt(np.clip(1.0 - (1.0 - distance / radius) ** 2, 0.0, 1.0))
+        # distance of each pixel centre from the region's edge (half a pixel less
+        # than to the nearest outside pixel's centre), and the half width
+        edge = ndimage.distance_transform_edt(np.pad(region, 1))[1:-1, 1:-1] - 0.5
+        radius = max(float(edge.max()), 0.5)
+        chord = np.sqrt(np.clip(1.0 - (1.0 - edge / radius) ** 2, 0.0, 1.0))
         out[grown] = np.where(region, chord, out[grown])
     return out
 
