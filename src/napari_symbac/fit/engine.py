@@ -353,25 +353,28 @@ class SceneModel:
             xk = x.copy()
             xk[k] += h * scales[k]
             owner = self.layout.owner(int(k))
-            if owner >= 0:
-                self.tick()
-                p0, c0, patch = self.cell_delta(x, xk, owner, scene, kernel)
-                ph, pw = patch.shape
-                rr0, rr1 = max(p0, 0), min(p0 + ph, rows)
-                cc0, cc1 = max(c0, 0), min(c0 + pw, cols)
-                sub = patch[rr0 - p0 : rr1 - p0, cc0 - c0 : cc1 - c0] * (contrast / h)
-                rr, cc = np.mgrid[rr0:rr1, cc0:cc1]
-                idx = (rr * cols + cc).ravel()
-                val = sub.ravel()
-                keep = val != 0
-                indices.append(idx[keep])
-                data.append(val[keep])
+            shared_width = k == self.layout.n * self.layout.per_cell
+            if owner >= 0 or shared_width:
+                # One cell's parameter: its patch. The shared width: the sum of every
+                # cell's patch (exact while cells do not overlap, which the overlap
+                # penalty keeps so).
+                col = np.zeros(npx)
+                for i in [owner] if owner >= 0 else range(self.layout.n):
+                    self.tick()
+                    p0, c0, patch = self.cell_delta(x, xk, i, scene, kernel)
+                    ph, pw = patch.shape
+                    rr0, rr1 = max(p0, 0), min(p0 + ph, rows)
+                    cc0, cc1 = max(c0, 0), min(c0 + pw, cols)
+                    if rr1 <= rr0 or cc1 <= cc0:
+                        continue  # a patch wholly outside the image
+                    sub = patch[rr0 - p0 : rr1 - p0, cc0 - c0 : cc1 - c0] * (contrast / h)
+                    col.reshape(rows, cols)[rr0:rr1, cc0:cc1] += sub
             else:
                 ak, _, _ = self.design(xk)
                 col = (ak @ intensities - mu) / h
-                nz = np.flatnonzero(col)
-                indices.append(nz)
-                data.append(col[nz])
+            nz = np.flatnonzero(col)
+            indices.append(nz)
+            data.append(col[nz])
             indptr.append(indptr[-1] + indices[-1].size)
         for j in range(a.shape[1]):
             nz = np.flatnonzero(a[:, j])

@@ -575,10 +575,15 @@ def _uncertainty(
     info = (jw.T @ jw).toarray()
     sd = np.concatenate([problem.prior_sd(n), np.full(3, math.inf)])
     info[np.diag_indices_from(info)] += 1.0 / sd**2
+    # An intensity whose component is empty (no device on a pad) is not a parameter.
+    keep = np.concatenate([np.ones(state.x.size, bool), np.any(state.a != 0, axis=0)])
+    jac = jac[:, np.flatnonzero(keep)]
+    info = info[np.ix_(keep, keep)]
     cov = np.linalg.pinv(info, rcond=1e-12, hermitian=True)
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     names = (*model.layout.names(np.arange(1, n + 1)), *_INTENSITIES)
-    values = np.concatenate([state.x, state.intensities])
+    names = tuple(name for name, k in zip(names, keep) if k)
+    values = np.concatenate([state.x, state.intensities])[keep]
     return names, values, se, info, jac
 
 
