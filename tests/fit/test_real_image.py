@@ -38,3 +38,18 @@ def test_scene_fit_lowers_the_residual_and_widens_the_otsu_cells(real_crop):
     # Model-based width is wider than Otsu's (supplement section 1.3 bias).
     assert result.cells.width_um[0] > np.median(result.otsu_width_um)
     assert 0.7 < result.cells.width_um[0] < 1.4
+
+
+@pytest.mark.slow
+def test_real_trench_holds_four_cells_and_no_hidden_duplicates(real_data_dir):
+    """Three whole cells and one cut by the bottom edge, by eye; the start has 7 rods."""
+    image = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")
+    microscope = Microscope(pixel_size_um=0.065)
+    fit = fit_scene(image, microscope, RenderSettings(), None, closed_end="round")
+    assert len(fit.initial_cells) == 7
+    assert len(fit.cells) == 4, fit.moves
+    assert sum("merged" in move for move in fit.moves) == 3
+    order = np.argsort(fit.cells.y_um)
+    assert np.all(np.diff(fit.cells.y_um[order]) > 2.0)  # one after the other, no overlap
+    assert fit.camera is not None and fit.camera.sensitivity_adu_per_e > 0
+    assert fit.objective_after < fit.objective_before / 2  # measured 2.57 -> 0.77
