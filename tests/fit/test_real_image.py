@@ -51,5 +51,6 @@ def test_real_trench_holds_four_cells_and_no_hidden_duplicates(real_data_dir):
     assert sum("merged" in move for move in fit.moves) == 3
     order = np.argsort(fit.cells.y_um)
     assert np.all(np.diff(fit.cells.y_um[order]) > 2.0)  # one after the other, no overlap
-    assert fit.camera is not None and fit.camera.sensitivity_adu_per_e > 0
+    assert fit.camera is not None
+    assert fit.camera.sensitivity_adu_per_e > 0
     assert fit.objective_after < fit.objective_before / 2  # measured 2.57 -> 0.77

@@ -13,7 +13,7 @@ from napari_symbac.fit.noise import camera_from_residuals, default_valid
 from napari_symbac.fit.overlap import overlap_terms
 from napari_symbac.fit.placement import TrenchPlacement
 from napari_symbac.fit.start import polarity_of, start_scene
-from napari_symbac.settings import Camera, Microscope, RenderSettings
+from napari_symbac.settings import Camera, RenderSettings
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -94,7 +94,8 @@ def test_overlapping_rods_are_penalised_and_touching_ones_are_not():
     inside = np.array([1.0, 1.5, 0.0, 3.0, 1.0, 1.8, 0.0, 1.2, 1.0])  # one in the other
     assert overlap_terms(apart, layout)[0].size == 0
     res, jac = overlap_terms(inside, layout, np.full(9, 0.05))
-    assert res.size == 1 and res[0] > 10
+    assert res.size == 1
+    assert res[0] > 10
     assert np.abs(jac).sum() > 0
 
 
@@ -120,7 +121,9 @@ def test_default_valid_censors_saturation_and_clipped_zeros():
     image[:5] = 65535
     image[-5:] = 0
     valid = default_valid(image, "fluorescence")
-    assert not valid[:5].any() and not valid[-5:].any() and valid[5:-5].all()
+    assert not valid[:5].any()
+    assert not valid[-5:].any()
+    assert valid[5:-5].all()
     assert default_valid(image, "phase")[-5:].all()  # zeros are data in phase contrast
 
 
@@ -154,7 +157,8 @@ def test_fluorescence_field_is_recovered_with_its_camera(fluorescence_fit):
         assert getattr(fit.render, name) == pytest.approx(getattr(truth.render, name), rel=0.02)
     assert fit.camera.sensitivity_adu_per_e == pytest.approx(2.9, rel=0.05)
     assert fit.objective_after == pytest.approx(1.0, abs=0.1)  # reduced chi-square
-    assert fit.trench is None and not fit.warnings
+    assert fit.trench is None
+    assert not fit.warnings
 
 
 def test_uncertainty_api(fluorescence_fit):
@@ -163,7 +167,8 @@ def test_uncertainty_api(fluorescence_fit):
     assert fit.parameters.shape == fit.standard_errors.shape == (p,)
     assert fit.information.shape == (p, p)
     np.testing.assert_allclose(fit.information, fit.information.T, rtol=1e-9, atol=1e-9)
-    assert np.all(fit.standard_errors > 0) and np.all(np.isfinite(fit.standard_errors))
+    assert np.all(fit.standard_errors > 0)
+    assert np.all(np.isfinite(fit.standard_errors))
     jac = fit.jacobian()
     assert jac.shape == (truth.image.size, p)
     # information = J^T W J (+ priors on curvature only, none on the x_um columns)
