@@ -468,7 +468,12 @@ def fit_scene(
             )
         problem, state = reweight(state)
         if round_ == 0 and moves:
-            state, log = improve_scene(problem, state, polarity)
+            state, log, phi = improve_scene(problem, state, polarity)
+            if phi > 1.5:
+                warnings.append(
+                    f"the residual is spatially correlated (dispersion {phi:.3g}): the moves "
+                    "demanded that much more evidence"
+                )
     # ---- results -----------------------------------------------------------------
     x = state.x
     n = problem.n_cells(x)
