@@ -37,6 +37,9 @@ from napari_symbac.fit.start import cells_from_instances
 
 __all__ = ["improve_scene"]
 
+#: An added cell fitted dimmer than ``1 + DIM_CELL`` times the cells' intensity is a
+#: glow or background structure, not a cell (with per-cell brightness).
+DIM_CELL = -0.5
 #: Iterations of the local refit of a proposed cell.
 LOCAL_ITERATIONS = 8
 #: A proposal within this many cell prices of acceptance after its local refit is
@@ -238,6 +241,11 @@ def _add_pass(
         block[:4] = new.x_um[0], new.y_um[0], new.angle_rad[0], max(new.length_um[0], shared[0])
         trial_blocks = np.vstack([blocks, block]) if len(blocks) else block[None]
         trial = _try(problem, state, trial_blocks, shared, [len(trial_blocks) - 1], ctx)
+        lay = problem.layout
+        if lay.per_cell_brightness:
+            added = problem.blocks(trial.x)[0][-1]
+            if added[lay.i_brightness] < DIM_CELL:
+                continue  # a glow or background structure, not a cell
         if _accept(problem, state, trial, +1, ctx):
             x, y = block[:2]
             ctx.accept("add", x, y, f"added a cell at ({x:.2f}, {y:.2f}) um")

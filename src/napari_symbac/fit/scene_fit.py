@@ -222,6 +222,12 @@ class SceneFit:
             table[f"{column}_se"] = [
                 self._se_or_nan(f"cell{int(i)}.{name}") for i in self.cells.ids
             ]
+        if any(name.endswith(".dbrightness") for name in self.parameter_names):
+            values = dict(zip(self.parameter_names, self.parameters))
+            table["intensity_adu"] = [
+                self.render.cell_intensity * (1 + values[f"cell{int(i)}.dbrightness"])
+                for i in self.cells.ids
+            ]
         table["width_um_se"] = [
             self._se_or_nan(f"cell{int(i)}.dwidth_um", "width_um") for i in self.cells.ids
         ]
@@ -248,6 +254,7 @@ def fit_scene(
     fit_optics: tuple[str, ...] | None = None,
     valid: np.ndarray | None = None,
     width_sd_um: float = 0.0,
+    per_cell_brightness: bool | None = None,
     fit_curvature: bool = True,
     curvature_sd_um: float = 0.1,
     irls_rounds: int = 3,
@@ -296,6 +303,10 @@ def fit_scene(
     width_sd_um
         0 (default): one width shared by all cells. > 0: per-cell widths tied to the
         shared width by a Gaussian prior of this s.d. (hierarchical).
+    per_cell_brightness
+        Give each cell its own intensity ``I_c (1 + dbrightness)`` (a Gaussian prior
+        of s.d. 1 ties ``dbrightness`` to 0). Default: on in fluorescence (cells
+        differ in fluorophore content), off in phase contrast.
     fit_curvature, curvature_sd_um
         Fit each cell's curvature amplitude ``a`` of eq. 1 (one bend), with a
         Gaussian prior of this s.d. centred on 0; cells start straight and stay
@@ -364,6 +375,8 @@ def fit_scene(
         placement = dataclasses.replace(placement, closed_end=closed_end)
     shape = real.shape
     n = len(init_cells)
+    if per_cell_brightness is None:
+        per_cell_brightness = modality == "fluorescence"
     layout = Layout(
         n=n,
         fit_curvature=fit_curvature,
@@ -371,6 +384,7 @@ def fit_scene(
         trench=placement is not None,
         fit_top=placement is not None and placement.top_um > 0,
         optics=fit_optics,
+        per_cell_brightness=bool(per_cell_brightness),
     )
     width_um, height_um = shape[1] * px, shape[0] * px
     cell_lower = [-2.0, -3.0, -1.6, 0.3] + [-0.5] * fit_curvature + [-1.0] * (width_sd_um > 0)
@@ -378,6 +392,10 @@ def fit_scene(
     cell_upper += [0.5] * fit_curvature + [1.0] * (width_sd_um > 0)
     cell_sd = [math.inf] * 4 + [curvature_sd_um] * fit_curvature
     cell_sd += [width_sd_um] * (width_sd_um > 0)
+    if per_cell_brightness:
+        cell_lower.append(-0.8)
+        cell_upper.append(4.0)
+        cell_sd.append(1.0)
     # Otsu is biased narrow (section 1.3): start a little wider.
     width0 = float(np.clip(np.median(otsu_w) + 0.1, 0.4, 2.0))
     g0, g_lo, g_hi = [width0], [0.3], [2.5]
@@ -457,9 +475,9 @@ def fit_scene(
         if round_ == 0 and rounds > 1 and fit_curvature:
             # Curvature held straight in the first round: the centres and angles settle
             # first, so that a bend cannot stand in for them.
-            free[: problem.n_cells(state.x) * per_cell] = np.tile(
-                [True] * 4 + [False] + [True] * (width_sd_um > 0), problem.n_cells(state.x)
-            )
+            held = np.ones(per_cell, bool)
+            held[4] = False  # curvature_um
+            free[: problem.n_cells(state.x) * per_cell] = np.tile(held, problem.n_cells(state.x))
         state, converged = problem.refit(state, free, max_iterations)
         if not converged:
             warnings.append(
