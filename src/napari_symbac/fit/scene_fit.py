@@ -338,6 +338,11 @@ def fit_scene(
         raise ValueError(f"curvature_sd_um must be positive, got {curvature_sd_um!r}")
     if irls_rounds < 1 or max_iterations < 1:
         raise ValueError("irls_rounds and max_iterations must be at least 1")
+    if getattr(render, "phase_separate", False):
+        raise ValueError(
+            "fit_scene models cells, media and device with one kernel: set "
+            "RenderSettings.phase_separate=False for the scene fit"
+        )
     modality = microscope.modality
     if fit_optics is None:
         fit_optics = DEFAULT_FIT_OPTICS.get(modality, ())
