@@ -273,9 +273,14 @@ def fit_scene(
     microscope, render
         Starting model; ``render`` gives the starting kernel parameters.
     camera
-        The camera (eq. 17-19). ``None``: estimated from the data, the gain and read
-        noise from the residual variance against the model mean after the first
-        round (:func:`~napari_symbac.fit.noise.camera_from_residuals`), the baseline
+        The camera (eq. 17-19). ``None``: estimated from the data. When
+        :mod:`napari_symbac.fit.camera_estimate` is installed, its photon-transfer
+        estimate from the image starts the fit and its model-residual estimate is
+        refitted after every round (gain and read noise; the baseline is the guess
+        below); otherwise the first round weighs pixels by a
+        robust white-noise estimate and the gain and read noise come from the
+        residual variance against the model mean after each round
+        (:func:`~napari_symbac.fit.noise.camera_from_residuals`), the baseline
         guessed (100 ADU, or the image's 0.1 % quantile when lower, e.g. 0 for a
         background-subtracted image).
     geometry
@@ -426,9 +431,16 @@ def fit_scene(
     y = (real - baseline).ravel().astype(np.float64)
     flat_valid = valid.ravel()
     if camera is None:
-        noise = _pixel_noise(real, valid) or float(np.std(real[valid])) or 1.0
-        w = flat_valid / noise**2
-        camera_used = Camera(baseline_adu=baseline)
+        measured = _measured_camera(real, valid, camera=Camera(baseline_adu=baseline))
+        if measured is not None:
+            baseline = measured.baseline_adu
+            y = (real - baseline).ravel().astype(np.float64)
+            w = flat_valid / variance(np.maximum(y, 0.0), measured)
+            camera_used = measured
+        else:
+            noise = _pixel_noise(real, valid) or float(np.std(real[valid])) or 1.0
+            w = flat_valid / noise**2
+            camera_used = Camera(baseline_adu=baseline)
     else:
         w = flat_valid / _variance(np.maximum(y, 0.0), render, camera)
         camera_used = camera
@@ -465,9 +477,11 @@ def fit_scene(
         nonlocal camera_used
         mu = state.mu
         if estimate:
-            camera_used = camera_from_residuals(
-                mu[flat_valid], (y - mu)[flat_valid], baseline, camera_used.bit_depth
-            )
+            camera_used = _measured_camera(real, valid, (mu + baseline).reshape(shape), camera_used)
+            if camera_used is None:
+                camera_used = camera_from_residuals(
+                    mu[flat_valid], (y - mu)[flat_valid], baseline, problem.camera.bit_depth
+                )
             var = variance(mu, camera_used)
         else:
             var = _variance(mu, render, camera_used)
@@ -567,6 +581,30 @@ def fit_scene(
         valid=valid,
         moves=tuple(log),
     )
+
+
+def _measured_camera(
+    real: np.ndarray,
+    valid: np.ndarray,
+    model_mean: np.ndarray | None = None,
+    camera: Camera | None = None,
+) -> Camera | None:
+    """Photon transfer of :mod:`napari_symbac.fit.camera_estimate`, when it is installed.
+
+    Without ``model_mean`` a high-pass estimate from the image (the start); with it,
+    the residual against the model mean. The baseline is kept from ``camera`` (one
+    frame cannot separate it from the read noise). ``None``
+    when the module is absent or the estimate fails (too little range of levels):
+    the fit then uses :func:`~napari_symbac.fit.noise.camera_from_residuals`.
+    """
+    try:
+        from napari_symbac.fit.camera_estimate import estimate_camera
+    except ImportError:
+        return None
+    try:
+        return estimate_camera(real, valid=valid, model_mean=model_mean, camera=camera).camera
+    except ValueError:
+        return None
 
 
 def _baseline_guess(real: np.ndarray, valid: np.ndarray) -> float:
