@@ -48,9 +48,21 @@ def main() -> None:
                 true = float(getattr(truth.cells, name)[k])
                 key = f"cell{cell}.{name}"
                 inside.setdefault(name, []).append(abs(values[key] - true) <= 2 * errors[key])
+        # each cell's intensity I_c (1 + dbrightness): delta method on the covariance
+        cov = np.linalg.pinv(fit.information, hermitian=True)
+        names = list(fit.parameter_names)
+        ic = names.index("cell_intensity")
+        for k in range(len(fit.cells)):
+            ib = names.index(f"cell{int(fit.cells.ids[k])}.dbrightness")
+            grad = np.zeros(len(names))
+            grad[ic] = 1 + fit.parameters[ib]
+            grad[ib] = fit.parameters[ic]
+            value = fit.parameters[ic] * (1 + fit.parameters[ib])
+            se = float(np.sqrt(grad @ cov @ grad))
+            true = truth.render.cell_intensity
+            inside.setdefault("cell intensity", []).append(abs(value - true) <= 2 * se)
         shared = {
             "width_um": float(truth.cells.width_um[0]),
-            "cell_intensity": truth.render.cell_intensity,
             "media_intensity": truth.render.media_intensity,
             "defocus_sigma_um": truth.render.defocus_sigma_um,
         }
