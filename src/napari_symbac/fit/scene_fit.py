@@ -343,10 +343,13 @@ def fit_scene(
         raise ValueError(f"curvature_sd_um must be positive, got {curvature_sd_um!r}")
     if irls_rounds < 1 or max_iterations < 1:
         raise ValueError("irls_rounds and max_iterations must be at least 1")
-    if getattr(render, "phase_separate", False):
+    if getattr(render, "phase_separate", False) or (
+        microscope.modality == "phase" and getattr(render, "phase_model", "linear") != "linear"
+    ):
         raise ValueError(
-            "fit_scene models cells, media and device with one kernel: set "
-            "RenderSettings.phase_separate=False for the scene fit"
+            "fit_scene models the image as cells, media and device through one linear kernel: "
+            "use the linear phase model without separate phase amplitudes "
+            "(phase_model='linear', cell_phase_adu=device_phase_adu=None)"
         )
     modality = microscope.modality
     if fit_optics is None:
