@@ -57,7 +57,7 @@ def make_cells(y_um, x_um=None, angle_rad=None, length_um=None, width_um=0.95) -
     )
 
 
-def make_truth() -> Truth:
+def make_truth(seed: int = 1) -> Truth:
     """Three cells in a 128 x 46 trench crop, rendered with :data:`TRUTH` and camera noise."""
     cells = make_cells(
         y_um=[1.3, 3.9, 6.55],
@@ -68,7 +68,7 @@ def make_truth() -> Truth:
     microscope = Microscope(pixel_size_um=PIXEL_UM)
     camera = Camera()
     scene = draw_scene(cells, TRENCH, microscope, TRUTH)
-    image = ForwardModel(microscope, TRUTH, camera).render(scene, np.random.default_rng(1))
+    image = ForwardModel(microscope, TRUTH, camera).render(scene, np.random.default_rng(seed))
     return Truth(cells, scene, image, microscope, TRUTH, camera)
 
 
