@@ -37,8 +37,9 @@ IMAGES = ROOT / "docs" / "images"
 
 
 def _outline(labels: np.ndarray) -> np.ndarray:
-    edge = (labels != np.roll(labels, 1, 0)) | (labels != np.roll(labels, 1, 1))
-    return edge & (labels > 0)
+    from skimage.segmentation import find_boundaries
+
+    return find_boundaries(labels, mode="inner") & (labels > 0)
 
 
 def _grey(image: np.ndarray) -> np.ndarray:
