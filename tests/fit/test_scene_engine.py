@@ -241,3 +241,24 @@ def test_jacobian_columns_match_full_renders(truth):
         want = (ak - a) @ intensities / 0.3
         np.testing.assert_allclose(jac[:, column], want, atol=1e-3 * np.abs(want).max())
     np.testing.assert_allclose(jac[:, 2:], a)  # d mu / d intensities
+
+
+def test_a_cell_missing_from_the_start_mask_is_added(truth):
+    """Moves: a mask that misses one of the three cells ends with all three."""
+    labels = truth.scene.camera_labels().astype(np.int64)
+    labels[labels == 3] = 0
+    fit = fit_scene(
+        truth.image,
+        truth.microscope,
+        START,
+        truth.camera,
+        masks=labels,
+        irls_rounds=2,
+        max_iterations=12,
+    )
+    assert len(fit.initial_cells) == 2
+    assert len(fit.cells) == 3, fit.moves
+    assert any("added" in move for move in fit.moves)
+    order = np.argsort(fit.cells.y_um)
+    true_y = truth.cells.y_um + TRENCH.margin_um
+    np.testing.assert_allclose(fit.cells.y_um[order], true_y, atol=0.05)

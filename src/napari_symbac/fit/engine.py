@@ -194,8 +194,6 @@ class SceneModel:
         self.layout = layout
         self.forward = ForwardModel(microscope, render, camera)
         self.tick = tick if tick is not None else (lambda: None)
-        self.n_full = 0
-        self.n_patch = 0
 
     # ------------------------------------------------------------------ unpack
     def unpack(
@@ -244,7 +242,6 @@ class SceneModel:
     def design(self, x: np.ndarray) -> tuple[np.ndarray, Scene, RenderSettings]:
         """``(pixels, 3)`` design ``[C, M, D]`` (float64), the scene and the render settings."""
         self.tick()
-        self.n_full += 1
         cells, curvature, place, r = self.unpack(x)
         scene = draw_fitted(cells, place, self.shape, self.microscope, r, self.depth_um, curvature)
         forward = self.forward.with_render(r)
@@ -312,7 +309,6 @@ class SceneModel:
             Camera-pixel position of the patch's top-left corner (may be negative or
             reach past the image: clip when adding) and the patch (float64).
         """
-        self.n_patch += 1
         u, bd = scene.upsample, scene.border_px
         S0, S1 = scene.shape
         a0, a1, b0, b1, _ = self._cell_box(x, i, scene)
