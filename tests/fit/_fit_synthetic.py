@@ -57,7 +57,7 @@ def make_cells(y_um, x_um=None, angle_rad=None, length_um=None, width_um=0.95) -
     )
 
 
-def make_truth() -> Truth:
+def make_truth(seed: int = 1) -> Truth:
     """Three cells in a 128 x 46 trench crop, rendered with :data:`TRUTH` and camera noise."""
     cells = make_cells(
         y_um=[1.3, 3.9, 6.55],
@@ -68,5 +68,34 @@ def make_truth() -> Truth:
     microscope = Microscope(pixel_size_um=PIXEL_UM)
     camera = Camera()
     scene = draw_scene(cells, TRENCH, microscope, TRUTH)
-    image = ForwardModel(microscope, TRUTH, camera).render(scene, np.random.default_rng(1))
+    image = ForwardModel(microscope, TRUTH, camera).render(scene, np.random.default_rng(seed))
     return Truth(cells, scene, image, microscope, TRUTH, camera)
+
+
+#: Fluorescence truth: bright cells (2000 ADU) on a dim background (150 ADU).
+FLUO_TRUTH = RenderSettings(
+    cell_intensity=2000.0,
+    media_intensity=150.0,
+    device_intensity=0.0,
+    defocus_sigma_um=0.1,
+)
+
+
+def make_fluorescence_field(seed: int = 2, shape: tuple[int, int] = (96, 96)) -> Truth:
+    """Four cells on an open 96 x 96 field (80 nm pixels), fluorescence, camera noise."""
+    from napari_symbac.scene import Field
+
+    microscope = Microscope(pixel_size_um=0.08, modality="fluorescence")
+    cells = make_cells(
+        y_um=[1.8, 2.2, 5.4, 5.6],
+        x_um=[1.6, 5.4, 2.0, 5.8],
+        angle_rad=[0.3, -0.5, 1.2, 0.05],
+        length_um=[2.6, 2.2, 3.0, 2.4],
+        width_um=0.9,
+    )
+    camera = Camera()
+    field = Field(shape[1] * 0.08, shape[0] * 0.08)
+    scene = draw_scene(cells, TrenchGeometry(), microscope, FLUO_TRUTH, field=field)
+    model = ForwardModel(microscope, FLUO_TRUTH, camera)
+    image = model.render(scene, np.random.default_rng(seed))
+    return Truth(cells, scene, image, microscope, FLUO_TRUTH, camera)

@@ -38,3 +38,46 @@ def test_scene_fit_lowers_the_residual_and_widens_the_otsu_cells(real_crop):
     # Model-based width is wider than Otsu's (supplement section 1.3 bias).
     assert result.cells.width_um[0] > np.median(result.otsu_width_um)
     assert 0.7 < result.cells.width_um[0] < 1.4
+
+
+@pytest.mark.slow
+def test_real_trench_holds_four_cells_and_no_hidden_duplicates(real_data_dir):
+    """Three whole cells and one cut by the bottom edge, by eye; the start has 7 rods."""
+    image = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")
+    microscope = Microscope(pixel_size_um=0.065)
+    fit = fit_scene(image, microscope, RenderSettings(), None, closed_end="round")
+    assert len(fit.initial_cells) == 7
+    assert len(fit.cells) == 4, fit.moves
+    assert sum("merged" in move for move in fit.moves) == 3
+    order = np.argsort(fit.cells.y_um)
+    assert np.all(np.diff(fit.cells.y_um[order]) > 2.0)  # one after the other, no overlap
+    assert fit.camera is not None
+    assert fit.camera.sensitivity_adu_per_e > 0
+    assert fit.objective_after < fit.objective_before / 2  # measured 2.57 -> 0.77
+
+
+@pytest.mark.slow
+def test_colicoords_fluorescence_count_equals_the_mask(real_data_dir):
+    """ColiCoords ds1 field 1, a 120 x 250 crop holding four whole cells (80 nm pixels).
+
+    Automatic start (bright cells from the modality), camera estimated, zeros of the
+    background subtraction censored: as many fitted cells as connected components
+    of the published binary mask.
+    """
+    from scipy import ndimage
+
+    folder = real_data_dir / "colicoords" / "test_data" / "ds1"
+    crop = (slice(80, 200), slice(60, 310))
+    image = tifffile.imread(folder / "fluorescence" / "00001.tif")[crop]
+    mask = tifffile.imread(folder / "binary" / "00001_Probabilities_filtered.tif")[crop]
+    count = ndimage.label(mask > 0)[1]
+    assert count == 4
+    microscope = Microscope(pixel_size_um=0.08, modality="fluorescence")
+    fit = fit_scene(image, microscope, RenderSettings(), None, geometry="open")
+    assert len(fit.cells) == count, fit.moves
+    assert not fit.valid[image == 0].any()  # clipped zeros left out
+    # every fitted cell sits on one mask component
+    labels = ndimage.label(mask > 0)[0]
+    rows = (fit.cells.y_um / 0.08).astype(int)
+    cols = (fit.cells.x_um / 0.08).astype(int)
+    assert sorted(labels[rows, cols].tolist()) == [1, 2, 3, 4]

@@ -6,8 +6,10 @@
   image (class statistics, power spectrum, histogram, edge profile, pixels);
 * :func:`fit_parameters`: intensities, apodisation, defocus, PSF offset (ring
   contrast, noise) fitted to a real image;
-* :func:`fit_scene`: analysis by synthesis, cells and trench placed and sized so the
-  rendered image overlays the real one pixel for pixel.
+* :func:`fit_scene`: analysis by synthesis, cells and trench placed, sized and counted
+  so the rendered image overlays the real one pixel for pixel, with the camera,
+  censoring and standard errors (stages in ``start``, ``noise``, ``engine``, ``lm``,
+  ``overlap``, ``moves``).
 """
 
 from napari_symbac.fit.inputs import (

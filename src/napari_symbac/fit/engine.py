@@ -86,7 +86,9 @@ class Layout:
     """Order of the parameter vector: per-cell blocks, then the shared parameters.
 
     Each cell holds ``x_um, y_um, angle_rad, length_um`` then, when fitted, its
-    curvature amplitude ``curvature_um`` and its width offset ``dwidth_um``. Then
+    curvature amplitude ``curvature_um``, its width offset ``dwidth_um`` and its
+    relative brightness offset ``dbrightness`` (its intensity is
+    ``I_c (1 + dbrightness)``: cells differ in fluorophore content). Then
     come the shared ``width_um``, the trench's ``left_um, width_um`` (and ``top_um``)
     and the optical parameters.
     """
@@ -97,6 +99,7 @@ class Layout:
     trench: bool
     fit_top: bool
     optics: tuple[str, ...]
+    per_cell_brightness: bool = False
 
     @property
     def cell_names(self) -> tuple[str, ...]:
@@ -105,7 +108,19 @@ class Layout:
             names.append("curvature_um")
         if self.per_cell_width:
             names.append("dwidth_um")
+        if self.per_cell_brightness:
+            names.append("dbrightness")
         return tuple(names)
+
+    @property
+    def i_dwidth(self) -> int:
+        """Index of ``dwidth_um`` within a cell's block."""
+        return 4 + self.fit_curvature
+
+    @property
+    def i_brightness(self) -> int:
+        """Index of ``dbrightness`` within a cell's block."""
+        return 4 + self.fit_curvature + self.per_cell_width
 
     @property
     def per_cell(self) -> int:
@@ -179,8 +194,6 @@ class SceneModel:
         self.layout = layout
         self.forward = ForwardModel(microscope, render, camera)
         self.tick = tick if tick is not None else (lambda: None)
-        self.n_full = 0
-        self.n_patch = 0
 
     # ------------------------------------------------------------------ unpack
     def unpack(
@@ -195,7 +208,7 @@ class SceneModel:
         g = x[n * pc :]
         width = np.full(n, g[0])
         if lay.per_cell_width:
-            width = width + block[:, pc - 1]
+            width = width + block[:, lay.i_dwidth]
         width = np.maximum(width, 0.2)
         cells = FrameCells(
             ids=np.arange(1, n + 1),
@@ -229,12 +242,22 @@ class SceneModel:
     def design(self, x: np.ndarray) -> tuple[np.ndarray, Scene, RenderSettings]:
         """``(pixels, 3)`` design ``[C, M, D]`` (float64), the scene and the render settings."""
         self.tick()
-        self.n_full += 1
         cells, curvature, place, r = self.unpack(x)
         scene = draw_fitted(cells, place, self.shape, self.microscope, r, self.depth_um, curvature)
-        comps = self.forward.with_render(r).components(scene)
+        forward = self.forward.with_render(r)
+        comps = forward.components(scene)
         a = np.stack([comps[k].ravel() for k in ("cells", "media", "device")], axis=1)
-        return a.astype(np.float64), scene, r
+        a = a.astype(np.float64)
+        if self.layout.per_cell_brightness:
+            kernel = forward.kernel(scene.pixel_size_um)
+            pc, ib = self.layout.per_cell, self.layout.i_brightness
+            for i in range(self.layout.n):
+                db = float(x[i * pc + ib])
+                if db != 0:
+                    _add_patch(
+                        a[:, 0], self.shape, *self.cell_delta(x, x, i, scene, kernel, True), db
+                    )
+        return a, scene, r
 
     # ---------------------------------------------------------------- patch render
     def _cell_box(
@@ -245,7 +268,7 @@ class SceneModel:
         pc = lay.per_cell
         b = x[i * pc : (i + 1) * pc]
         g0 = x[lay.n * pc]
-        width = max(g0 + (b[pc - 1] if lay.per_cell_width else 0.0), 0.2)
+        width = max(g0 + (b[lay.i_dwidth] if lay.per_cell_width else 0.0), 0.2)
         length = max(b[3], width)
         bend = float(b[4]) if lay.fit_curvature else 0.0
         px = scene.pixel_size_um
@@ -262,7 +285,13 @@ class SceneModel:
         return i0, i1, j0, j1, args
 
     def cell_delta(
-        self, x: np.ndarray, x_new: np.ndarray, i: int, scene: Scene, kernel: np.ndarray
+        self,
+        x: np.ndarray,
+        x_new: np.ndarray,
+        i: int,
+        scene: Scene,
+        kernel: np.ndarray,
+        alone: bool = False,
     ) -> tuple[int, int, np.ndarray]:
         """Change of the convolved cells image ``C`` when cell ``i`` moves from ``x`` to ``x_new``.
 
@@ -272,13 +301,14 @@ class SceneModel:
         over the depth, capped by 1 and by the trench), the difference is convolved
         with the kernel in full and area-averaged to camera pixels.
 
+        With ``alone``, the convolved fraction of cell ``i`` by itself (at ``x_new``).
+
         Returns
         -------
         row0, col0, patch
             Camera-pixel position of the patch's top-left corner (may be negative or
             reach past the image: clip when adding) and the patch (float64).
         """
-        self.n_patch += 1
         u, bd = scene.upsample, scene.border_px
         S0, S1 = scene.shape
         a0, a1, b0, b1, _ = self._cell_box(x, i, scene)
@@ -296,7 +326,7 @@ class SceneModel:
             yc = (np.arange(r0, r1) - bd + 0.5) * px
             xc = (np.arange(q0, q1) - bd + 0.5) * px
             thick = np.zeros((r1 - r0, q1 - q0), np.float32)
-            for j in range(self.layout.n):
+            for j in [i] if alone else range(self.layout.n):
                 source = x_new if j == i else x
                 e0, e1, f0, f1, (cx, cy, ang, ln, wd, bend) = self._cell_box(source, j, scene)
                 if e1 <= r0 or e0 >= r1 or f1 <= q0 or f0 >= q1:
@@ -313,6 +343,8 @@ class SceneModel:
                 np.maximum(thick, chord, out=thick)
             old = scene.cells[r0:r1, q0:q1]
             trench = old + scene.media[r0:r1, q0:q1]
+            if alone:
+                old = np.zeros_like(old)
             new = np.minimum(np.minimum(thick / np.float32(self.depth_um), 1.0), trench)
             delta[r0 - s0 : r1 - s0, q0 - t0 : q1 - t0] = new - old
         full = signal.fftconvolve(delta.astype(np.float64), kernel.astype(np.float64), mode="full")
@@ -344,7 +376,12 @@ class SceneModel:
         rows, cols = self.shape
         npx = rows * cols
         mu = a @ intensities
-        contrast = intensities[0] - intensities[1]
+        lay = self.layout
+        pc = lay.per_cell
+        bright = np.ones(lay.n)
+        if lay.per_cell_brightness:
+            bright += x[: lay.n * pc].reshape(lay.n, pc)[:, lay.i_brightness]
+        contrast = intensities[0] * bright - intensities[1]
         data, indices, indptr = [], [], [0]
         for k in np.flatnonzero(free):
             h = step
@@ -352,26 +389,29 @@ class SceneModel:
                 h = -step
             xk = x.copy()
             xk[k] += h * scales[k]
-            owner = self.layout.owner(int(k))
-            if owner >= 0:
+            owner = lay.owner(int(k))
+            shared_width = k == lay.n * pc
+            if owner >= 0 and lay.per_cell_brightness and k % pc == lay.i_brightness:
+                # Brightness is linear: d mu / d z = I_c C_i scale.
+                col = np.zeros(npx)
                 self.tick()
-                p0, c0, patch = self.cell_delta(x, xk, owner, scene, kernel)
-                ph, pw = patch.shape
-                rr0, rr1 = max(p0, 0), min(p0 + ph, rows)
-                cc0, cc1 = max(c0, 0), min(c0 + pw, cols)
-                sub = patch[rr0 - p0 : rr1 - p0, cc0 - c0 : cc1 - c0] * (contrast / h)
-                rr, cc = np.mgrid[rr0:rr1, cc0:cc1]
-                idx = (rr * cols + cc).ravel()
-                val = sub.ravel()
-                keep = val != 0
-                indices.append(idx[keep])
-                data.append(val[keep])
+                patch = self.cell_delta(x, x, owner, scene, kernel, True)
+                _add_patch(col, self.shape, *patch, intensities[0] * scales[k])
+            elif owner >= 0 or shared_width:
+                # One cell's parameter: its patch. The shared width: the sum of every
+                # cell's patch (exact while cells do not overlap, which the overlap
+                # penalty keeps so).
+                col = np.zeros(npx)
+                for i in [owner] if owner >= 0 else range(lay.n):
+                    self.tick()
+                    patch = self.cell_delta(x, xk, i, scene, kernel)
+                    _add_patch(col, self.shape, *patch, contrast[i] / h)
             else:
                 ak, _, _ = self.design(xk)
                 col = (ak @ intensities - mu) / h
-                nz = np.flatnonzero(col)
-                indices.append(nz)
-                data.append(col[nz])
+            nz = np.flatnonzero(col)
+            indices.append(nz)
+            data.append(col[nz])
             indptr.append(indptr[-1] + indices[-1].size)
         for j in range(a.shape[1]):
             nz = np.flatnonzero(a[:, j])
@@ -382,3 +422,22 @@ class SceneModel:
             (np.concatenate(data), np.concatenate(indices), np.array(indptr)),
             shape=(npx, len(indptr) - 1),
         )
+
+
+def _add_patch(
+    flat: np.ndarray,
+    shape: tuple[int, int],
+    row0: int,
+    col0: int,
+    patch: np.ndarray,
+    factor: float,
+) -> None:
+    """``flat`` (a row-major image) += ``factor * patch`` placed at ``(row0, col0)``, clipped."""
+    rows, cols = shape
+    ph, pw = patch.shape
+    r0, r1 = max(row0, 0), min(row0 + ph, rows)
+    c0, c1 = max(col0, 0), min(col0 + pw, cols)
+    if r1 <= r0 or c1 <= c0:
+        return  # wholly outside the image
+    view = flat.reshape(rows, cols)
+    view[r0:r1, c0:c1] += factor * patch[r0 - row0 : r1 - row0, c0 - col0 : c1 - col0]

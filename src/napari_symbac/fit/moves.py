@@ -4,8 +4,9 @@ A fitted scene can hold a cell too many (a short duplicate hidden inside a longe
 rod: the scene takes the thickest chord per pixel, so it changes nothing), two
 rods where there is one cell, one rod where a septum shows two, or miss a cell.
 Each move is proposed where the model or the residual says so and kept when the
-Bayesian information criterion ``BIC = chi^2 + k ln N`` falls (``k`` parameters,
-``N`` valid pixels; one cell costs ``per_cell * ln N``):
+Bayesian information criterion ``BIC = chi^2 / phi + k ln N`` falls (``k``
+parameters, ``N`` valid pixels; one cell costs ``per_cell * ln N``; ``phi >= 1`` the
+residual's overdispersion, :func:`dispersion`):
 
 * **remove** a cell whose removal raises ``chi^2`` by less than its price (a hidden
   duplicate raises it by about 0);
@@ -24,6 +25,7 @@ parameter free.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import ndimage
@@ -32,14 +34,56 @@ from napari_symbac.fit.lm import State
 from napari_symbac.fit.overlap import segment_distance
 from napari_symbac.fit.problem import Problem
 from napari_symbac.fit.start import cells_from_instances
+from napari_symbac.optics.forward import block_average
 
 __all__ = ["improve_scene"]
 
+#: An added cell fitted dimmer than ``1 + DIM_CELL`` times the cells' intensity is a
+#: glow or background structure, not a cell (with per-cell brightness).
+DIM_CELL = -0.5
 #: Iterations of the local refit of a proposed cell.
 LOCAL_ITERATIONS = 8
 #: A proposal within this many cell prices of acceptance after its local refit is
 #: refitted with every parameter free before the BIC decides.
 GLOBAL_MARGIN = 10.0
+
+
+@dataclass
+class _Context:
+    """What the passes share: the dispersion, the log and the accepted moves."""
+
+    dispersion: float
+    log: list[str] = field(default_factory=list)
+    history: list[tuple[str, float, float]] = field(default_factory=list)
+
+    def near(self, kind: str, x: float, y: float, radius_um: float = 0.6) -> bool:
+        """Whether a move of ``kind`` was accepted within ``radius_um`` of ``(x, y)``."""
+        return any(k == kind and math.hypot(x - a, y - b) < radius_um for k, a, b in self.history)
+
+    def accept(self, kind: str, x: float, y: float, message: str) -> None:
+        self.history.append((kind, x, y))
+        self.log.append(message)
+
+
+def dispersion(problem: Problem, state: State, block_px: int = 4) -> float:
+    """Overdispersion of the standardised residual from its spatial correlation.
+
+    ``16 var(mean of z over 4 x 4 blocks)``: 1 for white noise, larger when the
+    residual holds structure the model misses (its pixels are then not independent
+    and a chi-square difference overstates the evidence). At least 1.
+    """
+    rows, cols = problem.shape
+    z = ((problem.y - state.mu) * np.sqrt(problem.w)).reshape(rows, cols)
+    used = (problem.w > 0).reshape(rows, cols)
+    r, c = rows // block_px * block_px, cols // block_px * block_px
+    if r == 0 or c == 0:
+        return 1.0
+    blocks = z[:r, :c].reshape(r // block_px, block_px, c // block_px, block_px)
+    full = used[:r, :c].reshape(blocks.shape).all(axis=(1, 3))
+    means = blocks.mean(axis=(1, 3))[full]
+    if means.size < 10:
+        return 1.0
+    return float(max(block_px**2 * np.var(means), 1.0))
 
 
 def _poles(block: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -71,24 +115,29 @@ def _local_free(problem: Problem, n: int, cells: list[int]) -> np.ndarray:
 
 
 def _try(
-    problem: Problem, state: State, blocks: np.ndarray, shared: np.ndarray, refit: list[int]
+    problem: Problem,
+    state: State,
+    blocks: np.ndarray,
+    shared: np.ndarray,
+    refit: list[int],
+    ctx: _Context,
 ) -> State:
     trial = problem.evaluate(Problem.join(blocks, shared))
     if refit:
         trial, _ = problem.refit(trial, _local_free(problem, len(blocks), refit), LOCAL_ITERATIONS)
         dn = len(blocks) - problem.n_cells(state.x)
-        price = problem.bic_per_cell
+        price = problem.bic_per_cell * ctx.dispersion
         if trial.cost + dn * price < state.cost + GLOBAL_MARGIN * price:
             # Close: let the neighbours, the width and the optics settle too.
             trial, _ = problem.refit(trial, None, LOCAL_ITERATIONS)
     return trial
 
 
-def _accept(problem: Problem, state: State, trial: State, dn: int) -> bool:
-    return trial.cost + dn * problem.bic_per_cell < state.cost
+def _accept(problem: Problem, state: State, trial: State, dn: int, ctx: _Context) -> bool:
+    return (trial.cost - state.cost) / ctx.dispersion + dn * problem.bic_per_cell < 0
 
 
-def _remove_pass(problem: Problem, state: State, log: list[str]) -> tuple[State, bool]:
+def _remove_pass(problem: Problem, state: State, ctx: _Context) -> tuple[State, bool]:
     blocks, shared = problem.blocks(state.x)
     n = len(blocks)
     if n <= 1:
@@ -96,15 +145,16 @@ def _remove_pass(problem: Problem, state: State, log: list[str]) -> tuple[State,
     best = None
     for i in range(n):
         trial = problem.evaluate(Problem.join(np.delete(blocks, i, axis=0), shared))
-        if _accept(problem, state, trial, -1) and (best is None or trial.cost < best[1].cost):
+        if _accept(problem, state, trial, -1, ctx) and (best is None or trial.cost < best[1].cost):
             best = (i, trial)
     if best is None:
         return state, False
-    log.append(f"removed cell at ({blocks[best[0], 0]:.2f}, {blocks[best[0], 1]:.2f}) um")
+    x, y = blocks[best[0], :2]
+    ctx.accept("remove", x, y, f"removed cell at ({x:.2f}, {y:.2f}) um")
     return best[1], True
 
 
-def _merge_pass(problem: Problem, state: State, log: list[str]) -> tuple[State, bool]:
+def _merge_pass(problem: Problem, state: State, ctx: _Context) -> tuple[State, bool]:
     blocks, shared = problem.blocks(state.x)
     n = len(blocks)
     width = shared[0]
@@ -120,16 +170,19 @@ def _merge_pass(problem: Problem, state: State, log: list[str]) -> tuple[State, 
                 key=lambda pair: float(np.hypot(*(pair[0] - pair[1]))),
             )
             merged = _rod(far[0], far[1], blocks[i])
+            if ctx.near("split", merged[0], merged[1]):
+                continue  # no undoing a split
             trial_blocks = np.delete(blocks, j, axis=0)
             trial_blocks[i] = merged
-            trial = _try(problem, state, trial_blocks, shared, [i])
-            if _accept(problem, state, trial, -1):
-                log.append(f"merged cells at y = {blocks[i, 1]:.2f} and {blocks[j, 1]:.2f} um")
+            trial = _try(problem, state, trial_blocks, shared, [i], ctx)
+            if _accept(problem, state, trial, -1, ctx):
+                message = f"merged cells at y = {blocks[i, 1]:.2f} and {blocks[j, 1]:.2f} um"
+                ctx.accept("merge", merged[0], merged[1], message)
                 return trial, True
     return state, False
 
 
-def _split_pass(problem: Problem, state: State, log: list[str]) -> tuple[State, bool]:
+def _split_pass(problem: Problem, state: State, ctx: _Context) -> tuple[State, bool]:
     blocks, shared = problem.blocks(state.x)
     n = len(blocks)
     if n == 0:
@@ -140,28 +193,32 @@ def _split_pass(problem: Problem, state: State, log: list[str]) -> tuple[State, 
         threshold = max(limit, 2.2 * width) if n > 1 else 2.2 * width
         if blocks[i, 3] < threshold:
             continue
+        if ctx.near("merge", blocks[i, 0], blocks[i, 1]):
+            continue  # no undoing a merge
         p, q = _poles(blocks[i])
         mid = (p + q) / 2
         gap = 0.05 * (q - p) / max(np.hypot(*(q - p)), 1e-9)
         a, b = _rod(p, mid - gap, blocks[i]), _rod(mid + gap, q, blocks[i])
         trial_blocks = np.insert(np.delete(blocks, i, axis=0), i, [a, b], axis=0)
-        trial = _try(problem, state, trial_blocks, shared, [int(i), int(i) + 1])
-        if _accept(problem, state, trial, +1):
-            log.append(f"split the cell at ({blocks[i, 0]:.2f}, {blocks[i, 1]:.2f}) um")
+        trial = _try(problem, state, trial_blocks, shared, [int(i), int(i) + 1], ctx)
+        if _accept(problem, state, trial, +1, ctx):
+            x, y = blocks[i, :2]
+            ctx.accept("split", x, y, f"split the cell at ({x:.2f}, {y:.2f}) um")
             return trial, True
     return state, False
 
 
 def _add_pass(
-    problem: Problem, state: State, polarity: str, log: list[str], max_tries: int = 8
+    problem: Problem, state: State, ctx: _Context, polarity: str, max_tries: int = 4
 ) -> tuple[State, bool]:
     blocks, shared = problem.blocks(state.x)
     rows, cols = problem.shape
     px = problem.microscope.pixel_size_um
     sign = -1.0 if polarity == "dark" else 1.0
     z = sign * (problem.y - state.mu) * np.sqrt(problem.w)
-    z = ndimage.gaussian_filter(z.reshape(rows, cols), 1.0) * 2.0  # ~ unit s.d. again
-    from napari_symbac.optics.forward import block_average
+    # Smoothed by 1 px, white noise keeps 0.282 of its s.d.; x 2 and a threshold of 3
+    # ask a blob to stand 5.3 s.d. of the smoothed noise out.
+    z = ndimage.gaussian_filter(z.reshape(rows, cols), 1.0) * 2.0
 
     model_cells = block_average(state.scene.interior(state.scene.cells), state.scene.upsample)
     scene = state.scene
@@ -185,28 +242,42 @@ def _add_pass(
         block = np.zeros(problem.layout.per_cell)
         block[:4] = new.x_um[0], new.y_um[0], new.angle_rad[0], max(new.length_um[0], shared[0])
         trial_blocks = np.vstack([blocks, block]) if len(blocks) else block[None]
-        trial = _try(problem, state, trial_blocks, shared, [len(trial_blocks) - 1])
-        if _accept(problem, state, trial, +1):
-            log.append(f"added a cell at ({block[0]:.2f}, {block[1]:.2f}) um")
+        trial = _try(problem, state, trial_blocks, shared, [len(trial_blocks) - 1], ctx)
+        lay = problem.layout
+        if lay.per_cell_brightness:
+            added = problem.blocks(trial.x)[0][-1]
+            if added[lay.i_brightness] < DIM_CELL:
+                continue  # a glow or background structure, not a cell
+        if _accept(problem, state, trial, +1, ctx):
+            x, y = block[:2]
+            ctx.accept("add", x, y, f"added a cell at ({x:.2f}, {y:.2f}) um")
             return trial, True
     return state, False
 
 
 def improve_scene(
     problem: Problem, state: State, polarity: str, max_moves: int = 20
-) -> tuple[State, list[str]]:
+) -> tuple[State, list[str], float]:
     """Apply remove, merge, split and add moves while the BIC falls.
 
-    Returns the final state and a log of the accepted moves (plain words).
+    The chi-square differences are divided by the residual's :func:`dispersion`
+    (a quasi-likelihood BIC): where the model misses structure, a move must explain
+    more to be kept. A move is not undone at the same place (no split of a merged
+    cell, no merge of a split one).
+
+    Returns
+    -------
+    state, log, dispersion
+        The final state, the accepted moves in plain words, and the dispersion used.
     """
-    log: list[str] = []
+    ctx = _Context(dispersion(problem, state))
     for _ in range(max_moves):
         for move in (_remove_pass, _merge_pass, _split_pass):
-            state, changed = move(problem, state, log)
+            state, changed = move(problem, state, ctx)
             if changed:
                 break
         else:
-            state, changed = _add_pass(problem, state, polarity, log)
+            state, changed = _add_pass(problem, state, ctx, polarity)
         if not changed:
             break
-    return state, log
+    return state, ctx.log, ctx.dispersion

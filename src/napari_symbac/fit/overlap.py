@@ -53,8 +53,7 @@ def segment_distance(p: tuple[np.ndarray, np.ndarray], q: tuple[np.ndarray, np.n
 
 
 def _widths(blocks: np.ndarray, shared_width: float, layout: Layout) -> np.ndarray:
-    pc = layout.per_cell
-    widths = shared_width + (blocks[:, pc - 1] if layout.per_cell_width else 0.0)
+    widths = shared_width + (blocks[:, layout.i_dwidth] if layout.per_cell_width else 0.0)
     return np.maximum(np.broadcast_to(widths, (len(blocks),)), 0.2)
 
 

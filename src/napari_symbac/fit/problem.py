@@ -57,8 +57,6 @@ class Problem:
 
     def __post_init__(self) -> None:
         self._models: dict[int, SceneModel] = {}
-        self.n_full = 0
-        self.n_patch = 0
 
     @property
     def n_valid(self) -> int:

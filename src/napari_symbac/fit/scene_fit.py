@@ -222,6 +222,12 @@ class SceneFit:
             table[f"{column}_se"] = [
                 self._se_or_nan(f"cell{int(i)}.{name}") for i in self.cells.ids
             ]
+        if any(name.endswith(".dbrightness") for name in self.parameter_names):
+            values = dict(zip(self.parameter_names, self.parameters))
+            table["intensity_adu"] = [
+                self.render.cell_intensity * (1 + values[f"cell{int(i)}.dbrightness"])
+                for i in self.cells.ids
+            ]
         table["width_um_se"] = [
             self._se_or_nan(f"cell{int(i)}.dwidth_um", "width_um") for i in self.cells.ids
         ]
@@ -248,6 +254,7 @@ def fit_scene(
     fit_optics: tuple[str, ...] | None = None,
     valid: np.ndarray | None = None,
     width_sd_um: float = 0.0,
+    per_cell_brightness: bool | None = None,
     fit_curvature: bool = True,
     curvature_sd_um: float = 0.1,
     irls_rounds: int = 3,
@@ -266,9 +273,14 @@ def fit_scene(
     microscope, render
         Starting model; ``render`` gives the starting kernel parameters.
     camera
-        The camera (eq. 17-19). ``None``: estimated from the data, the gain and read
-        noise from the residual variance against the model mean after the first
-        round (:func:`~napari_symbac.fit.noise.camera_from_residuals`), the baseline
+        The camera (eq. 17-19). ``None``: estimated from the data. When
+        :mod:`napari_symbac.fit.camera_estimate` is installed, its photon-transfer
+        estimate from the image starts the fit and its model-residual estimate is
+        refitted after every round (gain and read noise; the baseline is the guess
+        below); otherwise the first round weighs pixels by a
+        robust white-noise estimate and the gain and read noise come from the
+        residual variance against the model mean after each round
+        (:func:`~napari_symbac.fit.noise.camera_from_residuals`), the baseline
         guessed (100 ADU, or the image's 0.1 % quantile when lower, e.g. 0 for a
         background-subtracted image).
     geometry
@@ -296,6 +308,10 @@ def fit_scene(
     width_sd_um
         0 (default): one width shared by all cells. > 0: per-cell widths tied to the
         shared width by a Gaussian prior of this s.d. (hierarchical).
+    per_cell_brightness
+        Give each cell its own intensity ``I_c (1 + dbrightness)`` (a Gaussian prior
+        of s.d. 1 ties ``dbrightness`` to 0). Default: on in fluorescence (cells
+        differ in fluorophore content), off in phase contrast.
     fit_curvature, curvature_sd_um
         Fit each cell's curvature amplitude ``a`` of eq. 1 (one bend), with a
         Gaussian prior of this s.d. centred on 0; cells start straight and stay
@@ -327,6 +343,14 @@ def fit_scene(
         raise ValueError(f"curvature_sd_um must be positive, got {curvature_sd_um!r}")
     if irls_rounds < 1 or max_iterations < 1:
         raise ValueError("irls_rounds and max_iterations must be at least 1")
+    if getattr(render, "phase_separate", False) or (
+        microscope.modality == "phase" and getattr(render, "phase_model", "linear") != "linear"
+    ):
+        raise ValueError(
+            "fit_scene models the image as cells, media and device through one linear kernel: "
+            "use the linear phase model without separate phase amplitudes "
+            "(phase_model='linear', cell_phase_adu=device_phase_adu=None)"
+        )
     modality = microscope.modality
     if fit_optics is None:
         fit_optics = DEFAULT_FIT_OPTICS.get(modality, ())
@@ -364,6 +388,8 @@ def fit_scene(
         placement = dataclasses.replace(placement, closed_end=closed_end)
     shape = real.shape
     n = len(init_cells)
+    if per_cell_brightness is None:
+        per_cell_brightness = modality == "fluorescence"
     layout = Layout(
         n=n,
         fit_curvature=fit_curvature,
@@ -371,6 +397,7 @@ def fit_scene(
         trench=placement is not None,
         fit_top=placement is not None and placement.top_um > 0,
         optics=fit_optics,
+        per_cell_brightness=bool(per_cell_brightness),
     )
     width_um, height_um = shape[1] * px, shape[0] * px
     cell_lower = [-2.0, -3.0, -1.6, 0.3] + [-0.5] * fit_curvature + [-1.0] * (width_sd_um > 0)
@@ -378,6 +405,10 @@ def fit_scene(
     cell_upper += [0.5] * fit_curvature + [1.0] * (width_sd_um > 0)
     cell_sd = [math.inf] * 4 + [curvature_sd_um] * fit_curvature
     cell_sd += [width_sd_um] * (width_sd_um > 0)
+    if per_cell_brightness:
+        cell_lower.append(-0.8)
+        cell_upper.append(4.0)
+        cell_sd.append(1.0)
     # Otsu is biased narrow (section 1.3): start a little wider.
     width0 = float(np.clip(np.median(otsu_w) + 0.1, 0.4, 2.0))
     g0, g_lo, g_hi = [width0], [0.3], [2.5]
@@ -403,9 +434,16 @@ def fit_scene(
     y = (real - baseline).ravel().astype(np.float64)
     flat_valid = valid.ravel()
     if camera is None:
-        noise = _pixel_noise(real, valid) or float(np.std(real[valid])) or 1.0
-        w = flat_valid / noise**2
-        camera_used = Camera(baseline_adu=baseline)
+        measured = _measured_camera(real, valid, camera=Camera(baseline_adu=baseline))
+        if measured is not None:
+            baseline = measured.baseline_adu
+            y = (real - baseline).ravel().astype(np.float64)
+            w = flat_valid / variance(np.maximum(y, 0.0), measured)
+            camera_used = measured
+        else:
+            noise = _pixel_noise(real, valid) or float(np.std(real[valid])) or 1.0
+            w = flat_valid / noise**2
+            camera_used = Camera(baseline_adu=baseline)
     else:
         w = flat_valid / _variance(np.maximum(y, 0.0), render, camera)
         camera_used = camera
@@ -442,9 +480,11 @@ def fit_scene(
         nonlocal camera_used
         mu = state.mu
         if estimate:
-            camera_used = camera_from_residuals(
-                mu[flat_valid], (y - mu)[flat_valid], baseline, camera_used.bit_depth
-            )
+            camera_used = _measured_camera(real, valid, (mu + baseline).reshape(shape), camera_used)
+            if camera_used is None:
+                camera_used = camera_from_residuals(
+                    mu[flat_valid], (y - mu)[flat_valid], baseline, problem.camera.bit_depth
+                )
             var = variance(mu, camera_used)
         else:
             var = _variance(mu, render, camera_used)
@@ -457,9 +497,9 @@ def fit_scene(
         if round_ == 0 and rounds > 1 and fit_curvature:
             # Curvature held straight in the first round: the centres and angles settle
             # first, so that a bend cannot stand in for them.
-            free[: problem.n_cells(state.x) * per_cell] = np.tile(
-                [True] * 4 + [False] + [True] * (width_sd_um > 0), problem.n_cells(state.x)
-            )
+            held = np.ones(per_cell, bool)
+            held[4] = False  # curvature_um
+            free[: problem.n_cells(state.x) * per_cell] = np.tile(held, problem.n_cells(state.x))
         state, converged = problem.refit(state, free, max_iterations)
         if not converged:
             warnings.append(
@@ -468,7 +508,12 @@ def fit_scene(
             )
         problem, state = reweight(state)
         if round_ == 0 and moves:
-            state, log = improve_scene(problem, state, polarity)
+            state, log, phi = improve_scene(problem, state, polarity)
+            if phi > 1.5:
+                warnings.append(
+                    f"the residual is spatially correlated (dispersion {phi:.3g}): the moves "
+                    "demanded that much more evidence"
+                )
     # ---- results -----------------------------------------------------------------
     x = state.x
     n = problem.n_cells(x)
@@ -541,6 +586,30 @@ def fit_scene(
     )
 
 
+def _measured_camera(
+    real: np.ndarray,
+    valid: np.ndarray,
+    model_mean: np.ndarray | None = None,
+    camera: Camera | None = None,
+) -> Camera | None:
+    """Photon transfer of :mod:`napari_symbac.fit.camera_estimate`, when it is installed.
+
+    Without ``model_mean`` a high-pass estimate from the image (the start); with it,
+    the residual against the model mean. The baseline is kept from ``camera`` (one
+    frame cannot separate it from the read noise). ``None``
+    when the module is absent or the estimate fails (too little range of levels):
+    the fit then uses :func:`~napari_symbac.fit.noise.camera_from_residuals`.
+    """
+    try:
+        from napari_symbac.fit.camera_estimate import estimate_camera
+    except ImportError:
+        return None
+    try:
+        return estimate_camera(real, valid=valid, model_mean=model_mean, camera=camera).camera
+    except ValueError:
+        return None
+
+
 def _baseline_guess(real: np.ndarray, valid: np.ndarray) -> float:
     """Camera offset of an unknown camera: 100 ADU, or the 0.1 % quantile when lower."""
     low = float(np.quantile(real[valid], 0.001))
@@ -575,10 +644,15 @@ def _uncertainty(
     info = (jw.T @ jw).toarray()
     sd = np.concatenate([problem.prior_sd(n), np.full(3, math.inf)])
     info[np.diag_indices_from(info)] += 1.0 / sd**2
+    # An intensity whose component is empty (no device on a pad) is not a parameter.
+    keep = np.concatenate([np.ones(state.x.size, bool), np.any(state.a != 0, axis=0)])
+    jac = jac[:, np.flatnonzero(keep)]
+    info = info[np.ix_(keep, keep)]
     cov = np.linalg.pinv(info, rcond=1e-12, hermitian=True)
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     names = (*model.layout.names(np.arange(1, n + 1)), *_INTENSITIES)
-    values = np.concatenate([state.x, state.intensities])
+    names = tuple(name for name, k in zip(names, keep) if k)
+    values = np.concatenate([state.x, state.intensities])[keep]
     return names, values, se, info, jac
 
 

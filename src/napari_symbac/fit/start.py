@@ -304,6 +304,10 @@ def otsu_cells(
     return cells, widths, (trench if geometry == "trench" else None), instances
 
 
+#: Regions smaller than this are fragments, not cells (a 0.6 um sphere is 0.28 um^2).
+MIN_CELL_AREA_UM2 = 0.25
+
+
 def cells_from_instances(
     instances: np.ndarray, pixel_size_um: float, max_cell_length_um: float = 4.0
 ) -> tuple[FrameCells, np.ndarray]:
@@ -312,8 +316,8 @@ def cells_from_instances(
     Centroid, principal-axis angle, extent along the axis (length) and the width of
     the spherocylinder with the region's area and length (image coordinates, um).
     A region longer than ``max_cell_length_um`` is taken as several touching cells
-    and starts as equal rods along its axis. Regions of fewer than 6 pixels are
-    left out.
+    and starts as equal rods along its axis. Regions of fewer than 6 pixels or
+    smaller than :data:`MIN_CELL_AREA_UM2` are left out (fragments).
 
     Returns
     -------
@@ -328,7 +332,7 @@ def cells_from_instances(
             continue
         rr, cc = np.nonzero(instances[box] == index)
         rr, cc = rr + box[0].start, cc + box[1].start
-        if rr.size < 6:
+        if rr.size < 6 or rr.size * px * px < MIN_CELL_AREA_UM2:
             continue
         x = (cc + 0.5) * px
         y = (rr + 0.5) * px

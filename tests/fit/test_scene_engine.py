@@ -1,0 +1,264 @@
+"""The scene-fit engine: exact intensities, local patches, moves, camera, uncertainty."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from _fit_synthetic import START, TRENCH, make_fluorescence_field
+from scipy import ndimage, optimize
+
+from napari_symbac.fit import fit_scene
+from napari_symbac.fit.engine import Layout, SceneModel, solve_intensities
+from napari_symbac.fit.noise import camera_from_residuals, default_valid
+from napari_symbac.fit.overlap import overlap_terms
+from napari_symbac.fit.placement import TrenchPlacement
+from napari_symbac.fit.start import polarity_of, start_scene
+from napari_symbac.settings import Camera, RenderSettings
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_intensities_are_the_exact_non_negative_least_squares(seed):
+    rng = np.random.default_rng(seed)
+    a = rng.random((200, 3))
+    a[:, 2] *= 0.01 if seed % 2 else 1.0
+    truth = rng.normal(size=3) * 100  # some negative: the fallback must clip them
+    y = a @ truth + rng.normal(size=200)
+    w = rng.uniform(0.5, 2.0, 200)
+    got = solve_intensities(a, y, w)
+    sw = np.sqrt(w)
+    want = optimize.nnls(a * sw[:, None], y * sw)[0]
+    np.testing.assert_allclose(got, want, rtol=1e-7, atol=1e-7)
+    assert np.all(got >= 0)
+
+
+def test_all_zero_columns_get_zero_intensity():
+    a = np.zeros((50, 3))
+    a[:, 0] = 1.0
+    a[:, 1] = np.linspace(0, 1, 50)
+    y = 3 + 2 * a[:, 1]
+    got = solve_intensities(a, y, np.ones(50))
+    np.testing.assert_allclose(got, [3, 2, 0], atol=1e-9)
+
+
+def _model(truth, n=3):
+    microscope = truth.microscope
+    placement = TrenchPlacement(TRENCH.margin_um, TRENCH.width_um, TRENCH.margin_um, 1.2)
+    layout = Layout(n, True, False, True, True, ("defocus_sigma_um",))
+    model = SceneModel(
+        truth.image.shape, microscope, truth.render, Camera(), placement, 1.2, layout
+    )
+    m = TRENCH.margin_um
+    blocks = np.stack(
+        [
+            truth.cells.x_um + m,
+            truth.cells.y_um + m,
+            truth.cells.angle_rad,
+            truth.cells.length_um,
+            np.array([0.0, 0.1, 0.0]),
+        ],
+        axis=1,
+    )
+    shared = [0.95, m, TRENCH.width_um, m, 0.15]
+    return model, np.concatenate([blocks.ravel(), shared])
+
+
+@pytest.mark.parametrize("k", [0, 1, 2, 3, 4, 6, 8])
+def test_cell_patch_equals_the_difference_of_full_renders(truth, k):
+    """Linearity of the convolution: one cell's change is local and exact."""
+    model, x = _model(truth)
+    a, scene, render = model.design(x)
+    x_new = x.copy()
+    x_new[k] += 0.04
+    owner = model.layout.owner(k)
+    kernel = model.forward.with_render(render).kernel(scene.pixel_size_um)
+    row0, col0, patch = model.cell_delta(x, x_new, owner, scene, kernel)
+    a_new, _, _ = model.design(x_new)
+    full = (a_new[:, 0] - a[:, 0]).reshape(truth.image.shape)
+    local = np.zeros_like(full)
+    rows, cols = full.shape
+    ph, pw = patch.shape
+    r0, c0 = max(row0, 0), max(col0, 0)
+    r1, c1 = min(row0 + ph, rows), min(col0 + pw, cols)
+    local[r0:r1, c0:c1] = patch[r0 - row0 : r1 - row0, c0 - col0 : c1 - col0]
+    assert np.abs(full).max() > 1e-3  # the move changed the image
+    np.testing.assert_allclose(local, full, atol=2e-5 * np.abs(full).max() + 1e-6)
+    # and the media image changed by exactly minus that (media = trench - cells)
+    np.testing.assert_allclose(
+        (a_new[:, 1] - a[:, 1]).reshape(full.shape), -full, atol=1e-5
+    )
+
+
+def test_overlapping_rods_are_penalised_and_touching_ones_are_not():
+    layout = Layout(2, False, False, False, False, ())
+    apart = np.array([1.0, 1.5, 0.0, 2.0, 1.0, 3.5, 0.0, 2.0, 1.0])  # end to end
+    inside = np.array([1.0, 1.5, 0.0, 3.0, 1.0, 1.8, 0.0, 1.2, 1.0])  # one in the other
+    assert overlap_terms(apart, layout)[0].size == 0
+    res, jac = overlap_terms(inside, layout, np.full(9, 0.05))
+    assert res.size == 1
+    assert res[0] > 10
+    assert np.abs(jac).sum() > 0
+
+
+def test_polarity_comes_from_labels_before_the_modality():
+    image = np.full((20, 20), 100.0)
+    image[5:15, 5:15] = 500.0
+    labels = np.zeros((20, 20), int)
+    labels[8:12, 8:12] = 1
+    labels[0:3] = 2
+    assert polarity_of(image, "phase", labels) == "bright"
+    assert polarity_of(image, "phase") == "dark"
+    assert polarity_of(image, "fluorescence") == "bright"
+
+
+def test_fluorescence_trench_needs_a_placement():
+    field = make_fluorescence_field()
+    with pytest.raises(ValueError, match="trench=TrenchPlacement"):
+        start_scene(field.image.astype(float), field.microscope, geometry="trench")
+
+
+def test_default_valid_censors_saturation_and_clipped_zeros():
+    image = np.arange(10000, dtype=float).reshape(100, 100)
+    image[:5] = 65535
+    image[-5:] = 0
+    valid = default_valid(image, "fluorescence")
+    assert not valid[:5].any()
+    assert not valid[-5:].any()
+    assert valid[5:-5].all()
+    assert default_valid(image, "phase")[-5:].all()  # zeros are data in phase contrast
+
+
+def test_camera_is_recovered_from_residuals():
+    rng = np.random.default_rng(4)
+    mu = rng.uniform(100, 5000, 200_000)
+    cam = Camera(baseline_adu=100.0, sensitivity_adu_per_e=2.9, dark_noise_e=8.0)
+    var = 2.9 * mu + (2.9 * 8.0) ** 2 + 1 / 12
+    est = camera_from_residuals(mu, rng.normal(0, np.sqrt(var)), cam.baseline_adu)
+    assert est.sensitivity_adu_per_e == pytest.approx(2.9, rel=0.02)
+    assert est.dark_noise_e == pytest.approx(8.0, rel=0.15)
+
+
+@pytest.fixture(scope="module")
+def fluorescence_fit():
+    field = make_fluorescence_field()
+    fit = fit_scene(
+        field.image, field.microscope, RenderSettings(defocus_sigma_um=0.0), None, geometry="open"
+    )
+    return field, fit
+
+
+def test_fluorescence_field_is_recovered_with_its_camera(fluorescence_fit):
+    truth, fit = fluorescence_fit
+    assert len(fit.cells) == len(truth.cells)
+    got = np.argsort(fit.cells.y_um * 100 + fit.cells.x_um)
+    want = np.argsort(truth.cells.y_um * 100 + truth.cells.x_um)
+    np.testing.assert_allclose(fit.cells.width_um[got], truth.cells.width_um[want], atol=0.020)
+    np.testing.assert_allclose(fit.cells.length_um[got], truth.cells.length_um[want], atol=0.050)
+    # each cell's own intensity (fluorescence: I_c (1 + dbrightness)) and the background
+    table = fit.cells_table()
+    np.testing.assert_allclose(table["intensity_adu"], truth.render.cell_intensity, rtol=0.02)
+    assert fit.render.media_intensity == pytest.approx(truth.render.media_intensity, rel=0.02)
+    assert fit.camera.sensitivity_adu_per_e == pytest.approx(2.9, rel=0.05)
+    assert fit.objective_after == pytest.approx(1.0, abs=0.1)  # reduced chi-square
+    assert fit.trench is None
+    assert not fit.warnings
+
+
+def test_uncertainty_api(fluorescence_fit):
+    truth, fit = fluorescence_fit
+    p = len(fit.parameter_names)
+    assert fit.parameters.shape == fit.standard_errors.shape == (p,)
+    assert fit.information.shape == (p, p)
+    np.testing.assert_allclose(fit.information, fit.information.T, rtol=1e-9, atol=1e-9)
+    assert np.all(fit.standard_errors > 0)
+    assert np.all(np.isfinite(fit.standard_errors))
+    jac = fit.jacobian()
+    assert jac.shape == (truth.image.size, p)
+    # information = J^T W J (+ priors on curvature only, none on the x_um columns)
+    k = fit.parameter_names.index("cell1.x_um")
+    col = jac[:, k].toarray().ravel()
+    w = fit.valid.ravel() / np.maximum(fit.synthetic.ravel() - fit.camera.baseline_adu, 0)
+    assert np.count_nonzero(col) < 0.5 * col.size  # a cell's column is local
+    assert fit.information[k, k] > 0
+    assert np.sum(col**2 * w) > 0
+    table = fit.cells_table()
+    assert len(table["length_um_se"]) == len(fit.cells)
+    assert all(0 < se < 0.1 for se in table["length_um_se"])
+    assert fit.standard_error("width_um") == table["width_um_se"][0]
+    with pytest.raises(ValueError, match="no fitted parameter"):
+        fit.standard_error("nonsense")
+
+
+def test_censored_pixels_are_left_out(truth):
+    image = truth.image.copy()
+    image[40:44, 10:30] = 65535  # a saturated streak across a cell
+    fit = fit_scene(
+        image, truth.microscope, START, truth.camera, irls_rounds=1, max_iterations=10, moves=False
+    )
+    assert not fit.valid[40:44, 10:30].any()
+    assert fit.valid.sum() == image.size - 80
+    assert fit.objective_after < 1.3  # the streak does not count
+
+
+def test_a_cell_split_in_the_start_mask_is_merged_back(truth):
+    """Moves: an instance mask with one cell cut in two ends with the true count."""
+    from napari_symbac.fit import scene_classes
+
+    labels = truth.scene.camera_labels().astype(np.int64)
+    assert labels.max() == 3
+    rows = np.nonzero(labels == 2)[0]
+    cut = (rows.min() + rows.max()) // 2
+    labels[(labels == 2) & (np.arange(labels.shape[0])[:, None] > cut)] = 4
+    assert ndimage.label(labels > 0)[1] <= 4
+    fit = fit_scene(
+        truth.image,
+        truth.microscope,
+        START,
+        truth.camera,
+        masks=labels,
+        labels=scene_classes(truth.scene),
+        irls_rounds=2,
+        max_iterations=12,
+    )
+    assert len(fit.initial_cells) == 4
+    assert len(fit.cells) == 3, fit.moves
+    assert any("merged" in move for move in fit.moves)
+
+
+def test_jacobian_columns_match_full_renders(truth):
+    """The shared width's column (sum of the cells' patches) and a cell's column."""
+    model, x = _model(truth)
+    a, scene, render = model.design(x)
+    intensities = np.array([1400.0, 2600.0, 900.0])
+    free = np.zeros(x.size, bool)
+    width, cell = model.layout.n * model.layout.per_cell, 5  # shared width, cell 2's x
+    free[[cell, width]] = True
+    jac = model.jacobian(x, a, intensities, scene, render, free).toarray()
+    scales = model.layout.scales()
+    for column, k in enumerate((cell, width)):
+        xk = x.copy()
+        xk[k] += 0.3 * scales[k]
+        ak, _, _ = model.design(xk)
+        want = (ak - a) @ intensities / 0.3
+        np.testing.assert_allclose(jac[:, column], want, atol=1e-3 * np.abs(want).max())
+    np.testing.assert_allclose(jac[:, 2:], a)  # d mu / d intensities
+
+
+def test_a_cell_missing_from_the_start_mask_is_added(truth):
+    """Moves: a mask that misses one of the three cells ends with all three."""
+    labels = truth.scene.camera_labels().astype(np.int64)
+    labels[labels == 3] = 0
+    fit = fit_scene(
+        truth.image,
+        truth.microscope,
+        START,
+        truth.camera,
+        masks=labels,
+        irls_rounds=2,
+        max_iterations=12,
+    )
+    assert len(fit.initial_cells) == 2
+    assert len(fit.cells) == 3, fit.moves
+    assert any("added" in move for move in fit.moves)
+    order = np.argsort(fit.cells.y_um)
+    true_y = truth.cells.y_um + TRENCH.margin_um
+    np.testing.assert_allclose(fit.cells.y_um[order], true_y, atol=0.05)
