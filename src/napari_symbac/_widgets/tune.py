@@ -22,7 +22,7 @@ from magicgui.widgets import (
     Table,
 )
 
-from napari_symbac._widgets._jobs import Job, notify_warning
+from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
 from napari_symbac._widgets._recording import modality_render
 from napari_symbac._widgets.real_image import class_layer_name
 from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
@@ -379,7 +379,7 @@ class TuneWidget(Container):
             from napari_symbac.fit import fit_scene
 
             return (
-                yield from _blocking_steps(
+                yield from blocking_steps(
                     lambda progress, cancel: fit_scene(
                         real,
                         microscope,
@@ -580,27 +580,6 @@ class TuneWidget(Container):
 
 def _format(value: float) -> str:
     return f"{value:.4g}" if np.isfinite(value) else "NaN"
-
-
-def _blocking_steps(run, cancelled):
-    """Run ``run(progress, cancel)`` in a thread; yield ``(done, (done, total))`` updates.
-
-    A generator for :class:`~napari_symbac._widgets._jobs.Job`; returns ``run``'s result
-    and raises its exception.
-    """
-    import queue
-    from concurrent.futures import ThreadPoolExecutor
-
-    updates: queue.Queue = queue.Queue()
-    with ThreadPoolExecutor(1) as pool:
-        future = pool.submit(run, lambda done, total: updates.put((done, total)), cancelled)
-        while not future.done() or not updates.empty():
-            try:
-                done, total = updates.get(timeout=0.05)
-            except queue.Empty:
-                continue
-            yield done, (done, total)
-        return future.result()
 
 
 def _set_slider(slider: FloatSlider, value: float) -> None:
