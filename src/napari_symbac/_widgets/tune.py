@@ -151,6 +151,13 @@ class TuneWidget(Container):
         self.match_noise = CheckBox(
             name="match_noise", text="match noise (Gaussian, sd measured on the real image)"
         )
+        self.match_fourier.tooltip = (
+            "Give the preview the real image's Fourier amplitude spectrum (SyMBac's matching)."
+        )
+        self.match_histogram.tooltip = "Map the preview's grey levels to the real image's."
+        self.match_noise.tooltip = (
+            "Gaussian noise with the sd measured on the real image (SyMBac's match_noise)."
+        )
         self.status = Label(name="status", value="")
         self.fit_iterations = SpinBox(
             name="fit_iterations",
