@@ -71,6 +71,7 @@ class ExportWidget(Container):
         self.export_button = PushButton(name="export", text="Export")
         self.cancel_button = PushButton(name="cancel", text="Cancel", enabled=False)
         self.status = Label(name="status", value="")
+        self.status.native.setWordWrap(True)  # long messages must not widen the dock
         self.extend(
             [
                 self.source,

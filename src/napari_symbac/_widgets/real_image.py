@@ -69,7 +69,9 @@ class RealImageWidget(Container):
         self.microscope.pixel_size_um.step = 0.001
         self.pixel_size = self.microscope.pixel_size_um
         self.modality = self.microscope.modality
-        self.warning = Label(name="warning", value="")
+        self.warning = Label(name="warning", value="", label="")
+        self.warning.visible = False
+        self.warning.native.setWordWrap(True)  # a long message must not widen the dock
         self.paint_button = PushButton(
             name="paint",
             text="Paint classes",
@@ -179,12 +181,14 @@ class RealImageWidget(Container):
                 problem = str(err)
         if problem is not None:
             self.warning.value = f"<b style='color:#ffb000'>&#9888; {layer.name}: {problem}</b>"
+            self.warning.visible = True
             if self.warning.value != getattr(self, "_warned", None):
                 notify_warning(f"{layer.name}: {problem}")
             self._warned = self.warning.value
             layer.metadata["pixel_size_um"] = None
             return
         self.warning.value = ""
+        self.warning.visible = False
         self._warned = None
         layer.metadata.update(
             pixel_size_um=pixel, modality=microscope.modality, microscope=microscope

@@ -84,6 +84,7 @@ class SimulateWidget(Container):
             text="Cancel", name="cancel", enabled=False, tooltip="Stop; nothing is kept."
         )
         self.status = Label(value="", name="status")
+        self.status.native.setWordWrap(True)  # long messages must not widen the dock
         self.extend(
             [
                 self.recording,

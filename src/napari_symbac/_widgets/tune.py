@@ -159,6 +159,7 @@ class TuneWidget(Container):
             "Gaussian noise with the sd measured on the real image (SyMBac's match_noise)."
         )
         self.status = Label(name="status", value="")
+        self.status.native.setWordWrap(True)  # long messages must not widen the dock
         self.fit_iterations = SpinBox(
             name="fit_iterations",
             label="fit iterations",
