@@ -36,6 +36,14 @@ def wait_for(condition, timeout_s: float = 300.0) -> None:
             raise TimeoutError("the widget did not finish in time")
 
 
+def dismiss_notifications(viewer: napari.Viewer) -> None:
+    """Close the notification toasts (they would stay on the later screenshots)."""
+    from napari._qt.dialogs.qt_notification import NapariQtNotification
+
+    for toast in viewer.window._qt_window.findChildren(NapariQtNotification):
+        toast.close()
+
+
 def shot(viewer: napari.Viewer, name: str) -> None:
     for _ in range(20):
         QApplication.processEvents()
@@ -65,6 +73,7 @@ def real_trench_flow(folder: Path) -> None:
     _, flow = viewer.window.add_plugin_dock_widget(PLUGIN, "SyMBac workflow (all steps)")
     flow.real_image.file.value = path
     shot(viewer, "napari-recording-no-pixel-size.png")
+    dismiss_notifications(viewer)
     flow.real_image.pixel_size.value = 0.065
     flow.real_image.paint_button.native.click()
     labels = viewer.layers[class_layer_name("my_trench")]
@@ -92,6 +101,7 @@ def real_trench_flow(folder: Path) -> None:
 
     flow.setCurrentIndex(2)
     flow.tune.reference.value = viewer.layers["my_trench"]
+    flow.tune.fit_iterations.value = 10
     flow.tune.fit_button.native.click()
     wait_for(lambda: flow.tune.fit_worker is None)
     print(flow.tune.status.value)
