@@ -175,8 +175,6 @@ class Job:
                     self._handle(kind, payload)
                 except Exception as err:  # a bug in a callback: report, keep the widget
                     notify_error(describe_error(err, f"{self._what} (showing its result)"))
-                    if kind != "finish" and not self.done:
-                        continue
         finally:
             self._busy = False
 
