@@ -134,6 +134,10 @@ def test_workflow_fits_a_laptop_screen(make_napari_viewer, qtbot):
     canvas = viewer.window._qt_viewer.canvas.native
     assert canvas.height() >= 400
     assert dock.width() < 700
+    # no step is wider than the dock: labels are not cut, no sideways scrolling
+    for index in range(workflow.count()):
+        area = workflow.widget(index)
+        assert area.widget().minimumSizeHint().width() <= area.viewport().width()
     # every field of every step has a label with words and a tooltip
     for step in (workflow.real_image, workflow.simulate, workflow.tune, workflow.export):
         for widget in _leaves(step):

@@ -22,7 +22,7 @@ from magicgui.widgets import (
     Widget,
 )
 
-__all__ = ["SettingsForm", "parameter_docs"]
+__all__ = ["SettingsForm", "hide_label", "parameter_docs"]
 
 _UNIT_SUFFIXES = {
     "_um2": "um²",
@@ -82,6 +82,14 @@ def _float_step(value: float) -> float:
 def _is_text(annotation: Any) -> bool:
     args = set(typing.get_args(annotation)) - {type(None)}
     return annotation is str or args == {str}
+
+
+def hide_label(widget: Widget) -> None:
+    """Hide the label column of ``widget`` inside its labelled container (a sub-form or a
+    heading needs none; the column would take the dock's width)."""
+    labeled = getattr(widget, "_labeled_widget", lambda: None)()
+    if labeled is not None:
+        labeled._label_widget.visible = False
 
 
 def parameter_docs(cls: type) -> dict[str, str]:
@@ -162,7 +170,9 @@ class SettingsForm(Container):
     ) -> None:
         super().__init__(**kwargs)
         if title:
-            self.append(Label(name="_title", value=f"<b>{title}</b>", label=""))
+            heading = Label(name="_title", value=f"<b>{title}</b>")
+            self.append(heading)
+            hide_label(heading)
         self._cls = cls
         self._fixed: dict[str, Any] = {}  # fields kept as they are (no editor)
         value = cls() if value is None else value
@@ -185,6 +195,8 @@ class SettingsForm(Container):
             else:
                 widget.tooltip = tooltips.get(field.name) or _label(field.name)
                 self.append(widget)
+                if isinstance(widget, SettingsForm):
+                    hide_label(widget)
         self._remember_exact(value)
 
     def _remember_exact(self, settings: Any) -> None:
