@@ -66,7 +66,7 @@ def test_real_recording_to_matched_dataset(make_napari_viewer, qtbot, tmp_path, 
     assert flow.simulate.pipeline.microscope.pixel_size_um == PIXEL_UM
 
     # 3 Auto-fit the scene to the recording
-    flow.tune.reference.value = real
+    assert flow.tune.reference.value is real  # your recording, chosen for you
     flow.tune.fit_iterations.value = 3
     flow.tune.fit_button.native.click()
     qtbot.waitUntil(lambda: flow.tune.fit_worker is None, timeout=300_000)

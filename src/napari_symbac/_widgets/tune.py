@@ -23,7 +23,7 @@ from magicgui.widgets import (
 )
 
 from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
-from napari_symbac._widgets._recording import modality_render
+from napari_symbac._widgets._recording import is_recording, modality_render
 from napari_symbac._widgets.real_image import class_layer_name
 from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
 
@@ -244,6 +244,10 @@ class TuneWidget(Container):
         previous = self.source.value
         self.source.reset_choices()
         self.reference.reset_choices()
+        if self.reference.value is None:  # your recording, once its pixel size is set
+            recordings = [c for c in self.reference.choices if c is not None and is_recording(c)]
+            if recordings:
+                self.reference.value = recordings[-1]
         if self.source.value is not previous:
             self._load_source()
 
@@ -348,8 +352,11 @@ class TuneWidget(Container):
     def _on_matching(self, _value: Any = None) -> None:
         if self.preview is None:
             return
+        matching = self.match_fourier.value or self.match_histogram.value
+        if not matching and self.preview.reference is None:
+            return  # nothing to match, nothing matched before
         try:
-            frame = self._reference_frame()
+            frame = self._reference_frame() if matching else None
             self.preview.set_reference(
                 frame,
                 fourier=self.match_fourier.value,
