@@ -148,9 +148,7 @@ class TuneWidget(Container):
         self.noise_model.tooltip = "camera: shot + read noise (eq. 17); gaussian: fixed sd."
         self.match_fourier = CheckBox(name="match_fourier", text="match Fourier spectrum")
         self.match_histogram = CheckBox(name="match_histogram", text="match histogram")
-        self.match_noise = CheckBox(
-            name="match_noise", text="match noise (Gaussian, sd measured on the real image)"
-        )
+        self.match_noise = CheckBox(name="match_noise", text="match noise")
         self.match_fourier.tooltip = (
             "Give the preview the real image's Fourier amplitude spectrum (SyMBac's matching)."
         )
@@ -205,6 +203,7 @@ class TuneWidget(Container):
         self.fit_worker: Job | None = None
         self.fit_result = None
         self._modality = None
+        self._polarity_changed = False
         self.preview = None
         self._stale: set[int] = set()
         self._loading = False
@@ -331,6 +330,9 @@ class TuneWidget(Container):
             return
         self.status.value = ""
         self._store_settings()
+        if self._polarity_changed:  # new grey levels: show them
+            self._polarity_changed = False
+            self.source.value.reset_contrast_limits()
 
     def _switch_modality(self, modality: str) -> None:
         """Intensities of the new modality's polarity: the recording's class means when
@@ -348,6 +350,7 @@ class TuneWidget(Container):
         finally:
             self._loading = False
         self._modality = modality
+        self._polarity_changed = True
 
     def _on_matching(self, _value: Any = None) -> None:
         if self.preview is None:
@@ -499,6 +502,7 @@ class TuneWidget(Container):
         except ValueError as err:
             notify_warning(f"The fitted settings were not applied to the preview: {err}")
         self._show_fit_layers(result)
+        self.source.value.reset_contrast_limits()  # the fitted intensities may lie outside
         nan_terms = [
             name
             for name, pair in result.terms.items()
@@ -537,6 +541,8 @@ class TuneWidget(Container):
             if name in self.viewer.layers:
                 self.viewer.layers.remove(name)
             self.viewer.add_image(np.asarray(data), name=name, **kwargs, **extra)
+        # the fitted image in the real image's grey levels: compare them by eye
+        self.viewer.layers[FIT_SYNTHETIC_LAYER].contrast_limits = reference.contrast_limits
 
     def _on_fit_errored(self, err: BaseException) -> bool:
         from napari_symbac.fit import FitCancelled
