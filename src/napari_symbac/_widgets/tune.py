@@ -178,6 +178,7 @@ class TuneWidget(Container):
             name="cancel_fit", text="Cancel fit", enabled=False, tooltip="Stop the fit."
         )
         self.terms_table = Table(name="terms", label="objective terms")
+        self.terms_table.native.setMinimumWidth(0)  # scrolls inside; never widens the dock
         self.terms_image = Image(name="terms_plot", label="before (grey) / after (orange)")
         self.extend(
             [

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from qtpy.QtWidgets import QFrame, QScrollArea, QTabWidget
+from qtpy.QtWidgets import QFrame, QScrollArea, QStyle, QTabWidget
 
 from napari_symbac._widgets.export import ExportWidget
 from napari_symbac._widgets.real_image import RealImageWidget
@@ -54,3 +54,9 @@ class WorkflowWidget(QTabWidget):
             area.setWidget(widget.native)
             index = self.addTab(area, title)
             self.setTabToolTip(index, tip)
+        # never narrower than the widest step: no sideways scrolling, no cut labels
+        widest = max(
+            self.widget(i).widget().minimumSizeHint().width() for i in range(self.count())
+        )
+        scrollbar = self.style().pixelMetric(QStyle.PixelMetric.PM_ScrollBarExtent)
+        self.setMinimumWidth(widest + scrollbar + 16)
