@@ -129,7 +129,10 @@ def test_workflow_fits_a_laptop_screen(make_napari_viewer, qtbot):
         workflow.setCurrentIndex(index)
         assert dock.minimumSizeHint().height() < 700
     # the tallest content (the fit's table and plot shown) scrolls inside its tab
-    from napari_symbac._widgets.tune import terms_plot
+    from napari_symbac._widgets.tune import _set_slider, terms_plot
+
+    for name, value in {"cell_intensity": 1226.0, "media_intensity": 4422.33}.items():
+        _set_slider(workflow.tune.sliders[name], value)  # readouts as after a fit
 
     terms = {"pixel": (40.84, 11.5), "eq20": (0.271, 0.1035), "class_stats": (0.8473, 5.306e-05)}
     workflow.tune.terms_table.value = {
