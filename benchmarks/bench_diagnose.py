@@ -16,7 +16,6 @@ nothing.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import math
 import time
 from collections import defaultdict
@@ -35,11 +34,31 @@ def cases(quick: bool) -> list[dict]:
     for name, cls in CATALOGUE.items():
         for modality in cls.modalities:
             for fraction in fractions:
-                out.append(dict(effect=name, modality=modality, geometry="trench", fraction_of_sd=fraction))
-            if not quick:
-                out.append(dict(effect=name, modality=modality, geometry="field", fraction_of_sd=0.5))
                 out.append(
-                    dict(effect=name, modality=modality, geometry="trench", fraction_of_sd=0.5, masked=True)
+                    {
+                        "effect": name,
+                        "modality": modality,
+                        "geometry": "trench",
+                        "fraction_of_sd": fraction,
+                    }
+                )
+            if not quick:
+                out.append(
+                    {
+                        "effect": name,
+                        "modality": modality,
+                        "geometry": "field",
+                        "fraction_of_sd": 0.5,
+                    }
+                )
+                out.append(
+                    {
+                        "effect": name,
+                        "modality": modality,
+                        "geometry": "trench",
+                        "fraction_of_sd": 0.5,
+                        "masked": True,
+                    }
                 )
     return out
 
@@ -68,8 +87,14 @@ def run_case(spec: dict, seed: int, fitted: bool) -> dict:
     target = next((e for e in result.effects if e.name == spec["effect"]), None)
     if target is not None and target.accepted:
         eff = CATALOGUE[target.name](design.geometry)
-        fitted_mag = eff.magnitude(target.params) if target.name != "saturation" else target.params["clip_level_adu"]
-        row["rel_error"] = abs(fitted_mag - case.true_magnitude) / max(abs(case.true_magnitude), 1e-12)
+        fitted_mag = (
+            eff.magnitude(target.params)
+            if target.name != "saturation"
+            else target.params["clip_level_adu"]
+        )
+        row["rel_error"] = abs(fitted_mag - case.true_magnitude) / max(
+            abs(case.true_magnitude), 1e-12
+        )
         row["gain_nats"] = target.held_out_gain_nats
         row["dev_before"], row["dev_after"] = target.held_out_before, target.held_out_after
     return row
@@ -87,16 +112,37 @@ def main() -> None:
         rows.append(run_case(spec, 1000 + i, False))
         control = dict(spec, effect=None)
         controls.append(run_case(control, 5000 + i, False))
-        print(f"[{i + 1}/{len(specs)}] {spec} -> {rows[-1]['accepted']}; control -> {controls[-1]['accepted']}", flush=True)
+        print(
+            f"[{i + 1}/{len(specs)}] {spec} -> {rows[-1]['accepted']}; "
+            f"control -> {controls[-1]['accepted']}",
+            flush=True,
+        )
     fitted_rows = []
-    trench = [s for s in specs if s["geometry"] == "trench" and not s.get("masked") and s["effect"] not in ("photobleaching", "stage_drift")]
+    trench = [
+        s
+        for s in specs
+        if s["geometry"] == "trench"
+        and not s.get("masked")
+        and s["effect"] not in ("photobleaching", "stage_drift")
+    ]
     for i, spec in enumerate(trench[: args.fitted]):
         fitted_rows.append(run_case(spec, 9000 + i, True))
         fitted_rows.append(run_case(dict(spec, effect=None), 9500 + i, True))
-        print(f"[fitted {i + 1}] {spec} -> {fitted_rows[-2]['accepted']}; control -> {fitted_rows[-1]['accepted']}", flush=True)
+        print(
+            f"[fitted {i + 1}] {spec} -> {fitted_rows[-2]['accepted']}; "
+            f"control -> {fitted_rows[-1]['accepted']}",
+            flush=True,
+        )
     lines = table(rows, controls, "oracle geometry")
     if fitted_rows:
-        lines += [""] + table([r for r in fitted_rows if r["effect"]], [r for r in fitted_rows if not r["effect"]], "fitted geometry (fit_scene)")
+        lines += [
+            "",
+            *table(
+                [r for r in fitted_rows if r["effect"]],
+                [r for r in fitted_rows if not r["effect"]],
+                "fitted geometry (fit_scene)",
+            ),
+        ]
     text = "\n".join(lines)
     print(text)
     if args.out:
@@ -111,11 +157,14 @@ def table(rows: list[dict], controls: list[dict], title: str) -> list[str]:
     lines = [
         f"Concealed effects, {title}: {len(rows)} cases, {len(controls)} no-effect controls",
         "",
-        "| effect | cases | named (first accepted) | accepted at all | median rel. error | median held-out gain (nats) | median CPU s |",
+        "| effect | cases | named (first accepted) | accepted at all | median rel. error "
+        "| median held-out gain (nats) | median CPU s |",
         "|---|---|---|---|---|---|---|",
     ]
+
     def pct(n, d):
         return f"{100 * n / d:.0f} %" if d else "-"
+
     for name, rs in groups.items():
         first = sum(1 for r in rs if r["accepted"][:1] == [name])
         anyacc = sum(1 for r in rs if name in r["accepted"])
@@ -123,7 +172,8 @@ def table(rows: list[dict], controls: list[dict], title: str) -> list[str]:
         gains = [r["gain_nats"] for r in rs if "gain_nats" in r]
         lines.append(
             f"| {name} | {len(rs)} | {pct(first, len(rs))} | {pct(anyacc, len(rs))} | "
-            f"{np.median(errs) if errs else float('nan'):.2f} | {np.median(gains) if gains else float('nan'):.1f} | "
+            f"{np.median(errs) if errs else float('nan'):.2f} | "
+            f"{np.median(gains) if gains else float('nan'):.1f} | "
             f"{np.median([r['cpu_s'] for r in rs]):.1f} |"
         )
     first = sum(1 for r in rows if r["accepted"][:1] == [r["effect"]])
@@ -131,17 +181,22 @@ def table(rows: list[dict], controls: list[dict], title: str) -> list[str]:
     within = sum(1 for e in errs if e <= 0.25)
     false = sum(1 for c in controls if c["accepted"])
     lines += [
-        f"| **all** | {len(rows)} | {pct(first, len(rows))} | {pct(sum(1 for r in rows if r['effect'] in r['accepted']), len(rows))} | "
+        f"| **all** | {len(rows)} | {pct(first, len(rows))} | "
+        f"{pct(sum(1 for r in rows if r['effect'] in r['accepted']), len(rows))} | "
         f"{np.median(errs) if errs else float('nan'):.2f} ({within}/{len(errs)} within 25 %) | | |",
         "",
-        f"False acceptances on no-effect controls: {false} of {len(controls)} ({pct(false, len(controls))}); "
+        f"False acceptances on no-effect controls: {false} of {len(controls)} "
+        f"({pct(false, len(controls))}); "
         f"accepted: {[c['accepted'] for c in controls if c['accepted']]}",
     ]
     by_frac = defaultdict(list)
     for r in rows:
         key = ("masked " if r.get("masked") else "") + f"{r['geometry']} {r['fraction_of_sd']} sd"
         by_frac[key].append(r["accepted"][:1] == [r["effect"]])
-    lines.append("Named by setting: " + ", ".join(f"{k}: {pct(sum(v), len(v))}" for k, v in sorted(by_frac.items())))
+    lines.append(
+        "Named by setting: "
+        + ", ".join(f"{k}: {pct(sum(v), len(v))}" for k, v in sorted(by_frac.items()))
+    )
     return lines
 
 

@@ -73,7 +73,9 @@ def parse_microscope(data: object, where: str = "microscope file") -> DiagnoseCo
         if match:
             kwargs["magnification"] = float(match.group(1))
         else:
-            notes.append(f"objective {data['objective']!r}: no magnification found (e.g. '100x oil')")
+            notes.append(
+                f"objective {data['objective']!r}: no magnification found (e.g. '100x oil')"
+            )
     microscope = Microscope(**kwargs)
     camera = Camera()
     if "camera" in data:
@@ -83,7 +85,9 @@ def parse_microscope(data: object, where: str = "microscope file") -> DiagnoseCo
         notes += [f"unknown camera key {k!r} ignored" for k in cam if k not in CAMERA_KEYS]
         camera = Camera(**{k: _number(cam, k, f"{where} camera") for k in CAMERA_KEYS if k in cam})
     else:
-        notes.append("no camera given: the default camera (100 ADU baseline, 2.9 ADU/e-, 8 e-) assumed")
+        notes.append(
+            "no camera given: the default camera (100 ADU baseline, 2.9 ADU/e-, 8 e-) assumed"
+        )
     width = _number(data, "trench_width_um", where) if "trench_width_um" in data else None
     interval = _number(data, "frame_interval_s", where) if "frame_interval_s" in data else None
     return DiagnoseConfig(microscope, camera, width, interval, tuple(notes))

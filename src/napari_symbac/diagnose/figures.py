@@ -9,7 +9,7 @@ from scipy import ndimage
 
 from napari_symbac.diagnose.run import Diagnosis
 
-__all__ = ["write_figures", "diverging", "line_plot"]
+__all__ = ["diverging", "line_plot", "write_figures"]
 
 #: The discrepancy statistic shown with each accepted effect (a key of ``Mismatch.where``).
 REVEALING = {
@@ -43,7 +43,9 @@ def grey(image: np.ndarray) -> np.ndarray:
     return np.repeat((t * 255).astype(np.uint8)[..., None], 3, axis=-1)
 
 
-def line_plot(values: np.ndarray, height: int = 120, width: int = 320, band: float | None = None) -> np.ndarray:
+def line_plot(
+    values: np.ndarray, height: int = 120, width: int = 320, band: float | None = None
+) -> np.ndarray:
     """A white RGB panel with ``values`` drawn as a black polyline; zero as a grey line.
 
     ``band`` draws the +-band (e.g. the noise s.e.) as light grey lines.
@@ -53,8 +55,10 @@ def line_plot(values: np.ndarray, height: int = 120, width: int = 320, band: flo
     if v.size < 2:
         return panel
     span = max(np.abs(v).max(), band or 0.0, 1e-12) * 1.1
+
     def row(x: np.ndarray) -> np.ndarray:
         return np.clip(((1 - (x / span + 1) / 2) * (height - 1)).round().astype(int), 0, height - 1)
+
     panel[row(np.zeros(1))[0], :] = 180
     if band:
         panel[row(np.array([band]))[0], :] = 220
@@ -82,7 +86,7 @@ def _row_of(panels: list[np.ndarray], gap: int = 6) -> np.ndarray:
 
 
 def write_figures(result: Diagnosis, image: np.ndarray, out: Path) -> list[str]:
-    """``residuals.png`` (image, residual before, after) and ``effect_<name>.png`` per accepted effect.
+    """Write ``residuals.png`` (image, residual before, after) and ``effect_<name>.png``.
 
     Residuals are standardised and smoothed (Gaussian, 2 px) so that structure below
     the pixel noise shows; the colour limit is 4 noise s.e. of the smoothed mean.

@@ -46,7 +46,9 @@ _PER_FRAME = {"photobleaching": photobleaching.stage, "stage_drift": stage_drift
 IN_SETTINGS = ("camera_noise", "cell_intensity_variability", "background_texture")
 
 
-def stage_for(name: str, parameters: dict[str, Any], *, frame: int = 0, baseline_adu: float = 0.0) -> Stage:
+def stage_for(
+    name: str, parameters: dict[str, Any], *, frame: int = 0, baseline_adu: float = 0.0
+) -> Stage:
     """The stage of an accepted effect (``frame`` for time-dependent effects)."""
     if name in _STATIC:
         return _STATIC[name](parameters)
@@ -57,7 +59,9 @@ def stage_for(name: str, parameters: dict[str, Any], *, frame: int = 0, baseline
     raise ValueError(f"effect {name!r} has no stage (it is carried by the settings: {IN_SETTINGS})")
 
 
-def updated_settings(settings: PipelineSettings, accepted: list[tuple[str, dict]]) -> tuple[PipelineSettings, list[dict]]:
+def updated_settings(
+    settings: PipelineSettings, accepted: list[tuple[str, dict]]
+) -> tuple[PipelineSettings, list[dict]]:
     """Settings with the accepted effects folded in, and the extra-stage specs."""
     render, camera = settings.render, settings.camera
     extra: list[dict] = []
@@ -73,10 +77,14 @@ def updated_settings(settings: PipelineSettings, accepted: list[tuple[str, dict]
     return dataclasses.replace(settings, render=render, camera=camera), extra
 
 
-def load_extra_stages(path: str | Path, *, frame: int = 0, baseline_adu: float = 0.0) -> list[Stage]:
+def load_extra_stages(
+    path: str | Path, *, frame: int = 0, baseline_adu: float = 0.0
+) -> list[Stage]:
     """Stages from an ``extra_stages.yaml`` written by ``napari-symbac diagnose``."""
     data = yaml.safe_load(Path(path).read_text(encoding="utf-8")) or {}
     specs = data.get("extra_stages", []) if isinstance(data, dict) else None
     if not isinstance(specs, list):
         raise ValueError(f"{path} must hold 'extra_stages: [{{name, parameters}}, ...]'")
-    return [stage_for(s["name"], s["parameters"], frame=frame, baseline_adu=baseline_adu) for s in specs]
+    return [
+        stage_for(s["name"], s["parameters"], frame=frame, baseline_adu=baseline_adu) for s in specs
+    ]

@@ -33,7 +33,8 @@ def texture_basis(shape: tuple[int, int], pixel_size_um: float) -> np.ndarray:
 class BackgroundTexture(Effect):
     """The media is not uniform: ``mu + P_m sum_k c_k B_k(x, y)``.
 
-    ``P_m`` is the media contribution more than 2.5 px from any cell and ``B_k`` cosine modes of wavelength 1.5 um
+    ``P_m`` is the media contribution more than 2.5 px from any cell and ``B_k``
+    cosine modes of wavelength 1.5 um
     and longer, above the second-order surface of ``uneven_illumination`` (so the
     two do not compete). The reported amplitude is the s.d. of the fitted relative
     texture over media pixels; in the settings it becomes
@@ -56,13 +57,13 @@ class BackgroundTexture(Effect):
     def n_params(self) -> int:
         return len(self._basis)
 
-    def mean(self, theta, mu, parts, geo):  # noqa: D102
+    def mean(self, theta, mu, parts, geo):
         return mu + np.tensordot(theta, self._basis, axes=1)[None] * parts[1] * self._away
 
-    def summary(self, theta, mu):  # noqa: D102
+    def summary(self, theta, mu):
         field = np.tensordot(theta, self._basis, axes=1)
         media = self.geometry.labels[0] == 0
         return {"rms_fraction": float(field[media].std()) if media.any() else 0.0}
 
-    def magnitude(self, summary):  # noqa: D102
+    def magnitude(self, summary):
         return summary["rms_fraction"]

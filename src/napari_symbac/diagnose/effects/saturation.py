@@ -31,7 +31,7 @@ class Saturation(Effect):
     def n_params(self) -> int:
         return 1
 
-    def summary(self, theta, mu):  # noqa: D102
+    def summary(self, theta, mu):
         return {"clip_level_adu": float(theta[0])}
 
 
