@@ -5,7 +5,8 @@ Run: ``python benchmarks/bench_diagnose.py [--quick] [--fitted N] [--out table.m
 Every catalogued effect is hidden in a rendered recording by
 :func:`napari_symbac.diagnose.concealed.make_case` (phase and fluorescence; a 256 x 46
 trench and a 112 x 112 field; the largest single-pixel change of the noise-free image
-0.3 or 0.7 noise s.d.; "masked" cases where intensities 3-8 % and defocus 0.05 um off
+0.3 or 0.7 noise s.d.; the field at 0.5 s.d. and "masked" cases, in the effect's first
+modality only, where intensities 3-8 % and defocus 0.05 um off
 the starting settings sit on top), with as many no-effect controls as effect cases.
 The diagnosis starts from the true scene geometry (**oracle geometry**) and the base
 render settings; with ``--fitted N`` the first N trench cases (and N controls) start
@@ -42,7 +43,7 @@ def cases(quick: bool) -> list[dict]:
                         "fraction_of_sd": fraction,
                     }
                 )
-            if not quick:
+            if not quick and modality == cls.modalities[0]:
                 out.append(
                     {
                         "effect": name,

@@ -205,11 +205,16 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             print(f"note: {note}", file=sys.stderr)
         image = np.asarray(read_recording(args.image).data)
         if image.ndim not in (2, 3):
-            raise ValueError(f"{args.image} must be one frame (Y, X) or a series (T, Y, X), got {image.shape}")
+            raise ValueError(
+                f"{args.image} must be one frame (Y, X) or a series (T, Y, X), got {image.shape}"
+            )
         stack = image[None] if image.ndim == 2 else image
         labels = None if args.labels is None else tifffile.imread(args.labels)
         if labels is not None and labels.shape != stack.shape[-2:]:
-            raise ValueError(f"--labels has shape {labels.shape}, the image frames {stack.shape[-2:]}: paint one frame")
+            raise ValueError(
+                f"--labels has shape {labels.shape}, the image frames {stack.shape[-2:]}: "
+                "paint one frame of the image's size"
+            )
         geometry = args.geometry or ("trench" if stack.shape[-1] <= 100 else "open")
     start = RenderSettings()
     if config.microscope.modality == "fluorescence":
@@ -219,7 +224,9 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     with timer.step("base fit"):
         render = start
         for k, frame in enumerate(stack):
-            fit = fit_scene(frame, config.microscope, render, config.camera, labels=labels, geometry=geometry)
+            fit = fit_scene(
+                frame, config.microscope, render, config.camera, labels=labels, geometry=geometry
+            )
             scenes.append(fit.scene)
             render = fit.render
             update(k + 1, len(stack))
@@ -241,7 +248,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         accepted = [(e.name, e.params) for e in result.accepted]
         settings, extra = updated_settings(base, accepted)
         save_settings(settings, out / "settings.yaml")
-        (out / "extra_stages.yaml").write_text(yaml.safe_dump({"extra_stages": extra}, sort_keys=False))
+        stages_text = yaml.safe_dump({"extra_stages": extra}, sort_keys=False)
+        (out / "extra_stages.yaml").write_text(stages_text)
     names = ", ".join(e.name for e in result.accepted) or "nothing significant"
     print(
         f"accepted: {names}; held-out deviance {result.base_fit['held_out']:.4f} -> "
@@ -376,7 +384,9 @@ def build_parser() -> argparse.ArgumentParser:
     diag.add_argument("image", help="recording (TIFF), one frame or a (T, Y, X) series")
     diag.add_argument("--labels", help="painted class labels TIFF (1 cell, 2 media, 3 device)")
     diag.add_argument("--microscope", required=True, help="microscope JSON/YAML (issue 11 keys)")
-    diag.add_argument("--geometry", choices=("trench", "open"), help="default: trench if <= 100 px wide")
+    diag.add_argument(
+        "--geometry", choices=("trench", "open"), help="default: trench if <= 100 px wide"
+    )
     diag.add_argument("--seed", type=int, default=0, help="bootstrap seed (default: 0)")
     diag.add_argument("--out", required=True, help="output folder")
     diag.set_defaults(func=_cmd_diagnose)
