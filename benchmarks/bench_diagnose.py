@@ -1,6 +1,7 @@
 """Concealed-effect benchmark of the diagnosis (issue 11).
 
-Run: ``python benchmarks/bench_diagnose.py [--quick] [--fitted N] [--out table.md]``.
+Run: ``python benchmarks/bench_diagnose.py [--setting trench-0.7 ...] [--bootstrap 30]
+[--fitted N] [--out table.md]`` (default: all four settings).
 
 Every catalogued effect is hidden in a rendered recording by
 :func:`napari_symbac.diagnose.concealed.make_case` (phase and fluorescence; a 256 x 46
@@ -28,39 +29,25 @@ from napari_symbac.diagnose.effects import CATALOGUE
 from napari_symbac.diagnose.model import build_design
 from napari_symbac.diagnose.run import diagnose
 
+SETTINGS = ("trench-0.7", "trench-0.3", "field-0.5", "masked-0.5")
 
-def cases(quick: bool) -> list[dict]:
+
+def cases(setting: str) -> list[dict]:
+    """The effect cases of one setting (field and masked: each effect's first modality)."""
+    geometry, fraction = setting.split("-")
     out = []
-    fractions = (0.7,) if quick else (0.3, 0.7)
     for name, cls in CATALOGUE.items():
-        for modality in cls.modalities:
-            for fraction in fractions:
-                out.append(
-                    {
-                        "effect": name,
-                        "modality": modality,
-                        "geometry": "trench",
-                        "fraction_of_sd": fraction,
-                    }
-                )
-            if not quick and modality == cls.modalities[0]:
-                out.append(
-                    {
-                        "effect": name,
-                        "modality": modality,
-                        "geometry": "field",
-                        "fraction_of_sd": 0.5,
-                    }
-                )
-                out.append(
-                    {
-                        "effect": name,
-                        "modality": modality,
-                        "geometry": "trench",
-                        "fraction_of_sd": 0.5,
-                        "masked": True,
-                    }
-                )
+        modalities = cls.modalities if geometry == "trench" else cls.modalities[:1]
+        for modality in modalities:
+            spec = {
+                "effect": name,
+                "modality": modality,
+                "geometry": "field" if geometry == "field" else "trench",
+                "fraction_of_sd": float(fraction),
+            }
+            if geometry == "masked":
+                spec["masked"] = True
+            out.append(spec)
     return out
 
 
@@ -77,11 +64,13 @@ def fitted_design(case):
     return build_design(scenes, microscope, render, camera)
 
 
-def run_case(spec: dict, seed: int, fitted: bool) -> dict:
+def run_case(spec: dict, seed: int, fitted: bool, n_bootstrap: int = 30) -> dict:
     case = make_case(seed=seed, **spec)
     design = fitted_design(case) if fitted else case.design
     start = time.process_time()
-    result = diagnose(case.images, design, rng=np.random.default_rng(seed + 1))
+    result = diagnose(
+        case.images, design, n_bootstrap=n_bootstrap, rng=np.random.default_rng(seed + 1)
+    )
     cpu = time.process_time() - start
     accepted = [e.name for e in result.accepted]
     row = dict(spec, seed=seed, accepted=accepted, cpu_s=cpu, truth=case.true_magnitude)
@@ -103,16 +92,17 @@ def run_case(spec: dict, seed: int, fitted: bool) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--setting", choices=SETTINGS, action="append")
+    parser.add_argument("--bootstrap", type=int, default=30, help="replicates per held-out check")
     parser.add_argument("--fitted", type=int, default=0)
     parser.add_argument("--out")
     args = parser.parse_args()
-    specs = cases(args.quick)
+    specs = [c for setting in args.setting or SETTINGS for c in cases(setting)]
     rows, controls = [], []
     for i, spec in enumerate(specs):
-        rows.append(run_case(spec, 1000 + i, False))
+        rows.append(run_case(spec, 1000 + i, False, args.bootstrap))
         control = dict(spec, effect=None)
-        controls.append(run_case(control, 5000 + i, False))
+        controls.append(run_case(control, 5000 + i, False, args.bootstrap))
         print(
             f"[{i + 1}/{len(specs)}] {spec} -> {rows[-1]['accepted']}; "
             f"control -> {controls[-1]['accepted']}",

@@ -89,7 +89,8 @@ def write_figures(result: Diagnosis, image: np.ndarray, out: Path) -> list[str]:
     """Write ``residuals.png`` (image, residual before, after) and ``effect_<name>.png``.
 
     Residuals are standardised and smoothed (Gaussian, 2 px) so that structure below
-    the pixel noise shows; the colour limit is 4 noise s.e. of the smoothed mean.
+    the pixel noise shows; the colour limit (shared by both panels) is 4 noise s.e. of
+    the smoothed mean or the 98th percentile of the smoothed base residual if larger.
     """
     import imageio.v3 as iio
 
@@ -100,6 +101,8 @@ def write_figures(result: Diagnosis, image: np.ndarray, out: Path) -> list[str]:
     limit = 4.0 / (2 * np.sqrt(np.pi) * sigma)  # s.d. of a Gaussian-smoothed white field
     before = ndimage.gaussian_filter(result.residual_before[0], sigma)
     after = ndimage.gaussian_filter(result.residual_after[0], sigma)
+    # one colour scale for both panels, wide enough for the larger misfit
+    limit = max(limit, float(np.percentile(np.abs(before), 98)))
     panels = [grey(frame), diverging(before, limit), diverging(after, limit)]
     iio.imwrite(out / "residuals.png", _upscale(_row_of(panels), factor))
     written = ["residuals.png"]
