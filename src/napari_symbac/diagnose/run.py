@@ -165,7 +165,7 @@ def diagnose(
     candidates: Sequence[str] | None = None,
     alpha: float = 0.01,
     n_bootstrap: int = 30,
-    max_steps: int = 3,
+    max_steps: int = 4,
     max_tries: int = 3,
     rng: np.random.Generator | None = None,
     valid: np.ndarray | None = None,
