@@ -5,7 +5,7 @@ Run: ``python benchmarks/bench_diagnose.py [--setting trench-0.7 ...] [--bootstr
 
 Every catalogued effect is hidden in a rendered recording by
 :func:`napari_symbac.diagnose.concealed.make_case` (phase and fluorescence; a 256 x 46
-trench and a 112 x 112 field; the largest single-pixel change of the noise-free image
+trench and a 144 x 144 field with 6 cells; the largest single-pixel change of the noise-free image
 0.3 or 0.7 noise s.d.; the field at 0.5 s.d. and "masked" cases, in the effect's first
 modality only, where intensities 3-8 % and defocus 0.05 um off
 the starting settings sit on top), with as many no-effect controls as effect cases.

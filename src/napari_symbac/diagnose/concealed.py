@@ -96,22 +96,26 @@ def _cells(
             width_um=np.full(n, 0.95),
         )
         return cells, trench, None, (rows, 46)
-    size = 112
+    size, n_cells = 144, 6
     extent = size * PIXEL_UM
     placed: list[tuple[float, float, float, float]] = []
-    while len(placed) < 8:
-        x, y = rng.uniform(1.3, extent - 1.3, 2)
-        angle, length = rng.uniform(0, np.pi), rng.uniform(2.0, 2.8)
-        if all(np.hypot(x - p[0], y - p[1]) > 0.55 * (length + p[3]) + 0.5 for p in placed):
+    for _ in range(10_000):
+        x, y = rng.uniform(1.4, extent - 1.4, 2)
+        angle, length = rng.uniform(0, np.pi), rng.uniform(2.0, 2.6)
+        if all(np.hypot(x - p[0], y - p[1]) > 0.5 * (length + p[3]) + 0.3 for p in placed):
             placed.append((x, y, angle, length))
+            if len(placed) == n_cells:
+                break
+    else:
+        raise RuntimeError("could not place the field's cells without overlap")
     arr = np.array(placed)
     cells = FrameCells(
-        ids=np.arange(1, 9),
+        ids=np.arange(1, n_cells + 1),
         x_um=arr[:, 0],
         y_um=arr[:, 1],
         angle_rad=arr[:, 2],
         length_um=arr[:, 3],
-        width_um=np.full(8, 0.95),
+        width_um=np.full(n_cells, 0.95),
     )
     trench = TrenchGeometry()
     return cells, trench, Field(extent, extent), (size, size)
@@ -151,7 +155,7 @@ def make_case(
     effect
         Catalogue name, or ``None``.
     modality, geometry
-        ``"phase"``/``"fluorescence"``; ``"trench"`` (256 x 46) or ``"field"`` (112 x 112).
+        ``"phase"``/``"fluorescence"``; ``"trench"`` (256 x 46) or ``"field"`` (144 x 144, 6 cells).
     fraction_of_sd
         Largest single-pixel change of the noise-free image, in noise s.d.
     masked
