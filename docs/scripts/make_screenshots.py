@@ -2,9 +2,11 @@
 
 Run under a virtual display (Debian: ``apt-get install xvfb``)::
 
-    xvfb-run -a -s "-screen 0 1600x1000x24" python docs/scripts/make_screenshots.py
+    xvfb-run -a -s "-screen 0 1366x768x24" python docs/scripts/make_screenshots.py [--napari-only]
 
-Writes ``docs/images/napari-*.png`` and the demo montage ``docs/images/demo-preview.png``.
+Writes ``docs/images/napari-*.png`` (the flow of docs/gui.md on the real SyMBac trench,
+read from ``../shared/data/real`` or ``$NAPARI_SYMBAC_REAL_DATA``, in a 1366 x 768 window)
+and the demo montage ``docs/images/demo-preview.png``.
 """
 
 from __future__ import annotations
@@ -16,7 +18,6 @@ from pathlib import Path
 os.environ.setdefault("QT_QPA_PLATFORM", "xcb")
 
 import imageio.v3 as iio
-import numpy as np
 from qtpy.QtWidgets import QApplication
 
 import napari
@@ -35,6 +36,14 @@ def wait_for(condition, timeout_s: float = 300.0) -> None:
             raise TimeoutError("the widget did not finish in time")
 
 
+def dismiss_notifications(viewer: napari.Viewer) -> None:
+    """Close the notification toasts (they would stay on the later screenshots)."""
+    from napari._qt.dialogs.qt_notification import NapariQtNotification
+
+    for toast in viewer.window._qt_window.findChildren(NapariQtNotification):
+        toast.close()
+
+
 def shot(viewer: napari.Viewer, name: str) -> None:
     for _ in range(20):
         QApplication.processEvents()
@@ -43,55 +52,71 @@ def shot(viewer: napari.Viewer, name: str) -> None:
     print("wrote", IMAGES / name)
 
 
-def simulate_and_tune() -> None:
+#: A laptop screen: the layout must fit it (issue 12).
+WINDOW = (1366, 768)
+
+
+def real_trench_flow(folder: Path) -> None:
+    """The flow of docs/gui.md on the real SyMBac trench, one screenshot per tab."""
+    import tifffile
+
+    from napari_symbac._widgets.real_image import class_layer_name
+
+    default = IMAGES.parents[2] / "shared" / "data" / "real"
+    real_dir = Path(os.environ.get("NAPARI_SYMBAC_REAL_DATA", default))
+    source = tifffile.imread(real_dir / "ecoli_100x_oil_exponential.tiff")
+    path = folder / "my_trench.tif"
+    tifffile.imwrite(path, source)  # written without a pixel size, as many recordings are
+
     viewer = napari.Viewer(title="napari-symbac")
-    viewer.window._qt_window.resize(1500, 950)
-    _, simulate = viewer.window.add_plugin_dock_widget(PLUGIN, "Simulate and render")
-    _, tune = viewer.window.add_plugin_dock_widget(PLUGIN, "Tune optics and noise")
-    simulate.form.n_frames.value = 30
-    simulate.run_button.native.click()
-    wait_for(lambda: simulate.worker is None and simulate.series is not None)
-    viewer.dims.set_current_step(0, 29)
-    viewer.layers["synthetic labels"].contour = 1
-    viewer.reset_view()
-    tune.sliders["ring_contrast"].value = 0.8
-    shot(viewer, "napari-simulate-tune.png")
-    viewer.close()
-
-
-def paint_real_image() -> None:
-    viewer = napari.Viewer(title="napari-symbac")
-    viewer.window._qt_window.resize(1500, 950)
-    viewer.open_sample(PLUGIN, "colicoords")
-    cells = viewer.layers["ColiCoords cells"].data
-    viewer.layers.remove("ColiCoords cells")
-    _, real = viewer.window.add_plugin_dock_widget(PLUGIN, "Real image and classes")
-    real.image.value = viewer.layers["ColiCoords brightfield"]
-    real.paint_button.native.click()
-    labels = viewer.layers["ColiCoords brightfield classes"]
-    # Rough strokes as a user paints them: a dab in each cell, dabs of media between.
-    from scipy import ndimage
-
-    for region in ndimage.find_objects(cells):
-        if region is not None:
-            centre = tuple((s.start + s.stop) // 2 for s in region)
-            labels.paint(centre, CLASS_VALUES["cell"], refresh=False)
-    far = ndimage.distance_transform_edt(cells == 0) > 25
-    rows, cols = np.nonzero(far[::40, ::40])
-    for row, col in zip(rows * 40, cols * 40):
-        labels.paint((row, col), CLASS_VALUES["media"], refresh=False)
+    viewer.window._qt_window.resize(*WINDOW)
+    _, flow = viewer.window.add_plugin_dock_widget(PLUGIN, "SyMBac workflow (all steps)")
+    flow.real_image.file.value = path
+    shot(viewer, "napari-recording-no-pixel-size.png")
+    dismiss_notifications(viewer)
+    flow.real_image.pixel_size.value = 0.065
+    flow.real_image.paint_button.native.click()
+    labels = viewer.layers[class_layer_name("my_trench")]
+    for row in range(40, 240, 8):
+        labels.paint((row, 22), CLASS_VALUES["cell"], refresh=False)
+        labels.paint((row, 12), CLASS_VALUES["media"], refresh=False)
+        labels.paint((row, 2), CLASS_VALUES["device"], refresh=False)
+        labels.paint((row, 43), CLASS_VALUES["device"], refresh=False)
     labels.refresh()
-    real.measure_button.native.click()
+    flow.real_image.measure_button.native.click()
     shot(viewer, "napari-real-image.png")
-    viewer.close()
 
-
-def export_widget() -> None:
-    viewer = napari.Viewer(title="napari-symbac")
-    viewer.window._qt_window.resize(1500, 950)
-    viewer.open_sample(PLUGIN, "trench")
-    viewer.window.add_plugin_dock_widget(PLUGIN, "Export dataset")
+    flow.setCurrentIndex(1)
+    flow.simulate.form.n_frames.value = 100
+    flow.simulate.run_button.native.click()
+    wait_for(lambda: flow.simulate.worker is None and flow.simulate.series is not None)
+    viewer.dims.set_current_step(0, 99)
+    viewer.layers["synthetic labels"].contour = 1
+    labels.visible = False
+    # real and synthetic side by side, in micrometres
+    viewer.layers["synthetic"].translate = (0, 0, 4.0)
+    viewer.layers["synthetic labels"].translate = (0, 0, 4.0)
     viewer.reset_view()
+    shot(viewer, "napari-simulate.png")
+
+    flow.setCurrentIndex(2)
+    flow.tune.reference.value = viewer.layers["my_trench"]
+    flow.tune.fit_iterations.value = 10
+    flow.tune.fit_button.native.click()
+    wait_for(lambda: flow.tune.fit_worker is None)
+    print(flow.tune.status.value)
+    fitted = viewer.layers["auto-fit synthetic"]
+    fitted.translate = (0, 8.0)
+    viewer.reset_view()
+    flow.tune.native.parent().parent().verticalScrollBar().setValue(10_000)
+    shot(viewer, "napari-simulate-tune.png")
+
+    flow.setCurrentIndex(3)
+    flow.export.folder.value = folder / "dataset"
+    flow.export.n_items.value = 20
+    flow.export.export_button.native.click()
+    wait_for(lambda: flow.export.worker is None)
+    print(flow.export.status.value)
     shot(viewer, "napari-export.png")
     viewer.close()
 
@@ -109,8 +134,11 @@ def demo_montage() -> None:
 
 
 if __name__ == "__main__":
+    import sys
+    import tempfile
+
     IMAGES.mkdir(parents=True, exist_ok=True)
-    demo_montage()
-    simulate_and_tune()
-    paint_real_image()
-    export_widget()
+    if "--napari-only" not in sys.argv:
+        demo_montage()
+    with tempfile.TemporaryDirectory() as tmp:
+        real_trench_flow(Path(tmp))

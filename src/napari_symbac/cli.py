@@ -196,6 +196,84 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     return run_fit(args)
 
 
+def _cmd_diagnose(args: argparse.Namespace) -> int:
+    import json
+
+    import numpy as np
+    import tifffile
+    import yaml
+
+    from napari_symbac.diagnose.config import load_microscope_file
+    from napari_symbac.diagnose.figures import write_figures
+    from napari_symbac.diagnose.model import build_design
+    from napari_symbac.diagnose.run import diagnose
+    from napari_symbac.diagnose.stages import updated_settings
+    from napari_symbac.fit import fit_scene
+    from napari_symbac.io import read_recording
+    from napari_symbac.settings import PipelineSettings, RenderSettings, save_settings
+
+    timer = StepTimer()
+    with timer.step("load"):
+        config = load_microscope_file(args.microscope)
+        for note in config.notes:
+            print(f"note: {note}", file=sys.stderr)
+        image = np.asarray(read_recording(args.image).data)
+        if image.ndim not in (2, 3):
+            raise ValueError(
+                f"{args.image} must be one frame (Y, X) or a series (T, Y, X), got {image.shape}"
+            )
+        stack = image[None] if image.ndim == 2 else image
+        labels = None if args.labels is None else tifffile.imread(args.labels)
+        if labels is not None and labels.shape != stack.shape[-2:]:
+            raise ValueError(
+                f"--labels has shape {labels.shape}, the image frames {stack.shape[-2:]}: "
+                "paint one frame of the image's size"
+            )
+        geometry = args.geometry or ("trench" if stack.shape[-1] <= 100 else "open")
+    start = RenderSettings()
+    if config.microscope.modality == "fluorescence":
+        start = RenderSettings(cell_intensity=2000.0, media_intensity=200.0, device_intensity=200.0)
+    update, bar = _tqdm_progress("fit")
+    scenes = []
+    with timer.step("base fit"):
+        render = start
+        for k, frame in enumerate(stack):
+            fit = fit_scene(
+                frame, config.microscope, render, config.camera, labels=labels, geometry=geometry
+            )
+            scenes.append(fit.scene)
+            render = fit.render
+            update(k + 1, len(stack))
+    bar.close()
+    update, bar = _tqdm_progress("diagnose")
+    with timer.step("diagnose"):
+        design = build_design(scenes, config.microscope, render, config.camera)
+        result = diagnose(stack, design, rng=np.random.default_rng(args.seed), progress=update)
+    bar.close()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    with timer.step("write"):
+        doc = result.as_dict()
+        doc["notes"] = list(config.notes)
+        (out / "diagnosis.json").write_text(json.dumps(doc, indent=2, default=float))
+        (out / "report.txt").write_text(result.report() + "\n")
+        figures = write_figures(result, stack, out)
+        base = PipelineSettings(microscope=config.microscope, render=render, camera=config.camera)
+        accepted = [(e.name, e.params) for e in result.accepted]
+        settings, extra = updated_settings(base, accepted)
+        save_settings(settings, out / "settings.yaml")
+        stages_text = yaml.safe_dump({"extra_stages": extra}, sort_keys=False)
+        (out / "extra_stages.yaml").write_text(stages_text)
+    names = ", ".join(e.name for e in result.accepted) or "nothing significant"
+    print(
+        f"accepted: {names}; held-out deviance {result.base_fit['held_out']:.4f} -> "
+        f"{result.final_fit['held_out']:.4f}; wrote diagnosis.json, report.txt, "
+        f"{', '.join(figures)}, settings.yaml, extra_stages.yaml to {out}"
+    )
+    print(timer.report())
+    return 0
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from napari_symbac.demo import run_demo
 
@@ -354,6 +432,22 @@ def build_parser() -> argparse.ArgumentParser:
         "--max-iterations", type=int, help="iterations per round of the fit (fewer: faster)"
     )
     fit.set_defaults(func=_cmd_fit)
+
+    diag = sub.add_parser(
+        "diagnose",
+        help="find where the fitted model and a recording differ, name and fit the missing physics",
+        description="Fit the scene, test the catalogue of missing effects, keep those that "
+        "improve held-out pixels; write diagnosis.json, report.txt, figures and settings.",
+    )
+    diag.add_argument("image", help="recording (TIFF), one frame or a (T, Y, X) series")
+    diag.add_argument("--labels", help="painted class labels TIFF (1 cell, 2 media, 3 device)")
+    diag.add_argument("--microscope", required=True, help="microscope JSON/YAML (issue 11 keys)")
+    diag.add_argument(
+        "--geometry", choices=("trench", "open"), help="default: trench if <= 100 px wide"
+    )
+    diag.add_argument("--seed", type=int, default=0, help="bootstrap seed (default: 0)")
+    diag.add_argument("--out", required=True, help="output folder")
+    diag.set_defaults(func=_cmd_diagnose)
 
     defaults = sub.add_parser(
         "defaults",

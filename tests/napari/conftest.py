@@ -17,3 +17,13 @@ def _x_display(xvfb):
             "(apt-get install xvfb; pytest-xvfb then starts it) or run under xvfb-run"
         )
     return os.environ["DISPLAY"]
+
+
+@pytest.fixture(autouse=True)
+def _no_worker_outlives_its_test():
+    """A test that fails while a worker thread still runs must not leave it running into
+    the next test (its signals would reach a closed viewer there)."""
+    yield
+    from superqt.utils._qthreading import WorkerBase
+
+    WorkerBase.await_workers(msecs=120_000)

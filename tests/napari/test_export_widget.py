@@ -75,7 +75,8 @@ def test_tuned_settings_travel_into_the_manifest(widget, qtbot, tmp_path):
         name="synthetic",
         metadata={SYMBAC_METADATA_KEY: {"simulation": None, "settings": tuned}},
     )
-    widget.source.value = widget.viewer.layers["synthetic"]
+    # defect 7: the newest rendered layer is chosen without picking it by hand
+    assert widget.source.value is widget.viewer.layers["synthetic"]
     settings = widget.settings()
     assert settings.pipeline.render.cell_intensity == 1234.5
     widget.n_items.value = 1
@@ -84,3 +85,23 @@ def test_tuned_settings_travel_into_the_manifest(widget, qtbot, tmp_path):
     qtbot.waitUntil(lambda: widget.report is not None, timeout=120_000)
     manifest = json.loads((tmp_path / "ds" / "manifest.json").read_text())
     assert manifest["settings"]["pipeline"]["render"]["cell_intensity"] == 1234.5
+
+
+def test_export_error_is_reported_and_the_widget_stays_usable(widget, qtbot, tmp_path):
+    """Defect 7: an ExportError (a RuntimeError) froze the widget: superqt treats a
+    RuntimeError in a generator worker as an aborted thread (no error, no finish)."""
+    from napari.utils.notifications import notification_manager
+
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("a file where the dataset folder should go")
+    seen = []
+    notification_manager.notification_ready.connect(seen.append)
+    widget.n_items.value = 1
+    widget.folder.value = blocker / "dataset"
+    widget.export_button.native.click()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
+    assert widget.status.value.startswith("Export failed")
+    assert widget.report is None
+    assert any("Export failed" in str(n.message) for n in seen)
+    assert widget.export_button.enabled
+    assert not widget.cancel_button.enabled

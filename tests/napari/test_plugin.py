@@ -64,3 +64,108 @@ def test_real_sample_field_opens(make_napari_viewer):
     assert brightfield.data.shape == cells.data.shape == (512, 512)
     assert brightfield.scale[-1] == pytest.approx(0.08)
     assert cells.data.max() >= 5  # several labelled cells
+
+
+def test_manifest_has_one_source_for_wheel_and_editable_installs(tmp_path, monkeypatch):
+    """napari.yaml at the repository root is the manifest; the package's copy is a link
+    to it (found by editable installs), and the wheel carries its content."""
+    import zipfile
+    from pathlib import Path
+
+    from hatchling.build import build_wheel
+    from npe2 import PluginManifest
+
+    root = Path(__file__).resolve().parents[2]
+    manifest = root / "napari.yaml"
+    packaged = root / "src" / "napari_symbac" / "napari.yaml"
+    assert packaged.resolve() == manifest.resolve()
+    PluginManifest.from_file(manifest).validate_imports()
+
+    monkeypatch.chdir(root)
+    wheel = tmp_path / build_wheel(str(tmp_path))
+    with zipfile.ZipFile(wheel) as archive:
+        shipped = archive.read("napari_symbac/napari.yaml")
+    assert shipped == manifest.read_bytes()
+    copy = tmp_path / "napari.yaml"
+    copy.write_bytes(shipped)
+    PluginManifest.from_file(copy).validate_imports()
+
+
+def test_plugin_opens_the_whole_workflow_first():
+    """Defect 10: ``napari -w napari-symbac`` opened only the first widget; the first is
+    now the workflow dock holding every step."""
+    from npe2 import PluginManifest
+
+    manifest = PluginManifest.from_distribution("napari-symbac")
+    first = manifest.contributions.widgets[0]
+    command = next(c for c in manifest.contributions.commands if c.id == first.command)
+    assert command.python_name.endswith("workflow:WorkflowWidget")
+
+
+def test_docs_list_every_sample():
+    """Defect 11: docs/gui.md listed 2 samples while File > Open Sample has 3."""
+    from pathlib import Path
+
+    from npe2 import PluginManifest
+
+    docs = (Path(__file__).resolve().parents[2] / "docs" / "gui.md").read_text()
+    manifest = PluginManifest.from_distribution("napari-symbac")
+    for sample in manifest.contributions.sample_data:
+        assert sample.display_name in docs, sample.display_name
+
+
+def test_workflow_fits_a_laptop_screen(make_napari_viewer, qtbot):
+    """Defect 8: four docked widgets needed >= 2238 px of height; after Auto-fit the
+    canvas shrank to ~150 px."""
+    from napari_symbac._widgets.workflow import TABS, WorkflowWidget
+
+    viewer = make_napari_viewer(show=True)
+    window = viewer.window._qt_window
+    window.resize(1366, 768)
+    workflow = WorkflowWidget(viewer)
+    dock = viewer.window.add_dock_widget(workflow, name="SyMBac", area="right")
+    assert [workflow.tabText(i) for i in range(workflow.count())] == list(TABS)
+    for index in range(workflow.count()):
+        workflow.setCurrentIndex(index)
+        assert dock.minimumSizeHint().height() < 700
+    # the tallest content (the fit's table and plot shown) scrolls inside its tab
+    from napari_symbac._widgets.tune import _set_slider, terms_plot
+
+    for name, value in {"cell_intensity": 1226.0, "media_intensity": 4422.33}.items():
+        _set_slider(workflow.tune.sliders[name], value)  # readouts as after a fit
+
+    terms = {"pixel": (40.84, 11.5), "eq20": (0.271, 0.1035), "class_stats": (0.8473, 5.306e-05)}
+    workflow.tune.terms_table.value = {
+        "term": list(terms),
+        "before": [f"{b:.4g}" for b, _ in terms.values()],
+        "after": [f"{a:.4g}" for _, a in terms.values()],
+    }
+    workflow.tune.terms_image.value = terms_plot(terms)
+    workflow.tune.terms_image.visible = True
+    workflow.tune.status.value = "Fitted in 1043 renders: objective 40.84 -> 11.5"
+    qtbot.waitUntil(lambda: window.height() <= 768, timeout=10_000)
+    canvas = viewer.window._qt_viewer.canvas.native
+    assert canvas.height() >= 400
+    assert dock.width() < 700
+    # no step is wider than the dock: labels are not cut, no sideways scrolling
+    for index in range(workflow.count()):
+        workflow.setCurrentIndex(index)
+        area = workflow.widget(index)
+        qtbot.waitUntil(lambda area=area: area.viewport().width() > 0, timeout=10_000)
+        assert area.widget().minimumSizeHint().width() <= area.viewport().width(), index
+        assert not area.horizontalScrollBar().isVisible(), index
+    # every field of every step has a label with words and a tooltip
+    for step in (workflow.real_image, workflow.simulate, workflow.tune, workflow.export):
+        for widget in _leaves(step):
+            assert widget.tooltip, f"{step.name}.{widget.name} has no tooltip"
+
+
+def _leaves(container):
+    """The editable fields and buttons inside ``container`` and its sub-forms."""
+    from magicgui.widgets import Container, Image, Label, Table
+
+    for widget in container:
+        if isinstance(widget, Container):
+            yield from _leaves(widget)
+        elif not isinstance(widget, (Label, Image, Table)):
+            yield widget

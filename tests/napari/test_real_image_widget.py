@@ -84,3 +84,80 @@ def test_paint_and_measure_a_time_series(make_napari_viewer):
     widget.measure_button.native.click()
     assert widget.statistics["cell"].mean == pytest.approx(600, abs=15)
     assert widget.statistics["media"].mean == pytest.approx(1000, abs=15)
+
+
+@pytest.fixture
+def notifications():
+    """Messages of the napari notifications shown during the test."""
+    from napari.utils.notifications import notification_manager
+
+    seen: list[str] = []
+
+    def record(notification):
+        seen.append(str(notification.message))
+
+    notification_manager.notification_ready.connect(record)
+    yield seen
+    notification_manager.notification_ready.disconnect(record)
+
+
+def test_missing_pixel_size_is_asked_for_and_remembered(
+    make_napari_viewer, tmp_path, real_data_dir, notifications
+):
+    """Defect 4: a TIFF without pixel size opened at 1 um/px with no warning, kept the
+    previous image's value, and an out-of-range value raised an uncaught error."""
+    source = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")
+    with_size = tmp_path / "sized.tif"
+    tifffile.imwrite(
+        with_size, source, imagej=True, resolution=(1 / 0.11, 1 / 0.11), metadata={"unit": "um"}
+    )
+    bare = tmp_path / "bare.tif"
+    tifffile.imwrite(bare, source)  # no resolution tags
+    viewer = make_napari_viewer()
+    widget = RealImageWidget(viewer)
+    viewer.window.add_dock_widget(widget)
+
+    widget.file.value = with_size
+    assert widget.pixel_size.value == pytest.approx(0.11, abs=1e-4)
+    widget.file.value = bare
+    layer = viewer.layers["bare"]
+    assert widget.image.value is layer
+    assert widget.pixel_size.value == 0  # not the previous image's 0.11
+    assert "no pixel size" in widget.warning.value
+    assert any("no pixel size" in message for message in notifications)
+    assert not layer.metadata.get("pixel_size_um")
+
+    widget.pixel_size.value = 50.0  # implausible: warned, not raised, not applied
+    assert "implausible" in widget.warning.value
+    assert not layer.metadata.get("pixel_size_um")
+
+    widget.pixel_size.value = 0.065
+    assert widget.warning.value == ""
+    assert layer.metadata["pixel_size_um"] == pytest.approx(0.065)
+    assert tuple(layer.scale) == pytest.approx((0.065, 0.065))
+    assert layer.metadata["microscope"].pixel_size_um == pytest.approx(0.065)
+    # remembered with the layer: choosing the other image and back restores it
+    widget.image.value = viewer.layers["sized"]
+    assert widget.pixel_size.value == pytest.approx(0.11, abs=1e-4)
+    widget.image.value = layer
+    assert widget.pixel_size.value == pytest.approx(0.065)
+
+
+def test_measured_means_are_kept_with_the_layer(make_napari_viewer):
+    rng = np.random.default_rng(3)
+    image = rng.normal(1100, 10, (40, 30))
+    image[10:20, 10:20] = rng.normal(700, 10, (10, 10))
+    viewer = make_napari_viewer()
+    layer = viewer.add_image(image, name="img")
+    widget = RealImageWidget(viewer)
+    widget.pixel_size.value = 0.065
+    widget.paint_button.native.click()
+    labels = viewer.layers[class_layer_name("img")]
+    assert tuple(labels.scale) == pytest.approx((0.065, 0.065))
+    labels.paint((15, 15), CLASS_VALUES["cell"], refresh=False)
+    labels.paint((30, 25), CLASS_VALUES["media"], refresh=False)
+    widget.measure_button.native.click()
+    means = layer.metadata["class_means_adu"]
+    baseline = 100.0  # Camera().baseline_adu
+    assert means["cell"] == pytest.approx(700 - baseline, abs=10)
+    assert means["media"] == pytest.approx(1100 - baseline, abs=10)

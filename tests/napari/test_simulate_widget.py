@@ -97,3 +97,81 @@ def test_agar_pad_run_previews_and_renders_its_field(widget, qtbot):
     pixel = widget.pipeline.microscope.pixel_size_um
     assert labels.shape[1:] == (round(10.0 / pixel), round(12.0 / pixel))
     assert labels[-1].max() > 0
+
+
+def test_recording_sets_pixel_size_microscope_and_modality(widget, qtbot):
+    """Defect 3: Simulate always used 0.065 um, NA 1.45, Ph3, whatever the recording."""
+    import dataclasses
+
+    import numpy as np
+
+    from napari_symbac.settings import Microscope
+
+    microscope = dataclasses.replace(
+        Microscope(), pixel_size_um=0.1, numerical_aperture=1.3, condenser="Ph2"
+    )
+    recording = widget.viewer.add_image(
+        np.zeros((100, 20), np.uint16),
+        name="my recording",
+        scale=(0.1, 0.1),
+        metadata={
+            "pixel_size_um": 0.1,
+            "modality": "fluorescence",
+            "microscope": microscope,
+            "class_means_adu": {"cell": 2500.0, "media": 200.0},
+        },
+    )
+    assert widget.recording.value is recording  # the newest recording, chosen for you
+    widget.form.n_frames.value = 3
+    widget.run_button.native.click()
+    qtbot.waitUntil(lambda: RESULT_LABELS_LAYER in widget.viewer.layers, timeout=120_000)
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=10_000)
+    used = widget.pipeline
+    assert used.microscope.pixel_size_um == 0.1
+    assert used.microscope.numerical_aperture == 1.3
+    assert used.microscope.condenser == "Ph2"
+    assert used.microscope.modality == "fluorescence"
+    assert used.render.cell_intensity == 2500.0
+    assert used.render.media_intensity == 200.0
+    image = widget.viewer.layers[RESULT_IMAGE_LAYER]
+    labels = widget.viewer.layers[RESULT_LABELS_LAYER].data
+    assert tuple(image.scale[1:]) == tuple(recording.scale)  # same physical scale
+    frame = image.data[-1].astype(float)
+    assert frame[labels[-1] > 0].mean() > 3 * frame[labels[-1] == 0].mean()  # bright cells
+
+
+def test_closing_the_viewer_during_a_run_is_clean(make_napari_viewer, qtbot):
+    """Defect 2: closing the viewer mid-run raised KeyError in _on_yielded /
+    _remove_preview (pytest-qt fails the test on any exception in the event loop)."""
+    viewer = make_napari_viewer()
+    widget = SimulateWidget(viewer)
+    viewer.window.add_dock_widget(widget)
+    widget.form.n_frames.value = 2000
+    widget.run_button.native.click()
+    qtbot.waitUntil(lambda: PREVIEW_LAYER in viewer.layers, timeout=60_000)
+    job = widget.worker
+    viewer.close()
+    qtbot.waitUntil(lambda: job.cancelled.is_set(), timeout=10_000)
+    qtbot.waitUntil(lambda: not job.worker.is_running, timeout=60_000)
+
+
+def test_worker_error_is_a_notification_and_the_widget_recovers(widget, qtbot, monkeypatch):
+    """A failure inside the worker (here a RecursionError, a RuntimeError that superqt
+    took for an aborted thread) reaches the user; the buttons come back."""
+    from napari.utils.notifications import notification_manager
+
+    import napari_symbac.sim as sim
+
+    def broken(*_args, **_kwargs):
+        raise RecursionError("maximum recursion depth exceeded")
+
+    monkeypatch.setattr(sim, "Simulator", broken)
+    seen = []
+    notification_manager.notification_ready.connect(seen.append)
+    widget.form.n_frames.value = 3
+    widget.run_button.native.click()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=60_000)
+    assert widget.status.value.startswith("Failed")
+    assert any("Simulation failed (RecursionError)" in str(n.message) for n in seen)
+    assert widget.run_button.enabled
+    assert not widget.cancel_button.enabled

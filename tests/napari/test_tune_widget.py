@@ -133,7 +133,8 @@ def test_auto_fit_with_nan_terms_reports_them(rendered, qtbot, real_data_dir, mo
     assert "edge_profile" in tune.status.value
     table = tune.terms_table.to_dict("list")
     assert np.isnan(float(table["after"][table["term"].index("edge_profile")]))
-    assert tune.terms_image.visible
+    plot = np.asarray(tune.terms_image.value)
+    assert (plot == (220, 40, 40)).all(axis=-1).any()  # the NaN term's red stripe
     assert tune.fit_button.enabled
 
 

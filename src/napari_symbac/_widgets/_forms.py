@@ -11,9 +11,18 @@ import dataclasses
 import typing
 from typing import Any, Literal
 
-from magicgui.widgets import CheckBox, ComboBox, Container, FloatSpinBox, LineEdit, SpinBox, Widget
+from magicgui.widgets import (
+    CheckBox,
+    ComboBox,
+    Container,
+    FloatSpinBox,
+    Label,
+    LineEdit,
+    SpinBox,
+    Widget,
+)
 
-__all__ = ["SettingsForm", "parameter_docs"]
+__all__ = ["SettingsForm", "hide_label", "parameter_docs"]
 
 _UNIT_SUFFIXES = {
     "_um2": "um²",
@@ -75,6 +84,14 @@ def _is_text(annotation: Any) -> bool:
     return annotation is str or args == {str}
 
 
+def hide_label(widget: Widget) -> None:
+    """Hide the label column of ``widget`` inside its labelled container (a sub-form or a
+    heading needs none; the column would take the dock's width)."""
+    labeled = getattr(widget, "_labeled_widget", lambda: None)()
+    if labeled is not None:
+        labeled._label_widget.visible = False
+
+
 def parameter_docs(cls: type) -> dict[str, str]:
     """``{field: description}`` from the numpy-style "Parameters" section of ``cls``."""
     lines = (cls.__doc__ or "").splitlines()
@@ -108,7 +125,8 @@ def _field_widget(name: str, annotation: Any, value: Any) -> Widget | None:
     label = _label(name)
     origin = typing.get_origin(annotation)
     if dataclasses.is_dataclass(annotation):
-        return SettingsForm(type(value), value=value, name=name, label=label)
+        # titled inside, no label column: nested labels then stay readable in a narrow dock
+        return SettingsForm(type(value), value=value, name=name, label="", title=label)
     if origin is Literal:
         return ComboBox(
             name=name, label=label, choices=list(typing.get_args(annotation)), value=value
@@ -137,6 +155,8 @@ class SettingsForm(Container):
         Initial settings; defaults to ``cls()``.
     choices
         Optional ``{field: [choices]}`` for string fields with a fixed set of values.
+    title
+        Heading shown as the form's first row (sub-forms of nested settings).
     """
 
     def __init__(
@@ -145,9 +165,14 @@ class SettingsForm(Container):
         value: Any | None = None,
         *,
         choices: dict[str, list[str]] | None = None,
+        title: str | None = None,
         **kwargs: Any,
     ) -> None:
         super().__init__(**kwargs)
+        if title:
+            heading = Label(name="_title", value=f"<b>{title}</b>")
+            self.append(heading)
+            hide_label(heading)
         self._cls = cls
         self._fixed: dict[str, Any] = {}  # fields kept as they are (no editor)
         value = cls() if value is None else value
@@ -170,6 +195,8 @@ class SettingsForm(Container):
             else:
                 widget.tooltip = tooltips.get(field.name) or _label(field.name)
                 self.append(widget)
+                if isinstance(widget, SettingsForm):
+                    hide_label(widget)
         self._remember_exact(value)
 
     def _remember_exact(self, settings: Any) -> None:
@@ -181,11 +208,15 @@ class SettingsForm(Container):
             if isinstance(widget, FloatSpinBox)
         }
 
+    def _editors(self) -> list[Widget]:
+        """The field editors (not the title)."""
+        return [widget for widget in self if not isinstance(widget, Label)]
+
     @property
     def value(self) -> Any:
         """The settings currently in the form (validated on construction)."""
         kwargs = dict(self._fixed)
-        for widget in self:
+        for widget in self._editors():
             raw = widget.value
             if isinstance(widget, LineEdit):
                 raw = raw or None
@@ -196,7 +227,7 @@ class SettingsForm(Container):
     @value.setter
     def value(self, settings: Any) -> None:
         self._fixed = {name: getattr(settings, name) for name in self._fixed}
-        for widget in self:
+        for widget in self._editors():
             current = getattr(settings, widget.name)
             widget.value = (
                 ("" if current is None else str(current))

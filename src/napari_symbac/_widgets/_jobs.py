@@ -24,7 +24,7 @@ import threading
 from collections.abc import Callable, Generator
 from typing import Any
 
-__all__ = ["Job", "notify_error", "notify_warning"]
+__all__ = ["Job", "blocking_steps", "describe_error", "notify_error", "notify_warning"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -175,8 +175,6 @@ class Job:
                     self._handle(kind, payload)
                 except Exception as err:  # a bug in a callback: report, keep the widget
                     notify_error(describe_error(err, f"{self._what} (showing its result)"))
-                    if kind != "finish" and not self.done:
-                        continue
         finally:
             self._busy = False
 
@@ -205,3 +203,24 @@ class Job:
         handled = callback(err) if callback is not None else None
         if not handled:
             notify_error(describe_error(err, self._what))
+
+
+def blocking_steps(run, cancelled):
+    """Run ``run(progress, cancel)`` in a thread; yield ``(done, (done, total))`` updates.
+
+    A generator for :class:`~napari_symbac._widgets._jobs.Job`; returns ``run``'s result
+    and raises its exception.
+    """
+    import queue
+    from concurrent.futures import ThreadPoolExecutor
+
+    updates: queue.Queue = queue.Queue()
+    with ThreadPoolExecutor(1) as pool:
+        future = pool.submit(run, lambda done, total: updates.put((done, total)), cancelled)
+        while not future.done() or not updates.empty():
+            try:
+                done, total = updates.get(timeout=0.05)
+            except queue.Empty:
+                continue
+            yield done, (done, total)
+        return future.result()

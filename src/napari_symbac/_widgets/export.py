@@ -7,9 +7,7 @@ Headless equivalent: :func:`napari_symbac.export.export_dataset` (and the
 from __future__ import annotations
 
 import dataclasses
-import queue
 import threading
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -24,6 +22,7 @@ from magicgui.widgets import (
     SpinBox,
 )
 
+from napari_symbac._widgets._jobs import Job, blocking_steps
 from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
 from napari_symbac.export import FORMATS, ExportSettings
 from napari_symbac.settings import PipelineSettings
@@ -37,16 +36,26 @@ __all__ = ["ExportWidget"]
 class ExportWidget(Container):
     """Choose formats, number of items and a folder; export in the background.
 
-    The optics come from the chosen rendered layer (as tuned with *Tune optics and
-    noise*), or the defaults. The settings are saved with the dataset (its manifest),
-    and a cancelled export resumes when run again into the same folder.
+    The settings (your recording's microscope and modality, as simulated, tuned and
+    fitted) come from the chosen rendered layer: the newest one unless you pick
+    another; with none, the built-in defaults (said in the status line). The settings
+    are saved with the dataset (its manifest), and a cancelled export resumes when run
+    again into the same folder. Errors (read-only folder, full disk) are shown as a
+    notification and the widget stays usable.
     """
 
     def __init__(self, viewer: napari.viewer.Viewer):
         super().__init__(name="symbac_export")
         self.viewer = viewer
         self.source = ComboBox(
-            name="source", label="settings from", choices=self._rendered, nullable=True
+            name="source",
+            label="settings from",
+            choices=self._rendered,
+            nullable=True,
+            tooltip=(
+                "The rendered layer whose simulation, optics and noise (as tuned and "
+                "fitted) the dataset uses; the newest one by default."
+            ),
         )
         self.formats = Select(
             name="formats", label="formats", choices=list(FORMATS), value=["tiff"]
@@ -62,6 +71,7 @@ class ExportWidget(Container):
         self.export_button = PushButton(name="export", text="Export")
         self.cancel_button = PushButton(name="cancel", text="Cancel", enabled=False)
         self.status = Label(name="status", value="")
+        self.status.native.setWordWrap(True)  # long messages must not widen the dock
         self.extend(
             [
                 self.source,
@@ -79,12 +89,31 @@ class ExportWidget(Container):
         )
         self.export_button.changed.connect(self.export)
         self.cancel_button.changed.connect(self.cancel)
+        tips = {
+            self.formats: "Dataset formats to write (several at once share the images).",
+            self.kind: "frames: single images; timeseries: stacks with lineage.",
+            self.n_items: "Items to export, each with freshly drawn parameters.",
+            self.seed: "Seed of every random draw: same seed, same dataset bit for bit.",
+            self.val_fraction: "Fraction of items put in the validation split.",
+            self.workers: "Worker processes (1: in this process).",
+            self.folder: "Output folder; an unfinished export there is resumed.",
+            self.export_button: "Write the dataset in the background.",
+            self.cancel_button: "Stop after the items in progress; Export again resumes.",
+        }
+        for widget, tip in tips.items():
+            widget.tooltip = tip
         for event in (viewer.layers.events.inserted, viewer.layers.events.removed):
-            event.connect(lambda _e=None: self.source.reset_choices())
-        self.worker = None
+            event.connect(self._refresh_source)
+        self.worker: Job | None = None
         self.report = None
-        self._cancel = threading.Event()
-        self._progress = None
+        self._refresh_source()
+
+    def _refresh_source(self, _event=None) -> None:
+        """Offer the rendered layers; choose the newest when none (or a removed one) is."""
+        self.source.reset_choices()
+        choices = [c for c in self.source.choices if c is not None]
+        if self.source.value is None and choices:
+            self.source.value = choices[-1]
 
     def _rendered(self, _widget=None) -> list:
         return [
@@ -115,11 +144,10 @@ class ExportWidget(Container):
 
     def export(self) -> None:
         """Validate the form and run the export in a worker thread."""
-        from napari.qt.threading import thread_worker
-        from napari.utils import progress
-
         from napari_symbac.export import export_dataset
 
+        if self.worker is not None:
+            return
         folder = Path(self.folder.value) if str(self.folder.value) not in ("", ".") else None
         if folder is None:
             self.status.value = "Choose an output folder"
@@ -130,63 +158,56 @@ class ExportWidget(Container):
             self.status.value = f"Invalid settings: {err}"
             return
         workers = self.workers.value
-        self._cancel = threading.Event()
-        cancel = self._cancel
+        origin = self.source.value.name if self.source.value is not None else "built-in defaults"
+        cancelled = threading.Event()
 
-        @thread_worker
         def work():
-            updates: queue.Queue = queue.Queue()
-            with ThreadPoolExecutor(1) as pool:
-                future = pool.submit(
-                    export_dataset,
-                    settings,
-                    folder,
-                    workers=workers,
-                    progress=lambda done, total: updates.put((done, total)),
-                    cancel=cancel,
+            return (
+                yield from blocking_steps(
+                    lambda progress, cancel: export_dataset(
+                        settings, folder, workers=workers, progress=progress, cancel=cancel
+                    ),
+                    cancelled.is_set,
                 )
-                while not future.done() or not updates.empty():
-                    try:
-                        yield updates.get(timeout=0.05)
-                    except queue.Empty:
-                        continue
-                return future.result()
+            )
 
-        self._progress = progress(total=settings.n_images, desc="SyMBac export")
-        self.worker = work()
-        self.worker.yielded.connect(self._on_progress)
-        self.worker.returned.connect(self._on_returned)
-        self.worker.errored.connect(self._on_errored)
-        self.worker.finished.connect(self._on_finished)
+        self.worker = Job(
+            work,
+            total=settings.n_images,
+            description="SyMBac export",
+            what="Export",
+            on_yield=self._on_progress,
+            on_return=self._on_returned,
+            on_error=self._on_errored,
+            on_finish=self._on_finished,
+            owner=self.native,
+            cancelled=cancelled,
+        )
         self.export_button.enabled = False
         self.cancel_button.enabled = True
-        self.status.value = f"Exporting {settings.n_images} images to {folder}..."
+        self.status.value = (
+            f"Exporting {settings.n_images} images to {folder} (settings: {origin})..."
+        )
         self.worker.start()
 
     def cancel(self) -> None:
         """Stop after the items in progress; running the export again completes it."""
-        self._cancel.set()
-        self.status.value = "Cancelling after the items in progress..."
+        if self.worker is not None:
+            self.worker.cancelled.set()  # the export stops between items
+            self.status.value = "Cancelling after the items in progress..."
 
     def _on_progress(self, update) -> None:
         done, total = update
-        if self._progress is not None:
-            self._progress.total = total
-            self._progress.n = done
-            self._progress.refresh()
         self.status.value = f"Exported {done} of {total} images"
 
     def _on_returned(self, report) -> None:
         self.report = report
         self.status.value = str(report)
 
-    def _on_errored(self, err: Exception) -> None:
+    def _on_errored(self, err: BaseException) -> None:
         self.status.value = f"Export failed: {err}"
 
     def _on_finished(self) -> None:
-        if self._progress is not None:
-            self._progress.close()
-            self._progress = None
         self.worker = None
         self.export_button.enabled = True
         self.cancel_button.enabled = False

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from magicgui.widgets import ComboBox, Container, FileEdit, Label, PushButton
 
-from napari_symbac._widgets._forms import SettingsForm
+from napari_symbac._widgets._forms import SettingsForm, hide_label
 from napari_symbac._widgets._jobs import notify_warning
 from napari_symbac._widgets._recording import pixel_size_problem
 from napari_symbac.fit import CLASS_VALUES, class_statistics
@@ -63,13 +63,17 @@ class RealImageWidget(Container):
             mode="r",
             tooltip="Open a TIFF recording; its pixel size and modality are read if recorded.",
         )
-        self.microscope = SettingsForm(Microscope, name="microscope", label="microscope")
+        self.microscope = SettingsForm(
+            Microscope, name="microscope", label="microscope", title="microscope"
+        )
         self.microscope.pixel_size_um.min = 0.0
         self.microscope.pixel_size_um.max = 100.0
         self.microscope.pixel_size_um.step = 0.001
         self.pixel_size = self.microscope.pixel_size_um
         self.modality = self.microscope.modality
-        self.warning = Label(name="warning", value="")
+        self.warning = Label(name="warning", value="", label="")
+        self.warning.visible = False
+        self.warning.native.setWordWrap(True)  # a long message must not widen the dock
         self.paint_button = PushButton(
             name="paint",
             text="Paint classes",
@@ -98,6 +102,8 @@ class RealImageWidget(Container):
                 self.result,
             ]
         )
+        hide_label(self.microscope)
+        hide_label(self.warning)
         self.file.changed.connect(self._open_file)
         self.image.changed.connect(self._load_layer)
         self.microscope.changed.connect(self._store)
@@ -179,12 +185,14 @@ class RealImageWidget(Container):
                 problem = str(err)
         if problem is not None:
             self.warning.value = f"<b style='color:#ffb000'>&#9888; {layer.name}: {problem}</b>"
+            self.warning.visible = True
             if self.warning.value != getattr(self, "_warned", None):
                 notify_warning(f"{layer.name}: {problem}")
             self._warned = self.warning.value
             layer.metadata["pixel_size_um"] = None
             return
         self.warning.value = ""
+        self.warning.visible = False
         self._warned = None
         layer.metadata.update(
             pixel_size_um=pixel, modality=microscope.modality, microscope=microscope

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from magicgui.widgets import CheckBox, ComboBox, Container, Label, PushButton
 
-from napari_symbac._widgets._forms import SettingsForm
+from napari_symbac._widgets._forms import SettingsForm, hide_label
 from napari_symbac._widgets._jobs import Job
 from napari_symbac._widgets._recording import (
     modality_render,
@@ -70,7 +70,11 @@ class SimulateWidget(Container):
             ),
         )
         self.form = SettingsForm(
-            SimulationSettings, self.pipeline.simulation, name="settings", label="simulation"
+            SimulationSettings,
+            self.pipeline.simulation,
+            name="settings",
+            label="simulation",
+            title="simulation",
         )
         self.show_opl = CheckBox(
             name="show_opl",
@@ -84,6 +88,7 @@ class SimulateWidget(Container):
             text="Cancel", name="cancel", enabled=False, tooltip="Stop; nothing is kept."
         )
         self.status = Label(value="", name="status")
+        self.status.native.setWordWrap(True)  # long messages must not widen the dock
         self.extend(
             [
                 self.recording,
@@ -94,6 +99,7 @@ class SimulateWidget(Container):
                 self.status,
             ]
         )
+        hide_label(self.form)
         for event in (viewer.layers.events.inserted, viewer.layers.events.removed):
             event.connect(self._refresh_recordings)
         self._refresh_recordings()

@@ -22,8 +22,8 @@ from magicgui.widgets import (
     Table,
 )
 
-from napari_symbac._widgets._jobs import Job, notify_warning
-from napari_symbac._widgets._recording import modality_render
+from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
+from napari_symbac._widgets._recording import is_recording, modality_render
 from napari_symbac._widgets.real_image import class_layer_name
 from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
 
@@ -148,10 +148,16 @@ class TuneWidget(Container):
         self.noise_model.tooltip = "camera: shot + read noise (eq. 17); gaussian: fixed sd."
         self.match_fourier = CheckBox(name="match_fourier", text="match Fourier spectrum")
         self.match_histogram = CheckBox(name="match_histogram", text="match histogram")
-        self.match_noise = CheckBox(
-            name="match_noise", text="match noise (Gaussian, sd measured on the real image)"
+        self.match_noise = CheckBox(name="match_noise", text="match noise")
+        self.match_fourier.tooltip = (
+            "Give the preview the real image's Fourier amplitude spectrum (SyMBac's matching)."
+        )
+        self.match_histogram.tooltip = "Map the preview's grey levels to the real image's."
+        self.match_noise.tooltip = (
+            "Gaussian noise with the sd measured on the real image (SyMBac's match_noise)."
         )
         self.status = Label(name="status", value="")
+        self.status.native.setWordWrap(True)  # long messages must not widen the dock
         self.fit_iterations = SpinBox(
             name="fit_iterations",
             label="fit iterations",
@@ -172,6 +178,7 @@ class TuneWidget(Container):
             name="cancel_fit", text="Cancel fit", enabled=False, tooltip="Stop the fit."
         )
         self.terms_table = Table(name="terms", label="objective terms")
+        self.terms_table.native.setMinimumWidth(0)  # scrolls inside; never widens the dock
         self.terms_image = Image(name="terms_plot", label="before (grey) / after (orange)")
         self.extend(
             [
@@ -197,6 +204,7 @@ class TuneWidget(Container):
         self.fit_worker: Job | None = None
         self.fit_result = None
         self._modality = None
+        self._polarity_changed = False
         self.preview = None
         self._stale: set[int] = set()
         self._loading = False
@@ -236,6 +244,10 @@ class TuneWidget(Container):
         previous = self.source.value
         self.source.reset_choices()
         self.reference.reset_choices()
+        if self.reference.value is None:  # your recording, once its pixel size is set
+            recordings = [c for c in self.reference.choices if c is not None and is_recording(c)]
+            if recordings:
+                self.reference.value = recordings[-1]
         if self.source.value is not previous:
             self._load_source()
 
@@ -319,6 +331,9 @@ class TuneWidget(Container):
             return
         self.status.value = ""
         self._store_settings()
+        if self._polarity_changed:  # new grey levels: show them
+            self._polarity_changed = False
+            self.source.value.reset_contrast_limits()
 
     def _switch_modality(self, modality: str) -> None:
         """Intensities of the new modality's polarity: the recording's class means when
@@ -336,12 +351,16 @@ class TuneWidget(Container):
         finally:
             self._loading = False
         self._modality = modality
+        self._polarity_changed = True
 
     def _on_matching(self, _value: Any = None) -> None:
         if self.preview is None:
             return
+        matching = self.match_fourier.value or self.match_histogram.value
+        if not matching and self.preview.reference is None:
+            return  # nothing to match, nothing matched before
         try:
-            frame = self._reference_frame()
+            frame = self._reference_frame() if matching else None
             self.preview.set_reference(
                 frame,
                 fourier=self.match_fourier.value,
@@ -379,7 +398,7 @@ class TuneWidget(Container):
             from napari_symbac.fit import fit_scene
 
             return (
-                yield from _blocking_steps(
+                yield from blocking_steps(
                     lambda progress, cancel: fit_scene(
                         real,
                         microscope,
@@ -484,6 +503,7 @@ class TuneWidget(Container):
         except ValueError as err:
             notify_warning(f"The fitted settings were not applied to the preview: {err}")
         self._show_fit_layers(result)
+        self.source.value.reset_contrast_limits()  # the fitted intensities may lie outside
         nan_terms = [
             name
             for name, pair in result.terms.items()
@@ -522,6 +542,8 @@ class TuneWidget(Container):
             if name in self.viewer.layers:
                 self.viewer.layers.remove(name)
             self.viewer.add_image(np.asarray(data), name=name, **kwargs, **extra)
+        # the fitted image in the real image's grey levels: compare them by eye
+        self.viewer.layers[FIT_SYNTHETIC_LAYER].contrast_limits = reference.contrast_limits
 
     def _on_fit_errored(self, err: BaseException) -> bool:
         from napari_symbac.fit import FitCancelled
@@ -580,27 +602,6 @@ class TuneWidget(Container):
 
 def _format(value: float) -> str:
     return f"{value:.4g}" if np.isfinite(value) else "NaN"
-
-
-def _blocking_steps(run, cancelled):
-    """Run ``run(progress, cancel)`` in a thread; yield ``(done, (done, total))`` updates.
-
-    A generator for :class:`~napari_symbac._widgets._jobs.Job`; returns ``run``'s result
-    and raises its exception.
-    """
-    import queue
-    from concurrent.futures import ThreadPoolExecutor
-
-    updates: queue.Queue = queue.Queue()
-    with ThreadPoolExecutor(1) as pool:
-        future = pool.submit(run, lambda done, total: updates.put((done, total)), cancelled)
-        while not future.done() or not updates.empty():
-            try:
-                done, total = updates.get(timeout=0.05)
-            except queue.Empty:
-                continue
-            yield done, (done, total)
-        return future.result()
 
 
 def _set_slider(slider: FloatSlider, value: float) -> None:

@@ -38,10 +38,10 @@ if TYPE_CHECKING:
     from napari_symbac.diagnose.effects.base import Effect
 
 __all__ = [
+    "NUISANCE_OPTICS",
     "BaseDesign",
     "FittedModel",
     "Geometry",
-    "NUISANCE_OPTICS",
     "build_design",
     "deviance",
     "fit_model",
@@ -216,7 +216,9 @@ def build_design(
             frame_derivs.append(
                 (up.render_clean(scene) - down.render_clean(scene)).astype(np.float64) / (hi - lo)
             )
-        derivs.append(np.stack(frame_derivs) if frame_derivs else np.zeros((0, *parts["cells"].shape)))
+        derivs.append(
+            np.stack(frame_derivs) if frame_derivs else np.zeros((0, *parts["cells"].shape))
+        )
         fractions.append(block_average(scene.interior(scene.cells), scene.upsample))
         labels.append(scene.camera_labels())
     components = np.stack(comps, axis=1).astype(np.float64)
@@ -257,7 +259,9 @@ class FittedModel:
     var: np.ndarray = field(default=None, repr=False)  # type: ignore[assignment]
 
 
-def predict(design: BaseDesign, beta: np.ndarray, effects: Sequence[tuple[Effect, np.ndarray]]) -> np.ndarray:
+def predict(
+    design: BaseDesign, beta: np.ndarray, effects: Sequence[tuple[Effect, np.ndarray]]
+) -> np.ndarray:
     """Mean image of the base model with coefficients ``beta`` and the effects applied."""
     cols = design.columns()
     mu = np.tensordot(beta, cols, axes=1)
@@ -286,7 +290,10 @@ def _jacobian(design: BaseDesign, beta: np.ndarray, effects: list, mu: np.ndarra
             td[k] -= steps[k]
             up[i][1], down[i][1] = tu, td
             cols.append(
-                (predict(design, beta, [tuple(e) for e in up]) - predict(design, beta, [tuple(e) for e in down]))
+                (
+                    predict(design, beta, [tuple(e) for e in up])
+                    - predict(design, beta, [tuple(e) for e in down])
+                )
                 / (2 * steps[k])
             )
     return np.stack(cols) if cols else np.zeros((0, *mu.shape))
@@ -301,7 +308,9 @@ def _fit_camera(r2: np.ndarray, mu: np.ndarray, camera: Camera) -> tuple[float, 
         v = np.exp(p[0]) * a + np.exp(p[1]) * b + 1.0 / 12.0
         return float(np.sum(r2 / v + np.log(v)))
 
-    res = optimize.minimize(nll, np.zeros(2), method="Nelder-Mead", options={"xatol": 1e-5, "fatol": 1e-6})
+    res = optimize.minimize(
+        nll, np.zeros(2), method="Nelder-Mead", options={"xatol": 1e-5, "fatol": 1e-6}
+    )
     return float(np.exp(res.x[0])), float(np.exp(res.x[1]))
 
 
@@ -339,20 +348,27 @@ def fit_model(
     fit_mask = mask & ~censor.mask(y) if censor is not None else mask
     idx = np.flatnonzero(fit_mask.ravel())
     yv = y.ravel()[idx]
-    for _ in range(rounds):
+    a = None
+    for round_index in range(rounds):
         mu = predict(design, beta, effects)
         v = variance(mu, design.camera, gain, read).ravel()[idx]
         for _inner in range(2 if effects else 1):
             mu = predict(design, beta, effects)
-            jac = _jacobian(design, beta, effects, mu)
-            a = jac.reshape(len(jac), -1)[:, idx].T
+            # The catalogue's effects are linear or nearly so in their parameters: the
+            # Jacobian is computed at the start and once more before the last round.
+            if a is None or (round_index == rounds - 1 and _inner == 0):
+                jac = _jacobian(design, beta, effects, mu)
+                a = jac.reshape(len(jac), -1)[:, idx].T
             w = 1.0 / v
             r = yv - mu.ravel()[idx]
             aw = a * w[:, None]
             normal = a.T @ aw
             rhs = aw.T @ r
             scale = np.sqrt(np.maximum(np.diag(normal), 1e-300))
-            step = np.linalg.lstsq(normal / np.outer(scale, scale), rhs / scale, rcond=1e-12)[0] / scale
+            step = (
+                np.linalg.lstsq(normal / np.outer(scale, scale), rhs / scale, rcond=1e-12)[0]
+                / scale
+            )
             beta = beta + step[: len(beta)]
             pos = len(beta)
             for i, (e, theta) in enumerate(effects):

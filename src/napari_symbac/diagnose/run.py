@@ -129,9 +129,14 @@ class Diagnosis:
                 short = {k: v for k, v in e.params.items() if not isinstance(v, (list, dict))}
                 lines.append(f"      parameters: {short}")
         if not self.accepted:
-            lines += ["", "Nothing significant: no effect improved the held-out pixels beyond noise."]
+            lines += [
+                "",
+                "Nothing significant: no effect improved the held-out pixels beyond noise.",
+            ]
         if self.skipped:
-            lines.append(f"not tested (need a time series or another modality): {', '.join(self.skipped)}")
+            lines.append(
+                f"not tested (need a time series or another modality): {', '.join(self.skipped)}"
+            )
         lines += [
             "",
             f"final fit: reduced chi-square {self.final_fit['value']:.4f}, held-out deviance "
@@ -140,7 +145,9 @@ class Diagnosis:
         return "\n".join(lines)
 
 
-def _fit_summary(y: np.ndarray, model: FittedModel, spec: ModelSpec, design: BaseDesign, valid: np.ndarray) -> dict:
+def _fit_summary(
+    y: np.ndarray, model: FittedModel, spec: ModelSpec, design: BaseDesign, valid: np.ndarray
+) -> dict:
     even, odd = checkerboard(y.shape)
     held = spec.fit(design, y, even & valid)
     chi2 = float(np.mean(((y - model.mu) ** 2 / model.var)[valid]))
@@ -158,7 +165,7 @@ def diagnose(
     candidates: Sequence[str] | None = None,
     alpha: float = 0.01,
     n_bootstrap: int = 30,
-    max_steps: int = 3,
+    max_steps: int = 4,
     max_tries: int = 3,
     rng: np.random.Generator | None = None,
     valid: np.ndarray | None = None,
@@ -233,9 +240,24 @@ def diagnose(
             old = results.get(effect.name)
             if old is None or not old.accepted:
                 results[effect.name] = EffectResult(
-                    effect.name, effect.explanation, effect.signature, test.evidence, test.dof,
-                    False, {}, base_summary["held_out"], base_summary["held_out"],
+                    effect.name,
+                    effect.explanation,
+                    effect.signature,
+                    test.evidence,
+                    test.dof,
+                    False,
+                    {},
+                    base_summary["held_out"],
+                    base_summary["held_out"],
                 )
+        # The variance model calibrates every other test: a significant camera_noise
+        # candidate is tried first.
+        ranked.sort(
+            key=lambda et: (
+                not (et[0].kind == "variance" and et[1].evidence >= threshold),
+                -et[1].evidence,
+            )
+        )
         accepted_now = None
         for effect, test in ranked[:max_tries]:
             if test.evidence < threshold:
@@ -243,8 +265,17 @@ def diagnose(
             if cancel is not None and cancel():
                 raise InterruptedError("diagnosis cancelled")
             check = held_out(
-                effect, design, y, spec, current, valid, rng,
-                n_bootstrap=n_bootstrap, alpha=alpha, baseline_adu=baseline, cancel=cancel,
+                effect,
+                design,
+                y,
+                spec,
+                current,
+                valid,
+                rng,
+                n_bootstrap=n_bootstrap,
+                alpha=alpha,
+                baseline_adu=baseline,
+                cancel=cancel,
             )
             done += 1
             if progress is not None:
@@ -264,7 +295,11 @@ def diagnose(
         res = results[accepted_now.name]
         res.accepted = True
         res.params = _params(accepted_now, current, spec, design)
-        res.effect_map = current.mu - before_mu if accepted_now.kind == "mean" else np.sqrt(current.var) - np.sqrt(base_model.var)
+        res.effect_map = (
+            current.mu - before_mu
+            if accepted_now.kind == "mean"
+            else np.sqrt(current.var) - np.sqrt(base_model.var)
+        )
     # parameters of accepted effects after the last joint fit
     for e in spec.effects:
         results[e.name].params = _params(e, current, spec, design)
@@ -272,13 +307,17 @@ def diagnose(
     valid_final = valid & ~spec.censor.mask(y) if spec.censor is not None else valid
     final_summary = _fit_summary(y, current, spec, design, valid)
     final_summary["value"] = float(np.mean(r1[valid_final] ** 2))
-    ordered = sorted(results.values(), key=lambda e: (not e.accepted, e.step if e.accepted else 0, -e.evidence))
+    ordered = sorted(
+        results.values(), key=lambda e: (not e.accepted, e.step if e.accepted else 0, -e.evidence)
+    )
     return Diagnosis(
         base_summary, final_summary, mismatches, ordered, r0, r1, current, threshold, tuple(skipped)
     )
 
 
-def _params(effect: Effect, model: FittedModel, spec: ModelSpec, design: BaseDesign) -> dict[str, Any]:
+def _params(
+    effect: Effect, model: FittedModel, spec: ModelSpec, design: BaseDesign
+) -> dict[str, Any]:
     if effect.kind == "variance":
         return effect.summary(np.array([model.gain, model.read]), model.mu)
     if effect.kind == "censor":

@@ -39,7 +39,7 @@ from napari_symbac.diagnose.model import (
 )
 from napari_symbac.diagnose.statistics import neg_log10_p_chi2
 
-__all__ = ["ModelSpec", "ScoreTest", "HeldOut", "score_test", "held_out", "checkerboard"]
+__all__ = ["HeldOut", "ModelSpec", "ScoreTest", "checkerboard", "held_out", "score_test"]
 
 
 def checkerboard(shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
@@ -163,7 +163,12 @@ class HeldOut:
 
 
 def _gain(
-    design: BaseDesign, y: np.ndarray, train: np.ndarray, test: np.ndarray, base: ModelSpec, alt: ModelSpec
+    design: BaseDesign,
+    y: np.ndarray,
+    train: np.ndarray,
+    test: np.ndarray,
+    base: ModelSpec,
+    alt: ModelSpec,
 ) -> tuple[float, float, float, FittedModel]:
     m0 = base.fit(design, y, train)
     m1 = alt.fit(design, y, train)
@@ -196,7 +201,10 @@ def held_out(
     for _ in range(n_bootstrap):
         if cancel is not None and cancel():
             raise InterruptedError("diagnosis cancelled")
-        sim = np.rint(current_fit.mu + sd * rng.standard_normal(y.shape) + baseline_adu) - baseline_adu
+        sim = (
+            np.rint(current_fit.mu + sd * rng.standard_normal(y.shape) + baseline_adu)
+            - baseline_adu
+        )
         if current.censor is not None:
             c = current.censor
             sim = np.minimum(sim, c.level_adu) if c.high else np.maximum(sim, c.level_adu)
@@ -215,7 +223,11 @@ def held_out(
 
 
 def rank(
-    candidates: Sequence[Effect], design: BaseDesign, y: np.ndarray, current: FittedModel, valid: np.ndarray
+    candidates: Sequence[Effect],
+    design: BaseDesign,
+    y: np.ndarray,
+    current: FittedModel,
+    valid: np.ndarray,
 ) -> list[tuple[Effect, ScoreTest]]:
     """Score tests of all candidates, strongest evidence first."""
     tests = [(e, score_test(e, design, y, current, valid)) for e in candidates]

@@ -24,8 +24,17 @@ LN10 = float(np.log(10.0))
 
 
 def neg_log10_p_chi2(value: float, dof: int) -> float:
-    """``-log10`` of the upper tail of ``chi2(dof)`` at ``value``."""
-    return float(-stats.chi2.logsf(max(value, 0.0), max(dof, 1)) / LN10)
+    """``-log10`` of the upper tail of ``chi2(dof)`` at ``value``.
+
+    Far in the tail, where the log survival function underflows, the Wilson-Hilferty
+    normal approximation of the chi-square keeps strong effects ranked instead of tied.
+    """
+    k = max(dof, 1)
+    log_sf = float(stats.chi2.logsf(max(value, 0.0), k))
+    if not np.isfinite(log_sf):
+        z = ((max(value, 0.0) / k) ** (1 / 3) - (1 - 2 / (9 * k))) / np.sqrt(2 / (9 * k))
+        log_sf = float(stats.norm.logsf(z))
+    return float(-log_sf / LN10)
 
 
 def neg_log10_p_z(z: float) -> float:
@@ -52,7 +61,9 @@ class Mismatch:
         }
 
 
-def _pooled_chi2(r: np.ndarray, groups: np.ndarray, valid: np.ndarray) -> tuple[float, int, np.ndarray]:
+def _pooled_chi2(
+    r: np.ndarray, groups: np.ndarray, valid: np.ndarray
+) -> tuple[float, int, np.ndarray]:
     """Sum over groups of ``n_g mean_g^2`` (chi2 with one dof per group) and the means."""
     g = groups[valid]
     counts = np.bincount(g)
@@ -103,7 +114,9 @@ def discrepancy_statistics(
         z = float(r[m].sum() / np.sqrt(n))
         out.append(Mismatch(name, "mean standardised residual x sqrt(n)", z, neg_log10_p_z(z)))
         excess = float((np.mean(r[m] ** 2) - 1.0) / np.sqrt(2.0 / n))
-        out.append(Mismatch(name, "variance excess z (mean r^2 - 1)", excess, neg_log10_p_z(excess)))
+        out.append(
+            Mismatch(name, "variance excess z (mean r^2 - 1)", excess, neg_log10_p_z(excess))
+        )
     # --- along / across the field
     yy = np.broadcast_to(np.arange(rows)[None, :, None], r.shape)
     xx = np.broadcast_to(np.arange(cols)[None, None, :], r.shape)
@@ -112,7 +125,9 @@ def discrepancy_statistics(
         out.append(Mismatch(name, "trend z of residual vs position", z, neg_log10_p_z(z)))
         chi2, k, means = _pooled_chi2(r, coord.astype(np.int64), valid)
         out.append(
-            Mismatch(name, f"chi2 of line means ({k} dof)", chi2, neg_log10_p_chi2(chi2, k), tuple(means))
+            Mismatch(
+                name, f"chi2 of line means ({k} dof)", chi2, neg_log10_p_chi2(chi2, k), tuple(means)
+            )
         )
     # --- distance to the nearest cell edge
     if (d < 0).any():

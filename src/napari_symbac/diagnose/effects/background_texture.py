@@ -11,6 +11,8 @@ __all__ = ["BackgroundTexture", "texture_basis"]
 
 #: Shortest wavelength of the texture basis (um) and the most basis functions.
 MIN_WAVELENGTH_UM, MAX_TERMS = 1.5, 48
+#: Pixels closer than this to a cell edge carry no texture term.
+AWAY_PX = 2.5
 
 
 def texture_basis(shape: tuple[int, int], pixel_size_um: float) -> np.ndarray:
@@ -31,7 +33,8 @@ def texture_basis(shape: tuple[int, int], pixel_size_um: float) -> np.ndarray:
 class BackgroundTexture(Effect):
     """The media is not uniform: ``mu + P_m sum_k c_k B_k(x, y)``.
 
-    ``P_m`` is the media contribution and ``B_k`` cosine modes of wavelength 1.5 um
+    ``P_m`` is the media contribution more than 2.5 px from any cell and ``B_k``
+    cosine modes of wavelength 1.5 um
     and longer, above the second-order surface of ``uneven_illumination`` (so the
     two do not compete). The reported amplitude is the s.d. of the fitted relative
     texture over media pixels; in the settings it becomes
@@ -48,17 +51,19 @@ class BackgroundTexture(Effect):
     def __init__(self, geometry: Geometry) -> None:
         super().__init__(geometry)
         self._basis = texture_basis(geometry.shape[1:], geometry.pixel_size_um)
+        # away from cell edges, so that edge dipoles (curvature, drift) are not texture
+        self._away = (geometry.distance_px > AWAY_PX).astype(np.float64)
 
     def n_params(self) -> int:
         return len(self._basis)
 
-    def mean(self, theta, mu, parts, geo):  # noqa: D102
-        return mu + np.tensordot(theta, self._basis, axes=1)[None] * parts[1]
+    def mean(self, theta, mu, parts, geo):
+        return mu + np.tensordot(theta, self._basis, axes=1)[None] * parts[1] * self._away
 
-    def summary(self, theta, mu):  # noqa: D102
+    def summary(self, theta, mu):
         field = np.tensordot(theta, self._basis, axes=1)
         media = self.geometry.labels[0] == 0
         return {"rms_fraction": float(field[media].std()) if media.any() else 0.0}
 
-    def magnitude(self, summary):  # noqa: D102
+    def magnitude(self, summary):
         return summary["rms_fraction"]

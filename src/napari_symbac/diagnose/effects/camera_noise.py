@@ -30,10 +30,10 @@ class CameraNoise(Effect):
     def n_params(self) -> int:
         return 2
 
-    def summary(self, theta, mu):  # noqa: D102
+    def summary(self, theta, mu):
         return {"gain_ratio": float(theta[0]), "read_variance_ratio": float(theta[1])}
 
-    def magnitude(self, summary):  # noqa: D102
+    def magnitude(self, summary):
         return summary["gain_ratio"] - 1.0
 
 
@@ -50,7 +50,9 @@ def updated_camera(camera: Camera, parameters: dict) -> Camera:
     )
 
 
-def score(r: np.ndarray, v: np.ndarray, mu: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+def score(
+    r: np.ndarray, v: np.ndarray, mu: np.ndarray, camera: Camera
+) -> tuple[np.ndarray, np.ndarray]:
     """Score and information of ``(g, h)`` at ``g = h = 1`` for Gaussian pixels."""
     s = camera.sensitivity_adu_per_e
     dv = np.stack([s * np.maximum(mu, 0.0), np.full_like(mu, (s * camera.dark_noise_e) ** 2)])

@@ -26,7 +26,7 @@ def _bend_fields(geometry: Geometry) -> tuple[np.ndarray, np.ndarray, np.ndarray
             py, px = yy[inside], xx[inside]
             cy, cx = py.mean(), px.mean()
             cov = np.cov(np.stack([px - cx, py - cy]))
-            evals, evecs = np.linalg.eigh(cov)
+            _, evecs = np.linalg.eigh(cov)
             ax, ay = evecs[:, 1]
             s = (xx - cx) * ax + (yy - cy) * ay
             half = max(np.abs((px - cx) * ax + (py - cy) * ay).max(), 1.0)
@@ -57,10 +57,10 @@ class CellCurvature(Effect):
     def n_params(self) -> int:
         return len(self._bow)
 
-    def steps(self, theta):  # noqa: D102
+    def steps(self, theta):
         return np.full(len(theta), 0.05)
 
-    def mean(self, theta, mu, parts, geo):  # noqa: D102
+    def mean(self, theta, mu, parts, geo):
         if not len(theta):
             return mu
         gy, gx = np.gradient(mu, axis=(1, 2))
@@ -68,12 +68,12 @@ class CellCurvature(Effect):
         shift_y = np.tensordot(theta, self._bow * self._ny, axes=1)
         return mu - shift_x * gx - shift_y * gy
 
-    def summary(self, theta, mu):  # noqa: D102
+    def summary(self, theta, mu):
         px = self.geometry.pixel_size_um
         return {
             "rms_bow_um": float(np.sqrt(np.mean(np.square(theta))) * px) if len(theta) else 0.0,
             "bow_um": {int(i): float(a * px) for i, a in zip(self.geometry.cell_ids, theta)},
         }
 
-    def magnitude(self, summary):  # noqa: D102
+    def magnitude(self, summary):
         return summary["rms_bow_um"]

@@ -29,22 +29,24 @@ class CellIntensityVariability(Effect):
     def __init__(self, geometry: Geometry) -> None:
         super().__init__(geometry)
         self._ids = geometry.cell_ids
-        self._masks = np.stack([geometry.nearest == i for i in self._ids]) if len(self._ids) else (
-            np.zeros((0, *geometry.shape), bool)
+        self._masks = (
+            np.stack([geometry.nearest == i for i in self._ids]).astype(np.float64)
+            if len(self._ids)
+            else np.zeros((0, *geometry.shape))
         )
 
     def n_params(self) -> int:
         return len(self._ids)
 
-    def mean(self, theta, mu, parts, geo):  # noqa: D102
-        gain = np.tensordot(theta, self._masks.astype(np.float64), axes=1) if len(theta) else 0.0
+    def mean(self, theta, mu, parts, geo):
+        gain = np.tensordot(theta, self._masks, axes=1) if len(theta) else 0.0
         return mu + gain * parts[0]
 
-    def summary(self, theta, mu):  # noqa: D102
+    def summary(self, theta, mu):
         return {
             "cv": float(np.std(theta)) if len(theta) > 1 else 0.0,
             "cell_gains": {int(i): float(1 + g) for i, g in zip(self._ids, theta)},
         }
 
-    def magnitude(self, summary):  # noqa: D102
+    def magnitude(self, summary):
         return summary["cv"]

@@ -34,21 +34,21 @@ class DefocusGradient(Effect):
     def n_params(self) -> int:
         return 2
 
-    def steps(self, theta):  # noqa: D102
+    def steps(self, theta):
         return np.full(2, 0.05)
 
-    def mean(self, theta, mu, parts, geo):  # noqa: D102
+    def mean(self, theta, mu, parts, geo):
         plane = theta[0] * geo.xn + theta[1] * geo.yn
         return mu + 0.5 * plane[None] * _laplacian(mu)
 
-    def summary(self, theta, mu):  # noqa: D102
+    def summary(self, theta, mu):
         return {
             "blur_variance_slope_x_px2": float(theta[0]),
             "blur_variance_slope_y_px2": float(theta[1]),
             "blur_variance_change_px2": float(np.hypot(theta[0], theta[1])),
         }
 
-    def magnitude(self, summary):  # noqa: D102
+    def magnitude(self, summary):
         return summary["blur_variance_change_px2"]
 
 

@@ -31,20 +31,20 @@ class FixedPatternNoise(Effect):
     def n_params(self) -> int:
         return self._cols
 
-    def steps(self, theta):  # noqa: D102
+    def steps(self, theta):
         return np.ones(len(theta))
 
-    def mean(self, theta, mu, parts, geo):  # noqa: D102
+    def mean(self, theta, mu, parts, geo):
         return mu + (theta - theta.mean())[None, None, :]
 
-    def summary(self, theta, mu):  # noqa: D102
+    def summary(self, theta, mu):
         offsets = theta - theta.mean()
         return {
             "rms_column_offset_adu": float(offsets.std()),
             "column_offsets_adu": [round(float(o), 3) for o in offsets],
         }
 
-    def magnitude(self, summary):  # noqa: D102
+    def magnitude(self, summary):
         return summary["rms_column_offset_adu"]
 
 

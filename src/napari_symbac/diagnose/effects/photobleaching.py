@@ -27,11 +27,11 @@ class Photobleaching(Effect):
     def n_params(self) -> int:
         return 1
 
-    def mean(self, theta, mu, parts, geo):  # noqa: D102
+    def mean(self, theta, mu, parts, geo):
         factor = np.exp(-theta[0] * geo.t) - 1.0
         return mu + factor[:, None, None] * parts[0]
 
-    def summary(self, theta, mu):  # noqa: D102
+    def summary(self, theta, mu):
         return {"rate_per_frame": float(theta[0])}
 
 

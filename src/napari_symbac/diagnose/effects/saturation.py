@@ -31,7 +31,7 @@ class Saturation(Effect):
     def n_params(self) -> int:
         return 1
 
-    def summary(self, theta, mu):  # noqa: D102
+    def summary(self, theta, mu):
         return {"clip_level_adu": float(theta[0])}
 
 
@@ -47,13 +47,14 @@ def detect(y: np.ndarray, mu: np.ndarray, v: np.ndarray) -> tuple[Censor | None,
         censor = Censor(level, high)
         clipped = censor.mask(y)
         count = int(clipped.sum())
-        if count < 3:
+        if count < 2:
             continue
         # expected count in the one-ADU bin of the extreme value (a spike, not a tail)
         sd = np.sqrt(v)
         lo, hi = (level - 0.5 - mu) / sd, (level + 0.5 - mu) / sd
         expected = float(np.sum(special.ndtr(hi) - special.ndtr(lo)))
-        log_p = stats.poisson.logsf(count - 1, max(expected, 1e-12))
+        # the extreme value holds at least one pixel by construction: test the others
+        log_p = stats.poisson.logsf(count - 2, max(expected, 1e-12))
         evidence = float(-log_p / np.log(10))
         if evidence > best[1]:
             best = (censor, evidence, count / y.size)

@@ -33,21 +33,21 @@ class StageDrift(Effect):
     def n_params(self) -> int:
         return 2
 
-    def steps(self, theta):  # noqa: D102
+    def steps(self, theta):
         return np.full(2, 0.01)
 
-    def mean(self, theta, mu, parts, geo):  # noqa: D102
+    def mean(self, theta, mu, parts, geo):
         gx, gy = _gradients(mu)
         return mu - geo.t[:, None, None] * (theta[0] * gx + theta[1] * gy)
 
-    def summary(self, theta, mu):  # noqa: D102
+    def summary(self, theta, mu):
         return {
             "velocity_x_px_per_frame": float(theta[0]),
             "velocity_y_px_per_frame": float(theta[1]),
             "speed_px_per_frame": float(np.hypot(*theta)),
         }
 
-    def magnitude(self, summary):  # noqa: D102
+    def magnitude(self, summary):
         return summary["speed_px_per_frame"]
 
 

@@ -43,13 +43,13 @@ class StrayLight(Effect):
     def n_params(self) -> int:
         return 1
 
-    def steps(self, theta):  # noqa: D102
+    def steps(self, theta):
         return np.ones(1)
 
-    def mean(self, theta, mu, parts, geo):  # noqa: D102
+    def mean(self, theta, mu, parts, geo):
         return mu + theta[0] * self._haze
 
-    def summary(self, theta, mu):  # noqa: D102
+    def summary(self, theta, mu):
         return {"amplitude_adu": float(theta[0])}
 
 

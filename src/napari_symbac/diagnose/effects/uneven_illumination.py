@@ -39,10 +39,10 @@ class UnevenIllumination(Effect):
     def n_params(self) -> int:
         return 5
 
-    def mean(self, theta, mu, parts, geo):  # noqa: D102
+    def mean(self, theta, mu, parts, geo):
         return mu * (1.0 + np.tensordot(theta, self._basis, axes=1))[None]
 
-    def summary(self, theta, mu):  # noqa: D102
+    def summary(self, theta, mu):
         surface = np.tensordot(theta, self._basis, axes=1)
         return {
             "peak_to_peak_fraction": float(surface.max() - surface.min()),
@@ -50,7 +50,7 @@ class UnevenIllumination(Effect):
             "terms": ["x", "y", "x^2", "y^2", "xy"],
         }
 
-    def magnitude(self, summary):  # noqa: D102
+    def magnitude(self, summary):
         return summary["peak_to_peak_fraction"]
 
 

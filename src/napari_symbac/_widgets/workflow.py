@@ -1,0 +1,62 @@
+"""Dock widget: the whole workflow in one dock, one tab per step.
+
+Four docked widgets stacked vertically need more than 2000 px of height; in tabs,
+each in a scroll area, the dock fits a 1366 x 768 laptop screen beside the canvas.
+``napari -w napari-symbac`` opens this widget (the manifest lists it first).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from qtpy.QtWidgets import QFrame, QScrollArea, QStyle, QTabWidget
+
+from napari_symbac._widgets.export import ExportWidget
+from napari_symbac._widgets.real_image import RealImageWidget
+from napari_symbac._widgets.simulate import SimulateWidget
+from napari_symbac._widgets.tune import TuneWidget
+
+if TYPE_CHECKING:
+    import napari
+
+__all__ = ["WorkflowWidget"]
+
+#: Tab titles, in the order of the workflow.
+TABS = ("1 Recording", "2 Simulate", "3 Tune + fit", "4 Export")
+
+
+class WorkflowWidget(QTabWidget):
+    """Recording -> Simulate -> Tune + fit -> Export, as tabs of one dock widget.
+
+    The four step widgets are the ones napari also offers separately; they share the
+    recording through its layer's metadata, so a tab can be used alone.
+    """
+
+    def __init__(self, viewer: napari.viewer.Viewer):
+        super().__init__()
+        self.setObjectName("symbac_workflow")
+        self.real_image = RealImageWidget(viewer)
+        self.simulate = SimulateWidget(viewer)
+        self.tune = TuneWidget(viewer)
+        self.export = ExportWidget(viewer)
+        tips = (
+            "Open your recording, set its pixel size and microscope, paint and measure classes.",
+            "Simulate growth with your recording's microscope and render it.",
+            "Tune optics and noise live; Auto-fit the scene to your recording.",
+            "Export a training dataset with the tuned settings.",
+        )
+        for title, tip, widget in zip(
+            TABS, tips, (self.real_image, self.simulate, self.tune, self.export)
+        ):
+            area = QScrollArea()
+            area.setWidgetResizable(True)
+            area.setFrameShape(QFrame.Shape.NoFrame)
+            area.setWidget(widget.native)
+            index = self.addTab(area, title)
+            self.setTabToolTip(index, tip)
+        # never narrower than the widest step: no sideways scrolling, no cut labels
+        widest = max(
+            self.widget(i).widget().minimumSizeHint().width() for i in range(self.count())
+        )
+        scrollbar = self.style().pixelMetric(QStyle.PixelMetric.PM_ScrollBarExtent)
+        self.setMinimumWidth(widest + scrollbar + 16)

@@ -1,0 +1,106 @@
+"""The microscope file of ``napari-symbac diagnose`` (issue 11's keys)."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+
+from napari_symbac.settings import Camera, Microscope
+
+__all__ = ["DiagnoseConfig", "load_microscope_file", "parse_microscope"]
+
+REQUIRED = ("modality", "pixel_size_um", "NA", "refractive_index", "wavelength_um")
+OPTIONAL = ("condenser", "trench_width_um", "objective", "camera", "frame_interval_s")
+CAMERA_KEYS = ("baseline_adu", "sensitivity_adu_per_e", "dark_noise_e")
+
+
+@dataclass(frozen=True)
+class DiagnoseConfig:
+    """Microscope and camera of the recording, plus optional trench width and frame interval."""
+
+    microscope: Microscope
+    camera: Camera
+    trench_width_um: float | None = None
+    frame_interval_s: float | None = None
+    notes: tuple[str, ...] = ()
+
+
+def _number(data: dict, key: str, where: str) -> float:
+    value = data[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"{where}: {key} must be a number, got {value!r}")
+    return float(value)
+
+
+def parse_microscope(data: object, where: str = "microscope file") -> DiagnoseConfig:
+    """Validate the mapping of issue 11 and build the settings.
+
+    Required: ``modality`` ("phase" | "fluorescence"), ``pixel_size_um``, ``NA``,
+    ``refractive_index``, ``wavelength_um``. Optional: ``condenser``,
+    ``trench_width_um``, ``objective`` (e.g. "100x oil": its magnification is read),
+    ``camera`` {``baseline_adu``, ``sensitivity_adu_per_e``, ``dark_noise_e``},
+    ``frame_interval_s``. Unknown keys are ignored with a note.
+    """
+    if not isinstance(data, dict):
+        raise ValueError(f"{where} must be a mapping of keys to values, got {type(data).__name__}")
+    missing = [k for k in REQUIRED if k not in data]
+    if missing:
+        raise ValueError(
+            f"{where} lacks the required key(s) {', '.join(missing)}; it needs "
+            f"{', '.join(REQUIRED)} (e.g. modality: phase, pixel_size_um: 0.065, NA: 1.45, "
+            "refractive_index: 1.518, wavelength_um: 0.65)"
+        )
+    notes = [f"unknown key {k!r} ignored" for k in data if k not in REQUIRED + OPTIONAL]
+    modality = data["modality"]
+    if modality not in ("phase", "fluorescence"):
+        raise ValueError(f"{where}: modality must be 'phase' or 'fluorescence', got {modality!r}")
+    kwargs: dict = {
+        "modality": modality,
+        "pixel_size_um": _number(data, "pixel_size_um", where),
+        "numerical_aperture": _number(data, "NA", where),
+        "refractive_index": _number(data, "refractive_index", where),
+        "wavelength_um": _number(data, "wavelength_um", where),
+    }
+    if "condenser" in data:
+        kwargs["condenser"] = str(data["condenser"])
+    if "objective" in data:
+        match = re.search(r"(\d+(?:\.\d+)?)\s*[xX]", str(data["objective"]))
+        if match:
+            kwargs["magnification"] = float(match.group(1))
+        else:
+            notes.append(
+                f"objective {data['objective']!r}: no magnification found (e.g. '100x oil')"
+            )
+    microscope = Microscope(**kwargs)
+    camera = Camera()
+    if "camera" in data:
+        cam = data["camera"]
+        if not isinstance(cam, dict):
+            raise ValueError(f"{where}: camera must be a mapping with {', '.join(CAMERA_KEYS)}")
+        notes += [f"unknown camera key {k!r} ignored" for k in cam if k not in CAMERA_KEYS]
+        camera = Camera(**{k: _number(cam, k, f"{where} camera") for k in CAMERA_KEYS if k in cam})
+    else:
+        notes.append(
+            "no camera given: the default camera (100 ADU baseline, 2.9 ADU/e-, 8 e-) assumed"
+        )
+    width = _number(data, "trench_width_um", where) if "trench_width_um" in data else None
+    interval = _number(data, "frame_interval_s", where) if "frame_interval_s" in data else None
+    return DiagnoseConfig(microscope, camera, width, interval, tuple(notes))
+
+
+def load_microscope_file(path: str | Path) -> DiagnoseConfig:
+    """Read and validate a JSON or YAML microscope file."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"microscope file {path} does not exist")
+    text = path.read_text(encoding="utf-8")
+    try:
+        data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
+    except (json.JSONDecodeError, yaml.YAMLError) as err:
+        raise ValueError(f"{path} is not valid JSON/YAML: {err}") from err
+    return parse_microscope(data, str(path))

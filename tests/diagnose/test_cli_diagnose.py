@@ -1,0 +1,56 @@
+"""``napari-symbac diagnose``: bad input is a clear error; a recording gives the issue's files."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import tifffile
+
+from napari_symbac.cli import main
+from napari_symbac.diagnose.concealed import make_case
+
+
+def test_missing_microscope_key_is_a_clear_error(tmp_path, capsys):
+    image = tmp_path / "image.tif"
+    tifffile.imwrite(image, np.full((32, 32), 500, np.uint16))
+    mic = tmp_path / "mic.json"
+    mic.write_text(json.dumps({"modality": "phase", "pixel_size_um": 0.065}))
+    code = main(["diagnose", str(image), "--microscope", str(mic), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "NA" in err
+    assert "Traceback" not in err
+
+
+@pytest.mark.slow
+def test_diagnose_command_writes_the_issue_outputs(tmp_path):
+    case = make_case("fixed_pattern_noise", fraction_of_sd=0.9, seed=7)
+    image = tmp_path / "trench.tif"
+    tifffile.imwrite(image, case.images[0, :96])
+    mic = tmp_path / "mic.json"
+    mic.write_text(
+        json.dumps(
+            {
+                "modality": "phase",
+                "pixel_size_um": 0.065,
+                "NA": 1.45,
+                "refractive_index": 1.518,
+                "wavelength_um": 0.65,
+                "condenser": "Ph3",
+                "camera": {"baseline_adu": 100, "sensitivity_adu_per_e": 2.9, "dark_noise_e": 8},
+            }
+        )
+    )
+    out = tmp_path / "out"
+    assert main(["diagnose", str(image), "--microscope", str(mic), "--out", str(out)]) == 0
+    doc = json.loads((out / "diagnosis.json").read_text())
+    assert set(doc) >= {"base_fit", "mismatches", "effects", "final_fit"}
+    assert {"metric", "value", "held_out"} <= set(doc["base_fit"])
+    for effect in doc["effects"]:
+        assert {"name", "explanation", "evidence", "accepted", "params"} <= set(effect)
+    evidence = [e["evidence"] for e in doc["effects"] if not e["accepted"]]
+    assert evidence == sorted(evidence, reverse=True)
+    for name in ("report.txt", "residuals.png", "settings.yaml", "extra_stages.yaml"):
+        assert (out / name).is_file()

@@ -1,0 +1,91 @@
+"""The whole diagnosis: acceptance on held-out pixels, controls, outputs, settings and stages."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from napari_symbac.diagnose import diagnose, load_extra_stages, parse_microscope, updated_settings
+from napari_symbac.diagnose.concealed import _cells, _draw, base_settings, make_case
+from napari_symbac.optics import ForwardModel
+from napari_symbac.settings import PipelineSettings
+
+
+def test_concealed_illumination_is_accepted_and_improves_held_out_pixels():
+    case = make_case("uneven_illumination", fraction_of_sd=0.5, seed=4)
+    result = diagnose(case.images, case.design, n_bootstrap=20, rng=np.random.default_rng(0))
+    assert [e.name for e in result.accepted] == ["uneven_illumination"]
+    effect = result.accepted[0]
+    assert effect.held_out_gain_nats > effect.null_threshold_nats > 0
+    assert effect.held_out_after < effect.held_out_before
+    assert result.final_fit["held_out"] < result.base_fit["held_out"]
+    magnitude = effect.params["peak_to_peak_fraction"]
+    assert magnitude == pytest.approx(case.true_magnitude, rel=0.25)
+    doc = json.loads(json.dumps(result.as_dict()))
+    assert set(doc) >= {"base_fit", "mismatches", "effects", "final_fit"}
+    assert doc["effects"][0]["accepted"] is True
+    assert {"where", "statistic", "value", "significance"} <= set(doc["mismatches"][0])
+
+
+@pytest.mark.parametrize("seed", [31, 32])
+def test_no_effect_control_accepts_nothing(seed):
+    case = make_case(None, modality="fluorescence", fraction_of_sd=0.5, seed=seed)
+    result = diagnose(case.images, case.design, n_bootstrap=20, rng=np.random.default_rng(seed))
+    assert result.accepted == []
+    assert "Nothing significant" in result.report()
+    assert abs(result.base_fit["value"] - 1.0) < 0.05
+
+
+def test_same_seed_same_diagnosis():
+    case = make_case("stray_light", fraction_of_sd=0.6, seed=5)
+    one = diagnose(case.images, case.design, n_bootstrap=10, rng=np.random.default_rng(3))
+    two = diagnose(case.images, case.design, n_bootstrap=10, rng=np.random.default_rng(3))
+    assert json.dumps(one.as_dict()) == json.dumps(two.as_dict())
+
+
+def test_accepted_effects_become_settings_and_stages(tmp_path):
+    accepted = [
+        ("uneven_illumination", {"coefficients": [0.0, 0.1, 0.0, 0.0, 0.0]}),
+        ("camera_noise", {"gain_ratio": 1.2, "read_variance_ratio": 1.0}),
+    ]
+    settings, extra = updated_settings(PipelineSettings(), accepted)
+    assert settings.camera.sensitivity_adu_per_e == pytest.approx(2.9 * 1.2)
+    assert [e["name"] for e in extra] == ["uneven_illumination"]
+    path = tmp_path / "extra_stages.yaml"
+    path.write_text(yaml.safe_dump({"extra_stages": extra}))
+    stages = load_extra_stages(path)
+    microscope, render, camera = base_settings("phase")
+    cells, trench, field, shape = _cells("trench", np.random.default_rng(0))
+    scene = _draw(cells, trench, field, shape, microscope, render)
+    plain = ForwardModel(microscope, render, camera).render_clean(scene)
+    lit = ForwardModel(microscope, render, camera, extra_stages=stages).render_clean(scene)
+    ratio = lit / plain
+    assert ratio[0].mean() == pytest.approx(0.9, abs=0.01)
+    assert ratio[-1].mean() == pytest.approx(1.1, abs=0.01)
+
+
+def test_microscope_file_checks():
+    good = {
+        "modality": "phase",
+        "pixel_size_um": 0.065,
+        "NA": 1.45,
+        "refractive_index": 1.518,
+        "wavelength_um": 0.65,
+        "objective": "100x oil",
+        "camera": {"baseline_adu": 100, "sensitivity_adu_per_e": 0.5, "dark_noise_e": 1.5},
+        "colour": "blue",
+    }
+    config = parse_microscope(good)
+    assert config.microscope.numerical_aperture == 1.45
+    assert config.microscope.magnification == 100
+    assert config.camera.sensitivity_adu_per_e == 0.5
+    assert any("colour" in note for note in config.notes)
+    bad = dict(good)
+    del bad["NA"]
+    with pytest.raises(ValueError, match="NA"):
+        parse_microscope(bad)
+    with pytest.raises(ValueError, match="modality"):
+        parse_microscope({**good, "modality": "darkfield"})

@@ -1,0 +1,66 @@
+"""Each catalogued effect hidden below the noise: signature found, parameter recovered."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from napari_symbac.diagnose.concealed import make_case
+from napari_symbac.diagnose.effects import CATALOGUE
+from napari_symbac.diagnose.model import fit_model
+from napari_symbac.diagnose.run import _params
+from napari_symbac.diagnose.selection import ModelSpec, rank
+
+CASES = [
+    ("uneven_illumination", "phase"),
+    ("halo", "phase"),
+    ("defocus_gradient", "fluorescence"),
+    ("camera_noise", "phase"),
+    ("photobleaching", "fluorescence"),
+    ("stage_drift", "fluorescence"),
+    ("cell_intensity_variability", "fluorescence"),
+    ("background_texture", "phase"),
+    ("cell_curvature", "fluorescence"),
+    ("stray_light", "phase"),
+    ("fixed_pattern_noise", "phase"),
+    ("saturation", "phase"),
+]
+
+
+def _setup(name: str, modality: str, seed: int):
+    geometry = "field" if name == "background_texture" else "trench"
+    case = make_case(name, modality=modality, geometry=geometry, fraction_of_sd=0.8, seed=seed)
+    y = case.images.astype(float) - case.design.camera.baseline_adu
+    valid = np.ones(y.shape, bool)
+    geo = case.design.geometry
+    pool = [
+        cls(geo)
+        for cls in CATALOGUE.values()
+        if modality in cls.modalities and (not cls.needs_series or geo.shape[0] >= 3)
+    ]
+    return case, y, valid, pool
+
+
+@pytest.mark.parametrize(("name", "modality"), CASES)
+def test_signature_detected_and_parameter_recovered(name, modality):
+    case, y, valid, pool = _setup(name, modality, seed=11)
+    current = fit_model(case.design, y, valid)
+    ranked = rank(pool, case.design, y, current, valid)
+    best, test = ranked[0]
+    assert best.name == name, [(e.name, round(t.evidence, 1)) for e, t in ranked[:3]]
+    assert test.evidence > -np.log10(0.01 / len(pool))
+    spec = ModelSpec().with_effect(best, y)
+    fitted = spec.fit(case.design, y, valid)
+    params = _params(best, fitted, spec, case.design)
+    value = params["clip_level_adu"] if name == "saturation" else best.magnitude(params)
+    assert value == pytest.approx(case.true_magnitude, rel=0.35), params
+
+
+def test_no_effect_control_flags_nothing():
+    for seed in (21, 22, 23):
+        _, _, valid, pool = _setup("halo", "phase", seed)
+        control = make_case(None, modality="phase", fraction_of_sd=0.8, seed=seed)
+        y = control.images.astype(float) - control.design.camera.baseline_adu
+        current = fit_model(control.design, y, valid)
+        ranked = rank(pool, control.design, y, current, valid)
+        assert ranked[0][1].evidence < -np.log10(0.01 / len(pool)), ranked[0]

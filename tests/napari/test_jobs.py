@@ -1,0 +1,76 @@
+"""The widgets' background-job runner: no re-entrant handlers, errors as values."""
+
+from __future__ import annotations
+
+import pytest
+
+pytest.importorskip("napari", reason="the [gui] extra (napari + Qt) is not installed")
+
+from qtpy.QtWidgets import QApplication
+
+from napari_symbac._widgets._jobs import Job
+
+
+def test_fast_yields_never_recurse(qtbot):
+    """A worker yielding faster than the GUI handles it, with a handler that processes
+    events (as napari's progress bar does): handlers never nest (the RecursionError of
+    the simulate widget), and the newest message is the last one shown."""
+    depth = {"now": 0, "max": 0}
+    shown: list[int] = []
+    finished: list[bool] = []
+
+    def on_yield(message):
+        depth["now"] += 1
+        depth["max"] = max(depth["max"], depth["now"])
+        shown.append(message)
+        QApplication.processEvents()
+        depth["now"] -= 1
+
+    def work():
+        for index in range(1, 5001):
+            yield index, index
+        return "done"
+
+    results = []
+    job = Job(
+        work,
+        total=5000,
+        description="test",
+        what="Test",
+        on_yield=on_yield,
+        on_return=results.append,
+        on_finish=lambda: finished.append(True),
+    )
+    job.start()
+    qtbot.waitUntil(lambda: bool(finished), timeout=60_000)
+    assert depth["max"] == 1
+    assert shown[-1] == 5000
+    assert shown == sorted(shown)
+    assert results == ["done"]
+    assert finished == [True]
+
+
+def test_runtime_error_in_the_worker_is_reported_and_finishes(qtbot):
+    """superqt swallows a RuntimeError from a generator worker (no errored, no
+    finished); the runner reports it and always finishes."""
+    from napari.utils.notifications import notification_manager
+
+    errors, finished, seen = [], [], []
+    notification_manager.notification_ready.connect(seen.append)
+
+    def work():
+        yield 1, None
+        raise RuntimeError("disk full")
+
+    job = Job(
+        work,
+        total=1,
+        description="test",
+        what="Export",
+        on_error=errors.append,
+        on_finish=lambda: finished.append(True),
+    )
+    job.start()
+    qtbot.waitUntil(lambda: bool(finished), timeout=60_000)
+    assert [str(e) for e in errors] == ["disk full"]
+    assert any("Export failed (RuntimeError): disk full" in str(n.message) for n in seen)
