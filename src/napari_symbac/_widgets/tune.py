@@ -448,11 +448,8 @@ class TuneWidget(Container):
         if pixel:
             microscope = dataclasses.replace(microscope, pixel_size_um=float(pixel))
         modality = reference.metadata.get("modality") or microscope.modality
-        if modality != "phase":
-            raise ValueError(
-                f"Auto-fit models phase contrast; {reference.name} is {modality}: tune the "
-                "intensities from its measured class means instead"
-            )
+        if modality != microscope.modality:
+            microscope = dataclasses.replace(microscope, modality=modality)
         index = self._current_frame()
         real = np.asarray(reference.data)
         if real.ndim == 3:
