@@ -54,7 +54,11 @@ def detect(y: np.ndarray, mu: np.ndarray, v: np.ndarray) -> tuple[Censor | None,
         lo, hi = (level - 0.5 - mu) / sd, (level + 0.5 - mu) / sd
         expected = float(np.sum(special.ndtr(hi) - special.ndtr(lo)))
         # the extreme value holds at least one pixel by construction: test the others
-        log_p = stats.poisson.logsf(count - 2, max(expected, 1e-12))
+        mean = max(expected, 1e-12)
+        log_p = stats.poisson.logsf(count - 2, mean)
+        if not np.isfinite(log_p):  # far tail: Chernoff bound, so strong spikes stay ranked
+            k = count - 1
+            log_p = -(k * np.log(k / mean) - k + mean)
         evidence = float(-log_p / np.log(10))
         if evidence > best[1]:
             best = (censor, evidence, count / y.size)
