@@ -28,6 +28,33 @@ def test_trench_is_found_where_it_is(real_crop):
     assert np.all((otsu_width > 0) & (otsu_width < 1.5))
 
 
+def test_rough_strokes_start_like_the_automatic_segmentation(real_crop):
+    """Strokes down the cells' middle give the polarity, not the cells' outlines."""
+    from napari_symbac.fit.start import start_scene
+
+    microscope = Microscope(pixel_size_um=0.065)
+    labels = np.zeros(real_crop.shape, np.uint8)
+    labels[40:120:8, 22] = 1  # thin cell strokes, as a user paints them
+    labels[40:120:8, 12] = 2
+    labels[40:120:8, [2, 43]] = 3
+    image = real_crop.astype(float)
+    auto = start_scene(image, microscope)[0]
+    painted = start_scene(image, microscope, labels=labels)[0]
+    assert len(painted) == len(auto) >= 2
+    # The same cells: the painted start places the trench first and uses it as given,
+    # so region edges may differ by a few pixels.
+    np.testing.assert_allclose(painted.y_um, auto.y_um, atol=0.25)
+    # A region painted as media is no cell.
+    _, _, _, instances = start_scene(image, microscope)
+    biggest = np.argmax(np.bincount(instances.ravel())[1:]) + 1
+    media = np.where(instances == biggest, 2, labels).astype(np.uint8)
+    kept = start_scene(image, microscope, labels=media)[0]
+    assert 1 <= len(kept) < len(auto)
+    rows = (kept.y_um / 0.065).astype(int)
+    cols = (kept.x_um / 0.065).astype(int)
+    assert not np.any(media[rows, cols] == 2)
+
+
 def test_scene_fit_lowers_the_residual_and_widens_the_otsu_cells(real_crop):
     microscope = Microscope(pixel_size_um=0.065)
     result = fit_scene(

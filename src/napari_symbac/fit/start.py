@@ -418,8 +418,10 @@ def start_scene(
     geometry
         ``"trench"`` or ``"open"``.
     labels
-        Painted classes (1 cell, 2 media, 3 device, 0 unpainted). Without ``masks``,
-        the connected components of the cell class are the cells (split at septa).
+        Painted classes (1 cell, 2 media, 3 device, 0 unpainted): rough strokes. They
+        give the polarity (cells darker or brighter than media); the cells come from
+        the automatic segmentation, less any region that lies mostly on painted media
+        or device. Paint whole cells? Pass them as ``masks``.
     masks
         Instance mask (0 background, one integer per cell), or a binary mask whose
         connected components are the cells. Used as given (no split).
@@ -467,8 +469,33 @@ def start_scene(
         # an instance mask keeps its cells as they are: no rods split off long regions
         cells, widths = cells_from_instances(instances, px, max_cell_length_um=math.inf)
         return cells, widths, found, instances
-    instances = ndimage.label(labels == 1)[0]
-    work = np.asarray(image, float) * (1.0 if polarity == "dark" else -1.0)
-    instances = _split_at_septa(instances, work, np.ones(image.shape, bool), px)
-    cells, widths = cells_from_instances(instances, px, max_cell_length_um)
+    # Painted classes are rough strokes, not outlines: they give the polarity (above)
+    # and say where no cell is; the cells themselves come from the image.
+    labels = np.asarray(labels)
+    painted_empty = (labels == 2) | (labels == 3)
+    cells, widths, _, instances = otsu_cells(
+        image,
+        microscope,
+        geometry=geometry,
+        depth_um=depth_um,
+        max_cell_length_um=max_cell_length_um,
+        polarity=polarity,
+        trench=found,
+        valid=valid,
+    )
+    on_empty = ndimage.mean(painted_empty, instances, np.arange(1, int(instances.max()) + 1))
+    dropped = np.flatnonzero(np.asarray(on_empty) > 0.5) + 1
+    if dropped.size:
+        instances = np.where(np.isin(instances, dropped), 0, instances)
+        instances = _renumber(instances)
+        cells, widths = cells_from_instances(instances, px, max_cell_length_um)
     return cells, widths, found, instances
+
+
+def _renumber(instances: np.ndarray) -> np.ndarray:
+    """Instance labels ``1..n`` in order of their old values (0 stays background)."""
+    values = np.unique(instances)
+    values = values[values > 0]
+    lookup = np.zeros(int(instances.max()) + 1, instances.dtype)
+    lookup[values] = np.arange(1, values.size + 1, dtype=instances.dtype)
+    return lookup[instances]
