@@ -244,10 +244,12 @@ def _add_pass(
         trial_blocks = np.vstack([blocks, block]) if len(blocks) else block[None]
         trial = _try(problem, state, trial_blocks, shared, [len(trial_blocks) - 1], ctx)
         lay = problem.layout
-        if lay.per_cell_brightness:
-            added = problem.blocks(trial.x)[0][-1]
-            if added[lay.i_brightness] < DIM_CELL:
-                continue  # a glow or background structure, not a cell
+        added = problem.blocks(trial.x)[0][-1]
+        if lay.per_cell_brightness and added[lay.i_brightness] < DIM_CELL:
+            continue  # a glow or background structure, not a cell
+        row, col = int(added[1] / px), int(added[0] / px)
+        if not (0 <= row < rows and 0 <= col < cols) or room[row, col] <= 0.5:
+            continue  # the refit moved it into the device or out of the image
         if _accept(problem, state, trial, +1, ctx):
             x, y = block[:2]
             ctx.accept("add", x, y, f"added a cell at ({x:.2f}, {y:.2f}) um")

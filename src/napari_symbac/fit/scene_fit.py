@@ -273,21 +273,22 @@ def fit_scene(
     microscope, render
         Starting model; ``render`` gives the starting kernel parameters.
     camera
-        The camera (eq. 17-19). ``None``: estimated from the data. When
-        :mod:`napari_symbac.fit.camera_estimate` is installed, its photon-transfer
-        estimate from the image starts the fit and its model-residual estimate is
-        refitted after every round (gain and read noise; the baseline is the guess
-        below); otherwise the first round weighs pixels by a
-        robust white-noise estimate and the gain and read noise come from the
-        residual variance against the model mean after each round
-        (:func:`~napari_symbac.fit.noise.camera_from_residuals`), the baseline
+        The camera (eq. 17-19). ``None``: estimated from the data, without the model:
+        the photon transfer of :func:`~napari_symbac.fit.camera_estimate.estimate_camera`
+        on the image's high-pass residual gives gain and read noise, held fixed in
+        every round (a camera refitted to the model's residual would absorb the
+        model's misfit, so chi-square would always look like 1). Only when the image's
+        levels span too little for it, the gain and read noise come from the residual
+        variance against the model mean after each round
+        (:func:`~napari_symbac.fit.noise.camera_from_residuals`). The baseline is
         guessed (100 ADU, or the image's 0.1 % quantile when lower, e.g. 0 for a
         background-subtracted image).
     geometry
         ``"trench"`` (mother machine) or ``"open"`` (agar pad: no device).
     labels
-        Painted classes (1 cell, 2 media, 3 device, 0 unpainted): give the polarity,
-        the start (connected cell strokes) when there is no ``masks``, and the eq. 20
+        Painted classes (1 cell, 2 media, 3 device, 0 unpainted): rough strokes that
+        give the polarity and rule out painted media/device in the start
+        (:func:`~napari_symbac.fit.start.start_scene`), and the eq. 20
         / class-statistics terms of :attr:`SceneFit.terms`.
     masks
         An instance mask (or binary mask) to start from: the user's or any
@@ -433,6 +434,7 @@ def fit_scene(
     baseline = camera.baseline_adu if camera is not None else _baseline_guess(real, valid)
     y = (real - baseline).ravel().astype(np.float64)
     flat_valid = valid.ravel()
+    measured = None
     if camera is None:
         measured = _measured_camera(real, valid, camera=Camera(baseline_adu=baseline))
         if measured is not None:
@@ -480,8 +482,11 @@ def fit_scene(
         nonlocal camera_used
         mu = state.mu
         if estimate:
-            camera_used = _measured_camera(real, valid, (mu + baseline).reshape(shape), camera_used)
-            if camera_used is None:
+            # The model-free photon transfer of the image is kept: a camera refitted
+            # to the residual would absorb the model's misfit (gain 40.9 instead of
+            # 2.0 ADU/e- on the real trench) and make chi-square meaningless. Only
+            # an image whose levels span too little for it falls back to the residual.
+            if measured is None:
                 camera_used = camera_from_residuals(
                     mu[flat_valid], (y - mu)[flat_valid], baseline, problem.camera.bit_depth
                 )
@@ -594,16 +599,14 @@ def _measured_camera(
 ) -> Camera | None:
     """Photon transfer of :mod:`napari_symbac.fit.camera_estimate`, when it is installed.
 
-    Without ``model_mean`` a high-pass estimate from the image (the start); with it,
-    the residual against the model mean. The baseline is kept from ``camera`` (one
-    frame cannot separate it from the read noise). ``None``
-    when the module is absent or the estimate fails (too little range of levels):
-    the fit then uses :func:`~napari_symbac.fit.noise.camera_from_residuals`.
+    Without ``model_mean`` a high-pass estimate from the image, free of any model;
+    with it, the residual against the model mean. The baseline is kept from
+    ``camera`` (one frame cannot separate it from the read noise). ``None`` when the
+    estimate fails (too little range of levels): the fit then uses
+    :func:`~napari_symbac.fit.noise.camera_from_residuals`.
     """
-    try:
-        from napari_symbac.fit.camera_estimate import estimate_camera
-    except ImportError:
-        return None
+    from napari_symbac.fit.camera_estimate import estimate_camera
+
     try:
         return estimate_camera(real, valid=valid, model_mean=model_mean, camera=camera).camera
     except ValueError:
