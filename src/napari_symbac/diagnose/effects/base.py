@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
 
 from napari_symbac.diagnose.model import Geometry
-from napari_symbac.optics.forward import Stage
 
-__all__ = ["Effect", "EffectStageSpec", "gaussian"]
+__all__ = ["Effect", "gaussian"]
 
 
 def gaussian(image: np.ndarray, sigma_px: float) -> np.ndarray:
@@ -20,19 +18,13 @@ def gaussian(image: np.ndarray, sigma_px: float) -> np.ndarray:
     return ndimage.gaussian_filter(image, (0, sigma_px, sigma_px), mode="reflect")
 
 
-@dataclass(frozen=True)
-class EffectStageSpec:
-    """A fitted effect as written to the settings file: name and plain parameters."""
-
-    name: str
-    parameters: dict[str, Any]
-
-
 class Effect:
     """A physical effect the base model leaves out.
 
     Subclasses set the class attributes and implement :meth:`mean` (effects on the
-    mean image), or set ``kind`` to ``"variance"`` / ``"censor"``.
+    mean image), or set ``kind`` to ``"variance"`` / ``"censor"``. The stage that
+    carries a fitted effect into rendering is in its module (``stage(parameters)``)
+    or a settings field (:mod:`napari_symbac.diagnose.stages`).
 
     Attributes
     ----------
@@ -96,16 +88,8 @@ class Effect:
         """The one number the benchmark compares with the truth."""
         return float(next(iter(summary.values())))
 
-    def stage_spec(self, summary: dict[str, Any]) -> EffectStageSpec:
-        """The settings-file description of the fitted effect."""
-        return EffectStageSpec(self.name, dict(summary))
-
     # ------------------------------------------------------------------ benchmark
     def direction(self, rng: np.random.Generator) -> np.ndarray:
         """A random parameter direction for the concealed-effect generator."""
         return rng.normal(size=self.n_params())
 
-
-def build_stage(spec: EffectStageSpec, apply: Any) -> Stage:
-    """A forward-model :class:`~napari_symbac.optics.forward.Stage` from a spec."""
-    return Stage(spec.name, False, dict(spec.parameters), apply)
