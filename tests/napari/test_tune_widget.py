@@ -160,17 +160,45 @@ def test_auto_fit_error_is_a_notification_not_a_traceback(rendered, qtbot, real_
     assert not tune.cancel_fit_button.enabled
 
 
-def test_auto_fit_refuses_fluorescence_with_a_reason(rendered):
+def test_auto_fit_fits_a_fluorescence_recording(rendered, qtbot):
+    """A fluorescence recording (the shipped ColiCoords field, bright cells on a dark
+    background) is fitted with bright cells, not refused or fitted as phase."""
+    from pathlib import Path
+
+    import tifffile
+
+    import napari_symbac
+    from napari_symbac._widgets.tune import FIT_SYNTHETIC_LAYER
+
     viewer, tune = rendered
-    viewer.add_image(
-        np.ones((40, 30), np.float32),
+    path = Path(napari_symbac.__file__).parent / "sample_data" / "colicoords_fluorescence.tif"
+    field = tifffile.imread(path).astype(np.float32)[:256, :256]
+    mask = tifffile.imread(path.with_name("colicoords_binary.tif"))[:256, :256]
+    real = viewer.add_image(
+        field,
         name="fluo",
-        metadata={"pixel_size_um": 0.065, "modality": "fluorescence"},
+        scale=(0.08, 0.08),
+        metadata={"pixel_size_um": 0.08, "modality": "fluorescence"},
     )
-    tune.reference.value = viewer.layers["fluo"]
+    tune.reference.value = real
+    tune.fit_iterations.value = 3
     tune.fit_button.native.click()
-    assert "models phase contrast" in tune.status.value
-    assert tune.fit_worker is None
+    qtbot.waitUntil(lambda: tune.fit_worker is None, timeout=300_000)
+    result = tune.fit_result
+    assert result is not None, tune.status.value
+    assert result.trench is None  # no walls to see in fluorescence
+    from scipy import ndimage
+
+    # Every mask cell of this quarter but a 10-px sliver cut by the crop's edge.
+    components, n = ndimage.label(mask > 0)
+    areas_um2 = ndimage.sum(mask > 0, components, range(1, n + 1)) * 0.08**2
+    assert len(result.cells) == int((areas_um2 >= 0.25).sum()) == 2
+    assert result.render.cell_intensity > result.render.media_intensity
+    synthetic = viewer.layers[FIT_SYNTHETIC_LAYER].data
+    bright = field > np.percentile(field, 90)
+    contrast_real = field[bright].mean() - field[~bright].mean()
+    contrast_fit = synthetic[bright].mean() - synthetic[~bright].mean()
+    assert 0.5 * contrast_real < contrast_fit < 1.5 * contrast_real  # bright cells, same scale
 
 
 def test_fluorescence_gives_bright_cells_on_dark(rendered):

@@ -462,7 +462,10 @@ class TuneWidget(Container):
                 labels = labels[min(index, len(labels) - 1)]
             if not labels.any():
                 labels = None
-        geometry = "trench" if settings.simulation.geometry in ("trench", "chamber") else "open"
+        # In fluorescence the device is as dark as the media: no wall to place, so the
+        # cells are fitted as in an open field.
+        walled = settings.simulation.geometry in ("trench", "chamber")
+        geometry = "trench" if walled and microscope.modality == "phase" else "open"
         return (
             real,
             labels,
