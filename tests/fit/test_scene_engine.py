@@ -188,6 +188,16 @@ def test_uncertainty_api(fluorescence_fit):
         fit.standard_error("nonsense")
 
 
+def test_convergence_history_records_the_descent(fluorescence_fit):
+    _, fit = fluorescence_fit
+    history = np.asarray(fit.history)
+    assert history.size >= 2
+    assert np.all(np.isfinite(history))
+    # the first round starts far from the optimum and ends near the final fit
+    assert history[0] > history.min()
+    assert history.min() <= 1.5 * fit.objective_after
+
+
 def test_censored_pixels_are_left_out(truth):
     image = truth.image.copy()
     image[40:44, 10:30] = 65535  # a saturated streak across a cell

@@ -135,6 +135,8 @@ def test_auto_fit_with_nan_terms_reports_them(rendered, qtbot, real_data_dir, mo
     assert np.isnan(float(table["after"][table["term"].index("edge_profile")]))
     plot = np.asarray(tune.terms_image.value)
     assert (plot == (220, 40, 40)).all(axis=-1).any()  # the NaN term's red stripe
+    assert len(tune.fit_result.history) >= 1
+    assert (plot == (240, 240, 240)).all(axis=-1).any()  # the convergence curve
     assert tune.fit_button.enabled
 
 

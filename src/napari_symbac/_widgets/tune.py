@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import threading
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -74,6 +75,36 @@ def terms_plot(terms: dict[str, tuple[float, float]], width: int = 240) -> np.nd
                 continue
             length = round((width - 2) * abs(value) / scale)
             image[rows, 1 : 1 + length] = colour
+    return image
+
+
+def convergence_plot(history: Sequence[float], width: int = 240, height: int = 70) -> np.ndarray:
+    """A small RGB line plot of the fit's reduced chi-square per accepted step.
+
+    Log scale from the lowest to the highest value; white line on the dark
+    background of :func:`terms_plot`, a grey line at reduced chi-square 1 when it is
+    within the range. Non-finite values are left out.
+    """
+    image = np.full((height, width, 3), 40, np.uint8)
+    values = np.asarray([v for v in history if np.isfinite(v) and v > 0], float)
+    if values.size == 0:
+        return image
+    logs = np.log10(values)
+    low, high = float(logs.min()), float(logs.max())
+    span = max(high - low, 1e-6)
+
+    def row_of(value: float) -> int:
+        return round((height - 3) * (1 - (value - low) / span)) + 1
+
+    if low <= 0.0 <= high:
+        image[row_of(0.0), 1 : width - 1] = (110, 110, 110)
+    xs = np.linspace(1, width - 2, max(values.size, 2)).round().astype(int)
+    ys = [row_of(v) for v in (logs if logs.size > 1 else np.repeat(logs, 2))]
+    for (x0, y0), (x1, y1) in zip(zip(xs, ys), zip(xs[1:], ys[1:])):
+        steps = max(abs(x1 - x0), abs(y1 - y0), 1)
+        rr = np.linspace(y0, y1, steps + 1).round().astype(int)
+        cc = np.linspace(x0, x1, steps + 1).round().astype(int)
+        image[rr, cc] = (240, 240, 240)
     return image
 
 
@@ -179,7 +210,14 @@ class TuneWidget(Container):
         )
         self.terms_table = Table(name="terms", label="objective terms")
         self.terms_table.native.setMinimumWidth(0)  # scrolls inside; never widens the dock
-        self.terms_image = Image(name="terms_plot", label="before (grey) / after (orange)")
+        self.terms_image = Image(
+            name="terms_plot",
+            label="before (grey) / after (orange)",
+            tooltip=(
+                "Objective terms before and after the fit; below them the reduced "
+                "chi-square after every fit step (log scale, grey line at 1)"
+            ),
+        )
         self.extend(
             [
                 self.source,
@@ -514,7 +552,9 @@ class TuneWidget(Container):
             "before": [_format(before) for before, _ in result.terms.values()],
             "after": [_format(after) for _, after in result.terms.values()],
         }
-        self.terms_image.value = terms_plot(result.terms)
+        self.terms_image.value = np.concatenate(
+            [terms_plot(result.terms), convergence_plot(result.history)]
+        )
         self.terms_image.visible = True
         self.status.value = (
             f"Fitted in {result.n_evaluations} renders: objective "

@@ -11,6 +11,7 @@ the trial point (variable projection), keeping the step only if ``chi^2`` falls.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,8 +70,11 @@ def levenberg_marquardt(
     prior_sd: np.ndarray,
     free: np.ndarray,
     max_iterations: int,
+    on_step: Callable[[State], None] | None = None,
 ) -> tuple[State, bool]:
     """Minimise the cost over the ``free`` parameters from ``state``.
+
+    ``on_step`` is called with every accepted point (the fit's convergence history).
 
     Steps are clipped to the bounds; the damping ``lambda diag(J^T W J)`` (Marquardt
     scaling) shrinks after an accepted step and grows after a rejected one. Stops
@@ -125,6 +129,8 @@ def levenberg_marquardt(
                 gain = (state.cost - trial.cost) / max(state.cost, 1e-300)
                 state = trial
                 improved = True
+                if on_step is not None:
+                    on_step(state)
                 lam = max(lam / 3, 1e-7)
                 break
             lam *= 4

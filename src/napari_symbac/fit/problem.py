@@ -54,6 +54,7 @@ class Problem:
     global_upper: np.ndarray
     global_prior_sd: np.ndarray
     tick: Callable[[], None] | None = None
+    on_step: Callable[[State], None] | None = None
 
     def __post_init__(self) -> None:
         self._models: dict[int, SceneModel] = {}
@@ -119,11 +120,18 @@ class Problem:
             self.prior_sd(n),
             free,
             max_iterations,
+            self.on_step,
         )
 
     def with_weights(self, w: np.ndarray, camera: Camera | None = None) -> Problem:
         """The same problem with new weights (IRLS) and, optionally, another camera."""
         out = dataclasses.replace(self, w=w, camera=self.camera if camera is None else camera)
+        out._models = self._models
+        return out
+
+    def without_history(self) -> Problem:
+        """The same problem that reports no steps (for trial refits of proposed moves)."""
+        out = dataclasses.replace(self, on_step=None)
         out._models = self._models
         return out
 

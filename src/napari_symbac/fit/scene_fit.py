@@ -128,6 +128,10 @@ class SceneFit:
         The pixels used in the likelihood (False: censored, e.g. clipped).
     moves
         The accepted add / remove / split / merge moves, in order.
+    history
+        Reduced chi-square after every accepted Levenberg-Marquardt step of the
+        rounds, and after the moves (their trial refits are not recorded): the fit's
+        convergence curve.
     """
 
     cells: FrameCells
@@ -154,6 +158,7 @@ class SceneFit:
     warnings: tuple[str, ...] = ()
     valid: np.ndarray | None = field(default=None, repr=False)
     moves: tuple[str, ...] = ()
+    history: tuple[float, ...] = ()
 
     def jacobian(self) -> sparse.csc_matrix:
         """``d mu / d theta`` at the optimum (ADU per unit of each parameter).
@@ -450,6 +455,7 @@ def fit_scene(
         w = flat_valid / _variance(np.maximum(y, 0.0), render, camera)
         camera_used = camera
     per_cell = layout.per_cell
+    history: list[float] = []
     total = irls_rounds * (max_iterations + 2) * (n * per_cell + 12) * 2
     budget = _Budget(total, progress, cancel)
     problem = Problem(
@@ -469,6 +475,7 @@ def fit_scene(
         global_upper=np.array(g_hi),
         global_prior_sd=np.full(len(g0), math.inf),
         tick=budget.tick,
+        on_step=lambda state: history.append(state.chi2 / max(int(flat_valid.sum()), 1)),
     )
     x0 = np.clip(
         Problem.join(blocks, np.array(g0)), problem.lower(n) + 1e-9, problem.upper(n) - 1e-9
@@ -513,7 +520,8 @@ def fit_scene(
             )
         problem, state = reweight(state)
         if round_ == 0 and moves:
-            state, log, phi = improve_scene(problem, state, polarity)
+            state, log, phi = improve_scene(problem.without_history(), state, polarity)
+            history.append(state.chi2 / max(problem.n_valid, 1))
             if phi > 1.5:
                 warnings.append(
                     f"the residual is spatially correlated (dispersion {phi:.3g}): the moves "
@@ -588,6 +596,7 @@ def fit_scene(
         warnings=tuple(warnings),
         valid=valid,
         moves=tuple(log),
+        history=tuple(history),
     )
 
 
