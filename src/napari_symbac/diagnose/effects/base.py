@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, ClassVar
 
 import numpy as np
 
 from napari_symbac.diagnose.model import Geometry
+from napari_symbac.optics.forward import Stage, block_average
 
-__all__ = ["Effect", "gaussian"]
+__all__ = ["CellPatternEffect", "Effect", "gaussian"]
 
 
 def gaussian(image: np.ndarray, sigma_px: float) -> np.ndarray:
@@ -93,3 +95,46 @@ class Effect:
         """A random parameter direction for the concealed-effect generator."""
         return rng.normal(size=self.n_params())
 
+
+
+class CellPatternEffect(Effect):
+    """An effect that adds ``a P`` to the mean: one amplitude ``a`` (ADU) times a
+    unit-peak pattern ``P`` drawn from the cells' mask (a ring, a haze, ...).
+
+    Subclasses set :attr:`pattern`, ``pattern(cell_fraction, pixel_size_um)`` on a
+    ``(T, Y, X)`` stack.
+    """
+
+    pattern: ClassVar[Callable[[np.ndarray, float], np.ndarray]]
+
+    def __init__(self, geometry: Geometry) -> None:
+        super().__init__(geometry)
+        self._pattern = type(self).pattern(geometry.cell_fraction, geometry.pixel_size_um)
+
+    def n_params(self) -> int:
+        return 1
+
+    def steps(self, theta: np.ndarray) -> np.ndarray:
+        return np.ones(1)
+
+    def mean(
+        self, theta: np.ndarray, mu: np.ndarray, parts: np.ndarray, geo: Geometry
+    ) -> np.ndarray:
+        return mu + theta[0] * self._pattern
+
+    def summary(self, theta: np.ndarray, mu: np.ndarray) -> dict[str, Any]:
+        return {"amplitude_adu": float(theta[0])}
+
+    @classmethod
+    def stage(cls, parameters: dict) -> Stage:
+        """Forward-model stage adding the fitted pattern around the scene's cells."""
+        amplitude = float(parameters["amplitude_adu"])
+
+        def apply(image: np.ndarray, scene: Any) -> np.ndarray:
+            fraction = block_average(scene.interior(scene.cells), scene.upsample)[None]
+            px = scene.pixel_size_um * scene.upsample
+            return image + np.float32(amplitude) * cls.pattern(fraction, px)[0].astype(
+                np.float32
+            )
+
+        return Stage(cls.name, False, dict(parameters), apply)

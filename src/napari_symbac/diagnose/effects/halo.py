@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from napari_symbac.diagnose.effects.base import Effect, gaussian
-from napari_symbac.diagnose.model import Geometry
-from napari_symbac.optics.forward import Stage, block_average
+from napari_symbac.diagnose.effects.base import CellPatternEffect, gaussian
+from napari_symbac.optics.forward import Stage
 
 __all__ = ["Halo"]
 
@@ -23,7 +22,7 @@ def halo_ring(cell_fraction: np.ndarray, pixel_size_um: float) -> np.ndarray:
     return ring / peak if peak > 0 else ring
 
 
-class Halo(Effect):
+class Halo(CellPatternEffect):
     """A bright ring just outside every cell and a darker rim inside: ``mu + a R``.
 
     ``R`` is a difference of Gaussians (0.1 and 0.35 um) of the cell mask, scaled to
@@ -40,30 +39,9 @@ class Halo(Effect):
     signature = "mean residual against signed distance to the nearest cell edge (ring at 0-4 px)"
     modalities = ("phase",)
 
-    def __init__(self, geometry: Geometry) -> None:
-        super().__init__(geometry)
-        self._ring = halo_ring(geometry.cell_fraction, geometry.pixel_size_um)
-
-    def n_params(self) -> int:
-        return 1
-
-    def steps(self, theta):
-        return np.ones(1)
-
-    def mean(self, theta, mu, parts, geo):
-        return mu + theta[0] * self._ring
-
-    def summary(self, theta, mu):
-        return {"amplitude_adu": float(theta[0])}
+    pattern = staticmethod(halo_ring)
 
 
 def stage(parameters: dict) -> Stage:
-    """Forward-model stage adding the fitted ring around the scene's cells."""
-    amplitude = float(parameters["amplitude_adu"])
-
-    def apply(image: np.ndarray, scene) -> np.ndarray:
-        fraction = block_average(scene.interior(scene.cells), scene.upsample)[None]
-        px = scene.pixel_size_um * scene.upsample
-        return image + np.float32(amplitude) * halo_ring(fraction, px)[0].astype(np.float32)
-
-    return Stage(Halo.name, False, dict(parameters), apply)
+    """Forward-model stage of the fitted effect (:meth:`CellPatternEffect.stage`)."""
+    return Halo.stage(parameters)
