@@ -107,3 +107,12 @@ def test_error_in_the_worker_is_a_notification(diagnose_widget, qtbot, monkeypat
     assert "Diagnosis failed" in widget.status.value
     assert DIAGNOSIS_RESIDUAL_LAYER not in viewer.layers
     assert widget.run_button.enabled
+
+
+def test_diagnose_docks_from_the_manifest(make_napari_viewer):
+    viewer = make_napari_viewer()
+    _dock, widget = viewer.window.add_plugin_dock_widget(
+        "napari-symbac", "Diagnose model mismatch"
+    )
+    assert isinstance(widget, DiagnoseWidget)
+    assert widget.run_button.enabled
