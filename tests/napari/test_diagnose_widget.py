@@ -116,3 +116,15 @@ def test_diagnose_docks_from_the_manifest(make_napari_viewer):
     )
     assert isinstance(widget, DiagnoseWidget)
     assert widget.run_button.enabled
+
+
+def test_closing_the_viewer_during_a_run_is_clean(diagnose_widget, qtbot):
+    """The worker is told to quit and adds nothing to the closed viewer (pytest-qt fails
+    the test on any exception raised in the event loop)."""
+    viewer, widget, _ = diagnose_widget
+    viewer.window.add_dock_widget(widget)
+    widget.run_button.clicked.emit()
+    job = widget.worker
+    viewer.close()
+    qtbot.waitUntil(lambda: job.cancelled.is_set(), timeout=10_000)
+    qtbot.waitUntil(lambda: not job.worker.is_running, timeout=60_000)
