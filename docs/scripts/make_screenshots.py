@@ -111,7 +111,7 @@ def real_trench_flow(folder: Path) -> None:
     flow.tune.native.parent().parent().verticalScrollBar().setValue(10_000)
     shot(viewer, "napari-simulate-tune.png")
 
-    flow.setCurrentIndex(3)
+    flow.setCurrentIndex(flow.indexOf(flow.export.native.parent().parent()))
     flow.export.folder.value = folder / "dataset"
     flow.export.n_items.value = 20
     flow.export.export_button.native.click()

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 from qtpy.QtWidgets import QFrame, QScrollArea, QStyle, QTabWidget
 
+from napari_symbac._widgets.diagnose import DiagnoseWidget
 from napari_symbac._widgets.export import ExportWidget
 from napari_symbac._widgets.real_image import RealImageWidget
 from napari_symbac._widgets.simulate import SimulateWidget
@@ -22,13 +23,13 @@ if TYPE_CHECKING:
 __all__ = ["WorkflowWidget"]
 
 #: Tab titles, in the order of the workflow.
-TABS = ("1 Recording", "2 Simulate", "3 Tune + fit", "4 Export")
+TABS = ("1 Recording", "2 Simulate", "3 Tune + fit", "4 Diagnose", "5 Export")
 
 
 class WorkflowWidget(QTabWidget):
-    """Recording -> Simulate -> Tune + fit -> Export, as tabs of one dock widget.
+    """Recording -> Simulate -> Tune + fit -> Diagnose -> Export, as tabs of one dock widget.
 
-    The four step widgets are the ones napari also offers separately; they share the
+    The five step widgets are the ones napari also offers separately; they share the
     recording through its layer's metadata, so a tab can be used alone.
     """
 
@@ -38,15 +39,18 @@ class WorkflowWidget(QTabWidget):
         self.real_image = RealImageWidget(viewer)
         self.simulate = SimulateWidget(viewer)
         self.tune = TuneWidget(viewer)
+        self.diagnose = DiagnoseWidget(viewer)
         self.export = ExportWidget(viewer)
         tips = (
             "Open your recording, set its pixel size and microscope, paint and measure classes.",
             "Simulate growth with your recording's microscope and render it.",
             "Tune optics and noise live; Auto-fit the scene to your recording.",
+            "Find, name and fit what the model misses in your recording; "
+            "the updated settings go to Export.",
             "Export a training dataset with the tuned settings.",
         )
         for title, tip, widget in zip(
-            TABS, tips, (self.real_image, self.simulate, self.tune, self.export)
+            TABS, tips, (self.real_image, self.simulate, self.tune, self.diagnose, self.export)
         ):
             area = QScrollArea()
             area.setWidgetResizable(True)

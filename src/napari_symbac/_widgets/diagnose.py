@@ -1,0 +1,311 @@
+"""Dock widget: diagnose what the fitted model misses in a recording (issue 11).
+
+Runs what ``napari-symbac diagnose`` runs, in a worker: the scene fit of the
+recording's frame on screen (:func:`napari_symbac.fit.fit_scene`), the base design
+(:func:`~napari_symbac.diagnose.model.build_design`), and
+:func:`~napari_symbac.diagnose.run.diagnose`. The standardised residual and each
+accepted effect's map are added as layers, the report is shown in the dock, and the
+updated settings (:func:`~napari_symbac.diagnose.stages.updated_settings`) are kept in
+the residual layer's ``metadata["symbac"]["settings"]``, so Export offers them under
+"settings from".
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import TYPE_CHECKING
+
+import numpy as np
+from magicgui.widgets import ComboBox, Container, Label, PushButton, SpinBox, TextEdit
+
+from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
+from napari_symbac._widgets._recording import (
+    is_recording,
+    modality_render,
+    recording_microscope,
+)
+from napari_symbac._widgets.real_image import class_layer_name
+from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
+
+if TYPE_CHECKING:
+    import napari
+
+__all__ = ["DIAGNOSIS_RESIDUAL_LAYER", "DiagnoseWidget", "effect_layer_name"]
+
+#: The layer of the base fit's standardised residual; it carries the updated settings.
+DIAGNOSIS_RESIDUAL_LAYER = "diagnosis residual"
+#: The layer of the residual after the accepted effects.
+DIAGNOSIS_AFTER_LAYER = "diagnosis residual after"
+
+
+def effect_layer_name(name: str) -> str:
+    """The layer of an accepted effect's map."""
+    return f"diagnosis effect: {name}"
+
+
+class DiagnoseWidget(Container):
+    """Find, name and fit the effects the forward model misses in a recording.
+
+    Choose a recording (pixel size set in *Real image and classes*); its painted
+    classes are used when there are any. The diagnosis fits the scene of the frame on
+    screen, then tests the catalogue's effects stepwise (score tests, held-out
+    bootstrap). ``candidates`` and ``n_bootstrap`` are passed to
+    :func:`~napari_symbac.diagnose.run.diagnose` (tests use a few for speed).
+    """
+
+    def __init__(
+        self,
+        viewer: napari.viewer.Viewer,
+        *,
+        candidates: tuple[str, ...] | None = None,
+        n_bootstrap: int = 30,
+    ):
+        super().__init__(name="symbac_diagnose")
+        self.viewer = viewer
+        self.candidates = candidates
+        self.n_bootstrap = n_bootstrap
+        self.reference = ComboBox(
+            name="reference", label="real image", choices=self._recordings, nullable=True
+        )
+        self.reference.tooltip = "The recording to diagnose (its pixel size must be set)."
+        self.seed = SpinBox(
+            name="seed",
+            label="seed",
+            value=0,
+            min=0,
+            max=2**31 - 1,
+            tooltip="Seed of the bootstrap: same seed, same diagnosis.",
+        )
+        self.run_button = PushButton(
+            name="diagnose",
+            text="Diagnose",
+            tooltip="Fit the scene, then find and fit the effects the model misses.",
+        )
+        self.cancel_button = PushButton(
+            name="cancel", text="Cancel", enabled=False, tooltip="Stop the diagnosis."
+        )
+        self.status = Label(name="status", value="")
+        self.status.native.setWordWrap(True)
+        self.report = TextEdit(name="report", label="report", value="")
+        self.report.read_only = True
+        self.report.native.setMinimumWidth(0)
+        self.report.native.setLineWrapMode(self.report.native.LineWrapMode.NoWrap)
+        self.extend(
+            [
+                self.reference,
+                self.seed,
+                self.run_button,
+                self.cancel_button,
+                self.status,
+                self.report,
+            ]
+        )
+        self.worker: Job | None = None
+        self.result = None
+        self.run_button.changed.connect(self.run)
+        self.cancel_button.changed.connect(self.cancel)
+        for event in (viewer.layers.events.inserted, viewer.layers.events.removed):
+            event.connect(self._refresh_choices)
+        self._refresh_choices()
+
+    def _recordings(self, _widget=None) -> list:
+        return [layer for layer in self.viewer.layers if is_recording(layer)]
+
+    def _refresh_choices(self, _event=None) -> None:
+        self.reference.reset_choices()
+        choices = [c for c in self.reference.choices if c is not None]
+        if self.reference.value is None and choices:
+            self.reference.value = choices[-1]
+
+    # -- input ----------------------------------------------------------------------------
+
+    def _input(self) -> tuple:
+        """Frame, painted classes (or ``None``), microscope, start render, camera, geometry.
+
+        Raises
+        ------
+        ValueError
+            With what to do, when no recording is chosen.
+        """
+        from napari_symbac.settings import Camera, RenderSettings
+
+        layer = self.reference.value
+        if layer is None:
+            raise ValueError(
+                "No recording: open your image and set its pixel size in Real image and "
+                "classes, then choose it here"
+            )
+        microscope = recording_microscope(layer)
+        data = np.asarray(layer.data)
+        index = int(self.viewer.dims.current_step[0]) if data.ndim == 3 else 0
+        frame = data[min(index, len(data) - 1)] if data.ndim == 3 else data
+        if frame.ndim != 2:
+            raise ValueError(f"{layer.name} must be one frame or a series, got {data.shape}")
+        labels = None
+        name = class_layer_name(layer.name)
+        if name in self.viewer.layers:
+            labels = np.asarray(self.viewer.layers[name].data)
+            if labels.ndim == 3:
+                labels = labels[min(index, len(labels) - 1)]
+            if labels.shape != frame.shape or not labels.any():
+                labels = None
+        means = layer.metadata.get("class_means_adu")
+        if means or microscope.modality == "fluorescence":
+            render = modality_render(RenderSettings(), microscope.modality, means)
+        else:  # the CLI's start (``napari-symbac diagnose``)
+            render = RenderSettings()
+        camera = Camera()
+        # as the CLI: a narrow field is a trench; fluorescence shows no walls
+        walled = frame.shape[-1] <= 100 and microscope.modality == "phase"
+        geometry = "trench" if walled else "open"
+        return frame, labels, microscope, render, camera, geometry
+
+    # -- run ------------------------------------------------------------------------------
+
+    def run(self) -> None:
+        """Fit the scene and diagnose it in a worker (progress in napari's activity dock)."""
+        if self.worker is not None:
+            return
+        try:
+            frame, labels, microscope, render, camera, geometry = self._input()
+        except ValueError as err:
+            self.status.value = str(err)
+            notify_warning(str(err))
+            return
+        cancelled = threading.Event()
+        seed, candidates, n_bootstrap = self.seed.value, self.candidates, self.n_bootstrap
+
+        def compute(progress, cancel):
+            from napari_symbac.diagnose.model import build_design
+            from napari_symbac.diagnose.run import diagnose
+            from napari_symbac.fit import fit_scene
+
+            fit = fit_scene(
+                frame,
+                microscope,
+                render,
+                camera,
+                labels=labels,
+                geometry=geometry,
+                progress=lambda done, total: progress(0, 1),
+                cancel=cancel,
+            )
+            if cancel():
+                raise InterruptedError("diagnosis cancelled")
+            design = build_design([fit.scene], microscope, fit.render, camera)
+            result = diagnose(
+                frame,
+                design,
+                candidates=candidates,
+                n_bootstrap=n_bootstrap,
+                rng=np.random.default_rng(seed),
+                progress=progress,
+                cancel=cancel,
+            )
+            return fit, result
+
+        self.worker = Job(
+            lambda: (yield from blocking_steps(compute, cancelled.is_set)),
+            cancelled=cancelled,
+            total=0,
+            description="SyMBac diagnose",
+            what="Diagnose",
+            on_yield=self._on_progress,
+            on_return=self._on_returned,
+            on_error=self._on_errored,
+            on_abort=self._on_cancelled,
+            on_finish=self._on_finished,
+            owner=self.native,
+        )
+        self._layer = self.reference.value
+        self._settings_base = (microscope, camera)
+        self.run_button.enabled = False
+        self.cancel_button.enabled = True
+        self.status.value = "Fitting the scene..."
+        self.worker.start()
+
+    def cancel(self) -> None:
+        """Stop the diagnosis at its next check; nothing is added."""
+        if self.worker is not None:
+            self.worker.quit()
+            self.status.value = "Cancelling..."
+
+    def _on_progress(self, message) -> None:
+        done, total = message
+        if total > 1:
+            self.status.value = f"Diagnosing: {done} of at most {total} held-out checks"
+
+    def _on_returned(self, output) -> None:
+        from napari_symbac.diagnose.stages import updated_settings
+        from napari_symbac.settings import PipelineSettings
+
+        fit, result = output
+        self.result = result
+        microscope, camera = self._settings_base
+        base = PipelineSettings(microscope=microscope, render=fit.render, camera=camera)
+        settings, extra = updated_settings(base, [(e.name, e.params) for e in result.accepted])
+        layer = self._layer
+        kwargs = {"scale": tuple(layer.scale[-2:]), "translate": tuple(layer.translate[-2:])}
+        limit = max(3.0, float(np.percentile(np.abs(result.residual_before[0]), 99)))
+        for name in [n for n in self.viewer.layers if str(n).startswith("diagnosis ")]:
+            self.viewer.layers.remove(name)
+        self.viewer.add_image(
+            result.residual_before[0],
+            name=DIAGNOSIS_RESIDUAL_LAYER,
+            colormap="PiYG",
+            contrast_limits=(-limit, limit),
+            metadata={
+                SYMBAC_METADATA_KEY: {
+                    "settings": settings,
+                    "extra_stages": extra,
+                    "diagnosis": result.as_dict(),
+                }
+            },
+            **kwargs,
+        )
+        self.viewer.add_image(
+            result.residual_after[0],
+            name=DIAGNOSIS_AFTER_LAYER,
+            colormap="PiYG",
+            contrast_limits=(-limit, limit),
+            visible=False,
+            **kwargs,
+        )
+        for effect in result.accepted:
+            if effect.effect_map is None:
+                continue
+            emap = np.asarray(effect.effect_map[0], float)
+            span = max(float(np.abs(emap).max()), 1e-12)
+            self.viewer.add_image(
+                emap,
+                name=effect_layer_name(effect.name),
+                colormap="PiYG",
+                contrast_limits=(-span, span),
+                visible=False,
+                **kwargs,
+            )
+        self.report.value = result.report()
+        names = ", ".join(e.name for e in result.accepted) or "nothing significant"
+        self.status.value = (
+            f"Accepted: {names}. Updated settings are in the '{DIAGNOSIS_RESIDUAL_LAYER}' "
+            "layer: choose it under Export's 'settings from'."
+        )
+
+    def _on_cancelled(self) -> None:
+        self.status.value = "Diagnosis cancelled: nothing added"
+
+    def _on_errored(self, err: BaseException) -> bool:
+        from napari_symbac.fit import FitCancelled
+
+        if isinstance(err, (FitCancelled, InterruptedError)) or self.worker.cancelled.is_set():
+            self._on_cancelled()
+            return True
+        self.status.value = f"Diagnosis failed: {err}"
+        return False
+
+    def _on_finished(self) -> None:
+        self.worker = None
+        self.run_button.enabled = True
+        self.cancel_button.enabled = False
+        if self.status.value.startswith(("Fitting", "Diagnosing", "Cancelling")):
+            self.status.value = "Diagnosis stopped"

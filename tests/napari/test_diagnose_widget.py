@@ -1,0 +1,130 @@
+"""The Diagnose dock widget on a crop of the real SyMBac trench (GPL-2 test data)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from napari_symbac._widgets.diagnose import DIAGNOSIS_RESIDUAL_LAYER, DiagnoseWidget
+from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
+
+CANDIDATES = ("uneven_illumination", "camera_noise")
+
+
+@pytest.fixture
+def diagnose_widget(make_napari_viewer, real_data_dir):
+    import tifffile
+
+    viewer = make_napari_viewer()
+    real = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")[0:96]
+    viewer.add_image(
+        real,
+        name="real",
+        scale=(0.065, 0.065),
+        metadata={"pixel_size_um": 0.065, "modality": "phase"},
+    )
+    widget = DiagnoseWidget(viewer, candidates=CANDIDATES, n_bootstrap=5)
+    return viewer, widget, real
+
+
+def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
+    from napari_symbac._widgets.export import ExportWidget
+    from napari_symbac.settings import PipelineSettings
+
+    viewer, widget, real = diagnose_widget
+    assert widget.reference.value is viewer.layers["real"]  # the newest recording
+    widget.run_button.clicked.emit()
+    assert not widget.run_button.enabled
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
+    assert widget.run_button.enabled
+    assert not widget.cancel_button.enabled
+    assert widget.result is not None, widget.status.value
+    residual = viewer.layers[DIAGNOSIS_RESIDUAL_LAYER]
+    assert residual.data.shape == real.shape
+    assert np.isfinite(residual.data).all()
+    assert residual.data.std() > 0
+    assert tuple(residual.scale) == (0.065, 0.065)
+    assert "diagnosis residual after" in viewer.layers
+    for effect in widget.result.accepted:
+        if effect.effect_map is not None:
+            assert f"diagnosis effect: {effect.name}" in viewer.layers
+    text = widget.report.value
+    assert text.startswith("Diagnosis of the mismatch")
+    for name in CANDIDATES:
+        assert name in text
+    settings = residual.metadata[SYMBAC_METADATA_KEY]["settings"]
+    assert isinstance(settings, PipelineSettings)
+    assert settings.microscope.pixel_size_um == 0.065
+    # Export offers the diagnosis' settings
+    export = ExportWidget(viewer)
+    assert export.source.value is residual
+    assert export.settings().pipeline.render == settings.render
+    # the button works again: a second run with the same seed gives the same report
+    widget.run_button.clicked.emit()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
+    assert widget.report.value == text
+
+
+def test_cancel_adds_nothing(diagnose_widget, qtbot):
+    viewer, widget, _ = diagnose_widget
+    widget.run_button.clicked.emit()
+    widget.cancel_button.clicked.emit()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
+    assert DIAGNOSIS_RESIDUAL_LAYER not in viewer.layers
+    assert "cancelled" in widget.status.value
+    assert widget.report.value == ""
+    assert widget.run_button.enabled
+    assert not widget.cancel_button.enabled
+
+
+def test_no_recording_is_a_notification(make_napari_viewer, qtbot, monkeypatch):
+    shown = []
+    monkeypatch.setattr(
+        "napari_symbac._widgets.diagnose.notify_warning", lambda message: shown.append(message)
+    )
+    viewer = make_napari_viewer()
+    viewer.add_image(np.zeros((20, 20)), name="no pixel size")
+    widget = DiagnoseWidget(viewer)
+    assert widget.reference.value is None
+    widget.run_button.clicked.emit()
+    assert widget.worker is None
+    assert shown
+    assert "pixel size" in shown[0]
+    assert widget.run_button.enabled
+
+
+def test_error_in_the_worker_is_a_notification(diagnose_widget, qtbot, monkeypatch):
+    shown = []
+    monkeypatch.setattr(
+        "napari_symbac._widgets._jobs.notify_error", lambda message: shown.append(message)
+    )
+    viewer, widget, _ = diagnose_widget
+    widget.candidates = ("no_such_effect",)
+    widget.run_button.clicked.emit()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
+    assert shown
+    assert "unknown effects" in shown[0]
+    assert "Diagnosis failed" in widget.status.value
+    assert DIAGNOSIS_RESIDUAL_LAYER not in viewer.layers
+    assert widget.run_button.enabled
+
+
+def test_diagnose_docks_from_the_manifest(make_napari_viewer):
+    viewer = make_napari_viewer()
+    _dock, widget = viewer.window.add_plugin_dock_widget(
+        "napari-symbac", "Diagnose model mismatch"
+    )
+    assert isinstance(widget, DiagnoseWidget)
+    assert widget.run_button.enabled
+
+
+def test_closing_the_viewer_during_a_run_is_clean(diagnose_widget, qtbot):
+    """The worker is told to quit and adds nothing to the closed viewer (pytest-qt fails
+    the test on any exception raised in the event loop)."""
+    viewer, widget, _ = diagnose_widget
+    viewer.window.add_dock_widget(widget)
+    widget.run_button.clicked.emit()
+    job = widget.worker
+    viewer.close()
+    qtbot.waitUntil(lambda: job.cancelled.is_set(), timeout=10_000)
+    qtbot.waitUntil(lambda: not job.worker.is_running, timeout=60_000)
