@@ -441,7 +441,7 @@ def fit_scene(
     flat_valid = valid.ravel()
     measured = None
     if camera is None:
-        measured = _measured_camera(real, valid, camera=Camera(baseline_adu=baseline))
+        measured = _measured_camera(real, valid, Camera(baseline_adu=baseline))
         if measured is not None:
             baseline = measured.baseline_adu
             y = (real - baseline).ravel().astype(np.float64)
@@ -600,24 +600,18 @@ def fit_scene(
     )
 
 
-def _measured_camera(
-    real: np.ndarray,
-    valid: np.ndarray,
-    model_mean: np.ndarray | None = None,
-    camera: Camera | None = None,
-) -> Camera | None:
-    """Photon transfer of :mod:`napari_symbac.fit.camera_estimate`, when it is installed.
+def _measured_camera(real: np.ndarray, valid: np.ndarray, camera: Camera) -> Camera | None:
+    """The camera from the image alone: photon transfer on its high-pass residual
+    (:func:`~napari_symbac.fit.camera_estimate.estimate_camera`), free of any model.
 
-    Without ``model_mean`` a high-pass estimate from the image, free of any model;
-    with it, the residual against the model mean. The baseline is kept from
-    ``camera`` (one frame cannot separate it from the read noise). ``None`` when the
-    estimate fails (too little range of levels): the fit then uses
-    :func:`~napari_symbac.fit.noise.camera_from_residuals`.
+    The baseline is kept from ``camera`` (one frame cannot separate it from the read
+    noise). ``None`` when the estimate fails (too little range of levels): the fit
+    then uses :func:`~napari_symbac.fit.noise.camera_from_residuals`.
     """
     from napari_symbac.fit.camera_estimate import estimate_camera
 
     try:
-        return estimate_camera(real, valid=valid, model_mean=model_mean, camera=camera).camera
+        return estimate_camera(real, valid=valid, camera=camera).camera
     except ValueError:
         return None
 
