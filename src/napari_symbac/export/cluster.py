@@ -59,7 +59,10 @@ def local_cluster(workers: int):
             processes=True,
             host="127.0.0.1",
             dashboard_address=None,
-            silence_logs=logging.ERROR,
+            # the workers' stderr is the user's terminal: a worker whose heartbeat meets
+            # an already-closed scheduler at shutdown (Ctrl-C) logs a traceback at ERROR.
+            # Task errors still reach this process as exceptions, so workers log nothing.
+            silence_logs=logging.CRITICAL,
             # one item needs little memory; do not let dask pause workers on small machines
             memory_limit=0,
         )
