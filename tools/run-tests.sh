@@ -30,6 +30,10 @@ fi
 
 [ -x .venv/bin/python ] || "$PYTHON" -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
+# torch runs the batched render path and the transfer benchmark's U-Net on the CPU in the
+# tests. 2.13.0 is a CPU build on the CI machines' disk; elsewhere set TORCH_SPEC (e.g. to
+# "torch --index-url https://download.pytorch.org/whl/cpu") to avoid a multi-GB CUDA build.
+.venv/bin/python -c "import torch" 2>/dev/null || .venv/bin/python -m pip install -q ${TORCH_SPEC:-torch==2.13.0}
 .venv/bin/python -m pip install -q -e ".[test]"
 
 .venv/bin/ruff check src tests benchmarks tools
