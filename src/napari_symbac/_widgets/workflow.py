@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from qtpy.QtCore import QEvent, QObject
 from qtpy.QtWidgets import QFrame, QScrollArea, QStyle, QTabWidget
 
 from napari_symbac._widgets.diagnose import DiagnoseWidget
@@ -56,11 +57,22 @@ class WorkflowWidget(QTabWidget):
             area.setWidgetResizable(True)
             area.setFrameShape(QFrame.Shape.NoFrame)
             area.setWidget(widget.native)
+            widget.native.installEventFilter(self)
             index = self.addTab(area, title)
             self.setTabToolTip(index, tip)
-        # never narrower than the widest step: no sideways scrolling, no cut labels
+        self._fit_widest_step()
+
+    def _fit_widest_step(self) -> None:
+        """Never narrower than the widest step: no sideways scrolling, no cut labels."""
         widest = max(
             self.widget(i).widget().minimumSizeHint().width() for i in range(self.count())
         )
         scrollbar = self.style().pixelMetric(QStyle.PixelMetric.PM_ScrollBarExtent)
-        self.setMinimumWidth(widest + scrollbar + 16)
+        if self.minimumWidth() != widest + scrollbar + 16:
+            self.setMinimumWidth(widest + scrollbar + 16)
+
+    def eventFilter(self, watched: QObject, event: QEvent) -> bool:
+        """Follow a step that grows after a run (fit readouts, tables, reports)."""
+        if event.type() == QEvent.Type.LayoutRequest:
+            self._fit_widest_step()
+        return super().eventFilter(watched, event)
