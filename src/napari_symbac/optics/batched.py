@@ -1,0 +1,373 @@
+"""Batched rendering on a PyTorch device: scene components in, camera counts out.
+
+A batch of frames goes to the device once (the cells / media / device fractions of
+every frame, at render sampling), stays there through every stage of the
+:class:`~napari_symbac.optics.forward.ForwardModel` and comes back once, as the
+finished uint16 camera images:
+
+1. ``psf`` + ``resample`` (eq. 15 and the area average to camera pixels): the
+   components are weighted by the ``intensity`` stage's amplitudes (eq. 3, linear, so
+   weighting before convolving is the same image), transformed once per frame and
+   multiplied by the spectrum of the kernel convolved with the ``upsample x upsample``
+   mean filter; the block average is folded into alias sums of that spectrum, exactly
+   as :meth:`~napari_symbac.optics.backends.ScipyBackend.convolve_resample` does on the
+   CPU (same transform sizes, same kernel spectrum). With separate phase amplitudes the
+   ring kernel's product is subtracted before the inverse transform.
+2. ``camera`` (eq. 17): shot noise ``Poisson(S / s)`` electrons, read noise ``N(0,
+   sigma_d^2)`` electrons, gain ``s``, baseline, rounding and clipping to the bit depth
+   (or the ``gaussian`` / ``none`` noise models), drawn on the device.
+
+The renderer reads the model's :attr:`~napari_symbac.optics.forward.ForwardModel.stages`
+and kernels, so the two paths cannot drift apart; a stage it cannot run on the device
+(the partially coherent ``phase_image``, any extra stage found by fitting or diagnosis)
+is refused with a :class:`ValueError` naming it.
+
+Noise stream: each frame's noise comes from its own :class:`torch.Generator`, seeded
+with one 63-bit integer drawn for that frame from the numpy ``Generator`` passed in.
+The same seed gives the same images on the same device, whatever the batch size; the
+numbers differ from the CPU path's (numpy's Poisson and normal samplers), and between
+torch's CPU and CUDA generators, with the same distribution. Noise-free images equal
+the CPU path's within float32 rounding (``tests/optics/test_batched.py``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator, Sequence
+from typing import Any
+
+import numpy as np
+
+from napari_symbac.optics.backends import resample_fft_shape, resample_kernel_spectrum
+from napari_symbac.optics.forward import ForwardModel
+
+__all__ = [
+    "BACKENDS",
+    "BatchedRenderer",
+    "render_scenes",
+    "resolve_backend",
+]
+
+#: Render backends a user can choose (``--backend``): scipy on the CPU, frame by frame
+#: (the reference); torch, batched on a torch device; cupy, frame by frame on a CUDA
+#: device (convolution only).
+BACKENDS = ("scipy", "torch", "cupy")
+#: Devices of the torch backend (``--device``); ``auto`` is cuda when available.
+DEVICES = ("auto", "cpu", "cuda")
+#: Stages the batched renderer runs on the device.
+DEVICE_STAGES = ("psf", "resample", "intensity", "camera")
+#: Working memory per batch the default batch size aims at, by device type.
+_BATCH_BYTES = {"cpu": 256 * 2**20, "cuda": 2 * 2**30}
+
+
+def _torch():
+    try:
+        import torch
+    except ImportError as err:
+        raise ValueError(
+            "the torch backend needs PyTorch: pip install 'napari-symbac[gpu]' (see "
+            "docs/benchmarks.md for the CUDA wheels), or use --backend scipy"
+        ) from err
+    return torch
+
+
+def resolve_backend(backend: str = "scipy", device: str | None = None) -> str:
+    """The backend as a full name: ``"scipy"``, ``"cupy"``, ``"torch:cpu"`` or ``"torch:cuda"``.
+
+    Parameters
+    ----------
+    backend
+        ``"scipy"``, ``"cupy"``, ``"torch"`` or ``"torch:DEVICE"``.
+    device
+        For torch: ``"auto"`` / ``None`` (cuda when available, else cpu), ``"cpu"`` or
+        ``"cuda"`` (``"cuda:1"`` for another GPU). Overrides a device in ``backend``.
+
+    Raises
+    ------
+    ValueError
+        An unknown backend or device, a device given for a backend other than torch,
+        torch missing, or cuda asked for where torch sees no GPU.
+    """
+    name, _, named_device = str(backend).partition(":")
+    if name not in BACKENDS:
+        raise ValueError(
+            f"unknown render backend {backend!r}: use one of {', '.join(BACKENDS)}"
+        )
+    device = device or named_device or None
+    if name != "torch":
+        if device not in (None, "auto"):
+            raise ValueError(
+                f"--device {device} applies to the torch backend only; use --backend torch "
+                f"or leave --device out"
+            )
+        return name
+    torch = _torch()
+    if device in (None, "auto"):
+        return "torch:cuda" if torch.cuda.is_available() else "torch:cpu"
+    if device != "cpu" and not device.startswith("cuda"):
+        raise ValueError(f"unknown torch device {device!r}: use one of {', '.join(DEVICES)}")
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise ValueError(
+            f"device {device!r} asked for, but this torch ({torch.__version__}) sees no "
+            "CUDA GPU: use --device cpu, or install a CUDA build of torch"
+        )
+    return f"torch:{device}"
+
+
+class BatchedRenderer:
+    """Render batches of scenes with ``model`` on a torch device.
+
+    Parameters
+    ----------
+    model
+        The forward model whose stages and settings are rendered (its convolution
+        backend is not used).
+    device
+        ``"cpu"``, ``"cuda"``, ``"cuda:N"`` or ``"auto"`` / ``None`` (cuda when
+        available).
+    batch_frames
+        Frames per device batch; by default as many as fit about 256 MiB (cpu) or
+        2 GiB (cuda) of working memory.
+
+    Raises
+    ------
+    ValueError
+        A stage of ``model`` that cannot run on the device (named in the message),
+        torch missing or no GPU for ``device="cuda"``.
+
+    Examples
+    --------
+    >>> renderer = BatchedRenderer(ForwardModel(Microscope(), RenderSettings()))  # doctest: +SKIP
+    >>> images = renderer.render(scenes, np.random.default_rng(0))  # doctest: +SKIP
+    """
+
+    def __init__(
+        self, model: ForwardModel, device: str | None = None, *, batch_frames: int | None = None
+    ) -> None:
+        if not isinstance(model, ForwardModel):
+            raise ValueError(f"model must be a ForwardModel, got {type(model).__name__}")
+        for stage in model.stages:
+            if stage.name not in DEVICE_STAGES:
+                raise ValueError(
+                    f"the forward model's {stage.name!r} stage cannot run on the torch device "
+                    "(the batched path runs psf, resample, intensity and camera only): "
+                    "render with --backend scipy"
+                )
+        if batch_frames is not None and (
+            isinstance(batch_frames, bool) or not isinstance(batch_frames, int) or batch_frames < 1
+        ):
+            raise ValueError(f"batch_frames must be an integer >= 1, got {batch_frames!r}")
+        self.torch = _torch()
+        self.device = resolve_backend("torch", device).partition(":")[2]
+        self.model = model
+        self.batch_frames = batch_frames
+        self._spectra: dict[tuple, Any] = {}
+
+    # ------------------------------------------------------------------ stages
+    def _stage(self, name: str) -> dict[str, Any]:
+        return next(s.parameters for s in self.model.stages if s.name == name)
+
+    def _spectrum(self, kernel: np.ndarray, factor: int, shape: tuple[int, int], tag: str):
+        """The kernel's fused spectrum on the device (computed once per kernel and size)."""
+        key = (tag, kernel.shape, factor, shape, kernel.tobytes())
+        spectrum = self._spectra.get(key)
+        if spectrum is None:
+            host = resample_kernel_spectrum(kernel, factor, shape)
+            spectrum = self.torch.from_numpy(host).to(self.device)
+            if len(self._spectra) >= 4:
+                self._spectra.pop(next(iter(self._spectra)))
+            self._spectra[key] = spectrum
+        return spectrum
+
+    def _upload(self, scenes: Sequence[Any]):
+        """Cells / media / device of every scene, cropped to the PSF's reach: ``(N, 3, Y, X)``."""
+        first = scenes[0]
+        for scene in scenes:
+            self.model._check_scene(scene)
+            if scene.cells.shape != first.cells.shape:
+                raise ValueError(
+                    f"a batch needs scenes of one size: {scene.cells.shape} and "
+                    f"{first.cells.shape}; render scenes of each size in their own batch"
+                )
+        trim = first.border_px - self.model.render_settings.psf_radius_px
+        crop = (slice(trim, -trim),) * 2 if trim else (slice(None),) * 2
+        height, width = first.cells[crop].shape
+        host = np.empty((len(scenes), 3, height, width), np.float32)
+        for i, scene in enumerate(scenes):
+            host[i, 0] = scene.cells[crop]
+            host[i, 1] = scene.media[crop]
+            host[i, 2] = scene.device[crop]
+        tensor = self.torch.from_numpy(host)
+        if self.device != "cpu":
+            tensor = tensor.pin_memory().to(self.device, non_blocking=True)
+        return tensor
+
+    def _clean(self, scenes: Sequence[Any]):
+        """``psf``, ``resample`` and ``intensity`` stages on the device: ``(N, Y', X')`` float32."""
+        torch = self.torch
+        model, first = self.model, scenes[0]
+        factor = first.upsample
+        px = first.pixel_size_um
+        stack = self._upload(scenes)
+        n, _, height, width = stack.shape
+        kernel = model.kernel(px)
+        ky, kx = kernel.shape
+        rows, cols = height - ky + 1, width - kx + 1
+        shape = resample_fft_shape(height, width, factor)
+        m1 = shape[0] // factor
+        amplitudes = self._stage("intensity")
+        weights = [
+            np.float32(amplitudes[f"{name}_intensity"]) for name in ("cell", "media", "device")
+        ]
+        # eq. 3 at render sampling, in the same float32 order as the CPU path
+        composed = weights[0] * stack[:, 0]
+        composed += weights[1] * stack[:, 1]
+        composed += weights[2] * stack[:, 2]
+        spectrum = torch.fft.rfft2(composed, s=shape)
+        del composed
+        spectrum *= self._spectrum(kernel, factor, shape, "psf")
+        if "cell_phase_adu" in amplitudes:  # separate phase amplitudes: minus the ring image
+            phase = np.float32(amplitudes["cell_phase_adu"]) * stack[:, 0]
+            phase += np.float32(amplitudes["device_phase_adu"]) * stack[:, 2]
+            ring = torch.fft.rfft2(phase, s=shape)
+            del phase
+            ring *= self._spectrum(model.ring_kernel(px), factor, shape, "ring")
+            spectrum -= ring
+            del ring
+        del stack
+        # decimate the rows (alias sum of the complex row frequencies), then the columns
+        folded = spectrum.reshape(n, factor, m1, -1).sum(dim=1)
+        del spectrum
+        folded = torch.fft.ifft(folded, dim=1)
+        full = torch.fft.irfft(folded[:, : rows // factor], n=shape[1], dim=-1)
+        return full[:, :, :cols:factor].contiguous()
+
+    def _camera(self, clean, seeds: np.ndarray):
+        """The ``camera`` stage (eq. 17) on the device; returns uint16 on the device."""
+        torch = self.torch
+        cam = self._stage("camera")
+        model = cam["noise_model"]
+        out = torch.empty_like(clean)
+        for i, seed in enumerate(seeds):
+            generator = torch.Generator(device=self.device)
+            generator.manual_seed(int(seed))
+            frame = clean[i]
+            if model == "camera":
+                s = float(cam["sensitivity_adu_per_e"])
+                electrons = torch.poisson(torch.clamp(frame, min=0.0) / s, generator=generator)
+                dark = torch.randn(
+                    frame.shape, generator=generator, device=frame.device, dtype=frame.dtype
+                )
+                electrons += float(cam["dark_noise_e"]) * dark
+                out[i] = s * electrons + float(cam["baseline_adu"])
+            elif model == "gaussian":
+                noise = torch.randn(
+                    frame.shape, generator=generator, device=frame.device, dtype=frame.dtype
+                )
+                out[i] = frame + float(cam["baseline_adu"]) + float(
+                    cam["gaussian_noise_sd_adu"]
+                ) * noise
+            else:
+                out[i] = frame + float(cam["baseline_adu"])
+        max_adu = float(2 ** int(cam["bit_depth"]) - 1)
+        return torch.clamp(torch.round(out), 0.0, max_adu).to(torch.int32).to(torch.uint16)
+
+    # ------------------------------------------------------------------ public
+    def frames_per_batch(self, scene: Any) -> int:
+        """Frames of ``scene``'s size per device batch (``batch_frames`` when given)."""
+        if self.batch_frames is not None:
+            return self.batch_frames
+        per_frame = scene.cells.nbytes * 3 * 4  # components, spectra, temporaries
+        return max(1, _BATCH_BYTES["cpu" if self.device == "cpu" else "cuda"] // per_frame)
+
+    def _batches(self, scenes: Sequence[Any]) -> Iterator[Sequence[Any]]:
+        size = self.frames_per_batch(scenes[0])
+        for start in range(0, len(scenes), size):
+            yield scenes[start : start + size]
+
+    def render_clean(self, scenes: Sequence[Any]) -> np.ndarray:
+        """Noise-free ``(N, Y, X)`` float32 images in ADU above the baseline (eq. 3, 15).
+
+        The same images as :meth:`ForwardModel.render_clean` of each scene within
+        float32 rounding; one float32 transfer back per batch.
+        """
+        scenes = list(scenes)
+        if not scenes:
+            raise ValueError("render_clean needs at least one scene")
+        with self.torch.inference_mode():
+            parts = [self._clean(batch).cpu().numpy() for batch in self._batches(scenes)]
+        return np.concatenate(parts)
+
+    def render(self, scenes: Sequence[Any], rng: np.random.Generator) -> np.ndarray:
+        """Camera images ``(N, Y, X)`` uint16 of ``scenes``, noise drawn on the device.
+
+        One 63-bit seed per frame is drawn from ``rng`` (in frame order) and seeds that
+        frame's :class:`torch.Generator` (see the module notes); the finished uint16
+        batch is the only transfer back.
+        """
+        if not isinstance(rng, np.random.Generator):
+            raise ValueError("rng must be a numpy.random.Generator (np.random.default_rng(seed))")
+        scenes = list(scenes)
+        if not scenes:
+            raise ValueError("render needs at least one scene")
+        seeds = rng.integers(0, 2**63 - 1, size=len(scenes), dtype=np.int64)
+        parts = []
+        done = 0
+        with self.torch.inference_mode():
+            for batch in self._batches(scenes):
+                counts = self._camera(self._clean(batch), seeds[done : done + len(batch)])
+                parts.append(counts.cpu().numpy())
+                done += len(batch)
+        return np.concatenate(parts)
+
+
+def render_scenes(
+    model: ForwardModel,
+    scenes: Iterable[Any],
+    rng: np.random.Generator,
+    *,
+    backend: str = "scipy",
+    batch_frames: int | None = None,
+) -> Iterator[tuple[Any, np.ndarray]]:
+    """Render ``scenes`` with ``model`` on ``backend``, yielding ``(scene, image)`` in order.
+
+    Parameters
+    ----------
+    model
+        The forward model (stages and settings).
+    scenes
+        Scenes of one size (a batch on torch; an iterable is consumed batch by batch).
+    rng
+        Noise generator: drawn frame by frame on scipy and cupy (bit for bit today's
+        images), one seed per frame on torch (see the module notes).
+    backend
+        A name of :func:`resolve_backend`: ``"scipy"`` (reference, CPU), ``"cupy"``
+        (convolution on the GPU, frame by frame), ``"torch:cpu"`` / ``"torch:cuda"`` /
+        ``"torch"`` (batched, every stage on the device).
+    batch_frames
+        Frames per device batch on torch (default: :class:`BatchedRenderer`'s).
+    """
+    name = resolve_backend(backend)
+    if name == "scipy":
+        for scene in scenes:
+            yield scene, model.render(scene, rng, cache=False)
+        return
+    if name == "cupy":
+        gpu = ForwardModel(
+            model.microscope,
+            model.render_settings,
+            model.camera,
+            backend="cupy",
+            extra_stages=model.extra_stages,
+        )
+        for scene in scenes:
+            yield scene, gpu.render(scene, rng, cache=False)
+        return
+    renderer = BatchedRenderer(model, name.partition(":")[2], batch_frames=batch_frames)
+    pending: list[Any] = []
+    for scene in scenes:
+        pending.append(scene)
+        if len(pending) == renderer.frames_per_batch(pending[0]):
+            yield from zip(pending, renderer.render(pending, rng))
+            pending = []
+    if pending:
+        yield from zip(pending, renderer.render(pending, rng))
