@@ -161,6 +161,7 @@ class BatchedRenderer:
         self.model = model
         self.batch_frames = batch_frames
         self._spectra: dict[tuple, Any] = {}
+        self._buffers: dict[tuple, Any] = {}
 
     # ------------------------------------------------------------------ stages
     def _stage(self, name: str) -> dict[str, Any]:
@@ -178,8 +179,22 @@ class BatchedRenderer:
             self._spectra[key] = spectrum
         return spectrum
 
-    def _upload(self, scenes: Sequence[Any]):
-        """Cells / media / device of every scene, cropped to the PSF's reach: ``(N, 3, Y, X)``."""
+    def _pinned(self, slot: tuple, shape: tuple[int, ...], dtype):
+        """A host buffer of at least ``shape`` for ``slot``, kept (page-locked on a GPU)."""
+        torch = self.torch
+        size = int(np.prod(shape))
+        buffer = self._buffers.get(slot)
+        if buffer is None or buffer.numel() < size or buffer.dtype != dtype:
+            buffer = torch.empty(size, dtype=dtype, pin_memory=self.device != "cpu")
+            self._buffers[slot] = buffer
+        return buffer[:size].view(shape)
+
+    def _upload(self, scenes: Sequence[Any], slot: int):
+        """Cells / media / device of every scene, cropped to the PSF's reach: ``(N, 3, Y, X)``.
+
+        One transfer per batch, from a host buffer kept per ``slot`` (two slots
+        alternate, so filling the next batch overlaps the device's work on this one).
+        """
         first = scenes[0]
         for scene in scenes:
             self.model._check_scene(scene)
@@ -191,23 +206,23 @@ class BatchedRenderer:
         trim = first.border_px - self.model.render_settings.psf_radius_px
         crop = (slice(trim, -trim),) * 2 if trim else (slice(None),) * 2
         height, width = first.cells[crop].shape
-        host = np.empty((len(scenes), 3, height, width), np.float32)
+        buffer = self._pinned(("in", slot), (len(scenes), 3, height, width), self.torch.float32)
+        host = buffer.numpy()
         for i, scene in enumerate(scenes):
             host[i, 0] = scene.cells[crop]
             host[i, 1] = scene.media[crop]
             host[i, 2] = scene.device[crop]
-        tensor = self.torch.from_numpy(host)
-        if self.device != "cpu":
-            tensor = tensor.pin_memory().to(self.device, non_blocking=True)
-        return tensor
+        if self.device == "cpu":
+            return buffer
+        return buffer.to(self.device, non_blocking=True)
 
-    def _clean(self, scenes: Sequence[Any]):
+    def _clean(self, scenes: Sequence[Any], slot: int = 0):
         """``psf``, ``resample`` and ``intensity`` stages on the device: ``(N, Y', X')`` float32."""
         torch = self.torch
         model, first = self.model, scenes[0]
         factor = first.upsample
         px = first.pixel_size_um
-        stack = self._upload(scenes)
+        stack = self._upload(scenes, slot)
         n, _, height, width = stack.shape
         kernel = model.kernel(px)
         ky, kx = kernel.shape
@@ -242,32 +257,35 @@ class BatchedRenderer:
         return full[:, :, :cols:factor].contiguous()
 
     def _camera(self, clean, seeds: np.ndarray):
-        """The ``camera`` stage (eq. 17) on the device; returns uint16 on the device."""
+        """The ``camera`` stage (eq. 17) on the device; returns uint16 on the device.
+
+        Frame ``i``'s shot and read noise come from a generator seeded with
+        ``seeds[i]``; everything else runs on the whole batch at once.
+        """
         torch = self.torch
         cam = self._stage("camera")
-        model = cam["noise_model"]
-        out = torch.empty_like(clean)
-        for i, seed in enumerate(seeds):
-            generator = torch.Generator(device=self.device)
-            generator.manual_seed(int(seed))
-            frame = clean[i]
-            if model == "camera":
+        noise_model = cam["noise_model"]
+        baseline = float(cam["baseline_adu"])
+        if noise_model == "none":
+            out = clean + baseline
+        else:
+            normal = torch.empty_like(clean)
+            if noise_model == "camera":
                 s = float(cam["sensitivity_adu_per_e"])
-                electrons = torch.poisson(torch.clamp(frame, min=0.0) / s, generator=generator)
-                dark = torch.randn(
-                    frame.shape, generator=generator, device=frame.device, dtype=frame.dtype
-                )
-                electrons += float(cam["dark_noise_e"]) * dark
-                out[i] = s * electrons + float(cam["baseline_adu"])
-            elif model == "gaussian":
-                noise = torch.randn(
-                    frame.shape, generator=generator, device=frame.device, dtype=frame.dtype
-                )
-                out[i] = frame + float(cam["baseline_adu"]) + float(
-                    cam["gaussian_noise_sd_adu"]
-                ) * noise
+                rates = torch.clamp(clean, min=0.0) / s
+                electrons = torch.empty_like(clean)
+            for i, seed in enumerate(seeds):
+                generator = torch.Generator(device=self.device)
+                generator.manual_seed(int(seed))
+                if noise_model == "camera":
+                    electrons[i] = torch.poisson(rates[i], generator=generator)
+                torch.randn(clean.shape[1:], generator=generator, out=normal[i])
+            if noise_model == "camera":
+                # s (A + B) + baseline, A ~ Poisson(S / s), B ~ N(0, sigma_d^2) electrons
+                electrons.add_(normal, alpha=float(cam["dark_noise_e"]))
+                out = electrons.mul_(s).add_(baseline)
             else:
-                out[i] = frame + float(cam["baseline_adu"])
+                out = normal.mul_(float(cam["gaussian_noise_sd_adu"])).add_(clean).add_(baseline)
         max_adu = float(2 ** int(cam["bit_depth"]) - 1)
         return torch.clamp(torch.round(out), 0.0, max_adu).to(torch.int32).to(torch.uint16)
 
@@ -284,6 +302,47 @@ class BatchedRenderer:
         for start in range(0, len(scenes), size):
             yield scenes[start : start + size]
 
+    def _run(self, scenes: Sequence[Any], seeds: np.ndarray | None) -> np.ndarray:
+        """Every batch through the device; clean float32 (``seeds`` None) or uint16 counts.
+
+        On a GPU the result of batch ``k`` is copied back asynchronously while batch
+        ``k + 1`` is filled on the host; on the CPU everything runs in turn.
+        """
+        torch = self.torch
+        first = scenes[0]
+        out_dtype = np.float32 if seeds is None else np.uint16
+        result = np.empty((len(scenes), *first.camera_shape), out_dtype)
+        pending: tuple | None = None  # (event, host tensor, start, stop) of the last batch
+
+        def collect(job: tuple) -> None:
+            event, host, start, stop = job
+            if event is not None:
+                event.synchronize()
+            result[start:stop] = host.numpy()
+
+        start = 0
+        with torch.inference_mode():
+            for k, batch in enumerate(self._batches(scenes)):
+                stop = start + len(batch)
+                images = self._clean(batch, k % 2)
+                if seeds is not None:
+                    images = self._camera(images, seeds[start:stop])
+                if self.device == "cpu":
+                    job: tuple = (None, images, start, stop)
+                else:
+                    host = self._pinned(("out", k % 2), tuple(images.shape), images.dtype)
+                    host.copy_(images, non_blocking=True)
+                    event = torch.cuda.Event()
+                    event.record()
+                    job = (event, host, start, stop)
+                if pending is not None:
+                    collect(pending)
+                pending = job
+                start = stop
+            if pending is not None:
+                collect(pending)
+        return result
+
     def render_clean(self, scenes: Sequence[Any]) -> np.ndarray:
         """Noise-free ``(N, Y, X)`` float32 images in ADU above the baseline (eq. 3, 15).
 
@@ -293,9 +352,7 @@ class BatchedRenderer:
         scenes = list(scenes)
         if not scenes:
             raise ValueError("render_clean needs at least one scene")
-        with self.torch.inference_mode():
-            parts = [self._clean(batch).cpu().numpy() for batch in self._batches(scenes)]
-        return np.concatenate(parts)
+        return self._run(scenes, None)
 
     def render(self, scenes: Sequence[Any], rng: np.random.Generator) -> np.ndarray:
         """Camera images ``(N, Y, X)`` uint16 of ``scenes``, noise drawn on the device.
@@ -310,14 +367,7 @@ class BatchedRenderer:
         if not scenes:
             raise ValueError("render needs at least one scene")
         seeds = rng.integers(0, 2**63 - 1, size=len(scenes), dtype=np.int64)
-        parts = []
-        done = 0
-        with self.torch.inference_mode():
-            for batch in self._batches(scenes):
-                counts = self._camera(self._clean(batch), seeds[done : done + len(batch)])
-                parts.append(counts.cpu().numpy())
-                done += len(batch)
-        return np.concatenate(parts)
+        return self._run(scenes, seeds)
 
 
 def render_scenes(
