@@ -268,7 +268,8 @@ class CupyBackend:
             import cupy
         except ImportError as err:  # pragma: no cover - depends on the environment
             raise ValueError(
-                "the cupy backend needs CuPy: pip install 'napari-symbac[gpu]'"
+                "the cupy backend needs CuPy: pip install 'napari-symbac[gpu-cuda12]' "
+                "(or [gpu-cuda13] for a CUDA 13 driver)"
             ) from err
         self._cp = cupy
 
