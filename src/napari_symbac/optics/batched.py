@@ -55,8 +55,10 @@ BACKENDS = ("scipy", "torch", "cupy")
 DEVICES = ("auto", "cpu", "cuda")
 #: Stages the batched renderer runs on the device.
 DEVICE_STAGES = ("psf", "resample", "intensity", "camera")
-#: Working memory per batch the default batch size aims at, by device type.
-_BATCH_BYTES = {"cpu": 256 * 2**20, "cuda": 2 * 2**30}
+#: Working memory per batch the default batch size aims at: 256 MiB on the CPU (cache
+#: and memory friendly), a quarter of the free memory on a GPU; at most 1024 frames.
+_BATCH_BYTES_CPU = 256 * 2**20
+_MAX_BATCH_FRAMES = 1024
 
 
 def _torch():
@@ -125,8 +127,8 @@ class BatchedRenderer:
         ``"cpu"``, ``"cuda"``, ``"cuda:N"`` or ``"auto"`` / ``None`` (cuda when
         available).
     batch_frames
-        Frames per device batch; by default as many as fit about 256 MiB (cpu) or
-        2 GiB (cuda) of working memory.
+        Frames per device batch; by default as many as fit about 256 MiB (cpu) or a
+        quarter of the GPU's free memory (at most 1024).
 
     Raises
     ------
@@ -162,6 +164,7 @@ class BatchedRenderer:
         self.batch_frames = batch_frames
         self._spectra: dict[tuple, Any] = {}
         self._buffers: dict[tuple, Any] = {}
+        self._budget: int | None = None
 
     # ------------------------------------------------------------------ stages
     def _stage(self, name: str) -> dict[str, Any]:
@@ -294,8 +297,13 @@ class BatchedRenderer:
         """Frames of ``scene``'s size per device batch (``batch_frames`` when given)."""
         if self.batch_frames is not None:
             return self.batch_frames
+        if self._budget is None:
+            self._budget = _BATCH_BYTES_CPU
+            if self.device != "cpu":
+                free, _ = self.torch.cuda.mem_get_info(self.device)
+                self._budget = max(_BATCH_BYTES_CPU, free // 4)
         per_frame = scene.cells.nbytes * 3 * 4  # components, spectra, temporaries
-        return max(1, _BATCH_BYTES["cpu" if self.device == "cpu" else "cuda"] // per_frame)
+        return int(min(_MAX_BATCH_FRAMES, max(1, self._budget // per_frame)))
 
     def _batches(self, scenes: Sequence[Any]) -> Iterator[Sequence[Any]]:
         size = self.frames_per_batch(scenes[0])
