@@ -98,16 +98,18 @@ def scenes_for(shape: tuple[int, int], distinct: int = 4) -> tuple[Scene, ...]:
     return tuple(_field_scene(tuple(shape), seed) for seed in range(distinct))
 
 
-def available() -> list[str]:
-    """Backends measurable here: scipy, torch:cpu, and torch:cuda where torch sees a GPU."""
-    names = ["scipy"]
+def available() -> list[tuple[str, int | None]]:
+    """``(backend, threads)`` runs measurable here: scipy; torch:cpu on one thread (like
+    scipy's FFT) and on torch's default threads; torch:cuda where torch sees a GPU."""
+    runs: list[tuple[str, int | None]] = [("scipy", None)]
     try:
-        names.append("torch:cpu")
-        if resolve_backend("torch") == "torch:cuda":
-            names.append("torch:cuda")
+        cuda = resolve_backend("torch") == "torch:cuda"
     except ValueError:  # no torch
-        names.remove("torch:cpu")
-    return names
+        return runs
+    runs += [("torch:cpu", 1), ("torch:cpu", None)]
+    if cuda:
+        runs.append(("torch:cuda", None))
+    return runs
 
 
 def _sync(backend: str) -> None:
@@ -118,7 +120,12 @@ def _sync(backend: str) -> None:
 
 
 def measure_batch(
-    backend: str, n_frames: int, shape: tuple[int, int] = TRENCH, *, seed: int = 0
+    backend: str,
+    n_frames: int,
+    shape: tuple[int, int] = TRENCH,
+    *,
+    threads: int | None = None,
+    seed: int = 0,
 ) -> dict[str, Any]:
     """Render ``n_frames`` frames of ``shape`` camera px on ``backend`` once; time it.
 
@@ -132,11 +139,14 @@ def measure_batch(
     shape
         Camera pixels of a frame; ``(256, 46)`` is a trench frame, any other shape an
         open field.
+    threads
+        ``torch:cpu`` only: torch's intra-op threads during the run (``None``: torch's
+        default, one per core). scipy's FFT runs one thread, as the project calls it.
 
     Returns
     -------
     dict
-        ``backend`` (resolved), ``n_frames``, ``shape``, ``seconds`` (wall time of the
+        ``backend`` (resolved), ``threads``, ``n_frames``, ``shape``, ``seconds`` (wall time of the
         batch, scenes drawn beforehand), ``frames_per_s`` and ``mpx_per_s`` (camera
         megapixels per second). A first small batch warms the device up (kernel
         spectrum, allocator) and is not timed.
@@ -160,13 +170,24 @@ def measure_batch(
             renderer.render(scenes, rng)
 
         renderer.render(scenes[: min(2, n_frames)], rng)
-    _sync(name)
-    start = time.perf_counter()
-    run()
-    _sync(name)
-    seconds = time.perf_counter() - start
+    previous = None
+    if name == "torch:cpu" and threads is not None:
+        import torch
+
+        previous = torch.get_num_threads()
+        torch.set_num_threads(threads)
+    try:
+        _sync(name)
+        start = time.perf_counter()
+        run()
+        _sync(name)
+        seconds = time.perf_counter() - start
+    finally:
+        if previous is not None:
+            torch.set_num_threads(previous)
     return {
         "backend": name,
+        "threads": threads if name == "torch:cpu" else None,
         "n_frames": n_frames,
         "shape": tuple(shape),
         "seconds": seconds,
@@ -178,26 +199,28 @@ def measure_batch(
 def compare(
     n_frames: int,
     shape: tuple[int, int] = TRENCH,
-    backends: list[str] | None = None,
+    runs: list[tuple[str, int | None]] | None = None,
     repeats: int = 3,
 ) -> list[dict[str, Any]]:
-    """:func:`measure_batch` of each backend, interleaved, ``repeats`` times; medians.
+    """:func:`measure_batch` of each ``(backend, threads)`` run, interleaved, ``repeats`` times.
 
-    Returns one dict per backend (as :func:`measure_batch`, ``seconds`` and
-    ``frames_per_s`` the medians, ``repeats`` added, ``vs_scipy`` the ratio of its
-    frames/s to scipy's when scipy is among ``backends``).
+    Returns one dict per run (as :func:`measure_batch`, with ``seconds``,
+    ``frames_per_s`` and ``mpx_per_s`` the medians over the repeats, ``repeats`` added
+    and ``vs_scipy`` the ratio of its frames/s to scipy's in the same call).
     """
-    backends = available() if backends is None else backends
-    runs: dict[str, list[dict[str, Any]]] = {b: [] for b in backends}
+    runs = available() if runs is None else runs
+    results: dict[tuple, list[dict[str, Any]]] = {run: [] for run in runs}
     for _ in range(repeats):
-        for backend in backends:
-            runs[backend].append(measure_batch(backend, n_frames, shape))
+        for backend, threads in runs:
+            results[(backend, threads)].append(
+                measure_batch(backend, n_frames, shape, threads=threads)
+            )
     rows = []
-    for results in runs.values():
-        seconds = statistics.median(r["seconds"] for r in results)
+    for measured in results.values():
+        seconds = statistics.median(r["seconds"] for r in measured)
         rows.append(
             {
-                **results[0],
+                **measured[0],
                 "seconds": seconds,
                 "frames_per_s": n_frames / seconds,
                 "mpx_per_s": n_frames * shape[0] * shape[1] / seconds / 1e6,
@@ -218,16 +241,18 @@ def main(argv: list[str] | None = None) -> None:
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"load average at start: {load:.2f}; cores: {os.cpu_count()}")
     cases = [("trench 256 x 46", TRENCH, trench_frames), ("field 1024 x 1024", FIELD, field_frames)]
-    print(f"{'frames':<20}{'n':>6}  {'backend':<12}{'frames/s':>10}{'Mpx/s':>9}{'vs scipy':>10}")
+    print(f"{'frames':<20}{'n':>6}  {'backend':<20}{'frames/s':>10}{'Mpx/s':>9}{'vs scipy':>10}")
     for label, shape, n in cases:
-        rows = compare(n, shape, repeats=repeats)
-        for row in rows:
+        for row in compare(n, shape, repeats=repeats):
+            name = row["backend"]
+            if name == "torch:cpu":
+                name += f" ({row['threads'] or 'default'} thr)"
             print(
-                f"{label:<20}{n:>6}  {row['backend']:<12}{row['frames_per_s']:>10.1f}"
+                f"{label:<20}{n:>6}  {name:<20}{row['frames_per_s']:>10.1f}"
                 f"{row['mpx_per_s']:>9.2f}{row['vs_scipy']:>9.2f}x"
             )
-        if "torch:cuda" not in available():
-            print(f"{label:<20}{n:>6}  {'torch:cuda':<12}{'unmeasured (no GPU here)':>29}")
+        if ("torch:cuda", None) not in available():
+            print(f"{label:<20}{n:>6}  {'torch:cuda':<20}{'unmeasured (no GPU here)':>29}")
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"load average at end: {load:.2f}")
 

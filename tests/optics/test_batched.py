@@ -204,3 +204,25 @@ def test_render_simulation_on_torch(trench):
     assert renderer.frames_per_batch(scenes[0]) == 4
     pairs = list(render_scenes(model, iter(scenes), np.random.default_rng(0), backend="torch:cpu"))
     assert [id(scene) for scene, _ in pairs] == [id(scene) for scene in scenes]
+
+
+def test_benchmark_functions_return_their_rows():
+    """benchmarks/bench_gpu.py, which ``napari-symbac bench`` imports: shape of the rows."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_gpu.py"
+    spec = importlib.util.spec_from_file_location("bench_gpu", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    row = bench.measure_batch("torch:cpu", 3, bench.TRENCH, threads=1)
+    assert row["backend"] == "torch:cpu"
+    assert row["threads"] == 1
+    assert row["n_frames"] == 3
+    assert row["seconds"] > 0
+    assert row["frames_per_s"] == pytest.approx(3 / row["seconds"])
+    rows = bench.compare(2, (24, 20), runs=[("scipy", None), ("torch:cpu", None)], repeats=1)
+    assert [r["backend"] for r in rows] == ["scipy", "torch:cpu"]
+    assert rows[0]["vs_scipy"] == 1.0
+    assert rows[1]["vs_scipy"] == pytest.approx(rows[1]["frames_per_s"] / rows[0]["frames_per_s"])
+    assert ("scipy", None) in bench.available()

@@ -55,9 +55,10 @@ BACKENDS = ("scipy", "torch", "cupy")
 DEVICES = ("auto", "cpu", "cuda")
 #: Stages the batched renderer runs on the device.
 DEVICE_STAGES = ("psf", "resample", "intensity", "camera")
-#: Working memory per batch the default batch size aims at: 256 MiB on the CPU (cache
-#: and memory friendly), a quarter of the free memory on a GPU; at most 1024 frames.
-_BATCH_BYTES_CPU = 256 * 2**20
+#: Working memory per batch the default batch size aims at: 32 MiB on the CPU (a frame
+#: or a few: larger batches fall out of the caches and ran slower), a quarter of the
+#: free memory on a GPU; at most 1024 frames.
+_BATCH_BYTES_CPU = 32 * 2**20
 _MAX_BATCH_FRAMES = 1024
 
 
@@ -127,7 +128,7 @@ class BatchedRenderer:
         ``"cpu"``, ``"cuda"``, ``"cuda:N"`` or ``"auto"`` / ``None`` (cuda when
         available).
     batch_frames
-        Frames per device batch; by default as many as fit about 256 MiB (cpu) or a
+        Frames per device batch; by default as many as fit about 32 MiB (cpu) or a
         quarter of the GPU's free memory (at most 1024).
 
     Raises
@@ -236,16 +237,16 @@ class BatchedRenderer:
         weights = [
             np.float32(amplitudes[f"{name}_intensity"]) for name in ("cell", "media", "device")
         ]
-        # eq. 3 at render sampling, in the same float32 order as the CPU path
-        composed = weights[0] * stack[:, 0]
-        composed += weights[1] * stack[:, 1]
-        composed += weights[2] * stack[:, 2]
+        # eq. 3 at render sampling (float32; in place: no batch-sized temporaries)
+        composed = torch.mul(stack[:, 0], float(weights[0]))
+        composed.add_(stack[:, 1], alpha=float(weights[1]))
+        composed.add_(stack[:, 2], alpha=float(weights[2]))
         spectrum = torch.fft.rfft2(composed, s=shape)
         del composed
         spectrum *= self._spectrum(kernel, factor, shape, "psf")
         if "cell_phase_adu" in amplitudes:  # separate phase amplitudes: minus the ring image
-            phase = np.float32(amplitudes["cell_phase_adu"]) * stack[:, 0]
-            phase += np.float32(amplitudes["device_phase_adu"]) * stack[:, 2]
+            phase = torch.mul(stack[:, 0], float(np.float32(amplitudes["cell_phase_adu"])))
+            phase.add_(stack[:, 2], alpha=float(np.float32(amplitudes["device_phase_adu"])))
             ring = torch.fft.rfft2(phase, s=shape)
             del phase
             ring *= self._spectrum(model.ring_kernel(px), factor, shape, "ring")
@@ -270,12 +271,12 @@ class BatchedRenderer:
         noise_model = cam["noise_model"]
         baseline = float(cam["baseline_adu"])
         if noise_model == "none":
-            out = clean + baseline
+            out = clean.add_(baseline)
         else:
             normal = torch.empty_like(clean)
             if noise_model == "camera":
                 s = float(cam["sensitivity_adu_per_e"])
-                rates = torch.clamp(clean, min=0.0) / s
+                rates = torch.clamp(clean, min=0.0).div_(s)
                 electrons = torch.empty_like(clean)
             for i, seed in enumerate(seeds):
                 generator = torch.Generator(device=self.device)
@@ -290,7 +291,7 @@ class BatchedRenderer:
             else:
                 out = normal.mul_(float(cam["gaussian_noise_sd_adu"])).add_(clean).add_(baseline)
         max_adu = float(2 ** int(cam["bit_depth"]) - 1)
-        return torch.clamp(torch.round(out), 0.0, max_adu).to(torch.int32).to(torch.uint16)
+        return out.round_().clamp_(0.0, max_adu).to(torch.uint16)
 
     # ------------------------------------------------------------------ public
     def frames_per_batch(self, scene: Any) -> int:
