@@ -129,6 +129,11 @@ def test_same_seed_same_images_whatever_the_batch_size(trench):
     model = ForwardModel(pipeline.microscope, render, pipeline.camera)
     a = BatchedRenderer(model, "cpu").render(scenes, np.random.default_rng(11))
     b = BatchedRenderer(model, "cpu", batch_frames=2).render(scenes, np.random.default_rng(11))
+    # a batch of 10 frames is filled on the host by several threads
+    many = scenes * 2
+    c1 = BatchedRenderer(model, "cpu", batch_frames=10).render(many, np.random.default_rng(3))
+    c2 = BatchedRenderer(model, "cpu", batch_frames=1).render(many, np.random.default_rng(3))
+    np.testing.assert_array_equal(c1, c2)
     c = BatchedRenderer(model, "cpu").render(scenes, np.random.default_rng(12))
     np.testing.assert_array_equal(a, b)
     assert not np.array_equal(a, c)

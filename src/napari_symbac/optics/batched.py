@@ -32,7 +32,9 @@ the CPU path's within float32 rounding (``tests/optics/test_batched.py``).
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -60,6 +62,8 @@ DEVICE_STAGES = ("psf", "resample", "intensity", "camera")
 #: free memory on a GPU; at most 1024 frames.
 _BATCH_BYTES_CPU = 32 * 2**20
 _MAX_BATCH_FRAMES = 1024
+#: Frames per thread below which a batch is filled on the host by one thread.
+_FRAMES_PER_FILL_THREAD = 4
 
 
 def _torch():
@@ -166,6 +170,7 @@ class BatchedRenderer:
         self._spectra: dict[tuple, Any] = {}
         self._buffers: dict[tuple, Any] = {}
         self._budget: int | None = None
+        self._pool: ThreadPoolExecutor | None = None
 
     # ------------------------------------------------------------------ stages
     def _stage(self, name: str) -> dict[str, Any]:
@@ -212,10 +217,23 @@ class BatchedRenderer:
         height, width = first.cells[crop].shape
         buffer = self._pinned(("in", slot), (len(scenes), 3, height, width), self.torch.float32)
         host = buffer.numpy()
-        for i, scene in enumerate(scenes):
-            host[i, 0] = scene.cells[crop]
-            host[i, 1] = scene.media[crop]
-            host[i, 2] = scene.device[crop]
+
+        def fill(frames: range) -> None:
+            for i in frames:
+                host[i, 0] = scenes[i].cells[crop]
+                host[i, 1] = scenes[i].media[crop]
+                host[i, 2] = scenes[i].device[crop]
+
+        # The copies release the GIL: on a batch of many frames, one thread per core
+        # (at most 8) fills its share (the host side of a GPU batch is memory-bound).
+        workers = min(8, os.cpu_count() or 1, len(scenes) // _FRAMES_PER_FILL_THREAD)
+        if workers > 1:
+            if self._pool is None:
+                self._pool = ThreadPoolExecutor(min(8, os.cpu_count() or 1))
+            shares = np.array_split(np.arange(len(scenes)), workers)
+            list(self._pool.map(fill, [range(int(p[0]), int(p[-1]) + 1) for p in shares]))
+        else:
+            fill(range(len(scenes)))
         if self.device == "cpu":
             return buffer
         return buffer.to(self.device, non_blocking=True)
