@@ -231,3 +231,21 @@ def test_benchmark_functions_return_their_rows():
     assert rows[0]["vs_scipy"] == 1.0
     assert rows[1]["vs_scipy"] == pytest.approx(rows[1]["frames_per_s"] / rows[0]["frames_per_s"])
     assert ("scipy", None) in bench.available()
+
+
+def test_render_scenes_same_images_whatever_the_chunking(trench):
+    render = dataclasses.replace(CLEAN, noise_model="camera")
+    pipeline, scenes = _scenes(trench, render, last=7)
+    model = ForwardModel(pipeline.microscope, render, pipeline.camera)
+
+    def images(batch_frames):
+        pairs = render_scenes(
+            model,
+            iter(scenes),
+            np.random.default_rng(4),
+            backend="torch:cpu",
+            batch_frames=batch_frames,
+        )
+        return np.stack([image for _, image in pairs])
+
+    np.testing.assert_array_equal(images(3), images(7))
