@@ -241,18 +241,18 @@ def main(argv: list[str] | None = None) -> None:
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"load average at start: {load:.2f}; cores: {os.cpu_count()}")
     cases = [("trench 256 x 46", TRENCH, trench_frames), ("field 1024 x 1024", FIELD, field_frames)]
-    print(f"{'frames':<20}{'n':>6}  {'backend':<20}{'frames/s':>10}{'Mpx/s':>9}{'vs scipy':>10}")
+    print(f"{'frames':<20}{'n':>6}  {'backend':<24}{'frames/s':>10}{'Mpx/s':>9}{'vs scipy':>10}")
     for label, shape, n in cases:
         for row in compare(n, shape, repeats=repeats):
             name = row["backend"]
             if name == "torch:cpu":
                 name += f" ({row['threads'] or 'default'} thr)"
             print(
-                f"{label:<20}{n:>6}  {name:<20}{row['frames_per_s']:>10.1f}"
+                f"{label:<20}{n:>6}  {name:<24}{row['frames_per_s']:>10.1f}"
                 f"{row['mpx_per_s']:>9.2f}{row['vs_scipy']:>9.2f}x"
             )
         if ("torch:cuda", None) not in available():
-            print(f"{label:<20}{n:>6}  {'torch:cuda':<20}{'unmeasured (no GPU here)':>29}")
+            print(f"{label:<20}{n:>6}  {'torch:cuda':<24}{'unmeasured (no GPU here)':>29}")
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"load average at end: {load:.2f}")
 
