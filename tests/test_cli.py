@@ -179,6 +179,15 @@ def test_render_and_export_on_the_torch_backend(tmp_path, capsys):
     assert "torch backend only" in error
     assert "Traceback" not in error
     assert not (tmp_path / "x").exists()
+    # a stage the device cannot run is refused by name, pointing at scipy
+    coherent = tmp_path / "coherent.yaml"
+    coherent.write_text(yaml.safe_dump({"render": {"phase_model": "partially_coherent"}}))
+    bad = ["render", str(tmp_path / "sim"), "--out", str(tmp_path / "y"), "--backend", "torch"]
+    assert main([*bad, "--device", "cpu", "--config", str(coherent)]) == 2
+    error = capsys.readouterr().err
+    assert "'phase_image' stage cannot run on the torch device" in error
+    assert "--backend scipy" in error
+    assert "Traceback" not in error
     config = tmp_path / "export.yaml"
     config.write_text(
         yaml.safe_dump(
