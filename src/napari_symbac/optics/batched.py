@@ -360,7 +360,7 @@ class BatchedRenderer:
                     host = self._pinned(("out", k % 2), tuple(images.shape), images.dtype)
                     host.copy_(images, non_blocking=True)
                     event = torch.cuda.Event()
-                    event.record()
+                    event.record(torch.cuda.current_stream(self.device))
                     job = (event, host, start, stop)
                 if pending is not None:
                     collect(pending)
