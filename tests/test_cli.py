@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -142,3 +143,70 @@ def test_fit_refusal_from_the_shell_is_a_message_not_a_traceback(tmp_path):
     assert "has negative values" in result.stderr
     assert "Traceback" not in result.stderr
     assert not out.exists()
+
+
+def test_render_and_export_on_the_torch_backend(tmp_path, capsys):
+    import torch
+    import yaml
+
+    from napari_symbac import cli
+    from napari_symbac.optics import batched
+
+    assert cli._BACKENDS == batched.BACKENDS
+    assert cli._DEVICES == batched.DEVICES
+    assert main(["simulate", "--out", str(tmp_path / "sim"), "--frames", "4", "--seed", "1"]) == 0
+    assert main(["render", str(tmp_path / "sim"), "--out", str(tmp_path / "cpu")]) == 0
+    args = ["render", str(tmp_path / "sim"), "--out", str(tmp_path / "dev"), "--backend", "torch"]
+    assert main([*args, "--device", "cpu"]) == 0
+    assert "render (torch:cpu)" in capsys.readouterr().out
+    cpu = tifffile.imread(tmp_path / "cpu" / "images.tif").astype(float)
+    dev = tifffile.imread(tmp_path / "dev" / "images.tif").astype(float)
+    assert dev.shape == cpu.shape
+    np.testing.assert_array_equal(
+        tifffile.imread(tmp_path / "dev" / "labels.tif"),
+        tifffile.imread(tmp_path / "cpu" / "labels.tif"),
+    )
+    # other noise stream, same image: the frame means agree to a fraction of the noise
+    assert not np.array_equal(dev, cpu)
+    np.testing.assert_allclose(dev.mean(axis=(1, 2)), cpu.mean(axis=(1, 2)), rtol=2e-3)
+    # bad choices: a message, exit 2, no traceback, nothing written
+    if not torch.cuda.is_available():
+        assert main([*args, "--device", "cuda"]) == 2
+        assert "sees no CUDA GPU" in capsys.readouterr().err
+    out = ["--out", str(tmp_path / "x")]
+    assert main(["render", str(tmp_path / "sim"), *out, "--device", "cpu"]) == 2
+    error = capsys.readouterr().err
+    assert "torch backend only" in error
+    assert "Traceback" not in error
+    assert not (tmp_path / "x").exists()
+    # a stage the device cannot run is refused by name, pointing at scipy
+    coherent = tmp_path / "coherent.yaml"
+    coherent.write_text(yaml.safe_dump({"render": {"phase_model": "partially_coherent"}}))
+    bad = ["render", str(tmp_path / "sim"), "--out", str(tmp_path / "y"), "--backend", "torch"]
+    assert main([*bad, "--device", "cpu", "--config", str(coherent)]) == 2
+    error = capsys.readouterr().err
+    assert "'phase_image' stage cannot run on the torch device" in error
+    assert "--backend scipy" in error
+    assert "Traceback" not in error
+    config = tmp_path / "export.yaml"
+    config.write_text(
+        yaml.safe_dump(
+            {"n_items": 1, "kind": "timeseries", "pipeline": {"simulation": {"n_frames": 4}}}
+        )
+    )
+    export = ["export", "--config", str(config), "--out", str(tmp_path / "ds"), "--workers", "1"]
+    assert main([*export, "--backend", "torch", "--device", "cpu"]) == 0
+    manifest = json.loads((tmp_path / "ds" / "manifest.json").read_text())
+    assert manifest["render_backend"] == "torch:cpu"
+    assert manifest["status"] == "complete"
+    assert len(manifest["items"]) == 4
+    # resuming with another backend would mix noise streams: refused
+    assert main(export) == 2
+    assert "rendered with the torch:cpu backend" in capsys.readouterr().err
+    # the manifest's backend makes regenerate give the exported bytes back
+    from napari_symbac.export import regenerate
+
+    entry = manifest["items"][2]
+    item = regenerate(tmp_path / "ds", entry["name"])
+    stored = tifffile.imread(tmp_path / "ds" / entry["files"]["tiff"][0])
+    np.testing.assert_array_equal(item.image, stored)

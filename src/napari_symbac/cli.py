@@ -127,6 +127,35 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _backend(args: argparse.Namespace) -> str:
+    """``--backend`` and ``--device`` as one resolved name (``"torch:cuda"``, ...)."""
+    from napari_symbac.optics.batched import resolve_backend
+
+    return resolve_backend(args.backend, args.device)
+
+
+#: ``--backend`` and ``--device`` choices (those of :mod:`napari_symbac.optics.batched`,
+#: not imported here so that ``--help`` stays fast).
+_BACKENDS = ("scipy", "torch", "cupy")
+_DEVICES = ("auto", "cpu", "cuda")
+
+
+def _add_backend_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--backend",
+        choices=_BACKENDS,
+        default="scipy",
+        help="render on the CPU with scipy (default, the reference), in batches on a torch "
+        "device (every stage from the scene's components to the uint16 image; another "
+        "noise stream) or convolve on a CUDA GPU with cupy",
+    )
+    parser.add_argument(
+        "--device",
+        choices=_DEVICES,
+        help="torch device (default: auto, cuda when torch sees a GPU, else cpu)",
+    )
+
+
 def _cmd_render(args: argparse.Namespace) -> int:
     import dataclasses
 
@@ -135,13 +164,14 @@ def _cmd_render(args: argparse.Namespace) -> int:
     from napari_symbac.sim import load_simulation
 
     out = _output_folder(args.out)
+    backend = _backend(args)
     timer = StepTimer()
     with timer.step("load"):
         simulation = load_simulation(args.simulation)
         settings = dataclasses.replace(_load_pipeline(args.config), simulation=simulation.settings)
     update, bar = _tqdm_progress("render", len(simulation.frames))
-    with timer.step("render"):
-        series = render_simulation(simulation, settings, progress=update)
+    with timer.step(f"render ({backend})"):
+        series = render_simulation(simulation, settings, progress=update, backend=backend)
     bar.close()
     calibration = {
         "pixel_size_um": settings.microscope.pixel_size_um,
@@ -167,6 +197,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
     settings = load_export_settings(args.config)
     out = _output_folder(args.out)
+    backend = _backend(args)
     sim_frames = settings.pipeline.simulation.n_frames
     n_simulated = sim_frames * (
         settings.n_items if settings.kind == "timeseries" else settings.n_simulations
@@ -183,6 +214,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
             workers=_local_workers(args.workers),
             scheduler=args.scheduler,
             progress=update,
+            backend=backend,
         )
     bar.close()
     print(report)
@@ -368,6 +400,7 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("simulation", help="folder written by 'napari-symbac simulate'")
     render.add_argument("--config", help="PipelineSettings YAML/JSON for optics and camera")
     render.add_argument("--out", required=True, help="output folder")
+    _add_backend_options(render)
     render.set_defaults(func=_cmd_render)
 
     export = sub.add_parser(
@@ -389,6 +422,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--out at the same path",
     )
     export.add_argument("--yes", action="store_true", help=_YES_HELP)
+    _add_backend_options(export)
     export.set_defaults(func=_cmd_export)
 
     fit = sub.add_parser(

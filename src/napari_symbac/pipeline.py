@@ -186,18 +186,27 @@ def iter_render(
     simulation: Simulation,
     settings: PipelineSettings,
     rng: np.random.Generator | None = None,
+    *,
+    backend: str = "scipy",
 ) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Render a simulation frame by frame.
 
     Yields ``(image, labels, semantic)`` per frame at camera resolution: the uint16
     image, the uint32 instance mask (values are cell ids) and the uint8 semantic mask.
     ``rng`` drives the noise and defaults to :func:`noise_rng` of ``settings``.
+    ``backend`` is a name of :func:`~napari_symbac.optics.batched.resolve_backend`:
+    ``"scipy"`` (default, frame by frame on the CPU) or ``"torch"`` (frames rendered
+    in batches on a torch device, yielded as each batch finishes; a different noise
+    stream, see :mod:`napari_symbac.optics.batched`).
     """
+    from napari_symbac.optics.batched import render_scenes
+
     _check_render_inputs(simulation, settings, rng)
     rng = noise_rng(settings) if rng is None else rng
     model = ForwardModel(settings.microscope, settings.render, settings.camera)
-    for scene in iter_scenes(simulation, settings):
-        yield model.render(scene, rng, cache=False), scene.camera_labels(), scene.semantic_mask()
+    scenes = iter_scenes(simulation, settings)
+    for scene, image in render_scenes(model, scenes, rng, backend=backend):
+        yield image, scene.camera_labels(), scene.semantic_mask()
 
 
 def render_simulation(
@@ -205,6 +214,8 @@ def render_simulation(
     settings: PipelineSettings,
     rng: np.random.Generator | None = None,
     progress: Progress | None = None,
+    *,
+    backend: str = "scipy",
 ) -> RenderedSeries:
     """Render every frame of a simulation with its masks.
 
@@ -219,11 +230,14 @@ def render_simulation(
         Generator for the noise; defaults to :func:`noise_rng` of ``settings``.
     progress
         Called as ``progress(done, total)`` after each frame.
+    backend
+        ``"scipy"`` (default), ``"torch"`` (batched on cuda when available, else cpu),
+        ``"torch:cpu"``, ``"torch:cuda"`` or ``"cupy"`` (see :func:`iter_render`).
     """
     _check_render_inputs(simulation, settings, rng)
     frames = []
     total = len(simulation.frames)
-    for frame in iter_render(simulation, settings, rng):
+    for frame in iter_render(simulation, settings, rng, backend=backend):
         frames.append(frame)
         if progress is not None:
             progress(len(frames), total)

@@ -105,3 +105,23 @@ def test_export_error_is_reported_and_the_widget_stays_usable(widget, qtbot, tmp
     assert any("Export failed" in str(n.message) for n in seen)
     assert widget.export_button.enabled
     assert not widget.cancel_button.enabled
+
+
+def test_backend_choice_renders_on_torch(widget, qtbot, tmp_path):
+    import json
+
+    assert widget.backend.choices[:2] == ("scipy", "torch")  # torch is installed in CI
+    assert widget.backend.value == "scipy"
+    widget.backend.value = "torch"
+    widget.n_items.value = 2
+    widget.val_fraction.value = 0.0
+    widget.folder.value = tmp_path / "dataset"
+    widget.export_button.native.click()
+    qtbot.waitUntil(lambda: widget.report is not None, timeout=120_000)
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=10_000)
+    assert widget.report.complete
+    manifest = json.loads((tmp_path / "dataset" / "manifest.json").read_text())
+    assert manifest["render_backend"].startswith("torch:")
+    images = sorted((tmp_path / "dataset" / "tiff" / "train" / "images").glob("*.tif"))
+    assert len(images) == 2
+    assert all(tifffile.imread(path).std() > 0 for path in images)

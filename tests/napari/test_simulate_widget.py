@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 pytest.importorskip("napari", reason="the [gui] extra (napari + Qt) is not installed")
@@ -175,3 +176,18 @@ def test_worker_error_is_a_notification_and_the_widget_recovers(widget, qtbot, m
     assert any("Simulation failed (RecursionError)" in str(n.message) for n in seen)
     assert widget.run_button.enabled
     assert not widget.cancel_button.enabled
+
+
+def test_backend_choice_renders_on_torch(widget, qtbot):
+    assert widget.backend.value == "scipy"
+    assert "torch" in widget.backend.choices  # torch is installed in CI
+    widget.backend.value = "torch"
+    widget.form.n_frames.value = 4
+    widget.run_button.native.click()
+    qtbot.waitUntil(lambda: RESULT_LABELS_LAYER in widget.viewer.layers, timeout=120_000)
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=10_000)
+    images = widget.viewer.layers[RESULT_IMAGE_LAYER].data
+    assert images.shape[0] == 4
+    assert images.dtype == np.uint16
+    assert images.std() > 0
+    assert widget.status.value.startswith("Done: 4 frames")

@@ -22,6 +22,7 @@ from magicgui.widgets import (
     SpinBox,
 )
 
+from napari_symbac._widgets._backend import backend_combo
 from napari_symbac._widgets._jobs import Job, blocking_steps
 from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
 from napari_symbac.export import FORMATS, ExportSettings
@@ -67,6 +68,7 @@ class ExportWidget(Container):
             name="val_fraction", label="validation fraction", value=0.1, min=0, max=0.9, step=0.05
         )
         self.workers = SpinBox(name="workers", label="worker processes", value=1, min=1, max=256)
+        self.backend = backend_combo()
         self.folder = FileEdit(name="folder", label="output folder", mode="d")
         self.export_button = PushButton(name="export", text="Export")
         self.cancel_button = PushButton(name="cancel", text="Cancel", enabled=False)
@@ -81,6 +83,7 @@ class ExportWidget(Container):
                 self.seed,
                 self.val_fraction,
                 self.workers,
+                self.backend,
                 self.folder,
                 self.export_button,
                 self.cancel_button,
@@ -158,6 +161,7 @@ class ExportWidget(Container):
             self.status.value = f"Invalid settings: {err}"
             return
         workers = self.workers.value
+        backend = self.backend.value
         origin = self.source.value.name if self.source.value is not None else "built-in defaults"
         cancelled = threading.Event()
 
@@ -165,7 +169,12 @@ class ExportWidget(Container):
             return (
                 yield from blocking_steps(
                     lambda progress, cancel: export_dataset(
-                        settings, folder, workers=workers, progress=progress, cancel=cancel
+                        settings,
+                        folder,
+                        workers=workers,
+                        progress=progress,
+                        cancel=cancel,
+                        backend=backend,
                     ),
                     cancelled.is_set,
                 )

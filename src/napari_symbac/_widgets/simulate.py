@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from magicgui.widgets import CheckBox, ComboBox, Container, Label, PushButton
 
+from napari_symbac._widgets._backend import backend_combo
 from napari_symbac._widgets._forms import SettingsForm, hide_label
 from napari_symbac._widgets._jobs import Job
 from napari_symbac._widgets._recording import (
@@ -81,6 +82,7 @@ class SimulateWidget(Container):
             text="also show optical path length (eq. OPL1-3)",
             tooltip="Add a hidden layer of the optical path length at render resolution.",
         )
+        self.backend = backend_combo()
         self.run_button = PushButton(
             text="Run simulation", name="run", tooltip="Simulate growth, then render every frame."
         )
@@ -94,6 +96,7 @@ class SimulateWidget(Container):
                 self.recording,
                 self.form,
                 self.show_opl,
+                self.backend,
                 self.run_button,
                 self.cancel_button,
                 self.status,
@@ -166,6 +169,7 @@ class SimulateWidget(Container):
         self._n_frames = n_frames
         self._pixel_um = pipeline.microscope.pixel_size_um
         with_opl = self.show_opl.value
+        backend = self.backend.value
         steps = (3 if with_opl else 2) * n_frames
 
         def work():
@@ -182,7 +186,7 @@ class SimulateWidget(Container):
                 yield index + 1, ("simulated", index + 1, scene.camera_labels())
             simulation = simulator.result()
             frames = []
-            for rendered in iter_render(simulation, pipeline):
+            for rendered in iter_render(simulation, pipeline, backend=backend):
                 frames.append(rendered)
                 yield n_frames + len(frames), ("rendered", len(frames), None)
             series = RenderedSeries.from_frames(frames)

@@ -76,6 +76,7 @@ def export_dataset(
     scheduler: str | None = None,
     progress: Progress | None = None,
     cancel: Cancel | None = None,
+    backend: str = "scipy",
 ) -> ExportReport:
     """Simulate, render and write a dataset; resume it if ``out_dir`` holds a partial run.
 
@@ -96,6 +97,12 @@ def export_dataset(
     cancel
         Callable returning ``True``, or a :class:`threading.Event`, checked between
         units; re-running the export completes it.
+    backend
+        Render backend (:func:`~napari_symbac.optics.batched.resolve_backend`):
+        ``"scipy"`` (default), ``"torch"`` (cuda when available, else cpu; the frames of
+        a time series in device batches), ``"torch:cpu"``, ``"torch:cuda"`` or
+        ``"cupy"``. A backend other than scipy is recorded in the manifest (its noise
+        stream differs), and resuming with another one is refused.
 
     Returns
     -------
@@ -109,7 +116,7 @@ def export_dataset(
         the message names the path and the fix.
     """
     return run_export(
-        PipelineSource(settings),
+        PipelineSource(settings, backend),
         out_dir,
         settings.formats,
         options={"coco_segmentation": settings.coco_segmentation},

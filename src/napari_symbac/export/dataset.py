@@ -371,10 +371,18 @@ class PipelineSource:
     """Items of an :class:`ExportSettings` dataset, made by simulate -> draw -> render.
 
     A unit is one image (``kind="frames"``) or one time series (``kind="timeseries"``).
+    ``backend`` renders the frames (a name of
+    :func:`~napari_symbac.optics.batched.resolve_backend`, resolved to its device):
+    ``"scipy"`` (default), ``"torch:cpu"`` / ``"torch:cuda"`` (the frames of a time
+    series in device batches; its own noise stream, so the manifest records it) or
+    ``"cupy"``.
     """
 
-    def __init__(self, settings: ExportSettings) -> None:
+    def __init__(self, settings: ExportSettings, backend: str = "scipy") -> None:
+        from napari_symbac.optics.batched import resolve_backend
+
         self.settings = settings
+        self.backend = resolve_backend(backend)
 
     @property
     def n_units(self) -> int:
@@ -391,7 +399,9 @@ class PipelineSource:
         return [f"s{unit:04d}_t{t:0{width}d}" for t in range(n_frames)]
 
     def header(self) -> dict[str, Any]:
+        backend = {} if self.backend == "scipy" else {"render_backend": self.backend}
         return {
+            **backend,
             "kind": self.settings.kind,
             "seed": self.settings.seed,
             "n_items": self.settings.n_images,
@@ -405,6 +415,7 @@ class PipelineSource:
 
     def make_unit(self, unit: int) -> list[ExportItem]:
         from napari_symbac.optics import ForwardModel
+        from napari_symbac.optics.batched import render_scenes
         from napari_symbac.pipeline import apply_cell_brightness
         from napari_symbac.scene import add_media_texture, draw_scene, field_of
 
@@ -427,23 +438,27 @@ class PipelineSource:
         max_label = max(parents, default=0)
         names = self.unit_names(unit)
         items = []
-        for k, frame in enumerate(frames):
-            scene = add_media_texture(
-                draw_scene(
-                    simulation.frames[frame],
-                    pipeline.simulation.trench,
-                    varied.microscope,
-                    varied.render,
-                    curvature=curvature,
-                    field=field_of(simulation),
-                ),
-                varied.render.texture_amplitude,
-                simulation.settings.seed,
-            )
-            scene = apply_cell_brightness(
-                scene, varied.render.cell_brightness_cv, simulation.settings.seed
-            )
-            image = model.render(scene, rng, cache=False)
+
+        def scenes():
+            for frame in frames:
+                scene = add_media_texture(
+                    draw_scene(
+                        simulation.frames[frame],
+                        pipeline.simulation.trench,
+                        varied.microscope,
+                        varied.render,
+                        curvature=curvature,
+                        field=field_of(simulation),
+                    ),
+                    varied.render.texture_amplitude,
+                    simulation.settings.seed,
+                )
+                yield apply_cell_brightness(
+                    scene, varied.render.cell_brightness_cv, simulation.settings.seed
+                )
+
+        rendered = render_scenes(model, scenes(), rng, backend=self.backend)
+        for k, (frame, (scene, image)) in enumerate(zip(frames, rendered)):
             labels, semantic = scene.camera_labels(), scene.semantic_mask()
             cnr, faint = self._visibility(image, labels, scene)
             if faint and s.visibility.action == "drop":
@@ -493,7 +508,7 @@ def regenerate(manifest_dir: str | os.PathLike, name: str) -> ExportItem:
     path = Path(manifest_dir) / "manifest.json"
     document = json.loads(path.read_text("utf-8"))
     settings = export_settings_from_dict(document["settings"])
-    source = PipelineSource(settings)
+    source = PipelineSource(settings, document.get("render_backend", "scipy"))
     for unit in range(source.n_units):
         if name in source.unit_names(unit):
             return next(item for item in source.make_unit(unit) if item.name == name)

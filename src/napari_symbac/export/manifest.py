@@ -158,6 +158,14 @@ def check_or_start_manifest(out_dir: Path, header: Mapping[str, Any]) -> dict[st
                 "to a new folder",
                 path,
             )
+        if old.get("render_backend", "scipy") != document.get("render_backend", "scipy"):
+            raise ExportError(
+                f"{out_dir} was rendered with the {old.get('render_backend', 'scipy')} backend, "
+                f"this run uses {document.get('render_backend', 'scipy')} (another noise "
+                "stream): resume it with --backend as recorded in manifest.json, or export "
+                "to a new folder",
+                path,
+            )
         if old.get("versions", {}).get("napari_symbac") != document["versions"]["napari_symbac"]:
             raise ExportError(
                 f"{out_dir} was exported by napari-symbac "

@@ -1,10 +1,21 @@
 """Optics: PSFs (eq. 6-14), convolution backends, the forward model, camera (eq. 17-19).
 
+The forward model's batched renderer on a torch device is :mod:`.batched` (torch is
+imported only when it is used).
+
 Also Fourier/histogram matching (section 6-7) and Perlin background texture (13.2).
 """
 
-from napari_symbac.optics import backends, camera, matching, psf, texture
+from napari_symbac.optics import (
+    backends,
+    batched,
+    camera,
+    matching,
+    psf,
+    texture,
+)
 from napari_symbac.optics.backends import available_backends, get_backend
+from napari_symbac.optics.batched import BatchedRenderer, render_scenes, resolve_backend
 from napari_symbac.optics.camera import (
     DarkCalibration,
     apply_camera_noise,
@@ -25,6 +36,7 @@ from napari_symbac.optics.texture import perlin_texture, random_perlin_texture, 
 
 __all__ = [
     "COMPONENTS",
+    "BatchedRenderer",
     "DarkCalibration",
     "ForwardModel",
     "Stage",
@@ -34,6 +46,7 @@ __all__ = [
     "apply_gaussian_noise",
     "available_backends",
     "backends",
+    "batched",
     "block_average",
     "born_wolf_psf_3d",
     "calibrate_camera",
@@ -48,6 +61,8 @@ __all__ = [
     "phase_contrast_psf",
     "psf",
     "random_perlin_texture",
+    "render_scenes",
+    "resolve_backend",
     "texture",
     "texture_stage",
 ]

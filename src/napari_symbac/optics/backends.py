@@ -13,7 +13,13 @@ from typing import Protocol
 import numpy as np
 from scipy import fft as sp_fft
 
-__all__ = ["ConvolutionBackend", "available_backends", "get_backend"]
+__all__ = [
+    "ConvolutionBackend",
+    "available_backends",
+    "get_backend",
+    "resample_fft_shape",
+    "resample_kernel_spectrum",
+]
 
 
 class ConvolutionBackend(Protocol):
@@ -51,6 +57,39 @@ def _fft_shape(images: np.ndarray) -> tuple[int, int]:
         sp_fft.next_fast_len(images.shape[1], real=True),
         sp_fft.next_fast_len(images.shape[2], real=True),
     )
+
+
+def resample_fft_shape(height: int, width: int, factor: int) -> tuple[int, int]:
+    """Transform size of the fused convolution + block average of ``(height, width)`` images.
+
+    Multiples of ``factor`` (for the alias sums of the decimation) whose quotient is a
+    fast length; every backend with a fused path uses it, so they transform alike.
+    """
+    m1 = sp_fft.next_fast_len(-(-height // factor))
+    m2 = sp_fft.next_fast_len(-(-width // factor), real=True)
+    return (m1 * factor, m2 * factor)
+
+
+def resample_kernel_spectrum(kernel: np.ndarray, factor: int, shape: tuple[int, int]) -> np.ndarray:
+    """Spectrum of ``kernel`` convolved with the ``factor x factor`` mean filter (complex64).
+
+    The kernel is rolled so that the samples the block average needs land on
+    multiples of ``factor`` (see :meth:`ScipyBackend.convolve_resample`), and the ``1 /
+    factor**2`` of the block mean and the ``1 / factor`` of each decimation's alias sum
+    are folded in, so the spectral product needs no further scaling. Computed in
+    float64 and rounded once, so every backend multiplies by the same numbers.
+    """
+    k64 = np.asarray(kernel, np.float64)
+    ky, kx = k64.shape
+    padded = np.zeros(shape, np.float64)
+    # kernel (*) box: the box sum of the kernel at every offset, divided by factor^2
+    for dy in range(factor):
+        for dx in range(factor):
+            padded[dy : dy + ky, dx : dx + kx] += k64
+    padded /= factor * factor
+    shift = (ky + factor - 2, kx + factor - 2)
+    padded = np.roll(padded, (-shift[0], -shift[1]), axis=(0, 1))
+    return (sp_fft.rfft2(padded) / factor).astype(np.complex64)
 
 
 class ScipyBackend:
@@ -128,21 +167,7 @@ class ScipyBackend:
         alias sum are folded in, so the spectral product needs no further scaling.
         """
         key = (self._kernel_digest(kernel), kernel.shape, shape, "resample", factor)
-
-        def make() -> np.ndarray:
-            k64 = np.asarray(kernel, np.float64)
-            ky, kx = k64.shape
-            padded = np.zeros(shape, np.float64)
-            # kernel (*) box: the box sum of the kernel at every offset, divided by factor^2
-            for dy in range(factor):
-                for dx in range(factor):
-                    padded[dy : dy + ky, dx : dx + kx] += k64
-            padded /= factor * factor
-            shift = (ky + factor - 2, kx + factor - 2)
-            padded = np.roll(padded, (-shift[0], -shift[1]), axis=(0, 1))
-            return (sp_fft.rfft2(padded) / factor).astype(np.complex64)
-
-        return self._cached(key, make)
+        return self._cached(key, lambda: resample_kernel_spectrum(kernel, factor, shape))
 
     def convolve_resample(
         self,
@@ -182,11 +207,8 @@ class ScipyBackend:
             weights = np.asarray(weights, np.float32)
             if weights.shape != (n,):
                 raise ValueError(f"weights {weights.shape} do not fit images {images.shape}")
-        # Transform sizes: multiples of ``factor`` (for the alias sums) whose quotient
-        # is a fast length.
-        m1 = sp_fft.next_fast_len(-(-height // factor))
-        m2 = sp_fft.next_fast_len(-(-width // factor), real=True)
-        shape = (m1 * factor, m2 * factor)
+        shape = resample_fft_shape(height, width, factor)
+        m1 = shape[0] // factor
         if weights is not None:
             combined = weights[0] * images[0]
             for weight, image in zip(weights[1:], images[1:]):
@@ -246,7 +268,8 @@ class CupyBackend:
             import cupy
         except ImportError as err:  # pragma: no cover - depends on the environment
             raise ValueError(
-                "the cupy backend needs CuPy: pip install 'napari-symbac[gpu]'"
+                "the cupy backend needs CuPy: pip install 'napari-symbac[gpu-cuda12]' "
+                "(or [gpu-cuda13] for a CUDA 13 driver)"
             ) from err
         self._cp = cupy
 

@@ -132,7 +132,10 @@ class ForwardModel:
     camera
         EMVA1288 camera of eq. 17.
     backend
-        ``"scipy"`` (default), ``"torch"``, ``"torch:cuda"``, ``"cupy"`` or a backend object.
+        Convolution backend of this model, frame by frame: ``"scipy"`` (default),
+        ``"torch"``, ``"torch:cuda"``, ``"cupy"`` or a backend object. Rendering many
+        frames on a GPU is :class:`~napari_symbac.optics.batched.BatchedRenderer` (every
+        stage on the device; ``--backend torch``).
     extra_stages
         Pointwise stages applied to the clean image before the camera.
 

@@ -1,0 +1,251 @@
+"""The batched torch path (optics/batched.py) against the CPU forward model, on torch's CPU."""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+
+import numpy as np
+import pytest
+import torch
+
+from napari_symbac.optics import ForwardModel, texture_stage
+from napari_symbac.optics.batched import BatchedRenderer, render_scenes, resolve_backend
+from napari_symbac.optics.camera import apply_camera_noise, apply_gaussian_noise
+from napari_symbac.pipeline import iter_scenes, render_simulation
+from napari_symbac.settings import (
+    AgarPadGeometry,
+    Camera,
+    Microscope,
+    PipelineSettings,
+    RenderSettings,
+    SimulationSettings,
+)
+from napari_symbac.sim import simulate
+
+CLEAN = RenderSettings(noise_model="none")
+SEPARATE = RenderSettings(noise_model="none", cell_phase_adu=300.0, device_phase_adu=120.0)
+
+
+@pytest.fixture(scope="module")
+def trench():
+    settings = SimulationSettings(n_frames=10, seed=1)
+    return settings, simulate(settings)
+
+
+@pytest.fixture(scope="module")
+def field():
+    settings = SimulationSettings(
+        geometry="agar_pad", n_frames=24, agar_pad=AgarPadGeometry(16.0, 14.0), seed=3
+    )
+    return settings, simulate(settings)
+
+
+def _scenes(sim_pair, render, microscope=None, last=5):
+    settings, simulation = sim_pair
+    pipeline = PipelineSettings(
+        simulation=settings, render=render, microscope=microscope or Microscope()
+    )
+    return pipeline, list(iter_scenes(simulation, pipeline))[-last:]
+
+
+def _relative_difference(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.abs(a - b).max() / np.ptp(b))
+
+
+@pytest.mark.parametrize("geometry", ["trench", "field"])
+@pytest.mark.parametrize(
+    ("render", "modality"),
+    [(CLEAN, "phase"), (SEPARATE, "phase"), (CLEAN, "fluorescence")],
+    ids=["phase", "separate-ring", "fluorescence"],
+)
+def test_noise_free_batch_equals_cpu_path(geometry, render, modality, request):
+    if modality == "fluorescence":
+        render = dataclasses.replace(
+            render, cell_intensity=2000.0, media_intensity=150.0, device_intensity=100.0
+        )
+    microscope = Microscope(modality=modality)
+    pipeline, scenes = _scenes(request.getfixturevalue(geometry), render, microscope)
+    model = ForwardModel(pipeline.microscope, pipeline.render, pipeline.camera)
+    expected = np.stack([model.render_clean(scene, cache=False) for scene in scenes])
+    got = BatchedRenderer(model, "cpu", batch_frames=3).render_clean(scenes)
+    assert got.dtype == np.float32
+    assert got.shape == expected.shape == (len(scenes), *scenes[0].camera_shape)
+    assert _relative_difference(got, expected) < 1e-5
+    # and the cached per-component path, which the live tuning uses
+    cached = np.stack([model.render_clean(scene) for scene in scenes])
+    assert _relative_difference(got, cached) < 1e-5
+
+
+def _noise_statistics(counts: np.ndarray, clean: np.ndarray, baseline: float, edges):
+    """Mean and variance of ``counts - baseline - clean`` per bin of the clean intensity."""
+    level = np.broadcast_to(clean, counts.shape)
+    residual = counts.astype(np.float64) - baseline - level
+    stats = []
+    for low, high in itertools.pairwise(edges):
+        inside = (level >= low) & (level < high)
+        values = residual[inside]
+        stats.append((values.mean(), values.var(), level[inside].mean(), values.size))
+    return np.array(stats)
+
+
+@pytest.mark.parametrize("noise_model", ["camera", "gaussian"])
+def test_noise_has_the_cpu_paths_mean_and_variance_per_level(trench, noise_model):
+    camera = Camera(baseline_adu=100.0, sensitivity_adu_per_e=2.9, dark_noise_e=8.0)
+    render = dataclasses.replace(CLEAN, noise_model=noise_model, gaussian_noise_sd_adu=15.0)
+    pipeline, scenes = _scenes(trench, render, last=1)
+    model = ForwardModel(pipeline.microscope, render, camera)
+    clean = model.render_clean(scenes[0], cache=False)
+    draws = 24
+    device = BatchedRenderer(model, "cpu").render(scenes * draws, np.random.default_rng(5))
+    rng = np.random.default_rng(5)
+    if noise_model == "camera":
+        cpu = np.stack([apply_camera_noise(clean, camera, rng) for _ in range(draws)])
+    else:
+        cpu = np.stack([apply_gaussian_noise(clean, camera, 15.0, rng) for _ in range(draws)])
+    assert device.dtype == np.uint16
+    assert device.shape == cpu.shape
+    edges = np.quantile(clean, np.linspace(0, 1, 7))
+    edges[-1] += 1.0
+    ours = _noise_statistics(device, clean, camera.baseline_adu, edges)
+    theirs = _noise_statistics(cpu, clean, camera.baseline_adu, edges)
+    for (m1, v1, level, n), (m2, v2, _, _) in zip(ours, theirs):
+        # means: both at the clean level (eq. 17 is unbiased), within 5 standard errors
+        assert abs(m1 - m2) < 5 * np.sqrt((v1 + v2) / n)
+        assert abs(m1) < 5 * np.sqrt(v1 / n)
+        # variances: the photon-transfer line (+ 1/12 of rounding), within 4 %
+        if noise_model == "camera":
+            s = camera.sensitivity_adu_per_e
+            theory = s * level + (s * camera.dark_noise_e) ** 2 + 1 / 12
+        else:
+            theory = 15.0**2 + 1 / 12
+        assert v1 == pytest.approx(v2, rel=0.04)
+        assert v1 == pytest.approx(theory, rel=0.04)
+
+
+def test_same_seed_same_images_whatever_the_batch_size(trench):
+    render = dataclasses.replace(CLEAN, noise_model="camera")
+    pipeline, scenes = _scenes(trench, render)
+    model = ForwardModel(pipeline.microscope, render, pipeline.camera)
+    a = BatchedRenderer(model, "cpu").render(scenes, np.random.default_rng(11))
+    b = BatchedRenderer(model, "cpu", batch_frames=2).render(scenes, np.random.default_rng(11))
+    # a batch of 10 frames is filled on the host by several threads
+    many = scenes * 2
+    c1 = BatchedRenderer(model, "cpu", batch_frames=10).render(many, np.random.default_rng(3))
+    c2 = BatchedRenderer(model, "cpu", batch_frames=1).render(many, np.random.default_rng(3))
+    np.testing.assert_array_equal(c1, c2)
+    c = BatchedRenderer(model, "cpu").render(scenes, np.random.default_rng(12))
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+    # each frame its own stream: two frames of one scene get different noise
+    twice = BatchedRenderer(model, "cpu").render(scenes[:1] * 2, np.random.default_rng(11))
+    assert not np.array_equal(twice[0], twice[1])
+    # noise model "none": the rounded clean image plus the baseline, as on the CPU
+    exact = BatchedRenderer(model.with_render(CLEAN), "cpu").render(
+        scenes, np.random.default_rng(0)
+    )
+    cpu = np.stack([model.with_render(CLEAN).render(s, np.random.default_rng(0)) for s in scenes])
+    assert np.abs(exact.astype(int) - cpu.astype(int)).max() <= 1
+
+
+def test_clipping_at_the_bit_depth(trench):
+    camera = Camera(bit_depth=8, baseline_adu=100.0)
+    render = dataclasses.replace(CLEAN, noise_model="camera")
+    pipeline, scenes = _scenes(trench, render, last=2)
+    model = ForwardModel(pipeline.microscope, render, camera)
+    images = BatchedRenderer(model, "cpu").render(scenes, np.random.default_rng(0))
+    assert images.max() == 255  # media at ~1000 ADU saturates an 8-bit camera
+    assert images.min() >= 0
+
+
+def test_refuses_stages_it_cannot_run_on_the_device(trench):
+    _, scenes = _scenes(trench, CLEAN, last=1)
+    coherent = dataclasses.replace(CLEAN, phase_model="partially_coherent")
+    with pytest.raises(ValueError, match=r"'phase_image' stage .* --backend scipy"):
+        BatchedRenderer(ForwardModel(Microscope(), coherent), "cpu")
+    texture = texture_stage(np.zeros(scenes[0].camera_shape), 0.1)
+    textured = ForwardModel(Microscope(), CLEAN, extra_stages=[texture])
+    with pytest.raises(ValueError, match=r"'texture' stage .* --backend scipy"):
+        BatchedRenderer(textured, "cpu")
+    model = ForwardModel(Microscope(), dataclasses.replace(CLEAN, upsample=4))
+    with pytest.raises(ValueError, match="upsample"):
+        BatchedRenderer(model, "cpu").render_clean(scenes)
+    with pytest.raises(ValueError, match="Generator"):
+        BatchedRenderer(ForwardModel(Microscope(), CLEAN), "cpu").render(scenes, 3)
+    with pytest.raises(ValueError, match="batch_frames"):
+        BatchedRenderer(ForwardModel(Microscope(), CLEAN), "cpu", batch_frames=0)
+
+
+def test_resolve_backend():
+    assert resolve_backend("scipy") == "scipy"
+    assert resolve_backend("torch", "cpu") == "torch:cpu"
+    assert resolve_backend("torch:cpu") == "torch:cpu"
+    expected = "torch:cuda" if torch.cuda.is_available() else "torch:cpu"
+    assert resolve_backend("torch") == expected
+    assert resolve_backend("torch", "auto") == expected
+    if not torch.cuda.is_available():
+        with pytest.raises(ValueError, match="sees no CUDA GPU"):
+            resolve_backend("torch", "cuda")
+    with pytest.raises(ValueError, match="unknown render backend"):
+        resolve_backend("opencl")
+    with pytest.raises(ValueError, match="torch backend only"):
+        resolve_backend("scipy", "cpu")
+    with pytest.raises(ValueError, match="unknown torch device"):
+        resolve_backend("torch", "tpu")
+
+
+def test_render_simulation_on_torch(trench):
+    settings, simulation = trench
+    pipeline = PipelineSettings(simulation=settings, render=CLEAN)
+    cpu = render_simulation(simulation, pipeline)
+    device = render_simulation(simulation, pipeline, backend="torch:cpu")
+    np.testing.assert_array_equal(device.labels, cpu.labels)
+    np.testing.assert_array_equal(device.semantic, cpu.semantic)
+    assert np.abs(device.images.astype(int) - cpu.images.astype(int)).max() <= 1
+    # render_scenes keeps the order of an iterable consumed batch by batch
+    model = ForwardModel(pipeline.microscope, pipeline.render, pipeline.camera)
+    scenes = list(iter_scenes(simulation, pipeline))
+    renderer = BatchedRenderer(model, "cpu", batch_frames=4)
+    assert renderer.frames_per_batch(scenes[0]) == 4
+    pairs = list(render_scenes(model, iter(scenes), np.random.default_rng(0), backend="torch:cpu"))
+    assert [id(scene) for scene, _ in pairs] == [id(scene) for scene in scenes]
+
+
+def test_benchmark_functions_return_their_rows():
+    """benchmarks/bench_gpu.py, which ``napari-symbac bench`` imports: shape of the rows."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_gpu.py"
+    spec = importlib.util.spec_from_file_location("bench_gpu", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    row = bench.measure_batch("torch:cpu", 3, bench.TRENCH, threads=1)
+    assert row["backend"] == "torch:cpu"
+    assert row["threads"] == 1
+    assert row["n_frames"] == 3
+    assert row["seconds"] > 0
+    assert row["frames_per_s"] == pytest.approx(3 / row["seconds"])
+    rows = bench.compare(2, (24, 20), runs=[("scipy", None), ("torch:cpu", None)], repeats=1)
+    assert [r["backend"] for r in rows] == ["scipy", "torch:cpu"]
+    assert rows[0]["vs_scipy"] == 1.0
+    assert rows[1]["vs_scipy"] == pytest.approx(rows[1]["frames_per_s"] / rows[0]["frames_per_s"])
+    assert ("scipy", None) in bench.available()
+
+
+def test_render_scenes_same_images_whatever_the_chunking(trench):
+    render = dataclasses.replace(CLEAN, noise_model="camera")
+    pipeline, scenes = _scenes(trench, render, last=7)
+    model = ForwardModel(pipeline.microscope, render, pipeline.camera)
+
+    def images(batch_frames):
+        pairs = render_scenes(
+            model,
+            iter(scenes),
+            np.random.default_rng(4),
+            backend="torch:cpu",
+            batch_frames=batch_frames,
+        )
+        return np.stack([image for _, image in pairs])
+
+    np.testing.assert_array_equal(images(3), images(7))
