@@ -33,6 +33,7 @@ import numpy as np
 import pymunk
 
 from napari_symbac.settings import SimulationSettings
+from napari_symbac.sim.bodies import BodyTable
 from napari_symbac.sim.cells import FrameCells, LineageRecord, Simulation
 from napari_symbac.sim.geometry import Layout, make_layout
 
@@ -176,12 +177,6 @@ class Simulator:
         self._space.add(body, shape)
         cell.body, cell.shape = body, shape
 
-    def _update_shape(self, cell: _Cell, length_um: float) -> None:
-        cell.shown_length_um = length_um
-        cell.shape.unsafe_set_radius(cell.width_um / 2 * SCALE - CORE_HALF_WIDTH)
-        cell.shape.unsafe_set_vertices(_core(length_um, cell.width_um))
-        _set_mass(cell.body, cell, length_um)
-
     def _remove(self, cell: _Cell, fate: str, last_frame: int) -> None:
         self._space.remove(cell.body, cell.shape)
         cell.body = cell.shape = None
@@ -314,40 +309,43 @@ class Simulator:
         widths = np.array([c.width_um for c in cells])
         half = np.maximum(np.array([c.length_um for c in cells]) - widths, widths) / 2
         bodies = [c.body for c in cells]
+        table = BodyTable(self._space, bodies)
         # Growth is spread over the iterations so that overlaps stay small (a capsule
         # whose core crosses another's would be pushed out sideways).
         start = np.array([c.shown_length_um for c in cells])
         ratio = np.array([c.length_um for c in cells]) / start
         rate = ratio ** (1.0 / iters) - 1.0  # relative elongation per iteration
-        growing = [i for i in range(n) if ratio[i] != 1.0]
+        growing = np.flatnonzero(ratio != 1.0)
+        grown = [cells[i] for i in growing.tolist()]
+        for cell in grown:  # the width is fixed within a frame
+            cell.shape.unsafe_set_radius(cell.width_um / 2 * SCALE - CORE_HALF_WIDTH)
         for it in range(iters):
             shown = start * ratio ** ((it + 1) / iters)
-            for i in growing:
-                self._update_shape(
-                    cells[i], cells[i].length_um if it + 1 == iters else float(shown[i])
-                )
-            pos = np.array([tuple(body.position) for body in bodies]) / SCALE
-            angle = -np.array([body.angle for body in bodies])
+            if it + 1 == iters:
+                lengths = [cell.length_um for cell in grown]
+            else:
+                lengths = shown[growing].tolist()
+            for cell, length in zip(grown, lengths):
+                _resize(cell, length)
+            pos, body_angle = table.poses()
+            pos = pos / SCALE
+            angle = -body_angle
             velocity = self._flow(pos, angle, shown, widths, rate, drift)
             if self.layout.box_walls_um is not None:
                 _clamp_at_walls(velocity, pos, angle, shown, widths, self.layout.box_walls_um)
             elif self.layout.segments_um and self.layout.flow != "none":
                 _clamp_at_contacts(velocity, bodies)
-            spin = np.zeros(n)
+            spin = 0.0
             if jitter > 0:
                 kicks = self.rng.normal(0.0, jitter, size=(n, 3))
                 velocity += kicks[:, :2]
                 spin = -kicks[:, 2] / half
             velocity *= SCALE
-            for body, (vx, vy), w in zip(bodies, velocity.tolist(), spin.tolist()):
-                body.velocity = (vx, vy)
-                body.angular_velocity = w
+            table.set_motion(velocity, spin)
             self._space.step(1.0)
             if self.layout.box_walls_um is not None:
                 _hold_inside_walls(bodies, shown, widths, self.layout.box_walls_um)
-        for body in bodies:
-            body.velocity = (0.0, 0.0)
-            body.angular_velocity = 0.0
+        table.set_motion(np.zeros((n, 2)), 0.0)
 
     def _groups(
         self, pos: np.ndarray, angle: np.ndarray, length: np.ndarray, width: np.ndarray
@@ -616,6 +614,14 @@ def _core(length_um: float, width_um: float) -> list[tuple[float, float]]:
     c = CORE_HALF_WIDTH
     h = (length_um - width_um) / 2 * SCALE + c
     return [(-c, -h), (c, -h), (c, h), (-c, h)]
+
+
+def _resize(cell: _Cell, length_um: float) -> None:
+    """Give a cell's physics shape the length ``length_um`` (its width is set once a
+    frame), with the mass and moment of inertia to match."""
+    cell.shown_length_um = length_um
+    cell.shape.unsafe_set_vertices(_core(length_um, cell.width_um))
+    _set_mass(cell.body, cell, length_um)
 
 
 def _set_mass(body: pymunk.Body, cell: _Cell, length_um: float) -> None:
