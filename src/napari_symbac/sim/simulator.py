@@ -441,32 +441,19 @@ class Simulator:
                 velocity[members, 1] -= drift * np.clip(y / extent, 0.0, 1.0)
         return velocity
 
-    def _remove_exited(self, frame: int) -> None:
-        x0, y0, x1, y1 = (v * SCALE for v in self.layout.exit_box_um)
-        kept = []
-        for cell in self._cells:
-            x, y = cell.body.position
-            if x0 <= x <= x1 and y0 <= y <= y1:
-                kept.append(cell)
-            else:
-                self._remove(cell, "exited", frame - 1)
-        self._cells = kept
-
-    def _snapshot(self) -> FrameCells:
+    def _remove_exited(self, frame: int) -> FrameCells:
+        """Remove the cells whose centre has left the exit box; the others' state."""
         cells = self._cells
-        n = len(cells)
-        ids = np.empty(n, dtype=np.int64)
-        x = np.empty(n)
-        y = np.empty(n)
-        angle = np.empty(n)
-        for i, cell in enumerate(cells):
-            ids[i] = cell.cell_id
-            px, py = cell.body.position
-            x[i], y[i] = px / SCALE, py / SCALE
-            angle[i] = _wrap(-cell.body.angle)
-        length = np.array([c.length_um for c in cells], dtype=float)
-        width = np.array([c.width_um for c in cells], dtype=float)
-        return FrameCells(ids, x, y, angle, length, width)
+        if not cells:
+            return _frame_cells([], np.empty((0, 2)), np.empty(0))
+        pos, body_angle = BodyTable(self._space, [c.body for c in cells]).poses()
+        x0, y0, x1, y1 = (v * SCALE for v in self.layout.exit_box_um)
+        x, y = pos[:, 0], pos[:, 1]
+        inside = (x0 <= x) & (x <= x1) & (y0 <= y) & (y <= y1)
+        for i in np.flatnonzero(~inside).tolist():
+            self._remove(cells[i], "exited", frame - 1)
+        self._cells = [cell for cell, keep in zip(cells, inside.tolist()) if keep]
+        return _frame_cells(self._cells, pos[inside], body_angle[inside])
 
     @property
     def frames_done(self) -> int:
@@ -492,8 +479,7 @@ class Simulator:
         if frame > 0:
             self._grow_and_divide(frame)
         self._physics()
-        self._remove_exited(frame)
-        cells = self._snapshot()
+        cells = self._remove_exited(frame)
         self._frames.append(cells)
         return cells
 
@@ -635,10 +621,21 @@ def _set_mass(body: pymunk.Body, cell: _Cell, length_um: float) -> None:
     )
 
 
-def _wrap(angle: float) -> float:
-    """Wrap an axis angle to ``(-pi/2, pi/2]`` (a rod looks the same turned by pi)."""
+def _frame_cells(cells: list[_Cell], pos: np.ndarray, body_angle: np.ndarray) -> FrameCells:
+    """The recorded state of ``cells``, whose bodies are at ``pos`` (world units) with
+    pymunk angles ``body_angle``."""
+    ids = np.array([c.cell_id for c in cells], dtype=np.int64)
+    length = np.array([c.length_um for c in cells], dtype=float)
+    width = np.array([c.width_um for c in cells], dtype=float)
+    x, y = pos[:, 0] / SCALE, pos[:, 1] / SCALE
+    return FrameCells(ids, x, y, _wrap(-body_angle), length, width)
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    """Wrap axis angles to ``(-pi/2, pi/2]`` (a rod looks the same turned by pi)."""
     wrapped = (angle + math.pi / 2) % math.pi - math.pi / 2
-    return math.pi / 2 if wrapped == -math.pi / 2 else wrapped
+    wrapped[wrapped == -math.pi / 2] = math.pi / 2
+    return wrapped
 
 
 def check_save_dir(save_dir: str | os.PathLike) -> Path:
