@@ -33,7 +33,7 @@ import numpy as np
 import pymunk
 
 from napari_symbac.settings import SimulationSettings
-from napari_symbac.sim.bodies import BodyTable
+from napari_symbac.sim.bodies import BodyTable, set_mass_and_moment
 from napari_symbac.sim.cells import FrameCells, LineageRecord, Simulation
 from napari_symbac.sim.geometry import Layout, make_layout
 
@@ -615,10 +615,8 @@ def _set_mass(body: pymunk.Body, cell: _Cell, length_um: float) -> None:
     :data:`ROTATIONAL_DRAG` (overdamped cells turn much less than they slide)."""
     r = cell.width_um / 2
     mass = math.pi * r * r * length_um - 2.0 / 3.0 * math.pi * r**3
-    body.mass = mass
-    body.moment = (
-        ROTATIONAL_DRAG * mass * ((length_um * SCALE) ** 2 + (cell.width_um * SCALE) ** 2) / 12
-    )
+    moment = ROTATIONAL_DRAG * mass * ((length_um * SCALE) ** 2 + (cell.width_um * SCALE) ** 2) / 12
+    set_mass_and_moment(body, mass, moment)
 
 
 def _frame_cells(cells: list[_Cell], pos: np.ndarray, body_angle: np.ndarray) -> FrameCells:
