@@ -16,7 +16,7 @@ import pymunk
 import pymunk.batch as batch
 from pymunk._chipmunk_cffi import lib as _chipmunk
 
-__all__ = ["BodyTable", "set_mass_and_moment"]
+__all__ = ["BodyTable", "reshape_body"]
 
 _POSE = batch.BodyFields.POSITION | batch.BodyFields.ANGLE
 _MOTION = batch.BodyFields.VELOCITY | batch.BodyFields.ANGULAR_VELOCITY
@@ -67,12 +67,20 @@ class BodyTable:
         batch.set_space_bodies(self._space, _MOTION, self._motion_buffer)
 
 
-def set_mass_and_moment(body: pymunk.Body, mass: float, moment: float) -> None:
-    """Set a dynamic body's mass and moment of inertia (both > 0).
+def reshape_body(
+    body: pymunk.Body,
+    shape: pymunk.Poly,
+    vertices: Sequence[tuple[float, float]],
+    mass: float,
+    moment: float,
+) -> None:
+    """Give ``shape`` new ``vertices`` (body coordinates, used as given) and its
+    dynamic ``body`` a new ``mass`` and ``moment`` of inertia (both > 0).
 
-    The same Chipmunk calls as the ``Body.mass`` and ``Body.moment`` setters, without
-    their Python checks (a fifth of a cell's cost in a large colony: every growing
-    cell's mass changes in every physics iteration).
+    The same Chipmunk calls as ``Poly.unsafe_set_vertices`` and the ``Body.mass`` and
+    ``Body.moment`` setters, without their Python layers: every growing cell is
+    reshaped in every physics iteration, and those layers cost more than the calls.
     """
+    _chipmunk.cpPolyShapeSetVertsRaw(shape._shape, len(vertices), vertices)
     _chipmunk.cpBodySetMass(body._body, mass)
     _chipmunk.cpBodySetMoment(body._body, moment)

@@ -33,7 +33,7 @@ import numpy as np
 import pymunk
 
 from napari_symbac.settings import SimulationSettings
-from napari_symbac.sim.bodies import BodyTable, set_mass_and_moment
+from napari_symbac.sim.bodies import BodyTable, reshape_body
 from napari_symbac.sim.cells import FrameCells, LineageRecord, Simulation
 from napari_symbac.sim.geometry import Layout, make_layout
 
@@ -164,7 +164,7 @@ class Simulator:
         if shown_length_um is not None:
             cell.shown_length_um = shown_length_um
         body = pymunk.Body(1.0, 1.0)
-        _set_mass(body, cell, cell.shown_length_um)
+        body.mass, body.moment = _mass_and_moment(cell.width_um, cell.shown_length_um)
         body.position = (x_um * SCALE, y_um * SCALE)
         body.angle = -angle_rad
         shape = pymunk.Poly(
@@ -326,7 +326,9 @@ class Simulator:
             else:
                 lengths = shown[growing].tolist()
             for cell, length in zip(grown, lengths):
-                _resize(cell, length)
+                cell.shown_length_um = length
+                w = cell.width_um
+                reshape_body(cell.body, cell.shape, _core(length, w), *_mass_and_moment(w, length))
             pos, body_angle = table.poses()
             pos = pos / SCALE
             angle = -body_angle
@@ -602,21 +604,13 @@ def _core(length_um: float, width_um: float) -> list[tuple[float, float]]:
     return [(-c, -h), (c, -h), (c, h), (-c, h)]
 
 
-def _resize(cell: _Cell, length_um: float) -> None:
-    """Give a cell's physics shape the length ``length_um`` (its width is set once a
-    frame), with the mass and moment of inertia to match."""
-    cell.shown_length_um = length_um
-    cell.shape.unsafe_set_vertices(_core(length_um, cell.width_um))
-    _set_mass(cell.body, cell, length_um)
-
-
-def _set_mass(body: pymunk.Body, cell: _Cell, length_um: float) -> None:
+def _mass_and_moment(width_um: float, length_um: float) -> tuple[float, float]:
     """Mass = volume; moment of inertia of a rod of that length, times
     :data:`ROTATIONAL_DRAG` (overdamped cells turn much less than they slide)."""
-    r = cell.width_um / 2
+    r = width_um / 2
     mass = math.pi * r * r * length_um - 2.0 / 3.0 * math.pi * r**3
-    moment = ROTATIONAL_DRAG * mass * ((length_um * SCALE) ** 2 + (cell.width_um * SCALE) ** 2) / 12
-    set_mass_and_moment(body, mass, moment)
+    moment = ROTATIONAL_DRAG * mass * ((length_um * SCALE) ** 2 + (width_um * SCALE) ** 2) / 12
+    return mass, moment
 
 
 def _frame_cells(cells: list[_Cell], pos: np.ndarray, body_angle: np.ndarray) -> FrameCells:
