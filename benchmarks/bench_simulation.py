@@ -263,6 +263,8 @@ def main() -> None:
         "--rounds", type=int, default=3, help="interleaved timing rounds per colony size"
     )
     args = parser.parse_args()
+    if min(args.colony_sizes) < 1 or args.rounds < 1 or args.symbac_frames < 1:
+        parser.error("--colony-sizes, --rounds and --symbac-frames must be >= 1")
     if args.case:
         result = _case(args.case, args)
         result["peak_mib"] = _peak_rss_mib()
