@@ -142,7 +142,9 @@ def measure_colony_scaling(
     The colony is grown once through all ``sizes``; its simulator is saved (pickled)
     when it first reaches each size. Then, ``rounds`` times, ``frames`` frames are
     timed from each saved state in turn, so that a change in the machine's load hits
-    every size alike.
+    every size alike. (A restored simulator has the same cells and contacts, but pymunk
+    rebuilds its spatial index, so its trajectory departs from an uninterrupted run's in
+    the last bits; the work per frame is the same.)
 
     Returns
     -------
