@@ -33,6 +33,7 @@ import numpy as np
 import pymunk
 
 from napari_symbac.settings import SimulationSettings
+from napari_symbac.sim.bodies import BodyTable, reshape_body
 from napari_symbac.sim.cells import FrameCells, LineageRecord, Simulation
 from napari_symbac.sim.geometry import Layout, make_layout
 
@@ -163,7 +164,7 @@ class Simulator:
         if shown_length_um is not None:
             cell.shown_length_um = shown_length_um
         body = pymunk.Body(1.0, 1.0)
-        _set_mass(body, cell, cell.shown_length_um)
+        body.mass, body.moment = _mass_and_moment(cell.width_um, cell.shown_length_um)
         body.position = (x_um * SCALE, y_um * SCALE)
         body.angle = -angle_rad
         shape = pymunk.Poly(
@@ -175,12 +176,6 @@ class Simulator:
         shape.friction = 0.0
         self._space.add(body, shape)
         cell.body, cell.shape = body, shape
-
-    def _update_shape(self, cell: _Cell, length_um: float) -> None:
-        cell.shown_length_um = length_um
-        cell.shape.unsafe_set_radius(cell.width_um / 2 * SCALE - CORE_HALF_WIDTH)
-        cell.shape.unsafe_set_vertices(_core(length_um, cell.width_um))
-        _set_mass(cell.body, cell, length_um)
 
     def _remove(self, cell: _Cell, fate: str, last_frame: int) -> None:
         self._space.remove(cell.body, cell.shape)
@@ -314,40 +309,45 @@ class Simulator:
         widths = np.array([c.width_um for c in cells])
         half = np.maximum(np.array([c.length_um for c in cells]) - widths, widths) / 2
         bodies = [c.body for c in cells]
+        table = BodyTable(self._space, bodies)
         # Growth is spread over the iterations so that overlaps stay small (a capsule
         # whose core crosses another's would be pushed out sideways).
         start = np.array([c.shown_length_um for c in cells])
         ratio = np.array([c.length_um for c in cells]) / start
         rate = ratio ** (1.0 / iters) - 1.0  # relative elongation per iteration
-        growing = [i for i in range(n) if ratio[i] != 1.0]
+        growing = np.flatnonzero(ratio != 1.0)
+        grown = [cells[i] for i in growing.tolist()]
+        for cell in grown:  # the width is fixed within a frame
+            cell.shape.unsafe_set_radius(cell.width_um / 2 * SCALE - CORE_HALF_WIDTH)
         for it in range(iters):
             shown = start * ratio ** ((it + 1) / iters)
-            for i in growing:
-                self._update_shape(
-                    cells[i], cells[i].length_um if it + 1 == iters else float(shown[i])
-                )
-            pos = np.array([tuple(body.position) for body in bodies]) / SCALE
-            angle = -np.array([body.angle for body in bodies])
+            if it + 1 == iters:
+                lengths = [cell.length_um for cell in grown]
+            else:
+                lengths = shown[growing].tolist()
+            for cell, length in zip(grown, lengths):
+                cell.shown_length_um = length
+                w = cell.width_um
+                reshape_body(cell.body, cell.shape, _core(length, w), *_mass_and_moment(w, length))
+            pos, body_angle = table.poses()
+            pos = pos / SCALE
+            angle = -body_angle
             velocity = self._flow(pos, angle, shown, widths, rate, drift)
             if self.layout.box_walls_um is not None:
                 _clamp_at_walls(velocity, pos, angle, shown, widths, self.layout.box_walls_um)
             elif self.layout.segments_um and self.layout.flow != "none":
                 _clamp_at_contacts(velocity, bodies)
-            spin = np.zeros(n)
+            spin = 0.0
             if jitter > 0:
                 kicks = self.rng.normal(0.0, jitter, size=(n, 3))
                 velocity += kicks[:, :2]
                 spin = -kicks[:, 2] / half
             velocity *= SCALE
-            for body, (vx, vy), w in zip(bodies, velocity.tolist(), spin.tolist()):
-                body.velocity = (vx, vy)
-                body.angular_velocity = w
+            table.set_motion(velocity, spin)
             self._space.step(1.0)
             if self.layout.box_walls_um is not None:
                 _hold_inside_walls(bodies, shown, widths, self.layout.box_walls_um)
-        for body in bodies:
-            body.velocity = (0.0, 0.0)
-            body.angular_velocity = 0.0
+        table.set_motion(np.zeros((n, 2)), 0.0)
 
     def _groups(
         self, pos: np.ndarray, angle: np.ndarray, length: np.ndarray, width: np.ndarray
@@ -443,32 +443,19 @@ class Simulator:
                 velocity[members, 1] -= drift * np.clip(y / extent, 0.0, 1.0)
         return velocity
 
-    def _remove_exited(self, frame: int) -> None:
-        x0, y0, x1, y1 = (v * SCALE for v in self.layout.exit_box_um)
-        kept = []
-        for cell in self._cells:
-            x, y = cell.body.position
-            if x0 <= x <= x1 and y0 <= y <= y1:
-                kept.append(cell)
-            else:
-                self._remove(cell, "exited", frame - 1)
-        self._cells = kept
-
-    def _snapshot(self) -> FrameCells:
+    def _remove_exited(self, frame: int) -> FrameCells:
+        """Remove the cells whose centre has left the exit box; the others' state."""
         cells = self._cells
-        n = len(cells)
-        ids = np.empty(n, dtype=np.int64)
-        x = np.empty(n)
-        y = np.empty(n)
-        angle = np.empty(n)
-        for i, cell in enumerate(cells):
-            ids[i] = cell.cell_id
-            px, py = cell.body.position
-            x[i], y[i] = px / SCALE, py / SCALE
-            angle[i] = _wrap(-cell.body.angle)
-        length = np.array([c.length_um for c in cells], dtype=float)
-        width = np.array([c.width_um for c in cells], dtype=float)
-        return FrameCells(ids, x, y, angle, length, width)
+        if not cells:
+            return _frame_cells([], np.empty((0, 2)), np.empty(0))
+        pos, body_angle = BodyTable(self._space, [c.body for c in cells]).poses()
+        x0, y0, x1, y1 = (v * SCALE for v in self.layout.exit_box_um)
+        x, y = pos[:, 0], pos[:, 1]
+        inside = (x0 <= x) & (x <= x1) & (y0 <= y) & (y <= y1)
+        for i in np.flatnonzero(~inside).tolist():
+            self._remove(cells[i], "exited", frame - 1)
+        self._cells = [cell for cell, keep in zip(cells, inside.tolist()) if keep]
+        return _frame_cells(self._cells, pos[inside], body_angle[inside])
 
     @property
     def frames_done(self) -> int:
@@ -494,8 +481,7 @@ class Simulator:
         if frame > 0:
             self._grow_and_divide(frame)
         self._physics()
-        self._remove_exited(frame)
-        cells = self._snapshot()
+        cells = self._remove_exited(frame)
         self._frames.append(cells)
         return cells
 
@@ -618,21 +604,30 @@ def _core(length_um: float, width_um: float) -> list[tuple[float, float]]:
     return [(-c, -h), (c, -h), (c, h), (-c, h)]
 
 
-def _set_mass(body: pymunk.Body, cell: _Cell, length_um: float) -> None:
+def _mass_and_moment(width_um: float, length_um: float) -> tuple[float, float]:
     """Mass = volume; moment of inertia of a rod of that length, times
     :data:`ROTATIONAL_DRAG` (overdamped cells turn much less than they slide)."""
-    r = cell.width_um / 2
+    r = width_um / 2
     mass = math.pi * r * r * length_um - 2.0 / 3.0 * math.pi * r**3
-    body.mass = mass
-    body.moment = (
-        ROTATIONAL_DRAG * mass * ((length_um * SCALE) ** 2 + (cell.width_um * SCALE) ** 2) / 12
-    )
+    moment = ROTATIONAL_DRAG * mass * ((length_um * SCALE) ** 2 + (width_um * SCALE) ** 2) / 12
+    return mass, moment
 
 
-def _wrap(angle: float) -> float:
-    """Wrap an axis angle to ``(-pi/2, pi/2]`` (a rod looks the same turned by pi)."""
+def _frame_cells(cells: list[_Cell], pos: np.ndarray, body_angle: np.ndarray) -> FrameCells:
+    """The recorded state of ``cells``, whose bodies are at ``pos`` (world units) with
+    pymunk angles ``body_angle``."""
+    ids = np.array([c.cell_id for c in cells], dtype=np.int64)
+    length = np.array([c.length_um for c in cells], dtype=float)
+    width = np.array([c.width_um for c in cells], dtype=float)
+    x, y = pos[:, 0] / SCALE, pos[:, 1] / SCALE
+    return FrameCells(ids, x, y, _wrap(-body_angle), length, width)
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    """Wrap axis angles to ``(-pi/2, pi/2]`` (a rod looks the same turned by pi)."""
     wrapped = (angle + math.pi / 2) % math.pi - math.pi / 2
-    return math.pi / 2 if wrapped == -math.pi / 2 else wrapped
+    wrapped[wrapped == -math.pi / 2] = math.pi / 2
+    return wrapped
 
 
 def check_save_dir(save_dir: str | os.PathLike) -> Path:

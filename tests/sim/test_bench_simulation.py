@@ -1,0 +1,54 @@
+"""The measuring functions of benchmarks/bench_simulation.py (imported by other tools)
+return what they promise; no timing is asserted."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+BENCH = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_simulation.py"
+
+
+@pytest.fixture(scope="module")
+def bench():
+    spec = importlib.util.spec_from_file_location("bench_simulation", BENCH)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_measure_trench(bench):
+    row = bench.measure_trench(12, length_um=10.0)
+    assert row["frames"] == 12
+    assert row["seconds"] > 0
+    assert row["frames_per_s"] == pytest.approx(12 / row["seconds"])
+    assert row["final_cells"] >= 1
+    assert row["cell_frames"] >= 12
+
+
+def test_measure_colony(bench):
+    row = bench.measure_colony(20, frames=2)
+    assert row["n_cells"] == 20
+    assert row["cells"] >= 20
+    assert row["frames"] == 2
+    assert row["final_cells"] >= row["cells"]
+    assert row["cell_frames"] >= 2 * row["cells"]
+    assert row["ms_per_cell_frame"] == pytest.approx(1e3 * row["seconds"] / row["cell_frames"])
+
+
+def test_measure_colony_scaling_times_every_size_from_the_same_state(bench):
+    out = bench.measure_colony_scaling((40, 12), frames=1, rounds=2)
+    assert list(out["sizes"]) == [12, 40]
+    small, large = out["sizes"][12], out["sizes"][40]
+    assert 12 <= small["cells"] < large["cells"]
+    for row in (small, large):
+        assert len(row["ms_per_cell_frame_rounds"]) == 2
+        assert row["ms_per_cell_frame"] == min(row["ms_per_cell_frame_rounds"])
+    assert out["ratio"] == pytest.approx(large["ms_per_cell_frame"] / small["ms_per_cell_frame"])
+
+
+def test_measure_colony_rejects_an_empty_colony(bench):
+    with pytest.raises(ValueError, match="n_cells"):
+        bench.measure_colony(0)
