@@ -19,6 +19,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from napari_symbac.scene._field import Field, field_images
+from napari_symbac.scene._raster import rasterise_cells
 from napari_symbac.settings import Microscope, RenderSettings, TrenchGeometry
 
 __all__ = [
@@ -359,45 +360,6 @@ def spherocylinder_distance(
     return np.sqrt((s - s_on) ** 2 + t**2)
 
 
-def _chord(
-    xc: np.ndarray,
-    yc: np.ndarray,
-    centre_um: tuple[float, float],
-    angle_rad: float,
-    length_um: float,
-    width_um: float,
-    curvature: tuple[float, float, float] | None,
-) -> np.ndarray:
-    """float32 chord ``2 sqrt(r^2 - d^2)`` (0 beyond ``r``) over the grid ``yc x xc``.
-
-    The same float64 arithmetic as ``spherocylinder_distance`` followed by the chord,
-    value for value, with the temporaries reused in place.
-    """
-    r = width_um / 2
-    half = max(length_um / 2 - r, 0.0)
-    dx = xc - centre_um[0]
-    dy = yc - centre_um[1]
-    sin_a, cos_a = math.sin(angle_rad), math.cos(angle_rad)
-    s = np.add((dy * cos_a)[:, None], (dx * sin_a)[None, :])  # = dx sin + dy cos
-    t = np.subtract((dx * cos_a)[None, :], (dy * sin_a)[:, None])
-    if curvature is not None:
-        a_um, b, c = curvature
-        ell = np.clip((s + length_um / 2) / length_um, 0.0, 1.0)
-        t -= a_um * np.sin(ell * math.pi / b + c)
-    d = np.maximum(s, -half)  # s - clip(s, -half, half), squared
-    np.minimum(d, half, out=d)
-    np.subtract(s, d, out=d)
-    np.square(d, out=d)
-    np.square(t, out=t)
-    np.add(d, t, out=d)
-    np.sqrt(d, out=d)
-    np.multiply(d, d, out=d)
-    np.subtract(r * r, d, out=d)
-    np.maximum(d, 0.0, out=d)
-    np.sqrt(d, out=d)
-    return np.multiply(2, d, out=np.empty(d.shape, np.float32), casting="same_kind")
-
-
 def _check_curvature(curvature: Mapping[int, tuple[float, float, float]] | None) -> dict:
     if curvature is None:
         return {}
@@ -611,76 +573,20 @@ def draw_scene(
         trench_frac, device = field_images(field, shape, border, px)
         device_fp = _device_fingerprint(field, shape, border, px)
 
-    boxes = []
-    for i in range(n):
-        r = width[i] / 2
-        cx, cy = off_x + x[i], off_y + y[i]
-        bend = curv.get(int(ids[i]))
-        # Bounding box of the cell: the rotated rectangle of half-length ``length / 2``
-        # along the axis and half-width ``r + |a|`` across it (the chord is zero outside).
-        half_len = length[i] / 2
-        half_wid = r + (abs(bend[0]) if bend else 0.0)
-        sin_a, cos_a = abs(math.sin(angle[i])), abs(math.cos(angle[i]))
-        reach_x = min(half_len * sin_a + half_wid * cos_a, half_len + half_wid) + 2 * px
-        reach_y = min(half_len * cos_a + half_wid * sin_a, half_len + half_wid) + 2 * px
-        j0 = max(math.floor((cx - reach_x) / px) + border, 0)
-        j1 = min(math.ceil((cx + reach_x) / px) + border + 1, shape[1])
-        i0 = max(math.floor((cy - reach_y) / px) + border, 0)
-        i1 = min(math.ceil((cy + reach_y) / px) + border + 1, shape[0])
-        if j0 < j1 and i0 < i1:
-            boxes.append((i, i0, i1, j0, j1, cx, cy, bend))
-
-    cells_frac = np.zeros(shape, np.float32)
-    labels = np.zeros(shape, np.uint32)
-    media = trench_frac.copy()
-    if boxes:
-        # The chord thickness of the thickest cell at each pixel (um) and its id are
-        # drawn into work images; outside the cells' boxes there is no cell (cells =
-        # 0, media = trench, label 0). When the boxes about fill their bounding
-        # rectangle (a trench), the work images are that rectangle, contiguous, and it
-        # is converted to fractions at once (each pixel once; where no box reaches,
-        # the thickness 0 gives the same cells, media and label as outside).
-        # Otherwise (cells scattered over a pad) they are the whole frame, converted
-        # box by box (overlaps are recomputed identically).
-        top = min(b[1] for b in boxes)
-        bottom = max(b[2] for b in boxes)
-        left = min(b[3] for b in boxes)
-        right = max(b[4] for b in boxes)
-        covered = sum((b[2] - b[1]) * (b[4] - b[3]) for b in boxes)
-        dense = (bottom - top) * (right - left) <= 2 * covered
-        if dense:
-            thickness = np.zeros((bottom - top, right - left), np.float32)
-            work_labels = np.zeros(thickness.shape, np.uint32)
-            regions = [(slice(top, bottom), slice(left, right))]
-        else:
-            top = left = 0
-            thickness = np.zeros(shape, np.float32)
-            work_labels = labels
-            regions = [(slice(b[1], b[2]), slice(b[3], b[4])) for b in boxes]
-        for i, i0, i1, j0, j1, cx, cy, bend in boxes:
-            local = (slice(i0 - top, i1 - top), slice(j0 - left, j1 - left))
-            chord = _chord(xc[j0:j1], yc[i0:i1], (cx, cy), angle[i], length[i], width[i], bend)
-            box_t = thickness[local]
-            take = chord > box_t
-            np.maximum(box_t, chord, out=box_t)  # = chord where it is larger
-            np.putmask(work_labels[local], take, np.uint32(ids[i]))
-        depth = np.float32(depth_um)
-        for region in regions:
-            local = (
-                slice(region[0].start - top, region[0].stop - top),
-                slice(region[1].start - left, region[1].stop - left),
-            )
-            trench_box = np.array(trench_frac[region])
-            frac = thickness[local] / depth
-            np.minimum(frac, np.float32(1.0), out=frac)
-            np.minimum(frac, trench_box, out=frac)  # cells cannot sit inside the PDMS
-            cells_frac[region] = frac
-            box_l = work_labels[local]
-            np.putmask(box_l, frac <= 0, np.uint32(0))
-            if dense:
-                labels[region] = box_l
-            np.subtract(trench_box, frac, out=trench_box)
-            media[region] = np.maximum(trench_box, np.float32(0.0), out=trench_box)
+    cells_frac, media, labels = rasterise_cells(
+        xc,
+        yc,
+        px,
+        border,
+        trench_frac,
+        depth_um,
+        ids,
+        (off_x + x, off_y + y),
+        angle,
+        length,
+        width,
+        curv,
+    )
     for image in (cells_frac, media, labels, ids):
         image.setflags(write=False)
     # Every image is C-contiguous, finite, of the right dtype and shape by construction.
