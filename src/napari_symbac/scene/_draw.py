@@ -586,6 +586,7 @@ def draw_scene(
         length,
         width,
         curv,
+        closed=field is None or bool(field.walls_um),
     )
     for image in (cells_frac, media, labels, ids):
         image.setflags(write=False)

@@ -92,6 +92,57 @@ def chord(
     return np.multiply(2, d, out=np.empty(d.shape, np.float32), casting="same_kind")
 
 
+#: A squared distance this far (relatively) beyond ``r^2`` gives a zero chord in
+#: float64 whatever the rounding of the square root and its square (8 ulp suffice).
+_OUTSIDE = 1.0 + 2.0**-40
+
+
+def _chord_in_box(
+    xc: np.ndarray,
+    yc: np.ndarray,
+    centre_um: tuple[float, float],
+    angle_rad: float,
+    length_um: float,
+    width_um: float,
+    curvature: tuple[float, float, float] | None,
+) -> np.ndarray:
+    """:func:`chord` over ``yc x xc``, its square roots taken only inside the cell.
+
+    The squared distance ``q`` is computed everywhere in the box; where ``q >= r^2
+    (1 + 2^-40)`` the chord is 0 exactly (``sqrt(q)^2 >= r^2`` after rounding), so
+    the rest of the arithmetic, two square roots included, runs on the pixels
+    inside only. The values are those of :func:`chord`, bit for bit.
+    """
+    r = width_um / 2
+    half = max(length_um / 2 - r, 0.0)
+    dx = xc - centre_um[0]
+    dy = yc - centre_um[1]
+    sin_a, cos_a = math.sin(angle_rad), math.cos(angle_rad)
+    s = np.add((dy * cos_a)[:, None], (dx * sin_a)[None, :])
+    t = np.subtract((dx * cos_a)[None, :], (dy * sin_a)[:, None])
+    if curvature is not None:
+        a_um, b, c = curvature
+        ell = np.clip((s + length_um / 2) / length_um, 0.0, 1.0)
+        t -= a_um * np.sin(ell * math.pi / b + c)
+    d = np.clip(s, -half, half)  # = minimum(maximum(s, -half), half)
+    np.subtract(s, d, out=d)
+    np.square(d, out=d)
+    np.square(t, out=t)
+    np.add(d, t, out=d)
+    out = np.zeros(d.shape, np.float32)
+    inside = np.flatnonzero(d < (r * r) * _OUTSIDE)
+    if inside.size:
+        q = d.ravel()[inside]
+        np.sqrt(q, out=q)
+        np.multiply(q, q, out=q)
+        np.subtract(r * r, q, out=q)
+        np.maximum(q, 0.0, out=q)
+        np.sqrt(q, out=q)
+        chord_in = np.multiply(2, q, out=np.empty(q.shape, np.float32), casting="same_kind")
+        out.ravel()[inside] = chord_in
+    return out
+
+
 def rasterise_cells(
     xc: np.ndarray,
     yc: np.ndarray,
@@ -105,6 +156,8 @@ def rasterise_cells(
     length_um: np.ndarray,
     width_um: np.ndarray,
     curvature: dict[int, tuple[float, float, float]],
+    *,
+    closed: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Cells and media fractions and instance labels of one frame (eq. OPL2-3).
 
@@ -118,7 +171,7 @@ def rasterise_cells(
     border
         Pixels outside the field of view on each side.
     open_frac
-        Fraction of each pixel open to cells and media (1 - device), read-only.
+        Fraction of each pixel open to cells and media (``1 - device``, in [0, 1]).
     depth_um
         Optical depth: a chord as thick as it fills the pixel (``cells = 1``).
     ids
@@ -129,6 +182,9 @@ def rasterise_cells(
         Axis angle (0 = along the rows' axis, y), pole-to-pole length and width.
     curvature
         ``id -> (a_um, b, c)`` of eq. 1 for the bent cells.
+    closed
+        Whether ``open_frac`` may be 0 somewhere (device): a cell pixel there keeps
+        no label. ``False`` (an agar pad) skips that test.
 
     Returns
     -------
@@ -141,48 +197,47 @@ def rasterise_cells(
     shape = open_frac.shape
     cells = np.zeros(shape, np.float32)
     labels = np.zeros(shape, np.uint32)
-    media = open_frac.copy()
     n = ids.size
     if n == 0:
-        return cells, media, labels
+        return cells, open_frac.copy(), labels
     cx, cy = centres_um
     bend = np.array([abs(curvature[int(i)][0]) if int(i) in curvature else 0.0 for i in ids])
     boxes = cell_boxes(cx, cy, angle_rad, length_um, width_um / 2 + bend, px, border, shape)
-    # The thickness of the thickest cell so far; zero pages are only touched in boxes.
-    thickness = np.zeros(shape, np.float32)
+    # The media image holds the thickness of the thickest cell so far until every
+    # cell is drawn (its zero pages are only touched in the boxes), then ``open -
+    # cells``, which is >= 0 since cells <= open.
+    media = np.zeros(shape, np.float32)
     depth = np.float32(depth_um)
-    one = np.float32(1.0)
-    zero_f = np.float32(0.0)
-    for k in range(n):
-        i0, i1, j0, j1 = boxes[k].tolist()
+    columns = zip(
+        boxes.tolist(),
+        ids.tolist(),
+        cx.tolist(),
+        cy.tolist(),
+        angle_rad.tolist(),
+        length_um.tolist(),
+        width_um.tolist(),
+    )
+    for (i0, i1, j0, j1), cell_id, x, y, angle, length, width in columns:
         if i0 >= i1 or j0 >= j1:
             continue
-        cell_id = int(ids[k])
-        thick = chord(
-            xc[j0:j1],
-            yc[i0:i1],
-            (float(cx[k]), float(cy[k])),
-            float(angle_rad[k]),
-            float(length_um[k]),
-            float(width_um[k]),
-            curvature.get(cell_id),
+        thick = _chord_in_box(
+            xc[j0:j1], yc[i0:i1], (x, y), angle, length, width, curvature.get(cell_id)
         )
         box = (slice(i0, i1), slice(j0, j1))
-        box_t = thickness[box]
+        box_t = media[box]
         take = thick > box_t
         np.maximum(box_t, thick, out=box_t)
+        # min(thickness / depth, 1, open) = min(thickness / depth, open): open <= 1.
         frac = np.divide(thick, depth, out=thick)
-        np.minimum(frac, one, out=frac)
         open_box = open_frac[box]
         np.minimum(frac, open_box, out=frac)
         box_c = cells[box]
         np.maximum(box_c, frac, out=box_c)
         box_l = labels[box]
         np.putmask(box_l, take, np.uint32(cell_id))
-        # A pixel inside the PDMS (open = 0) keeps no label, whichever cell is there.
-        np.logical_and(take, frac <= 0, out=take)
-        np.putmask(box_l, take, np.uint32(0))
-        box_m = media[box]
-        np.subtract(open_box, box_c, out=box_m)
-        np.maximum(box_m, zero_f, out=box_m)
+        if closed:
+            # A pixel inside the PDMS (open = 0) keeps no label, whichever cell is there.
+            np.logical_and(take, frac <= 0, out=take)
+            np.putmask(box_l, take, np.uint32(0))
+    np.subtract(open_frac, cells, out=media)
     return cells, media, labels
