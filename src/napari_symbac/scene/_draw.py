@@ -189,7 +189,7 @@ class Scene:
         # Computed once per scene (the labels are read-only, so they cannot go stale).
         cached = self.__dict__.get("_masks")
         if cached is None:
-            cached = _camera_masks(self.interior(self.labels), self.upsample, self.camera_shape)
+            cached = _camera_masks(self.labels, self.border_px, self.upsample, self.camera_shape)
             for mask in cached:
                 mask.setflags(write=False)
             object.__setattr__(self, "_masks", cached)
@@ -260,40 +260,79 @@ class Scene:
 _FIELDS = tuple(f.name for f in fields(Scene))
 
 
+#: Block rows of the label image compared at a time when looking for mixed blocks
+#: (so that the passes over them stay in the cache).
+_MASK_CHUNK_ROWS = 32
+
+
+def _mixed_blocks(inner: np.ndarray, first: np.ndarray, u: int) -> np.ndarray:
+    """Where a ``u x u`` block of ``inner`` holds more than one label (bool, camera px).
+
+    A block is uniform when its rows 1..u-1 equal its row 0 (compared along whole
+    image rows) and row 0 equals its first pixel ``first`` (the strided sample).
+    """
+    rows, cols = first.shape
+    mixed = np.empty((rows, cols), bool)
+    for r0 in range(0, rows, _MASK_CHUNK_ROWS):
+        r1 = min(r0 + _MASK_CHUNK_ROWS, rows)
+        band = inner[r0 * u : r1 * u]
+        top = band[0::u]
+        same = top == band[1::u]
+        for dy in range(2, u):
+            same &= top == band[dy::u]
+        uniform = same[:, 0::u] & same[:, 1::u]
+        for dx in range(2, u):
+            uniform &= same[:, dx::u]
+        for dx in range(1, u):
+            uniform &= top[:, dx::u] == first[r0:r1]
+        np.logical_not(uniform, out=mixed[r0:r1])
+    return mixed
+
+
 def _camera_masks(
-    inner: np.ndarray, u: int, camera_shape: tuple[int, int]
+    labels_full: np.ndarray, border: int, u: int, camera_shape: tuple[int, int]
 ) -> tuple[np.ndarray, np.ndarray]:
     """Instance and semantic masks at camera resolution of the interior labels.
 
     The majority vote runs only on the ``u x u`` blocks that are not uniform (cell
-    edges); the semantic mask reuses the instance mask.
+    edges); the semantic mask is one 3 x 3 minimum filter of the instance mask.
     """
     rows, cols = camera_shape
+    b = border
+    inner = labels_full[b : b + rows * u, b : b + cols * u]
     labels = np.array(inner[::u, ::u], np.uint32)
     if u > 1:
-        mixed = np.zeros((rows, cols), bool)
-        for dy in range(u):
-            for dx in range(u):
-                if dy or dx:
-                    mixed |= inner[dy::u, dx::u] != labels
-        ri, ci = np.nonzero(mixed)
+        ri, ci = np.nonzero(_mixed_blocks(inner, labels, u))
         if ri.size:
             # (blocks, u * u) in row-major order within each block: argmax takes the
-            # first of equal counts.
-            blocks = inner.reshape(rows, u, cols, u)[ri, :, ci, :].reshape(ri.size, u * u)
+            # first of equal counts. Gathered by flat index from the whole image.
+            width = labels_full.shape[1]
+            corner = (ri * u + b) * width + (ci * u + b)
+            offsets = (np.arange(u)[:, None] * width + np.arange(u)[None, :]).ravel()
+            flat = np.ascontiguousarray(labels_full).ravel()
+            blocks = flat[corner[:, None] + offsets[None, :]]
             counts = np.zeros(blocks.shape, np.uint8 if u * u < 256 else np.int64)
             for k in range(u * u):
                 counts += blocks == blocks[:, k : k + 1]
             labels[ri, ci] = blocks[np.arange(ri.size), np.argmax(counts, axis=-1)]
-    padded = np.pad(labels, 1)
-    conflict = np.zeros((rows, cols), bool)
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            if dy or dx:
-                neighbour = padded[1 + dy : 1 + dy + rows, 1 + dx : 1 + dx + cols]
-                conflict |= (neighbour > 0) & (neighbour < labels)
-    semantic = ((labels > 0) & ~conflict).astype(np.uint8)
-    return labels, semantic
+    # A cell pixel is 0 in the semantic mask where a neighbour (8-connectivity) is
+    # a cell of a smaller id. With ``labels - 1`` (background wraps round to the
+    # largest value) that is where the 3 x 3 minimum is below the pixel's own value.
+    # The minimum runs on the flattened padded image (contiguous): along a row over
+    # offsets -1, 0, 1, then across rows over offsets -width, 0, width.
+    width = cols + 2
+    shifted = np.full((rows + 2, width), np.iinfo(np.uint32).max, np.uint32)
+    np.subtract(labels, np.uint32(1), out=shifted[1:-1, 1:-1])
+    flat = shifted.ravel()
+    across = np.minimum(flat[:-2], flat[1:-1])
+    np.minimum(across, flat[2:], out=across)
+    lowest = np.empty(rows * width, np.uint32)
+    np.minimum(across[: -2 * width], across[width:-width], out=lowest[:-2])
+    np.minimum(lowest[:-2], across[2 * width :], out=lowest[:-2])
+    # lowest[i * width + j] is the minimum around padded (i + 1, j + 1).
+    keep = np.equal(lowest.reshape(rows, width)[:, :cols], shifted[1:-1, 1:-1])
+    keep &= labels > 0
+    return labels, keep.view(np.uint8)
 
 
 def _checked_image(name: str, image: Any) -> np.ndarray:
