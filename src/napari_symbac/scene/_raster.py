@@ -25,25 +25,27 @@ def cell_boxes(
     cy: np.ndarray,
     angle_rad: np.ndarray,
     length_um: np.ndarray,
-    half_width_um: np.ndarray,
+    width_um: np.ndarray,
+    bend_um: np.ndarray,
     px: float,
     border: int,
     shape: tuple[int, int],
 ) -> np.ndarray:
     """``(n, 4)`` int64 boxes ``(i0, i1, j0, j1)`` of every cell, clipped to ``shape``.
 
-    The box holds the rotated rectangle of half-length ``length / 2`` along the axis
-    and half-width ``half_width_um`` across it (the radius plus any bend), grown by
-    two pixels; the chord is zero outside it. ``cx, cy`` are the cell centres in um
-    from the field of view's top-left corner, inside a border of ``border`` pixels
-    of ``px`` um. Empty boxes have ``i0 >= i1`` or ``j0 >= j1``.
+    A pixel has a non-zero chord only within ``r + |a|`` of the cell's axis segment
+    (``r`` the radius, ``a`` the bend of eq. 1, the segment ``length - width``
+    long): with ``e`` the distance beyond the segment's end and ``t'`` the bent
+    offset across it, ``e^2 + t'^2 < r^2`` and ``|t - t'| <= |a|`` give a distance
+    to the segment of at most ``sqrt(r^2 + a^2 + 2 |a| r) = r + |a|``. The box is
+    that region's bounding box grown by two pixels (rounding). ``cx, cy`` are the
+    cell centres in um from the field of view's top-left corner, inside a border of
+    ``border`` pixels of ``px`` um. Empty boxes have ``i0 >= i1`` or ``j0 >= j1``.
     """
-    half_len = length_um / 2
-    sin_a, cos_a = np.abs(np.sin(angle_rad)), np.abs(np.cos(angle_rad))
-    reach_x = np.minimum(half_len * sin_a + half_width_um * cos_a, half_len + half_width_um)
-    reach_y = np.minimum(half_len * cos_a + half_width_um * sin_a, half_len + half_width_um)
-    reach_x = reach_x + 2 * px
-    reach_y = reach_y + 2 * px
+    half_segment = np.maximum(length_um / 2 - width_um / 2, 0.0)
+    reach = width_um / 2 + bend_um + 2 * px
+    reach_x = half_segment * np.abs(np.sin(angle_rad)) + reach
+    reach_y = half_segment * np.abs(np.cos(angle_rad)) + reach
     boxes = np.empty((cx.size, 4), np.int64)
     boxes[:, 0] = np.maximum(np.floor((cy - reach_y) / px) + border, 0)
     boxes[:, 1] = np.minimum(np.ceil((cy + reach_y) / px) + border + 1, shape[0])
@@ -202,7 +204,7 @@ def rasterise_cells(
         return cells, open_frac.copy(), labels
     cx, cy = centres_um
     bend = np.array([abs(curvature[int(i)][0]) if int(i) in curvature else 0.0 for i in ids])
-    boxes = cell_boxes(cx, cy, angle_rad, length_um, width_um / 2 + bend, px, border, shape)
+    boxes = cell_boxes(cx, cy, angle_rad, length_um, width_um, bend, px, border, shape)
     # The media image holds the thickness of the thickest cell so far until every
     # cell is drawn (its zero pages are only touched in the boxes), then ``open -
     # cells``, which is >= 0 since cells <= open.
