@@ -260,9 +260,9 @@ class Scene:
 _FIELDS = tuple(f.name for f in fields(Scene))
 
 
-#: Block rows of the label image compared at a time when looking for mixed blocks
-#: (so that the passes over them stay in the cache).
-_MASK_CHUNK_ROWS = 32
+#: Label pixels compared at a time when looking for mixed blocks (a band of block
+#: rows, so that the passes over it stay in the cache).
+_MASK_CHUNK_PIXELS = 1 << 18
 
 
 def _mixed_blocks(inner: np.ndarray, first: np.ndarray, u: int) -> np.ndarray:
@@ -273,8 +273,9 @@ def _mixed_blocks(inner: np.ndarray, first: np.ndarray, u: int) -> np.ndarray:
     """
     rows, cols = first.shape
     mixed = np.empty((rows, cols), bool)
-    for r0 in range(0, rows, _MASK_CHUNK_ROWS):
-        r1 = min(r0 + _MASK_CHUNK_ROWS, rows)
+    chunk = max(1, _MASK_CHUNK_PIXELS // (u * u * cols))
+    for r0 in range(0, rows, chunk):
+        r1 = min(r0 + chunk, rows)
         band = inner[r0 * u : r1 * u]
         top = band[0::u]
         same = top == band[1::u]
