@@ -293,3 +293,31 @@ def test_upsample_one_and_no_cells_are_bit_identical():
     empty = _random_cells(rng, 0, (0.0, 1.0), (0.0, 1.0))
     scene = draw_scene(empty, trench, MIC, render)
     _assert_same(scene, reference_scene(empty, trench, MIC, render))
+
+
+@pytest.mark.parametrize("geometry", ["trench", "agar_pad"])
+def test_simulated_frames_are_bit_identical(geometry):
+    """Frames of a real (short) simulation, curvature and all, as the pipeline draws them."""
+    from napari_symbac.pipeline import _curvature
+    from napari_symbac.scene import field_of
+    from napari_symbac.settings import AgarPadGeometry, SimulationSettings
+    from napari_symbac.sim import simulate
+
+    settings = SimulationSettings(
+        geometry=geometry,
+        n_frames=40,
+        seed=7,
+        do_transformation=True,
+        agar_pad=AgarPadGeometry(14.0, 12.0),
+    )
+    simulation = simulate(settings)
+    render = RenderSettings(upsample=3, psf_radius_px=20)
+    curvature = _curvature(simulation)
+    assert curvature  # bent cells are drawn too
+    field = field_of(simulation)
+    for index in (5, 25, 39):
+        frame = simulation.frames[index]
+        scene = draw_scene(frame, settings.trench, MIC, render, curvature, field=field)
+        expected = reference_scene(frame, settings.trench, MIC, render, curvature, field=field)
+        _assert_same(scene, expected)
+    assert len(frame.ids) > 3
