@@ -107,13 +107,15 @@ def _chord_in_box(
     length_um: float,
     width_um: float,
     curvature: tuple[float, float, float] | None,
+    pixel_area_um2: float,
 ) -> np.ndarray:
     """:func:`chord` over ``yc x xc``, its square roots taken only inside the cell.
 
     The squared distance ``q`` is computed everywhere in the box; where ``q >= r^2
     (1 + 2^-40)`` the chord is 0 exactly (``sqrt(q)^2 >= r^2`` after rounding), so
     the rest of the arithmetic, two square roots included, runs on the pixels
-    inside only. The values are those of :func:`chord`, bit for bit.
+    inside only, unless the cell (at most ``width x length``) covers most of the
+    box. The values are those of :func:`chord`, bit for bit.
     """
     r = width_um / 2
     half = max(length_um / 2 - r, 0.0)
@@ -131,6 +133,15 @@ def _chord_in_box(
     np.square(d, out=d)
     np.square(t, out=t)
     np.add(d, t, out=d)
+    if width_um * length_um > 0.6 * d.size * pixel_area_um2:
+        # The cell fills most of its box (e.g. upright in a trench): finishing every
+        # pixel costs less than picking out the inside ones.
+        np.sqrt(d, out=d)
+        np.multiply(d, d, out=d)
+        np.subtract(r * r, d, out=d)
+        np.maximum(d, 0.0, out=d)
+        np.sqrt(d, out=d)
+        return np.multiply(2, d, out=np.empty(d.shape, np.float32), casting="same_kind")
     out = np.zeros(d.shape, np.float32)
     inside = np.flatnonzero(d < (r * r) * _OUTSIDE)
     if inside.size:
@@ -205,41 +216,68 @@ def rasterise_cells(
     cx, cy = centres_um
     bend = np.array([abs(curvature[int(i)][0]) if int(i) in curvature else 0.0 for i in ids])
     boxes = cell_boxes(cx, cy, angle_rad, length_um, width_um, bend, px, border, shape)
-    # The media image holds the thickness of the thickest cell so far until every
-    # cell is drawn (its zero pages are only touched in the boxes), then ``open -
-    # cells``, which is >= 0 since cells <= open.
+    drawn = np.flatnonzero((boxes[:, 0] < boxes[:, 1]) & (boxes[:, 2] < boxes[:, 3]))
     media = np.zeros(shape, np.float32)
+    if drawn.size == 0:
+        np.copyto(media, open_frac)
+        return cells, media, labels
     depth = np.float32(depth_um)
-    columns = zip(
-        boxes.tolist(),
-        ids.tolist(),
-        cx.tolist(),
-        cy.tolist(),
-        angle_rad.tolist(),
-        length_um.tolist(),
-        width_um.tolist(),
-    )
-    for (i0, i1, j0, j1), cell_id, x, y, angle, length, width in columns:
-        if i0 >= i1 or j0 >= j1:
-            continue
+    top, left = boxes[drawn, 0].min(), boxes[drawn, 2].min()
+    bottom, right = boxes[drawn, 1].max(), boxes[drawn, 3].max()
+    covered = ((boxes[drawn, 1] - boxes[drawn, 0]) * (boxes[drawn, 3] - boxes[drawn, 2])).sum()
+    # Dense (the boxes about fill their bounding rectangle, a trench): the thickness
+    # and labels are drawn into that rectangle, which is converted to fractions in one
+    # pass. Scattered (a pad): each cell converts its own box as it is drawn, so no
+    # pass covers the empty frame; the thickness lives in the media image meanwhile.
+    dense = (bottom - top) * (right - left) <= 2 * covered
+    if dense:
+        rect = (slice(top, bottom), slice(left, right))
+        thickness = np.zeros((bottom - top, right - left), np.float32)
+        work_labels = np.zeros(thickness.shape, np.uint32)
+    else:
+        top = left = 0
+        thickness, work_labels = media, labels
+    pixel_area = px * px
+    for k in drawn.tolist():
+        i0, i1, j0, j1 = boxes[k].tolist()
+        cell_id = int(ids[k])
         thick = _chord_in_box(
-            xc[j0:j1], yc[i0:i1], (x, y), angle, length, width, curvature.get(cell_id)
+            xc[j0:j1],
+            yc[i0:i1],
+            (float(cx[k]), float(cy[k])),
+            float(angle_rad[k]),
+            float(length_um[k]),
+            float(width_um[k]),
+            curvature.get(cell_id),
+            pixel_area,
         )
-        box = (slice(i0, i1), slice(j0, j1))
-        box_t = media[box]
+        local = (slice(i0 - top, i1 - top), slice(j0 - left, j1 - left))
+        box_t = thickness[local]
         take = thick > box_t
         np.maximum(box_t, thick, out=box_t)
-        # min(thickness / depth, 1, open) = min(thickness / depth, open): open <= 1.
+        box_l = work_labels[local]
+        np.putmask(box_l, take, np.uint32(cell_id))
+        if dense:
+            continue
+        # min(thickness / depth, 1, open) = min(thickness / depth, open): open <= 1;
+        # the maximum over cells of this non-decreasing map of the chord is the map
+        # of the maximum chord.
+        box = (slice(i0, i1), slice(j0, j1))
         frac = np.divide(thick, depth, out=thick)
         open_box = open_frac[box]
         np.minimum(frac, open_box, out=frac)
         box_c = cells[box]
         np.maximum(box_c, frac, out=box_c)
-        box_l = labels[box]
-        np.putmask(box_l, take, np.uint32(cell_id))
         if closed:
             # A pixel inside the PDMS (open = 0) keeps no label, whichever cell is there.
             np.logical_and(take, frac <= 0, out=take)
             np.putmask(box_l, take, np.uint32(0))
+    if dense:
+        frac = np.divide(thickness, depth, out=thickness)
+        np.minimum(frac, open_frac[rect], out=frac)
+        cells[rect] = frac
+        if closed:
+            np.putmask(work_labels, frac <= 0, np.uint32(0))
+        labels[rect] = work_labels
     np.subtract(open_frac, cells, out=media)
     return cells, media, labels
