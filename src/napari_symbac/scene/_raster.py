@@ -210,17 +210,12 @@ def rasterise_cells(
     shape = open_frac.shape
     cells = np.zeros(shape, np.float32)
     labels = np.zeros(shape, np.uint32)
-    n = ids.size
-    if n == 0:
-        return cells, open_frac.copy(), labels
     cx, cy = centres_um
     bend = np.array([abs(curvature[int(i)][0]) if int(i) in curvature else 0.0 for i in ids])
     boxes = cell_boxes(cx, cy, angle_rad, length_um, width_um, bend, px, border, shape)
     drawn = np.flatnonzero((boxes[:, 0] < boxes[:, 1]) & (boxes[:, 2] < boxes[:, 3]))
-    media = np.zeros(shape, np.float32)
     if drawn.size == 0:
-        np.copyto(media, open_frac)
-        return cells, media, labels
+        return cells, open_frac.copy(), labels
     depth = np.float32(depth_um)
     top, left = boxes[drawn, 0].min(), boxes[drawn, 2].min()
     bottom, right = boxes[drawn, 1].max(), boxes[drawn, 3].max()
@@ -236,6 +231,7 @@ def rasterise_cells(
         work_labels = np.zeros(thickness.shape, np.uint32)
     else:
         top = left = 0
+        media = np.zeros(shape, np.float32)
         thickness, work_labels = media, labels
     pixel_area = px * px
     for k in drawn.tolist():
@@ -274,10 +270,14 @@ def rasterise_cells(
             np.putmask(box_l, take, np.uint32(0))
     if dense:
         frac = np.divide(thickness, depth, out=thickness)
-        np.minimum(frac, open_frac[rect], out=frac)
+        open_rect = open_frac[rect]
+        np.minimum(frac, open_rect, out=frac)
         cells[rect] = frac
         if closed:
             np.putmask(work_labels, frac <= 0, np.uint32(0))
         labels[rect] = work_labels
-    np.subtract(open_frac, cells, out=media)
+        media = open_frac.copy()
+        np.subtract(open_rect, frac, out=media[rect])
+    else:
+        np.subtract(open_frac, cells, out=media)
     return cells, media, labels
