@@ -321,3 +321,18 @@ def test_simulated_frames_are_bit_identical(geometry):
         expected = reference_scene(frame, settings.trench, MIC, render, curvature, field=field)
         _assert_same(scene, expected)
     assert len(frame.ids) > 3
+
+
+@pytest.mark.parametrize("chunk_pixels", [1, 700, 5000])
+def test_masks_computed_in_bands_are_bit_identical(monkeypatch, chunk_pixels):
+    """Large frames compute the masks a band of rows at a time: bands of 1 to ~20 rows."""
+    from napari_symbac.scene import _draw
+
+    monkeypatch.setattr(_draw, "_MASK_CHUNK_PIXELS", chunk_pixels)
+    rng = np.random.default_rng(50)
+    field = Field(9.0, 7.0)
+    render = RenderSettings(upsample=3, psf_radius_px=6)
+    cells, curvature = _with_ties(_random_cells(rng, 30, (-1.0, 10.0), (-1.0, 8.0)), rng)
+    scene = draw_scene(cells, TrenchGeometry(), MIC, render, curvature, field=field)
+    expected = reference_scene(cells, TrenchGeometry(), MIC, render, curvature, field=field)
+    _assert_same(scene, expected)

@@ -265,15 +265,19 @@ _FIELDS = tuple(f.name for f in fields(Scene))
 _MASK_CHUNK_PIXELS = 1 << 18
 
 
-def _mixed_blocks(inner: np.ndarray, first: np.ndarray, u: int) -> np.ndarray:
-    """Where a ``u x u`` block of ``inner`` holds more than one label (bool, camera px).
+def _mixed_blocks(
+    inner: np.ndarray, first: np.ndarray, u: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns (camera px) of the ``u x u`` blocks of ``inner`` holding more
+    than one label, in row-major order.
 
     A block is uniform when its rows 1..u-1 equal its row 0 (compared along whole
-    image rows) and row 0 equals its first pixel ``first`` (the strided sample).
+    image rows) and row 0 equals its first pixel ``first`` (the strided sample);
+    a band of block rows at a time, so that the passes stay in the cache.
     """
     rows, cols = first.shape
-    mixed = np.empty((rows, cols), bool)
     chunk = max(1, _MASK_CHUNK_PIXELS // (u * u * cols))
+    found_rows, found_cols = [], []
     for r0 in range(0, rows, chunk):
         r1 = min(r0 + chunk, rows)
         band = inner[r0 * u : r1 * u]
@@ -286,8 +290,43 @@ def _mixed_blocks(inner: np.ndarray, first: np.ndarray, u: int) -> np.ndarray:
             uniform &= same[:, dx::u]
         for dx in range(1, u):
             uniform &= top[:, dx::u] == first[r0:r1]
-        np.logical_not(uniform, out=mixed[r0:r1])
-    return mixed
+        ri, ci = np.nonzero(~uniform)
+        found_rows.append(ri + r0)
+        found_cols.append(ci)
+    return np.concatenate(found_rows), np.concatenate(found_cols)
+
+
+def _semantic(labels: np.ndarray) -> np.ndarray:
+    """Semantic mask (uint8) of an instance mask: cells, minus pixels next to smaller ids.
+
+    A cell pixel is 0 where a neighbour (8-connectivity) is a cell of a smaller id.
+    With ``labels - 1`` (background wraps round to the largest value) that is where
+    the 3 x 3 minimum is below the pixel's own value. The minimum runs on the
+    flattened, padded rows of a band at a time (contiguous, cache-sized): along a
+    row over offsets -1, 0, 1, then across rows over offsets -width, 0, width.
+    """
+    rows, cols = labels.shape
+    width = cols + 2
+    keep = np.empty((rows, cols), np.uint8)
+    chunk = max(1, _MASK_CHUNK_PIXELS // width)
+    one = np.uint32(1)
+    for r0 in range(0, rows, chunk):
+        r1 = min(r0 + chunk, rows)
+        lo, hi = max(r0 - 1, 0), min(r1 + 1, rows)
+        # rows r0 - 1 .. r1 of the image, padded with the largest value
+        shifted = np.full((r1 - r0 + 2, width), np.iinfo(np.uint32).max, np.uint32)
+        np.subtract(labels[lo:hi], one, out=shifted[lo - r0 + 1 : hi - r0 + 1, 1:-1])
+        flat = shifted.ravel()
+        across = np.minimum(flat[:-2], flat[1:-1])
+        np.minimum(across, flat[2:], out=across)
+        lowest = np.empty((r1 - r0) * width, np.uint32)
+        np.minimum(across[: -2 * width], across[width:-width], out=lowest[:-2])
+        np.minimum(lowest[:-2], across[2 * width :], out=lowest[:-2])
+        # lowest[i * width + j] is the minimum around band row i, column j.
+        own = np.equal(lowest.reshape(r1 - r0, width)[:, :cols], shifted[1:-1, 1:-1])
+        own &= labels[r0:r1] > 0
+        keep[r0:r1] = own
+    return keep
 
 
 def _camera_masks(
@@ -303,7 +342,7 @@ def _camera_masks(
     inner = labels_full[b : b + rows * u, b : b + cols * u]
     labels = np.array(inner[::u, ::u], np.uint32)
     if u > 1:
-        ri, ci = np.nonzero(_mixed_blocks(inner, labels, u))
+        ri, ci = _mixed_blocks(inner, labels, u)
         if ri.size:
             # (blocks, u * u) in row-major order within each block: argmax takes the
             # first of equal counts. Gathered by flat index from the whole image.
@@ -316,24 +355,7 @@ def _camera_masks(
             for k in range(u * u):
                 counts += blocks == blocks[:, k : k + 1]
             labels[ri, ci] = blocks[np.arange(ri.size), np.argmax(counts, axis=-1)]
-    # A cell pixel is 0 in the semantic mask where a neighbour (8-connectivity) is
-    # a cell of a smaller id. With ``labels - 1`` (background wraps round to the
-    # largest value) that is where the 3 x 3 minimum is below the pixel's own value.
-    # The minimum runs on the flattened padded image (contiguous): along a row over
-    # offsets -1, 0, 1, then across rows over offsets -width, 0, width.
-    width = cols + 2
-    shifted = np.full((rows + 2, width), np.iinfo(np.uint32).max, np.uint32)
-    np.subtract(labels, np.uint32(1), out=shifted[1:-1, 1:-1])
-    flat = shifted.ravel()
-    across = np.minimum(flat[:-2], flat[1:-1])
-    np.minimum(across, flat[2:], out=across)
-    lowest = np.empty(rows * width, np.uint32)
-    np.minimum(across[: -2 * width], across[width:-width], out=lowest[:-2])
-    np.minimum(lowest[:-2], across[2 * width :], out=lowest[:-2])
-    # lowest[i * width + j] is the minimum around padded (i + 1, j + 1).
-    keep = np.equal(lowest.reshape(rows, width)[:, :cols], shifted[1:-1, 1:-1])
-    keep &= labels > 0
-    return labels, keep.view(np.uint8)
+    return labels, _semantic(labels)
 
 
 def _checked_image(name: str, image: Any) -> np.ndarray:
