@@ -38,12 +38,13 @@ def cell_boxes(
     long): with ``e`` the distance beyond the segment's end and ``t'`` the bent
     offset across it, ``e^2 + t'^2 < r^2`` and ``|t - t'| <= |a|`` give a distance
     to the segment of at most ``sqrt(r^2 + a^2 + 2 |a| r) = r + |a|``. The box is
-    that region's bounding box grown by two pixels (rounding). ``cx, cy`` are the
-    cell centres in um from the field of view's top-left corner, inside a border of
-    ``border`` pixels of ``px`` um. Empty boxes have ``i0 >= i1`` or ``j0 >= j1``.
+    that region's bounding box grown by one pixel (the rounding of the box and of
+    the distances is orders of magnitude smaller). ``cx, cy`` are the cell centres
+    in um from the field of view's top-left corner, inside a border of ``border``
+    pixels of ``px`` um. Empty boxes have ``i0 >= i1`` or ``j0 >= j1``.
     """
     half_segment = np.maximum(length_um / 2 - width_um / 2, 0.0)
-    reach = width_um / 2 + bend_um + 2 * px
+    reach = width_um / 2 + bend_um + px
     reach_x = half_segment * np.abs(np.sin(angle_rad)) + reach
     reach_y = half_segment * np.abs(np.cos(angle_rad)) + reach
     boxes = np.empty((cx.size, 4), np.int64)
