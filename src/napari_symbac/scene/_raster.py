@@ -4,11 +4,14 @@
 ``media`` fractions and the instance labels of :class:`~napari_symbac.scene.Scene`
 (eq. OPL2: the chord ``2 sqrt(r^2 - d^2)`` of a 3-D spherocylinder at mid-depth).
 The work is proportional to the cells' area, not the frame's: each cell is drawn
-in its bounding box and the per-pixel rules are folded into that one pass. Where
-cells overlap, the thickest wins the pixel (the first in the input order of equal
-chords), and the fraction is ``min(thickness / depth, 1, open)``; since that is a
-non-decreasing function of the thickness, the maximum of the cells' fractions is
-the fraction of the maximum thickness, so each cell can write its own.
+in its bounding box. When the boxes about fill their bounding rectangle (a trench)
+the thickness and labels are drawn into that rectangle and converted to fractions
+once; scattered cells (a pad) convert their own boxes as they are drawn, so that no
+pass covers the empty frame. Where cells overlap, the thickest wins the pixel (the
+first in the input order of equal chords), and the fraction is ``min(thickness /
+depth, 1, open)``; since that is a non-decreasing function of the thickness, the
+maximum of the cells' fractions is the fraction of the maximum thickness, so each
+cell can write its own.
 """
 
 from __future__ import annotations
@@ -70,29 +73,7 @@ def chord(
     :func:`~napari_symbac.scene.spherocylinder_distance`, in the same float64
     arithmetic value for value, with the temporaries reused in place.
     """
-    r = width_um / 2
-    half = max(length_um / 2 - r, 0.0)
-    dx = xc - centre_um[0]
-    dy = yc - centre_um[1]
-    sin_a, cos_a = math.sin(angle_rad), math.cos(angle_rad)
-    s = np.add((dy * cos_a)[:, None], (dx * sin_a)[None, :])  # = dx sin + dy cos
-    t = np.subtract((dx * cos_a)[None, :], (dy * sin_a)[:, None])
-    if curvature is not None:
-        a_um, b, c = curvature
-        ell = np.clip((s + length_um / 2) / length_um, 0.0, 1.0)
-        t -= a_um * np.sin(ell * math.pi / b + c)
-    d = np.maximum(s, -half)  # s - clip(s, -half, half), squared
-    np.minimum(d, half, out=d)
-    np.subtract(s, d, out=d)
-    np.square(d, out=d)
-    np.square(t, out=t)
-    np.add(d, t, out=d)
-    np.sqrt(d, out=d)
-    np.multiply(d, d, out=d)
-    np.subtract(r * r, d, out=d)
-    np.maximum(d, 0.0, out=d)
-    np.sqrt(d, out=d)
-    return np.multiply(2, d, out=np.empty(d.shape, np.float32), casting="same_kind")
+    return _chord_in_box(xc, yc, centre_um, angle_rad, length_um, width_um, curvature, 0.0)
 
 
 #: A squared distance this far (relatively) beyond ``r^2`` gives a zero chord in
@@ -115,8 +96,9 @@ def _chord_in_box(
     The squared distance ``q`` is computed everywhere in the box; where ``q >= r^2
     (1 + 2^-40)`` the chord is 0 exactly (``sqrt(q)^2 >= r^2`` after rounding), so
     the rest of the arithmetic, two square roots included, runs on the pixels
-    inside only, unless the cell (at most ``width x length``) covers most of the
-    box. The values are those of :func:`chord`, bit for bit.
+    inside only, unless the cell (at most ``width x length``, against pixels of
+    ``pixel_area_um2``) covers most of the box. Either way the values are those of
+    the whole formula, bit for bit.
     """
     r = width_um / 2
     half = max(length_um / 2 - r, 0.0)
