@@ -187,6 +187,11 @@ def colony_cells(
     side_um = size_px * pixel_um
     k = int(np.ceil(np.sqrt(n_cells)))
     pitch = side_um / k
+    if 0.95 * pitch <= 2.0:
+        raise ValueError(
+            f"{n_cells} cells do not fit a {size_px} px field as 2-3.6 um cells (grid pitch "
+            f"{pitch:.2f} um): use fewer cells or a larger field"
+        )
     slots = rng.permutation(k * k)[:n_cells]
     length = rng.uniform(2.0, min(3.6, 0.95 * pitch), n_cells)
     cells = SimpleNamespace(
@@ -227,6 +232,7 @@ def measure_field_draw(size_px: int, n_cells: int, rounds: int = 5) -> dict:
     scene = draw()
     kernel = ForwardModel(microscope, render, Camera()).kernel()
     floor = fft_floor(scene.cells, kernel)
+    render_shape = scene.shape
     del scene
     times: dict[str, list[float]] = {"draw": [], "masks": [], "floor": []}
     for _ in range(rounds):
@@ -239,7 +245,7 @@ def measure_field_draw(size_px: int, n_cells: int, rounds: int = 5) -> dict:
     return {
         "size_px": size_px,
         "n_cells": n_cells,
-        "render_shape": (size_px * 3 + 100, size_px * 3 + 100),
+        "render_shape": render_shape,
         "rounds": rounds,
         "draw_s": med["draw"],
         "masks_s": med["masks"],
