@@ -18,26 +18,46 @@ separate virtual environment (``SYMBAC_PYTHON``, default
   convolve + rescale, histogram matching, noise, masks), once with SyMBac's own
   automatic canvas expansion and once with the canvas cut to our render size.
 
-Run: ``python benchmarks/bench_render.py``
+Issue 15's ratios are printed too, each against one plain FFT convolution of the
+same render-resolution frame measured in the same run (the "FFT floor":
+``irfft2(rfft2(frame) * K)`` at fast transform lengths, the kernel's spectrum ``K``
+computed beforehand, one thread):
+
+* the full per-frame path of the trench frame (draw + fast render with noise +
+  masks, what ``pipeline.iter_render`` does per frame) / floor (goal <= 1.5);
+* drawing a field (scene + instance and semantic masks) of 1024 x 1024 camera px
+  with 360 cells and 2048 x 2048 with 1440 cells / floor (goal <= 0.3).
+
+The measuring code is in plain functions returning dicts, for a harness to import:
+:func:`measure_trench_frame` and :func:`measure_field_draw`. Steps are timed
+interleaved (one of each in turn, medians of the rounds) in CPU time of the
+calling thread (``time.thread_time``; every step timed is single-threaded), which a
+shared, loaded machine disturbs less than wall time.
+
+Run: ``python benchmarks/bench_render.py [--quick]``
 """
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import os
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from types import SimpleNamespace
 
 import numpy as np
 from scipy import fft as sp_fft
 
 from napari_symbac.optics import ForwardModel
-from napari_symbac.scene import draw_scene
+from napari_symbac.scene import Field, draw_scene
 from napari_symbac.settings import Camera, Microscope, RenderSettings, TrenchGeometry
 
 REPEATS = 30
+#: Field sizes (camera px) and cell counts of issue 15's drawing goal.
+FIELD_CASES = ((1024, 360), (2048, 1440))
 
 
 def best_of(fn, repeats: int = REPEATS) -> float:
@@ -60,6 +80,179 @@ def frame_cells(shift_um: float) -> SimpleNamespace:
         length_um=np.full(n, 3.1),
         width_um=np.full(n, 1.0),
     )
+
+
+def trench_settings() -> tuple[Microscope, RenderSettings, TrenchGeometry, Camera]:
+    """The benchmark's trench: 256 x 46 camera px, upsample 3, radius-50 PSF."""
+    return (
+        Microscope(),
+        RenderSettings(upsample=3, psf_radius_px=50),
+        TrenchGeometry(length_um=15.84, width_um=1.4, margin_um=0.8),
+        Camera(),
+    )
+
+
+def fft_floor(frame: np.ndarray, kernel: np.ndarray) -> Callable[[], np.ndarray]:
+    """One plain FFT convolution of ``frame`` with ``kernel``: the yardstick.
+
+    ``irfft2(rfft2(frame) * K)`` in float32 at the fast transform lengths of the
+    frame (circular; its valid part is the valid convolution), with the kernel's
+    spectrum ``K`` computed once beforehand, one thread.
+    """
+    frame = np.asarray(frame, np.float32)
+    shape = tuple(sp_fft.next_fast_len(n, real=True) for n in frame.shape)
+    spectrum = sp_fft.rfft2(np.asarray(kernel, np.float32), s=shape)
+    return lambda: sp_fft.irfft2(sp_fft.rfft2(frame, s=shape) * spectrum, s=shape)
+
+
+def _cpu_time(times: list[float], fn: Callable, *args: object, **kwargs: object) -> object:
+    """Call ``fn(*args, **kwargs)``, append its CPU time (this thread) to ``times``."""
+    t0 = time.thread_time()
+    result = fn(*args, **kwargs)
+    times.append(time.thread_time() - t0)
+    return result
+
+
+def _masks(scene) -> tuple[np.ndarray, np.ndarray]:
+    return scene.camera_labels(), scene.semantic_mask()
+
+
+def measure_trench_frame(rounds: int = REPEATS) -> dict:
+    """Per-frame cost of the 256 x 46 trench frame against the FFT floor.
+
+    Each round times, in turn, on frames not seen before: ``draw_scene``; the fast
+    render (``cache=False``) split into the noise-free image and the camera noise;
+    the masks (``camera_labels`` + ``semantic_mask``); the full per-frame path of
+    ``pipeline.iter_render`` (draw + fast render + masks) on another new frame; and
+    one FFT convolution of the render frame. Times are medians over the rounds, in
+    seconds of CPU time.
+
+    Returns
+    -------
+    dict
+        ``camera_shape``, ``render_shape``, ``rounds``, ``draw_s``, ``clean_s``,
+        ``noise_s``, ``render_s`` (clean + noise), ``masks_s``, ``frame_s``,
+        ``fft_floor_s`` and ``frame_over_floor``.
+    """
+    microscope, render, trench, camera = trench_settings()
+    model = ForwardModel(microscope, render, camera)
+    rng = np.random.default_rng(0)
+    scene = draw_scene(frame_cells(0.0), trench, microscope, render)
+    model.render(scene, rng, cache=False)  # builds the kernel and its spectrum once
+    floor = fft_floor(scene.cells, model.kernel())
+    times: dict[str, list[float]] = {
+        k: [] for k in ("draw", "clean", "noise", "masks", "frame", "floor")
+    }
+
+    def full_frame(cells: SimpleNamespace) -> tuple:
+        frame_scene = draw_scene(cells, trench, microscope, render)
+        image = model.render(frame_scene, rng, cache=False)
+        return image, frame_scene.camera_labels(), frame_scene.semantic_mask()
+
+    for k in range(rounds):
+        cells = frame_cells(0.004 * k)
+        new = _cpu_time(times["draw"], draw_scene, cells, trench, microscope, render)
+        clean = _cpu_time(times["clean"], model.render_clean, new, cache=False)
+        _cpu_time(times["noise"], model.add_noise, clean, rng)
+        _cpu_time(times["masks"], _masks, new)
+        _cpu_time(times["frame"], full_frame, frame_cells(0.004 * k + 0.002))
+        _cpu_time(times["floor"], floor)
+    med = {k: float(np.median(v)) for k, v in times.items()}
+    return {
+        "camera_shape": scene.camera_shape,
+        "render_shape": scene.shape,
+        "rounds": rounds,
+        "draw_s": med["draw"],
+        "clean_s": med["clean"],
+        "noise_s": med["noise"],
+        "render_s": med["clean"] + med["noise"],
+        "masks_s": med["masks"],
+        "frame_s": med["frame"],
+        "fft_floor_s": med["floor"],
+        "frame_over_floor": med["frame"] / med["floor"],
+    }
+
+
+def colony_cells(
+    size_px: int, n_cells: int, seed: int = 0, pixel_um: float = 0.065
+) -> tuple[SimpleNamespace, dict[int, tuple[float, float, float]], float]:
+    """A colony-like field: ``n_cells`` cells on a jittered grid over the square field.
+
+    Random orientations, lengths 2.0-3.6 um (at most 95% of the grid pitch), widths
+    0.85-1.05 um, every fifth cell bent (eq. 1, ``a = 0.1`` um): about a fifth of the
+    field is cell at 360 cells on 1024 x 1024 px. Returns the cells, the curvature
+    mapping and the field's side in um.
+    """
+    rng = np.random.default_rng(seed)
+    side_um = size_px * pixel_um
+    k = int(np.ceil(np.sqrt(n_cells)))
+    pitch = side_um / k
+    if 0.95 * pitch <= 2.0:
+        raise ValueError(
+            f"{n_cells} cells do not fit a {size_px} px field as 2-3.6 um cells (grid pitch "
+            f"{pitch:.2f} um): use fewer cells or a larger field"
+        )
+    slots = rng.permutation(k * k)[:n_cells]
+    length = rng.uniform(2.0, min(3.6, 0.95 * pitch), n_cells)
+    cells = SimpleNamespace(
+        ids=np.arange(1, n_cells + 1),
+        x_um=(slots % k + 0.5) * pitch + rng.uniform(-0.2, 0.2, n_cells),
+        y_um=(slots // k + 0.5) * pitch + rng.uniform(-0.2, 0.2, n_cells),
+        angle_rad=rng.uniform(0.0, np.pi, n_cells),
+        length_um=length,
+        width_um=rng.uniform(0.85, 1.05, n_cells),
+    )
+    curvature = {int(i): (0.1, 1.0, 0.0) for i in cells.ids[::5]}
+    return cells, curvature, side_um
+
+
+def measure_field_draw(size_px: int, n_cells: int, rounds: int = 5) -> dict:
+    """Drawing a field of ``size_px x size_px`` camera px with ``n_cells`` cells.
+
+    Each round times ``draw_scene`` (cells, media, device, labels at 3x upsampling,
+    50 px border), then the masks of that new scene (``camera_labels`` +
+    ``semantic_mask``), then one FFT convolution of its render frame. Medians over
+    the rounds, seconds of CPU time.
+
+    Returns
+    -------
+    dict
+        ``size_px``, ``n_cells``, ``render_shape``, ``rounds``, ``draw_s``,
+        ``masks_s``, ``draw_masks_s``, ``fft_floor_s`` and ``draw_masks_over_floor``.
+    """
+    microscope = Microscope()
+    render = RenderSettings(upsample=3, psf_radius_px=50)
+    cells, curvature, side_um = colony_cells(size_px, n_cells, pixel_um=microscope.pixel_size_um)
+    field = Field(side_um, side_um)
+    trench = TrenchGeometry()
+
+    def draw():
+        return draw_scene(cells, trench, microscope, render, curvature, field=field)
+
+    scene = draw()
+    kernel = ForwardModel(microscope, render, Camera()).kernel()
+    floor = fft_floor(scene.cells, kernel)
+    render_shape = scene.shape
+    del scene
+    times: dict[str, list[float]] = {"draw": [], "masks": [], "floor": []}
+    for _ in range(rounds):
+        new = _cpu_time(times["draw"], draw)
+        _cpu_time(times["masks"], _masks, new)
+        del new
+        _cpu_time(times["floor"], floor)
+    med = {k: float(np.median(v)) for k, v in times.items()}
+    both = med["draw"] + med["masks"]
+    return {
+        "size_px": size_px,
+        "n_cells": n_cells,
+        "render_shape": render_shape,
+        "rounds": rounds,
+        "draw_s": med["draw"],
+        "masks_s": med["masks"],
+        "draw_masks_s": both,
+        "fft_floor_s": med["floor"],
+        "draw_masks_over_floor": both / med["floor"],
+    }
 
 
 SYMBAC_SCRIPT = r"""
@@ -168,76 +361,82 @@ def symbac_times(
     return times, "SyMBac 0.5.2 (CPU)"
 
 
-def main() -> None:
-    microscope = Microscope()
-    render = RenderSettings(upsample=3, psf_radius_px=50)
-    trench = TrenchGeometry(length_um=15.84, width_um=1.4, margin_um=0.8)
-    camera = Camera()
-    rng = np.random.default_rng(0)
+def measure_cached_paths(rounds: int = REPEATS) -> dict:
+    """Cold render on the cached path and the cached re-render of the trench frame.
 
-    scene = draw_scene(frame_cells(0.0), trench, microscope, render)
-    assert scene.camera_shape == (256, 46), scene.camera_shape
-    t_draw = best_of(lambda: draw_scene(frame_cells(0.0), trench, microscope, render))
-
+    Returns ``cold_cached_s`` (a new frame: the changed components convolved and
+    cached, + noise), ``rerender_s`` (an intensity changed: recombine + noise),
+    ``rfft2_s`` (one forward transform of the render frame) and
+    ``rerender_over_rfft2``; medians, seconds of CPU time.
+    """
+    microscope, render, trench, camera = trench_settings()
     model = ForwardModel(microscope, render, camera)
-    model.render(scene, rng)  # builds the kernel and its spectrum once
-    model.render(scene, rng, cache=False)
-    scenes = [
-        draw_scene(frame_cells(0.01 * k), trench, microscope, render)
-        for k in range(2 * REPEATS + 2)
-    ]
-    it = iter(scenes[: REPEATS + 1])
-    t_cold = best_of(lambda: model.render(next(it), rng))
-    it_fast = iter(scenes[REPEATS + 1 :])
-    t_fast = best_of(lambda: model.render(next(it_fast), rng, cache=False))
-    # Masks are computed once per scene: time them on scenes that have not computed
-    # them yet (rendering does not).
-    it_masks = iter(scenes[:REPEATS])
-
-    def masks() -> tuple:
-        mask_scene = next(it_masks)
-        return mask_scene.camera_labels(), mask_scene.semantic_mask()
-
-    t_masks = best_of(masks)
-
-    def full_frame(k: int) -> tuple:
-        frame_scene = draw_scene(frame_cells(0.005 * k), trench, microscope, render)
-        return (
-            model.render(frame_scene, rng, cache=False),
-            frame_scene.camera_labels(),
-            frame_scene.semantic_mask(),
-        )
-
-    it_frame = iter(range(REPEATS))
-    t_frame = best_of(lambda: full_frame(next(it_frame)))
-
-    tuned = model.with_render(dataclasses.replace(render, cell_intensity=1200.0))
-    tuned.render(scene, rng)
-    settings = [dataclasses.replace(render, cell_intensity=1000.0 + k) for k in range(REPEATS)]
-    it2 = iter(settings)
-    t_cached = best_of(lambda: model.with_render(next(it2)).render(scene, rng))
-
+    rng = np.random.default_rng(0)
+    scene = draw_scene(frame_cells(0.0), trench, microscope, render)
+    model.render(scene, rng)
+    scenes = [draw_scene(frame_cells(0.01 * k), trench, microscope, render) for k in range(rounds)]
+    settings = [dataclasses.replace(render, cell_intensity=1000.0 + k) for k in range(rounds)]
     frame = np.asarray(scene.cells, np.float32)
-    t_fft = best_of(lambda: sp_fft.rfft2(frame, workers=-1))
+    times: dict[str, list[float]] = {"cold": [], "cached": [], "rfft2": []}
+    for k in range(rounds):
+        _cpu_time(times["cold"], model.render, scenes[k], rng)
+        _cpu_time(times["cached"], model.with_render(settings[k]).render, scene, rng)
+        _cpu_time(times["rfft2"], sp_fft.rfft2, frame)
+    med = {k: float(np.median(v)) for k, v in times.items()}
+    return {
+        "cold_cached_s": med["cold"],
+        "rerender_s": med["cached"],
+        "rfft2_s": med["rfft2"],
+        "rerender_over_rfft2": med["cached"] / med["rfft2"],
+    }
 
-    symbac, symbac_note = symbac_times(scene.shape, scene.camera_shape)
 
-    print(
-        f"napari-symbac render benchmark (python {sys.version.split()[0]}, numpy {np.__version__})"
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--quick", action="store_true", help="fewer rounds, no 2048 field, no SyMBac"
     )
-    print(f"frame: camera {scene.camera_shape}, render {scene.shape}, upsample 3, PSF radius 50")
+    args = parser.parse_args(argv)
+    rounds = 10 if args.quick else REPEATS
+    trench = measure_trench_frame(rounds)
+    cached = measure_cached_paths(rounds)
+    fields = [
+        measure_field_draw(size, n, rounds=3 if args.quick else 5)
+        for size, n in FIELD_CASES[: 1 if args.quick else None]
+    ]
+    symbac, symbac_note = (
+        ({}, "--quick")
+        if args.quick
+        else symbac_times(trench["render_shape"], trench["camera_shape"])
+    )
+    load = os.getloadavg()
+    print(
+        f"napari-symbac render benchmark (python {sys.version.split()[0]}, "
+        f"numpy {np.__version__}); load average {load[0]:.1f} {load[1]:.1f} {load[2]:.1f} "
+        f"on {os.cpu_count()} cores"
+    )
+    print(
+        f"trench frame: camera {trench['camera_shape']}, render {trench['render_shape']}, "
+        "upsample 3, PSF radius 50; CPU time of this thread, medians of interleaved rounds"
+    )
     print()
     width = 66
-    print(f"{'step':<{width}}{'time (ms)':>12}")
-    print("-" * (width + 12))
+    print(f"{'step':<{width}}{'time (ms)':>12}{'/ floor':>9}")
+    print("-" * (width + 21))
+    floor = trench["fft_floor_s"]
     rows = [
-        ("draw_scene (5 cells)", t_draw),
-        ("render, cold, cached path (convolve changed components + noise)", t_cold),
-        ("render, cold, fast path (cache=False: compose, convolve once)", t_fast),
-        ("masks, Scene.camera_labels() + Scene.semantic_mask() (new scene)", t_masks),
-        ("draw + fast render + masks (our full per-frame path)", t_frame),
-        ("render, cached (intensity changed: recombine + noise)", t_cached),
-        ("one rfft2 of the render-resolution frame", t_fft),
+        ("draw_scene (5 cells)", trench["draw_s"]),
+        ("render, fast path: noise-free image (compose, convolve once)", trench["clean_s"]),
+        ("render, fast path: camera noise (Poisson + Gaussian, uint16)", trench["noise_s"]),
+        ("masks, Scene.camera_labels() + Scene.semantic_mask() (new scene)", trench["masks_s"]),
+        ("draw + fast render + masks (our full per-frame path)", trench["frame_s"]),
+        (
+            "render, cold, cached path (convolve changed components + noise)",
+            cached["cold_cached_s"],
+        ),
+        ("render, cached (intensity changed: recombine + noise)", cached["rerender_s"]),
+        ("one rfft2 of the render-resolution frame", cached["rfft2_s"]),
+        ("FFT floor: one FFT convolution of the render frame", floor),
     ]
     if "conv" in symbac:
         rows.append(("SyMBac convolve_rescale, our render frame size", symbac["conv"][0]))
@@ -246,26 +445,44 @@ def main() -> None:
             t, r, c = symbac[key]
             rows.append((f"SyMBac full per-frame path, {what} ({r} x {c})", t))
     for name, t in rows:
-        print(f"{name:<{width}}{t * 1e3:>12.3f}")
+        print(f"{name:<{width}}{t * 1e3:>12.3f}{t / floor:>9.2f}")
     print()
-    print(f"cached / single FFT: {t_cached / t_fft:.2f}  (goal <= 3)")
+    print(f"{'field: draw + masks':<{width}}{'time (ms)':>12}{'/ floor':>9}")
+    print("-" * (width + 21))
+    for f in fields:
+        side = f["size_px"]
+        what = f"{side} x {side} px, {f['n_cells']} cells (render {f['render_shape'][0]}^2)"
+        for name, key in (
+            ("draw_scene", "draw_s"),
+            ("masks", "masks_s"),
+            ("draw + masks", "draw_masks_s"),
+            ("FFT floor", "fft_floor_s"),
+        ):
+            t = f[key]
+            print(f"{what + ': ' + name:<{width}}{t * 1e3:>12.1f}{t / f['fft_floor_s']:>9.2f}")
+    print()
+    print(f"full per-frame path / FFT floor: {trench['frame_over_floor']:.2f}  (goal <= 1.5)")
+    for f in fields:
+        print(
+            f"field {f['size_px']} x {f['size_px']}, {f['n_cells']} cells: draw + masks / FFT "
+            f"floor: {f['draw_masks_over_floor']:.2f}  (goal <= 0.3)"
+        )
+    print(f"cached re-render / one rfft2: {cached['rerender_over_rfft2']:.2f}  (goal <= 3)")
     if not symbac:
         print(f"SyMBac comparison not run: {symbac_note}")
         return
     print("speed-up vs SyMBac 0.5.2 (goal >= 10x on the full per-frame path):")
+    t_frame = trench["frame_s"]
     if "conv" in symbac:
-        conv = symbac["conv"][0]
         print(
-            f"  convolution step: SyMBac convolve_rescale / our cold render (fast path): "
-            f"{conv / t_fast:.1f}x, (cached path): {conv / t_cold:.1f}x"
+            f"  convolution step: SyMBac convolve_rescale / our noise-free fast render: "
+            f"{symbac['conv'][0] / trench['clean_s']:.1f}x"
         )
     for key, what in (("matched", "same canvas"), ("auto", "SyMBac's own canvas")):
         if key in symbac:
-            full = symbac[key][0]
             print(
-                f"  full per-frame path, {what}: SyMBac / ours (draw + fast render + "
-                f"masks): {full / t_frame:.1f}x; / ours (draw + cached-path cold render "
-                f"+ masks): {full / (t_draw + t_cold + t_masks):.1f}x"
+                f"  full per-frame path, {what}: SyMBac / ours (draw + fast render + masks): "
+                f"{symbac[key][0] / t_frame:.1f}x"
             )
 
 

@@ -24,7 +24,7 @@ from scipy import signal, sparse
 from napari_symbac.fit.placement import TrenchPlacement, draw_fitted
 from napari_symbac.optics import ForwardModel
 from napari_symbac.scene import Scene
-from napari_symbac.scene._draw import _chord
+from napari_symbac.scene._raster import chord
 from napari_symbac.settings import Camera, Microscope, RenderSettings
 from napari_symbac.sim import FrameCells
 
@@ -331,7 +331,7 @@ class SceneModel:
                 e0, e1, f0, f1, (cx, cy, ang, ln, wd, bend) = self._cell_box(source, j, scene)
                 if e1 <= r0 or e0 >= r1 or f1 <= q0 or f0 >= q1:
                     continue
-                chord = _chord(
+                chord_k = chord(
                     xc,
                     yc,
                     (cx, cy),
@@ -340,7 +340,7 @@ class SceneModel:
                     wd,
                     (bend, CURVATURE_B, CURVATURE_C) if bend else None,
                 )
-                np.maximum(thick, chord, out=thick)
+                np.maximum(thick, chord_k, out=thick)
             old = scene.cells[r0:r1, q0:q1]
             trench = old + scene.media[r0:r1, q0:q1]
             if alone:

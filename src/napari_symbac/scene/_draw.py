@@ -19,6 +19,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from napari_symbac.scene._field import Field, field_images
+from napari_symbac.scene._raster import rasterise_cells
 from napari_symbac.settings import Microscope, RenderSettings, TrenchGeometry
 
 __all__ = [
@@ -188,7 +189,7 @@ class Scene:
         # Computed once per scene (the labels are read-only, so they cannot go stale).
         cached = self.__dict__.get("_masks")
         if cached is None:
-            cached = _camera_masks(self.interior(self.labels), self.upsample, self.camera_shape)
+            cached = _camera_masks(self.labels, self.border_px, self.upsample, self.camera_shape)
             for mask in cached:
                 mask.setflags(write=False)
             object.__setattr__(self, "_masks", cached)
@@ -259,40 +260,102 @@ class Scene:
 _FIELDS = tuple(f.name for f in fields(Scene))
 
 
+#: Label pixels compared at a time when looking for mixed blocks (a band of block
+#: rows, so that the passes over it stay in the cache).
+_MASK_CHUNK_PIXELS = 1 << 18
+
+
+def _mixed_blocks(
+    inner: np.ndarray, first: np.ndarray, u: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns (camera px) of the ``u x u`` blocks of ``inner`` holding more
+    than one label, in row-major order.
+
+    A block is uniform when its rows 1..u-1 equal its row 0 (compared along whole
+    image rows) and row 0 equals its first pixel ``first`` (the strided sample);
+    a band of block rows at a time, so that the passes stay in the cache.
+    """
+    rows, cols = first.shape
+    chunk = max(1, _MASK_CHUNK_PIXELS // (u * u * cols))
+    found_rows, found_cols = [], []
+    for r0 in range(0, rows, chunk):
+        r1 = min(r0 + chunk, rows)
+        band = inner[r0 * u : r1 * u]
+        top = band[0::u]
+        same = top == band[1::u]
+        for dy in range(2, u):
+            same &= top == band[dy::u]
+        uniform = same[:, 0::u] & same[:, 1::u]
+        for dx in range(2, u):
+            uniform &= same[:, dx::u]
+        for dx in range(1, u):
+            uniform &= top[:, dx::u] == first[r0:r1]
+        ri, ci = np.nonzero(~uniform)
+        found_rows.append(ri + r0)
+        found_cols.append(ci)
+    return np.concatenate(found_rows), np.concatenate(found_cols)
+
+
+def _semantic(labels: np.ndarray) -> np.ndarray:
+    """Semantic mask (uint8) of an instance mask: cells, minus pixels next to smaller ids.
+
+    A cell pixel is 0 where a neighbour (8-connectivity) is a cell of a smaller id.
+    With ``labels - 1`` (background wraps round to the largest value) that is where
+    the 3 x 3 minimum is below the pixel's own value. The minimum runs on the
+    flattened, padded rows of a band at a time (contiguous, cache-sized): along a
+    row over offsets -1, 0, 1, then across rows over offsets -width, 0, width.
+    """
+    rows, cols = labels.shape
+    width = cols + 2
+    keep = np.empty((rows, cols), np.uint8)
+    chunk = max(1, _MASK_CHUNK_PIXELS // width)
+    one = np.uint32(1)
+    for r0 in range(0, rows, chunk):
+        r1 = min(r0 + chunk, rows)
+        lo, hi = max(r0 - 1, 0), min(r1 + 1, rows)
+        # rows r0 - 1 .. r1 of the image, padded with the largest value
+        shifted = np.full((r1 - r0 + 2, width), np.iinfo(np.uint32).max, np.uint32)
+        np.subtract(labels[lo:hi], one, out=shifted[lo - r0 + 1 : hi - r0 + 1, 1:-1])
+        flat = shifted.ravel()
+        across = np.minimum(flat[:-2], flat[1:-1])
+        np.minimum(across, flat[2:], out=across)
+        lowest = np.empty((r1 - r0) * width, np.uint32)
+        np.minimum(across[: -2 * width], across[width:-width], out=lowest[:-2])
+        np.minimum(lowest[:-2], across[2 * width :], out=lowest[:-2])
+        # lowest[i * width + j] is the minimum around band row i, column j.
+        own = np.equal(lowest.reshape(r1 - r0, width)[:, :cols], shifted[1:-1, 1:-1])
+        own &= labels[r0:r1] > 0
+        keep[r0:r1] = own
+    return keep
+
+
 def _camera_masks(
-    inner: np.ndarray, u: int, camera_shape: tuple[int, int]
+    labels_full: np.ndarray, border: int, u: int, camera_shape: tuple[int, int]
 ) -> tuple[np.ndarray, np.ndarray]:
     """Instance and semantic masks at camera resolution of the interior labels.
 
     The majority vote runs only on the ``u x u`` blocks that are not uniform (cell
-    edges); the semantic mask reuses the instance mask.
+    edges); the semantic mask is one 3 x 3 minimum filter of the instance mask.
     """
     rows, cols = camera_shape
+    b = border
+    inner = labels_full[b : b + rows * u, b : b + cols * u]
     labels = np.array(inner[::u, ::u], np.uint32)
     if u > 1:
-        mixed = np.zeros((rows, cols), bool)
-        for dy in range(u):
-            for dx in range(u):
-                if dy or dx:
-                    mixed |= inner[dy::u, dx::u] != labels
-        ri, ci = np.nonzero(mixed)
+        ri, ci = _mixed_blocks(inner, labels, u)
         if ri.size:
             # (blocks, u * u) in row-major order within each block: argmax takes the
-            # first of equal counts.
-            blocks = inner.reshape(rows, u, cols, u)[ri, :, ci, :].reshape(ri.size, u * u)
+            # first of equal counts. Gathered by flat index from the whole image.
+            width = labels_full.shape[1]
+            corner = (ri * u + b) * width + (ci * u + b)
+            offsets = (np.arange(u)[:, None] * width + np.arange(u)[None, :]).ravel()
+            flat = np.ascontiguousarray(labels_full).ravel()
+            blocks = flat[corner[:, None] + offsets[None, :]]
             counts = np.zeros(blocks.shape, np.uint8 if u * u < 256 else np.int64)
             for k in range(u * u):
                 counts += blocks == blocks[:, k : k + 1]
             labels[ri, ci] = blocks[np.arange(ri.size), np.argmax(counts, axis=-1)]
-    padded = np.pad(labels, 1)
-    conflict = np.zeros((rows, cols), bool)
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            if dy or dx:
-                neighbour = padded[1 + dy : 1 + dy + rows, 1 + dx : 1 + dx + cols]
-                conflict |= (neighbour > 0) & (neighbour < labels)
-    semantic = ((labels > 0) & ~conflict).astype(np.uint8)
-    return labels, semantic
+    return labels, _semantic(labels)
 
 
 def _checked_image(name: str, image: Any) -> np.ndarray:
@@ -357,45 +420,6 @@ def spherocylinder_distance(
         t = t - a_um * np.sin(ell * math.pi / b + c)
     s_on = np.clip(s, -half, half)
     return np.sqrt((s - s_on) ** 2 + t**2)
-
-
-def _chord(
-    xc: np.ndarray,
-    yc: np.ndarray,
-    centre_um: tuple[float, float],
-    angle_rad: float,
-    length_um: float,
-    width_um: float,
-    curvature: tuple[float, float, float] | None,
-) -> np.ndarray:
-    """float32 chord ``2 sqrt(r^2 - d^2)`` (0 beyond ``r``) over the grid ``yc x xc``.
-
-    The same float64 arithmetic as ``spherocylinder_distance`` followed by the chord,
-    value for value, with the temporaries reused in place.
-    """
-    r = width_um / 2
-    half = max(length_um / 2 - r, 0.0)
-    dx = xc - centre_um[0]
-    dy = yc - centre_um[1]
-    sin_a, cos_a = math.sin(angle_rad), math.cos(angle_rad)
-    s = np.add((dy * cos_a)[:, None], (dx * sin_a)[None, :])  # = dx sin + dy cos
-    t = np.subtract((dx * cos_a)[None, :], (dy * sin_a)[:, None])
-    if curvature is not None:
-        a_um, b, c = curvature
-        ell = np.clip((s + length_um / 2) / length_um, 0.0, 1.0)
-        t -= a_um * np.sin(ell * math.pi / b + c)
-    d = np.maximum(s, -half)  # s - clip(s, -half, half), squared
-    np.minimum(d, half, out=d)
-    np.subtract(s, d, out=d)
-    np.square(d, out=d)
-    np.square(t, out=t)
-    np.add(d, t, out=d)
-    np.sqrt(d, out=d)
-    np.multiply(d, d, out=d)
-    np.subtract(r * r, d, out=d)
-    np.maximum(d, 0.0, out=d)
-    np.sqrt(d, out=d)
-    return np.multiply(2, d, out=np.empty(d.shape, np.float32), casting="same_kind")
 
 
 def _check_curvature(curvature: Mapping[int, tuple[float, float, float]] | None) -> dict:
@@ -611,76 +635,21 @@ def draw_scene(
         trench_frac, device = field_images(field, shape, border, px)
         device_fp = _device_fingerprint(field, shape, border, px)
 
-    boxes = []
-    for i in range(n):
-        r = width[i] / 2
-        cx, cy = off_x + x[i], off_y + y[i]
-        bend = curv.get(int(ids[i]))
-        # Bounding box of the cell: the rotated rectangle of half-length ``length / 2``
-        # along the axis and half-width ``r + |a|`` across it (the chord is zero outside).
-        half_len = length[i] / 2
-        half_wid = r + (abs(bend[0]) if bend else 0.0)
-        sin_a, cos_a = abs(math.sin(angle[i])), abs(math.cos(angle[i]))
-        reach_x = min(half_len * sin_a + half_wid * cos_a, half_len + half_wid) + 2 * px
-        reach_y = min(half_len * cos_a + half_wid * sin_a, half_len + half_wid) + 2 * px
-        j0 = max(math.floor((cx - reach_x) / px) + border, 0)
-        j1 = min(math.ceil((cx + reach_x) / px) + border + 1, shape[1])
-        i0 = max(math.floor((cy - reach_y) / px) + border, 0)
-        i1 = min(math.ceil((cy + reach_y) / px) + border + 1, shape[0])
-        if j0 < j1 and i0 < i1:
-            boxes.append((i, i0, i1, j0, j1, cx, cy, bend))
-
-    cells_frac = np.zeros(shape, np.float32)
-    labels = np.zeros(shape, np.uint32)
-    media = trench_frac.copy()
-    if boxes:
-        # The chord thickness of the thickest cell at each pixel (um) and its id are
-        # drawn into work images; outside the cells' boxes there is no cell (cells =
-        # 0, media = trench, label 0). When the boxes about fill their bounding
-        # rectangle (a trench), the work images are that rectangle, contiguous, and it
-        # is converted to fractions at once (each pixel once; where no box reaches,
-        # the thickness 0 gives the same cells, media and label as outside).
-        # Otherwise (cells scattered over a pad) they are the whole frame, converted
-        # box by box (overlaps are recomputed identically).
-        top = min(b[1] for b in boxes)
-        bottom = max(b[2] for b in boxes)
-        left = min(b[3] for b in boxes)
-        right = max(b[4] for b in boxes)
-        covered = sum((b[2] - b[1]) * (b[4] - b[3]) for b in boxes)
-        dense = (bottom - top) * (right - left) <= 2 * covered
-        if dense:
-            thickness = np.zeros((bottom - top, right - left), np.float32)
-            work_labels = np.zeros(thickness.shape, np.uint32)
-            regions = [(slice(top, bottom), slice(left, right))]
-        else:
-            top = left = 0
-            thickness = np.zeros(shape, np.float32)
-            work_labels = labels
-            regions = [(slice(b[1], b[2]), slice(b[3], b[4])) for b in boxes]
-        for i, i0, i1, j0, j1, cx, cy, bend in boxes:
-            local = (slice(i0 - top, i1 - top), slice(j0 - left, j1 - left))
-            chord = _chord(xc[j0:j1], yc[i0:i1], (cx, cy), angle[i], length[i], width[i], bend)
-            box_t = thickness[local]
-            take = chord > box_t
-            np.maximum(box_t, chord, out=box_t)  # = chord where it is larger
-            np.putmask(work_labels[local], take, np.uint32(ids[i]))
-        depth = np.float32(depth_um)
-        for region in regions:
-            local = (
-                slice(region[0].start - top, region[0].stop - top),
-                slice(region[1].start - left, region[1].stop - left),
-            )
-            trench_box = np.array(trench_frac[region])
-            frac = thickness[local] / depth
-            np.minimum(frac, np.float32(1.0), out=frac)
-            np.minimum(frac, trench_box, out=frac)  # cells cannot sit inside the PDMS
-            cells_frac[region] = frac
-            box_l = work_labels[local]
-            np.putmask(box_l, frac <= 0, np.uint32(0))
-            if dense:
-                labels[region] = box_l
-            np.subtract(trench_box, frac, out=trench_box)
-            media[region] = np.maximum(trench_box, np.float32(0.0), out=trench_box)
+    cells_frac, media, labels = rasterise_cells(
+        xc,
+        yc,
+        px,
+        border,
+        trench_frac,
+        depth_um,
+        ids,
+        (off_x + x, off_y + y),
+        angle,
+        length,
+        width,
+        curv,
+        closed=field is None or bool(field.walls_um),
+    )
     for image in (cells_frac, media, labels, ids):
         image.setflags(write=False)
     # Every image is C-contiguous, finite, of the right dtype and shape by construction.
