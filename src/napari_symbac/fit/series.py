@@ -125,6 +125,7 @@ def fit_series(
     geometry: Literal["trench", "open"] = "trench",
     labels: np.ndarray | None = None,
     masks: np.ndarray | None = None,
+    valid: np.ndarray | None = None,
     trench: TrenchPlacement | TrenchGeometry | None = None,
     closed_end: Literal["square", "round"] | None = None,
     fit_optics: tuple[str, ...] | None = None,
@@ -143,8 +144,9 @@ def fit_series(
         As :func:`~napari_symbac.fit.fit_scene`. ``camera=None``: measured once from
         the pooled frames (:func:`~napari_symbac.fit.camera_estimate.estimate_camera`),
         else per frame when the pooled estimate fails.
-    labels, masks
-        ``None``, one 2D array for every frame, or a ``(T, Y, X)`` stack.
+    labels, masks, valid
+        ``None``, one 2D array for every frame, or a ``(T, Y, X)`` stack (``valid``
+        as :func:`~napari_symbac.fit.fit_scene`'s, default: not censored).
     joint_iterations
         Levenberg-Marquardt iterations of the joint refinement.
     progress, cancel
@@ -178,6 +180,7 @@ def fit_series(
                 geometry=geometry,
                 labels=_per_frame(labels, t, n_frames, "labels"),
                 masks=_per_frame(masks, t, n_frames, "masks"),
+                valid=_per_frame(valid, t, n_frames, "valid"),
                 trench=trench,
                 closed_end=closed_end,
                 fit_optics=fit_optics,
