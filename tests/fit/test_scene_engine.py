@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from _fit_synthetic import START, TRENCH, make_fluorescence_field
@@ -82,9 +84,7 @@ def test_cell_patch_equals_the_difference_of_full_renders(truth, k):
     assert np.abs(full).max() > 1e-3  # the move changed the image
     np.testing.assert_allclose(local, full, atol=2e-5 * np.abs(full).max() + 1e-6)
     # and the media image changed by exactly minus that (media = trench - cells)
-    np.testing.assert_allclose(
-        (a_new[:, 1] - a[:, 1]).reshape(full.shape), -full, atol=1e-5
-    )
+    np.testing.assert_allclose((a_new[:, 1] - a[:, 1]).reshape(full.shape), -full, atol=1e-5)
 
 
 def test_overlapping_rods_are_penalised_and_touching_ones_are_not():
@@ -250,6 +250,45 @@ def test_jacobian_columns_match_full_renders(truth):
         want = (ak - a) @ intensities / 0.3
         np.testing.assert_allclose(jac[:, column], want, atol=1e-3 * np.abs(want).max())
     np.testing.assert_allclose(jac[:, 2:], a)  # d mu / d intensities
+
+
+def test_kernel_column_and_per_cell_brightness_are_exact(truth):
+    """The optics column without a redraw equals a full render; the brightness-weighted
+    cells column (one transform) equals the sum of the cells' own patches."""
+    from napari_symbac.fit.engine import _add_patch
+
+    base, x = _model(truth)
+    lay = dataclasses.replace(base.layout, per_cell_brightness=True)
+    model = SceneModel(
+        truth.image.shape, truth.microscope, truth.render, Camera(), base.placement, 1.2, lay
+    )
+    blocks = np.concatenate([x[: 3 * 5].reshape(3, 5), [[0.3], [-0.2], [0.0]]], axis=1)
+    x = np.concatenate([blocks.ravel(), x[3 * 5 :]])
+    a, scene, render = model.design(x)
+    plain = model.design(_without_brightness(x, lay))[0]
+    kernel = model.forward.with_render(render).kernel(scene.pixel_size_um)
+    want = plain[:, 0].copy()
+    for i, db in enumerate((0.3, -0.2)):
+        _add_patch(want, truth.image.shape, *model.cell_delta(x, x, i, scene, kernel, True), db)
+    assert np.abs(a[:, 0] - plain[:, 0]).max() > 0.1 * np.abs(want).max()  # brightness shows
+    np.testing.assert_allclose(a[:, 0], want, atol=1e-4 * np.abs(want).max())
+    intensities = np.array([1400.0, 2600.0, 900.0])
+    k = x.size - 1  # defocus
+    free = np.zeros(x.size, bool)
+    free[k] = True
+    column = model.jacobian(x, a, intensities, scene, render, free).toarray()[:, 0]
+    xk = x.copy()
+    xk[k] += 0.3 * lay.scales()[k]
+    full = (model.design(xk)[0] - a) @ intensities / 0.3
+    np.testing.assert_allclose(column, full, atol=1e-3 * np.abs(full).max())
+
+
+def _without_brightness(x, layout):
+    out = x.copy()
+    pc = layout.per_cell
+    for i in range(layout.n):
+        out[i * pc + layout.i_brightness] = 0.0
+    return out
 
 
 def test_a_cell_missing_from_the_start_mask_is_added(truth):
