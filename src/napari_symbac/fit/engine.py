@@ -19,7 +19,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal, sparse
+from scipy import fft as sp_fft
+from scipy import sparse
 
 from napari_symbac.fit.placement import TrenchPlacement, draw_fitted
 from napari_symbac.optics import ForwardModel
@@ -200,6 +201,7 @@ class SceneModel:
         self.forward = ForwardModel(microscope, render, camera)
         self.tick = tick if tick is not None else (lambda: None)
         self._box_cache: tuple | None = None
+        self._kernel_spectra: dict[tuple, np.ndarray] = {}
 
     # ------------------------------------------------------------------ unpack
     def unpack(
@@ -466,10 +468,29 @@ class SceneModel:
                 old = np.zeros_like(old)
             new = np.minimum(np.minimum(thick / np.float32(self.depth_um), 1.0), trench)
             delta[r0 - s0 : r1 - s0, q0 - t0 : q1 - t0] = new - old
-        full = signal.fftconvolve(delta.astype(np.float64), kernel.astype(np.float64), mode="full")
+        full = self._full_convolve(delta, kernel)
         h, w = full.shape
         patch = full.reshape(h // u, u, w // u, u).mean(axis=(1, 3))
         return (s0 - 2 * bd) // u, (t0 - 2 * bd) // u, patch
+
+    def _full_convolve(self, patch: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+        """``fftconvolve(patch, kernel, "full")`` in float64, the kernel's spectrum cached.
+
+        Transform sizes are fast lengths of the full output; the kernel's spectrum
+        for each size is kept (a fit's patches come in a few sizes), so a patch costs
+        one forward and one inverse transform instead of two forward and one inverse.
+        """
+        shape = tuple(p + k - 1 for p, k in zip(patch.shape, kernel.shape))
+        fshape = tuple(sp_fft.next_fast_len(n, real=True) for n in shape)
+        key = (hash(kernel.tobytes()), kernel.shape, fshape)
+        spectrum = self._kernel_spectra.get(key)
+        if spectrum is None:
+            if len(self._kernel_spectra) > 64:
+                self._kernel_spectra.clear()
+            spectrum = sp_fft.rfft2(np.asarray(kernel, np.float64), fshape)
+            self._kernel_spectra[key] = spectrum
+        product = sp_fft.rfft2(np.asarray(patch, np.float64), fshape) * spectrum
+        return sp_fft.irfft2(product, fshape)[: shape[0], : shape[1]]
 
     # ----------------------------------------------------------------- Jacobian
     def jacobian(
