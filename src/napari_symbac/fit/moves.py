@@ -78,7 +78,8 @@ def dispersion(
     ``16 var(mean of z over 4 x 4 blocks)``: 1 for white noise, larger when the
     residual holds structure the model misses (its pixels are then not independent
     and a chi-square difference overstates the evidence). At least 1. With ``where``
-    (camera pixels), only the blocks wholly inside it; ``nan`` when fewer than 10.
+    (camera pixels), only the blocks wholly inside it, their spread taken robustly
+    (1.4826 x their median absolute deviation); ``nan`` when fewer than 10.
     """
     rows, cols = problem.shape
     z = ((problem.y - state.mu) * np.sqrt(problem.w)).reshape(rows, cols)
@@ -93,7 +94,12 @@ def dispersion(
     means = blocks.mean(axis=(1, 3))[full]
     if means.size < 10:
         return 1.0 if where is None else math.nan
-    return float(max(block_px**2 * np.var(means), 1.0))
+    if where is None:
+        return float(max(block_px**2 * np.var(means), 1.0))
+    # Locally, robustly: a few blocks of an unmodelled neighbour (a spot, another
+    # cell's misfit) must not set the price of the move.
+    spread = 1.4826 * float(np.median(np.abs(means - np.median(means))))
+    return float(max(block_px**2 * spread**2, 1.0))
 
 
 def _local_dispersion(problem: Problem, state: State, trial: State, ctx: _Context) -> float:
