@@ -1,6 +1,6 @@
 """Time to fit a 256 x 46 trench and open fields of growing cell count.
 
-Run: ``python benchmarks/bench_fit.py [--large]``. The reference is
+Run: ``python benchmarks/bench_fit.py [--large] [--compare OLD_SRC]``. The reference is
 ``scipy.signal.fftconvolve`` of one render-resolution frame (upsample 3 plus the PSF
 border) with the phase kernel, timed in the same run, so the ratios travel between
 machines. The second table is the cost of :func:`fit_scene` against the number of
@@ -8,11 +8,20 @@ cells (fluorescence, open 256 x 256 field at 80 nm, camera estimated; ``--large`
 adds a 512 x 512 field with 100 cells). The real trench (``../shared/data/real``,
 or ``NAPARI_SYMBAC_REAL_DATA``) is timed when present. Prints tables; asserts
 nothing.
+
+``--compare OLD_SRC`` times the same fits with another checkout's ``src`` (e.g. one
+unpacked by ``git archive``) and this one, alternately in fresh processes, so that
+both see the same load: the before/after table of docs/fitting.md.
+
+The measurements are importable functions returning dicts (for ``napari-symbac
+bench``): :func:`measure_fit_trench` and :func:`measure_fit_field`.
 """
 
 from __future__ import annotations
 
+import json
 import os
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -60,45 +69,147 @@ def _best_of(func, repeats: int) -> float:
     return min(times)
 
 
-def main() -> None:
+def measure_fit_trench() -> dict:
+    """``fit_scene`` on the synthetic 256 x 46 trench (camera given) and, when the data
+    are present, on the real 100x trench (round closed end, camera estimated).
+
+    Returns
+    -------
+    dict
+        ``synthetic_s``, ``synthetic_chi2``, ``synthetic_renders``, ``synthetic_cells``
+        and, with the real data, ``real_s``, ``real_chi2``, ``real_renders``,
+        ``real_cells`` (seconds of wall time, reduced chi-square, renders and patches,
+        fitted cells).
+    """
+    microscope, camera = Microscope(pixel_size_um=PIXEL_UM), Camera()
+    scene = draw_scene(_cells(), TRENCH, microscope, TRUTH)
+    image = ForwardModel(microscope, TRUTH, camera).render(scene, np.random.default_rng(0))
+    start = time.perf_counter()
+    fitted = fit_scene(image, microscope, START, camera)
+    out = {
+        "synthetic_s": time.perf_counter() - start,
+        "synthetic_chi2": float(fitted.objective_after),
+        "synthetic_renders": int(fitted.n_evaluations),
+        "synthetic_cells": len(fitted.cells),
+    }
+    real = _real_trench()
+    if real is not None:
+        start = time.perf_counter()
+        fitted = fit_scene(real, microscope, RenderSettings(), None, closed_end="round")
+        out.update(
+            real_s=time.perf_counter() - start,
+            real_chi2=float(fitted.objective_after),
+            real_renders=int(fitted.n_evaluations),
+            real_cells=len(fitted.cells),
+        )
+    return out
+
+
+def measure_fit_field(side: int = 256, count: int = 36) -> dict:
+    """``fit_scene`` on an open fluorescence field of ``count`` cells (camera estimated).
+
+    Returns
+    -------
+    dict
+        ``side`` (pixels), ``cells`` (truth), ``found``, ``seconds`` (wall), ``chi2``
+        (reduced chi-square), ``renders`` (renders and patches).
+    """
+    image, truth_count = _field(side, count)
+    start = time.perf_counter()
+    fitted = fit_scene(
+        image,
+        Microscope(pixel_size_um=0.08, modality="fluorescence"),
+        RenderSettings(),
+        None,
+        geometry="open",
+    )
+    return {
+        "side": side,
+        "cells": truth_count,
+        "found": len(fitted.cells),
+        "seconds": time.perf_counter() - start,
+        "chi2": float(fitted.objective_after),
+        "renders": int(fitted.n_evaluations),
+    }
+
+
+def measure_fit_parameters() -> dict:
+    """``fit_parameters`` on the synthetic trench: the plain FFT reference and both terms.
+
+    Returns
+    -------
+    dict
+        ``fft_s`` (one render-frame convolution, best of 20), ``pixel_s``,
+        ``pixel_renders``, ``statistics_s``, ``statistics_renders``.
+    """
     microscope, camera = Microscope(pixel_size_um=PIXEL_UM), Camera()
     scene = draw_scene(_cells(), TRENCH, microscope, TRUTH)
     model = ForwardModel(microscope, TRUTH, camera)
     image = model.render(scene, np.random.default_rng(0))
     frame = np.asarray(scene.cells, np.float32)
     kernel = model.kernel()
-    reference = _best_of(lambda: signal.fftconvolve(frame, kernel, mode="valid"), 20)
-    rows = [("plain FFT convolution (reference)", reference, None)]
+    out = {"fft_s": _best_of(lambda: signal.fftconvolve(frame, kernel, mode="valid"), 20)}
     classes = scene_classes(scene)
-    for label, kwargs in (
-        ("fit_parameters, pixel term (true scene)", {"terms": ("pixel",)}),
-        ("fit_parameters, statistics terms", {}),
-    ):
+    for name, kwargs in (("pixel", {"terms": ("pixel",)}), ("statistics", {})):
         start = time.perf_counter()
         result = fit_parameters(image, classes, scene, microscope, START, camera, **kwargs)
-        rows.append((label, time.perf_counter() - start, result.n_evaluations))
-    start = time.perf_counter()
-    fitted = fit_scene(image, microscope, START, camera)
-    rows.append(
-        (
-            f"fit_scene, synthetic (chi2 {fitted.objective_after:.2f})",
-            time.perf_counter() - start,
-            fitted.n_evaluations,
-        )
+        out[f"{name}_s"] = time.perf_counter() - start
+        out[f"{name}_renders"] = int(result.n_evaluations)
+    return out
+
+
+def _in_process(src: str, call: str) -> dict:
+    """Run ``call`` (an expression on this module) with ``src`` first on the path."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([src, str(Path(__file__).parent)]))
+    code = f"import json, bench_fit; print(json.dumps(bench_fit.{call}))"
+    done = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
     )
-    real = _real_trench()
-    if real is not None:
-        start = time.perf_counter()
-        fitted = fit_scene(real, microscope, RenderSettings(), None, closed_end="round")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def compare(old_src: str, calls: tuple[str, ...]) -> list[tuple[str, dict, dict]]:
+    """Each of ``calls`` with ``old_src`` and with this checkout, one after the other."""
+    new_src = str(Path(__file__).resolve().parents[1] / "src")
+    return [(call, _in_process(old_src, call), _in_process(new_src, call)) for call in calls]
+
+
+def main() -> None:
+    if "--compare" in sys.argv:
+        old = sys.argv[sys.argv.index("--compare") + 1]
+        calls = ["measure_fit_trench()", "measure_fit_field(256, 36)"]
+        if "--large" in sys.argv:
+            calls.append("measure_fit_field(512, 100)")
+        print(f"| {'measurement':<28} | {'key':<18} | {'before':>9} | {'after':>9} |")
+        print(f"|{'-' * 30}|{'-' * 20}|{'-' * 11}|{'-' * 11}|")
+        for call, before, after in compare(old, tuple(calls)):
+            for key in after:
+                b, a = before.get(key, float("nan")), after[key]
+                print(f"| {call:<28} | {key:<18} | {b:9.3f} | {a:9.3f} |")
+        return
+    fp = measure_fit_parameters()
+    reference = fp["fft_s"]
+    trench = measure_fit_trench()
+    rows = [
+        ("plain FFT convolution (reference)", reference, None),
+        ("fit_parameters, pixel term (true scene)", fp["pixel_s"], fp["pixel_renders"]),
+        ("fit_parameters, statistics terms", fp["statistics_s"], fp["statistics_renders"]),
+        (
+            f"fit_scene, synthetic (chi2 {trench['synthetic_chi2']:.2f})",
+            trench["synthetic_s"],
+            trench["synthetic_renders"],
+        ),
+    ]
+    if "real_s" in trench:
         rows.append(
             (
-                f"fit_scene, real trench ({len(fitted.cells)} cells, chi2 "
-                f"{fitted.objective_after:.2f})",
-                time.perf_counter() - start,
-                fitted.n_evaluations,
+                f"fit_scene, real trench ({trench['real_cells']} cells, chi2 "
+                f"{trench['real_chi2']:.2f})",
+                trench["real_s"],
+                trench["real_renders"],
             )
         )
-    print(f"256 x 46 trench, render frame {frame.shape}, kernel {kernel.shape}\n")
+    print("256 x 46 trench\n")
     print(f"| {'step':<42} | {'seconds':>8} | {'x FFT':>8} | {'renders':>7} |")
     print(f"|{'-' * 44}|{'-' * 10}|{'-' * 10}|{'-' * 9}|")
     for label, seconds, renders in rows:
@@ -111,19 +222,10 @@ def main() -> None:
     if "--large" in sys.argv:
         sizes.append((512, 100))
     for side, count in sizes:
-        field_image, truth_count = _field(side, count)
-        start = time.perf_counter()
-        fitted = fit_scene(
-            field_image,
-            Microscope(pixel_size_um=0.08, modality="fluorescence"),
-            RenderSettings(),
-            None,
-            geometry="open",
-        )
-        seconds = time.perf_counter() - start
+        row = measure_fit_field(side, count)
         print(
-            f"| {side} x {side:<4} | {truth_count:5d} | {len(fitted.cells):5d} | {seconds:8.1f} "
-            f"| {fitted.objective_after:6.2f} |"
+            f"| {side} x {side:<4} | {row['cells']:5d} | {row['found']:5d} | "
+            f"{row['seconds']:8.1f} | {row['chi2']:6.2f} |"
         )
 
 

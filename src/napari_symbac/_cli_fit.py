@@ -230,27 +230,30 @@ def _cell_problems(result, shape: tuple[int, int], pixel_um: float, masks) -> li
     return problems
 
 
-def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, keys, stages, timer):
-    """Check, fit and prepare the outputs of one frame: returns (writers, result)."""
-    import tifffile
+@dataclasses.dataclass
+class _Prepared:
+    """One frame checked and ready to fit: what the fit takes and what the report says."""
 
+    masks: Any
+    labels: Any
+    camera: Any
+    camera_note: str
+    options: dict[str, Any]
+    censor_note: str
+    notes: list[str]
+    polarity: str
+
+
+def _prepare_one(args, frame, labels, masks, microscope, base, keys):
+    """Check one frame and its labels/masks; choose its camera and fit options."""
     from napari_symbac.fit import fit_scene
     from napari_symbac.fit.camera_estimate import censored_pixels
-    from napari_symbac.fit.figure import before_after_figure
     from napari_symbac.fit.preflight import (
         check_class_labels,
         check_fit_image,
         check_instance_masks,
         check_modality,
     )
-    from napari_symbac.fit.report import (
-        camera_text,
-        cells_records,
-        parameter_table,
-        report_text,
-    )
-    from napari_symbac.settings import save_settings
-
     name = Path(args.image).name
     check_fit_image(frame, name)
     if labels is not None:
@@ -289,17 +292,44 @@ def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, ke
         " left out of the likelihood" if "valid" in accepted else
         " NOT left out (this fit engine takes no valid mask)"
     )
+    return _Prepared(masks, labels, camera, camera_note, options, censor_note, notes, polarity)
 
+
+def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, keys, stages, timer):
+    """Check, fit and prepare the outputs of one frame: returns (writers, result)."""
+    from napari_symbac.fit import fit_scene
+
+    prepared = _prepare_one(args, frame, labels, masks, microscope, base, keys)
     stages.stage(f"fitting frame {index} ({frame.shape[0]} x {frame.shape[1]} px)")
     update, close = stages.bar(f"fit frame {index}")
     with timer.step(f"fit frame {index}"):
         try:
             result = fit_scene(
-                frame, microscope, base.render, camera, progress=update, **options
+                frame, microscope, base.render, prepared.camera, progress=update,
+                **prepared.options,
             )
         finally:
             close()
+    return _outputs_one(args, frame, index, prepared, result, microscope, pixel_note, base, keys)
 
+
+def _outputs_one(args, frame, index, prepared, result, microscope, pixel_note, base, keys):
+    """The files of one fitted frame: returns (writers, result)."""
+    import tifffile
+
+    from napari_symbac.fit.figure import before_after_figure
+    from napari_symbac.fit.report import (
+        camera_text,
+        cells_records,
+        parameter_table,
+        report_text,
+    )
+    from napari_symbac.settings import save_settings
+
+    masks, labels, camera = prepared.masks, prepared.labels, prepared.camera
+    camera_note, options, notes = prepared.camera_note, prepared.options, list(prepared.notes)
+    censor_note, polarity = prepared.censor_note, prepared.polarity
+    geometry = _GEOMETRIES[args.geometry]
     camera_used = getattr(result, "camera", None) or camera or base.camera
     settings = dataclasses.replace(
         base, microscope=microscope, render=result.render, camera=camera_used
@@ -367,6 +397,92 @@ def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, ke
     return writers, result
 
 
+def _fit_frames_jointly(
+    args, stack, frames, labels, masks, microscope, pixel_note, base, keys, stages, timer
+):
+    """Several frames: one joint fit (:func:`~napari_symbac.fit.fit_series`), optics and
+    camera shared, cells per frame; each frame's files in ``frame_NNNN/`` and the
+    shared parameters (joint and frame by frame) in ``series.json``."""
+    from napari_symbac.fit import fit_series
+
+    n_frames = stack.shape[0]
+    prepared = [
+        _prepare_one(
+            args,
+            stack[index],
+            _per_frame(labels, index, n_frames, stack.shape[1:]),
+            _per_frame(masks, index, n_frames, stack.shape[1:]),
+            microscope,
+            base,
+            keys,
+        )
+        for index in frames
+    ]
+    first = prepared[0]
+    camera = first.camera
+    if camera is None:
+        note = "measured once from the pooled frames by photon transfer (fit_series)"
+        prepared = [dataclasses.replace(p, camera_note=note) for p in prepared]
+    options = {k: v for k, v in first.options.items() if k not in ("labels", "masks", "valid")}
+    per_frame = {
+        key: np.stack([p.options[key] for p in prepared]) if first.options.get(key) is not None
+        else None
+        for key in ("labels", "masks", "valid")
+    }
+    shape = stack.shape[1:]
+    stages.stage(
+        f"fitting frames {', '.join(map(str, frames))} jointly ({shape[0]} x {shape[1]} px)"
+    )
+    update, close = stages.bar("fit frames")
+    with timer.step("fit frames jointly"):
+        try:
+            series = fit_series(
+                stack[frames], microscope, base.render, camera, progress=update,
+                **options, **per_frame,
+            )
+        finally:
+            close()
+    writers: dict[str, Callable[[Path], None]] = {}
+    summaries = []
+    for index, ready, result in zip(frames, prepared, series.frames, strict=True):
+        if camera is None:
+            ready = dataclasses.replace(ready, camera=series.camera)
+        writers_one, _ = _outputs_one(
+            args, stack[index], index, ready, result, microscope, pixel_note, base, keys
+        )
+        writers.update({f"frame_{index:04d}/{k}": v for k, v in writers_one.items()})
+        summaries.append(
+            f"frame {index}: fitted {len(result.cells)} cells; pixel chi2 "
+            f"{result.objective_before:.3g} -> {result.objective_after:.3g}"
+        )
+    table = {
+        "frames": frames,
+        "shared": {
+            name: {
+                "value": float(value),
+                "se": float(se),
+                "frame_by_frame": [
+                    {"frame": f, "value": float(v), "se": float(e)}
+                    for f, v, e in zip(
+                        frames, series.frame_values[:, k], series.frame_standard_errors[:, k]
+                    )
+                ],
+            }
+            for k, (name, value, se) in enumerate(
+                zip(series.shared_names, series.shared_values, series.shared_standard_errors)
+            )
+        },
+        "camera": None if series.camera is None else dataclasses.asdict(series.camera),
+        "warnings": list(series.warnings),
+    }
+    writers["series.json"] = lambda p: p.write_text(json.dumps(table, indent=2))
+    summaries += [
+        f"shared {name}: {value:.4g} +- {se:.2g} (joint)"
+        for name, (value, se) in series.shared().items()
+    ]
+    return writers, summaries
+
+
 def run_fit(args: argparse.Namespace) -> int:
     """Run ``napari-symbac fit`` with parsed arguments; returns the exit code."""
     from napari_symbac.fit.preflight import resolve_pixel_size
@@ -409,7 +525,11 @@ def run_fit(args: argparse.Namespace) -> int:
 
     writers: dict[str, Callable[[Path], None]] = {}
     summaries = []
-    for index in frames:
+    if len(frames) > 1:
+        writers, summaries = _fit_frames_jointly(
+            args, stack, frames, labels, masks, microscope, pixel_note, base, keys, stages, timer
+        )
+    for index in frames if len(frames) == 1 else []:
         frame = stack[index]
         writers_one, result = _fit_one(
             args,
@@ -424,8 +544,7 @@ def run_fit(args: argparse.Namespace) -> int:
             stages,
             timer,
         )
-        prefix = "" if len(frames) == 1 else f"frame_{index:04d}/"
-        writers.update({prefix + k: v for k, v in writers_one.items()})
+        writers.update(writers_one)
         summaries.append(
             f"frame {index}: fitted {len(result.cells)} cells; pixel chi2 "
             f"{result.objective_before:.3g} -> {result.objective_after:.3g}"

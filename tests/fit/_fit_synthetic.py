@@ -99,3 +99,33 @@ def make_fluorescence_field(seed: int = 2, shape: tuple[int, int] = (96, 96)) ->
     model = ForwardModel(microscope, FLUO_TRUTH, camera)
     image = model.render(scene, np.random.default_rng(seed))
     return Truth(cells, scene, image, microscope, FLUO_TRUTH, camera)
+
+
+def make_fluorescence_series(n_frames: int = 3, seed: int = 5) -> list[Truth]:
+    """Frames of one recording: four growing, drifting cells per frame, one optics.
+
+    Frame ``t`` holds the cells of :func:`make_fluorescence_field` moved by
+    ``(0.25 t, 0.15 t)`` um, turned by ``0.1 t`` rad and ``0.15 t`` um longer, rendered
+    with :data:`FLUO_TRUTH` and the same camera, each frame with its own noise.
+    """
+    from napari_symbac.scene import Field
+
+    microscope = Microscope(pixel_size_um=0.08, modality="fluorescence")
+    camera = Camera()
+    field = Field(96 * 0.08, 96 * 0.08)
+    model = ForwardModel(microscope, FLUO_TRUTH, camera)
+    rng = np.random.default_rng(seed)
+    frames = []
+    for t in range(n_frames):
+        cells = make_cells(
+            y_um=np.array([1.8, 2.2, 5.4, 5.6]) + 0.15 * t,
+            x_um=np.array([1.6, 5.4, 2.0, 5.8]) + 0.25 * t,
+            angle_rad=np.array([0.3, -0.5, 1.2, 0.05]) + 0.1 * t,
+            length_um=np.array([2.2, 2.0, 2.6, 2.2]) + 0.15 * t,
+            width_um=0.9,
+        )
+        scene = draw_scene(cells, TrenchGeometry(), microscope, FLUO_TRUTH, field=field)
+        frames.append(
+            Truth(cells, scene, model.render(scene, rng), microscope, FLUO_TRUTH, camera)
+        )
+    return frames

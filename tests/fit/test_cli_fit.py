@@ -158,17 +158,29 @@ def test_tiff_pixel_size_wins_and_the_disagreement_is_said(tmp_path, truth, inpu
     assert "from the TIFF" in (out / "report.txt").read_text()
 
 
-def test_frames_of_a_series_are_fitted_each_into_its_folder(tmp_path, truth, inputs, capsys):
+def test_frames_of_a_series_are_fitted_jointly_each_into_its_folder(
+    tmp_path, truth, inputs, capsys
+):
     _, labels, microscope = inputs  # one 2D label image serves every frame
     image = tmp_path / "series.tif"
-    tifffile.imwrite(image, np.stack([truth.image, truth.image]))
+    tifffile.imwrite(image, np.stack([truth.image, truth.image[:, ::-1]]))
     out = tmp_path / "fit"
     assert _fit(image, "--microscope", microscope, "--labels", labels, "--out", out,
                 "--frames", "0-1", "--max-iterations", 3) == 0  # fmt: skip
-    assert {p.name for p in out.iterdir()} == {"frame_0000", "frame_0001"}
-    for folder in out.iterdir():
+    assert {p.name for p in out.iterdir()} == {"frame_0000", "frame_0001", "series.json"}
+    for folder in (out / "frame_0000", out / "frame_0001"):
         assert {p.name for p in folder.iterdir()} == OUTPUTS
-    assert "frame 1: fitted" in capsys.readouterr().out
+    series = json.loads((out / "series.json").read_text())
+    assert series["frames"] == [0, 1]
+    assert set(series["shared"]) == {"apodisation_sigma_um", "defocus_sigma_um", "psf_offset"}
+    for name, shared in series["shared"].items():
+        # both frames measure the shared optics: the joint error is the smaller
+        assert shared["se"] < min(f["se"] for f in shared["frame_by_frame"]), name
+        fitted = json.loads((out / "frame_0001" / "cells.json").read_text())["parameters"]
+        assert {p["name"]: p["value"] for p in fitted}[name] == pytest.approx(shared["value"])
+    printed = capsys.readouterr().out
+    assert "frame 1: fitted" in printed
+    assert "(joint)" in printed
 
 
 @pytest.mark.slow

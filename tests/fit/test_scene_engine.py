@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from _fit_synthetic import START, TRENCH, make_fluorescence_field
@@ -9,7 +11,6 @@ from scipy import ndimage, optimize
 
 from napari_symbac.fit import fit_scene
 from napari_symbac.fit.engine import Layout, SceneModel, solve_intensities
-from napari_symbac.fit.noise import camera_from_residuals, default_valid
 from napari_symbac.fit.overlap import overlap_terms
 from napari_symbac.fit.placement import TrenchPlacement
 from napari_symbac.fit.start import polarity_of, start_scene
@@ -83,9 +84,7 @@ def test_cell_patch_equals_the_difference_of_full_renders(truth, k):
     assert np.abs(full).max() > 1e-3  # the move changed the image
     np.testing.assert_allclose(local, full, atol=2e-5 * np.abs(full).max() + 1e-6)
     # and the media image changed by exactly minus that (media = trench - cells)
-    np.testing.assert_allclose(
-        (a_new[:, 1] - a[:, 1]).reshape(full.shape), -full, atol=1e-5
-    )
+    np.testing.assert_allclose((a_new[:, 1] - a[:, 1]).reshape(full.shape), -full, atol=1e-5)
 
 
 def test_overlapping_rods_are_penalised_and_touching_ones_are_not():
@@ -116,25 +115,25 @@ def test_fluorescence_trench_needs_a_placement():
         start_scene(field.image.astype(float), field.microscope, geometry="trench")
 
 
-def test_default_valid_censors_saturation_and_clipped_zeros():
-    image = np.arange(10000, dtype=float).reshape(100, 100)
-    image[:5] = 65535
-    image[-5:] = 0
-    valid = default_valid(image, "fluorescence")
-    assert not valid[:5].any()
-    assert not valid[-5:].any()
-    assert valid[5:-5].all()
-    assert default_valid(image, "phase")[-5:].all()  # zeros are data in phase contrast
+def test_camera_from_the_model_residual_and_its_flat_fallback():
+    """After a round the camera comes from photon transfer against the model mean;
+    a model too flat for a slope gives a constant variance, the residual's."""
+    from napari_symbac.fit.scene_fit import _camera_from_model
 
-
-def test_camera_is_recovered_from_residuals():
     rng = np.random.default_rng(4)
-    mu = rng.uniform(100, 5000, 200_000)
-    cam = Camera(baseline_adu=100.0, sensitivity_adu_per_e=2.9, dark_noise_e=8.0)
+    mu = np.repeat(np.linspace(100, 5000, 400)[:, None], 400, axis=1)
     var = 2.9 * mu + (2.9 * 8.0) ** 2 + 1 / 12
-    est = camera_from_residuals(mu, rng.normal(0, np.sqrt(var)), cam.baseline_adu)
-    assert est.sensitivity_adu_per_e == pytest.approx(2.9, rel=0.02)
-    assert est.dark_noise_e == pytest.approx(8.0, rel=0.15)
+    real = mu + 100.0 + rng.normal(0, np.sqrt(var))
+    valid = np.ones(real.shape, bool)
+    est = _camera_from_model(real, valid, mu + 100.0, Camera(baseline_adu=100.0))
+    assert est.sensitivity_adu_per_e == pytest.approx(2.9, rel=0.03)
+    assert est.baseline_adu == 100.0
+    flat = np.full((100, 100), 600.0)
+    noisy = flat + rng.normal(0, 30.0, flat.shape)
+    est = _camera_from_model(noisy, valid[:100, :100], flat, Camera(baseline_adu=100.0))
+    assert est.sensitivity_adu_per_e == pytest.approx(1e-3)
+    total = est.sensitivity_adu_per_e**2 * est.dark_noise_e**2 + 1 / 12
+    assert total == pytest.approx(900.0, rel=0.05)
 
 
 @pytest.fixture(scope="module")
@@ -251,6 +250,45 @@ def test_jacobian_columns_match_full_renders(truth):
         want = (ak - a) @ intensities / 0.3
         np.testing.assert_allclose(jac[:, column], want, atol=1e-3 * np.abs(want).max())
     np.testing.assert_allclose(jac[:, 2:], a)  # d mu / d intensities
+
+
+def test_kernel_column_and_per_cell_brightness_are_exact(truth):
+    """The optics column without a redraw equals a full render; the brightness-weighted
+    cells column (one transform) equals the sum of the cells' own patches."""
+    from napari_symbac.fit.engine import _add_patch
+
+    base, x = _model(truth)
+    lay = dataclasses.replace(base.layout, per_cell_brightness=True)
+    model = SceneModel(
+        truth.image.shape, truth.microscope, truth.render, Camera(), base.placement, 1.2, lay
+    )
+    blocks = np.concatenate([x[: 3 * 5].reshape(3, 5), [[0.3], [-0.2], [0.0]]], axis=1)
+    x = np.concatenate([blocks.ravel(), x[3 * 5 :]])
+    a, scene, render = model.design(x)
+    plain = model.design(_without_brightness(x, lay))[0]
+    kernel = model.forward.with_render(render).kernel(scene.pixel_size_um)
+    want = plain[:, 0].copy()
+    for i, db in enumerate((0.3, -0.2)):
+        _add_patch(want, truth.image.shape, *model.cell_delta(x, x, i, scene, kernel, True), db)
+    assert np.abs(a[:, 0] - plain[:, 0]).max() > 0.1 * np.abs(want).max()  # brightness shows
+    np.testing.assert_allclose(a[:, 0], want, atol=1e-4 * np.abs(want).max())
+    intensities = np.array([1400.0, 2600.0, 900.0])
+    k = x.size - 1  # defocus
+    free = np.zeros(x.size, bool)
+    free[k] = True
+    column = model.jacobian(x, a, intensities, scene, render, free).toarray()[:, 0]
+    xk = x.copy()
+    xk[k] += 0.3 * lay.scales()[k]
+    full = (model.design(xk)[0] - a) @ intensities / 0.3
+    np.testing.assert_allclose(column, full, atol=1e-3 * np.abs(full).max())
+
+
+def _without_brightness(x, layout):
+    out = x.copy()
+    pc = layout.per_cell
+    for i in range(layout.n):
+        out[i * pc + layout.i_brightness] = 0.0
+    return out
 
 
 def test_a_cell_missing_from_the_start_mask_is_added(truth):

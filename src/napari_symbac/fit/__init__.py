@@ -9,7 +9,9 @@
 * :func:`fit_scene`: analysis by synthesis, cells and trench placed, sized and counted
   so the rendered image overlays the real one pixel for pixel, with the camera,
   censoring and standard errors (stages in ``start``, ``noise``, ``engine``, ``lm``,
-  ``overlap``, ``moves``).
+  ``overlap``, ``moves``);
+* :func:`fit_series`: a ``(T, Y, X)`` series with the optics (and camera) shared by
+  the frames and the cells per frame.
 """
 
 from napari_symbac.fit.inputs import (
@@ -36,6 +38,7 @@ from napari_symbac.fit.scene_fit import (
     fit_scene,
     otsu_cells,
 )
+from napari_symbac.fit.series import SeriesFit, fit_series
 
 __all__ = [
     "CLASS_NAMES",
@@ -48,6 +51,7 @@ __all__ = [
     "FitCancelled",
     "FitResult",
     "SceneFit",
+    "SeriesFit",
     "TrenchPlacement",
     "as_image_stack",
     "as_label_stack",
@@ -55,6 +59,7 @@ __all__ = [
     "class_statistics",
     "fit_parameters",
     "fit_scene",
+    "fit_series",
     "objective_terms",
     "otsu_cells",
     "parameter_bounds",

@@ -19,7 +19,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal, sparse
+from scipy import fft as sp_fft
+from scipy import sparse
 
 from napari_symbac.fit.placement import TrenchPlacement, draw_fitted
 from napari_symbac.optics import ForwardModel
@@ -47,6 +48,11 @@ _OPTICS_SCALE = {
     "psf_offset": 0.05,
 }
 _INTENSITIES = ("cell_intensity", "media_intensity", "device_intensity")
+#: Render settings that change only the PSF kernel, not the drawn scene (whose
+#: upsampling and border come from ``upsample`` and ``psf_radius_px``).
+KERNEL_PARAMETERS = frozenset(
+    {"apodisation_sigma_um", "defocus_sigma_um", "ring_contrast", "psf_offset"}
+)
 
 
 def solve_intensities(a: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -194,6 +200,8 @@ class SceneModel:
         self.layout = layout
         self.forward = ForwardModel(microscope, render, camera)
         self.tick = tick if tick is not None else (lambda: None)
+        self._box_cache: tuple | None = None
+        self._kernel_spectra: dict[tuple, np.ndarray] = {}
 
     # ------------------------------------------------------------------ unpack
     def unpack(
@@ -240,24 +248,98 @@ class SceneModel:
 
     # ---------------------------------------------------------------- full render
     def design(self, x: np.ndarray) -> tuple[np.ndarray, Scene, RenderSettings]:
-        """``(pixels, 3)`` design ``[C, M, D]`` (float64), the scene and the render settings."""
+        """``(pixels, 3)`` design ``[C, M, D]`` (float64), the scene and the render settings.
+
+        With per-cell brightness the cells column is ``C + sum_i db_i C_i`` (``C_i`` the
+        convolved fraction of cell ``i`` alone); by the linearity of the convolution
+        it is the convolution of ``cells + sum_i db_i F_i`` (:meth:`_brightness`),
+        one transform for all cells.
+        """
         self.tick()
         cells, curvature, place, r = self.unpack(x)
         scene = draw_fitted(cells, place, self.shape, self.microscope, r, self.depth_um, curvature)
         forward = self.forward.with_render(r)
-        comps = forward.components(scene)
-        a = np.stack([comps[k].ravel() for k in ("cells", "media", "device")], axis=1)
-        a = a.astype(np.float64)
+        cells_image = scene.cells
         if self.layout.per_cell_brightness:
-            kernel = forward.kernel(scene.pixel_size_um)
-            pc, ib = self.layout.per_cell, self.layout.i_brightness
-            for i in range(self.layout.n):
-                db = float(x[i * pc + ib])
-                if db != 0:
-                    _add_patch(
-                        a[:, 0], self.shape, *self.cell_delta(x, x, i, scene, kernel, True), db
-                    )
+            cells_image = cells_image + self._brightness(x, scene)
+        comps = self._convolve(forward, scene, (cells_image, scene.media, scene.device))
+        a = np.stack([comp.ravel() for comp in comps], axis=1).astype(np.float64)
         return a, scene, r
+
+    def _convolve(
+        self,
+        forward: ForwardModel,
+        scene: Scene,
+        images: tuple[np.ndarray, ...],
+        weights: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Render-resolution images through the forward model's PSF and resample stages.
+
+        The same transform as :meth:`ForwardModel.components` (trimmed to the PSF
+        border, convolved, block-averaged); with ``weights`` the weighted sum of the
+        images in one transform (linearity).
+        """
+        trim = scene.border_px - forward.render_settings.psf_radius_px
+        stack = np.stack([np.asarray(image, np.float32) for image in images])
+        if trim:
+            stack = stack[:, trim:-trim, trim:-trim]
+        kernel = forward.kernel(scene.pixel_size_um)
+        out = forward._convolve_resample(stack, kernel, scene.upsample, weights)
+        return out[None] if weights is not None and out.ndim == 2 else out
+
+    def _brightness(self, x: np.ndarray, scene: Scene) -> np.ndarray:
+        """``sum_i db_i F_i`` at render resolution, ``F_i`` cell ``i``'s fraction alone.
+
+        ``F_i = min(chord_i / depth, 1, trench)`` in the cell's box, as
+        :meth:`cell_delta` draws it with ``alone``.
+        """
+        lay = self.layout
+        pc, ib = lay.per_cell, lay.i_brightness
+        out = np.zeros(scene.shape, np.float32)
+        trench = None
+        px, bd = scene.pixel_size_um, scene.border_px
+        S0, S1 = scene.shape
+        for i in range(lay.n):
+            db = float(x[i * pc + ib])
+            if db == 0:
+                continue
+            e0, e1, f0, f1, (cx, cy, ang, ln, wd, bend) = self._cell_box(x, i, scene)
+            e0, e1, f0, f1 = max(e0, 0), min(e1, S0), max(f0, 0), min(f1, S1)
+            if e0 >= e1 or f0 >= f1:
+                continue
+            if trench is None:
+                trench = scene.cells + scene.media
+            yc = (np.arange(e0, e1) - bd + 0.5) * px
+            xc = (np.arange(f0, f1) - bd + 0.5) * px
+            chord = _chord(
+                xc, yc, (cx, cy), ang, ln, wd, (bend, CURVATURE_B, CURVATURE_C) if bend else None
+            )
+            alone = np.minimum(
+                np.minimum(chord / np.float32(self.depth_um), 1.0), trench[e0:e1, f0:f1]
+            )
+            out[e0:e1, f0:f1] += np.float32(db) * alone
+        return out
+
+    def kernel_column(
+        self, x: np.ndarray, xk: np.ndarray, scene: Scene, intensities: np.ndarray
+    ) -> np.ndarray:
+        """``mu`` at ``xk``, which differs from ``x`` only in kernel parameters.
+
+        The scene is the same, so no redraw: the fractions (brightness folded into the
+        cells) are weighted by the intensities and convolved once with the new kernel.
+        """
+        self.tick()
+        r = self.unpack(xk)[3]
+        forward = self.forward.with_render(r)
+        cells_image = scene.cells
+        if self.layout.per_cell_brightness:
+            cells_image = cells_image + self._brightness(x, scene)
+        images = (cells_image, scene.media, scene.device)
+        return (
+            self._convolve(forward, scene, images, np.asarray(intensities, np.float32))[0]
+            .ravel()
+            .astype(np.float64)
+        )
 
     # ---------------------------------------------------------------- patch render
     def _cell_box(
@@ -283,6 +365,38 @@ class SceneModel:
         i1 = math.ceil((b[1] + reach_y) / px) + border + 1
         args = (float(b[0]), float(b[1]), float(b[2]), float(length), float(width), bend)
         return i0, i1, j0, j1, args
+
+    def _boxes(
+        self, x: np.ndarray, scene: Scene
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Render-pixel boxes ``(i0, i1, j0, j1)`` of every cell, as :meth:`_cell_box`.
+
+        Vectorised and kept for the last ``x`` (a Jacobian asks for them once per
+        patch), so that finding a patch's neighbours costs O(n), not n boxes.
+        """
+        key = (x.tobytes(), scene.pixel_size_um, scene.border_px)
+        if self._box_cache is not None and self._box_cache[0] == key:
+            return self._box_cache[1]
+        lay = self.layout
+        n, pc = lay.n, lay.per_cell
+        b = x[: n * pc].reshape(n, pc)
+        width = x[n * pc] + (b[:, lay.i_dwidth] if lay.per_cell_width else 0.0)
+        width = np.maximum(width, 0.2)
+        length = np.maximum(b[:, 3], width)
+        bend = b[:, 4] if lay.fit_curvature else np.zeros(n)
+        px, border = scene.pixel_size_um, scene.border_px
+        half_len, half_wid = length / 2, width / 2 + np.abs(bend)
+        sin_a, cos_a = np.abs(np.sin(b[:, 2])), np.abs(np.cos(b[:, 2]))
+        reach_x = np.minimum(half_len * sin_a + half_wid * cos_a, half_len + half_wid) + 2 * px
+        reach_y = np.minimum(half_len * cos_a + half_wid * sin_a, half_len + half_wid) + 2 * px
+        boxes = (
+            np.floor((b[:, 1] - reach_y) / px).astype(np.int64) + border,
+            np.ceil((b[:, 1] + reach_y) / px).astype(np.int64) + border + 1,
+            np.floor((b[:, 0] - reach_x) / px).astype(np.int64) + border,
+            np.ceil((b[:, 0] + reach_x) / px).astype(np.int64) + border + 1,
+        )
+        self._box_cache = (key, boxes)
+        return boxes
 
     def cell_delta(
         self,
@@ -326,7 +440,14 @@ class SceneModel:
             yc = (np.arange(r0, r1) - bd + 0.5) * px
             xc = (np.arange(q0, q1) - bd + 0.5) * px
             thick = np.zeros((r1 - r0, q1 - q0), np.float32)
-            for j in [i] if alone else range(self.layout.n):
+            if alone:
+                near = [i]
+            else:  # the cells whose boxes reach the patch (boxes of x, all at once)
+                b0, b1, c0, c1 = self._boxes(x, scene)
+                hit = (b1 > r0) & (b0 < r1) & (c1 > q0) & (c0 < q1)
+                hit[i] = True
+                near = np.flatnonzero(hit)
+            for j in near:
                 source = x_new if j == i else x
                 e0, e1, f0, f1, (cx, cy, ang, ln, wd, bend) = self._cell_box(source, j, scene)
                 if e1 <= r0 or e0 >= r1 or f1 <= q0 or f0 >= q1:
@@ -347,10 +468,29 @@ class SceneModel:
                 old = np.zeros_like(old)
             new = np.minimum(np.minimum(thick / np.float32(self.depth_um), 1.0), trench)
             delta[r0 - s0 : r1 - s0, q0 - t0 : q1 - t0] = new - old
-        full = signal.fftconvolve(delta.astype(np.float64), kernel.astype(np.float64), mode="full")
+        full = self._full_convolve(delta, kernel)
         h, w = full.shape
         patch = full.reshape(h // u, u, w // u, u).mean(axis=(1, 3))
         return (s0 - 2 * bd) // u, (t0 - 2 * bd) // u, patch
+
+    def _full_convolve(self, patch: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+        """``fftconvolve(patch, kernel, "full")`` in float64, the kernel's spectrum cached.
+
+        Transform sizes are fast lengths of the full output; the kernel's spectrum
+        for each size is kept (a fit's patches come in a few sizes), so a patch costs
+        one forward and one inverse transform instead of two forward and one inverse.
+        """
+        shape = tuple(p + k - 1 for p, k in zip(patch.shape, kernel.shape))
+        fshape = tuple(sp_fft.next_fast_len(n, real=True) for n in shape)
+        key = (hash(kernel.tobytes()), kernel.shape, fshape)
+        spectrum = self._kernel_spectra.get(key)
+        if spectrum is None:
+            if len(self._kernel_spectra) > 64:
+                self._kernel_spectra.clear()
+            spectrum = sp_fft.rfft2(np.asarray(kernel, np.float64), fshape)
+            self._kernel_spectra[key] = spectrum
+        product = sp_fft.rfft2(np.asarray(patch, np.float64), fshape) * spectrum
+        return sp_fft.irfft2(product, fshape)[: shape[0], : shape[1]]
 
     # ----------------------------------------------------------------- Jacobian
     def jacobian(
@@ -406,6 +546,9 @@ class SceneModel:
                     self.tick()
                     patch = self.cell_delta(x, xk, i, scene, kernel)
                     _add_patch(col, self.shape, *patch, contrast[i] / h)
+            elif lay.global_names[k - lay.n * pc] in KERNEL_PARAMETERS:
+                # The kernel alone changes: one weighted transform, no redraw.
+                col = (self.kernel_column(x, xk, scene, intensities) - mu) / h
             else:
                 ak, _, _ = self.design(xk)
                 col = (ak @ intensities - mu) / h

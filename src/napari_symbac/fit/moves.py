@@ -6,7 +6,8 @@ rods where there is one cell, one rod where a septum shows two, or miss a cell.
 Each move is proposed where the model or the residual says so and kept when the
 Bayesian information criterion ``BIC = chi^2 / phi + k ln N`` falls (``k``
 parameters, ``N`` valid pixels; one cell costs ``per_cell * ln N``; ``phi >= 1`` the
-residual's overdispersion, :func:`dispersion`):
+residual's overdispersion, :func:`dispersion`, measured where the move changes the
+model):
 
 * **remove** a cell whose removal raises ``chi^2`` by less than its price (a hidden
   duplicate raises it by about 0);
@@ -15,7 +16,10 @@ residual's overdispersion, :func:`dispersion`):
   poles furthest apart;
 * **split** a rod longer than 1.6 times the median cell length in two halves;
 * **add** a cell on a blob of significant residual of the cells' polarity where the
-  model has no cell but room for one (media: inside the trench, on the pad).
+  model has no cell but room for one (media: inside the trench, on the pad); in
+  fluorescence the blobs are those of the start's detector
+  (:func:`~napari_symbac.fit.bright_start.bright_instances`) on the residual, which
+  leaves out spots smaller than a cell.
 
 Merged, split and added cells are refitted locally (their own parameters only)
 before the comparison, and, when that brings them close to acceptance, with every
@@ -30,6 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
+from napari_symbac.fit.bright_start import bright_instances
 from napari_symbac.fit.lm import State
 from napari_symbac.fit.overlap import segment_distance
 from napari_symbac.fit.problem import Problem
@@ -65,25 +70,50 @@ class _Context:
         self.log.append(message)
 
 
-def dispersion(problem: Problem, state: State, block_px: int = 4) -> float:
+def dispersion(
+    problem: Problem, state: State, block_px: int = 4, where: np.ndarray | None = None
+) -> float:
     """Overdispersion of the standardised residual from its spatial correlation.
 
     ``16 var(mean of z over 4 x 4 blocks)``: 1 for white noise, larger when the
     residual holds structure the model misses (its pixels are then not independent
-    and a chi-square difference overstates the evidence). At least 1.
+    and a chi-square difference overstates the evidence). At least 1. With ``where``
+    (camera pixels), only the blocks wholly inside it, their spread taken robustly
+    (1.4826 x their median absolute deviation); ``nan`` when fewer than 10.
     """
     rows, cols = problem.shape
     z = ((problem.y - state.mu) * np.sqrt(problem.w)).reshape(rows, cols)
     used = (problem.w > 0).reshape(rows, cols)
+    if where is not None:
+        used = used & where
     r, c = rows // block_px * block_px, cols // block_px * block_px
     if r == 0 or c == 0:
-        return 1.0
+        return 1.0 if where is None else math.nan
     blocks = z[:r, :c].reshape(r // block_px, block_px, c // block_px, block_px)
     full = used[:r, :c].reshape(blocks.shape).all(axis=(1, 3))
     means = blocks.mean(axis=(1, 3))[full]
     if means.size < 10:
-        return 1.0
-    return float(max(block_px**2 * np.var(means), 1.0))
+        return 1.0 if where is None else math.nan
+    if where is None:
+        return float(max(block_px**2 * np.var(means), 1.0))
+    # Locally, robustly: a few blocks of an unmodelled neighbour (a spot, another
+    # cell's misfit) must not set the price of the move.
+    spread = 1.4826 * float(np.median(np.abs(means - np.median(means))))
+    return float(max(block_px**2 * spread**2, 1.0))
+
+
+def _local_dispersion(problem: Problem, state: State, trial: State, ctx: _Context) -> float:
+    """The dispersion where a move changes the model (more than 0.1 noise s.d.).
+
+    The residual's structure is local: a bright cell's misfit says nothing about
+    the evidence for a dim cell elsewhere. Where the move changes too few pixels
+    (a hidden duplicate), the whole image's dispersion.
+    """
+    changed = np.abs(trial.mu - state.mu) * np.sqrt(problem.w) > 0.1
+    if not changed.any():
+        return ctx.dispersion
+    local = dispersion(problem, state, where=changed.reshape(problem.shape))
+    return ctx.dispersion if math.isnan(local) else local
 
 
 def _poles(block: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -134,7 +164,8 @@ def _try(
 
 
 def _accept(problem: Problem, state: State, trial: State, dn: int, ctx: _Context) -> bool:
-    return (trial.cost - state.cost) / ctx.dispersion + dn * problem.bic_per_cell < 0
+    phi = _local_dispersion(problem, state, trial, ctx)
+    return (trial.cost - state.cost) / phi + dn * problem.bic_per_cell < 0
 
 
 def _remove_pass(problem: Problem, state: State, ctx: _Context) -> tuple[State, bool]:
@@ -223,9 +254,18 @@ def _add_pass(
     model_cells = block_average(state.scene.interior(state.scene.cells), state.scene.upsample)
     scene = state.scene
     room = block_average(scene.interior(scene.media + scene.cells), scene.upsample)
-    blob = (z > 3.0) & (model_cells < 0.05) & (room > 0.5) & (problem.w.reshape(rows, cols) > 0)
-    blob = ndimage.binary_opening(blob)
-    labels, count = ndimage.label(blob)
+    empty = (model_cells < 0.05) & (room > 0.5)
+    used = problem.w.reshape(rows, cols) > 0
+    if polarity == "bright":
+        # Fluorescence: the start's detector on the residual, so that a bright spot
+        # (smaller than a cell at half its peak) is not taken for a missing cell.
+        residual = (problem.y - state.mu).reshape(rows, cols)
+        labels = bright_instances(residual, px, valid=used, region=empty)
+        count = int(labels.max())
+        blob = labels > 0
+    else:
+        blob = ndimage.binary_opening((z > 3.0) & empty & used)
+        labels, count = ndimage.label(blob)
     if count == 0:
         return state, False
     min_px = max(int(0.3 / px**2), 6)
@@ -263,9 +303,9 @@ def improve_scene(
     """Apply remove, merge, split and add moves while the BIC falls.
 
     The chi-square differences are divided by the residual's :func:`dispersion`
-    (a quasi-likelihood BIC): where the model misses structure, a move must explain
-    more to be kept. A move is not undone at the same place (no split of a merged
-    cell, no merge of a split one).
+    where the move changes the model (a quasi-likelihood BIC): where the model
+    misses structure, a move must explain more to be kept. A move is not undone at
+    the same place (no split of a merged cell, no merge of a split one).
 
     Returns
     -------

@@ -10,9 +10,9 @@ The stages, each in its own module:
 * start (:mod:`~napari_symbac.fit.start`): cells from an instance mask, from painted
   labels or from a plain segmentation, with the polarity from the labels or the
   modality;
-* censoring and noise (:mod:`~napari_symbac.fit.noise`): clipped pixels are left
-  out; the camera's gain and read noise (eq. 17) are given or estimated from the
-  residual variance against the model mean;
+* censoring and noise (:mod:`~napari_symbac.fit.camera_estimate`,
+  :mod:`~napari_symbac.fit.noise`): clipped pixels are left out; the camera's gain
+  and read noise (eq. 17) are given or measured by photon transfer;
 * the model and its solver (:mod:`~napari_symbac.fit.engine`,
   :mod:`~napari_symbac.fit.lm`): intensities in closed form (eq. 3 is linear in
   them), per-cell patches for the Jacobian, Levenberg-Marquardt, rounds of
@@ -37,11 +37,12 @@ from typing import Literal
 import numpy as np
 from scipy import sparse
 
+from napari_symbac.fit.camera_estimate import censored_pixels, estimate_camera
 from napari_symbac.fit.engine import CURVATURE_B, CURVATURE_C, Layout
 from napari_symbac.fit.inputs import as_label_stack, as_single_image
 from napari_symbac.fit.lm import State
 from napari_symbac.fit.moves import improve_scene
-from napari_symbac.fit.noise import camera_from_residuals, default_valid, variance
+from napari_symbac.fit.noise import variance
 from napari_symbac.fit.objectives import objective_terms
 from napari_symbac.fit.parameters import DEFAULT_FIT, _Budget, _variance, parameter_bounds
 from napari_symbac.fit.placement import TrenchPlacement
@@ -245,6 +246,30 @@ class SceneFit:
         return math.nan
 
 
+@dataclass
+class _FrameRun:
+    """One frame's fit before its results are assembled (see :func:`_frame_result`)."""
+
+    real: np.ndarray
+    labels: np.ndarray | None
+    valid: np.ndarray
+    y: np.ndarray
+    baseline: float
+    render: RenderSettings
+    estimate: bool
+    camera_used: Camera
+    problem: Problem
+    state: State
+    start: State
+    warnings: list[str]
+    log: list[str]
+    history: list[float]
+    init_cells: FrameCells
+    otsu_w: np.ndarray
+    budget: _Budget
+    progress: Callable[[int, int], None] | None
+
+
 def fit_scene(
     real_image: np.ndarray,
     microscope: Microscope,
@@ -285,7 +310,8 @@ def fit_scene(
         model's misfit, so chi-square would always look like 1). Only when the image's
         levels span too little for it, the gain and read noise come from the residual
         variance against the model mean after each round
-        (:func:`~napari_symbac.fit.noise.camera_from_residuals`). The baseline is
+        (:func:`~napari_symbac.fit.camera_estimate.estimate_camera` with the model
+        mean, :func:`_camera_from_model`). The baseline is
         guessed (100 ADU, or the image's 0.1 % quantile when lower, e.g. 0 for a
         background-subtracted image).
     geometry
@@ -310,7 +336,8 @@ def fit_scene(
         intensities always are. Default: :data:`DEFAULT_FIT_OPTICS` of the modality.
     valid
         Pixels to use (False: censored). Default:
-        :func:`~napari_symbac.fit.noise.default_valid` (clipped pixels left out).
+        not :func:`~napari_symbac.fit.camera_estimate.censored_pixels` (saturated
+        pixels and a pile of background-subtraction zeros left out).
     width_sd_um
         0 (default): one width shared by all cells. > 0: per-cell widths tied to the
         shared width by a Gaussian prior of this s.d. (hierarchical).
@@ -338,6 +365,56 @@ def fit_scene(
     -------
     SceneFit
     """
+    return _frame_result(
+        _run_frame(
+            real_image,
+            microscope,
+            render,
+            camera,
+            geometry=geometry,
+            labels=labels,
+            masks=masks,
+            trench=trench,
+            closed_end=closed_end,
+            fit_optics=fit_optics,
+            valid=valid,
+            width_sd_um=width_sd_um,
+            per_cell_brightness=per_cell_brightness,
+            fit_curvature=fit_curvature,
+            curvature_sd_um=curvature_sd_um,
+            irls_rounds=irls_rounds,
+            max_iterations=max_iterations,
+            moves=moves,
+            progress=progress,
+            cancel=cancel,
+        )
+    )
+
+
+def _run_frame(
+    real_image: np.ndarray,
+    microscope: Microscope,
+    render: RenderSettings,
+    camera: Camera | None = None,
+    *,
+    geometry: Literal["trench", "open"] = "trench",
+    labels: np.ndarray | None = None,
+    masks: np.ndarray | None = None,
+    trench: TrenchPlacement | TrenchGeometry | None = None,
+    closed_end: Literal["square", "round"] | None = None,
+    fit_optics: tuple[str, ...] | None = None,
+    valid: np.ndarray | None = None,
+    width_sd_um: float = 0.0,
+    per_cell_brightness: bool | None = None,
+    fit_curvature: bool = True,
+    curvature_sd_um: float = 0.1,
+    irls_rounds: int = 3,
+    max_iterations: int = 25,
+    moves: bool = True,
+    progress: Callable[[int, int], None] | None = None,
+    cancel: Callable[[], bool] | None = None,
+) -> _FrameRun:
+    """Check the inputs, start, and run the rounds and moves of :func:`fit_scene`."""
     real = as_single_image(real_image, name="real_image")
     if geometry not in ("trench", "open"):
         raise ValueError(f"geometry must be 'trench' or 'open', got {geometry!r}")
@@ -364,7 +441,9 @@ def fit_scene(
     for name in fit_optics:
         parameter_bounds(name, microscope)
     if valid is None:
-        valid = default_valid(real, modality, camera.bit_depth if camera else 16)
+        valid = ~censored_pixels(real, camera)
+        if not valid.any():
+            raise ValueError("every pixel of the image is clipped: no pixel is left to fit")
     else:
         valid = np.asarray(valid, bool)
         if valid.shape != real.shape:
@@ -494,8 +573,8 @@ def fit_scene(
             # 2.0 ADU/e- on the real trench) and make chi-square meaningless. Only
             # an image whose levels span too little for it falls back to the residual.
             if measured is None:
-                camera_used = camera_from_residuals(
-                    mu[flat_valid], (y - mu)[flat_valid], baseline, problem.camera.bit_depth
+                camera_used = _camera_from_model(
+                    real, valid, (mu + baseline).reshape(shape), problem.camera
                 )
             var = variance(mu, camera_used)
         else:
@@ -527,6 +606,37 @@ def fit_scene(
                     f"the residual is spatially correlated (dispersion {phi:.3g}): the moves "
                     "demanded that much more evidence"
                 )
+    return _FrameRun(
+        real,
+        labels,
+        valid,
+        y,
+        baseline,
+        render,
+        estimate,
+        camera_used,
+        problem,
+        state,
+        start,
+        warnings,
+        log,
+        history,
+        init_cells,
+        otsu_w,
+        budget,
+        progress,
+    )
+
+
+def _frame_result(run: _FrameRun) -> SceneFit:
+    """The :class:`SceneFit` of a run: unpacked cells, terms, uncertainty, warnings."""
+    real, labels, valid, y, baseline = run.real, run.labels, run.valid, run.y, run.baseline
+    render, estimate, camera_used = run.render, run.estimate, run.camera_used
+    problem, state, start = run.problem, run.state, run.start
+    warnings, log, history = list(run.warnings), run.log, run.history
+    init_cells, otsu_w, budget, progress = run.init_cells, run.otsu_w, run.budget, run.progress
+    shape = real.shape
+    flat_valid = valid.ravel()
     # ---- results -----------------------------------------------------------------
     x = state.x
     n = problem.n_cells(x)
@@ -606,14 +716,36 @@ def _measured_camera(real: np.ndarray, valid: np.ndarray, camera: Camera) -> Cam
 
     The baseline is kept from ``camera`` (one frame cannot separate it from the read
     noise). ``None`` when the estimate fails (too little range of levels): the fit
-    then uses :func:`~napari_symbac.fit.noise.camera_from_residuals`.
+    then uses :func:`_camera_from_model`.
     """
-    from napari_symbac.fit.camera_estimate import estimate_camera
-
     try:
         return estimate_camera(real, valid=valid, camera=camera).camera
     except ValueError:
         return None
+
+
+def _camera_from_model(
+    real: np.ndarray, valid: np.ndarray, model_adu: np.ndarray, camera: Camera
+) -> Camera:
+    """The camera from the residual against the model mean, after a round.
+
+    Photon transfer of :func:`~napari_symbac.fit.camera_estimate.estimate_camera`
+    with ``model_mean`` (baseline kept from ``camera``). When the model's levels span
+    too little for a slope, the variance is taken as constant, the residual's mean
+    square: the gain is then not identifiable and is set to 1e-3 ADU/e-, so that
+    the read noise carries all of it.
+    """
+    try:
+        return estimate_camera(real, valid=valid, model_mean=model_adu, camera=camera).camera
+    except ValueError:
+        residual = (real - model_adu)[valid]
+        gain = 1e-3
+        floor = max(float(np.mean(residual**2)), 1 / 12)
+        return dataclasses.replace(
+            camera,
+            sensitivity_adu_per_e=gain,
+            dark_noise_e=math.sqrt(max(floor - 1 / 12, 0.0)) / gain,
+        )
 
 
 def _baseline_guess(real: np.ndarray, valid: np.ndarray) -> float:

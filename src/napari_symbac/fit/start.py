@@ -17,6 +17,7 @@ from typing import Literal
 import numpy as np
 from scipy import ndimage
 
+from napari_symbac.fit.bright_start import bright_instances
 from napari_symbac.fit.placement import TrenchPlacement
 from napari_symbac.settings import Microscope
 from napari_symbac.sim import FrameCells
@@ -198,15 +199,17 @@ def otsu_cells(
     """Plain segmentation: Otsu threshold, watershed, region moments.
 
     ``polarity="dark"``: cells darker than the media around them (phase contrast);
-    ``"bright"``: cells brighter than their background (fluorescence), handled as the
-    negated image. Pixels outside ``valid`` (clipped) are left out of the
-    thresholds. In a trench, unless ``trench`` gives its placement,
-    the trench is found first from the column profile (90th percentile of each
-    column, longest run above 30 % of its range) and its closed end from the row
-    profile (Otsu threshold). Touching cells that the threshold and watershed leave
-    in one region are split at their bright septa (septum profile split,
-    :func:`_split_at_septa`). A region still longer than ``max_cell_length_um`` is
-    taken as several touching cells and starts as equal rods along its axis.
+    ``"bright"``: cells brighter than their background (fluorescence), which differ
+    in brightness, so each is cut at half its own peak instead of at one Otsu
+    threshold (:func:`~napari_symbac.fit.bright_start.bright_instances`). Pixels
+    outside ``valid`` (clipped) are left out of the thresholds. In a trench, unless
+    ``trench`` gives its placement, the trench is found first from the column
+    profile (90th percentile of each column, longest run above 30 % of its range)
+    and its closed end from the row profile (Otsu threshold). Touching cells that
+    the threshold and watershed leave in one region are split at their bright septa
+    (septum profile split, :func:`_split_at_septa`). A region still longer than
+    ``max_cell_length_um`` is taken as several touching cells and starts as equal
+    rods along its axis.
 
     Returns
     -------
@@ -285,6 +288,11 @@ def otsu_cells(
                 break
     elif geometry != "open":
         raise ValueError(f"geometry must be 'trench' or 'open', got {geometry!r}")
+    if polarity == "bright":
+        # Fluorescent cells differ in brightness: one threshold per cell, not Otsu's.
+        instances = bright_instances(-image, px, valid=valid, region=region)
+        cells, widths = cells_from_instances(instances, px, max_cell_length_um)
+        return cells, widths, (trench if geometry == "trench" else None), instances
     threshold = threshold_otsu(smooth[region])
     mask = (smooth < threshold) & region
     mask = ndimage.binary_opening(mask)

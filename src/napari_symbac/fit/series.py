@@ -1,0 +1,382 @@
+"""A time series fitted jointly: shared optics and camera, cells per frame.
+
+The frames of one recording are taken through the same optics and camera, while
+each frame holds its own cells. :func:`fit_series` fits every frame alone first
+(:func:`~napari_symbac.fit.scene_fit.fit_scene`: start, rounds, moves), then
+refines all frames together: the cost is the sum of the frames' costs, the
+optical parameters are one set shared by every frame (their Jacobian columns are
+the frames' columns stacked, so their normal-equation block is the sum of the
+frames' blocks), and each frame keeps its own cells, cell width, trench placement
+(drift between frames is allowed) and intensities (solved in closed form per
+frame, as in a single-frame fit). The camera is measured once from the pooled
+frames when it is not given.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from scipy import sparse
+
+from napari_symbac.fit.camera_estimate import censored_pixels, estimate_camera
+from napari_symbac.fit.lm import State, evaluate
+from napari_symbac.fit.overlap import overlap_terms
+from napari_symbac.fit.placement import TrenchPlacement
+from napari_symbac.fit.scene_fit import (
+    _INTENSITIES,
+    SceneFit,
+    _baseline_guess,
+    _frame_result,
+    _FrameRun,
+    _run_frame,
+)
+from napari_symbac.settings import Camera, Microscope, RenderSettings, TrenchGeometry
+
+__all__ = ["SeriesFit", "fit_series"]
+
+
+@dataclass(frozen=True)
+class SeriesFit:
+    """Outcome of :func:`fit_series`.
+
+    Attributes
+    ----------
+    frames
+        One :class:`~napari_symbac.fit.SceneFit` per frame at the joint optimum (its
+        standard errors are the frame's own, with the shared parameters as if only
+        that frame had measured them).
+    frame_by_frame
+        The fits of every frame alone, before the joint refinement.
+    shared_names
+        The shared (optical) parameters.
+    shared_values, shared_standard_errors
+        Their joint values and standard errors (inverse of the summed Fisher
+        information of all frames, every frame's cells and intensities included).
+    frame_values, frame_standard_errors
+        ``(T, S)``: the same parameters from each frame's fit alone.
+    camera
+        The camera shared by all frames (given, or measured from the pooled frames;
+        ``None`` when each frame measured its own).
+    cost_frame_by_frame, cost_joint
+        The summed cost of the frames (chi-square plus priors) of the frame-by-frame
+        fits and of the joint fit. The joint fit has fewer free parameters (one set of
+        optics instead of one per frame), so its cost is not lower.
+    iterations
+        Joint Levenberg-Marquardt iterations taken.
+    warnings
+        Plain words on what did not converge.
+    """
+
+    frames: tuple[SceneFit, ...]
+    frame_by_frame: tuple[SceneFit, ...] = field(repr=False)
+    shared_names: tuple[str, ...]
+    shared_values: np.ndarray
+    shared_standard_errors: np.ndarray
+    frame_values: np.ndarray = field(repr=False)
+    frame_standard_errors: np.ndarray = field(repr=False)
+    camera: Camera | None = None
+    cost_frame_by_frame: float = math.nan
+    cost_joint: float = math.nan
+    iterations: int = 0
+    warnings: tuple[str, ...] = ()
+
+    def shared(self) -> dict[str, tuple[float, float]]:
+        """``{name: (value, standard error)}`` of the shared parameters."""
+        return {
+            name: (float(v), float(se))
+            for name, v, se in zip(
+                self.shared_names, self.shared_values, self.shared_standard_errors
+            )
+        }
+
+
+def _per_frame(array: np.ndarray | None, t: int, n: int, name: str) -> np.ndarray | None:
+    if array is None:
+        return None
+    array = np.asarray(array)
+    if array.ndim == 3:
+        if array.shape[0] != n:
+            raise ValueError(f"{name} has {array.shape[0]} frames but the series has {n}")
+        return array[t]
+    return array
+
+
+def _pooled_camera(stack: np.ndarray) -> Camera | None:
+    """The camera of all frames at once (photon transfer on the pooled high-pass)."""
+    valid = ~censored_pixels(stack)
+    baseline = _baseline_guess(stack, valid)
+    try:
+        return estimate_camera(stack, valid=valid, camera=Camera(baseline_adu=baseline)).camera
+    except ValueError:
+        return None
+
+
+def fit_series(
+    frames: np.ndarray,
+    microscope: Microscope,
+    render: RenderSettings,
+    camera: Camera | None = None,
+    *,
+    geometry: Literal["trench", "open"] = "trench",
+    labels: np.ndarray | None = None,
+    masks: np.ndarray | None = None,
+    valid: np.ndarray | None = None,
+    trench: TrenchPlacement | TrenchGeometry | None = None,
+    closed_end: Literal["square", "round"] | None = None,
+    fit_optics: tuple[str, ...] | None = None,
+    joint_iterations: int = 15,
+    progress: Callable[[int, int], None] | None = None,
+    cancel: Callable[[], bool] | None = None,
+    **frame_options,
+) -> SeriesFit:
+    """Fit a ``(T, Y, X)`` series with optics (and camera) shared by all frames.
+
+    Parameters
+    ----------
+    frames
+        ``(T, Y, X)`` frames of one recording (ADU, camera baseline included), T >= 2.
+    microscope, render, camera, geometry, trench, closed_end, fit_optics
+        As :func:`~napari_symbac.fit.fit_scene`. ``camera=None``: measured once from
+        the pooled frames (:func:`~napari_symbac.fit.camera_estimate.estimate_camera`),
+        else per frame when the pooled estimate fails.
+    labels, masks, valid
+        ``None``, one 2D array for every frame, or a ``(T, Y, X)`` stack (``valid``
+        as :func:`~napari_symbac.fit.fit_scene`'s, default: not censored).
+    joint_iterations
+        Levenberg-Marquardt iterations of the joint refinement.
+    progress, cancel
+        As :func:`~napari_symbac.fit.fit_scene`, per frame fit.
+    **frame_options
+        Passed to each frame's :func:`~napari_symbac.fit.fit_scene` (``irls_rounds``,
+        ``max_iterations``, ``moves``, ``per_cell_brightness``, ...).
+
+    Returns
+    -------
+    SeriesFit
+    """
+    stack = np.asarray(frames)
+    if stack.ndim != 3 or stack.shape[0] < 2:
+        raise ValueError(
+            f"fit_series needs a (T, Y, X) series of at least 2 frames, got shape {stack.shape}: "
+            "fit a single frame with fit_scene"
+        )
+    if joint_iterations < 1:
+        raise ValueError(f"joint_iterations must be at least 1, got {joint_iterations}")
+    n_frames = stack.shape[0]
+    shared_camera = camera if camera is not None else _pooled_camera(stack)
+    runs: list[_FrameRun] = []
+    for t in range(n_frames):
+        runs.append(
+            _run_frame(
+                stack[t],
+                microscope,
+                render,
+                shared_camera,
+                geometry=geometry,
+                labels=_per_frame(labels, t, n_frames, "labels"),
+                masks=_per_frame(masks, t, n_frames, "masks"),
+                valid=_per_frame(valid, t, n_frames, "valid"),
+                trench=trench,
+                closed_end=closed_end,
+                fit_optics=fit_optics,
+                progress=progress,
+                cancel=cancel,
+                **frame_options,
+            )
+        )
+    alone = tuple(_frame_result(run) for run in runs)
+    optics = runs[0].problem.layout.optics
+    names = tuple(optics)
+    frame_values = np.array(
+        [[fit.parameters[fit.parameter_names.index(k)] for k in names] for fit in alone]
+    ).reshape(n_frames, len(names))
+    frame_se = np.array([[fit.standard_error(k) for k in names] for fit in alone]).reshape(
+        n_frames, len(names)
+    )
+    warnings: list[str] = []
+    cost_before = sum(run.state.cost for run in runs)
+    iterations = 0
+    if names:
+        states, iterations, converged = _joint_refine(runs, len(names), joint_iterations)
+        if not converged:
+            warnings.append(
+                f"the joint fit stopped at the iteration limit ({joint_iterations}) before "
+                "converging"
+            )
+        runs = [dataclasses.replace(run, state=state) for run, state in zip(runs, states)]
+    joint = tuple(_frame_result(run) for run in runs)
+    cost_after = sum(run.state.cost for run in runs)
+    values, se = _joint_uncertainty(joint, runs, names)
+    return SeriesFit(
+        frames=joint,
+        frame_by_frame=alone,
+        shared_names=names,
+        shared_values=values,
+        shared_standard_errors=se,
+        frame_values=frame_values,
+        frame_standard_errors=frame_se,
+        camera=shared_camera,
+        cost_frame_by_frame=float(cost_before),
+        cost_joint=float(cost_after),
+        iterations=iterations,
+        warnings=tuple(warnings),
+    )
+
+
+def _split(runs: list[_FrameRun], n_shared: int) -> tuple[list[int], np.ndarray]:
+    """Lengths of each frame's own parameters and the joint start vector.
+
+    The joint vector is every frame's own parameters (cells, width, trench) in
+    turn, then the shared ones, started at their mean over the frames.
+    """
+    own = [run.state.x.size - n_shared for run in runs]
+    shared = np.mean([run.state.x[-n_shared:] for run in runs], axis=0)
+    z = np.concatenate([*(run.state.x[:k] for run, k in zip(runs, own)), shared])
+    return own, z
+
+
+def _frame_x(z: np.ndarray, own: list[int], t: int, n_shared: int) -> np.ndarray:
+    start = sum(own[:t])
+    return np.concatenate([z[start : start + own[t]], z[z.size - n_shared :]])
+
+
+def _frame_index(own: list[int], t: int, n_shared: int) -> np.ndarray:
+    """Joint positions of frame ``t``'s parameters and then its three intensities."""
+    start, total = sum(own[:t]), sum(own) + n_shared
+    return np.concatenate(
+        [
+            np.arange(start, start + own[t]),
+            np.arange(total - n_shared, total),
+            total + 3 * t + np.arange(3),
+        ]
+    )
+
+
+def _evaluate_all(runs: list[_FrameRun], z: np.ndarray, own: list[int], n_shared: int):
+    states = []
+    for t, run in enumerate(runs):
+        p = run.problem
+        x = _frame_x(z, own, t, n_shared)
+        n = p.n_cells(x)
+        x = np.clip(x, p.lower(n), p.upper(n))
+        states.append(evaluate(p.model(n), x, p.y, p.w, p.prior_sd(n)))
+    return states
+
+
+def _joint_refine(
+    runs: list[_FrameRun], n_shared: int, max_iterations: int
+) -> tuple[list[State], int, bool]:
+    """Levenberg-Marquardt on the summed cost, shared columns summed over frames.
+
+    As :func:`~napari_symbac.fit.lm.levenberg_marquardt` for one frame: the
+    Jacobian of every frame (per-cell patches, full renders for the optics), the
+    damped Gauss-Newton step on all parameters and intensities, the intensities
+    re-solved exactly per frame at the trial point.
+    """
+    own, z = _split(runs, n_shared)
+    states = _evaluate_all(runs, z, own, n_shared)
+    size = sum(own) + n_shared + 3 * len(runs)
+    lam = 1e-2
+    converged = False
+    iterations = 0
+    for _ in range(max_iterations):
+        iterations += 1
+        h = np.zeros((size, size))
+        g = np.zeros(size)
+        scales = np.zeros(sum(own) + n_shared)
+        lower = np.zeros_like(scales)
+        upper = np.zeros_like(scales)
+        for t, (run, state) in enumerate(zip(runs, states)):
+            p = run.problem
+            n = p.n_cells(state.x)
+            model = p.model(n)
+            up = p.upper(n)
+            jac = model.jacobian(
+                state.x,
+                state.a,
+                state.intensities,
+                state.scene,
+                state.render,
+                np.ones(state.x.size, bool),
+                upper=up,
+            )
+            sw = np.sqrt(p.w)
+            jw = sparse.diags(sw) @ jac
+            jtj = (jw.T @ jw).toarray()
+            grad = -(jw.T @ (sw * (p.y - state.mu)))
+            m = state.x.size
+            sc = model.layout.scales()
+            sd = p.prior_sd(n)
+            tie = sc / sd
+            jtj[np.arange(m), np.arange(m)] += tie**2
+            grad[:m] += tie * (state.x / sd)
+            pen, pen_jac = overlap_terms(state.x, model.layout, sc)
+            if pen.size:
+                jtj[:m, :m] += pen_jac.T @ pen_jac
+                grad[:m] += pen_jac.T @ pen
+            index = _frame_index(own, t, n_shared)
+            h[np.ix_(index, index)] += jtj
+            g[index] += grad
+            scales[index[:m]] = sc
+            lower[index[:m]] = p.lower(n)
+            upper[index[:m]] = up
+        diag = np.diag(h) + 1e-9 * max(float(np.mean(np.diag(h))), 1e-12)
+        cost = sum(s.cost for s in states)
+        improved, gain = False, 0.0
+        k = scales.size
+        for _attempt in range(8):
+            try:
+                delta = np.linalg.solve(h + lam * np.diag(diag), -g)
+            except np.linalg.LinAlgError:
+                lam *= 4
+                continue
+            trial_z = np.clip(z + delta[:k] * scales, lower, upper)
+            trial = _evaluate_all(runs, trial_z, own, n_shared)
+            trial_cost = sum(s.cost for s in trial)
+            if trial_cost < cost:
+                gain = (cost - trial_cost) / max(cost, 1e-300)
+                z, states, improved = trial_z, trial, True
+                lam = max(lam / 3, 1e-7)
+                break
+            lam *= 4
+        if not improved or gain < 1e-6:
+            converged = True
+            break
+    return states, iterations, converged
+
+
+def _joint_uncertainty(
+    fits: tuple[SceneFit, ...], runs: list[_FrameRun], names: tuple[str, ...]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Shared values and standard errors from the frames' summed Fisher information.
+
+    Each frame's information (:attr:`SceneFit.information`, physical units, its
+    cells, own shared parameters and intensities) is placed into the joint matrix;
+    the shared parameters' rows and columns add up over the frames.
+    """
+    n_shared = len(names)
+    own = [run.state.x.size - n_shared for run in runs]
+    size = sum(own) + n_shared + 3 * len(runs)
+    info = np.zeros((size, size))
+    used = np.zeros(size, bool)
+    for t, fit in enumerate(fits):
+        index = _frame_index(own, t, n_shared)
+        m = own[t] + n_shared
+        where = [
+            index[k] if k < m else index[m + _INTENSITIES.index(name)]
+            for k, name in enumerate(fit.parameter_names)
+        ]
+        info[np.ix_(where, where)] += fit.information
+        used[where] = True
+    keep = np.flatnonzero(used)
+    cov = np.linalg.pinv(info[np.ix_(keep, keep)], rcond=1e-12, hermitian=True)
+    se_all = np.zeros(size)
+    se_all[keep] = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    shared_at = np.arange(sum(own), sum(own) + n_shared)
+    values = fits[0].parameters[[fits[0].parameter_names.index(k) for k in names]]
+    return np.asarray(values, float), se_all[shared_at]

@@ -1,0 +1,82 @@
+"""Fluorescent cells each cut at half their own peak: dim cells beside bright ones."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import tifffile
+from scipy import ndimage
+
+from napari_symbac.fit import fit_scene
+from napari_symbac.fit.bright_start import bright_instances
+from napari_symbac.fit.camera_estimate import censored_pixels
+from napari_symbac.fit.start import start_scene
+from napari_symbac.settings import Microscope, RenderSettings
+
+PX = 0.08
+
+
+def _rod(shape, centre, length_px, width_px, angle):
+    rows, cols = np.indices(shape)
+    dy, dx = rows - centre[0], cols - centre[1]
+    along = dx * np.sin(angle) + dy * np.cos(angle)
+    across = dx * np.cos(angle) - dy * np.sin(angle)
+    half = (length_px - width_px) / 2
+    distance = np.hypot(np.clip(np.abs(along) - half, 0, None), across)
+    return (distance <= width_px / 2).astype(float)
+
+
+def test_a_dim_cell_beside_a_bright_one_is_found_and_a_spot_is_not():
+    rng = np.random.default_rng(3)
+    shape = (120, 120)
+    bright = _rod(shape, (40, 40), 30, 12, 0.3)
+    dim = _rod(shape, (40, 72), 28, 12, -0.2)  # 6 px from the bright one, 8x dimmer
+    spot = np.zeros(shape)
+    spot[95, 90] = 1.0
+    clean = 2000 * bright + 250 * dim + 3000 * ndimage.gaussian_filter(spot, 1.2) * 9
+    clean = ndimage.gaussian_filter(clean, 1.5) + 100
+    image = clean + rng.normal(0, 20, shape)
+    labels = bright_instances(image, PX)
+    assert labels.max() == 2
+    found = {int(labels[40, 40]), int(labels[40, 72])}
+    assert found == {1, 2}
+    assert labels[93:98, 88:93].max() == 0  # the spot is smaller than a cell
+    # one Otsu threshold on the same image misses the dim cell
+    from skimage.filters import threshold_otsu
+
+    smooth = ndimage.gaussian_filter(image, 1.0)
+    assert not (smooth > threshold_otsu(smooth))[40, 72]
+
+
+@pytest.fixture(scope="module")
+def field_2(real_data_dir):
+    folder = real_data_dir / "colicoords" / "test_data" / "ds1"
+    image = tifffile.imread(folder / "fluorescence" / "00002.tif").astype(float)
+    mask = tifffile.imread(folder / "binary" / "00002_Probabilities_filtered.tif")
+    return image, ndimage.label(mask > 0)[0]
+
+
+def _on_mask(cells, labels):
+    rows = np.clip((cells.y_um / PX).astype(int), 0, labels.shape[0] - 1)
+    cols = np.clip((cells.x_um / PX).astype(int), 0, labels.shape[1] - 1)
+    return labels[rows, cols]
+
+
+def test_colicoords_field_2_start_has_all_seven_cells(field_2):
+    """ds1 fluorescence field 2: its 7 masked cells span 180-1140 ADU; Otsu found 5."""
+    image, labels = field_2
+    assert labels.max() == 7
+    microscope = Microscope(pixel_size_um=PX, modality="fluorescence")
+    cells = start_scene(image, microscope, geometry="open", valid=~censored_pixels(image))[0]
+    assert sorted(_on_mask(cells, labels).tolist()) == [1, 2, 3, 4, 5, 6, 7]
+
+
+@pytest.mark.slow
+def test_colicoords_field_2_fit_keeps_the_dim_cells(field_2):
+    """A crop of field 2: two dim cells (280-300 ADU), a bright one (1140 ADU) and a
+    bright spot the mask leaves out. The fit keeps the three cells and adds no spot."""
+    image, labels = field_2
+    crop = (slice(100, 240), slice(80, 320))
+    microscope = Microscope(pixel_size_um=PX, modality="fluorescence")
+    fit = fit_scene(image[crop], microscope, RenderSettings(), None, geometry="open")
+    assert sorted(_on_mask(fit.cells, labels[crop]).tolist()) == [2, 3, 4], fit.moves
