@@ -311,11 +311,11 @@ class SceneModel:
                 trench = scene.cells + scene.media
             yc = (np.arange(e0, e1) - bd + 0.5) * px
             xc = (np.arange(f0, f1) - bd + 0.5) * px
-            chord = _chord(
+            thickness_um = chord(
                 xc, yc, (cx, cy), ang, ln, wd, (bend, CURVATURE_B, CURVATURE_C) if bend else None
             )
             alone = np.minimum(
-                np.minimum(chord / np.float32(self.depth_um), 1.0), trench[e0:e1, f0:f1]
+                np.minimum(thickness_um / np.float32(self.depth_um), 1.0), trench[e0:e1, f0:f1]
             )
             out[e0:e1, f0:f1] += np.float32(db) * alone
         return out
