@@ -238,6 +238,7 @@ def test_dask_local_cluster_matches_serial(tmp_path, reference):
             workers=2,
             batch_size=2,
             progress=lambda done, total: seen.append(done),
+            overlap_start=False,  # every item from the workers
         )
     finally:
         cloudpickle.unregister_pickle_by_value(_export_synthetic)
@@ -247,6 +248,32 @@ def test_dask_local_cluster_matches_serial(tmp_path, reference):
     assert seen[0] == 0
     assert seen[-1] == 12
     assert seen == sorted(seen)
+    assert tree_digest(tmp_path) == reference
+
+
+def test_items_written_while_the_workers_start_match_serial(tmp_path, reference):
+    """This process writes items while the cluster starts; the workers do the rest."""
+    cloudpickle.register_pickle_by_value(_export_synthetic)
+    threads = []
+    try:
+        report = run_export(
+            SyntheticSource(12),
+            tmp_path,
+            FORMATS,
+            workers=2,
+            batch_size=1,
+            progress=lambda done, total: threads.append((threading.current_thread().name, done)),
+        )
+    finally:
+        cloudpickle.unregister_pickle_by_value(_export_synthetic)
+    assert report.complete
+    assert report.n_written == 12
+    # starting two worker processes takes far longer than a synthetic item
+    meanwhile = [done for name, done in threads if name == "napari-symbac-export-meanwhile"]
+    assert meanwhile
+    assert meanwhile == sorted(meanwhile)
+    assert [done for _, done in threads] == sorted(done for _, done in threads)
+    assert threads[-1][1] == 12
     assert tree_digest(tmp_path) == reference
 
 

@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 import time
 import uuid
+from collections import deque
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -168,9 +170,57 @@ def _chunks(units: list[int], size: int) -> list[list[int]]:
     return [units[i : i + size] for i in range(0, len(units), size)]
 
 
+def _start_cluster_while_working(
+    workers: int,
+    units: deque[int],
+    write_unit: Callable[[int], None],
+    cancel: Cancel | None,
+) -> tuple[Any, Any]:
+    """Start a local cluster; meanwhile write ``units`` in this process (a helper thread).
+
+    Starting the worker processes (a fresh interpreter each, imports, then a simulation
+    per worker) takes seconds; the units this process writes meanwhile are units the
+    cluster need not do, so a small export is never slower with workers than without.
+    The helper thread stops after its unit in progress once the cluster is up (or the
+    export is cancelled); the units it did not take are left in ``units``.
+
+    Raises
+    ------
+    BaseException
+        Whatever writing a unit raised (disk full...), after the cluster is closed.
+    """
+    from distributed import Client
+
+    ready = threading.Event()
+    failure: list[BaseException] = []
+
+    def work() -> None:
+        try:
+            while units and not ready.is_set() and not _is_cancelled(cancel):
+                write_unit(units.popleft())
+        except BaseException as err:  # re-raised in the calling thread
+            failure.append(err)
+
+    helper = threading.Thread(target=work, name="napari-symbac-export-meanwhile", daemon=True)
+    helper.start()
+    cluster = client = None
+    try:
+        cluster = local_cluster(workers)
+        client = Client(cluster)
+    finally:
+        ready.set()
+        helper.join()
+        if failure and cluster is not None:
+            close_quietly(client, cluster)
+    if failure:
+        raise failure[0]
+    return cluster, client
+
+
 def _run_dask(
     source: ItemSource,
-    batches: list[list[int]],
+    pending: list[int],
+    batch_size: int | None,
     skip_of: Callable[[list[int]], list[str]],
     out_dir: Path,
     formats: Sequence[str],
@@ -180,17 +230,33 @@ def _run_dask(
     client: Any,
     on_entries: Callable[[list[dict[str, Any]]], None],
     cancel: Cancel | None,
+    overlap_start: bool,
 ) -> tuple[bool, int]:
     from distributed import Client, as_completed
 
     cluster = None
-    if client is None:
+    if client is None and not overlap_start:
         cluster = local_cluster(workers)
         client = Client(cluster)
-    cancelled = False
+    elif client is None:
+        units = deque(pending)
+
+        def write_unit(unit: int) -> None:
+            on_entries(
+                run_units(source, [unit], str(out_dir), formats, options, skip_of([unit]))
+            )
+
+        cluster, client = _start_cluster_while_working(workers, units, write_unit, cancel)
+        pending = list(units)
+    cancelled = _is_cancelled(cancel)
     try:
         n_workers = len(client.scheduler_info().get("workers", {})) or workers
+        if cancelled or not pending:
+            return cancelled, n_workers
+        if batch_size is None:
+            batch_size = max(1, min(32, len(pending) // (4 * n_workers)))
         token = uuid.uuid4().hex[:8]
+        # the source carries what this process has already computed (a simulation)
         source_future = client.scatter(source, broadcast=True, hash=False)
         futures = [
             client.submit(
@@ -206,7 +272,7 @@ def _run_dask(
                 pure=False,
                 retries=0,
             )
-            for i, batch in enumerate(batches)
+            for i, batch in enumerate(_chunks(pending, batch_size))
         ]
         try:
             for future in as_completed(futures):
@@ -251,6 +317,7 @@ def run_export(
     progress: Progress | None = None,
     cancel: Cancel | None = None,
     batch_size: int | None = None,
+    overlap_start: bool = True,
 ) -> ExportReport:
     """Export every item of ``source`` to ``out_dir``, resuming an earlier run.
 
@@ -267,7 +334,8 @@ def run_export(
     workers
         Worker processes of a local dask cluster (on 127.0.0.1 only); ``None`` is one
         per core, ``1`` (or fewer units than two) runs serially in this process; more
-        than the machine's cores is capped to them.
+        than the machine's cores is capped to them. While the workers start, this
+        process writes items itself (see :func:`_start_cluster_while_working`).
     scheduler
         Address of a running dask scheduler (``tcp://host:8786``) to use instead; its
         workers must see ``out_dir`` at the same path. It is contacted (for at most
@@ -280,6 +348,9 @@ def run_export(
         units; finished items stay on disk and a later run completes the rest.
     batch_size
         Units per dask task (default: about four tasks per worker, at most 32 units).
+    overlap_start
+        Write items in this process while a local cluster's workers start (default);
+        ``False`` leaves every item to the workers.
 
     Raises
     ------
@@ -300,7 +371,7 @@ def run_export(
     try:
         return _run_export(
             source, out, formats, writers, options, n_workers, client, progress, cancel,
-            batch_size, start,
+            batch_size, overlap_start, start,
         )
     finally:
         if client is not None:
@@ -318,6 +389,7 @@ def _run_export(
     progress: Progress | None,
     cancel: Cancel | None,
     batch_size: int | None,
+    overlap_start: bool,
     start: float,
 ) -> ExportReport:
     check_or_start_manifest(out, {**source.header(), "formats": list(formats)})
@@ -344,11 +416,10 @@ def _run_export(
 
     cancelled = False
     if pending and (client is not None or (n_workers > 1 and len(pending) > 1)):
-        if batch_size is None:
-            batch_size = max(1, min(32, len(pending) // (4 * n_workers)))
         cancelled, n_workers = _run_dask(
             source,
-            _chunks(pending, batch_size),
+            pending,
+            batch_size,
             skip_of,
             out,
             formats,
@@ -357,6 +428,7 @@ def _run_export(
             client=client,
             on_entries=on_entries,
             cancel=cancel,
+            overlap_start=overlap_start,
         )
     else:
         n_workers = 1
