@@ -16,7 +16,7 @@ from napari_symbac.bench.config import BenchConfig
 from napari_symbac.bench.registry import BENCHMARKS, Row
 from napari_symbac.bench.subprocesses import BenchSkipped, symbac_run
 
-__all__ = ["BenchResult", "RowResult", "run_bench"]
+__all__ = ["BenchResult", "RowResult", "run_bench", "trench_shapes"]
 
 
 @dataclass(frozen=True)
@@ -106,7 +106,7 @@ def _load() -> list[float] | None:
         return None
 
 
-def _trench_shapes() -> tuple[tuple[int, int], tuple[int, int]]:
+def trench_shapes() -> tuple[tuple[int, int], tuple[int, int]]:
     from napari_symbac.bench.cases_render import TRENCH_256, trench_cells
     from napari_symbac.scene import draw_scene
     from napari_symbac.settings import Microscope, RenderSettings, TrenchGeometry
@@ -136,7 +136,7 @@ def run_bench(
     start = time.perf_counter()
     machine = machine_info()
     names = list(dict.fromkeys(row.benchmark for row in rows))
-    shapes = _trench_shapes()
+    shapes = trench_shapes()
     rounds = []
     for k in range(config.repeats):
         tools = ["ours", "symbac"] if k % 2 == 0 else ["symbac", "ours"]

@@ -14,7 +14,16 @@ from napari_symbac.bench.config import BenchConfig
 from napari_symbac.bench.registry import register
 from napari_symbac.bench.symbac_script import SCRIPT
 
-__all__ = ["BenchSkipped", "export_1", "export_2", "run_json", "slider", "symbac_run"]
+__all__ = [
+    "BenchSkipped",
+    "check_symbac_python",
+    "export_1",
+    "export_2",
+    "export_run",
+    "run_json",
+    "slider",
+    "symbac_run",
+]
 
 
 class BenchSkipped(RuntimeError):
@@ -42,7 +51,7 @@ def run_json(command: list[str], *, timeout_s: float, env: dict[str, str] | None
     return json.loads(lines[-1])
 
 
-def _export(config: BenchConfig, workers: int) -> dict[str, float]:
+def export_run(config: BenchConfig, workers: int) -> dict[str, float]:
     command = [sys.executable, "-m", "napari_symbac.bench.export_child"]
     command += ["--n", str(config.export_images), "--workers", str(workers)]
     return run_json(command, timeout_s=1800)
@@ -51,7 +60,7 @@ def _export(config: BenchConfig, workers: int) -> dict[str, float]:
 @register("export_1")
 def export_1(config: BenchConfig) -> dict[str, float]:
     """Export of ``config.export_images`` trench images (omnipose TIFF pairs), 1 worker."""
-    return _export(config, 1)
+    return export_run(config, 1)
 
 
 @register("export_2")
@@ -59,7 +68,7 @@ def export_2(config: BenchConfig) -> dict[str, float]:
     """The same with a local dask cluster of 2 worker processes."""
     if (os.cpu_count() or 1) < 2:
         raise BenchSkipped("skipped: 1 core (2 workers would be capped to 1)")
-    return _export(config, 2)
+    return export_run(config, 2)
 
 
 @register("slider")
