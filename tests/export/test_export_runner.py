@@ -251,29 +251,42 @@ def test_dask_local_cluster_matches_serial(tmp_path, reference):
     assert tree_digest(tmp_path) == reference
 
 
-def test_items_written_while_the_workers_start_match_serial(tmp_path, reference):
+def test_items_written_while_the_workers_start_match_serial(tmp_path, reference, monkeypatch):
     """This process writes items while the cluster starts; the workers do the rest."""
+    from napari_symbac.export import runner
+
+    monkeypatch.setattr(runner, "LOCAL_CLUSTER_START_S", 0.0)  # start workers for 12 items
+    record = tmp_path / "made"
+    record.mkdir()
     cloudpickle.register_pickle_by_value(_export_synthetic)
-    threads = []
+    seen = []
     try:
         report = run_export(
-            SyntheticSource(12),
-            tmp_path,
+            SyntheticSource(12, record_dir=str(record)),
+            tmp_path / "out",
             FORMATS,
             workers=2,
             batch_size=1,
-            progress=lambda done, total: threads.append((threading.current_thread().name, done)),
+            progress=lambda done, total: seen.append(done),
         )
     finally:
         cloudpickle.unregister_pickle_by_value(_export_synthetic)
     assert report.complete
-    assert report.n_written == 12
-    # starting two worker processes takes far longer than a synthetic item
-    meanwhile = [done for name, done in threads if name == "napari-symbac-export-meanwhile"]
-    assert meanwhile
-    assert meanwhile == sorted(meanwhile)
-    assert [done for _, done in threads] == sorted(done for _, done in threads)
-    assert threads[-1][1] == 12
+    assert report.workers == 2
+    assert seen == sorted(seen)
+    assert seen[-1] == 12
+    made = dict(name.split("-") for name in os.listdir(record))
+    assert sorted(map(int, made)) == list(range(12))  # each unit made once
+    # the first two units are timed here to decide, then more while the workers start
+    assert made["0"] == made["1"] == str(os.getpid())
+    assert tree_digest(tmp_path / "out") == reference
+
+
+def test_small_export_runs_in_this_process(tmp_path, reference):
+    """Twelve quick items: starting two workers would cost more than writing them here."""
+    report = run_export(SyntheticSource(12), tmp_path, FORMATS, workers=2)
+    assert report.complete
+    assert report.workers == 1
     assert tree_digest(tmp_path) == reference
 
 
@@ -281,7 +294,14 @@ def test_dask_worker_error_reaches_caller(tmp_path):
     cloudpickle.register_pickle_by_value(_export_synthetic)
     try:
         with pytest.raises(RuntimeError, match="injected fault in unit 3"):
-            run_export(SyntheticSource(6, fail_at=3), tmp_path, ["tiff"], workers=2, batch_size=1)
+            run_export(
+                SyntheticSource(6, fail_at=3),
+                tmp_path,
+                ["tiff"],
+                workers=2,
+                batch_size=1,
+                overlap_start=False,  # the fault happens on a worker
+            )
     finally:
         cloudpickle.unregister_pickle_by_value(_export_synthetic)
     report = run_export(SyntheticSource(6), tmp_path, ["tiff"], workers=1)
@@ -304,6 +324,9 @@ def test_local_cluster_on_loopback_and_user_scheduler(tmp_path, reference):
             assert all(address.startswith("tcp://127.0.0.1:") for address in workers)
             pids = set(client.run(os.getpid).values())
             assert len(pids) == 2
+            # without dask's MALLOC_TRIM_THRESHOLD_ (1.6x slower items, cluster.py)
+            trim = client.run(lambda: os.environ.get("MALLOC_TRIM_THRESHOLD_"))
+            assert set(trim.values()) == {None}
             assert os.getpid() not in pids
             report = run_export(
                 SyntheticSource(12), tmp_path, FORMATS, scheduler=cluster.scheduler_address

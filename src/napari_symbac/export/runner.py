@@ -9,7 +9,9 @@ a local cluster and a remote scheduler all write the same bytes.
 from __future__ import annotations
 
 import math
+import multiprocessing
 import os
+import signal
 import threading
 import time
 import uuid
@@ -170,51 +172,97 @@ def _chunks(units: list[int], size: int) -> list[list[int]]:
     return [units[i : i + size] for i in range(0, len(units), size)]
 
 
+#: Seconds a local cluster takes to start (worker processes, imports) on a small, busy
+#: machine: 2-7 s measured on 2 shared cores. An export whose remaining items one
+#: process writes in less than ``workers / (workers - 1)`` times this runs in this
+#: process: starting workers would cost more than they save.
+LOCAL_CLUSTER_START_S = 4.0
+
+
+def _small_enough_for_one_process(
+    units: deque[int], write_unit: Callable[[int], None], workers: int, cancel: Cancel | None
+) -> bool:
+    """Write the first two units here, timing the second; is the rest quicker done here?
+
+    The first unit includes the simulation (which the workers then receive with the
+    source); the second is the per-unit cost.
+    """
+    seconds = math.inf
+    for _ in range(2):
+        if not units or _is_cancelled(cancel):
+            return True
+        start = time.perf_counter()
+        write_unit(units.popleft())
+        seconds = time.perf_counter() - start
+    return len(units) * seconds < LOCAL_CLUSTER_START_S * workers / (workers - 1)
+
+
 def _start_cluster_while_working(
     workers: int,
     units: deque[int],
     write_unit: Callable[[int], None],
     cancel: Cancel | None,
 ) -> tuple[Any, Any]:
-    """Start a local cluster; meanwhile write ``units`` in this process (a helper thread).
+    """Start a local cluster in a helper thread; meanwhile write ``units`` here.
 
-    Starting the worker processes (a fresh interpreter each, imports, then a simulation
-    per worker) takes seconds; the units this process writes meanwhile are units the
-    cluster need not do, so a small export is never slower with workers than without.
-    The helper thread stops after its unit in progress once the cluster is up (or the
-    export is cancelled); the units it did not take are left in ``units``.
+    Starting the worker processes (a fresh interpreter each, imports) takes seconds; the
+    units this process writes meanwhile are units the cluster need not do. Writing stops
+    after the unit in progress once the cluster is up (or the export is cancelled); the
+    units not taken are left in ``units``.
 
-    Raises
-    ------
-    BaseException
-        Whatever writing a unit raised (disk full...), after the cluster is closed.
+    Ctrl-C: the worker processes must start with SIGINT ignored (see
+    :func:`~napari_symbac.export.cluster.local_cluster`), and they inherit that from
+    the whole process, so this process ignores SIGINT (and writes nothing) from the start
+    of the cluster until its worker processes exist, then takes it again: a
+    ``KeyboardInterrupt`` while writing here waits for the start and closes the cluster.
     """
     from distributed import Client
 
-    ready = threading.Event()
-    failure: list[BaseException] = []
+    started: dict[str, Any] = {}
+    up = threading.Event()
 
-    def work() -> None:
+    def start() -> None:
         try:
-            while units and not ready.is_set() and not _is_cancelled(cancel):
-                write_unit(units.popleft())
+            started["cluster"] = local_cluster(workers)
+            started["client"] = Client(started["cluster"])
         except BaseException as err:  # re-raised in the calling thread
-            failure.append(err)
+            started["error"] = err
+        finally:
+            up.set()
 
-    helper = threading.Thread(target=work, name="napari-symbac-export-meanwhile", daemon=True)
+    before = set(multiprocessing.active_children())
+    in_main = threading.current_thread() is threading.main_thread()
+    ignoring = signal.signal(signal.SIGINT, signal.SIG_IGN) if in_main else None
+
+    def take_interrupts_again() -> None:
+        nonlocal ignoring
+        if ignoring is not None:
+            signal.signal(signal.SIGINT, ignoring)
+            ignoring = None
+
+    helper = threading.Thread(target=start, name="napari-symbac-cluster-start", daemon=True)
     helper.start()
-    cluster = client = None
     try:
-        cluster = local_cluster(workers)
-        client = Client(cluster)
-    finally:
-        ready.set()
+        # the worker processes are spawned early in the start (well under a second)
+        while ignoring is not None and not up.is_set():
+            if len(set(multiprocessing.active_children()) - before) >= workers:
+                take_interrupts_again()
+            else:
+                up.wait(0.01)
+        take_interrupts_again()
+        while units and not up.is_set() and not _is_cancelled(cancel):
+            write_unit(units.popleft())
+    except BaseException:
         helper.join()
-        if failure and cluster is not None:
-            close_quietly(client, cluster)
-    if failure:
-        raise failure[0]
-    return cluster, client
+        take_interrupts_again()
+        close_quietly(started.get("client"), started.get("cluster"))
+        raise
+    helper.join()
+    take_interrupts_again()
+    if "error" in started:
+        close_quietly(started.get("client"), started.get("cluster"))
+        raise started["error"]
+    return started["cluster"], started["client"]
 
 
 def _run_dask(
@@ -246,6 +294,10 @@ def _run_dask(
                 run_units(source, [unit], str(out_dir), formats, options, skip_of([unit]))
             )
 
+        if _small_enough_for_one_process(units, write_unit, workers, cancel):
+            while units and not _is_cancelled(cancel):
+                write_unit(units.popleft())
+            return _is_cancelled(cancel) and bool(units), 1
         cluster, client = _start_cluster_while_working(workers, units, write_unit, cancel)
         pending = list(units)
     cancelled = _is_cancelled(cancel)
