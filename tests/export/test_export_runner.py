@@ -253,9 +253,7 @@ def test_dask_local_cluster_matches_serial(tmp_path, reference):
 
 def test_items_written_while_the_workers_start_match_serial(tmp_path, reference, monkeypatch):
     """This process writes items while the cluster starts; the workers do the rest."""
-    from napari_symbac.export import runner
-
-    monkeypatch.setattr(runner, "LOCAL_CLUSTER_START_S", 0.0)  # start workers for 12 items
+    monkeypatch.setenv("NAPARI_SYMBAC_CLUSTER_START_S", "0")  # start workers for 12 items
     record = tmp_path / "made"
     record.mkdir()
     cloudpickle.register_pickle_by_value(_export_synthetic)
@@ -282,12 +280,19 @@ def test_items_written_while_the_workers_start_match_serial(tmp_path, reference,
     assert tree_digest(tmp_path / "out") == reference
 
 
-def test_small_export_runs_in_this_process(tmp_path, reference):
+def test_small_export_runs_in_this_process(tmp_path, reference, monkeypatch):
     """Twelve quick items: starting two workers would cost more than writing them here."""
+    monkeypatch.delenv("NAPARI_SYMBAC_CLUSTER_START_S", raising=False)
     report = run_export(SyntheticSource(12), tmp_path, FORMATS, workers=2)
     assert report.complete
     assert report.workers == 1
     assert tree_digest(tmp_path) == reference
+
+
+def test_cluster_start_setting_is_checked(tmp_path, monkeypatch):
+    monkeypatch.setenv("NAPARI_SYMBAC_CLUSTER_START_S", "soon")
+    with pytest.raises(ValueError, match="NAPARI_SYMBAC_CLUSTER_START_S='soon' must be a number"):
+        run_export(SyntheticSource(4), tmp_path, ["tiff"], workers=2)
 
 
 def test_dask_worker_error_reaches_caller(tmp_path):

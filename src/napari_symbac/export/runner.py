@@ -172,11 +172,40 @@ def _chunks(units: list[int], size: int) -> list[list[int]]:
     return [units[i : i + size] for i in range(0, len(units), size)]
 
 
-#: Seconds a local cluster takes to start (worker processes, imports) on a small, busy
-#: machine: 2-7 s measured on 2 shared cores. An export whose remaining items one
-#: process writes in less than ``workers / (workers - 1)`` times this runs in this
-#: process: starting workers would cost more than they save.
+#: Seconds a local cluster takes to start (worker processes, imports) on a small, idle
+#: machine. It grows with the machine's load: on 2 shared cores, 5-7 s at load average
+#: 7 and 13 s at 11 (first item of a 2-worker export before this process wrote any).
 LOCAL_CLUSTER_START_S = 4.0
+
+
+def cluster_start_estimate_s() -> float:
+    """:data:`LOCAL_CLUSTER_START_S` scaled by the load per core (when above 1).
+
+    The environment variable ``NAPARI_SYMBAC_CLUSTER_START_S`` replaces the constant
+    (``0`` always starts the workers).
+
+    Raises
+    ------
+    ValueError
+        If that variable is not a number >= 0.
+    """
+    text = os.environ.get("NAPARI_SYMBAC_CLUSTER_START_S")
+    base = LOCAL_CLUSTER_START_S
+    if text is not None:
+        try:
+            base = float(text)
+        except ValueError:
+            base = math.nan
+        if not base >= 0:
+            raise ValueError(
+                f"NAPARI_SYMBAC_CLUSTER_START_S={text!r} must be a number of seconds >= 0 "
+                "(0 always starts the workers); unset it for the default"
+            )
+    try:
+        load = os.getloadavg()[0]
+    except (AttributeError, OSError):  # no load average (Windows)
+        load = 0.0
+    return base * max(1.0, load / (os.cpu_count() or 1))
 
 
 def _small_enough_for_one_process(
@@ -185,7 +214,9 @@ def _small_enough_for_one_process(
     """Write the first two units here, timing the second; is the rest quicker done here?
 
     The first unit includes the simulation (which the workers then receive with the
-    source); the second is the per-unit cost.
+    source); the second is the per-unit cost. Workers pay off when the rest would take
+    this process more than ``workers / (workers - 1)`` times the start of a cluster
+    (:func:`cluster_start_estimate_s`).
     """
     seconds = math.inf
     for _ in range(2):
@@ -194,7 +225,7 @@ def _small_enough_for_one_process(
         start = time.perf_counter()
         write_unit(units.popleft())
         seconds = time.perf_counter() - start
-    return len(units) * seconds < LOCAL_CLUSTER_START_S * workers / (workers - 1)
+    return len(units) * seconds < cluster_start_estimate_s() * workers / (workers - 1)
 
 
 def _start_cluster_while_working(
