@@ -31,8 +31,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--symbac-python", help="python of a venv where SyMBac 0.5.2 is installed")
     args = parser.parse_args(argv)
     python = None if args.symbac_python is None else check_symbac_python(args.symbac_python)
+    # SyMBac's run: a 60-frame simulation (as the export's), 2 frames of its render path
     config = dataclasses.replace(
-        BenchConfig.make(quick=False, symbac_python=python), export_images=args.n
+        BenchConfig.make(quick=False, symbac_python=python),
+        export_images=args.n,
+        trench_frames=60,
+        render_frames=2,
     )
     shapes = trench_shapes()
     rows: dict[str, list[dict]] = {f"{w} worker(s)": [] for w in args.workers}

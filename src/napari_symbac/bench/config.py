@@ -4,7 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["BenchConfig"]
+__all__ = ["EXPORT_SIM_FRAMES", "BenchConfig"]
+
+#: Frames of the simulation an export row renders its images from (both tools).
+EXPORT_SIM_FRAMES = 60
 
 
 @dataclass(frozen=True)
@@ -70,4 +73,5 @@ class BenchConfig:
             "sim_frames": self.trench_frames,
             "render_frames": self.render_frames,
             "export_n": self.export_images,
+            "export_sim_frames": EXPORT_SIM_FRAMES,
         }

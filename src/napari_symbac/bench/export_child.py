@@ -17,6 +17,7 @@ import time
 
 def run(n: int, workers: int, fmt: str) -> dict[str, float]:
     """Export ``n`` trench images (60-frame simulation, frames from 20 on) in ``fmt``."""
+    from napari_symbac.bench.config import EXPORT_SIM_FRAMES
     from napari_symbac.bench.timing import fft_floor_s, peak_rss_mib
     from napari_symbac.export import ExportSettings, export_dataset
     from napari_symbac.settings import PipelineSettings, SimulationSettings
@@ -26,7 +27,7 @@ def run(n: int, workers: int, fmt: str) -> dict[str, float]:
         formats=[fmt],
         seed=0,
         first_frame=20,
-        pipeline=PipelineSettings(simulation=SimulationSettings(n_frames=60)),
+        pipeline=PipelineSettings(simulation=SimulationSettings(n_frames=EXPORT_SIM_FRAMES)),
     )
     out = tempfile.mkdtemp(prefix="napari-symbac-bench-")
     marks: list[tuple[float, int]] = []
