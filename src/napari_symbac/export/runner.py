@@ -311,10 +311,10 @@ def _run_dask(
     cancel: Cancel | None,
     overlap_start: bool,
 ) -> tuple[bool, int]:
-    from distributed import Client, as_completed
-
     cluster = None
     if client is None and not overlap_start:
+        from distributed import Client
+
         cluster = local_cluster(workers)
         client = Client(cluster)
     elif client is None:
@@ -331,6 +331,8 @@ def _run_dask(
             return _is_cancelled(cancel) and bool(units), 1
         cluster, client = _start_cluster_while_working(workers, units, write_unit, cancel)
         pending = list(units)
+    from distributed import as_completed  # imported once workers are wanted (~1 s)
+
     cancelled = _is_cancelled(cancel)
     try:
         n_workers = len(client.scheduler_info().get("workers", {})) or workers
