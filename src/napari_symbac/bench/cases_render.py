@@ -19,7 +19,10 @@ from napari_symbac.bench.timing import fft_floor_s, median_s
 
 __all__ = [
     "TRENCH_256",
+    "cuda_backend",
     "field_cells",
+    "gpu_field_1024",
+    "gpu_trench",
     "render_field_512",
     "render_field_1024",
     "render_trench",
@@ -92,7 +95,9 @@ def _frame_path(model, draw, frames: int, rng: np.random.Generator) -> dict[str,
     return timings
 
 
-def trench_frame(config: BenchConfig, psf_radius_px: int = 50) -> dict[str, float]:
+def trench_frame(
+    config: BenchConfig, psf_radius_px: int = 50, backend: str = "scipy"
+) -> dict[str, float]:
     """The 256 x 46 trench (5 cells, upsample 3) at PSF radius ``psf_radius_px``.
 
     ``frame_s`` (draw + cold render + masks), its parts, ``cached_s`` (re-render after
@@ -107,7 +112,7 @@ def trench_frame(config: BenchConfig, psf_radius_px: int = 50) -> dict[str, floa
     render = RenderSettings(upsample=3, psf_radius_px=psf_radius_px)
     trench = TrenchGeometry(**TRENCH_256)
     rng = np.random.default_rng(0)
-    model = ForwardModel(microscope, render, camera)
+    model = ForwardModel(microscope, render, camera, backend=backend)
 
     def draw(k: int):
         return draw_scene(trench_cells(0.004 * k), trench, microscope, render)
@@ -134,7 +139,7 @@ def render_trench(config: BenchConfig) -> dict[str, float]:
     return trench_frame(config)
 
 
-def _field(side_px: int, count: int, frames: int) -> dict[str, float]:
+def _field(side_px: int, count: int, frames: int, backend: str = "scipy") -> dict[str, float]:
     from napari_symbac.optics import ForwardModel
     from napari_symbac.scene import Field, draw_scene
     from napari_symbac.settings import Camera, Microscope, RenderSettings, TrenchGeometry
@@ -143,7 +148,7 @@ def _field(side_px: int, count: int, frames: int) -> dict[str, float]:
     render = RenderSettings(upsample=3, psf_radius_px=50)
     px = microscope.pixel_size_um
     field = Field(side_px * px, side_px * px)
-    model = ForwardModel(microscope, render, camera)
+    model = ForwardModel(microscope, render, camera, backend=backend)
     rng = np.random.default_rng(0)
 
     def draw(k: int):
@@ -166,3 +171,41 @@ def render_field_512(config: BenchConfig) -> dict[str, float]:
 def render_field_1024(config: BenchConfig) -> dict[str, float]:
     """A 1024 x 1024 camera-px open field of ``config.field_cells[1]`` cells (phase)."""
     return _field(1024, config.field_cells[1], max(2, config.render_frames // 4))
+
+
+def cuda_backend() -> str:
+    """``"torch:cuda"`` or ``"cupy"`` where a CUDA device answers, else :class:`BenchSkipped`."""
+    import importlib.util
+
+    from napari_symbac.bench.subprocesses import BenchSkipped
+
+    if importlib.util.find_spec("torch") is not None:
+        import torch
+
+        if torch.cuda.is_available():
+            return "torch:cuda"
+    if importlib.util.find_spec("cupy") is not None:
+        import cupy
+
+        try:
+            if cupy.cuda.runtime.getDeviceCount() > 0:
+                return "cupy"
+        except cupy.cuda.runtime.CUDARuntimeError:
+            pass
+    raise BenchSkipped("unmeasured: no CUDA GPU here")
+
+
+@register("gpu_trench")
+def gpu_trench(config: BenchConfig) -> dict[str, float]:
+    """The trench frame of :func:`render_trench` on the GPU backend (same keys).
+
+    A stand-in over today's backend: the GPU helper's batched measurement (1000 frames
+    kept on the device) registers under this name at merge.
+    """
+    return trench_frame(config, backend=cuda_backend())
+
+
+@register("gpu_field_1024")
+def gpu_field_1024(config: BenchConfig) -> dict[str, float]:
+    """The 1024 x 1024 field of :func:`render_field_1024` on the GPU backend."""
+    return _field(1024, config.field_cells[1], max(2, config.render_frames // 4), cuda_backend())
