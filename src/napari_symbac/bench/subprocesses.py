@@ -52,9 +52,16 @@ def run_json(command: list[str], *, timeout_s: float, env: dict[str, str] | None
 
 
 def export_run(config: BenchConfig, workers: int) -> dict[str, float]:
+    """An export in a fresh process; with ``workers > 1`` always on a local cluster.
+
+    (An export left to itself stays in one process when it judges the cluster's start
+    too costly: ``NAPARI_SYMBAC_CLUSTER_START_S=0`` makes it start the workers, so the
+    row measures them.)
+    """
     command = [sys.executable, "-m", "napari_symbac.bench.export_child"]
     command += ["--n", str(config.export_images), "--workers", str(workers)]
-    return run_json(command, timeout_s=1800)
+    env = {**os.environ, "NAPARI_SYMBAC_CLUSTER_START_S": "0"}
+    return run_json(command, timeout_s=1800, env=env)
 
 
 @register("export_1")
