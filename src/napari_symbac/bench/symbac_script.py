@@ -95,6 +95,13 @@ with contextlib.redirect_stdout(quiet_out), contextlib.redirect_stderr(quiet_err
     per_frame = result["sim_s_per_frame"] + result["draw_opl_s"] / frames
     result["export_overall_s_per_image"] = (
         render_s + per_frame * cfg["export_sim_frames"]) / n
-result["peak_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+# VmHWM: ru_maxrss would be inherited from the (large) process this one was forked from
+peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+try:
+    with open("/proc/self/status") as status:
+        peak = next(int(l.split()[1]) / 1024 for l in status if l.startswith("VmHWM:"))
+except (OSError, StopIteration):
+    pass
+result["peak_mib"] = peak
 print(json.dumps(result))
 """
