@@ -293,6 +293,7 @@ def test_cluster_start_setting_is_checked(tmp_path, monkeypatch):
     monkeypatch.setenv("NAPARI_SYMBAC_CLUSTER_START_S", "soon")
     with pytest.raises(ValueError, match="NAPARI_SYMBAC_CLUSTER_START_S='soon' must be a number"):
         run_export(SyntheticSource(4), tmp_path, ["tiff"], workers=2)
+    assert not list((tmp_path / "tiff").rglob("*.tif"))  # refused before writing any item
 
 
 def test_dask_worker_error_reaches_caller(tmp_path):

@@ -218,6 +218,7 @@ def _small_enough_for_one_process(
     this process more than ``workers / (workers - 1)`` times the start of a cluster
     (:func:`cluster_start_estimate_s`).
     """
+    threshold = cluster_start_estimate_s() * workers / (workers - 1)  # checked before writing
     seconds = math.inf
     for _ in range(2):
         if not units or _is_cancelled(cancel):
@@ -225,7 +226,7 @@ def _small_enough_for_one_process(
         start = time.perf_counter()
         write_unit(units.popleft())
         seconds = time.perf_counter() - start
-    return len(units) * seconds < cluster_start_estimate_s() * workers / (workers - 1)
+    return len(units) * seconds < threshold
 
 
 def _start_cluster_while_working(
