@@ -230,6 +230,8 @@ def test_ctrl_c_during_multi_worker_export(tmp_path):
         stderr=subprocess.PIPE,
         text=True,
         start_new_session=True,
+        # start the workers however quick the items (300 tiny ones would stay in one process)
+        env={**os.environ, "NAPARI_SYMBAC_CLUSTER_START_S": "0"},
     )
     items = out / "manifest_items"
     try:

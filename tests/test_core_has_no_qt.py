@@ -9,7 +9,7 @@ CHECK = """
 import sys
 import napari_symbac, napari_symbac.cli, napari_symbac.pipeline, napari_symbac.demo
 import napari_symbac.sim, napari_symbac.scene, napari_symbac.optics
-import napari_symbac.fit, napari_symbac.diagnose, napari_symbac.export
+import napari_symbac.fit, napari_symbac.diagnose, napari_symbac.export, napari_symbac.bench.rows
 napari_symbac.cli.build_parser()
 bad = sorted(m for m in sys.modules
              if m.split('.')[0] in {'napari', 'qtpy', 'PyQt5', 'PyQt6', 'PySide2', 'PySide6',

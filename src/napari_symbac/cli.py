@@ -318,6 +318,35 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from napari_symbac.bench import BenchConfig, run_rows
+    from napari_symbac.bench.report import markdown, write_outputs
+    from napari_symbac.bench.run import log_to_stderr
+    from napari_symbac.bench.subprocesses import check_symbac_python
+
+    if args.repeats is not None and args.repeats < 1:
+        raise ValueError(f"--repeats must be at least 1, got {args.repeats}")
+    python = None if args.symbac_python is None else check_symbac_python(args.symbac_python)
+    out = None if args.out is None else _output_folder(args.out)
+    config = BenchConfig.make(args.quick, python, args.repeats)
+    result = run_rows(config, log=log_to_stderr)
+    if out is not None:
+        from napari_symbac.bench.scaling import measure_scaling, plot_scaling
+
+        log_to_stderr("scaling (frames, cells, image size, PSF radius)")
+        result.scaling = measure_scaling(config, result.rounds)
+        written = write_outputs(result, out)
+        plot = plot_scaling(result.scaling, out / "scaling.png")
+        if plot is None:
+            log_to_stderr("no scaling.png: matplotlib is not installed (pip install matplotlib)")
+        else:
+            written.append(plot)
+    print(markdown(result))
+    if out is not None:
+        print(f"\nwrote {', '.join(p.name for p in written)} to {out}")
+    return 0
+
+
 def _cmd_defaults(args: argparse.Namespace) -> int:
     import yaml
 
@@ -482,6 +511,28 @@ def build_parser() -> argparse.ArgumentParser:
     diag.add_argument("--seed", type=int, default=0, help="bootstrap seed (default: 0)")
     diag.add_argument("--out", required=True, help="output folder")
     diag.set_defaults(func=_cmd_diagnose)
+
+    bench = sub.add_parser(
+        "bench",
+        help="run every benchmark and print one table (optionally beside SyMBac 0.5.2)",
+        description="Run every benchmark of napari-symbac (simulation, render, slider, fit, "
+        "export, memory) and print one table: each cost, its ratio to one plain FFT "
+        "convolution of the same frame, and SyMBac 0.5.2's cost at the same settings when "
+        "--symbac-python names an interpreter that has it (make one with "
+        "tools/make-symbac-env.sh). Rounds interleave the two tools; the table shows the "
+        "median and range. A full run takes tens of minutes; --quick about a minute.",
+    )
+    bench.add_argument(
+        "--symbac-python", help="python of a virtual environment with SyMBac==0.5.2 installed"
+    )
+    bench.add_argument(
+        "--quick", action="store_true", help="small sizes and one round (about a minute)"
+    )
+    bench.add_argument("--repeats", type=int, help="rounds (default: 3; 1 with --quick)")
+    bench.add_argument(
+        "--out", help="also write bench.md, bench.json and scaling.png to this folder"
+    )
+    bench.set_defaults(func=_cmd_bench)
 
     defaults = sub.add_parser(
         "defaults",

@@ -6,6 +6,7 @@ value with ``cloudpickle.register_pickle_by_value``) can use the same source.
 
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -60,6 +61,7 @@ class SyntheticSource:
         fail_flag: str | None = None,
         delay_s: float = 0.0,
         id_offset: int = 0,
+        record_dir: str | None = None,
     ) -> None:
         self._n = n_units
         self.kind = kind
@@ -69,6 +71,7 @@ class SyntheticSource:
         self.fail_flag = fail_flag  # fail only while this file exists
         self.delay_s = delay_s
         self.id_offset = id_offset
+        self.record_dir = record_dir  # an empty file "UNIT-PID" per unit made
 
     @property
     def n_units(self) -> int:
@@ -100,6 +103,8 @@ class SyntheticSource:
             raise RuntimeError(f"injected fault in unit {unit}")
         if self.delay_s:
             time.sleep(self.delay_s)
+        if self.record_dir is not None:
+            Path(self.record_dir, f"{unit}-{os.getpid()}").touch()
         rng = unit_rng(self.seed, unit)
         if self.kind == "frames":
             n_cells = 1 + unit % 3

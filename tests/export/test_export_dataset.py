@@ -18,6 +18,7 @@ from napari_symbac.export import (
     export_dataset,
     load_export_settings,
     regenerate,
+    run_export,
 )
 from napari_symbac.export.dataset import PipelineSource, _simulation, sequence_of, split_of
 from napari_symbac.settings import PipelineSettings, SimulationSettings, save_settings, to_dict
@@ -152,10 +153,35 @@ def test_seed_controls_the_files(tmp_path, frames_export):
 
 
 def test_real_pipeline_parallel_equals_serial(tmp_path, frames_export):
-    """A LocalCluster of two processes renders the same bytes as the serial run."""
-    report = export_dataset(_settings(), tmp_path, workers=2)
+    """A LocalCluster of two processes renders the same bytes as the serial run.
+
+    The workers receive the simulation this process made for ``frames_export`` with the
+    pickled source, and render every item (nothing is written here meanwhile).
+    """
+    settings = _settings()
+    report = run_export(
+        PipelineSource(settings), tmp_path, settings.formats, workers=2, overlap_start=False
+    )
     assert report.workers == 2
     assert tree_digest(tmp_path) == tree_digest(frames_export)
+
+
+def test_pickled_source_carries_its_simulations():
+    """A worker given the source renders without simulating again; the same items."""
+    import pickle
+
+    from napari_symbac.export import dataset
+
+    settings = _settings(n_items=2)
+    made = PipelineSource(settings).make_unit(1)[0]
+    shipped = pickle.dumps(PipelineSource(settings))
+    key = dataset._simulation_key(settings.pipeline, settings.seed, 0)
+    simulation = dataset._SIMULATIONS.pop(key)
+    received = pickle.loads(shipped)
+    assert dataset._SIMULATIONS[key] is not simulation  # installed from the pickle
+    again = received.make_unit(1)[0]
+    assert np.array_equal(again.image, made.image)
+    assert np.array_equal(again.labels, made.labels)
 
 
 def test_real_time_series_tracking_ground_truth(tmp_path):

@@ -238,6 +238,7 @@ def test_dask_local_cluster_matches_serial(tmp_path, reference):
             workers=2,
             batch_size=2,
             progress=lambda done, total: seen.append(done),
+            overlap_start=False,  # every item from the workers
         )
     finally:
         cloudpickle.unregister_pickle_by_value(_export_synthetic)
@@ -250,11 +251,63 @@ def test_dask_local_cluster_matches_serial(tmp_path, reference):
     assert tree_digest(tmp_path) == reference
 
 
+def test_items_written_while_the_workers_start_match_serial(tmp_path, reference, monkeypatch):
+    """This process writes items while the cluster starts; the workers do the rest."""
+    monkeypatch.setenv("NAPARI_SYMBAC_CLUSTER_START_S", "0")  # start workers for 12 items
+    record = tmp_path / "made"
+    record.mkdir()
+    cloudpickle.register_pickle_by_value(_export_synthetic)
+    seen = []
+    try:
+        report = run_export(
+            SyntheticSource(12, record_dir=str(record)),
+            tmp_path / "out",
+            FORMATS,
+            workers=2,
+            batch_size=1,
+            progress=lambda done, total: seen.append(done),
+        )
+    finally:
+        cloudpickle.unregister_pickle_by_value(_export_synthetic)
+    assert report.complete
+    assert report.workers == 2
+    assert seen == sorted(seen)
+    assert seen[-1] == 12
+    made = dict(name.split("-") for name in os.listdir(record))
+    assert sorted(map(int, made)) == list(range(12))  # each unit made once
+    # the first two units are timed here to decide, then more while the workers start
+    assert made["0"] == made["1"] == str(os.getpid())
+    assert tree_digest(tmp_path / "out") == reference
+
+
+def test_small_export_runs_in_this_process(tmp_path, reference, monkeypatch):
+    """Twelve quick items: starting two workers would cost more than writing them here."""
+    monkeypatch.delenv("NAPARI_SYMBAC_CLUSTER_START_S", raising=False)
+    report = run_export(SyntheticSource(12), tmp_path, FORMATS, workers=2)
+    assert report.complete
+    assert report.workers == 1
+    assert tree_digest(tmp_path) == reference
+
+
+def test_cluster_start_setting_is_checked(tmp_path, monkeypatch):
+    monkeypatch.setenv("NAPARI_SYMBAC_CLUSTER_START_S", "soon")
+    with pytest.raises(ValueError, match="NAPARI_SYMBAC_CLUSTER_START_S='soon' must be a number"):
+        run_export(SyntheticSource(4), tmp_path, ["tiff"], workers=2)
+    assert not list((tmp_path / "tiff").rglob("*.tif"))  # refused before writing any item
+
+
 def test_dask_worker_error_reaches_caller(tmp_path):
     cloudpickle.register_pickle_by_value(_export_synthetic)
     try:
         with pytest.raises(RuntimeError, match="injected fault in unit 3"):
-            run_export(SyntheticSource(6, fail_at=3), tmp_path, ["tiff"], workers=2, batch_size=1)
+            run_export(
+                SyntheticSource(6, fail_at=3),
+                tmp_path,
+                ["tiff"],
+                workers=2,
+                batch_size=1,
+                overlap_start=False,  # the fault happens on a worker
+            )
     finally:
         cloudpickle.unregister_pickle_by_value(_export_synthetic)
     report = run_export(SyntheticSource(6), tmp_path, ["tiff"], workers=1)
@@ -277,6 +330,9 @@ def test_local_cluster_on_loopback_and_user_scheduler(tmp_path, reference):
             assert all(address.startswith("tcp://127.0.0.1:") for address in workers)
             pids = set(client.run(os.getpid).values())
             assert len(pids) == 2
+            # without dask's MALLOC_TRIM_THRESHOLD_ (1.6x slower items, cluster.py)
+            trim = client.run(lambda: os.environ.get("MALLOC_TRIM_THRESHOLD_"))
+            assert set(trim.values()) == {None}
             assert os.getpid() not in pids
             report = run_export(
                 SyntheticSource(12), tmp_path, FORMATS, scheduler=cluster.scheduler_address

@@ -126,26 +126,34 @@ def _atomic(path: str | os.PathLike, write: Callable[[Path], Any]) -> Path:
     return Path(path)
 
 
-def write_bytes(path: str | os.PathLike, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically."""
+def write_bytes(path: str | os.PathLike, data: bytes, *, sync: bool = True) -> Path:
+    """Write ``data`` to ``path`` atomically.
+
+    ``sync=True`` also flushes the file to the disk (``fsync``) before it takes its
+    name, so it survives a power cut; without it, it survives a crash or kill of the
+    process (what the atomic rename guarantees) like the images and masks.
+    """
 
     def write(tmp: Path) -> None:
         with open(tmp, "wb") as handle:
             handle.write(data)
-            handle.flush()
-            os.fsync(handle.fileno())
+            if sync:
+                handle.flush()
+                os.fsync(handle.fileno())
 
     return _atomic(path, write)
 
 
-def write_text(path: str | os.PathLike, text: str) -> Path:
-    """Write UTF-8 ``text`` to ``path`` atomically."""
-    return write_bytes(path, text.encode("utf-8"))
+def write_text(path: str | os.PathLike, text: str, *, sync: bool = True) -> Path:
+    """Write UTF-8 ``text`` to ``path`` atomically (``sync``: see :func:`write_bytes`)."""
+    return write_bytes(path, text.encode("utf-8"), sync=sync)
 
 
-def write_json(path: str | os.PathLike, data: Any, *, indent: int | None = None) -> Path:
+def write_json(
+    path: str | os.PathLike, data: Any, *, indent: int | None = None, sync: bool = True
+) -> Path:
     """Write ``data`` as JSON (keys in insertion order, no NaN) to ``path`` atomically."""
-    return write_text(path, json.dumps(data, indent=indent, allow_nan=False) + "\n")
+    return write_text(path, json.dumps(data, indent=indent, allow_nan=False) + "\n", sync=sync)
 
 
 #: What a TIFF holds, recorded in its metadata under :data:`TIFF_KIND_KEY`.

@@ -340,13 +340,17 @@ def sequence_of(settings: ExportSettings, unit: int) -> int:
 _SIMULATIONS: dict[str, Any] = {}
 
 
-def _simulation(pipeline: PipelineSettings, seed: int, index: int):
-    """Simulation ``index`` of a dataset, cached per process (workers simulate once)."""
+def _simulation_key(pipeline: PipelineSettings, seed: int, index: int) -> str:
     import json
 
+    return json.dumps([to_dict(pipeline.simulation), seed, index], sort_keys=True)
+
+
+def _simulation(pipeline: PipelineSettings, seed: int, index: int):
+    """Simulation ``index`` of a dataset, cached per process (workers simulate once)."""
     from napari_symbac.sim import simulate
 
-    key = json.dumps([to_dict(pipeline.simulation), seed, index], sort_keys=True)
+    key = _simulation_key(pipeline, seed, index)
     if key not in _SIMULATIONS:
         seq = _simulation_seed_sequence(seed, index)
         sim_settings = dataclasses.replace(
@@ -383,6 +387,25 @@ class PipelineSource:
 
         self.settings = settings
         self.backend = resolve_backend(backend)
+
+    def __getstate__(self) -> dict[str, Any]:
+        """The settings, and the simulations of this dataset this process has made.
+
+        A dask worker that receives the source then renders at once instead of running
+        the same simulation again (each is a pure function of the settings and its
+        index, so the items are the same bytes either way).
+        """
+        s = self.settings
+        n = s.n_simulations if s.kind == "frames" else s.n_items
+        keys = (_simulation_key(s.pipeline, s.seed, i) for i in range(n))
+        made = {key: _SIMULATIONS[key] for key in keys if key in _SIMULATIONS}
+        return {"settings": s, "simulations": made}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.settings = state["settings"]
+        for key, simulation in state["simulations"].items():
+            if key not in _SIMULATIONS and len(_SIMULATIONS) < 4:
+                _SIMULATIONS[key] = simulation
 
     @property
     def n_units(self) -> int:

@@ -81,7 +81,9 @@ def write_item(out_dir: Path, item: ExportItem, writers: Sequence[FormatWriter])
             for cell, value in sorted(item.contrast_to_noise.items())
         }
         entry["faint_cells"] = [int(c) for c in item.faint_cells]
-    write_json(out_dir / ITEMS_DIR / f"{item.name}.json", entry)
+    # not flushed to the disk (fsync): like the item's files it survives a crash or a
+    # kill; an entry that a power cut left empty does not parse, so the item is redone
+    write_json(out_dir / ITEMS_DIR / f"{item.name}.json", entry, sync=False)
     return entry
 
 

@@ -9,9 +9,13 @@ a local cluster and a remote scheduler all write the same bytes.
 from __future__ import annotations
 
 import math
+import multiprocessing
 import os
+import signal
+import threading
 import time
 import uuid
+from collections import deque
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -168,9 +172,135 @@ def _chunks(units: list[int], size: int) -> list[list[int]]:
     return [units[i : i + size] for i in range(0, len(units), size)]
 
 
+#: Seconds a local cluster takes to start (worker processes, imports) on a small, idle
+#: machine. It grows with the machine's load: on 2 shared cores, 5-7 s at load average
+#: 7 and 13 s at 11 (first item of a 2-worker export before this process wrote any).
+LOCAL_CLUSTER_START_S = 4.0
+
+
+def cluster_start_estimate_s() -> float:
+    """:data:`LOCAL_CLUSTER_START_S` scaled by the load per core (when above 1).
+
+    The environment variable ``NAPARI_SYMBAC_CLUSTER_START_S`` replaces the constant
+    (``0`` always starts the workers).
+
+    Raises
+    ------
+    ValueError
+        If that variable is not a number >= 0.
+    """
+    text = os.environ.get("NAPARI_SYMBAC_CLUSTER_START_S")
+    base = LOCAL_CLUSTER_START_S
+    if text is not None:
+        try:
+            base = float(text)
+        except ValueError:
+            base = math.nan
+        if not base >= 0:
+            raise ValueError(
+                f"NAPARI_SYMBAC_CLUSTER_START_S={text!r} must be a number of seconds >= 0 "
+                "(0 always starts the workers); unset it for the default"
+            )
+    try:
+        load = os.getloadavg()[0]
+    except (AttributeError, OSError):  # no load average (Windows)
+        load = 0.0
+    return base * max(1.0, load / (os.cpu_count() or 1))
+
+
+def _small_enough_for_one_process(
+    units: deque[int], write_unit: Callable[[int], None], workers: int, cancel: Cancel | None
+) -> bool:
+    """Write the first two units here, timing the second; is the rest quicker done here?
+
+    The first unit includes the simulation (which the workers then receive with the
+    source); the second is the per-unit cost. Workers pay off when the rest would take
+    this process more than ``workers / (workers - 1)`` times the start of a cluster
+    (:func:`cluster_start_estimate_s`).
+    """
+    threshold = cluster_start_estimate_s() * workers / (workers - 1)  # checked before writing
+    seconds = math.inf
+    for _ in range(2):
+        if not units or _is_cancelled(cancel):
+            return True
+        start = time.perf_counter()
+        write_unit(units.popleft())
+        seconds = time.perf_counter() - start
+    return len(units) * seconds < threshold
+
+
+def _start_cluster_while_working(
+    workers: int,
+    units: deque[int],
+    write_unit: Callable[[int], None],
+    cancel: Cancel | None,
+) -> tuple[Any, Any]:
+    """Start a local cluster in a helper thread; meanwhile write ``units`` here.
+
+    Starting the worker processes (a fresh interpreter each, imports) takes seconds; the
+    units this process writes meanwhile are units the cluster need not do. Writing stops
+    after the unit in progress once the cluster is up (or the export is cancelled); the
+    units not taken are left in ``units``.
+
+    Ctrl-C: the worker processes must start with SIGINT ignored (see
+    :func:`~napari_symbac.export.cluster.local_cluster`), and they inherit that from
+    the whole process, so this process ignores SIGINT (and writes nothing) from the start
+    of the cluster until its worker processes exist, then takes it again: a
+    ``KeyboardInterrupt`` while writing here waits for the start and closes the cluster.
+    """
+    from distributed import Client
+
+    started: dict[str, Any] = {}
+    up = threading.Event()
+
+    def start() -> None:
+        try:
+            started["cluster"] = local_cluster(workers)
+            started["client"] = Client(started["cluster"])
+        except BaseException as err:  # re-raised in the calling thread
+            started["error"] = err
+        finally:
+            up.set()
+
+    before = set(multiprocessing.active_children())
+    in_main = threading.current_thread() is threading.main_thread()
+    ignoring = signal.signal(signal.SIGINT, signal.SIG_IGN) if in_main else None
+
+    def take_interrupts_again() -> None:
+        nonlocal ignoring
+        if ignoring is not None:
+            signal.signal(signal.SIGINT, ignoring)
+            ignoring = None
+
+    helper = threading.Thread(target=start, name="napari-symbac-cluster-start", daemon=True)
+    helper.start()
+    try:
+        # the worker processes are spawned early in the start (well under a second)
+        while ignoring is not None and not up.is_set():
+            if len(set(multiprocessing.active_children()) - before) >= workers:
+                take_interrupts_again()
+            else:
+                up.wait(0.01)
+        take_interrupts_again()
+        while units and not up.is_set() and not _is_cancelled(cancel):
+            write_unit(units.popleft())
+    except BaseException:
+        helper.join()
+        take_interrupts_again()
+        close_quietly(started.get("client"), started.get("cluster"))
+        raise
+    helper.join()
+    take_interrupts_again()
+    if "error" in started:
+        close_quietly(started.get("client"), started.get("cluster"))
+        raise started["error"]
+    return started["cluster"], started["client"]
+
+
 def _run_dask(
     source: ItemSource,
-    batches: list[list[int]],
+    pending: list[int],
+    batch_size: int | None,
     skip_of: Callable[[list[int]], list[str]],
     out_dir: Path,
     formats: Sequence[str],
@@ -180,17 +310,39 @@ def _run_dask(
     client: Any,
     on_entries: Callable[[list[dict[str, Any]]], None],
     cancel: Cancel | None,
+    overlap_start: bool,
 ) -> tuple[bool, int]:
-    from distributed import Client, as_completed
-
     cluster = None
-    if client is None:
+    if client is None and not overlap_start:
+        from distributed import Client
+
         cluster = local_cluster(workers)
         client = Client(cluster)
-    cancelled = False
+    elif client is None:
+        units = deque(pending)
+
+        def write_unit(unit: int) -> None:
+            on_entries(
+                run_units(source, [unit], str(out_dir), formats, options, skip_of([unit]))
+            )
+
+        if _small_enough_for_one_process(units, write_unit, workers, cancel):
+            while units and not _is_cancelled(cancel):
+                write_unit(units.popleft())
+            return _is_cancelled(cancel) and bool(units), 1
+        cluster, client = _start_cluster_while_working(workers, units, write_unit, cancel)
+        pending = list(units)
+    from distributed import as_completed  # imported once workers are wanted (~1 s)
+
+    cancelled = _is_cancelled(cancel)
     try:
         n_workers = len(client.scheduler_info().get("workers", {})) or workers
+        if cancelled or not pending:
+            return cancelled, n_workers
+        if batch_size is None:
+            batch_size = max(1, min(32, len(pending) // (4 * n_workers)))
         token = uuid.uuid4().hex[:8]
+        # the source carries what this process has already computed (a simulation)
         source_future = client.scatter(source, broadcast=True, hash=False)
         futures = [
             client.submit(
@@ -206,7 +358,7 @@ def _run_dask(
                 pure=False,
                 retries=0,
             )
-            for i, batch in enumerate(batches)
+            for i, batch in enumerate(_chunks(pending, batch_size))
         ]
         try:
             for future in as_completed(futures):
@@ -251,6 +403,7 @@ def run_export(
     progress: Progress | None = None,
     cancel: Cancel | None = None,
     batch_size: int | None = None,
+    overlap_start: bool = True,
 ) -> ExportReport:
     """Export every item of ``source`` to ``out_dir``, resuming an earlier run.
 
@@ -267,7 +420,8 @@ def run_export(
     workers
         Worker processes of a local dask cluster (on 127.0.0.1 only); ``None`` is one
         per core, ``1`` (or fewer units than two) runs serially in this process; more
-        than the machine's cores is capped to them.
+        than the machine's cores is capped to them. While the workers start, this
+        process writes items itself (see :func:`_start_cluster_while_working`).
     scheduler
         Address of a running dask scheduler (``tcp://host:8786``) to use instead; its
         workers must see ``out_dir`` at the same path. It is contacted (for at most
@@ -280,6 +434,9 @@ def run_export(
         units; finished items stay on disk and a later run completes the rest.
     batch_size
         Units per dask task (default: about four tasks per worker, at most 32 units).
+    overlap_start
+        Write items in this process while a local cluster's workers start (default);
+        ``False`` leaves every item to the workers.
 
     Raises
     ------
@@ -300,7 +457,7 @@ def run_export(
     try:
         return _run_export(
             source, out, formats, writers, options, n_workers, client, progress, cancel,
-            batch_size, start,
+            batch_size, overlap_start, start,
         )
     finally:
         if client is not None:
@@ -318,6 +475,7 @@ def _run_export(
     progress: Progress | None,
     cancel: Cancel | None,
     batch_size: int | None,
+    overlap_start: bool,
     start: float,
 ) -> ExportReport:
     check_or_start_manifest(out, {**source.header(), "formats": list(formats)})
@@ -344,11 +502,10 @@ def _run_export(
 
     cancelled = False
     if pending and (client is not None or (n_workers > 1 and len(pending) > 1)):
-        if batch_size is None:
-            batch_size = max(1, min(32, len(pending) // (4 * n_workers)))
         cancelled, n_workers = _run_dask(
             source,
-            _chunks(pending, batch_size),
+            pending,
+            batch_size,
             skip_of,
             out,
             formats,
@@ -357,6 +514,7 @@ def _run_export(
             client=client,
             on_entries=on_entries,
             cancel=cancel,
+            overlap_start=overlap_start,
         )
     else:
         n_workers = 1
