@@ -125,8 +125,9 @@ def run_calibrate(args: argparse.Namespace) -> int:
     )
     with timer.step("compare"):
         item = PipelineSource(settings).make_unit(0)[0]
-        comparison = compare_images(image, calibration.masks, item.image, item.labels)
-        picture = montage(image, item.image, calibration.masks, item.labels)
+        real = calibration.reference
+        comparison = compare_images(real, calibration.masks, item.image, item.labels)
+        picture = montage(real, item.image, calibration.masks, item.labels)
     staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.resolve().parent))
     try:
         print("napari-symbac calibrate: exporting", file=sys.stderr, flush=True)

@@ -152,3 +152,23 @@ def test_calibrate_refuses_contradicting_modality(colicoords_crop):
         calibrate(image, masks=masks, microscope=Microscope(pixel_size_um=0.08))
     with pytest.raises(ValueError, match="pass masks too"):
         calibrate(image, microscope=Microscope(modality="fluorescence"), cell_width_um=1.0)
+
+
+def test_fluorescence_export_with_phase_intensities_is_refused():
+    from napari_symbac.export.dataset import ExportSettings
+    from napari_symbac.settings import PipelineSettings
+
+    pipeline = PipelineSettings(microscope=Microscope(modality="fluorescence"))
+    with pytest.raises(ValueError, match="not brighter than the medium"):
+        ExportSettings(n_items=1, pipeline=pipeline)
+    ExportSettings(n_items=1, pipeline=PipelineSettings())  # phase: dark cells are right
+
+
+def test_calibrate_without_masks_measures_the_fitted_crop(colicoords_crop):
+    image, _ = colicoords_crop
+    microscope = Microscope(pixel_size_um=0.08, wavelength_um=0.53, modality="fluorescence")
+    cal = calibrate(image, microscope=microscope, crop_px=128)
+    assert cal.reference.shape == cal.masks.shape == (128, 128)
+    assert cal.measurements.n_cells == len(np.unique(cal.masks)) - 1 >= 1
+    assert cal.settings.simulation.agar_pad.field_width_um == pytest.approx(128 * 0.08)
+    assert cal.settings.render.cell_intensity > cal.settings.render.media_intensity

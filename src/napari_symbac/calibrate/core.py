@@ -58,8 +58,11 @@ class Calibration:
         Pipeline settings matched to the recording (render them, export them).
     measurements
         Model-free measurements of the whole field against its masks.
+    reference
+        The real image the measurements and the layout are of: the whole image with
+        masks, the fitted crop without (only there are the fit's cells known).
     masks
-        Instance masks of the field used for the measurements (given, or the fit's).
+        Instance masks of ``reference`` (given, or the fit's cells).
     crop
         ``(row slice, column slice)`` of the crop the optics were fitted on.
     method
@@ -72,6 +75,7 @@ class Calibration:
 
     settings: PipelineSettings
     measurements: FieldMeasurements
+    reference: np.ndarray = field(repr=False)
     masks: np.ndarray = field(repr=False)
     crop: tuple[slice, slice]
     method: str
@@ -425,14 +429,17 @@ def calibrate(
             mask_len = float(np.median(crop_m.lengths_px)) * microscope.pixel_size_um
             length_scale = float(np.clip(np.median(result.cells.length_um) / mask_len, 0.7, 1.3))
             field_masks = masks
-        else:  # the fit's own cells are the masks (crop only)
-            full = np.zeros(frame.shape, np.int32)
-            full[crop] = result.scene.camera_labels()
-            field_masks = full
-            if not (full > 0).any():
+        else:  # the fit's own cells are the masks: the crop is the field
+            field_masks = np.asarray(result.scene.camera_labels(), np.int32)
+            if not (field_masks > 0).any():
                 raise ValueError(
                     "the fit found no cell in the crop: pass --masks or paint --labels"
                 )
+            frame, valid = crop_image, valid[crop]
+            notes.append(
+                "no masks: sizes and layout from the fit's cells on the crop, which is the "
+                "simulated field"
+            )
     measurements = measure_field(frame, field_masks, valid=valid)
     if microscope.modality == "fluorescence":
         cv = measurements.brightness_cv
@@ -456,6 +463,7 @@ def calibrate(
     return Calibration(
         settings=settings,
         measurements=measurements,
+        reference=frame,
         masks=field_masks,
         crop=crop,
         method=method,
