@@ -109,6 +109,19 @@ def best_crop(masks: np.ndarray, size_px: int) -> tuple[slice, slice]:
     return best
 
 
+def _rough_cells(image: np.ndarray, modality: str) -> np.ndarray:
+    """Regions beyond an Otsu threshold of the smoothed image (cells' polarity from the
+    modality): where to crop when no masks are given."""
+    from scipy import ndimage
+    from skimage.filters import threshold_otsu
+
+    smooth = ndimage.gaussian_filter(image, 1.0)
+    threshold = threshold_otsu(smooth)
+    cells = smooth > threshold if modality == "fluorescence" else smooth < threshold
+    labels, _ = ndimage.label(ndimage.binary_opening(cells, iterations=2))
+    return labels
+
+
 def _division_length_um(lengths_um: np.ndarray) -> tuple[float, float]:
     """Sizer division length and its variance from a population's lengths.
 
@@ -360,9 +373,7 @@ def calibrate(
     if masks is not None:
         crop = best_crop(masks, crop_px)
     else:
-        r0 = max(0, (frame.shape[0] - crop_px) // 2)
-        c0 = max(0, (frame.shape[1] - crop_px) // 2)
-        crop = (slice(r0, r0 + crop_px), slice(c0, c0 + crop_px))
+        crop = best_crop(_rough_cells(frame, microscope.modality), crop_px)
     crop_image = frame[crop]
     crop_masks = None if masks is None else masks[crop]
     crop_labels = None if labels is None else np.asarray(labels)[crop]
