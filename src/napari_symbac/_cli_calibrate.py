@@ -109,6 +109,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
         camera = None if args.camera is None else load_settings(args.camera, Camera)
         microscope, pixel_note = resolve_pixel_size(file_pixel, microscope)
         modality = args.modality or file_modality or microscope.modality
+        if args.cell_width_um is not None:
+            pixel_note = f"from the masks' median width and --cell-width-um {args.cell_width_um}"
     print("napari-symbac calibrate: fitting", file=sys.stderr, flush=True)
     with timer.step("fit"):
         calibration = calibrate(
