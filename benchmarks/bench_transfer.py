@@ -12,7 +12,9 @@ Protocol (fixed; the same for every training set):
   (the microscope file and the modality). ColiCoords: the image of field 1 without its
   masks (the fit's own segmentation). Omnipose: the pixel size is not known, so the
   masks of the calibration image give it (cell width 1 um) and the dense-colony fit
-  uses them; each test image is calibrated from another image (leave-one-image-out);
+  uses them; the three colonies are imaged at scales 2.3x apart (7.5-17.4 px per cell
+  width), so each is calibrated from itself: its masks set the pixel size, cell sizes
+  and layout of its synthetic data, but the network never sees them;
   then ``export_settings`` -> ``PipelineSource`` items (faint cells dropped);
 * **defaults**: the tool's defaults with the user's microscope, fluorescence
   intensities of the GUI's modality switch (3000 / 150 ADU), an agar-pad colony;
@@ -438,10 +440,9 @@ def run(data: str, budget: Budget, out: Path | None, seeds=(0, 1)) -> list[dict]
         f"{len(images)} folds",
     )
     pictures = {}
-    if data == "colicoords":
-        reference_of = [0] * len(images)  # field 1's image (no masks) calibrates them all
-    else:
-        reference_of = [(k + 1) % len(images) for k in range(len(images))]
+    # ColiCoords: field 1's image (no masks) calibrates every field; Omnipose: the three
+    # colonies differ 2.3x in pixels per cell, so each calibrates itself
+    reference_of = [0] * len(images) if data == "colicoords" else list(range(len(images)))
     calibrations = {}
     for seed in seeds:
         start = time.perf_counter()
@@ -526,11 +527,14 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--data", choices=["colicoords", "omnipose"], default="colicoords")
     parser.add_argument("--quick", action="store_true", help="tiny sizes (the test)")
     parser.add_argument("--steps", type=int, help="training steps per network")
+    parser.add_argument("--n-synthetic", type=int, help="synthetic images per training set")
     parser.add_argument("--out", type=Path, help="folder for results JSON and pictures")
     args = parser.parse_args(argv)
     budget = QUICK if args.quick else Budget()
     if args.steps:
         budget = dataclasses.replace(budget, steps=args.steps)
+    if args.n_synthetic:
+        budget = dataclasses.replace(budget, n_synthetic=args.n_synthetic)
     import torch
 
     torch.set_num_threads(1)  # 2 threads on a loaded 2-core machine: 7x slower per step
