@@ -95,7 +95,9 @@ def test_faint_cells_are_dropped_from_the_masks(fluorescence_calibration):
         settings=dataclasses.replace(
             cal.settings,
             render=dataclasses.replace(
-                cal.settings.render, cell_intensity=cal.settings.render.media_intensity * 1.02
+                cal.settings.render,
+                cell_intensity=cal.settings.render.media_intensity * 1.001,
+                cell_brightness_cv=0.0,
             ),
         ),
     )

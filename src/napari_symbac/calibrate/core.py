@@ -321,7 +321,8 @@ def calibrate(
         Known cell width of the species, for a recording whose pixel size is not known:
         the pixel size becomes this over the masks' median width (``fit.masks``).
     crop_px
-        Side of the square crop the optics are fitted on (whole cells, most of them).
+        Side of the square crop the optics are fitted on (whole cells, most of them); with
+        masks at least 16 median cell widths.
     max_iterations, max_evaluations
         Budget of the scene fit (per round) and of the partially coherent fit.
 
@@ -370,7 +371,10 @@ def calibrate(
     bit_depth = 8 if frame.dtype == np.uint8 else 16
     valid = ~censored_pixels(frame, camera)
     frame = frame.astype(np.float64)
-    if masks is not None:
+    if masks is not None:  # at least 16 cell widths across, to hold whole cells
+        from napari_symbac.fit.masks import cell_widths_px
+
+        crop_px = max(crop_px, round(16 * float(np.median(cell_widths_px(masks)))))
         crop = best_crop(masks, crop_px)
     else:
         crop = best_crop(_rough_cells(frame, microscope.modality), crop_px)
@@ -391,12 +395,10 @@ def calibrate(
         result = _phase_colony_fit(
             crop_image, crop_masks, microscope, base_camera, noise, max_evaluations
         )
-        factor = max(3, result.render.upsample)
-        render = dataclasses.replace(
-            result.render,
-            upsample=factor,
-            psf_radius_px=result.render.psf_radius_px * factor // result.render.upsample,
-        )
+        # rendered as fitted: the upsampling that samples the image band (1 for pixels
+        # finer than lambda / 4 NA); the partially coherent model sums source points, so
+        # a 3x finer grid would cost 9x per image
+        render = result.render
         fitted_camera = base_camera
         chi2 = (result.objective_before, result.objective_after)
         method = "masks + partially coherent fit"
