@@ -174,3 +174,11 @@ def test_calibrate_without_masks_measures_the_fitted_crop(colicoords_crop):
     assert cal.measurements.n_cells == len(np.unique(cal.masks)) - 1 >= 1
     assert cal.settings.simulation.agar_pad.field_width_um == pytest.approx(128 * 0.08)
     assert cal.settings.render.cell_intensity > cal.settings.render.media_intensity
+
+
+def test_calibrate_twice_gives_the_same_settings(colicoords_crop, fluorescence_calibration):
+    image, masks = colicoords_crop
+    microscope = Microscope(pixel_size_um=0.08, wavelength_um=0.53, modality="fluorescence")
+    again = calibrate(image, masks=masks, microscope=microscope, crop_px=128)
+    assert again.settings == fluorescence_calibration.settings
+    assert again.notes == fluorescence_calibration.notes
