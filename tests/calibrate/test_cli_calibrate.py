@@ -104,3 +104,24 @@ def test_calibrate_refuses_a_colour_image_and_a_full_out_folder(colicoords_files
     assert code == 2
     assert "not an empty folder" in capsys.readouterr().err
     assert [p.name for p in (d / "full").iterdir()] == ["x.txt"]
+
+
+def test_calibrate_from_painted_labels(colicoords_files, capsys):
+    d = colicoords_files
+    from scipy import ndimage
+
+    masks = tifffile.imread(d / "mask.tif")
+    labels = np.zeros(masks.shape, np.uint8)
+    labels[ndimage.binary_erosion(masks > 0, iterations=3)] = 1
+    labels[ndimage.distance_transform_edt(masks == 0) > 10] = 2
+    tifffile.imwrite(d / "labels.tif", labels)
+    out = d / "from_labels"
+    code = main(
+        ["calibrate", str(d / "flu.tif"), "--labels", str(d / "labels.tif"), "--microscope",
+         str(d / "m80.yaml"), "--modality", "fluorescence", "--out", str(out), "--n-items", "2"]
+    )
+    assert code == 0, capsys.readouterr().err
+    report = (out / "report.txt").read_text()
+    assert "no masks: sizes and layout from the fit's cells" in report
+    fitted = tifffile.imread(out / "masks.tif")
+    assert len(np.unique(fitted)) - 1 >= 1  # the fit's own cells were measured
