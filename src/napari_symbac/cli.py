@@ -228,6 +228,12 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     return run_fit(args)
 
 
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from napari_symbac._cli_calibrate import run_calibrate
+
+    return run_calibrate(args)
+
+
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     import json
 
@@ -495,6 +501,37 @@ def build_parser() -> argparse.ArgumentParser:
         "--max-iterations", type=int, help="iterations per round of the fit (fewer: faster)"
     )
     fit.set_defaults(func=_cmd_fit)
+
+    cal = sub.add_parser(
+        "calibrate",
+        help="fit a real image and export a training dataset matched to it",
+        description="Fit a real recording (the scene fit, or the masks' scene with the "
+        "partially coherent phase model for dense colonies), turn the fit into matched "
+        "settings (pixel size, cell sizes, intensities, brightness variation, camera, "
+        "colony layout) and export a training dataset with them. Writes dataset/, "
+        "report.txt (real against synthetic: class medians, noise, power spectrum), "
+        "report.png (real | synthetic), export_settings.yaml and masks.tif.",
+    )
+    cal.add_argument("image", help="real image: one 2D frame (TIFF, or a grey PNG)")
+    cal.add_argument("--microscope", required=True, help="Microscope YAML/JSON")
+    cal.add_argument("--out", required=True, help="output folder (new or empty)")
+    cal_start = cal.add_mutually_exclusive_group()
+    cal_start.add_argument("--masks", help="instance masks TIFF (0 background, 1..N cells)")
+    cal_start.add_argument("--labels", help="painted class labels TIFF (1 cell, 2 media)")
+    cal.add_argument("--modality", choices=["phase", "fluorescence"])
+    cal.add_argument("--camera", help="Camera YAML/JSON (default: measured from the image)")
+    cal.add_argument(
+        "--cell-width-um",
+        type=float,
+        help="known cell width: the pixel size becomes it over the masks' median width "
+        "(for recordings whose pixel size is not known)",
+    )
+    cal.add_argument("--n-items", type=_at_least_one, default=100, help="images (default 100)")
+    cal.add_argument(
+        "--formats", default="tiff", help="comma-separated export formats (default tiff)"
+    )
+    cal.add_argument("--seed", type=int, default=0, help="dataset seed (default 0)")
+    cal.set_defaults(func=_cmd_calibrate)
 
     diag = sub.add_parser(
         "diagnose",

@@ -267,6 +267,18 @@ class ExportSettings:
                 f"ExportSettings.first_frame={self.first_frame!r} must be in [0, n_frames="
                 f"{n_frames}) of pipeline.simulation"
             )
+        render = self.pipeline.render
+        if (
+            self.pipeline.microscope.modality == "fluorescence"
+            and render.cell_intensity <= render.media_intensity
+        ):
+            _fail(
+                "the pipeline is fluorescence but its cells are not brighter than the medium "
+                f"(render.cell_intensity={render.cell_intensity:g} <= media_intensity="
+                f"{render.media_intensity:g}, phase-contrast values?): a network trained on it "
+                "would look for dark cells. Set cell_intensity above media_intensity (e.g. "
+                "3000 and 150), or match them to a recording with `napari-symbac calibrate`"
+            )
         if self.visibility.action == "drop" and self.kind == "timeseries":
             _fail(
                 "ExportSettings.visibility.action='drop' removes faint cells frame by frame, "

@@ -1,0 +1,34 @@
+"""Calibrate the pipeline to a real recording and compare real and synthetic images.
+
+* :func:`calibrate`: fit a recording (scene fit, or the masks' scene with the partially
+  coherent phase model for dense colonies) and turn the fit into matched
+  :class:`~napari_symbac.settings.PipelineSettings`;
+* :func:`measure_field`: model-free sizes, brightness, noise and layout from masks;
+* :func:`compare_images`: real against synthetic (class medians, noise, radially
+  averaged power spectrum) and :func:`montage`, the side-by-side picture.
+"""
+
+from napari_symbac.calibrate.compare import Comparison, compare_images, montage, radial_power
+from napari_symbac.calibrate.core import (
+    Calibration,
+    best_crop,
+    calibrate,
+    export_settings,
+    settings_from_fit,
+)
+from napari_symbac.calibrate.measure import FieldMeasurements, instance_masks, measure_field
+
+__all__ = [
+    "Calibration",
+    "Comparison",
+    "FieldMeasurements",
+    "best_crop",
+    "calibrate",
+    "compare_images",
+    "export_settings",
+    "instance_masks",
+    "measure_field",
+    "montage",
+    "radial_power",
+    "settings_from_fit",
+]

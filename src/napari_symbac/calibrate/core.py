@@ -1,0 +1,528 @@
+"""Calibrate the pipeline to a real recording: fit it, then turn the fit into settings.
+
+:func:`calibrate` runs the existing engine on a crop of the recording and measures the
+whole field model-free (:mod:`~napari_symbac.calibrate.measure`):
+
+* fluorescence (and phase contrast of sparse cells): the scene fit
+  (:func:`~napari_symbac.fit.fit_scene`, open field) started from the masks, or from
+  painted labels, or from its own segmentation; it gives the intensities (eq. 3),
+  defocus (eq. 14) and, in phase, the kernel (eq. 7-15), and the camera (eq. 17)
+  measured from the image;
+* phase contrast of dense colonies (more than a quarter of the crop is cell): the
+  scene drawn from the masks (:func:`~napari_symbac.scene.scene_from_masks`) and the
+  partially coherent phase model fitted to it pixel by pixel
+  (:func:`~napari_symbac.fit.fit_parameters`), which reaches the halo and the bright
+  gaps that the linear kernel cannot (docs/rendering.md).
+
+The settings (:func:`settings_from_fit`) then hold what a user would otherwise set by
+hand: pixel size, cell length and width distributions, intensities and their polarity
+from the modality, per-cell brightness variation, the camera, and an agar pad with as
+many colonies of as many cells as the recording shows.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from napari_symbac.calibrate.measure import FieldMeasurements, instance_masks, measure_field
+from napari_symbac.settings import (
+    AgarPadGeometry,
+    Camera,
+    Microscope,
+    PipelineSettings,
+    RenderSettings,
+    SimulationSettings,
+)
+
+__all__ = ["Calibration", "best_crop", "calibrate", "export_settings", "settings_from_fit"]
+
+#: Cell-area fraction of the crop above which phase contrast is fitted as a dense colony.
+DENSE_FRACTION = 0.25
+#: Doubling time and frame interval of the simulated colonies (minutes).
+_DOUBLING_MIN = 25.0
+_FRAME_MIN = 3.0
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Outcome of :func:`calibrate`.
+
+    Attributes
+    ----------
+    settings
+        Pipeline settings matched to the recording (render them, export them).
+    measurements
+        Model-free measurements of the whole field against its masks.
+    reference
+        The real image the measurements and the layout are of: the whole image with
+        masks, the fitted crop without (only there are the fit's cells known).
+    masks
+        Instance masks of ``reference`` (given, or the fit's cells).
+    crop
+        ``(row slice, column slice)`` of the crop the optics were fitted on.
+    method
+        ``"scene fit"`` or ``"masks + partially coherent fit"``.
+    fit_chi2
+        Reduced chi-square (pixel term) of the fit at its start and end.
+    notes
+        Plain sentences: where each setting came from, what could not be measured.
+    """
+
+    settings: PipelineSettings
+    measurements: FieldMeasurements
+    reference: np.ndarray = field(repr=False)
+    masks: np.ndarray = field(repr=False)
+    crop: tuple[slice, slice]
+    method: str
+    fit_chi2: tuple[float, float]
+    notes: tuple[str, ...] = ()
+
+
+def best_crop(masks: np.ndarray, size_px: int) -> tuple[slice, slice]:
+    """The ``size_px`` square window holding the most whole cells (fewest cut by its edge).
+
+    Windows are tried on a grid of a quarter of ``size_px``; the score is whole cells
+    minus cut cells, ties go to the first window (row-major), so the choice is
+    deterministic.
+    """
+    labels = instance_masks(masks)
+    rows, cols = labels.shape
+    h, w = min(size_px, rows), min(size_px, cols)
+    step = max(1, min(h, w) // 4)
+    best, best_score = (slice(0, h), slice(0, w)), -math.inf
+    starts_r = sorted({*range(0, rows - h + 1, step), rows - h})
+    starts_c = sorted({*range(0, cols - w + 1, step), cols - w})
+    for r in starts_r:
+        for c in starts_c:
+            window = labels[r : r + h, c : c + w]
+            inside = set(np.unique(window).tolist()) - {0}
+            edge = np.concatenate([window[0], window[-1], window[:, 0], window[:, -1]])
+            cut = set(np.unique(edge).tolist()) - {0}
+            score = len(inside - cut) - len(cut)
+            if score > best_score:
+                best, best_score = (slice(r, r + h), slice(c, c + w)), score
+    return best
+
+
+def _rough_cells(image: np.ndarray, modality: str) -> np.ndarray:
+    """Regions beyond an Otsu threshold of the smoothed image (cells' polarity from the
+    modality): where to crop when no masks are given."""
+    from scipy import ndimage
+    from skimage.filters import threshold_otsu
+
+    smooth = ndimage.gaussian_filter(image, 1.0)
+    threshold = threshold_otsu(smooth)
+    cells = smooth > threshold if modality == "fluorescence" else smooth < threshold
+    labels, _ = ndimage.label(ndimage.binary_opening(cells, iterations=2))
+    return labels
+
+
+def _division_length_um(lengths_um: np.ndarray) -> tuple[float, float]:
+    """Sizer division length and its variance from a population's lengths.
+
+    An asynchronous population of cells born at ``L_d / 2`` that grow exponentially to
+    ``L_d`` has mean length ``L_d ln 2``; the variance of ``L_d`` between cells is
+    what is left of the lengths' variance after the spread that growth itself makes
+    (uniform-in-log lengths between ``L_d / 2`` and ``L_d``: s.d. ~ ``0.2 L_d``).
+    """
+    division = float(np.mean(lengths_um) / math.log(2))
+    spread = float(np.var(lengths_um)) - (0.2 * division) ** 2
+    return division, float(np.clip(spread, 0.01, (0.25 * division) ** 2))
+
+
+def _frames_for(cluster_cells: float) -> int:
+    """Frames of growth for one founder to become ``cluster_cells`` cells."""
+    generations = math.log2(max(cluster_cells, 1.0))
+    return math.ceil(generations * _DOUBLING_MIN / _FRAME_MIN)
+
+
+def settings_from_fit(
+    measurements: FieldMeasurements,
+    microscope: Microscope,
+    render: RenderSettings,
+    camera: Camera,
+    *,
+    width_um: float | None = None,
+    length_scale: float = 1.0,
+) -> tuple[PipelineSettings, list[str]]:
+    """Pipeline settings matched to a measured field and its fitted optics.
+
+    Parameters
+    ----------
+    measurements
+        The field's cells and layout.
+    microscope, render, camera
+        Fitted optics, intensities and camera.
+    width_um
+        Cell width (the fit's model width); default: the masks' median width.
+    length_scale
+        Fitted over mask length of the crop's cells (the masks of thresholded
+        probability maps run long); the masks' length distribution is scaled by it.
+
+    Returns
+    -------
+    settings, notes
+    """
+    px = microscope.pixel_size_um
+    m = measurements
+    notes = []
+    lengths = m.lengths_px * px * length_scale
+    widths = m.widths_px * px
+    width = float(np.median(widths)) if width_um is None else float(width_um)
+    width_var = float(np.clip(np.var(widths), 0.0004, 0.04))
+    division, division_var = _division_length_um(lengths)
+    division = max(division, 1.3 * width)
+    notes.append(
+        f"cells: width {width:.2f} um ({'fit' if width_um is not None else 'masks'}), "
+        f"width variance {width_var:.4f} um^2 (masks); division length {division:.2f} um "
+        f"(mean length {np.mean(lengths):.2f} um / ln 2; masks x {length_scale:.2f}), "
+        f"variance {division_var:.3f} um^2"
+    )
+    height_um, field_um = m.shape[0] * px, m.shape[1] * px
+    n_colonies = int(max(1, m.cluster_sizes.size))
+    per_colony = float(np.mean(m.cluster_sizes)) if m.cluster_sizes.size else 1.0
+    growth = _frames_for(per_colony)
+    n_frames = growth + 1
+    separation = float(min(10.0, 0.5 * math.sqrt(height_um * field_um / n_colonies)))
+    margin = float(min(3.0, 0.15 * min(height_um, field_um)))
+    pad = AgarPadGeometry(
+        field_width_um=field_um,
+        field_height_um=height_um,
+        n_colonies=n_colonies,
+        colony_separation_um=separation,
+        edge_margin_um=margin,
+    )
+    notes.append(
+        f"layout: agar pad {field_um:.1f} x {height_um:.1f} um (the image), {n_colonies} "
+        f"colonies of one founder each grown {growth} frames of {_FRAME_MIN:g} min (doubling "
+        f"{_DOUBLING_MIN:g} min) to ~{per_colony:.1f} cells, as the image's clusters"
+    )
+    simulation = SimulationSettings(
+        n_frames=n_frames,
+        geometry="agar_pad",
+        agar_pad=pad,
+        n_founders=n_colonies,
+        frame_interval_min=_FRAME_MIN,
+        cell_max_length_um=division,
+        max_length_var_um2=division_var,
+        cell_width_um=width,
+        width_var_um2=width_var,
+        growth_model="sizer",
+        interdivision_time_min=_DOUBLING_MIN,
+        growth_rate_per_min=math.log(2) / _DOUBLING_MIN,
+    )
+    return (
+        PipelineSettings(
+            simulation=simulation, microscope=microscope, render=render, camera=camera
+        ),
+        notes,
+    )
+
+
+def _fit_scene_crop(crop_image, crop_masks, microscope, render, camera, labels, max_iterations):
+    from napari_symbac.fit import fit_scene
+    from napari_symbac.fit.camera_estimate import censored_pixels
+
+    valid = ~censored_pixels(crop_image, camera)
+    result = fit_scene(
+        crop_image,
+        microscope,
+        render,
+        camera,
+        geometry="open",
+        masks=crop_masks,
+        labels=labels,
+        valid=valid,
+        moves=crop_masks is None,
+        max_iterations=max_iterations,
+    )
+    return result
+
+
+def _band_upsample(microscope: Microscope) -> int:
+    """Smallest render upsampling whose pixels sample the image band ``2 NA / lambda``."""
+    nyquist_um = microscope.wavelength_um / (4 * microscope.numerical_aperture)
+    return max(1, math.ceil(microscope.pixel_size_um / nyquist_um - 1e-9))
+
+
+def _phase_colony_fit(crop_image, crop_masks, microscope, camera, noise_adu, max_evaluations):
+    """Partially coherent phase model fitted to the scene drawn from the masks."""
+    from napari_symbac.fit import fit_parameters
+    from napari_symbac.scene import scene_from_masks
+
+    level = float(np.percentile(crop_image, 50))
+    upsample = _band_upsample(microscope)
+    render = RenderSettings(
+        upsample=upsample,
+        psf_radius_px=max(8, round(3.0 * upsample / microscope.pixel_size_um)),
+        phase_model="partially_coherent",
+        cell_intensity=level,
+        media_intensity=level,
+        device_intensity=level,
+        cell_phase_rad=0.6,
+        plate_transmission=0.2,
+        apodisation_sigma_um=2.0,
+        noise_model="gaussian",
+        gaussian_noise_sd_adu=max(noise_adu, 0.5),
+        source_points=12,
+    )
+    scene = scene_from_masks(crop_masks, microscope, render)
+    result = fit_parameters(
+        crop_image,
+        None,
+        scene,
+        microscope,
+        render,
+        camera,
+        terms=("pixel",),
+        max_evaluations=max_evaluations,
+        global_search=False,
+    )
+    return result
+
+
+def calibrate(
+    image: np.ndarray,
+    *,
+    microscope: Microscope,
+    masks: np.ndarray | None = None,
+    labels: np.ndarray | None = None,
+    modality: Literal["phase", "fluorescence"] | None = None,
+    camera: Camera | None = None,
+    cell_width_um: float | None = None,
+    crop_px: int = 160,
+    max_iterations: int = 8,
+    max_evaluations: int = 40,
+) -> Calibration:
+    """Fit a real recording and turn the fit into matched pipeline settings.
+
+    Parameters
+    ----------
+    image
+        One 2D frame (ADU; an 8-bit image is read as an 8-bit camera's counts).
+    microscope
+        What the user knows: objective, wavelength, pixel size, modality.
+    masks
+        Instance masks (or a 0/1 mask) of ``image``: the start of the fit and the cells
+        the sizes and layout are measured on.
+    labels
+        Painted classes (1 cell, 2 media) instead of masks: the fit finds the cells, and
+        the sizes and layout are those of its cells on the crop.
+    modality
+        Overrides ``microscope.modality``.
+    camera
+        The camera, if known; default: measured from the image (photon transfer).
+    cell_width_um
+        Known cell width of the species, for a recording whose pixel size is not known:
+        the pixel size becomes this over the masks' median width (``fit.masks``).
+    crop_px
+        Side of the square crop the optics are fitted on (whole cells, most of them); with
+        masks at least 16 median cell widths.
+    max_iterations, max_evaluations
+        Budget of the scene fit (per round) and of the partially coherent fit.
+
+    Returns
+    -------
+    Calibration
+
+    Raises
+    ------
+    ValueError
+        Bad image, masks or labels (the ``fit`` command's refusals), or a modality the
+        image contradicts.
+    """
+    from napari_symbac.fit.camera_estimate import censored_pixels
+    from napari_symbac.fit.masks import estimate_pixel_size_um
+    from napari_symbac.fit.preflight import (
+        check_class_labels,
+        check_fit_image,
+        check_instance_masks,
+        check_modality,
+    )
+
+    frame = np.asarray(image)
+    check_fit_image(frame, "image")
+    if masks is not None and labels is not None:
+        raise ValueError("pass masks or labels, not both")
+    if modality is not None and modality != microscope.modality:
+        microscope = dataclasses.replace(microscope, modality=modality)
+    if labels is not None:
+        check_class_labels(np.asarray(labels), frame.shape, "labels")
+    if masks is not None:
+        check_instance_masks(np.asarray(masks), frame.shape, "masks")
+        masks = instance_masks(masks)
+    check_modality(frame, microscope.modality, labels=labels, masks=masks)
+    notes = []
+    if cell_width_um is not None:
+        if masks is None:
+            raise ValueError(
+                "cell_width_um sets the pixel size from the masks' widths: pass masks too"
+            )
+        px = estimate_pixel_size_um(masks, cell_width_um)
+        microscope = dataclasses.replace(microscope, pixel_size_um=px)
+        notes.append(
+            f"pixel size {px:.4f} um = cell width {cell_width_um} um / median mask width"
+        )
+    bit_depth = 8 if frame.dtype == np.uint8 else 16
+    valid = ~censored_pixels(frame, camera)
+    frame = frame.astype(np.float64)
+    if masks is not None:  # at least 16 cell widths across, to hold whole cells
+        from napari_symbac.fit.masks import cell_widths_px
+
+        crop_px = max(crop_px, round(16 * float(np.median(cell_widths_px(masks)))))
+        crop = best_crop(masks, crop_px)
+    else:
+        crop = best_crop(_rough_cells(frame, microscope.modality), crop_px)
+    crop_image = frame[crop]
+    crop_masks = None if masks is None else masks[crop]
+    crop_labels = None if labels is None else np.asarray(labels)[crop]
+    dense = (
+        microscope.modality == "phase"
+        and crop_masks is not None
+        and float((crop_masks > 0).mean()) > DENSE_FRACTION
+    )
+    if dense:
+        from napari_symbac.export.visibility import pixel_noise
+
+        background = ~(np.asarray(crop_masks) > 0)
+        noise = pixel_noise(crop_image, background)
+        base_camera = Camera(baseline_adu=0.0, bit_depth=bit_depth) if camera is None else camera
+        result = _phase_colony_fit(
+            crop_image, crop_masks, microscope, base_camera, noise, max_evaluations
+        )
+        # rendered as fitted: the upsampling that samples the image band (1 for pixels
+        # finer than lambda / 4 NA); the partially coherent model sums source points, so
+        # a 3x finer grid would cost 9x per image
+        render = result.render
+        fitted_camera = base_camera
+        chi2 = (result.objective_before, result.objective_after)
+        method = "masks + partially coherent fit"
+        notes.append(
+            f"dense phase colony ({100 * (crop_masks > 0).mean():.0f} % of the crop is cell): "
+            f"partially coherent phase model fitted to the scene of the masks "
+            f"({result.n_evaluations} renders): phase {render.cell_phase_rad:.2f} rad, "
+            f"apodisation {render.apodisation_sigma_um:.2f} um, ring width "
+            f"{render.phase_ring_width_scale:.2f}"
+        )
+        notes.append(
+            f"noise: Gaussian, {render.gaussian_noise_sd_adu:.2f} ADU (background pixel "
+            f"differences, at least 0.5), camera baseline {fitted_camera.baseline_adu:g} ADU, "
+            f"{fitted_camera.bit_depth} bit"
+        )
+        notes.extend(f"fit warning: {w}" for w in result.warnings)
+        width_fit, length_scale = None, 1.0
+        field_masks = masks
+    else:
+        start = RenderSettings(cell_brightness_cv=0.0)
+        result = _fit_scene_crop(
+            crop_image, crop_masks, microscope, start, camera, crop_labels, max_iterations
+        )
+        fitted_camera = dataclasses.replace(
+            result.camera or camera or Camera(), bit_depth=bit_depth
+        )
+        render = result.render
+        chi2 = (result.objective_before, result.objective_after)
+        method = "scene fit"
+        notes.append(
+            f"scene fit of a {crop_image.shape[0]} x {crop_image.shape[1]} crop (rows "
+            f"{crop[0].start}-{crop[0].stop}, columns {crop[1].start}-{crop[1].stop}): "
+            f"{len(result.cells)} cells; intensities cell {render.cell_intensity:.0f}, "
+            f"media {render.media_intensity:.0f} ADU; defocus {render.defocus_sigma_um:.2f} um"
+        )
+        notes.extend(f"fit warning: {w}" for w in result.warnings)
+        width_fit = float(np.median(result.cells.width_um)) if len(result.cells) else None
+        length_scale = 1.0
+        if masks is not None and len(result.cells):
+            crop_m = measure_field(crop_image, crop_masks, valid=valid[crop])
+            mask_len = float(np.median(crop_m.lengths_px)) * microscope.pixel_size_um
+            length_scale = float(np.clip(np.median(result.cells.length_um) / mask_len, 0.7, 1.3))
+            field_masks = masks
+        else:  # the fit's own cells are the masks: the crop is the field
+            field_masks = np.asarray(result.scene.camera_labels(), np.int32)
+            if not (field_masks > 0).any():
+                raise ValueError(
+                    "the fit found no cell in the crop: pass --masks or paint --labels"
+                )
+            frame, valid = crop_image, valid[crop]
+            notes.append(
+                "no masks: sizes and layout from the fit's cells on the crop, which is the "
+                "simulated field"
+            )
+    measurements = measure_field(frame, field_masks, valid=valid)
+    if microscope.modality == "fluorescence":
+        cv = measurements.brightness_cv
+        render = dataclasses.replace(render, cell_brightness_cv=float(min(cv, 2.0)))
+        notes.append(f"per-cell brightness CV {cv:.2f} (masks' medians above background)")
+        if render.cell_intensity <= render.media_intensity:
+            raise ValueError(
+                "the fitted fluorescent cells are not brighter than the background: check "
+                "the modality and the masks"
+            )
+    if not dense:
+        notes.append("camera: " + _camera_note(fitted_camera, camera))
+    settings, more = settings_from_fit(
+        measurements,
+        microscope,
+        render,
+        fitted_camera,
+        width_um=width_fit,
+        length_scale=length_scale,
+    )
+    return Calibration(
+        settings=settings,
+        measurements=measurements,
+        reference=frame,
+        masks=field_masks,
+        crop=crop,
+        method=method,
+        fit_chi2=(float(chi2[0]), float(chi2[1])),
+        notes=(*notes, *more),
+    )
+
+
+def _camera_note(used: Camera, given: Camera | None) -> str:
+    source = "given" if given is not None else "measured from the image"
+    return (
+        f"{source}: baseline {used.baseline_adu:.1f} ADU, sensitivity "
+        f"{used.sensitivity_adu_per_e:.3g} ADU/e-, read noise {used.dark_noise_e:.3g} e-, "
+        f"{used.bit_depth} bit"
+    )
+
+
+def export_settings(
+    calibration: Calibration,
+    *,
+    n_items: int,
+    formats: tuple[str, ...] | list[str] = ("tiff",),
+    seed: int = 0,
+    val_fraction: float = 0.1,
+):
+    """The :class:`~napari_symbac.export.ExportSettings` of a matched training dataset.
+
+    Images are independent frames drawn near the end of the simulated growth (colonies
+    as large as the recording's), from up to 16 simulations (colony places differ), and
+    cells the image does not show (contrast-to-noise below 1,
+    :mod:`~napari_symbac.export.visibility`) are dropped from the masks: a network must
+    not learn to find cells in the noise.
+    """
+    from napari_symbac.export.dataset import ExportSettings
+    from napari_symbac.export.visibility import Visibility
+
+    n_frames = calibration.settings.simulation.n_frames
+    first = max(0, n_frames - 1 - (n_frames - 1) // 8)
+    return ExportSettings(
+        n_items=n_items,
+        kind="frames",
+        formats=list(formats),
+        seed=seed,
+        val_fraction=val_fraction,
+        n_simulations=min(n_items, 16),
+        first_frame=first,
+        pipeline=calibration.settings,
+        visibility=Visibility(min_contrast_to_noise=1.0, action="drop"),
+    )

@@ -1,0 +1,181 @@
+"""What a real image with instance masks says about its cells, model-free.
+
+Sizes (pole-to-pole length, width) of every mask region, the per-cell brightness
+above the background, the layout of the field (clusters of touching cells, their
+sizes and the cell density) and the pixel noise of the background. These are the
+numbers a user would otherwise read off the image by hand to match a simulation to it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage
+
+from napari_symbac.export.visibility import pixel_noise
+from napari_symbac.fit.masks import cell_widths_px
+
+__all__ = ["FieldMeasurements", "instance_masks", "measure_field"]
+
+
+def instance_masks(masks: np.ndarray) -> np.ndarray:
+    """Instance ids of ``masks``: a 0/1 (or boolean) mask is split into its connected
+    regions, an instance mask is kept (ids need not be consecutive).
+    """
+    masks = np.asarray(masks)
+    if masks.dtype == bool or set(np.unique(masks).tolist()) <= {0, 1}:
+        labels, _ = ndimage.label(masks > 0)
+        return labels.astype(np.int32)
+    return masks.astype(np.int32)
+
+
+def _lengths_px(labels: np.ndarray) -> np.ndarray:
+    """Pole-to-pole length of every region: its largest Feret diameter plus one pixel
+    (the diameter joins pixel centres; the outline lies half a pixel beyond each).
+    """
+    from skimage.measure import regionprops
+
+    return np.array([r.feret_diameter_max + 1.0 for r in regionprops(labels)])
+
+
+@dataclass(frozen=True)
+class FieldMeasurements:
+    """Model-free measurements of a real field and its instance masks.
+
+    Attributes
+    ----------
+    shape
+        Image shape (rows, columns).
+    lengths_px, widths_px
+        Pole-to-pole length and width of every cell region, pixels.
+    brightness_adu
+        Median of each cell region minus the background median (ADU; negative for
+        dark cells in phase contrast).
+    cells_median_adu, background_median_adu
+        Medians over all cell pixels and over background pixels (at least
+        ``far_px`` from every cell).
+    noise_adu
+        Robust pixel noise of the background (:func:`~napari_symbac.export.visibility.pixel_noise`).
+    cluster_sizes
+        Cells in each cluster (cells closer than ``touch_px`` belong to one cluster).
+    cell_area_fraction
+        Fraction of the image that is cell.
+    """
+
+    shape: tuple[int, int]
+    lengths_px: np.ndarray = field(repr=False)
+    widths_px: np.ndarray = field(repr=False)
+    brightness_adu: np.ndarray = field(repr=False)
+    cells_median_adu: float
+    background_median_adu: float
+    noise_adu: float
+    cluster_sizes: np.ndarray = field(repr=False)
+    cell_area_fraction: float
+
+    @property
+    def n_cells(self) -> int:
+        """Number of cell regions."""
+        return int(self.lengths_px.size)
+
+    @property
+    def brightness_cv(self) -> float:
+        """Coefficient of variation of the cells' brightness above the background."""
+        b = np.abs(self.brightness_adu)
+        if b.size < 2 or b.mean() <= 0:
+            return 0.0
+        return float(b.std(ddof=1) / b.mean())
+
+    def summary(self, pixel_size_um: float) -> str:
+        """One line: cell count, sizes in um, brightness, layout."""
+        px = pixel_size_um
+        return (
+            f"{self.n_cells} cells; length {np.median(self.lengths_px) * px:.2f} um "
+            f"(IQR {np.percentile(self.lengths_px, 25) * px:.2f}-"
+            f"{np.percentile(self.lengths_px, 75) * px:.2f}), width "
+            f"{np.median(self.widths_px) * px:.2f} um; brightness CV {self.brightness_cv:.2f}; "
+            f"{self.cluster_sizes.size} cluster(s), median {np.median(self.cluster_sizes):.0f} "
+            f"cell(s), largest {int(self.cluster_sizes.max())}; cells cover "
+            f"{100 * self.cell_area_fraction:.1f} % of the image"
+        )
+
+
+def measure_field(
+    image: np.ndarray,
+    masks: np.ndarray,
+    *,
+    far_px: float = 6.0,
+    touch_px: int = 2,
+    valid: np.ndarray | None = None,
+) -> FieldMeasurements:
+    """Measure a real field against its instance masks (module notes).
+
+    Parameters
+    ----------
+    image
+        The real 2D image (ADU).
+    masks
+        Its instance masks (0 background; a 0/1 mask is split into connected regions).
+    far_px
+        Background pixels are at least this far from every cell.
+    touch_px
+        Cells whose regions come within this many pixels of each other form a cluster.
+    valid
+        Pixels to use in the intensity measurements (False: censored, e.g. clipped or
+        zeroed by a background subtraction); default all.
+
+    Raises
+    ------
+    ValueError
+        Shapes differ, no cell, or no background pixel far from the cells.
+    """
+    image = np.asarray(image, np.float64)
+    labels = instance_masks(masks)
+    if image.ndim != 2 or labels.shape != image.shape:
+        raise ValueError(
+            f"image {image.shape} and masks {labels.shape} must be 2D of one shape"
+        )
+    if not (labels > 0).any():
+        raise ValueError("the masks hold no cell (all 0): give the masks of this image")
+    ok = np.ones(image.shape, bool) if valid is None else np.asarray(valid, bool)
+    cells = labels > 0
+    distance = ndimage.distance_transform_edt(~cells)
+    far = (distance >= far_px) & ok
+    while far.sum() < 10 and far_px > 1:  # a dense colony: its gaps are the background
+        far_px = max(1.0, far_px / 2)
+        far = (distance >= far_px) & ok
+    if far.sum() < 10:
+        raise ValueError(
+            "fewer than 10 pixels lie outside every cell: the masks "
+            "cover the image; give a field with some background"
+        )
+    background = float(np.median(image[far]))
+    ids = [i for i in np.unique(labels) if i > 0]
+    relabelled = np.zeros_like(labels)
+    for new, old in enumerate(ids, start=1):
+        relabelled[labels == old] = new
+    brightness = np.array(
+        [
+            float(np.median(image[(relabelled == k) & ok] if ((relabelled == k) & ok).any()
+                            else image[relabelled == k])) - background
+            for k in range(1, len(ids) + 1)
+        ]
+    )
+    grown = ndimage.binary_dilation(cells, iterations=max(1, math.ceil(touch_px / 2)))
+    clusters, n_clusters = ndimage.label(grown)
+    sizes = np.array(
+        [np.unique(relabelled[(clusters == c) & cells]).size for c in range(1, n_clusters + 1)]
+    )
+    inside = ok & cells
+    return FieldMeasurements(
+        shape=(int(image.shape[0]), int(image.shape[1])),
+        lengths_px=_lengths_px(relabelled),
+        widths_px=cell_widths_px(relabelled),
+        brightness_adu=brightness,
+        cells_median_adu=float(np.median(image[inside] if inside.any() else image[cells])),
+        background_median_adu=background,
+        noise_adu=pixel_noise(image, far),
+        cluster_sizes=sizes,
+        cell_area_fraction=float(cells.mean()),
+    )

@@ -1,0 +1,67 @@
+"""benchmarks/bench_transfer.py --quick: the whole protocol on tiny sizes, every row."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+BENCH = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_transfer.py"
+
+
+def _bench():
+    if "bench_transfer" not in sys.modules:
+        spec = importlib.util.spec_from_file_location("bench_transfer", BENCH)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules["bench_transfer"] = module  # dataclasses look their module up there
+        spec.loader.exec_module(module)
+    return sys.modules["bench_transfer"]
+
+
+def test_metrics_of_a_known_prediction():
+    bench = _bench()
+    truth = np.zeros((40, 40), np.int32)
+    truth[5:15, 5:25] = 1
+    truth[25:35, 5:25] = 2
+    pred = np.zeros_like(truth)
+    pred[5:15, 5:27] = 7  # 2 px longer: IoU 200 / 220
+    pred[0:3, 30:33] = 8  # a false positive
+    result = bench.match(truth, pred)
+    assert (result["tp"], result["fp"], result["fn"]) == (1, 1, 1)
+    assert result["ious"] == [pytest.approx(200 / 220)]
+    assert result["dl_px"] == [pytest.approx(2.0, abs=0.3)]
+    assert result["dw_px"] == [pytest.approx(0.0)]
+    summary = bench.summarise([result], [0.1])
+    assert summary["f1"] == pytest.approx(0.5)
+    assert summary["length_bias_um"] == pytest.approx(0.2, abs=0.03)
+    t = bench.targets(truth)
+    assert set(np.unique(t).tolist()) == {0, 1, 2}
+    assert t[10, 15] == 1  # interior
+    assert t[5, 15] == 2  # boundary
+
+
+@pytest.mark.slow
+def test_quick_run_has_every_row(real_data_dir, tmp_path, monkeypatch):
+    monkeypatch.setenv("NAPARI_SYMBAC_REAL_DATA", str(real_data_dir))
+    bench = _bench()
+    rows = bench.main(["--quick", "--out", str(tmp_path)])
+    methods = [r["method"] for r in rows]
+    assert methods == [
+        "Otsu + watershed",
+        "U-Net, real annotations (leave-one-image-out)",
+        "U-Net, calibrated synthetic only (seed 0)",
+        "U-Net, calibrated synthetic only (seed 1)",
+        "U-Net, tool defaults (modality switched)",
+    ]
+    for row in rows:
+        assert 0 <= row["f1"] <= 1
+        assert 0 <= row["pixel_iou"] <= 1
+        assert math.isfinite(row["seconds"])
+    assert (tmp_path / "results_colicoords.json").is_file()
+    assert (tmp_path / "transfer_colicoords_prediction.png").is_file()
+    table = bench.table(rows)
+    assert table.count("\n") == len(rows) + 1

@@ -1,0 +1,184 @@
+"""calibrate() on real crops: settings matched to the recording, same seed -> same data."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+import tifffile
+
+from napari_symbac.calibrate import (
+    best_crop,
+    calibrate,
+    compare_images,
+    export_settings,
+    instance_masks,
+    measure_field,
+    radial_power,
+)
+from napari_symbac.export.dataset import PipelineSource
+from napari_symbac.settings import Microscope
+
+
+@pytest.fixture(scope="module")
+def colicoords_crop(real_data_dir):
+    ds1 = real_data_dir / "colicoords" / "test_data" / "ds1"
+    image = tifffile.imread(ds1 / "fluorescence" / "00001.tif")[:256, :256]
+    masks = tifffile.imread(ds1 / "binary" / "00001_Probabilities_filtered.tif")[:256, :256]
+    return image, masks
+
+
+@pytest.fixture(scope="module")
+def fluorescence_calibration(colicoords_crop):
+    image, masks = colicoords_crop
+    microscope = Microscope(pixel_size_um=0.08, wavelength_um=0.53, modality="fluorescence")
+    return calibrate(image, masks=masks, microscope=microscope, crop_px=128)
+
+
+def test_measure_field_counts_the_masks_regions(colicoords_crop):
+    image, masks = colicoords_crop
+    labels = instance_masks(masks)
+    m = measure_field(image, masks)
+    assert m.n_cells == len(np.unique(labels)) - 1
+    assert np.all(m.brightness_adu > 0)  # fluorescent cells are brighter than the pad
+    assert np.all(m.lengths_px >= m.widths_px)
+    assert m.cluster_sizes.sum() == m.n_cells
+
+
+def test_best_crop_holds_whole_cells():
+    masks = np.zeros((100, 100), np.int32)
+    masks[70:80, 70:80] = 1
+    masks[82:90, 75:95] = 2
+    masks[5:15, 5:15] = 3  # alone: a window with it holds one whole cell, not two
+    rows, cols = best_crop(masks, 40)
+    window = masks[rows, cols]
+    assert set(np.unique(window).tolist()) - {0} == {1, 2}
+    assert (window == 2).sum() == (masks == 2).sum()  # whole, not cut by the edge
+
+
+def test_fluorescence_calibration_is_bright_on_dark_and_matches_the_field(
+    fluorescence_calibration, colicoords_crop
+):
+    cal = fluorescence_calibration
+    s = cal.settings
+    assert s.microscope.modality == "fluorescence"
+    assert s.render.cell_intensity > 5 * s.render.media_intensity
+    assert s.simulation.geometry == "agar_pad"
+    assert s.simulation.agar_pad.field_width_um == pytest.approx(256 * 0.08)
+    assert s.simulation.agar_pad.n_colonies == cal.measurements.cluster_sizes.size
+    widths_um = cal.measurements.widths_px * 0.08
+    assert widths_um.min() - 0.3 < s.simulation.cell_width_um < widths_um.max() + 0.1
+    assert 0.1 < s.render.cell_brightness_cv < 2.0
+    item = PipelineSource(export_settings(cal, n_items=2, seed=3)).make_unit(0)[0]
+    assert item.image.shape == colicoords_crop[0].shape
+    cells = item.labels > 0
+    assert cells.any()
+    assert np.median(item.image[cells]) > np.median(item.image[~cells]) + 50
+
+
+def test_same_seed_same_dataset_item(fluorescence_calibration):
+    a = PipelineSource(export_settings(fluorescence_calibration, n_items=3, seed=5))
+    b = PipelineSource(export_settings(fluorescence_calibration, n_items=3, seed=5))
+    first, second = a.make_unit(1)[0], b.make_unit(1)[0]
+    assert np.array_equal(first.image, second.image)
+    assert np.array_equal(first.labels, second.labels)
+    other = PipelineSource(export_settings(fluorescence_calibration, n_items=3, seed=6))
+    assert not np.array_equal(first.image, other.make_unit(1)[0].image)
+
+
+def test_faint_cells_are_dropped_from_the_masks(fluorescence_calibration):
+    cal = fluorescence_calibration
+    dim = dataclasses.replace(
+        cal,
+        settings=dataclasses.replace(
+            cal.settings,
+            render=dataclasses.replace(
+                cal.settings.render,
+                cell_intensity=cal.settings.render.media_intensity * 1.001,
+                cell_brightness_cv=0.0,
+            ),
+        ),
+    )
+    source = PipelineSource(export_settings(dim, n_items=2, seed=1))
+    item = source.make_unit(0)[0]
+    assert item.faint_cells  # cells invisible in the noise were found
+    assert not np.isin(item.labels, list(item.faint_cells)).any()
+
+
+def test_compare_images_sees_a_spectrum_difference(colicoords_crop):
+    image, masks = colicoords_crop
+    same = compare_images(image, masks, image, masks)
+    assert same.spectrum_log_ratio == 0
+    rng = np.random.default_rng(0)
+    noisy = image + rng.normal(0, 200, image.shape)
+    other = compare_images(image, masks, noisy, masks)
+    assert other.spectrum_log_ratio > 0.3
+    assert other.noise[1] > 2 * other.noise[0]
+    f, p = radial_power(image)
+    assert f.size == p.size
+    assert p.sum() == pytest.approx(1.0)
+
+
+def test_dense_phase_colony_uses_the_partially_coherent_fit(real_data_dir):
+    folder = real_data_dir / "omnipose"
+    image = iio.imread(folder / "Sample000033.png")[60:156, 100:196, 0]
+    masks = tifffile.imread(folder / "Sample000033_cp_masks.tif")[60:156, 100:196]
+    cal = calibrate(
+        image,
+        masks=masks,
+        microscope=Microscope(wavelength_um=0.55, modality="phase"),
+        cell_width_um=1.0,
+        crop_px=96,
+        max_evaluations=12,
+    )
+    assert cal.method == "masks + partially coherent fit"
+    s = cal.settings
+    assert s.render.phase_model == "partially_coherent"
+    assert s.microscope.pixel_size_um == pytest.approx(
+        1.0 / np.median(cal.measurements.widths_px)
+    )
+    assert s.simulation.agar_pad.n_colonies == cal.measurements.cluster_sizes.size
+    assert s.simulation.n_frames > 30  # grown to a colony of tens of cells
+    assert cal.fit_chi2[1] <= cal.fit_chi2[0]
+    item = PipelineSource(export_settings(cal, n_items=1, seed=0)).make_unit(0)[0]
+    cells = item.labels > 0
+    assert (np.unique(item.labels) > 0).sum() >= 10
+    assert np.median(item.image[cells]) < np.median(item.image[~cells])  # dark cells
+
+
+def test_calibrate_refuses_contradicting_modality(colicoords_crop):
+    image, masks = colicoords_crop
+    with pytest.raises(ValueError, match="does not look like phase"):
+        calibrate(image, masks=masks, microscope=Microscope(pixel_size_um=0.08))
+    with pytest.raises(ValueError, match="pass masks too"):
+        calibrate(image, microscope=Microscope(modality="fluorescence"), cell_width_um=1.0)
+
+
+def test_fluorescence_export_with_phase_intensities_is_refused():
+    from napari_symbac.export.dataset import ExportSettings
+    from napari_symbac.settings import PipelineSettings
+
+    pipeline = PipelineSettings(microscope=Microscope(modality="fluorescence"))
+    with pytest.raises(ValueError, match="not brighter than the medium"):
+        ExportSettings(n_items=1, pipeline=pipeline)
+    ExportSettings(n_items=1, pipeline=PipelineSettings())  # phase: dark cells are right
+
+
+def test_calibrate_without_masks_measures_the_fitted_crop(colicoords_crop):
+    image, _ = colicoords_crop
+    microscope = Microscope(pixel_size_um=0.08, wavelength_um=0.53, modality="fluorescence")
+    cal = calibrate(image, microscope=microscope, crop_px=128)
+    assert cal.reference.shape == cal.masks.shape == (128, 128)
+    assert cal.measurements.n_cells == len(np.unique(cal.masks)) - 1 >= 1
+    assert cal.settings.simulation.agar_pad.field_width_um == pytest.approx(128 * 0.08)
+    assert cal.settings.render.cell_intensity > cal.settings.render.media_intensity
+
+
+def test_calibrate_twice_gives_the_same_settings(colicoords_crop, fluorescence_calibration):
+    image, masks = colicoords_crop
+    microscope = Microscope(pixel_size_um=0.08, wavelength_um=0.53, modality="fluorescence")
+    again = calibrate(image, masks=masks, microscope=microscope, crop_px=128)
+    assert again.settings == fluorescence_calibration.settings
+    assert again.notes == fluorescence_calibration.notes

@@ -1,0 +1,127 @@
+"""``napari-symbac calibrate``: a matched dataset and report from a real crop; refusals."""
+
+from __future__ import annotations
+
+import json
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+import tifffile
+
+from napari_symbac.cli import main
+
+
+@pytest.fixture
+def colicoords_files(real_data_dir, tmp_path):
+    ds1 = real_data_dir / "colicoords" / "test_data" / "ds1"
+    image = tifffile.imread(ds1 / "fluorescence" / "00001.tif")[:192, :256]
+    masks = tifffile.imread(ds1 / "binary" / "00001_Probabilities_filtered.tif")[:192, :256]
+    tifffile.imwrite(tmp_path / "flu.tif", image)
+    tifffile.imwrite(tmp_path / "mask.tif", masks)
+    (tmp_path / "m80.yaml").write_text("pixel_size_um: 0.08\nwavelength_um: 0.53\n")
+    return tmp_path
+
+
+def test_calibrate_writes_a_matched_dataset_and_report(colicoords_files, capsys):
+    d = colicoords_files
+    out = d / "out"
+    code = main(
+        [
+            "calibrate", str(d / "flu.tif"), "--masks", str(d / "mask.tif"),
+            "--microscope", str(d / "m80.yaml"), "--modality", "fluorescence",
+            "--out", str(out), "--n-items", "3", "--formats", "tiff,omnipose",
+        ]
+    )
+    assert code == 0, capsys.readouterr().err
+    assert {p.name for p in out.iterdir()} == {
+        "dataset", "report.txt", "report.png", "export_settings.yaml", "masks.tif"
+    }
+    manifest = json.loads((out / "dataset" / "manifest.json").read_text())
+    assert manifest["status"] == "complete"
+    assert len(manifest["items"]) == 3
+    assert manifest["settings"]["visibility"]["action"] == "drop"
+    assert manifest["settings"]["pipeline"]["microscope"]["modality"] == "fluorescence"
+    assert (out / "dataset" / "omnipose").is_dir()
+    images = sorted((out / "dataset" / "tiff").rglob("*.tif"))
+    assert images
+    report = (out / "report.txt").read_text()
+    assert "fluorescence" in report
+    assert "power spectrum" in report
+    picture = iio.imread(out / "report.png")
+    assert picture.ndim == 3
+    assert picture.shape[1] > 2 * 192
+    assert not [p for p in d.iterdir() if p.name.startswith(".out")]  # staging removed
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--modality", "phase"], "does not look like phase"),
+        (["--masks", "MISSING.tif"], "does not exist"),
+        (["--formats", "nonsense"], "unknown format"),
+    ],
+)
+def test_calibrate_bad_input_is_one_line_and_writes_nothing(
+    colicoords_files, capsys, extra, message
+):
+    d = colicoords_files
+    args = [
+        "calibrate", str(d / "flu.tif"), "--microscope", str(d / "m80.yaml"),
+        "--out", str(d / "out"), "--n-items", "2",
+    ]
+    if "--masks" not in extra:
+        args += ["--masks", str(d / "mask.tif")]
+    if "--modality" not in extra:
+        args += ["--modality", "fluorescence"]
+    code = main(args + extra)
+    err = capsys.readouterr().err
+    assert code == 2
+    assert message in err
+    assert err.count("\n") <= 2
+    assert "Traceback" not in err
+    assert not (d / "out").exists()
+    assert not [p for p in d.iterdir() if p.name.startswith(".out")]
+
+
+def test_calibrate_refuses_a_colour_image_and_a_full_out_folder(colicoords_files, capsys):
+    d = colicoords_files
+    rgb = np.zeros((64, 64, 3), np.uint8)
+    rgb[..., 0] = 200
+    iio.imwrite(d / "colour.png", rgb)
+    code = main(
+        ["calibrate", str(d / "colour.png"), "--microscope", str(d / "m80.yaml"),
+         "--out", str(d / "o2")]
+    )
+    assert code == 2
+    assert "colour image" in capsys.readouterr().err
+    (d / "full").mkdir()
+    (d / "full" / "x.txt").write_text("keep me")
+    code = main(
+        ["calibrate", str(d / "flu.tif"), "--masks", str(d / "mask.tif"), "--microscope",
+         str(d / "m80.yaml"), "--modality", "fluorescence", "--out", str(d / "full")]
+    )
+    assert code == 2
+    assert "not an empty folder" in capsys.readouterr().err
+    assert [p.name for p in (d / "full").iterdir()] == ["x.txt"]
+
+
+def test_calibrate_from_painted_labels(colicoords_files, capsys):
+    d = colicoords_files
+    from scipy import ndimage
+
+    masks = tifffile.imread(d / "mask.tif")
+    labels = np.zeros(masks.shape, np.uint8)
+    labels[ndimage.binary_erosion(masks > 0, iterations=3)] = 1
+    labels[ndimage.distance_transform_edt(masks == 0) > 10] = 2
+    tifffile.imwrite(d / "labels.tif", labels)
+    out = d / "from_labels"
+    code = main(
+        ["calibrate", str(d / "flu.tif"), "--labels", str(d / "labels.tif"), "--microscope",
+         str(d / "m80.yaml"), "--modality", "fluorescence", "--out", str(out), "--n-items", "2"]
+    )
+    assert code == 0, capsys.readouterr().err
+    report = (out / "report.txt").read_text()
+    assert "no masks: sizes and layout from the fit's cells" in report
+    fitted = tifffile.imread(out / "masks.tif")
+    assert len(np.unique(fitted)) - 1 >= 1  # the fit's own cells were measured
