@@ -48,7 +48,7 @@ def measure_scaling(config: BenchConfig, rounds: list[dict[str, Any]]) -> dict[s
     data["size"] = {"side_px": list(FIELD_SIDES_PX), "frame_s": [], "fft_s": []}
     for side in FIELD_SIDES_PX:
         count = max(1, round(density * side**2))
-        run = cases_render.measure_field_draw(side, count, rounds=1 if config.quick else 3)
+        run = cases_render.measure_field_draw(side, count, rounds=2 if config.quick else 3)
         data["size"]["frame_s"].append(run["draw_masks_s"])
         data["size"]["fft_s"].append(run["fft_floor_s"])
 
