@@ -252,11 +252,11 @@ def gpu_field_1024(config: BenchConfig) -> dict[str, float]:
 
 @register("batch_cpu_trench")
 def batch_cpu_trench(config: BenchConfig) -> dict[str, float]:
-    """``config.batch_frames`` trench frames on ``torch:cpu`` (torch's default threads)
+    """``config.batch_frames`` trench frames on ``torch:cpu`` (one thread, as scipy's FFT)
     and on scipy, interleaved (:func:`compare`): ``frame_s`` (torch:cpu),
     ``scipy_frame_s`` and ``vs_scipy`` (torch:cpu frames/s over scipy's)."""
-    runs = [("scipy", None), ("torch:cpu", None)]
-    if ("torch:cpu", None) not in available():
+    runs = [("scipy", None), ("torch:cpu", 1)]
+    if ("torch:cpu", 1) not in available():
         raise BenchSkipped("unmeasured: torch is not installed")
     n = config.batch_frames
     scipy, torch = compare(n, TRENCH, runs=runs, repeats=1)

@@ -40,11 +40,11 @@ ROWS[:] = [
         "gpu_trench", "frame_s", "ms"),
     Row("GPU batched render per frame, field 1024 x 1024 (torch:cuda, {gpu_field_frames} "
         "frames)", "gpu_field_1024", "frame_s", "ms"),
-    Row("torch:cpu batched render per frame, trench ({batch_frames} frames)",
+    Row("torch:cpu batched render per frame, 1 thread, trench ({batch_frames} frames)",
         "batch_cpu_trench", "frame_s", "ms"),
     Row("scipy render per frame, trench (same frames, interleaved)", "batch_cpu_trench",
         "scipy_frame_s", "ms"),
-    Row("torch:cpu frames/s / scipy frames/s, trench", "batch_cpu_trench", "vs_scipy",
+    Row("torch:cpu (1 thread) frames/s / scipy frames/s, trench", "batch_cpu_trench", "vs_scipy",
         "ratio", fft_key=None),
     Row("slider -> layer latency (intensity), trench", "slider", "slider_s", "ms",
         symbac_note="no GUI", needs="gui"),
