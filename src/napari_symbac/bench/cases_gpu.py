@@ -227,7 +227,7 @@ def compare(
 NO_CUDA = "unmeasured: no CUDA GPU here"
 
 
-def _cuda(config: BenchConfig, n_frames: int, shape: tuple[int, int]) -> dict[str, float]:
+def _cuda(n_frames: int, shape: tuple[int, int]) -> dict[str, float]:
     if ("torch:cuda", None) not in available():
         raise BenchSkipped(NO_CUDA)
     run = measure_batch("torch:cuda", n_frames, shape)
@@ -241,13 +241,13 @@ def _cuda(config: BenchConfig, n_frames: int, shape: tuple[int, int]) -> dict[st
 @register("gpu_trench")
 def gpu_trench(config: BenchConfig) -> dict[str, float]:
     """``config.gpu_frames`` trench frames in one ``torch:cuda`` batch: ``frame_s``."""
-    return _cuda(config, config.gpu_frames, TRENCH)
+    return _cuda(config.gpu_frames, TRENCH)
 
 
 @register("gpu_field_1024")
 def gpu_field_1024(config: BenchConfig) -> dict[str, float]:
     """``config.gpu_field_frames`` 1024 x 1024 fields on ``torch:cuda``: ``frame_s``."""
-    return _cuda(config, config.gpu_field_frames, FIELD)
+    return _cuda(config.gpu_field_frames, FIELD)
 
 
 @register("batch_cpu_trench")
