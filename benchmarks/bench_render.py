@@ -28,8 +28,10 @@ computed beforehand, one thread):
 * drawing a field (scene + instance and semantic masks) of 1024 x 1024 camera px
   with 360 cells and 2048 x 2048 with 1440 cells / floor (goal <= 0.3).
 
-The measuring code is in plain functions returning dicts, for a harness to import:
-:func:`measure_trench_frame` and :func:`measure_field_draw`. Steps are timed
+The measuring functions live in :mod:`napari_symbac.bench.cases_render`
+(``measure_trench_frame``, ``measure_field_draw``, ``measure_cached_paths``; the floor
+is :func:`napari_symbac.bench.timing.fft_floor`), shared with ``napari-symbac bench``;
+this script prints their table and the SyMBac comparison. Steps are timed
 interleaved (one of each in turn, medians of the rounds) in CPU time of the
 calling thread (``time.thread_time``; every step timed is single-threaded), which a
 shared, loaded machine disturbs less than wall time.
@@ -40,219 +42,20 @@ Run: ``python benchmarks/bench_render.py [--quick]``
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import subprocess
 import sys
-import time
-from collections.abc import Callable
-from types import SimpleNamespace
 
 import numpy as np
-from scipy import fft as sp_fft
 
-from napari_symbac.optics import ForwardModel
-from napari_symbac.scene import Field, draw_scene
-from napari_symbac.settings import Camera, Microscope, RenderSettings, TrenchGeometry
+from napari_symbac.bench.cases_render import (
+    FIELD_CASES,
+    measure_cached_paths,
+    measure_field_draw,
+    measure_trench_frame,
+)
 
 REPEATS = 30
-#: Field sizes (camera px) and cell counts of issue 15's drawing goal.
-FIELD_CASES = ((1024, 360), (2048, 1440))
-
-
-def best_of(fn, repeats: int = REPEATS) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
-
-
-def frame_cells(shift_um: float) -> SimpleNamespace:
-    y = np.array([1.7, 5.0, 8.3, 11.6, 14.9]) + shift_um
-    n = y.size
-    return SimpleNamespace(
-        ids=np.arange(1, n + 1),
-        x_um=np.full(n, 0.7),
-        y_um=y,
-        angle_rad=np.zeros(n),
-        length_um=np.full(n, 3.1),
-        width_um=np.full(n, 1.0),
-    )
-
-
-def trench_settings() -> tuple[Microscope, RenderSettings, TrenchGeometry, Camera]:
-    """The benchmark's trench: 256 x 46 camera px, upsample 3, radius-50 PSF."""
-    return (
-        Microscope(),
-        RenderSettings(upsample=3, psf_radius_px=50),
-        TrenchGeometry(length_um=15.84, width_um=1.4, margin_um=0.8),
-        Camera(),
-    )
-
-
-def fft_floor(frame: np.ndarray, kernel: np.ndarray) -> Callable[[], np.ndarray]:
-    """One plain FFT convolution of ``frame`` with ``kernel``: the yardstick.
-
-    ``irfft2(rfft2(frame) * K)`` in float32 at the fast transform lengths of the
-    frame (circular; its valid part is the valid convolution), with the kernel's
-    spectrum ``K`` computed once beforehand, one thread.
-    """
-    frame = np.asarray(frame, np.float32)
-    shape = tuple(sp_fft.next_fast_len(n, real=True) for n in frame.shape)
-    spectrum = sp_fft.rfft2(np.asarray(kernel, np.float32), s=shape)
-    return lambda: sp_fft.irfft2(sp_fft.rfft2(frame, s=shape) * spectrum, s=shape)
-
-
-def _cpu_time(times: list[float], fn: Callable, *args: object, **kwargs: object) -> object:
-    """Call ``fn(*args, **kwargs)``, append its CPU time (this thread) to ``times``."""
-    t0 = time.thread_time()
-    result = fn(*args, **kwargs)
-    times.append(time.thread_time() - t0)
-    return result
-
-
-def _masks(scene) -> tuple[np.ndarray, np.ndarray]:
-    return scene.camera_labels(), scene.semantic_mask()
-
-
-def measure_trench_frame(rounds: int = REPEATS) -> dict:
-    """Per-frame cost of the 256 x 46 trench frame against the FFT floor.
-
-    Each round times, in turn, on frames not seen before: ``draw_scene``; the fast
-    render (``cache=False``) split into the noise-free image and the camera noise;
-    the masks (``camera_labels`` + ``semantic_mask``); the full per-frame path of
-    ``pipeline.iter_render`` (draw + fast render + masks) on another new frame; and
-    one FFT convolution of the render frame. Times are medians over the rounds, in
-    seconds of CPU time.
-
-    Returns
-    -------
-    dict
-        ``camera_shape``, ``render_shape``, ``rounds``, ``draw_s``, ``clean_s``,
-        ``noise_s``, ``render_s`` (clean + noise), ``masks_s``, ``frame_s``,
-        ``fft_floor_s`` and ``frame_over_floor``.
-    """
-    microscope, render, trench, camera = trench_settings()
-    model = ForwardModel(microscope, render, camera)
-    rng = np.random.default_rng(0)
-    scene = draw_scene(frame_cells(0.0), trench, microscope, render)
-    model.render(scene, rng, cache=False)  # builds the kernel and its spectrum once
-    floor = fft_floor(scene.cells, model.kernel())
-    times: dict[str, list[float]] = {
-        k: [] for k in ("draw", "clean", "noise", "masks", "frame", "floor")
-    }
-
-    def full_frame(cells: SimpleNamespace) -> tuple:
-        frame_scene = draw_scene(cells, trench, microscope, render)
-        image = model.render(frame_scene, rng, cache=False)
-        return image, frame_scene.camera_labels(), frame_scene.semantic_mask()
-
-    for k in range(rounds):
-        cells = frame_cells(0.004 * k)
-        new = _cpu_time(times["draw"], draw_scene, cells, trench, microscope, render)
-        clean = _cpu_time(times["clean"], model.render_clean, new, cache=False)
-        _cpu_time(times["noise"], model.add_noise, clean, rng)
-        _cpu_time(times["masks"], _masks, new)
-        _cpu_time(times["frame"], full_frame, frame_cells(0.004 * k + 0.002))
-        _cpu_time(times["floor"], floor)
-    med = {k: float(np.median(v)) for k, v in times.items()}
-    return {
-        "camera_shape": scene.camera_shape,
-        "render_shape": scene.shape,
-        "rounds": rounds,
-        "draw_s": med["draw"],
-        "clean_s": med["clean"],
-        "noise_s": med["noise"],
-        "render_s": med["clean"] + med["noise"],
-        "masks_s": med["masks"],
-        "frame_s": med["frame"],
-        "fft_floor_s": med["floor"],
-        "frame_over_floor": med["frame"] / med["floor"],
-    }
-
-
-def colony_cells(
-    size_px: int, n_cells: int, seed: int = 0, pixel_um: float = 0.065
-) -> tuple[SimpleNamespace, dict[int, tuple[float, float, float]], float]:
-    """A colony-like field: ``n_cells`` cells on a jittered grid over the square field.
-
-    Random orientations, lengths 2.0-3.6 um (at most 95% of the grid pitch), widths
-    0.85-1.05 um, every fifth cell bent (eq. 1, ``a = 0.1`` um): about a fifth of the
-    field is cell at 360 cells on 1024 x 1024 px. Returns the cells, the curvature
-    mapping and the field's side in um.
-    """
-    rng = np.random.default_rng(seed)
-    side_um = size_px * pixel_um
-    k = int(np.ceil(np.sqrt(n_cells)))
-    pitch = side_um / k
-    if 0.95 * pitch <= 2.0:
-        raise ValueError(
-            f"{n_cells} cells do not fit a {size_px} px field as 2-3.6 um cells (grid pitch "
-            f"{pitch:.2f} um): use fewer cells or a larger field"
-        )
-    slots = rng.permutation(k * k)[:n_cells]
-    length = rng.uniform(2.0, min(3.6, 0.95 * pitch), n_cells)
-    cells = SimpleNamespace(
-        ids=np.arange(1, n_cells + 1),
-        x_um=(slots % k + 0.5) * pitch + rng.uniform(-0.2, 0.2, n_cells),
-        y_um=(slots // k + 0.5) * pitch + rng.uniform(-0.2, 0.2, n_cells),
-        angle_rad=rng.uniform(0.0, np.pi, n_cells),
-        length_um=length,
-        width_um=rng.uniform(0.85, 1.05, n_cells),
-    )
-    curvature = {int(i): (0.1, 1.0, 0.0) for i in cells.ids[::5]}
-    return cells, curvature, side_um
-
-
-def measure_field_draw(size_px: int, n_cells: int, rounds: int = 5) -> dict:
-    """Drawing a field of ``size_px x size_px`` camera px with ``n_cells`` cells.
-
-    Each round times ``draw_scene`` (cells, media, device, labels at 3x upsampling,
-    50 px border), then the masks of that new scene (``camera_labels`` +
-    ``semantic_mask``), then one FFT convolution of its render frame. Medians over
-    the rounds, seconds of CPU time.
-
-    Returns
-    -------
-    dict
-        ``size_px``, ``n_cells``, ``render_shape``, ``rounds``, ``draw_s``,
-        ``masks_s``, ``draw_masks_s``, ``fft_floor_s`` and ``draw_masks_over_floor``.
-    """
-    microscope = Microscope()
-    render = RenderSettings(upsample=3, psf_radius_px=50)
-    cells, curvature, side_um = colony_cells(size_px, n_cells, pixel_um=microscope.pixel_size_um)
-    field = Field(side_um, side_um)
-    trench = TrenchGeometry()
-
-    def draw():
-        return draw_scene(cells, trench, microscope, render, curvature, field=field)
-
-    scene = draw()
-    kernel = ForwardModel(microscope, render, Camera()).kernel()
-    floor = fft_floor(scene.cells, kernel)
-    render_shape = scene.shape
-    del scene
-    times: dict[str, list[float]] = {"draw": [], "masks": [], "floor": []}
-    for _ in range(rounds):
-        new = _cpu_time(times["draw"], draw)
-        _cpu_time(times["masks"], _masks, new)
-        del new
-        _cpu_time(times["floor"], floor)
-    med = {k: float(np.median(v)) for k, v in times.items()}
-    both = med["draw"] + med["masks"]
-    return {
-        "size_px": size_px,
-        "n_cells": n_cells,
-        "render_shape": render_shape,
-        "rounds": rounds,
-        "draw_s": med["draw"],
-        "masks_s": med["masks"],
-        "draw_masks_s": both,
-        "fft_floor_s": med["floor"],
-        "draw_masks_over_floor": both / med["floor"],
-    }
 
 
 SYMBAC_SCRIPT = r"""
@@ -359,36 +162,6 @@ def symbac_times(
         if key in ("conv", "auto", "matched"):
             times[key] = (float(values[0]), *(int(v) for v in values[1:]))
     return times, "SyMBac 0.5.2 (CPU)"
-
-
-def measure_cached_paths(rounds: int = REPEATS) -> dict:
-    """Cold render on the cached path and the cached re-render of the trench frame.
-
-    Returns ``cold_cached_s`` (a new frame: the changed components convolved and
-    cached, + noise), ``rerender_s`` (an intensity changed: recombine + noise),
-    ``rfft2_s`` (one forward transform of the render frame) and
-    ``rerender_over_rfft2``; medians, seconds of CPU time.
-    """
-    microscope, render, trench, camera = trench_settings()
-    model = ForwardModel(microscope, render, camera)
-    rng = np.random.default_rng(0)
-    scene = draw_scene(frame_cells(0.0), trench, microscope, render)
-    model.render(scene, rng)
-    scenes = [draw_scene(frame_cells(0.01 * k), trench, microscope, render) for k in range(rounds)]
-    settings = [dataclasses.replace(render, cell_intensity=1000.0 + k) for k in range(rounds)]
-    frame = np.asarray(scene.cells, np.float32)
-    times: dict[str, list[float]] = {"cold": [], "cached": [], "rfft2": []}
-    for k in range(rounds):
-        _cpu_time(times["cold"], model.render, scenes[k], rng)
-        _cpu_time(times["cached"], model.with_render(settings[k]).render, scene, rng)
-        _cpu_time(times["rfft2"], sp_fft.rfft2, frame)
-    med = {k: float(np.median(v)) for k, v in times.items()}
-    return {
-        "cold_cached_s": med["cold"],
-        "rerender_s": med["cached"],
-        "rfft2_s": med["rfft2"],
-        "rerender_over_rfft2": med["cached"] / med["rfft2"],
-    }
 
 
 def main(argv: list[str] | None = None) -> None:

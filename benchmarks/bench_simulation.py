@@ -14,11 +14,12 @@ Cases
   imported from ``/tmp/symbac-venv`` (a separate virtual environment); otherwise the
   table says why not.
 
-Each case runs in a fresh subprocess so that its peak resident memory (``ru_maxrss``)
+Each case runs in a fresh subprocess so that its peak resident memory (``VmHWM``)
 is its own. Run with ``python benchmarks/bench_simulation.py``.
 
-The measuring functions return dicts and can be imported (``napari-symbac bench``):
-:func:`measure_trench`, :func:`measure_colony`, :func:`measure_colony_scaling`.
+The measuring functions live in :mod:`napari_symbac.bench.cases_sim`
+(``measure_trench``, ``measure_colony``, ``measure_colony_scaling``), shared with
+``napari-symbac bench``; this script runs them in subprocesses and prints the table.
 """
 
 from __future__ import annotations
@@ -26,164 +27,20 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import pickle
 import platform
-import resource
-import statistics
 import subprocess
 import sys
-import time
 from pathlib import Path
 
+from napari_symbac.bench.cases_sim import (
+    COLONY_FIELD_UM,
+    COLONY_SIZES,
+    measure_colony_scaling,
+    measure_trench,
+)
+from napari_symbac.bench.timing import peak_rss_mib
+
 SYMBAC_PYTHON = Path("/tmp/symbac-venv/bin/python")
-#: Side of the agar-pad field the benchmark colonies grow in: a 4000-cell colony
-#: (about 75 um across) stays well inside it, so no cell leaves the field.
-COLONY_FIELD_UM = 250.0
-COLONY_SIZES = (400, 1000, 4000)
-
-
-def _peak_rss_mib() -> float:
-    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return rss / 1024 if platform.system() != "Darwin" else rss / 2**20
-
-
-def measure_trench(frames: int = 250, length_um: float = 25.0, seed: int = 0) -> dict:
-    """Simulate a mother-machine trench (1.4 um wide) for ``frames`` frames.
-
-    Returns
-    -------
-    dict
-        ``frames``, ``seconds`` (wall time of the whole run), ``frames_per_s``,
-        ``cell_frames`` (cells summed over frames), ``final_cells``.
-    """
-    from napari_symbac.settings import SimulationSettings, TrenchGeometry
-    from napari_symbac.sim import Simulator
-
-    settings = SimulationSettings(
-        n_frames=frames, trench=TrenchGeometry(length_um=length_um, width_um=1.4), seed=seed
-    )
-    start = time.perf_counter()
-    simulator = Simulator(settings)
-    cells = 0
-    for frame in simulator.iter_frames():
-        cells += len(frame)
-    seconds = time.perf_counter() - start
-    return {
-        "frames": frames,
-        "seconds": seconds,
-        "frames_per_s": frames / seconds,
-        "cell_frames": cells,
-        "final_cells": len(frame),
-    }
-
-
-def grow_colony(n_cells: int, seed: int = 0):
-    """An agar-pad :class:`~napari_symbac.sim.Simulator` (one founder, a
-    :data:`COLONY_FIELD_UM` square field) run until its colony has ``n_cells`` cells
-    or more; returns ``(simulator, seconds)``."""
-    from napari_symbac.settings import AgarPadGeometry, SimulationSettings
-    from napari_symbac.sim import Simulator
-
-    if n_cells < 1:
-        raise ValueError(f"n_cells must be >= 1, got {n_cells}")
-    settings = SimulationSettings(
-        geometry="agar_pad",
-        n_frames=100_000,
-        agar_pad=AgarPadGeometry(COLONY_FIELD_UM, COLONY_FIELD_UM),
-        seed=seed,
-    )
-    start = time.perf_counter()
-    simulator = Simulator(settings)
-    for frame in simulator.iter_frames():
-        if len(frame) >= n_cells:
-            break
-    return simulator, time.perf_counter() - start
-
-
-def _time_frames(simulator, frames: int) -> dict:
-    cell_frames = 0
-    start = time.perf_counter()
-    for _ in range(frames):
-        frame = simulator.step()
-        cell_frames += len(frame)
-    seconds = time.perf_counter() - start
-    return {
-        "frames": frames,
-        "seconds": seconds,
-        "cell_frames": cell_frames,
-        "ms_per_cell_frame": 1e3 * seconds / cell_frames,
-        "frames_per_s": frames / seconds,
-        "final_cells": len(frame),
-    }
-
-
-def measure_colony(n_cells: int, frames: int = 3, seed: int = 0) -> dict:
-    """Grow an agar-pad colony to ``n_cells`` cells (not timed), then time ``frames``
-    more frames.
-
-    Returns
-    -------
-    dict
-        ``n_cells`` (asked), ``cells`` (when timing started), ``frames``, ``seconds``,
-        ``cell_frames`` (cells summed over the timed frames), ``ms_per_cell_frame``,
-        ``frames_per_s``, ``final_cells``, ``grow_seconds`` (the untimed growth).
-    """
-    simulator, grow_seconds = grow_colony(n_cells, seed)
-    cells = len(simulator.result().frames[-1])
-    row = _time_frames(simulator, frames)
-    return {"n_cells": n_cells, "cells": cells, **row, "grow_seconds": grow_seconds}
-
-
-def measure_colony_scaling(
-    sizes: tuple[int, ...] = COLONY_SIZES, frames: int = 3, rounds: int = 3, seed: int = 0
-) -> dict:
-    """Cost per cell-frame of one agar-pad colony at several sizes, interleaved.
-
-    The colony is grown once through all ``sizes``; its simulator is saved (pickled)
-    when it first reaches each size. Then, ``rounds`` times, ``frames`` frames are
-    timed from each saved state in turn, so that a change in the machine's load hits
-    every size alike. (A restored simulator has the same cells and contacts, but pymunk
-    rebuilds its spatial index, so its trajectory departs from an uninterrupted run's in
-    the last bits; the work per frame is the same.)
-
-    Returns
-    -------
-    dict
-        ``sizes``: per size, ``cells`` (when timing started), ``ms_per_cell_frame``
-        (best round), ``ms_per_cell_frame_median``, ``ms_per_cell_frame_rounds``,
-        ``frames_per_s`` (best round); ``ratio``: best cost per cell-frame at the
-        largest size over that at the smallest (1.0 is linear in cells);
-        ``ratio_median``: the same from the medians; ``grow_seconds``.
-    """
-    sizes = tuple(sorted(sizes))
-    simulator, grow_seconds = grow_colony(sizes[0], seed)
-    saved: dict[int, bytes] = {}
-    cells_at: dict[int, int] = {}
-    cells = len(simulator.result().frames[-1])
-    start = time.perf_counter()
-    for size in sizes:
-        while cells < size:
-            cells = len(simulator.step())
-        saved[size], cells_at[size] = pickle.dumps(simulator), cells
-    grow_seconds += time.perf_counter() - start
-    times: dict[int, list[dict]] = {size: [] for size in sizes}
-    for _ in range(rounds):
-        for size in sizes:
-            times[size].append(_time_frames(pickle.loads(saved[size]), frames))
-    out: dict = {"sizes": {}, "grow_seconds": grow_seconds, "frames": frames, "rounds": rounds}
-    for size in sizes:
-        per = [row["ms_per_cell_frame"] for row in times[size]]
-        out["sizes"][size] = {
-            "cells": cells_at[size],
-            "ms_per_cell_frame": min(per),
-            "ms_per_cell_frame_median": statistics.median(per),
-            "ms_per_cell_frame_rounds": per,
-            "frames_per_s": max(row["frames_per_s"] for row in times[size]),
-        }
-    small, large = out["sizes"][sizes[0]], out["sizes"][sizes[-1]]
-    out["ratio"] = large["ms_per_cell_frame"] / small["ms_per_cell_frame"]
-    out["ratio_median"] = large["ms_per_cell_frame_median"] / small["ms_per_cell_frame_median"]
-    return out
 
 
 _SYMBAC_SCRIPT = r"""
@@ -269,7 +126,7 @@ def main() -> None:
         parser.error("--colony-sizes, --rounds and --symbac-frames must be >= 1")
     if args.case:
         result = _case(args.case, args)
-        result["peak_mib"] = _peak_rss_mib()
+        result["peak_mib"] = peak_rss_mib()
         print(json.dumps(result))
         return
 

@@ -212,14 +212,9 @@ def test_render_simulation_on_torch(trench):
 
 
 def test_benchmark_functions_return_their_rows():
-    """benchmarks/bench_gpu.py, which ``napari-symbac bench`` imports: shape of the rows."""
-    import importlib.util
-    from pathlib import Path
+    """napari_symbac.bench.cases_gpu (``napari-symbac bench``, benchmarks/bench_gpu.py)."""
+    from napari_symbac.bench import cases_gpu as bench
 
-    path = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_gpu.py"
-    spec = importlib.util.spec_from_file_location("bench_gpu", path)
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
     row = bench.measure_batch("torch:cpu", 3, bench.TRENCH, threads=1)
     assert row["backend"] == "torch:cpu"
     assert row["threads"] == 1

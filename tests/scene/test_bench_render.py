@@ -1,4 +1,5 @@
-"""benchmarks/bench_render.py's measuring functions: the dicts a harness imports.
+"""The render measuring functions of napari_symbac.bench.cases_render (``napari-symbac
+bench`` and benchmarks/bench_render.py).
 
 Structure and consistency only (no timing is asserted): every key is there, the
 times are positive and the ratios are the quotients they claim to be.
@@ -6,22 +7,15 @@ times are positive and the ratios are the quotients they claim to be.
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
+from napari_symbac.bench import cases_render
 
 
 @pytest.fixture(scope="module")
 def bench():
-    path = REPO_ROOT / "benchmarks" / "bench_render.py"
-    spec = importlib.util.spec_from_file_location("bench_render", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return cases_render
 
 
 def test_measure_trench_frame(bench):
@@ -54,3 +48,16 @@ def test_colony_cells_fill_the_field_without_leaving_it(bench):
     np.testing.assert_array_equal(again.angle_rad, cells.angle_rad)
     with pytest.raises(ValueError, match="fewer cells or a larger field"):
         bench.colony_cells(96, 12)
+
+
+def test_measure_cached_paths(bench):
+    result = bench.measure_cached_paths(rounds=2)
+    for key in ("cold_cached_s", "rerender_s", "rfft2_s", "fft_floor_s"):
+        assert result[key] > 0, key
+    assert result["rerender_over_rfft2"] == pytest.approx(result["rerender_s"] / result["rfft2_s"])
+
+
+def test_trench_frame_at_another_psf_radius_has_a_larger_frame(bench):
+    result = bench.measure_trench_frame(rounds=1, psf_radius_px=20)
+    assert result["render_shape"] == (256 * 3 + 40, 46 * 3 + 40)
+    assert result["fft_floor_s"] > 0

@@ -1,22 +1,17 @@
-"""The measuring functions of benchmarks/bench_simulation.py (imported by other tools)
-return what they promise; no timing is asserted."""
+"""The simulation measuring functions of napari_symbac.bench.cases_sim (``napari-symbac
+bench`` and benchmarks/bench_simulation.py) return what they promise; no timing is
+asserted."""
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import pytest
 
-BENCH = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_simulation.py"
+from napari_symbac.bench import cases_sim
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("bench_simulation", BENCH)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return cases_sim
 
 
 def test_measure_trench(bench):
@@ -46,6 +41,8 @@ def test_measure_colony_scaling_times_every_size_from_the_same_state(bench):
     for row in (small, large):
         assert len(row["ms_per_cell_frame_rounds"]) == 2
         assert row["ms_per_cell_frame"] == min(row["ms_per_cell_frame_rounds"])
+        # the render frame holds the colony's box and the PSF border of 50 px each side
+        assert min(row["render_shape"]) > 100
     assert out["ratio"] == pytest.approx(large["ms_per_cell_frame"] / small["ms_per_cell_frame"])
 
 

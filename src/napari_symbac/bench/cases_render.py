@@ -1,37 +1,46 @@
-"""Render rows: a trench frame, open fields of 512 and 1024 camera px, cached re-render.
+"""Render rows: the trench frame's per-frame path, the cached re-render, field drawing.
 
-Each frame is the full per-frame path of an export or a preview: draw the scene, render
-it cold (``cache=False``: compose, convolve once, camera noise) and make its instance and
-semantic masks. Stand-ins until the render helper's ``measure_*`` functions are
-registered under the same names (``render_trench``, ``render_field``) with these keys.
+The trench: 256 x 46 camera px, 5 cells, 3x upsampling, a radius-50 PSF (render frame
+868 x 238). Steps are timed interleaved (one of each in turn, medians of the rounds)
+in CPU time of the calling thread (``time.thread_time``; every step timed is
+single-threaded), which a shared, loaded machine disturbs less than wall time, each
+beside the FFT floor (:func:`~napari_symbac.bench.timing.fft_floor`) of the same frame
+timed in the same rounds. Issue 15's goals: the full per-frame path (draw + fast render
+with noise + masks) <= 1.5 x the floor; drawing + masks of a 1024 x 1024 field of 360
+cells and a 2048 x 2048 field of 1440 cells <= 0.3 x the floor.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import time
+from collections.abc import Callable
 from types import SimpleNamespace
 
 import numpy as np
 
 from napari_symbac.bench.config import BenchConfig
 from napari_symbac.bench.registry import register
-from napari_symbac.bench.timing import fft_floor_s, median_s
+from napari_symbac.bench.timing import fft_floor
 
 __all__ = [
+    "FIELD_CASES",
     "TRENCH_256",
-    "cuda_backend",
-    "field_cells",
-    "gpu_field_1024",
-    "gpu_trench",
-    "render_field_512",
-    "render_field_1024",
+    "colony_cells",
+    "field_draw_1024",
+    "field_draw_2048",
+    "measure_cached_paths",
+    "measure_field_draw",
+    "measure_trench_frame",
     "render_trench",
     "trench_cells",
-    "trench_frame",
+    "trench_settings",
 ]
 
 #: The 256 x 46 camera-px trench of docs/benchmarks.md.
 TRENCH_256 = {"length_um": 15.84, "width_um": 1.4, "margin_um": 0.8}
+#: Field sizes (camera px) and cell counts of issue 15's drawing goal.
+FIELD_CASES = ((1024, 360), (2048, 1440))
 
 
 def trench_cells(shift_um: float) -> SimpleNamespace:
@@ -48,164 +57,247 @@ def trench_cells(shift_um: float) -> SimpleNamespace:
     )
 
 
-def field_cells(side_px: int, count: int, pixel_size_um: float, rng: np.random.Generator):
-    """``count`` cells on a jittered grid of a ``side_px`` square field (no overlaps)."""
-    per_row = int(np.ceil(np.sqrt(count)))
-    pitch = side_px * pixel_size_um / per_row
-    ix, iy = np.meshgrid(np.arange(per_row), np.arange(per_row))
-    jitter = 0.1 * pitch
-    x = ((ix.ravel() + 0.5) * pitch)[:count] + rng.uniform(-jitter, jitter, count)
-    y = ((iy.ravel() + 0.5) * pitch)[:count] + rng.uniform(-jitter, jitter, count)
-    return SimpleNamespace(
-        ids=np.arange(1, count + 1),
-        x_um=x,
-        y_um=y,
-        angle_rad=rng.uniform(-np.pi, np.pi, count),
-        length_um=np.minimum(rng.uniform(2.0, 3.5, count), 0.7 * pitch),
-        width_um=np.full(count, min(1.0, 0.3 * pitch)),
-    )
-
-
-def _frame_path(model, draw, frames: int, rng: np.random.Generator) -> dict[str, float]:
-    """Median seconds of draw + cold render + masks over ``frames`` new scenes."""
-    scenes = iter([draw(k) for k in range(frames + 1)])
-    first = next(scenes)
-    model.render(first, rng, cache=False)  # kernel and its spectrum
-    keys = iter(range(frames + 1, 2 * frames + 2))
-
-    def full() -> None:
-        scene = draw(next(keys))
-        model.render(scene, rng, cache=False)
-        scene.camera_labels()
-        scene.semantic_mask()
-
-    timings = {
-        "frame_s": median_s(full, frames),
-        "draw_s": median_s(lambda: draw(0), frames),
-        "render_s": median_s(lambda: model.render(next(scenes), rng, cache=False), frames),
-    }
-    fresh = iter([draw(k) for k in range(frames)])
-
-    def masks() -> None:
-        scene = next(fresh)
-        scene.camera_labels()
-        scene.semantic_mask()
-
-    timings["masks_s"] = median_s(masks, frames)
-    return timings
-
-
-def trench_frame(
-    config: BenchConfig, psf_radius_px: int = 50, backend: str = "scipy"
-) -> dict[str, float]:
-    """The 256 x 46 trench (5 cells, upsample 3) at PSF radius ``psf_radius_px``.
-
-    ``frame_s`` (draw + cold render + masks), its parts, ``cached_s`` (re-render after
-    an intensity change: no convolution), ``fft_s``, and the frame's shapes (for
-    SyMBac's canvas).
-    """
-    from napari_symbac.optics import ForwardModel
-    from napari_symbac.scene import draw_scene
+def trench_settings(psf_radius_px: int = 50):
+    """The benchmark's trench: ``(Microscope, RenderSettings, TrenchGeometry, Camera)``,
+    256 x 46 camera px, upsample 3, PSF radius ``psf_radius_px``."""
     from napari_symbac.settings import Camera, Microscope, RenderSettings, TrenchGeometry
 
-    microscope, camera = Microscope(), Camera()
-    render = RenderSettings(upsample=3, psf_radius_px=psf_radius_px)
-    trench = TrenchGeometry(**TRENCH_256)
-    rng = np.random.default_rng(0)
-    model = ForwardModel(microscope, render, camera, backend=backend)
-
-    def draw(k: int):
-        return draw_scene(trench_cells(0.004 * k), trench, microscope, render)
-
-    result = _frame_path(model, draw, config.render_frames, rng)
-    scene = draw(0)
-    model.render(scene, rng)
-    changed = iter(
-        [dataclasses.replace(render, cell_intensity=1000.0 + k) for k in range(100)]
+    return (
+        Microscope(),
+        RenderSettings(upsample=3, psf_radius_px=psf_radius_px),
+        TrenchGeometry(**TRENCH_256),
+        Camera(),
     )
-    repeats = max(5, config.render_frames)
-    result["cached_s"] = median_s(
-        lambda: model.with_render(next(changed)).render(scene, rng), repeats
-    )
-    result["fft_s"] = fft_floor_s(scene.shape, np.asarray(model.kernel(), np.float32))
-    result["render_rows"], result["render_cols"] = map(float, scene.shape)
-    result["camera_rows"], result["camera_cols"] = map(float, scene.camera_shape)
+
+
+def _cpu_time(times: list[float], fn: Callable, *args: object, **kwargs: object) -> object:
+    """Call ``fn(*args, **kwargs)``, append its CPU time (this thread) to ``times``."""
+    t0 = time.thread_time()
+    result = fn(*args, **kwargs)
+    times.append(time.thread_time() - t0)
     return result
 
 
-@register("render_trench")
-def render_trench(config: BenchConfig) -> dict[str, float]:
-    """The 256 x 46 trench at PSF radius 50 (see :func:`trench_frame`)."""
-    return trench_frame(config)
+def _masks(scene) -> tuple[np.ndarray, np.ndarray]:
+    return scene.camera_labels(), scene.semantic_mask()
 
 
-def _field(side_px: int, count: int, frames: int, backend: str = "scipy") -> dict[str, float]:
+def measure_trench_frame(rounds: int = 30, psf_radius_px: int = 50) -> dict:
+    """Per-frame cost of the 256 x 46 trench frame against the FFT floor.
+
+    Each round times, in turn, on frames not seen before: ``draw_scene``; the fast
+    render (``cache=False``) split into the noise-free image and the camera noise;
+    the masks (``camera_labels`` + ``semantic_mask``); the full per-frame path of
+    ``pipeline.iter_render`` (draw + fast render + masks) on another new frame; and
+    one FFT convolution of the render frame. Times are medians over the rounds, in
+    seconds of CPU time.
+
+    Returns
+    -------
+    dict
+        ``camera_shape``, ``render_shape``, ``rounds``, ``draw_s``, ``clean_s``,
+        ``noise_s``, ``render_s`` (clean + noise), ``masks_s``, ``frame_s``,
+        ``fft_floor_s`` and ``frame_over_floor``.
+    """
+    from napari_symbac.optics import ForwardModel
+    from napari_symbac.scene import draw_scene
+
+    microscope, render, trench, camera = trench_settings(psf_radius_px)
+    model = ForwardModel(microscope, render, camera)
+    rng = np.random.default_rng(0)
+    scene = draw_scene(trench_cells(0.0), trench, microscope, render)
+    model.render(scene, rng, cache=False)  # builds the kernel and its spectrum once
+    floor = fft_floor(scene.cells, model.kernel())
+    times: dict[str, list[float]] = {
+        k: [] for k in ("draw", "clean", "noise", "masks", "frame", "floor")
+    }
+
+    def full_frame(cells: SimpleNamespace) -> tuple:
+        frame_scene = draw_scene(cells, trench, microscope, render)
+        image = model.render(frame_scene, rng, cache=False)
+        return image, frame_scene.camera_labels(), frame_scene.semantic_mask()
+
+    for k in range(rounds):
+        cells = trench_cells(0.004 * k)
+        new = _cpu_time(times["draw"], draw_scene, cells, trench, microscope, render)
+        clean = _cpu_time(times["clean"], model.render_clean, new, cache=False)
+        _cpu_time(times["noise"], model.add_noise, clean, rng)
+        _cpu_time(times["masks"], _masks, new)
+        _cpu_time(times["frame"], full_frame, trench_cells(0.004 * k + 0.002))
+        _cpu_time(times["floor"], floor)
+    med = {k: float(np.median(v)) for k, v in times.items()}
+    return {
+        "camera_shape": scene.camera_shape,
+        "render_shape": scene.shape,
+        "rounds": rounds,
+        "draw_s": med["draw"],
+        "clean_s": med["clean"],
+        "noise_s": med["noise"],
+        "render_s": med["clean"] + med["noise"],
+        "masks_s": med["masks"],
+        "frame_s": med["frame"],
+        "fft_floor_s": med["floor"],
+        "frame_over_floor": med["frame"] / med["floor"],
+    }
+
+
+def measure_cached_paths(rounds: int = 30) -> dict:
+    """Cold render on the cached path and the cached re-render of the trench frame.
+
+    Returns ``cold_cached_s`` (a new frame: the changed components convolved and
+    cached, + noise), ``rerender_s`` (an intensity changed: recombine + noise),
+    ``rfft2_s`` (one forward transform of the render frame), ``rerender_over_rfft2``
+    and ``fft_floor_s``; medians, seconds of CPU time, interleaved.
+    """
+    from scipy import fft as sp_fft
+
+    from napari_symbac.optics import ForwardModel
+    from napari_symbac.scene import draw_scene
+
+    microscope, render, trench, camera = trench_settings()
+    model = ForwardModel(microscope, render, camera)
+    rng = np.random.default_rng(0)
+    scene = draw_scene(trench_cells(0.0), trench, microscope, render)
+    model.render(scene, rng)
+    scenes = [draw_scene(trench_cells(0.01 * k), trench, microscope, render) for k in range(rounds)]
+    settings = [dataclasses.replace(render, cell_intensity=1000.0 + k) for k in range(rounds)]
+    frame = np.asarray(scene.cells, np.float32)
+    floor = fft_floor(frame, model.kernel())
+    times: dict[str, list[float]] = {"cold": [], "cached": [], "rfft2": [], "floor": []}
+    for k in range(rounds):
+        _cpu_time(times["cold"], model.render, scenes[k], rng)
+        _cpu_time(times["cached"], model.with_render(settings[k]).render, scene, rng)
+        _cpu_time(times["rfft2"], sp_fft.rfft2, frame)
+        _cpu_time(times["floor"], floor)
+    med = {k: float(np.median(v)) for k, v in times.items()}
+    return {
+        "cold_cached_s": med["cold"],
+        "rerender_s": med["cached"],
+        "rfft2_s": med["rfft2"],
+        "rerender_over_rfft2": med["cached"] / med["rfft2"],
+        "fft_floor_s": med["floor"],
+    }
+
+
+def colony_cells(
+    size_px: int, n_cells: int, seed: int = 0, pixel_um: float = 0.065
+) -> tuple[SimpleNamespace, dict[int, tuple[float, float, float]], float]:
+    """A colony-like field: ``n_cells`` cells on a jittered grid over the square field.
+
+    Random orientations, lengths 2.0-3.6 um (at most 95% of the grid pitch), widths
+    0.85-1.05 um, every fifth cell bent (eq. 1, ``a = 0.1`` um): about a fifth of the
+    field is cell at 360 cells on 1024 x 1024 px. Returns the cells, the curvature
+    mapping and the field's side in um.
+    """
+    rng = np.random.default_rng(seed)
+    side_um = size_px * pixel_um
+    k = int(np.ceil(np.sqrt(n_cells)))
+    pitch = side_um / k
+    if 0.95 * pitch <= 2.0:
+        raise ValueError(
+            f"{n_cells} cells do not fit a {size_px} px field as 2-3.6 um cells (grid pitch "
+            f"{pitch:.2f} um): use fewer cells or a larger field"
+        )
+    slots = rng.permutation(k * k)[:n_cells]
+    length = rng.uniform(2.0, min(3.6, 0.95 * pitch), n_cells)
+    cells = SimpleNamespace(
+        ids=np.arange(1, n_cells + 1),
+        x_um=(slots % k + 0.5) * pitch + rng.uniform(-0.2, 0.2, n_cells),
+        y_um=(slots // k + 0.5) * pitch + rng.uniform(-0.2, 0.2, n_cells),
+        angle_rad=rng.uniform(0.0, np.pi, n_cells),
+        length_um=length,
+        width_um=rng.uniform(0.85, 1.05, n_cells),
+    )
+    curvature = {int(i): (0.1, 1.0, 0.0) for i in cells.ids[::5]}
+    return cells, curvature, side_um
+
+
+def measure_field_draw(size_px: int, n_cells: int, rounds: int = 5) -> dict:
+    """Drawing a field of ``size_px x size_px`` camera px with ``n_cells`` cells.
+
+    Each round times ``draw_scene`` (cells, media, device, labels at 3x upsampling,
+    50 px border), then the masks of that new scene (``camera_labels`` +
+    ``semantic_mask``), then one FFT convolution of its render frame. Medians over
+    the rounds, seconds of CPU time.
+
+    Returns
+    -------
+    dict
+        ``size_px``, ``n_cells``, ``render_shape``, ``rounds``, ``draw_s``,
+        ``masks_s``, ``draw_masks_s``, ``fft_floor_s`` and ``draw_masks_over_floor``.
+    """
     from napari_symbac.optics import ForwardModel
     from napari_symbac.scene import Field, draw_scene
     from napari_symbac.settings import Camera, Microscope, RenderSettings, TrenchGeometry
 
-    microscope, camera = Microscope(), Camera()
+    microscope = Microscope()
     render = RenderSettings(upsample=3, psf_radius_px=50)
-    px = microscope.pixel_size_um
-    field = Field(side_px * px, side_px * px)
-    model = ForwardModel(microscope, render, camera, backend=backend)
-    rng = np.random.default_rng(0)
+    cells, curvature, side_um = colony_cells(size_px, n_cells, pixel_um=microscope.pixel_size_um)
+    field = Field(side_um, side_um)
+    trench = TrenchGeometry()
 
-    def draw(k: int):
-        cells = field_cells(side_px, count, px, np.random.default_rng(k))
-        return draw_scene(cells, TrenchGeometry(), microscope, render, field=field)
+    def draw():
+        return draw_scene(cells, trench, microscope, render, curvature, field=field)
 
-    result = _frame_path(model, draw, frames, rng)
-    result["fft_s"] = fft_floor_s(draw(0).shape, np.asarray(model.kernel(), np.float32), 3)
-    result["cells"] = float(count)
-    return result
+    scene = draw()
+    kernel = ForwardModel(microscope, render, Camera()).kernel()
+    floor = fft_floor(scene.cells, kernel)
+    render_shape = scene.shape
+    del scene
+    times: dict[str, list[float]] = {"draw": [], "masks": [], "floor": []}
+    for _ in range(rounds):
+        new = _cpu_time(times["draw"], draw)
+        _cpu_time(times["masks"], _masks, new)
+        del new
+        _cpu_time(times["floor"], floor)
+    med = {k: float(np.median(v)) for k, v in times.items()}
+    both = med["draw"] + med["masks"]
+    return {
+        "size_px": size_px,
+        "n_cells": n_cells,
+        "render_shape": render_shape,
+        "rounds": rounds,
+        "draw_s": med["draw"],
+        "masks_s": med["masks"],
+        "draw_masks_s": both,
+        "fft_floor_s": med["floor"],
+        "draw_masks_over_floor": both / med["floor"],
+    }
 
 
-@register("render_field_512")
-def render_field_512(config: BenchConfig) -> dict[str, float]:
-    """A 512 x 512 camera-px open field of ``config.field_cells[0]`` cells (phase)."""
-    return _field(512, config.field_cells[0], max(2, config.render_frames // 4))
+def _numbers(result: dict) -> dict[str, float]:
+    """The float entries of ``result``, with ``fft_floor_s`` as the rows' ``fft_s``."""
+    out = {k: float(v) for k, v in result.items() if isinstance(v, (int, float))}
+    out["fft_s"] = out.pop("fft_floor_s")
+    return out
 
 
-@register("render_field_1024")
-def render_field_1024(config: BenchConfig) -> dict[str, float]:
-    """A 1024 x 1024 camera-px open field of ``config.field_cells[1]`` cells (phase)."""
-    return _field(1024, config.field_cells[1], max(2, config.render_frames // 4))
+@register("render_trench")
+def render_trench(config: BenchConfig) -> dict[str, float]:
+    """:func:`measure_trench_frame` (``fft_s``: its floor) and the cached re-render
+    (``cached_s``) of :func:`measure_cached_paths`."""
+    rounds = max(5, config.render_frames)
+    out = _numbers(measure_trench_frame(rounds))
+    out["cached_s"] = measure_cached_paths(rounds)["rerender_s"]
+    return out
 
 
-def cuda_backend() -> str:
-    """``"torch:cuda"`` or ``"cupy"`` where a CUDA device answers, else :class:`BenchSkipped`."""
-    import importlib.util
+def _field_draw(config: BenchConfig, index: int) -> dict[str, float]:
+    size_px, n_cells = FIELD_CASES[index]
+    return _numbers(measure_field_draw(size_px, n_cells, rounds=3 if config.quick else 5))
 
+
+@register("field_draw_1024")
+def field_draw_1024(config: BenchConfig) -> dict[str, float]:
+    """Draw + masks of the 1024 x 1024 field of 360 cells (:func:`measure_field_draw`)."""
+    return _field_draw(config, 0)
+
+
+@register("field_draw_2048")
+def field_draw_2048(config: BenchConfig) -> dict[str, float]:
+    """Draw + masks of the 2048 x 2048 field of 1440 cells (not run with ``--quick``)."""
     from napari_symbac.bench.subprocesses import BenchSkipped
 
-    if importlib.util.find_spec("torch") is not None:
-        import torch
-
-        if torch.cuda.is_available():
-            return "torch:cuda"
-    if importlib.util.find_spec("cupy") is not None:
-        import cupy
-
-        try:
-            if cupy.cuda.runtime.getDeviceCount() > 0:
-                return "cupy"
-        except cupy.cuda.runtime.CUDARuntimeError:
-            pass
-    raise BenchSkipped("unmeasured: no CUDA GPU here")
-
-
-@register("gpu_trench")
-def gpu_trench(config: BenchConfig) -> dict[str, float]:
-    """The trench frame of :func:`render_trench` on the GPU backend (same keys).
-
-    A stand-in over today's backend: the GPU helper's batched measurement (1000 frames
-    kept on the device) registers under this name at merge.
-    """
-    return trench_frame(config, backend=cuda_backend())
-
-
-@register("gpu_field_1024")
-def gpu_field_1024(config: BenchConfig) -> dict[str, float]:
-    """The 1024 x 1024 field of :func:`render_field_1024` on the GPU backend."""
-    return _field(1024, config.field_cells[1], max(2, config.render_frames // 4), cuda_backend())
+    if config.quick:
+        raise BenchSkipped("not run with --quick")
+    return _field_draw(config, 1)

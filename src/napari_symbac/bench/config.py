@@ -30,13 +30,16 @@ class BenchConfig:
         Colony sizes at which the simulation's frame cost is read.
     render_frames
         Frames timed per render row.
-    field_cells
-        Cells of the 512 x 512 and 1024 x 1024 fields (the density of the issue's 1024
-        field with 360 cells).
+    gpu_frames, gpu_field_frames
+        Trench frames and 1024 x 1024 fields per ``torch:cuda`` batch.
+    batch_frames
+        Trench frames of the ``torch:cpu`` batch and of scipy's run beside it.
     export_images
         Images per export run.
     fit_iterations
         Iteration limit of the fits (``fit_scene``'s ``max_iterations``).
+    fit_field_cells
+        Cells of the 256 x 256 fluorescence field that is fitted.
     """
 
     quick: bool = False
@@ -45,9 +48,12 @@ class BenchConfig:
     trench_frames: int = 100
     colony_cells: tuple[int, int, int] = (400, 1000, 4000)
     render_frames: int = 20
-    field_cells: tuple[int, int] = (90, 360)
+    gpu_frames: int = 1000
+    gpu_field_frames: int = 6
+    batch_frames: int = 100
     export_images: int = 100
     fit_iterations: int = 25
+    fit_field_cells: int = 16
 
     @classmethod
     def make(cls, quick: bool, symbac_python: str | None = None, repeats: int | None = None):
@@ -61,9 +67,12 @@ class BenchConfig:
             trench_frames=30,
             colony_cells=(40, 80, 160),
             render_frames=3,
-            field_cells=(90, 360),
+            gpu_frames=20,
+            gpu_field_frames=2,
+            batch_frames=8,
             export_images=10,
             fit_iterations=3,
+            fit_field_cells=4,
         )
 
     @property

@@ -32,7 +32,7 @@ Benchmark = Callable[[BenchConfig], dict[str, float]]
 #: Benchmarks by name.
 BENCHMARKS: dict[str, Benchmark] = {}
 
-Unit = Literal["per_s", "ms", "s", "MiB"]
+Unit = Literal["per_s", "ms", "s", "MiB", "ratio"]
 
 
 def register(name: str, benchmark: Benchmark | None = None):
@@ -60,7 +60,8 @@ class Row:
         The number of the benchmark's dict shown: a cost, seconds per unit or MiB.
     unit
         ``"per_s"`` shows ``1 / key`` (frames/s, images/s); ``"ms"`` / ``"s"`` a time;
-        ``"MiB"`` memory.
+        ``"MiB"`` memory; ``"ratio"`` a plain number (e.g. a cost at one size over
+        another).
     rate_name
         Name of the unit of a ``per_s`` row (``"frames/s"``).
     fft_key

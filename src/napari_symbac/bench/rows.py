@@ -6,7 +6,13 @@ child-process ones) and fills :data:`~napari_symbac.bench.registry.ROWS`.
 
 from __future__ import annotations
 
-from napari_symbac.bench import cases_fit, cases_render, cases_sim, subprocesses  # noqa: F401
+from napari_symbac.bench import (  # noqa: F401
+    cases_fit,
+    cases_gpu,
+    cases_render,
+    cases_sim,
+    subprocesses,
+)
 from napari_symbac.bench.registry import ROWS, Row
 
 __all__ = ["ROWS"]
@@ -16,28 +22,36 @@ ROWS[:] = [
     Row("simulation, trench 15 um ({trench_frames} frames)", "sim_trench", "frame_s", "per_s",
         "frames/s", symbac_key="sim_s_per_frame"),
     *(
-        Row(f"simulation, colony at {{colony_cells[{i}]}} cells", "sim_colony", f"frame_s_{i}",
-            "per_s", "frames/s", fft_key=f"fft_s_{i}", symbac_note="no colony simulator")
+        Row(f"simulation, colony at {{colony_cells[{i}]}} cells, per cell-frame", "sim_colony",
+            f"cell_frame_s_{i}", "ms", fft_key=None, symbac_note="no colony simulator")
         for i in range(3)
     ),
-    Row("cold render per frame, trench 256 x 46 (draw + render + masks)", "render_trench",
+    Row("simulation, colony cost per cell-frame, {colony_cells[2]} / {colony_cells[0]} cells",
+        "sim_colony", "ratio", "ratio", fft_key=None, symbac_note="no colony simulator"),
+    Row("per-frame path, trench 256 x 46 (draw + cold render + masks)", "render_trench",
         "frame_s", "ms", symbac_key="render_s_per_frame"),
-    Row("cold render per frame, field 512 x 512 ({field_cells[0]} cells)", "render_field_512",
-        "frame_s", "ms", symbac_note=_NO_FIELDS),
-    Row("cold render per frame, field 1024 x 1024 ({field_cells[1]} cells)",
-        "render_field_1024", "frame_s", "ms", symbac_note=_NO_FIELDS),
-    Row("GPU cold render per frame, trench 256 x 46", "gpu_trench", "frame_s", "ms",
-        symbac_note="-"),
-    Row("GPU cold render per frame, field 1024 x 1024 ({field_cells[1]} cells)",
-        "gpu_field_1024", "frame_s", "ms", symbac_note="-"),
     Row("cached re-render (intensity change), trench", "render_trench", "cached_s", "ms",
         symbac_note="no cache"),
+    Row("draw + masks, field 1024 x 1024 (360 cells)", "field_draw_1024", "draw_masks_s", "ms",
+        symbac_note=_NO_FIELDS),
+    Row("draw + masks, field 2048 x 2048 (1440 cells)", "field_draw_2048", "draw_masks_s", "ms",
+        symbac_note=_NO_FIELDS),
+    Row("GPU batched render per frame, trench 256 x 46 (torch:cuda, {gpu_frames} frames)",
+        "gpu_trench", "frame_s", "ms"),
+    Row("GPU batched render per frame, field 1024 x 1024 (torch:cuda, {gpu_field_frames} "
+        "frames)", "gpu_field_1024", "frame_s", "ms"),
+    Row("torch:cpu batched render per frame, 1 thread, trench ({batch_frames} frames)",
+        "batch_cpu_trench", "frame_s", "ms"),
+    Row("scipy render per frame, trench (same frames, interleaved)", "batch_cpu_trench",
+        "scipy_frame_s", "ms"),
+    Row("torch:cpu (1 thread) frames/s / scipy frames/s, trench", "batch_cpu_trench", "vs_scipy",
+        "ratio", fft_key=None),
     Row("slider -> layer latency (intensity), trench", "slider", "slider_s", "ms",
         symbac_note="no GUI", needs="gui"),
     Row("fit, trench 256 x 46 (fit_scene)", "fit_trench", "fit_s", "s",
         symbac_note="not run (its optimiser takes minutes)"),
-    Row("fit, field 256 x 256 fluorescence (fit_scene)", "fit_field", "fit_s", "s",
-        symbac_note="no open-field fit"),
+    Row("fit, field 256 x 256 fluorescence ({fit_field_cells} cells, fit_scene)", "fit_field",
+        "fit_s", "s", symbac_note="no open-field fit"),
     Row("export, 1 worker ({export_images} images, overall)", "export_1", "image_s", "per_s",
         "images/s", symbac_key="export_overall_s_per_image"),
     Row("export, 1 worker, steady (after the first image)", "export_1", "steady_image_s",

@@ -2,9 +2,9 @@
 
 Measured once per run (with ``--out``), beside the table: the trench simulation at a
 quarter, half and all of ``config.trench_frames`` frames; the colony's frame cost at
-the table's cell counts; the per-frame render path of open fields of 256, 512 and 1024
-camera px at one density; and the trench frame at PSF radii 20 to 80 render px. Each
-render point has its FFT floor beside it.
+the table's cell counts; drawing + masks of open fields of 256, 512 and 1024 camera px
+at one density; and the trench frame's per-frame path at PSF radii 20 to 80 render px.
+Each render point has its FFT floor beside it.
 """
 
 from __future__ import annotations
@@ -43,19 +43,20 @@ def measure_scaling(config: BenchConfig, rounds: list[dict[str, Any]]) -> dict[s
             "fft_s": [float(np.median([c[f"fft_s_{i}"] for c in colony])) for i in range(3)],
         }
 
-    density = config.field_cells[1] / 1024**2
+    size_px, n_cells = cases_render.FIELD_CASES[0]
+    density = n_cells / size_px**2
     data["size"] = {"side_px": list(FIELD_SIDES_PX), "frame_s": [], "fft_s": []}
     for side in FIELD_SIDES_PX:
         count = max(1, round(density * side**2))
-        run = cases_render._field(side, count, max(2, config.render_frames // 4))
-        data["size"]["frame_s"].append(run["frame_s"])
-        data["size"]["fft_s"].append(run["fft_s"])
+        run = cases_render.measure_field_draw(side, count, rounds=2 if config.quick else 3)
+        data["size"]["frame_s"].append(run["draw_masks_s"])
+        data["size"]["fft_s"].append(run["fft_floor_s"])
 
     data["psf"] = {"radius_px": list(RADII_PX), "frame_s": [], "fft_s": []}
     for radius in RADII_PX:
-        run = cases_render.trench_frame(config, psf_radius_px=radius)
+        run = cases_render.measure_trench_frame(max(5, config.render_frames), radius)
         data["psf"]["frame_s"].append(run["frame_s"])
-        data["psf"]["fft_s"].append(run["fft_s"])
+        data["psf"]["fft_s"].append(run["fft_floor_s"])
     return data
 
 
@@ -88,10 +89,10 @@ def plot_scaling(data: dict[str, Any], path: str | Path) -> Path | None:
     ax = axes[1, 0]
     s = data["size"]
     pixels = [side**2 for side in s["side_px"]]
-    ax.loglog(pixels, s["frame_s"], "o-", label="draw + render + masks")
+    ax.loglog(pixels, s["frame_s"], "o-", label="draw + masks")
     ax.loglog(pixels, s["fft_s"], "s--", label="FFT floor")
     ax.set(xlabel="camera pixels (256², 512², 1024² fields)", ylabel="seconds per frame",
-           title="cost vs image size (same cell density)")
+           title="drawing cost vs image size (same cell density)")
     ax.legend()
     ax = axes[1, 1]
     p = data["psf"]
