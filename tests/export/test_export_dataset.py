@@ -182,6 +182,10 @@ def test_pickled_source_carries_its_simulations():
     again = received.make_unit(1)[0]
     assert np.array_equal(again.image, made.image)
     assert np.array_equal(again.labels, made.labels)
+    assert received.backend == "scipy"
+    on_torch = PipelineSource(settings, backend="torch")
+    assert on_torch.backend.startswith("torch:")
+    assert pickle.loads(pickle.dumps(on_torch)).backend == on_torch.backend  # as asked
 
 
 def test_real_time_series_tracking_ground_truth(tmp_path):

@@ -411,10 +411,11 @@ class PipelineSource:
         n = s.n_simulations if s.kind == "frames" else s.n_items
         keys = (_simulation_key(s.pipeline, s.seed, i) for i in range(n))
         made = {key: _SIMULATIONS[key] for key in keys if key in _SIMULATIONS}
-        return {"settings": s, "simulations": made}
+        return {"settings": s, "backend": self.backend, "simulations": made}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.settings = state["settings"]
+        self.backend = state["backend"]
         for key, simulation in state["simulations"].items():
             if key not in _SIMULATIONS and len(_SIMULATIONS) < 4:
                 _SIMULATIONS[key] = simulation
