@@ -14,7 +14,7 @@ MIN_WAVELENGTH_UM, MAX_TERMS = 1.5, 48
 #: Pixels closer than this to a cell edge carry no texture term.
 AWAY_PX = 2.5
 #: Media pixels (away from cells) the fit needs per texture mode.
-PIXELS_PER_MODE = 100
+PIXELS_PER_MODE = 200
 #: A mode is kept only if this fraction of its norm on the support is new
 #: (not a combination of the lower-frequency modes already kept).
 MIN_NEW_FRACTION = 0.3
