@@ -6,6 +6,7 @@ import numpy as np
 
 from napari_symbac.diagnose.concealed import make_case
 from napari_symbac.diagnose.effects.background_texture import (
+    AWAY_PX,
     MAX_TERMS,
     MIN_NEW_FRACTION,
     PIXELS_PER_MODE,
@@ -50,7 +51,7 @@ def test_trench_modes_follow_the_media_of_the_design():
     media = case.design.geometry.media_fraction
     assert media is not None
     assert media.shape == case.design.geometry.shape
-    support = int(((case.design.geometry.distance_px[0] > 2.5) & (media[0] > 0.5)).sum())
+    support = int(((case.design.geometry.distance_px[0] > AWAY_PX) & (media[0] > 0.5)).sum())
     assert 0 < effect.n_params() <= support // PIXELS_PER_MODE < MAX_TERMS
 
 

@@ -12,9 +12,9 @@ __all__ = ["BackgroundTexture", "support_modes", "texture_basis"]
 #: Shortest wavelength of the texture basis (um) and the most basis functions.
 MIN_WAVELENGTH_UM, MAX_TERMS = 1.5, 48
 #: Pixels closer than this to a cell edge carry no texture term.
-AWAY_PX = 2.5
+AWAY_PX = 2.0
 #: Media pixels (away from cells) the fit needs per texture mode.
-PIXELS_PER_MODE = 200
+PIXELS_PER_MODE = 300
 #: A mode is kept only if this fraction of its norm on the support is new
 #: (not a combination of the lower-frequency modes already kept).
 MIN_NEW_FRACTION = 0.3
@@ -72,7 +72,7 @@ def support_modes(basis: np.ndarray, weight: np.ndarray) -> np.ndarray:
 class BackgroundTexture(Effect):
     """The media is not uniform: ``mu + P_m sum_k c_k B_k(x, y)``.
 
-    ``P_m`` is the media contribution more than 2.5 px from any cell and ``B_k``
+    ``P_m`` is the media contribution more than 2 px from any cell and ``B_k``
     cosine modes of wavelength 1.5 um and longer, above the second-order surface of
     ``uneven_illumination`` (so the two do not compete). Only the modes that the
     media pixels away from the cells can tell apart are fitted
