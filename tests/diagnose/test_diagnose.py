@@ -89,3 +89,17 @@ def test_microscope_file_checks():
         parse_microscope(bad)
     with pytest.raises(ValueError, match="modality"):
         parse_microscope({**good, "modality": "darkfield"})
+
+
+@pytest.mark.parametrize(
+    ("effect", "seed"), [("uneven_illumination", 1000), ("fixed_pattern_noise", 1020)]
+)
+def test_strong_mean_effect_is_named_before_the_variance_it_inflates(effect, seed):
+    # A mean misfit inflates the residual variance, so camera_noise is significant too;
+    # the stronger evidence (the mean effect) must be tried and accepted first.
+    modality = "phase" if effect == "uneven_illumination" else "fluorescence"
+    case = make_case(effect, modality=modality, fraction_of_sd=0.7, seed=seed)
+    result = diagnose(
+        case.images, case.design, n_bootstrap=10, max_steps=1, rng=np.random.default_rng(seed + 1)
+    )
+    assert [e.name for e in result.accepted] == [effect], result.report()

@@ -77,6 +77,9 @@ class Geometry:
         Camera pixel size in the sample.
     modality
         ``"phase"`` or ``"fluorescence"``.
+    media_fraction
+        ``(T, Y, X)`` media contribution of the base model per unit media intensity,
+        scaled to 1 in open media (``None`` when built from labels alone).
     """
 
     cell_fraction: np.ndarray
@@ -88,6 +91,7 @@ class Geometry:
     t: np.ndarray
     pixel_size_um: float
     modality: str
+    media_fraction: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -225,6 +229,11 @@ def build_design(
     optics_cols = np.stack(derivs, axis=1) if names else np.zeros((0, *components.shape[1:]))
     geometry = geometry_from_labels(
         np.stack(labels), np.stack(fractions), microscope.pixel_size_um, microscope.modality
+    )
+    media = np.abs(components[1])
+    top = float(np.percentile(media, 99)) if media.size else 0.0
+    geometry = dataclasses.replace(
+        geometry, media_fraction=np.clip(media / top, 0.0, 1.0) if top > 0 else None
     )
     return BaseDesign(components, optics_cols, names, intensities, camera, geometry)
 

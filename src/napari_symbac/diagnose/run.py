@@ -250,14 +250,10 @@ def diagnose(
                     base_summary["held_out"],
                     base_summary["held_out"],
                 )
-        # The variance model calibrates every other test: a significant camera_noise
-        # candidate is tried first.
-        ranked.sort(
-            key=lambda et: (
-                not (et[0].kind == "variance" and et[1].evidence >= threshold),
-                -et[1].evidence,
-            )
-        )
+        # Strongest evidence first (``rank``). camera_noise is not moved ahead: a large
+        # misfit of the mean inflates the residual variance, so its variance score is
+        # significant beside every strong mean effect (it was accepted first, wrongly,
+        # beside uneven_illumination, stage_drift and fixed_pattern_noise).
         accepted_now = None
         for effect, test in ranked[:max_tries]:
             if test.evidence < threshold:

@@ -7,22 +7,29 @@ import numpy as np
 from napari_symbac.diagnose.effects.base import Effect
 from napari_symbac.diagnose.model import Geometry
 
-__all__ = ["BackgroundTexture", "texture_basis"]
+__all__ = ["BackgroundTexture", "support_modes", "texture_basis"]
 
 #: Shortest wavelength of the texture basis (um) and the most basis functions.
 MIN_WAVELENGTH_UM, MAX_TERMS = 1.5, 48
 #: Pixels closer than this to a cell edge carry no texture term.
-AWAY_PX = 2.5
+AWAY_PX = 2.0
+#: Media pixels (away from cells) the fit needs per texture mode.
+PIXELS_PER_MODE = 300
+#: A mode is kept only if this fraction of its norm on the support is new
+#: (not a combination of the lower-frequency modes already kept).
+MIN_NEW_FRACTION = 0.3
 
 
 def texture_basis(shape: tuple[int, int], pixel_size_um: float) -> np.ndarray:
-    """Cosine (DCT-II) modes above second order, wavelength >= 1.5 um: ``(K, Y, X)``."""
+    """Cosine (DCT-II) modes above second order, wavelength >= 1.5 um: ``(K, Y, X)``.
+
+    Ordered from the lowest spatial frequency up.
+    """
     rows, cols = shape
     ky_max = max(1, int(2 * rows * pixel_size_um / MIN_WAVELENGTH_UM))
     kx_max = max(1, int(2 * cols * pixel_size_um / MIN_WAVELENGTH_UM))
     modes = [(ky, kx) for ky in range(ky_max + 1) for kx in range(kx_max + 1) if ky + kx > 2]
     modes.sort(key=lambda m: m[0] ** 2 / max(rows, 1) ** 2 + m[1] ** 2 / max(cols, 1) ** 2)
-    modes = modes[:MAX_TERMS]
     y = (np.arange(rows) + 0.5) / rows
     x = (np.arange(cols) + 0.5) / cols
     return np.stack(
@@ -30,15 +37,50 @@ def texture_basis(shape: tuple[int, int], pixel_size_um: float) -> np.ndarray:
     )
 
 
+def support_modes(basis: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """Indices of the modes the media support can tell apart, lowest frequency first.
+
+    Gram-Schmidt (QR) of the modes weighted by ``weight`` (media fraction away from the
+    cells) in frequency order: a mode is kept when at least ``MIN_NEW_FRACTION`` of its
+    weighted norm is not explained by the modes kept before it, and at most
+    ``min(MAX_TERMS, support pixels / PIXELS_PER_MODE)`` are kept. In a narrow trench
+    the media is a thin strip, so modes across the trench add nothing and the strip
+    holds only a few modes; an open field keeps ``MAX_TERMS``.
+    """
+    support = weight > 0.5
+    limit = min(MAX_TERMS, int(support.sum()) // PIXELS_PER_MODE)
+    if limit < 1:
+        return np.zeros(0, np.int64)
+    a = basis[:, support] * weight[support]
+    kept: list[int] = []
+    q = np.zeros((0, a.shape[1]))
+    for k, col in enumerate(a):
+        norm = float(np.linalg.norm(col))
+        if norm == 0:
+            continue
+        new = col - q.T @ (q @ col)
+        new_norm = float(np.linalg.norm(new))
+        if new_norm < MIN_NEW_FRACTION * norm:
+            continue
+        kept.append(k)
+        q = np.vstack([q, new / new_norm])
+        if len(kept) == limit:
+            break
+    return np.asarray(kept, np.int64)
+
+
 class BackgroundTexture(Effect):
     """The media is not uniform: ``mu + P_m sum_k c_k B_k(x, y)``.
 
-    ``P_m`` is the media contribution more than 2.5 px from any cell and ``B_k``
-    cosine modes of wavelength 1.5 um
-    and longer, above the second-order surface of ``uneven_illumination`` (so the
-    two do not compete). The reported amplitude is the s.d. of the fitted relative
-    texture over media pixels; in the settings it becomes
-    ``RenderSettings.texture_amplitude``.
+    ``P_m`` is the media contribution more than 2 px from any cell and ``B_k``
+    cosine modes of wavelength 1.5 um and longer, above the second-order surface of
+    ``uneven_illumination`` (so the two do not compete). Only the modes that the
+    media pixels away from the cells can tell apart are fitted
+    (:func:`support_modes`), as many as the media area supports (one per
+    ``PIXELS_PER_MODE`` pixels, at most 48): a thin strip of media in a trench
+    carries a handful of modes along the trench, an open field the full set. The
+    reported amplitude is the s.d. of the fitted relative texture over media pixels;
+    in the settings it becomes ``RenderSettings.texture_amplitude``.
     """
 
     name = "background_texture"
@@ -50,9 +92,15 @@ class BackgroundTexture(Effect):
 
     def __init__(self, geometry: Geometry) -> None:
         super().__init__(geometry)
-        self._basis = texture_basis(geometry.shape[1:], geometry.pixel_size_um)
+        basis = texture_basis(geometry.shape[1:], geometry.pixel_size_um)
         # away from cell edges, so that edge dipoles (curvature, drift) are not texture
         self._away = (geometry.distance_px > AWAY_PX).astype(np.float64)
+        media = (
+            geometry.media_fraction.mean(0)
+            if geometry.media_fraction is not None
+            else np.ones(geometry.shape[1:])
+        )
+        self._basis = basis[support_modes(basis, self._away.min(0) * media)]
 
     def n_params(self) -> int:
         return len(self._basis)
