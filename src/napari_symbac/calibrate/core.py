@@ -29,7 +29,12 @@ from typing import Literal
 
 import numpy as np
 
-from napari_symbac.calibrate.measure import FieldMeasurements, instance_masks, measure_field
+from napari_symbac.calibrate.measure import (
+    FieldMeasurements,
+    instance_masks,
+    measure_debris,
+    measure_field,
+)
 from napari_symbac.settings import (
     AgarPadGeometry,
     Camera,
@@ -463,6 +468,8 @@ def calibrate(
                 "the fitted fluorescent cells are not brighter than the background: check "
                 "the modality and the masks"
             )
+        render, note = _with_debris(frame, field_masks, valid, microscope, render)
+        notes.append(note)
     if not dense:
         notes.append("camera: " + _camera_note(fitted_camera, camera))
     settings, more = settings_from_fit(
@@ -483,6 +490,58 @@ def calibrate(
         fit_chi2=(float(chi2[0]), float(chi2[1])),
         notes=(*notes, *more),
     )
+
+
+#: Fewest blobs outside the masks for the debris to be rendered.
+_MIN_DEBRIS_BLOBS = 3
+
+
+def _with_debris(frame, masks, valid, microscope, render) -> tuple[RenderSettings, str]:
+    """Render settings with the field's debris (:func:`measure_debris`) and a note.
+
+    Density, diameter (log-normal median and CV) and extra blur come from the blobs as
+    measured; the brightness ``b`` (of the unblurred particle, a fraction of the
+    fitted full-depth cell column ``I_c - I_m``) is the blobs' median peak over
+    ``(I_c - I_m) (1 - exp(-r^2 / 2 s^2))``, the peak a disk of radius ``r`` keeps
+    after a Gaussian blur ``s`` (PSF ``0.21 lambda / NA``, the fitted defocus of
+    eq. 14 and the particle's own blur, added in quadrature).
+    """
+    px = microscope.pixel_size_um
+    debris = measure_debris(frame, masks, px, valid=valid)
+    if debris.n_blobs < _MIN_DEBRIS_BLOBS:
+        return render, (
+            f"debris: {debris.n_blobs} blob(s) outside the masks "
+            f"({debris.free_area_um2:.0f} um^2 searched): none rendered"
+        )
+    diameter = float(np.median(debris.diameters_um))
+    blur = float(np.median(debris.blur_sigma_um))
+    psf = 0.21 * microscope.wavelength_um / microscope.numerical_aperture
+    sigma2 = psf**2 + render.defocus_sigma_um**2 + blur**2
+    kept = 1.0 - math.exp(-((diameter / 2) ** 2) / (2 * sigma2))
+    column = max(render.cell_intensity - render.media_intensity, 1e-9)
+    brightness = float(min(np.median(debris.peaks_adu) / (column * kept), 1.0))
+    render = dataclasses.replace(
+        render,
+        debris_density_per_100um2=debris.density_per_100um2,
+        debris_diameter_um=diameter,
+        debris_diameter_cv=float(min(_cv(debris.diameters_um), 2.0)),
+        debris_brightness=brightness,
+        debris_brightness_cv=float(min(_cv(debris.peaks_adu), 2.0)),
+        debris_defocus_sigma_um=blur,
+    )
+    return render, (
+        f"debris: {debris.n_blobs} blobs outside the masks, "
+        f"{debris.density_per_100um2:.2f} per 100 um^2; diameter {diameter:.2f} um "
+        f"(CV {render.debris_diameter_cv:.2f}), median peak "
+        f"{np.median(debris.peaks_adu):.0f} ADU above the pad = brightness {brightness:.2f} "
+        f"of a cell column (CV {render.debris_brightness_cv:.2f}), extra blur {blur:.2f} um"
+    )
+
+
+def _cv(values: np.ndarray) -> float:
+    if values.size < 2 or values.mean() <= 0:
+        return 0.0
+    return float(values.std(ddof=1) / values.mean())
 
 
 def _camera_note(used: Camera, given: Camera | None) -> str:
