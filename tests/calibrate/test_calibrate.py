@@ -222,3 +222,11 @@ def test_calibrate_measures_the_debris_and_exports_blobs_outside_the_masks(
     plain = PipelineSource(export_settings(clean, n_items=2, seed=3)).make_unit(0)[0]
     np.testing.assert_array_equal(plain.labels, item.labels)
     assert measure_debris(plain.image, plain.labels, 0.08).n_blobs < synthetic.n_blobs
+
+
+def test_exported_images_keep_the_fitted_defocus(fluorescence_calibration):
+    settings = export_settings(fluorescence_calibration, n_items=2, seed=0)
+    defocus = fluorescence_calibration.settings.render.defocus_sigma_um
+    assert defocus > 0
+    params = settings.randomise.draw(np.random.default_rng(0), settings.pipeline)
+    assert params["render.defocus_sigma_um"] == pytest.approx(defocus)

@@ -501,10 +501,10 @@ def _with_debris(frame, masks, valid, microscope, render) -> tuple[RenderSetting
 
     Density, diameter (log-normal median and CV) and extra blur come from the blobs as
     measured; the brightness ``b`` (of the unblurred particle, a fraction of the
-    fitted full-depth cell column ``I_c - I_m``) is the blobs' median peak over
-    ``(I_c - I_m) (1 - exp(-r^2 / 2 s^2))``, the peak a disk of radius ``r`` keeps
-    after a Gaussian blur ``s`` (PSF ``0.21 lambda / NA``, the fitted defocus of
-    eq. 14 and the particle's own blur, added in quadrature).
+    fitted full-depth cell column ``I_c - I_m``) is the blobs' median peak over the
+    peak of one ``b = 1`` particle of the median diameter rendered by the fitted
+    forward model (PSF, defocus of eq. 14, resampling; :func:`_particle_peak_adu`),
+    both seen through the same 1 px smoothing.
     """
     px = microscope.pixel_size_um
     debris = measure_debris(frame, masks, px, valid=valid)
@@ -515,11 +515,8 @@ def _with_debris(frame, masks, valid, microscope, render) -> tuple[RenderSetting
         )
     diameter = float(np.median(debris.diameters_um))
     blur = float(np.median(debris.blur_sigma_um))
-    psf = 0.21 * microscope.wavelength_um / microscope.numerical_aperture
-    sigma2 = psf**2 + render.defocus_sigma_um**2 + blur**2
-    kept = 1.0 - math.exp(-((diameter / 2) ** 2) / (2 * sigma2))
-    column = max(render.cell_intensity - render.media_intensity, 1e-9)
-    brightness = float(min(np.median(debris.peaks_adu) / (column * kept), 1.0))
+    unit = _particle_peak_adu(microscope, render, diameter, blur)
+    brightness = float(min(np.median(debris.peaks_adu) / max(unit, 1e-9), 1.0))
     render = dataclasses.replace(
         render,
         debris_density_per_100um2=debris.density_per_100um2,
@@ -536,6 +533,40 @@ def _with_debris(frame, masks, valid, microscope, render) -> tuple[RenderSetting
         f"{np.median(debris.peaks_adu):.0f} ADU above the pad = brightness {brightness:.2f} "
         f"of a cell column (CV {render.debris_brightness_cv:.2f}), extra blur {blur:.2f} um"
     )
+
+
+def _particle_peak_adu(
+    microscope: Microscope, render: RenderSettings, diameter_um: float, blur_um: float
+) -> float:
+    """Peak above the pad (ADU, image smoothed by 1 px) of one debris particle of
+    brightness 1, ``diameter_um`` and blur ``blur_um``, rendered without noise."""
+    from scipy import ndimage
+
+    from napari_symbac.optics import ForwardModel
+    from napari_symbac.scene import Scene
+    from napari_symbac.scene._debris import particle_image
+
+    u, border, side = render.upsample, render.psf_radius_px, 33
+    shape = (side * u + 2 * border,) * 2
+    fine_um = microscope.pixel_size_um / u
+    particle = particle_image(0.5 * diameter_um / fine_um, blur_um / fine_um)
+    cells = np.zeros(shape, np.float32)
+    h, c = particle.shape[0] // 2, shape[0] // 2 - (u // 2 if u % 2 == 0 else 0)
+    cells[c - h : c + h + 1, c - h : c + h + 1] = np.minimum(particle, 1.0)
+    scene = Scene(
+        cells=cells,
+        media=1.0 - cells,
+        device=np.zeros(shape, np.float32),
+        labels=np.zeros(shape, np.uint32),
+        border_px=border,
+        upsample=u,
+        camera_shape=(side, side),
+        pixel_size_um=fine_um,
+        depth_um=1.0,
+    )
+    clean = ForwardModel(microscope, render, Camera()).render_clean(scene, cache=False)
+    smooth = ndimage.gaussian_filter(np.asarray(clean, np.float64), 1.0)
+    return float(smooth.max() - np.median(smooth))
 
 
 def _cv(values: np.ndarray) -> float:
@@ -567,12 +598,14 @@ def export_settings(
     as large as the recording's), from up to 16 simulations (colony places differ), and
     cells the image does not show (contrast-to-noise below 1,
     :mod:`~napari_symbac.export.visibility`) are dropped from the masks: a network must
-    not learn to find cells in the noise.
+    not learn to find cells in the noise. The images keep the fitted defocus (eq. 14;
+    the export's default randomisation sets it to 0).
     """
-    from napari_symbac.export.dataset import ExportSettings
+    from napari_symbac.export.dataset import ExportSettings, Randomisation, Range
     from napari_symbac.export.visibility import Visibility
 
     n_frames = calibration.settings.simulation.n_frames
+    defocus = calibration.settings.render.defocus_sigma_um
     first = max(0, n_frames - 1 - (n_frames - 1) // 8)
     return ExportSettings(
         n_items=n_items,
@@ -584,4 +617,6 @@ def export_settings(
         first_frame=first,
         pipeline=calibration.settings,
         visibility=Visibility(min_contrast_to_noise=1.0, action="drop"),
+        # the fitted defocus (eq. 14), not the export's default absolute 0
+        randomise=Randomisation(defocus_sigma_um=Range(defocus, defocus)),
     )

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["add_debris", "debris_rng", "lognormal"]
+__all__ = ["add_debris", "debris_rng", "lognormal", "particle_image"]
 
 
 def debris_rng(seed: int) -> np.random.Generator:
@@ -35,7 +35,7 @@ def lognormal(rng: np.random.Generator, median: float, cv: float, size: int) -> 
     return median * np.exp(sigma * rng.standard_normal(size))
 
 
-def _particle(radius_px: float, blur_px: float) -> np.ndarray:
+def particle_image(radius_px: float, blur_px: float) -> np.ndarray:
     """A disk of ``radius_px`` (area-weighted edge) blurred by a Gaussian of ``blur_px``,
     peak of the unblurred disk 1, on a square patch that holds its tails."""
     half = math.ceil(radius_px + 4 * blur_px + 1)
@@ -87,7 +87,7 @@ def add_debris(scene: Any, render: Any, rng: np.random.Generator) -> Any:
     blur_px = float(render.debris_defocus_sigma_um) / px
     material = np.zeros(free.shape, np.float32)
     for (r, c), diameter, peak in zip(centres[keep], diameters[keep], peaks[keep]):
-        patch = _particle(0.5 * diameter / px, blur_px) * np.float32(peak)
+        patch = particle_image(0.5 * diameter / px, blur_px) * np.float32(peak)
         h = patch.shape[0] // 2
         r0, r1, c0, c1 = r - h, r + h + 1, c - h, c + h + 1
         pr0, pc0 = max(0, -r0), max(0, -c0)
