@@ -111,3 +111,43 @@ def test_negative_debris_settings_are_refused(name):
         RenderSettings(**{name: -1.0})
     with pytest.raises(ValueError, match="debris_diameter_um"):
         RenderSettings(debris_diameter_um=0.0)
+
+
+def test_export_with_debris_series_static_labels_unchanged_default_untouched():
+    from napari_symbac.export.dataset import ExportSettings, PipelineSource
+
+    simulation = SimulationSettings(
+        geometry="agar_pad", n_frames=6, agar_pad=AgarPadGeometry(10.0, 10.0), seed=2
+    )
+
+    def unit(**render):
+        pipeline = PipelineSettings(
+            simulation=simulation,
+            microscope=Microscope(modality="fluorescence"),
+            render=RenderSettings(
+                psf_radius_px=20, cell_intensity=1000.0, media_intensity=50.0, **render
+            ),
+        )
+        settings = ExportSettings(n_items=1, kind="timeseries", pipeline=pipeline, seed=4)
+        return PipelineSource(settings).make_unit(0)
+
+    plain = unit()
+    # debris settings other than the density draw nothing: the same bits
+    off = unit(debris_brightness=0.9, debris_diameter_um=2.0)
+    for a, b in zip(plain, off):
+        np.testing.assert_array_equal(a.image, b.image)
+    dirty = unit(debris_density_per_100um2=5.0, debris_brightness=0.5)
+    again = unit(debris_density_per_100um2=5.0, debris_brightness=0.5)
+    for a, b, c in zip(plain, dirty, again):
+        np.testing.assert_array_equal(a.labels, b.labels)  # never in the masks
+        np.testing.assert_array_equal(b.image, c.image)  # same seed, same bits
+    # the particles are where the pad is, on every frame: the excess over the clean
+    # series is brightest at the same pixels in the first and the last frame
+    excess = [b.image.astype(float) - a.image.astype(float) for a, b in zip(plain, dirty)]
+    outside = (dirty[0].labels == 0) & (dirty[-1].labels == 0)
+    first = ndimage.gaussian_filter(excess[0], 2) * outside
+    last = ndimage.gaussian_filter(excess[-1], 2) * outside
+    assert first.max() > 20
+    assert np.unravel_index(first.argmax(), first.shape) == np.unravel_index(
+        last.argmax(), last.shape
+    )
