@@ -34,6 +34,9 @@ Protocol (fixed; the same for every training set):
   cells (predicted minus annotated, widths as twice the largest inscribed radius minus
   a pixel, lengths as the largest Feret diameter plus a pixel).
 
+``--no-baselines`` skips the real-annotation folds and the defaults row (neither
+depends on ``calibrate``; the folds are most of the run's time).
+
 Prints a markdown table (and writes ``results.json`` and pictures to ``--out``); it
 asserts nothing. ``--quick`` runs the same code on tiny sizes (the test of this file).
 """
@@ -408,7 +411,9 @@ def summarise(results: list[dict], pixel_sizes: list[float]) -> dict[str, float]
 # ------------------------------------------------------------------------------- run
 
 
-def run(data: str, budget: Budget, out: Path | None, seeds=(0, 1)) -> list[dict]:
+def run(
+    data: str, budget: Budget, out: Path | None, seeds=(0, 1), baselines: bool = True
+) -> list[dict]:
     loader = load_colicoords if data == "colicoords" else load_omnipose
     images, modality = loader(budget)
     px = [im.pixel_size_um for im in images]
@@ -428,17 +433,18 @@ def run(data: str, budget: Budget, out: Path | None, seeds=(0, 1)) -> list[dict]
     # real annotations, leave-one-image-out
     start = time.perf_counter()
     fold_models = []
-    for k in range(len(images)):
+    for k in range(len(images) if baselines else 0):
         pairs = [(normalise(im.image), targets(im.masks)) for j, im in enumerate(images) if j != k]
         fold_models.append(train(pairs, budget, seed=0))
-    evaluate(
-        "U-Net, real annotations (leave-one-image-out)",
-        lambda k, im: instances_from_probabilities(
-            predict(fold_models[k], normalise(im.image)), min_area[k]
-        ),
-        time.perf_counter() - start,
-        f"{len(images)} folds",
-    )
+    if baselines:
+        evaluate(
+            "U-Net, real annotations (leave-one-image-out)",
+            lambda k, im: instances_from_probabilities(
+                predict(fold_models[k], normalise(im.image)), min_area[k]
+            ),
+            time.perf_counter() - start,
+            f"{len(images)} folds",
+        )
     pictures = {}
     # ColiCoords: field 1's image (no masks) calibrates every field; Omnipose: the three
     # colonies differ 2.3x in pixels per cell, so each calibrates itself
@@ -470,16 +476,17 @@ def run(data: str, budget: Budget, out: Path | None, seeds=(0, 1)) -> list[dict]
             pictures["models"] = models
     start = time.perf_counter()
     default_models = {}
-    for ref in sorted(set(reference_of)):
+    for ref in sorted(set(reference_of)) if baselines else ():
         settings = default_settings(images[ref], modality, budget, 0)
         default_models[ref] = train(synthetic_pairs(settings, budget.n_synthetic), budget, 0)
-    evaluate(
-        "U-Net, tool defaults (modality switched)",
-        lambda k, im: instances_from_probabilities(
-            predict(default_models[reference_of[k]], normalise(im.image)), min_area[k]
-        ),
-        time.perf_counter() - start,
-    )
+    if baselines:
+        evaluate(
+            "U-Net, tool defaults (modality switched)",
+            lambda k, im: instances_from_probabilities(
+                predict(default_models[reference_of[k]], normalise(im.image)), min_area[k]
+            ),
+            time.perf_counter() - start,
+        )
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         (out / f"results_{data}.json").write_text(json.dumps(rows, indent=2))
@@ -529,6 +536,12 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--steps", type=int, help="training steps per network")
     parser.add_argument("--n-synthetic", type=int, help="synthetic images per training set")
     parser.add_argument("--out", type=Path, help="folder for results JSON and pictures")
+    parser.add_argument(
+        "--no-baselines",
+        action="store_true",
+        help="skip the real-annotation folds and the defaults row (they do not depend on "
+        "calibrate: rerun only Otsu + watershed and the calibrated rows)",
+    )
     args = parser.parse_args(argv)
     budget = QUICK if args.quick else Budget()
     if args.steps:
@@ -545,7 +558,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         flush=True,
     )
     start = time.perf_counter()
-    rows = run(args.data, budget, args.out)
+    rows = run(args.data, budget, args.out, baselines=not args.no_baselines)
     print(table(rows))
     print(f"total {time.perf_counter() - start:.0f} s; load average {os.getloadavg()[0]:.1f}")
     return rows

@@ -11,7 +11,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from napari_symbac.optics import ForwardModel
-from napari_symbac.scene import Field, Scene, add_media_texture, draw_scene, field_of
+from napari_symbac.scene import (
+    Field,
+    Scene,
+    add_debris,
+    add_media_texture,
+    debris_rng,
+    draw_scene,
+    field_of,
+)
 from napari_symbac.settings import PipelineSettings
 from napari_symbac.sim import Simulation
 
@@ -135,9 +143,10 @@ def _draw(
         field=field,
     )
     scene = add_media_texture(scene, settings.render.texture_amplitude, simulation.settings.seed)
-    return apply_cell_brightness(
+    scene = apply_cell_brightness(
         scene, settings.render.cell_brightness_cv, simulation.settings.seed
     )
+    return add_debris(scene, settings.render, debris_rng(simulation.settings.seed))
 
 
 def draw_frame(simulation: Simulation, settings: PipelineSettings, index: int) -> Scene:
@@ -148,7 +157,9 @@ def draw_frame(simulation: Simulation, settings: PipelineSettings, index: int) -
     ``(simulation)``. With ``settings.render.texture_amplitude > 0`` the media carries
     the Perlin texture of the simulation's seed (:func:`~napari_symbac.scene.add_media_texture`);
     with ``settings.render.cell_brightness_cv > 0`` each cell has its own brightness
-    (:func:`apply_cell_brightness`, the same for a cell in every frame).
+    (:func:`apply_cell_brightness`, the same for a cell in every frame); with
+    ``settings.render.debris_density_per_100um2 > 0`` unlabelled out-of-focus particles
+    lie on the medium (:func:`~napari_symbac.scene.add_debris`, the same on every frame).
     """
     return _draw(simulation, settings, index, _curvature(simulation), field_of(simulation))
 

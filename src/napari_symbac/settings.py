@@ -656,6 +656,20 @@ class RenderSettings:
         simulation seed, so a cell keeps its brightness in every frame and the same
         seed gives the same gains; 0 = every cell alike (in phase contrast it varies
         ``I_c`` per cell).
+    debris_density_per_100um2
+        Debris (:func:`~napari_symbac.scene.add_debris`): unlabelled particles in the
+        medium, out of focus, never in the masks: particles per 100 um^2 of the field
+        outside the cells (a Poisson count); 0 (default) = none, the image unchanged.
+    debris_diameter_um, debris_diameter_cv
+        Median diameter of a particle (a disk) and the coefficient of variation of its
+        log-normal distribution.
+    debris_brightness, debris_brightness_cv
+        Median peak of a particle, as a fraction of a full-depth cell column (the
+        particle adds ``b (I_c - I_m)`` at its centre, eq. 3), and the CV of its
+        log-normal distribution.
+    debris_defocus_sigma_um
+        Extra Gaussian blur of each particle (eq. 14): its distance from the focal
+        plane, on top of the image's ``defocus_sigma_um``.
     """
 
     upsample: int = 3
@@ -681,6 +695,12 @@ class RenderSettings:
     gaussian_noise_sd_adu: float = 20.0
     texture_amplitude: float = 0.0
     cell_brightness_cv: float = 0.0
+    debris_density_per_100um2: float = 0.0
+    debris_diameter_um: float = 0.8
+    debris_diameter_cv: float = 0.4
+    debris_brightness: float = 0.2
+    debris_brightness_cv: float = 0.5
+    debris_defocus_sigma_um: float = 0.3
 
     def __post_init__(self) -> None:
         _require(
@@ -701,8 +721,13 @@ class RenderSettings:
             "gaussian_noise_sd_adu",
             "texture_amplitude",
             "cell_brightness_cv",
+            "debris_density_per_100um2",
+            "debris_diameter_cv",
+            "debris_brightness",
+            "debris_brightness_cv",
+            "debris_defocus_sigma_um",
         )
-        _positive(self, "apodisation_sigma_um")
+        _positive(self, "apodisation_sigma_um", "debris_diameter_um")
         _require(
             isinstance(self.psf_offset, (int, float)) and math.isfinite(self.psf_offset),
             f"RenderSettings.psf_offset must be a finite number, got {self.psf_offset!r}",

@@ -182,3 +182,51 @@ def test_calibrate_twice_gives_the_same_settings(colicoords_crop, fluorescence_c
     again = calibrate(image, masks=masks, microscope=microscope, crop_px=128)
     assert again.settings == fluorescence_calibration.settings
     assert again.notes == fluorescence_calibration.notes
+
+
+def test_calibrate_measures_the_debris_and_exports_blobs_outside_the_masks(
+    fluorescence_calibration, colicoords_crop
+):
+    from scipy import ndimage
+
+    from napari_symbac.calibrate import measure_debris
+
+    image, masks = colicoords_crop
+    found = measure_debris(image, masks, 0.08)
+    assert found.n_blobs >= 3  # the field's small dim blobs, outside the masks
+    render = fluorescence_calibration.settings.render
+    # calibrate leaves out the censored (clipped) pixels: nearly the same count
+    assert render.debris_density_per_100um2 == pytest.approx(found.density_per_100um2, rel=0.1)
+    assert 0.1 < render.debris_density_per_100um2 < 20
+    assert 0.1 < render.debris_diameter_um < 2.0
+    assert 0 < render.debris_brightness <= 1.0
+    assert any(n.startswith("debris:") for n in fluorescence_calibration.notes)
+    # the exported images hold blobs outside the masks, where the masks are not
+    item = PipelineSource(export_settings(fluorescence_calibration, n_items=2, seed=3)).make_unit(
+        0
+    )[0]
+    synthetic = measure_debris(item.image, item.labels, 0.08)
+    assert synthetic.n_blobs >= 1
+    outside = ~ndimage.binary_dilation(item.labels > 0, iterations=4)
+    assert np.percentile(item.image[outside], 99.9) > np.median(item.image[outside]) + 5 * (
+        1.4826 * np.median(np.abs(item.image[outside] - np.median(item.image[outside])))
+    )
+    # without the debris the same item has none of them
+    clean = dataclasses.replace(
+        fluorescence_calibration,
+        settings=dataclasses.replace(
+            fluorescence_calibration.settings,
+            render=dataclasses.replace(render, debris_density_per_100um2=0.0),
+        ),
+    )
+    plain = PipelineSource(export_settings(clean, n_items=2, seed=3)).make_unit(0)[0]
+    np.testing.assert_array_equal(plain.labels, item.labels)
+    assert measure_debris(plain.image, plain.labels, 0.08).n_blobs < synthetic.n_blobs
+
+
+def test_exported_images_keep_the_fitted_defocus(fluorescence_calibration):
+    settings = export_settings(fluorescence_calibration, n_items=2, seed=0)
+    defocus = fluorescence_calibration.settings.render.defocus_sigma_um
+    assert defocus > 0
+    params = settings.randomise.draw(np.random.default_rng(0), settings.pipeline)
+    assert params["render.defocus_sigma_um"] == pytest.approx(defocus)

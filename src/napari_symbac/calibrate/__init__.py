@@ -4,6 +4,7 @@
   coherent phase model for dense colonies) and turn the fit into matched
   :class:`~napari_symbac.settings.PipelineSettings`;
 * :func:`measure_field`: model-free sizes, brightness, noise and layout from masks;
+* :func:`measure_debris`: the unlabelled blobs outside the masks (debris);
 * :func:`compare_images`: real against synthetic (class medians, noise, radially
   averaged power spectrum) and :func:`montage`, the side-by-side picture.
 """
@@ -16,17 +17,25 @@ from napari_symbac.calibrate.core import (
     export_settings,
     settings_from_fit,
 )
-from napari_symbac.calibrate.measure import FieldMeasurements, instance_masks, measure_field
+from napari_symbac.calibrate.measure import (
+    DebrisMeasurements,
+    FieldMeasurements,
+    instance_masks,
+    measure_debris,
+    measure_field,
+)
 
 __all__ = [
     "Calibration",
     "Comparison",
+    "DebrisMeasurements",
     "FieldMeasurements",
     "best_crop",
     "calibrate",
     "compare_images",
     "export_settings",
     "instance_masks",
+    "measure_debris",
     "measure_field",
     "montage",
     "radial_power",

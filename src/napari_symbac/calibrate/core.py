@@ -29,7 +29,12 @@ from typing import Literal
 
 import numpy as np
 
-from napari_symbac.calibrate.measure import FieldMeasurements, instance_masks, measure_field
+from napari_symbac.calibrate.measure import (
+    FieldMeasurements,
+    instance_masks,
+    measure_debris,
+    measure_field,
+)
 from napari_symbac.settings import (
     AgarPadGeometry,
     Camera,
@@ -463,6 +468,8 @@ def calibrate(
                 "the fitted fluorescent cells are not brighter than the background: check "
                 "the modality and the masks"
             )
+        render, note = _with_debris(frame, field_masks, valid, microscope, render)
+        notes.append(note)
     if not dense:
         notes.append("camera: " + _camera_note(fitted_camera, camera))
     settings, more = settings_from_fit(
@@ -483,6 +490,89 @@ def calibrate(
         fit_chi2=(float(chi2[0]), float(chi2[1])),
         notes=(*notes, *more),
     )
+
+
+#: Fewest blobs outside the masks for the debris to be rendered.
+_MIN_DEBRIS_BLOBS = 3
+
+
+def _with_debris(frame, masks, valid, microscope, render) -> tuple[RenderSettings, str]:
+    """Render settings with the field's debris (:func:`measure_debris`) and a note.
+
+    Density, diameter (log-normal median and CV) and extra blur come from the blobs as
+    measured; the brightness ``b`` (of the unblurred particle, a fraction of the
+    fitted full-depth cell column ``I_c - I_m``) is the blobs' median peak over the
+    peak of one ``b = 1`` particle of the median diameter rendered by the fitted
+    forward model (PSF, defocus of eq. 14, resampling; :func:`_particle_peak_adu`),
+    both seen through the same 1 px smoothing.
+    """
+    px = microscope.pixel_size_um
+    debris = measure_debris(frame, masks, px, valid=valid)
+    if debris.n_blobs < _MIN_DEBRIS_BLOBS:
+        return render, (
+            f"debris: {debris.n_blobs} blob(s) outside the masks "
+            f"({debris.free_area_um2:.0f} um^2 searched): none rendered"
+        )
+    diameter = float(np.median(debris.diameters_um))
+    blur = float(np.median(debris.blur_sigma_um))
+    unit = _particle_peak_adu(microscope, render, diameter, blur)
+    brightness = float(min(np.median(debris.peaks_adu) / max(unit, 1e-9), 1.0))
+    render = dataclasses.replace(
+        render,
+        debris_density_per_100um2=debris.density_per_100um2,
+        debris_diameter_um=diameter,
+        debris_diameter_cv=float(min(_cv(debris.diameters_um), 2.0)),
+        debris_brightness=brightness,
+        debris_brightness_cv=float(min(_cv(debris.peaks_adu), 2.0)),
+        debris_defocus_sigma_um=blur,
+    )
+    return render, (
+        f"debris: {debris.n_blobs} blobs outside the masks, "
+        f"{debris.density_per_100um2:.2f} per 100 um^2; diameter {diameter:.2f} um "
+        f"(CV {render.debris_diameter_cv:.2f}), median peak "
+        f"{np.median(debris.peaks_adu):.0f} ADU above the pad = brightness {brightness:.2f} "
+        f"of a cell column (CV {render.debris_brightness_cv:.2f}), extra blur {blur:.2f} um"
+    )
+
+
+def _particle_peak_adu(
+    microscope: Microscope, render: RenderSettings, diameter_um: float, blur_um: float
+) -> float:
+    """Peak above the pad (ADU, image smoothed by 1 px) of one debris particle of
+    brightness 1, ``diameter_um`` and blur ``blur_um``, rendered without noise."""
+    from scipy import ndimage
+
+    from napari_symbac.optics import ForwardModel
+    from napari_symbac.scene import Scene
+    from napari_symbac.scene._debris import particle_image
+
+    u, border, side = render.upsample, render.psf_radius_px, 33
+    shape = (side * u + 2 * border,) * 2
+    fine_um = microscope.pixel_size_um / u
+    particle = particle_image(0.5 * diameter_um / fine_um, blur_um / fine_um)
+    cells = np.zeros(shape, np.float32)
+    h, c = particle.shape[0] // 2, shape[0] // 2 - (u // 2 if u % 2 == 0 else 0)
+    cells[c - h : c + h + 1, c - h : c + h + 1] = np.minimum(particle, 1.0)
+    scene = Scene(
+        cells=cells,
+        media=1.0 - cells,
+        device=np.zeros(shape, np.float32),
+        labels=np.zeros(shape, np.uint32),
+        border_px=border,
+        upsample=u,
+        camera_shape=(side, side),
+        pixel_size_um=fine_um,
+        depth_um=1.0,
+    )
+    clean = ForwardModel(microscope, render, Camera()).render_clean(scene, cache=False)
+    smooth = ndimage.gaussian_filter(np.asarray(clean, np.float64), 1.0)
+    return float(smooth.max() - np.median(smooth))
+
+
+def _cv(values: np.ndarray) -> float:
+    if values.size < 2 or values.mean() <= 0:
+        return 0.0
+    return float(values.std(ddof=1) / values.mean())
 
 
 def _camera_note(used: Camera, given: Camera | None) -> str:
@@ -508,12 +598,14 @@ def export_settings(
     as large as the recording's), from up to 16 simulations (colony places differ), and
     cells the image does not show (contrast-to-noise below 1,
     :mod:`~napari_symbac.export.visibility`) are dropped from the masks: a network must
-    not learn to find cells in the noise.
+    not learn to find cells in the noise. The images keep the fitted defocus (eq. 14;
+    the export's default randomisation sets it to 0).
     """
-    from napari_symbac.export.dataset import ExportSettings
+    from napari_symbac.export.dataset import ExportSettings, Randomisation, Range
     from napari_symbac.export.visibility import Visibility
 
     n_frames = calibration.settings.simulation.n_frames
+    defocus = calibration.settings.render.defocus_sigma_um
     first = max(0, n_frames - 1 - (n_frames - 1) // 8)
     return ExportSettings(
         n_items=n_items,
@@ -525,4 +617,6 @@ def export_settings(
         first_frame=first,
         pipeline=calibration.settings,
         visibility=Visibility(min_contrast_to_noise=1.0, action="drop"),
+        # the fitted defocus (eq. 14), not the export's default absolute 0
+        randomise=Randomisation(defocus_sigma_um=Range(defocus, defocus)),
     )

@@ -17,7 +17,13 @@ from scipy import ndimage
 from napari_symbac.export.visibility import pixel_noise
 from napari_symbac.fit.masks import cell_widths_px
 
-__all__ = ["FieldMeasurements", "instance_masks", "measure_field"]
+__all__ = [
+    "DebrisMeasurements",
+    "FieldMeasurements",
+    "instance_masks",
+    "measure_debris",
+    "measure_field",
+]
 
 
 def instance_masks(masks: np.ndarray) -> np.ndarray:
@@ -178,4 +184,118 @@ def measure_field(
         noise_adu=pixel_noise(image, far),
         cluster_sizes=sizes,
         cell_area_fraction=float(cells.mean()),
+    )
+
+
+@dataclass(frozen=True)
+class DebrisMeasurements:
+    """Unlabelled bright blobs of a fluorescence field (:func:`measure_debris`).
+
+    Attributes
+    ----------
+    n_blobs
+        Blobs found outside the dilated masks.
+    free_area_um2
+        Area searched (outside the dilated masks, valid pixels), um^2.
+    diameters_um
+        Diameter of each blob: that of a disk of its area above half its peak.
+    peaks_adu
+        Peak of each blob above the background (smoothed image), ADU.
+    blur_sigma_um
+        Gaussian blur of each blob beyond that of a disk of its diameter: the square
+        root of its intensity-weighted variance per axis minus ``r^2 / 4`` (0 when
+        negative), before the image's own PSF and defocus are taken off.
+    """
+
+    n_blobs: int
+    free_area_um2: float
+    diameters_um: np.ndarray = field(repr=False)
+    peaks_adu: np.ndarray = field(repr=False)
+    blur_sigma_um: np.ndarray = field(repr=False)
+
+    @property
+    def density_per_100um2(self) -> float:
+        """Blobs per 100 um^2 of the area searched."""
+        return 100.0 * self.n_blobs / self.free_area_um2 if self.free_area_um2 > 0 else 0.0
+
+
+def measure_debris(
+    image: np.ndarray,
+    masks: np.ndarray,
+    pixel_size_um: float,
+    *,
+    valid: np.ndarray | None = None,
+    gap_px: int = 4,
+    smooth_px: float = 1.0,
+    min_area_px: int = 4,
+) -> DebrisMeasurements:
+    """Find the bright blobs a fluorescence field shows outside its masks.
+
+    The image is smoothed (Gaussian ``smooth_px``); a blob is a connected region above
+    ``background + max(5 noise, 0.1 median cell brightness)`` (background median and
+    noise of the smoothed image over pixels far from the cells, robust) that lies
+    entirely more than ``gap_px`` from every mask, covers at least ``min_area_px``
+    pixels and at most half the median cell's area (a larger one is an unannotated
+    cell, not debris).
+
+    Parameters
+    ----------
+    image, masks
+        The field (ADU) and its instance masks (or the fit's cells).
+    pixel_size_um
+        Camera pixel size.
+    valid
+        Pixels that may be used (False: censored); default all.
+
+    Raises
+    ------
+    ValueError
+        Shapes differ or the masks hold no cell.
+    """
+    image = np.asarray(image, np.float64)
+    labels = instance_masks(masks)
+    if image.ndim != 2 or labels.shape != image.shape:
+        raise ValueError(
+            f"image {image.shape} and masks {labels.shape} must be 2D of one shape"
+        )
+    if not (labels > 0).any():
+        raise ValueError("the masks hold no cell (all 0): give the masks of this image")
+    ok = np.ones(image.shape, bool) if valid is None else np.asarray(valid, bool)
+    cells = labels > 0
+    smooth = ndimage.gaussian_filter(image, smooth_px)
+    free = (ndimage.distance_transform_edt(~cells) > gap_px) & ok
+    background = float(np.median(smooth[free]))
+    noise = float(1.4826 * np.median(np.abs(smooth[free] - background)))
+    cell_level = float(np.median(smooth[cells & ok] if (cells & ok).any() else smooth[cells]))
+    threshold = background + max(5.0 * noise, 0.1 * (cell_level - background))
+    regions, n = ndimage.label(smooth > threshold)
+    cell_area = float(np.median(np.bincount(labels[cells])[np.unique(labels[cells])]))
+    sizes = np.bincount(regions.ravel(), minlength=n + 1)
+    touching = np.unique(regions[~free & (regions > 0)])
+    keep = np.ones(n + 1, bool)
+    keep[0] = False
+    keep[touching] = False
+    keep &= (sizes >= min_area_px) & (sizes <= 0.5 * cell_area)
+    diameters, peaks, blurs = [], [], []
+    above = smooth - background
+    for index in np.flatnonzero(keep):
+        region = regions == index
+        values = above[region]
+        peak = float(values.max())
+        half = region & (above >= 0.5 * peak)
+        radius_px = math.sqrt(half.sum() / math.pi)
+        rows, cols = np.nonzero(region)
+        w = np.clip(values, 0, None)
+        r0, c0 = np.average(rows, weights=w), np.average(cols, weights=w)
+        var = 0.5 * np.average((rows - r0) ** 2 + (cols - c0) ** 2, weights=w)
+        blur2 = var - radius_px**2 / 4 - smooth_px**2
+        diameters.append(2 * radius_px * pixel_size_um)
+        peaks.append(peak)
+        blurs.append(math.sqrt(max(blur2, 0.0)) * pixel_size_um)
+    return DebrisMeasurements(
+        n_blobs=len(peaks),
+        free_area_um2=float(free.sum()) * pixel_size_um**2,
+        diameters_um=np.array(diameters),
+        peaks_adu=np.array(peaks),
+        blur_sigma_um=np.array(blurs),
     )

@@ -453,7 +453,7 @@ class PipelineSource:
         from napari_symbac.optics import ForwardModel
         from napari_symbac.optics.batched import render_scenes
         from napari_symbac.pipeline import apply_cell_brightness
-        from napari_symbac.scene import add_media_texture, draw_scene, field_of
+        from napari_symbac.scene import add_debris, add_media_texture, draw_scene, field_of
 
         s = self.settings
         pipeline = s.pipeline
@@ -474,6 +474,11 @@ class PipelineSource:
         max_label = max(parents, default=0)
         names = self.unit_names(unit)
         items = []
+        # one draw of the unit's generator, only with debris (default streams unchanged);
+        # the same particles on every frame of a series
+        debris_seed = (
+            int(rng.integers(2**63)) if varied.render.debris_density_per_100um2 > 0 else 0
+        )
 
         def scenes():
             for frame in frames:
@@ -489,9 +494,10 @@ class PipelineSource:
                     varied.render.texture_amplitude,
                     simulation.settings.seed,
                 )
-                yield apply_cell_brightness(
+                scene = apply_cell_brightness(
                     scene, varied.render.cell_brightness_cv, simulation.settings.seed
                 )
+                yield add_debris(scene, varied.render, np.random.default_rng(debris_seed))
 
         rendered = render_scenes(model, scenes(), rng, backend=self.backend)
         for k, (frame, (scene, image)) in enumerate(zip(frames, rendered)):

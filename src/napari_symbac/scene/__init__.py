@@ -5,6 +5,7 @@ curvature transform (eq. 1), instance and semantic masks (eq. 4-5), and the 2-D
 fields of section 13 (agar pads, users' outlines; :func:`field_of`).
 """
 
+from napari_symbac.scene._debris import add_debris, debris_rng
 from napari_symbac.scene._draw import (
     FrameCellsLike,
     Scene,
@@ -25,8 +26,10 @@ __all__ = [
     "Field",
     "FrameCellsLike",
     "Scene",
+    "add_debris",
     "add_media_texture",
     "cell_thickness_from_masks",
+    "debris_rng",
     "draw_scene",
     "field_of",
     "kymograph",
