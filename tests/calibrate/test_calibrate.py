@@ -230,3 +230,23 @@ def test_exported_images_keep_the_fitted_defocus(fluorescence_calibration):
     assert defocus > 0
     params = settings.randomise.draw(np.random.default_rng(0), settings.pipeline)
     assert params["render.defocus_sigma_um"] == pytest.approx(defocus)
+
+
+@pytest.mark.slow
+def test_without_masks_the_whole_field_is_fitted_and_measured(real_data_dir):
+    """A user without masks: sizes and layout come from the fit's cells, so the fit takes
+    the whole (sparse) field in; a 160 px crop of ds1 field 3 held one of its 3 cells."""
+    ds1 = real_data_dir / "colicoords" / "test_data" / "ds1"
+    window = (slice(150, 406), slice(60, 316))
+    image = tifffile.imread(ds1 / "fluorescence" / "00003.tif")[window]
+    masks = tifffile.imread(ds1 / "binary" / "00003_Probabilities_filtered.tif")[window]
+    whole = set(np.unique(instance_masks(masks)).tolist()) - {0}
+    edge = instance_masks(masks).copy()
+    edge[1:-1, 1:-1] = 0
+    inside = whole - set(np.unique(edge).tolist())
+    microscope = Microscope(pixel_size_um=0.08, wavelength_um=0.53, modality="fluorescence")
+    cal = calibrate(image, microscope=microscope)
+    assert cal.crop == (slice(0, 256), slice(0, 256))
+    assert cal.reference.shape == image.shape
+    assert len(inside) == 2  # the window holds two whole cells of the field
+    assert len(inside) <= cal.measurements.n_cells <= len(whole) + 1

@@ -46,6 +46,11 @@ from napari_symbac.settings import (
 
 __all__ = ["Calibration", "best_crop", "calibrate", "export_settings", "settings_from_fit"]
 
+#: Side of the crop fitted without masks: the fit's cells are then the only measurement of
+#: sizes and layout, so as much of the field as a fit takes in a minute or two (a sparse
+#: 512 x 512 ColiCoords field holds 3-10 cells; a 160 px crop of it often one).
+NO_MASKS_CROP_PX = 512
+
 #: Cell-area fraction of the crop above which phase contrast is fitted as a dense colony.
 DENSE_FRACTION = 0.25
 #: Doubling time and frame interval of the simulated colonies (minutes).
@@ -300,7 +305,7 @@ def calibrate(
     modality: Literal["phase", "fluorescence"] | None = None,
     camera: Camera | None = None,
     cell_width_um: float | None = None,
-    crop_px: int = 160,
+    crop_px: int | None = None,
     max_iterations: int = 8,
     max_evaluations: int = 40,
 ) -> Calibration:
@@ -327,7 +332,8 @@ def calibrate(
         the pixel size becomes this over the masks' median width (``fit.masks``).
     crop_px
         Side of the square crop the optics are fitted on (whole cells, most of them); with
-        masks at least 16 median cell widths.
+        masks at least 16 median cell widths (default 160), without masks by default
+        :data:`NO_MASKS_CROP_PX` (its cells are all that sizes and layout are measured on).
     max_iterations, max_evaluations
         Budget of the scene fit (per round) and of the partially coherent fit.
 
@@ -379,9 +385,11 @@ def calibrate(
     if masks is not None:  # at least 16 cell widths across, to hold whole cells
         from napari_symbac.fit.masks import cell_widths_px
 
+        crop_px = 160 if crop_px is None else crop_px
         crop_px = max(crop_px, round(16 * float(np.median(cell_widths_px(masks)))))
         crop = best_crop(masks, crop_px)
     else:
+        crop_px = NO_MASKS_CROP_PX if crop_px is None else crop_px
         crop = best_crop(_rough_cells(frame, microscope.modality), crop_px)
     crop_image = frame[crop]
     crop_masks = None if masks is None else masks[crop]
