@@ -107,6 +107,28 @@ class FieldMeasurements:
         )
 
 
+def _checked(
+    image: np.ndarray, masks: np.ndarray, valid: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``image`` as float64, the instance labels of ``masks`` and the usable pixels.
+
+    Raises
+    ------
+    ValueError
+        Shapes differ or the masks hold no cell.
+    """
+    image = np.asarray(image, np.float64)
+    labels = instance_masks(masks)
+    if image.ndim != 2 or labels.shape != image.shape:
+        raise ValueError(
+            f"image {image.shape} and masks {labels.shape} must be 2D of one shape"
+        )
+    if not (labels > 0).any():
+        raise ValueError("the masks hold no cell (all 0): give the masks of this image")
+    ok = np.ones(image.shape, bool) if valid is None else np.asarray(valid, bool)
+    return image, labels, ok
+
+
 def measure_field(
     image: np.ndarray,
     masks: np.ndarray,
@@ -136,15 +158,7 @@ def measure_field(
     ValueError
         Shapes differ, no cell, or no background pixel far from the cells.
     """
-    image = np.asarray(image, np.float64)
-    labels = instance_masks(masks)
-    if image.ndim != 2 or labels.shape != image.shape:
-        raise ValueError(
-            f"image {image.shape} and masks {labels.shape} must be 2D of one shape"
-        )
-    if not (labels > 0).any():
-        raise ValueError("the masks hold no cell (all 0): give the masks of this image")
-    ok = np.ones(image.shape, bool) if valid is None else np.asarray(valid, bool)
+    image, labels, ok = _checked(image, masks, valid)
     cells = labels > 0
     distance = ndimage.distance_transform_edt(~cells)
     far = (distance >= far_px) & ok
@@ -252,15 +266,7 @@ def measure_debris(
     ValueError
         Shapes differ or the masks hold no cell.
     """
-    image = np.asarray(image, np.float64)
-    labels = instance_masks(masks)
-    if image.ndim != 2 or labels.shape != image.shape:
-        raise ValueError(
-            f"image {image.shape} and masks {labels.shape} must be 2D of one shape"
-        )
-    if not (labels > 0).any():
-        raise ValueError("the masks hold no cell (all 0): give the masks of this image")
-    ok = np.ones(image.shape, bool) if valid is None else np.asarray(valid, bool)
+    image, labels, ok = _checked(image, masks, valid)
     cells = labels > 0
     smooth = ndimage.gaussian_filter(image, smooth_px)
     free = (ndimage.distance_transform_edt(~cells) > gap_px) & ok
