@@ -342,3 +342,35 @@ def test_local_cluster_on_loopback_and_user_scheduler(tmp_path, reference):
     assert report.complete
     assert report.workers == 2
     assert tree_digest(tmp_path) == reference
+
+
+def test_local_cluster_is_quiet_beside_a_running_dask_dashboard():
+    """A dashboard (or anything) on port 8787 made the scheduler's HTTP server warn
+    "Port 8787 is already in use" into the user's terminal (and the Ctrl-C test's
+    stderr); the local cluster serves on a free loopback port instead."""
+    import socket
+    import warnings
+
+    from distributed import Client
+
+    from napari_symbac.export.cluster import close_quietly, local_cluster
+
+    taken = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    try:
+        try:
+            taken.bind(("", 8787))
+            taken.listen()
+        except OSError as err:  # something else holds it already: the same situation
+            if err.errno != errno.EADDRINUSE:
+                raise
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            cluster = local_cluster(1)
+            client = Client(cluster)
+            try:
+                assert client.submit(sum, [1, 2]).result(timeout=60) == 3
+            finally:
+                close_quietly(client, cluster)
+    finally:
+        taken.close()
+    assert not [w for w in caught if "already in use" in str(w.message)]

@@ -66,6 +66,11 @@ def local_cluster(workers: int):
             processes=True,
             host="127.0.0.1",
             dashboard_address=None,
+            # without a dashboard the scheduler still serves health/metrics over HTTP, on
+            # port 8787 of every interface by default: a dask dashboard already running
+            # there made it warn "Port 8787 is already in use" on the user's terminal.
+            # A free port on the loopback interface instead (port 0: no clash, no warning).
+            scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
             # the workers' stderr is the user's terminal: a worker whose heartbeat meets
             # an already-closed scheduler at shutdown (Ctrl-C) logs a traceback at ERROR.
             # Task errors still reach this process as exceptions, so workers log nothing.
