@@ -323,6 +323,33 @@ def _fit_camera(r2: np.ndarray, mu: np.ndarray, camera: Camera) -> tuple[float, 
     return float(np.exp(res.x[0])), float(np.exp(res.x[1]))
 
 
+#: Halvings of a Gauss-Newton step before the fit keeps its current parameters.
+MAX_HALVINGS = 12
+
+
+def _halving_step(design, beta, effects, step, mu, yv, idx, w, cost):
+    """``(beta, effects, mu)`` after the Gauss-Newton ``step``, halved until it lowers the
+    weighted cost ``cost`` (the full step when it does, as for the catalogue's linear
+    effects; the current parameters when no halving does). An effect whose parameters
+    the pixels barely constrain (a texture over media that is nearly zero, as in a
+    background-subtracted fluorescence image) can otherwise send the undamped step
+    far out, where the mean overflows."""
+    fraction = 1.0
+    for _ in range(MAX_HALVINGS + 1):
+        trial_beta = beta + fraction * step[: len(beta)]
+        trial_effects, pos = [], len(beta)
+        for e, theta in effects:
+            trial_effects.append((e, e.clip(theta + fraction * step[pos : pos + len(theta)])))
+            pos += len(theta)
+        with np.errstate(over="ignore", invalid="ignore"):
+            trial_mu = predict(design, trial_beta, trial_effects)
+            trial_cost = float(np.sum(w * (yv - trial_mu.ravel()[idx]) ** 2))
+        if math.isfinite(trial_cost) and trial_cost <= cost * (1 + 1e-9):
+            return trial_beta, trial_effects, trial_mu
+        fraction *= 0.5
+    return beta, effects, mu
+
+
 def fit_model(
     design: BaseDesign,
     y: np.ndarray,
@@ -358,17 +385,16 @@ def fit_model(
     idx = np.flatnonzero(fit_mask.ravel())
     yv = y.ravel()[idx]
     a = None
+    mu = predict(design, beta, effects)
     for round_index in range(rounds):
-        mu = predict(design, beta, effects)
         v = variance(mu, design.camera, gain, read).ravel()[idx]
+        w = 1.0 / v
         for _inner in range(2 if effects else 1):
-            mu = predict(design, beta, effects)
             # The catalogue's effects are linear or nearly so in their parameters: the
             # Jacobian is computed at the start and once more before the last round.
             if a is None or (round_index == rounds - 1 and _inner == 0):
                 jac = _jacobian(design, beta, effects, mu)
                 a = jac.reshape(len(jac), -1)[:, idx].T
-            w = 1.0 / v
             r = yv - mu.ravel()[idx]
             aw = a * w[:, None]
             normal = a.T @ aw
@@ -378,13 +404,10 @@ def fit_model(
                 np.linalg.lstsq(normal / np.outer(scale, scale), rhs / scale, rcond=1e-12)[0]
                 / scale
             )
-            beta = beta + step[: len(beta)]
-            pos = len(beta)
-            for i, (e, theta) in enumerate(effects):
-                effects[i] = (e, e.clip(theta + step[pos : pos + len(theta)]))
-                pos += len(theta)
+            beta, effects, mu = _halving_step(
+                design, beta, effects, step, mu, yv, idx, w, float(np.sum(w * r**2))
+            )
         if fit_camera:
-            mu = predict(design, beta, effects)
             r2 = (yv - mu.ravel()[idx]) ** 2
             gain, read = _fit_camera(r2, mu.ravel()[idx], design.camera)
     mu = predict(design, beta, effects)
