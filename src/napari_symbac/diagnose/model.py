@@ -323,30 +323,42 @@ def _fit_camera(r2: np.ndarray, mu: np.ndarray, camera: Camera) -> tuple[float, 
     return float(np.exp(res.x[0])), float(np.exp(res.x[1]))
 
 
-#: Halvings of a Gauss-Newton step before the fit keeps its current parameters.
-MAX_HALVINGS = 12
+#: Levenberg-Marquardt damping tried, in turn, when the Gauss-Newton step does not
+#: lower the weighted cost (on the normal matrix scaled to a unit diagonal).
+DAMPING = (1e-6, 1e-4, 1e-2, 1.0, 1e2, 1e4)
 
 
-def _halving_step(design, beta, effects, step, mu, yv, idx, w, cost):
-    """``(beta, effects, mu)`` after the Gauss-Newton ``step``, halved until it lowers the
-    weighted cost ``cost`` (the full step when it does, as for the catalogue's linear
-    effects; the current parameters when no halving does). An effect whose parameters
-    the pixels barely constrain (a texture over media that is nearly zero, as in a
-    background-subtracted fluorescence image) can otherwise send the undamped step
-    far out, where the mean overflows."""
-    fraction = 1.0
-    for _ in range(MAX_HALVINGS + 1):
-        trial_beta = beta + fraction * step[: len(beta)]
-        trial_effects, pos = [], len(beta)
-        for e, theta in effects:
-            trial_effects.append((e, e.clip(theta + fraction * step[pos : pos + len(theta)])))
-            pos += len(theta)
+def _trial(design, beta, effects, step):
+    trial_effects, pos = [], len(beta)
+    for e, theta in effects:
+        trial_effects.append((e, e.clip(theta + step[pos : pos + len(theta)])))
+        pos += len(theta)
+    trial_beta = beta + step[: len(beta)]
+    return trial_beta, trial_effects, predict(design, trial_beta, trial_effects)
+
+
+def _descent_step(design, beta, effects, normal, rhs, mu, yv, idx, w, cost):
+    """``(beta, effects, mu)`` after a step that lowers the weighted cost ``cost``.
+
+    The Gauss-Newton step first (it does for the catalogue's linear effects, so their
+    fits are unchanged); else Levenberg-Marquardt steps of growing damping; else the
+    parameters stay. Nearly collinear parameters (a texture's column modes beside
+    per-column offsets, with a finite-difference Jacobian) make the undamped step wild
+    in their common direction: on a background-subtracted ColiCoords field it sent
+    the mean to overflow and the diagnosis ended in "SVD did not converge".
+    """
+    scale = np.sqrt(np.maximum(np.diag(normal), 1e-300))
+    scaled, b = normal / np.outer(scale, scale), rhs / scale
+    for damping in (0.0, *DAMPING):
+        if damping == 0.0:
+            z = np.linalg.lstsq(scaled, b, rcond=1e-12)[0]
+        else:
+            z = np.linalg.solve(scaled + damping * np.eye(len(b)), b)
         with np.errstate(over="ignore", invalid="ignore"):
-            trial_mu = predict(design, trial_beta, trial_effects)
+            trial_beta, trial_effects, trial_mu = _trial(design, beta, effects, z / scale)
             trial_cost = float(np.sum(w * (yv - trial_mu.ravel()[idx]) ** 2))
         if math.isfinite(trial_cost) and trial_cost <= cost * (1 + 1e-9):
             return trial_beta, trial_effects, trial_mu
-        fraction *= 0.5
     return beta, effects, mu
 
 
@@ -399,13 +411,8 @@ def fit_model(
             aw = a * w[:, None]
             normal = a.T @ aw
             rhs = aw.T @ r
-            scale = np.sqrt(np.maximum(np.diag(normal), 1e-300))
-            step = (
-                np.linalg.lstsq(normal / np.outer(scale, scale), rhs / scale, rcond=1e-12)[0]
-                / scale
-            )
-            beta, effects, mu = _halving_step(
-                design, beta, effects, step, mu, yv, idx, w, float(np.sum(w * r**2))
+            beta, effects, mu = _descent_step(
+                design, beta, effects, normal, rhs, mu, yv, idx, w, float(np.sum(w * r**2))
             )
         if fit_camera:
             r2 = (yv - mu.ravel()[idx]) ** 2
