@@ -1,0 +1,483 @@
+"""Cell identity across the frames of a fitted series: links, divisions, lineage.
+
+The fitted cells of consecutive frames are linked by one linear assignment per
+pair of frames (:func:`scipy.optimize.linear_sum_assignment`) on a cost that
+compares each cell of frame ``t + 1`` with the cell of frame ``t`` *as predicted
+one frame later*:
+
+* growth: a rod elongates along its axis, ``L -> g L`` with one growth factor
+  ``g`` per frame for the series (measured from the links when not given);
+* motion: in a mother-machine trench every cell is pushed towards the open end by
+  the growth of the cells between it and the closed end (plus half its own), with
+  the trench's own fitted placement per frame taking up any drift of the stage; in
+  an open field a cell grows about its centre and the whole field drifts by one
+  shift per frame (the median displacement of the linked cells).
+
+The cost of a link is a sum of squared standardised differences (centre, length,
+width, axis angle) with the scatter in micrometres and radians of
+:class:`LinkSettings`; a link farther than ``gate_um`` from its prediction is not
+allowed. A cell may also end (pushed out of the trench's open end or out of the
+field: free; elsewhere at ``unlinked_cost``) or appear (at ``unlinked_cost``).
+
+A division is a mother in frame ``t`` and two daughters in ``t + 1`` lying end to
+end along her predicted axis, whose lengths add up to her grown length plus a
+third of her width (two half-caps of volume: volume is conserved when a
+spherocylinder splits into two of the same width). After the assignment, each
+mother whose division explains her and her daughters at a lower cost than the
+assignment did becomes the parent of two new tracks.
+
+The result, :class:`Lineage`, is the Cell Tracking Challenge's: a track id per
+cell and frame, and one ``L B E P`` row per track (track id, first frame, last
+frame, parent track id or 0), the format of ``man_track.txt`` that the export
+writes (:class:`~napari_symbac.export.tracking.CtcWriter`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from napari_symbac.fit.placement import TrenchPlacement
+from napari_symbac.sim import FrameCells
+
+__all__ = ["Lineage", "LinkSettings", "link_cells"]
+
+#: Stand-in for a forbidden link in the assignment's cost matrix.
+_FORBIDDEN = 1e12
+
+
+@dataclass(frozen=True)
+class LinkSettings:
+    """How cells are linked from frame to frame (:func:`link_cells`).
+
+    Parameters
+    ----------
+    position_sd_um
+        Scatter of a cell's centre about its prediction (fit error and the motion the
+        prediction leaves out: jitter, pushing in a colony).
+    length_sd_um
+        Scatter of a cell's length about its grown length.
+    width_sd_um
+        Scatter of a cell's width between frames.
+    angle_sd_rad
+        Scatter of a cell's axis angle between frames (weighted down for cells close to
+        round, whose axis is not defined).
+    gate_um
+        Largest distance of a linked cell's centre from its prediction (and of a
+        daughter's from where the division puts her); farther links are not allowed.
+    length_gate_um
+        Largest difference between a linked cell's length and its grown length (and
+        between the daughters' summed length and their mother's).
+    unlinked_cost
+        Cost of a track ending or starting inside the field of view, in the cost's
+        units (squared standard deviations; a link of four terms each 2 s.d. off costs
+        16). A track that ends because its cell is predicted beyond the trench's open
+        end or outside the field ends at no cost.
+    growth_per_frame
+        Length ratio ``L(t + 1) / L(t)`` of a growing cell; ``None``: measured as the
+        median ratio of the linked cells (starting from 1).
+    """
+
+    position_sd_um: float = 0.25
+    length_sd_um: float = 0.25
+    width_sd_um: float = 0.1
+    angle_sd_rad: float = 0.25
+    gate_um: float = 1.5
+    length_gate_um: float = 1.0
+    unlinked_cost: float = 12.0
+    growth_per_frame: float | None = None
+
+    def __post_init__(self) -> None:
+        for name in (
+            "position_sd_um",
+            "length_sd_um",
+            "width_sd_um",
+            "angle_sd_rad",
+            "gate_um",
+            "length_gate_um",
+            "unlinked_cost",
+        ):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"LinkSettings.{name} must be a positive number, got {value!r}")
+        g = self.growth_per_frame
+        if g is not None and not (isinstance(g, (int, float)) and math.isfinite(g) and g > 0):
+            raise ValueError(
+                f"LinkSettings.growth_per_frame must be a positive ratio or None, got {g!r}"
+            )
+
+
+@dataclass(frozen=True, eq=False)
+class Lineage:
+    """Identities and lineage of the cells of a series (:func:`link_cells`).
+
+    Attributes
+    ----------
+    track_ids
+        One int64 array per frame: the track id of each cell, in the order of that
+        frame's :class:`~napari_symbac.sim.FrameCells`.
+    tracks
+        ``(K, 4)`` int64, one row per track: track id, first frame, last frame, parent
+        track id (0: none), as the lines of the Cell Tracking Challenge's
+        ``man_track.txt`` / ``res_track.txt``. A division ends the mother's track in
+        frame ``t`` and starts each daughter's in ``t + 1``.
+    growth_per_frame
+        The length ratio used for the prediction (given or measured).
+    drift_um
+        ``(T - 1, 2)``: the ``(x, y)`` shift of the field between consecutive frames
+        used for the prediction (zeros in a trench, whose placement is fitted per frame).
+    link_costs
+        One array per pair of frames: the cost of each accepted link of a cell of
+        frame ``t + 1`` to its predecessor (NaN for a new track).
+    """
+
+    track_ids: tuple[np.ndarray, ...]
+    tracks: np.ndarray
+    growth_per_frame: float
+    drift_um: np.ndarray = field(repr=False)
+    link_costs: tuple[np.ndarray, ...] = field(default=(), repr=False)
+
+    def parent(self, track_id: int) -> int:
+        """Parent track of ``track_id`` (0: none)."""
+        row = np.flatnonzero(self.tracks[:, 0] == track_id)
+        if row.size == 0:
+            raise ValueError(f"no track {track_id}; the tracks are Lineage.tracks[:, 0]")
+        return int(self.tracks[row[0], 3])
+
+    def divisions(self) -> dict[int, tuple[int, ...]]:
+        """``{mother track: daughter tracks}`` of every division."""
+        out: dict[int, list[int]] = {}
+        for track, _b, _e, parent in self.tracks.tolist():
+            if parent:
+                out.setdefault(parent, []).append(track)
+        return {k: tuple(v) for k, v in out.items()}
+
+    def table(self) -> list[dict[str, int]]:
+        """The tracks as records (JSON): ``track``, ``first_frame``, ``last_frame``, ``parent``."""
+        return [
+            {"track": t, "first_frame": b, "last_frame": e, "parent": p}
+            for t, b, e, p in self.tracks.tolist()
+        ]
+
+    def ctc_text(self) -> str:
+        """The tracks as ``res_track.txt``: one ``L B E P`` line per track."""
+        return "".join(f"{t} {b} {e} {p}\n" for t, b, e, p in self.tracks.tolist())
+
+
+def _axis(angle_rad: np.ndarray) -> np.ndarray:
+    """Unit vectors ``(x, y)`` of the long axes (0 rad = along +y, the trench axis)."""
+    return np.stack([np.sin(angle_rad), np.cos(angle_rad)], axis=-1)
+
+
+def _angle_difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Difference of two axis angles, modulo pi (an axis has no direction)."""
+    return (np.asarray(a) - np.asarray(b) + np.pi / 2) % np.pi - np.pi / 2
+
+
+def _elongation(length_um: np.ndarray, width_um: np.ndarray) -> np.ndarray:
+    """Weight of the angle term: 0 for a round cell (no axis), 1 from 2 widths long."""
+    return np.clip((length_um - width_um) / np.maximum(width_um, 1e-9), 0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class _Predicted:
+    """Cells of frame ``t`` as expected in frame ``t + 1`` (image coordinates, um)."""
+
+    centre: np.ndarray  # (n, 2) x, y
+    length_um: np.ndarray
+    width_um: np.ndarray
+    angle_rad: np.ndarray
+    leaving: np.ndarray  # bool: predicted out of the field of view (free to end)
+
+
+def _predict(
+    cells: FrameCells,
+    growth: float,
+    trench: tuple[TrenchPlacement, TrenchPlacement] | None,
+    drift_um: np.ndarray,
+    size_um: tuple[float, float],
+) -> _Predicted:
+    """Where the cells of one frame should be one frame later.
+
+    In a trench (``trench`` = placements in frames ``t`` and ``t + 1``), positions are
+    taken relative to the trench, each cell moves along the trench by the growth of
+    the cells nearer the closed end plus half its own (projected on the trench axis),
+    and is placed back with the next frame's placement. In a field, each cell grows
+    about its centre and the field moves by ``drift_um``.
+    """
+    centre = np.stack([cells.x_um, cells.y_um], axis=1).astype(float)
+    grown = cells.length_um * growth
+    height_um, width_um = size_um
+    if trench is not None:
+        before, after = trench
+        gain = (grown - cells.length_um) * np.abs(np.cos(cells.angle_rad))
+        order = np.argsort(cells.y_um - before.top_um, kind="stable")
+        pushed = np.empty(len(cells))
+        pushed[order] = np.cumsum(gain[order]) - gain[order] / 2
+        centre[:, 0] += after.left_um - before.left_um
+        centre[:, 1] += after.top_um - before.top_um + pushed
+        leaving = centre[:, 1] > height_um
+    else:
+        centre = centre + drift_um
+        leaving = (
+            (centre[:, 0] < 0) | (centre[:, 0] > width_um)
+            | (centre[:, 1] < 0) | (centre[:, 1] > height_um)
+        )
+    return _Predicted(centre, grown, cells.width_um.copy(), cells.angle_rad.copy(), leaving)
+
+
+def _link_costs(pred: _Predicted, nxt: FrameCells, s: LinkSettings) -> np.ndarray:
+    """``(n_t, n_t+1)`` costs of the one-to-one links (``inf``: outside the gates)."""
+    centre = np.stack([nxt.x_um, nxt.y_um], axis=1)
+    distance = np.linalg.norm(pred.centre[:, None, :] - centre[None, :, :], axis=-1)
+    d_length = nxt.length_um[None, :] - pred.length_um[:, None]
+    d_width = nxt.width_um[None, :] - pred.width_um[:, None]
+    d_angle = _angle_difference(nxt.angle_rad[None, :], pred.angle_rad[:, None])
+    weight = np.minimum(
+        _elongation(pred.length_um, pred.width_um)[:, None],
+        _elongation(nxt.length_um, nxt.width_um)[None, :],
+    )
+    cost = (
+        (distance / s.position_sd_um) ** 2
+        + (d_length / s.length_sd_um) ** 2
+        + (d_width / s.width_sd_um) ** 2
+        + weight * (d_angle / s.angle_sd_rad) ** 2
+    )
+    cost[(distance > s.gate_um) | (np.abs(d_length) > s.length_gate_um)] = np.inf
+    return cost
+
+
+def _assign(cost: np.ndarray, end_cost: np.ndarray, start_cost: float) -> np.ndarray:
+    """Best one-to-one links with ends and starts allowed: ``match[i]`` = j or -1.
+
+    The square assignment of Jaqaman et al. (2008): ``[[links, ends], [starts,
+    links^T]]``, where leaving cell ``i`` of frame ``t`` unlinked costs ``end_cost[i]``
+    and leaving a cell of ``t + 1`` unlinked costs ``start_cost``.
+    """
+    n, m = cost.shape
+    match = np.full(n, -1)
+    if n == 0 or m == 0:
+        return match
+    big = np.where(np.isfinite(cost), cost, _FORBIDDEN)
+    ends = np.full((n, n), _FORBIDDEN)
+    ends[np.diag_indices(n)] = end_cost
+    starts = np.full((m, m), _FORBIDDEN)
+    starts[np.diag_indices(m)] = start_cost
+    lower_right = np.where(np.isfinite(cost.T), 0.0, _FORBIDDEN)
+    matrix = np.block([[big, ends], [starts, lower_right]])
+    rows, cols = linear_sum_assignment(matrix)
+    for i, j in zip(rows, cols):
+        if i < n and j < m and np.isfinite(cost[i, j]):
+            match[i] = j
+    return match
+
+
+def _division_cost(
+    pred: _Predicted, k: int, nxt: FrameCells, a: int, b: int, s: LinkSettings
+) -> float:
+    """Cost of mother ``k`` (predicted) splitting into cells ``a`` and ``b`` of ``t + 1``.
+
+    The daughters lie end to end along the mother's axis, centred on her predicted
+    centre, their lengths summing to her grown length plus a third of her width
+    (volume conserved, same width); each is compared with where that puts her (along
+    and across the axis), with the mother's width and axis angle.
+    """
+    u = _axis(pred.angle_rad[k])
+    c = pred.centre[k]
+    lengths = nxt.length_um[[a, b]]
+    total = float(lengths.sum())
+    expected = pred.length_um[k] + pred.width_um[k] / 3
+    if abs(total - expected) > s.length_gate_um:
+        return math.inf
+    centres = np.stack([nxt.x_um[[a, b]], nxt.y_um[[a, b]]], axis=1) - c
+    along = centres @ u
+    first, second = (0, 1) if along[0] <= along[1] else (1, 0)
+    # the first daughter from -total/2 to -total/2 + L_first, the second after her
+    target = np.empty(2)
+    target[first] = -total / 2 + lengths[first] / 2
+    target[second] = total / 2 - lengths[second] / 2
+    across = centres @ np.array([-u[1], u[0]])
+    miss = np.hypot(along - target, across)
+    if np.any(miss > s.gate_um):
+        return math.inf
+    d_angle = _angle_difference(nxt.angle_rad[[a, b]], pred.angle_rad[k])
+    weight = _elongation(lengths, nxt.width_um[[a, b]])
+    return float(
+        ((total - expected) / s.length_sd_um) ** 2
+        + np.sum((miss / s.position_sd_um) ** 2)
+        + np.sum(((nxt.width_um[[a, b]] - pred.width_um[k]) / s.width_sd_um) ** 2)
+        + np.sum(weight * (d_angle / s.angle_sd_rad) ** 2)
+    )
+
+
+def _divisions(
+    pred: _Predicted,
+    nxt: FrameCells,
+    match: np.ndarray,
+    cost: np.ndarray,
+    end_cost: np.ndarray,
+    s: LinkSettings,
+) -> dict[int, tuple[int, int]]:
+    """Mothers whose division explains her and two cells better than the assignment.
+
+    A daughter is a cell of ``t + 1`` left without a predecessor or the mother's own
+    link; the division replaces the mother's link (or end) and the daughters' starts.
+    The best improvements are taken first, each cell once.
+    """
+    n, m = cost.shape
+    linked_from = np.full(m, -1)
+    for i, j in enumerate(match):
+        if j >= 0:
+            linked_from[j] = i
+    options = []
+    for k in range(n):
+        free = [j for j in range(m) if linked_from[j] in (-1, k)]
+        for x, a in enumerate(free):
+            for b in free[x + 1 :]:
+                if match[k] >= 0 and match[k] not in (a, b):
+                    continue  # her link to a third cell is not part of this choice
+                split = _division_cost(pred, k, nxt, a, b, s)
+                if not math.isfinite(split):
+                    continue
+                now = end_cost[k] if match[k] < 0 else cost[k, match[k]]
+                now += sum(s.unlinked_cost for j in (a, b) if linked_from[j] == -1)
+                if split < now:
+                    options.append((split - now, k, a, b))
+    chosen: dict[int, tuple[int, int]] = {}
+    used: set[int] = set()
+    for _gain, k, a, b in sorted(options):
+        if k in chosen or a in used or b in used:
+            continue
+        chosen[k] = (a, b)
+        used.update((a, b))
+    return chosen
+
+
+def _transitions(
+    frames: Sequence[FrameCells],
+    trench: Sequence[TrenchPlacement | None] | None,
+    size_um: tuple[float, float],
+    s: LinkSettings,
+    growth: float,
+    drift: np.ndarray,
+):
+    """Links and divisions of every pair of consecutive frames."""
+    out = []
+    for t in range(len(frames) - 1):
+        pair = None
+        if trench is not None and trench[t] is not None and trench[t + 1] is not None:
+            pair = (trench[t], trench[t + 1])
+        pred = _predict(frames[t], growth, pair, drift[t], size_um)
+        cost = _link_costs(pred, frames[t + 1], s)
+        end_cost = np.where(pred.leaving, 0.0, s.unlinked_cost)
+        match = _assign(cost, end_cost, s.unlinked_cost)
+        split = _divisions(pred, frames[t + 1], match, cost, end_cost, s)
+        for k, (a, b) in split.items():
+            match[k] = -1
+            for i in np.flatnonzero(np.isin(match, (a, b))):
+                match[i] = -1
+        out.append((pred, cost, match, split))
+    return out
+
+
+def link_cells(
+    frames: Sequence[FrameCells],
+    settings: LinkSettings | None = None,
+    *,
+    trench: Sequence[TrenchPlacement | None] | None = None,
+    image_size_um: tuple[float, float] | None = None,
+    passes: int = 3,
+) -> Lineage:
+    """Give the cells of consecutive frames track ids and a lineage.
+
+    Parameters
+    ----------
+    frames
+        The cells of each frame in image coordinates (um; e.g.
+        :attr:`SceneFit.cells <napari_symbac.fit.SceneFit.cells>` of each frame of a
+        series), in time order. A frame may hold no cells: every track ends there.
+    settings
+        Scatter, gates and costs (:class:`LinkSettings`).
+    trench
+        The trench placement of each frame (:attr:`SceneFit.trench`) for a
+        mother-machine series (closed end at the top, cells pushed down the trench);
+        ``None`` for an open field.
+    image_size_um
+        ``(height, width)`` of the field of view: a cell predicted beyond it (below
+        the image in a trench) may leave at no cost. Default: no edge.
+    passes
+        Rounds of linking: after each, the growth factor (when not given) and the
+        field's drift are measured again from the links.
+
+    Returns
+    -------
+    Lineage
+    """
+    s = settings if settings is not None else LinkSettings()
+    frames = list(frames)
+    if not frames:
+        raise ValueError("link_cells needs at least one frame of cells")
+    if trench is not None and len(trench) != len(frames):
+        raise ValueError(
+            f"trench has {len(trench)} placements for {len(frames)} frames: give one per frame"
+        )
+    if passes < 1:
+        raise ValueError(f"passes must be at least 1, got {passes}")
+    size = image_size_um if image_size_um is not None else (math.inf, math.inf)
+    is_trench = trench is not None and any(p is not None for p in trench)
+    growth = s.growth_per_frame if s.growth_per_frame is not None else 1.0
+    drift = np.zeros((max(len(frames) - 1, 0), 2))
+    steps = []
+    for _ in range(passes):
+        steps = _transitions(frames, trench if is_trench else None, size, s, growth, drift)
+        ratios = []
+        for t, (pred, _cost, match, _split) in enumerate(steps):
+            nxt = frames[t + 1]
+            i = np.flatnonzero(match >= 0)
+            j = match[i]
+            ratios += (nxt.length_um[j] / frames[t].length_um[i]).tolist()
+            if not is_trench and i.size:
+                shift = np.stack([nxt.x_um[j], nxt.y_um[j]], 1) - (pred.centre[i] - drift[t])
+                drift[t] = np.median(shift, axis=0)
+        if s.growth_per_frame is None and ratios:
+            growth = float(np.clip(np.median(ratios), 0.5, 2.0))
+    return _lineage(frames, steps, growth, drift)
+
+
+def _lineage(frames: list[FrameCells], steps, growth: float, drift: np.ndarray) -> Lineage:
+    """Track ids from the links: a link keeps the id, a division or a start opens new ones."""
+    ids: list[np.ndarray] = [np.arange(1, len(frames[0]) + 1, dtype=np.int64)]
+    first = {int(k): 0 for k in ids[0]}
+    last = dict(first)
+    parent = dict.fromkeys(first, 0)
+    costs = []
+    next_id = len(frames[0]) + 1
+    for t, (_pred, cost, match, split) in enumerate(steps):
+        now = np.zeros(len(frames[t + 1]), np.int64)
+        link_cost = np.full(len(frames[t + 1]), np.nan)
+        for i, j in enumerate(match):
+            if j >= 0:
+                now[j] = ids[t][i]
+                link_cost[j] = cost[i, j]
+        for k, pair in sorted(split.items()):
+            for j in sorted(pair):
+                now[j] = next_id
+                parent[next_id] = int(ids[t][k])
+                next_id += 1
+        for j in np.flatnonzero(now == 0):
+            now[j] = next_id
+            parent[next_id] = 0
+            next_id += 1
+        for track in now.tolist():
+            first.setdefault(track, t + 1)
+            last[track] = t + 1
+        ids.append(now)
+        costs.append(link_cost)
+    tracks = np.array(
+        [[k, first[k], last[k], parent[k]] for k in sorted(first)], np.int64
+    ).reshape(-1, 4)
+    return Lineage(tuple(ids), tracks, float(growth), drift, tuple(costs))
