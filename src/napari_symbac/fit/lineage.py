@@ -34,6 +34,7 @@ writes (:class:`~napari_symbac.export.tracking.CtcWriter`).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -75,8 +76,12 @@ class LinkSettings:
     unlinked_cost
         Cost of a track ending or starting inside the field of view, in the cost's
         units (squared standard deviations; a link of four terms each 2 s.d. off costs
-        16). A track that ends because its cell is predicted beyond the trench's open
-        end or outside the field ends at no cost.
+        16). A track whose cell is predicted beyond the trench's open end or outside
+        the field (or within ``exit_margin_um`` of that edge) ends at no cost.
+    exit_margin_um
+        How close to the edge of the field of view (the trench's open end) a predicted
+        centre counts as leaving it: the push of the cells above is only predicted to
+        within a few tenths of a micrometre, and the cell leaves when its centre does.
     growth_per_frame
         Length ratio ``L(t + 1) / L(t)`` of a growing cell; ``None``: measured as the
         median ratio of the linked cells (starting from 1).
@@ -89,6 +94,7 @@ class LinkSettings:
     gate_um: float = 1.5
     length_gate_um: float = 1.0
     unlinked_cost: float = 12.0
+    exit_margin_um: float = 0.5
     growth_per_frame: float | None = None
 
     def __post_init__(self) -> None:
@@ -100,6 +106,7 @@ class LinkSettings:
             "gate_um",
             "length_gate_um",
             "unlinked_cost",
+            "exit_margin_um",
         ):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
@@ -192,6 +199,9 @@ class _Predicted:
     width_um: np.ndarray
     angle_rad: np.ndarray
     leaving: np.ndarray  # bool: predicted out of the field of view (free to end)
+    size_um: tuple[float, float]  # (height, width) of the field of view
+    in_trench: bool
+    margin_um: float  # a centre this close to the edge counts as leaving
 
 
 def _predict(
@@ -200,6 +210,7 @@ def _predict(
     trench: tuple[TrenchPlacement, TrenchPlacement] | None,
     drift_um: np.ndarray,
     size_um: tuple[float, float],
+    margin_um: float,
 ) -> _Predicted:
     """Where the cells of one frame should be one frame later.
 
@@ -211,7 +222,6 @@ def _predict(
     """
     centre = np.stack([cells.x_um, cells.y_um], axis=1).astype(float)
     grown = cells.length_um * growth
-    height_um, width_um = size_um
     if trench is not None:
         before, after = trench
         gain = (grown - cells.length_um) * np.abs(np.cos(cells.angle_rad))
@@ -220,14 +230,13 @@ def _predict(
         pushed[order] = np.cumsum(gain[order]) - gain[order] / 2
         centre[:, 0] += after.left_um - before.left_um
         centre[:, 1] += after.top_um - before.top_um + pushed
-        leaving = centre[:, 1] > height_um
     else:
         centre = centre + drift_um
-        leaving = (
-            (centre[:, 0] < 0) | (centre[:, 0] > width_um)
-            | (centre[:, 1] < 0) | (centre[:, 1] > height_um)
-        )
-    return _Predicted(centre, grown, cells.width_um.copy(), cells.angle_rad.copy(), leaving)
+    pred = _Predicted(
+        centre, grown, cells.width_um.copy(), cells.angle_rad.copy(), np.zeros(0, bool),
+        size_um, trench is not None, margin_um,
+    )
+    return dataclasses.replace(pred, leaving=_outside(pred, centre))
 
 
 def _link_costs(pred: _Predicted, nxt: FrameCells, s: LinkSettings) -> np.ndarray:
@@ -276,40 +285,65 @@ def _assign(cost: np.ndarray, end_cost: np.ndarray, start_cost: float) -> np.nda
     return match
 
 
+def _outside(pred: _Predicted, points: np.ndarray) -> np.ndarray:
+    """Points ``(k, 2)`` beyond the field of view (below the image in a trench), or
+    within the exit margin of its edge."""
+    height_um, width_um = pred.size_um
+    m = pred.margin_um
+    below = points[:, 1] > height_um - m
+    if pred.in_trench:
+        return below
+    return below | (points[:, 0] < m) | (points[:, 0] > width_um - m) | (points[:, 1] < m)
+
+
 def _division_cost(
-    pred: _Predicted, k: int, nxt: FrameCells, a: int, b: int, s: LinkSettings
+    pred: _Predicted, k: int, nxt: FrameCells, daughters: tuple[int, ...], s: LinkSettings
 ) -> float:
-    """Cost of mother ``k`` (predicted) splitting into cells ``a`` and ``b`` of ``t + 1``.
+    """Cost of mother ``k`` (predicted) splitting into ``daughters`` of frame ``t + 1``.
 
     The daughters lie end to end along the mother's axis, centred on her predicted
     centre, their lengths summing to her grown length plus a third of her width
     (volume conserved, same width); each is compared with where that puts her (along
-    and across the axis), with the mother's width and axis angle.
+    and across the axis), with the mother's width and axis angle. With one daughter,
+    her sister is the rest of that length, and must lie beyond the field of view
+    (pushed out of the trench or the field within the frame interval).
     """
     u = _axis(pred.angle_rad[k])
     c = pred.centre[k]
-    lengths = nxt.length_um[[a, b]]
-    total = float(lengths.sum())
     expected = pred.length_um[k] + pred.width_um[k] / 3
-    if abs(total - expected) > s.length_gate_um:
-        return math.inf
-    centres = np.stack([nxt.x_um[[a, b]], nxt.y_um[[a, b]]], axis=1) - c
+    lengths = nxt.length_um[list(daughters)]
+    centres = np.stack([nxt.x_um[list(daughters)], nxt.y_um[list(daughters)]], axis=1) - c
     along = centres @ u
-    first, second = (0, 1) if along[0] <= along[1] else (1, 0)
-    # the first daughter from -total/2 to -total/2 + L_first, the second after her
-    target = np.empty(2)
-    target[first] = -total / 2 + lengths[first] / 2
-    target[second] = total / 2 - lengths[second] / 2
     across = centres @ np.array([-u[1], u[0]])
+    if len(daughters) == 2:
+        total = float(lengths.sum())
+        if abs(total - expected) > s.length_gate_um:
+            return math.inf
+        first, second = (0, 1) if along[0] <= along[1] else (1, 0)
+        # the first daughter from -total/2 to -total/2 + L_first, the second after her
+        target = np.empty(2)
+        target[first] = -total / 2 + lengths[first] / 2
+        target[second] = total / 2 - lengths[second] / 2
+        length_term = ((total - expected) / s.length_sd_um) ** 2
+    else:
+        sister = expected - float(lengths[0])
+        if not 0.25 * expected <= sister <= 0.75 * expected:
+            return math.inf  # the septum is near mid-cell
+        side = 1.0 if along[0] >= 0 else -1.0  # the daughter's end of the mother
+        target = np.array([side * (expected / 2 - lengths[0] / 2)])
+        sister_at = c - side * (expected / 2 - sister / 2) * u
+        if not _outside(pred, sister_at[None])[0]:
+            return math.inf
+        length_term = 0.0
     miss = np.hypot(along - target, across)
     if np.any(miss > s.gate_um):
         return math.inf
-    d_angle = _angle_difference(nxt.angle_rad[[a, b]], pred.angle_rad[k])
-    weight = _elongation(lengths, nxt.width_um[[a, b]])
+    d_angle = _angle_difference(nxt.angle_rad[list(daughters)], pred.angle_rad[k])
+    weight = _elongation(lengths, nxt.width_um[list(daughters)])
     return float(
-        ((total - expected) / s.length_sd_um) ** 2
+        length_term
         + np.sum((miss / s.position_sd_um) ** 2)
-        + np.sum(((nxt.width_um[[a, b]] - pred.width_um[k]) / s.width_sd_um) ** 2)
+        + np.sum(((nxt.width_um[list(daughters)] - pred.width_um[k]) / s.width_sd_um) ** 2)
         + np.sum(weight * (d_angle / s.angle_sd_rad) ** 2)
     )
 
@@ -336,24 +370,26 @@ def _divisions(
     options = []
     for k in range(n):
         free = [j for j in range(m) if linked_from[j] in (-1, k)]
-        for x, a in enumerate(free):
-            for b in free[x + 1 :]:
-                if match[k] >= 0 and match[k] not in (a, b):
-                    continue  # her link to a third cell is not part of this choice
-                split = _division_cost(pred, k, nxt, a, b, s)
-                if not math.isfinite(split):
-                    continue
-                now = end_cost[k] if match[k] < 0 else cost[k, match[k]]
-                now += sum(s.unlinked_cost for j in (a, b) if linked_from[j] == -1)
-                if split < now:
-                    options.append((split - now, k, a, b))
-    chosen: dict[int, tuple[int, int]] = {}
+        pairs = [(a,) for a in free] + [
+            (a, b) for x, a in enumerate(free) for b in free[x + 1 :]
+        ]
+        for daughters in pairs:
+            if match[k] >= 0 and match[k] not in daughters:
+                continue  # her link to a third cell is not part of this choice
+            split = _division_cost(pred, k, nxt, daughters, s)
+            if not math.isfinite(split):
+                continue
+            now = end_cost[k] if match[k] < 0 else cost[k, match[k]]
+            now += sum(s.unlinked_cost for j in daughters if linked_from[j] == -1)
+            if split < now:
+                options.append((split - now, k, daughters))
+    chosen: dict[int, tuple[int, ...]] = {}
     used: set[int] = set()
-    for _gain, k, a, b in sorted(options):
-        if k in chosen or a in used or b in used:
+    for _gain, k, daughters in sorted(options):
+        if k in chosen or used.intersection(daughters):
             continue
-        chosen[k] = (a, b)
-        used.update((a, b))
+        chosen[k] = daughters
+        used.update(daughters)
     return chosen
 
 
@@ -371,14 +407,14 @@ def _transitions(
         pair = None
         if trench is not None and trench[t] is not None and trench[t + 1] is not None:
             pair = (trench[t], trench[t + 1])
-        pred = _predict(frames[t], growth, pair, drift[t], size_um)
+        pred = _predict(frames[t], growth, pair, drift[t], size_um, s.exit_margin_um)
         cost = _link_costs(pred, frames[t + 1], s)
         end_cost = np.where(pred.leaving, 0.0, s.unlinked_cost)
         match = _assign(cost, end_cost, s.unlinked_cost)
         split = _divisions(pred, frames[t + 1], match, cost, end_cost, s)
-        for k, (a, b) in split.items():
+        for k, daughters in split.items():
             match[k] = -1
-            for i in np.flatnonzero(np.isin(match, (a, b))):
+            for i in np.flatnonzero(np.isin(match, daughters)):
                 match[i] = -1
         out.append((pred, cost, match, split))
     return out
