@@ -355,42 +355,63 @@ def _divisions(
     cost: np.ndarray,
     end_cost: np.ndarray,
     s: LinkSettings,
-) -> dict[int, tuple[int, int]]:
-    """Mothers whose division explains her and two cells better than the assignment.
+) -> tuple[dict[int, tuple[int, ...]], np.ndarray]:
+    """Divisions that explain the cells better than the assignment did, and the links left.
 
-    A daughter is a cell of ``t + 1`` left without a predecessor or the mother's own
-    link; the division replaces the mother's link (or end) and the daughters' starts.
-    The best improvements are taken first, each cell once.
+    A division of mother ``k`` into ``daughters`` replaces: her own link (or end), the
+    daughters' starts, and the links of other cells to a daughter (those cells then
+    end). Its gain is the change of the total cost; the best division is taken, the
+    links updated, and the search repeated until no division lowers the cost.
     """
     n, m = cost.shape
-    linked_from = np.full(m, -1)
-    for i, j in enumerate(match):
-        if j >= 0:
-            linked_from[j] = i
-    options = []
-    for k in range(n):
-        free = [j for j in range(m) if linked_from[j] in (-1, k)]
-        pairs = [(a,) for a in free] + [
-            (a, b) for x, a in enumerate(free) for b in free[x + 1 :]
-        ]
-        for daughters in pairs:
-            if match[k] >= 0 and match[k] not in daughters:
-                continue  # her link to a third cell is not part of this choice
-            split = _division_cost(pred, k, nxt, daughters, s)
-            if not math.isfinite(split):
-                continue
-            now = end_cost[k] if match[k] < 0 else cost[k, match[k]]
-            now += sum(s.unlinked_cost for j in daughters if linked_from[j] == -1)
-            if split < now:
-                options.append((split - now, k, daughters))
+    match = match.copy()
+    centres = np.stack([nxt.x_um, nxt.y_um], axis=1)
+    reach = pred.length_um / 2 + pred.width_um / 3 + s.gate_um
+    near = [
+        np.flatnonzero(np.linalg.norm(centres - pred.centre[k], axis=1) <= reach[k]).tolist()
+        for k in range(n)
+    ]
+    cache: dict[tuple[int, tuple[int, ...]], float] = {}
     chosen: dict[int, tuple[int, ...]] = {}
     used: set[int] = set()
-    for _gain, k, daughters in sorted(options):
-        if k in chosen or used.intersection(daughters):
-            continue
+    while True:
+        linked_from = np.full(m, -1)
+        for i, j in enumerate(match):
+            if j >= 0:
+                linked_from[j] = i
+        best: tuple[float, int, tuple[int, ...]] | None = None
+        for k in range(n):
+            if k in chosen:
+                continue
+            free = [j for j in near[k] if j not in used]
+            options = [(a,) for a in free]
+            options += [(a, b) for x, a in enumerate(free) for b in free[x + 1 :]]
+            for daughters in options:
+                if (k, daughters) not in cache:
+                    cache[(k, daughters)] = _division_cost(pred, k, nxt, daughters, s)
+                split = cache[(k, daughters)]
+                if not math.isfinite(split):
+                    continue
+                own = match[k]
+                before = cost[k, own] if own >= 0 else end_cost[k]
+                after = split + (s.unlinked_cost if own >= 0 and own not in daughters else 0.0)
+                for j in daughters:
+                    i = linked_from[j]
+                    if i < 0:
+                        before += s.unlinked_cost
+                    elif i != k:
+                        before += cost[i, j]
+                        after += end_cost[i]
+                gain = after - before
+                if gain < 0 and (best is None or gain < best[0]):
+                    best = (gain, k, daughters)
+        if best is None:
+            return chosen, match
+        _gain, k, daughters = best
+        match[k] = -1
+        match[np.isin(match, daughters)] = -1
         chosen[k] = daughters
         used.update(daughters)
-    return chosen
 
 
 def _transitions(
@@ -411,11 +432,7 @@ def _transitions(
         cost = _link_costs(pred, frames[t + 1], s)
         end_cost = np.where(pred.leaving, 0.0, s.unlinked_cost)
         match = _assign(cost, end_cost, s.unlinked_cost)
-        split = _divisions(pred, frames[t + 1], match, cost, end_cost, s)
-        for k, daughters in split.items():
-            match[k] = -1
-            for i in np.flatnonzero(np.isin(match, daughters)):
-                match[i] = -1
+        split, match = _divisions(pred, frames[t + 1], match, cost, end_cost, s)
         out.append((pred, cost, match, split))
     return out
 
