@@ -82,6 +82,11 @@ class LinkSettings:
         How close to the edge of the field of view (the trench's open end) a predicted
         centre counts as leaving it: the push of the cells above is only predicted to
         within a few tenths of a micrometre, and the cell leaves when its centre does.
+    max_drift_um
+        Largest shift of an open field between two frames (stage drift). The first
+        estimate of each frame's shift is the one that brings the most centres of the
+        next frame within ``2 position_sd_um`` of a centre of this one (a vote over all
+        pairs of cells closer than this), later ones the median shift of the links.
     growth_per_frame
         Length ratio ``L(t + 1) / L(t)`` of a growing cell; ``None``: measured as the
         median ratio of the linked cells (starting from 1).
@@ -95,6 +100,7 @@ class LinkSettings:
     length_gate_um: float = 1.0
     unlinked_cost: float = 12.0
     exit_margin_um: float = 0.5
+    max_drift_um: float = 3.0
     growth_per_frame: float | None = None
 
     def __post_init__(self) -> None:
@@ -107,6 +113,7 @@ class LinkSettings:
             "length_gate_um",
             "unlinked_cost",
             "exit_margin_um",
+            "max_drift_um",
         ):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
@@ -414,27 +421,51 @@ def _divisions(
         used.update(daughters)
 
 
-def _transitions(
-    frames: Sequence[FrameCells],
-    trench: Sequence[TrenchPlacement | None] | None,
+@dataclass(frozen=True, eq=False)
+class _Step:
+    """Links of one pair of frames: ``match[i]`` = cell of ``t + 1`` or -1, divisions."""
+
+    pred: _Predicted
+    cost: np.ndarray
+    match: np.ndarray
+    split: dict[int, tuple[int, ...]]
+    total: float
+
+
+def _link_pair(
+    before: FrameCells,
+    after: FrameCells,
+    growth: float,
+    placements: tuple[TrenchPlacement, TrenchPlacement] | None,
+    drift_um: np.ndarray,
     size_um: tuple[float, float],
     s: LinkSettings,
-    growth: float,
-    drift: np.ndarray,
-):
-    """Links and divisions of every pair of consecutive frames."""
-    out = []
-    for t in range(len(frames) - 1):
-        pair = None
-        if trench is not None and trench[t] is not None and trench[t + 1] is not None:
-            pair = (trench[t], trench[t + 1])
-        pred = _predict(frames[t], growth, pair, drift[t], size_um, s.exit_margin_um)
-        cost = _link_costs(pred, frames[t + 1], s)
-        end_cost = np.where(pred.leaving, 0.0, s.unlinked_cost)
-        match = _assign(cost, end_cost, s.unlinked_cost)
-        split, match = _divisions(pred, frames[t + 1], match, cost, end_cost, s)
-        out.append((pred, cost, match, split))
-    return out
+) -> _Step:
+    """Assignment, then divisions, for one pair of frames; ``total`` is its whole cost."""
+    pred = _predict(before, growth, placements, drift_um, size_um, s.exit_margin_um)
+    cost = _link_costs(pred, after, s)
+    end_cost = np.where(pred.leaving, 0.0, s.unlinked_cost)
+    match = _assign(cost, end_cost, s.unlinked_cost)
+    split, match = _divisions(pred, after, match, cost, end_cost, s)
+    explained = np.zeros(len(after), bool)
+    total = 0.0
+    for i, j in enumerate(match):
+        if j >= 0:
+            total += cost[i, j]
+            explained[j] = True
+        elif i not in split:
+            total += end_cost[i]
+    for k, daughters in split.items():
+        total += _division_cost(pred, k, after, daughters, s)
+        explained[list(daughters)] = True
+    total += s.unlinked_cost * int(np.count_nonzero(~explained))
+    return _Step(pred, cost, match, split, float(total))
+
+
+def _placements(trench, t: int) -> tuple[TrenchPlacement, TrenchPlacement] | None:
+    if trench is None or trench[t] is None or trench[t + 1] is None:
+        return None
+    return trench[t], trench[t + 1]
 
 
 def link_cells(
@@ -484,24 +515,71 @@ def link_cells(
     is_trench = trench is not None and any(p is not None for p in trench)
     growth = s.growth_per_frame if s.growth_per_frame is not None else 1.0
     drift = np.zeros((max(len(frames) - 1, 0), 2))
-    steps = []
-    for _ in range(passes):
-        steps = _transitions(frames, trench if is_trench else None, size, s, growth, drift)
+    trench = trench if is_trench else None
+    steps: list[_Step] = []
+    for round_ in range(passes):
+        steps = []
+        for t in range(len(frames) - 1):
+            pair = _placements(trench, t)
+            if trench is None and round_ == 0:
+                # the field's shift: the candidate whose links cost least
+                tries = [
+                    (_link_pair(frames[t], frames[t + 1], growth, None, d, size, s), d)
+                    for d in _shift_candidates(frames[t], frames[t + 1], s)
+                ]
+                step, drift[t] = min(tries, key=lambda sd: sd[0].total)
+            else:
+                step = _link_pair(frames[t], frames[t + 1], growth, pair, drift[t], size, s)
+            steps.append(step)
         ratios = []
-        for t, (pred, _cost, match, _split) in enumerate(steps):
-            nxt = frames[t + 1]
-            i = np.flatnonzero(match >= 0)
-            j = match[i]
-            ratios += (nxt.length_um[j] / frames[t].length_um[i]).tolist()
-            if not is_trench and i.size:
-                shift = np.stack([nxt.x_um[j], nxt.y_um[j]], 1) - (pred.centre[i] - drift[t])
-                drift[t] = np.median(shift, axis=0)
+        for t, step in enumerate(steps):
+            before, nxt = frames[t], frames[t + 1]
+            i = np.flatnonzero(step.match >= 0)
+            j = step.match[i]
+            ratios += (nxt.length_um[j] / before.length_um[i]).tolist()
+            if trench is None:
+                seen = [np.stack([nxt.x_um[j], nxt.y_um[j]], 1)]
+                expected = [step.pred.centre[i]]
+                for k, daughters in step.split.items():
+                    if len(daughters) == 2:  # the daughters' midpoint is the mother's centre
+                        d = list(daughters)
+                        seen.append(np.array([[nxt.x_um[d].mean(), nxt.y_um[d].mean()]]))
+                        expected.append(step.pred.centre[[k]])
+                shift = np.concatenate(seen) - np.concatenate(expected)
+                if shift.size:
+                    drift[t] = drift[t] + np.median(shift, axis=0)
         if s.growth_per_frame is None and ratios:
             growth = float(np.clip(np.median(ratios), 0.5, 2.0))
     return _lineage(frames, steps, growth, drift)
 
 
-def _lineage(frames: list[FrameCells], steps, growth: float, drift: np.ndarray) -> Lineage:
+def _shift_candidates(before: FrameCells, after: FrameCells, s: LinkSettings) -> list[np.ndarray]:
+    """Shifts of an open field between two frames that groups of cells agree on.
+
+    Every pair of cells (one per frame) closer than ``max_drift_um`` proposes its
+    displacement; the proposal with the most others within ``2 position_sd_um``
+    gives the median of those as a candidate, which are then set aside, five times;
+    no shift is always a candidate. A frame in which every cell divides makes the
+    mother-to-daughter offsets win the vote: the cost of the links decides.
+    """
+    a = np.stack([before.x_um, before.y_um], axis=1)
+    b = np.stack([after.x_um, after.y_um], axis=1)
+    shifts = (b[None, :, :] - a[:, None, :]).reshape(-1, 2)
+    shifts = shifts[np.linalg.norm(shifts, axis=1) <= s.max_drift_um]
+    candidates = [np.zeros(2)]
+    for _ in range(5):
+        if shifts.size == 0:
+            break
+        close = np.linalg.norm(shifts[:, None, :] - shifts[None, :, :], axis=-1) <= (
+            2 * s.position_sd_um
+        )
+        best = close[int(np.argmax(close.sum(axis=1)))]
+        candidates.append(np.median(shifts[best], axis=0))
+        shifts = shifts[~best]
+    return candidates
+
+
+def _lineage(frames: list[FrameCells], steps: list[_Step], growth: float, drift: np.ndarray) -> Lineage:
     """Track ids from the links: a link keeps the id, a division or a start opens new ones."""
     ids: list[np.ndarray] = [np.arange(1, len(frames[0]) + 1, dtype=np.int64)]
     first = {int(k): 0 for k in ids[0]}
@@ -509,7 +587,8 @@ def _lineage(frames: list[FrameCells], steps, growth: float, drift: np.ndarray) 
     parent = dict.fromkeys(first, 0)
     costs = []
     next_id = len(frames[0]) + 1
-    for t, (_pred, cost, match, split) in enumerate(steps):
+    for t, step in enumerate(steps):
+        cost, match, split = step.cost, step.match, step.split
         now = np.zeros(len(frames[t + 1]), np.int64)
         link_cost = np.full(len(frames[t + 1]), np.nan)
         for i, j in enumerate(match):
