@@ -246,16 +246,50 @@ def _predict(
     return dataclasses.replace(pred, leaving=_outside(pred, centre))
 
 
+def _visible(
+    centre: np.ndarray, angle_rad: np.ndarray, length_um: np.ndarray, size_um: tuple[float, float]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Centre and length of the part of each cell's axis inside the field of view.
+
+    A cell that crosses the image's edge (pushed out of the trench's open end) is
+    seen, and fitted, only in part: links compare the parts in view.
+    """
+    u = _axis(angle_rad)
+    low = -length_um / 2
+    high = length_um / 2
+    for d, limit in ((0, size_um[1]), (1, size_um[0])):
+        if not math.isfinite(limit):
+            continue
+        with np.errstate(divide="ignore", invalid="ignore"):
+            a = (0.0 - centre[:, d]) / u[:, d]
+            b = (limit - centre[:, d]) / u[:, d]
+        flat = np.abs(u[:, d]) < 1e-9
+        inside = (centre[:, d] >= 0) & (centre[:, d] <= limit)
+        a = np.where(flat, np.where(inside, -np.inf, np.inf), a)
+        b = np.where(flat, np.where(inside, np.inf, -np.inf), b)
+        low = np.maximum(low, np.minimum(a, b))
+        high = np.minimum(high, np.maximum(a, b))
+    seen = np.maximum(high - low, 0.0)
+    middle = np.where(seen > 0, (low + high) / 2, 0.0)
+    return centre + u * middle[:, None], seen
+
+
 def _link_costs(pred: _Predicted, nxt: FrameCells, s: LinkSettings) -> np.ndarray:
-    """``(n_t, n_t+1)`` costs of the one-to-one links (``inf``: outside the gates)."""
-    centre = np.stack([nxt.x_um, nxt.y_um], axis=1)
-    distance = np.linalg.norm(pred.centre[:, None, :] - centre[None, :, :], axis=-1)
-    d_length = nxt.length_um[None, :] - pred.length_um[:, None]
+    """``(n_t, n_t+1)`` costs of the one-to-one links (``inf``: outside the gates).
+
+    Centres and lengths are those of the parts of the cells in the field of view.
+    """
+    centre_p, length_p = _visible(pred.centre, pred.angle_rad, pred.length_um, pred.size_um)
+    centre_n, length_n = _visible(
+        np.stack([nxt.x_um, nxt.y_um], axis=1), nxt.angle_rad, nxt.length_um, pred.size_um
+    )
+    distance = np.linalg.norm(centre_p[:, None, :] - centre_n[None, :, :], axis=-1)
+    d_length = length_n[None, :] - length_p[:, None]
     d_width = nxt.width_um[None, :] - pred.width_um[:, None]
     d_angle = _angle_difference(nxt.angle_rad[None, :], pred.angle_rad[:, None])
     weight = np.minimum(
-        _elongation(pred.length_um, pred.width_um)[:, None],
-        _elongation(nxt.length_um, nxt.width_um)[None, :],
+        _elongation(length_p, pred.width_um)[:, None],
+        _elongation(length_n, nxt.width_um)[None, :],
     )
     cost = (
         (distance / s.position_sd_um) ** 2
@@ -341,7 +375,8 @@ def _division_cost(
         sister_at = c - side * (expected / 2 - sister / 2) * u
         if not _outside(pred, sister_at[None])[0]:
             return math.inf
-        length_term = 0.0
+        # the septum is near mid-cell
+        length_term = ((lengths[0] - expected / 2) / s.length_sd_um) ** 2
     miss = np.hypot(along - target, across)
     if np.any(miss > s.gate_um):
         return math.inf
@@ -579,7 +614,9 @@ def _shift_candidates(before: FrameCells, after: FrameCells, s: LinkSettings) ->
     return candidates
 
 
-def _lineage(frames: list[FrameCells], steps: list[_Step], growth: float, drift: np.ndarray) -> Lineage:
+def _lineage(
+    frames: list[FrameCells], steps: list[_Step], growth: float, drift: np.ndarray
+) -> Lineage:
     """Track ids from the links: a link keeps the id, a division or a start opens new ones."""
     ids: list[np.ndarray] = [np.arange(1, len(frames[0]) + 1, dtype=np.int64)]
     first = {int(k): 0 for k in ids[0]}

@@ -10,6 +10,12 @@ frames' blocks), and each frame keeps its own cells, cell width, trench placemen
 (drift between frames is allowed) and intensities (solved in closed form per
 frame, as in a single-frame fit). The camera is measured once from the pooled
 frames when it is not given.
+
+At the joint optimum the cells are linked from frame to frame
+(:func:`~napari_symbac.fit.lineage.link_cells`): each cell gets a track id that
+it keeps while it grows, a division ends the mother's track and starts one per
+daughter, and :attr:`SeriesFit.lineage` holds the Cell Tracking Challenge's
+``L B E P`` table (track, first frame, last frame, parent).
 """
 
 from __future__ import annotations
@@ -24,6 +30,7 @@ import numpy as np
 from scipy import sparse
 
 from napari_symbac.fit.camera_estimate import censored_pixels, estimate_camera
+from napari_symbac.fit.lineage import Lineage, LinkSettings, link_cells
 from napari_symbac.fit.lm import State, evaluate
 from napari_symbac.fit.overlap import overlap_terms
 from napari_symbac.fit.placement import TrenchPlacement
@@ -70,6 +77,12 @@ class SeriesFit:
         Joint Levenberg-Marquardt iterations taken.
     warnings
         Plain words on what did not converge.
+    lineage
+        Identities of the cells at the joint optimum
+        (:class:`~napari_symbac.fit.lineage.Lineage`): ``lineage.track_ids[t]`` gives
+        the track of each cell of ``frames[t].cells`` (same order), ``lineage.tracks``
+        one ``(track, first frame, last frame, parent track)`` row per track, frames
+        numbered from 0 within the series.
     """
 
     frames: tuple[SceneFit, ...]
@@ -84,6 +97,14 @@ class SeriesFit:
     cost_joint: float = math.nan
     iterations: int = 0
     warnings: tuple[str, ...] = ()
+    lineage: Lineage | None = field(default=None, repr=False)
+
+    @property
+    def track_ids(self) -> tuple[np.ndarray, ...]:
+        """Track id of each fitted cell, one array per frame (see :attr:`lineage`)."""
+        if self.lineage is None:
+            raise ValueError("this series fit holds no lineage")
+        return self.lineage.track_ids
 
     def shared(self) -> dict[str, tuple[float, float]]:
         """``{name: (value, standard error)}`` of the shared parameters."""
@@ -130,6 +151,7 @@ def fit_series(
     closed_end: Literal["square", "round"] | None = None,
     fit_optics: tuple[str, ...] | None = None,
     joint_iterations: int = 15,
+    linking: LinkSettings | None = None,
     progress: Callable[[int, int], None] | None = None,
     cancel: Callable[[], bool] | None = None,
     **frame_options,
@@ -149,6 +171,11 @@ def fit_series(
         as :func:`~napari_symbac.fit.fit_scene`'s, default: not censored).
     joint_iterations
         Levenberg-Marquardt iterations of the joint refinement.
+    linking
+        How cells are linked between frames
+        (:class:`~napari_symbac.fit.lineage.LinkSettings`; default: its defaults). In a
+        trench the per-frame trench placements take up the drift and cells are pushed
+        down the trench; in an open field one shift per frame is measured.
     progress, cancel
         As :func:`~napari_symbac.fit.fit_scene`, per frame fit.
     **frame_options
@@ -171,8 +198,8 @@ def fit_series(
     shared_camera = camera if camera is not None else _pooled_camera(stack)
     runs: list[_FrameRun] = []
     for t in range(n_frames):
-        runs.append(
-            _run_frame(
+        try:
+            run = _run_frame(
                 stack[t],
                 microscope,
                 render,
@@ -188,7 +215,14 @@ def fit_series(
                 cancel=cancel,
                 **frame_options,
             )
-        )
+        except ValueError as err:
+            if "found no cells" not in str(err):
+                raise
+            raise ValueError(
+                f"frame {t} of the series: {err}. A series fit needs cells in every frame: "
+                f"fit the frames before and after frame {t} as separate series"
+            ) from None
+        runs.append(run)
     alone = tuple(_frame_result(run) for run in runs)
     optics = runs[0].problem.layout.optics
     names = tuple(optics)
@@ -212,6 +246,13 @@ def fit_series(
     joint = tuple(_frame_result(run) for run in runs)
     cost_after = sum(run.state.cost for run in runs)
     values, se = _joint_uncertainty(joint, runs, names)
+    px = microscope.pixel_size_um
+    lineage = link_cells(
+        [fit.cells for fit in joint],
+        linking,
+        trench=[fit.trench for fit in joint] if geometry == "trench" else None,
+        image_size_um=(stack.shape[1] * px, stack.shape[2] * px),
+    )
     return SeriesFit(
         frames=joint,
         frame_by_frame=alone,
@@ -225,6 +266,7 @@ def fit_series(
         cost_joint=float(cost_after),
         iterations=iterations,
         warnings=tuple(warnings),
+        lineage=lineage,
     )
 
 
