@@ -181,6 +181,23 @@ class Lineage:
         """The tracks as ``res_track.txt``: one ``L B E P`` line per track."""
         return "".join(f"{t} {b} {e} {p}\n" for t, b, e, p in self.tracks.tolist())
 
+    def track_mask(self, t: int, labels: np.ndarray, cell_ids: np.ndarray) -> np.ndarray:
+        """Frame ``t``'s instance mask relabelled from cell ids to track ids (uint16).
+
+        ``labels`` holds ``cell_ids`` (e.g. ``SceneFit.scene.camera_labels()`` and
+        ``SceneFit.cells.ids``); the result is a Cell Tracking Challenge ``mask{t}.tif``.
+        """
+        cell_ids = np.asarray(cell_ids, np.int64)
+        if cell_ids.shape != self.track_ids[t].shape:
+            raise ValueError(
+                f"frame {t} has {self.track_ids[t].size} tracked cells but {cell_ids.size} ids"
+            )
+        if self.tracks.size and self.tracks[:, 0].max() > np.iinfo(np.uint16).max:
+            raise ValueError("more than 65535 tracks do not fit a uint16 mask")
+        lookup = np.zeros(int(max(labels.max(initial=0), cell_ids.max(initial=0))) + 1, np.uint16)
+        lookup[cell_ids] = self.track_ids[t]
+        return lookup[np.asarray(labels, np.int64)]
+
 
 def _axis(angle_rad: np.ndarray) -> np.ndarray:
     """Unit vectors ``(x, y)`` of the long axes (0 rad = along +y, the trench axis)."""
