@@ -264,24 +264,31 @@ def _predict(
 
 
 def _visible(
-    centre: np.ndarray, angle_rad: np.ndarray, length_um: np.ndarray, size_um: tuple[float, float]
+    centre: np.ndarray,
+    angle_rad: np.ndarray,
+    length_um: np.ndarray,
+    width_um: np.ndarray,
+    size_um: tuple[float, float],
 ) -> tuple[np.ndarray, np.ndarray]:
     """Centre and length of the part of each cell's axis inside the field of view.
 
     A cell that crosses the image's edge (pushed out of the trench's open end) is
-    seen, and fitted, only in part: links compare the parts in view.
+    seen, and fitted, only in part: links compare the parts in view. The field is
+    widened by half the cell's width (a cell lying along the edge, its axis just
+    outside, is still in view).
     """
     u = _axis(angle_rad)
     low = -length_um / 2
     high = length_um / 2
+    pad = width_um / 2
     for d, limit in ((0, size_um[1]), (1, size_um[0])):
         if not math.isfinite(limit):
             continue
         with np.errstate(divide="ignore", invalid="ignore"):
-            a = (0.0 - centre[:, d]) / u[:, d]
-            b = (limit - centre[:, d]) / u[:, d]
+            a = (-pad - centre[:, d]) / u[:, d]
+            b = (limit + pad - centre[:, d]) / u[:, d]
         flat = np.abs(u[:, d]) < 1e-9
-        inside = (centre[:, d] >= 0) & (centre[:, d] <= limit)
+        inside = (centre[:, d] >= -pad) & (centre[:, d] <= limit + pad)
         a = np.where(flat, np.where(inside, -np.inf, np.inf), a)
         b = np.where(flat, np.where(inside, np.inf, -np.inf), b)
         low = np.maximum(low, np.minimum(a, b))
@@ -296,9 +303,15 @@ def _link_costs(pred: _Predicted, nxt: FrameCells, s: LinkSettings) -> np.ndarra
 
     Centres and lengths are those of the parts of the cells in the field of view.
     """
-    centre_p, length_p = _visible(pred.centre, pred.angle_rad, pred.length_um, pred.size_um)
+    centre_p, length_p = _visible(
+        pred.centre, pred.angle_rad, pred.length_um, pred.width_um, pred.size_um
+    )
     centre_n, length_n = _visible(
-        np.stack([nxt.x_um, nxt.y_um], axis=1), nxt.angle_rad, nxt.length_um, pred.size_um
+        np.stack([nxt.x_um, nxt.y_um], axis=1),
+        nxt.angle_rad,
+        nxt.length_um,
+        nxt.width_um,
+        pred.size_um,
     )
     distance = np.linalg.norm(centre_p[:, None, :] - centre_n[None, :, :], axis=-1)
     d_length = length_n[None, :] - length_p[:, None]
