@@ -420,6 +420,36 @@ def _division_cost(
     )
 
 
+def _division_candidates(
+    pred: _Predicted, nxt: FrameCells, s: LinkSettings
+) -> list[tuple[int, tuple[int, ...], float]]:
+    """Every ``(mother, daughters, cost)`` within the gates.
+
+    Daughters lie within reach of the mother's predicted centre; a pair's summed length
+    is within ``length_gate_um`` of hers; a lone daughter is considered only for a
+    mother reaching out of the field of view (where her sister may have gone).
+    """
+    centres = np.stack([nxt.x_um, nxt.y_um], axis=1)
+    expected = pred.length_um + pred.width_um / 3
+    reach = expected / 2 + s.gate_um
+    poles = _axis(pred.angle_rad) * (expected / 2)[:, None]
+    out_of_view = _outside(pred, pred.centre + poles) | _outside(pred, pred.centre - poles)
+    candidates = []
+    for k in range(len(expected)):
+        near = np.flatnonzero(np.linalg.norm(centres - pred.centre[k], axis=1) <= reach[k])
+        options: list[tuple[int, ...]] = [(int(a),) for a in near] if out_of_view[k] else []
+        if near.size > 1:
+            a, b = np.triu_indices(near.size, 1)
+            total = nxt.length_um[near[a]] + nxt.length_um[near[b]]
+            fits = np.abs(total - expected[k]) <= s.length_gate_um
+            options += [(int(i), int(j)) for i, j in zip(near[a][fits], near[b][fits])]
+        for daughters in options:
+            split = _division_cost(pred, k, nxt, daughters, s)
+            if math.isfinite(split):
+                candidates.append((k, daughters, split))
+    return candidates
+
+
 def _divisions(
     pred: _Predicted,
     nxt: FrameCells,
@@ -435,15 +465,9 @@ def _divisions(
     end). Its gain is the change of the total cost; the best division is taken, the
     links updated, and the search repeated until no division lowers the cost.
     """
-    n, m = cost.shape
+    m = cost.shape[1]
     match = match.copy()
-    centres = np.stack([nxt.x_um, nxt.y_um], axis=1)
-    reach = pred.length_um / 2 + pred.width_um / 3 + s.gate_um
-    near = [
-        np.flatnonzero(np.linalg.norm(centres - pred.centre[k], axis=1) <= reach[k]).tolist()
-        for k in range(n)
-    ]
-    cache: dict[tuple[int, tuple[int, ...]], float] = {}
+    candidates = _division_candidates(pred, nxt, s)
     chosen: dict[int, tuple[int, ...]] = {}
     used: set[int] = set()
     while True:
@@ -452,31 +476,22 @@ def _divisions(
             if j >= 0:
                 linked_from[j] = i
         best: tuple[float, int, tuple[int, ...]] | None = None
-        for k in range(n):
-            if k in chosen:
+        for k, daughters, split in candidates:
+            if k in chosen or used.intersection(daughters):
                 continue
-            free = [j for j in near[k] if j not in used]
-            options = [(a,) for a in free]
-            options += [(a, b) for x, a in enumerate(free) for b in free[x + 1 :]]
-            for daughters in options:
-                if (k, daughters) not in cache:
-                    cache[(k, daughters)] = _division_cost(pred, k, nxt, daughters, s)
-                split = cache[(k, daughters)]
-                if not math.isfinite(split):
-                    continue
-                own = match[k]
-                before = cost[k, own] if own >= 0 else end_cost[k]
-                after = split + (s.unlinked_cost if own >= 0 and own not in daughters else 0.0)
-                for j in daughters:
-                    i = linked_from[j]
-                    if i < 0:
-                        before += s.unlinked_cost
-                    elif i != k:
-                        before += cost[i, j]
-                        after += end_cost[i]
-                gain = after - before
-                if gain < 0 and (best is None or gain < best[0]):
-                    best = (gain, k, daughters)
+            own = match[k]
+            before = cost[k, own] if own >= 0 else end_cost[k]
+            after = split + (s.unlinked_cost if own >= 0 and own not in daughters else 0.0)
+            for j in daughters:
+                i = linked_from[j]
+                if i < 0:
+                    before += s.unlinked_cost
+                elif i != k:
+                    before += cost[i, j]
+                    after += end_cost[i]
+            gain = after - before
+            if gain < 0 and (best is None or gain < best[0]):
+                best = (gain, k, daughters)
         if best is None:
             return chosen, match
         _gain, k, daughters = best
