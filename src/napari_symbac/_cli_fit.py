@@ -498,6 +498,11 @@ def _fit_frames_jointly(
             "CTC frame k is the k-th of 'frames'",
         },
     }
+    if np.any(np.diff(frames) != 1):
+        table["lineage"]["note"] = (
+            "the frames are not consecutive: the links assume one growth and drift per "
+            "step between the frames given"
+        )
     writers["series.json"] = lambda p: p.write_text(json.dumps(table, indent=2))
     writers.update(_ctc_result(series, frames, microscope.pixel_size_um))
     summaries += [
