@@ -15,7 +15,8 @@ and the simulator's lineage, and writes ``docs/images/fit_series_tracks_trench.p
 it fitted, written to ``OUT.png``. The real images are read where they lie and never
 copied.
 
-Each panel is one frame (grey: the image, 0.5-99.8 percentiles); each fitted cell's
+Each panel is one frame (grey: square root of the image between its 0.5 and 99.8
+percentiles); each fitted cell's
 outline is drawn in its track's colour with the track's number, and a daughter's
 number carries its mother's (``5<2``: track 5, daughter of track 2).
 """
@@ -56,15 +57,21 @@ def draw(images, cells, tracks, parents, pixel_um: float, out: Path, titles) -> 
 
     palette = plt.get_cmap("tab10")
     rows, cols = images[0].shape
-    scale = 5.0 / max(rows, cols) * max(1, 8 // len(images))
-    fig, axes = plt.subplots(
-        1, len(images), figsize=(len(images) * cols * scale / 1.6 + 0.4, rows * scale / 1.6 + 0.6)
-    )
-    axes = np.atleast_1d(axes)
+    # tall trench crops side by side; square fields two per row
+    ncols = len(images) if rows > 2 * cols else min(2, len(images))
+    nrows = -(-len(images) // ncols)
+    panel = 3.0 if rows > 2 * cols else 5.0
+    width = panel * cols / max(rows, cols)
+    height = panel * rows / max(rows, cols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(ncols * width + 0.3, nrows * (height + 0.3)))
+    axes = np.atleast_1d(axes).ravel()
+    for ax in axes[len(images) :]:
+        ax.axis("off")
     for ax, image, frame_cells, frame_tracks, title in zip(axes, images, cells, tracks, titles):
         low, high = np.percentile(image, [0.5, 99.8])
         extent = (0, cols * pixel_um, rows * pixel_um, 0)
-        ax.imshow(image, cmap="gray", vmin=low, vmax=high, extent=extent)
+        grey = np.sqrt(np.clip((np.asarray(image, float) - low) / (high - low), 0, 1))
+        ax.imshow(grey, cmap="gray", vmin=0, vmax=1, extent=extent)
         for cell, track in zip(frame_cells, frame_tracks):
             colour = palette((int(track) - 1) % 10)
             xy = _outline_um(

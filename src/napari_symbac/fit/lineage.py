@@ -143,7 +143,8 @@ class Lineage:
         The length ratio used for the prediction (given or measured).
     drift_um
         ``(T - 1, 2)``: the ``(x, y)`` shift of the field between consecutive frames
-        used for the prediction (zeros in a trench, whose placement is fitted per frame).
+        used for the prediction (zeros in a trench, whose placement is fitted per frame,
+        and between frames that share no cell).
     link_costs
         One array per pair of frames: the cost of each accepted link of a cell of
         frame ``t + 1`` to its predecessor (NaN for a new track).
@@ -626,8 +627,8 @@ def link_cells(
                         seen.append(np.array([[nxt.x_um[d].mean(), nxt.y_um[d].mean()]]))
                         expected.append(step.pred.centre[[k]])
                 shift = np.concatenate(seen) - np.concatenate(expected)
-                if shift.size:
-                    drift[t] = drift[t] + np.median(shift, axis=0)
+                # no link, no division: nothing says the field moved
+                drift[t] = drift[t] + np.median(shift, axis=0) if shift.size else 0.0
         if s.growth_per_frame is None and ratios:
             growth = float(np.clip(np.median(ratios), 0.5, 2.0))
     return _lineage(frames, steps, growth, drift)
