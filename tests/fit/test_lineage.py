@@ -185,3 +185,35 @@ def test_fit_series_names_a_frame_without_cells():
     with pytest.raises(ValueError, match=r"frame 1 of the series: .*no cells.*separate series"):
         fit_series(stack, truth.microscope, START, None, irls_rounds=1, max_iterations=3,
                    moves=False)  # fmt: skip
+
+
+@pytest.mark.slow
+def test_growth_prior_gives_cells_cut_by_the_edge_their_length(trench_series):
+    """The bottom cell of frame 1 and the lowest of frame 3 cross the open end: alone,
+    their fitted lengths are only what is in view; tied to their grown past (0.1 um),
+    they come closer to the truth, and the whole cells stay as they were."""
+    truth, plain = trench_series
+    tied = fit_series(
+        truth.stack, truth.microscope, START, None, irls_rounds=2, max_iterations=10,
+        joint_iterations=5, growth_prior_sd_um=0.1,
+    )  # fmt: skip
+
+    def errors(fit):
+        whole, cut = [], []
+        for frame, cells in zip(fit.frames, truth.cells):
+            y_true = cells.y_um + TRENCH.margin_um
+            for y, length in zip(frame.cells.y_um, frame.cells.length_um):
+                k = int(np.argmin(np.abs(y_true - y)))
+                crosses = y_true[k] + cells.length_um[k] / 2 > IMAGE_UM[0]
+                (cut if crosses else whole).append(abs(length - cells.length_um[k]))
+        return np.array(whole), np.array(cut)
+
+    whole_plain, cut_plain = errors(plain)
+    whole_tied, cut_tied = errors(tied)
+    assert cut_plain.size == cut_tied.size == 3
+    assert cut_tied.sum() < 0.6 * cut_plain.sum()
+    assert whole_tied.max() < 0.06
+    assert whole_plain.max() < 0.06
+    np.testing.assert_array_equal(tied.lineage.tracks, plain.lineage.tracks)
+    with pytest.raises(ValueError, match="growth_prior_sd_um must be zero"):
+        fit_series(truth.stack, truth.microscope, START, None, growth_prior_sd_um=-1.0)
