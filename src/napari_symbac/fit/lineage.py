@@ -511,6 +511,7 @@ class _Step:
     match: np.ndarray
     split: dict[int, tuple[int, ...]]
     total: float
+    score: float  # total with every end at ``unlinked_cost``: compares shifts fairly
 
 
 def _link_pair(
@@ -530,17 +531,19 @@ def _link_pair(
     split, match = _divisions(pred, after, match, cost, end_cost, s)
     explained = np.zeros(len(after), bool)
     total = 0.0
+    free_ends = 0.0
     for i, j in enumerate(match):
         if j >= 0:
             total += cost[i, j]
             explained[j] = True
         elif i not in split:
             total += end_cost[i]
+            free_ends += s.unlinked_cost - end_cost[i]
     for k, daughters in split.items():
         total += _division_cost(pred, k, after, daughters, s)
         explained[list(daughters)] = True
     total += s.unlinked_cost * int(np.count_nonzero(~explained))
-    return _Step(pred, cost, match, split, float(total))
+    return _Step(pred, cost, match, split, float(total), float(total + free_ends))
 
 
 def _placements(trench, t: int) -> tuple[TrenchPlacement, TrenchPlacement] | None:
@@ -603,12 +606,13 @@ def link_cells(
         for t in range(len(frames) - 1):
             pair = _placements(trench, t)
             if trench is None and round_ == 0:
-                # the field's shift: the candidate whose links cost least
+                # the field's shift: the candidate whose links cost least (ends all
+                # priced alike: a shift must not win by pushing cells out of view)
                 tries = [
                     (_link_pair(frames[t], frames[t + 1], growth, None, d, size, s), d)
                     for d in _shift_candidates(frames[t], frames[t + 1], s)
                 ]
-                step, drift[t] = min(tries, key=lambda sd: sd[0].total)
+                step, drift[t] = min(tries, key=lambda sd: sd[0].score)
             else:
                 step = _link_pair(frames[t], frames[t + 1], growth, pair, drift[t], size, s)
             steps.append(step)
