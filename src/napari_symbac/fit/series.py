@@ -228,12 +228,13 @@ def fit_series(
                 **frame_options,
             )
         except ValueError as err:
-            if "found no cells" not in str(err):
-                raise
-            raise ValueError(
-                f"frame {t} of the series: {err}. A series fit needs cells in every frame: "
-                f"fit the frames before and after frame {t} as separate series"
-            ) from None
+            advice = (
+                ". A series fit needs cells in every frame: fit the frames before and "
+                f"after frame {t} as separate series"
+                if "no cells" in str(err)
+                else ""
+            )
+            raise ValueError(f"frame {t} of the series: {err}{advice}") from err
         runs.append(run)
     alone = tuple(_frame_result(run) for run in runs)
     optics = runs[0].problem.layout.optics
@@ -249,15 +250,9 @@ def fit_series(
     iterations = 0
     px = microscope.pixel_size_um
     size_um = (stack.shape[1] * px, stack.shape[2] * px)
-    trenches = (lambda fits: [f.trench for f in fits]) if geometry == "trench" else None
     ties = None
     if growth_prior_sd_um > 0:
-        early = link_cells(
-            [fit.cells for fit in alone],
-            linking,
-            trench=trenches(alone) if trenches else None,
-            image_size_um=size_um,
-        )
+        early = _link(alone, linking, geometry, size_um)
         ties = _GrowthTies.from_lineage(early, alone, growth_prior_sd_um)
     if names or ties is not None:
         states, iterations, converged = _joint_refine(
@@ -272,12 +267,7 @@ def fit_series(
     joint = tuple(_frame_result(run) for run in runs)
     cost_after = sum(run.state.cost for run in runs)
     values, se = _joint_uncertainty(joint, runs, names)
-    lineage = link_cells(
-        [fit.cells for fit in joint],
-        linking,
-        trench=trenches(joint) if trenches else None,
-        image_size_um=size_um,
-    )
+    lineage = _link(joint, linking, geometry, size_um)
     return SeriesFit(
         frames=joint,
         frame_by_frame=alone,
@@ -292,6 +282,21 @@ def fit_series(
         iterations=iterations,
         warnings=tuple(warnings),
         lineage=lineage,
+    )
+
+
+def _link(
+    fits: tuple[SceneFit, ...],
+    linking: LinkSettings | None,
+    geometry: str,
+    size_um: tuple[float, float],
+) -> Lineage:
+    """The fitted cells of the frames linked into tracks (trench placements in a trench)."""
+    return link_cells(
+        [fit.cells for fit in fits],
+        linking,
+        trench=[fit.trench for fit in fits] if geometry == "trench" else None,
+        image_size_um=size_um,
     )
 
 
