@@ -353,6 +353,26 @@ def test_refuses_a_series_without_frames_and_frames_out_of_range(tmp_path, truth
     assert "not a frame list" in error
 
 
+def test_refuses_a_series_with_a_frame_without_cells(tmp_path, truth, capsys):
+    from _fit_synthetic import TRENCH
+
+    from napari_symbac.optics import ForwardModel
+    from napari_symbac.scene import draw_scene
+    from napari_symbac.sim import FrameCells
+
+    blank = ForwardModel(truth.microscope, truth.render, truth.camera).render(
+        draw_scene(FrameCells.empty(), TRENCH, truth.microscope, truth.render),
+        np.random.default_rng(3),
+    )
+    image = tmp_path / "series.tif"
+    tifffile.imwrite(image, np.stack([truth.image, blank]))
+    microscope = save_settings(truth.microscope, tmp_path / "microscope.yaml")
+    error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope,
+                     "--frames", "0-1", "--max-iterations", "2")  # fmt: skip
+    assert "frame 1 of the series: the start found no cells" in error
+    assert "fit the frames before and after frame 1 as separate series" in error
+
+
 def test_refuses_an_rgb_image(tmp_path, truth, inputs, capsys):
     _, _, microscope = inputs
     image = tmp_path / "rgb.tif"
