@@ -88,7 +88,7 @@ def draw(images, cells, tracks, parents, pixel_um: float, out: Path, titles) -> 
         ax.set_xticks([])
         ax.set_yticks([])
     fig.tight_layout()
-    fig.savefig(out, dpi=110)
+    fig.savefig(out, dpi=110 if max(rows, cols) <= 256 else 80)
     plt.close(fig)
     print(f"wrote {out}")
 
