@@ -12,14 +12,14 @@ from __future__ import annotations
 import functools
 import hashlib
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields
 from typing import Any, Protocol
 
 import numpy as np
 
 from napari_symbac.scene._field import Field, field_images
-from napari_symbac.scene._raster import rasterise_cells
+from napari_symbac.scene._raster import media_fraction, rasterise_cells
 from napari_symbac.settings import Microscope, RenderSettings, TrenchGeometry
 
 __all__ = [
@@ -70,7 +70,9 @@ class Scene:
         eq. 3 reads ``I = I_c cells + I_m media + I_t device``; a device pixel is
         ``device = 1``, an empty trench pixel ``media = 1`` and the centre-line of a
         cell as thick as the trench is deep ``cells = 1``. ``cells + media + device
-        = 1`` everywhere.
+        = 1`` everywhere. :func:`draw_scene` computes ``media`` on first access
+        (``open - cells``, the same values): bulk drawing that never reads it does not
+        pay for a third frame-sized image.
     labels
         uint32 instance mask at render resolution, value = cell id (0 = no cell).
     border_px
@@ -125,26 +127,48 @@ class Scene:
         object.__setattr__(self, "cell_ids", _readonly(np.asarray(self.cell_ids, np.int64)))
 
     @classmethod
-    def _unchecked(cls, **values: Any) -> Scene:
+    def _unchecked(
+        cls, pending: Mapping[str, Callable[[], np.ndarray]] | None = None, **values: Any
+    ) -> Scene:
         """A scene from values that already satisfy ``__post_init__`` (no checks, no copies).
 
         For :func:`draw_scene` and the ``replace_*`` methods, whose images are
         read-only, C-contiguous, finite float32 (labels uint32, ids int64) of matching
         shapes by construction; skipping the checks saves several passes over the
-        images per frame.
+        images per frame. An image named in ``pending`` (instead of ``values``) is
+        made by calling its function on first access, then kept read-only.
         """
         scene = object.__new__(cls)
         for name in _FIELDS:
-            object.__setattr__(scene, name, values[name])
+            if pending is None or name not in pending:
+                object.__setattr__(scene, name, values[name])
+        if pending:
+            object.__setattr__(scene, "_pending", dict(pending))
         return scene
+
+    def __getattr__(self, name: str) -> Any:
+        # Called only when the attribute is not set: an image still pending.
+        make = self.__dict__.get("_pending", {}).get(name)
+        if make is None:
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+        image = make()
+        image.setflags(write=False)
+        object.__setattr__(self, name, image)
+        return image
 
     def _replace(self, name: str, image: np.ndarray) -> Scene:
         image = _checked_image(name, image)
         if image.shape != self.shape:
             raise ValueError(f"Scene.{name} has shape {image.shape}, expected {self.shape}")
-        values = {f: getattr(self, f) for f in _FIELDS}
+        # Images still pending stay pending: their functions hold their own inputs.
+        pending = {
+            f: make
+            for f, make in self.__dict__.get("_pending", {}).items()
+            if f != name and f not in self.__dict__
+        }
+        values = {f: self.__dict__[f] for f in _FIELDS if f in self.__dict__}
         values[name] = image
-        scene = Scene._unchecked(**values)
+        scene = Scene._unchecked(pending, **values)
         # The labels are the same array: so are the camera-resolution masks, and the
         # content hashes of the images that did not change.
         if "_masks" in self.__dict__:
@@ -635,7 +659,7 @@ def draw_scene(
         trench_frac, device = field_images(field, shape, border, px)
         device_fp = _device_fingerprint(field, shape, border, px)
 
-    cells_frac, media, labels = rasterise_cells(
+    cells_frac, labels = rasterise_cells(
         xc,
         yc,
         px,
@@ -650,12 +674,13 @@ def draw_scene(
         curv,
         closed=field is None or bool(field.walls_um),
     )
-    for image in (cells_frac, media, labels, ids):
+    for image in (cells_frac, labels, ids):
         image.setflags(write=False)
-    # Every image is C-contiguous, finite, of the right dtype and shape by construction.
+    # Every image is C-contiguous, finite, of the right dtype and shape by construction;
+    # the media image is made when first read.
     scene = Scene._unchecked(
+        {"media": functools.partial(media_fraction, trench_frac, cells_frac)},
         cells=cells_frac,
-        media=media,
         device=device,
         labels=labels,
         border_px=border,

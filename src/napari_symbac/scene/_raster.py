@@ -1,17 +1,13 @@
 """Rasterising cells into a scene's images, each cell only in its own box.
 
-:func:`rasterise_cells` turns the cells of one frame into the ``cells`` and
-``media`` fractions and the instance labels of :class:`~napari_symbac.scene.Scene`
-(eq. OPL2: the chord ``2 sqrt(r^2 - d^2)`` of a 3-D spherocylinder at mid-depth).
-The work is proportional to the cells' area, not the frame's: each cell is drawn
-in its bounding box. When the boxes about fill their bounding rectangle (a trench)
-the thickness and labels are drawn into that rectangle and converted to fractions
-once; scattered cells (a pad) convert their own boxes as they are drawn, so that no
-pass covers the empty frame. Where cells overlap, the thickest wins the pixel (the
-first in the input order of equal chords), and the fraction is ``min(thickness /
-depth, 1, open)``; since that is a non-decreasing function of the thickness, the
-maximum of the cells' fractions is the fraction of the maximum thickness, so each
-cell can write its own.
+:func:`rasterise_cells` turns the cells of one frame into the ``cells`` fraction
+and the instance labels of :class:`~napari_symbac.scene.Scene` (eq. OPL2: the
+chord ``2 sqrt(r^2 - d^2)`` of a 3-D spherocylinder at mid-depth);
+:func:`media_fraction` gives the media (eq. OPL3) from them. The work is
+proportional to the cells' area, not the frame's: each cell is drawn in its
+bounding box. Where cells overlap, the thickest wins the pixel (the first in the
+input order of equal chords), and the fraction is ``min(thickness / depth, 1,
+open)`` of that thickest chord, computed once per pixel at the end.
 """
 
 from __future__ import annotations
@@ -20,7 +16,7 @@ import math
 
 import numpy as np
 
-__all__ = ["cell_boxes", "chord", "rasterise_cells"]
+__all__ = ["cell_boxes", "chord", "media_fraction", "rasterise_cells"]
 
 
 def cell_boxes(
@@ -139,6 +135,27 @@ def _chord_in_box(
     return out
 
 
+def _row_bands(boxes: np.ndarray) -> list[tuple[int, int, int, int]]:
+    """Disjoint rectangles ``(i0, i1, j0, j1)`` that together cover every box.
+
+    The boxes' row intervals are merged where they overlap; each merged band of rows
+    spans the columns of the boxes in it. A colony gives one rectangle (its bounding
+    box), scattered cells a band per group of rows that hold cells, so that a pass
+    over the bands never covers the empty rows of a pad.
+    """
+    order = np.argsort(boxes[:, 0], kind="stable")
+    bands: list[list[int]] = []
+    for i0, i1, j0, j1 in boxes[order].tolist():
+        if bands and i0 < bands[-1][1]:
+            band = bands[-1]
+            band[1] = max(band[1], i1)
+            band[2] = min(band[2], j0)
+            band[3] = max(band[3], j1)
+        else:
+            bands.append([i0, i1, j0, j1])
+    return [(b[0], b[1], b[2], b[3]) for b in bands]
+
+
 def rasterise_cells(
     xc: np.ndarray,
     yc: np.ndarray,
@@ -154,8 +171,8 @@ def rasterise_cells(
     curvature: dict[int, tuple[float, float, float]],
     *,
     closed: bool = True,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Cells and media fractions and instance labels of one frame (eq. OPL2-3).
+) -> tuple[np.ndarray, np.ndarray]:
+    """Cells fraction and instance labels of one frame (eq. OPL2-3).
 
     Parameters
     ----------
@@ -184,11 +201,19 @@ def rasterise_cells(
 
     Returns
     -------
-    cells, media, labels
-        float32, float32 and uint32 images of ``open_frac``'s shape: ``cells =
-        min(thickness / depth, 1, open)`` of the thickest cell, ``media = max(open -
-        cells, 0)``, ``labels`` the id of the thickest cell (the first of equal
-        chords) where ``cells > 0``, else 0.
+    cells, labels
+        float32 and uint32 images of ``open_frac``'s shape: ``cells = min(thickness
+        / depth, 1, open)`` of the thickest cell, ``labels`` the id of the thickest
+        cell (the first of equal chords) where ``cells > 0``, else 0. The media
+        fraction is ``open - cells`` (:func:`media_fraction`).
+
+    Notes
+    -----
+    These are the only two frame-sized images made: the cells image holds the
+    thickest chord so far while the cells are drawn (each cell compares its chord
+    with it and takes the label where it is strictly thicker, so the first of equal
+    chords keeps the pixel) and is turned into fractions in place at the end, over
+    the rows that hold cells.
     """
     shape = open_frac.shape
     cells = np.zeros(shape, np.float32)
@@ -198,24 +223,7 @@ def rasterise_cells(
     boxes = cell_boxes(cx, cy, angle_rad, length_um, width_um, bend, px, border, shape)
     drawn = np.flatnonzero((boxes[:, 0] < boxes[:, 1]) & (boxes[:, 2] < boxes[:, 3]))
     if drawn.size == 0:
-        return cells, open_frac.copy(), labels
-    depth = np.float32(depth_um)
-    top, left = boxes[drawn, 0].min(), boxes[drawn, 2].min()
-    bottom, right = boxes[drawn, 1].max(), boxes[drawn, 3].max()
-    covered = ((boxes[drawn, 1] - boxes[drawn, 0]) * (boxes[drawn, 3] - boxes[drawn, 2])).sum()
-    # Dense (the boxes about fill their bounding rectangle, a trench): the thickness
-    # and labels are drawn into that rectangle, which is converted to fractions in one
-    # pass. Scattered (a pad): each cell converts its own box as it is drawn, so no
-    # pass covers the empty frame; the thickness lives in the media image meanwhile.
-    dense = (bottom - top) * (right - left) <= 2 * covered
-    if dense:
-        rect = (slice(top, bottom), slice(left, right))
-        thickness = np.zeros((bottom - top, right - left), np.float32)
-        work_labels = np.zeros(thickness.shape, np.uint32)
-    else:
-        top = left = 0
-        media = np.zeros(shape, np.float32)
-        thickness, work_labels = media, labels
+        return cells, labels
     pixel_area = px * px
     for k in drawn.tolist():
         i0, i1, j0, j1 = boxes[k].tolist()
@@ -230,37 +238,25 @@ def rasterise_cells(
             curvature.get(cell_id),
             pixel_area,
         )
-        local = (slice(i0 - top, i1 - top), slice(j0 - left, j1 - left))
-        box_t = thickness[local]
+        box_t = cells[i0:i1, j0:j1]
         take = thick > box_t
         np.maximum(box_t, thick, out=box_t)
-        box_l = work_labels[local]
-        np.putmask(box_l, take, np.uint32(cell_id))
-        if dense:
-            continue
-        # min(thickness / depth, 1, open) = min(thickness / depth, open): open <= 1;
-        # the maximum over cells of this non-decreasing map of the chord is the map
-        # of the maximum chord.
-        box = (slice(i0, i1), slice(j0, j1))
-        frac = np.divide(thick, depth, out=thick)
-        open_box = open_frac[box]
-        np.minimum(frac, open_box, out=frac)
-        box_c = cells[box]
-        np.maximum(box_c, frac, out=box_c)
+        np.putmask(labels[i0:i1, j0:j1], take, np.uint32(cell_id))
+    # min(thickness / depth, 1, open) = min(thickness / depth, open): open <= 1.
+    depth = np.float32(depth_um)
+    for i0, i1, j0, j1 in _row_bands(boxes[drawn]):
+        frac = cells[i0:i1, j0:j1]
+        np.divide(frac, depth, out=frac)
+        np.minimum(frac, open_frac[i0:i1, j0:j1], out=frac)
         if closed:
             # A pixel inside the PDMS (open = 0) keeps no label, whichever cell is there.
-            np.logical_and(take, frac <= 0, out=take)
-            np.putmask(box_l, take, np.uint32(0))
-    if dense:
-        frac = np.divide(thickness, depth, out=thickness)
-        open_rect = open_frac[rect]
-        np.minimum(frac, open_rect, out=frac)
-        cells[rect] = frac
-        if closed:
-            np.putmask(work_labels, frac <= 0, np.uint32(0))
-        labels[rect] = work_labels
-        media = open_frac.copy()
-        np.subtract(open_rect, frac, out=media[rect])
-    else:
-        np.subtract(open_frac, cells, out=media)
-    return cells, media, labels
+            np.putmask(labels[i0:i1, j0:j1], frac <= 0, np.uint32(0))
+    return cells, labels
+
+
+def media_fraction(open_frac: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """Media fraction ``open - cells`` (eq. OPL3: what the cells leave of the open depth).
+
+    ``cells <= open`` everywhere, so the difference is never negative.
+    """
+    return np.subtract(open_frac, cells)
