@@ -75,6 +75,9 @@ def chord(
 #: A squared distance this far (relatively) beyond ``r^2`` gives a zero chord in
 #: float64 whatever the rounding of the square root and its square (8 ulp suffice).
 _OUTSIDE = 1.0 + 2.0**-40
+#: Relative margin on ``r + |a|`` beyond which a bent cell's chord is 0 whatever its
+#: bend (orders of magnitude above float64 rounding).
+_NEAR = 1.0 + 2.0**-20
 
 
 def _chord_in_box(
@@ -89,7 +92,8 @@ def _chord_in_box(
 ) -> np.ndarray:
     """:func:`chord` over ``yc x xc``, its square roots taken only inside the cell.
 
-    The squared distance ``q`` is computed everywhere in the box; where ``q >= r^2
+    The squared distance ``q`` is computed everywhere in the box (a bent cell's, see
+    :func:`_bent_chord`, only near its axis); where ``q >= r^2
     (1 + 2^-40)`` the chord is 0 exactly (``sqrt(q)^2 >= r^2`` after rounding), so
     the rest of the arithmetic, two square roots included, runs on the pixels
     inside only, unless the cell (at most ``width x length``, against pixels of
@@ -104,9 +108,7 @@ def _chord_in_box(
     s = np.add((dy * cos_a)[:, None], (dx * sin_a)[None, :])
     t = np.subtract((dx * cos_a)[None, :], (dy * sin_a)[:, None])
     if curvature is not None:
-        a_um, b, c = curvature
-        ell = np.clip((s + length_um / 2) / length_um, 0.0, 1.0)
-        t -= a_um * np.sin(ell * math.pi / b + c)
+        return _bent_chord(s, t, half, r, length_um, curvature)
     d = np.clip(s, -half, half)  # = minimum(maximum(s, -half), half)
     np.subtract(s, d, out=d)
     np.square(d, out=d)
@@ -154,6 +156,58 @@ def _row_bands(boxes: np.ndarray) -> list[tuple[int, int, int, int]]:
         else:
             bands.append([i0, i1, j0, j1])
     return [(b[0], b[1], b[2], b[3]) for b in bands]
+
+
+def _finish_chord(s: np.ndarray, t: np.ndarray, half: float, r: float) -> np.ndarray:
+    """float32 chord ``2 sqrt(r^2 - d^2)`` from the offsets ``s`` (along the axis) and
+    ``t`` (across), both float64 and overwritten, in the arithmetic of :func:`chord`."""
+    d = np.clip(s, -half, half)
+    np.subtract(s, d, out=d)
+    np.square(d, out=d)
+    np.square(t, out=t)
+    np.add(d, t, out=d)
+    np.sqrt(d, out=d)
+    np.multiply(d, d, out=d)
+    np.subtract(r * r, d, out=d)
+    np.maximum(d, 0.0, out=d)
+    np.sqrt(d, out=d)
+    return np.multiply(2, d, out=np.empty(d.shape, np.float32), casting="same_kind")
+
+
+def _bent_chord(
+    s: np.ndarray,
+    t: np.ndarray,
+    half: float,
+    r: float,
+    length_um: float,
+    curvature: tuple[float, float, float],
+) -> np.ndarray:
+    """Chord of a cell bent by eq. 1 (``t -= a sin(pi l / b + c)``), from the straight
+    offsets ``s, t`` over a box.
+
+    The bend moves a pixel's offset ``t`` by at most ``|a|``: beyond ``r + |a|`` of
+    the axis line, or beyond a pole (``|s| > half + r``), the chord is 0 with or
+    without it (the margin :data:`_NEAR` is far above rounding), so the sine and the
+    rest of the formula run on the pixels left only, value for value as on all.
+    """
+    a_um, b, c = curvature
+    near = np.abs(t) <= (r + abs(a_um)) * _NEAR
+    near &= np.abs(s) <= (half + r) * _NEAR
+    near = np.flatnonzero(near)
+    out = np.zeros(s.shape, np.float32)
+    s_near = s.ravel()[near]
+    ell = np.add(s_near, length_um / 2)
+    np.divide(ell, length_um, out=ell)
+    np.clip(ell, 0.0, 1.0, out=ell)
+    np.multiply(ell, math.pi, out=ell)
+    np.divide(ell, b, out=ell)
+    np.add(ell, c, out=ell)
+    np.sin(ell, out=ell)
+    np.multiply(a_um, ell, out=ell)
+    t_near = t.ravel()[near]
+    np.subtract(t_near, ell, out=t_near)
+    out.ravel()[near] = _finish_chord(s_near, t_near, half, r)
+    return out
 
 
 def rasterise_cells(
