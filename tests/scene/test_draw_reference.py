@@ -22,6 +22,7 @@ import pytest
 from napari_symbac.scene import Field, draw_scene
 from napari_symbac.scene._draw import _trench_images
 from napari_symbac.scene._field import field_images
+from napari_symbac.scene._raster import chord
 from napari_symbac.settings import Microscope, RenderSettings, TrenchGeometry
 
 MIC = Microscope()
@@ -336,3 +337,22 @@ def test_masks_computed_in_bands_are_bit_identical(monkeypatch, chunk_pixels):
     scene = draw_scene(cells, TrenchGeometry(), MIC, render, curvature, field=field)
     expected = reference_scene(cells, TrenchGeometry(), MIC, render, curvature, field=field)
     _assert_same(scene, expected)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_bent_chord_near_the_axis_only_equals_the_whole_formula(seed):
+    """Bends up to and beyond the radius, any phase: the sine is skipped only where it
+    cannot matter, and every pixel keeps the full formula's bits."""
+    rng = np.random.default_rng(seed)
+    px = 0.065 / 3
+    xc = np.arange(-150, 150) * px + rng.uniform(0, px)
+    yc = np.arange(-160, 160) * px + rng.uniform(0, px)
+    for _ in range(12):
+        width = rng.uniform(0.5, 1.2)
+        length = rng.uniform(width, 5.0)
+        bend = (rng.uniform(-0.8, 0.8), rng.uniform(0.3, 2.0), rng.uniform(-1.0, 2.0))
+        args = ((rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5)), rng.uniform(-4, 4), length, width)
+        got = chord(xc, yc, *args, bend)
+        want = _ref_chord(xc, yc, *args, bend)
+        assert got.tobytes() == want.tobytes()
+        assert np.count_nonzero(got) > 100
