@@ -272,6 +272,19 @@ def test_agar_pad_scene_is_bit_identical(seed):
     assert len(np.unique(scene.labels)) > 40
 
 
+@pytest.mark.parametrize("depth_um", [0.8, 1.2])
+def test_agar_pad_shallower_or_deeper_than_the_cells_is_bit_identical(depth_um):
+    """A pad whose depth is below some cells' width (fractions capped at 1) or above all."""
+    rng = np.random.default_rng(25)
+    field = Field(14.0, 12.0, depth_um=depth_um)
+    render = RenderSettings(upsample=3, psf_radius_px=8)
+    cells, curvature = _with_ties(_random_cells(rng, 40, (-1.0, 15.0), (-1.0, 13.0)), rng)
+    scene = draw_scene(cells, TrenchGeometry(), MIC, render, curvature, field=field)
+    expected = reference_scene(cells, TrenchGeometry(), MIC, render, curvature, field=field)
+    _assert_same(scene, expected)
+    assert (scene.cells.max() == 1.0) == (cells.width_um.max() > depth_um)
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_outline_scene_is_bit_identical(seed):
     rng = np.random.default_rng(30 + seed)

@@ -250,8 +250,10 @@ def rasterise_cells(
     curvature
         ``id -> (a_um, b, c)`` of eq. 1 for the bent cells.
     closed
-        Whether ``open_frac`` may be 0 somewhere (device): a cell pixel there keeps
-        no label. ``False`` (an agar pad) skips that test.
+        Whether there is device: ``open_frac`` may be below 1 and a cell pixel where
+        it is 0 keeps no label. ``False`` (an agar pad) says that ``open_frac`` is 1
+        everywhere, so the fraction is ``min(thickness / depth, 1)``, and just
+        ``thickness / depth`` when no cell is wider than the depth.
 
     Returns
     -------
@@ -296,12 +298,16 @@ def rasterise_cells(
         take = thick > box_t
         np.maximum(box_t, thick, out=box_t)
         np.putmask(labels[i0:i1, j0:j1], take, np.uint32(cell_id))
-    # min(thickness / depth, 1, open) = min(thickness / depth, open): open <= 1.
+    # min(thickness / depth, 1, open) = min(thickness / depth, open): open <= 1. With
+    # open = 1 and no chord above the (float32) depth, the quotient is at most 1
+    # already: a chord is at most the width (times 1 + 4 ulp of rounding).
     depth = np.float32(depth_um)
+    capped = closed or width_um[drawn].max() * (1 + 2.0**-40) > float(depth)
     for i0, i1, j0, j1 in _row_bands(boxes[drawn]):
         frac = cells[i0:i1, j0:j1]
         np.divide(frac, depth, out=frac)
-        np.minimum(frac, open_frac[i0:i1, j0:j1], out=frac)
+        if capped:
+            np.minimum(frac, open_frac[i0:i1, j0:j1], out=frac)
         if closed:
             # A pixel inside the PDMS (open = 0) keeps no label, whichever cell is there.
             np.putmask(labels[i0:i1, j0:j1], frac <= 0, np.uint32(0))
