@@ -289,35 +289,50 @@ _FIELDS = tuple(f.name for f in fields(Scene))
 _MASK_CHUNK_PIXELS = 1 << 18
 
 
-def _mixed_blocks(
-    inner: np.ndarray, first: np.ndarray, u: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Rows and columns (camera px) of the ``u x u`` blocks of ``inner`` holding more
-    than one label, in row-major order.
+def _block_labels(inner: np.ndarray, u: int) -> np.ndarray:
+    """Majority label (uint32) of every ``u x u`` block of ``inner``, ``u >= 2``.
 
-    A block is uniform when its rows 1..u-1 equal its row 0 (compared along whole
-    image rows) and row 0 equals its first pixel ``first`` (the strided sample);
-    a band of block rows at a time, so that the passes stay in the cache.
+    Of equal counts the first in row-major order within the block wins. A block is
+    uniform when its rows 1..u-1 equal its row 0 (compared along whole image rows)
+    and row 0 equals the block's first pixel; only the other blocks are voted on. A
+    band of block rows at a time, so that the passes, the strided sample of first
+    pixels and the gathering of the mixed blocks' pixels stay in the cache.
     """
-    rows, cols = first.shape
+    rows, cols = inner.shape[0] // u, inner.shape[1] // u
+    labels = np.empty((rows, cols), np.uint32)
+    mixed = np.empty((rows, cols), bool)
+    dy, dx = np.divmod(np.arange(u * u), u)  # row-major offsets within a block
     chunk = max(1, _MASK_CHUNK_PIXELS // (u * u * cols))
-    found_rows, found_cols = [], []
+    found_rows, found_cols, found_blocks = [], [], []
     for r0 in range(0, rows, chunk):
         r1 = min(r0 + chunk, rows)
         band = inner[r0 * u : r1 * u]
         top = band[0::u]
+        first = labels[r0:r1]
+        first[...] = top[:, 0::u]
         same = top == band[1::u]
-        for dy in range(2, u):
-            same &= top == band[dy::u]
+        for k in range(2, u):
+            same &= top == band[k::u]
         uniform = same[:, 0::u] & same[:, 1::u]
-        for dx in range(2, u):
-            uniform &= same[:, dx::u]
-        for dx in range(1, u):
-            uniform &= top[:, dx::u] == first[r0:r1]
-        ri, ci = np.nonzero(~uniform)
-        found_rows.append(ri + r0)
-        found_cols.append(ci)
-    return np.concatenate(found_rows), np.concatenate(found_cols)
+        for k in range(2, u):
+            uniform &= same[:, k::u]
+        for k in range(1, u):
+            uniform &= top[:, k::u] == first
+        band_mixed = mixed[r0:r1]
+        np.logical_not(uniform, out=band_mixed)
+        ri, ci = np.divmod(np.flatnonzero(band_mixed), cols)
+        if ri.size:
+            found_blocks.append(band[(ri * u)[:, None] + dy, (ci * u)[:, None] + dx])
+            found_rows.append(ri + r0)
+            found_cols.append(ci)
+    if found_blocks:
+        blocks = np.concatenate(found_blocks)  # (blocks, u * u), row-major in each
+        counts = np.zeros(blocks.shape, np.uint8 if u * u < 256 else np.int64)
+        for k in range(u * u):
+            counts += blocks == blocks[:, k : k + 1]
+        winners = blocks[np.arange(len(blocks)), np.argmax(counts, axis=-1)]
+        labels[np.concatenate(found_rows), np.concatenate(found_cols)] = winners
+    return labels
 
 
 def _semantic(labels: np.ndarray) -> np.ndarray:
@@ -364,21 +379,7 @@ def _camera_masks(
     rows, cols = camera_shape
     b = border
     inner = labels_full[b : b + rows * u, b : b + cols * u]
-    labels = np.array(inner[::u, ::u], np.uint32)
-    if u > 1:
-        ri, ci = _mixed_blocks(inner, labels, u)
-        if ri.size:
-            # (blocks, u * u) in row-major order within each block: argmax takes the
-            # first of equal counts. Gathered by flat index from the whole image.
-            width = labels_full.shape[1]
-            corner = (ri * u + b) * width + (ci * u + b)
-            offsets = (np.arange(u)[:, None] * width + np.arange(u)[None, :]).ravel()
-            flat = np.ascontiguousarray(labels_full).ravel()
-            blocks = flat[corner[:, None] + offsets[None, :]]
-            counts = np.zeros(blocks.shape, np.uint8 if u * u < 256 else np.int64)
-            for k in range(u * u):
-                counts += blocks == blocks[:, k : k + 1]
-            labels[ri, ci] = blocks[np.arange(ri.size), np.argmax(counts, axis=-1)]
+    labels = _block_labels(inner, u) if u > 1 else np.array(inner, np.uint32)
     return labels, _semantic(labels)
 
 
