@@ -272,6 +272,27 @@ def test_agar_pad_scene_is_bit_identical(seed):
     assert len(np.unique(scene.labels)) > 40
 
 
+@pytest.mark.parametrize("first_id", [60_000, 4_000_000_000])
+def test_labels_beyond_uint16_are_bit_identical(first_id):
+    """Ids that fit uint16 are drawn into a uint16 image and ids beyond it into a uint32
+    one; either way the labels read back are uint32 and the same bits."""
+    rng = np.random.default_rng(60)
+    field = Field(10.0, 8.0)
+    render = RenderSettings(upsample=3, psf_radius_px=6)
+    cells, curvature = _with_ties(_random_cells(rng, 25, (-1.0, 11.0), (-1.0, 9.0)), rng)
+    cells.ids = cells.ids + first_id
+    curvature = {k + first_id: v for k, v in curvature.items()}
+    scene = draw_scene(cells, TrenchGeometry(), MIC, render, curvature, field=field)
+    expected = reference_scene(cells, TrenchGeometry(), MIC, render, curvature, field=field)
+    narrow = cells.ids.max() <= np.iinfo(np.uint16).max
+    assert ("labels" in scene.__dict__) != narrow  # uint32 labels made on first read
+    cam = scene.camera_labels()
+    assert cam.min() == 0
+    assert cam.max() > first_id  # no wrap-around
+    assert np.isin(cam, np.append(cells.ids, 0)).all()
+    _assert_same(scene, expected)
+
+
 @pytest.mark.parametrize("depth_um", [0.8, 1.2])
 def test_agar_pad_shallower_or_deeper_than_the_cells_is_bit_identical(depth_um):
     """A pad whose depth is below some cells' width (fractions capped at 1) or above all."""

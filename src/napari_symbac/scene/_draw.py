@@ -75,6 +75,8 @@ class Scene:
         pay for a third frame-sized image.
     labels
         uint32 instance mask at render resolution, value = cell id (0 = no cell).
+        :func:`draw_scene` keeps it as uint16 when every id fits and makes the
+        uint32 image on first access (the masks are made from the uint16 one).
     border_px
         Width of the border (render pixels) outside the camera's field of view.
     upsample
@@ -171,8 +173,9 @@ class Scene:
         scene = Scene._unchecked(pending, **values)
         # The labels are the same array: so are the camera-resolution masks, and the
         # content hashes of the images that did not change.
-        if "_masks" in self.__dict__:
-            object.__setattr__(scene, "_masks", self.__dict__["_masks"])
+        for kept in ("_masks", "_narrow_labels"):
+            if kept in self.__dict__:
+                object.__setattr__(scene, kept, self.__dict__[kept])
         known = {
             **self.__dict__.get("_known_fingerprints", {}),
             **self.__dict__.get("_fingerprints", {}),
@@ -213,7 +216,11 @@ class Scene:
         # Computed once per scene (the labels are read-only, so they cannot go stale).
         cached = self.__dict__.get("_masks")
         if cached is None:
-            cached = _camera_masks(self.labels, self.border_px, self.upsample, self.camera_shape)
+            # The uint16 labels of draw_scene where it kept them: the same values.
+            labels = self.__dict__.get("_narrow_labels")
+            if labels is None:
+                labels = self.labels
+            cached = _camera_masks(labels, self.border_px, self.upsample, self.camera_shape)
             for mask in cached:
                 mask.setflags(write=False)
             object.__setattr__(self, "_masks", cached)
@@ -678,9 +685,12 @@ def draw_scene(
     for image in (cells_frac, labels, ids):
         image.setflags(write=False)
     # Every image is C-contiguous, finite, of the right dtype and shape by construction;
-    # the media image is made when first read.
+    # the media image, and uint32 labels from uint16 ones, are made when first read.
+    pending = {"media": functools.partial(media_fraction, trench_frac, cells_frac)}
+    if labels.dtype != np.uint32:
+        pending["labels"] = functools.partial(np.asarray, labels, np.uint32)
     scene = Scene._unchecked(
-        {"media": functools.partial(media_fraction, trench_frac, cells_frac)},
+        pending,
         cells=cells_frac,
         device=device,
         labels=labels,
@@ -693,4 +703,6 @@ def draw_scene(
     )
     # The device image is the cached, read-only array of this geometry: reuse its hash.
     object.__setattr__(scene, "_known_fingerprints", {"device": device_fp})
+    if labels.dtype != np.uint32:
+        object.__setattr__(scene, "_narrow_labels", labels)
     return scene
