@@ -109,7 +109,9 @@ def _chord_in_box(
     t = np.subtract((dx * cos_a)[None, :], (dy * sin_a)[:, None])
     if curvature is not None:
         return _bent_chord(s, t, half, r, length_um, curvature)
-    d = np.clip(s, -half, half)  # = minimum(maximum(s, -half), half)
+    # = minimum(maximum(s, -half), half); the methods below skip numpy's Python-level
+    # wrappers (a few us per call, per cell).
+    d = s.clip(-half, half)
     np.subtract(s, d, out=d)
     np.square(d, out=d)
     np.square(t, out=t)
@@ -124,7 +126,7 @@ def _chord_in_box(
         np.sqrt(d, out=d)
         return np.multiply(2, d, out=np.empty(d.shape, np.float32), casting="same_kind")
     out = np.zeros(d.shape, np.float32)
-    inside = np.flatnonzero(d < (r * r) * _OUTSIDE)
+    inside = np.less(d, (r * r) * _OUTSIDE).ravel().nonzero()[0]
     if inside.size:
         q = d.ravel()[inside]
         np.sqrt(q, out=q)
@@ -161,7 +163,7 @@ def _row_bands(boxes: np.ndarray) -> list[tuple[int, int, int, int]]:
 def _finish_chord(s: np.ndarray, t: np.ndarray, half: float, r: float) -> np.ndarray:
     """float32 chord ``2 sqrt(r^2 - d^2)`` from the offsets ``s`` (along the axis) and
     ``t`` (across), both float64 and overwritten, in the arithmetic of :func:`chord`."""
-    d = np.clip(s, -half, half)
+    d = s.clip(-half, half)
     np.subtract(s, d, out=d)
     np.square(d, out=d)
     np.square(t, out=t)
@@ -193,12 +195,12 @@ def _bent_chord(
     a_um, b, c = curvature
     near = np.abs(t) <= (r + abs(a_um)) * _NEAR
     near &= np.abs(s) <= (half + r) * _NEAR
-    near = np.flatnonzero(near)
+    near = near.ravel().nonzero()[0]
     out = np.zeros(s.shape, np.float32)
     s_near = s.ravel()[near]
     ell = np.add(s_near, length_um / 2)
     np.divide(ell, length_um, out=ell)
-    np.clip(ell, 0.0, 1.0, out=ell)
+    ell.clip(0.0, 1.0, out=ell)
     np.multiply(ell, math.pi, out=ell)
     np.divide(ell, b, out=ell)
     np.add(ell, c, out=ell)
@@ -285,23 +287,18 @@ def rasterise_cells(
     if drawn.size == 0:
         return cells, labels
     pixel_area = px * px
-    for k in drawn.tolist():
-        i0, i1, j0, j1 = boxes[k].tolist()
-        cell_id = int(ids[k])
+    columns = (ids, cx, cy, angle_rad, length_um, width_um)
+    for box, (cell_id, x, y, angle, length, width) in zip(
+        boxes[drawn].tolist(), zip(*(c[drawn].tolist() for c in columns)), strict=True
+    ):
+        i0, i1, j0, j1 = box
         thick = _chord_in_box(
-            xc[j0:j1],
-            yc[i0:i1],
-            (float(cx[k]), float(cy[k])),
-            float(angle_rad[k]),
-            float(length_um[k]),
-            float(width_um[k]),
-            curvature.get(cell_id),
-            pixel_area,
+            xc[j0:j1], yc[i0:i1], (x, y), angle, length, width, curvature.get(cell_id), pixel_area
         )
         box_t = cells[i0:i1, j0:j1]
         take = thick > box_t
         np.maximum(box_t, thick, out=box_t)
-        np.putmask(labels[i0:i1, j0:j1], take, label_type(cell_id))
+        np.putmask(labels[i0:i1, j0:j1], take, cell_id)
     # min(thickness / depth, 1, open) = min(thickness / depth, open): open <= 1. With
     # open = 1 and no chord above the (float32) depth, the quotient is at most 1
     # already: a chord is at most the width (times 1 + 4 ulp of rounding).
