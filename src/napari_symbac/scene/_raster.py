@@ -109,34 +109,39 @@ def _chord_in_box(
     t = np.subtract((dx * cos_a)[None, :], (dy * sin_a)[:, None])
     if curvature is not None:
         return _bent_chord(s, t, half, r, length_um, curvature)
-    # = minimum(maximum(s, -half), half); the methods below skip numpy's Python-level
-    # wrappers (a few us per call, per cell).
-    d = s.clip(-half, half)
+    q = _squared_distance(s, t, half)
+    if width_um * length_um > 0.6 * q.size * pixel_area_um2:
+        # The cell fills most of its box (e.g. upright in a trench): finishing every
+        # pixel costs less than picking out the inside ones.
+        return _chord_from_squared(q, r)
+    out = np.zeros(q.shape, np.float32)
+    # ravel().nonzero() and the ndarray methods skip numpy's Python-level wrappers (a
+    # few us per call, per cell).
+    inside = np.less(q, (r * r) * _OUTSIDE).ravel().nonzero()[0]
+    if inside.size:
+        out.ravel()[inside] = _chord_from_squared(q.ravel()[inside], r)
+    return out
+
+
+def _squared_distance(s: np.ndarray, t: np.ndarray, half: float) -> np.ndarray:
+    """Squared distance ``(s - clip(s, -half, half))^2 + t^2`` to the axis segment, from
+    the offsets along (``s``) and across (``t``, overwritten) the axis."""
+    d = s.clip(-half, half)  # = minimum(maximum(s, -half), half)
     np.subtract(s, d, out=d)
     np.square(d, out=d)
     np.square(t, out=t)
-    np.add(d, t, out=d)
-    if width_um * length_um > 0.6 * d.size * pixel_area_um2:
-        # The cell fills most of its box (e.g. upright in a trench): finishing every
-        # pixel costs less than picking out the inside ones.
-        np.sqrt(d, out=d)
-        np.multiply(d, d, out=d)
-        np.subtract(r * r, d, out=d)
-        np.maximum(d, 0.0, out=d)
-        np.sqrt(d, out=d)
-        return np.multiply(2, d, out=np.empty(d.shape, np.float32), casting="same_kind")
-    out = np.zeros(d.shape, np.float32)
-    inside = np.less(d, (r * r) * _OUTSIDE).ravel().nonzero()[0]
-    if inside.size:
-        q = d.ravel()[inside]
-        np.sqrt(q, out=q)
-        np.multiply(q, q, out=q)
-        np.subtract(r * r, q, out=q)
-        np.maximum(q, 0.0, out=q)
-        np.sqrt(q, out=q)
-        chord_in = np.multiply(2, q, out=np.empty(q.shape, np.float32), casting="same_kind")
-        out.ravel()[inside] = chord_in
-    return out
+    return np.add(d, t, out=d)
+
+
+def _chord_from_squared(q: np.ndarray, r: float) -> np.ndarray:
+    """float32 chord ``2 sqrt(r^2 - d^2)`` (0 beyond ``r``) from ``q = d^2`` (float64,
+    overwritten), as ``spherocylinder_distance`` then the chord compute it."""
+    np.sqrt(q, out=q)
+    np.multiply(q, q, out=q)
+    np.subtract(r * r, q, out=q)
+    np.maximum(q, 0.0, out=q)
+    np.sqrt(q, out=q)
+    return np.multiply(2, q, out=np.empty(q.shape, np.float32), casting="same_kind")
 
 
 def _row_bands(boxes: np.ndarray) -> list[tuple[int, int, int, int]]:
@@ -158,22 +163,6 @@ def _row_bands(boxes: np.ndarray) -> list[tuple[int, int, int, int]]:
         else:
             bands.append([i0, i1, j0, j1])
     return [(b[0], b[1], b[2], b[3]) for b in bands]
-
-
-def _finish_chord(s: np.ndarray, t: np.ndarray, half: float, r: float) -> np.ndarray:
-    """float32 chord ``2 sqrt(r^2 - d^2)`` from the offsets ``s`` (along the axis) and
-    ``t`` (across), both float64 and overwritten, in the arithmetic of :func:`chord`."""
-    d = s.clip(-half, half)
-    np.subtract(s, d, out=d)
-    np.square(d, out=d)
-    np.square(t, out=t)
-    np.add(d, t, out=d)
-    np.sqrt(d, out=d)
-    np.multiply(d, d, out=d)
-    np.subtract(r * r, d, out=d)
-    np.maximum(d, 0.0, out=d)
-    np.sqrt(d, out=d)
-    return np.multiply(2, d, out=np.empty(d.shape, np.float32), casting="same_kind")
 
 
 def _bent_chord(
@@ -208,7 +197,7 @@ def _bent_chord(
     np.multiply(a_um, ell, out=ell)
     t_near = t.ravel()[near]
     np.subtract(t_near, ell, out=t_near)
-    out.ravel()[near] = _finish_chord(s_near, t_near, half, r)
+    out.ravel()[near] = _chord_from_squared(_squared_distance(s_near, t_near, half), r)
     return out
 
 
