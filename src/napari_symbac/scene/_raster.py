@@ -270,7 +270,7 @@ def rasterise_cells(
     label_type = np.uint16 if narrow else np.uint32
     labels = np.zeros(shape, label_type)
     cx, cy = centres_um
-    bend = np.array([abs(curvature[int(i)][0]) if int(i) in curvature else 0.0 for i in ids])
+    bend = np.array([abs(curvature[i][0]) if i in curvature else 0.0 for i in ids.tolist()])
     boxes = cell_boxes(cx, cy, angle_rad, length_um, width_um, bend, px, border, shape)
     drawn = np.flatnonzero((boxes[:, 0] < boxes[:, 1]) & (boxes[:, 2] < boxes[:, 3]))
     if drawn.size == 0:
