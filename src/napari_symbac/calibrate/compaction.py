@@ -131,7 +131,7 @@ def _trial(settings: PipelineSettings, gravity: float, seed: int) -> CompactionT
 
 
 def _empty_packing() -> ColonyPacking:
-    return ColonyPacking(np.nan, np.empty(0), 0, 0.0, 0)
+    return ColonyPacking(np.nan, np.empty(0), 0.0, 0)
 
 
 def choose_gravity(

@@ -322,11 +322,10 @@ class ColonyPacking:
         holes filled (so the thin seams and small gaps inside count as colony, the pad
         around it does not). NaN without such a colony.
     gaps_px
-        At every contact pixel (a cell's outline pixel with another cell less than half
-        the median cell width away), the pixels of background between them: the
-        distance to the nearest other cell's pixel minus one (0: the labels touch).
-    outline_px
-        Outline pixels of all cells (contact and free).
+        For every pair of neighbouring cells (another cell less than half the median
+        cell width from a cell's outline), the background between them where they
+        come closest, pixels: the distance from the outline to the nearest pixel of
+        the other cell minus one (0: the labels touch). Each pair counts twice.
     width_px
         Median cell width (:func:`~napari_symbac.fit.masks.cell_widths_px`).
     n_colonies
@@ -335,23 +334,17 @@ class ColonyPacking:
 
     cell_fraction: float
     gaps_px: np.ndarray = field(repr=False)
-    outline_px: int
     width_px: float
     n_colonies: int
 
     @property
-    def contact_fraction(self) -> float:
-        """Fraction of the cells' outline pixels that face another cell."""
-        return self.gaps_px.size / self.outline_px if self.outline_px else 0.0
-
-    @property
     def mean_gap_px(self) -> float:
-        """Mean seam width at the contacts, pixels (NaN without contacts)."""
+        """Mean seam width between neighbouring cells, pixels (NaN without any)."""
         return float(self.gaps_px.mean()) if self.gaps_px.size else math.nan
 
     @property
     def touching_fraction(self) -> float:
-        """Fraction of the contact pixels where the labels touch (no background seam)."""
+        """Fraction of the neighbouring pairs whose labels touch (no background seam)."""
         return float((self.gaps_px == 0).mean()) if self.gaps_px.size else 0.0
 
 
@@ -397,7 +390,7 @@ def measure_packing(masks: np.ndarray, *, min_cells: int = 5) -> ColonyPacking:
             cell_area += int((region & cells[box]).sum())
             colony_area += int(region.sum())
     reach = math.ceil(width)
-    gaps, outline = [], 0
+    gaps = []
     for index, box in enumerate(ndimage.find_objects(labels), start=1):
         if box is None:
             continue
@@ -408,16 +401,18 @@ def measure_packing(masks: np.ndarray, *, min_cells: int = 5) -> ColonyPacking:
         window = labels[grown]
         own = window == index
         others = (window > 0) & ~own
-        edge = own & ~ndimage.binary_erosion(own)
-        outline += int(edge.sum())
         if not others.any():
             continue
-        gap = ndimage.distance_transform_edt(~others)[edge] - 1.0
-        gaps.append(gap[gap < width / 2])
+        edge = own & ~ndimage.binary_erosion(own)
+        distance, (rows, cols) = ndimage.distance_transform_edt(~others, return_indices=True)
+        gap = distance[edge] - 1.0
+        near = gap < width / 2
+        neighbour = window[rows[edge][near], cols[edge][near]]
+        for other in np.unique(neighbour):
+            gaps.append(float(gap[near][neighbour == other].min()))
     return ColonyPacking(
         cell_fraction=cell_area / colony_area if colony_area else math.nan,
-        gaps_px=np.concatenate(gaps) if gaps else np.empty(0),
-        outline_px=outline,
+        gaps_px=np.array(gaps),
         width_px=width,
         n_colonies=n_colonies,
     )
