@@ -14,14 +14,15 @@ cells do not overlap more than a tolerance (:func:`overlap_depths_um`).
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from napari_symbac.calibrate.measure import ColonyPacking, measure_packing
+from napari_symbac.calibrate.measure import ColonyPacking, lengths_px, measure_packing
 from napari_symbac.settings import PipelineSettings
 
-__all__ = ["CompactionTrial", "choose_gravity", "overlap_depths_um"]
+__all__ = ["CompactionTrial", "choose_gravity", "overlap_depths_um", "trial"]
 
 #: Gravities tried (um/min towards each colony's centre; the simulator applies
 #: ``GRAVITY_COMPRESSION`` of it to a colony).
@@ -46,12 +47,16 @@ class CompactionTrial:
         (0 when no two cells overlap).
     n_cells
         Cells in the last frame.
+    median_length_px
+        Median pole-to-pole length of the last frame's cells in its masks (as
+        :func:`~napari_symbac.calibrate.measure.measure_field` measures them).
     """
 
     gravity: float
     packing: ColonyPacking
     overlap_widths: float
     n_cells: int
+    median_length_px: float = math.nan
 
 
 def overlap_depths_um(cells) -> np.ndarray:
@@ -108,7 +113,9 @@ def _segment_distances(p0, p1, q0, q1) -> np.ndarray:
     return np.where(crossing, 0.0, d)
 
 
-def _trial(settings: PipelineSettings, gravity: float, seed: int) -> CompactionTrial:
+def trial(settings: PipelineSettings, gravity: float, seed: int = 0) -> CompactionTrial:
+    """Simulate ``settings`` with ``gravity`` and measure its last frame's masks (drawn at
+    camera sampling) and overlaps."""
     from napari_symbac.scene import draw_scene, field_of
     from napari_symbac.sim import simulate
 
@@ -127,6 +134,7 @@ def _trial(settings: PipelineSettings, gravity: float, seed: int) -> CompactionT
         packing=measure_packing(labels) if labels.any() else _empty_packing(),
         overlap_widths=float(np.percentile(depths, 95)) / width if depths.size else 0.0,
         n_cells=len(last),
+        median_length_px=float(np.median(lengths_px(labels))) if labels.any() else math.nan,
     )
 
 
@@ -167,7 +175,7 @@ def choose_gravity(
     """
     if not candidates:
         raise ValueError("choose_gravity needs at least one candidate gravity")
-    trials = [_trial(settings, g, seed) for g in candidates]
+    trials = [trial(settings, g, seed) for g in candidates]
     allowed = [t for t in trials if t.overlap_widths <= MAX_OVERLAP_WIDTHS]
     if not allowed:
         return min(trials, key=lambda t: t.overlap_widths).gravity, trials

@@ -29,7 +29,7 @@ from typing import Literal
 
 import numpy as np
 
-from napari_symbac.calibrate.compaction import CompactionTrial, choose_gravity
+from napari_symbac.calibrate.compaction import CompactionTrial, choose_gravity, trial
 from napari_symbac.calibrate.measure import (
     ColonyPacking,
     FieldMeasurements,
@@ -506,7 +506,9 @@ def calibrate(
     if masks is not None:
         packing = measure_packing(field_masks)
         if packing.n_colonies:
-            settings, trials, note = _compacted(settings, packing)
+            settings, trials, note = _compacted(
+                settings, packing, float(np.median(measurements.lengths_px))
+            )
             more.append(note)
     return Calibration(
         settings=settings,
@@ -523,17 +525,28 @@ def calibrate(
 
 
 def _compacted(
-    settings: PipelineSettings, packing: ColonyPacking
+    settings: PipelineSettings, packing: ColonyPacking, length_px: float
 ) -> tuple[PipelineSettings, list[CompactionTrial], str]:
     """Settings whose colonies are packed like the recording's (:func:`choose_gravity`,
-    with :data:`PAD_PHYS_ITERS` physics iterations), the trials, and a note."""
+    with :data:`PAD_PHYS_ITERS` physics iterations) and whose cells are as long, the
+    trials, and a note.
+
+    The division length of :func:`settings_from_fit` assumes a steady population; a
+    colony grown from one founder is not one yet (its cells divide nearly in step), so
+    the kept trial's median mask length can differ from the recording's
+    ``length_px``: the division length is scaled by their ratio (within
+    :data:`_LENGTH_CORRECTION`) and that trial simulated again.
+    """
     simulation = dataclasses.replace(settings.simulation, phys_iters=PAD_PHYS_ITERS)
     settings = dataclasses.replace(settings, simulation=simulation)
     gravity, trials = choose_gravity(settings, packing)
-    settings = dataclasses.replace(
-        settings, simulation=dataclasses.replace(simulation, gravity=gravity)
-    )
     kept = next(t for t in trials if t.gravity == gravity)
+    ratio = float(np.clip(length_px / kept.median_length_px, *_LENGTH_CORRECTION))
+    simulation = dataclasses.replace(
+        simulation, gravity=gravity, cell_max_length_um=simulation.cell_max_length_um * ratio
+    )
+    settings = dataclasses.replace(settings, simulation=simulation)
+    final = trial(settings, gravity)
     tried = ", ".join(
         f"{t.gravity:g}: {t.packing.cell_fraction:.2f} ({t.overlap_widths:.2f} w)"
         for t in trials
@@ -541,11 +554,18 @@ def _compacted(
     return settings, trials, (
         f"packing: cells cover {packing.cell_fraction:.2f} of the image's colonies, seams "
         f"{packing.mean_gap_px:.2f} px (labels touch at {100 * packing.touching_fraction:.0f} "
-        f"% of the contacts); gravity {gravity:g} um/min towards each colony's centre "
-        f"gives {kept.packing.cell_fraction:.2f}, seams {kept.packing.mean_gap_px:.2f} px "
-        f"(tried, cell fraction (95th percentile overlap in widths): {tried}; "
-        f"{PAD_PHYS_ITERS} physics iterations per frame)"
+        f"% of the neighbouring pairs); gravity {gravity:g} um/min towards each colony's "
+        f"centre (tried, cell fraction (95th percentile overlap in widths): {tried}; "
+        f"{PAD_PHYS_ITERS} physics iterations per frame); division length x {ratio:.2f} "
+        f"(median length {kept.median_length_px:.1f} px simulated, {length_px:.1f} px "
+        f"real): cells cover {final.packing.cell_fraction:.2f}, seams "
+        f"{final.packing.mean_gap_px:.2f} px, overlap {final.overlap_widths:.2f} w, median "
+        f"length {final.median_length_px:.1f} px"
     )
+
+
+#: Bounds of the division-length correction of :func:`_compacted`.
+_LENGTH_CORRECTION = (0.7, 1.3)
 
 
 #: Fewest blobs outside the masks for the debris to be rendered.

@@ -23,6 +23,7 @@ __all__ = [
     "FieldMeasurements",
     "cell_curvatures_px",
     "instance_masks",
+    "lengths_px",
     "measure_debris",
     "measure_field",
     "measure_packing",
@@ -40,7 +41,7 @@ def instance_masks(masks: np.ndarray) -> np.ndarray:
     return masks.astype(np.int32)
 
 
-def _lengths_px(labels: np.ndarray) -> np.ndarray:
+def lengths_px(labels: np.ndarray) -> np.ndarray:
     """Pole-to-pole length of every region: its largest Feret diameter plus one pixel
     (the diameter joins pixel centres; the outline lies half a pixel beyond each).
     """
@@ -193,7 +194,7 @@ def measure_field(
     inside = ok & cells
     return FieldMeasurements(
         shape=(int(image.shape[0]), int(image.shape[1])),
-        lengths_px=_lengths_px(relabelled),
+        lengths_px=lengths_px(relabelled),
         widths_px=cell_widths_px(relabelled),
         brightness_adu=brightness,
         cells_median_adu=float(np.median(image[inside] if inside.any() else image[cells])),
