@@ -17,7 +17,10 @@ whole field model-free (:mod:`~napari_symbac.calibrate.measure`):
 The settings (:func:`settings_from_fit`) then hold what a user would otherwise set by
 hand: pixel size, cell length and width distributions, intensities and their polarity
 from the modality, per-cell brightness variation, the camera, and an agar pad with as
-many colonies of as many cells as the recording shows.
+many colonies of as many cells as the recording shows. Given masks with a colony of
+five cells or more, the colonies are packed as tightly as the recording's and their
+cells are as long (:mod:`~napari_symbac.calibrate.compaction`: gravity towards each
+colony's centre chosen by simulating a few, the division length corrected).
 """
 
 from __future__ import annotations
