@@ -19,7 +19,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from napari_symbac.calibrate.measure import ColonyPacking, lengths_px, measure_packing
+from napari_symbac.calibrate.measure import (
+    ColonyPacking,
+    cell_curvatures_px,
+    lengths_px,
+    measure_packing,
+)
 from napari_symbac.settings import PipelineSettings
 
 __all__ = ["CompactionTrial", "choose_gravity", "overlap_depths_um", "trial"]
@@ -50,6 +55,9 @@ class CompactionTrial:
     median_length_px
         Median pole-to-pole length of the last frame's cells in its masks (as
         :func:`~napari_symbac.calibrate.measure.measure_field` measures them).
+    median_curvature_px
+        Median curvature of the cells in its masks
+        (:func:`~napari_symbac.calibrate.measure.cell_curvatures_px`, 1 / px).
     """
 
     gravity: float
@@ -57,6 +65,7 @@ class CompactionTrial:
     overlap_widths: float
     n_cells: int
     median_length_px: float = math.nan
+    median_curvature_px: float = math.nan
 
 
 def overlap_depths_um(cells) -> np.ndarray:
@@ -123,8 +132,18 @@ def trial(settings: PipelineSettings, gravity: float, seed: int = 0) -> Compacti
     simulation = simulate(simulation_settings, np.random.default_rng(seed))
     last = simulation.frames[-1]
     render = dataclasses.replace(settings.render, upsample=1)
+    curvature = {
+        int(cell): tuple(record.curvature)
+        for cell, record in simulation.lineage.items()
+        if any(record.curvature)
+    }
     scene = draw_scene(
-        last, settings.simulation.trench, settings.microscope, render, field=field_of(simulation)
+        last,
+        settings.simulation.trench,
+        settings.microscope,
+        render,
+        curvature=curvature or None,
+        field=field_of(simulation),
     )
     labels = scene.camera_labels()
     depths = overlap_depths_um(last)
@@ -135,6 +154,9 @@ def trial(settings: PipelineSettings, gravity: float, seed: int = 0) -> Compacti
         overlap_widths=float(np.percentile(depths, 95)) / width if depths.size else 0.0,
         n_cells=len(last),
         median_length_px=float(np.median(lengths_px(labels))) if labels.any() else math.nan,
+        median_curvature_px=(
+            float(np.median(cell_curvatures_px(labels))) if labels.any() else math.nan
+        ),
     )
 
 
