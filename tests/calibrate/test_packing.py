@@ -14,6 +14,7 @@ from napari_symbac.calibrate.compaction import (
     MAX_OVERLAP_WIDTHS,
     choose_gravity,
     overlap_depths_um,
+    trial,
 )
 from napari_symbac.calibrate.core import PAD_PHYS_ITERS, settings_from_fit
 from napari_symbac.calibrate.measure import cell_curvatures_px, measure_field, measure_packing
@@ -128,3 +129,13 @@ def test_choose_gravity_is_deterministic(colony_settings):
     assert [t.packing.cell_fraction for t in first[1]] == [
         t.packing.cell_fraction for t in second[1]
     ]
+
+
+def test_bent_cells_read_more_curved_than_straight_ones(colony_settings):
+    settings, _ = colony_settings
+    bent = dataclasses.replace(
+        settings, simulation=dataclasses.replace(settings.simulation, do_transformation=True)
+    )
+    straight_trial, bent_trial = trial(settings, 8.0), trial(bent, 8.0)
+    assert bent_trial.median_curvature_px > 1.5 * straight_trial.median_curvature_px
+    assert straight_trial.median_length_px > 0
