@@ -36,7 +36,6 @@ from napari_symbac.calibrate.compaction import CompactionTrial, choose_gravity, 
 from napari_symbac.calibrate.measure import (
     ColonyPacking,
     FieldMeasurements,
-    cell_curvatures_px,
     instance_masks,
     measure_debris,
     measure_field,
@@ -511,10 +510,7 @@ def calibrate(
         packing = measure_packing(field_masks)
         if packing.n_colonies:
             settings, trials, note = _compacted(
-                settings,
-                packing,
-                float(np.median(measurements.lengths_px)),
-                float(np.median(cell_curvatures_px(field_masks))),
+                settings, packing, float(np.median(measurements.lengths_px))
             )
             more.append(note)
     return Calibration(
@@ -532,7 +528,7 @@ def calibrate(
 
 
 def _compacted(
-    settings: PipelineSettings, packing: ColonyPacking, length_px: float, curvature_px: float
+    settings: PipelineSettings, packing: ColonyPacking, length_px: float
 ) -> tuple[PipelineSettings, list[CompactionTrial], str]:
     """Settings whose colonies are packed like the recording's (:func:`choose_gravity`,
     with :data:`PAD_PHYS_ITERS` physics iterations) and whose cells are as long, the
@@ -542,9 +538,10 @@ def _compacted(
     colony grown from one founder is not one yet (its cells divide nearly in step), so
     the kept trial's median mask length can differ from the recording's
     ``length_px``: the division length is scaled by their ratio (within
-    :data:`_LENGTH_CORRECTION`) and that trial simulated again, with straight cells and
-    with cells bent by eq. 1 (``do_transformation``, a fixed amplitude): kept is the one
-    whose median curvature is nearer the recording's ``curvature_px``.
+    :data:`_LENGTH_CORRECTION`) and that trial simulated again. Cells stay straight:
+    bending them by eq. 1 (``do_transformation``, a fixed amplitude) brought the
+    Omnipose colonies' median curvature half-way to the real one but lowered the
+    transfer benchmark's F1 (docs/proof.md).
     """
     simulation = dataclasses.replace(settings.simulation, phys_iters=PAD_PHYS_ITERS)
     settings = dataclasses.replace(settings, simulation=simulation)
@@ -556,15 +553,6 @@ def _compacted(
     )
     settings = dataclasses.replace(settings, simulation=simulation)
     final = trial(settings, gravity)
-    bent_settings = dataclasses.replace(
-        settings, simulation=dataclasses.replace(simulation, do_transformation=True)
-    )
-    bent = trial(bent_settings, gravity)
-    if abs(bent.median_curvature_px - curvature_px) < abs(
-        final.median_curvature_px - curvature_px
-    ):
-        settings, final = bent_settings, bent
-    shape = "bent (eq. 1)" if settings.simulation.do_transformation else "straight"
     tried = ", ".join(
         f"{t.gravity:g}: {t.packing.cell_fraction:.2f} ({t.overlap_widths:.2f} w)"
         for t in trials
@@ -578,8 +566,7 @@ def _compacted(
         f"(median length {kept.median_length_px:.1f} px simulated, {length_px:.1f} px "
         f"real): cells cover {final.packing.cell_fraction:.2f}, seams "
         f"{final.packing.mean_gap_px:.2f} px, overlap {final.overlap_widths:.2f} w, median "
-        f"length {final.median_length_px:.1f} px; cells {shape}: median curvature "
-        f"{final.median_curvature_px:.4f} / px (real {curvature_px:.4f})"
+        f"length {final.median_length_px:.1f} px"
     )
 
 
