@@ -34,6 +34,12 @@ Protocol (fixed; the same for every training set):
   cells (predicted minus annotated, widths as twice the largest inscribed radius minus
   a pixel, lengths as the largest Feret diameter plus a pixel).
 
+``--packing`` measures instead, for each Omnipose colony, the real masks and the
+ground-truth masks of its calibrated synthetic images (and of the same settings
+without the compaction calibrate chose: gravity 0, 15 physics iterations): the cell
+fraction of the colonies, the seams between neighbouring cells, cell sizes and
+curvature, the overlap depth of the simulated cells; prints a markdown table.
+
 ``--no-baselines`` skips the real-annotation folds and the defaults row (neither
 depends on ``calibrate``; the folds are most of the run's time).
 
@@ -514,6 +520,82 @@ def _pictures(out, data, images, modality, pictures, reference_of) -> None:
             iio.imwrite(out / f"transfer_{data}_{key}.png", montage(ref.image, value))
 
 
+def packing_rows(budget: Budget, n_images: int = 4) -> list[dict]:
+    """Real against synthetic packing and cell shapes of every Omnipose colony
+    (``--packing``): the real masks, ``n_images`` exported synthetic images of the
+    calibrated settings, and of the same settings uncompacted (gravity 0, 15 physics
+    iterations, as calibrate made them before it chose a gravity)."""
+    from napari_symbac.calibrate.compaction import overlap_depths_um
+    from napari_symbac.calibrate.measure import cell_curvatures_px, lengths_px, measure_packing
+    from napari_symbac.export.dataset import PipelineSource, _simulation
+    from napari_symbac.fit.masks import cell_widths_px
+
+    images, modality = load_omnipose(budget)
+    rows = []
+
+    def row(name, masks_list, px, depths=None):
+        packs = [measure_packing(m) for m in masks_list]
+        gaps = np.concatenate([p.gaps_px for p in packs])
+        lengths = np.concatenate([lengths_px(m) for m in masks_list]) * px
+        widths = np.concatenate([cell_widths_px(m) for m in masks_list]) * px
+        curv = np.concatenate([cell_curvatures_px(m) for m in masks_list]) / px
+        return {
+            "data": name,
+            "cells": int(sum(len(np.unique(m)) - 1 for m in masks_list)),
+            "cell_fraction": float(np.nanmean([p.cell_fraction for p in packs])),
+            "seam_px": float(gaps.mean()) if gaps.size else math.nan,
+            "seam_um": float(gaps.mean() * px) if gaps.size else math.nan,
+            "touching": float((gaps == 0).mean()) if gaps.size else math.nan,
+            "length_um": [float(q) for q in np.percentile(lengths, [25, 50, 75])],
+            "width_um": [float(q) for q in np.percentile(widths, [25, 50, 75])],
+            "curvature_per_um": [float(q) for q in np.percentile(curv, [50, 90])],
+            "overlap_widths_p95": depths,
+        }
+
+    for im in images:
+        cal, export = calibrated_settings(im, modality, budget, 0)
+        px = cal.settings.microscope.pixel_size_um
+        rows.append(row(f"{im.name} real", [im.masks], im.pixel_size_um))
+        loose = dataclasses.replace(
+            cal.settings,
+            simulation=dataclasses.replace(cal.settings.simulation, gravity=0.0, phys_iters=15),
+        )
+        for label, pipeline in (
+            ("synthetic, gravity 0 (before)", loose),
+            (f"synthetic, gravity {cal.settings.simulation.gravity:g} (calibrate)", cal.settings),
+        ):
+            settings = dataclasses.replace(export, pipeline=pipeline)
+            source = PipelineSource(settings)
+            masks = [source.make_unit(u)[0].labels.astype(np.int32) for u in range(n_images)]
+            depths = []
+            for u in range(min(n_images, settings.n_simulations)):
+                last = _simulation(pipeline, settings.seed, u).frames[-1]
+                d = overlap_depths_um(last) / float(np.median(last.width_um))
+                depths.append(float(np.percentile(d, 95)) if d.size else 0.0)
+            rows.append(row(f"{im.name} {label}", masks, px, float(np.mean(depths))))
+        print(f"  {im.name}: " + "; ".join(cal.notes[-1:]), flush=True)
+    return rows
+
+
+def packing_table(rows: list[dict]) -> str:
+    lines = [
+        "| data | cells | cell fraction of colonies | seam (px) | seam (um) | pairs touching "
+        "| length (um, quartiles) | width (um, quartiles) | curvature (1/um, median, 90 %) "
+        "| overlap (95 %, widths) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        q = "{:.2f}-{:.2f}-{:.2f}"
+        overlap = "" if r["overlap_widths_p95"] is None else f"{r['overlap_widths_p95']:.2f}"
+        lines.append(
+            f"| {r['data']} | {r['cells']} | {r['cell_fraction']:.3f} | {r['seam_px']:.2f} | "
+            f"{r['seam_um']:.3f} | {r['touching']:.2f} | {q.format(*r['length_um'])} | "
+            f"{q.format(*r['width_um'])} | {r['curvature_per_um'][0]:.3f}, "
+            f"{r['curvature_per_um'][1]:.3f} | {overlap} |"
+        )
+    return "\n".join(lines)
+
+
 def table(rows: list[dict]) -> str:
     lines = [
         "| training data | pixel IoU | F1@0.5 | precision | recall | matched IoU | width bias (um) "
@@ -542,6 +624,12 @@ def main(argv: list[str] | None = None) -> list[dict]:
         help="skip the real-annotation folds and the defaults row (they do not depend on "
         "calibrate: rerun only Otsu + watershed and the calibrated rows)",
     )
+    parser.add_argument(
+        "--packing",
+        action="store_true",
+        help="measure the Omnipose colonies' packing, real against calibrated synthetic, "
+        "and stop (no training)",
+    )
     args = parser.parse_args(argv)
     budget = QUICK if args.quick else Budget()
     if args.steps:
@@ -558,6 +646,13 @@ def main(argv: list[str] | None = None) -> list[dict]:
         flush=True,
     )
     start = time.perf_counter()
+    if args.packing:
+        rows = packing_rows(budget, n_images=2 if args.quick else 4)
+        print(packing_table(rows))
+        if args.out is not None:
+            args.out.mkdir(parents=True, exist_ok=True)
+            (args.out / "packing_omnipose.json").write_text(json.dumps(rows, indent=2))
+        return rows
     rows = run(args.data, budget, args.out, baselines=not args.no_baselines)
     print(table(rows))
     print(f"total {time.perf_counter() - start:.0f} s; load average {os.getloadavg()[0]:.1f}")

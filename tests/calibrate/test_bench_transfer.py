@@ -65,3 +65,21 @@ def test_quick_run_has_every_row(real_data_dir, tmp_path, monkeypatch):
     assert (tmp_path / "transfer_colicoords_prediction.png").is_file()
     table = bench.table(rows)
     assert table.count("\n") == len(rows) + 1
+
+
+@pytest.mark.slow
+def test_packing_table_measures_real_and_synthetic_colonies(real_data_dir, tmp_path, monkeypatch):
+    monkeypatch.setenv("NAPARI_SYMBAC_REAL_DATA", str(real_data_dir))
+    bench = _bench()
+    rows = bench.main(["--data", "omnipose", "--quick", "--packing", "--out", str(tmp_path)])
+    assert len(rows) == 9  # 3 colonies x (real, uncompacted, calibrated)
+    real, loose, calibrated = rows[3:6]
+    assert real["data"] == "Sample000193 real"
+    assert real["overlap_widths_p95"] is None
+    for row in (real, loose, calibrated):
+        assert row["cells"] > 0
+        assert 0 < row["cell_fraction"] <= 1
+        assert row["length_um"][0] <= row["length_um"][1] <= row["length_um"][2]
+    assert calibrated["overlap_widths_p95"] >= 0
+    assert (tmp_path / "packing_omnipose.json").is_file()
+    assert bench.packing_table(rows).count("\n") == len(rows) + 1

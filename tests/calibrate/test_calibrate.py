@@ -146,6 +146,14 @@ def test_dense_phase_colony_uses_the_partially_coherent_fit(real_data_dir):
     cells = item.labels > 0
     assert (np.unique(item.labels) > 0).sum() >= 10
     assert np.median(item.image[cells]) < np.median(item.image[~cells])  # dark cells
+    # the colony is packed as tightly as the recording's: gravity chosen by simulation
+    assert cal.packing is not None
+    assert cal.packing.cell_fraction > 0.9
+    assert len(cal.compaction) >= 2
+    kept = next(t for t in cal.compaction if t.gravity == s.simulation.gravity)
+    loosest = cal.compaction[0]  # gravity 0
+    assert kept.packing.cell_fraction >= loosest.packing.cell_fraction
+    assert any(note.startswith("packing:") for note in cal.notes)
 
 
 def test_calibrate_refuses_contradicting_modality(colicoords_crop):

@@ -5,10 +5,13 @@
   :class:`~napari_symbac.settings.PipelineSettings`;
 * :func:`measure_field`: model-free sizes, brightness, noise and layout from masks;
 * :func:`measure_debris`: the unlabelled blobs outside the masks (debris);
+* :func:`measure_packing`: how tightly the colonies are packed (cell fraction, seams),
+  :func:`cell_curvatures_px`; :func:`choose_gravity`: the compaction that matches it;
 * :func:`compare_images`: real against synthetic (class medians, noise, radially
   averaged power spectrum) and :func:`montage`, the side-by-side picture.
 """
 
+from napari_symbac.calibrate.compaction import CompactionTrial, choose_gravity
 from napari_symbac.calibrate.compare import Comparison, compare_images, montage, radial_power
 from napari_symbac.calibrate.core import (
     Calibration,
@@ -18,25 +21,33 @@ from napari_symbac.calibrate.core import (
     settings_from_fit,
 )
 from napari_symbac.calibrate.measure import (
+    ColonyPacking,
     DebrisMeasurements,
     FieldMeasurements,
+    cell_curvatures_px,
     instance_masks,
     measure_debris,
     measure_field,
+    measure_packing,
 )
 
 __all__ = [
     "Calibration",
+    "ColonyPacking",
+    "CompactionTrial",
     "Comparison",
     "DebrisMeasurements",
     "FieldMeasurements",
     "best_crop",
     "calibrate",
+    "cell_curvatures_px",
+    "choose_gravity",
     "compare_images",
     "export_settings",
     "instance_masks",
     "measure_debris",
     "measure_field",
+    "measure_packing",
     "montage",
     "radial_power",
     "settings_from_fit",

@@ -18,11 +18,15 @@ from napari_symbac.export.visibility import pixel_noise
 from napari_symbac.fit.masks import cell_widths_px
 
 __all__ = [
+    "ColonyPacking",
     "DebrisMeasurements",
     "FieldMeasurements",
+    "cell_curvatures_px",
     "instance_masks",
+    "lengths_px",
     "measure_debris",
     "measure_field",
+    "measure_packing",
 ]
 
 
@@ -37,7 +41,7 @@ def instance_masks(masks: np.ndarray) -> np.ndarray:
     return masks.astype(np.int32)
 
 
-def _lengths_px(labels: np.ndarray) -> np.ndarray:
+def lengths_px(labels: np.ndarray) -> np.ndarray:
     """Pole-to-pole length of every region: its largest Feret diameter plus one pixel
     (the diameter joins pixel centres; the outline lies half a pixel beyond each).
     """
@@ -190,7 +194,7 @@ def measure_field(
     inside = ok & cells
     return FieldMeasurements(
         shape=(int(image.shape[0]), int(image.shape[1])),
-        lengths_px=_lengths_px(relabelled),
+        lengths_px=lengths_px(relabelled),
         widths_px=cell_widths_px(relabelled),
         brightness_adu=brightness,
         cells_median_adu=float(np.median(image[inside] if inside.any() else image[cells])),
@@ -305,3 +309,144 @@ def measure_debris(
         peaks_adu=np.array(peaks),
         blur_sigma_um=np.array(blurs),
     )
+
+
+@dataclass(frozen=True)
+class ColonyPacking:
+    """How tightly the cells of a field's colonies are packed (:func:`measure_packing`).
+
+    Attributes
+    ----------
+    cell_fraction
+        Cell area over colony area, pooled over the colonies of at least ``min_cells``
+        cells; a colony is the cells closed by a disk of half the median cell width,
+        holes filled (so the thin seams and small gaps inside count as colony, the pad
+        around it does not). NaN without such a colony.
+    gaps_px
+        For every pair of neighbouring cells (another cell less than half the median
+        cell width from a cell's outline), the background between them where they
+        come closest, pixels: the distance from the outline to the nearest pixel of
+        the other cell minus one (0: the labels touch). Each pair counts twice.
+    width_px
+        Median cell width (:func:`~napari_symbac.fit.masks.cell_widths_px`).
+    n_colonies
+        Colonies of at least ``min_cells`` cells.
+    """
+
+    cell_fraction: float
+    gaps_px: np.ndarray = field(repr=False)
+    width_px: float
+    n_colonies: int
+
+    @property
+    def mean_gap_px(self) -> float:
+        """Mean seam width between neighbouring cells, pixels (NaN without any)."""
+        return float(self.gaps_px.mean()) if self.gaps_px.size else math.nan
+
+    @property
+    def touching_fraction(self) -> float:
+        """Fraction of the neighbouring pairs whose labels touch (no background seam)."""
+        return float((self.gaps_px == 0).mean()) if self.gaps_px.size else 0.0
+
+
+def _disk(radius: int) -> np.ndarray:
+    yy, xx = np.mgrid[-radius : radius + 1, -radius : radius + 1]
+    return yy**2 + xx**2 <= radius**2
+
+
+def measure_packing(masks: np.ndarray, *, min_cells: int = 5) -> ColonyPacking:
+    """Cell-area fraction of the colonies and the seams between touching cells.
+
+    Parameters
+    ----------
+    masks
+        Instance masks (0 background; a 0/1 mask is split into connected regions:
+        touching cells then count as one).
+    min_cells
+        Smallest cluster counted as a colony in ``cell_fraction``.
+
+    Raises
+    ------
+    ValueError
+        The masks hold no cell.
+    """
+    labels = instance_masks(masks)
+    cells = labels > 0
+    if not cells.any():
+        raise ValueError("the masks hold no cell (all 0): give the masks of this image")
+    width = float(np.median(cell_widths_px(labels)))
+    radius = max(1, round(width / 2))
+    padded = np.pad(cells, radius + 1)
+    closed = ndimage.binary_closing(padded, _disk(radius))[
+        radius + 1 : -radius - 1, radius + 1 : -radius - 1
+    ]
+    colonies, _ = ndimage.label(ndimage.binary_fill_holes(closed | cells))
+    cell_area = colony_area = 0
+    n_colonies = 0
+    for index, box in enumerate(ndimage.find_objects(colonies), start=1):
+        region = colonies[box] == index
+        ids = np.unique(labels[box][region])
+        if np.count_nonzero(ids) >= min_cells:
+            n_colonies += 1
+            cell_area += int((region & cells[box]).sum())
+            colony_area += int(region.sum())
+    reach = math.ceil(width)
+    gaps = []
+    for index, box in enumerate(ndimage.find_objects(labels), start=1):
+        if box is None:
+            continue
+        grown = tuple(
+            slice(max(0, s.start - reach), min(size, s.stop + reach))
+            for s, size in zip(box, labels.shape, strict=True)
+        )
+        window = labels[grown]
+        own = window == index
+        others = (window > 0) & ~own
+        if not others.any():
+            continue
+        edge = own & ~ndimage.binary_erosion(own)
+        distance, (rows, cols) = ndimage.distance_transform_edt(~others, return_indices=True)
+        gap = distance[edge] - 1.0
+        near = gap < width / 2
+        neighbour = window[rows[edge][near], cols[edge][near]]
+        for other in np.unique(neighbour):
+            gaps.append(float(gap[near][neighbour == other].min()))
+    return ColonyPacking(
+        cell_fraction=cell_area / colony_area if colony_area else math.nan,
+        gaps_px=np.array(gaps),
+        width_px=width,
+        n_colonies=n_colonies,
+    )
+
+
+def cell_curvatures_px(masks: np.ndarray) -> np.ndarray:
+    """Curvature (1 / radius, per pixel) of every cell's centre line.
+
+    The region's pixels are rotated onto their principal axis and a parabola
+    ``v = a u^2 + b u + c`` is fitted to the middle of the region across it at each
+    ``u`` (the mean ``v`` of the column of pixels); the curvature at the vertex is
+    ``2 |a|``. A straight rod gives 0 (to within the pixel grid); eq. 1 bends a cell
+    of length ``L`` into an arc of radius ``R``: ``2 |a| = 1 / R``.
+    """
+    labels = instance_masks(masks)
+    out = []
+    for index, box in enumerate(ndimage.find_objects(labels), start=1):
+        if box is None:
+            continue
+        rows, cols = np.nonzero(labels[box] == index)
+        if rows.size < 6:
+            out.append(0.0)
+            continue
+        points = np.stack([rows, cols], 1).astype(np.float64)
+        points -= points.mean(0)
+        _, vectors = np.linalg.eigh(points.T @ points)
+        u, v = points @ vectors[:, 1], points @ vectors[:, 0]
+        bins = np.round(u).astype(int)
+        keys, inverse = np.unique(bins, return_inverse=True)
+        if keys.size < 3:
+            out.append(0.0)
+            continue
+        middle = np.bincount(inverse, weights=v) / np.bincount(inverse)
+        a = np.polyfit(keys.astype(np.float64), middle, 2)[0]
+        out.append(2.0 * abs(float(a)))
+    return np.array(out)
