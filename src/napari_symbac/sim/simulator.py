@@ -33,22 +33,14 @@ import numpy as np
 import pymunk
 
 from napari_symbac.settings import SimulationSettings
-from napari_symbac.sim.bodies import BodyTable, reshape_body
 from napari_symbac.sim.cells import FrameCells, LineageRecord, Simulation
 from napari_symbac.sim.geometry import Layout, make_layout
+from napari_symbac.sim.world import SCALE, World
 
 __all__ = ["Simulator", "simulate"]
 
 Progress = Callable[[int, int], None]
 
-#: Physics world units per micrometre. Chipmunk's tolerances are absolute, so a
-#: fine scale keeps them far below a micrometre.
-SCALE = 100.0
-#: Overlap tolerated between touching shapes (um); smaller costs more iterations.
-COLLISION_SLOP_UM = 0.002
-#: Fraction of an overlap left after one physics iteration (Chipmunk's collision bias
-#: at ``dt = 1``): each iteration corrects 70 % of what remains.
-COLLISION_BIAS = 0.3
 #: Half-width of the rectangle at the core of each cell's rounded box (world units).
 CORE_HALF_WIDTH = 2.0
 #: Factor on the cells' moment of inertia: contacts turn cells this much more slowly.
@@ -59,8 +51,6 @@ GROUP_GAP_UM = 0.05
 #: (or to a colony): a gentle compression that tightens stacking without asking the
 #: solver to hold up a whole stack in one iteration.
 GRAVITY_COMPRESSION = 0.1
-#: Constraint-solver iterations within one physics iteration.
-SOLVER_ITERATIONS = 20
 
 
 class _Cell:
@@ -123,7 +113,7 @@ class Simulator:
         self.settings = settings
         self.rng = np.random.default_rng(settings.seed) if rng is None else rng
         self.layout: Layout = make_layout(settings, self.rng)
-        self._space = self._make_space()
+        self._world = World(self.layout)
         self._cells: list[_Cell] = []
         self._frames: list[FrameCells] = []
         self._next_id = 1
@@ -135,24 +125,6 @@ class Simulator:
             self._add_founder(x, y, angle)
 
     # ------------------------------------------------------------------ physics world
-    def _make_space(self) -> pymunk.Space:
-        space = pymunk.Space()
-        space.iterations = SOLVER_ITERATIONS
-        space.collision_slop = COLLISION_SLOP_UM * SCALE
-        space.collision_bias = COLLISION_BIAS
-        space.damping = 0.0
-        for x0, y0, x1, y1, radius in self.layout.segments_um:
-            wall = pymunk.Segment(
-                space.static_body,
-                (x0 * SCALE, y0 * SCALE),
-                (x1 * SCALE, y1 * SCALE),
-                radius * SCALE,
-            )
-            wall.elasticity = 0.0
-            wall.friction = 0.0
-            space.add(wall)
-        return space
-
     def _attach_body(
         self,
         cell: _Cell,
@@ -174,11 +146,11 @@ class Simulator:
         )
         shape.elasticity = 0.0
         shape.friction = 0.0
-        self._space.add(body, shape)
+        self._world.add(cell.cell_id, body, shape)
         cell.body, cell.shape = body, shape
 
     def _remove(self, cell: _Cell, fate: str, last_frame: int) -> None:
-        self._space.remove(cell.body, cell.shape)
+        self._world.remove(cell.cell_id, cell.body, cell.shape)
         cell.body = cell.shape = None
         record = self._records[cell.cell_id]
         record[2], record[3] = last_frame, fate
@@ -307,29 +279,30 @@ class Simulator:
         drift = s.gravity * s.frame_interval_min / iters  # um per iteration
         jitter = s.jitter_um
         widths = np.array([c.width_um for c in cells])
-        half = np.maximum(np.array([c.length_um for c in cells]) - widths, widths) / 2
+        lengths = np.array([c.length_um for c in cells])
+        half = np.maximum(lengths - widths, widths) / 2
         bodies = [c.body for c in cells]
-        table = BodyTable(self._space, bodies)
+        world = self._world
+        world.prepare([c.cell_id for c in cells], bodies, [c.shape for c in cells], lengths, widths)
         # Growth is spread over the iterations so that overlaps stay small (a capsule
         # whose core crosses another's would be pushed out sideways).
         start = np.array([c.shown_length_um for c in cells])
-        ratio = np.array([c.length_um for c in cells]) / start
+        ratio = lengths / start
         rate = ratio ** (1.0 / iters) - 1.0  # relative elongation per iteration
         growing = np.flatnonzero(ratio != 1.0)
         grown = [cells[i] for i in growing.tolist()]
         for cell in grown:  # the width is fixed within a frame
-            cell.shape.unsafe_set_radius(cell.width_um / 2 * SCALE - CORE_HALF_WIDTH)
+            world.set_radius(cell.cell_id, cell.shape, cell.width_um / 2 * SCALE - CORE_HALF_WIDTH)
         for it in range(iters):
             shown = start * ratio ** ((it + 1) / iters)
-            if it + 1 == iters:
-                lengths = [cell.length_um for cell in grown]
-            else:
-                lengths = shown[growing].tolist()
-            for cell, length in zip(grown, lengths):
+            last = it + 1 == iters
+            now = [cell.length_um for cell in grown] if last else shown[growing].tolist()
+            for cell, length in zip(grown, now):
                 cell.shown_length_um = length
                 w = cell.width_um
-                reshape_body(cell.body, cell.shape, _core(length, w), *_mass_and_moment(w, length))
-            pos, body_angle = table.poses()
+                core, mass_moment = _core(length, w), _mass_and_moment(w, length)
+                world.reshape(cell.cell_id, cell.body, cell.shape, core, *mass_moment)
+            pos, body_angle = world.poses()
             pos = pos / SCALE
             angle = -body_angle
             velocity = self._flow(pos, angle, shown, widths, rate, drift)
@@ -343,11 +316,11 @@ class Simulator:
                 velocity += kicks[:, :2]
                 spin = -kicks[:, 2] / half
             velocity *= SCALE
-            table.set_motion(velocity, spin)
-            self._space.step(1.0)
+            world.set_motion(velocity, spin)
+            world.step()
             if self.layout.box_walls_um is not None:
                 _hold_inside_walls(bodies, shown, widths, self.layout.box_walls_um)
-        table.set_motion(np.zeros((n, 2)), 0.0)
+        world.stop()
 
     def _groups(
         self, pos: np.ndarray, angle: np.ndarray, length: np.ndarray, width: np.ndarray
@@ -448,7 +421,7 @@ class Simulator:
         cells = self._cells
         if not cells:
             return _frame_cells([], np.empty((0, 2)), np.empty(0))
-        pos, body_angle = BodyTable(self._space, [c.body for c in cells]).poses()
+        pos, body_angle = self._world.poses_of([c.cell_id for c in cells], [c.body for c in cells])
         x0, y0, x1, y1 = (v * SCALE for v in self.layout.exit_box_um)
         x, y = pos[:, 0], pos[:, 1]
         inside = (x0 <= x) & (x <= x1) & (y0 <= y) & (y <= y1)
