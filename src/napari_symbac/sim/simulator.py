@@ -33,6 +33,7 @@ import numpy as np
 import pymunk
 
 from napari_symbac.settings import SimulationSettings
+from napari_symbac.sim.bodies import reshape_body, set_vertices
 from napari_symbac.sim.cells import FrameCells, LineageRecord, Simulation
 from napari_symbac.sim.geometry import Layout, make_layout
 from napari_symbac.sim.world import SCALE, World
@@ -291,17 +292,20 @@ class Simulator:
         rate = ratio ** (1.0 / iters) - 1.0  # relative elongation per iteration
         growing = np.flatnonzero(ratio != 1.0)
         grown = [cells[i] for i in growing.tolist()]
+        ghosts = [world.ghost_shapes.get(cell.cell_id, ()) for cell in grown]
         for cell in grown:  # the width is fixed within a frame
             world.set_radius(cell.cell_id, cell.shape, cell.width_um / 2 * SCALE - CORE_HALF_WIDTH)
         for it in range(iters):
             shown = start * ratio ** ((it + 1) / iters)
             last = it + 1 == iters
             now = [cell.length_um for cell in grown] if last else shown[growing].tolist()
-            for cell, length in zip(grown, now):
+            for cell, length, copies in zip(grown, now, ghosts):
                 cell.shown_length_um = length
                 w = cell.width_um
-                core, mass_moment = _core(length, w), _mass_and_moment(w, length)
-                world.reshape(cell.cell_id, cell.body, cell.shape, core, *mass_moment)
+                core = _core(length, w)
+                reshape_body(cell.body, cell.shape, core, *_mass_and_moment(w, length))
+                for ghost in copies:  # its copies in neighbouring tiles
+                    set_vertices(ghost, core)
             pos, body_angle = world.poses()
             pos = pos / SCALE
             angle = -body_angle

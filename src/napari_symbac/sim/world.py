@@ -21,9 +21,9 @@ from collections.abc import Sequence
 
 import numpy as np
 import pymunk
-from pymunk._chipmunk_cffi import lib as _chipmunk
+from scipy.spatial import cKDTree
 
-from napari_symbac.sim.bodies import BodyTable, reshape_body
+from napari_symbac.sim.bodies import BodyTable, set_vertices
 from napari_symbac.sim.geometry import Layout
 
 __all__ = ["TILE_MIN_CELLS", "TILE_UM", "World"]
@@ -42,9 +42,9 @@ SOLVER_ITERATIONS = 20
 TILE_MIN_CELLS = 1000
 #: Side of a tile (um): about 250 cells of a dense colony.
 TILE_UM = 25.0
-#: Extra reach (um) beyond the widest cell for which a cell gets a ghost in a
-#: neighbouring tile: covers a frame's motion.
-GHOST_MARGIN_UM = 1.0
+#: Extra reach (um) for which a cell gets a ghost in a neighbouring tile: covers a
+#: frame's motion relative to the neighbours.
+GHOST_MARGIN_UM = 0.5
 
 _CELL = 0b001
 _GHOST = 0b010
@@ -52,6 +52,8 @@ _WALL = 0b100
 #: Ghosts touch only the cells of their tile (not walls, not other ghosts).
 _GHOST_FILTER = pymunk.ShapeFilter(categories=_GHOST, mask=_CELL)
 _WALL_FILTER = pymunk.ShapeFilter(categories=_WALL)
+#: Where unused ghosts wait (world units): far from any field.
+_PARK_UNITS = 1e7
 
 Key = tuple[int, int]
 
@@ -85,6 +87,7 @@ class _Tile:
         self.table: BodyTable | None = None
         self.ghost_pos = np.empty((0, 2))
         self.ghost_angle = np.empty(0)
+        self.parked: list[tuple[pymunk.Body, pymunk.Poly]] = []  # ghosts for reuse
 
 
 class World:
@@ -107,6 +110,8 @@ class World:
         self._tiles: dict[Key, _Tile] | None = None
         self._owner: dict[int, Key] = {}  # cell id -> tile (tiled only)
         self._ghosts: dict[int, dict[Key, tuple[pymunk.Body, pymunk.Poly]]] = {}
+        #: this frame: cell id -> its ghosts' Chipmunk shapes (for reshaping)
+        self.ghost_shapes: dict[int, list] = {}
         self._table: BodyTable | None = None  # one space: this frame's table
         self._n = 0
 
@@ -138,8 +143,8 @@ class World:
             self.space.remove(body, shape)
             return
         self._tiles[self._owner.pop(cell_id)].space.remove(body, shape)
-        for key, (ghost, ghost_shape) in self._ghosts.pop(cell_id, {}).items():
-            self._tiles[key].space.remove(ghost, ghost_shape)
+        for key, ghost in self._ghosts.pop(cell_id, {}).items():
+            self._park(key, ghost)
 
     def _tile(self, key: Key) -> _Tile:
         tile = self._tiles.get(key)
@@ -169,7 +174,8 @@ class World:
         if self._tiles is None:
             self._table = BodyTable(self.space, bodies)
             return
-        pos = np.array([tuple(body.position) for body in bodies]).reshape(-1, 2) / SCALE
+        pos, body_angle = self.poses_of(ids, bodies)
+        pos = pos / SCALE
         keys = np.floor(pos / TILE_UM).astype(np.int64)
         owners: list[Key] = []
         for cell_id, body, shape, key in zip(ids, bodies, shapes, map(tuple, keys.tolist())):
@@ -178,11 +184,17 @@ class World:
                 self._tiles[old].space.remove(body, shape)
                 ghost = self._ghosts.get(cell_id, {}).pop(key, None)
                 if ghost is not None:
-                    self._tiles[key].space.remove(*ghost)
+                    self._park(key, ghost)
                 self._tile(key).space.add(body, shape)
                 self._owner[cell_id] = key
             owners.append(key)
-        self._update_ghosts(ids, bodies, shapes, pos, owners, length_um, width_um)
+        self._update_ghosts(
+            ids, bodies, shapes, pos, -body_angle, keys, owners, length_um, width_um
+        )
+        self.ghost_shapes = {
+            cell_id: [shape._shape for _, shape in where.values()]
+            for cell_id, where in self._ghosts.items()
+        }
         owned: dict[Key, list[int]] = {}
         for i, key in enumerate(owners):
             owned.setdefault(key, []).append(i)
@@ -220,55 +232,72 @@ class World:
         bodies: Sequence[pymunk.Body],
         shapes: Sequence[pymunk.Poly],
         pos: np.ndarray,
+        angle: np.ndarray,
+        keys: np.ndarray,
         owners: list[Key],
         length_um: np.ndarray,
         width_um: np.ndarray,
     ) -> None:
-        angle = np.array([body.angle for body in bodies])
+        """Give each cell a ghost in every other tile that owns a cell closer to it
+        than :data:`GHOST_MARGIN_UM` (capsule to capsule), and only there."""
         half = np.maximum(length_um - width_um, 0.0) / 2
-        reach_x = np.abs(np.sin(angle)) * half + width_um / 2
-        reach_y = np.abs(np.cos(angle)) * half + width_um / 2
-        # a tile's own cells stick out of it by up to the longest cell's half-length
-        margin = float(length_um.max()) / 2 + GHOST_MARGIN_UM if len(length_um) else 0.0
-        lo = np.floor((pos - np.c_[reach_x, reach_y] - margin) / TILE_UM).astype(np.int64)
-        hi = np.floor((pos + np.c_[reach_x, reach_y] + margin) / TILE_UM).astype(np.int64)
-        occupied = set(owners)
-        crossing = np.flatnonzero((lo != hi).any(axis=1)).tolist()
-        wanted: dict[int, list[Key]] = {}
-        for i in crossing:
-            keys = [
-                (kx, ky)
-                for kx in range(lo[i, 0], hi[i, 0] + 1)
-                for ky in range(lo[i, 1], hi[i, 1] + 1)
-                if (kx, ky) != owners[i] and (kx, ky) in occupied
-            ]
-            if keys:
-                wanted[i] = keys
+        axis = np.c_[np.sin(angle), np.cos(angle)] * half[:, None]
+        wanted: dict[int, set[Key]] = {}
+        if len(pos) > 1:
+            # candidate neighbours by their centres, then the exact gap between capsules
+            within = 2 * float((half + width_um / 2).max()) + GHOST_MARGIN_UM
+            pairs = cKDTree(pos).query_pairs(within, p=np.inf, output_type="ndarray")
+            pairs = pairs[(keys[pairs[:, 0]] != keys[pairs[:, 1]]).any(axis=1)]
+            i, j = pairs[:, 0], pairs[:, 1]
+            gap = _axis_distance(pos[i], axis[i], pos[j], axis[j]) - (
+                width_um[i] + width_um[j]
+            ) / 2
+            for a, b in pairs[gap < GHOST_MARGIN_UM].tolist():
+                wanted.setdefault(a, set()).add(owners[b])
+                wanted.setdefault(b, set()).add(owners[a])
         index = {cell_id: i for i, cell_id in enumerate(ids)}
         for cell_id in list(self._ghosts):
             i = index.get(cell_id)
-            keep = set(wanted.get(i, ())) if i is not None else set()
+            keep = wanted.get(i, set()) if i is not None else set()
             where = self._ghosts[cell_id]
             for key in [k for k in where if k not in keep]:
-                self._tiles[key].space.remove(*where.pop(key))
+                self._park(key, where.pop(key))
             if not where:
                 del self._ghosts[cell_id]
-        for i, keys in wanted.items():
+        for i in sorted(wanted):
             where = self._ghosts.setdefault(ids[i], {})
-            for key in keys:
+            for key in sorted(wanted[i]):
                 if key not in where:
                     where[key] = self._new_ghost(bodies[i], shapes[i], key)
 
     def _new_ghost(self, body: pymunk.Body, shape: pymunk.Poly, key: Key):
-        ghost = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
+        """A ghost of ``body`` in tile ``key``: a parked one of that tile, else a new one.
+
+        Parking instead of removing saves ``cpSpaceRemoveShape``, which scans all of
+        the space's cached contacts, and pymunk's object creation.
+        """
+        tile = self._tiles[key]
+        vertices = [tuple(v) for v in shape.get_vertices()]
+        if tile.parked:
+            ghost, ghost_shape = tile.parked.pop()
+            set_vertices(ghost_shape._shape, vertices)
+            ghost_shape.unsafe_set_radius(shape.radius)
+        else:
+            ghost = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
+            ghost_shape = pymunk.Poly(ghost, vertices, radius=shape.radius)
+            ghost_shape.elasticity = 0.0
+            ghost_shape.friction = 0.0
+            ghost_shape.filter = _GHOST_FILTER
+            tile.space.add(ghost, ghost_shape)
         ghost.position = body.position
         ghost.angle = body.angle
-        ghost_shape = pymunk.Poly(ghost, shape.get_vertices(), radius=shape.radius)
-        ghost_shape.elasticity = 0.0
-        ghost_shape.friction = 0.0
-        ghost_shape.filter = _GHOST_FILTER
-        self._tiles[key].space.add(ghost, ghost_shape)
         return ghost, ghost_shape
+
+    def _park(self, key: Key, ghost: tuple[pymunk.Body, pymunk.Poly]) -> None:
+        """Move an unneeded ghost far out of the colony, alone, for reuse."""
+        parked = self._tiles[key].parked
+        ghost[0].position = (-_PARK_UNITS, -_PARK_UNITS - 10.0 * SCALE * len(parked))
+        parked.append(ghost)
 
     # ---------------------------------------------------------------- shapes
     def set_radius(self, cell_id: int, shape: pymunk.Poly, radius: float) -> None:
@@ -276,20 +305,6 @@ class World:
         shape.unsafe_set_radius(radius)
         for _, ghost_shape in self._ghosts.get(cell_id, {}).values():
             ghost_shape.unsafe_set_radius(radius)
-
-    def reshape(
-        self,
-        cell_id: int,
-        body: pymunk.Body,
-        shape: pymunk.Poly,
-        vertices: list[tuple[float, float]],
-        mass: float,
-        moment: float,
-    ) -> None:
-        """:func:`~napari_symbac.sim.bodies.reshape_body`, ghosts included."""
-        reshape_body(body, shape, vertices, mass, moment)
-        for _, ghost_shape in self._ghosts.get(cell_id, {}).values():
-            _chipmunk.cpPolyShapeSetVertsRaw(ghost_shape._shape, len(vertices), vertices)
 
     # ---------------------------------------------------------------- iterations
     def poses(self) -> tuple[np.ndarray, np.ndarray]:
@@ -373,6 +388,7 @@ class World:
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
         state["_table"] = None
+        state["ghost_shapes"] = {}
         state.pop("_pos", None)
         state.pop("_angle", None)
         return state
@@ -383,3 +399,35 @@ def _key_of(position: pymunk.Vec2d) -> Key:
         math.floor(position.x / SCALE / TILE_UM),
         math.floor(position.y / SCALE / TILE_UM),
     )
+
+
+def _axis_distance(
+    centre_a: np.ndarray, half_a: np.ndarray, centre_b: np.ndarray, half_b: np.ndarray
+) -> np.ndarray:
+    """Distance between the segments ``centre +- half`` of each row (the capsules'
+    axes): the closest points of two segments, clamped to both (Ericson,
+    *Real-Time Collision Detection*, 5.1.9)."""
+    p, q = centre_a - half_a, centre_b - half_b
+    d1, d2, r = 2 * half_a, 2 * half_b, p - q
+    a = np.einsum("ij,ij->i", d1, d1)
+    e = np.einsum("ij,ij->i", d2, d2)
+    f = np.einsum("ij,ij->i", d2, r)
+    c = np.einsum("ij,ij->i", d1, r)
+    b = np.einsum("ij,ij->i", d1, d2)
+    tiny = 1e-12
+    a_ = np.where(a > tiny, a, 1.0)
+    e_ = np.where(e > tiny, e, 1.0)
+    denom = a * e - b * b
+    skew = denom > tiny * a_ * e_  # not parallel: else any s, take 0
+    s = np.where(skew, np.clip((b * f - c * e) / np.where(skew, denom, 1.0), 0, 1), 0.0)
+    t = (b * s + f) / e_
+    s = np.where(t < 0, np.clip(-c / a_, 0, 1), np.where(t > 1, np.clip((b - c) / a_, 0, 1), s))
+    t = np.clip(t, 0, 1)
+    point_b = e <= tiny  # b is a point (a round cell)
+    s = np.where(point_b, np.clip(-c / a_, 0, 1), s)
+    t = np.where(point_b, 0.0, t)
+    point_a = a <= tiny
+    t = np.where(point_a, np.where(point_b, 0.0, np.clip(f / e_, 0, 1)), t)
+    s = np.where(point_a, 0.0, s)
+    gap = p + d1 * s[:, None] - (q + d2 * t[:, None])
+    return np.hypot(gap[:, 0], gap[:, 1])
