@@ -21,9 +21,9 @@ from collections.abc import Sequence
 
 import numpy as np
 import pymunk
-from scipy.spatial import cKDTree
 
 from napari_symbac.sim.bodies import BodyTable, set_vertices
+from napari_symbac.sim.contacts import capsule_axes, neighbour_gaps
 from napari_symbac.sim.geometry import Layout
 
 __all__ = ["TILE_MIN_CELLS", "TILE_UM", "World"]
@@ -240,21 +240,14 @@ class World:
     ) -> None:
         """Give each cell a ghost in every other tile that owns a cell closer to it
         than :data:`GHOST_MARGIN_UM` (capsule to capsule), and only there."""
-        half = np.maximum(length_um - width_um, 0.0) / 2
-        axis = np.c_[np.sin(angle), np.cos(angle)] * half[:, None]
+        axes = capsule_axes(angle, length_um, width_um)
+        pairs, gap = neighbour_gaps(pos, axes, width_um, GHOST_MARGIN_UM)
+        i, j = pairs[:, 0], pairs[:, 1]
+        near = pairs[(gap < GHOST_MARGIN_UM) & (keys[i] != keys[j]).any(axis=1)]
         wanted: dict[int, set[Key]] = {}
-        if len(pos) > 1:
-            # candidate neighbours by their centres, then the exact gap between capsules
-            within = 2 * float((half + width_um / 2).max()) + GHOST_MARGIN_UM
-            pairs = cKDTree(pos).query_pairs(within, p=np.inf, output_type="ndarray")
-            pairs = pairs[(keys[pairs[:, 0]] != keys[pairs[:, 1]]).any(axis=1)]
-            i, j = pairs[:, 0], pairs[:, 1]
-            gap = _axis_distance(pos[i], axis[i], pos[j], axis[j]) - (
-                width_um[i] + width_um[j]
-            ) / 2
-            for a, b in pairs[gap < GHOST_MARGIN_UM].tolist():
-                wanted.setdefault(a, set()).add(owners[b])
-                wanted.setdefault(b, set()).add(owners[a])
+        for a, b in near.tolist():
+            wanted.setdefault(a, set()).add(owners[b])
+            wanted.setdefault(b, set()).add(owners[a])
         index = {cell_id: i for i, cell_id in enumerate(ids)}
         for cell_id in list(self._ghosts):
             i = index.get(cell_id)
@@ -400,34 +393,3 @@ def _key_of(position: pymunk.Vec2d) -> Key:
         math.floor(position.y / SCALE / TILE_UM),
     )
 
-
-def _axis_distance(
-    centre_a: np.ndarray, half_a: np.ndarray, centre_b: np.ndarray, half_b: np.ndarray
-) -> np.ndarray:
-    """Distance between the segments ``centre +- half`` of each row (the capsules'
-    axes): the closest points of two segments, clamped to both (Ericson,
-    *Real-Time Collision Detection*, 5.1.9)."""
-    p, q = centre_a - half_a, centre_b - half_b
-    d1, d2, r = 2 * half_a, 2 * half_b, p - q
-    a = np.einsum("ij,ij->i", d1, d1)
-    e = np.einsum("ij,ij->i", d2, d2)
-    f = np.einsum("ij,ij->i", d2, r)
-    c = np.einsum("ij,ij->i", d1, r)
-    b = np.einsum("ij,ij->i", d1, d2)
-    tiny = 1e-12
-    a_ = np.where(a > tiny, a, 1.0)
-    e_ = np.where(e > tiny, e, 1.0)
-    denom = a * e - b * b
-    skew = denom > tiny * a_ * e_  # not parallel: else any s, take 0
-    s = np.where(skew, np.clip((b * f - c * e) / np.where(skew, denom, 1.0), 0, 1), 0.0)
-    t = (b * s + f) / e_
-    s = np.where(t < 0, np.clip(-c / a_, 0, 1), np.where(t > 1, np.clip((b - c) / a_, 0, 1), s))
-    t = np.clip(t, 0, 1)
-    point_b = e <= tiny  # b is a point (a round cell)
-    s = np.where(point_b, np.clip(-c / a_, 0, 1), s)
-    t = np.where(point_b, 0.0, t)
-    point_a = a <= tiny
-    t = np.where(point_a, np.where(point_b, 0.0, np.clip(f / e_, 0, 1)), t)
-    s = np.where(point_a, 0.0, s)
-    gap = p + d1 * s[:, None] - (q + d2 * t[:, None])
-    return np.hypot(gap[:, 0], gap[:, 1])
