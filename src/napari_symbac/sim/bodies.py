@@ -16,7 +16,7 @@ import pymunk
 import pymunk.batch as batch
 from pymunk._chipmunk_cffi import lib as _chipmunk
 
-__all__ = ["BodyTable", "reshape_body", "set_vertices"]
+__all__ = ["BodyTable", "reshape_body"]
 
 _POSE = batch.BodyFields.POSITION | batch.BodyFields.ANGLE
 _MOTION = batch.BodyFields.VELOCITY | batch.BodyFields.ANGULAR_VELOCITY
@@ -84,9 +84,3 @@ def reshape_body(
     _chipmunk.cpPolyShapeSetVertsRaw(shape._shape, len(vertices), vertices)
     _chipmunk.cpBodySetMass(body._body, mass)
     _chipmunk.cpBodySetMoment(body._body, moment)
-
-
-def set_vertices(shape_ptr, vertices: Sequence[tuple[float, float]]) -> None:
-    """Give the Chipmunk polygon ``shape_ptr`` (a ``Poly``'s ``_shape``) new
-    ``vertices``, as :func:`reshape_body` does, for shapes of kinematic bodies."""
-    _chipmunk.cpPolyShapeSetVertsRaw(shape_ptr, len(vertices), vertices)

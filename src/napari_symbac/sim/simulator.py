@@ -33,15 +33,23 @@ import numpy as np
 import pymunk
 
 from napari_symbac.settings import SimulationSettings
-from napari_symbac.sim.bodies import reshape_body, set_vertices
+from napari_symbac.sim.bodies import BodyTable, reshape_body
 from napari_symbac.sim.cells import FrameCells, LineageRecord, Simulation
 from napari_symbac.sim.geometry import Layout, make_layout
-from napari_symbac.sim.world import SCALE, World
+from napari_symbac.sim.pool import BodyPool
 
 __all__ = ["Simulator", "simulate"]
 
 Progress = Callable[[int, int], None]
 
+#: Physics world units per micrometre. Chipmunk's tolerances are absolute, so a
+#: fine scale keeps them far below a micrometre.
+SCALE = 100.0
+#: Overlap tolerated between touching shapes (um); smaller costs more iterations.
+COLLISION_SLOP_UM = 0.002
+#: Fraction of an overlap left after one physics iteration (Chipmunk's collision bias
+#: at ``dt = 1``): each iteration corrects 70 % of what remains.
+COLLISION_BIAS = 0.3
 #: Half-width of the rectangle at the core of each cell's rounded box (world units).
 CORE_HALF_WIDTH = 2.0
 #: Factor on the cells' moment of inertia: contacts turn cells this much more slowly.
@@ -52,6 +60,8 @@ GROUP_GAP_UM = 0.05
 #: (or to a colony): a gentle compression that tightens stacking without asking the
 #: solver to hold up a whole stack in one iteration.
 GRAVITY_COMPRESSION = 0.1
+#: Constraint-solver iterations within one physics iteration.
+SOLVER_ITERATIONS = 20
 
 
 class _Cell:
@@ -114,7 +124,8 @@ class Simulator:
         self.settings = settings
         self.rng = np.random.default_rng(settings.seed) if rng is None else rng
         self.layout: Layout = make_layout(settings, self.rng)
-        self._world = World(self.layout)
+        self._space = self._make_space()
+        self._pool = BodyPool(self._space)
         self._cells: list[_Cell] = []
         self._frames: list[FrameCells] = []
         self._next_id = 1
@@ -126,6 +137,24 @@ class Simulator:
             self._add_founder(x, y, angle)
 
     # ------------------------------------------------------------------ physics world
+    def _make_space(self) -> pymunk.Space:
+        space = pymunk.Space()
+        space.iterations = SOLVER_ITERATIONS
+        space.collision_slop = COLLISION_SLOP_UM * SCALE
+        space.collision_bias = COLLISION_BIAS
+        space.damping = 0.0
+        for x0, y0, x1, y1, radius in self.layout.segments_um:
+            wall = pymunk.Segment(
+                space.static_body,
+                (x0 * SCALE, y0 * SCALE),
+                (x1 * SCALE, y1 * SCALE),
+                radius * SCALE,
+            )
+            wall.elasticity = 0.0
+            wall.friction = 0.0
+            space.add(wall)
+        return space
+
     def _attach_body(
         self,
         cell: _Cell,
@@ -136,22 +165,16 @@ class Simulator:
     ) -> None:
         if shown_length_um is not None:
             cell.shown_length_um = shown_length_um
-        body = pymunk.Body(1.0, 1.0)
-        body.mass, body.moment = _mass_and_moment(cell.width_um, cell.shown_length_um)
-        body.position = (x_um * SCALE, y_um * SCALE)
-        body.angle = -angle_rad
-        shape = pymunk.Poly(
-            body,
+        cell.body, cell.shape = self._pool.take(
             _core(cell.shown_length_um, cell.width_um),
-            radius=cell.width_um / 2 * SCALE - CORE_HALF_WIDTH,
+            cell.width_um / 2 * SCALE - CORE_HALF_WIDTH,
+            *_mass_and_moment(cell.width_um, cell.shown_length_um),
+            (x_um * SCALE, y_um * SCALE),
+            -angle_rad,
         )
-        shape.elasticity = 0.0
-        shape.friction = 0.0
-        self._world.add(cell.cell_id, body, shape)
-        cell.body, cell.shape = body, shape
 
     def _remove(self, cell: _Cell, fate: str, last_frame: int) -> None:
-        self._world.remove(cell.cell_id, cell.body, cell.shape)
+        self._pool.give_back(cell.body, cell.shape)
         cell.body = cell.shape = None
         record = self._records[cell.cell_id]
         record[2], record[3] = last_frame, fate
@@ -280,33 +303,29 @@ class Simulator:
         drift = s.gravity * s.frame_interval_min / iters  # um per iteration
         jitter = s.jitter_um
         widths = np.array([c.width_um for c in cells])
-        lengths = np.array([c.length_um for c in cells])
-        half = np.maximum(lengths - widths, widths) / 2
+        half = np.maximum(np.array([c.length_um for c in cells]) - widths, widths) / 2
         bodies = [c.body for c in cells]
-        world = self._world
-        world.prepare([c.cell_id for c in cells], bodies, [c.shape for c in cells], lengths, widths)
+        table = BodyTable(self._space, bodies)
         # Growth is spread over the iterations so that overlaps stay small (a capsule
         # whose core crosses another's would be pushed out sideways).
         start = np.array([c.shown_length_um for c in cells])
-        ratio = lengths / start
+        ratio = np.array([c.length_um for c in cells]) / start
         rate = ratio ** (1.0 / iters) - 1.0  # relative elongation per iteration
         growing = np.flatnonzero(ratio != 1.0)
         grown = [cells[i] for i in growing.tolist()]
-        ghosts = [world.ghost_shapes.get(cell.cell_id, ()) for cell in grown]
         for cell in grown:  # the width is fixed within a frame
-            world.set_radius(cell.cell_id, cell.shape, cell.width_um / 2 * SCALE - CORE_HALF_WIDTH)
+            cell.shape.unsafe_set_radius(cell.width_um / 2 * SCALE - CORE_HALF_WIDTH)
         for it in range(iters):
             shown = start * ratio ** ((it + 1) / iters)
-            last = it + 1 == iters
-            now = [cell.length_um for cell in grown] if last else shown[growing].tolist()
-            for cell, length, copies in zip(grown, now, ghosts):
+            if it + 1 == iters:
+                lengths = [cell.length_um for cell in grown]
+            else:
+                lengths = shown[growing].tolist()
+            for cell, length in zip(grown, lengths):
                 cell.shown_length_um = length
                 w = cell.width_um
-                core = _core(length, w)
-                reshape_body(cell.body, cell.shape, core, *_mass_and_moment(w, length))
-                for ghost in copies:  # its copies in neighbouring tiles
-                    set_vertices(ghost, core)
-            pos, body_angle = world.poses()
+                reshape_body(cell.body, cell.shape, _core(length, w), *_mass_and_moment(w, length))
+            pos, body_angle = table.poses()
             pos = pos / SCALE
             angle = -body_angle
             velocity = self._flow(pos, angle, shown, widths, rate, drift)
@@ -320,11 +339,11 @@ class Simulator:
                 velocity += kicks[:, :2]
                 spin = -kicks[:, 2] / half
             velocity *= SCALE
-            world.set_motion(velocity, spin)
-            world.step()
+            table.set_motion(velocity, spin)
+            self._space.step(1.0)
             if self.layout.box_walls_um is not None:
                 _hold_inside_walls(bodies, shown, widths, self.layout.box_walls_um)
-        world.stop()
+        table.set_motion(np.zeros((n, 2)), 0.0)
 
     def _groups(
         self, pos: np.ndarray, angle: np.ndarray, length: np.ndarray, width: np.ndarray
@@ -425,7 +444,7 @@ class Simulator:
         cells = self._cells
         if not cells:
             return _frame_cells([], np.empty((0, 2)), np.empty(0))
-        pos, body_angle = self._world.poses_of([c.cell_id for c in cells], [c.body for c in cells])
+        pos, body_angle = BodyTable(self._space, [c.body for c in cells]).poses()
         x0, y0, x1, y1 = (v * SCALE for v in self.layout.exit_box_um)
         x, y = pos[:, 0], pos[:, 1]
         inside = (x0 <= x) & (x <= x1) & (y0 <= y) & (y <= y1)
