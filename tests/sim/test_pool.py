@@ -5,6 +5,8 @@ and widths stay the same, and the physics statistics with them."""
 
 from __future__ import annotations
 
+import pickle
+
 import numpy as np
 import pymunk
 import pytest
@@ -45,6 +47,7 @@ def test_big_colonies_park_bodies_and_reuse_them_without_their_contacts(monkeypa
     a, a_shape = bodies.take(SQUARE, 1.0, 1.0, 1.0, (0.0, 0.0), 0.0)
     b, _ = bodies.take(SQUARE, 1.0, 1.0, 1.0, (5.5, 0.0), 0.0)  # 0.5 deep into a
     space.step(1.0)
+    bodies.tick()
     assert _arbiters(a)
     bodies.give_back(a, a_shape)
     assert a in space.bodies  # parked, not removed
@@ -54,8 +57,13 @@ def test_big_colonies_park_bodies_and_reuse_them_without_their_contacts(monkeypa
     # its contact with b is still cached: not handed out yet
     c, _ = bodies.take(SQUARE, 1.0, 1.0, 1.0, (50.0, 0.0), 0.0)
     assert c is not a
-    for _ in range(space.collision_persistence + 2):
+    for _ in range(space.collision_persistence + 1):
         space.step(1.0)
+        bodies.tick()
+    e, _ = bodies.take(SQUARE, 1.0, 1.0, 1.0, (-50.0, 0.0), 0.0)
+    assert e is not a  # one step short
+    space.step(1.0)
+    bodies.tick()
     d, d_shape = bodies.take(ROD, 0.5, 7.0, 8.0, (5.0, 0.25), 0.2)
     assert d is a
     assert d_shape is a_shape
@@ -150,3 +158,22 @@ def test_parked_cells_stay_out_of_a_chamber_and_its_walls_hold(monkeypatch):
         assert (np.maximum(p0[:, 0], p1[:, 0]) + r).max() < 10.06
         assert (np.minimum(p0[:, 1], p1[:, 1]) - r).min() > -0.06
         assert frame.y_um.max() <= 10.0
+
+
+def test_a_pickled_simulator_keeps_reusing_parked_bodies(monkeypatch):
+    # napari-symbac bench times colonies restored from pickles
+    monkeypatch.setattr(pool_module, "PARK_MIN_CELLS", 10)
+    simulator = Simulator(_pad())
+    for _ in range(55):
+        simulator.step()
+    restored = pickle.loads(pickle.dumps(simulator))
+    parked = len(restored._pool)
+    assert parked > 0
+    bodies = len(restored._space.bodies)
+    born = len(restored.result().lineage)
+    for _ in range(5):
+        frame = restored.step()
+    new_cells = len(restored.result().lineage) - born
+    assert new_cells > parked  # more daughters than parked bodies ...
+    assert len(restored._space.bodies) - bodies < new_cells - parked + 1  # ... all reused
+    assert len(restored._space.bodies) == len(frame) + len(restored._pool)

@@ -43,13 +43,15 @@ class BodyPool:
         self._alive = 0
         self._parked: deque[tuple[pymunk.Body, pymunk.Poly, int]] = deque()
         self._spot = 0
+        self._steps = 0  # physics steps seen (pickled with the pool, unlike Chipmunk's)
 
     def __len__(self) -> int:
         """Parked bodies."""
         return len(self._parked)
 
-    def _stamp(self) -> int:
-        return int(_chipmunk.cpSpaceGetTimestamp(self._space._space))
+    def tick(self) -> None:
+        """Count one physics step of the space (call after each ``space.step``)."""
+        self._steps += 1
 
     def take(
         self,
@@ -62,9 +64,10 @@ class BodyPool:
     ) -> tuple[pymunk.Body, pymunk.Poly]:
         """A body (with its rounded-polygon shape) in the space, of the given shape,
         mass and moment of inertia, at ``position`` and ``angle`` (world units),
-        at rest: a parked one whose contacts Chipmunk has forgotten, else a new one."""
+        at rest: a parked one whose contacts Chipmunk has forgotten (parked more than
+        ``collision_persistence + 1`` :meth:`tick` s ago), else a new one."""
         self._alive += 1
-        forgotten = self._stamp() - self._space.collision_persistence - 1
+        forgotten = self._steps - self._space.collision_persistence - 1
         if self._parked and self._parked[0][2] < forgotten:
             body, shape, _ = self._parked.popleft()
             _chipmunk.cpPolyShapeSetVertsRaw(shape._shape, len(vertices), vertices)
@@ -93,5 +96,5 @@ class BodyPool:
             body.position = (PARK_AT, PARK_AT - PARK_SPACING * self._spot)
             body.velocity = (0.0, 0.0)
             body.angular_velocity = 0.0
-            self._parked.append((body, shape, self._stamp()))
+            self._parked.append((body, shape, self._steps))
         self._alive -= 1

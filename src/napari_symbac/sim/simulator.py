@@ -341,6 +341,7 @@ class Simulator:
             velocity *= SCALE
             table.set_motion(velocity, spin)
             self._space.step(1.0)
+            self._pool.tick()
             if self.layout.box_walls_um is not None:
                 _hold_inside_walls(bodies, shown, widths, self.layout.box_walls_um)
         table.set_motion(np.zeros((n, 2)), 0.0)
