@@ -3,7 +3,7 @@ does not scan every contact.
 
 ``cpSpaceRemoveShape`` (and ``cpSpaceRemoveBody``) walk all of the space's cached
 contacts to drop the removed shape's, so each division, exit or lysis cost time in
-proportion to the colony: about a tenth of a 4400-cell colony's time went there.
+proportion to the colony: 3-9 % of a 4400-cell colony's time (docs/simulation.md).
 Once the space holds :data:`PARK_MIN_CELLS` cells, a removed cell's body and shape
 are instead *parked*: moved far out of the field, alone, and left at rest. Chipmunk
 forgets their contacts by itself after ``collision_persistence`` steps; from then on
@@ -23,7 +23,8 @@ __all__ = ["PARK_MIN_CELLS", "BodyPool"]
 #: Cells in the space from which removed bodies are parked and reused; smaller runs
 #: add and remove bodies as before (and stay bit-identical to earlier versions).
 PARK_MIN_CELLS = 1000
-#: Where parked bodies wait (world units), each at its own spot along a line.
+#: Where parked bodies wait (world units: 1 km away), each at its own spot along a
+#: line, 10 um apart (farther than any cell is long).
 PARK_AT = -1.0e7
 PARK_SPACING = 1.0e3
 PARK_SPOTS = 100_000
