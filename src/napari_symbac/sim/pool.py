@@ -23,7 +23,7 @@ __all__ = ["PARK_MIN_CELLS", "BodyPool"]
 #: Cells in the space from which removed bodies are parked and reused; smaller runs
 #: add and remove bodies as before (and stay bit-identical to earlier versions).
 PARK_MIN_CELLS = 1000
-#: Where parked bodies wait (world units: 1 km away), each at its own spot along a
+#: Where parked bodies wait (world units: 10 cm away), each at its own spot along a
 #: line, 10 um apart (farther than any cell is long).
 PARK_AT = -1.0e7
 PARK_SPACING = 1.0e3
