@@ -31,6 +31,9 @@ def test_measure_colony(bench):
     assert row["final_cells"] >= row["cells"]
     assert row["cell_frames"] >= 2 * row["cells"]
     assert row["ms_per_cell_frame"] == pytest.approx(1e3 * row["seconds"] / row["cell_frames"])
+    assert row["cpu_ms_per_cell_frame"] == pytest.approx(
+        1e3 * row["cpu_seconds"] / row["cell_frames"]
+    )
 
 
 def test_measure_colony_scaling_times_every_size_from_the_same_state(bench):
@@ -41,9 +44,13 @@ def test_measure_colony_scaling_times_every_size_from_the_same_state(bench):
     for row in (small, large):
         assert len(row["ms_per_cell_frame_rounds"]) == 2
         assert row["ms_per_cell_frame"] == min(row["ms_per_cell_frame_rounds"])
+        assert 0 < row["cpu_ms_per_cell_frame"] <= row["cpu_ms_per_cell_frame_median"]
         # the render frame holds the colony's box and the PSF border of 50 px each side
         assert min(row["render_shape"]) > 100
     assert out["ratio"] == pytest.approx(large["ms_per_cell_frame"] / small["ms_per_cell_frame"])
+    assert out["cpu_ratio"] == pytest.approx(
+        large["cpu_ms_per_cell_frame"] / small["cpu_ms_per_cell_frame"]
+    )
 
 
 def test_measure_colony_rejects_an_empty_colony(bench):

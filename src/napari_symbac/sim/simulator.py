@@ -36,6 +36,7 @@ from napari_symbac.settings import SimulationSettings
 from napari_symbac.sim.bodies import BodyTable, reshape_body
 from napari_symbac.sim.cells import FrameCells, LineageRecord, Simulation
 from napari_symbac.sim.geometry import Layout, make_layout
+from napari_symbac.sim.pool import BodyPool
 
 __all__ = ["Simulator", "simulate"]
 
@@ -124,6 +125,7 @@ class Simulator:
         self.rng = np.random.default_rng(settings.seed) if rng is None else rng
         self.layout: Layout = make_layout(settings, self.rng)
         self._space = self._make_space()
+        self._pool = BodyPool(self._space)
         self._cells: list[_Cell] = []
         self._frames: list[FrameCells] = []
         self._next_id = 1
@@ -163,22 +165,16 @@ class Simulator:
     ) -> None:
         if shown_length_um is not None:
             cell.shown_length_um = shown_length_um
-        body = pymunk.Body(1.0, 1.0)
-        body.mass, body.moment = _mass_and_moment(cell.width_um, cell.shown_length_um)
-        body.position = (x_um * SCALE, y_um * SCALE)
-        body.angle = -angle_rad
-        shape = pymunk.Poly(
-            body,
+        cell.body, cell.shape = self._pool.take(
             _core(cell.shown_length_um, cell.width_um),
-            radius=cell.width_um / 2 * SCALE - CORE_HALF_WIDTH,
+            cell.width_um / 2 * SCALE - CORE_HALF_WIDTH,
+            *_mass_and_moment(cell.width_um, cell.shown_length_um),
+            (x_um * SCALE, y_um * SCALE),
+            -angle_rad,
         )
-        shape.elasticity = 0.0
-        shape.friction = 0.0
-        self._space.add(body, shape)
-        cell.body, cell.shape = body, shape
 
     def _remove(self, cell: _Cell, fate: str, last_frame: int) -> None:
-        self._space.remove(cell.body, cell.shape)
+        self._pool.give_back(cell.body, cell.shape)
         cell.body = cell.shape = None
         record = self._records[cell.cell_id]
         record[2], record[3] = last_frame, fate
@@ -345,6 +341,7 @@ class Simulator:
             velocity *= SCALE
             table.set_motion(velocity, spin)
             self._space.step(1.0)
+            self._pool.tick()
             if self.layout.box_walls_um is not None:
                 _hold_inside_walls(bodies, shown, widths, self.layout.box_walls_um)
         table.set_motion(np.zeros((n, 2)), 0.0)
