@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from napari_symbac.optics.backends import ConvolutionBackend, get_backend
+from napari_symbac.optics.backends import ConvolutionBackend, get_backend, resample_fft_shape
 from napari_symbac.optics.camera import apply_camera_noise, apply_gaussian_noise, quantise
 from napari_symbac.optics.partial_coherence import annular_phase_image
 from napari_symbac.optics.psf import (
@@ -49,6 +49,7 @@ from napari_symbac.optics.psf import (
     phase_contrast_kernels,
     phase_contrast_psf,
 )
+from napari_symbac.optics.static import axis_window, static_layers
 from napari_symbac.settings import CONDENSERS, Camera, Microscope, RenderSettings
 
 __all__ = ["COMPONENTS", "ForwardModel", "Stage", "block_average"]
@@ -589,6 +590,8 @@ class ForwardModel:
                 p_cell, p_device = r.phase_amplitudes()
                 image -= np.float32(p_cell) * comps["cells_phase"]
                 image -= np.float32(p_device) * comps["device_phase"]
+        elif self._static_path(scene):
+            image = self._render_static(scene)
         else:
             self._check_scene(scene)
             kernel = self.kernel(scene.pixel_size_um)
@@ -609,6 +612,94 @@ class ForwardModel:
         for stage in self.extra_stages:
             image = np.asarray(stage.apply(image, scene), dtype=np.float32)  # type: ignore[misc]
         return image.astype(np.float32, copy=False)
+
+    def _static_path(self, scene: Any) -> bool:
+        """Whether :meth:`_render_static` applies: a drawn scene, a fused backend."""
+        self._check_scene(scene)
+        return (
+            hasattr(self.backend, "convolve_resample_circular")
+            and static_layers(scene) is not None
+        )
+
+    def _render_static(self, scene: Any) -> np.ndarray:
+        """``render_clean(cache=False)`` of a drawn scene: static layers once, cells per frame.
+
+        ``(I_c - I_m) conv(C) + I_m conv(O) + I_t conv(D)`` (:mod:`~napari_symbac.optics.static`;
+        with separate phase amplitudes ``- P_c conv_ring(C) - P_t conv_ring(D)``): the
+        open and device images are convolved once and cached, keyed on their content
+        and the kernel; the cells go through a circular transform over the columns
+        and rows they can occupy.
+        """
+        r = self.render_settings
+        px = scene.pixel_size_um
+        layers = static_layers(scene)
+        assert layers is not None
+        kkey = self._kernel_key(px)
+        kernel = self.kernel(px)
+        trim = scene.border_px - r.psf_radius_px
+        static = self._convolved_static(layers, (("static", *kkey), kernel), trim, scene.upsample)
+        image = np.float32(r.media_intensity) * static["open"]
+        image += np.float32(r.device_intensity) * static["device"]
+        cell_kernels = [(np.float32(r.cell_intensity - r.media_intensity), kernel)]
+        if self.separate_phase:
+            p_cell, p_device = r.phase_amplitudes()
+            ring_kernel = self.ring_kernel(px)
+            ring = self._convolved_static(
+                layers, (("static-ring", *kkey), ring_kernel), trim, scene.upsample, ("device",)
+            )
+            image -= np.float32(p_device) * ring["device"]
+            cell_kernels.append((np.float32(-p_cell), ring_kernel))
+        height, width = (n - 2 * trim for n in scene.shape)
+        ky, kx = kernel.shape
+        u = scene.upsample
+        full = resample_fft_shape(height, width, u)
+        r0, r1, c0, c1 = layers.extent
+        rows = axis_window((r0 - trim, r1 - trim), height, ky, u, full[0])
+        cols = axis_window((c0 - trim, c1 - trim), width, kx, u, full[1])
+        if rows is None or cols is None:
+            return image  # no cell can reach the camera's field of view
+        cells = scene.cells[
+            trim + rows.start : trim + rows.stop, trim + cols.start : trim + cols.stop
+        ]
+        out = (slice(rows.out_start, rows.out_stop), slice(cols.out_start, cols.out_stop))
+        for weight, cell_kernel in cell_kernels:
+            if weight == 0:
+                continue
+            part = self.backend.convolve_resample_circular(  # type: ignore[attr-defined]
+                cells,
+                cell_kernel,
+                u,
+                (rows.length, cols.length),
+                (rows.out_stop - rows.out_start, cols.out_stop - cols.out_start),
+            )
+            part *= weight
+            image[out] += part
+        return image
+
+    def _convolved_static(
+        self,
+        layers: Any,
+        kernel: tuple[tuple, np.ndarray],
+        trim: int,
+        upsample: int,
+        names: tuple[str, ...] = ("open", "device"),
+    ) -> dict[str, np.ndarray]:
+        """The open / device images of ``layers`` through ``kernel`` = ``(key, array)``
+        (``psf`` + ``resample``), cached on their content, the kernel and the trim."""
+        kkey, array = kernel
+        out = {}
+        for name in names:
+            key = ((name, layers.fingerprint), kkey, trim, upsample)
+            cached = self._cache.get(key)
+            if cached is None:
+                image = getattr(layers, name)
+                image = image[trim : image.shape[0] - trim, trim : image.shape[1] - trim]
+                cached = np.ascontiguousarray(
+                    self._convolve_resample(image[None], array, upsample)[0]
+                )
+                self._cache.put(key, cached)
+            out[name] = cached
+        return out
 
     def add_noise(self, clean: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """The ``camera`` stage: noise of ``render.noise_model``, baseline, uint16 (eq. 17)."""
