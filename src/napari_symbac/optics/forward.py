@@ -120,6 +120,21 @@ class _Cache:
         self._items.clear()
 
 
+@dataclass
+class _StaticPlan:
+    """What :meth:`ForwardModel._render_static` needs per geometry: the camera image of
+    the static layers, where the cells are read and written, and their kernels."""
+
+    render: RenderSettings
+    microscope: Microscope
+    static: np.ndarray
+    cells: tuple[slice, slice] | None = None
+    out: tuple[slice, slice] = (slice(0), slice(0))
+    transform_shape: tuple[int, int] = (0, 0)
+    out_shape: tuple[int, int] = (0, 0)
+    cell_kernels: list[tuple[np.float32, np.ndarray]] = field(default_factory=list)
+
+
 class ForwardModel:
     """Image formation from a :class:`~napari_symbac.scene.Scene` to camera counts.
 
@@ -180,6 +195,7 @@ class ForwardModel:
         self.extra_stages = tuple(extra_stages)
         self._cache = _cache if _cache is not None else _Cache()
         self._kernels: dict = _kernel_cache if _kernel_cache is not None else {}
+        self._plans: dict[tuple, _StaticPlan] = {}
 
     # ------------------------------------------------------------------ stages
     @property
@@ -630,14 +646,45 @@ class ForwardModel:
         and the kernel; the cells go through a circular transform over the columns
         and rows they can occupy.
         """
-        r = self.render_settings
-        px = scene.pixel_size_um
+        plan = self._static_plan(scene)
+        image = plan.static.copy()
+        if plan.cells is None:
+            return image  # no cell can reach the camera's field of view
+        cells = scene.cells[plan.cells]
+        for weight, kernel in plan.cell_kernels:
+            part = self.backend.convolve_resample_circular(  # type: ignore[attr-defined]
+                cells, kernel, scene.upsample, plan.transform_shape, plan.out_shape
+            )
+            part *= weight
+            image[plan.out] += part
+        return image
+
+    def _static_plan(self, scene: Any) -> _StaticPlan:
+        """The static image and the cells' transform of ``scene``'s geometry (memoised:
+        the same for every frame of one geometry with this model's settings)."""
         layers = static_layers(scene)
         assert layers is not None
+        key = (
+            layers.fingerprint,
+            scene.shape,
+            scene.border_px,
+            scene.upsample,
+            scene.pixel_size_um,
+        )
+        plan = self._plans.get(key)
+        if (
+            plan is not None
+            and plan.render is self.render_settings
+            and plan.microscope is self.microscope
+        ):
+            return plan
+        r = self.render_settings
+        px = scene.pixel_size_um
         kkey = self._kernel_key(px)
         kernel = self.kernel(px)
+        u = scene.upsample
         trim = scene.border_px - r.psf_radius_px
-        static = self._convolved_static(layers, (("static", *kkey), kernel), trim, scene.upsample)
+        static = self._convolved_static(layers, (("static", *kkey), kernel), trim, u)
         image = np.float32(r.media_intensity) * static["open"]
         image += np.float32(r.device_intensity) * static["device"]
         cell_kernels = [(np.float32(r.cell_intensity - r.media_intensity), kernel)]
@@ -645,36 +692,30 @@ class ForwardModel:
             p_cell, p_device = r.phase_amplitudes()
             ring_kernel = self.ring_kernel(px)
             ring = self._convolved_static(
-                layers, (("static-ring", *kkey), ring_kernel), trim, scene.upsample, ("device",)
+                layers, (("static-ring", *kkey), ring_kernel), trim, u, ("device",)
             )
             image -= np.float32(p_device) * ring["device"]
             cell_kernels.append((np.float32(-p_cell), ring_kernel))
+        image.setflags(write=False)
         height, width = (n - 2 * trim for n in scene.shape)
-        ky, kx = kernel.shape
-        u = scene.upsample
         full = resample_fft_shape(height, width, u)
         r0, r1, c0, c1 = layers.extent
-        rows = axis_window((r0 - trim, r1 - trim), height, ky, u, full[0])
-        cols = axis_window((c0 - trim, c1 - trim), width, kx, u, full[1])
-        if rows is None or cols is None:
-            return image  # no cell can reach the camera's field of view
-        cells = scene.cells[
-            trim + rows.start : trim + rows.stop, trim + cols.start : trim + cols.stop
-        ]
-        out = (slice(rows.out_start, rows.out_stop), slice(cols.out_start, cols.out_stop))
-        for weight, cell_kernel in cell_kernels:
-            if weight == 0:
-                continue
-            part = self.backend.convolve_resample_circular(  # type: ignore[attr-defined]
-                cells,
-                cell_kernel,
-                u,
-                (rows.length, cols.length),
-                (rows.out_stop - rows.out_start, cols.out_stop - cols.out_start),
+        rows = axis_window((r0 - trim, r1 - trim), height, kernel.shape[0], u, full[0])
+        cols = axis_window((c0 - trim, c1 - trim), width, kernel.shape[1], u, full[1])
+        plan = _StaticPlan(r, self.microscope, image)
+        if rows is not None and cols is not None:
+            plan.cells = (
+                slice(trim + rows.start, trim + rows.stop),
+                slice(trim + cols.start, trim + cols.stop),
             )
-            part *= weight
-            image[out] += part
-        return image
+            plan.out = (slice(rows.out_start, rows.out_stop), slice(cols.out_start, cols.out_stop))
+            plan.transform_shape = (rows.length, cols.length)
+            plan.out_shape = (rows.out_stop - rows.out_start, cols.out_stop - cols.out_start)
+            plan.cell_kernels = [(w, k) for w, k in cell_kernels if w != 0]
+        if len(self._plans) >= 8:
+            self._plans.pop(next(iter(self._plans)))
+        self._plans[key] = plan
+        return plan
 
     def _convolved_static(
         self,
