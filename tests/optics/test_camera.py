@@ -13,6 +13,7 @@ from napari_symbac.optics.camera import (
     calibrate_camera,
     exact_poisson_range,
     shot_read_skewness,
+    standard_normal_f32,
 )
 from napari_symbac.settings import Camera
 
@@ -140,3 +141,24 @@ def test_exact_poisson_range_ends_and_determinism():
     assert not np.array_equal(a, apply_camera_noise(signal, cam, np.random.default_rng(10)))
     with pytest.raises(ValueError, match="max_skewness"):
         apply_camera_noise(signal, cam, np.random.default_rng(0), max_skewness=-1.0)
+
+
+def test_standard_normal_f32_is_standard_normal():
+    rng = np.random.default_rng(12)
+    z = standard_normal_f32(rng, (1000, 1000))
+    assert z.dtype == np.float32
+    assert z.shape == (1000, 1000)
+    flat = z.ravel().astype(np.float64)
+    assert abs(flat.mean()) < 5e-3  # standard error 1e-3
+    assert flat.var() == pytest.approx(1.0, abs=5e-3)  # standard error 1.4e-3
+    assert abs(_skewness(flat)) < 0.012
+    kurtosis = ((flat - flat.mean()) ** 4).mean() / flat.var() ** 2
+    assert kurtosis == pytest.approx(3.0, abs=0.025)  # standard error 0.005
+    assert stats.kstest(flat, "norm").pvalue > 1e-3
+    for k, tail in ((2, 0.0455), (3, 0.0027), (4, 6.3e-5)):
+        assert np.mean(np.abs(flat) > k) == pytest.approx(tail, abs=5 * np.sqrt(tail / 1e6))
+    assert np.abs(flat).max() <= 5.78
+    # odd sizes, same state same numbers
+    a = standard_normal_f32(np.random.default_rng(1), (7, 3))
+    np.testing.assert_array_equal(a, standard_normal_f32(np.random.default_rng(1), (7, 3)))
+    assert a.shape == (7, 3)

@@ -19,6 +19,7 @@ __all__ = [
     "exact_poisson_range",
     "quantise",
     "shot_read_skewness",
+    "standard_normal_f32",
 ]
 
 
@@ -31,7 +32,9 @@ def _check_image(image: np.ndarray) -> np.ndarray:
 
 def quantise(image_adu: np.ndarray, camera: Camera) -> np.ndarray:
     """Round to whole ADU and clip to ``[0, 2**bit_depth - 1]``; returns uint16."""
-    return np.clip(np.rint(image_adu), 0, camera.max_adu).astype(np.uint16)
+    rounded = np.rint(image_adu)
+    np.clip(rounded, 0, camera.max_adu, out=rounded)
+    return rounded.astype(np.uint16)
 
 
 #: Largest skewness of a pixel's exact count distribution (Poisson shot noise plus
@@ -109,43 +112,71 @@ def apply_camera_noise(
     Gaussian of the same mean and variance, ``lambda + sqrt(lambda + sigma_d^2) Z``;
     elsewhere (low counts with little read noise, e.g. dim fluorescence) ``A`` is an
     exact Poisson draw and ``B = sigma_d Z`` (:func:`exact_poisson_range`). ``Z`` is
-    one float32 standard normal per pixel, drawn first for the whole image in
-    row-major order, then the Poisson counts of the exact pixels in that order: the
-    same seed gives the same image. ``max_skewness=0`` draws every pixel's Poisson
-    count (the approximation off). With the default camera (``sigma_d = 8`` e-) the
-    skewness never exceeds 0.048, whatever the signal, so every pixel takes the
-    single Gaussian draw.
+    one float32 standard normal per pixel (:func:`standard_normal_f32`), drawn first
+    for the whole image, then the Poisson counts of the exact pixels in row-major
+    order: the same seed gives the same image. The arithmetic is float32 (ADU up to
+    65535 are exact; rounding moves a value by about 1e-4 ADU). ``max_skewness=0``
+    draws every pixel's Poisson count (the approximation off). With the default
+    camera (``sigma_d = 8`` e-) the skewness never exceeds 0.048, whatever the
+    signal, so every pixel takes the single Gaussian draw.
 
     Returns
     -------
     numpy.ndarray
         uint16 image.
     """
-    signal = _check_image(signal_adu)
+    signal = np.asarray(signal_adu, dtype=np.float32)
+    if not math.isfinite(np.add.reduce(signal, axis=None)) and not np.all(np.isfinite(signal)):
+        raise ValueError("image contains NaN or infinite values")
     if not (math.isfinite(max_skewness) and max_skewness >= 0):
         raise ValueError(f"max_skewness must be zero or positive, got {max_skewness!r}")
     s = camera.sensitivity_adu_per_e
     dark_e = float(camera.dark_noise_e)
-    electrons = np.maximum(signal, 0.0)
-    electrons /= s
-    z = rng.standard_normal(signal.shape, dtype=np.float32)
-    exact_range = exact_poisson_range(dark_e, float(max_skewness))
-    exact = None
-    if exact_range is not None:
-        exact = (electrons > exact_range[0]) & (electrons < exact_range[1])
-        if not exact.any():
-            exact = None
-    # one Gaussian of the exact mean and variance where that is indistinguishable
-    spread = electrons + dark_e * dark_e
+    # in ADU: mean s lambda (the lit signal), spread s sqrt(lambda + sigma_d^2)
+    z = standard_normal_f32(rng, signal.shape)
+    mean = np.maximum(signal, np.float32(0.0))
+    spread = mean * np.float32(s)
+    spread += np.float32((s * dark_e) ** 2)
     np.sqrt(spread, out=spread)
-    if exact is not None:
-        electrons[exact] = rng.poisson(electrons[exact])
-        spread[exact] = dark_e
+    exact_range = exact_poisson_range(dark_e, float(max_skewness))
+    if exact_range is not None:
+        exact = (mean > exact_range[0] * s) & (mean < exact_range[1] * s)
+        if exact.any():
+            # s (A + B), A ~ Poisson(lambda), B = sigma_d Z
+            counts = rng.poisson(mean[exact].astype(np.float64) / s)
+            mean[exact] = (s * counts).astype(np.float32)
+            spread[exact] = np.float32(s * dark_e)
     spread *= z
-    electrons += spread
-    electrons *= s
-    electrons += camera.baseline_adu
-    return quantise(electrons, camera)
+    spread += mean
+    spread += np.float32(camera.baseline_adu)
+    return quantise(spread, camera)
+
+
+def standard_normal_f32(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+    """Standard normal float32 numbers by the Box-Muller transform of float32 uniforms.
+
+    ``Z = sqrt(-2 ln(1 - U1)) (cos, sin)(2 pi U2)`` on pairs of ``rng.random(dtype=
+    float32)`` (24-bit) uniforms, in numpy's vectorised float32 ``log``, ``sin`` and
+    ``cos``: about three times the speed of ``rng.standard_normal(dtype=float32)``
+    (the camera stage's largest cost). ``|Z| <= 5.77`` (``1 - U1 >= 2^-24``), which
+    cuts a tail of probability ``8e-9``; elsewhere the distribution is the normal one
+    (tests/optics/test_camera.py: moments, quantiles and a KS test on 10^6 numbers).
+    The same generator state gives the same numbers.
+    """
+    n = math.prod(shape)
+    half = (n + 1) // 2
+    uniform = rng.random((2, half), dtype=np.float32)
+    radius = np.log1p(-uniform[0])
+    radius *= np.float32(-2.0)
+    np.sqrt(radius, out=radius)
+    angle = uniform[1]
+    angle *= np.float32(2.0 * math.pi)
+    z = np.empty(2 * half, np.float32)
+    np.cos(angle, out=z[:half])
+    np.sin(angle, out=z[half:])
+    z[:half] *= radius
+    z[half:] *= radius
+    return z[:n].reshape(shape)
 
 
 def apply_gaussian_noise(
