@@ -713,7 +713,7 @@ class ForwardModel:
             plan.out_shape = (rows.out_stop - rows.out_start, cols.out_stop - cols.out_start)
             plan.cell_kernels = [(w, k) for w, k in cell_kernels if w != 0]
         if len(self._plans) >= 8:
-            self._plans.pop(next(iter(self._plans)))
+            self._plans.clear()
         self._plans[key] = plan
         return plan
 

@@ -20,6 +20,7 @@ pixels (:func:`axis_window`): a trench's cells need 162 transform columns instea
 
 from __future__ import annotations
 
+import threading
 from collections import OrderedDict
 from dataclasses import dataclass
 
@@ -122,9 +123,11 @@ class StaticLayers:
     extent: tuple[int, int, int, int]
 
 
-#: Static layers seen last, by the identity of their (read-only, kept alive) arrays.
+#: Static layers seen last, by the identity of their (read-only, kept alive) arrays;
+#: few, as a field's layers are frame-sized (draw_scene's own caches hold them too).
 _LAYERS: OrderedDict[tuple[int, int], StaticLayers] = OrderedDict()
-_MAX_LAYERS = 4
+_MAX_LAYERS = 2
+_LOCK = threading.Lock()
 
 
 def static_layers(scene: object) -> StaticLayers | None:
@@ -142,10 +145,11 @@ def static_layers(scene: object) -> StaticLayers | None:
         return None
     device = scene.device  # type: ignore[attr-defined]
     key = (id(open_), id(device))
-    layers = _LAYERS.get(key)
-    if layers is not None and layers.open is open_ and layers.device is device:
-        _LAYERS.move_to_end(key)
-        return layers
+    with _LOCK:
+        layers = _LAYERS.get(key)
+        if layers is not None and layers.open is open_ and layers.device is device:
+            _LAYERS.move_to_end(key)
+            return layers
     from napari_symbac.scene._draw import _fingerprint
 
     rows = np.flatnonzero(open_.any(axis=1))
@@ -159,7 +163,8 @@ def static_layers(scene: object) -> StaticLayers | None:
     )
     if open_.flags.writeable or device.flags.writeable:
         return layers  # could change: never remembered
-    _LAYERS[key] = layers
-    while len(_LAYERS) > _MAX_LAYERS:
-        _LAYERS.popitem(last=False)
+    with _LOCK:
+        _LAYERS[key] = layers
+        while len(_LAYERS) > _MAX_LAYERS:
+            _LAYERS.popitem(last=False)
     return layers
