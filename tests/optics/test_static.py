@@ -175,3 +175,25 @@ def test_same_seed_same_bits_on_the_static_path(cells_factory):
     b = model.render(scene, np.random.default_rng(3), cache=False)
     np.testing.assert_array_equal(a, b)
     assert a.dtype == np.uint16
+
+
+def test_the_pipeline_renders_trench_frames_on_the_static_path():
+    """``iter_render``'s scenes (default settings) carry the static layers; with a media
+    texture they do not, and both render as the composed image does."""
+    from napari_symbac.pipeline import draw_frame
+    from napari_symbac.settings import PipelineSettings, SimulationSettings
+    from napari_symbac.sim import simulate
+
+    settings = PipelineSettings(
+        simulation=SimulationSettings(n_frames=4, seed=2), render=dataclasses.replace(RS)
+    )
+    simulation = simulate(settings.simulation)
+    textured = dataclasses.replace(
+        settings, render=dataclasses.replace(RS, texture_amplitude=0.2)
+    )
+    model = ForwardModel(settings.microscope, settings.render, settings.camera)
+    for index in (1, 3):
+        scene = draw_frame(simulation, settings, index)
+        assert static_layers(scene) is not None
+        _close(model.render_clean(scene, cache=False), _composed(model, scene))
+        assert static_layers(draw_frame(simulation, textured, index)) is None
