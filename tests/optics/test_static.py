@@ -28,6 +28,16 @@ def _composed(model: ForwardModel, scene) -> np.ndarray:
     return model.render_clean(copy, cache=False)
 
 
+def _fast(model: ForwardModel, scene) -> np.ndarray:
+    """``render_clean(cache=False)`` on the static path: the model's first frame of a
+    geometry is composed (unless its static layers are cached), the second static."""
+    first = model.render_clean(scene, cache=False)
+    second = model.render_clean(scene, cache=False)
+    assert model._static_plan(scene) is not None
+    _close(second, first)
+    return second
+
+
 def _close(a: np.ndarray, b: np.ndarray) -> None:
     assert a.dtype == b.dtype == np.float32
     assert a.shape == b.shape
@@ -118,7 +128,7 @@ def test_static_render_equals_the_composed_render(cells_factory, case):
         scene = draw_scene(cells, trench, microscope, dataclasses.replace(RS, psf_radius_px=40))
     assert static_layers(scene) is not None
     model = ForwardModel(microscope, render, Camera())
-    fast = model.render_clean(scene, cache=False)
+    fast = _fast(model, scene)
     _close(fast, _composed(model, scene))
     _close(fast, model.render_clean(scene))  # the cached path: each component alone
 
@@ -142,7 +152,7 @@ def test_the_static_cache_is_never_stale(cells_factory):
     ]
     for variant in variants + variants[::-1]:
         for scene in (narrow, wide, shifted, narrow):
-            _close(variant.render_clean(scene, cache=False), _composed(variant, scene))
+            _close(_fast(variant, scene), _composed(variant, scene))
 
 
 def test_modified_scenes_take_the_composed_path(cells_factory):
@@ -169,12 +179,31 @@ def test_partially_coherent_render_is_untouched(cells_factory):
 def test_same_seed_same_bits_on_the_static_path(cells_factory):
     scene = draw_scene(cells_factory([1.6, 4.4]), TRENCH, MIC, RS)
     render = dataclasses.replace(RS, noise_model="camera")
-    a = ForwardModel(MIC, render, Camera()).render(scene, np.random.default_rng(3), cache=False)
-    model = ForwardModel(MIC, render, Camera())
-    model.render(scene, np.random.default_rng(0), cache=False)  # static layers cached
-    b = model.render(scene, np.random.default_rng(3), cache=False)
-    np.testing.assert_array_equal(a, b)
-    assert a.dtype == np.uint16
+    images = []
+    for _ in range(2):
+        model = ForwardModel(MIC, render, Camera())
+        model.render(scene, np.random.default_rng(0), cache=False)  # composed, then static
+        images.append(model.render(scene, np.random.default_rng(3), cache=False))
+        assert model._static_plan(scene) is not None
+    np.testing.assert_array_equal(images[0], images[1])
+    assert images[0].dtype == np.uint16
+
+
+def test_a_single_frame_stays_on_the_composed_path(cells_factory):
+    """The static layers cost two transforms: built from a model's second frame of a
+    geometry on, or at once where a model sharing the cache has them."""
+    model = ForwardModel(MIC, RS, Camera())
+    frames = [draw_scene(cells_factory([y]), TRENCH, MIC, RS) for y in (1.5, 2.0, 2.5)]
+    model.render_clean(frames[0], cache=False)
+    assert model.cache_info["misses"] == 0  # composed: the cache is not touched
+    model.render_clean(frames[1], cache=False)
+    assert model.cache_info["misses"] == 2  # open and device convolved once ...
+    model.render_clean(frames[2], cache=False)
+    assert model.cache_info["misses"] == 2  # ... and reused
+    brighter = model.with_render(dataclasses.replace(RS, cell_intensity=1900.0))
+    brighter.render_clean(frames[0], cache=False)
+    assert brighter._static_plan(frames[0]) is not None
+    assert model.cache_info["misses"] == 2
 
 
 def test_the_pipeline_renders_trench_frames_on_the_static_path():
@@ -195,5 +224,5 @@ def test_the_pipeline_renders_trench_frames_on_the_static_path():
     for index in (1, 3):
         scene = draw_frame(simulation, settings, index)
         assert static_layers(scene) is not None
-        _close(model.render_clean(scene, cache=False), _composed(model, scene))
+        _close(_fast(model, scene), _composed(model, scene))
         assert static_layers(draw_frame(simulation, textured, index)) is None

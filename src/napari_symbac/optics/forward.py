@@ -108,6 +108,10 @@ class _Cache:
             self.hits += 1
         return value
 
+    def has(self, key: tuple) -> bool:
+        """Whether ``key`` is stored (neither a hit nor a miss)."""
+        return key in self._items
+
     def put(self, key: tuple, value: np.ndarray) -> None:
         self.misses += 1
         value.setflags(write=False)
@@ -196,6 +200,7 @@ class ForwardModel:
         self._cache = _cache if _cache is not None else _Cache()
         self._kernels: dict = _kernel_cache if _kernel_cache is not None else {}
         self._plans: dict[tuple, _StaticPlan] = {}
+        self._seen: set[tuple] = set()
 
     # ------------------------------------------------------------------ stages
     @property
@@ -606,8 +611,8 @@ class ForwardModel:
                 p_cell, p_device = r.phase_amplitudes()
                 image -= np.float32(p_cell) * comps["cells_phase"]
                 image -= np.float32(p_device) * comps["device_phase"]
-        elif self._static_path(scene):
-            image = self._render_static(scene)
+        elif (plan := self._static_plan(scene)) is not None:
+            image = self._render_static(scene, plan)
         else:
             self._check_scene(scene)
             kernel = self.kernel(scene.pixel_size_um)
@@ -629,15 +634,7 @@ class ForwardModel:
             image = np.asarray(stage.apply(image, scene), dtype=np.float32)  # type: ignore[misc]
         return image.astype(np.float32, copy=False)
 
-    def _static_path(self, scene: Any) -> bool:
-        """Whether :meth:`_render_static` applies: a drawn scene, a fused backend."""
-        self._check_scene(scene)
-        return (
-            hasattr(self.backend, "convolve_resample_circular")
-            and static_layers(scene) is not None
-        )
-
-    def _render_static(self, scene: Any) -> np.ndarray:
+    def _render_static(self, scene: Any, plan: _StaticPlan) -> np.ndarray:
         """``render_clean(cache=False)`` of a drawn scene: static layers once, cells per frame.
 
         ``(I_c - I_m) conv(C) + I_m conv(O) + I_t conv(D)`` (:mod:`~napari_symbac.optics.static`;
@@ -646,7 +643,6 @@ class ForwardModel:
         and the kernel; the cells go through a circular transform over the columns
         and rows they can occupy.
         """
-        plan = self._static_plan(scene)
         image = plan.static.copy()
         if plan.cells is None:
             return image  # no cell can reach the camera's field of view
@@ -659,11 +655,24 @@ class ForwardModel:
             image[plan.out] += part
         return image
 
-    def _static_plan(self, scene: Any) -> _StaticPlan:
-        """The static image and the cells' transform of ``scene``'s geometry (memoised:
-        the same for every frame of one geometry with this model's settings)."""
+    def _static_plan(self, scene: Any) -> _StaticPlan | None:
+        """The static image and the cells' transform of ``scene``'s geometry, or ``None``
+        where the composed path renders it.
+
+        ``None`` for scenes without static layers (not from ``draw_scene``, or
+        modified since), backends without the circular transform, and the first frame
+        of a geometry this model renders unless its static layers are in the shared
+        cache already: they cost two transforms of the frame, which pay from the
+        second frame of a series on (a model that renders one frame, e.g. an export
+        item with randomised settings, stays on the composed path). The plan is
+        memoised per geometry with this model's settings.
+        """
+        self._check_scene(scene)
+        if not hasattr(self.backend, "convolve_resample_circular"):
+            return None
         layers = static_layers(scene)
-        assert layers is not None
+        if layers is None:
+            return None
         key = (
             layers.fingerprint,
             scene.shape,
@@ -681,9 +690,16 @@ class ForwardModel:
         r = self.render_settings
         px = scene.pixel_size_um
         kkey = self._kernel_key(px)
-        kernel = self.kernel(px)
         u = scene.upsample
         trim = scene.border_px - r.psf_radius_px
+        if key not in self._seen and not self._cache.has(
+            (("open", layers.fingerprint), ("static", *kkey), trim, u)
+        ):
+            if len(self._seen) >= 64:
+                self._seen.clear()
+            self._seen.add(key)
+            return None
+        kernel = self.kernel(px)
         static = self._convolved_static(layers, (("static", *kkey), kernel), trim, u)
         image = np.float32(r.media_intensity) * static["open"]
         image += np.float32(r.device_intensity) * static["device"]
