@@ -64,7 +64,7 @@ def test_circular_window_equals_the_linear_convolution(factor):
         expected = backend.convolve_resample(image[None], kernel, factor)[0]
         full = resample_fft_shape(height, width, factor)
         wr = axis_window((r0, r1), height, ky, factor, full[0])
-        wc = axis_window((c0, c1), width, kx, factor, full[1])
+        wc = axis_window((c0, c1), width, kx, factor, full[1], real=True)
         got = np.zeros_like(expected)
         if wr is not None and wc is not None:
             assert wr.length <= full[0]
@@ -94,7 +94,7 @@ def test_trench_cells_take_a_narrower_transform():
     full = resample_fft_shape(height, width, 3)
     assert full == (882, 240)
     kernel = render.psf_radius_px * 2 + 1
-    cols = axis_window(layers.extent[2:], width, kernel, 3, full[1])
+    cols = axis_window(layers.extent[2:], width, kernel, 3, full[1], real=True)
     assert cols is not None
     assert (cols.length, cols.out_start, cols.out_stop) == (162, 0, 46)
     assert axis_window(layers.extent[:2], height, kernel, 3, full[0]).length == 882

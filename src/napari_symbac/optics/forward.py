@@ -717,7 +717,9 @@ class ForwardModel:
         full = resample_fft_shape(height, width, u)
         r0, r1, c0, c1 = layers.extent
         rows = axis_window((r0 - trim, r1 - trim), height, kernel.shape[0], u, full[0])
-        cols = axis_window((c0 - trim, c1 - trim), width, kernel.shape[1], u, full[1])
+        cols = axis_window(
+            (c0 - trim, c1 - trim), width, kernel.shape[1], u, full[1], real=True
+        )
         plan = _StaticPlan(r, self.microscope, image)
         if rows is not None and cols is not None:
             plan.cells = (

@@ -53,12 +53,18 @@ class AxisWindow:
     out_stop: int
 
 
-def _fast_multiple(minimum: int, factor: int) -> int:
-    return factor * sp_fft.next_fast_len(-(-minimum // factor))
+def _fast_multiple(minimum: int, factor: int, real: bool) -> int:
+    return factor * sp_fft.next_fast_len(-(-minimum // factor), real=real)
 
 
 def axis_window(
-    support: tuple[int, int], size: int, kernel: int, factor: int, full: int
+    support: tuple[int, int],
+    size: int,
+    kernel: int,
+    factor: int,
+    full: int,
+    *,
+    real: bool = False,
 ) -> AxisWindow | None:
     """The shortest circular transform along one axis that is exact for the camera pixels.
 
@@ -76,6 +82,9 @@ def axis_window(
         Block-average factor (render pixels per camera pixel).
     full
         The transform length of the whole frame (used when it is not longer).
+    real
+        The axis of the real-input transform (the last): lengths as
+        :func:`~napari_symbac.optics.backends.resample_fft_shape` picks them there.
 
     Returns
     -------
@@ -96,7 +105,7 @@ def axis_window(
     if a1 <= a0 or j1 <= j0:
         return None
     need = max(a1 - j0, j1 + kernel - 1 - a0, kernel + factor - 1)
-    length = _fast_multiple(need, factor)
+    length = _fast_multiple(need, factor, real)
     if length >= full:
         return AxisWindow(0, size, full, 0, valid // factor)
     return AxisWindow(j0, a1, length, j0 // factor, j1 // factor)
