@@ -141,6 +141,12 @@ def test_exact_poisson_range_ends_and_determinism():
     assert not np.array_equal(a, apply_camera_noise(signal, cam, np.random.default_rng(10)))
     with pytest.raises(ValueError, match="max_skewness"):
         apply_camera_noise(signal, cam, np.random.default_rng(0), max_skewness=-1.0)
+    # any shape, a scalar and an empty image included
+    assert apply_camera_noise(500.0, cam, np.random.default_rng(0)).shape == ()
+    assert apply_camera_noise(np.zeros((0, 5)), cam, np.random.default_rng(0)).shape == (0, 5)
+    stacked = apply_camera_noise(signal[None], cam, np.random.default_rng(9))
+    assert stacked.shape == (1, 64, 64)
+    np.testing.assert_array_equal(stacked[0], a)  # the same numbers whatever the shape
 
 
 def test_standard_normal_f32_is_standard_normal():

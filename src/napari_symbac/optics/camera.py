@@ -133,8 +133,8 @@ def apply_camera_noise(
     s = camera.sensitivity_adu_per_e
     dark_e = float(camera.dark_noise_e)
     # in ADU: mean s lambda (the lit signal), spread s sqrt(lambda + sigma_d^2)
-    z = standard_normal_f32(rng, signal.shape)
-    mean = np.maximum(signal, np.float32(0.0))
+    z = standard_normal_f32(rng, (signal.size,))
+    mean = np.maximum(signal.reshape(-1), np.float32(0.0))
     spread = mean * np.float32(s)
     spread += np.float32((s * dark_e) ** 2)
     np.sqrt(spread, out=spread)
@@ -149,7 +149,7 @@ def apply_camera_noise(
     spread *= z
     spread += mean
     spread += np.float32(camera.baseline_adu)
-    return quantise(spread, camera)
+    return quantise(spread, camera).reshape(signal.shape)
 
 
 def standard_normal_f32(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
