@@ -229,6 +229,7 @@ def main(argv: list[str] | None = None) -> None:
             ("draw_scene", "draw_s"),
             ("masks", "masks_s"),
             ("draw + masks", "draw_masks_s"),
+            ("media, 1st read (renderer)", "media_s"),
             ("FFT floor", "fft_floor_s"),
         ):
             t = f[key]

@@ -313,8 +313,11 @@ def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, ke
     return _outputs_one(args, frame, index, prepared, result, microscope, pixel_note, base, keys)
 
 
-def _outputs_one(args, frame, index, prepared, result, microscope, pixel_note, base, keys):
-    """The files of one fitted frame: returns (writers, result)."""
+def _outputs_one(
+    args, frame, index, prepared, result, microscope, pixel_note, base, keys, track_ids=None
+):
+    """The files of one fitted frame: returns (writers, result). ``track_ids``: each
+    cell's track in a series (``track`` in cells.json)."""
     import tifffile
 
     from napari_symbac.fit.figure import before_after_figure
@@ -348,8 +351,12 @@ def _outputs_one(args, frame, index, prepared, result, microscope, pixel_note, b
     except ValueError as err:
         notes.append(f"simulation settings kept from the config: {err}")
 
+    records = cells_records(result)
+    if track_ids is not None:
+        for record, track in zip(records, np.asarray(track_ids).tolist(), strict=True):
+            record["track"] = int(track)
     table = {
-        "cells": cells_records(result),
+        "cells": records,
         "coordinates": "um from the top-left corner of the image; angle in radians",
         "trench": None if result.trench is None else dataclasses.asdict(result.trench),
         "parameters": parameter_table(result),
@@ -401,8 +408,10 @@ def _fit_frames_jointly(
     args, stack, frames, labels, masks, microscope, pixel_note, base, keys, stages, timer
 ):
     """Several frames: one joint fit (:func:`~napari_symbac.fit.fit_series`), optics and
-    camera shared, cells per frame; each frame's files in ``frame_NNNN/`` and the
-    shared parameters (joint and frame by frame) in ``series.json``."""
+    camera shared, cells per frame; each frame's files in ``frame_NNNN/``, the shared
+    parameters (joint and frame by frame) and the cells' tracks in ``series.json``, and
+    the tracks as a Cell Tracking Challenge result in ``ctc/01_RES/`` (``mask{TTT}.tif``
+    with track ids, ``res_track.txt``; CTC frame ``k`` is the ``k``-th fitted frame)."""
     from napari_symbac.fit import fit_series
 
     n_frames = stack.shape[0]
@@ -444,11 +453,13 @@ def _fit_frames_jointly(
             close()
     writers: dict[str, Callable[[Path], None]] = {}
     summaries = []
-    for index, ready, result in zip(frames, prepared, series.frames, strict=True):
+    lineage = series.lineage
+    for k, (index, ready, result) in enumerate(zip(frames, prepared, series.frames, strict=True)):
         if camera is None:
             ready = dataclasses.replace(ready, camera=series.camera)
         writers_one, _ = _outputs_one(
-            args, stack[index], index, ready, result, microscope, pixel_note, base, keys
+            args, stack[index], index, ready, result, microscope, pixel_note, base, keys,
+            track_ids=lineage.track_ids[k],
         )
         writers.update({f"frame_{index:04d}/{k}": v for k, v in writers_one.items()})
         summaries.append(
@@ -474,13 +485,53 @@ def _fit_frames_jointly(
         },
         "camera": None if series.camera is None else dataclasses.asdict(series.camera),
         "warnings": list(series.warnings),
+        "lineage": {
+            "tracks": [
+                {**row, "first_frame": frames[row["first_frame"]],
+                 "last_frame": frames[row["last_frame"]]}
+                for row in lineage.table()
+            ],
+            "track_ids": {str(f): ids.tolist() for f, ids in zip(frames, lineage.track_ids)},
+            "growth_per_frame": lineage.growth_per_frame,
+            "drift_um": lineage.drift_um.tolist(),
+            "ctc": "ctc/01_RES: mask{TTT}.tif (track ids) and res_track.txt (L B E P); "
+            "CTC frame k is the k-th of 'frames'",
+        },
     }
+    if np.any(np.diff(frames) != 1):
+        table["lineage"]["note"] = (
+            "the frames are not consecutive: the links assume one growth and drift per "
+            "step between the frames given"
+        )
     writers["series.json"] = lambda p: p.write_text(json.dumps(table, indent=2))
+    writers.update(_ctc_result(series, frames, microscope.pixel_size_um))
     summaries += [
         f"shared {name}: {value:.4g} +- {se:.2g} (joint)"
         for name, (value, se) in series.shared().items()
     ]
+    divisions = lineage.divisions()
+    summaries.append(
+        f"tracks: {len(lineage.tracks)} over {len(frames)} frames, {len(divisions)} "
+        f"division(s) (series.json 'lineage', ctc/01_RES/res_track.txt)"
+    )
     return writers, summaries
+
+
+def _ctc_result(series, frames: list[int], pixel_size_um: float) -> dict:
+    """Writers of ``ctc/01_RES/``: one track-id mask per fitted frame and ``res_track.txt``."""
+    from napari_symbac.export.atomic import write_tiff
+
+    lineage = series.lineage
+    digits = max(3, len(str(len(frames) - 1)))
+    writers: dict[str, Callable[[Path], None]] = {}
+    for k, result in enumerate(series.frames):
+        mask = lineage.track_mask(k, result.scene.camera_labels(), result.cells.ids)
+        writers[f"ctc/01_RES/mask{k:0{digits}d}.tif"] = lambda p, m=mask: write_tiff(
+            p, m, pixel_size_um=pixel_size_um, kind="labels"
+        )
+    text = lineage.ctc_text()
+    writers["ctc/01_RES/res_track.txt"] = lambda p: p.write_text(text)
+    return writers
 
 
 def run_fit(args: argparse.Namespace) -> int:

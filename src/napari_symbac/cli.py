@@ -487,7 +487,9 @@ def build_parser() -> argparse.ArgumentParser:
         "simulation geometry is agar_pad, else trench)",
     )
     fit.add_argument(
-        "--frames", help="frames of a series to fit, e.g. 0, 0,2,5 or 0-3 (each fitted alone)"
+        "--frames",
+        help="frames of a series to fit, e.g. 0, 0,2,5 or 0-3 (several: fitted jointly, "
+        "optics shared, cells linked into tracks)",
     )
     fit.add_argument(
         "--config", help="PipelineSettings YAML/JSON: starting render, camera, trench closed end"

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import re
 
@@ -171,11 +173,36 @@ def test_frames_of_a_series_are_fitted_jointly_each_into_its_folder(
     out = tmp_path / "fit"
     assert _fit(image, "--microscope", microscope, "--labels", labels, "--out", out,
                 "--frames", "0-1", "--max-iterations", 3) == 0  # fmt: skip
-    assert {p.name for p in out.iterdir()} == {"frame_0000", "frame_0001", "series.json"}
+    assert {p.name for p in out.iterdir()} == {"frame_0000", "frame_0001", "series.json", "ctc"}
     for folder in (out / "frame_0000", out / "frame_0001"):
         assert {p.name for p in folder.iterdir()} == OUTPUTS
     series = json.loads((out / "series.json").read_text())
     assert series["frames"] == [0, 1]
+    # the second frame is the first mirrored left-right: the same three cells, same rows
+    lineage = series["lineage"]
+    assert lineage["tracks"] == [
+        {"track": k, "first_frame": 0, "last_frame": 1, "parent": 0} for k in (1, 2, 3)
+    ]
+    rows = {}
+    for frame in ("0", "1"):
+        cells = json.loads((out / f"frame_000{frame}" / "cells.json").read_text())["cells"]
+        assert [c["track"] for c in cells] == lineage["track_ids"][frame]
+        rows[frame] = {c["track"]: c["y_um"] for c in cells}
+    for track in (1, 2, 3):  # a track is one cell: the same row in both frames
+        assert rows["0"][track] == pytest.approx(rows["1"][track], abs=0.1)
+    # the same tracks as a Cell Tracking Challenge result, read as the export's GT is
+    res = out / "ctc" / "01_RES"
+    assert {p.name for p in res.iterdir()} == {"mask000.tif", "mask001.tif", "res_track.txt"}
+    table = np.loadtxt(res / "res_track.txt", dtype=int, ndmin=2)
+    assert table.tolist() == [[1, 0, 1, 0], [2, 0, 1, 0], [3, 0, 1, 0]]
+    for t in (0, 1):
+        mask = tifffile.imread(res / f"mask{t:03d}.tif")
+        assert mask.dtype == np.uint16
+        assert set(np.unique(mask).tolist()) == {0, 1, 2, 3}
+    from ctc_metrics import validate_sequence
+
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert validate_sequence(str(res), threads=1)["Valid"] == 1
     assert set(series["shared"]) == {"apodisation_sigma_um", "defocus_sigma_um", "psf_offset"}
     for name, shared in series["shared"].items():
         # both frames measure the shared optics: the joint error is the smaller
@@ -328,6 +355,26 @@ def test_refuses_a_series_without_frames_and_frames_out_of_range(tmp_path, truth
     assert "numbered 0-1" in error
     error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope, "--frames", "x")
     assert "not a frame list" in error
+
+
+def test_refuses_a_series_with_a_frame_without_cells(tmp_path, truth, capsys):
+    from _fit_synthetic import TRENCH
+
+    from napari_symbac.optics import ForwardModel
+    from napari_symbac.scene import draw_scene
+    from napari_symbac.sim import FrameCells
+
+    blank = ForwardModel(truth.microscope, truth.render, truth.camera).render(
+        draw_scene(FrameCells.empty(), TRENCH, truth.microscope, truth.render),
+        np.random.default_rng(3),
+    )
+    image = tmp_path / "series.tif"
+    tifffile.imwrite(image, np.stack([truth.image, blank]))
+    microscope = save_settings(truth.microscope, tmp_path / "microscope.yaml")
+    error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope,
+                     "--frames", "0-1", "--max-iterations", "2")  # fmt: skip
+    assert "frame 1 of the series: the start found no cells" in error
+    assert "fit the frames before and after frame 1 as separate series" in error
 
 
 def test_refuses_an_rgb_image(tmp_path, truth, inputs, capsys):

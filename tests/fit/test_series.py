@@ -46,3 +46,32 @@ def test_a_single_frame_is_refused():
     frame = make_fluorescence_series(1)[0]
     with pytest.raises(ValueError, match="at least 2 frames"):
         fit_series(frame.image[None], frame.microscope, RenderSettings(), None, geometry="open")
+
+
+def test_each_drifting_cell_keeps_one_track(series):
+    """The four cells drift (0.25, 0.15) um, turn and grow each frame: four tracks from
+    frame 0 to 2, each following one cell (matched to the truth by its centre)."""
+    truth, fit = series
+    assert fit.lineage.tracks.tolist() == [[k, 0, 2, 0] for k in (1, 2, 3, 4)]
+    for frame, want, tracks in zip(fit.frames, truth, fit.track_ids):
+        distance = np.hypot(
+            frame.cells.x_um[:, None] - want.cells.x_um[None, :],
+            frame.cells.y_um[:, None] - want.cells.y_um[None, :],
+        )
+        nearest = distance.argmin(axis=1)
+        # the simulator's cell k (ids 1..4 in every frame) is track of the same cell
+        assert dict(zip(want.cells.ids[nearest].tolist(), tracks.tolist())) == dict(
+            zip(truth[0].cells.ids.tolist(), _tracks_of_first(fit, truth))
+        )
+    np.testing.assert_allclose(fit.lineage.drift_um, [[0.25, 0.15]] * 2, atol=0.05)
+
+
+def _tracks_of_first(fit, truth):
+    """The track of each of frame 0's true cells."""
+    frame = fit.frames[0]
+    want = truth[0].cells
+    distance = np.hypot(
+        want.x_um[:, None] - frame.cells.x_um[None, :],
+        want.y_um[:, None] - frame.cells.y_um[None, :],
+    )
+    return fit.track_ids[0][distance.argmin(axis=1)].tolist()

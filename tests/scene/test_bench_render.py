@@ -33,6 +33,7 @@ def test_measure_field_draw(bench):
     assert (result["size_px"], result["n_cells"]) == (128, 4)
     assert result["render_shape"] == (128 * 3 + 100, 128 * 3 + 100)
     assert result["draw_masks_s"] == pytest.approx(result["draw_s"] + result["masks_s"])
+    assert result["media_s"] > 0  # the media image is made on its first read
     assert result["draw_masks_over_floor"] == pytest.approx(
         result["draw_masks_s"] / result["fft_floor_s"]
     )

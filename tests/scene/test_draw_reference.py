@@ -22,6 +22,7 @@ import pytest
 from napari_symbac.scene import Field, draw_scene
 from napari_symbac.scene._draw import _trench_images
 from napari_symbac.scene._field import field_images
+from napari_symbac.scene._raster import chord
 from napari_symbac.settings import Microscope, RenderSettings, TrenchGeometry
 
 MIC = Microscope()
@@ -271,6 +272,40 @@ def test_agar_pad_scene_is_bit_identical(seed):
     assert len(np.unique(scene.labels)) > 40
 
 
+@pytest.mark.parametrize("first_id", [60_000, 4_000_000_000])
+def test_labels_beyond_uint16_are_bit_identical(first_id):
+    """Ids that fit uint16 are drawn into a uint16 image and ids beyond it into a uint32
+    one; either way the labels read back are uint32 and the same bits."""
+    rng = np.random.default_rng(60)
+    field = Field(10.0, 8.0)
+    render = RenderSettings(upsample=3, psf_radius_px=6)
+    cells, curvature = _with_ties(_random_cells(rng, 25, (-1.0, 11.0), (-1.0, 9.0)), rng)
+    cells.ids = cells.ids + first_id
+    curvature = {k + first_id: v for k, v in curvature.items()}
+    scene = draw_scene(cells, TrenchGeometry(), MIC, render, curvature, field=field)
+    expected = reference_scene(cells, TrenchGeometry(), MIC, render, curvature, field=field)
+    narrow = cells.ids.max() <= np.iinfo(np.uint16).max
+    assert ("labels" in scene.__dict__) != narrow  # uint32 labels made on first read
+    cam = scene.camera_labels()
+    assert cam.min() == 0
+    assert cam.max() > first_id  # no wrap-around
+    assert np.isin(cam, np.append(cells.ids, 0)).all()
+    _assert_same(scene, expected)
+
+
+@pytest.mark.parametrize("depth_um", [0.8, 1.2])
+def test_agar_pad_shallower_or_deeper_than_the_cells_is_bit_identical(depth_um):
+    """A pad whose depth is below some cells' width (fractions capped at 1) or above all."""
+    rng = np.random.default_rng(25)
+    field = Field(14.0, 12.0, depth_um=depth_um)
+    render = RenderSettings(upsample=3, psf_radius_px=8)
+    cells, curvature = _with_ties(_random_cells(rng, 40, (-1.0, 15.0), (-1.0, 13.0)), rng)
+    scene = draw_scene(cells, TrenchGeometry(), MIC, render, curvature, field=field)
+    expected = reference_scene(cells, TrenchGeometry(), MIC, render, curvature, field=field)
+    _assert_same(scene, expected)
+    assert (scene.cells.max() == 1.0) == (cells.width_um.max() > depth_um)
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_outline_scene_is_bit_identical(seed):
     rng = np.random.default_rng(30 + seed)
@@ -336,3 +371,22 @@ def test_masks_computed_in_bands_are_bit_identical(monkeypatch, chunk_pixels):
     scene = draw_scene(cells, TrenchGeometry(), MIC, render, curvature, field=field)
     expected = reference_scene(cells, TrenchGeometry(), MIC, render, curvature, field=field)
     _assert_same(scene, expected)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_bent_chord_near_the_axis_only_equals_the_whole_formula(seed):
+    """Bends up to and beyond the radius, any phase: the sine is skipped only where it
+    cannot matter, and every pixel keeps the full formula's bits."""
+    rng = np.random.default_rng(seed)
+    px = 0.065 / 3
+    xc = np.arange(-150, 150) * px + rng.uniform(0, px)
+    yc = np.arange(-160, 160) * px + rng.uniform(0, px)
+    for _ in range(12):
+        width = rng.uniform(0.5, 1.2)
+        length = rng.uniform(width, 5.0)
+        bend = (rng.uniform(-0.8, 0.8), rng.uniform(0.3, 2.0), rng.uniform(-1.0, 2.0))
+        args = ((rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5)), rng.uniform(-4, 4), length, width)
+        got = chord(xc, yc, *args, bend)
+        want = _ref_chord(xc, yc, *args, bend)
+        assert got.tobytes() == want.tobytes()
+        assert np.count_nonzero(got) > 100

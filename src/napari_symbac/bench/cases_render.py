@@ -215,16 +215,19 @@ def colony_cells(
 def measure_field_draw(size_px: int, n_cells: int, rounds: int = 5) -> dict:
     """Drawing a field of ``size_px x size_px`` camera px with ``n_cells`` cells.
 
-    Each round times ``draw_scene`` (cells, media, device, labels at 3x upsampling,
-    50 px border), then the masks of that new scene (``camera_labels`` +
-    ``semantic_mask``), then one FFT convolution of its render frame. Medians over
-    the rounds, seconds of CPU time.
+    Each round times ``draw_scene`` (cells and labels at 3x upsampling, 50 px
+    border; the device image is the geometry's cached one), then the masks of that
+    new scene (``camera_labels`` + ``semantic_mask``), then its first read of
+    ``media`` (made on first access, so paid by whoever reads it: the renderer), then
+    one FFT convolution of its render frame. Medians over the rounds, seconds of CPU
+    time.
 
     Returns
     -------
     dict
         ``size_px``, ``n_cells``, ``render_shape``, ``rounds``, ``draw_s``,
-        ``masks_s``, ``draw_masks_s``, ``fft_floor_s`` and ``draw_masks_over_floor``.
+        ``masks_s``, ``draw_masks_s``, ``media_s``, ``fft_floor_s`` and
+        ``draw_masks_over_floor``.
     """
     from napari_symbac.optics import ForwardModel
     from napari_symbac.scene import Field, draw_scene
@@ -244,10 +247,11 @@ def measure_field_draw(size_px: int, n_cells: int, rounds: int = 5) -> dict:
     floor = fft_floor(scene.cells, kernel)
     render_shape = scene.shape
     del scene
-    times: dict[str, list[float]] = {"draw": [], "masks": [], "floor": []}
+    times: dict[str, list[float]] = {"draw": [], "masks": [], "media": [], "floor": []}
     for _ in range(rounds):
         new = _cpu_time(times["draw"], draw)
         _cpu_time(times["masks"], _masks, new)
+        _cpu_time(times["media"], getattr, new, "media")
         del new
         _cpu_time(times["floor"], floor)
     med = {k: float(np.median(v)) for k, v in times.items()}
@@ -260,6 +264,7 @@ def measure_field_draw(size_px: int, n_cells: int, rounds: int = 5) -> dict:
         "draw_s": med["draw"],
         "masks_s": med["masks"],
         "draw_masks_s": both,
+        "media_s": med["media"],
         "fft_floor_s": med["floor"],
         "draw_masks_over_floor": both / med["floor"],
     }

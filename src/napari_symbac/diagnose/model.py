@@ -323,6 +323,45 @@ def _fit_camera(r2: np.ndarray, mu: np.ndarray, camera: Camera) -> tuple[float, 
     return float(np.exp(res.x[0])), float(np.exp(res.x[1]))
 
 
+#: Levenberg-Marquardt damping tried, in turn, when the Gauss-Newton step does not
+#: lower the weighted cost (on the normal matrix scaled to a unit diagonal).
+DAMPING = (1e-6, 1e-4, 1e-2, 1.0, 1e2, 1e4)
+
+
+def _trial(design, beta, effects, step):
+    trial_effects, pos = [], len(beta)
+    for e, theta in effects:
+        trial_effects.append((e, e.clip(theta + step[pos : pos + len(theta)])))
+        pos += len(theta)
+    trial_beta = beta + step[: len(beta)]
+    return trial_beta, trial_effects, predict(design, trial_beta, trial_effects)
+
+
+def _descent_step(design, beta, effects, normal, rhs, mu, yv, idx, w, cost):
+    """``(beta, effects, mu)`` after a step that lowers the weighted cost ``cost``.
+
+    The Gauss-Newton step first (it does for the catalogue's linear effects, so their
+    fits are unchanged); else Levenberg-Marquardt steps of growing damping; else the
+    parameters stay. Nearly collinear parameters (a texture's column modes beside
+    per-column offsets, with a finite-difference Jacobian) make the undamped step wild
+    in their common direction: on a background-subtracted ColiCoords field it sent
+    the mean to overflow and the diagnosis ended in "SVD did not converge".
+    """
+    scale = np.sqrt(np.maximum(np.diag(normal), 1e-300))
+    scaled, b = normal / np.outer(scale, scale), rhs / scale
+    for damping in (0.0, *DAMPING):
+        if damping == 0.0:
+            z = np.linalg.lstsq(scaled, b, rcond=1e-12)[0]
+        else:
+            z = np.linalg.solve(scaled + damping * np.eye(len(b)), b)
+        with np.errstate(over="ignore", invalid="ignore"):
+            trial_beta, trial_effects, trial_mu = _trial(design, beta, effects, z / scale)
+            trial_cost = float(np.sum(w * (yv - trial_mu.ravel()[idx]) ** 2))
+        if math.isfinite(trial_cost) and trial_cost <= cost * (1 + 1e-9):
+            return trial_beta, trial_effects, trial_mu
+    return beta, effects, mu
+
+
 def fit_model(
     design: BaseDesign,
     y: np.ndarray,
@@ -358,33 +397,24 @@ def fit_model(
     idx = np.flatnonzero(fit_mask.ravel())
     yv = y.ravel()[idx]
     a = None
+    mu = predict(design, beta, effects)
     for round_index in range(rounds):
-        mu = predict(design, beta, effects)
         v = variance(mu, design.camera, gain, read).ravel()[idx]
+        w = 1.0 / v
         for _inner in range(2 if effects else 1):
-            mu = predict(design, beta, effects)
             # The catalogue's effects are linear or nearly so in their parameters: the
             # Jacobian is computed at the start and once more before the last round.
             if a is None or (round_index == rounds - 1 and _inner == 0):
                 jac = _jacobian(design, beta, effects, mu)
                 a = jac.reshape(len(jac), -1)[:, idx].T
-            w = 1.0 / v
             r = yv - mu.ravel()[idx]
             aw = a * w[:, None]
             normal = a.T @ aw
             rhs = aw.T @ r
-            scale = np.sqrt(np.maximum(np.diag(normal), 1e-300))
-            step = (
-                np.linalg.lstsq(normal / np.outer(scale, scale), rhs / scale, rcond=1e-12)[0]
-                / scale
+            beta, effects, mu = _descent_step(
+                design, beta, effects, normal, rhs, mu, yv, idx, w, float(np.sum(w * r**2))
             )
-            beta = beta + step[: len(beta)]
-            pos = len(beta)
-            for i, (e, theta) in enumerate(effects):
-                effects[i] = (e, e.clip(theta + step[pos : pos + len(theta)]))
-                pos += len(theta)
         if fit_camera:
-            mu = predict(design, beta, effects)
             r2 = (yv - mu.ravel()[idx]) ** 2
             gain, read = _fit_camera(r2, mu.ravel()[idx], design.camera)
     mu = predict(design, beta, effects)

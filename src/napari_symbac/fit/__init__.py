@@ -11,7 +11,8 @@
   censoring and standard errors (stages in ``start``, ``noise``, ``engine``, ``lm``,
   ``overlap``, ``moves``);
 * :func:`fit_series`: a ``(T, Y, X)`` series with the optics (and camera) shared by
-  the frames and the cells per frame.
+  the frames and the cells per frame, linked into tracks and a lineage
+  (:func:`link_cells`, :class:`LinkSettings`, :class:`Lineage`).
 """
 
 from napari_symbac.fit.inputs import (
@@ -22,6 +23,7 @@ from napari_symbac.fit.inputs import (
     as_single_image,
 )
 from napari_symbac.fit.intensities import ClassStatistics, class_statistics
+from napari_symbac.fit.lineage import Lineage, LinkSettings, link_cells
 from napari_symbac.fit.objectives import DEFAULT_TERMS, TERM_NAMES, objective_terms
 from napari_symbac.fit.parameters import (
     DEFAULT_FIT,
@@ -50,6 +52,8 @@ __all__ = [
     "ClassStatistics",
     "FitCancelled",
     "FitResult",
+    "Lineage",
+    "LinkSettings",
     "SceneFit",
     "SeriesFit",
     "TrenchPlacement",
@@ -60,6 +64,7 @@ __all__ = [
     "fit_parameters",
     "fit_scene",
     "fit_series",
+    "link_cells",
     "objective_terms",
     "otsu_cells",
     "parameter_bounds",

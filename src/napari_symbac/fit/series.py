@@ -10,6 +10,12 @@ frames' blocks), and each frame keeps its own cells, cell width, trench placemen
 (drift between frames is allowed) and intensities (solved in closed form per
 frame, as in a single-frame fit). The camera is measured once from the pooled
 frames when it is not given.
+
+At the joint optimum the cells are linked from frame to frame
+(:func:`~napari_symbac.fit.lineage.link_cells`): each cell gets a track id that
+it keeps while it grows, a division ends the mother's track and starts one per
+daughter, and :attr:`SeriesFit.lineage` holds the Cell Tracking Challenge's
+``L B E P`` table (track, first frame, last frame, parent).
 """
 
 from __future__ import annotations
@@ -24,6 +30,7 @@ import numpy as np
 from scipy import sparse
 
 from napari_symbac.fit.camera_estimate import censored_pixels, estimate_camera
+from napari_symbac.fit.lineage import Lineage, LinkSettings, link_cells
 from napari_symbac.fit.lm import State, evaluate
 from napari_symbac.fit.overlap import overlap_terms
 from napari_symbac.fit.placement import TrenchPlacement
@@ -70,6 +77,12 @@ class SeriesFit:
         Joint Levenberg-Marquardt iterations taken.
     warnings
         Plain words on what did not converge.
+    lineage
+        Identities of the cells at the joint optimum
+        (:class:`~napari_symbac.fit.lineage.Lineage`): ``lineage.track_ids[t]`` gives
+        the track of each cell of ``frames[t].cells`` (same order), ``lineage.tracks``
+        one ``(track, first frame, last frame, parent track)`` row per track, frames
+        numbered from 0 within the series.
     """
 
     frames: tuple[SceneFit, ...]
@@ -84,6 +97,14 @@ class SeriesFit:
     cost_joint: float = math.nan
     iterations: int = 0
     warnings: tuple[str, ...] = ()
+    lineage: Lineage | None = field(default=None, repr=False)
+
+    @property
+    def track_ids(self) -> tuple[np.ndarray, ...]:
+        """Track id of each fitted cell, one array per frame (see :attr:`lineage`)."""
+        if self.lineage is None:
+            raise ValueError("this series fit holds no lineage")
+        return self.lineage.track_ids
 
     def shared(self) -> dict[str, tuple[float, float]]:
         """``{name: (value, standard error)}`` of the shared parameters."""
@@ -130,6 +151,8 @@ def fit_series(
     closed_end: Literal["square", "round"] | None = None,
     fit_optics: tuple[str, ...] | None = None,
     joint_iterations: int = 15,
+    linking: LinkSettings | None = None,
+    growth_prior_sd_um: float = 0.0,
     progress: Callable[[int, int], None] | None = None,
     cancel: Callable[[], bool] | None = None,
     **frame_options,
@@ -149,6 +172,18 @@ def fit_series(
         as :func:`~napari_symbac.fit.fit_scene`'s, default: not censored).
     joint_iterations
         Levenberg-Marquardt iterations of the joint refinement.
+    growth_prior_sd_um
+        0 (default): each frame's cells are refined on their own. > 0: the cells are
+        linked after the frame-by-frame fits and the joint refinement ties each linked
+        cell's length to its predecessor's grown length (``L' = g L``, ``g`` the measured
+        growth per frame) and two daughters' summed length to their mother's (plus a
+        third of her width) by a Gaussian prior of this s.d.: a cell cut by the image's
+        edge borrows its length from its past.
+    linking
+        How cells are linked between frames
+        (:class:`~napari_symbac.fit.lineage.LinkSettings`; default: its defaults). In a
+        trench the per-frame trench placements take up the drift and cells are pushed
+        down the trench; in an open field one shift per frame is measured.
     progress, cancel
         As :func:`~napari_symbac.fit.fit_scene`, per frame fit.
     **frame_options
@@ -167,12 +202,16 @@ def fit_series(
         )
     if joint_iterations < 1:
         raise ValueError(f"joint_iterations must be at least 1, got {joint_iterations}")
+    if not (math.isfinite(growth_prior_sd_um) and growth_prior_sd_um >= 0):
+        raise ValueError(
+            f"growth_prior_sd_um must be zero (off) or positive, got {growth_prior_sd_um!r}"
+        )
     n_frames = stack.shape[0]
     shared_camera = camera if camera is not None else _pooled_camera(stack)
     runs: list[_FrameRun] = []
     for t in range(n_frames):
-        runs.append(
-            _run_frame(
+        try:
+            run = _run_frame(
                 stack[t],
                 microscope,
                 render,
@@ -188,7 +227,15 @@ def fit_series(
                 cancel=cancel,
                 **frame_options,
             )
-        )
+        except ValueError as err:
+            advice = (
+                ". A series fit needs cells in every frame: fit the frames before and "
+                f"after frame {t} as separate series"
+                if "no cells" in str(err)
+                else ""
+            )
+            raise ValueError(f"frame {t} of the series: {err}{advice}") from err
+        runs.append(run)
     alone = tuple(_frame_result(run) for run in runs)
     optics = runs[0].problem.layout.optics
     names = tuple(optics)
@@ -201,8 +248,16 @@ def fit_series(
     warnings: list[str] = []
     cost_before = sum(run.state.cost for run in runs)
     iterations = 0
-    if names:
-        states, iterations, converged = _joint_refine(runs, len(names), joint_iterations)
+    px = microscope.pixel_size_um
+    size_um = (stack.shape[1] * px, stack.shape[2] * px)
+    ties = None
+    if growth_prior_sd_um > 0:
+        early = _link(alone, linking, geometry, size_um)
+        ties = _GrowthTies.from_lineage(early, alone, growth_prior_sd_um)
+    if names or ties is not None:
+        states, iterations, converged = _joint_refine(
+            runs, len(names), joint_iterations, ties
+        )
         if not converged:
             warnings.append(
                 f"the joint fit stopped at the iteration limit ({joint_iterations}) before "
@@ -212,6 +267,7 @@ def fit_series(
     joint = tuple(_frame_result(run) for run in runs)
     cost_after = sum(run.state.cost for run in runs)
     values, se = _joint_uncertainty(joint, runs, names)
+    lineage = _link(joint, linking, geometry, size_um)
     return SeriesFit(
         frames=joint,
         frame_by_frame=alone,
@@ -225,6 +281,22 @@ def fit_series(
         cost_joint=float(cost_after),
         iterations=iterations,
         warnings=tuple(warnings),
+        lineage=lineage,
+    )
+
+
+def _link(
+    fits: tuple[SceneFit, ...],
+    linking: LinkSettings | None,
+    geometry: str,
+    size_um: tuple[float, float],
+) -> Lineage:
+    """The fitted cells of the frames linked into tracks (trench placements in a trench)."""
+    return link_cells(
+        [fit.cells for fit in fits],
+        linking,
+        trench=[fit.trench for fit in fits] if geometry == "trench" else None,
+        image_size_um=size_um,
     )
 
 
@@ -235,7 +307,11 @@ def _split(runs: list[_FrameRun], n_shared: int) -> tuple[list[int], np.ndarray]
     turn, then the shared ones, started at their mean over the frames.
     """
     own = [run.state.x.size - n_shared for run in runs]
-    shared = np.mean([run.state.x[-n_shared:] for run in runs], axis=0)
+    shared = (
+        np.mean([run.state.x[run.state.x.size - n_shared :] for run in runs], axis=0)
+        if n_shared
+        else np.zeros(0)
+    )
     z = np.concatenate([*(run.state.x[:k] for run, k in zip(runs, own)), shared])
     return own, z
 
@@ -268,18 +344,92 @@ def _evaluate_all(runs: list[_FrameRun], z: np.ndarray, own: list[int], n_shared
     return states
 
 
+@dataclass(frozen=True)
+class _GrowthTies:
+    """Gaussian priors tying linked cells' lengths across frames (``growth_prior_sd_um``).
+
+    Each tie is ``(sum_k c_k L_k - offset) / sd`` over cells given as ``(frame, cell
+    index)``: a link ``L' - g L``, a division ``L_a + L_b - g L_m - w_m / 3``.
+    """
+
+    cells: tuple[tuple[tuple[int, int], ...], ...]
+    coefficients: tuple[tuple[float, ...], ...]
+    offsets: np.ndarray
+    sd_um: float
+
+    @classmethod
+    def from_lineage(
+        cls, lineage: Lineage, fits: tuple[SceneFit, ...], sd_um: float
+    ) -> _GrowthTies | None:
+        g = lineage.growth_per_frame
+        cells, coefficients, offsets = [], [], []
+        for t in range(len(fits) - 1):
+            before, after = lineage.track_ids[t], lineage.track_ids[t + 1]
+            for j, track in enumerate(after.tolist()):
+                hit = np.flatnonzero(before == track)
+                if hit.size:
+                    cells.append(((t, int(hit[0])), (t + 1, j)))
+                    coefficients.append((-g, 1.0))
+                    offsets.append(0.0)
+            for mother, daughters in lineage.divisions().items():
+                k = np.flatnonzero(before == mother)
+                d = [int(i) for i in np.flatnonzero(np.isin(after, daughters))]
+                if k.size and len(d) == 2:
+                    cells.append(((t, int(k[0])), (t + 1, d[0]), (t + 1, d[1])))
+                    coefficients.append((-g, 1.0, 1.0))
+                    offsets.append(float(fits[t].cells.width_um[k[0]]) / 3)
+        if not cells:
+            return None
+        return cls(tuple(cells), tuple(coefficients), np.array(offsets), float(sd_um))
+
+    def _where(self, runs: list[_FrameRun], own: list[int]) -> list[np.ndarray]:
+        per_cell = [run.problem.layout.per_cell for run in runs]
+        return [
+            np.array([sum(own[:t]) + c * per_cell[t] + _LENGTH for t, c in tie])
+            for tie in self.cells
+        ]
+
+    def terms(
+        self, z: np.ndarray, runs: list[_FrameRun], own: list[int]
+    ) -> tuple[np.ndarray, list[np.ndarray]]:
+        """Residuals (in s.d.) and, per tie, the joint positions of its lengths."""
+        where = self._where(runs, own)
+        r = np.array(
+            [
+                (np.dot(c, z[w]) - off) / self.sd_um
+                for c, w, off in zip(self.coefficients, where, self.offsets)
+            ]
+        )
+        return r, where
+
+    def cost(self, z: np.ndarray, runs: list[_FrameRun], own: list[int]) -> float:
+        return float(np.sum(self.terms(z, runs, own)[0] ** 2))
+
+
+#: Position of the length in a cell's block of parameters (x, y, angle, length, ...).
+_LENGTH = 3
+
+
 def _joint_refine(
-    runs: list[_FrameRun], n_shared: int, max_iterations: int
+    runs: list[_FrameRun],
+    n_shared: int,
+    max_iterations: int,
+    ties: _GrowthTies | None = None,
 ) -> tuple[list[State], int, bool]:
     """Levenberg-Marquardt on the summed cost, shared columns summed over frames.
 
     As :func:`~napari_symbac.fit.lm.levenberg_marquardt` for one frame: the
     Jacobian of every frame (per-cell patches, full renders for the optics), the
     damped Gauss-Newton step on all parameters and intensities, the intensities
-    re-solved exactly per frame at the trial point.
+    re-solved exactly per frame at the trial point. ``ties``: the growth priors
+    between frames, added to the cost and to the normal equations.
     """
     own, z = _split(runs, n_shared)
     states = _evaluate_all(runs, z, own, n_shared)
+
+    def tie_cost(point: np.ndarray) -> float:
+        return 0.0 if ties is None else ties.cost(point, runs, own)
+
     size = sum(own) + n_shared + 3 * len(runs)
     lam = 1e-2
     converged = False
@@ -325,8 +475,14 @@ def _joint_refine(
             scales[index[:m]] = sc
             lower[index[:m]] = p.lower(n)
             upper[index[:m]] = up
+        if ties is not None:
+            r, where = ties.terms(z, runs, own)
+            for res, idx, coef in zip(r, where, ties.coefficients):
+                d = np.asarray(coef) * scales[idx] / ties.sd_um
+                h[np.ix_(idx, idx)] += np.outer(d, d)
+                g[idx] += d * res
         diag = np.diag(h) + 1e-9 * max(float(np.mean(np.diag(h))), 1e-12)
-        cost = sum(s.cost for s in states)
+        cost = sum(s.cost for s in states) + tie_cost(z)
         improved, gain = False, 0.0
         k = scales.size
         for _attempt in range(8):
@@ -337,7 +493,7 @@ def _joint_refine(
                 continue
             trial_z = np.clip(z + delta[:k] * scales, lower, upper)
             trial = _evaluate_all(runs, trial_z, own, n_shared)
-            trial_cost = sum(s.cost for s in trial)
+            trial_cost = sum(s.cost for s in trial) + tie_cost(trial_z)
             if trial_cost < cost:
                 gain = (cost - trial_cost) / max(cost, 1e-300)
                 z, states, improved = trial_z, trial, True

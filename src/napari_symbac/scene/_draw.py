@@ -12,14 +12,14 @@ from __future__ import annotations
 import functools
 import hashlib
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields
 from typing import Any, Protocol
 
 import numpy as np
 
 from napari_symbac.scene._field import Field, field_images
-from napari_symbac.scene._raster import rasterise_cells
+from napari_symbac.scene._raster import media_fraction, rasterise_cells
 from napari_symbac.settings import Microscope, RenderSettings, TrenchGeometry
 
 __all__ = [
@@ -70,9 +70,13 @@ class Scene:
         eq. 3 reads ``I = I_c cells + I_m media + I_t device``; a device pixel is
         ``device = 1``, an empty trench pixel ``media = 1`` and the centre-line of a
         cell as thick as the trench is deep ``cells = 1``. ``cells + media + device
-        = 1`` everywhere.
+        = 1`` everywhere. :func:`draw_scene` computes ``media`` on first access
+        (``open - cells``, the same values): bulk drawing that never reads it does not
+        pay for a third frame-sized image.
     labels
         uint32 instance mask at render resolution, value = cell id (0 = no cell).
+        :func:`draw_scene` keeps it as uint16 when every id fits and makes the
+        uint32 image on first access (the masks are made from the uint16 one).
     border_px
         Width of the border (render pixels) outside the camera's field of view.
     upsample
@@ -125,30 +129,53 @@ class Scene:
         object.__setattr__(self, "cell_ids", _readonly(np.asarray(self.cell_ids, np.int64)))
 
     @classmethod
-    def _unchecked(cls, **values: Any) -> Scene:
+    def _unchecked(
+        cls, pending: Mapping[str, Callable[[], np.ndarray]] | None = None, **values: Any
+    ) -> Scene:
         """A scene from values that already satisfy ``__post_init__`` (no checks, no copies).
 
         For :func:`draw_scene` and the ``replace_*`` methods, whose images are
         read-only, C-contiguous, finite float32 (labels uint32, ids int64) of matching
         shapes by construction; skipping the checks saves several passes over the
-        images per frame.
+        images per frame. An image named in ``pending`` (instead of ``values``) is
+        made by calling its function on first access, then kept read-only.
         """
         scene = object.__new__(cls)
         for name in _FIELDS:
-            object.__setattr__(scene, name, values[name])
+            if pending is None or name not in pending:
+                object.__setattr__(scene, name, values[name])
+        if pending:
+            object.__setattr__(scene, "_pending", dict(pending))
         return scene
+
+    def __getattr__(self, name: str) -> Any:
+        # Called only when the attribute is not set: an image still pending.
+        make = self.__dict__.get("_pending", {}).get(name)
+        if make is None:
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+        image = make()
+        image.setflags(write=False)
+        object.__setattr__(self, name, image)
+        return image
 
     def _replace(self, name: str, image: np.ndarray) -> Scene:
         image = _checked_image(name, image)
         if image.shape != self.shape:
             raise ValueError(f"Scene.{name} has shape {image.shape}, expected {self.shape}")
-        values = {f: getattr(self, f) for f in _FIELDS}
+        # Images still pending stay pending: their functions hold their own inputs.
+        pending = {
+            f: make
+            for f, make in self.__dict__.get("_pending", {}).items()
+            if f != name and f not in self.__dict__
+        }
+        values = {f: self.__dict__[f] for f in _FIELDS if f in self.__dict__}
         values[name] = image
-        scene = Scene._unchecked(**values)
+        scene = Scene._unchecked(pending, **values)
         # The labels are the same array: so are the camera-resolution masks, and the
         # content hashes of the images that did not change.
-        if "_masks" in self.__dict__:
-            object.__setattr__(scene, "_masks", self.__dict__["_masks"])
+        for kept in ("_masks", "_narrow_labels"):
+            if kept in self.__dict__:
+                object.__setattr__(scene, kept, self.__dict__[kept])
         known = {
             **self.__dict__.get("_known_fingerprints", {}),
             **self.__dict__.get("_fingerprints", {}),
@@ -189,7 +216,11 @@ class Scene:
         # Computed once per scene (the labels are read-only, so they cannot go stale).
         cached = self.__dict__.get("_masks")
         if cached is None:
-            cached = _camera_masks(self.labels, self.border_px, self.upsample, self.camera_shape)
+            # The uint16 labels of draw_scene where it kept them: the same values.
+            labels = self.__dict__.get("_narrow_labels")
+            if labels is None:
+                labels = self.labels
+            cached = _camera_masks(labels, self.border_px, self.upsample, self.camera_shape)
             for mask in cached:
                 mask.setflags(write=False)
             object.__setattr__(self, "_masks", cached)
@@ -265,35 +296,50 @@ _FIELDS = tuple(f.name for f in fields(Scene))
 _MASK_CHUNK_PIXELS = 1 << 18
 
 
-def _mixed_blocks(
-    inner: np.ndarray, first: np.ndarray, u: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Rows and columns (camera px) of the ``u x u`` blocks of ``inner`` holding more
-    than one label, in row-major order.
+def _block_labels(inner: np.ndarray, u: int) -> np.ndarray:
+    """Majority label (uint32) of every ``u x u`` block of ``inner``, ``u >= 2``.
 
-    A block is uniform when its rows 1..u-1 equal its row 0 (compared along whole
-    image rows) and row 0 equals its first pixel ``first`` (the strided sample);
-    a band of block rows at a time, so that the passes stay in the cache.
+    Of equal counts the first in row-major order within the block wins. A block is
+    uniform when its rows 1..u-1 equal its row 0 (compared along whole image rows)
+    and row 0 equals the block's first pixel; only the other blocks are voted on. A
+    band of block rows at a time, so that the passes, the strided sample of first
+    pixels and the gathering of the mixed blocks' pixels stay in the cache.
     """
-    rows, cols = first.shape
+    rows, cols = inner.shape[0] // u, inner.shape[1] // u
+    labels = np.empty((rows, cols), np.uint32)
+    mixed = np.empty((rows, cols), bool)
+    dy, dx = np.divmod(np.arange(u * u), u)  # row-major offsets within a block
     chunk = max(1, _MASK_CHUNK_PIXELS // (u * u * cols))
-    found_rows, found_cols = [], []
+    found_rows, found_cols, found_blocks = [], [], []
     for r0 in range(0, rows, chunk):
         r1 = min(r0 + chunk, rows)
         band = inner[r0 * u : r1 * u]
         top = band[0::u]
+        first = labels[r0:r1]
+        first[...] = top[:, 0::u]
         same = top == band[1::u]
-        for dy in range(2, u):
-            same &= top == band[dy::u]
+        for k in range(2, u):
+            same &= top == band[k::u]
         uniform = same[:, 0::u] & same[:, 1::u]
-        for dx in range(2, u):
-            uniform &= same[:, dx::u]
-        for dx in range(1, u):
-            uniform &= top[:, dx::u] == first[r0:r1]
-        ri, ci = np.nonzero(~uniform)
-        found_rows.append(ri + r0)
-        found_cols.append(ci)
-    return np.concatenate(found_rows), np.concatenate(found_cols)
+        for k in range(2, u):
+            uniform &= same[:, k::u]
+        for k in range(1, u):
+            uniform &= top[:, k::u] == first
+        band_mixed = mixed[r0:r1]
+        np.logical_not(uniform, out=band_mixed)
+        ri, ci = np.divmod(np.flatnonzero(band_mixed), cols)
+        if ri.size:
+            found_blocks.append(band[(ri * u)[:, None] + dy, (ci * u)[:, None] + dx])
+            found_rows.append(ri + r0)
+            found_cols.append(ci)
+    if found_blocks:
+        blocks = np.concatenate(found_blocks)  # (blocks, u * u), row-major in each
+        counts = np.zeros(blocks.shape, np.uint8 if u * u < 256 else np.int64)
+        for k in range(u * u):
+            counts += blocks == blocks[:, k : k + 1]
+        winners = blocks[np.arange(len(blocks)), np.argmax(counts, axis=-1)]
+        labels[np.concatenate(found_rows), np.concatenate(found_cols)] = winners
+    return labels
 
 
 def _semantic(labels: np.ndarray) -> np.ndarray:
@@ -340,21 +386,7 @@ def _camera_masks(
     rows, cols = camera_shape
     b = border
     inner = labels_full[b : b + rows * u, b : b + cols * u]
-    labels = np.array(inner[::u, ::u], np.uint32)
-    if u > 1:
-        ri, ci = _mixed_blocks(inner, labels, u)
-        if ri.size:
-            # (blocks, u * u) in row-major order within each block: argmax takes the
-            # first of equal counts. Gathered by flat index from the whole image.
-            width = labels_full.shape[1]
-            corner = (ri * u + b) * width + (ci * u + b)
-            offsets = (np.arange(u)[:, None] * width + np.arange(u)[None, :]).ravel()
-            flat = np.ascontiguousarray(labels_full).ravel()
-            blocks = flat[corner[:, None] + offsets[None, :]]
-            counts = np.zeros(blocks.shape, np.uint8 if u * u < 256 else np.int64)
-            for k in range(u * u):
-                counts += blocks == blocks[:, k : k + 1]
-            labels[ri, ci] = blocks[np.arange(ri.size), np.argmax(counts, axis=-1)]
+    labels = _block_labels(inner, u) if u > 1 else np.array(inner, np.uint32)
     return labels, _semantic(labels)
 
 
@@ -635,7 +667,7 @@ def draw_scene(
         trench_frac, device = field_images(field, shape, border, px)
         device_fp = _device_fingerprint(field, shape, border, px)
 
-    cells_frac, media, labels = rasterise_cells(
+    cells_frac, labels = rasterise_cells(
         xc,
         yc,
         px,
@@ -650,12 +682,16 @@ def draw_scene(
         curv,
         closed=field is None or bool(field.walls_um),
     )
-    for image in (cells_frac, media, labels, ids):
+    for image in (cells_frac, labels, ids):
         image.setflags(write=False)
-    # Every image is C-contiguous, finite, of the right dtype and shape by construction.
+    # Every image is C-contiguous, finite, of the right dtype and shape by construction;
+    # the media image, and uint32 labels from uint16 ones, are made when first read.
+    pending = {"media": functools.partial(media_fraction, trench_frac, cells_frac)}
+    if labels.dtype != np.uint32:
+        pending["labels"] = functools.partial(np.asarray, labels, np.uint32)
     scene = Scene._unchecked(
+        pending,
         cells=cells_frac,
-        media=media,
         device=device,
         labels=labels,
         border_px=border,
@@ -667,6 +703,8 @@ def draw_scene(
     )
     # The device image is the cached, read-only array of this geometry: reuse its hash.
     object.__setattr__(scene, "_known_fingerprints", {"device": device_fp})
+    if labels.dtype != np.uint32:
+        object.__setattr__(scene, "_narrow_labels", labels)
     # media = open - cells exactly here (and cells = 0 where open = 0): bulk rendering
     # convolves the open and device fractions once per geometry (optics.static).
     # ``replace_cells`` / ``replace_media`` copies do not carry it.

@@ -1,17 +1,13 @@
 """Rasterising cells into a scene's images, each cell only in its own box.
 
-:func:`rasterise_cells` turns the cells of one frame into the ``cells`` and
-``media`` fractions and the instance labels of :class:`~napari_symbac.scene.Scene`
-(eq. OPL2: the chord ``2 sqrt(r^2 - d^2)`` of a 3-D spherocylinder at mid-depth).
-The work is proportional to the cells' area, not the frame's: each cell is drawn
-in its bounding box. When the boxes about fill their bounding rectangle (a trench)
-the thickness and labels are drawn into that rectangle and converted to fractions
-once; scattered cells (a pad) convert their own boxes as they are drawn, so that no
-pass covers the empty frame. Where cells overlap, the thickest wins the pixel (the
-first in the input order of equal chords), and the fraction is ``min(thickness /
-depth, 1, open)``; since that is a non-decreasing function of the thickness, the
-maximum of the cells' fractions is the fraction of the maximum thickness, so each
-cell can write its own.
+:func:`rasterise_cells` turns the cells of one frame into the ``cells`` fraction
+and the instance labels of :class:`~napari_symbac.scene.Scene` (eq. OPL2: the
+chord ``2 sqrt(r^2 - d^2)`` of a 3-D spherocylinder at mid-depth);
+:func:`media_fraction` gives the media (eq. OPL3) from them. The work is
+proportional to the cells' area, not the frame's: each cell is drawn in its
+bounding box. Where cells overlap, the thickest wins the pixel (the first in the
+input order of equal chords), and the fraction is ``min(thickness / depth, 1,
+open)`` of that thickest chord, computed once per pixel at the end.
 """
 
 from __future__ import annotations
@@ -20,7 +16,7 @@ import math
 
 import numpy as np
 
-__all__ = ["cell_boxes", "chord", "rasterise_cells"]
+__all__ = ["cell_boxes", "chord", "media_fraction", "rasterise_cells"]
 
 
 def cell_boxes(
@@ -79,6 +75,9 @@ def chord(
 #: A squared distance this far (relatively) beyond ``r^2`` gives a zero chord in
 #: float64 whatever the rounding of the square root and its square (8 ulp suffice).
 _OUTSIDE = 1.0 + 2.0**-40
+#: Relative margin on ``r + |a|`` beyond which a bent cell's chord is 0 whatever its
+#: bend (orders of magnitude above float64 rounding).
+_NEAR = 1.0 + 2.0**-20
 
 
 def _chord_in_box(
@@ -93,7 +92,8 @@ def _chord_in_box(
 ) -> np.ndarray:
     """:func:`chord` over ``yc x xc``, its square roots taken only inside the cell.
 
-    The squared distance ``q`` is computed everywhere in the box; where ``q >= r^2
+    The squared distance ``q`` is computed everywhere in the box (a bent cell's, see
+    :func:`_bent_chord`, only near its axis); where ``q >= r^2
     (1 + 2^-40)`` the chord is 0 exactly (``sqrt(q)^2 >= r^2`` after rounding), so
     the rest of the arithmetic, two square roots included, runs on the pixels
     inside only, unless the cell (at most ``width x length``, against pixels of
@@ -108,34 +108,96 @@ def _chord_in_box(
     s = np.add((dy * cos_a)[:, None], (dx * sin_a)[None, :])
     t = np.subtract((dx * cos_a)[None, :], (dy * sin_a)[:, None])
     if curvature is not None:
-        a_um, b, c = curvature
-        ell = np.clip((s + length_um / 2) / length_um, 0.0, 1.0)
-        t -= a_um * np.sin(ell * math.pi / b + c)
-    d = np.clip(s, -half, half)  # = minimum(maximum(s, -half), half)
+        return _bent_chord(s, t, half, r, length_um, curvature)
+    q = _squared_distance(s, t, half)
+    if width_um * length_um > 0.6 * q.size * pixel_area_um2:
+        # The cell fills most of its box (e.g. upright in a trench): finishing every
+        # pixel costs less than picking out the inside ones.
+        return _chord_from_squared(q, r)
+    out = np.zeros(q.shape, np.float32)
+    # ravel().nonzero() and the ndarray methods skip numpy's Python-level wrappers (a
+    # few us per call, per cell).
+    inside = np.less(q, (r * r) * _OUTSIDE).ravel().nonzero()[0]
+    if inside.size:
+        out.ravel()[inside] = _chord_from_squared(q.ravel()[inside], r)
+    return out
+
+
+def _squared_distance(s: np.ndarray, t: np.ndarray, half: float) -> np.ndarray:
+    """Squared distance ``(s - clip(s, -half, half))^2 + t^2`` to the axis segment, from
+    the offsets along (``s``) and across (``t``, overwritten) the axis."""
+    d = s.clip(-half, half)  # = minimum(maximum(s, -half), half)
     np.subtract(s, d, out=d)
     np.square(d, out=d)
     np.square(t, out=t)
-    np.add(d, t, out=d)
-    if width_um * length_um > 0.6 * d.size * pixel_area_um2:
-        # The cell fills most of its box (e.g. upright in a trench): finishing every
-        # pixel costs less than picking out the inside ones.
-        np.sqrt(d, out=d)
-        np.multiply(d, d, out=d)
-        np.subtract(r * r, d, out=d)
-        np.maximum(d, 0.0, out=d)
-        np.sqrt(d, out=d)
-        return np.multiply(2, d, out=np.empty(d.shape, np.float32), casting="same_kind")
-    out = np.zeros(d.shape, np.float32)
-    inside = np.flatnonzero(d < (r * r) * _OUTSIDE)
-    if inside.size:
-        q = d.ravel()[inside]
-        np.sqrt(q, out=q)
-        np.multiply(q, q, out=q)
-        np.subtract(r * r, q, out=q)
-        np.maximum(q, 0.0, out=q)
-        np.sqrt(q, out=q)
-        chord_in = np.multiply(2, q, out=np.empty(q.shape, np.float32), casting="same_kind")
-        out.ravel()[inside] = chord_in
+    return np.add(d, t, out=d)
+
+
+def _chord_from_squared(q: np.ndarray, r: float) -> np.ndarray:
+    """float32 chord ``2 sqrt(r^2 - d^2)`` (0 beyond ``r``) from ``q = d^2`` (float64,
+    overwritten), as ``spherocylinder_distance`` then the chord compute it."""
+    np.sqrt(q, out=q)
+    np.multiply(q, q, out=q)
+    np.subtract(r * r, q, out=q)
+    np.maximum(q, 0.0, out=q)
+    np.sqrt(q, out=q)
+    return np.multiply(2, q, out=np.empty(q.shape, np.float32), casting="same_kind")
+
+
+def _row_bands(boxes: np.ndarray) -> list[tuple[int, int, int, int]]:
+    """Disjoint rectangles ``(i0, i1, j0, j1)`` that together cover every box.
+
+    The boxes' row intervals are merged where they overlap; each merged band of rows
+    spans the columns of the boxes in it. A colony gives one rectangle (its bounding
+    box), scattered cells a band per group of rows that hold cells, so that a pass
+    over the bands never covers the empty rows of a pad.
+    """
+    order = np.argsort(boxes[:, 0], kind="stable")
+    bands: list[list[int]] = []
+    for i0, i1, j0, j1 in boxes[order].tolist():
+        if bands and i0 < bands[-1][1]:
+            band = bands[-1]
+            band[1] = max(band[1], i1)
+            band[2] = min(band[2], j0)
+            band[3] = max(band[3], j1)
+        else:
+            bands.append([i0, i1, j0, j1])
+    return [(b[0], b[1], b[2], b[3]) for b in bands]
+
+
+def _bent_chord(
+    s: np.ndarray,
+    t: np.ndarray,
+    half: float,
+    r: float,
+    length_um: float,
+    curvature: tuple[float, float, float],
+) -> np.ndarray:
+    """Chord of a cell bent by eq. 1 (``t -= a sin(pi l / b + c)``), from the straight
+    offsets ``s, t`` over a box.
+
+    The bend moves a pixel's offset ``t`` by at most ``|a|``: beyond ``r + |a|`` of
+    the axis line, or beyond a pole (``|s| > half + r``), the chord is 0 with or
+    without it (the margin :data:`_NEAR` is far above rounding), so the sine and the
+    rest of the formula run on the pixels left only, value for value as on all.
+    """
+    a_um, b, c = curvature
+    near = np.abs(t) <= (r + abs(a_um)) * _NEAR
+    near &= np.abs(s) <= (half + r) * _NEAR
+    near = near.ravel().nonzero()[0]
+    out = np.zeros(s.shape, np.float32)
+    s_near = s.ravel()[near]
+    ell = np.add(s_near, length_um / 2)
+    np.divide(ell, length_um, out=ell)
+    ell.clip(0.0, 1.0, out=ell)
+    np.multiply(ell, math.pi, out=ell)
+    np.divide(ell, b, out=ell)
+    np.add(ell, c, out=ell)
+    np.sin(ell, out=ell)
+    np.multiply(a_um, ell, out=ell)
+    t_near = t.ravel()[near]
+    np.subtract(t_near, ell, out=t_near)
+    out.ravel()[near] = _chord_from_squared(_squared_distance(s_near, t_near, half), r)
     return out
 
 
@@ -154,8 +216,8 @@ def rasterise_cells(
     curvature: dict[int, tuple[float, float, float]],
     *,
     closed: bool = True,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Cells and media fractions and instance labels of one frame (eq. OPL2-3).
+) -> tuple[np.ndarray, np.ndarray]:
+    """Cells fraction and instance labels of one frame (eq. OPL2-3).
 
     Parameters
     ----------
@@ -179,88 +241,72 @@ def rasterise_cells(
     curvature
         ``id -> (a_um, b, c)`` of eq. 1 for the bent cells.
     closed
-        Whether ``open_frac`` may be 0 somewhere (device): a cell pixel there keeps
-        no label. ``False`` (an agar pad) skips that test.
+        Whether there is device: ``open_frac`` may be below 1 and a cell pixel where
+        it is 0 keeps no label. ``False`` (an agar pad) says that ``open_frac`` is 1
+        everywhere, so the fraction is ``min(thickness / depth, 1)``, and just
+        ``thickness / depth`` when no cell is wider than the depth.
 
     Returns
     -------
-    cells, media, labels
-        float32, float32 and uint32 images of ``open_frac``'s shape: ``cells =
-        min(thickness / depth, 1, open)`` of the thickest cell, ``media = max(open -
-        cells, 0)``, ``labels`` the id of the thickest cell (the first of equal
-        chords) where ``cells > 0``, else 0.
+    cells, labels
+        Images of ``open_frac``'s shape: ``cells = min(thickness / depth, 1, open)``
+        (float32) of the thickest cell, ``labels`` the id of the thickest cell (the
+        first of equal chords) where ``cells > 0``, else 0, uint16 when every id
+        fits (half the memory traffic of uint32, here and in the masks made from
+        them), else uint32. The media fraction is ``open - cells``
+        (:func:`media_fraction`).
+
+    Notes
+    -----
+    These are the only two frame-sized images made: the cells image holds the
+    thickest chord so far while the cells are drawn (each cell compares its chord
+    with it and takes the label where it is strictly thicker, so the first of equal
+    chords keeps the pixel) and is turned into fractions in place at the end, over
+    the rows that hold cells.
     """
     shape = open_frac.shape
     cells = np.zeros(shape, np.float32)
-    labels = np.zeros(shape, np.uint32)
+    narrow = ids.size == 0 or int(ids.max()) <= np.iinfo(np.uint16).max
+    label_type = np.uint16 if narrow else np.uint32
+    labels = np.zeros(shape, label_type)
     cx, cy = centres_um
-    bend = np.array([abs(curvature[int(i)][0]) if int(i) in curvature else 0.0 for i in ids])
+    bend = np.array([abs(curvature[i][0]) if i in curvature else 0.0 for i in ids.tolist()])
     boxes = cell_boxes(cx, cy, angle_rad, length_um, width_um, bend, px, border, shape)
     drawn = np.flatnonzero((boxes[:, 0] < boxes[:, 1]) & (boxes[:, 2] < boxes[:, 3]))
     if drawn.size == 0:
-        return cells, open_frac.copy(), labels
-    depth = np.float32(depth_um)
-    top, left = boxes[drawn, 0].min(), boxes[drawn, 2].min()
-    bottom, right = boxes[drawn, 1].max(), boxes[drawn, 3].max()
-    covered = ((boxes[drawn, 1] - boxes[drawn, 0]) * (boxes[drawn, 3] - boxes[drawn, 2])).sum()
-    # Dense (the boxes about fill their bounding rectangle, a trench): the thickness
-    # and labels are drawn into that rectangle, which is converted to fractions in one
-    # pass. Scattered (a pad): each cell converts its own box as it is drawn, so no
-    # pass covers the empty frame; the thickness lives in the media image meanwhile.
-    dense = (bottom - top) * (right - left) <= 2 * covered
-    if dense:
-        rect = (slice(top, bottom), slice(left, right))
-        thickness = np.zeros((bottom - top, right - left), np.float32)
-        work_labels = np.zeros(thickness.shape, np.uint32)
-    else:
-        top = left = 0
-        media = np.zeros(shape, np.float32)
-        thickness, work_labels = media, labels
+        return cells, labels
     pixel_area = px * px
-    for k in drawn.tolist():
-        i0, i1, j0, j1 = boxes[k].tolist()
-        cell_id = int(ids[k])
+    columns = (ids, cx, cy, angle_rad, length_um, width_um)
+    for box, (cell_id, x, y, angle, length, width) in zip(
+        boxes[drawn].tolist(), zip(*(c[drawn].tolist() for c in columns)), strict=True
+    ):
+        i0, i1, j0, j1 = box
         thick = _chord_in_box(
-            xc[j0:j1],
-            yc[i0:i1],
-            (float(cx[k]), float(cy[k])),
-            float(angle_rad[k]),
-            float(length_um[k]),
-            float(width_um[k]),
-            curvature.get(cell_id),
-            pixel_area,
+            xc[j0:j1], yc[i0:i1], (x, y), angle, length, width, curvature.get(cell_id), pixel_area
         )
-        local = (slice(i0 - top, i1 - top), slice(j0 - left, j1 - left))
-        box_t = thickness[local]
+        box_t = cells[i0:i1, j0:j1]
         take = thick > box_t
         np.maximum(box_t, thick, out=box_t)
-        box_l = work_labels[local]
-        np.putmask(box_l, take, np.uint32(cell_id))
-        if dense:
-            continue
-        # min(thickness / depth, 1, open) = min(thickness / depth, open): open <= 1;
-        # the maximum over cells of this non-decreasing map of the chord is the map
-        # of the maximum chord.
-        box = (slice(i0, i1), slice(j0, j1))
-        frac = np.divide(thick, depth, out=thick)
-        open_box = open_frac[box]
-        np.minimum(frac, open_box, out=frac)
-        box_c = cells[box]
-        np.maximum(box_c, frac, out=box_c)
+        np.putmask(labels[i0:i1, j0:j1], take, cell_id)
+    # min(thickness / depth, 1, open) = min(thickness / depth, open): open <= 1. With
+    # open = 1 and no chord above the (float32) depth, the quotient is at most 1
+    # already: a chord is at most the width (times 1 + 4 ulp of rounding).
+    depth = np.float32(depth_um)
+    capped = closed or width_um[drawn].max() * (1 + 2.0**-40) > float(depth)
+    for i0, i1, j0, j1 in _row_bands(boxes[drawn]):
+        frac = cells[i0:i1, j0:j1]
+        np.divide(frac, depth, out=frac)
+        if capped:
+            np.minimum(frac, open_frac[i0:i1, j0:j1], out=frac)
         if closed:
             # A pixel inside the PDMS (open = 0) keeps no label, whichever cell is there.
-            np.logical_and(take, frac <= 0, out=take)
-            np.putmask(box_l, take, np.uint32(0))
-    if dense:
-        frac = np.divide(thickness, depth, out=thickness)
-        open_rect = open_frac[rect]
-        np.minimum(frac, open_rect, out=frac)
-        cells[rect] = frac
-        if closed:
-            np.putmask(work_labels, frac <= 0, np.uint32(0))
-        labels[rect] = work_labels
-        media = open_frac.copy()
-        np.subtract(open_rect, frac, out=media[rect])
-    else:
-        np.subtract(open_frac, cells, out=media)
-    return cells, media, labels
+            np.putmask(labels[i0:i1, j0:j1], frac <= 0, label_type(0))
+    return cells, labels
+
+
+def media_fraction(open_frac: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """Media fraction ``open - cells`` (eq. OPL3: what the cells leave of the open depth).
+
+    ``cells <= open`` everywhere, so the difference is never negative.
+    """
+    return np.subtract(open_frac, cells)

@@ -1,0 +1,151 @@
+"""Field drawing (scene + masks) of this tree against another, and where its time goes.
+
+``measure_field_draw`` (napari_symbac.bench.cases_render) of the 1024 x 1024 field of
+360 cells and the 2048 x 2048 field of 1440 cells, run in subprocesses that alternate
+between this source tree and ``--against`` (another checkout's ``src``, e.g. the
+code before a change), so that both see the same machine load; each run prints its
+ratio to the FFT floor measured in the same run. ``--breakdown`` then times the
+parts of this tree's drawing in one process, interleaved with the floor: the chords
+of straight and of bent cells (float64, in their boxes), the whole ``draw_scene``,
+the masks, a draw of the same number of tiny cells (the per-cell and per-frame fixed
+cost), the first touch of a new frame-sized float32 image, and the media image's
+first read. CPU time of the measuring thread, medians.
+
+Run: ``python benchmarks/bench_field_draw.py --against /path/to/old/src [--pairs 3]
+[--breakdown] [--quick]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+MEASURE = (
+    "import json; from napari_symbac.bench.cases_render import measure_field_draw; "
+    "print(json.dumps(measure_field_draw({size}, {cells}, rounds={rounds})))"
+)
+
+
+def _run(src: Path, size: int, cells: int, rounds: int) -> dict:
+    env = {**os.environ, "PYTHONPATH": str(src)}
+    code = MEASURE.format(size=size, cells=cells, rounds=rounds)
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+    )
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def compare(against: Path, cases: list[tuple[int, int]], pairs: int, rounds: int) -> None:
+    print(f"{'tree':<8}{'field':>7}{'draw ms':>9}{'masks ms':>10}{'floor ms':>10}"
+          f"{'/ floor':>9}{'load':>6}")
+    for _ in range(pairs):
+        for tag, src in (("before", against), ("after", SRC)):
+            for size, cells in cases:
+                r = _run(src, size, cells, rounds)
+                print(
+                    f"{tag:<8}{size:>7}{r['draw_s'] * 1e3:>9.1f}{r['masks_s'] * 1e3:>10.1f}"
+                    f"{r['fft_floor_s'] * 1e3:>10.1f}{r['draw_masks_over_floor']:>9.3f}"
+                    f"{os.getloadavg()[0]:>6.1f}",
+                    flush=True,
+                )
+
+
+def breakdown(size: int, n_cells: int, rounds: int) -> None:
+    from napari_symbac.bench.cases_render import colony_cells
+    from napari_symbac.bench.timing import fft_floor
+    from napari_symbac.optics import ForwardModel
+    from napari_symbac.scene import Field, draw_scene
+    from napari_symbac.scene._raster import _chord_in_box, cell_boxes
+    from napari_symbac.settings import Camera, Microscope, RenderSettings, TrenchGeometry
+
+    microscope = Microscope()
+    render = RenderSettings(upsample=3, psf_radius_px=50)
+    cells, curvature, side = colony_cells(size, n_cells, pixel_um=microscope.pixel_size_um)
+    field, trench = Field(side, side), TrenchGeometry()
+    scene = draw_scene(cells, trench, microscope, render, curvature, field=field)
+    shape, px, border = scene.shape, scene.pixel_size_um, scene.border_px
+    floor = fft_floor(scene.cells, ForwardModel(microscope, render, Camera()).kernel())
+    del scene
+    xc = (np.arange(shape[1]) - border + 0.5) * px
+    yc = (np.arange(shape[0]) - border + 0.5) * px
+    ids = cells.ids.tolist()
+    bend = np.array([abs(curvature[i][0]) if i in curvature else 0.0 for i in ids])
+    boxes = cell_boxes(
+        cells.x_um, cells.y_um, cells.angle_rad, cells.length_um, cells.width_um, bend, px,
+        border, shape,
+    ).tolist()
+
+    def chords(bent: bool) -> None:
+        for k, (i0, i1, j0, j1) in enumerate(boxes):
+            if (ids[k] in curvature) == bent:
+                _chord_in_box(
+                    xc[j0:j1], yc[i0:i1], (float(cells.x_um[k]), float(cells.y_um[k])),
+                    float(cells.angle_rad[k]), float(cells.length_um[k]),
+                    float(cells.width_um[k]), curvature.get(ids[k]), px * px,
+                )
+
+    tiny = type(cells)(**vars(cells))
+    tiny.length_um, tiny.width_um = cells.length_um * 0.02, cells.width_um * 0.02
+    tiny_bend = dict.fromkeys(curvature, (0.001, 1.0, 0.0))
+
+    def fresh_frame() -> None:
+        np.zeros(shape, np.float32).ravel()[::1024] = 1  # one write per 4 kB page
+
+    names = ("straight chords", "bent chords", "draw_scene", "masks", "media, first read",
+             "tiny-cell draw_scene", "new float32 frame", "FFT floor")
+    times: dict[str, list[float]] = {name: [] for name in names}
+
+    def timed(name: str, fn, *args, **kwargs):
+        start = time.thread_time()
+        result = fn(*args, **kwargs)
+        times[name].append(time.thread_time() - start)
+        return result
+
+    for _ in range(rounds):
+        timed("straight chords", chords, False)
+        timed("bent chords", chords, True)
+        new = timed("draw_scene", draw_scene, cells, trench, microscope, render, curvature,
+                    field=field)
+        timed("masks", lambda s: (s.camera_labels(), s.semantic_mask()), new)
+        timed("media, first read", getattr, new, "media")
+        del new
+        timed("tiny-cell draw_scene", draw_scene, tiny, trench, microscope, render, tiny_bend,
+              field=field)
+        timed("new float32 frame", fresh_frame)
+        timed("FFT floor", floor)
+    med = {name: float(np.median(v)) for name, v in times.items()}
+    print(f"\n{size} x {size} px, {n_cells} cells, render {shape[0]} x {shape[1]}, "
+          f"{rounds} rounds, load {os.getloadavg()[0]:.1f}")
+    for name in names:
+        print(f"  {name:<24}{med[name] * 1e3:>9.1f} ms{med[name] / med['FFT floor']:>8.3f} x floor")
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--against", type=Path, help="another tree's src to compare with")
+    parser.add_argument("--pairs", type=int, default=3, help="before/after pairs")
+    parser.add_argument("--breakdown", action="store_true", help="time this tree's parts")
+    parser.add_argument("--quick", action="store_true", help="the 1024 field only")
+    args = parser.parse_args(argv)
+    cases = [(1024, 360)] if args.quick else [(1024, 360), (2048, 1440)]
+    if args.against is not None:
+        if not (args.against / "napari_symbac").is_dir():
+            parser.error(f"--against {args.against}: no napari_symbac package there (give a src)")
+        compare(args.against, cases, args.pairs, rounds=5)
+    if args.breakdown:
+        for size, n_cells in cases:
+            breakdown(size, n_cells, rounds=5)
+    if args.against is None and not args.breakdown:
+        parser.error("give --against SRC and/or --breakdown")
+
+
+if __name__ == "__main__":
+    main()

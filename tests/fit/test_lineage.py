@@ -1,0 +1,219 @@
+"""Cell identity across frames: links, divisions, exits (fit/lineage.py, fit_series)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from _fit_synthetic import PIXEL_UM, START, TRENCH, TRUTH
+from _series_synthetic import (
+    in_view,
+    lineage_relations,
+    observe,
+    render_trench_series,
+    trench_simulation,
+    truth_relations,
+)
+
+from napari_symbac.fit import LinkSettings, TrenchPlacement, fit_series, link_cells
+from napari_symbac.optics import ForwardModel
+from napari_symbac.scene import draw_scene
+from napari_symbac.settings import AgarPadGeometry, Camera, SimulationSettings
+from napari_symbac.sim import FrameCells, simulate
+
+#: The test trench's image: 128 x 46 px of 65 nm, the trench 0.75 um from the top-left.
+IMAGE_UM = (128 * PIXEL_UM, 46 * PIXEL_UM)
+PLACEMENT = TrenchPlacement(TRENCH.margin_um, TRENCH.width_um, TRENCH.margin_um)
+
+
+def _differences(got, want, observed=None, size_um=None, hidden_within_um=0.3):
+    """Cells whose relation to the previous frame differs from the truth.
+
+    With ``size_um`` (the field of view): a division read as a link of the mother is
+    not counted when the daughter reaches to within ``hidden_within_um`` of the edge:
+    her septum, the only sign of the division, is then out of view or within about a
+    PSF width (0.3 um) of the edge, and the part in view is the same either way.
+    Returns the differences and the number of such hidden divisions.
+    """
+    wrong, hidden = [], 0
+    for t, (ours, theirs) in enumerate(zip(got, want)):
+        for j, relation in theirs.items():
+            if ours[j] == relation:
+                continue
+            if size_um is not None and relation[0] == "division":
+                cells = observed[t + 1]
+                half = cells.length_um[j] / 2
+                dx, dy = half * np.sin(cells.angle_rad[j]), half * np.cos(cells.angle_rad[j])
+                xs = cells.x_um[j] + np.array([-dx, dx])
+                ys = cells.y_um[j] + np.array([-dy, dy])
+                m = hidden_within_um
+                at_edge = (xs.min() < m or xs.max() > size_um[1] - m or ys.min() < m
+                           or ys.max() > size_um[0] - m)  # fmt: skip
+                if ours[j] == ("link", relation[1]) and at_edge:
+                    hidden += 1
+                    continue
+            wrong.append((t + 1, j, ours[j], relation))
+    return wrong, hidden
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_every_link_and_division_of_a_simulated_trench_is_found(seed):
+    """40 frames of a mother machine (~18 divisions, ~16 cells pushed out), the cells
+    as a fit reports them: shuffled, renumbered, with 50 nm scatter."""
+    simulation = trench_simulation(seed=seed, n_frames=40)
+    rng = np.random.default_rng(seed)
+    offset = (TRENCH.margin_um, TRENCH.margin_um)
+    observed, truth_ids = observe(simulation.frames, rng, offset, noise_um=0.05)
+    lineage = link_cells(
+        observed, trench=[PLACEMENT] * len(observed), image_size_um=IMAGE_UM
+    )
+    want = truth_relations(simulation, truth_ids)
+    kinds = [relation[0] for step in want for relation in step.values()]
+    assert kinds.count("division") >= 20
+    assert kinds.count("link") >= 60
+    wrong, hidden = _differences(lineage_relations(lineage), want, observed, IMAGE_UM)
+    assert wrong == []
+    assert hidden <= 4  # of ~20 divisions, those with the septum at the edge
+    assert lineage.growth_per_frame == pytest.approx(np.exp(np.log(2) / 25 * 5), rel=0.03)
+    # the CTC table: parents end the frame before their daughters begin
+    begins = {int(t): int(b) for t, b, _e, _p in lineage.tracks}
+    ends = {int(t): int(e) for t, _b, e, _p in lineage.tracks}
+    for track, begin, _end, parent in lineage.tracks.tolist():
+        if parent:
+            assert ends[parent] == begin - 1
+        assert track in lineage.track_ids[begin]
+        assert track in lineage.track_ids[ends[track]]
+    assert begins == {int(t): min(f for f, ids in enumerate(lineage.track_ids) if t in ids)
+                      for t in begins}  # fmt: skip
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_every_link_and_division_of_a_drifting_colony_is_found(seed):
+    """Colonies on a pad seen through a 16 x 16 um field that drifts ~0.5 um per frame
+    (up to 1.3 um), 14 frames: cells divide, and leave or enter at the field's edges."""
+    n_frames = 14
+    pad = AgarPadGeometry(
+        field_width_um=24.0, field_height_um=24.0, n_colonies=3, scattered_cells=2,
+        colony_separation_um=6.0, edge_margin_um=4.0,
+    )  # fmt: skip
+    settings = SimulationSettings(
+        n_frames=n_frames, geometry="agar_pad", agar_pad=pad, n_founders=3,
+        frame_interval_min=5.0, cell_width_um=0.9, seed=seed,
+    )  # fmt: skip
+    simulation = simulate(settings)
+    rng = np.random.default_rng(seed)
+    steps = rng.normal(0.0, 0.3, (n_frames, 2)) + np.array([0.4, -0.3])
+    steps[0] = 0
+    origin = 4.0 + np.cumsum(steps, axis=0)
+    observed, truth_ids = observe(in_view(simulation.frames, origin, (16.0, 16.0)), rng,
+                                  noise_um=0.05)  # fmt: skip
+    lineage = link_cells(observed, image_size_um=(16.0, 16.0))
+    want = truth_relations(simulation, truth_ids)
+    kinds = [relation[0] for step in want for relation in step.values()]
+    assert kinds.count("division") >= 15
+    wrong, hidden = _differences(lineage_relations(lineage), want, observed, (16.0, 16.0))
+    assert wrong == []
+    assert hidden <= 2
+    # the field's shift is measured (the stage moved by -step)
+    np.testing.assert_allclose(lineage.drift_um, -np.diff(origin, axis=0), atol=0.5)
+
+
+def test_a_frame_without_cells_ends_every_track():
+    cells = FrameCells(
+        ids=[1, 2], x_um=[2.0, 5.0], y_um=[3.0, 3.0], angle_rad=[0.0, 0.0],
+        length_um=[2.5, 2.5], width_um=[0.9, 0.9],
+    )  # fmt: skip
+    lineage = link_cells([cells, FrameCells.empty(), cells], image_size_um=(8.0, 8.0))
+    assert [ids.tolist() for ids in lineage.track_ids] == [[1, 2], [], [3, 4]]
+    assert lineage.tracks.tolist() == [[1, 0, 0, 0], [2, 0, 0, 0], [3, 2, 2, 0], [4, 2, 2, 0]]
+    assert lineage.ctc_text() == "1 0 0 0\n2 0 0 0\n3 2 2 0\n4 2 2 0\n"
+
+
+def test_bad_link_settings_and_inputs_are_refused():
+    with pytest.raises(ValueError, match="gate_um must be a positive number"):
+        LinkSettings(gate_um=0.0)
+    with pytest.raises(ValueError, match="growth_per_frame must be a positive ratio"):
+        LinkSettings(growth_per_frame=-1.0)
+    with pytest.raises(ValueError, match="at least one frame"):
+        link_cells([])
+    with pytest.raises(ValueError, match="give one per frame"):
+        link_cells([FrameCells.empty()] * 2, trench=[PLACEMENT])
+
+
+@pytest.fixture(scope="module")
+def trench_series():
+    """Frames 11-14 of a simulated trench, rendered and fitted jointly: cells 6 and 7
+    grow, 8 is pushed out of the open end after frame 12, 6 divides after frame 12."""
+    truth = render_trench_series(trench_simulation(seed=3), first=11, count=4)
+    fit = fit_series(
+        truth.stack, truth.microscope, START, None, irls_rounds=2, max_iterations=10,
+        joint_iterations=5,
+    )  # fmt: skip
+    return truth, fit
+
+
+@pytest.mark.slow
+def test_fit_series_keeps_identities_through_a_division_and_an_exit(trench_series):
+    truth, fit = trench_series
+    assert [len(f.cells) for f in fit.frames] == [len(c) for c in truth.cells]
+    # each fitted cell matched to the simulator's by its centre
+    truth_ids = []
+    for frame, cells in zip(fit.frames, truth.cells):
+        y_true = cells.y_um + TRENCH.margin_um
+        nearest = [int(np.argmin(np.abs(y_true - y))) for y in frame.cells.y_um]
+        assert sorted(nearest) == list(range(len(cells)))
+        truth_ids.append(cells.ids[nearest])
+    want = truth_relations(truth.simulation, truth_ids, first=truth.first_frame)
+    assert lineage_relations(fit.lineage) == want
+    kinds = {relation[0] for step in want for relation in step.values()}
+    assert kinds == {"link", "division"}
+    assert len(fit.lineage.divisions()) == 1
+    assert len(fit.lineage.tracks) == 5
+    # the cell pushed out ends its track at frame 1 (simulator frame 12) without daughters
+    exited = [t for t, b, e, p in fit.lineage.tracks.tolist() if e == 1 and
+              t not in fit.lineage.divisions()]  # fmt: skip
+    assert len(exited) == 1
+    assert fit.track_ids is fit.lineage.track_ids
+
+
+def test_fit_series_names_a_frame_without_cells():
+    truth = render_trench_series(trench_simulation(seed=3), first=11, count=1)
+    blank = ForwardModel(truth.microscope, TRUTH, Camera()).render(
+        draw_scene(FrameCells.empty(), TRENCH, truth.microscope, TRUTH),
+        np.random.default_rng(0),
+    )
+    stack = np.stack([truth.stack[0], blank])
+    with pytest.raises(ValueError, match=r"frame 1 of the series: .*no cells.*separate series"):
+        fit_series(stack, truth.microscope, START, None, irls_rounds=1, max_iterations=3,
+                   moves=False)  # fmt: skip
+
+
+@pytest.mark.slow
+def test_growth_prior_gives_cells_cut_by_the_edge_their_length(trench_series):
+    """The bottom cell of frame 1 and the lowest of frame 3 cross the open end: alone,
+    their fitted lengths are only what is in view; tied to their grown past (0.1 um),
+    they come closer to the truth, and the whole cells stay as they were."""
+    truth, plain = trench_series
+    tied = fit_series(
+        truth.stack, truth.microscope, START, None, irls_rounds=2, max_iterations=10,
+        joint_iterations=5, growth_prior_sd_um=0.1,
+    )  # fmt: skip
+
+    def errors(fit):
+        whole, cut = [], []
+        for frame, cells in zip(fit.frames, truth.cells):
+            y_true = cells.y_um + TRENCH.margin_um
+            for y, length in zip(frame.cells.y_um, frame.cells.length_um):
+                k = int(np.argmin(np.abs(y_true - y)))
+                crosses = y_true[k] + cells.length_um[k] / 2 > IMAGE_UM[0]
+                (cut if crosses else whole).append(abs(length - cells.length_um[k]))
+        return np.array(whole), np.array(cut)
+
+    whole_plain, cut_plain = errors(plain)
+    whole_tied, cut_tied = errors(tied)
+    assert cut_plain.size == cut_tied.size == 3
+    assert cut_tied.sum() < 0.6 * cut_plain.sum()
+    assert whole_tied.max() < 0.06
+    assert whole_plain.max() < 0.06
+    np.testing.assert_array_equal(tied.lineage.tracks, plain.lineage.tracks)
+    with pytest.raises(ValueError, match="growth_prior_sd_um must be zero"):
+        fit_series(truth.stack, truth.microscope, START, None, growth_prior_sd_um=-1.0)
