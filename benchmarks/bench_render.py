@@ -2,8 +2,8 @@
 
 Prints a table: drawing the scene, rendering it cold on the cached path (new
 frame: the changed components are convolved and cached) and on the fast path
-(``cache=False``: compose, convolve once), the camera-resolution masks (instance +
-semantic, as ``pipeline.iter_render`` yields them with every image), the full
+(``cache=False``: static layers once, the cells per frame), the camera-resolution
+masks (instance + semantic, as ``pipeline.iter_render`` yields them with every image), the full
 per-frame path (draw + fast render + masks), re-rendering after an intensity / noise
 change (cached: no convolution), and, as the yardstick measured in the same run,
 one real FFT of the render-resolution frame. If SyMBac 0.5.2 is installed in a
@@ -199,8 +199,8 @@ def main(argv: list[str] | None = None) -> None:
     floor = trench["fft_floor_s"]
     rows = [
         ("draw_scene (5 cells)", trench["draw_s"]),
-        ("render, fast path: noise-free image (compose, convolve once)", trench["clean_s"]),
-        ("render, fast path: camera noise (Poisson + Gaussian, uint16)", trench["noise_s"]),
+        ("render, fast path: noise-free image (static layers + cells)", trench["clean_s"]),
+        ("render, fast path: camera noise (eq. 17, uint16)", trench["noise_s"]),
         ("masks, Scene.camera_labels() + Scene.semantic_mask() (new scene)", trench["masks_s"]),
         ("draw + fast render + masks (our full per-frame path)", trench["frame_s"]),
         (

@@ -123,11 +123,15 @@ def test_model_mean_uses_the_residual_and_the_trench_render(truth):
 
 
 def test_series_of_rendered_trench_frames_without_a_model(truth):
+    # the estimate's spread over noise seeds is 3.5 % with 8 frames (18 % of seeds miss
+    # 5 %), 1.9 % with 32: 5 % is then 2.6 standard deviations
     model = ForwardModel(truth.microscope, truth.render, truth.camera)
-    frames = np.stack([model.render(truth.scene, np.random.default_rng(20 + i)) for i in range(8)])
+    frames = np.stack(
+        [model.render(truth.scene, np.random.default_rng(20 + i)) for i in range(32)]
+    )
     estimate = estimate_camera(frames, camera=truth.camera)
     assert estimate.camera.sensitivity_adu_per_e == pytest.approx(2.9, rel=0.05)
-    assert estimate.n_points > 8 * 30 * 100
+    assert estimate.n_points > 32 * 30 * 100
 
 
 def test_valid_mask_and_censoring_keep_clipped_pixels_out():

@@ -89,9 +89,16 @@ def _noise_statistics(counts: np.ndarray, clean: np.ndarray, baseline: float, ed
     return np.array(stats)
 
 
-@pytest.mark.parametrize("noise_model", ["camera", "gaussian"])
-def test_noise_has_the_cpu_paths_mean_and_variance_per_level(trench, noise_model):
-    camera = Camera(baseline_adu=100.0, sensitivity_adu_per_e=2.9, dark_noise_e=8.0)
+@pytest.mark.parametrize(
+    ("noise_model", "dark_noise_e"), [("camera", 8.0), ("camera", 1.0), ("gaussian", 8.0)]
+)
+def test_noise_has_the_cpu_paths_mean_and_variance_per_level(trench, noise_model, dark_noise_e):
+    """Per level of the clean image: mean and variance as the CPU path's and eq. 17's.
+
+    With 8 e- of read noise every pixel takes the single Gaussian draw; with 1 e- the
+    pixels below ~397 e- (the darker half of the frame) draw exact Poisson counts.
+    """
+    camera = Camera(baseline_adu=100.0, sensitivity_adu_per_e=2.9, dark_noise_e=dark_noise_e)
     render = dataclasses.replace(CLEAN, noise_model=noise_model, gaussian_noise_sd_adu=15.0)
     pipeline, scenes = _scenes(trench, render, last=1)
     model = ForwardModel(pipeline.microscope, render, camera)

@@ -151,14 +151,23 @@ def test_fused_convolve_resample_matches_convolve_then_average(upsample):
 
 
 @pytest.mark.parametrize("noise_model", ["none", "camera", "gaussian"])
-def test_fast_path_equals_cached_path(scene, noise_model):
-    """``cache=False`` (compose, then convolve once) is the cached render up to float32 rounding."""
+def test_fast_path_equals_cached_path(scene, cells_factory, noise_model):
+    """``cache=False`` (static layers once, then the cells) is the cached render up to
+    float32 rounding."""
     settings = dataclasses.replace(RS, noise_model=noise_model)
     model = ForwardModel(MIC, settings, Camera())
     cached = model.render_clean(scene)
     misses = model.cache_info["misses"]
     fast = model.render_clean(scene, cache=False)
-    assert model.cache_info["misses"] == misses  # the fast path neither reads nor fills the cache
+    assert model.cache_info["misses"] == misses  # a first frame: composed, no cache traffic
+    # from the second frame of a geometry on, the static open and device layers are
+    # convolved once and cached ...
+    other = draw_scene(cells_factory([3.0], x_um=2.0, width_um=0.9), WIDE, MIC, RS)
+    model.render_clean(other, cache=False)
+    assert model.cache_info["misses"] == misses + 2
+    # ... so further frames of the same geometry neither fill nor miss the cache
+    np.testing.assert_allclose(model.render_clean(scene, cache=False), fast, rtol=1e-5, atol=5e-3)
+    assert model.cache_info["misses"] == misses + 2
     assert fast.dtype == np.float32
     assert fast.shape == cached.shape
     np.testing.assert_allclose(fast, cached, rtol=1e-5, atol=5e-3)

@@ -207,13 +207,65 @@ class ScipyBackend:
             weights = np.asarray(weights, np.float32)
             if weights.shape != (n,):
                 raise ValueError(f"weights {weights.shape} do not fit images {images.shape}")
-        shape = resample_fft_shape(height, width, factor)
-        m1 = shape[0] // factor
-        if weights is not None:
             combined = weights[0] * images[0]
             for weight, image in zip(weights[1:], images[1:]):
                 combined += weight * image
             images = combined[None]
+        shape = resample_fft_shape(height, width, factor)
+        out = self._fused(images, kernel, factor, shape, (rows // factor, cols // factor))
+        return out[0] if weights is not None else out
+
+    def convolve_resample_circular(
+        self,
+        image: np.ndarray,
+        kernel: np.ndarray,
+        factor: int,
+        shape: tuple[int, int],
+        out_shape: tuple[int, int],
+    ) -> np.ndarray:
+        """The fused convolution + block average as a *circular* convolution of ``shape``.
+
+        ``image`` (2-D, at most ``shape``) is zero-padded to ``shape``; camera pixel
+        ``(p, q)`` of the ``out_shape`` result is the block average of the valid
+        outputs ``(p f .. p f + f - 1, q f .. q f + f - 1)`` of the periodic extension
+        of the padded image. That equals the linear result wherever the periodic copies
+        of the image do not reach those outputs' inputs: the caller chooses ``shape``
+        (see :func:`~napari_symbac.optics.static.axis_window`), which may be smaller
+        than the valid convolution of ``image`` would need, or than ``image`` plus
+        the kernel. ``shape`` must be multiples of ``factor`` with fast quotients
+        (:func:`resample_fft_shape` gives such sizes); returns float32.
+        """
+        image = np.asarray(image, dtype=np.float32)
+        kernel = np.asarray(kernel, dtype=np.float32)
+        factor = int(factor)
+        if image.ndim != 2 or kernel.ndim != 2:
+            raise ValueError(
+                f"image and kernel must be 2-D, got shapes {image.shape} and {kernel.shape}"
+            )
+        shape = (int(shape[0]), int(shape[1]))
+        out_shape = (int(out_shape[0]), int(out_shape[1]))
+        for axis in (0, 1):
+            if factor < 1 or shape[axis] % factor:
+                raise ValueError(f"transform shape {shape} is not a multiple of {factor}")
+            if image.shape[axis] > shape[axis] or kernel.shape[axis] + factor - 1 > shape[axis]:
+                raise ValueError(
+                    f"image {image.shape} or kernel {kernel.shape} (+ the {factor} x "
+                    f"{factor} block) does not fit the transform shape {shape}"
+                )
+            if not 0 < out_shape[axis] * factor <= shape[axis]:
+                raise ValueError(f"out_shape {out_shape} does not fit the transform {shape}")
+        return self._fused(image[None], kernel, factor, shape, out_shape)[0]
+
+    def _fused(
+        self,
+        images: np.ndarray,
+        kernel: np.ndarray,
+        factor: int,
+        shape: tuple[int, int],
+        out_shape: tuple[int, int],
+    ) -> np.ndarray:
+        """``(N, Y, X)`` float32 images -> ``(N,) + out_shape``: transforms of ``shape``."""
+        m1 = shape[0] // factor
         spectrum = sp_fft.rfft2(images, s=shape)
         spectrum *= self._resample_kernel_fft(kernel, factor, shape)
         # Decimate the rows: sum the aliases of the (full, complex) row frequencies.
@@ -221,9 +273,8 @@ class ScipyBackend:
         folded = sp_fft.ifft(folded, axis=1, overwrite_x=True)
         # Decimate the columns: back to real rows at full width, keep every factor-th
         # sample (the kernel's spectrum carries the normalisation).
-        full = sp_fft.irfft(folded[:, : rows // factor], n=shape[1], axis=-1, overwrite_x=True)
-        out = np.ascontiguousarray(full[:, :, :cols:factor], dtype=np.float32)
-        return out[0] if weights is not None else out
+        full = sp_fft.irfft(folded[:, : out_shape[0]], n=shape[1], axis=-1, overwrite_x=True)
+        return np.ascontiguousarray(full[:, :, : out_shape[1] * factor : factor], dtype=np.float32)
 
 
 class TorchBackend:

@@ -15,7 +15,11 @@ finished uint16 camera images:
    ring kernel's product is subtracted before the inverse transform.
 2. ``camera`` (eq. 17): shot noise ``Poisson(S / s)`` electrons, read noise ``N(0,
    sigma_d^2)`` electrons, gain ``s``, baseline, rounding and clipping to the bit depth
-   (or the ``gaussian`` / ``none`` noise models), drawn on the device.
+   (or the ``gaussian`` / ``none`` noise models), drawn on the device. As on the CPU
+   (:func:`~napari_symbac.optics.camera.apply_camera_noise`), shot + read noise is one
+   Gaussian of the same mean and variance wherever its skewness is at most
+   :data:`~napari_symbac.optics.camera.GAUSSIAN_SKEWNESS_MAX`, an exact Poisson draw
+   elsewhere.
 
 The renderer reads the model's :attr:`~napari_symbac.optics.forward.ForwardModel.stages`
 and kernels, so the two paths cannot drift apart; a stage it cannot run on the device
@@ -40,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from napari_symbac.optics.backends import resample_fft_shape, resample_kernel_spectrum
+from napari_symbac.optics.camera import GAUSSIAN_SKEWNESS_MAX, exact_poisson_range
 from napari_symbac.optics.forward import ForwardModel
 
 __all__ = [
@@ -282,7 +287,11 @@ class BatchedRenderer:
         """The ``camera`` stage (eq. 17) on the device; returns uint16 on the device.
 
         Frame ``i``'s shot and read noise come from a generator seeded with
-        ``seeds[i]``; everything else runs on the whole batch at once.
+        ``seeds[i]``; everything else runs on the whole batch at once. The rule of
+        :func:`~napari_symbac.optics.camera.apply_camera_noise`: one Gaussian of the
+        exact mean and variance where the skewness of shot + read noise is at most
+        :data:`~napari_symbac.optics.camera.GAUSSIAN_SKEWNESS_MAX`, an exact Poisson
+        draw (plus read noise) elsewhere.
         """
         torch = self.torch
         cam = self._stage("camera")
@@ -294,18 +303,30 @@ class BatchedRenderer:
             normal = torch.empty_like(clean)
             if noise_model == "camera":
                 s = float(cam["sensitivity_adu_per_e"])
+                dark_e = float(cam["dark_noise_e"])
                 rates = torch.clamp(clean, min=0.0).div_(s)
-                electrons = torch.empty_like(clean)
+                exact_range = exact_poisson_range(dark_e, GAUSSIAN_SKEWNESS_MAX)
+                exact = None
+                if exact_range is not None:
+                    exact = (rates > exact_range[0]) & (rates < exact_range[1])
+                    poisson_rates = torch.where(exact, rates, torch.zeros_like(rates))
+                    electrons = torch.empty_like(clean)
             for i, seed in enumerate(seeds):
                 generator = torch.Generator(device=self.device)
                 generator.manual_seed(int(seed))
-                if noise_model == "camera":
-                    electrons[i] = torch.poisson(rates[i], generator=generator)
+                if noise_model == "camera" and exact is not None:
+                    electrons[i] = torch.poisson(poisson_rates[i], generator=generator)
                 torch.randn(clean.shape[1:], generator=generator, out=normal[i])
             if noise_model == "camera":
-                # s (A + B) + baseline, A ~ Poisson(S / s), B ~ N(0, sigma_d^2) electrons
-                electrons.add_(normal, alpha=float(cam["dark_noise_e"]))
-                out = electrons.mul_(s).add_(baseline)
+                # s (A + B) + baseline: A + B ~ N(lambda, lambda + sigma_d^2) where that
+                # is indistinguishable, else A ~ Poisson(lambda), B ~ N(0, sigma_d^2)
+                spread = rates.add(dark_e * dark_e).sqrt_()
+                if exact is None:
+                    out = rates
+                else:
+                    spread = torch.where(exact, torch.full_like(spread, dark_e), spread)
+                    out = torch.where(exact, electrons, rates)
+                out.addcmul_(spread, normal).mul_(s).add_(baseline)
             else:
                 out = normal.mul_(float(cam["gaussian_noise_sd_adu"])).add_(clean).add_(baseline)
         max_adu = float(2 ** int(cam["bit_depth"]) - 1)

@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from napari_symbac.optics.backends import ConvolutionBackend, get_backend
+from napari_symbac.optics.backends import ConvolutionBackend, get_backend, resample_fft_shape
 from napari_symbac.optics.camera import apply_camera_noise, apply_gaussian_noise, quantise
 from napari_symbac.optics.partial_coherence import annular_phase_image
 from napari_symbac.optics.psf import (
@@ -49,6 +49,7 @@ from napari_symbac.optics.psf import (
     phase_contrast_kernels,
     phase_contrast_psf,
 )
+from napari_symbac.optics.static import axis_window, static_layers
 from napari_symbac.settings import CONDENSERS, Camera, Microscope, RenderSettings
 
 __all__ = ["COMPONENTS", "ForwardModel", "Stage", "block_average"]
@@ -107,6 +108,10 @@ class _Cache:
             self.hits += 1
         return value
 
+    def has(self, key: tuple) -> bool:
+        """Whether ``key`` is stored (neither a hit nor a miss)."""
+        return key in self._items
+
     def put(self, key: tuple, value: np.ndarray) -> None:
         self.misses += 1
         value.setflags(write=False)
@@ -117,6 +122,21 @@ class _Cache:
 
     def clear(self) -> None:
         self._items.clear()
+
+
+@dataclass
+class _StaticPlan:
+    """What :meth:`ForwardModel._render_static` needs per geometry: the camera image of
+    the static layers, where the cells are read and written, and their kernels."""
+
+    render: RenderSettings
+    microscope: Microscope
+    static: np.ndarray
+    cells: tuple[slice, slice] | None = None
+    out: tuple[slice, slice] = (slice(0), slice(0))
+    transform_shape: tuple[int, int] = (0, 0)
+    out_shape: tuple[int, int] = (0, 0)
+    cell_kernels: list[tuple[np.float32, np.ndarray]] = field(default_factory=list)
 
 
 class ForwardModel:
@@ -179,6 +199,8 @@ class ForwardModel:
         self.extra_stages = tuple(extra_stages)
         self._cache = _cache if _cache is not None else _Cache()
         self._kernels: dict = _kernel_cache if _kernel_cache is not None else {}
+        self._plans: dict[tuple, _StaticPlan] = {}
+        self._seen: set[tuple] = set()
 
     # ------------------------------------------------------------------ stages
     @property
@@ -589,6 +611,8 @@ class ForwardModel:
                 p_cell, p_device = r.phase_amplitudes()
                 image -= np.float32(p_cell) * comps["cells_phase"]
                 image -= np.float32(p_device) * comps["device_phase"]
+        elif (plan := self._static_plan(scene)) is not None:
+            image = self._render_static(scene, plan)
         else:
             self._check_scene(scene)
             kernel = self.kernel(scene.pixel_size_um)
@@ -609,6 +633,132 @@ class ForwardModel:
         for stage in self.extra_stages:
             image = np.asarray(stage.apply(image, scene), dtype=np.float32)  # type: ignore[misc]
         return image.astype(np.float32, copy=False)
+
+    def _render_static(self, scene: Any, plan: _StaticPlan) -> np.ndarray:
+        """``render_clean(cache=False)`` of a drawn scene: static layers once, cells per frame.
+
+        ``(I_c - I_m) conv(C) + I_m conv(O) + I_t conv(D)`` (:mod:`~napari_symbac.optics.static`;
+        with separate phase amplitudes ``- P_c conv_ring(C) - P_t conv_ring(D)``): the
+        open and device images are convolved once and cached, keyed on their content
+        and the kernel; the cells go through a circular transform over the columns
+        and rows they can occupy.
+        """
+        image = plan.static.copy()
+        if plan.cells is None:
+            return image  # no cell can reach the camera's field of view
+        cells = scene.cells[plan.cells]
+        for weight, kernel in plan.cell_kernels:
+            part = self.backend.convolve_resample_circular(  # type: ignore[attr-defined]
+                cells, kernel, scene.upsample, plan.transform_shape, plan.out_shape
+            )
+            part *= weight
+            image[plan.out] += part
+        return image
+
+    def _static_plan(self, scene: Any) -> _StaticPlan | None:
+        """The static image and the cells' transform of ``scene``'s geometry, or ``None``
+        where the composed path renders it.
+
+        ``None`` for scenes without static layers (not from ``draw_scene``, or
+        modified since), backends without the circular transform, and the first frame
+        of a geometry this model renders unless its static layers are in the shared
+        cache already: they cost two transforms of the frame, which pay from the
+        second frame of a series on (a model that renders one frame, e.g. an export
+        item with randomised settings, stays on the composed path). The plan is
+        memoised per geometry with this model's settings.
+        """
+        self._check_scene(scene)
+        if not hasattr(self.backend, "convolve_resample_circular"):
+            return None
+        layers = static_layers(scene)
+        if layers is None:
+            return None
+        key = (
+            layers.fingerprint,
+            scene.shape,
+            scene.border_px,
+            scene.upsample,
+            scene.pixel_size_um,
+        )
+        plan = self._plans.get(key)
+        if (
+            plan is not None
+            and plan.render is self.render_settings
+            and plan.microscope is self.microscope
+        ):
+            return plan
+        r = self.render_settings
+        px = scene.pixel_size_um
+        kkey = self._kernel_key(px)
+        u = scene.upsample
+        trim = scene.border_px - r.psf_radius_px
+        if key not in self._seen and not self._cache.has(
+            (("open", layers.fingerprint), ("static", *kkey), trim, u)
+        ):
+            if len(self._seen) >= 64:
+                self._seen.clear()
+            self._seen.add(key)
+            return None
+        kernel = self.kernel(px)
+        static = self._convolved_static(layers, (("static", *kkey), kernel), trim, u)
+        image = np.float32(r.media_intensity) * static["open"]
+        image += np.float32(r.device_intensity) * static["device"]
+        cell_kernels = [(np.float32(r.cell_intensity - r.media_intensity), kernel)]
+        if self.separate_phase:
+            p_cell, p_device = r.phase_amplitudes()
+            ring_kernel = self.ring_kernel(px)
+            ring = self._convolved_static(
+                layers, (("static-ring", *kkey), ring_kernel), trim, u, ("device",)
+            )
+            image -= np.float32(p_device) * ring["device"]
+            cell_kernels.append((np.float32(-p_cell), ring_kernel))
+        image.setflags(write=False)
+        height, width = (n - 2 * trim for n in scene.shape)
+        full = resample_fft_shape(height, width, u)
+        r0, r1, c0, c1 = layers.extent
+        rows = axis_window((r0 - trim, r1 - trim), height, kernel.shape[0], u, full[0])
+        cols = axis_window(
+            (c0 - trim, c1 - trim), width, kernel.shape[1], u, full[1], real=True
+        )
+        plan = _StaticPlan(r, self.microscope, image)
+        if rows is not None and cols is not None:
+            plan.cells = (
+                slice(trim + rows.start, trim + rows.stop),
+                slice(trim + cols.start, trim + cols.stop),
+            )
+            plan.out = (slice(rows.out_start, rows.out_stop), slice(cols.out_start, cols.out_stop))
+            plan.transform_shape = (rows.length, cols.length)
+            plan.out_shape = (rows.out_stop - rows.out_start, cols.out_stop - cols.out_start)
+            plan.cell_kernels = [(w, k) for w, k in cell_kernels if w != 0]
+        if len(self._plans) >= 8:
+            self._plans.clear()
+        self._plans[key] = plan
+        return plan
+
+    def _convolved_static(
+        self,
+        layers: Any,
+        kernel: tuple[tuple, np.ndarray],
+        trim: int,
+        upsample: int,
+        names: tuple[str, ...] = ("open", "device"),
+    ) -> dict[str, np.ndarray]:
+        """The open / device images of ``layers`` through ``kernel`` = ``(key, array)``
+        (``psf`` + ``resample``), cached on their content, the kernel and the trim."""
+        kkey, array = kernel
+        out = {}
+        for name in names:
+            key = ((name, layers.fingerprint), kkey, trim, upsample)
+            cached = self._cache.get(key)
+            if cached is None:
+                image = getattr(layers, name)
+                image = image[trim : image.shape[0] - trim, trim : image.shape[1] - trim]
+                cached = np.ascontiguousarray(
+                    self._convolve_resample(image[None], array, upsample)[0]
+                )
+                self._cache.put(key, cached)
+            out[name] = cached
+        return out
 
     def add_noise(self, clean: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """The ``camera`` stage: noise of ``render.noise_model``, baseline, uint16 (eq. 17)."""

@@ -705,4 +705,8 @@ def draw_scene(
     object.__setattr__(scene, "_known_fingerprints", {"device": device_fp})
     if labels.dtype != np.uint32:
         object.__setattr__(scene, "_narrow_labels", labels)
+    # media = open - cells exactly here (and cells = 0 where open = 0): bulk rendering
+    # convolves the open and device fractions once per geometry (optics.static).
+    # ``replace_cells`` / ``replace_media`` copies do not carry it.
+    object.__setattr__(scene, "_open_fraction", trench_frac)
     return scene
