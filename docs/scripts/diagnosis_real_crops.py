@@ -2,8 +2,10 @@
 
 Run: ``python docs/scripts/diagnosis_real_crops.py REAL_DATA_DIR OUT_DIR``. Writes
 ``ds1_flu_crop.tif`` (one background-subtracted field, 128 x 128) and
-``ds3_flu_crop.tif`` (the 4-frame series with the camera offset kept, 128 x 128), each
-the 128 x 128 window with the most mask pixels, and ``fluorescence.json`` (assumed
+``ds3_flu_crop.tif`` (the first frame of ds3/flu.tif, camera offset kept, 128 x 128: its
+4 frames are 4 different fields, not a time series, so each frame is a recording of its
+own; the window of frame 0 holds no cell in frame 1), each the 128 x 128 window with the
+most mask pixels, and ``fluorescence.json`` (assumed
 microscope: ColiCoords records no optics; 80 nm pixels, NA 1.4 oil, 0.52 um).
 """
 
@@ -39,7 +41,7 @@ def main() -> None:
     series = tifffile.imread(cc / "ds3" / "flu.tif")
     masks = tifffile.imread(cc / "ds3" / "binary.tif")
     r, c = best_window(masks[0])
-    tifffile.imwrite(out / "ds3_flu_crop.tif", series[:, r : r + SIZE, c : c + SIZE])
+    tifffile.imwrite(out / "ds3_flu_crop.tif", series[0, r : r + SIZE, c : c + SIZE])
     microscope = {
         "modality": "fluorescence",
         "pixel_size_um": 0.08,
