@@ -85,6 +85,9 @@ _FITTABLE = (
 #: ``cell_intensity / media_intensity`` and ``device_intensity / media_intensity``,
 #: which the fit keeps while it solves the media level.
 _TRANSMISSIONS = {"cell_transmission": "cell_intensity", "device_transmission": "device_intensity"}
+#: The pixel fit's least squares works on ``z + _Z_OFFSET`` (z in natural scales, 0
+#: at the start), so that its relative finite-difference step is ~0.02 of a scale.
+_Z_OFFSET = 100.0
 #: Natural scale of each parameter: the optimiser works in these units.
 _SCALE = {
     "apodisation_sigma_um": 0.1,
@@ -528,17 +531,20 @@ def fit_parameters(
                         names, z, start, bounds, lambda zz: float(np.sum(residual(zz) ** 2))
                     )
                 remaining = max(budget.total - budget.done, 2 * len(names) + 2)
+                # scipy's diff_step is relative to |x| and falls back to 1.5e-8 at
+                # x = 0 (every start): optimise z + _Z_OFFSET so that the finite
+                # differences step ~0.02 natural units everywhere.
                 sol = optimize.least_squares(
-                    residual,
-                    np.clip(z, z_lo, z_hi),
-                    bounds=(z_lo, z_hi) if len(names) else (-np.inf, np.inf),
-                    diff_step=0.02,
+                    lambda w, sw=sw: residual(w - _Z_OFFSET, sw),
+                    np.clip(z, z_lo, z_hi) + _Z_OFFSET,
+                    bounds=(z_lo + _Z_OFFSET, z_hi + _Z_OFFSET),
+                    diff_step=0.02 / _Z_OFFSET,
                     x_scale=1.0,
-                    xtol=1e-6,
+                    xtol=1e-8,
                     ftol=1e-9,
                     max_nfev=max(remaining // (len(names) + 1), 3),
                 )
-                z = sol.x
+                z = sol.x - _Z_OFFSET
                 message = str(sol.message)
             current = _render_with(render, names, z, start)
             a = components(current)
