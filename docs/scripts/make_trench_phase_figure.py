@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -37,6 +38,9 @@ import tifffile
 from napari_symbac.fit import fit_parameters, fit_scene, scene_classes
 from napari_symbac.fit.masks import distance_profile
 from napari_symbac.settings import Microscope, RenderSettings
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from make_phase_figures import save  # 256-colour PNG
 
 ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "docs" / "images"
@@ -147,8 +151,7 @@ def main() -> None:
         if row == 0:
             a.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(OUT / "trench_phase_profiles.png", dpi=80)
-    plt.close(fig)
+    save(fig, OUT / "trench_phase_profiles.png")
 
 
 if __name__ == "__main__":
