@@ -212,6 +212,8 @@ def parameter_bounds(
     has no finite physical bound when the cells barely absorb; ``[0, 3]`` is the
     range where it stays identifiable: beyond it give the phase signal its own
     amplitudes (``RenderSettings.cell_phase_adu``), which the fit solves exactly.
+    The bright-field transmissions of the partially coherent model (``B`` of eq. 3
+    over the media's) are at most 1: nothing passes more light than the clear media.
     """
     if name == "apodisation_sigma_um":
         low = microscope.min_apodisation_sigma_um if microscope.modality == "phase" else 0.05
@@ -355,7 +357,9 @@ def fit_parameters(
         ``render.phase_model="partially_coherent"``
         :data:`DEFAULT_FIT_PARTIALLY_COHERENT`, and there the media level is the one
         linear amplitude (the cells' and device's bright-field transmission, their
-        intensities over the media's, stay as given).
+        intensities over the media's, stay as given unless ``cell_transmission`` /
+        ``device_transmission`` are named here; they are ~1 for unstained cells and
+        clear PDMS, not the intensities of a linear fit: docs/physics.md).
         ``gaussian_noise_sd_adu`` is added when ``render.noise_model == "gaussian"``.
     rng
         Generator for the fixed noise field of the statistics terms (common random
