@@ -537,7 +537,7 @@ def fit_parameters(
                 remaining = max(budget.total - budget.done, 2 * len(names) + 2)
                 # scipy's diff_step is relative to |x| and falls back to 1.5e-8 at
                 # x = 0 (every start): optimise z + _Z_OFFSET so that the finite
-                # differences step ~0.02 natural units everywhere.
+                # differences step ~0.02 of a parameter's _SCALE everywhere.
                 sol = optimize.least_squares(
                     lambda w, sw=sw: residual(w - _Z_OFFSET, sw),
                     np.clip(z, z_lo, z_hi) + _Z_OFFSET,
