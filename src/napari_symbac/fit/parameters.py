@@ -76,8 +76,18 @@ _FITTABLE = (
     "device_phase_rad",
     "plate_transmission",
     "plate_phase_rad",
+    "cell_transmission",
+    "device_transmission",
     "gaussian_noise_sd_adu",
 )
+#: Bright-field intensity transmissions of the partially coherent model (``B`` of
+#: eq. 3 relative to the media): not render settings of their own but the ratios
+#: ``cell_intensity / media_intensity`` and ``device_intensity / media_intensity``,
+#: which the fit keeps while it solves the media level.
+_TRANSMISSIONS = {"cell_transmission": "cell_intensity", "device_transmission": "device_intensity"}
+#: The pixel fit's least squares works on ``z + _Z_OFFSET`` (z in natural scales, 0
+#: at the start), so that its relative finite-difference step is ~0.02 of a scale.
+_Z_OFFSET = 100.0
 #: Natural scale of each parameter: the optimiser works in these units.
 _SCALE = {
     "apodisation_sigma_um": 0.1,
@@ -89,6 +99,8 @@ _SCALE = {
     "device_phase_rad": 0.1,
     "plate_transmission": 0.03,
     "plate_phase_rad": 0.1,
+    "cell_transmission": 0.03,
+    "device_transmission": 0.03,
     "gaussian_noise_sd_adu": 10.0,
 }
 _INTENSITIES = ("cell_intensity", "media_intensity", "device_intensity")
@@ -162,7 +174,7 @@ class FitResult:
         lines.append(f"{'objective':<14}{self.objective_before:12.4g}{self.objective_after:12.4g}")
         names = (*_INTENSITIES, *(_PHASE_AMPLITUDES if self.render.phase_separate else ()))
         for name in (*names, *self.fitted):
-            lines.append(f"{name:<24}{float(getattr(self.render, name) or 0.0):12.5g}")
+            lines.append(f"{name:<24}{_value(self.render, name):12.5g}")
         lines.append(f"evaluations: {self.n_evaluations}")
         lines.extend(f"WARNING: {w}" for w in self.warnings)
         return "\n".join(lines)
@@ -200,6 +212,8 @@ def parameter_bounds(
     has no finite physical bound when the cells barely absorb; ``[0, 3]`` is the
     range where it stays identifiable: beyond it give the phase signal its own
     amplitudes (``RenderSettings.cell_phase_adu``), which the fit solves exactly.
+    The bright-field transmissions of the partially coherent model (``B`` of eq. 3
+    over the media's) are at most 1: nothing passes more light than the clear media.
     """
     if name == "apodisation_sigma_um":
         low = microscope.min_apodisation_sigma_um if microscope.modality == "phase" else 0.05
@@ -226,6 +240,10 @@ def parameter_bounds(
         # lambda/4 plates: pi/2 at the design wavelength, ~ +-50 % across the
         # visible band.
         return (math.pi / 4, 3 * math.pi / 4)
+    if name in _TRANSMISSIONS:
+        # B of eq. 3 over the media's: no sample passes more light than the clear
+        # media beside it; below 0.2 a cell would look dark in bright field.
+        return (0.2, 1.0)
     if name == "gaussian_noise_sd_adu":
         return (0.0, max(5 * real_sd_adu, 1.0))
     raise ValueError(f"cannot fit {name!r}; fittable parameters are {', '.join(_FITTABLE)}")
@@ -279,8 +297,18 @@ def _nnls(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return x
 
 
+def _value(render: RenderSettings, name: str) -> float:
+    """A fitted parameter's value: a render setting or a bright-field transmission."""
+    if name in _TRANSMISSIONS:
+        return float(getattr(render, _TRANSMISSIONS[name])) / render.media_intensity
+    return float(getattr(render, name) or 0.0)
+
+
 def _render_with(render: RenderSettings, names: tuple[str, ...], z: np.ndarray, start) -> Any:
     values = {n: float(start[n] + _SCALE[n] * zi) for n, zi in zip(names, z)}
+    for name, intensity in _TRANSMISSIONS.items():
+        if name in values:
+            values[intensity] = values.pop(name) * render.media_intensity
     return dataclasses.replace(render, **values)
 
 
@@ -329,7 +357,9 @@ def fit_parameters(
         ``render.phase_model="partially_coherent"``
         :data:`DEFAULT_FIT_PARTIALLY_COHERENT`, and there the media level is the one
         linear amplitude (the cells' and device's bright-field transmission, their
-        intensities over the media's, stay as given).
+        intensities over the media's, stay as given unless ``cell_transmission`` /
+        ``device_transmission`` are named here; they are ~1 for unstained cells and
+        clear PDMS, not the intensities of a linear fit: docs/physics.md).
         ``gaussian_noise_sd_adu`` is added when ``render.noise_model == "gaussian"``.
     rng
         Generator for the fixed noise field of the statistics terms (common random
@@ -379,6 +409,13 @@ def fit_parameters(
         names = (*names, "gaussian_noise_sd_adu") if "gaussian_noise_sd_adu" not in names else names
     for n in names:
         parameter_bounds(n, microscope)  # validates the name
+    coherent = microscope.modality == "phase" and render.phase_model == "partially_coherent"
+    if not coherent and any(n in _TRANSMISSIONS for n in names):
+        raise ValueError(
+            "cell_transmission and device_transmission are parameters of the partially "
+            "coherent phase model: set RenderSettings(phase_model='partially_coherent') or "
+            "drop them from fit (the linear model solves the intensities exactly)"
+        )
     if microscope.modality != "phase":
         names = tuple(n for n in names if n in ("defocus_sigma_um", "gaussian_noise_sd_adu"))
     rng = np.random.default_rng(0) if rng is None else rng
@@ -386,7 +423,7 @@ def fit_parameters(
     budget = _Budget(max_evaluations, progress, cancel)
     syn_classes = scene_classes(scene)
     real_sd = float(real.std())
-    start = {n: float(getattr(render, n)) for n in names}
+    start = {n: _value(render, n) for n in names}
     bounds = [
         parameter_bounds(
             n, microscope, real_sd, coherent=render.phase_model == "partially_coherent"
@@ -401,7 +438,6 @@ def fit_parameters(
     noise_z = rng.standard_normal(scene.camera_shape)
     real_masks_for_terms = (real_classes, syn_classes)
 
-    coherent = microscope.modality == "phase" and render.phase_model == "partially_coherent"
     separate = microscope.modality == "phase" and render.phase_separate and not coherent
     if coherent:
         amplitude_names: tuple[str, ...] = ("media_intensity",)
@@ -499,17 +535,20 @@ def fit_parameters(
                         names, z, start, bounds, lambda zz: float(np.sum(residual(zz) ** 2))
                     )
                 remaining = max(budget.total - budget.done, 2 * len(names) + 2)
+                # scipy's diff_step is relative to |x| and falls back to 1.5e-8 at
+                # x = 0 (every start): optimise z + _Z_OFFSET so that the finite
+                # differences step ~0.02 of a parameter's _SCALE everywhere.
                 sol = optimize.least_squares(
-                    residual,
-                    np.clip(z, z_lo, z_hi),
-                    bounds=(z_lo, z_hi) if len(names) else (-np.inf, np.inf),
-                    diff_step=0.02,
+                    lambda w, sw=sw: residual(w - _Z_OFFSET, sw),
+                    np.clip(z, z_lo, z_hi) + _Z_OFFSET,
+                    bounds=(z_lo + _Z_OFFSET, z_hi + _Z_OFFSET),
+                    diff_step=0.02 / _Z_OFFSET,
                     x_scale=1.0,
-                    xtol=1e-6,
+                    xtol=1e-8,
                     ftol=1e-9,
                     max_nfev=max(remaining // (len(names) + 1), 3),
                 )
-                z = sol.x
+                z = sol.x - _Z_OFFSET
                 message = str(sol.message)
             current = _render_with(render, names, z, start)
             a = components(current)
@@ -607,7 +646,7 @@ def fit_warnings(
     """
     out = []
     for name, (lo, hi) in zip(names, bounds):
-        value = float(getattr(render, name))
+        value = _value(render, name)
         tol = 1e-3 * (hi - lo)
         side = "lower" if value <= lo + tol else "upper" if value >= hi - tol else None
         if side is not None:
