@@ -32,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from napari_symbac.bench.symbac_script import RENDERER_SETUP
+
 NEW_SRC = str(Path(__file__).resolve().parents[1] / "src")
 
 MEASURE = (
@@ -89,23 +91,8 @@ with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
                      save_dir=tempfile.mkdtemp())
     sim.run_simulation(show_window=False)
     sim.draw_simulation_OPL(do_transformation=False, label_masks=True)
-    psf = PSF_generator(radius=50, wavelength=0.65, NA=1.45, n=1.518, resize_amount=3,
-                        pix_mic_conv=0.065, apo_sigma=10, mode="phase contrast", condenser="Ph3")
-    psf.calculate_PSF()
     shape, camera_shape = (868, 238), (256, 46)
-    real = np.random.default_rng(0).normal(1000, 50, camera_shape).clip(0)
-    renderer = Renderer(sim, psf, real)
-    regions = renderer.auto_segment_regions()
-    means = [renderer.real_resize[regions[k]].mean() for k in ("media", "cell", "device")]
-    var = [renderer.real_resize[regions[k]].var() for k in ("media", "cell", "device")]
-    renderer.image_params = (*means, np.mean(means), *var, np.mean(var))
-    expanded, _, _ = renderer.generate_PC_OPL(
-        sim.OPL_scenes[-1], sim.masks[-1], 75, 1.7, 29,
-        renderer.y_border_expansion_coefficient, renderer.x_border_expansion_coefficient, 3.0)
-    base = np.array(expanded.shape) / np.array(
-        [renderer.y_border_expansion_coefficient, renderer.x_border_expansion_coefficient])
-    renderer.y_border_expansion_coefficient = (shape[0] + 0.5) / base[0]
-    renderer.x_border_expansion_coefficient = (shape[1] + 0.5) / base[1]
+""" + RENDERER_SETUP + r"""
 def full_path(k, match):
     with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
         draw_scene_from_segments(

@@ -5,6 +5,30 @@ times it, its per-frame render path and its training-data export on that simulat
 and prints one JSON object of numbers (seconds per unit, peak MiB) as its last line.
 """
 
+#: SyMBac's Ph3 phase-contrast PSF and a ``Renderer`` of ``sim`` matched against a
+#: camera-sized noise image ``real``, its canvas cut to ``shape`` (napari-symbac's render
+#: frame). Needs ``sim``, ``shape`` and ``camera_shape``; indented for the block that
+#: silences SyMBac. Shared by :data:`SCRIPT` and ``benchmarks/compare_trench_frame.py``,
+#: so that both time SyMBac at the same settings.
+RENDERER_SETUP = r"""
+    psf = PSF_generator(radius=50, wavelength=0.65, NA=1.45, n=1.518, resize_amount=3,
+                        pix_mic_conv=0.065, apo_sigma=10, mode="phase contrast", condenser="Ph3")
+    psf.calculate_PSF()
+    real = np.random.default_rng(0).normal(1000, 50, camera_shape).clip(0)
+    renderer = Renderer(sim, psf, real)
+    regions = renderer.auto_segment_regions()
+    means = [renderer.real_resize[regions[k]].mean() for k in ("media", "cell", "device")]
+    var = [renderer.real_resize[regions[k]].var() for k in ("media", "cell", "device")]
+    renderer.image_params = (*means, np.mean(means), *var, np.mean(var))
+    expanded, _, _ = renderer.generate_PC_OPL(
+        sim.OPL_scenes[-1], sim.masks[-1], 75, 1.7, 29,
+        renderer.y_border_expansion_coefficient, renderer.x_border_expansion_coefficient, 3.0)
+    base = np.array(expanded.shape) / np.array(
+        [renderer.y_border_expansion_coefficient, renderer.x_border_expansion_coefficient])
+    renderer.y_border_expansion_coefficient = (shape[0] + 0.5) / base[0]
+    renderer.x_border_expansion_coefficient = (shape[1] + 0.5) / base[1]
+"""
+
 SCRIPT = r"""
 import contextlib, io, json, resource, sys, tempfile, time, types, warnings
 warnings.filterwarnings("ignore")
@@ -32,28 +56,13 @@ with contextlib.redirect_stdout(quiet_out), contextlib.redirect_stderr(quiet_err
     t0 = time.perf_counter()
     sim.draw_simulation_OPL(do_transformation=False, label_masks=True)
     result["draw_opl_s"] = time.perf_counter() - t0
-    psf = PSF_generator(radius=50, wavelength=0.65, NA=1.45, n=1.518, resize_amount=3,
-                        pix_mic_conv=0.065, apo_sigma=10, mode="phase contrast", condenser="Ph3")
-    psf.calculate_PSF()
 
     # per-frame path: draw_scene_from_segments + generate_test_comparison (OPL, PSF,
     # defocus, convolve + rescale, histogram matching, noise, masks), canvas cut to
     # napari-symbac's render frame
     shape = tuple(cfg["render_shape"])
     camera_shape = tuple(cfg["camera_shape"])
-    real = np.random.default_rng(0).normal(1000, 50, camera_shape).clip(0)
-    renderer = Renderer(sim, psf, real)
-    regions = renderer.auto_segment_regions()
-    means = [renderer.real_resize[regions[k]].mean() for k in ("media", "cell", "device")]
-    var = [renderer.real_resize[regions[k]].var() for k in ("media", "cell", "device")]
-    renderer.image_params = (*means, np.mean(means), *var, np.mean(var))
-    expanded, _, _ = renderer.generate_PC_OPL(
-        sim.OPL_scenes[-1], sim.masks[-1], 75, 1.7, 29,
-        renderer.y_border_expansion_coefficient, renderer.x_border_expansion_coefficient, 3.0)
-    base = np.array(expanded.shape) / np.array(
-        [renderer.y_border_expansion_coefficient, renderer.x_border_expansion_coefficient])
-    renderer.y_border_expansion_coefficient = (shape[0] + 0.5) / base[0]
-    renderer.x_border_expansion_coefficient = (shape[1] + 0.5) / base[1]
+""" + RENDERER_SETUP + r"""
 
     def full_path(k):
         draw_scene_from_segments(
