@@ -11,8 +11,10 @@ the trial point (variable projection), keeping the step only if ``chi^2`` falls.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy import sparse
@@ -22,7 +24,7 @@ from napari_symbac.fit.overlap import overlap_terms
 from napari_symbac.scene import Scene
 from napari_symbac.settings import RenderSettings
 
-__all__ = ["State", "evaluate", "levenberg_marquardt"]
+__all__ = ["State", "damped_step", "evaluate", "levenberg_marquardt"]
 
 
 @dataclass
@@ -95,6 +97,14 @@ def levenberg_marquardt(
     converged = False
     if idx.size == 0:
         return state, True
+    m = idx.size
+
+    def trial_from(start: State, delta: np.ndarray) -> tuple[State, float]:
+        trial_x = start.x.copy()
+        trial_x[idx] = np.clip(start.x[idx] + delta[:m] * scales[idx], lower[idx], upper[idx])
+        trial = evaluate(model, trial_x, y, w, prior_sd)
+        return trial, trial.cost
+
     for _ in range(max_iterations):
         jac = model.jacobian(
             state.x, state.a, state.intensities, state.scene, state.render, free, upper=upper
@@ -104,7 +114,6 @@ def levenberg_marquardt(
         res_w = sw * (y - state.mu)
         grad = -(jw.T @ res_w)
         # priors on the parameters (z = x / scale)
-        m = idx.size
         tie = scales[idx] / prior_sd[idx]
         jtj[np.arange(m), np.arange(m)] += tie**2
         grad[:m] += tie * (state.x[idx] / prior_sd[idx])
@@ -113,28 +122,43 @@ def levenberg_marquardt(
             pj = pen_jac[:, idx]
             jtj[:m, :m] += pj.T @ pj
             grad[:m] += pj.T @ pen
-        diag = np.diag(jtj) + 1e-9 * max(float(np.mean(np.diag(jtj))), 1e-12)
-        improved = False
-        gain = 0.0
-        for _attempt in range(8):
-            try:
-                delta = np.linalg.solve(jtj + lam * np.diag(diag), -grad)
-            except np.linalg.LinAlgError:
-                lam *= 4
-                continue
-            trial_x = state.x.copy()
-            trial_x[idx] = np.clip(state.x[idx] + delta[:m] * scales[idx], lower[idx], upper[idx])
-            trial = evaluate(model, trial_x, y, w, prior_sd)
-            if trial.cost < state.cost:
-                gain = (state.cost - trial.cost) / max(state.cost, 1e-300)
-                state = trial
-                improved = True
-                if on_step is not None:
-                    on_step(state)
-                lam = max(lam / 3, 1e-7)
-                break
-            lam *= 4
-        if not improved or gain < 1e-6:
+        trial, lam, gain = damped_step(
+            jtj, grad, lam, state.cost, functools.partial(trial_from, state)
+        )
+        if trial is not None:
+            state = trial
+            if on_step is not None:
+                on_step(state)
+        if trial is None or gain < 1e-6:
             converged = True
             break
     return state, converged
+
+
+def damped_step(
+    normal: np.ndarray,
+    grad: np.ndarray,
+    lam: float,
+    cost: float,
+    trial_at: Callable[[np.ndarray], tuple[Any, float]],
+) -> tuple[Any, float, float]:
+    """One Levenberg-Marquardt step on the normal equations ``normal delta = -grad``.
+
+    The damping ``lam`` scales the diagonal (Marquardt); a step is tried with
+    ``trial_at(delta) -> (trial, cost)`` and taken when it lowers ``cost``, else the
+    damping grows 4-fold, 8 tries at most (a singular system counts as a failed try).
+    Returns ``(trial, lam, relative gain)``, the damping a third smaller after a
+    success; ``(None, lam, 0.0)`` when no try lowered the cost.
+    """
+    diag = np.diag(normal) + 1e-9 * max(float(np.mean(np.diag(normal))), 1e-12)
+    for _attempt in range(8):
+        try:
+            delta = np.linalg.solve(normal + lam * np.diag(diag), -grad)
+        except np.linalg.LinAlgError:
+            lam *= 4
+            continue
+        trial, trial_cost = trial_at(delta)
+        if trial_cost < cost:
+            return trial, max(lam / 3, 1e-7), (cost - trial_cost) / max(cost, 1e-300)
+        lam *= 4
+    return None, lam, 0.0

@@ -21,6 +21,7 @@ daughter, and :attr:`SeriesFit.lineage` holds the Cell Tracking Challenge's
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -31,7 +32,7 @@ from scipy import sparse
 
 from napari_symbac.fit.camera_estimate import censored_pixels, estimate_camera
 from napari_symbac.fit.lineage import Lineage, LinkSettings, link_cells
-from napari_symbac.fit.lm import State, evaluate
+from napari_symbac.fit.lm import State, damped_step, evaluate
 from napari_symbac.fit.overlap import overlap_terms
 from napari_symbac.fit.placement import TrenchPlacement
 from napari_symbac.fit.scene_fit import (
@@ -430,6 +431,11 @@ def _joint_refine(
     def tie_cost(point: np.ndarray) -> float:
         return 0.0 if ties is None else ties.cost(point, runs, own)
 
+    def trial_from(start, scales, lower, upper, delta):
+        trial_z = np.clip(start + delta[: scales.size] * scales, lower, upper)
+        trial = _evaluate_all(runs, trial_z, own, n_shared)
+        return (trial_z, trial), sum(s.cost for s in trial) + tie_cost(trial_z)
+
     size = sum(own) + n_shared + 3 * len(runs)
     lam = 1e-2
     converged = False
@@ -481,26 +487,12 @@ def _joint_refine(
                 d = np.asarray(coef) * scales[idx] / ties.sd_um
                 h[np.ix_(idx, idx)] += np.outer(d, d)
                 g[idx] += d * res
-        diag = np.diag(h) + 1e-9 * max(float(np.mean(np.diag(h))), 1e-12)
         cost = sum(s.cost for s in states) + tie_cost(z)
-        improved, gain = False, 0.0
-        k = scales.size
-        for _attempt in range(8):
-            try:
-                delta = np.linalg.solve(h + lam * np.diag(diag), -g)
-            except np.linalg.LinAlgError:
-                lam *= 4
-                continue
-            trial_z = np.clip(z + delta[:k] * scales, lower, upper)
-            trial = _evaluate_all(runs, trial_z, own, n_shared)
-            trial_cost = sum(s.cost for s in trial) + tie_cost(trial_z)
-            if trial_cost < cost:
-                gain = (cost - trial_cost) / max(cost, 1e-300)
-                z, states, improved = trial_z, trial, True
-                lam = max(lam / 3, 1e-7)
-                break
-            lam *= 4
-        if not improved or gain < 1e-6:
+        step_to = functools.partial(trial_from, z, scales, lower, upper)
+        accepted, lam, gain = damped_step(h, g, lam, cost, step_to)
+        if accepted is not None:
+            z, states = accepted
+        if accepted is None or gain < 1e-6:
             converged = True
             break
     return states, iterations, converged
