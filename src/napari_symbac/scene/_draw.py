@@ -17,6 +17,7 @@ from dataclasses import dataclass, field, fields
 from typing import Any, Protocol
 
 import numpy as np
+from numba import njit
 
 from napari_symbac.scene._field import Field, field_images
 from napari_symbac.scene._raster import media_fraction, rasterise_cells
@@ -291,55 +292,64 @@ class Scene:
 _FIELDS = tuple(f.name for f in fields(Scene))
 
 
-#: Label pixels compared at a time when looking for mixed blocks (a band of block
-#: rows, so that the passes over it stay in the cache).
+#: Pixels of a band of rows that the semantic mask's minimum filter runs on at a time
+#: (contiguous, cache-sized).
 _MASK_CHUNK_PIXELS = 1 << 18
 
 
-def _block_labels(inner: np.ndarray, u: int) -> np.ndarray:
-    """Majority label (uint32) of every ``u x u`` block of ``inner``, ``u >= 2``.
+@njit(cache=True)
+def _block_labels(
+    labels: np.ndarray, border: int, u: int, rows: int, cols: int
+) -> np.ndarray:
+    """Majority label (uint32) of every ``u x u`` block of the ``rows x cols`` blocks of
+    ``labels`` inside its ``border``, ``u >= 2``.
 
-    Of equal counts the first in row-major order within the block wins. A block is
-    uniform when its rows 1..u-1 equal its row 0 (compared along whole image rows)
-    and row 0 equals the block's first pixel; only the other blocks are voted on. A
-    band of block rows at a time, so that the passes, the strided sample of first
-    pixels and the gathering of the mixed blocks' pixels stay in the cache.
+    Of equal counts the first in row-major order within the block wins. A row of
+    blocks at a time: each pixel is flagged where a row below it in its block differs
+    from it or it differs from its left neighbour (contiguous passes over whole image
+    rows, vector instructions); a block without a flag is uniform and takes its first
+    pixel, one with a flag (a cell edge, or a block boundary that a label edge
+    happens to follow) is voted on: for each pixel in row-major order, how many of
+    the block share its label; the first of the largest count wins.
     """
-    rows, cols = inner.shape[0] // u, inner.shape[1] // u
-    labels = np.empty((rows, cols), np.uint32)
-    mixed = np.empty((rows, cols), bool)
-    dy, dx = np.divmod(np.arange(u * u), u)  # row-major offsets within a block
-    chunk = max(1, _MASK_CHUNK_PIXELS // (u * u * cols))
-    found_rows, found_cols, found_blocks = [], [], []
-    for r0 in range(0, rows, chunk):
-        r1 = min(r0 + chunk, rows)
-        band = inner[r0 * u : r1 * u]
-        top = band[0::u]
-        first = labels[r0:r1]
-        first[...] = top[:, 0::u]
-        same = top == band[1::u]
-        for k in range(2, u):
-            same &= top == band[k::u]
-        uniform = same[:, 0::u] & same[:, 1::u]
-        for k in range(2, u):
-            uniform &= same[:, k::u]
-        for k in range(1, u):
-            uniform &= top[:, k::u] == first
-        band_mixed = mixed[r0:r1]
-        np.logical_not(uniform, out=band_mixed)
-        ri, ci = np.divmod(np.flatnonzero(band_mixed), cols)
-        if ri.size:
-            found_blocks.append(band[(ri * u)[:, None] + dy, (ci * u)[:, None] + dx])
-            found_rows.append(ri + r0)
-            found_cols.append(ci)
-    if found_blocks:
-        blocks = np.concatenate(found_blocks)  # (blocks, u * u), row-major in each
-        counts = np.zeros(blocks.shape, np.uint8 if u * u < 256 else np.int64)
-        for k in range(u * u):
-            counts += blocks == blocks[:, k : k + 1]
-        winners = blocks[np.arange(len(blocks)), np.argmax(counts, axis=-1)]
-        labels[np.concatenate(found_rows), np.concatenate(found_cols)] = winners
-    return labels
+    out = np.empty((rows, cols), np.uint32)
+    width = cols * u
+    flagged = np.zeros(-(-width // 8) * 8, np.uint8)
+    words = flagged.view(np.uint64)  # eight flags at a time
+    block = np.empty(u * u, labels.dtype)
+    for bi in range(rows):
+        r0 = border + bi * u
+        top = labels[r0, border : border + width]
+        flagged[0] = 0
+        for j in range(1, width):
+            flagged[j] = top[j] != top[j - 1]
+        for dy in range(1, u):
+            below = labels[r0 + dy, border : border + width]
+            for j in range(width):
+                flagged[j] |= below[j] != top[j]
+        for bj in range(cols):
+            out[bi, bj] = top[bj * u]
+        voted = -1
+        for w in range(words.size):
+            if words[w] == 0:
+                continue
+            for j in range(8 * w, 8 * w + 8):
+                bj = j // u
+                if not flagged[j] or bj == voted:
+                    continue
+                voted = bj
+                for dy in range(u):
+                    for dx in range(u):
+                        block[dy * u + dx] = labels[r0 + dy, border + bj * u + dx]
+                best = 0
+                for k in range(u * u):
+                    count = 0
+                    for m in range(u * u):
+                        count += block[m] == block[k]
+                    if count > best:
+                        best = count
+                        out[bi, bj] = block[k]
+    return out
 
 
 def _semantic(labels: np.ndarray) -> np.ndarray:
@@ -385,8 +395,10 @@ def _camera_masks(
     """
     rows, cols = camera_shape
     b = border
-    inner = labels_full[b : b + rows * u, b : b + cols * u]
-    labels = _block_labels(inner, u) if u > 1 else np.array(inner, np.uint32)
+    if u > 1:
+        labels = _block_labels(np.ascontiguousarray(labels_full), b, u, rows, cols)
+    else:
+        labels = np.array(labels_full[b : b + rows, b : b + cols], np.uint32)
     return labels, _semantic(labels)
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 __all__ = ["cell_boxes", "chord", "media_fraction", "rasterise_cells"]
 
@@ -63,142 +64,198 @@ def chord(
     width_um: float,
     curvature: tuple[float, float, float] | None,
 ) -> np.ndarray:
-    """float32 chord ``2 sqrt(r^2 - d^2)`` (0 beyond ``r``) over the grid ``yc x xc``.
+    """float32 chord ``2 sqrt(r^2 - d^2)`` (eq. OPL2; 0 beyond ``r``) over the grid ``yc x xc``.
 
     ``d`` is the distance to the axis segment of
-    :func:`~napari_symbac.scene.spherocylinder_distance`, in the same float64
-    arithmetic value for value, with the temporaries reused in place.
+    :func:`~napari_symbac.scene.spherocylinder_distance` (bent by eq. 1 with
+    ``curvature = (a_um, b, c)``), in the same float64 arithmetic value for value:
+    the rows of :func:`rasterise_cells`, over every pixel of the grid.
     """
-    return _chord_in_box(xc, yc, centre_um, angle_rad, length_um, width_um, curvature, 0.0)
+    xc = np.ascontiguousarray(xc, np.float64)
+    yc = np.ascontiguousarray(yc, np.float64)
+    bent = curvature is not None
+    a_um, b, c = curvature if bent else (0.0, 1.0, 0.0)
+    out = np.empty((yc.size, xc.size), np.float32)
+    _chord_grid(
+        out, xc, yc, float(centre_um[0]), float(centre_um[1]), float(angle_rad),
+        float(length_um), float(width_um), bent, float(a_um), float(b), float(c),
+    )
+    return out
 
 
-#: A squared distance this far (relatively) beyond ``r^2`` gives a zero chord in
-#: float64 whatever the rounding of the square root and its square (8 ulp suffice).
-_OUTSIDE = 1.0 + 2.0**-40
 #: Relative margin on ``r + |a|`` beyond which a bent cell's chord is 0 whatever its
 #: bend (orders of magnitude above float64 rounding).
 _NEAR = 1.0 + 2.0**-20
 
 
-def _chord_in_box(
-    xc: np.ndarray,
-    yc: np.ndarray,
-    centre_um: tuple[float, float],
-    angle_rad: float,
-    length_um: float,
-    width_um: float,
-    curvature: tuple[float, float, float] | None,
-    pixel_area_um2: float,
-) -> np.ndarray:
-    """:func:`chord` over ``yc x xc``, its square roots taken only inside the cell.
+@njit(cache=True)
+def _chord_row(
+    out, xc, lo, hi, cx, dy_cos, dy_sin, sin_a, cos_a, half, r, length, bent, a, b, c,
+):
+    """The chord at columns ``lo..hi-1`` of one row into ``out[lo:hi]`` (float32).
 
-    The squared distance ``q`` is computed everywhere in the box (a bent cell's, see
-    :func:`_bent_chord`, only near its axis); where ``q >= r^2
-    (1 + 2^-40)`` the chord is 0 exactly (``sqrt(q)^2 >= r^2`` after rounding), so
-    the rest of the arithmetic, two square roots included, runs on the pixels
-    inside only, unless the cell (at most ``width x length``, against pixels of
-    ``pixel_area_um2``) covers most of the box. Either way the values are those of
-    the whole formula, bit for bit.
+    The arithmetic of :func:`~napari_symbac.scene.spherocylinder_distance` then
+    ``2 sqrt(max(r^2 - d^2, 0))``, operation for operation: offsets ``s = dy cos +
+    dx sin`` along and ``t = dx cos - dy sin`` across the axis (``dy cos``, ``dy sin``
+    given for the row), ``q = (s - clip(s, -half, half))^2 + t^2``, ``d = sqrt(q)``.
+    A straight cell's row has no branch (it compiles to vector instructions). A bent
+    cell moves ``t`` by ``a sin(pi l / b + c)``, ``l = clip((s + length / 2) /
+    length, 0, 1)`` (eq. 1); beyond ``r + |a|`` of its straight axis line or beyond a
+    pole (``|s| > half + r``) its chord is 0 with or without the bend (the margin
+    :data:`_NEAR` is far above rounding), so the sine, a libm call, runs only on the
+    pixels left.
     """
-    r = width_um / 2
-    half = max(length_um / 2 - r, 0.0)
-    dx = xc - centre_um[0]
-    dy = yc - centre_um[1]
-    sin_a, cos_a = math.sin(angle_rad), math.cos(angle_rad)
-    s = np.add((dy * cos_a)[:, None], (dx * sin_a)[None, :])
-    t = np.subtract((dx * cos_a)[None, :], (dy * sin_a)[:, None])
-    if curvature is not None:
-        return _bent_chord(s, t, half, r, length_um, curvature)
-    q = _squared_distance(s, t, half)
-    if width_um * length_um > 0.6 * q.size * pixel_area_um2:
-        # The cell fills most of its box (e.g. upright in a trench): finishing every
-        # pixel costs less than picking out the inside ones.
-        return _chord_from_squared(q, r)
-    out = np.zeros(q.shape, np.float32)
-    # ravel().nonzero() and the ndarray methods skip numpy's Python-level wrappers (a
-    # few us per call, per cell).
-    inside = np.less(q, (r * r) * _OUTSIDE).ravel().nonzero()[0]
-    if inside.size:
-        out.ravel()[inside] = _chord_from_squared(q.ravel()[inside], r)
-    return out
+    r2 = r * r
+    if not bent:
+        for j in range(lo, hi):
+            dx = xc[j] - cx
+            s = dy_cos + dx * sin_a
+            t = dx * cos_a - dy_sin
+            d = s - min(max(s, -half), half)
+            q = math.sqrt(d * d + t * t)
+            q = r2 - q * q
+            out[j] = np.float32(2.0 * math.sqrt(q if q >= 0.0 else 0.0))
+        return
+    s_near, t_near = (half + r) * _NEAR, (r + abs(a)) * _NEAR
+    for j in range(lo, hi):
+        dx = xc[j] - cx
+        s = dy_cos + dx * sin_a
+        t = dx * cos_a - dy_sin
+        if not (abs(t) <= t_near and abs(s) <= s_near):
+            out[j] = 0.0
+            continue
+        ell = min(max((s + length / 2) / length, 0.0), 1.0)
+        t = t - a * math.sin(ell * math.pi / b + c)
+        d = s - min(max(s, -half), half)
+        q = math.sqrt(d * d + t * t)
+        q = r2 - q * q
+        out[j] = np.float32(2.0 * math.sqrt(q if q >= 0.0 else 0.0))
 
 
-def _squared_distance(s: np.ndarray, t: np.ndarray, half: float) -> np.ndarray:
-    """Squared distance ``(s - clip(s, -half, half))^2 + t^2`` to the axis segment, from
-    the offsets along (``s``) and across (``t``, overwritten) the axis."""
-    d = s.clip(-half, half)  # = minimum(maximum(s, -half), half)
-    np.subtract(s, d, out=d)
-    np.square(d, out=d)
-    np.square(t, out=t)
-    return np.add(d, t, out=d)
+@njit(cache=True)
+def _chord_grid(out, xc, yc, cx, cy, angle, length, width, bent, a, b, c):
+    """:func:`chord` into ``out`` (``yc.size x xc.size`` float32), every pixel."""
+    r = width / 2
+    half = max(length / 2 - r, 0.0)
+    sin_a, cos_a = math.sin(angle), math.cos(angle)
+    for i in range(yc.size):
+        dy = yc[i] - cy
+        _chord_row(
+            out[i], xc, 0, xc.size, cx, dy * cos_a, dy * sin_a, sin_a, cos_a, half, r,
+            length, bent, a, b, c,
+        )
 
 
-def _chord_from_squared(q: np.ndarray, r: float) -> np.ndarray:
-    """float32 chord ``2 sqrt(r^2 - d^2)`` (0 beyond ``r``) from ``q = d^2`` (float64,
-    overwritten), as ``spherocylinder_distance`` then the chord compute it."""
-    np.sqrt(q, out=q)
-    np.multiply(q, q, out=q)
-    np.subtract(r * r, q, out=q)
-    np.maximum(q, 0.0, out=q)
-    np.sqrt(q, out=q)
-    return np.multiply(2, q, out=np.empty(q.shape, np.float32), casting="same_kind")
+@njit(cache=True)
+def _row_span(dy, sin_a, cos_a, s_reach, t_reach, cx, x0, px, j0, j1):
+    """Columns ``[lo, hi)`` of a row ``dy`` below the centre that may hold a chord.
 
-
-def _row_bands(boxes: np.ndarray) -> list[tuple[int, int, int, int]]:
-    """Disjoint rectangles ``(i0, i1, j0, j1)`` that together cover every box.
-
-    The boxes' row intervals are merged where they overlap; each merged band of rows
-    spans the columns of the boxes in it. A colony gives one rectangle (its bounding
-    box), scattered cells a band per group of rows that hold cells, so that a pass
-    over the bands never covers the empty rows of a pad.
+    The chord is 0 outside the rectangle ``|s| <= s_reach``, ``|t| <= t_reach`` about
+    the axis (``s = dy cos + dx sin``, ``t = dx cos - dy sin``): each bound is an
+    interval of ``dx`` (any ``dx`` where the axis is within ``1e-9`` of the row's
+    direction), and their intersection, grown by two pixels on each side (far above
+    the rounding of the bounds), is clipped to the box's columns ``[j0, j1)``. ``x0``
+    is the x of column 0, ``px`` the pixel size. Empty: ``lo == hi``.
     """
-    order = np.argsort(boxes[:, 0], kind="stable")
-    bands: list[list[int]] = []
-    for i0, i1, j0, j1 in boxes[order].tolist():
-        if bands and i0 < bands[-1][1]:
-            band = bands[-1]
-            band[1] = max(band[1], i1)
-            band[2] = min(band[2], j0)
-            band[3] = max(band[3], j1)
-        else:
-            bands.append([i0, i1, j0, j1])
-    return [(b[0], b[1], b[2], b[3]) for b in bands]
+    lo, hi = -np.inf, np.inf
+    if abs(cos_a) > 1e-9:
+        u, v = (dy * sin_a - t_reach) / cos_a, (dy * sin_a + t_reach) / cos_a
+        lo, hi = max(lo, min(u, v)), min(hi, max(u, v))
+    if abs(sin_a) > 1e-9:
+        u, v = (-s_reach - dy * cos_a) / sin_a, (s_reach - dy * cos_a) / sin_a
+        lo, hi = max(lo, min(u, v)), min(hi, max(u, v))
+    if lo > hi:
+        return j0, j0
+    first = math.floor(max((cx + lo - x0) / px - 2.0, float(j0)))
+    last = math.ceil(min((cx + hi - x0) / px + 3.0, float(j1)))
+    return int(first), max(int(last), int(first))
 
 
-def _bent_chord(
-    s: np.ndarray,
-    t: np.ndarray,
-    half: float,
-    r: float,
-    length_um: float,
-    curvature: tuple[float, float, float],
-) -> np.ndarray:
-    """Chord of a cell bent by eq. 1 (``t -= a sin(pi l / b + c)``), from the straight
-    offsets ``s, t`` over a box.
+@njit(cache=True)
+def _rows_of_cells(boxes, rows):
+    """For every image row, the cells whose boxes cover it, in input order.
 
-    The bend moves a pixel's offset ``t`` by at most ``|a|``: beyond ``r + |a|`` of
-    the axis line, or beyond a pole (``|s| > half + r``), the chord is 0 with or
-    without it (the margin :data:`_NEAR` is far above rounding), so the sine and the
-    rest of the formula run on the pixels left only, value for value as on all.
+    ``(start, members)``: the cells of row ``i`` are ``members[start[i]:start[i + 1]]``.
     """
-    a_um, b, c = curvature
-    near = np.abs(t) <= (r + abs(a_um)) * _NEAR
-    near &= np.abs(s) <= (half + r) * _NEAR
-    near = near.ravel().nonzero()[0]
-    out = np.zeros(s.shape, np.float32)
-    s_near = s.ravel()[near]
-    ell = np.add(s_near, length_um / 2)
-    np.divide(ell, length_um, out=ell)
-    ell.clip(0.0, 1.0, out=ell)
-    np.multiply(ell, math.pi, out=ell)
-    np.divide(ell, b, out=ell)
-    np.add(ell, c, out=ell)
-    np.sin(ell, out=ell)
-    np.multiply(a_um, ell, out=ell)
-    t_near = t.ravel()[near]
-    np.subtract(t_near, ell, out=t_near)
-    out.ravel()[near] = _chord_from_squared(_squared_distance(s_near, t_near, half), r)
-    return out
+    start = np.zeros(rows + 1, np.int64)
+    for k in range(boxes.shape[0]):
+        for i in range(boxes[k, 0], boxes[k, 1]):
+            start[i + 1] += 1
+    for i in range(rows):
+        start[i + 1] += start[i]
+    fill = start[:-1].copy()
+    members = np.empty(start[rows], np.int64)
+    for k in range(boxes.shape[0]):
+        for i in range(boxes[k, 0], boxes[k, 1]):
+            members[fill[i]] = k
+            fill[i] += 1
+    return start, members
+
+
+@njit(cache=True)
+def _rasterise(
+    cells, labels, open_frac, xc, yc, px, boxes, ids, cx, cy, angle, length, width, bent,
+    bend_a, bend_b, bend_c, depth, capped, closed,
+):
+    """Draw the cells into ``cells`` (float32 zeros) and ``labels`` (zeros) as fractions:
+    :func:`rasterise_cells` below its checks.
+
+    Row by row, so that each row is finished while it is in the cache: every cell
+    whose box covers the row, in input order, is drawn over the span of columns it
+    can reach (:func:`_row_span`; ``r`` across the axis, ``half + r`` along it, ``r
+    + |a|`` across for a bent cell): its chords into a row buffer
+    (:func:`_chord_row`), then it takes the pixels where its chord is strictly above
+    the thickest so far (the first of equal chords keeps one). Every pixel with a
+    chord then holds its thickest cell's label, so a second sweep over the same
+    spans turns each cell's own pixels (``labels == id``) into fractions once:
+    ``min(chord / depth, open)`` in float32 (the minimum only when ``capped``), the
+    label dropped where that is 0 and the scene is ``closed``.
+    """
+    n = ids.size
+    half = np.empty(n)
+    sin_a = np.empty(n)
+    cos_a = np.empty(n)
+    s_reach = np.empty(n)
+    t_reach = np.empty(n)
+    for k in range(n):
+        r = width[k] / 2
+        half[k] = max(length[k] / 2 - r, 0.0)
+        sin_a[k], cos_a[k] = math.sin(angle[k]), math.cos(angle[k])
+        s_reach[k] = (half[k] + r) * _NEAR
+        t_reach[k] = (r + abs(bend_a[k])) * _NEAR
+    start, members = _rows_of_cells(boxes, cells.shape[0])
+    x0 = xc[0]
+    row = np.empty(xc.size, np.float32)
+    spans = np.empty((n, 2), np.int64)
+    for i in range(cells.shape[0]):
+        drawn, taken, room = cells[i], labels[i], open_frac[i]
+        for m in range(start[i], start[i + 1]):
+            k = members[m]
+            dy = yc[i] - cy[k]
+            lo, hi = _row_span(
+                dy, sin_a[k], cos_a[k], s_reach[k], t_reach[k], cx[k], x0, px, boxes[k, 2],
+                boxes[k, 3],
+            )
+            spans[m - start[i], 0], spans[m - start[i], 1] = lo, hi
+            _chord_row(
+                row, xc, lo, hi, cx[k], dy * cos_a[k], dy * sin_a[k], sin_a[k], cos_a[k],
+                half[k], width[k] / 2, length[k], bent[k], bend_a[k], bend_b[k], bend_c[k],
+            )
+            cid = ids[k]
+            for j in range(lo, hi):
+                if row[j] > drawn[j]:
+                    drawn[j] = row[j]
+                    taken[j] = cid
+        for m in range(start[i], start[i + 1]):
+            cid = ids[members[m]]
+            for j in range(spans[m - start[i], 0], spans[m - start[i], 1]):
+                if taken[j] == cid:
+                    v = np.float32(drawn[j] / depth)
+                    if capped and not v <= room[j]:
+                        v = room[j]
+                    drawn[j] = v
+                    if closed and v <= 0:
+                        taken[j] = 0
 
 
 def rasterise_cells(
@@ -258,11 +315,10 @@ def rasterise_cells(
 
     Notes
     -----
-    These are the only two frame-sized images made: the cells image holds the
-    thickest chord so far while the cells are drawn (each cell compares its chord
-    with it and takes the label where it is strictly thicker, so the first of equal
-    chords keeps the pixel) and is turned into fractions in place at the end, over
-    the rows that hold cells.
+    These are the only two frame-sized images made. One compiled pass
+    (:func:`_rasterise`) draws the cells in their boxes, each row only over the span
+    of columns its cell can reach (:func:`_row_span`), keeping the thickest chord so
+    far in the cells image, then turns each cell's own pixels into fractions.
     """
     shape = open_frac.shape
     cells = np.zeros(shape, np.float32)
@@ -270,37 +326,28 @@ def rasterise_cells(
     label_type = np.uint16 if narrow else np.uint32
     labels = np.zeros(shape, label_type)
     cx, cy = centres_um
-    bend = np.array([abs(curvature[i][0]) if i in curvature else 0.0 for i in ids.tolist()])
-    boxes = cell_boxes(cx, cy, angle_rad, length_um, width_um, bend, px, border, shape)
+    bend = np.array([curvature.get(i, (0.0, 1.0, 0.0)) for i in ids.tolist()], np.float64)
+    bend = bend.reshape(ids.size, 3)
+    reach = np.abs(bend[:, 0])
+    boxes = cell_boxes(cx, cy, angle_rad, length_um, width_um, reach, px, border, shape)
     drawn = np.flatnonzero((boxes[:, 0] < boxes[:, 1]) & (boxes[:, 2] < boxes[:, 3]))
     if drawn.size == 0:
         return cells, labels
-    pixel_area = px * px
-    columns = (ids, cx, cy, angle_rad, length_um, width_um)
-    for box, (cell_id, x, y, angle, length, width) in zip(
-        boxes[drawn].tolist(), zip(*(c[drawn].tolist() for c in columns)), strict=True
-    ):
-        i0, i1, j0, j1 = box
-        thick = _chord_in_box(
-            xc[j0:j1], yc[i0:i1], (x, y), angle, length, width, curvature.get(cell_id), pixel_area
-        )
-        box_t = cells[i0:i1, j0:j1]
-        take = thick > box_t
-        np.maximum(box_t, thick, out=box_t)
-        np.putmask(labels[i0:i1, j0:j1], take, cell_id)
     # min(thickness / depth, 1, open) = min(thickness / depth, open): open <= 1. With
     # open = 1 and no chord above the (float32) depth, the quotient is at most 1
     # already: a chord is at most the width (times 1 + 4 ulp of rounding).
     depth = np.float32(depth_um)
     capped = closed or width_um[drawn].max() * (1 + 2.0**-40) > float(depth)
-    for i0, i1, j0, j1 in _row_bands(boxes[drawn]):
-        frac = cells[i0:i1, j0:j1]
-        np.divide(frac, depth, out=frac)
-        if capped:
-            np.minimum(frac, open_frac[i0:i1, j0:j1], out=frac)
-        if closed:
-            # A pixel inside the PDMS (open = 0) keeps no label, whichever cell is there.
-            np.putmask(labels[i0:i1, j0:j1], frac <= 0, label_type(0))
+    _rasterise(
+        cells, labels, np.ascontiguousarray(open_frac, np.float32),
+        np.ascontiguousarray(xc, np.float64), np.ascontiguousarray(yc, np.float64),
+        float(px), np.ascontiguousarray(boxes[drawn]), ids[drawn].astype(np.int64),
+        cx[drawn].astype(np.float64), cy[drawn].astype(np.float64),
+        angle_rad[drawn].astype(np.float64), length_um[drawn].astype(np.float64),
+        width_um[drawn].astype(np.float64), bend[drawn, 0] != 0,
+        bend[drawn, 0].copy(), bend[drawn, 1].copy(), bend[drawn, 2].copy(),
+        depth, bool(capped), bool(closed),
+    )
     return cells, labels
 
 
