@@ -5,11 +5,11 @@
 between this source tree and ``--against`` (another checkout's ``src``, e.g. the
 code before a change), so that both see the same machine load; each run prints its
 ratio to the FFT floor measured in the same run. ``--breakdown`` then times the
-parts of this tree's drawing in one process, interleaved with the floor: the chords
-of straight and of bent cells (float64, in their boxes), the whole ``draw_scene``,
-the masks, a draw of the same number of tiny cells (the per-cell and per-frame fixed
-cost), the first touch of a new frame-sized float32 image, and the media image's
-first read. CPU time of the measuring thread, medians.
+parts of this tree's drawing in one process, interleaved with the floor: the whole
+``draw_scene``, the same cells all straight (the difference is the bent cells' eq. 1,
+a libm sine a pixel), the masks, a draw of the same number of tiny cells (the
+per-cell and per-frame fixed cost), the first touch of a new frame-sized float32
+image, and the media image's first read. CPU time of the measuring thread, medians.
 
 Run: ``python benchmarks/bench_field_draw.py --against /path/to/old/src [--pairs 3]
 [--breakdown] [--quick]``
@@ -63,7 +63,6 @@ def breakdown(size: int, n_cells: int, rounds: int) -> None:
     from napari_symbac.bench.timing import fft_floor
     from napari_symbac.optics import ForwardModel
     from napari_symbac.scene import Field, draw_scene
-    from napari_symbac.scene._raster import _chord_in_box, cell_boxes
     from napari_symbac.settings import Camera, Microscope, RenderSettings, TrenchGeometry
 
     microscope = Microscope()
@@ -71,26 +70,9 @@ def breakdown(size: int, n_cells: int, rounds: int) -> None:
     cells, curvature, side = colony_cells(size, n_cells, pixel_um=microscope.pixel_size_um)
     field, trench = Field(side, side), TrenchGeometry()
     scene = draw_scene(cells, trench, microscope, render, curvature, field=field)
-    shape, px, border = scene.shape, scene.pixel_size_um, scene.border_px
+    shape = scene.shape
     floor = fft_floor(scene.cells, ForwardModel(microscope, render, Camera()).kernel())
     del scene
-    xc = (np.arange(shape[1]) - border + 0.5) * px
-    yc = (np.arange(shape[0]) - border + 0.5) * px
-    ids = cells.ids.tolist()
-    bend = np.array([abs(curvature[i][0]) if i in curvature else 0.0 for i in ids])
-    boxes = cell_boxes(
-        cells.x_um, cells.y_um, cells.angle_rad, cells.length_um, cells.width_um, bend, px,
-        border, shape,
-    ).tolist()
-
-    def chords(bent: bool) -> None:
-        for k, (i0, i1, j0, j1) in enumerate(boxes):
-            if (ids[k] in curvature) == bent:
-                _chord_in_box(
-                    xc[j0:j1], yc[i0:i1], (float(cells.x_um[k]), float(cells.y_um[k])),
-                    float(cells.angle_rad[k]), float(cells.length_um[k]),
-                    float(cells.width_um[k]), curvature.get(ids[k]), px * px,
-                )
 
     tiny = type(cells)(**vars(cells))
     tiny.length_um, tiny.width_um = cells.length_um * 0.02, cells.width_um * 0.02
@@ -99,7 +81,7 @@ def breakdown(size: int, n_cells: int, rounds: int) -> None:
     def fresh_frame() -> None:
         np.zeros(shape, np.float32).ravel()[::1024] = 1  # one write per 4 kB page
 
-    names = ("straight chords", "bent chords", "draw_scene", "masks", "media, first read",
+    names = ("draw_scene", "all straight", "masks", "media, first read",
              "tiny-cell draw_scene", "new float32 frame", "FFT floor")
     times: dict[str, list[float]] = {name: [] for name in names}
 
@@ -110,13 +92,12 @@ def breakdown(size: int, n_cells: int, rounds: int) -> None:
         return result
 
     for _ in range(rounds):
-        timed("straight chords", chords, False)
-        timed("bent chords", chords, True)
         new = timed("draw_scene", draw_scene, cells, trench, microscope, render, curvature,
                     field=field)
         timed("masks", lambda s: (s.camera_labels(), s.semantic_mask()), new)
         timed("media, first read", getattr, new, "media")
         del new
+        timed("all straight", draw_scene, cells, trench, microscope, render, None, field=field)
         timed("tiny-cell draw_scene", draw_scene, tiny, trench, microscope, render, tiny_bend,
               field=field)
         timed("new float32 frame", fresh_frame)

@@ -1,6 +1,6 @@
-"""The drawing's storage: media made on first read (Scene's pending images) and the
-bands that the cells image is converted over (scene/_raster.py). The bent chord taken
-near the axis only is tested against the reference in test_draw_reference.py."""
+"""The drawing's storage: media made on first read (Scene's pending images), and the
+rows of cells and column spans that the compiled drawing sweeps (scene/_raster.py).
+The values drawn are tested against the reference in test_draw_reference.py."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import pytest
 
 from napari_symbac.scene import Field, Scene, draw_scene
 from napari_symbac.scene._field import field_images
-from napari_symbac.scene._raster import _row_bands
+from napari_symbac.scene._raster import _row_span, _rows_of_cells, cell_boxes, chord
 from napari_symbac.settings import Microscope, RenderSettings, TrenchGeometry
 
 MIC = Microscope()
@@ -82,20 +82,52 @@ def test_pending_media_survives_replace_pickle_and_matches_an_eager_scene():
     assert _same_bits(textured.media, scene.media * np.float32(0.5))
 
 
-def test_row_bands_are_disjoint_and_cover_every_box():
+def test_rows_of_cells_list_every_box_covering_a_row_in_input_order():
     rng = np.random.default_rng(3)
     for n in (1, 5, 40):
         i0 = rng.integers(0, 500, n)
-        j0 = rng.integers(0, 500, n)
-        boxes = np.stack([i0, i0 + rng.integers(1, 60, n), j0, j0 + rng.integers(1, 60, n)], 1)
-        bands = _row_bands(boxes)
-        covered = np.zeros((600, 600), np.int64)
-        for b0, b1, c0, c1 in bands:
-            covered[b0:b1, c0:c1] += 1
-        assert covered.max() == 1  # disjoint
-        for b0, b1, c0, c1 in boxes.tolist():
-            assert covered[b0:b1, c0:c1].min() == 1  # every box inside a band
-        rows_with_boxes = np.zeros(600, bool)
-        for b0, b1, _, _ in boxes.tolist():
-            rows_with_boxes[b0:b1] = True
-        assert np.array_equal(covered.any(axis=1), rows_with_boxes)  # no empty rows
+        boxes = np.stack([i0, i0 + rng.integers(0, 60, n), i0, i0 + 1], 1)  # some empty
+        start, members = _rows_of_cells(boxes, 600)
+        for i in range(600):
+            expected = [k for k in range(n) if boxes[k, 0] <= i < boxes[k, 1]]
+            assert members[start[i] : start[i + 1]].tolist() == expected
+
+
+@pytest.mark.parametrize(
+    "angle", [0.0, math.pi / 2, math.pi, -math.pi / 2, 1e-12, 1e-9, 2e-9, math.pi / 2 + 1e-10, 0.7]
+)
+@pytest.mark.parametrize("bend", [0.0, 0.3])
+def test_row_spans_hold_every_pixel_with_a_chord(angle, bend):
+    """The columns a row is drawn over hold every non-zero chord of the cell's box,
+    whatever the axis (along the rows, across them, within 1e-9 of either), and are
+    no more than the rectangle about the axis that holds the cell (``length x
+    (width + 2 |a|)``) plus a margin of a few pixels."""
+    px = 0.065 / 3
+    shape = (400, 400)
+    xc = (np.arange(shape[1]) + 0.5) * px
+    yc = (np.arange(shape[0]) + 0.5) * px
+    centre, length, width = (4.3, 4.4), 3.7, 0.9
+    curvature = (bend, 1.0, 0.2) if bend else None
+    args = (np.array([centre[0]]), np.array([centre[1]]), np.array([angle]))
+    box = cell_boxes(*args, np.array([length]), np.array([width]), np.array([bend]), px, 0,
+                     shape)[0]
+    full = chord(xc, yc, centre, angle, length, width, curvature)
+    assert np.count_nonzero(full[: box[0]]) == np.count_nonzero(full[box[1] :]) == 0
+    r, half = width / 2, length / 2 - width / 2
+    sin_a, cos_a = math.sin(angle), math.cos(angle)
+    near = 1 + 2.0**-20
+    drawn = 0
+    for i in range(box[0], box[1]):
+        lo, hi = _row_span(yc[i] - centre[1], sin_a, cos_a, (half + r) * near,
+                           (r + bend) * near, centre[0], xc[0], px, box[2], box[3])
+        assert box[2] <= lo <= hi <= box[3]
+        inside = np.flatnonzero(full[i])
+        if inside.size:
+            assert lo <= inside[0]
+            assert inside[-1] < hi
+        drawn += hi - lo
+    assert drawn >= np.count_nonzero(full) > 1000
+    # the rectangle grown by 3 px a side when it lies along the pixel grid, else 6 px
+    # of margin a row
+    grown = (length / px + 6) * ((width + 2 * bend) / px + 6)
+    assert drawn <= grown + 6 * (box[1] - box[0])

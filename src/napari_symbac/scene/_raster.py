@@ -152,18 +152,24 @@ def _row_span(dy, sin_a, cos_a, s_reach, t_reach, cx, x0, px, j0, j1):
 
     The chord is 0 outside the rectangle ``|s| <= s_reach``, ``|t| <= t_reach`` about
     the axis (``s = dy cos + dx sin``, ``t = dx cos - dy sin``): each bound is an
-    interval of ``dx`` (any ``dx`` where the axis is within ``1e-9`` of the row's
-    direction), and their intersection, grown by two pixels on each side (far above
-    the rounding of the bounds), is clipped to the box's columns ``[j0, j1)``. ``x0``
-    is the x of column 0, ``px`` the pixel size. Empty: ``lo == hi``.
+    interval of ``dx``, and their intersection, grown by two pixels on each side (far
+    above the rounding of the bounds), is clipped to the box's columns ``[j0, j1)``.
+    Where a coefficient of ``dx`` is within ``1e-9`` of 0 (the axis along or across
+    the rows), its bound holds for all of the row or none of it (``|dx| 1e-9`` is far
+    below a pixel): none beyond ``2 px`` of margin. ``x0`` is the x of column 0,
+    ``px`` the pixel size. Empty: ``lo == hi``.
     """
     lo, hi = -np.inf, np.inf
     if abs(cos_a) > 1e-9:
         u, v = (dy * sin_a - t_reach) / cos_a, (dy * sin_a + t_reach) / cos_a
         lo, hi = max(lo, min(u, v)), min(hi, max(u, v))
+    elif abs(dy * sin_a) > t_reach + 2 * px:
+        return j0, j0
     if abs(sin_a) > 1e-9:
         u, v = (-s_reach - dy * cos_a) / sin_a, (s_reach - dy * cos_a) / sin_a
         lo, hi = max(lo, min(u, v)), min(hi, max(u, v))
+    elif abs(dy * cos_a) > s_reach + 2 * px:
+        return j0, j0
     if lo > hi:
         return j0, j0
     first = math.floor(max((cx + lo - x0) / px - 2.0, float(j0)))
