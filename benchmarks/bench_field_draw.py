@@ -10,9 +10,13 @@ parts of this tree's drawing in one process, interleaved with the floor: the who
 a libm sine a pixel), the masks, a draw of the same number of tiny cells (the
 per-cell and per-frame fixed cost), the first touch of a new frame-sized float32
 image, and the media image's first read. CPU time of the measuring thread, medians.
+``--first-call`` times, in fresh processes, what the compiled drawing (numba) costs
+once per process: importing ``napari_symbac.scene`` (numba with it) and the first
+``draw_scene`` + masks + ``chord`` of a small scene, with an empty kernel cache (they
+compile) and then twice with the cache the first run wrote (they load), in wall time.
 
 Run: ``python benchmarks/bench_field_draw.py --against /path/to/old/src [--pairs 3]
-[--breakdown] [--quick]``
+[--breakdown] [--quick] [--first-call]``
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -56,6 +61,41 @@ def compare(against: Path, cases: list[tuple[int, int]], pairs: int, rounds: int
                     f"{os.getloadavg()[0]:>6.1f}",
                     flush=True,
                 )
+
+
+FIRST_CALL = """
+import json, time
+t0 = time.perf_counter()
+import numpy as np
+from types import SimpleNamespace
+from napari_symbac.scene import Field, draw_scene
+from napari_symbac.scene._raster import chord
+from napari_symbac.settings import Microscope, RenderSettings, TrenchGeometry
+t1 = time.perf_counter()
+cells = SimpleNamespace(ids=np.arange(1, 4), x_um=np.array([2.0, 4.0, 6.0]),
+    y_um=np.full(3, 3.0), angle_rad=np.array([0.0, 0.5, 1.0]), length_um=np.full(3, 3.0),
+    width_um=np.full(3, 1.0))
+args = (cells, TrenchGeometry(), Microscope(), RenderSettings(upsample=3, psf_radius_px=10),
+        {2: (0.1, 1.0, 0.0)})
+def once():
+    scene = draw_scene(*args, field=Field(8.0, 6.0))
+    scene.camera_labels(), scene.semantic_mask()
+    chord(np.arange(5.0), np.arange(4.0), (1.0, 1.0), 0.3, 2.0, 1.0, None)
+t2 = time.perf_counter(); once(); t3 = time.perf_counter(); once(); t4 = time.perf_counter()
+print(json.dumps({"import_s": t1 - t0, "first_s": t3 - t2, "second_s": t4 - t3}))
+"""
+
+
+def first_call() -> None:
+    print(f"{'kernel cache':<14}{'import s':>10}{'first call s':>14}{'then ms':>9}{'load':>6}")
+    with tempfile.TemporaryDirectory() as cache:
+        env = {**os.environ, "PYTHONPATH": str(SRC), "NUMBA_CACHE_DIR": cache}
+        for tag in ("empty", "written", "written"):
+            out = subprocess.run([sys.executable, "-c", FIRST_CALL], env=env,
+                                 capture_output=True, text=True, check=True)
+            r = json.loads(out.stdout.strip().splitlines()[-1])
+            print(f"{tag:<14}{r['import_s']:>10.2f}{r['first_s']:>14.2f}"
+                  f"{r['second_s'] * 1e3:>9.2f}{os.getloadavg()[0]:>6.1f}", flush=True)
 
 
 def breakdown(size: int, n_cells: int, rounds: int) -> None:
@@ -115,6 +155,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--pairs", type=int, default=3, help="before/after pairs")
     parser.add_argument("--breakdown", action="store_true", help="time this tree's parts")
     parser.add_argument("--quick", action="store_true", help="the 1024 field only")
+    parser.add_argument("--first-call", action="store_true",
+                        help="the compiled kernels' cost once per process")
     args = parser.parse_args(argv)
     cases = [(1024, 360)] if args.quick else [(1024, 360), (2048, 1440)]
     if args.against is not None:
@@ -124,8 +166,10 @@ def main(argv: list[str] | None = None) -> None:
     if args.breakdown:
         for size, n_cells in cases:
             breakdown(size, n_cells, rounds=5)
-    if args.against is None and not args.breakdown:
-        parser.error("give --against SRC and/or --breakdown")
+    if args.first_call:
+        first_call()
+    if args.against is None and not args.breakdown and not args.first_call:
+        parser.error("give --against SRC, --breakdown and/or --first-call")
 
 
 if __name__ == "__main__":
