@@ -234,6 +234,8 @@ def _rasterise(
     row = np.empty(xc.size, np.float32)
     spans = np.empty((n, 2), np.int64)
     for i in range(cells.shape[0]):
+        if start[i] == start[i + 1]:
+            continue
         drawn, taken, room = cells[i], labels[i], open_frac[i]
         for m in range(start[i], start[i + 1]):
             k = members[m]
