@@ -1,13 +1,14 @@
-"""Rasterising cells into a scene's images, each cell only in its own box.
+"""Rasterising cells into a scene's images, each cell only where it can reach.
 
 :func:`rasterise_cells` turns the cells of one frame into the ``cells`` fraction
 and the instance labels of :class:`~napari_symbac.scene.Scene` (eq. OPL2: the
 chord ``2 sqrt(r^2 - d^2)`` of a 3-D spherocylinder at mid-depth);
 :func:`media_fraction` gives the media (eq. OPL3) from them. The work is
-proportional to the cells' area, not the frame's: each cell is drawn in its
-bounding box. Where cells overlap, the thickest wins the pixel (the first in the
-input order of equal chords), and the fraction is ``min(thickness / depth, 1,
-open)`` of that thickest chord, computed once per pixel at the end.
+proportional to the cells' area, not the frame's: a compiled pass (numba) goes row
+by row, drawing each cell whose bounding box covers the row over the columns it can
+reach. Where cells overlap, the thickest wins the pixel (the first in the input
+order of equal chords), and the fraction is ``min(thickness / depth, 1, open)`` of
+that thickest chord, computed once per pixel when its row is drawn.
 """
 
 from __future__ import annotations
@@ -90,8 +91,23 @@ _NEAR = 1.0 + 2.0**-20
 
 @njit(cache=True)
 def _chord_row(
-    out, xc, lo, hi, cx, dy_cos, dy_sin, sin_a, cos_a, half, r, length, bent, a, b, c,
-):
+    out: np.ndarray,
+    xc: np.ndarray,
+    lo: int,
+    hi: int,
+    cx: float,
+    dy_cos: float,
+    dy_sin: float,
+    sin_a: float,
+    cos_a: float,
+    half: float,
+    r: float,
+    length: float,
+    bent: bool,
+    a: float,
+    b: float,
+    c: float,
+) -> None:
     """The chord at columns ``lo..hi-1`` of one row into ``out[lo:hi]`` (float32).
 
     The arithmetic of :func:`~napari_symbac.scene.spherocylinder_distance` then
@@ -133,7 +149,20 @@ def _chord_row(
 
 
 @njit(cache=True)
-def _chord_grid(out, xc, yc, cx, cy, angle, length, width, bent, a, b, c):
+def _chord_grid(
+    out: np.ndarray,
+    xc: np.ndarray,
+    yc: np.ndarray,
+    cx: float,
+    cy: float,
+    angle: float,
+    length: float,
+    width: float,
+    bent: bool,
+    a: float,
+    b: float,
+    c: float,
+) -> None:
     """:func:`chord` into ``out`` (``yc.size x xc.size`` float32), every pixel."""
     r = width / 2
     half = max(length / 2 - r, 0.0)
@@ -147,7 +176,18 @@ def _chord_grid(out, xc, yc, cx, cy, angle, length, width, bent, a, b, c):
 
 
 @njit(cache=True)
-def _row_span(dy, sin_a, cos_a, s_reach, t_reach, cx, x0, px, j0, j1):
+def _row_span(
+    dy: float,
+    sin_a: float,
+    cos_a: float,
+    s_reach: float,
+    t_reach: float,
+    cx: float,
+    x0: float,
+    px: float,
+    j0: int,
+    j1: int,
+) -> tuple[int, int]:
     """Columns ``[lo, hi)`` of a row ``dy`` below the centre that may hold a chord.
 
     The chord is 0 outside the rectangle ``|s| <= s_reach``, ``|t| <= t_reach`` about
@@ -178,7 +218,7 @@ def _row_span(dy, sin_a, cos_a, s_reach, t_reach, cx, x0, px, j0, j1):
 
 
 @njit(cache=True)
-def _rows_of_cells(boxes, rows):
+def _rows_of_cells(boxes: np.ndarray, rows: int) -> tuple[np.ndarray, np.ndarray]:
     """For every image row, the cells whose boxes cover it, in input order.
 
     ``(start, members)``: the cells of row ``i`` are ``members[start[i]:start[i + 1]]``.
@@ -200,9 +240,27 @@ def _rows_of_cells(boxes, rows):
 
 @njit(cache=True)
 def _rasterise(
-    cells, labels, open_frac, xc, yc, px, boxes, ids, cx, cy, angle, length, width, bent,
-    bend_a, bend_b, bend_c, depth, capped, closed,
-):
+    cells: np.ndarray,
+    labels: np.ndarray,
+    open_frac: np.ndarray,
+    xc: np.ndarray,
+    yc: np.ndarray,
+    px: float,
+    boxes: np.ndarray,
+    ids: np.ndarray,
+    cx: np.ndarray,
+    cy: np.ndarray,
+    angle: np.ndarray,
+    length: np.ndarray,
+    width: np.ndarray,
+    bent: np.ndarray,
+    bend_a: np.ndarray,
+    bend_b: np.ndarray,
+    bend_c: np.ndarray,
+    depth: np.float32,
+    capped: bool,
+    closed: bool,
+) -> None:
     """Draw the cells into ``cells`` (float32 zeros) and ``labels`` (zeros) as fractions:
     :func:`rasterise_cells` below its checks.
 
@@ -324,9 +382,10 @@ def rasterise_cells(
     Notes
     -----
     These are the only two frame-sized images made. One compiled pass
-    (:func:`_rasterise`) draws the cells in their boxes, each row only over the span
-    of columns its cell can reach (:func:`_row_span`), keeping the thickest chord so
-    far in the cells image, then turns each cell's own pixels into fractions.
+    (:func:`_rasterise`) goes row by row: it draws the cells whose boxes cover the
+    row, each over the span of columns it can reach (:func:`_row_span`), keeping the
+    thickest chord so far in the cells image, then turns each cell's own pixels of
+    the row into fractions.
     """
     shape = open_frac.shape
     cells = np.zeros(shape, np.float32)
@@ -346,15 +405,32 @@ def rasterise_cells(
     # already: a chord is at most the width (times 1 + 4 ulp of rounding).
     depth = np.float32(depth_um)
     capped = closed or width_um[drawn].max() * (1 + 2.0**-40) > float(depth)
+    bend = np.ascontiguousarray(bend[drawn].T)  # a, b, c of eq. 1: rows of 0, 1, 0 if straight
+
+    def column(values: np.ndarray, dtype: type = np.float64) -> np.ndarray:
+        return np.asarray(values, dtype)[drawn]  # a new contiguous array
+
     _rasterise(
-        cells, labels, np.ascontiguousarray(open_frac, np.float32),
-        np.ascontiguousarray(xc, np.float64), np.ascontiguousarray(yc, np.float64),
-        float(px), np.ascontiguousarray(boxes[drawn]), ids[drawn].astype(np.int64),
-        cx[drawn].astype(np.float64), cy[drawn].astype(np.float64),
-        angle_rad[drawn].astype(np.float64), length_um[drawn].astype(np.float64),
-        width_um[drawn].astype(np.float64), bend[drawn, 0] != 0,
-        bend[drawn, 0].copy(), bend[drawn, 1].copy(), bend[drawn, 2].copy(),
-        depth, bool(capped), bool(closed),
+        cells,
+        labels,
+        np.ascontiguousarray(open_frac, np.float32),
+        np.ascontiguousarray(xc, np.float64),
+        np.ascontiguousarray(yc, np.float64),
+        float(px),
+        boxes[drawn],
+        column(ids, np.int64),
+        column(cx),
+        column(cy),
+        column(angle_rad),
+        column(length_um),
+        column(width_um),
+        bend[0] != 0,
+        bend[0],
+        bend[1],
+        bend[2],
+        depth,
+        bool(capped),
+        bool(closed),
     )
     return cells, labels
 
