@@ -91,6 +91,7 @@ def test_jacobian_columns_with_a_surface_match_full_renders(truth, k):
     assert np.abs(col / scale - want).max() < 0.08 * np.abs(want).max()
 
 
+@pytest.mark.slow
 def test_a_tilted_lamp_is_recovered_and_explains_the_image():
     """Rendered with the surface and camera noise, fitted with and without it."""
     truth = make_truth(seed=4)
@@ -114,3 +115,14 @@ def test_a_tilted_lamp_is_recovered_and_explains_the_image():
     unlit = clean / (1 + np.tensordot(lit.illumination, illumination_basis(image.shape, 2), 1))
     np.testing.assert_allclose(stage.apply(unlit.astype(np.float32), None), clean, rtol=1e-4)
     assert flat.extra_stages() == []
+
+
+def test_flat_light_fitted_with_a_surface_stays_flat(truth):
+    """No false surface: on an image rendered without one, the coefficients are
+    within 4 standard errors of 0 and the fit is no better than the flat one's noise."""
+    common = {"camera": truth.camera, "closed_end": "square", "moves": False, "irls_rounds": 2}
+    lit = fit_scene(truth.image, truth.microscope, TRUTH, illumination_order=2, **common)
+    se = np.array([lit.standard_error(f"illumination.{t}") for t in illumination_terms(2)])
+    assert np.all(np.abs(lit.illumination) < 4 * se)
+    assert np.all(se < 0.01)  # and the data do pin it down
+    assert 0.9 < lit.objective_after < 1.1
