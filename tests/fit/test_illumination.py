@@ -126,3 +126,4 @@ def test_flat_light_fitted_with_a_surface_stays_flat(truth):
     assert np.all(np.abs(lit.illumination) < 4 * se)
     assert np.all(se < 0.01)  # and the data do pin it down
     assert 0.9 < lit.objective_after < 1.1
+
