@@ -22,6 +22,7 @@ import numpy as np
 from scipy import fft as sp_fft
 from scipy import sparse
 
+from napari_symbac.fit.illumination import illumination_basis, illumination_terms
 from napari_symbac.fit.placement import TrenchPlacement, draw_fitted
 from napari_symbac.optics import ForwardModel
 from napari_symbac.scene import Scene
@@ -95,8 +96,10 @@ class Layout:
     curvature amplitude ``curvature_um``, its width offset ``dwidth_um`` and its
     relative brightness offset ``dbrightness`` (its intensity is
     ``I_c (1 + dbrightness)``: cells differ in fluorophore content). Then
-    come the shared ``width_um``, the trench's ``left_um, width_um`` (and ``top_um``)
-    and the optical parameters.
+    come the shared ``width_um``, the trench's ``left_um, width_um`` (and ``top_um``),
+    the coefficients of the illumination surface of degree ``illumination``
+    (``illumination.<term>``, :mod:`~napari_symbac.fit.illumination`; none when 0)
+    and the optical parameters (last: a series shares them between frames).
     """
 
     n: int
@@ -106,6 +109,17 @@ class Layout:
     fit_top: bool
     optics: tuple[str, ...]
     per_cell_brightness: bool = False
+    illumination: int = 0
+
+    @property
+    def illumination_names(self) -> tuple[str, ...]:
+        """``illumination.<term>`` for each term of the surface."""
+        return tuple(f"illumination.{t}" for t in illumination_terms(self.illumination))
+
+    @property
+    def i_illumination(self) -> int:
+        """Index of the first illumination coefficient among the shared parameters."""
+        return 1 + (2 + self.fit_top if self.trench else 0)
 
     @property
     def cell_names(self) -> tuple[str, ...]:
@@ -139,7 +153,7 @@ class Layout:
             names += ["trench.left_um", "trench.width_um"]
             if self.fit_top:
                 names.append("trench.top_um")
-        return (*names, *self.optics)
+        return (*names, *self.illumination_names, *self.optics)
 
     @property
     def size(self) -> int:
@@ -202,6 +216,16 @@ class SceneModel:
         self.tick = tick if tick is not None else (lambda: None)
         self._box_cache: tuple | None = None
         self._kernel_spectra: dict[tuple, np.ndarray] = {}
+        basis = illumination_basis(shape, layout.illumination)
+        self._light_basis = basis.reshape(basis.shape[0], shape[0] * shape[1])
+
+    def light(self, x: np.ndarray) -> np.ndarray | None:
+        """The illumination surface ``1 + sum_k c_k P_k`` of ``x`` (flat), ``None`` when off."""
+        k = self._light_basis.shape[0]
+        if k == 0:
+            return None
+        start = self.layout.n * self.layout.per_cell + self.layout.i_illumination
+        return 1.0 + x[start : start + k] @ self._light_basis
 
     # ------------------------------------------------------------------ unpack
     def unpack(
@@ -243,6 +267,7 @@ class SceneModel:
                 self.placement.closed_end,
             )
             j = 4 if lay.fit_top else 3
+        j += len(lay.illumination_names)
         values = {name: float(v) for name, v in zip(lay.optics, g[j:])}
         return cells, curvature, place, dataclasses.replace(self.render, **values)
 
@@ -253,7 +278,8 @@ class SceneModel:
         With per-cell brightness the cells column is ``C + sum_i db_i C_i`` (``C_i`` the
         convolved fraction of cell ``i`` alone); by the linearity of the convolution
         it is the convolution of ``cells + sum_i db_i F_i`` (:meth:`_brightness`),
-        one transform for all cells.
+        one transform for all cells. With an illumination surface every row is
+        multiplied by it (:meth:`light`).
         """
         self.tick()
         cells, curvature, place, r = self.unpack(x)
@@ -264,6 +290,9 @@ class SceneModel:
             cells_image = cells_image + self._brightness(x, scene)
         comps = self._convolve(forward, scene, (cells_image, scene.media, scene.device))
         a = np.stack([comp.ravel() for comp in comps], axis=1).astype(np.float64)
+        light = self.light(x)
+        if light is not None:
+            a *= light[:, None]  # the surface multiplies eq. 3: still linear in I
         return a, scene, r
 
     def _convolve(
@@ -335,11 +364,13 @@ class SceneModel:
         if self.layout.per_cell_brightness:
             cells_image = cells_image + self._brightness(x, scene)
         images = (cells_image, scene.media, scene.device)
-        return (
+        mu = (
             self._convolve(forward, scene, images, np.asarray(intensities, np.float32))[0]
             .ravel()
             .astype(np.float64)
         )
+        light = self.light(x)
+        return mu if light is None else mu * light
 
     # ---------------------------------------------------------------- patch render
     def _cell_box(
@@ -509,7 +540,9 @@ class SceneModel:
         Rows are all camera pixels (row-major), columns the free parameters in order,
         then the three intensities (per ADU). Cell parameters come from
         :meth:`cell_delta` (forward differences of ``step`` scaled units, backwards at
-        an upper bound); shared parameters from full renders.
+        an upper bound), times the illumination surface when there is one; the
+        surface's coefficients are exact (``d mu / d c_k = P_k mu / light``);
+        the other shared parameters come from full renders.
         """
         scales = self.layout.scales()
         kernel = self.forward.with_render(render).kernel(scene.pixel_size_um)
@@ -522,6 +555,9 @@ class SceneModel:
         if lay.per_cell_brightness:
             bright += x[: lay.n * pc].reshape(lay.n, pc)[:, lay.i_brightness]
         contrast = intensities[0] * bright - intensities[1]
+        light = self.light(x)
+        first_light = lay.n * pc + lay.i_illumination
+        n_light = self._light_basis.shape[0]
         data, indices, indptr = [], [], [0]
         for k in np.flatnonzero(free):
             h = step
@@ -531,12 +567,17 @@ class SceneModel:
             xk[k] += h * scales[k]
             owner = lay.owner(int(k))
             shared_width = k == lay.n * pc
-            if owner >= 0 and lay.per_cell_brightness and k % pc == lay.i_brightness:
+            if first_light <= k < first_light + n_light:
+                # mu = light * mu_0 and light is linear in c_k: exact.
+                col = mu / light * self._light_basis[k - first_light] * scales[k]
+            elif owner >= 0 and lay.per_cell_brightness and k % pc == lay.i_brightness:
                 # Brightness is linear: d mu / d z = I_c C_i scale.
                 col = np.zeros(npx)
                 self.tick()
                 patch = self.cell_delta(x, x, owner, scene, kernel, True)
                 _add_patch(col, self.shape, *patch, intensities[0] * scales[k])
+                if light is not None:
+                    col *= light
             elif owner >= 0 or shared_width:
                 # One cell's parameter: its patch. The shared width: the sum of every
                 # cell's patch (exact while cells do not overlap, which the overlap
@@ -546,6 +587,8 @@ class SceneModel:
                     self.tick()
                     patch = self.cell_delta(x, xk, i, scene, kernel)
                     _add_patch(col, self.shape, *patch, contrast[i] / h)
+                if light is not None:
+                    col *= light
             elif lay.global_names[k - lay.n * pc] in KERNEL_PARAMETERS:
                 # The kernel alone changes: one weighted transform, no redraw.
                 col = (self.kernel_column(x, xk, scene, intensities) - mu) / h

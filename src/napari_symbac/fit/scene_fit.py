@@ -39,6 +39,7 @@ from scipy import sparse
 
 from napari_symbac.fit.camera_estimate import censored_pixels, estimate_camera
 from napari_symbac.fit.engine import CURVATURE_B, CURVATURE_C, Layout
+from napari_symbac.fit.illumination import illumination_stage, illumination_terms
 from napari_symbac.fit.inputs import as_label_stack, as_single_image
 from napari_symbac.fit.lm import State
 from napari_symbac.fit.moves import improve_scene
@@ -133,6 +134,10 @@ class SceneFit:
         Reduced chi-square after every accepted Levenberg-Marquardt step of the
         rounds, and after the moves (their trial refits are not recorded): the fit's
         convergence curve.
+    illumination_order, illumination
+        Degree of the fitted illumination surface (0: flat) and its coefficients in
+        the order of :func:`~napari_symbac.fit.illumination.illumination_terms`
+        (:meth:`extra_stages` renders it).
     """
 
     cells: FrameCells
@@ -160,6 +165,15 @@ class SceneFit:
     valid: np.ndarray | None = field(default=None, repr=False)
     moves: tuple[str, ...] = ()
     history: tuple[float, ...] = ()
+    illumination_order: int = 0
+    illumination: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def extra_stages(self) -> list:
+        """Forward-model stages of the fitted effects beyond eq. 3 (``ForwardModel``'s
+        ``extra_stages``): the illumination surface when fitted, else none."""
+        if self.illumination_order == 0:
+            return []
+        return [illumination_stage(self.illumination, self.illumination_order)]
 
     def jacobian(self) -> sparse.csc_matrix:
         """``d mu / d theta`` at the optimum (ADU per unit of each parameter).
@@ -287,6 +301,7 @@ def fit_scene(
     per_cell_brightness: bool | None = None,
     fit_curvature: bool = True,
     curvature_sd_um: float = 0.1,
+    illumination_order: int = 0,
     irls_rounds: int = 3,
     max_iterations: int = 25,
     moves: bool = True,
@@ -349,6 +364,12 @@ def fit_scene(
         Fit each cell's curvature amplitude ``a`` of eq. 1 (one bend), with a
         Gaussian prior of this s.d. centred on 0; cells start straight and stay
         straight in the first round.
+    illumination_order
+        0 (default): flat illumination. ``k`` >= 1: the image is multiplied by a
+        smooth surface ``1 + sum c_j P_j`` of degree ``k`` over the frame (vignetting,
+        a tilted lamp; :mod:`~napari_symbac.fit.illumination`), its coefficients
+        fitted with the scene (:attr:`SceneFit.illumination`). Degree 2 is the
+        diagnosis' ``uneven_illumination`` surface.
     irls_rounds
         Rounds of iteratively reweighted least squares (variance, and the estimated
         camera, held fixed within a round).
@@ -382,6 +403,7 @@ def fit_scene(
             per_cell_brightness=per_cell_brightness,
             fit_curvature=fit_curvature,
             curvature_sd_um=curvature_sd_um,
+            illumination_order=illumination_order,
             irls_rounds=irls_rounds,
             max_iterations=max_iterations,
             moves=moves,
@@ -408,6 +430,7 @@ def _run_frame(
     per_cell_brightness: bool | None = None,
     fit_curvature: bool = True,
     curvature_sd_um: float = 0.1,
+    illumination_order: int = 0,
     irls_rounds: int = 3,
     max_iterations: int = 25,
     moves: bool = True,
@@ -426,6 +449,7 @@ def _run_frame(
         raise ValueError(f"curvature_sd_um must be positive, got {curvature_sd_um!r}")
     if irls_rounds < 1 or max_iterations < 1:
         raise ValueError("irls_rounds and max_iterations must be at least 1")
+    n_light = len(illumination_terms(illumination_order))
     if getattr(render, "phase_separate", False) or (
         microscope.modality == "phase" and getattr(render, "phase_model", "linear") != "linear"
     ):
@@ -483,6 +507,7 @@ def _run_frame(
         fit_top=placement is not None and placement.top_um > 0,
         optics=fit_optics,
         per_cell_brightness=bool(per_cell_brightness),
+        illumination=illumination_order,
     )
     width_um, height_um = shape[1] * px, shape[0] * px
     cell_lower = [-2.0, -3.0, -1.6, 0.3] + [-0.5] * fit_curvature + [-1.0] * (width_sd_um > 0)
@@ -505,6 +530,10 @@ def _run_frame(
             g0.append(placement.top_um)
             g_lo.append(-1.0)
             g_hi.append(height_um)
+    # The illumination surface starts flat; +-1 keeps it a modulation of the light.
+    g0 += [0.0] * n_light
+    g_lo += [-1.0] * n_light
+    g_hi += [1.0] * n_light
     for name in fit_optics:
         lo, hi = parameter_bounds(name, microscope)
         g0.append(float(np.clip(getattr(render, name), lo, hi)))
@@ -521,6 +550,12 @@ def _run_frame(
     measured = None
     if camera is None:
         measured = _measured_camera(real, valid, Camera(baseline_adu=baseline))
+        unclipped = ~censored_pixels(real) & np.isfinite(real)
+        if measured is None and np.any(unclipped & ~valid):
+            # A sparse valid mask (a held-out checkerboard) leaves no whole 3 x 3
+            # neighbourhood for photon transfer; the pixels left out of the
+            # likelihood carry the same camera noise.
+            measured = _measured_camera(real, unclipped, Camera(baseline_adu=baseline))
         if measured is not None:
             baseline = measured.baseline_adu
             y = (real - baseline).ravel().astype(np.float64)
@@ -707,6 +742,10 @@ def _frame_result(run: _FrameRun) -> SceneFit:
         valid=valid,
         moves=tuple(log),
         history=tuple(history),
+        illumination_order=model.layout.illumination,
+        illumination=np.array(
+            [values[names.index(k)] for k in model.layout.illumination_names], float
+        ),
     )
 
 
