@@ -44,6 +44,19 @@ def test_metrics_of_a_known_prediction():
     assert t[5, 15] == 2  # boundary
 
 
+def test_objects_touching_the_border_are_dropped():
+    bench = _bench()
+    labels = np.zeros((20, 30), np.int32)
+    labels[0:4, 5:9] = 3  # touches the top edge
+    labels[8:12, 26:30] = 4  # touches the right edge
+    labels[8:12, 10:15] = 5  # inside
+    labels[19, 0] = 6  # a corner pixel
+    out = bench.drop_border_objects(labels)
+    assert set(np.unique(out).tolist()) == {0, 5}
+    assert (out[8:12, 10:15] == 5).all()
+    assert labels[0, 5] == 3  # the input is not changed
+
+
 @pytest.mark.slow
 def test_quick_run_has_every_row(real_data_dir, tmp_path, monkeypatch):
     monkeypatch.setenv("NAPARI_SYMBAC_REAL_DATA", str(real_data_dir))
