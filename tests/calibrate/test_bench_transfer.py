@@ -57,6 +57,26 @@ def test_objects_touching_the_border_are_dropped():
     assert labels[0, 5] == 3  # the input is not changed
 
 
+def test_false_positives_and_their_gallery():
+    bench = _bench()
+    truth = np.zeros((60, 60), np.int32)
+    truth[10:20, 10:30] = 1
+    pred = np.zeros_like(truth)
+    pred[10:20, 10:29] = 4  # matched (IoU 0.95)
+    pred[40:46, 40:46] = 9  # false positive
+    pred[10:20, 29:30] = 0
+    assert bench.false_positives(truth, pred) == [9]
+    image = np.random.default_rng(0).normal(10, 1, truth.shape)
+    real = bench.RealImage("x", image, truth, 0.1)
+    gallery = bench.false_positive_gallery([real], [pred], half_px=8)
+    assert gallery.shape == (18, 18, 3)
+    assert gallery.dtype == np.uint8
+    red = (gallery[..., 0] == 255) & (gallery[..., 1] == 51)
+    assert red.any()  # the false positive's outline
+    assert not (gallery[..., 2] == 153).any()  # no annotation within 8 px of it
+    assert bench.false_positive_gallery([real], [np.where(pred == 9, 0, pred)]) is None
+
+
 @pytest.mark.slow
 def test_quick_run_has_every_row(real_data_dir, tmp_path, monkeypatch):
     monkeypatch.setenv("NAPARI_SYMBAC_REAL_DATA", str(real_data_dir))
