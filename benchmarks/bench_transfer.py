@@ -23,11 +23,12 @@ Protocol (fixed; the same for every training set):
   not train on it);
 * **Otsu + watershed**: Gaussian smoothing (1 px), Otsu threshold with the modality's
   polarity, watershed of the distance transform from its h-maxima (h = 2 px);
-* objects smaller than 0.25 um^2 are removed from every method's output, and so are
-  objects that touch the image border: the annotations of both sets hold no cell that
-  touches it (ColiCoords ds1: 0 of 52, the filtered probability maps dropped them;
-  Omnipose: 0 of 375), so a cell cut by the border is not annotated whether or not it
-  is found, and a prediction there cannot be judged (:func:`drop_border_objects`);
+* objects smaller than 0.25 um^2 are removed from every method's output; ColiCoords:
+  so are objects that touch the image border (:func:`drop_border_objects`): its
+  annotations are filtered probability maps from which the objects cut by the border
+  were dropped (0 of 52 cells touch it, while the fields show cut cells), so a
+  prediction there cannot be judged (Omnipose: the colonies lie inside the frame, no
+  such convention; its rule is unchanged);
 * the network: a 3-level U-Net (8-16-32 channels) predicting background / cell
   interior / cell boundary, trained on random 96 x 96 tiles (half centred on a cell;
   flips, rotations) of 1-99 percentile normalised images, Adam 2e-3, a fixed number of
@@ -103,6 +104,7 @@ class RealImage:
     image: np.ndarray  # float32, raw units
     masks: np.ndarray  # int32 instance ids
     pixel_size_um: float
+    border_annotated: bool = True  # False: no cell cut by the border is annotated
 
 
 def load_colicoords(budget: Budget) -> tuple[list[RealImage], str]:
@@ -118,7 +120,7 @@ def load_colicoords(budget: Budget) -> tuple[list[RealImage], str]:
             image, masks = image[: budget.image_px, : budget.image_px], masks[
                 : budget.image_px, : budget.image_px
             ]
-        images.append(RealImage(path.stem, image, masks.astype(np.int32), 0.08))
+        images.append(RealImage(path.stem, image, masks.astype(np.int32), 0.08, False))
     return images, "fluorescence"
 
 
@@ -441,11 +443,11 @@ def run(
     # the same smallest object for every method: 0.25 um^2 (a cell is >= ~1 um^2)
     min_area = [max(10, round(0.25 / p**2)) for p in px]
 
+    def judged(im: RealImage, labels: np.ndarray) -> np.ndarray:
+        return labels if im.border_annotated else drop_border_objects(labels)
+
     def evaluate(name: str, predict_one, seconds: float, note: str = "") -> None:
-        results = [
-            match(im.masks, drop_border_objects(predict_one(k, im)))
-            for k, im in enumerate(images)
-        ]
+        results = [match(im.masks, judged(im, predict_one(k, im))) for k, im in enumerate(images)]
         rows.append({"method": name, **summarise(results, px), "seconds": seconds, "note": note})
         print(f"  {name}: F1 {rows[-1]['f1']:.3f} ({seconds:.0f} s)", flush=True)
 
@@ -512,11 +514,11 @@ def run(
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         (out / f"results_{data}.json").write_text(json.dumps(rows, indent=2))
-        _pictures(out, data, images, modality, pictures, reference_of)
+        _pictures(out, data, images, modality, pictures, reference_of, judged)
     return rows
 
 
-def _pictures(out, data, images, modality, pictures, reference_of) -> None:
+def _pictures(out, data, images, modality, pictures, reference_of, judged) -> None:
     """real | U-Net (calibrated synthetic) outlines | Otsu outlines, and a synthetic image."""
     import imageio.v3 as iio
 
@@ -525,13 +527,13 @@ def _pictures(out, data, images, modality, pictures, reference_of) -> None:
     k = len(images) - 1
     im = images[k]
     model = pictures["models"][reference_of[k]]
-    pred = drop_border_objects(instances_from_probabilities(
+    pred = judged(im, instances_from_probabilities(
         predict(model, normalise(im.image)), max(10, round(0.25 / im.pixel_size_um**2))
     ))
     picture = montage(im.image, im.image, im.masks, pred)
     iio.imwrite(out / f"transfer_{data}_prediction.png", picture)
     preds = [
-        drop_border_objects(instances_from_probabilities(
+        judged(image, instances_from_probabilities(
             predict(pictures["models"][reference_of[j]], normalise(image.image)),
             max(10, round(0.25 / image.pixel_size_um**2)),
         ))

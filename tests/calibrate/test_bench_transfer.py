@@ -57,6 +57,17 @@ def test_objects_touching_the_border_are_dropped():
     assert labels[0, 5] == 3  # the input is not changed
 
 
+def test_colicoords_annotations_hold_no_cell_cut_by_the_border(real_data_dir, monkeypatch):
+    """The convention the benchmark's border rule rests on (docs/proof.md)."""
+    monkeypatch.setenv("NAPARI_SYMBAC_REAL_DATA", str(real_data_dir))
+    bench = _bench()
+    images, _ = bench.load_colicoords(bench.Budget())
+    assert len(images) == 10
+    for im in images:
+        assert not im.border_annotated
+        assert (bench.drop_border_objects(im.masks) == im.masks).all()
+
+
 def test_false_positives_and_their_gallery():
     bench = _bench()
     truth = np.zeros((60, 60), np.int32)
