@@ -44,6 +44,52 @@ def test_metrics_of_a_known_prediction():
     assert t[5, 15] == 2  # boundary
 
 
+def test_objects_touching_the_border_are_dropped():
+    bench = _bench()
+    labels = np.zeros((20, 30), np.int32)
+    labels[0:4, 5:9] = 3  # touches the top edge
+    labels[8:12, 26:30] = 4  # touches the right edge
+    labels[8:12, 10:15] = 5  # inside
+    labels[19, 0] = 6  # a corner pixel
+    out = bench.drop_border_objects(labels)
+    assert set(np.unique(out).tolist()) == {0, 5}
+    assert (out[8:12, 10:15] == 5).all()
+    assert labels[0, 5] == 3  # the input is not changed
+
+
+def test_colicoords_annotations_hold_no_cell_cut_by_the_border(real_data_dir, monkeypatch):
+    """The convention the benchmark's border rule rests on (docs/proof.md)."""
+    monkeypatch.setenv("NAPARI_SYMBAC_REAL_DATA", str(real_data_dir))
+    bench = _bench()
+    images, _ = bench.load_colicoords(bench.Budget())
+    assert len(images) == 10
+    for im in images:
+        assert not im.border_annotated
+        assert (bench.drop_border_objects(im.masks) == im.masks).all()
+
+
+def test_false_positives_and_their_gallery():
+    bench = _bench()
+    truth = np.zeros((60, 60), np.int32)
+    truth[10:20, 10:30] = 1
+    pred = np.zeros_like(truth)
+    pred[10:20, 10:29] = 4  # matched (IoU 0.95)
+    pred[40:46, 40:46] = 9  # false positive
+    pred[10:20, 29:30] = 0
+    assert bench.false_positives(truth, pred) == [9]
+    image = np.random.default_rng(0).normal(10, 1, truth.shape)
+    real = bench.RealImage("x", image, truth, 0.1)
+    gallery = bench.false_positive_gallery([real], [pred], half_px=8)
+    assert gallery.shape == (18, 18, 3)
+    assert gallery.dtype == np.uint8
+    red = (gallery[..., 0] == 255) & (gallery[..., 1] == 51)
+    assert red.any()  # the false positive's outline
+    blue = (gallery == (0, 153, 255)).all(axis=-1)
+    assert not blue.any()  # no annotation within 8 px of it
+    whole = bench.false_positive_gallery([real], [np.where(pred == 9, 0, pred)], half_px=40)
+    assert whole is None  # the matched cell is no false positive
+
+
 @pytest.mark.slow
 def test_quick_run_has_every_row(real_data_dir, tmp_path, monkeypatch):
     monkeypatch.setenv("NAPARI_SYMBAC_REAL_DATA", str(real_data_dir))
