@@ -80,6 +80,10 @@ class Geometry:
     media_fraction
         ``(T, Y, X)`` media contribution of the base model per unit media intensity,
         scaled to 1 in open media (``None`` when built from labels alone).
+    media_per_cell
+        Media over cell intensity of the base settings (``I_m / I_c``, eq. 3): a cell
+        that moves leaves media where it was (``cells + media + device = 1``), so the
+        image changes by the cells' part times ``1 - I_m / I_c``.
     """
 
     cell_fraction: np.ndarray
@@ -92,6 +96,7 @@ class Geometry:
     pixel_size_um: float
     modality: str
     media_fraction: np.ndarray | None = None
+    media_per_cell: float = 0.0
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -233,7 +238,9 @@ def build_design(
     media = np.abs(components[1])
     top = float(np.percentile(media, 99)) if media.size else 0.0
     geometry = dataclasses.replace(
-        geometry, media_fraction=np.clip(media / top, 0.0, 1.0) if top > 0 else None
+        geometry,
+        media_fraction=np.clip(media / top, 0.0, 1.0) if top > 0 else None,
+        media_per_cell=float(intensities[1] / intensities[0]) if intensities[0] != 0 else 0.0,
     )
     return BaseDesign(components, optics_cols, names, intensities, camera, geometry)
 
