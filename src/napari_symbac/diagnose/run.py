@@ -324,7 +324,12 @@ def _params(
             "clip_level_adu": c.level_adu + design.camera.baseline_adu,
             "high": c.high,
         }
-    theta = next(t for e, t in model.effects if e is effect)
+    index = next(i for i, (e, _) in enumerate(model.effects) if e is effect)
+    theta = model.effects[index][1]
+    if effect.random_field and model.shrinkage[index] > 0:
+        # the fitted field is the free fit shrunk by s; its size is reported from the
+        # free fit times sqrt(s), which is unbiased for the field's squared norm
+        theta = theta / np.sqrt(model.shrinkage[index])
     out = effect.summary(theta, model.mu)
     if effect.name == "photobleaching":
         out["cell_intensity_adu"] = float(model.beta[0])
