@@ -345,6 +345,7 @@ def oracle_magnitude(
     from napari_symbac.diagnose.effects import CATALOGUE
 
     eff = CATALOGUE[effect](design.geometry)
+    eff.random_field = False  # noise-free: the plain projection, nothing to shrink
     if effect == "saturation":
         return float(clip)
     y = signal.copy()

@@ -80,6 +80,10 @@ class Geometry:
     media_fraction
         ``(T, Y, X)`` media contribution of the base model per unit media intensity,
         scaled to 1 in open media (``None`` when built from labels alone).
+    media_per_cell
+        Media over cell intensity of the base settings (``I_m / I_c``, eq. 3): a cell
+        that moves leaves media where it was (``cells + media + device = 1``), so the
+        image changes by the cells' part times ``1 - I_m / I_c``.
     """
 
     cell_fraction: np.ndarray
@@ -92,6 +96,7 @@ class Geometry:
     pixel_size_um: float
     modality: str
     media_fraction: np.ndarray | None = None
+    media_per_cell: float = 0.0
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -233,7 +238,9 @@ def build_design(
     media = np.abs(components[1])
     top = float(np.percentile(media, 99)) if media.size else 0.0
     geometry = dataclasses.replace(
-        geometry, media_fraction=np.clip(media / top, 0.0, 1.0) if top > 0 else None
+        geometry,
+        media_fraction=np.clip(media / top, 0.0, 1.0) if top > 0 else None,
+        media_per_cell=float(intensities[1] / intensities[0]) if intensities[0] != 0 else 0.0,
     )
     return BaseDesign(components, optics_cols, names, intensities, camera, geometry)
 
@@ -266,6 +273,9 @@ class FittedModel:
     censor: Censor | None = None
     mu: np.ndarray = field(default=None, repr=False)  # type: ignore[assignment]
     var: np.ndarray = field(default=None, repr=False)  # type: ignore[assignment]
+    #: per effect, the empirical-Bayes shrinkage ``tau^2 / (1 + tau^2)`` of a random
+    #: field (1 for the others): the fitted field is the free fit times it
+    shrinkage: tuple[float, ...] = ()
 
 
 def predict(
@@ -337,8 +347,15 @@ def _trial(design, beta, effects, step):
     return trial_beta, trial_effects, predict(design, trial_beta, trial_effects)
 
 
-def _descent_step(design, beta, effects, normal, rhs, mu, yv, idx, w, cost):
+def _params_vector(beta, effects) -> np.ndarray:
+    return np.concatenate([beta, *[np.asarray(t, float) for _, t in effects]])
+
+
+def _descent_step(design, beta, effects, normal, rhs, mu, yv, idx, w, cost, penalty=None):
     """``(beta, effects, mu)`` after a step that lowers the weighted cost ``cost``.
+
+    ``penalty`` (a precision matrix over all parameters, or ``None``) adds
+    ``p^T penalty p`` to the cost; ``normal`` and ``rhs`` must include it.
 
     The Gauss-Newton step first (it does for the catalogue's linear effects, so their
     fits are unchanged); else Levenberg-Marquardt steps of growing damping; else the
@@ -357,9 +374,51 @@ def _descent_step(design, beta, effects, normal, rhs, mu, yv, idx, w, cost):
         with np.errstate(over="ignore", invalid="ignore"):
             trial_beta, trial_effects, trial_mu = _trial(design, beta, effects, z / scale)
             trial_cost = float(np.sum(w * (yv - trial_mu.ravel()[idx]) ** 2))
+            if penalty is not None:
+                p = _params_vector(trial_beta, trial_effects)
+                trial_cost += float(p @ penalty @ p)
         if math.isfinite(trial_cost) and trial_cost <= cost * (1 + 1e-9):
             return trial_beta, trial_effects, trial_mu
     return beta, effects, mu
+
+
+def _random_field_penalty(beta, effects, normal, rhs) -> tuple[np.ndarray | None, list]:
+    """Precision ``I_eff / tau^2`` of each random-field effect (empirical Bayes).
+
+    The coefficients ``theta`` of a random field are taken as ``N(0, tau^2 I_eff^-1)``
+    (Zellner's g-prior: the field is as likely in every direction the data can see).
+    Then the score test of ``tau^2 = 0`` is the effect's ordinary ``chi2(k)`` score
+    test, the whitened score ``z = I_eff^-1/2 U`` is ``N(0, (1 + tau^2) I_k)``, so
+    ``tau^2 = max(|z|^2 / k - 1, 0)`` maximises the marginal likelihood, and the
+    penalised fit is the free fit shrunk by ``tau^2 / (1 + tau^2) = 1 - k / |z|^2``
+    (positive part). ``tau^2`` comes from this fit's own pixels (the efficient score
+    at ``theta = 0`` with the other parameters projected out; the normal equations
+    are linear in ``theta``), so every held-out fit and bootstrap replicate estimates
+    its own. Returns the penalty (``None`` when no effect is a random field) and the
+    shrinkage of each effect.
+    """
+    sizes = [len(beta), *[len(t) for _, t in effects]]
+    starts = np.cumsum([0, *sizes])
+    penalty = None
+    shrinkage = [1.0] * len(effects)
+    for i, (effect, theta) in enumerate(effects):
+        if not effect.random_field or not len(theta):
+            continue
+        t = np.arange(starts[i + 1], starts[i + 2])
+        n = np.setdiff1d(np.arange(len(rhs)), t)
+        solve = np.linalg.pinv(normal[np.ix_(n, n)], rcond=1e-10)
+        info = normal[np.ix_(t, t)] - normal[np.ix_(t, n)] @ solve @ normal[np.ix_(n, t)]
+        score = rhs[t] - normal[np.ix_(t, n)] @ solve @ rhs[n] + info @ np.asarray(theta)
+        evals, evecs = np.linalg.eigh(info)
+        keep = evals > max(float(evals.max(initial=0.0)), 0.0) * 1e-9
+        z2 = float(np.sum((evecs[:, keep].T @ score) ** 2 / evals[keep]))
+        tau2 = max(z2 / max(int(keep.sum()), 1) - 1.0, 0.0)
+        shrinkage[i] = tau2 / (1.0 + tau2)
+        if penalty is None:
+            penalty = np.zeros((len(rhs), len(rhs)))
+        # tau^2 = 0 (no field): 1e12 times the information holds theta at 0
+        penalty[np.ix_(t, t)] = info / max(tau2, 1e-12)
+    return penalty, shrinkage
 
 
 def fit_model(
@@ -397,6 +456,7 @@ def fit_model(
     idx = np.flatnonzero(fit_mask.ravel())
     yv = y.ravel()[idx]
     a = None
+    penalty = shrinkage = None
     mu = predict(design, beta, effects)
     for round_index in range(rounds):
         v = variance(mu, design.camera, gain, read).ravel()[idx]
@@ -411,15 +471,29 @@ def fit_model(
             aw = a * w[:, None]
             normal = a.T @ aw
             rhs = aw.T @ r
+            cost = float(np.sum(w * r**2))
+            if shrinkage is None:
+                penalty, shrinkage = _random_field_penalty(beta, effects, normal, rhs)
+            if penalty is not None:
+                p = _params_vector(beta, effects)
+                normal, rhs = normal + penalty, rhs - penalty @ p
+                cost += float(p @ penalty @ p)
             beta, effects, mu = _descent_step(
-                design, beta, effects, normal, rhs, mu, yv, idx, w, float(np.sum(w * r**2))
+                design, beta, effects, normal, rhs, mu, yv, idx, w, cost, penalty
             )
         if fit_camera:
             r2 = (yv - mu.ravel()[idx]) ** 2
             gain, read = _fit_camera(r2, mu.ravel()[idx], design.camera)
     mu = predict(design, beta, effects)
     return FittedModel(
-        beta, tuple(effects), gain, read, censor, mu, variance(mu, design.camera, gain, read)
+        beta,
+        tuple(effects),
+        gain,
+        read,
+        censor,
+        mu,
+        variance(mu, design.camera, gain, read),
+        tuple(shrinkage or [1.0] * len(effects)),
     )
 
 

@@ -11,8 +11,8 @@ import numpy as np
 
 from napari_symbac.diagnose.effects import CATALOGUE
 from napari_symbac.diagnose.effects.base import Effect
-from napari_symbac.diagnose.model import BaseDesign, FittedModel, build_design, deviance
-from napari_symbac.diagnose.selection import ModelSpec, checkerboard, held_out, rank
+from napari_symbac.diagnose.model import BaseDesign, FittedModel, build_design
+from napari_symbac.diagnose.selection import ModelSpec, cross_fitted_deviance, held_out, rank
 from napari_symbac.diagnose.statistics import Mismatch, discrepancy_statistics
 from napari_symbac.settings import Camera, Microscope, RenderSettings
 
@@ -65,7 +65,8 @@ class Diagnosis:
     ----------
     base_fit, final_fit
         ``{"metric", "value", "held_out"}``: reduced chi-square on all pixels and the
-        mean held-out deviance per pixel (``-2 log L``, checkerboard odd pixels).
+        mean held-out deviance per pixel (``-2 log L``; each checkerboard colour
+        scored by the fit to the other).
     mismatches
         Discrepancy statistics of the base fit, most significant first.
     effects
@@ -99,7 +100,9 @@ class Diagnosis:
             "final_fit": self.final_fit,
             "evidence_threshold": self.threshold,
             "significance_units": "-log10 p",
-            "held_out_units": "mean -2 log-likelihood per held-out pixel (checkerboard)",
+            "held_out_units": (
+                "mean -2 log-likelihood per held-out pixel (checkerboard, cross-fitted)"
+            ),
             "not_tested": list(self.skipped),
         }
 
@@ -148,13 +151,11 @@ class Diagnosis:
 def _fit_summary(
     y: np.ndarray, model: FittedModel, spec: ModelSpec, design: BaseDesign, valid: np.ndarray
 ) -> dict:
-    even, odd = checkerboard(y.shape)
-    held = spec.fit(design, y, even & valid)
     chi2 = float(np.mean(((y - model.mu) ** 2 / model.var)[valid]))
     return {
         "metric": "reduced chi-square (camera variance of eq. 17)",
         "value": chi2,
-        "held_out": float(deviance(y, held, odd & valid).mean()),
+        "held_out": float(cross_fitted_deviance(design, y, valid, spec).mean()),
     }
 
 
@@ -323,7 +324,12 @@ def _params(
             "clip_level_adu": c.level_adu + design.camera.baseline_adu,
             "high": c.high,
         }
-    theta = next(t for e, t in model.effects if e is effect)
+    index = next(i for i, (e, _) in enumerate(model.effects) if e is effect)
+    theta = model.effects[index][1]
+    if effect.random_field and model.shrinkage[index] > 0:
+        # the fitted field is the free fit shrunk by s; its size is reported from the
+        # free fit times sqrt(s), which is unbiased for the field's squared norm
+        theta = theta / np.sqrt(model.shrinkage[index])
     out = effect.summary(theta, model.mu)
     if effect.name == "photobleaching":
         out["cell_intensity_adu"] = float(model.beta[0])

@@ -8,9 +8,12 @@
    ``U = sum 0.5 (r^2 / v^2 - 1 / v) dv / d theta``; clipping is an exact Poisson test
    of the pixel count at the extreme value. Evidence is ``-log10 p`` (log survival
    functions, so strong effects do not all tie at p = 0).
-2. **Held-out check**: nuisance and effect are fitted on the even pixels of a
-   checkerboard and scored on the odd ones (Gaussian log-likelihood; valid while pixel
-   noise is independent, which eq. 17 assumes).
+2. **Held-out check** (two-fold cross-fitting): nuisance and effect are fitted on the
+   even pixels of a checkerboard and scored on the odd ones, then fitted on the odd
+   and scored on the even ones, so every pixel is scored once by a fit that did not
+   see it (Gaussian log-likelihood; valid while pixel noise is independent, which
+   eq. 17 assumes). Scoring both halves instead of one halves the variance of the
+   gain's noise relative to its signal.
 3. **Calibration**: a parametric bootstrap of the held-out gain under the current model
    (simulate, refit both models, score): an effect is accepted only when its score test
    passes at ``alpha`` (Bonferroni over the candidates) *and* its held-out gain exceeds
@@ -21,7 +24,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import stats
@@ -39,7 +42,15 @@ from napari_symbac.diagnose.model import (
 )
 from napari_symbac.diagnose.statistics import neg_log10_p_chi2
 
-__all__ = ["HeldOut", "ModelSpec", "ScoreTest", "checkerboard", "held_out", "score_test"]
+__all__ = [
+    "HeldOut",
+    "ModelSpec",
+    "ScoreTest",
+    "checkerboard",
+    "cross_fitted_deviance",
+    "held_out",
+    "score_test",
+]
 
 
 def checkerboard(shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
@@ -148,7 +159,7 @@ def score_test(
     return ScoreTest(stat, dof, neg_log10_p_chi2(stat, dof))
 
 
-@dataclass
+@dataclass(frozen=True)
 class HeldOut:
     """Held-out comparison of the current model with and without a candidate."""
 
@@ -159,22 +170,26 @@ class HeldOut:
     null_sd_nats: float
     threshold_nats: float
     passed: bool
-    fitted: FittedModel | None = field(default=None, repr=False)
+
+
+def cross_fitted_deviance(
+    design: BaseDesign, y: np.ndarray, valid: np.ndarray, spec: ModelSpec
+) -> np.ndarray:
+    """Per-pixel ``-2 log L`` of ``spec`` on the ``valid`` pixels, each pixel scored by
+    the fit to the other colour of the checkerboard (two-fold cross-fitting)."""
+    even, odd = checkerboard(y.shape)
+    out = np.zeros(y.shape)
+    for train, test in ((even & valid, odd & valid), (odd & valid, even & valid)):
+        out[test] = deviance(y, spec.fit(design, y, train), test)
+    return out[valid]
 
 
 def _gain(
-    design: BaseDesign,
-    y: np.ndarray,
-    train: np.ndarray,
-    test: np.ndarray,
-    base: ModelSpec,
-    alt: ModelSpec,
-) -> tuple[float, float, float, FittedModel]:
-    m0 = base.fit(design, y, train)
-    m1 = alt.fit(design, y, train)
-    d0 = deviance(y, m0, test)
-    d1 = deviance(y, m1, test)
-    return float(d0.mean()), float(d1.mean()), 0.5 * float(d0.sum() - d1.sum()), m1
+    design: BaseDesign, y: np.ndarray, valid: np.ndarray, base: ModelSpec, alt: ModelSpec
+) -> tuple[float, float, float]:
+    d0 = cross_fitted_deviance(design, y, valid, base)
+    d1 = cross_fitted_deviance(design, y, valid, alt)
+    return float(d0.mean()), float(d1.mean()), 0.5 * float(d0.sum() - d1.sum())
 
 
 def held_out(
@@ -191,11 +206,9 @@ def held_out(
     baseline_adu: float = 0.0,
     cancel: Callable[[], bool] | None = None,
 ) -> HeldOut:
-    """Held-out gain of adding ``effect`` and its parametric-bootstrap null."""
-    even, odd = checkerboard(y.shape)
-    train, test = even & valid, odd & valid
+    """Cross-fitted held-out gain of adding ``effect`` and its parametric-bootstrap null."""
     alt = current.with_effect(effect, y)
-    before, after, gain, fitted = _gain(design, y, train, test, current, alt)
+    before, after, gain = _gain(design, y, valid, current, alt)
     null = []
     sd = np.sqrt(current_fit.var)
     for _ in range(n_bootstrap):
@@ -215,11 +228,11 @@ def held_out(
                 null.append(0.0)
                 continue
             sim_alt = ModelSpec(current.effects, current.fit_camera, censor)
-        null.append(_gain(design, sim, train, test, current, sim_alt)[2])
+        null.append(_gain(design, sim, valid, current, sim_alt)[2])
     null_arr = np.asarray(null) if null else np.zeros(1)
     mean, sdev = float(null_arr.mean()), float(null_arr.std(ddof=1)) if len(null_arr) > 1 else 0.0
     threshold = mean + float(stats.norm.isf(alpha)) * max(sdev, 1e-9)
-    return HeldOut(before, after, gain, mean, sdev, threshold, gain > max(threshold, 0.0), fitted)
+    return HeldOut(before, after, gain, mean, sdev, threshold, gain > max(threshold, 0.0))
 
 
 def rank(

@@ -11,13 +11,20 @@ __all__ = ["BackgroundTexture", "support_modes", "texture_basis"]
 
 #: Shortest wavelength of the texture basis (um) and the most basis functions.
 MIN_WAVELENGTH_UM, MAX_TERMS = 1.5, 48
-#: Pixels closer than this to a cell edge carry no texture term.
-AWAY_PX = 2.0
-#: Media pixels (away from cells) the fit needs per texture mode.
+#: Media pixels the fit needs per texture mode.
 PIXELS_PER_MODE = 300
 #: A mode is kept only if this fraction of its norm on the support is new
 #: (not a combination of the lower-frequency modes already kept).
 MIN_NEW_FRACTION = 0.3
+
+
+def _modes(shape: tuple[int, int], pixel_size_um: float) -> list[tuple[int, int]]:
+    rows, cols = shape
+    ky_max = max(1, int(2 * rows * pixel_size_um / MIN_WAVELENGTH_UM))
+    kx_max = max(1, int(2 * cols * pixel_size_um / MIN_WAVELENGTH_UM))
+    modes = [(ky, kx) for ky in range(ky_max + 1) for kx in range(kx_max + 1) if ky + kx > 2]
+    modes.sort(key=lambda m: m[0] ** 2 / max(rows, 1) ** 2 + m[1] ** 2 / max(cols, 1) ** 2)
+    return modes
 
 
 def texture_basis(shape: tuple[int, int], pixel_size_um: float) -> np.ndarray:
@@ -26,10 +33,7 @@ def texture_basis(shape: tuple[int, int], pixel_size_um: float) -> np.ndarray:
     Ordered from the lowest spatial frequency up.
     """
     rows, cols = shape
-    ky_max = max(1, int(2 * rows * pixel_size_um / MIN_WAVELENGTH_UM))
-    kx_max = max(1, int(2 * cols * pixel_size_um / MIN_WAVELENGTH_UM))
-    modes = [(ky, kx) for ky in range(ky_max + 1) for kx in range(kx_max + 1) if ky + kx > 2]
-    modes.sort(key=lambda m: m[0] ** 2 / max(rows, 1) ** 2 + m[1] ** 2 / max(cols, 1) ** 2)
+    modes = _modes(shape, pixel_size_um)
     y = (np.arange(rows) + 0.5) / rows
     x = (np.arange(cols) + 0.5) / cols
     return np.stack(
@@ -72,18 +76,24 @@ def support_modes(basis: np.ndarray, weight: np.ndarray) -> np.ndarray:
 class BackgroundTexture(Effect):
     """The media is not uniform: ``mu + P_m sum_k c_k B_k(x, y)``.
 
-    ``P_m`` is the media contribution more than 2 px from any cell and ``B_k``
-    cosine modes of wavelength 1.5 um and longer, above the second-order surface of
+    ``P_m`` is the media contribution of the base model (wherever the media shows,
+    also in the blur beside and under the cells) and ``B_k`` cosine modes of
+    wavelength 1.5 um and longer, above the second-order surface of
     ``uneven_illumination`` (so the two do not compete). Only the modes that the
-    media pixels away from the cells can tell apart are fitted
-    (:func:`support_modes`), as many as the media area supports (one per
-    ``PIXELS_PER_MODE`` pixels, at most 48): a thin strip of media in a trench
-    carries a handful of modes along the trench, an open field the full set. The
-    reported amplitude is the s.d. of the fitted relative texture over media pixels;
-    in the settings it becomes ``RenderSettings.texture_amplitude``.
+    media pixels can tell apart are fitted (:func:`support_modes`), as many as the
+    media area supports (one per ``PIXELS_PER_MODE`` pixels, at most 48): a trench's
+    media carries a dozen modes, mostly along the trench, an open field the full set.
+
+    The coefficients are a random field (:attr:`Effect.random_field`): tested by the
+    ordinary ``chi2(k)`` score test, fitted by empirical Bayes (the free fit shrunk by
+    ``1 - k / |z|^2``), so a dozen modes do not overfit the held-out check. The
+    reported amplitude is the s.d. of the relative texture over media pixels (from
+    the free fit times ``sqrt`` of the shrinkage: unbiased for the field's power); in
+    the settings it becomes ``RenderSettings.texture_amplitude``.
     """
 
     name = "background_texture"
+    random_field = True
     explanation = (
         "The background between the cells is not flat: agar, debris or uneven PDMS make a "
         "blotchy texture that the cells do not share."
@@ -93,20 +103,19 @@ class BackgroundTexture(Effect):
     def __init__(self, geometry: Geometry) -> None:
         super().__init__(geometry)
         basis = texture_basis(geometry.shape[1:], geometry.pixel_size_um)
-        # away from cell edges, so that edge dipoles (curvature, drift) are not texture
-        self._away = (geometry.distance_px > AWAY_PX).astype(np.float64)
         media = (
-            geometry.media_fraction.mean(0)
+            geometry.media_fraction.min(0)
             if geometry.media_fraction is not None
             else np.ones(geometry.shape[1:])
         )
-        self._basis = basis[support_modes(basis, self._away.min(0) * media)]
+        self._basis = basis[support_modes(basis, media)]
 
     def n_params(self) -> int:
         return len(self._basis)
 
+
     def mean(self, theta, mu, parts, geo):
-        return mu + np.tensordot(theta, self._basis, axes=1)[None] * parts[1] * self._away
+        return mu + np.tensordot(theta, self._basis, axes=1)[None] * parts[1]
 
     def summary(self, theta, mu):
         field = np.tensordot(theta, self._basis, axes=1)

@@ -42,6 +42,10 @@ class Effect:
         Only testable on a time series.
     modalities
         Modalities where the effect applies.
+    random_field
+        The parameters are many small exchangeable draws (a texture's modes): fitted
+        by empirical Bayes, shrunk towards 0 as much as the data's own score says
+        (``model.fit_model``), instead of freely.
     """
 
     name: ClassVar[str] = ""
@@ -50,6 +54,7 @@ class Effect:
     kind: ClassVar[str] = "mean"
     needs_series: ClassVar[bool] = False
     modalities: ClassVar[tuple[str, ...]] = ("phase", "fluorescence")
+    random_field: ClassVar[bool] = False
 
     def __init__(self, geometry: Geometry) -> None:
         self.geometry = geometry
@@ -80,6 +85,7 @@ class Effect:
     def clip(self, theta: np.ndarray) -> np.ndarray:
         """Keep parameters in their physical range."""
         return theta
+
 
     # ------------------------------------------------------------------ report
     def summary(self, theta: np.ndarray, mu: np.ndarray) -> dict[str, Any]:

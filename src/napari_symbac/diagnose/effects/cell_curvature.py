@@ -39,8 +39,14 @@ def _bend_fields(geometry: Geometry) -> tuple[np.ndarray, np.ndarray, np.ndarray
 class CellCurvature(Effect):
     """Each cell's centre-line bows sideways by ``a_i`` px at its middle (eq. 1).
 
-    First order: ``mu - sum_i a_i (1 - (2 s / L)^2) n_i . grad(mu)`` near cell ``i``
-    with ``s`` the position along its axis, ``L`` its length and ``n_i`` its normal.
+    First order: ``mu - (1 - I_m / I_c) sum_i a_i (1 - (2 s / L)^2) n_i . grad(C)``
+    near cell ``i``, with ``C`` the cells' part of the image (eq. 3), ``s`` the
+    position along the cell's axis, ``L`` its length and ``n_i`` its normal. Only the
+    cell moves, and the media fills where it was (hence ``1 - I_m / I_c``); the
+    gradient of the whole image ``mu`` would also move the trench walls a few pixels
+    from the cells' sides, which in phase contrast carried 85-90 % of the bend's
+    signal away (score-test non-centrality 11 instead of 73, the exact bend 74, on the
+    0.3-s.d. benchmark trench).
     """
 
     name = "cell_curvature"
@@ -63,7 +69,7 @@ class CellCurvature(Effect):
     def mean(self, theta, mu, parts, geo):
         if not len(theta):
             return mu
-        gy, gx = np.gradient(mu, axis=(1, 2))
+        gy, gx = np.gradient(parts[0] * (1.0 - self.geometry.media_per_cell), axis=(1, 2))
         shift_x = np.tensordot(theta, self._bow * self._nx, axes=1)
         shift_y = np.tensordot(theta, self._bow * self._ny, axes=1)
         return mu - shift_x * gx - shift_y * gy
