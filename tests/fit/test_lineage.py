@@ -9,6 +9,7 @@ from _series_synthetic import (
     in_view,
     lineage_relations,
     observe,
+    render_pad_series,
     render_trench_series,
     trench_simulation,
     truth_relations,
@@ -17,7 +18,7 @@ from _series_synthetic import (
 from napari_symbac.fit import LinkSettings, TrenchPlacement, fit_series, link_cells
 from napari_symbac.optics import ForwardModel
 from napari_symbac.scene import draw_scene
-from napari_symbac.settings import AgarPadGeometry, Camera, SimulationSettings
+from napari_symbac.settings import AgarPadGeometry, Camera, RenderSettings, SimulationSettings
 from napari_symbac.sim import FrameCells, simulate
 
 #: The test trench's image: 128 x 46 px of 65 nm, the trench 0.75 um from the top-left.
@@ -340,3 +341,39 @@ def test_growth_prior_gives_cells_cut_by_the_edge_their_length(trench_series):
     np.testing.assert_array_equal(tied.lineage.tracks, plain.lineage.tracks)
     with pytest.raises(ValueError, match="growth_prior_sd_um must be zero"):
         fit_series(truth.stack, truth.microscope, START, None, growth_prior_sd_um=-1.0)
+
+
+@pytest.fixture(scope="module")
+def pad_series():
+    """Frames 2-5 of a fluorescence pad (two founders apart, drifting 0.2-0.4 um per
+    frame): both founders divide after frame 1 of the four (simulator frame 3), their
+    daughters lying end to end."""
+    truth = render_pad_series(seed=1, first=2, count=4)
+    start = RenderSettings(defocus_sigma_um=0.0)
+    return truth, fit_series(truth.stack, truth.microscope, start, None, geometry="open")
+
+
+@pytest.mark.slow
+def test_just_divided_fluorescent_daughters_are_fitted_apart_and_linked(pad_series):
+    """The daughters touch end to end: the fluorescence dips at the septum (the
+    rounded poles), so the split move cuts each mother there the frame they appear,
+    and every relation to the previous frame is the simulator's."""
+    truth, fit = pad_series
+    frames = truth.simulation.frames[truth.first_frame : truth.first_frame + 4]
+    assert [len(f.cells) for f in fit.frames] == [len(c) for c in frames] == [2, 2, 4, 4]
+    assert sum("at its septum" in move for move in fit.frames[2].moves) >= 1
+    truth_ids = []
+    for frame, cells, origin in zip(fit.frames, frames, truth.origins_um):
+        distance = np.hypot(
+            frame.cells.x_um[:, None] - (cells.x_um - origin[0])[None, :],
+            frame.cells.y_um[:, None] - (cells.y_um - origin[1])[None, :],
+        )
+        nearest = distance.argmin(axis=1)
+        assert sorted(nearest.tolist()) == list(range(len(cells)))
+        assert distance.min(axis=1).max() < 0.15  # each fitted cell on its own true cell
+        truth_ids.append(cells.ids[nearest])
+    want = truth_relations(truth.simulation, truth_ids, first=truth.first_frame)
+    assert sum(len(step) for step in want) == 10
+    assert lineage_relations(fit.lineage) == want
+    assert len(fit.lineage.divisions()) == 2
+    assert fit.lineage.gaps == ()
