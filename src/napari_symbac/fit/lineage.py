@@ -26,10 +26,17 @@ spherocylinder splits into two of the same width). After the assignment, each
 mother whose division explains her and her daughters at a lower cost than the
 assignment did becomes the parent of two new tracks.
 
+A cell missed in one frame (or fitted merged with a neighbour there) keeps its
+track: the tracks that end in frame ``t - 1`` and the cells that start one in
+``t + 1`` are linked over the gap (or as a division over it) when the prediction
+two frames ahead matches (:attr:`LinkSettings.close_gaps`).
+
 The result, :class:`Lineage`, is the Cell Tracking Challenge's: a track id per
 cell and frame, and one ``L B E P`` row per track (track id, first frame, last
 frame, parent track id or 0), the format of ``man_track.txt`` that the export
-writes (:class:`~napari_symbac.export.tracking.CtcWriter`).
+writes (:class:`~napari_symbac.export.tracking.CtcWriter`); a track with a gap is
+written as the CTC does, one CTC track per stretch, each the parent of the next
+(:meth:`Lineage.ctc_labels`).
 """
 
 from __future__ import annotations
