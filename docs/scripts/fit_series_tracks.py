@@ -3,12 +3,19 @@
 Run from the repository root::
 
     python docs/scripts/fit_series_tracks.py trench
+    python docs/scripts/fit_series_tracks.py pad
     python docs/scripts/fit_series_tracks.py cli FIT_DIR IMAGE.tif OUT.png
 
 ``trench``: frames 11-14 of a simulated mother-machine run (seed 3, the run of
 ``tests/fit/test_lineage.py``) rendered with the fit tests' phase-contrast truth,
 fitted jointly with :func:`~napari_symbac.fit.fit_series`; prints the tracks found
 and the simulator's lineage, and writes ``docs/images/fit_series_tracks_trench.png``.
+
+``pad``: frames 2-5 of a simulated fluorescence agar pad (seed 1, two founders
+apart, the field drifting 0.2-0.4 um per frame; the series of
+``tests/fit/test_lineage.py``) fitted with :func:`~napari_symbac.fit.fit_series`;
+both founders divide after frame 1 into daughters lying end to end, which the septum
+split cuts apart; writes ``docs/images/fit_series_tracks_pad.png``.
 
 ``cli``: the output folder of ``napari-symbac fit IMAGE --frames ...`` (its
 ``series.json`` and each frame's ``cells.json``) drawn over the frames of the image
@@ -127,6 +134,32 @@ def trench() -> None:
          IMAGES / "fit_series_tracks_trench.png", titles)  # fmt: skip
 
 
+def pad() -> None:
+    sys.path.insert(0, str(ROOT / "tests" / "fit"))
+    from _series_synthetic import render_pad_series
+
+    from napari_symbac.fit import fit_series
+    from napari_symbac.settings import RenderSettings
+
+    truth = render_pad_series(seed=1, first=2, count=4)
+    fit = fit_series(truth.stack, truth.microscope, RenderSettings(defocus_sigma_um=0.0),
+                     None, geometry="open")  # fmt: skip
+    print("tracks (track, first, last, parent):", fit.lineage.tracks.tolist())
+    for t, frame in enumerate(fit.frames):
+        cells = truth.simulation.frames[truth.first_frame + t]
+        print(f"frame {t}: {len(frame.cells)} fitted, {len(cells)} true; moves {frame.moves}")
+    cells = [
+        [dict(zip(("x_um", "y_um", "angle_rad", "length_um", "width_um"), values))
+         for values in zip(f.cells.x_um, f.cells.y_um, f.cells.angle_rad, f.cells.length_um,
+                           f.cells.width_um)]
+        for f in fit.frames
+    ]  # fmt: skip
+    parents = {int(t): int(p) for t, _b, _e, p in fit.lineage.tracks}
+    titles = [f"frame {t} (sim. {t + truth.first_frame})" for t in range(len(fit.frames))]
+    draw(list(truth.stack), cells, fit.track_ids, parents, truth.microscope.pixel_size_um,
+         IMAGES / "fit_series_tracks_pad.png", titles)  # fmt: skip
+
+
 def from_cli(fit_dir: Path, image: Path, out: Path) -> None:
     import tifffile
 
@@ -152,6 +185,8 @@ def from_cli(fit_dir: Path, image: Path, out: Path) -> None:
 if __name__ == "__main__":
     if sys.argv[1:2] == ["trench"]:
         trench()
+    elif sys.argv[1:2] == ["pad"]:
+        pad()
     elif sys.argv[1:2] == ["cli"] and len(sys.argv) == 5:
         from_cli(Path(sys.argv[2]), Path(sys.argv[3]), Path(sys.argv[4]))
     else:

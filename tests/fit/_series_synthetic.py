@@ -9,7 +9,7 @@ from _fit_synthetic import PIXEL_UM, TRENCH, TRUTH
 
 from napari_symbac.optics import ForwardModel
 from napari_symbac.scene import draw_scene
-from napari_symbac.settings import Camera, Microscope, SimulationSettings
+from napari_symbac.settings import Camera, Microscope, SimulationSettings, TrenchGeometry
 from napari_symbac.sim import FrameCells, Simulation, simulate
 
 
@@ -130,3 +130,54 @@ def lineage_relations(lineage) -> list[dict]:
     parents = {int(t): int(p) for t, _b, _e, p in lineage.tracks}
     firsts = {int(t): int(b) for t, b, _e, _p in lineage.tracks}
     return relations(lineage.track_ids, parents, firsts)
+
+
+@dataclass(frozen=True)
+class PadTruth:
+    simulation: Simulation
+    first_frame: int
+    origins_um: np.ndarray  # (T, 2): the field's top-left corner in each frame (x, y)
+    stack: np.ndarray  # (T, 96, 96) uint16
+    microscope: Microscope
+
+
+def render_pad_series(
+    seed: int = 1, first: int = 2, count: int = 4, colonies: int = 2, noise_seed: int = 7
+) -> PadTruth:
+    """A fluorescence agar pad: two founders (``colonies=2``: about 4.5 um apart, apart;
+    1: touching) grown by the simulator (5 min frames, 0.9 um wide), seen through a
+    96 x 96 px field of 80 nm that drifts 0.2-0.4 um per frame in a random direction,
+    rendered with the fit tests' fluorescence truth and camera noise (frames ``first``
+    .. ``first + count - 1``; seed 1 frames 2-5: both founders divide after frame 3)."""
+    from _fit_synthetic import FLUO_TRUTH
+
+    from napari_symbac.scene import Field
+    from napari_symbac.settings import AgarPadGeometry
+
+    pad = AgarPadGeometry(
+        field_width_um=13.0, field_height_um=13.0, n_colonies=colonies,
+        colony_separation_um=4.5, edge_margin_um=4.0,
+    )  # fmt: skip
+    simulation = simulate(
+        SimulationSettings(
+            n_frames=first + count, geometry="agar_pad", agar_pad=pad, n_founders=2,
+            frame_interval_min=5.0, cell_width_um=0.9, seed=seed,
+        )
+    )  # fmt: skip
+    px, shape = 0.08, (96, 96)
+    microscope = Microscope(pixel_size_um=px, modality="fluorescence")
+    model = ForwardModel(microscope, FLUO_TRUTH, Camera())
+    rng = np.random.default_rng(noise_seed)
+    start = simulation.frames[first]
+    origin = np.array([start.x_um.mean(), start.y_um.mean()]) - np.array(shape[::-1]) * px / 2
+    origins, images = [], []
+    for t in range(count):
+        if t:
+            angle = rng.uniform(0, 2 * np.pi)
+            origin = origin + rng.uniform(0.2, 0.4) * np.array([np.cos(angle), np.sin(angle)])
+        origins.append(origin.copy())
+        field = Field(shape[1] * px, shape[0] * px, origin_um=(float(origin[0]), float(origin[1])))
+        cells = simulation.frames[first + t]
+        scene = draw_scene(cells, TrenchGeometry(), microscope, FLUO_TRUTH, field=field)
+        images.append(model.render(scene, rng))
+    return PadTruth(simulation, first, np.array(origins), np.stack(images), microscope)

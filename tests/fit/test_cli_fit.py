@@ -181,7 +181,8 @@ def test_frames_of_a_series_are_fitted_jointly_each_into_its_folder(
     # the second frame is the first mirrored left-right: the same three cells, same rows
     lineage = series["lineage"]
     assert lineage["tracks"] == [
-        {"track": k, "first_frame": 0, "last_frame": 1, "parent": 0} for k in (1, 2, 3)
+        {"track": k, "first_frame": 0, "last_frame": 1, "parent": 0, "missing_frames": []}
+        for k in (1, 2, 3)
     ]
     rows = {}
     for frame in ("0", "1"):

@@ -9,6 +9,7 @@ from _series_synthetic import (
     in_view,
     lineage_relations,
     observe,
+    render_pad_series,
     render_trench_series,
     trench_simulation,
     truth_relations,
@@ -17,7 +18,7 @@ from _series_synthetic import (
 from napari_symbac.fit import LinkSettings, TrenchPlacement, fit_series, link_cells
 from napari_symbac.optics import ForwardModel
 from napari_symbac.scene import draw_scene
-from napari_symbac.settings import AgarPadGeometry, Camera, SimulationSettings
+from napari_symbac.settings import AgarPadGeometry, Camera, RenderSettings, SimulationSettings
 from napari_symbac.sim import FrameCells, simulate
 
 #: The test trench's image: 128 x 46 px of 65 nm, the trench 0.75 um from the top-left.
@@ -117,15 +118,138 @@ def test_every_link_and_division_of_a_drifting_colony_is_found(seed):
     np.testing.assert_allclose(lineage.drift_um, -np.diff(origin, axis=0), atol=0.5)
 
 
-def test_a_frame_without_cells_ends_every_track():
+def test_a_frame_without_cells_is_a_gap_in_every_track():
     cells = FrameCells(
         ids=[1, 2], x_um=[2.0, 5.0], y_um=[3.0, 3.0], angle_rad=[0.0, 0.0],
         length_um=[2.5, 2.5], width_um=[0.9, 0.9],
     )  # fmt: skip
-    lineage = link_cells([cells, FrameCells.empty(), cells], image_size_um=(8.0, 8.0))
-    assert [ids.tolist() for ids in lineage.track_ids] == [[1, 2], [], [3, 4]]
-    assert lineage.tracks.tolist() == [[1, 0, 0, 0], [2, 0, 0, 0], [3, 2, 2, 0], [4, 2, 2, 0]]
-    assert lineage.ctc_text() == "1 0 0 0\n2 0 0 0\n3 2 2 0\n4 2 2 0\n"
+    frames = [cells, FrameCells.empty(), cells]
+    lineage = link_cells(frames, image_size_um=(8.0, 8.0))
+    assert [ids.tolist() for ids in lineage.track_ids] == [[1, 2], [], [1, 2]]
+    assert lineage.tracks.tolist() == [[1, 0, 2, 0], [2, 0, 2, 0]]
+    assert lineage.gaps == ((1, 1), (2, 1))
+    # CTC: a track is present from its first to its last frame, so the stretch after
+    # the gap is a new label whose parent is the stretch before it
+    assert lineage.ctc_text() == "1 0 0 0\n2 0 0 0\n3 2 2 1\n4 2 2 2\n"
+    assert [ids.tolist() for ids in lineage.ctc_labels()[1]] == [[1, 2], [], [3, 4]]
+    assert lineage.table()[0]["missing_frames"] == [1]
+    assert lineage.table(frames=[10, 11, 12])[0] == {
+        "track": 1, "first_frame": 10, "last_frame": 12, "parent": 0, "missing_frames": [11]
+    }  # fmt: skip
+    # without gap closing, every track ends there
+    plain = link_cells(frames, LinkSettings(close_gaps=False), image_size_um=(8.0, 8.0))
+    assert [ids.tolist() for ids in plain.track_ids] == [[1, 2], [], [3, 4]]
+    assert plain.tracks.tolist() == [[1, 0, 0, 0], [2, 0, 0, 0], [3, 2, 2, 0], [4, 2, 2, 0]]
+    assert plain.ctc_text() == "1 0 0 0\n2 0 0 0\n3 2 2 0\n4 2 2 0\n"
+    assert plain.gaps == ()
+
+
+def _drop(observed, truth_ids, simulation, every: int = 3):
+    """Every ``every``-th frame loses one cell that neither was born in it nor divides
+    after it (a cell the fit missed); returns the frames and the ``(frame, id)`` dropped."""
+    frames, ids, dropped = list(observed), list(truth_ids), []
+    for t in range(2, len(observed) - 2, every):
+        keep = [
+            k for k, c in enumerate(truth_ids[t].tolist())
+            if c in truth_ids[t - 1] and c in truth_ids[t + 1]
+            and simulation.lineage[c].end_frame > t + 1
+        ]  # fmt: skip
+        if not keep:
+            continue
+        k = keep[len(keep) // 2]
+        mask = np.arange(len(observed[t])) != k
+        cells = observed[t]
+        frames[t] = FrameCells(
+            ids=cells.ids[mask], x_um=cells.x_um[mask], y_um=cells.y_um[mask],
+            angle_rad=cells.angle_rad[mask], length_um=cells.length_um[mask],
+            width_um=cells.width_um[mask],
+        )  # fmt: skip
+        ids[t] = truth_ids[t][mask]
+        dropped.append((t, int(truth_ids[t][k])))
+    return frames, ids, dropped
+
+
+def _same_identities(a, ids_a, b, ids_b):
+    """Whether two lineages give the same cells the same tracks and parents (up to the
+    tracks' numbering), over the cells present in both."""
+    pairs = {}
+    for t in range(len(a.track_ids)):
+        for cell, track in zip(ids_b[t].tolist(), b.track_ids[t].tolist()):
+            other = a.track_ids[t][ids_a[t].tolist().index(cell)]
+            if pairs.setdefault(int(other), track) != track:
+                return False
+    if len(set(pairs.values())) != len(pairs):
+        return False
+    return all(
+        b.parent(pairs[track]) == (pairs[a.parent(track)] if a.parent(track) else 0)
+        for track in pairs
+    )
+
+
+def _write_ctc(lineage, frames, folder, pixel_um: float = 0.2):
+    """A CTC result folder: each cell a 3 x 3 px square at its centre, labelled as
+    :meth:`Lineage.track_mask` labels it."""
+    import tifffile
+
+    folder.mkdir(parents=True)
+    for t, cells in enumerate(frames):
+        labels = np.zeros((200, 200), np.int64)
+        for i, x, y in zip(cells.ids, cells.x_um, cells.y_um):
+            r, c = int(np.clip(y / pixel_um, 1, 198)), int(np.clip(x / pixel_um, 1, 198))
+            labels[r - 1 : r + 2, c - 1 : c + 2] = i
+        tifffile.imwrite(folder / f"mask{t:03d}.tif", lineage.track_mask(t, labels, cells.ids))
+    (folder / "res_track.txt").write_text(lineage.ctc_text())
+
+
+@pytest.mark.parametrize("where", ["trench", "colony"])
+def test_a_cell_missed_in_one_frame_keeps_its_track(where, tmp_path):
+    """The cells as a fit reports them, one cell left out every third frame: each such
+    track skips that frame (a gap) instead of ending, and every other identity, link and
+    division is as without the misses; the CTC result passes py-ctcmetrics' validator."""
+    import contextlib
+    import io
+
+    from ctc_metrics import validate_sequence
+
+    rng = np.random.default_rng(4)
+    if where == "trench":
+        simulation = trench_simulation(seed=1, n_frames=30)
+        offset = (TRENCH.margin_um, TRENCH.margin_um)
+        observed, truth_ids = observe(simulation.frames, rng, offset, noise_um=0.05)
+        options = {"trench": [PLACEMENT] * len(observed), "image_size_um": IMAGE_UM}
+    else:
+        pad = AgarPadGeometry(
+            field_width_um=24.0, field_height_um=24.0, n_colonies=3, scattered_cells=2,
+            colony_separation_um=6.0, edge_margin_um=4.0,
+        )  # fmt: skip
+        simulation = simulate(SimulationSettings(
+            n_frames=14, geometry="agar_pad", agar_pad=pad, n_founders=3,
+            frame_interval_min=5.0, cell_width_um=0.9, seed=1,
+        ))  # fmt: skip
+        origin = 4.0 + np.cumsum(np.r_[[[0, 0]], np.full((13, 2), [0.3, -0.2])], axis=0)
+        observed, truth_ids = observe(in_view(simulation.frames, origin, (16.0, 16.0)), rng,
+                                      noise_um=0.05)  # fmt: skip
+        options = {"image_size_um": (16.0, 16.0)}
+    complete = link_cells(observed, **options)
+    frames, ids, dropped = _drop(observed, truth_ids, simulation)
+    assert len(dropped) >= 4
+    gappy = link_cells(frames, **options)
+    assert _same_identities(complete, truth_ids, gappy, ids)
+    gaps = []
+    for t, cell in dropped:
+        before = gappy.track_ids[t - 1][ids[t - 1].tolist().index(cell)]
+        after = gappy.track_ids[t + 1][ids[t + 1].tolist().index(cell)]
+        assert before == after  # the same track on both sides of the miss
+        gaps.append((int(before), t))
+    assert sorted(gaps) == list(gappy.gaps)
+    # without gap closing, each miss ends a track and starts another
+    plain = link_cells(frames, LinkSettings(close_gaps=False), **options)
+    assert len(plain.tracks) == len(gappy.tracks) + len(dropped)
+    rows, _labels = gappy.ctc_labels()
+    assert len(rows) == len(gappy.tracks) + len(dropped)
+    _write_ctc(gappy, frames, tmp_path / "01_RES")
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert validate_sequence(str(tmp_path / "01_RES"), threads=1)["Valid"] == 1
 
 
 def test_bad_link_settings_and_inputs_are_refused():
@@ -217,3 +341,39 @@ def test_growth_prior_gives_cells_cut_by_the_edge_their_length(trench_series):
     np.testing.assert_array_equal(tied.lineage.tracks, plain.lineage.tracks)
     with pytest.raises(ValueError, match="growth_prior_sd_um must be zero"):
         fit_series(truth.stack, truth.microscope, START, None, growth_prior_sd_um=-1.0)
+
+
+@pytest.fixture(scope="module")
+def pad_series():
+    """Frames 2-5 of a fluorescence pad (two founders apart, drifting 0.2-0.4 um per
+    frame): both founders divide after frame 1 of the four (simulator frame 3), their
+    daughters lying end to end."""
+    truth = render_pad_series(seed=1, first=2, count=4)
+    start = RenderSettings(defocus_sigma_um=0.0)
+    return truth, fit_series(truth.stack, truth.microscope, start, None, geometry="open")
+
+
+@pytest.mark.slow
+def test_just_divided_fluorescent_daughters_are_fitted_apart_and_linked(pad_series):
+    """The daughters touch end to end: the fluorescence dips at the septum (the
+    rounded poles), so the split move cuts each mother there the frame they appear,
+    and every relation to the previous frame is the simulator's."""
+    truth, fit = pad_series
+    frames = truth.simulation.frames[truth.first_frame : truth.first_frame + 4]
+    assert [len(f.cells) for f in fit.frames] == [len(c) for c in frames] == [2, 2, 4, 4]
+    assert sum("at its septum" in move for move in fit.frames[2].moves) >= 1
+    truth_ids = []
+    for frame, cells, origin in zip(fit.frames, frames, truth.origins_um):
+        distance = np.hypot(
+            frame.cells.x_um[:, None] - (cells.x_um - origin[0])[None, :],
+            frame.cells.y_um[:, None] - (cells.y_um - origin[1])[None, :],
+        )
+        nearest = distance.argmin(axis=1)
+        assert sorted(nearest.tolist()) == list(range(len(cells)))
+        assert distance.min(axis=1).max() < 0.15  # each fitted cell on its own true cell
+        truth_ids.append(cells.ids[nearest])
+    want = truth_relations(truth.simulation, truth_ids, first=truth.first_frame)
+    assert sum(len(step) for step in want) == 10
+    assert lineage_relations(fit.lineage) == want
+    assert len(fit.lineage.divisions()) == 2
+    assert fit.lineage.gaps == ()

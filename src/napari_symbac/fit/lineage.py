@@ -26,10 +26,17 @@ spherocylinder splits into two of the same width). After the assignment, each
 mother whose division explains her and her daughters at a lower cost than the
 assignment did becomes the parent of two new tracks.
 
+A cell missed in one frame (or fitted merged with a neighbour there) keeps its
+track: the tracks that end in frame ``t - 1`` and the cells that start one in
+``t + 1`` are linked over the gap (or as a division over it) when the prediction
+two frames ahead matches (:attr:`LinkSettings.close_gaps`).
+
 The result, :class:`Lineage`, is the Cell Tracking Challenge's: a track id per
 cell and frame, and one ``L B E P`` row per track (track id, first frame, last
 frame, parent track id or 0), the format of ``man_track.txt`` that the export
-writes (:class:`~napari_symbac.export.tracking.CtcWriter`).
+writes (:class:`~napari_symbac.export.tracking.CtcWriter`); a track with a gap is
+written as the CTC does, one CTC track per stretch, each the parent of the next
+(:meth:`Lineage.ctc_labels`).
 """
 
 from __future__ import annotations
@@ -90,6 +97,13 @@ class LinkSettings:
     growth_per_frame
         Length ratio ``L(t + 1) / L(t)`` of a growing cell; ``None``: measured as the
         median ratio of the linked cells (starting from 1).
+    close_gaps
+        Link over one missing frame: a track that ends in frame ``t - 1`` goes on
+        with a cell that starts a track in ``t + 1`` (or divides into two of them)
+        when the cell's prediction two frames ahead matches (scatter widened by
+        ``sqrt 2``, same gates) at a cost below ``unlinked_cost``
+        (the missing frame's price): a cell missed, or fitted merged with a neighbour,
+        in one frame keeps its track.
     """
 
     position_sd_um: float = 0.25
@@ -102,6 +116,7 @@ class LinkSettings:
     exit_margin_um: float = 0.5
     max_drift_um: float = 3.0
     growth_per_frame: float | None = None
+    close_gaps: bool = True
 
     def __post_init__(self) -> None:
         for name in (
@@ -147,7 +162,11 @@ class Lineage:
         and between frames that share no cell).
     link_costs
         One array per pair of frames: the cost of each accepted link of a cell of
-        frame ``t + 1`` to its predecessor (NaN for a new track).
+        frame ``t + 1`` to its predecessor (NaN for a new track; the cost of the link
+        over the gap for a cell whose track skipped frame ``t``).
+    gaps
+        ``(track, frame)`` of each frame that a track skips (:attr:`LinkSettings.close_gaps`):
+        the track is in the frames before and after but not in this one.
     """
 
     track_ids: tuple[np.ndarray, ...]
@@ -155,6 +174,7 @@ class Lineage:
     growth_per_frame: float
     drift_um: np.ndarray = field(repr=False)
     link_costs: tuple[np.ndarray, ...] = field(default=(), repr=False)
+    gaps: tuple[tuple[int, int], ...] = ()
 
     def parent(self, track_id: int) -> int:
         """Parent track of ``track_id`` (0: none)."""
@@ -171,32 +191,93 @@ class Lineage:
                 out.setdefault(parent, []).append(track)
         return {k: tuple(v) for k, v in out.items()}
 
-    def table(self) -> list[dict[str, int]]:
-        """The tracks as records (JSON): ``track``, ``first_frame``, ``last_frame``, ``parent``."""
+    def table(self, frames: Sequence[int] | None = None) -> list[dict]:
+        """The tracks as records (JSON): ``track``, ``first_frame``, ``last_frame``,
+        ``parent``, ``missing_frames`` (the frames a track skips, see :attr:`gaps`).
+
+        ``frames``: the recording's frame number of each frame of the series (default:
+        0, 1, ...), used for every frame of the records.
+        """
+        number = (lambda k: int(k)) if frames is None else (lambda k: int(frames[k]))
+        missing: dict[int, list[int]] = {}
+        for track, t in self.gaps:
+            missing.setdefault(track, []).append(number(t))
         return [
-            {"track": t, "first_frame": b, "last_frame": e, "parent": p}
+            {"track": t, "first_frame": number(b), "last_frame": number(e), "parent": p,
+             "missing_frames": missing.get(t, [])}
             for t, b, e, p in self.tracks.tolist()
-        ]
+        ]  # fmt: skip
+
+    def ctc_labels(self) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+        """The tracks as the Cell Tracking Challenge writes them.
+
+        A CTC track is present in every frame from its first to its last, so a track
+        that skips a frame (:attr:`gaps`) is written as one CTC track per stretch: the
+        first keeps the track's id, each later one gets a new label (above every track
+        id) whose parent is the stretch before it (the CTC's way of writing a gap), and
+        daughters name the last stretch as their parent. Without gaps the labels are
+        the track ids.
+
+        Returns
+        -------
+        rows, labels
+            ``(K, 4)`` int64 ``L B E P`` rows, and per frame the CTC label of each cell
+            (same order as :attr:`track_ids`).
+        """
+        skipped: dict[int, list[int]] = {}
+        for track, t in self.gaps:
+            skipped.setdefault(track, []).append(t)
+        next_label = int(self.tracks[:, 0].max(initial=0)) + 1
+        stretches: dict[int, list[tuple[int, int, int]]] = {}  # track: (label, first, last)
+        for track, first, last, _parent in self.tracks.tolist():
+            bounds, begin = [], first
+            for t in sorted(skipped.get(track, [])):
+                bounds.append((begin, t - 1))
+                begin = t + 1
+            bounds.append((begin, last))
+            labels = [track, *range(next_label, next_label + len(bounds) - 1)]
+            next_label += len(bounds) - 1
+            stretches[track] = [(k, b, e) for k, (b, e) in zip(labels, bounds)]
+        rows = []
+        for track, _first, _last, parent in self.tracks.tolist():
+            before = stretches[parent][-1][0] if parent else 0
+            for label, b, e in stretches[track]:
+                rows.append((label, b, e, before))
+                before = label
+        per_frame = []
+        for t, ids in enumerate(self.track_ids):
+            per_frame.append(
+                np.array(
+                    [next(k for k, b, e in stretches[int(i)] if b <= t <= e) for i in ids],
+                    np.int64,
+                )
+            )
+        table = np.array(sorted(rows), np.int64).reshape(-1, 4)
+        return table, tuple(per_frame)
 
     def ctc_text(self) -> str:
-        """The tracks as ``res_track.txt``: one ``L B E P`` line per track."""
-        return "".join(f"{t} {b} {e} {p}\n" for t, b, e, p in self.tracks.tolist())
+        """The tracks as ``res_track.txt``: one ``L B E P`` line per CTC track
+        (:meth:`ctc_labels`)."""
+        return "".join(f"{t} {b} {e} {p}\n" for t, b, e, p in self.ctc_labels()[0].tolist())
 
     def track_mask(self, t: int, labels: np.ndarray, cell_ids: np.ndarray) -> np.ndarray:
-        """Frame ``t``'s instance mask relabelled from cell ids to track ids (uint16).
+        """Frame ``t``'s instance mask relabelled from cell ids to CTC labels (uint16).
 
         ``labels`` holds ``cell_ids`` (e.g. ``SceneFit.scene.camera_labels()`` and
-        ``SceneFit.cells.ids``); the result is a Cell Tracking Challenge ``mask{t}.tif``.
+        ``SceneFit.cells.ids``); the result is a Cell Tracking Challenge ``mask{t}.tif``
+        whose labels are those of :meth:`ctc_text` (the track ids, except for the
+        stretches after a gap, :meth:`ctc_labels`).
         """
         cell_ids = np.asarray(cell_ids, np.int64)
         if cell_ids.shape != self.track_ids[t].shape:
             raise ValueError(
                 f"frame {t} has {self.track_ids[t].size} tracked cells but {cell_ids.size} ids"
             )
-        if self.tracks.size and self.tracks[:, 0].max() > np.iinfo(np.uint16).max:
+        rows, ctc = self.ctc_labels()
+        if rows.size and rows[:, 0].max() > np.iinfo(np.uint16).max:
             raise ValueError("more than 65535 tracks do not fit a uint16 mask")
         lookup = np.zeros(int(max(labels.max(initial=0), cell_ids.max(initial=0))) + 1, np.uint16)
-        lookup[cell_ids] = self.track_ids[t]
+        lookup[cell_ids] = ctc[t]
         return lookup[np.asarray(labels, np.int64)]
 
 
@@ -635,7 +716,106 @@ def link_cells(
                 drift[t] = drift[t] + np.median(shift, axis=0) if shift.size else 0.0
         if s.growth_per_frame is None and ratios:
             growth = float(np.clip(np.median(ratios), 0.5, 2.0))
-    return _lineage(frames, steps, growth, drift)
+    gaps = _close_gaps(frames, steps, growth, drift, trench, size, s) if s.close_gaps else []
+    return _lineage(frames, steps, growth, drift, gaps)
+
+
+@dataclass(frozen=True)
+class _GapLink:
+    """Cell ``cell`` of frame ``t - 1`` goes on as ``after`` (one cell: the same track;
+    two: her daughters) in frame ``t + 1``, skipping frame ``t``."""
+
+    t: int
+    cell: int
+    after: tuple[int, ...]
+    cost: float
+
+
+def _take(pred: _Predicted, index: list[int]) -> _Predicted:
+    return dataclasses.replace(
+        pred,
+        centre=pred.centre[index],
+        length_um=pred.length_um[index],
+        width_um=pred.width_um[index],
+        angle_rad=pred.angle_rad[index],
+        leaving=pred.leaving[index],
+    )
+
+
+def _subset(cells: FrameCells, index: list[int]) -> FrameCells:
+    return FrameCells(
+        ids=cells.ids[index], x_um=cells.x_um[index], y_um=cells.y_um[index],
+        angle_rad=cells.angle_rad[index], length_um=cells.length_um[index],
+        width_um=cells.width_um[index],
+    )  # fmt: skip
+
+
+def _close_gaps(
+    frames: list[FrameCells],
+    steps: list[_Step],
+    growth: float,
+    drift: np.ndarray,
+    trench,
+    size_um: tuple[float, float],
+    s: LinkSettings,
+) -> list[_GapLink]:
+    """Links and divisions over one missing frame (:attr:`LinkSettings.close_gaps`).
+
+    For each frame ``t``: the tracks that end in ``t - 1`` (no link, no division;
+    also those near the edge, which end for free) and the cells of ``t + 1`` that start a track
+    are compared as one frame pair, the cells of ``t - 1`` predicted two frames ahead
+    (growth ``g^2``, the two drifts, the placements of ``t - 1`` and ``t + 1``) with
+    the scatter widened by ``sqrt 2``. A link or a division over the gap replaces an
+    end and one or two starts (``unlinked_cost`` each) by its cost plus the price of
+    the missing frame (``unlinked_cost``); the best of them are taken greedily while
+    they lower the total.
+    """
+    root2 = math.sqrt(2.0)
+    wide = dataclasses.replace(
+        s,
+        position_sd_um=s.position_sd_um * root2,
+        length_sd_um=s.length_sd_um * root2,
+        angle_sd_rad=s.angle_sd_rad * root2,
+    )
+    out: list[_GapLink] = []
+    for t in range(1, len(frames) - 1):
+        before, after = steps[t - 1], steps[t]
+        ended = [
+            i for i in range(len(frames[t - 1])) if before.match[i] < 0 and i not in before.split
+        ]
+        explained = set(after.match[after.match >= 0].tolist())
+        explained.update(j for pair in after.split.values() for j in pair)
+        started = [j for j in range(len(frames[t + 1])) if j not in explained]
+        if not ended or not started:
+            continue
+        pair = None
+        if trench is not None and trench[t - 1] is not None and trench[t + 1] is not None:
+            pair = (trench[t - 1], trench[t + 1])
+        shift = drift[t - 1] + drift[t]
+        full = _predict(frames[t - 1], growth**2, pair, shift, size_um, s.exit_margin_um)
+        pred = _take(full, ended)
+        nxt = _subset(frames[t + 1], started)
+        cost = _link_costs(pred, nxt, wide)
+        options = [
+            (float(cost[a, b]) - s.unlinked_cost, a, (int(b),), float(cost[a, b]))
+            for a, b in zip(*np.nonzero(np.isfinite(cost)))
+        ]
+        options += [
+            (c - 2 * s.unlinked_cost, k, daughters, c)
+            for k, daughters, c in _division_candidates(pred, nxt, wide)
+            if len(daughters) == 2
+        ]
+        taken_a: set[int] = set()
+        taken_b: set[int] = set()
+        for gain, a, daughters, c in sorted(options):
+            if gain >= 0:
+                break
+            if a in taken_a or taken_b.intersection(daughters):
+                continue
+            taken_a.add(a)
+            taken_b.update(daughters)
+            out.append(_GapLink(t, ended[a], tuple(started[d] for d in daughters), c))
+    return out
 
 
 def _shift_candidates(before: FrameCells, after: FrameCells, s: LinkSettings) -> list[np.ndarray]:
@@ -669,14 +849,20 @@ def _shift_candidates(before: FrameCells, after: FrameCells, s: LinkSettings) ->
 
 
 def _lineage(
-    frames: list[FrameCells], steps: list[_Step], growth: float, drift: np.ndarray
+    frames: list[FrameCells],
+    steps: list[_Step],
+    growth: float,
+    drift: np.ndarray,
+    gap_links: Sequence[_GapLink] = (),
 ) -> Lineage:
-    """Track ids from the links: a link keeps the id, a division or a start opens new ones."""
+    """Track ids from the links: a link keeps the id, a division or a start opens new
+    ones; a link over a gap keeps the id of the cell two frames before."""
     ids: list[np.ndarray] = [np.arange(1, len(frames[0]) + 1, dtype=np.int64)]
     first = {int(k): 0 for k in ids[0]}
     last = dict(first)
     parent = dict.fromkeys(first, 0)
     costs = []
+    gaps: list[tuple[int, int]] = []
     next_id = len(frames[0]) + 1
     for t, step in enumerate(steps):
         cost, match, split = step.cost, step.match, step.split
@@ -691,6 +877,17 @@ def _lineage(
                 now[j] = next_id
                 parent[next_id] = int(ids[t][k])
                 next_id += 1
+        for gap in (g for g in gap_links if g.t == t):  # from frame t - 1 to t + 1
+            track = int(ids[t - 1][gap.cell])
+            if len(gap.after) == 1:
+                now[gap.after[0]] = track
+                link_cost[gap.after[0]] = gap.cost
+                gaps.append((track, t))
+                continue
+            for j in sorted(gap.after):
+                now[j] = next_id
+                parent[next_id] = track
+                next_id += 1
         for j in np.flatnonzero(now == 0):
             now[j] = next_id
             parent[next_id] = 0
@@ -703,4 +900,4 @@ def _lineage(
     tracks = np.array(
         [[k, first[k], last[k], parent[k]] for k in sorted(first)], np.int64
     ).reshape(-1, 4)
-    return Lineage(tuple(ids), tracks, float(growth), drift, tuple(costs))
+    return Lineage(tuple(ids), tracks, float(growth), drift, tuple(costs), tuple(sorted(gaps)))

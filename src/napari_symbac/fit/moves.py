@@ -60,6 +60,7 @@ class _Context:
     dispersion: float
     log: list[str] = field(default_factory=list)
     history: list[tuple[str, float, float]] = field(default_factory=list)
+    refused: list[tuple[str, float, float, float]] = field(default_factory=list)
 
     def near(self, kind: str, x: float, y: float, radius_um: float = 0.6) -> bool:
         """Whether a move of ``kind`` was accepted within ``radius_um`` of ``(x, y)``."""
@@ -68,6 +69,17 @@ class _Context:
     def accept(self, kind: str, x: float, y: float, message: str) -> None:
         self.history.append((kind, x, y))
         self.log.append(message)
+
+    def reject(self, kind: str, x: float, y: float, offset_um: float) -> None:
+        """Remember a refused proposal (not tried again at the same place)."""
+        self.refused.append((kind, x, y, offset_um))
+
+    def tried(self, kind: str, x: float, y: float, offset_um: float) -> bool:
+        """Whether a proposal of ``kind`` was refused within 0.3 um of this one."""
+        return any(
+            k == kind and math.hypot(x - a, y - b) < 0.3 and abs(offset_um - o) < 0.3
+            for k, a, b, o in self.refused
+        )
 
 
 def dispersion(
@@ -168,7 +180,9 @@ def _accept(problem: Problem, state: State, trial: State, dn: int, ctx: _Context
     return (trial.cost - state.cost) / phi + dn * problem.bic_per_cell < 0
 
 
-def _remove_pass(problem: Problem, state: State, ctx: _Context) -> tuple[State, bool]:
+def _remove_pass(
+    problem: Problem, state: State, ctx: _Context, _polarity: str = ""
+) -> tuple[State, bool]:
     blocks, shared = problem.blocks(state.x)
     n = len(blocks)
     if n <= 1:
@@ -185,7 +199,9 @@ def _remove_pass(problem: Problem, state: State, ctx: _Context) -> tuple[State, 
     return best[1], True
 
 
-def _merge_pass(problem: Problem, state: State, ctx: _Context) -> tuple[State, bool]:
+def _merge_pass(
+    problem: Problem, state: State, ctx: _Context, _polarity: str = ""
+) -> tuple[State, bool]:
     blocks, shared = problem.blocks(state.x)
     n = len(blocks)
     width = shared[0]
@@ -213,7 +229,78 @@ def _merge_pass(problem: Problem, state: State, ctx: _Context) -> tuple[State, b
     return state, False
 
 
-def _split_pass(problem: Problem, state: State, ctx: _Context) -> tuple[State, bool]:
+#: A septum is proposed where the rod's model exceeds the image by this many noise
+#: s.d. of the mean over a strip across the axis (the window of :func:`septum_along`),
+#: the s.d. widened by the residual's dispersion.
+SEPTUM_Z = 4.0
+
+
+def septum_along(
+    problem: Problem, state: State, block: np.ndarray, polarity: str
+) -> tuple[float, float]:
+    """Where along a rod the image falls short of its model most: a septum.
+
+    Two daughters lying end to end fitted as one rod: at the septum the rounded
+    poles thin the cells (the chord ``2 sqrt(r^2 - d^2)`` of eq. OPL2 falls to 0 at
+    the pole), so the image there holds less cell than a rod's uniform middle, and
+    the standardised residual, signed so that positive is "less cell than the
+    model" (fluorescence: darker, phase: brighter), peaks there. It is averaged
+    over a strip across the axis (half the width wide, two pixels long) at every
+    half pixel along the axis, leaving each side at least 0.6 widths of rod.
+
+    Returns
+    -------
+    offset_um, z
+        The peak's distance from the rod's centre along its axis (towards the pole at
+        ``+axis``) and the strip's mean residual times the square root of its pixels
+        (a noise s.d. of about 1 for white noise); ``(0, 0)`` for a rod too short.
+    """
+    rows, cols = problem.shape
+    px = problem.microscope.pixel_size_um
+    width = problem.blocks(state.x)[1][0]
+    sign = -1.0 if polarity == "dark" else 1.0
+    short = -sign * (problem.y - state.mu) * np.sqrt(problem.w)
+    cx, cy, angle, length = block[:4]
+    reach = length / 2 - 0.6 * width
+    if reach <= px:
+        return 0.0, 0.0
+    u = np.array([math.sin(angle), math.cos(angle)])
+    n = np.array([u[1], -u[0]])
+    along = np.arange(-reach, reach + 1e-9, px / 2)
+    across = np.linspace(-width / 4, width / 4, max(round(width / 2 / px) + 1, 2))
+    ahead = np.array([-px / 2, 0.0, px / 2])
+    points = (
+        np.array([cx, cy])[None, None, None, :]
+        + along[:, None, None, None] * u
+        + ahead[None, :, None, None] * u
+        + across[None, None, :, None] * n
+    )
+    coords = [points[..., 1].ravel() / px - 0.5, points[..., 0].ravel() / px - 0.5]
+    z = ndimage.map_coordinates(short.reshape(rows, cols), coords, order=1, mode="nearest")
+    strip = z.reshape(along.size, -1).mean(axis=1)
+    # pixels in one strip: its area over a pixel's (independent noise per pixel)
+    pixels = max((2 * px) * (width / 2) / px**2, 1.0)
+    k = int(np.argmax(strip))
+    return float(along[k]), float(strip[k] * math.sqrt(pixels))
+
+
+def _split_at(blocks: np.ndarray, i: int, offset_um: float) -> np.ndarray:
+    """Rod ``i`` cut in two at ``offset_um`` from its centre along its axis."""
+    p, q = _poles(blocks[i])
+    length = float(np.hypot(*(q - p)))
+    u = (q - p) / max(length, 1e-9)
+    # _poles: p is the pole at -axis; the axis of septum_along points from p to q
+    cut = (p + q) / 2 + offset_um * u
+    gap = 0.05 * u
+    a, b = _rod(p, cut - gap, blocks[i]), _rod(cut + gap, q, blocks[i])
+    return np.insert(np.delete(blocks, i, axis=0), i, [a, b], axis=0)
+
+
+def _split_pass(
+    problem: Problem, state: State, ctx: _Context, polarity: str = "bright"
+) -> tuple[State, bool]:
+    """Split a rod in two: where its image shows a septum, or at mid-length if it is
+    much longer than the others (both accepted by the BIC alone)."""
     blocks, shared = problem.blocks(state.x)
     n = len(blocks)
     if n == 0:
@@ -221,21 +308,27 @@ def _split_pass(problem: Problem, state: State, ctx: _Context) -> tuple[State, b
     width = shared[0]
     limit = 1.6 * float(np.median(blocks[:, 3]))
     for i in np.argsort(-blocks[:, 3], kind="stable"):
-        threshold = max(limit, 2.2 * width) if n > 1 else 2.2 * width
-        if blocks[i, 3] < threshold:
-            continue
-        if ctx.near("merge", blocks[i, 0], blocks[i, 1]):
+        x, y = blocks[i, :2]
+        if ctx.near("merge", x, y):
             continue  # no undoing a merge
-        p, q = _poles(blocks[i])
-        mid = (p + q) / 2
-        gap = 0.05 * (q - p) / max(np.hypot(*(q - p)), 1e-9)
-        a, b = _rod(p, mid - gap, blocks[i]), _rod(mid + gap, q, blocks[i])
-        trial_blocks = np.insert(np.delete(blocks, i, axis=0), i, [a, b], axis=0)
-        trial = _try(problem, state, trial_blocks, shared, [int(i), int(i) + 1], ctx)
-        if _accept(problem, state, trial, +1, ctx):
-            x, y = blocks[i, :2]
-            ctx.accept("split", x, y, f"split the cell at ({x:.2f}, {y:.2f}) um")
-            return trial, True
+        threshold = max(limit, 2.2 * width) if n > 1 else 2.2 * width
+        cuts = []
+        offset, z = septum_along(problem, state, blocks[i], polarity)
+        if z > SEPTUM_Z * math.sqrt(ctx.dispersion) and not ctx.tried("septum", x, y, offset):
+            cuts.append(("septum", offset))
+        if blocks[i, 3] >= threshold and not (cuts and abs(offset) < 0.1):
+            cuts.append(("middle", 0.0))
+        for kind, offset in cuts:
+            trial_blocks = _split_at(blocks, int(i), offset)
+            trial = _try(problem, state, trial_blocks, shared, [int(i), int(i) + 1], ctx)
+            if _accept(problem, state, trial, +1, ctx):
+                where = f" at its septum ({offset:+.2f} um from its centre)" * (
+                    kind == "septum"
+                )
+                ctx.accept("split", x, y, f"split the cell at ({x:.2f}, {y:.2f}) um{where}")
+                return trial, True
+            if kind == "septum":
+                ctx.reject("septum", x, y, offset)
     return state, False
 
 
@@ -315,7 +408,7 @@ def improve_scene(
     ctx = _Context(dispersion(problem, state))
     for _ in range(max_moves):
         for move in (_remove_pass, _merge_pass, _split_pass):
-            state, changed = move(problem, state, ctx)
+            state, changed = move(problem, state, ctx, polarity)
             if changed:
                 break
         else:
