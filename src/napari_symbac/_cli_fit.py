@@ -486,11 +486,7 @@ def _fit_frames_jointly(
         "camera": None if series.camera is None else dataclasses.asdict(series.camera),
         "warnings": list(series.warnings),
         "lineage": {
-            "tracks": [
-                {**row, "first_frame": frames[row["first_frame"]],
-                 "last_frame": frames[row["last_frame"]]}
-                for row in lineage.table()
-            ],
+            "tracks": lineage.table(frames),
             "track_ids": {str(f): ids.tolist() for f, ids in zip(frames, lineage.track_ids)},
             "growth_per_frame": lineage.growth_per_frame,
             "drift_um": lineage.drift_um.tolist(),
