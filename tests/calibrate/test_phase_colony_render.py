@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from napari_symbac.calibrate.core import _drawn_phase
+from napari_symbac.calibrate.core import PHASE_TRANSMISSION_SCALE, _drawn_phase
 from napari_symbac.optics import ForwardModel
 from napari_symbac.scene import draw_scene, field_of, scene_from_masks
 from napari_symbac.settings import (
@@ -85,8 +85,9 @@ def test_drawn_cell_carries_the_phase_fitted_on_its_masks(width_um):
 
 
 def test_partially_coherent_export_keeps_the_cells_transmission(real_data_dir):
-    """Items of a dense phase colony draw no intensity scales (cells stay transparent,
-    B = I_c / I_m = 1); a linear-model calibration keeps SyMBac's sweep."""
+    """Items of a dense phase colony draw the cells' transmission B = I_c / I_m within
+    its physical range (never above 1) and keep the media level; a linear-model
+    calibration keeps SyMBac's sweep."""
     from napari_symbac.calibrate import Calibration, export_settings, measure_field
     from napari_symbac.export.dataset import Randomisation
 
@@ -108,9 +109,14 @@ def test_partially_coherent_export_keeps_the_cells_transmission(real_data_dir):
 
     rng = np.random.default_rng(0)
     coherent = export_settings(calibration(RENDER), n_items=4, seed=0)
-    for _ in range(8):
+    transmissions = []
+    for _ in range(16):
         drawn = coherent.randomise.draw(rng, coherent.pipeline)
-        assert drawn["render.cell_intensity"] == drawn["render.media_intensity"]
+        assert drawn["render.media_intensity"] == RENDER.media_intensity
+        transmissions.append(drawn["render.cell_intensity"] / drawn["render.media_intensity"])
+    assert max(transmissions) <= 1.0
+    assert min(transmissions) >= PHASE_TRANSMISSION_SCALE[0]
+    assert max(transmissions) - min(transmissions) > 0.1  # still varied between images
     linear = export_settings(
         calibration(dataclasses.replace(RENDER, phase_model="linear")), n_items=4, seed=0
     )

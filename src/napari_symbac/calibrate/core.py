@@ -594,6 +594,11 @@ def _drawn_phase(settings: PipelineSettings) -> tuple[PipelineSettings, str]:
     )
 
 
+#: Range of the cells' bright-field transmission ``B = I_c / I_m`` drawn for each image
+#: of a partially coherent phase dataset (:func:`export_settings`): the physical part
+#: (``B <= 1``) of what the default intensity draws span.
+PHASE_TRANSMISSION_SCALE = (0.77, 1.0)
+
 #: Bounds of the division-length correction of :func:`_compacted`.
 _LENGTH_CORRECTION = (0.7, 1.3)
 
@@ -707,12 +712,14 @@ def export_settings(
     not learn to find cells in the noise. The images keep the fitted defocus (eq. 14;
     the export's default randomisation sets it to 0).
 
-    With the partially coherent phase model (dense phase colonies) the intensities are
-    not randomised: there the cells' intensity over the media's is their bright-field
-    transmission ``B`` (eq. 3), fitted as 1 (unstained cells absorb nothing), and the
-    default independent draws of the two (0.85-1.15 and 0.9-1.1) would render cells
-    with ``B`` from 0.77 to 1.28, i.e. cells that pass more light than the clear
-    media; the common level alone is removed by any per-image normalisation.
+    With the partially coherent phase model (dense phase colonies) the cells' intensity
+    over the media's is their bright-field transmission ``B`` (eq. 3), at most 1
+    (nothing passes more light than the clear media). The default independent draws of
+    the two (0.85-1.15 and 0.9-1.1) span ``B`` from 0.77 to 1.28; here only the cells'
+    intensity is drawn, from :data:`PHASE_TRANSMISSION_SCALE` (``B`` 0.77-1: cells that
+    lose up to as much light to absorption and to scattering out of the pupil as the
+    default's darkest draw), and the media level is kept (a per-image normalisation
+    removes it). Without any such draw the transfer benchmark's F1 fell (docs/rendering.md).
     """
     from napari_symbac.export.dataset import ExportSettings, Randomisation, Range
     from napari_symbac.export.visibility import Visibility
@@ -729,7 +736,7 @@ def export_settings(
         fixed = Range(1.0, 1.0)
         randomise = dataclasses.replace(
             randomise,
-            cell_intensity_scale=fixed,
+            cell_intensity_scale=Range(*PHASE_TRANSMISSION_SCALE),
             media_intensity_scale=fixed,
             device_intensity_scale=fixed,
         )
