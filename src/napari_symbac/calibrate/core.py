@@ -513,6 +513,9 @@ def calibrate(
                 settings, packing, float(np.median(measurements.lengths_px))
             )
             more.append(note)
+    if dense:
+        settings, note = _drawn_phase(settings)
+        more.append(note)
     return Calibration(
         settings=settings,
         measurements=measurements,
@@ -569,6 +572,32 @@ def _compacted(
         f"length {final.median_length_px:.1f} px"
     )
 
+
+def _drawn_phase(settings: PipelineSettings) -> tuple[PipelineSettings, str]:
+    """Settings whose drawn cells carry the phase fitted to the masks' scene, and a note.
+
+    The phase ``phi = 2 pi (n_cell - n_media) s / lambda`` (eq. OPL2) is fitted per unit
+    of material on :func:`~napari_symbac.scene.scene_from_masks`, whose material is the
+    chord over the cell's own width (1 on a cell's centre line). A drawn agar pad holds
+    the chord over the pad's optical depth ``D`` (``TrenchGeometry.depth_um``), so a
+    cell of width ``w`` peaks at ``w / D``: the same cells carry the same optical path
+    only with ``phi_drawn = phi_fit D / w``.
+    """
+    simulation, render = settings.simulation, settings.render
+    depth, width = simulation.trench.depth_um, simulation.cell_width_um
+    phase = render.cell_phase_rad * depth / width
+    render = dataclasses.replace(render, cell_phase_rad=phase)
+    return dataclasses.replace(settings, render=render), (
+        f"phase per unit of drawn material {phase:.2f} rad = fitted "
+        f"{settings.render.cell_phase_rad:.2f} rad x pad depth {depth:.2f} um / cell width "
+        f"{width:.2f} um (the masks' scene holds chord / width, the drawn pad chord / depth)"
+    )
+
+
+#: Range of the cells' bright-field transmission ``B = I_c / I_m`` drawn for each image
+#: of a partially coherent phase dataset (:func:`export_settings`): the physical part
+#: (``B <= 1``) of what the default intensity draws span.
+PHASE_TRANSMISSION_SCALE = (0.77, 1.0)
 
 #: Bounds of the division-length correction of :func:`_compacted`.
 _LENGTH_CORRECTION = (0.7, 1.3)
@@ -682,13 +711,35 @@ def export_settings(
     :mod:`~napari_symbac.export.visibility`) are dropped from the masks: a network must
     not learn to find cells in the noise. The images keep the fitted defocus (eq. 14;
     the export's default randomisation sets it to 0).
+
+    With the partially coherent phase model (dense phase colonies) the cells' intensity
+    over the media's is their bright-field transmission ``B`` (eq. 3), at most 1
+    (nothing passes more light than the clear media). The default independent draws of
+    the two (0.85-1.15 and 0.9-1.1) span ``B`` from 0.77 to 1.28; here only the cells'
+    intensity is drawn, from :data:`PHASE_TRANSMISSION_SCALE` (``B`` 0.77-1: cells that
+    lose up to as much light to absorption and to scattering out of the pupil as the
+    default's darkest draw), and the media level is kept (a per-image normalisation
+    removes it). Without any such draw the transfer benchmark's F1 fell (docs/rendering.md).
     """
     from napari_symbac.export.dataset import ExportSettings, Randomisation, Range
     from napari_symbac.export.visibility import Visibility
 
     n_frames = calibration.settings.simulation.n_frames
-    defocus = calibration.settings.render.defocus_sigma_um
+    render = calibration.settings.render
+    defocus = render.defocus_sigma_um
     first = max(0, n_frames - 1 - (n_frames - 1) // 8)
+    # the fitted defocus (eq. 14), not the export's default absolute 0
+    randomise = Randomisation(defocus_sigma_um=Range(defocus, defocus))
+    if calibration.settings.microscope.modality == "phase" and (
+        render.phase_model == "partially_coherent"
+    ):
+        fixed = Range(1.0, 1.0)
+        randomise = dataclasses.replace(
+            randomise,
+            cell_intensity_scale=Range(*PHASE_TRANSMISSION_SCALE),
+            media_intensity_scale=fixed,
+            device_intensity_scale=fixed,
+        )
     return ExportSettings(
         n_items=n_items,
         kind="frames",
@@ -699,6 +750,5 @@ def export_settings(
         first_frame=first,
         pipeline=calibration.settings,
         visibility=Visibility(min_contrast_to_noise=1.0, action="drop"),
-        # the fitted defocus (eq. 14), not the export's default absolute 0
-        randomise=Randomisation(defocus_sigma_um=Range(defocus, defocus)),
+        randomise=randomise,
     )
