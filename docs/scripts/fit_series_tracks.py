@@ -122,16 +122,8 @@ def trench() -> None:
         (c, r.parent_id, r.birth_frame - 11, r.end_frame - 11, r.fate)
         for c, r in simulation.lineage.items() if r.end_frame >= 11 and r.birth_frame <= 14
     ])  # fmt: skip
-    cells = [
-        [dict(zip(("x_um", "y_um", "angle_rad", "length_um", "width_um"), values))
-         for values in zip(f.cells.x_um, f.cells.y_um, f.cells.angle_rad, f.cells.length_um,
-                           f.cells.width_um)]
-        for f in fit.frames
-    ]  # fmt: skip
-    parents = {int(t): int(p) for t, _b, _e, p in fit.lineage.tracks}
     titles = [f"frame {t} (sim. {t + 11})" for t in range(len(fit.frames))]
-    draw(list(truth.stack), cells, fit.track_ids, parents, truth.microscope.pixel_size_um,
-         IMAGES / "fit_series_tracks_trench.png", titles)  # fmt: skip
+    _draw_fit(truth, fit, titles, IMAGES / "fit_series_tracks_trench.png")
 
 
 def pad() -> None:
@@ -148,6 +140,12 @@ def pad() -> None:
     for t, frame in enumerate(fit.frames):
         cells = truth.simulation.frames[truth.first_frame + t]
         print(f"frame {t}: {len(frame.cells)} fitted, {len(cells)} true; moves {frame.moves}")
+    titles = [f"frame {t} (sim. {t + truth.first_frame})" for t in range(len(fit.frames))]
+    _draw_fit(truth, fit, titles, IMAGES / "fit_series_tracks_pad.png")
+
+
+def _draw_fit(truth, fit, titles: list[str], out: Path) -> None:
+    """The figure of a fitted series of rendered frames: the fitted cells by track."""
     cells = [
         [dict(zip(("x_um", "y_um", "angle_rad", "length_um", "width_um"), values))
          for values in zip(f.cells.x_um, f.cells.y_um, f.cells.angle_rad, f.cells.length_um,
@@ -155,9 +153,8 @@ def pad() -> None:
         for f in fit.frames
     ]  # fmt: skip
     parents = {int(t): int(p) for t, _b, _e, p in fit.lineage.tracks}
-    titles = [f"frame {t} (sim. {t + truth.first_frame})" for t in range(len(fit.frames))]
     draw(list(truth.stack), cells, fit.track_ids, parents, truth.microscope.pixel_size_um,
-         IMAGES / "fit_series_tracks_pad.png", titles)  # fmt: skip
+         out, titles)  # fmt: skip
 
 
 def from_cli(fit_dir: Path, image: Path, out: Path) -> None:
