@@ -244,6 +244,29 @@ class _Prepared:
     polarity: str
 
 
+def _model_options(args) -> dict[str, Any]:
+    """The scene model's optional terms asked for on the command line (fit_scene's
+    ``per_cell_brightness``, ``width_sd_um``, ``illumination_order``), checked."""
+    options: dict[str, Any] = {}
+    if args.cell_brightness is not None:
+        options["per_cell_brightness"] = args.cell_brightness == "per-cell"
+    if not (np.isfinite(args.width_sd_um) and 0.0 <= args.width_sd_um <= 1.0):
+        raise ValueError(
+            f"--width-sd-um {args.width_sd_um} is not a width s.d. in um: pass 0 for one "
+            "shared width, or e.g. 0.1 (at most 1) for a width per cell"
+        )
+    if args.width_sd_um > 0:
+        options["width_sd_um"] = args.width_sd_um
+    if not 0 <= args.illumination_order <= 8:
+        raise ValueError(
+            f"--illumination-order {args.illumination_order} is not a surface degree: pass 0 "
+            "(flat illumination) or 1-8"
+        )
+    if args.illumination_order > 0:
+        options["illumination_order"] = args.illumination_order
+    return options
+
+
 def _prepare_one(args, frame, labels, masks, microscope, base, keys):
     """Check one frame and its labels/masks; choose its camera and fit options."""
     from napari_symbac.fit import fit_scene
@@ -278,6 +301,13 @@ def _prepare_one(args, frame, labels, masks, microscope, base, keys):
         options["closed_end"] = base.simulation.trench.closed_end
     if args.max_iterations is not None:
         options["max_iterations"] = args.max_iterations
+    options.update(_model_options(args))
+    if "illumination_order" in options:
+        notes.append(
+            f"an illumination surface of degree {options['illumination_order']} is fitted "
+            "(parameters illumination.*); settings.yaml holds none: render and export draw "
+            "flat illumination"
+        )
     if masks is not None:
         if "masks" not in accepted:
             raise ValueError(
@@ -572,6 +602,11 @@ def run_fit(args: argparse.Namespace) -> int:
 
     writers: dict[str, Callable[[Path], None]] = {}
     summaries = []
+    if len(frames) > 1 and args.illumination_order > 0:
+        raise ValueError(
+            "--illumination-order is fitted for single frames only (the joint fit of a "
+            "series does not take the surface yet): fit one frame (--frames N) or leave it out"
+        )
     if len(frames) > 1:
         writers, summaries = _fit_frames_jointly(
             args, stack, frames, labels, masks, microscope, pixel_note, base, keys, stages, timer

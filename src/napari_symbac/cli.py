@@ -502,6 +502,27 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument(
         "--max-iterations", type=int, help="iterations per round of the fit (fewer: faster)"
     )
+    fit.add_argument(
+        "--cell-brightness",
+        choices=["shared", "per-cell"],
+        help="one cell intensity for all cells, or one per cell (default: per-cell in "
+        "fluorescence, shared in phase contrast)",
+    )
+    fit.add_argument(
+        "--width-sd-um",
+        type=float,
+        default=0.0,
+        help="0 (default): one width shared by all cells; > 0: a width per cell, tied to "
+        "the shared one by a Gaussian prior of this s.d. (um)",
+    )
+    fit.add_argument(
+        "--illumination-order",
+        type=int,
+        default=0,
+        help="0 (default): flat illumination; 1-8: the image times a smooth surface of this "
+        "degree, fitted with the scene (vignetting; on a trench it also takes up the PDMS "
+        "level beyond the kernel's reach, docs/fitting.md); single frames only",
+    )
     fit.set_defaults(func=_cmd_fit)
 
     cal = sub.add_parser(

@@ -413,3 +413,53 @@ def test_progress_is_a_bar_on_a_terminal_and_lines_when_piped():
     assert "fit frame 0" in terminal.getvalue()
     assert "3/10" in terminal.getvalue()  # the tqdm bar
     assert "napari-symbac fit: fitting" not in terminal.getvalue()
+
+
+# --------------------------------------------------------------------------------------
+# Optional terms of the scene model
+# --------------------------------------------------------------------------------------
+
+
+def test_model_options_reach_the_fit(tmp_path, inputs, capsys):
+    """--cell-brightness, --width-sd-um and --illumination-order are fitted and reported."""
+    image, labels, microscope = inputs
+    out = tmp_path / "fit"
+    code = _fit(
+        image, "--labels", labels, "--microscope", microscope, "--out", out,
+        "--cell-brightness", "per-cell", "--width-sd-um", "0.1", "--illumination-order", "2",
+    )  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    table = json.loads((out / "cells.json").read_text())
+    widths = {round(c["width_um"], 6) for c in table["cells"]}
+    assert len(widths) == len(table["cells"])  # a width per cell, not one shared
+    text = json.dumps(table) + (out / "report.txt").read_text()
+    assert "illumination." in text
+    assert "settings.yaml holds none" in (out / "report.txt").read_text()
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "message"),
+    [
+        ("--width-sd-um", "-0.1", "not a width s.d."),
+        ("--width-sd-um", "nan", "not a width s.d."),
+        ("--illumination-order", "12", "not a surface degree"),
+    ],
+)
+def test_refuses_model_options_out_of_range(tmp_path, inputs, capsys, option, value, message):
+    image, labels, microscope = inputs
+    error = _refused(
+        capsys, tmp_path / "o", image, "--labels", labels, "--microscope", microscope,
+        option, value,
+    )  # fmt: skip
+    assert message in error
+
+
+def test_refuses_an_illumination_surface_for_a_series(tmp_path, truth, capsys):
+    image = tmp_path / "series.tif"
+    tifffile.imwrite(image, np.stack([truth.image, truth.image]))
+    microscope = save_settings(truth.microscope, tmp_path / "microscope.yaml")
+    error = _refused(
+        capsys, tmp_path / "o", image, "--microscope", microscope, "--frames", "0-1",
+        "--illumination-order", "2",
+    )  # fmt: skip
+    assert "single frames only" in error
