@@ -14,6 +14,7 @@ from napari_symbac.settings import (
     SimulationSettings,
     TrenchGeometry,
     from_dict,
+    load_microscope,
     load_settings,
     save_settings,
     to_dict,
@@ -106,3 +107,27 @@ def test_load_settings_errors(tmp_path):
         load_settings(bad, Camera)
     with pytest.raises(ValueError, match=r"use a \.yaml, \.yml or \.json file"):
         save_settings(Camera(), tmp_path / "camera.txt")
+
+
+def test_load_microscope_reads_both_spellings(tmp_path):
+    """A Microscope file with the settings' field names and the diagnose command's
+    microscope file (NA, objective) give the same microscope."""
+    own = tmp_path / "own.yaml"
+    own.write_text(
+        "modality: phase\npixel_size_um: 0.065\nnumerical_aperture: 1.45\n"
+        "refractive_index: 1.518\nwavelength_um: 0.65\ncondenser: Ph3\nmagnification: 100\n"
+    )
+    diagnose_style = tmp_path / "diagnose.yaml"
+    diagnose_style.write_text(
+        "modality: phase\npixel_size_um: 0.065\nNA: 1.45\nrefractive_index: 1.518\n"
+        "wavelength_um: 0.65\ncondenser: Ph3\nobjective: 100x oil\n"
+    )
+    assert load_microscope(diagnose_style) == load_microscope(own)
+    assert load_microscope(own).numerical_aperture == 1.45
+    partial = tmp_path / "partial.yaml"
+    partial.write_text("pixel_size_um: 0.08\n")
+    assert load_microscope(partial) == Microscope(pixel_size_um=0.08)
+    incomplete = tmp_path / "incomplete.yaml"
+    incomplete.write_text("NA: 1.4\n")
+    with pytest.raises(ValueError, match="lacks the required key"):
+        load_microscope(incomplete)

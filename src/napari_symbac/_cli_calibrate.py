@@ -81,7 +81,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from napari_symbac.export import export_dataset
     from napari_symbac.export.dataset import PipelineSource
     from napari_symbac.fit.preflight import resolve_pixel_size
-    from napari_symbac.settings import Camera, Microscope, load_settings, save_settings
+    from napari_symbac.settings import Camera, load_microscope, load_settings, save_settings
 
     timer = StepTimer()
     out = Path(args.out)
@@ -105,7 +105,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         labels = None if args.labels is None else read_image(args.labels, "--labels")[0]
         if masks is not None and not np.issubdtype(masks.dtype, np.integer):
             raise ValueError(f"--masks must hold integer cell ids, got {masks.dtype}")
-        microscope = load_settings(args.microscope, Microscope)
+        microscope = load_microscope(args.microscope)
         camera = None if args.camera is None else load_settings(args.camera, Camera)
         microscope, pixel_note = resolve_pixel_size(file_pixel, microscope)
         modality = args.modality or file_modality or microscope.modality

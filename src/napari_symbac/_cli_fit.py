@@ -565,7 +565,7 @@ def run_fit(args: argparse.Namespace) -> int:
     from napari_symbac.fit.preflight import resolve_pixel_size
     from napari_symbac.fit.report import write_atomically
     from napari_symbac.io import read_recording
-    from napari_symbac.settings import Microscope, PipelineSettings, load_settings
+    from napari_symbac.settings import PipelineSettings, load_microscope, load_settings
 
     timer = StepTimer()
     stages = _Stages()
@@ -587,7 +587,7 @@ def run_fit(args: argparse.Namespace) -> int:
         base = PipelineSettings() if args.config is None else load_settings(
             args.config, PipelineSettings
         )
-        microscope = load_settings(args.microscope, Microscope)
+        microscope = load_microscope(args.microscope)
         modality = args.modality or recording.modality or microscope.modality
         if modality != microscope.modality:
             microscope = dataclasses.replace(microscope, modality=modality)

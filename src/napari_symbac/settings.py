@@ -39,6 +39,7 @@ __all__ = [
     "SimulationSettings",
     "TrenchGeometry",
     "from_dict",
+    "load_microscope",
     "load_settings",
     "save_settings",
     "to_dict",
@@ -939,6 +940,24 @@ def load_settings(path: str | Path, cls: type[T]) -> T:
     A file may also hold only some fields (the rest take their defaults); an empty
     file is an error, so that a wrong or blank file never silently means the defaults.
     """
+    return from_dict(cls, _read_mapping(path))
+
+
+def load_microscope(path: str | Path) -> Microscope:
+    """Read a :class:`Microscope` file: its own field names (``numerical_aperture``, ...,
+    some or all), or the microscope file of ``napari-symbac diagnose`` (``NA``,
+    ``objective``, ...; :func:`napari_symbac.diagnose.config.parse_microscope`), so that
+    one file serves every command."""
+    data = _read_mapping(path)
+    if isinstance(data, dict) and "NA" in data:
+        from napari_symbac.diagnose.config import parse_microscope
+
+        return parse_microscope(data, str(path)).microscope
+    return from_dict(Microscope, data)
+
+
+def _read_mapping(path: str | Path) -> Any:
+    """The parsed contents of a YAML/JSON settings file (refused when empty)."""
     path = Path(path)
     if path.is_dir():
         raise ValueError(f"settings file {path} is a folder: give the path of a .yaml/.json file")
@@ -955,4 +974,4 @@ def load_settings(path: str | Path, cls: type[T]) -> T:
             "`napari-symbac defaults KIND --out FILE`), or leave the file out to use the "
             "defaults"
         )
-    return from_dict(cls, data)
+    return data

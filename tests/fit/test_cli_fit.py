@@ -463,3 +463,22 @@ def test_refuses_an_illumination_surface_for_a_series(tmp_path, truth, capsys):
         "--illumination-order", "2",
     )  # fmt: skip
     assert "single frames only" in error
+
+
+def test_fit_reads_the_diagnose_microscope_file(tmp_path, truth, inputs, capsys):
+    """One microscope file for every command: diagnose's keys (NA) work for fit too."""
+    image, labels, _ = inputs
+    m = truth.microscope
+    microscope = tmp_path / "diagnose_microscope.yaml"
+    microscope.write_text(yaml.safe_dump({
+        "modality": m.modality, "pixel_size_um": m.pixel_size_um, "NA": m.numerical_aperture,
+        "refractive_index": m.refractive_index, "wavelength_um": m.wavelength_um,
+        "condenser": m.condenser,
+    }))  # fmt: skip
+    out = tmp_path / "fit"
+    assert _fit(image, "--labels", labels, "--microscope", microscope, "--out", out) == 0, (
+        capsys.readouterr().err
+    )
+    settings = load_settings(out / "settings.yaml", PipelineSettings)
+    assert settings.microscope.numerical_aperture == m.numerical_aperture
+    assert settings.microscope.pixel_size_um == m.pixel_size_um
