@@ -35,11 +35,7 @@ def _check_order(order: int) -> None:
 def illumination_terms(order: int) -> tuple[str, ...]:
     """Names of the surface's terms up to degree ``order`` (``()`` for 0)."""
     _check_order(order)
-    names: list[str] = []
-    for degree in range(1, order + 1):
-        names += [_name(degree, 0), _name(0, degree)]
-        names += [_name(degree - j, j) for j in range(1, degree)]
-    return tuple(names)
+    return tuple(_name(px, py) for px, py in _powers(order))
 
 
 def _name(px: int, py: int) -> str:
