@@ -257,10 +257,12 @@ def _model_options(args) -> dict[str, Any]:
         )
     if args.width_sd_um > 0:
         options["width_sd_um"] = args.width_sd_um
-    if not 0 <= args.illumination_order <= 8:
+    from napari_symbac.fit.illumination import MAX_ORDER
+
+    if not 0 <= args.illumination_order <= MAX_ORDER:
         raise ValueError(
             f"--illumination-order {args.illumination_order} is not a surface degree: pass 0 "
-            "(flat illumination) or 1-8"
+            f"(flat illumination) or 1-{MAX_ORDER}"
         )
     if args.illumination_order > 0:
         options["illumination_order"] = args.illumination_order

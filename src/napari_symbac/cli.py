@@ -519,7 +519,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--illumination-order",
         type=int,
         default=0,
-        help="0 (default): flat illumination; 1-8: the image times a smooth surface of this "
+        help="0 (default): flat illumination; 1-6: the image times a smooth surface of this "
         "degree, fitted with the scene (vignetting; on a trench it also takes up the PDMS "
         "level beyond the kernel's reach, docs/fitting.md); single frames only",
     )

@@ -442,7 +442,7 @@ def test_model_options_reach_the_fit(tmp_path, inputs, capsys):
     [
         ("--width-sd-um", "-0.1", "not a width s.d."),
         ("--width-sd-um", "nan", "not a width s.d."),
-        ("--illumination-order", "12", "not a surface degree"),
+        ("--illumination-order", "7", "not a surface degree"),
     ],
 )
 def test_refuses_model_options_out_of_range(tmp_path, inputs, capsys, option, value, message):
