@@ -161,3 +161,37 @@ def test_measured_means_are_kept_with_the_layer(make_napari_viewer):
     baseline = 100.0  # Camera().baseline_adu
     assert means["cell"] == pytest.approx(700 - baseline, abs=10)
     assert means["media"] == pytest.approx(1100 - baseline, abs=10)
+
+
+def test_a_pixel_size_entered_makes_the_image_a_recording_everywhere(
+    make_napari_viewer, tmp_path, real_data_dir
+):
+    """Found as a user: a TIFF opened without pixel size, the size then entered, stayed
+    missing from Diagnose's and Simulate's lists (they refreshed only when a layer was
+    added), so Diagnose said "no recording" until something else was painted."""
+    from napari_symbac._widgets.diagnose import DiagnoseWidget
+    from napari_symbac._widgets.simulate import SimulateWidget
+    from napari_symbac._widgets.tune import TuneWidget
+
+    source = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")
+    bare = tmp_path / "bare.tif"
+    tifffile.imwrite(bare, source)  # no resolution tags
+    viewer = make_napari_viewer()
+    real_image = RealImageWidget(viewer)
+    diagnose = DiagnoseWidget(viewer)
+    simulate = SimulateWidget(viewer)
+    tune = TuneWidget(viewer)
+
+    real_image.file.value = bare
+    layer = viewer.layers["bare"]
+    assert diagnose.reference.value is None  # no pixel size yet: not offered
+    assert simulate.recording.value is None
+    real_image.pixel_size.value = 0.065
+    assert diagnose.reference.value is layer
+    assert simulate.recording.value is layer
+    assert tune.reference.value is layer
+    real_image.pixel_size.value = 50.0  # implausible: no longer a recording
+    assert layer not in diagnose.reference.choices
+
+    tune.fit_button.native.click()  # nothing rendered yet: says what to do first
+    assert "Run Simulate first" in tune.status.value

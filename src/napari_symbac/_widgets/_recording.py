@@ -10,12 +10,15 @@ its pixel size; the layer then carries
 * ``class_statistics`` once the painted classes were measured (eq. 2).
 
 Simulate, Tune, Auto-fit and Export read these from the layer; no hidden state joins
-the widgets.
+the widgets. The metadata is replaced, never edited in place, so that the layer emits
+``events.metadata``: :func:`watch_recordings` lets every widget that lists recordings
+offer a recording the moment its pixel size is entered.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from typing import Any
 
 from napari_symbac.settings import Microscope, RenderSettings
@@ -27,6 +30,7 @@ __all__ = [
     "pixel_size_problem",
     "recording_microscope",
     "recordings",
+    "watch_recordings",
 ]
 
 #: Pixel sizes (um, in the sample plane) of real bacterial micrographs: 20 nm (super-
@@ -74,6 +78,30 @@ def is_recording(layer: Any) -> bool:
 def recordings(viewer: Any) -> list:
     """The recordings among the viewer's layers."""
     return [layer for layer in viewer.layers if is_recording(layer)]
+
+
+def watch_recordings(viewer: Any, refresh: Callable[..., None]) -> None:
+    """Call ``refresh`` whenever the viewer's recordings may have changed.
+
+    That is when a layer is added or removed, and when an image layer's metadata is
+    replaced (its pixel size entered or cleared in *Real image and classes*): without
+    the latter a recording opened without a pixel size would stay missing from the
+    other widgets' lists until some layer happened to be added.
+    """
+    from napari.layers import Image
+
+    def watch(layer: Any) -> None:
+        if isinstance(layer, Image):
+            layer.events.metadata.connect(refresh)
+
+    def inserted(event: Any) -> None:
+        watch(event.value)
+        refresh(event)
+
+    for layer in viewer.layers:
+        watch(layer)
+    viewer.layers.events.inserted.connect(inserted)
+    viewer.layers.events.removed.connect(refresh)
 
 
 def recording_microscope(layer: Any, base: Microscope | None = None) -> Microscope:

@@ -23,6 +23,7 @@ from napari_symbac._widgets._recording import (
     is_recording,
     modality_render,
     recording_microscope,
+    watch_recordings,
 )
 from napari_symbac._widgets.real_image import class_layer_name
 from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
@@ -104,8 +105,7 @@ class DiagnoseWidget(Container):
         self.result = None
         self.run_button.changed.connect(self.run)
         self.cancel_button.changed.connect(self.cancel)
-        for event in (viewer.layers.events.inserted, viewer.layers.events.removed):
-            event.connect(self._refresh_choices)
+        watch_recordings(viewer, self._refresh_choices)
         self._refresh_choices()
 
     def _recordings(self, _widget=None) -> list:

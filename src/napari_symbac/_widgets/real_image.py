@@ -189,14 +189,17 @@ class RealImageWidget(Container):
             if self.warning.value != getattr(self, "_warned", None):
                 notify_warning(f"{layer.name}: {problem}")
             self._warned = self.warning.value
-            layer.metadata["pixel_size_um"] = None
+            layer.metadata = {**layer.metadata, "pixel_size_um": None}
             return
         self.warning.value = ""
         self.warning.visible = False
         self._warned = None
-        layer.metadata.update(
-            pixel_size_um=pixel, modality=microscope.modality, microscope=microscope
-        )
+        layer.metadata = {
+            **layer.metadata,
+            "pixel_size_um": pixel,
+            "modality": microscope.modality,
+            "microscope": microscope,
+        }
         scale = (*layer.scale[:-2], pixel, pixel)
         targets = [layer]
         if class_layer_name(layer.name) in self.viewer.layers:
@@ -247,8 +250,11 @@ class RealImageWidget(Container):
             notify_warning(str(err))
             return
         baseline = Camera().baseline_adu
-        layer.metadata["class_means_adu"] = {
-            name: stat.mean - baseline for name, stat in self.statistics.items()
+        layer.metadata = {
+            **layer.metadata,
+            "class_means_adu": {
+                name: stat.mean - baseline for name, stat in self.statistics.items()
+            },
         }
         self.result.value = "<br>".join(
             f"{name}: mean {stat.mean:.1f}, sd {np.sqrt(stat.variance):.1f} ({stat.n_pixels} px)"

@@ -19,6 +19,7 @@ from napari_symbac._widgets._recording import (
     modality_render,
     recording_microscope,
     recordings,
+    watch_recordings,
 )
 from napari_symbac.settings import PipelineSettings, SimulationSettings
 
@@ -103,8 +104,7 @@ class SimulateWidget(Container):
             ]
         )
         hide_label(self.form)
-        for event in (viewer.layers.events.inserted, viewer.layers.events.removed):
-            event.connect(self._refresh_recordings)
+        watch_recordings(viewer, self._refresh_recordings)
         self._refresh_recordings()
         if hasattr(self.form, "geometry"):
             self.form.geometry.changed.connect(self._show_geometry_settings)

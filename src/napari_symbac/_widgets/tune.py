@@ -24,7 +24,7 @@ from magicgui.widgets import (
 )
 
 from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
-from napari_symbac._widgets._recording import is_recording, modality_render
+from napari_symbac._widgets._recording import is_recording, modality_render, watch_recordings
 from napari_symbac._widgets.real_image import class_layer_name
 from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
 
@@ -254,8 +254,7 @@ class TuneWidget(Container):
         self.reference.changed.connect(self._match_noise)
         self.match_noise.changed.connect(self._match_noise)
         viewer.dims.events.current_step.connect(self._on_step)
-        for event in (viewer.layers.events.inserted, viewer.layers.events.removed):
-            event.connect(self._refresh_choices)
+        watch_recordings(viewer, self._refresh_choices)
         self._load_source()
 
     # -- choices --------------------------------------------------------------------------
@@ -478,8 +477,16 @@ class TuneWidget(Container):
             With what to do, when something needed is missing.
         """
         reference = self.reference.value
-        if self.preview is None or reference is None:
-            raise ValueError("Choose a rendered layer and a real image first")
+        if self.preview is None:
+            raise ValueError(
+                "No rendered layer: Auto-fit starts from a rendered layer's optics and "
+                "geometry. Run Simulate first (with your recording chosen there), then fit"
+            )
+        if reference is None:
+            raise ValueError(
+                "No real image: open your recording and set its pixel size in Real image "
+                "and classes, then choose it as the real image here"
+            )
         settings = self.source.value.metadata[SYMBAC_METADATA_KEY]["settings"]
         microscope = self.preview.model.microscope
         pixel = reference.metadata.get("pixel_size_um")
