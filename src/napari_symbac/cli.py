@@ -244,6 +244,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from napari_symbac.diagnose.config import load_microscope_file
     from napari_symbac.diagnose.figures import write_figures
     from napari_symbac.diagnose.model import build_design
+    from napari_symbac.diagnose.region import default_region, parse_region
     from napari_symbac.diagnose.run import diagnose
     from napari_symbac.diagnose.stages import updated_settings
     from napari_symbac.fit import fit_scene
@@ -267,6 +268,24 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                 f"--labels has shape {labels.shape}, the image frames {stack.shape[-2:]}: "
                 "paint one frame of the image's size"
             )
+        frame_shape = stack.shape[-2:]
+        if args.region is None:
+            region = default_region(frame_shape)
+        else:
+            region = parse_region(args.region, frame_shape)
+        y0, y1, x0, x1 = region
+        if region != (0, frame_shape[0], 0, frame_shape[1]):
+            stack = stack[:, y0:y1, x0:x1]
+            labels = None if labels is None else labels[y0:y1, x0:x1]
+            if args.region is None:
+                print(
+                    f"note: diagnosing rows {y0}:{y1}, columns {x0}:{x1} of the "
+                    f"{frame_shape[0]} x {frame_shape[1]} frame ({stack[0].size:,} of "
+                    f"{frame_shape[0] * frame_shape[1]:,} pixels: a diagnosis's time and "
+                    "memory grow faster than its pixels); --region Y0:Y1,X0:X1 picks "
+                    "another window, --region full the whole frame",
+                    file=sys.stderr,
+                )
         geometry = args.geometry or ("trench" if stack.shape[-1] <= 100 else "open")
     start = RenderSettings()
     if config.microscope.modality == "fluorescence":
@@ -293,6 +312,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     with timer.step("write"):
         doc = result.as_dict()
         doc["notes"] = list(config.notes)
+        doc["region"] = {"rows": [y0, y1], "columns": [x0, x1]}
         (out / "diagnosis.json").write_text(json.dumps(doc, indent=2, default=float))
         (out / "report.txt").write_text(result.report() + "\n")
         figures = write_figures(result, stack, out)
@@ -567,6 +587,12 @@ def build_parser() -> argparse.ArgumentParser:
     diag.add_argument("--microscope", required=True, help="microscope JSON/YAML (issue 11 keys)")
     diag.add_argument(
         "--geometry", choices=("trench", "open"), help="default: trench if <= 100 px wide"
+    )
+    diag.add_argument(
+        "--region",
+        metavar="Y0:Y1,X0:X1|full",
+        help="the window of each frame to diagnose, in pixels (default: the whole frame "
+        "up to 256 x 256 pixels, else its centre window of that many pixels)",
     )
     diag.add_argument("--seed", type=int, default=0, help="bootstrap seed (default: 0)")
     diag.add_argument("--out", required=True, help="output folder")

@@ -24,11 +24,33 @@ def test_missing_microscope_key_is_a_clear_error(tmp_path, capsys):
     assert "Traceback" not in err
 
 
+@pytest.mark.parametrize("region", ["0:300,0:32", "10:5,0:32", "0:32", "a:b,c:d"])
+def test_a_bad_region_is_a_clear_error(tmp_path, capsys, region):
+    image = tmp_path / "image.tif"
+    tifffile.imwrite(image, np.full((64, 32), 500, np.uint16))
+    mic = tmp_path / "mic.json"
+    mic.write_text(
+        json.dumps(
+            {"modality": "phase", "pixel_size_um": 0.065, "NA": 1.45,
+             "refractive_index": 1.518, "wavelength_um": 0.65}
+        )
+    )
+    out = tmp_path / "o"
+    code = main(
+        ["diagnose", str(image), "--microscope", str(mic), "--out", str(out), "--region", region]
+    )
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "--region Y0:Y1,X0:X1" in err
+    assert "Traceback" not in err
+    assert not out.exists()
+
+
 @pytest.mark.slow
 def test_diagnose_command_writes_the_issue_outputs(tmp_path):
     case = make_case("fixed_pattern_noise", fraction_of_sd=0.9, seed=7)
     image = tmp_path / "trench.tif"
-    tifffile.imwrite(image, case.images[0, :96])
+    tifffile.imwrite(image, case.images[0])  # 256 x 46: diagnosed on its first 96 rows
     mic = tmp_path / "mic.json"
     mic.write_text(
         json.dumps(
@@ -44,8 +66,10 @@ def test_diagnose_command_writes_the_issue_outputs(tmp_path):
         )
     )
     out = tmp_path / "out"
-    assert main(["diagnose", str(image), "--microscope", str(mic), "--out", str(out)]) == 0
+    args = ["diagnose", str(image), "--microscope", str(mic), "--out", str(out)]
+    assert main([*args, "--region", "0:96,0:46"]) == 0
     doc = json.loads((out / "diagnosis.json").read_text())
+    assert doc["region"] == {"rows": [0, 96], "columns": [0, 46]}
     assert set(doc) >= {"base_fit", "mismatches", "effects", "final_fit"}
     assert {"metric", "value", "held_out"} <= set(doc["base_fit"])
     for effect in doc["effects"]:

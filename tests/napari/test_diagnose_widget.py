@@ -16,14 +16,15 @@ def diagnose_widget(make_napari_viewer, real_data_dir):
     import tifffile
 
     viewer = make_napari_viewer()
-    real = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")[0:96]
+    real = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")  # 256 x 46
     viewer.add_image(
         real,
         name="real",
         scale=(0.065, 0.065),
         metadata={"pixel_size_um": 0.065, "modality": "phase"},
     )
-    widget = DiagnoseWidget(viewer, candidates=CANDIDATES, n_bootstrap=5)
+    # a window of 96 rows, as a large field gets its centre 256 x 256 px
+    widget = DiagnoseWidget(viewer, candidates=CANDIDATES, n_bootstrap=5, max_pixels=96 * 46)
     return viewer, widget, real
 
 
@@ -31,7 +32,7 @@ def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
     from napari_symbac._widgets.export import ExportWidget
     from napari_symbac.settings import PipelineSettings
 
-    viewer, widget, real = diagnose_widget
+    viewer, widget, _ = diagnose_widget
     assert widget.reference.value is viewer.layers["real"]  # the newest recording
     widget.run_button.clicked.emit()
     assert not widget.run_button.enabled
@@ -39,8 +40,10 @@ def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
     assert widget.run_button.enabled
     assert not widget.cancel_button.enabled
     assert widget.result is not None, widget.status.value
+    assert "the centre 96 x 46 px of the 256 x 46 frame" in widget.status.value
     residual = viewer.layers[DIAGNOSIS_RESIDUAL_LAYER]
-    assert residual.data.shape == real.shape
+    assert residual.data.shape == (96, 46)  # rows 80:176, over them on the canvas
+    assert tuple(residual.translate) == pytest.approx((80 * 0.065, 0.0))
     assert np.isfinite(residual.data).all()
     assert residual.data.std() > 0
     assert tuple(residual.scale) == (0.065, 0.065)

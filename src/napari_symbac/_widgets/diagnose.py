@@ -60,11 +60,13 @@ class DiagnoseWidget(Container):
         *,
         candidates: tuple[str, ...] | None = None,
         n_bootstrap: int = 30,
+        max_pixels: int | None = None,
     ):
         super().__init__(name="symbac_diagnose")
         self.viewer = viewer
         self.candidates = candidates
         self.n_bootstrap = n_bootstrap
+        self.max_pixels = max_pixels
         self.reference = ComboBox(
             name="reference", label="real image", choices=self._recordings, nullable=True
         )
@@ -120,13 +122,18 @@ class DiagnoseWidget(Container):
     # -- input ----------------------------------------------------------------------------
 
     def _input(self) -> tuple:
-        """Frame, painted classes (or ``None``), microscope, start render, camera, geometry.
+        """Frame, classes (or ``None``), microscope, start render, camera, geometry, region.
+
+        A frame larger than :data:`~napari_symbac.diagnose.region.MAX_DIAGNOSIS_PIXELS`
+        is diagnosed on its centre window (``region``: rows ``y0:y1``, columns
+        ``x0:x1``), as the CLI does by default.
 
         Raises
         ------
         ValueError
             With what to do, when no recording is chosen.
         """
+        from napari_symbac.diagnose.region import MAX_DIAGNOSIS_PIXELS, default_region
         from napari_symbac.settings import Camera, RenderSettings
 
         layer = self.reference.value
@@ -149,6 +156,13 @@ class DiagnoseWidget(Container):
                 labels = labels[min(index, len(labels) - 1)]
             if labels.shape != frame.shape or not labels.any():
                 labels = None
+        region = default_region(frame.shape, self.max_pixels or MAX_DIAGNOSIS_PIXELS)
+        y0, y1, x0, x1 = region
+        frame = frame[y0:y1, x0:x1]
+        if labels is not None:
+            labels = labels[y0:y1, x0:x1]
+            if not labels.any():
+                labels = None
         means = layer.metadata.get("class_means_adu")
         if means or microscope.modality == "fluorescence":
             render = modality_render(RenderSettings(), microscope.modality, means)
@@ -158,7 +172,7 @@ class DiagnoseWidget(Container):
         # as the CLI: a narrow field is a trench; fluorescence shows no walls
         walled = frame.shape[-1] <= 100 and microscope.modality == "phase"
         geometry = "trench" if walled else "open"
-        return frame, labels, microscope, render, camera, geometry
+        return frame, labels, microscope, render, camera, geometry, region
 
     # -- run ------------------------------------------------------------------------------
 
@@ -167,7 +181,8 @@ class DiagnoseWidget(Container):
         if self.worker is not None:
             return
         try:
-            frame, labels, microscope, render, camera, geometry = self._input()
+            frame, labels, microscope, render, camera, geometry, region = self._input()
+            full = np.asarray(self.reference.value.data).shape[-2:]
         except ValueError as err:
             self.status.value = str(err)
             notify_warning(str(err))
@@ -219,9 +234,18 @@ class DiagnoseWidget(Container):
         )
         self._layer = self.reference.value
         self._settings_base = (microscope, camera)
+        self._region = region
         self.run_button.enabled = False
         self.cancel_button.enabled = True
-        self.status.value = "Fitting the scene..."
+        self._window_note = ""
+        if region != (0, full[0], 0, full[1]):
+            y0, y1, x0, x1 = region
+            self._window_note = (
+                f" (the centre {y1 - y0} x {x1 - x0} px of the {full[0]} x {full[1]} frame: "
+                "a diagnosis's time and memory grow faster than its pixels; the CLI's "
+                "--region picks another window)"
+            )
+        self.status.value = "Fitting the scene..." + self._window_note
         self.worker.start()
 
     def cancel(self) -> None:
@@ -245,7 +269,10 @@ class DiagnoseWidget(Container):
         base = PipelineSettings(microscope=microscope, render=fit.render, camera=camera)
         settings, extra = updated_settings(base, [(e.name, e.params) for e in result.accepted])
         layer = self._layer
-        kwargs = {"scale": tuple(layer.scale[-2:]), "translate": tuple(layer.translate[-2:])}
+        scale = tuple(layer.scale[-2:])
+        y0, _, x0, _ = self._region  # the layers sit over the window diagnosed
+        translate = (layer.translate[-2] + y0 * scale[0], layer.translate[-1] + x0 * scale[1])
+        kwargs = {"scale": scale, "translate": translate}
         limit = max(3.0, float(np.percentile(np.abs(result.residual_before[0]), 99)))
         for name in [n for n in self.viewer.layers if str(n).startswith("diagnosis ")]:
             self.viewer.layers.remove(name)
@@ -287,8 +314,8 @@ class DiagnoseWidget(Container):
         self.report.value = result.report()
         names = ", ".join(e.name for e in result.accepted) or "nothing significant"
         self.status.value = (
-            f"Accepted: {names}. Updated settings are in the '{DIAGNOSIS_RESIDUAL_LAYER}' "
-            "layer: choose it under Export's 'settings from'."
+            f"Accepted: {names}{self._window_note}. Updated settings are in the "
+            f"'{DIAGNOSIS_RESIDUAL_LAYER}' layer: choose it under Export's 'settings from'."
         )
 
     def _on_cancelled(self) -> None:

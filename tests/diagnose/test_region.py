@@ -1,0 +1,39 @@
+"""The window of a large frame that a diagnosis looks at."""
+
+from __future__ import annotations
+
+import pytest
+
+from napari_symbac.diagnose.region import MAX_DIAGNOSIS_PIXELS, default_region, parse_region
+
+
+def test_a_small_frame_is_diagnosed_whole():
+    assert default_region((256, 46)) == (0, 256, 0, 46)
+    assert default_region((256, 256)) == (0, 256, 0, 256)
+
+
+def test_a_large_field_gives_its_centre_window():
+    y0, y1, x0, x1 = default_region((512, 512))
+    assert (y1 - y0, x1 - x0) == (256, 256)
+    assert (y0, x0) == (128, 128)
+    y0, y1, x0, x1 = default_region((1000, 400))  # aspect kept, within the budget
+    assert (y1 - y0) * (x1 - x0) <= MAX_DIAGNOSIS_PIXELS
+    assert (y1 - y0) / (x1 - x0) == pytest.approx(1000 / 400, rel=0.02)
+    assert y0 + y1 == pytest.approx(1000, abs=1)
+    assert x0 + x1 == pytest.approx(400, abs=1)
+
+
+def test_a_long_trench_keeps_its_full_width():
+    y0, y1, x0, x1 = default_region((4000, 46))
+    assert (x0, x1) == (0, 46)
+    assert (y1 - y0) * 46 <= MAX_DIAGNOSIS_PIXELS
+    assert y1 - y0 == MAX_DIAGNOSIS_PIXELS // 46
+
+
+def test_parse_region():
+    assert parse_region("full", (512, 512)) == (0, 512, 0, 512)
+    assert parse_region("10:138, 20:84", (512, 512)) == (10, 138, 20, 84)
+    with pytest.raises(ValueError, match="outside the 64 x 32 frame"):
+        parse_region("0:65,0:32", (64, 32))
+    with pytest.raises(ValueError, match="not of the form"):
+        parse_region("0-64,0-32", (64, 32))
