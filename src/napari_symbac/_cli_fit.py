@@ -66,6 +66,26 @@ def _explicit_keys(config: str | None) -> dict[str, Any]:
     return data if isinstance(data, dict) else {}
 
 
+#: Frames at most this wide (pixels) are taken for a mother-machine trench, as in
+#: ``napari-symbac diagnose``.
+TRENCH_MAX_WIDTH_PX = 100
+
+
+def default_geometry(keys: dict[str, Any], width_px: int, modality: str) -> str:
+    """The CLI's geometry when ``--geometry`` is not given.
+
+    ``field`` when the config's simulation is an agar pad, when the image is wider than
+    :data:`TRENCH_MAX_WIDTH_PX` or when it is fluorescence (no walls to find); else
+    ``trench``. A config that names a trench or chamber keeps ``trench`` for phase.
+    """
+    explicit = (keys.get("simulation", {}) or {}).get("geometry")
+    if explicit == "agar_pad" or modality == "fluorescence":
+        return "field"
+    if explicit in ("trench", "chamber"):
+        return "trench"
+    return "trench" if width_px <= TRENCH_MAX_WIDTH_PX else "field"
+
+
 def _config_note(config: str | None, keys: dict[str, Any], geometry: str) -> str:
     """Which parts of --config the fit used, and which it could not."""
     if config is None:
@@ -597,8 +617,12 @@ def run_fit(args: argparse.Namespace) -> int:
         if "disagrees" in pixel_note:
             print(f"napari-symbac fit: note: {pixel_note}", file=sys.stderr)
         if args.geometry is None:
-            explicit = keys.get("simulation", {}) or {}
-            args.geometry = "field" if explicit.get("geometry") == "agar_pad" else "trench"
+            args.geometry = default_geometry(keys, stack.shape[-1], microscope.modality)
+        elif args.geometry == "trench" and microscope.modality == "fluorescence":
+            raise ValueError(
+                "a fluorescence image shows no trench walls to find (the PDMS is as dark as "
+                "the media): pass --geometry field, which fits the cells as in an open field"
+            )
         labels = None if args.labels is None else _read_stack(args.labels, "--labels")
         masks = None if args.masks is None else _read_stack(args.masks, "--masks")
 

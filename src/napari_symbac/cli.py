@@ -503,8 +503,9 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument(
         "--geometry",
         choices=["trench", "field"],
-        help="mother-machine trench or open field (default: field when the config's "
-        "simulation geometry is agar_pad, else trench)",
+        help="mother-machine trench or open field (default: field for fluorescence, for an "
+        "image wider than 100 px or when the config's simulation geometry is agar_pad; "
+        "else trench)",
     )
     fit.add_argument(
         "--frames",

@@ -273,14 +273,16 @@ def test_real_colicoords_fluorescence_field_with_masks(tmp_path, real_data_dir):
     widths = [c["width_um"] for c in json.loads((out / "cells.json").read_text())["cells"]]
     assert simulation.cell_width_um == pytest.approx(float(np.median(widths)))
 
-    # a binary mask (0/1) of the same cells: its connected regions are the cells
+    # a binary mask (0/1) of the same cells: its connected regions are the cells; no
+    # --geometry: fluorescence shows no walls, so the default is the open field
     binary = tmp_path / "binary.tif"
     tifffile.imwrite(binary, (masks > 0).astype(np.uint8))
     out = tmp_path / "fit-binary"
     assert _fit(image, "--microscope", microscope, "--modality", "fluorescence",
-                "--geometry", "field", "--masks", binary, "--out", out,
-                "--max-iterations", 3) == 0  # fmt: skip
-    assert f"its {n_masks} connected regions are the cells" in (out / "report.txt").read_text()
+                "--masks", binary, "--out", out, "--max-iterations", 3) == 0  # fmt: skip
+    report = (out / "report.txt").read_text()
+    assert f"its {n_masks} connected regions are the cells" in report
+    assert _fact(report, "geometry") == "field"
 
 
 # --------------------------------------------------------------------------------------
@@ -314,6 +316,34 @@ def test_refuses_a_fluorescence_field_fitted_as_phase(tmp_path, real_data_dir, c
                      "--geometry", "field")  # fmt: skip
     assert "does not look like phase" in error
     assert "--modality fluorescence" in error
+
+
+def test_refuses_a_fluorescence_trench_it_cannot_place(tmp_path, real_data_dir, capsys):
+    """Found as a user: the Python API's words (``trench=TrenchPlacement(...)``) reached
+    the command line; the CLI now says which flag to pass."""
+    image = real_data_dir / "colicoords" / "test_data" / "ds1" / "fluorescence" / "00001.tif"
+    microscope = save_settings(Microscope(pixel_size_um=0.08), tmp_path / "microscope.yaml")
+    error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope,
+                     "--modality", "fluorescence", "--geometry", "trench")  # fmt: skip
+    assert "no trench walls" in error
+    assert "--geometry field" in error
+
+
+@pytest.mark.parametrize(
+    ("config", "width_px", "modality", "expected"),
+    [
+        ({}, 46, "phase", "trench"),
+        ({}, 512, "phase", "field"),
+        ({}, 46, "fluorescence", "field"),
+        ({"simulation": {"geometry": "agar_pad"}}, 46, "phase", "field"),
+        ({"simulation": {"geometry": "trench"}}, 512, "phase", "trench"),
+        ({"simulation": {"geometry": "trench"}}, 46, "fluorescence", "field"),
+    ],
+)
+def test_default_geometry(config, width_px, modality, expected):
+    from napari_symbac._cli_fit import default_geometry
+
+    assert default_geometry(config, width_px, modality) == expected
 
 
 def test_refuses_masks_whose_cells_contradict_the_modality(tmp_path, real_data_dir, capsys):
