@@ -99,8 +99,14 @@ def test_auto_fit_runs_the_scene_fit_on_the_recording(rendered, qtbot, real_data
     assert len(result.cells) >= 3  # the trench holds several cells
     # the fit's intensities went to the sliders and into the rendered layer's settings
     assert tune.sliders["media_intensity"].value == pytest.approx(result.render.media_intensity)
-    stored = tune.source.value.metadata[SYMBAC_METADATA_KEY]["settings"].render
-    assert stored.cell_intensity == pytest.approx(result.render.cell_intensity)
+    stored = tune.source.value.metadata[SYMBAC_METADATA_KEY]["settings"]
+    assert stored.render.cell_intensity == pytest.approx(result.render.cell_intensity)
+    # no camera is given in the GUI: the fit measured it from the recording, and the
+    # preview and Export use it (the default camera is 2.9 ADU/e-, 8 e-)
+    assert result.camera is not None
+    assert stored.camera == result.camera
+    assert tune.preview.model.camera == result.camera
+    assert "Camera measured from the recording" in tune.status.value
     synthetic = viewer.layers[FIT_SYNTHETIC_LAYER]
     assert synthetic.data.shape == real.data.shape
     assert tuple(synthetic.scale) == tuple(real.scale)

@@ -344,6 +344,7 @@ class TuneWidget(Container):
             meta["settings"],
             microscope=self.preview.model.microscope,
             render=self.preview.render_settings,
+            camera=self.preview.model.camera,
         )
 
     # -- events ---------------------------------------------------------------------------
@@ -511,14 +512,10 @@ class TuneWidget(Container):
         # cells are fitted as in an open field.
         walled = settings.simulation.geometry in ("trench", "chamber")
         geometry = "trench" if walled and microscope.modality == "phase" else "open"
-        return (
-            real,
-            labels,
-            microscope,
-            self.preview.render_settings,
-            self.preview.model.camera,
-            geometry,
-        )
+        # The GUI takes no camera from the user: the fit measures it from the recording
+        # (``camera=None``: photon transfer, then its residual), as the CLI does without
+        # --camera, and the fitted camera then renders the preview and the export.
+        return real, labels, microscope, self.preview.render_settings, None, geometry
 
     def cancel_fit(self) -> None:
         """Stop the fit before its next render; the parameters stay as they were."""
@@ -541,7 +538,8 @@ class TuneWidget(Container):
         finally:
             self._loading = False
         try:
-            self.preview.update(**dataclasses.asdict(result.render))
+            camera = {} if result.camera is None else dataclasses.asdict(result.camera)
+            self.preview.update(**dataclasses.asdict(result.render), **camera)
             self._stale = set(range(self.preview.n_frames))
             self._show(self._current_frame())
             self._store_settings()
@@ -567,6 +565,13 @@ class TuneWidget(Container):
             f"Fitted in {result.n_evaluations} renders: objective "
             f"{_format(result.objective_before)} -> {_format(result.objective_after)}"
         )
+        if result.camera is not None:
+            cam = result.camera
+            self.status.value += (
+                f"<br>Camera measured from the recording: {cam.sensitivity_adu_per_e:.3g} "
+                f"ADU/e-, read noise {cam.dark_noise_e:.3g} e-, baseline "
+                f"{cam.baseline_adu:.4g} ADU (used by the preview and Export)"
+            )
         if nan_terms:
             message = (
                 f"Not computable (NaN): {', '.join(nan_terms)}; paint longer strokes of each "
