@@ -195,3 +195,33 @@ def test_a_pixel_size_entered_makes_the_image_a_recording_everywhere(
 
     tune.fit_button.native.click()  # nothing rendered yet: says what to do first
     assert "Run Simulate first" in tune.status.value
+
+
+def test_a_grey_png_saved_as_colour_is_used_by_its_grey_channel(
+    make_napari_viewer, real_data_dir, notifications
+):
+    """Found as a user: napari opens the Omnipose colonies (grey PNGs saved as RGBA) as
+    RGBA layers, which every step then took for a 377-frame series of 4-pixel rows."""
+    from napari_symbac._widgets.diagnose import DiagnoseWidget
+
+    viewer = make_napari_viewer()
+    widget = RealImageWidget(viewer)
+    diagnose = DiagnoseWidget(viewer)
+    layer = viewer.open(real_data_dir / "omnipose" / "Sample000033.png")[0]
+    assert layer.rgb
+    widget.image.value = layer
+    grey = viewer.layers["Sample000033 grey"]
+    assert widget.image.value is grey
+    assert grey.data.shape == layer.data.shape[:2]
+    np.testing.assert_array_equal(grey.data, np.asarray(layer.data)[..., 0])
+    assert "grey image saved as colour" in widget.result.value
+    widget.pixel_size.value = 0.065
+    assert diagnose.reference.value is grey
+    assert layer not in diagnose.reference.choices
+
+    colour = np.zeros((32, 32, 3), np.uint8)
+    colour[..., 0] = 200  # red only: a colour image
+    widget.image.value = viewer.add_image(colour, name="colour", rgb=True)
+    assert "colour image" in widget.warning.value
+    assert any("open one grey channel" in message for message in notifications)
+    assert "colour grey" not in viewer.layers

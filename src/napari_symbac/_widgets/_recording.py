@@ -70,6 +70,7 @@ def is_recording(layer: Any) -> bool:
 
     return (
         isinstance(layer, Image)
+        and not layer.rgb
         and SYMBAC_METADATA_KEY not in layer.metadata
         and pixel_size_problem(layer.metadata.get("pixel_size_um")) is None
     )

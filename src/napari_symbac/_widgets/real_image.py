@@ -109,6 +109,7 @@ class RealImageWidget(Container):
         self.microscope.changed.connect(self._store)
         self.paint_button.changed.connect(self.paint)
         self.measure_button.changed.connect(self.measure)
+        viewer.layers.events.inserted.connect(self._add_grey_channel)
         viewer.layers.events.inserted.connect(self.image.reset_choices)
         viewer.layers.events.removed.connect(self.image.reset_choices)
         self.statistics = None
@@ -154,6 +155,9 @@ class RealImageWidget(Container):
         layer = self.image.value
         if layer is None:
             return
+        if getattr(layer, "rgb", False):
+            self._use_grey_channel(layer)
+            return
         meta = layer.metadata
         pixel = meta.get("pixel_size_um")
         if not pixel and layer.scale[-1] != 1:  # a layer already scaled to micrometres
@@ -168,6 +172,42 @@ class RealImageWidget(Container):
         finally:
             self._loading = False
         self._store()
+
+    def _add_grey_channel(self, event) -> None:
+        """A grey image saved as colour (equal red, green and blue: the Omnipose and
+        Cellpose datasets' PNGs, which napari opens as RGBA) gets its grey channel as a
+        layer ``"<name> grey"`` when it is added to the viewer; every step uses that."""
+        layer = event.value
+        if not getattr(layer, "rgb", False) or f"{layer.name} grey" in self.viewer.layers:
+            return
+        colour = np.asarray(layer.data)[..., :3]
+        if np.array_equal(colour[..., 0], colour[..., 1]) and np.array_equal(
+            colour[..., 0], colour[..., 2]
+        ):
+            self.viewer.add_image(
+                colour[..., 0],
+                name=f"{layer.name} grey",
+                scale=layer.scale,
+                translate=layer.translate,
+            )
+
+    def _use_grey_channel(self, layer) -> None:
+        """A colour layer cannot be fitted: choose its grey-channel layer, or say why."""
+        name = f"{layer.name} grey"
+        if name in self.viewer.layers:
+            self.result.value = (
+                f"{layer.name} is a grey image saved as colour: its grey channel is the "
+                f"layer '{name}', used from here on"
+            )
+            self.image.value = self.viewer.layers[name]
+            return
+        message = (
+            f"{layer.name} is a colour image {tuple(layer.data.shape)}: open one grey "
+            "channel (the camera's raw frame) to match and fit"
+        )
+        self.warning.value = f"<b style='color:#ffb000'>&#9888; {message}</b>"
+        self.warning.visible = True
+        notify_warning(message)
 
     def _store(self, _value=None) -> None:
         """Remember the form with the layer, or show why it cannot be used."""

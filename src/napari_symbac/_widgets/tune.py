@@ -274,7 +274,9 @@ class TuneWidget(Container):
         return [
             layer
             for layer in self.viewer.layers
-            if isinstance(layer, Image) and SYMBAC_METADATA_KEY not in layer.metadata
+            if isinstance(layer, Image)
+            and not layer.rgb
+            and SYMBAC_METADATA_KEY not in layer.metadata
         ]
 
     def _refresh_choices(self, _event=None) -> None:
