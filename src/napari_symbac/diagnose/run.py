@@ -256,11 +256,14 @@ def diagnose(
         # significant beside every strong mean effect (it was accepted first, wrongly,
         # beside uneven_illumination, stage_drift and fixed_pattern_noise).
         accepted_now = None
+        current_deviance = None  # the current model's held-out deviance, once per step
         for effect, test in ranked[:max_tries]:
             if test.evidence < threshold:
                 break
             if cancel is not None and cancel():
                 raise InterruptedError("diagnosis cancelled")
+            if current_deviance is None:
+                current_deviance = cross_fitted_deviance(design, y, valid, spec)
             check = held_out(
                 effect,
                 design,
@@ -273,6 +276,7 @@ def diagnose(
                 alpha=alpha,
                 baseline_adu=baseline,
                 cancel=cancel,
+                current_deviance=current_deviance,
             )
             done += 1
             if progress is not None:

@@ -185,9 +185,15 @@ def cross_fitted_deviance(
 
 
 def _gain(
-    design: BaseDesign, y: np.ndarray, valid: np.ndarray, base: ModelSpec, alt: ModelSpec
+    design: BaseDesign,
+    y: np.ndarray,
+    valid: np.ndarray,
+    base: ModelSpec,
+    alt: ModelSpec,
+    d0: np.ndarray | None = None,
 ) -> tuple[float, float, float]:
-    d0 = cross_fitted_deviance(design, y, valid, base)
+    if d0 is None:
+        d0 = cross_fitted_deviance(design, y, valid, base)
     d1 = cross_fitted_deviance(design, y, valid, alt)
     return float(d0.mean()), float(d1.mean()), 0.5 * float(d0.sum() - d1.sum())
 
@@ -205,10 +211,16 @@ def held_out(
     alpha: float = 0.01,
     baseline_adu: float = 0.0,
     cancel: Callable[[], bool] | None = None,
+    current_deviance: np.ndarray | None = None,
 ) -> HeldOut:
-    """Cross-fitted held-out gain of adding ``effect`` and its parametric-bootstrap null."""
+    """Cross-fitted held-out gain of adding ``effect`` and its parametric-bootstrap null.
+
+    ``current_deviance`` is :func:`cross_fitted_deviance` of ``current`` on ``y`` (the
+    same for every candidate of a step: pass it to compute it once); each bootstrap
+    replicate computes its own.
+    """
     alt = current.with_effect(effect, y)
-    before, after, gain = _gain(design, y, valid, current, alt)
+    before, after, gain = _gain(design, y, valid, current, alt, current_deviance)
     null = []
     sd = np.sqrt(current_fit.var)
     for _ in range(n_bootstrap):
