@@ -84,6 +84,12 @@ class Geometry:
         Media over cell intensity of the base settings (``I_m / I_c``, eq. 3): a cell
         that moves leaves media where it was (``cells + media + device = 1``), so the
         image changes by the cells' part times ``1 - I_m / I_c``.
+    cell_components
+        ``(n_cells, T, Y, X)``: each cell's own convolved contribution at unit cell
+        intensity, in the order of :attr:`cell_ids` (the cells' component is their
+        sum; ``None`` when built from labels alone). In phase contrast a cell's
+        image reaches far beyond its outline (the ring's halo), and neighbours'
+        images overlap, so a per-cell brightness needs these, not a mask.
     """
 
     cell_fraction: np.ndarray
@@ -97,6 +103,7 @@ class Geometry:
     modality: str
     media_fraction: np.ndarray | None = None
     media_per_cell: float = 0.0
+    cell_components: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -208,8 +215,9 @@ def build_design(
     intensities = np.array(
         [render.cell_intensity, render.media_intensity, render.device_intensity], float
     )
-    comps, derivs, fractions, labels = [], [], [], []
+    comps, derivs, fractions, labels, scene_list = [], [], [], [], []
     for scene in scenes:
+        scene_list.append(scene)
         parts = model.components(scene)
         comps.append(np.stack([parts[c] for c in ("cells", "media", "device")]))
         frame_derivs = []
@@ -242,7 +250,24 @@ def build_design(
         media_fraction=np.clip(media / top, 0.0, 1.0) if top > 0 else None,
         media_per_cell=float(intensities[1] / intensities[0]) if intensities[0] != 0 else 0.0,
     )
+    geometry = dataclasses.replace(
+        geometry, cell_components=_cell_components(model, scene_list, geometry.cell_ids)
+    )
     return BaseDesign(components, optics_cols, names, intensities, camera, geometry)
+
+
+def _cell_components(model: ForwardModel, scenes: Sequence[Any], ids: np.ndarray) -> np.ndarray:
+    """``(n_cells, T, Y, X)``: the convolved cells component of each cell alone (eq. 3)."""
+    out = []
+    for cell_id in ids:
+        frames = []
+        for scene in scenes:
+            alone = scene.replace_cells(scene.cells * (scene.labels == cell_id))
+            frames.append(np.asarray(model.components(alone)["cells"], np.float64))
+        out.append(np.stack(frames))
+    if not out:
+        return np.zeros((0, len(scenes), *model.components(scenes[0])["cells"].shape))
+    return np.stack(out)
 
 
 def variance(mu: np.ndarray, camera: Camera, gain: float = 1.0, read: float = 1.0) -> np.ndarray:
