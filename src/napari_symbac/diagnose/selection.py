@@ -60,6 +60,26 @@ def checkerboard(shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
     return even, ~even
 
 
+#: Folds of the held-out cross-fitting (pixel lattices; 2 = the checkerboard).
+N_FOLDS = 4
+
+
+def folds(shape: tuple[int, ...], n_folds: int = N_FOLDS) -> list[np.ndarray]:
+    """Pixel masks of ``n_folds`` (2 or 4) interleaved lattices over ``(T, Y, X)``.
+
+    2: the two colours of :func:`checkerboard`; 4: the four ``2 x 2`` sublattices
+    (row parity times checkerboard colour), so each fold's pixels are 2 px apart and
+    a fit to the other three sees 3/4 of the pixels.
+    """
+    even, odd = checkerboard(shape)
+    if n_folds == 2:
+        return [even, odd]
+    if n_folds != 4:
+        raise ValueError(f"n_folds must be 2 or 4, got {n_folds}")
+    row_even = (np.indices(shape)[1] % 2 == 0)
+    return [even & row_even, even & ~row_even, odd & row_even, odd & ~row_even]
+
+
 @dataclass(frozen=True)
 class ModelSpec:
     """Which effects a model carries (parameters are fitted, not stored here)."""
@@ -176,11 +196,11 @@ def cross_fitted_deviance(
     design: BaseDesign, y: np.ndarray, valid: np.ndarray, spec: ModelSpec
 ) -> np.ndarray:
     """Per-pixel ``-2 log L`` of ``spec`` on the ``valid`` pixels, each pixel scored by
-    the fit to the other colour of the checkerboard (two-fold cross-fitting)."""
-    even, odd = checkerboard(y.shape)
+    the fit to the other folds (:func:`folds`: K-fold cross-fitting)."""
     out = np.zeros(y.shape)
-    for train, test in ((even & valid, odd & valid), (odd & valid, even & valid)):
-        out[test] = deviance(y, spec.fit(design, y, train), test)
+    for fold in folds(y.shape):
+        test = fold & valid
+        out[test] = deviance(y, spec.fit(design, y, valid & ~fold), test)
     return out[valid]
 
 

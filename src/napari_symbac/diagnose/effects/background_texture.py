@@ -7,7 +7,7 @@ import numpy as np
 from napari_symbac.diagnose.effects.base import Effect
 from napari_symbac.diagnose.model import Geometry
 
-__all__ = ["BackgroundTexture", "support_modes", "texture_basis"]
+__all__ = ["BackgroundTexture", "support_modes", "texture_basis", "texture_modes"]
 
 #: Shortest wavelength of the texture basis (um) and the most basis functions.
 MIN_WAVELENGTH_UM, MAX_TERMS = 1.5, 48
@@ -39,6 +39,22 @@ def texture_basis(shape: tuple[int, int], pixel_size_um: float) -> np.ndarray:
     return np.stack(
         [np.cos(np.pi * ky * y)[:, None] * np.cos(np.pi * kx * x)[None, :] for ky, kx in modes]
     )
+
+
+def _media_weight(geometry: Geometry) -> np.ndarray:
+    return (
+        geometry.media_fraction.min(0)
+        if geometry.media_fraction is not None
+        else np.ones(geometry.shape[1:])
+    )
+
+
+def texture_modes(geometry: Geometry) -> list[tuple[int, int]]:
+    """``(ky, kx)`` of the modes the effect fits on ``geometry`` (:func:`support_modes`)."""
+    shape = geometry.shape[1:]
+    basis = texture_basis(shape, geometry.pixel_size_um)
+    modes = _modes(shape, geometry.pixel_size_um)
+    return [modes[k] for k in support_modes(basis, _media_weight(geometry))]
 
 
 def support_modes(basis: np.ndarray, weight: np.ndarray) -> np.ndarray:
@@ -76,9 +92,12 @@ def support_modes(basis: np.ndarray, weight: np.ndarray) -> np.ndarray:
 class BackgroundTexture(Effect):
     """The media is not uniform: ``mu + P_m sum_k c_k B_k(x, y)``.
 
-    ``P_m`` is the media contribution of the base model (wherever the media shows,
-    also in the blur beside and under the cells) and ``B_k`` cosine modes of
-    wavelength 1.5 um and longer, above the second-order surface of
+    ``P_m B_k`` is the media contribution of the base model with the media multiplied
+    by ``B_k`` before the optics (:attr:`Geometry.texture_components`: the texture
+    passes through the PSF, and in phase contrast through the ring's filtering, like
+    the media; wherever the media shows, also in the blur beside and under the cells;
+    without them, a geometry from labels alone, the convolved media times ``B_k``),
+    and ``B_k`` cosine modes of wavelength 1.5 um and longer, above the second-order surface of
     ``uneven_illumination`` (so the two do not compete). Only the modes that the
     media pixels can tell apart are fitted (:func:`support_modes`), as many as the
     media area supports (one per ``PIXELS_PER_MODE`` pixels, at most 48): a trench's
@@ -103,19 +122,20 @@ class BackgroundTexture(Effect):
     def __init__(self, geometry: Geometry) -> None:
         super().__init__(geometry)
         basis = texture_basis(geometry.shape[1:], geometry.pixel_size_um)
-        media = (
-            geometry.media_fraction.min(0)
-            if geometry.media_fraction is not None
-            else np.ones(geometry.shape[1:])
-        )
-        self._basis = basis[support_modes(basis, media)]
+        self._basis = basis[support_modes(basis, _media_weight(geometry))]
+        self._own = geometry.texture_components
+        self._probe, self._probe_value = geometry.media_probe
 
     def n_params(self) -> int:
         return len(self._basis)
 
-
     def mean(self, theta, mu, parts, geo):
-        return mu + np.tensordot(theta, self._basis, axes=1)[None] * parts[1]
+        if self._own is None or not len(theta):
+            return mu + np.tensordot(theta, self._basis, axes=1)[None] * parts[1]
+        if self._probe_value == 0:
+            return mu
+        intensity = parts[1].ravel()[self._probe] / self._probe_value
+        return mu + intensity * np.tensordot(theta, self._own, axes=1)
 
     def summary(self, theta, mu):
         field = np.tensordot(theta, self._basis, axes=1)
