@@ -503,7 +503,7 @@ def fit_model(
     y
         Observed image above the baseline, ``(T, Y, X)`` ADU.
     mask
-        Pixels to fit (e.g. one colour of a checkerboard).
+        Pixels to fit (e.g. three of the four held-out folds).
     effects
         ``(effect, start parameters)`` pairs, applied in order to the base mean.
     fit_camera

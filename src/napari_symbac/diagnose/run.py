@@ -65,8 +65,8 @@ class Diagnosis:
     ----------
     base_fit, final_fit
         ``{"metric", "value", "held_out"}``: reduced chi-square on all pixels and the
-        mean held-out deviance per pixel (``-2 log L``; each checkerboard colour
-        scored by the fit to the other).
+        mean held-out deviance per pixel (``-2 log L``; each of four interleaved pixel
+        lattices scored by the fit to the other three).
     mismatches
         Discrepancy statistics of the base fit, most significant first.
     effects
@@ -101,7 +101,7 @@ class Diagnosis:
             "evidence_threshold": self.threshold,
             "significance_units": "-log10 p",
             "held_out_units": (
-                "mean -2 log-likelihood per held-out pixel (checkerboard, cross-fitted)"
+                "mean -2 log-likelihood per held-out pixel (4 pixel lattices, cross-fitted)"
             ),
             "not_tested": list(self.skipped),
         }
