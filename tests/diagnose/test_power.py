@@ -13,9 +13,11 @@ from napari_symbac.diagnose.effects.base import Effect
 from napari_symbac.diagnose.model import deviance, fit_model
 from napari_symbac.diagnose.run import _params
 from napari_symbac.diagnose.selection import (
+    N_FOLDS,
     ModelSpec,
     checkerboard,
     cross_fitted_deviance,
+    folds,
     rank,
 )
 
@@ -45,17 +47,33 @@ def test_bent_cells_in_phase_are_named_and_the_bend_recovered():
     assert params["rms_bow_um"] == pytest.approx(case.true_magnitude, rel=0.25)
 
 
-def test_cross_fitted_deviance_scores_each_pixel_by_the_other_half():
+def test_folds_partition_the_pixels_into_interleaved_lattices():
+    shape = (2, 6, 5)
+    parts = folds(shape)
+    assert len(parts) == N_FOLDS == 4
+    np.testing.assert_array_equal(np.sum(parts, axis=0), np.ones(shape, int))
+    for fold in parts:
+        # no two pixels of a fold touch (4-neighbourhood): each is scored by a fit
+        # to all of its neighbours
+        assert not (fold[:, 1:] & fold[:, :-1]).any()
+        assert not (fold[:, :, 1:] & fold[:, :, :-1]).any()
+        assert not (fold[:, 1:, 1:] & fold[:, :-1, :-1]).any()
+    np.testing.assert_array_equal(folds(shape, 2), checkerboard(shape))
+    with pytest.raises(ValueError, match="n_folds"):
+        folds(shape, 3)
+
+
+def test_cross_fitted_deviance_scores_each_pixel_by_the_other_folds():
     case = make_case(None, modality="fluorescence", fraction_of_sd=0.5, seed=41)
     y = case.images.astype(float) - case.design.camera.baseline_adu
     valid = np.ones(y.shape, bool)
     valid[:, :5] = False
     spec = ModelSpec()
     got = cross_fitted_deviance(case.design, y, valid, spec)
-    even, odd = checkerboard(y.shape)
     want = np.zeros(y.shape)
-    want[odd & valid] = deviance(y, spec.fit(case.design, y, even & valid), odd & valid)
-    want[even & valid] = deviance(y, spec.fit(case.design, y, odd & valid), even & valid)
+    for fold in folds(y.shape):
+        test = fold & valid
+        want[test] = deviance(y, spec.fit(case.design, y, valid & ~fold), test)
     np.testing.assert_array_equal(got, want[valid])
     assert got.size == int(valid.sum())
 

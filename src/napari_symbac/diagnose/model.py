@@ -84,6 +84,21 @@ class Geometry:
         Media over cell intensity of the base settings (``I_m / I_c``, eq. 3): a cell
         that moves leaves media where it was (``cells + media + device = 1``), so the
         image changes by the cells' part times ``1 - I_m / I_c``.
+    cell_components
+        ``(n_cells, T, Y, X)``: each cell's own convolved contribution at unit cell
+        intensity, in the order of :attr:`cell_ids` (the cells' component is their
+        sum; ``None`` when built from labels alone). In phase contrast a cell's
+        image reaches far beyond its outline (the ring's halo), and neighbours'
+        images overlap, so a per-cell brightness needs these, not a mask.
+    texture_components
+        ``(K, T, Y, X)``: the convolved media component with the media multiplied by
+        each texture mode of ``background_texture`` (before the PSF), at unit media
+        intensity (``None`` when built from labels alone). The media's texture passes
+        through the optics: in phase contrast the kernel's ring filters it, so its
+        image is not the mode times the convolved media.
+    media_probe
+        Flat index of the pixel where the convolved media component is largest, and
+        its value there: the fitted media intensity is the media part over it (eq. 3).
     """
 
     cell_fraction: np.ndarray
@@ -97,6 +112,9 @@ class Geometry:
     modality: str
     media_fraction: np.ndarray | None = None
     media_per_cell: float = 0.0
+    cell_components: np.ndarray | None = None
+    texture_components: np.ndarray | None = None
+    media_probe: tuple[int, float] = (0, 0.0)
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -208,8 +226,9 @@ def build_design(
     intensities = np.array(
         [render.cell_intensity, render.media_intensity, render.device_intensity], float
     )
-    comps, derivs, fractions, labels = [], [], [], []
+    comps, derivs, fractions, labels, scene_list = [], [], [], [], []
     for scene in scenes:
+        scene_list.append(scene)
         parts = model.components(scene)
         comps.append(np.stack([parts[c] for c in ("cells", "media", "device")]))
         frame_derivs = []
@@ -242,7 +261,50 @@ def build_design(
         media_fraction=np.clip(media / top, 0.0, 1.0) if top > 0 else None,
         media_per_cell=float(intensities[1] / intensities[0]) if intensities[0] != 0 else 0.0,
     )
+    geometry = dataclasses.replace(
+        geometry,
+        cell_components=_cell_components(model, scene_list, geometry.cell_ids),
+        texture_components=_texture_components(model, scene_list, geometry),
+        media_probe=(int(np.argmax(media)), float(components[1].ravel()[np.argmax(media)]))
+        if media.size
+        else (0, 0.0),
+    )
     return BaseDesign(components, optics_cols, names, intensities, camera, geometry)
+
+
+def _texture_components(
+    model: ForwardModel, scenes: Sequence[Any], geometry: Geometry
+) -> np.ndarray:
+    """``(K, T, Y, X)``: the convolved media with the media times each texture mode."""
+    from napari_symbac.diagnose.effects.background_texture import texture_modes
+
+    modes = texture_modes(geometry)
+    out = np.zeros((len(modes), *geometry.shape))
+    for t, scene in enumerate(scenes):
+        rows, cols = geometry.shape[1:]
+        u, b = scene.upsample, scene.border_px
+        # the camera pixel coordinate of each render pixel, continued into the border
+        y = (np.arange(scene.shape[0]) - b + 0.5) / u / rows
+        x = (np.arange(scene.shape[1]) - b + 0.5) / u / cols
+        for k, (ky, kx) in enumerate(modes):
+            mode = np.cos(np.pi * ky * y)[:, None] * np.cos(np.pi * kx * x)[None, :]
+            textured = scene.replace_media((scene.media * mode).astype(np.float32))
+            out[k, t] = model.components(textured)["media"]
+    return out
+
+
+def _cell_components(model: ForwardModel, scenes: Sequence[Any], ids: np.ndarray) -> np.ndarray:
+    """``(n_cells, T, Y, X)``: the convolved cells component of each cell alone (eq. 3)."""
+    out = []
+    for cell_id in ids:
+        frames = []
+        for scene in scenes:
+            alone = scene.replace_cells(scene.cells * (scene.labels == cell_id))
+            frames.append(np.asarray(model.components(alone)["cells"], np.float64))
+        out.append(np.stack(frames))
+    if not out:
+        return np.zeros((0, len(scenes), *model.components(scenes[0])["cells"].shape))
+    return np.stack(out)
 
 
 def variance(mu: np.ndarray, camera: Camera, gain: float = 1.0, read: float = 1.0) -> np.ndarray:
@@ -441,7 +503,7 @@ def fit_model(
     y
         Observed image above the baseline, ``(T, Y, X)`` ADU.
     mask
-        Pixels to fit (e.g. one colour of a checkerboard).
+        Pixels to fit (e.g. three of the four held-out folds).
     effects
         ``(effect, start parameters)`` pairs, applied in order to the base mean.
     fit_camera

@@ -65,8 +65,8 @@ class Diagnosis:
     ----------
     base_fit, final_fit
         ``{"metric", "value", "held_out"}``: reduced chi-square on all pixels and the
-        mean held-out deviance per pixel (``-2 log L``; each checkerboard colour
-        scored by the fit to the other).
+        mean held-out deviance per pixel (``-2 log L``; each of four interleaved pixel
+        lattices scored by the fit to the other three).
     mismatches
         Discrepancy statistics of the base fit, most significant first.
     effects
@@ -101,7 +101,7 @@ class Diagnosis:
             "evidence_threshold": self.threshold,
             "significance_units": "-log10 p",
             "held_out_units": (
-                "mean -2 log-likelihood per held-out pixel (checkerboard, cross-fitted)"
+                "mean -2 log-likelihood per held-out pixel (4 pixel lattices, cross-fitted)"
             ),
             "not_tested": list(self.skipped),
         }
@@ -256,11 +256,14 @@ def diagnose(
         # significant beside every strong mean effect (it was accepted first, wrongly,
         # beside uneven_illumination, stage_drift and fixed_pattern_noise).
         accepted_now = None
+        current_deviance = None  # the current model's held-out deviance, once per step
         for effect, test in ranked[:max_tries]:
             if test.evidence < threshold:
                 break
             if cancel is not None and cancel():
                 raise InterruptedError("diagnosis cancelled")
+            if current_deviance is None:
+                current_deviance = cross_fitted_deviance(design, y, valid, spec)
             check = held_out(
                 effect,
                 design,
@@ -273,6 +276,7 @@ def diagnose(
                 alpha=alpha,
                 baseline_adu=baseline,
                 cancel=cancel,
+                current_deviance=current_deviance,
             )
             done += 1
             if progress is not None:

@@ -10,7 +10,7 @@ import numpy as np
 from napari_symbac.diagnose.effects.base import Effect
 from napari_symbac.diagnose.model import Geometry
 
-__all__ = ["BackgroundTexture", "mode_images", "support_modes", "texture_basis"]
+__all__ = ["BackgroundTexture", "mode_images", "support_modes", "texture_basis", "texture_modes"]
 
 #: Shortest wavelength of the texture basis (um) and the most basis functions.
 MIN_WAVELENGTH_UM, MAX_TERMS = 1.5, 48
@@ -51,6 +51,22 @@ def texture_basis(shape: tuple[int, int], pixel_size_um: float) -> np.ndarray:
     return np.stack(list(mode_images(shape, pixel_size_um)))
 
 
+def _media_weight(geometry: Geometry) -> np.ndarray:
+    return (
+        geometry.media_fraction.min(0)
+        if geometry.media_fraction is not None
+        else np.ones(geometry.shape[1:])
+    )
+
+
+def texture_modes(geometry: Geometry) -> list[tuple[int, int]]:
+    """``(ky, kx)`` of the modes the effect fits on ``geometry`` (:func:`support_modes`)."""
+    shape = geometry.shape[1:]
+    kept = support_modes(mode_images(shape, geometry.pixel_size_um), _media_weight(geometry))
+    modes = _modes(shape, geometry.pixel_size_um)
+    return [modes[k] for k in kept]
+
+
 def support_modes(basis: Iterable[np.ndarray], weight: np.ndarray) -> np.ndarray:
     """Indices of the modes the media support can tell apart, lowest frequency first.
 
@@ -87,9 +103,12 @@ def support_modes(basis: Iterable[np.ndarray], weight: np.ndarray) -> np.ndarray
 class BackgroundTexture(Effect):
     """The media is not uniform: ``mu + P_m sum_k c_k B_k(x, y)``.
 
-    ``P_m`` is the media contribution of the base model (wherever the media shows,
-    also in the blur beside and under the cells) and ``B_k`` cosine modes of
-    wavelength 1.5 um and longer, above the second-order surface of
+    ``P_m B_k`` is the media contribution of the base model with the media multiplied
+    by ``B_k`` before the optics (:attr:`Geometry.texture_components`: the texture
+    passes through the PSF, and in phase contrast through the ring's filtering, like
+    the media; wherever the media shows, also in the blur beside and under the cells;
+    without them, a geometry from labels alone, the convolved media times ``B_k``),
+    and ``B_k`` cosine modes of wavelength 1.5 um and longer, above the second-order surface of
     ``uneven_illumination`` (so the two do not compete). Only the modes that the
     media pixels can tell apart are fitted (:func:`support_modes`), as many as the
     media area supports (one per ``PIXELS_PER_MODE`` pixels, at most 48): a trench's
@@ -114,23 +133,24 @@ class BackgroundTexture(Effect):
     def __init__(self, geometry: Geometry) -> None:
         super().__init__(geometry)
         shape, pixel_um = geometry.shape[1:], geometry.pixel_size_um
-        media = (
-            geometry.media_fraction.min(0)
-            if geometry.media_fraction is not None
-            else np.ones(shape)
-        )
-        kept = support_modes(mode_images(shape, pixel_um), media)
+        kept = support_modes(mode_images(shape, pixel_um), _media_weight(geometry))
         wanted = set(kept.tolist())
         images = islice(mode_images(shape, pixel_um), int(kept.max(initial=-1)) + 1)
         chosen = [image for k, image in enumerate(images) if k in wanted]
         self._basis = np.array(chosen).reshape(len(kept), *shape)
+        self._own = geometry.texture_components
+        self._probe, self._probe_value = geometry.media_probe
 
     def n_params(self) -> int:
         return len(self._basis)
 
-
     def mean(self, theta, mu, parts, geo):
-        return mu + np.tensordot(theta, self._basis, axes=1)[None] * parts[1]
+        if self._own is None or not len(theta):
+            return mu + np.tensordot(theta, self._basis, axes=1)[None] * parts[1]
+        if self._probe_value == 0:
+            return mu
+        intensity = parts[1].ravel()[self._probe] / self._probe_value
+        return mu + intensity * np.tensordot(theta, self._own, axes=1)
 
     def summary(self, theta, mu):
         field = np.tensordot(theta, self._basis, axes=1)

@@ -11,15 +11,25 @@ __all__ = ["CellIntensityVariability"]
 
 
 class CellIntensityVariability(Effect):
-    """Each cell ``i`` has its own gain: ``mu + sum_i g_i P_c 1[near i]``.
+    """Each cell ``i`` has its own gain: ``mu + sum_i g_i I_c C_i``.
 
-    ``P_c`` is the cells' contribution (intensity times convolved cell component)
-    and ``1[near i]`` the pixels whose nearest cell is ``i`` (within 4 px); the
-    reported coefficient of variation is the s.d. of the fitted ``g_i``. In the
-    settings it becomes ``RenderSettings.cell_brightness_cv``.
+    ``C_i`` is cell ``i``'s own convolved component (eq. 3 for that cell alone,
+    :attr:`Geometry.cell_components`) and ``I_c`` the fitted cell intensity, so the
+    gain scales exactly the image the cell makes, halo and all, also where it
+    overlaps its neighbours' images. Without per-cell components (a geometry from
+    labels alone) ``C_i`` falls back to the cells' component on the pixels whose
+    nearest cell is ``i`` (within 4 px). The reported coefficient of variation is the
+    s.d. of the fitted ``g_i``. In the settings it becomes
+    ``RenderSettings.cell_brightness_cv``.
+
+    The gains are a random field (:attr:`Effect.random_field`): each cell's gain a
+    draw from the population, fitted by empirical Bayes (the free fit shrunk by
+    ``1 - k / |z|^2``), the CV reported from the free fit times the square root of
+    the shrinkage.
     """
 
     name = "cell_intensity_variability"
+    random_field = True
     explanation = (
         "Cells differ from each other in brightness (expression noise in fluorescence; "
         "thickness or refractive index in phase) more than the model's identical cells."
@@ -29,9 +39,15 @@ class CellIntensityVariability(Effect):
     def __init__(self, geometry: Geometry) -> None:
         super().__init__(geometry)
         self._ids = geometry.cell_ids
+        self._own = geometry.cell_components
+        if self._own is not None:
+            total = self._own.sum(axis=0)
+            # where the cells' part is largest: I_c = parts[0] / C there (exact, eq. 3)
+            self._probe = int(np.argmax(np.abs(total)))
+            self._probe_value = float(total.ravel()[self._probe])
         self._masks = (
             np.stack([geometry.nearest == i for i in self._ids]).astype(np.float64)
-            if len(self._ids)
+            if len(self._ids) and self._own is None
             else np.zeros((0, *geometry.shape))
         )
 
@@ -39,8 +55,14 @@ class CellIntensityVariability(Effect):
         return len(self._ids)
 
     def mean(self, theta, mu, parts, geo):
-        gain = np.tensordot(theta, self._masks, axes=1) if len(theta) else 0.0
-        return mu + gain * parts[0]
+        if not len(theta):
+            return mu
+        if self._own is not None:
+            if self._probe_value == 0:
+                return mu
+            intensity = parts[0].ravel()[self._probe] / self._probe_value
+            return mu + intensity * np.tensordot(theta, self._own, axes=1)
+        return mu + np.tensordot(theta, self._masks, axes=1) * parts[0]
 
     def summary(self, theta, mu):
         return {
