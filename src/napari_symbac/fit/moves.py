@@ -28,6 +28,7 @@ parameter free.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -180,9 +181,7 @@ def _accept(problem: Problem, state: State, trial: State, dn: int, ctx: _Context
     return (trial.cost - state.cost) / phi + dn * problem.bic_per_cell < 0
 
 
-def _remove_pass(
-    problem: Problem, state: State, ctx: _Context, _polarity: str = ""
-) -> tuple[State, bool]:
+def _remove_pass(problem: Problem, state: State, ctx: _Context) -> tuple[State, bool]:
     blocks, shared = problem.blocks(state.x)
     n = len(blocks)
     if n <= 1:
@@ -199,9 +198,7 @@ def _remove_pass(
     return best[1], True
 
 
-def _merge_pass(
-    problem: Problem, state: State, ctx: _Context, _polarity: str = ""
-) -> tuple[State, bool]:
+def _merge_pass(problem: Problem, state: State, ctx: _Context) -> tuple[State, bool]:
     blocks, shared = problem.blocks(state.x)
     n = len(blocks)
     width = shared[0]
@@ -406,9 +403,10 @@ def improve_scene(
         The final state, the accepted moves in plain words, and the dispersion used.
     """
     ctx = _Context(dispersion(problem, state))
+    split = functools.partial(_split_pass, polarity=polarity)  # its septum's sign
     for _ in range(max_moves):
-        for move in (_remove_pass, _merge_pass, _split_pass):
-            state, changed = move(problem, state, ctx, polarity)
+        for move in (_remove_pass, _merge_pass, split):
+            state, changed = move(problem, state, ctx)
             if changed:
                 break
         else:
