@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import imageio.v3 as iio
 import numpy as np
 import pytest
 import tifffile
 
-from napari_symbac.io import napari_get_reader, read_recording
+from napari_symbac.io import napari_get_reader, read_image, read_recording
 
 
 def test_imagej_pixel_size(tmp_path):
@@ -74,3 +75,39 @@ def test_ome_contrast_method_gives_modality(tmp_path, method, modality):
     )
     assert read_recording(path).modality == modality
     assert read_recording(tmp_path / "x.ome.tif").pixel_size_um is None
+
+
+def test_read_image_takes_a_grey_png_and_grey_saved_as_colour(tmp_path):
+    """The Omnipose sample colonies are grey PNGs saved as RGB(A): every command reads
+    their grey channel, as the widgets do."""
+    grey = (np.arange(40 * 48) % 251).astype(np.uint8).reshape(40, 48)
+    iio.imwrite(tmp_path / "grey.png", grey)
+    recording = read_image(tmp_path / "grey.png")
+    np.testing.assert_array_equal(recording.data, grey)
+    assert recording.pixel_size_um is None
+    assert recording.name == "grey"
+    rgba = np.dstack([grey, grey, grey, np.full_like(grey, 255)])
+    iio.imwrite(tmp_path / "rgba.png", rgba)
+    np.testing.assert_array_equal(read_image(tmp_path / "rgba.png").data, grey)
+    deep = grey.astype(np.uint16) * 200
+    iio.imwrite(tmp_path / "deep.png", deep)
+    np.testing.assert_array_equal(read_image(tmp_path / "deep.png").data, deep)
+
+
+def test_read_image_refuses_colour_and_other_formats_by_name(tmp_path):
+    colour = np.zeros((16, 16, 3), np.uint8)
+    colour[..., 0] = 200
+    iio.imwrite(tmp_path / "colour.png", colour)
+    with pytest.raises(ValueError, match=r"colour.png is a colour image"):
+        read_image(tmp_path / "colour.png", "IMAGE")
+    (tmp_path / "cells.jpg").write_bytes(b"x")
+    with pytest.raises(ValueError, match=r"cells.jpg is not a TIFF or PNG"):
+        read_image(tmp_path / "cells.jpg")
+    with pytest.raises(ValueError, match=r"--masks .*nope.png does not exist"):
+        read_image(tmp_path / "nope.png", "--masks")
+    (tmp_path / "broken.png").write_bytes(b"not a png")
+    with pytest.raises(ValueError, match=r"broken.png is not a readable PNG"):
+        read_image(tmp_path / "broken.png")
+    tiff = tmp_path / "stack.tif"
+    tifffile.imwrite(tiff, np.ones((3, 8, 8), np.uint16))
+    assert read_image(tiff).data.shape == (3, 8, 8)

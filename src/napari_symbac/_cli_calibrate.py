@@ -19,52 +19,21 @@ import numpy as np
 
 from napari_symbac._timing import StepTimer
 
-__all__ = ["read_image", "run_calibrate"]
+__all__ = ["read_frame", "run_calibrate"]
 
-_IMAGE_SUFFIXES = (".tif", ".tiff", ".png")
+def read_frame(path: str, what: str) -> tuple[np.ndarray, float | None, str | None]:
+    """One grey 2D frame from a TIFF (with its pixel size and modality) or a PNG
+    (:func:`napari_symbac.io.read_image`)."""
+    from napari_symbac.io import read_image
 
-
-def read_image(path: str, what: str) -> tuple[np.ndarray, float | None, str | None]:
-    """One grey 2D frame from a TIFF (with its pixel size and modality) or a PNG.
-
-    An RGB(A) PNG whose colour channels are equal (a grey image saved as colour) is
-    read as its first channel; a colour one is refused.
-    """
-    p = Path(path)
-    if not p.is_file():
-        raise ValueError(f"{what} {path} does not exist")
-    if not p.name.lower().endswith(_IMAGE_SUFFIXES):
-        raise ValueError(f"{what} {p.name} is not a TIFF or PNG file: convert it to TIFF")
-    if p.name.lower().endswith(".png"):
-        import imageio.v3 as iio
-
-        try:
-            data = np.asarray(iio.imread(p))
-        except (OSError, ValueError) as err:
-            raise ValueError(f"{what} {p.name} is not a readable PNG: {err}") from err
-        pixel, modality = None, None
-    else:
-        from napari_symbac.io import read_recording
-
-        recording = read_recording(p)
-        data, pixel, modality = np.asarray(recording.data), recording.pixel_size_um, (
-            recording.modality
-        )
-    if data.ndim == 3 and data.shape[-1] in (3, 4):
-        colour = data[..., :3]
-        if not (np.array_equal(colour[..., 0], colour[..., 1])
-                and np.array_equal(colour[..., 0], colour[..., 2])):
-            raise ValueError(
-                f"{what} {p.name} is a colour image {data.shape}: save one grey channel "
-                "(the camera's raw frame)"
-            )
-        data = data[..., 0]
+    recording = read_image(path, what)
+    data = np.asarray(recording.data)
     if data.ndim != 2:
         raise ValueError(
-            f"{what} {p.name} must be one 2D frame, got shape {data.shape}: save the frame "
-            "to calibrate on by itself"
+            f"{what} {Path(path).name} must be one 2D frame, got shape {data.shape}: save the "
+            "frame to calibrate on by itself"
         )
-    return data, pixel, modality
+    return data, recording.pixel_size_um, recording.modality
 
 
 def _write_png(path: Path, rgb: np.ndarray) -> None:
@@ -100,9 +69,9 @@ def run_calibrate(args: argparse.Namespace) -> int:
             f"known formats: {', '.join(FORMATS)}"
         )
     with timer.step("load"):
-        image, file_pixel, file_modality = read_image(args.image, "IMAGE")
-        masks = None if args.masks is None else read_image(args.masks, "--masks")[0]
-        labels = None if args.labels is None else read_image(args.labels, "--labels")[0]
+        image, file_pixel, file_modality = read_frame(args.image, "IMAGE")
+        masks = None if args.masks is None else read_frame(args.masks, "--masks")[0]
+        labels = None if args.labels is None else read_frame(args.labels, "--labels")[0]
         if masks is not None and not np.issubdtype(masks.dtype, np.integer):
             raise ValueError(f"--masks must hold integer cell ids, got {masks.dtype}")
         microscope = load_microscope(args.microscope)

@@ -111,12 +111,9 @@ def _config_note(config: str | None, keys: dict[str, Any], geometry: str) -> str
 
 
 def _read_stack(path: str, what: str) -> np.ndarray:
-    import tifffile
+    from napari_symbac.io import read_image
 
-    try:
-        return np.asarray(tifffile.imread(path))
-    except (tifffile.TiffFileError, ValueError) as err:
-        raise ValueError(f"{what} {path} is not a readable TIFF: {err}") from err
+    return np.asarray(read_image(path, what).data)
 
 
 def _per_frame(array: np.ndarray | None, frame: int, n_frames: int, shape: tuple) -> Any:
@@ -586,21 +583,16 @@ def run_fit(args: argparse.Namespace) -> int:
     """Run ``napari-symbac fit`` with parsed arguments; returns the exit code."""
     from napari_symbac.fit.preflight import resolve_pixel_size
     from napari_symbac.fit.report import write_atomically
-    from napari_symbac.io import read_recording
+    from napari_symbac.io import read_image
     from napari_symbac.settings import PipelineSettings, load_microscope, load_settings
 
     timer = StepTimer()
     stages = _Stages()
     stages.stage("loading inputs")
     with timer.step("load"):
-        recording = read_recording(args.image)
+        recording = read_image(args.image, "IMAGE")
         data = np.asarray(recording.data)
         name = Path(args.image).name
-        if data.ndim == 3 and data.shape[-1] in (3, 4):
-            raise ValueError(
-                f"{name} looks like an RGB(A) image {data.shape}: save one grey channel "
-                "(the camera's raw frame) as the TIFF"
-            )
         if data.ndim not in (2, 3):
             raise ValueError(f"{name} must be one 2D frame or a (T, Y, X) series, got {data.shape}")
         stack = data if data.ndim == 3 else data[None]

@@ -235,12 +235,13 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
+    import dataclasses
     import json
 
     import numpy as np
-    import tifffile
     import yaml
 
+    from napari_symbac._cli_fit import TRENCH_MAX_WIDTH_PX
     from napari_symbac.diagnose.config import load_microscope_file
     from napari_symbac.diagnose.figures import write_figures
     from napari_symbac.diagnose.model import build_design
@@ -248,7 +249,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from napari_symbac.diagnose.run import diagnose
     from napari_symbac.diagnose.stages import updated_settings
     from napari_symbac.fit import fit_scene
-    from napari_symbac.io import read_recording
+    from napari_symbac.fit.preflight import resolve_pixel_size
+    from napari_symbac.io import read_image
     from napari_symbac.settings import PipelineSettings, RenderSettings, save_settings
 
     timer = StepTimer()
@@ -256,13 +258,19 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         config = load_microscope_file(args.microscope)
         for note in config.notes:
             print(f"note: {note}", file=sys.stderr)
-        image = np.asarray(read_recording(args.image).data)
+        recording = read_image(args.image, "IMAGE")
+        microscope, pixel_note = resolve_pixel_size(recording.pixel_size_um, config.microscope)
+        if "disagrees" in pixel_note:
+            print(f"note: {pixel_note}", file=sys.stderr)
+        image = np.asarray(recording.data)
         if image.ndim not in (2, 3):
             raise ValueError(
                 f"{args.image} must be one frame (Y, X) or a series (T, Y, X), got {image.shape}"
             )
         stack = image[None] if image.ndim == 2 else image
-        labels = None if args.labels is None else tifffile.imread(args.labels)
+        labels = None
+        if args.labels is not None:
+            labels = np.asarray(read_image(args.labels, "--labels").data)
         if labels is not None and labels.shape != stack.shape[-2:]:
             raise ValueError(
                 f"--labels has shape {labels.shape}, the image frames {stack.shape[-2:]}: "
@@ -286,37 +294,51 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                     "another window, --region full the whole frame",
                     file=sys.stderr,
                 )
-        geometry = args.geometry or ("trench" if stack.shape[-1] <= 100 else "open")
+        geometry = "open" if args.geometry == "field" else args.geometry
+        if geometry is None:
+            wide = stack.shape[-1] > TRENCH_MAX_WIDTH_PX
+            geometry = "open" if wide or microscope.modality == "fluorescence" else "trench"
     start = RenderSettings()
-    if config.microscope.modality == "fluorescence":
+    if microscope.modality == "fluorescence":
         start = RenderSettings(cell_intensity=2000.0, media_intensity=200.0, device_intensity=200.0)
     update, bar = _tqdm_progress("fit")
     scenes = []
+    camera = config.camera
     with timer.step("base fit"):
         render = start
         for k, frame in enumerate(stack):
-            fit = fit_scene(
-                frame, config.microscope, render, config.camera, labels=labels, geometry=geometry
-            )
+            # Without a camera in the file the first frame's fit measures it (gain and
+            # read noise from the image, as `napari-symbac fit` does); the other frames
+            # and the diagnosis use that camera.
+            fit = fit_scene(frame, microscope, render, camera, labels=labels, geometry=geometry)
+            if camera is None:
+                camera = fit.camera
+                print(
+                    f"note: camera measured from the recording: {camera.sensitivity_adu_per_e:.3g} "
+                    f"ADU/e-, read noise {camera.dark_noise_e:.3g} e-, baseline "
+                    f"{camera.baseline_adu:.4g} ADU",
+                    file=sys.stderr,
+                )
             scenes.append(fit.scene)
             render = fit.render
             update(k + 1, len(stack))
     bar.close()
     update, bar = _tqdm_progress("diagnose")
     with timer.step("diagnose"):
-        design = build_design(scenes, config.microscope, render, config.camera)
+        design = build_design(scenes, microscope, render, camera)
         result = diagnose(stack, design, rng=np.random.default_rng(args.seed), progress=update)
     bar.close()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     with timer.step("write"):
         doc = result.as_dict()
-        doc["notes"] = list(config.notes)
+        doc["notes"] = [*config.notes, pixel_note]
+        doc["camera"] = dataclasses.asdict(camera)
         doc["region"] = {"rows": [y0, y1], "columns": [x0, x1]}
         (out / "diagnosis.json").write_text(json.dumps(doc, indent=2, default=float))
         (out / "report.txt").write_text(result.report() + "\n")
         figures = write_figures(result, stack, out)
-        base = PipelineSettings(microscope=config.microscope, render=render, camera=config.camera)
+        base = PipelineSettings(microscope=microscope, render=render, camera=camera)
         accepted = [(e.name, e.params) for e in result.accepted]
         settings, extra = updated_settings(base, accepted)
         save_settings(settings, out / "settings.yaml")
@@ -489,7 +511,9 @@ def build_parser() -> argparse.ArgumentParser:
         "them), residual.tif, before_after.png and report.txt (what did not converge or "
         "sits at a bound). Refuses inputs it cannot fit, saying what to pass instead.",
     )
-    fit.add_argument("image", help="real image (TIFF): one frame or a (T, Y, X) series")
+    fit.add_argument(
+        "image", help="real image (TIFF, or a grey PNG): one frame or a (T, Y, X) series"
+    )
     fit.add_argument("--microscope", required=True, help="Microscope YAML/JSON")
     fit.add_argument("--out", required=True, help="output folder")
     start = fit.add_mutually_exclusive_group()
@@ -583,11 +607,19 @@ def build_parser() -> argparse.ArgumentParser:
         description="Fit the scene, test the catalogue of missing effects, keep those that "
         "improve held-out pixels; write diagnosis.json, report.txt, figures and settings.",
     )
-    diag.add_argument("image", help="recording (TIFF), one frame or a (T, Y, X) series")
+    diag.add_argument("image", help="recording (TIFF or PNG), one frame or a (T, Y, X) series")
     diag.add_argument("--labels", help="painted class labels TIFF (1 cell, 2 media, 3 device)")
-    diag.add_argument("--microscope", required=True, help="microscope JSON/YAML (issue 11 keys)")
     diag.add_argument(
-        "--geometry", choices=("trench", "open"), help="default: trench if <= 100 px wide"
+        "--microscope",
+        required=True,
+        help="microscope JSON/YAML: modality, pixel_size_um, NA, refractive_index, "
+        "wavelength_um[, camera] (or the file of `napari-symbac defaults microscope`)",
+    )
+    diag.add_argument(
+        "--geometry",
+        choices=("trench", "field", "open"),
+        help="mother-machine trench or open field ('open' is the same as 'field'; default: "
+        "field for fluorescence or an image wider than 100 px, else trench)",
     )
     diag.add_argument(
         "--region",

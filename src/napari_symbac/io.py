@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
+import dataclasses
 import struct
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Recording", "napari_get_reader", "read_recording", "write_dataset"]
+__all__ = ["Recording", "napari_get_reader", "read_image", "read_recording", "write_dataset"]
 
 _TIFF_SUFFIXES = (".tif", ".tiff", ".ome.tif", ".ome.tiff")
+_PNG_SUFFIXES = (".png",)
 _UNIT_TO_UM = {"um": 1.0, "µm": 1.0, "micron": 1.0, "\\u00B5m": 1.0, "nm": 1e-3, "mm": 1e3}
 
 
@@ -165,6 +167,60 @@ def read_recording(path: str | Path) -> Recording:
             name = name[: -len(suffix)]
             break
     return Recording(data=data, pixel_size_um=pixel, name=name, modality=modality, kind=kind)
+
+
+def read_image(path: str | Path, what: str = "image") -> Recording:
+    """Read a recording for the command line: a TIFF (:func:`read_recording`) or a PNG.
+
+    A PNG records no pixel size or modality. An RGB(A) image whose colour channels are
+    equal (a grey image saved as colour, as the Omnipose sample colonies are) is read as
+    its grey channel; a colour image is refused, as napari's grey-channel layer is the
+    only one the widgets take.
+
+    Parameters
+    ----------
+    path
+        ``.tif``/``.tiff``/``.ome.tif`` or ``.png`` file.
+    what
+        How messages name the file (``"IMAGE"``, ``"--masks"``, ...).
+
+    Raises
+    ------
+    ValueError
+        If the file is missing, not a TIFF or PNG, unreadable, or in colour; the message
+        names the file and what to do.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{what} {path} does not exist")
+    lower = path.name.lower()
+    if lower.endswith(_PNG_SUFFIXES):
+        import imageio.v3 as iio
+
+        try:
+            data = np.asarray(iio.imread(path))
+        except (OSError, ValueError) as err:
+            raise ValueError(f"{what} {path.name} is not a readable PNG: {err}") from err
+        recording = Recording(data=data, pixel_size_um=None, name=path.name[: -len(".png")])
+    elif lower.endswith(_TIFF_SUFFIXES):
+        recording = read_recording(path)
+    else:
+        raise ValueError(
+            f"{what} {path.name} is not a TIFF or PNG file (.tif/.tiff/.png): convert it to TIFF"
+        )
+    data = recording.data
+    if data.ndim == 3 and data.shape[-1] in (3, 4) and min(data.shape[:2]) > 4:
+        colour = data[..., :3]
+        if not (
+            np.array_equal(colour[..., 0], colour[..., 1])
+            and np.array_equal(colour[..., 0], colour[..., 2])
+        ):
+            raise ValueError(
+                f"{what} {path.name} is a colour image {data.shape}: save one grey channel "
+                "(the camera's raw frame)"
+            )
+        recording = dataclasses.replace(recording, data=np.ascontiguousarray(data[..., 0]))
+    return recording
 
 
 def napari_get_reader(path):

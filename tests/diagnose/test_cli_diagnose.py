@@ -78,3 +78,29 @@ def test_diagnose_command_writes_the_issue_outputs(tmp_path):
     assert evidence == sorted(evidence, reverse=True)
     for name in ("report.txt", "residuals.png", "settings.yaml", "extra_stages.yaml"):
         assert (out / name).is_file()
+
+
+@pytest.mark.slow
+def test_diagnose_measures_the_camera_and_reads_a_png(tmp_path, capsys):
+    """A grey PNG and the microscope file of `napari-symbac defaults microscope`, no
+    camera: the camera is measured from the recording (the recording's 2.9 ADU/e- here),
+    not assumed, so that `camera_noise` looks past it."""
+    import imageio.v3 as iio
+
+    case = make_case("fixed_pattern_noise", fraction_of_sd=0.9, seed=7)
+    image = tmp_path / "trench.png"
+    iio.imwrite(image, np.asarray(case.images[0][:96], np.uint16))
+    assert main(["defaults", "microscope", "--out", str(tmp_path / "mic.yaml")]) == 0
+    out = tmp_path / "out"
+    args = ["diagnose", str(image), "--microscope", str(tmp_path / "mic.yaml"), "--out", str(out)]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert "camera measured from the recording" in err
+    doc = json.loads((out / "diagnosis.json").read_text())
+    measured = doc["camera"]["sensitivity_adu_per_e"]
+    assert measured == pytest.approx(2.9, rel=0.15)  # 96 x 46 pixels measure it to ~10 %
+    accepted = {e["name"]: e["params"] for e in doc["effects"] if e["accepted"]}
+    assert "fixed_pattern_noise" in accepted
+    # camera_noise may refine the measured gain; what the diagnosis ends with is the truth
+    final = measured * accepted.get("camera_noise", {}).get("gain_ratio", 1.0)
+    assert final == pytest.approx(2.9, rel=0.05)

@@ -91,6 +91,23 @@ def test_microscope_file_checks():
         parse_microscope({**good, "modality": "darkfield"})
 
 
+def test_microscope_file_of_defaults_microscope_is_read():
+    """Found as a user: the file `napari-symbac defaults microscope` writes (the
+    Microscope's own names) was refused by `diagnose` ("lacks NA") though `fit` read it."""
+    from dataclasses import asdict
+
+    from napari_symbac.settings import Microscope
+
+    written = asdict(Microscope(pixel_size_um=0.08, modality="fluorescence"))
+    config = parse_microscope(written)
+    assert config.microscope == Microscope(pixel_size_um=0.08, modality="fluorescence")
+    assert config.camera is None  # measured from the recording by the command
+    assert any("measured from the recording" in note for note in config.notes)
+    assert not any("unknown key" in note for note in config.notes)
+    with pytest.raises(ValueError, match=r"both NA .* and numerical_aperture"):
+        parse_microscope({**written, "NA": 0.9})
+
+
 @pytest.mark.parametrize(
     ("effect", "seed"), [("uneven_illumination", 1000), ("fixed_pattern_noise", 1020)]
 )

@@ -408,11 +408,28 @@ def test_refuses_a_series_with_a_frame_without_cells(tmp_path, truth, capsys):
     assert "fit the frames before and after frame 1 as separate series" in error
 
 
-def test_refuses_an_rgb_image(tmp_path, truth, inputs, capsys):
+def test_refuses_a_colour_image(tmp_path, truth, inputs, capsys):
     _, _, microscope = inputs
     image = tmp_path / "rgb.tif"
-    tifffile.imwrite(image, np.repeat(truth.image[..., None], 3, axis=-1))
-    assert "RGB" in _refused(capsys, tmp_path / "o", image, "--microscope", microscope)
+    colour = np.repeat(truth.image[..., None], 3, axis=-1)
+    colour[..., 0] //= 2
+    tifffile.imwrite(image, colour)
+    error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope)
+    assert "rgb.tif is a colour image" in error
+    assert "save one grey channel" in error
+
+
+def test_fits_a_grey_png(tmp_path, truth, inputs, capsys):
+    """Found as a user: `fit` refused the Omnipose sample PNGs ("not a TIFF file") that
+    `calibrate` and the widgets read (grey saved as colour: tests/test_recording_io.py)."""
+    _, labels, microscope = inputs
+    image = tmp_path / "real.png"
+    iio.imwrite(image, np.asarray(truth.image, np.uint16))
+    out = tmp_path / "fit"
+    assert _fit(image, "--labels", labels, "--microscope", microscope, "--out", out) == 0
+    assert "image file records none" in (out / "report.txt").read_text()
+    table = json.loads((out / "cells.json").read_text())
+    assert len(table["cells"]) == 3
 
 
 def test_labels_and_masks_together_are_a_usage_error(tmp_path, inputs):

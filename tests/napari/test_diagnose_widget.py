@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -58,6 +60,12 @@ def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
     settings = residual.metadata[SYMBAC_METADATA_KEY]["settings"]
     assert isinstance(settings, PipelineSettings)
     assert settings.microscope.pixel_size_um == 0.065
+    # the camera is measured from the recording (2.0 ADU/e- on the whole trench, 1.8 on
+    # this window), not assumed (2.9 ADU/e- by default)
+    pattern = r"camera measured from the recording \(([0-9.]+) ADU/e-"
+    measured = re.search(pattern, widget.status.value)
+    assert measured is not None, widget.status.value
+    assert float(measured.group(1)) == pytest.approx(2.0, rel=0.2)
     # Export offers the diagnosis' settings
     export = ExportWidget(viewer)
     assert export.source.value is residual

@@ -124,7 +124,10 @@ class DiagnoseWidget(Container):
     def _input(self) -> tuple:
         """Frame, classes (or ``None``), microscope, start render, camera, geometry, region.
 
-        A frame larger than :data:`~napari_symbac.diagnose.region.MAX_DIAGNOSIS_PIXELS`
+        The camera is ``None``: the base fit measures it from the recording (gain and read
+        noise, as Auto-fit and ``napari-symbac fit`` do), so that the diagnosis does not
+        report the difference from an assumed camera as a finding. A frame larger than
+        :data:`~napari_symbac.diagnose.region.MAX_DIAGNOSIS_PIXELS`
         is diagnosed on its centre window (``region``: rows ``y0:y1``, columns
         ``x0:x1``), as the CLI does by default.
 
@@ -134,7 +137,7 @@ class DiagnoseWidget(Container):
             With what to do, when no recording is chosen.
         """
         from napari_symbac.diagnose.region import MAX_DIAGNOSIS_PIXELS, default_region
-        from napari_symbac.settings import Camera, RenderSettings
+        from napari_symbac.settings import RenderSettings
 
         layer = self.reference.value
         if layer is None:
@@ -168,7 +171,7 @@ class DiagnoseWidget(Container):
             render = modality_render(RenderSettings(), microscope.modality, means)
         else:  # the CLI's start (``napari-symbac diagnose``)
             render = RenderSettings()
-        camera = Camera()
+        camera = None  # measured by the base fit
         # as the CLI: a narrow field is a trench; fluorescence shows no walls
         walled = frame.shape[-1] <= 100 and microscope.modality == "phase"
         geometry = "trench" if walled else "open"
@@ -207,7 +210,7 @@ class DiagnoseWidget(Container):
             )
             if cancel():
                 raise InterruptedError("diagnosis cancelled")
-            design = build_design([fit.scene], microscope, fit.render, camera)
+            design = build_design([fit.scene], microscope, fit.render, fit.camera)
             result = diagnose(
                 frame,
                 design,
@@ -233,7 +236,7 @@ class DiagnoseWidget(Container):
             owner=self.native,
         )
         self._layer = self.reference.value
-        self._settings_base = (microscope, camera)
+        self._microscope = microscope
         self._region = region
         self.run_button.enabled = False
         self.cancel_button.enabled = True
@@ -265,8 +268,8 @@ class DiagnoseWidget(Container):
 
         fit, result = output
         self.result = result
-        microscope, camera = self._settings_base
-        base = PipelineSettings(microscope=microscope, render=fit.render, camera=camera)
+        camera = fit.camera
+        base = PipelineSettings(microscope=self._microscope, render=fit.render, camera=camera)
         settings, extra = updated_settings(base, [(e.name, e.params) for e in result.accepted])
         layer = self._layer
         scale = tuple(layer.scale[-2:])
@@ -314,8 +317,10 @@ class DiagnoseWidget(Container):
         self.report.value = result.report()
         names = ", ".join(e.name for e in result.accepted) or "nothing significant"
         self.status.value = (
-            f"Accepted: {names}{self._window_note}. Updated settings are in the "
-            f"'{DIAGNOSIS_RESIDUAL_LAYER}' layer: choose it under Export's 'settings from'."
+            f"Accepted: {names}{self._window_note}; camera measured from the recording "
+            f"({camera.sensitivity_adu_per_e:.3g} ADU/e-, read noise {camera.dark_noise_e:.3g} "
+            f"e-). Updated settings are in the '{DIAGNOSIS_RESIDUAL_LAYER}' layer: choose it "
+            "under Export's 'settings from'."
         )
 
     def _on_cancelled(self) -> None:

@@ -15,16 +15,30 @@ from napari_symbac.settings import Camera, Microscope
 __all__ = ["DiagnoseConfig", "load_microscope_file", "parse_microscope"]
 
 REQUIRED = ("modality", "pixel_size_um", "NA", "refractive_index", "wavelength_um")
-OPTIONAL = ("condenser", "trench_width_um", "objective", "camera", "frame_interval_s")
+OPTIONAL = (
+    "condenser",
+    "trench_width_um",
+    "objective",
+    "magnification",
+    "camera",
+    "frame_interval_s",
+)
+#: The :class:`~napari_symbac.settings.Microscope` field names (what ``napari-symbac
+#: defaults microscope`` writes) for the keys this file names otherwise.
+ALIASES = {"numerical_aperture": "NA"}
 CAMERA_KEYS = ("baseline_adu", "sensitivity_adu_per_e", "dark_noise_e")
 
 
 @dataclass(frozen=True)
 class DiagnoseConfig:
-    """Microscope and camera of the recording, plus optional trench width and frame interval."""
+    """Microscope and camera of the recording, plus optional trench width and frame interval.
+
+    ``camera`` is ``None`` when the file gives none: the command then measures it from
+    the recording (as ``napari-symbac fit`` does).
+    """
 
     microscope: Microscope
-    camera: Camera
+    camera: Camera | None
     trench_width_um: float | None = None
     frame_interval_s: float | None = None
     notes: tuple[str, ...] = ()
@@ -43,17 +57,28 @@ def parse_microscope(data: object, where: str = "microscope file") -> DiagnoseCo
     Required: ``modality`` ("phase" | "fluorescence"), ``pixel_size_um``, ``NA``,
     ``refractive_index``, ``wavelength_um``. Optional: ``condenser``,
     ``trench_width_um``, ``objective`` (e.g. "100x oil": its magnification is read),
-    ``camera`` {``baseline_adu``, ``sensitivity_adu_per_e``, ``dark_noise_e``},
-    ``frame_interval_s``. Unknown keys are ignored with a note.
+    ``magnification``, ``camera`` {``baseline_adu``, ``sensitivity_adu_per_e``,
+    ``dark_noise_e``}, ``frame_interval_s``. The microscope file that ``napari-symbac
+    defaults microscope`` writes (``numerical_aperture`` for ``NA``) is read as well, so
+    that one file serves every command. Unknown keys are ignored with a note.
     """
     if not isinstance(data, dict):
         raise ValueError(f"{where} must be a mapping of keys to values, got {type(data).__name__}")
+    for alias, key in ALIASES.items():
+        if alias in data:
+            if key in data and data[key] != data[alias]:
+                raise ValueError(
+                    f"{where} gives both {key} ({data[key]!r}) and {alias} ({data[alias]!r}): "
+                    "keep one"
+                )
+            data = {key if k == alias else k: v for k, v in data.items()}
     missing = [k for k in REQUIRED if k not in data]
     if missing:
         raise ValueError(
             f"{where} lacks the required key(s) {', '.join(missing)}; it needs "
             f"{', '.join(REQUIRED)} (e.g. modality: phase, pixel_size_um: 0.065, NA: 1.45, "
-            "refractive_index: 1.518, wavelength_um: 0.65)"
+            "refractive_index: 1.518, wavelength_um: 0.65), or write one with "
+            "`napari-symbac defaults microscope --out FILE`"
         )
     notes = [f"unknown key {k!r} ignored" for k in data if k not in REQUIRED + OPTIONAL]
     modality = data["modality"]
@@ -68,6 +93,8 @@ def parse_microscope(data: object, where: str = "microscope file") -> DiagnoseCo
     }
     if "condenser" in data:
         kwargs["condenser"] = str(data["condenser"])
+    if "magnification" in data:
+        kwargs["magnification"] = _number(data, "magnification", where)
     if "objective" in data:
         match = re.search(r"(\d+(?:\.\d+)?)\s*[xX]", str(data["objective"]))
         if match:
@@ -77,7 +104,7 @@ def parse_microscope(data: object, where: str = "microscope file") -> DiagnoseCo
                 f"objective {data['objective']!r}: no magnification found (e.g. '100x oil')"
             )
     microscope = Microscope(**kwargs)
-    camera = Camera()
+    camera = None
     if "camera" in data:
         cam = data["camera"]
         if not isinstance(cam, dict):
@@ -86,7 +113,8 @@ def parse_microscope(data: object, where: str = "microscope file") -> DiagnoseCo
         camera = Camera(**{k: _number(cam, k, f"{where} camera") for k in CAMERA_KEYS if k in cam})
     else:
         notes.append(
-            "no camera given: the default camera (100 ADU baseline, 2.9 ADU/e-, 8 e-) assumed"
+            "no camera given: its gain and read noise are measured from the recording "
+            "(add camera: {baseline_adu, sensitivity_adu_per_e, dark_noise_e} to give it)"
         )
     width = _number(data, "trench_width_um", where) if "trench_width_um" in data else None
     interval = _number(data, "frame_interval_s", where) if "frame_interval_s" in data else None

@@ -200,7 +200,9 @@ def resolve_pixel_size(
     """
     given = microscope.pixel_size_um
     if file_pixel_um is None or not math.isfinite(file_pixel_um) or file_pixel_um <= 0:
-        return microscope, f"pixel size {given:.4g} um from --microscope (the TIFF records none)"
+        return microscope, (
+            f"pixel size {given:.4g} um from --microscope (the image file records none)"
+        )
     if abs(file_pixel_um - given) <= tolerance * given:
         return microscope, f"pixel size {file_pixel_um:.4g} um (TIFF and --microscope agree)"
     try:

@@ -21,8 +21,9 @@ class CameraNoise(Effect):
 
     name = "camera_noise"
     explanation = (
-        "The camera is noisier (or quieter) than its declared gain and read noise: the "
-        "pixel-to-pixel scatter grows with brightness at a different rate (photon transfer)."
+        "The camera is noisier (or quieter) than the gain and read noise given (or measured "
+        "from the image before the fit): the pixel-to-pixel scatter grows with brightness at "
+        "a different rate (photon transfer)."
     )
     signature = "variance of the standardised residual against the mean level (photon transfer)"
     kind = "variance"
