@@ -66,6 +66,11 @@ def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
     measured = re.search(pattern, widget.status.value)
     assert measured is not None, widget.status.value
     assert float(measured.group(1)) == pytest.approx(2.0, rel=0.2)
+    # and the residual's excess over it (reduced chi-square 43 before the diagnosis) is
+    # misfit of the mean, not camera noise: camera_noise, judged on the high-pass residual,
+    # at most refines the gain measured on this window (1.82 -> 2.0, the whole trench's)
+    # where the plain residual had made it 13x
+    assert settings.camera.sensitivity_adu_per_e == pytest.approx(2.0, rel=0.2)
     # Export offers the diagnosis' settings
     export = ExportWidget(viewer)
     assert export.source.value is residual

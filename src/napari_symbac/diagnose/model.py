@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy import ndimage, optimize, special
+from scipy import ndimage, special
 
 from napari_symbac.optics.forward import ForwardModel, block_average
 from napari_symbac.settings import Camera, Microscope, RenderSettings
@@ -380,21 +380,6 @@ def _jacobian(design: BaseDesign, beta: np.ndarray, effects: list, mu: np.ndarra
     return np.stack(cols) if cols else np.zeros((0, *mu.shape))
 
 
-def _fit_camera(r2: np.ndarray, mu: np.ndarray, camera: Camera) -> tuple[float, float]:
-    """Maximum-likelihood gain and read-noise factors given squared residuals."""
-    s = camera.sensitivity_adu_per_e
-    a, b = s * np.maximum(mu, 0.0), (s * camera.dark_noise_e) ** 2
-
-    def nll(p: np.ndarray) -> float:
-        v = np.exp(p[0]) * a + np.exp(p[1]) * b + 1.0 / 12.0
-        return float(np.sum(r2 / v + np.log(v)))
-
-    res = optimize.minimize(
-        nll, np.zeros(2), method="Nelder-Mead", options={"xatol": 1e-5, "fatol": 1e-6}
-    )
-    return float(np.exp(res.x[0])), float(np.exp(res.x[1]))
-
-
 #: Levenberg-Marquardt damping tried, in turn, when the Gauss-Newton step does not
 #: lower the weighted cost (on the normal matrix scaled to a unit diagonal).
 DAMPING = (1e-6, 1e-4, 1e-2, 1.0, 1e2, 1e4)
@@ -543,9 +528,11 @@ def fit_model(
             beta, effects, mu = _descent_step(
                 design, beta, effects, normal, rhs, mu, yv, idx, w, cost, penalty
             )
-        if fit_camera:
-            r2 = (yv - mu.ravel()[idx]) ** 2
-            gain, read = _fit_camera(r2, mu.ravel()[idx], design.camera)
+        if fit_camera:  # on the high-pass residual: a misfit of the mean is not noise
+            from napari_symbac.diagnose.effects import camera_noise
+
+            data = ~censor.mask(y) if censor is not None else np.ones(y.shape, bool)
+            gain, read = camera_noise.fit_factors(y - mu, mu, design.camera, data, fit_mask)
     mu = predict(design, beta, effects)
     return FittedModel(
         beta,
