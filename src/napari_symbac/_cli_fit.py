@@ -321,6 +321,13 @@ def _prepare_one(args, frame, labels, masks, microscope, base, keys):
     if args.max_iterations is not None:
         options["max_iterations"] = args.max_iterations
     options.update(_model_options(args))
+    if geometry == "open" and microscope.modality == "phase":
+        notes.append(
+            "phase contrast is fitted here with the linear (weak-phase) kernel of eq. 7-14, "
+            "which cannot make the bright halos and gaps of dense colonies on a pad "
+            "(docs/rendering.md); `napari-symbac calibrate IMAGE --masks M` fits the "
+            "partially coherent phase model to such an image"
+        )
     if "illumination_order" in options:
         notes.append(
             f"an illumination surface of degree {options['illumination_order']} is fitted "

@@ -235,6 +235,25 @@ def test_real_trench_with_config_closed_end_round(tmp_path, real_data_dir):
     assert table["trench"]["closed_end"] == "round"
 
 
+def test_a_phase_colony_fit_says_the_linear_kernel_lacks_its_halo(tmp_path, real_data_dir):
+    """Found as a user: `fit` on an Omnipose colony (a grey PNG with its masks) gives a
+    grey copy of the cells without the colony's halo; the report points to calibrate."""
+    root = real_data_dir / "omnipose"
+    grey = iio.imread(root / "Sample000193.png")[..., 0][250:330, 250:330]
+    masks = tifffile.imread(root / "Sample000193_cp_masks.tif")[250:330, 250:330]
+    image, mask_file = tmp_path / "colony.png", tmp_path / "masks.tif"
+    iio.imwrite(image, grey)
+    tifffile.imwrite(mask_file, masks)
+    microscope = save_settings(Microscope(pixel_size_um=0.0745), tmp_path / "microscope.yaml")
+    out = tmp_path / "fit"
+    assert _fit(image, "--microscope", microscope, "--geometry", "field", "--masks", mask_file,
+                "--out", out, "--max-iterations", 2) == 0  # fmt: skip
+    report = (out / "report.txt").read_text()
+    notes = report[report.index("NOTES") :]
+    assert "linear (weak-phase) kernel" in notes
+    assert "napari-symbac calibrate IMAGE --masks M" in notes
+
+
 @pytest.mark.slow
 def test_real_colicoords_fluorescence_field_with_masks(tmp_path, real_data_dir):
     """A crop of ColiCoords ds1 field 1 (4 whole cells), background-subtracted."""
