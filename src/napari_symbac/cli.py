@@ -234,6 +234,27 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     return run_calibrate(args)
 
 
+def _measured_camera_note(frame, camera) -> str:
+    """What the base fit measured, and what the image's own photon transfer says of it
+    (correlated noise, or an image that is not raw camera counts)."""
+    from napari_symbac.fit.camera_estimate import estimate_camera
+
+    note = (
+        f"camera measured from the recording: {camera.sensitivity_adu_per_e:.3g} ADU/e-, "
+        f"read noise {camera.dark_noise_e:.3g} e-, baseline {camera.baseline_adu:.4g} ADU"
+    )
+    try:
+        estimate = estimate_camera(frame, camera=camera, bit_depth=camera.bit_depth)
+    except ValueError as err:
+        return f"{note}; the image's own photon transfer: {err}"
+    if estimate.neighbour_variance_ratio > 1.1:
+        note += (
+            f"; its noise is correlated between neighbours ({estimate.summary()}): "
+            "camera_noise and the held-out gains assume independent pixels"
+        )
+    return note
+
+
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     import dataclasses
     import json
@@ -313,12 +334,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             fit = fit_scene(frame, microscope, render, camera, labels=labels, geometry=geometry)
             if camera is None:
                 camera = fit.camera
-                print(
-                    f"note: camera measured from the recording: {camera.sensitivity_adu_per_e:.3g} "
-                    f"ADU/e-, read noise {camera.dark_noise_e:.3g} e-, baseline "
-                    f"{camera.baseline_adu:.4g} ADU",
-                    file=sys.stderr,
-                )
+                measured_note = _measured_camera_note(frame, camera)
+                print(f"note: {measured_note}", file=sys.stderr)
             scenes.append(fit.scene)
             render = fit.render
             update(k + 1, len(stack))
@@ -333,6 +350,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     with timer.step("write"):
         doc = result.as_dict()
         doc["notes"] = [*config.notes, pixel_note]
+        if config.camera is None:
+            doc["notes"].append(measured_note)
         doc["camera"] = dataclasses.asdict(camera)
         doc["region"] = {"rows": [y0, y1], "columns": [x0, x1]}
         (out / "diagnosis.json").write_text(json.dumps(doc, indent=2, default=float))

@@ -96,6 +96,7 @@ def test_diagnose_measures_the_camera_and_reads_a_png(tmp_path, capsys):
     assert main(args) == 0
     err = capsys.readouterr().err
     assert "camera measured from the recording" in err
+    assert "correlated between neighbours" not in err  # the rendered noise is white
     doc = json.loads((out / "diagnosis.json").read_text())
     measured = doc["camera"]["sensitivity_adu_per_e"]
     assert measured == pytest.approx(2.9, rel=0.1)  # 96 x 46 pixels: 2.68 ADU/e-
@@ -104,3 +105,24 @@ def test_diagnose_measures_the_camera_and_reads_a_png(tmp_path, capsys):
     # camera_noise may refine the measured gain; what the diagnosis ends with is near it
     final = measured * accepted.get("camera_noise", {}).get("gain_ratio", 1.0)
     assert final == pytest.approx(2.9, rel=0.1)
+
+
+def test_diagnose_says_when_a_recording_is_not_raw_counts(tmp_path, capsys, real_data_dir):
+    """The DeLTA trench is normalised to 0..1 and interpolated: the camera measured from it
+    is meaningless, and the diagnosis says why (its noise is correlated between
+    neighbours) instead of reporting 1.6e-06 ADU/e- as a camera."""
+    image = real_data_dir / "ecoli_delta_phase_normalised.tiff"
+    mic = tmp_path / "mic.json"
+    mic.write_text(
+        json.dumps(
+            {"modality": "phase", "pixel_size_um": 0.065, "NA": 1.45,
+             "refractive_index": 1.518, "wavelength_um": 0.65}
+        )
+    )
+    out = tmp_path / "out"
+    args = ["diagnose", str(image), "--microscope", str(mic), "--out", str(out)]
+    assert main([*args, "--region", "0:64,0:32"]) == 0
+    err = capsys.readouterr().err
+    assert "its noise is correlated between neighbours" in err
+    notes = json.loads((out / "diagnosis.json").read_text())["notes"]
+    assert any("correlated between neighbours" in note for note in notes)
