@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import multiprocessing
 import os
 import signal
 import threading
@@ -23,26 +24,48 @@ __all__ = [
     "close_quietly",
     "connect_scheduler",
     "local_cluster",
+    "start_workers_ignoring_interrupts",
 ]
 
 
-@contextlib.contextmanager
-def _children_ignore_interrupts():
-    """Ignore SIGINT while worker processes start, so they inherit the ignore.
+#: Modules the fork server imports before it forks the workers.
+_WORKER_PRELOAD = ("distributed", "napari_symbac.export.runner")
+
+
+def start_workers_ignoring_interrupts() -> str:
+    """Start multiprocessing's fork server with SIGINT ignored; the start method to use.
 
     Ctrl-C in a terminal interrupts every process of the foreground group; the workers
-    would each print a ``KeyboardInterrupt`` traceback. With SIGINT ignored they carry
-    on until this process, which handles the interrupt, shuts them down. Only the main
-    thread can change signal handlers; elsewhere (a GUI worker thread) nothing changes.
+    would each print a ``KeyboardInterrupt`` traceback. The fork server is started here
+    with SIGINT ignored for the moment its process is spawned: it keeps ignoring it, and
+    every worker it forks inherits that, so the workers go on until this process, which
+    handles the interrupt, shuts them down. This process ignores SIGINT only for that
+    spawn, before any item is written. (Before, it ignored SIGINT for the whole start of
+    the cluster, a second or more on a loaded machine, and a Ctrl-C pressed then was
+    lost: the export ran to its end.) Only the main thread can change a signal handler;
+    elsewhere (a GUI thread, which gets no Ctrl-C) the server starts as it is. Without a
+    fork server (Windows) the workers are spawned as before.
+
+    Returns
+    -------
+    str
+        ``"forkserver"``, or ``"spawn"`` where there is none.
     """
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return "spawn"
+    from multiprocessing import forkserver
+
+    # imported once in the server, not again in every worker it forks
+    forkserver.set_forkserver_preload(list(_WORKER_PRELOAD))
     if threading.current_thread() is not threading.main_thread():
-        yield
-        return
+        forkserver.ensure_running()
+        return "forkserver"
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
-        yield
+        forkserver.ensure_running()
     finally:
         signal.signal(signal.SIGINT, previous)
+    return "forkserver"
 
 
 def local_cluster(workers: int):
@@ -58,26 +81,36 @@ def local_cluster(workers: int):
     import dask
     from distributed import LocalCluster
 
-    no_trim = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
-    with _children_ignore_interrupts(), dask.config.set(no_trim):
-        return LocalCluster(
-            n_workers=workers,
-            threads_per_worker=1,
-            processes=True,
-            host="127.0.0.1",
-            dashboard_address=None,
-            # without a dashboard the scheduler still serves health/metrics over HTTP, on
-            # port 8787 of every interface by default: a dask dashboard already running
-            # there made it warn "Port 8787 is already in use" on the user's terminal.
-            # A free port on the loopback interface instead (port 0: no clash, no warning).
-            scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
-            # the workers' stderr is the user's terminal: a worker whose heartbeat meets
-            # an already-closed scheduler at shutdown (Ctrl-C) logs a traceback at ERROR.
-            # Task errors still reach this process as exceptions, so workers log nothing.
-            silence_logs=logging.CRITICAL,
-            # one item needs little memory; do not let dask pause workers on small machines
-            memory_limit=0,
-        )
+    config = {
+        "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+        "distributed.worker.multiprocessing-method": start_workers_ignoring_interrupts(),
+    }
+    cluster = None
+    try:
+        with dask.config.set(config):
+            cluster = LocalCluster(
+                n_workers=workers,
+                threads_per_worker=1,
+                processes=True,
+                host="127.0.0.1",
+                dashboard_address=None,
+                # without a dashboard the scheduler still serves health/metrics over HTTP, on
+                # port 8787 of every interface by default: a dask dashboard already running
+                # there made it warn "Port 8787 is already in use" on the user's terminal.
+                # A free port on the loopback interface instead (port 0: no clash, no warning).
+                scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+                # the workers' stderr is the user's terminal: a worker whose heartbeat meets
+                # an already-closed scheduler at shutdown (Ctrl-C) logs a traceback at ERROR.
+                # Task errors still reach this process as exceptions, so workers log nothing.
+                silence_logs=logging.CRITICAL,
+                # one item needs little memory; do not let dask pause workers on small machines
+                memory_limit=0,
+            )
+    except BaseException:  # a Ctrl-C while the cluster starts: close what has started
+        if cluster is not None:
+            close_quietly(None, cluster)
+        raise
+    return cluster
 
 
 def close_quietly(client: Any | None, cluster: Any | None) -> None:

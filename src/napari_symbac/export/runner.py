@@ -9,9 +9,7 @@ a local cluster and a remote scheduler all write the same bytes.
 from __future__ import annotations
 
 import math
-import multiprocessing
 import os
-import signal
 import threading
 import time
 import uuid
@@ -27,6 +25,7 @@ from napari_symbac.export.cluster import (
     close_quietly,
     connect_scheduler,
     local_cluster,
+    start_workers_ignoring_interrupts,
 )
 from napari_symbac.export.formats import FormatWriter, get_writer
 from napari_symbac.export.item import ExportItem
@@ -242,10 +241,9 @@ def _start_cluster_while_working(
     after the unit in progress once the cluster is up (or the export is cancelled); the
     units not taken are left in ``units``.
 
-    Ctrl-C: the worker processes must start with SIGINT ignored (see
-    :func:`~napari_symbac.export.cluster.local_cluster`), and they inherit that from
-    the whole process, so this process ignores SIGINT (and writes nothing) from the start
-    of the cluster until its worker processes exist, then takes it again: a
+    Ctrl-C: the worker processes are forked with SIGINT ignored from a fork server that
+    this thread starts first (:func:`~napari_symbac.export.cluster.
+    start_workers_ignoring_interrupts`); this thread takes Ctrl-C throughout: a
     ``KeyboardInterrupt`` while writing here waits for the start and closes the cluster.
     """
     from distributed import Client
@@ -262,35 +260,18 @@ def _start_cluster_while_working(
         finally:
             up.set()
 
-    before = set(multiprocessing.active_children())
-    in_main = threading.current_thread() is threading.main_thread()
-    ignoring = signal.signal(signal.SIGINT, signal.SIG_IGN) if in_main else None
-
-    def take_interrupts_again() -> None:
-        nonlocal ignoring
-        if ignoring is not None:
-            signal.signal(signal.SIGINT, ignoring)
-            ignoring = None
-
     helper = threading.Thread(target=start, name="napari-symbac-cluster-start", daemon=True)
-    helper.start()
+    start_workers_ignoring_interrupts()  # here: only the main thread sets signal handlers
     try:
-        # the worker processes are spawned early in the start (well under a second)
-        while ignoring is not None and not up.is_set():
-            if len(set(multiprocessing.active_children()) - before) >= workers:
-                take_interrupts_again()
-            else:
-                up.wait(0.01)
-        take_interrupts_again()
+        helper.start()
         while units and not up.is_set() and not _is_cancelled(cancel):
             write_unit(units.popleft())
     except BaseException:
-        helper.join()
-        take_interrupts_again()
+        if helper.ident is not None:  # started
+            helper.join()
         close_quietly(started.get("client"), started.get("cluster"))
         raise
     helper.join()
-    take_interrupts_again()
     if "error" in started:
         close_quietly(started.get("client"), started.get("cluster"))
         raise started["error"]
