@@ -270,7 +270,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from napari_symbac.diagnose.run import diagnose
     from napari_symbac.diagnose.stages import updated_settings
     from napari_symbac.fit import fit_scene
-    from napari_symbac.fit.preflight import resolve_pixel_size
+    from napari_symbac.fit.preflight import check_fit_image, resolve_pixel_size
     from napari_symbac.io import read_image
     from napari_symbac.settings import PipelineSettings, RenderSettings, save_settings
 
@@ -289,6 +289,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                 f"{args.image} must be one frame (Y, X) or a series (T, Y, X), got {image.shape}"
             )
         stack = image[None] if image.ndim == 2 else image
+        for k, frame in enumerate(stack):  # the fit's refusals (negative values: not counts)
+            check_fit_image(frame, Path(args.image).name + (f" frame {k}" if k else ""))
         labels = None
         if args.labels is not None:
             labels = np.asarray(read_image(args.labels, "--labels").data)

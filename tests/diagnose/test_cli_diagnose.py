@@ -107,10 +107,9 @@ def test_diagnose_measures_the_camera_and_reads_a_png(tmp_path, capsys):
     assert final == pytest.approx(2.9, rel=0.1)
 
 
-def test_diagnose_says_when_a_recording_is_not_raw_counts(tmp_path, capsys, real_data_dir):
-    """The DeLTA trench is normalised to 0..1 and interpolated: the camera measured from it
-    is meaningless, and the diagnosis says why (its noise is correlated between
-    neighbours) instead of reporting 1.6e-06 ADU/e- as a camera."""
+def test_diagnose_refuses_what_fit_refuses(tmp_path, capsys, real_data_dir):
+    """The DeLTA trench is normalised (values from -0.03): `fit` refused it with what to
+    pass, `diagnose` ran on it and reported a camera of 1.6e-06 ADU/e-."""
     image = real_data_dir / "ecoli_delta_phase_normalised.tiff"
     mic = tmp_path / "mic.json"
     mic.write_text(
@@ -120,8 +119,30 @@ def test_diagnose_says_when_a_recording_is_not_raw_counts(tmp_path, capsys, real
         )
     )
     out = tmp_path / "out"
-    args = ["diagnose", str(image), "--microscope", str(mic), "--out", str(out)]
-    assert main([*args, "--region", "0:64,0:32"]) == 0
+    assert main(["diagnose", str(image), "--microscope", str(mic), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "has negative values" in err
+    assert "baseline_adu" in err
+    assert "Traceback" not in err
+    assert not out.exists()
+
+
+@pytest.mark.slow
+def test_diagnose_says_when_the_noise_is_correlated(tmp_path, capsys, real_data_dir):
+    """ColiCoords' fields carry noise correlated between neighbouring pixels (lag-2 /
+    lag-1 variance 1.27): the measured camera's note says what that means."""
+    root = real_data_dir / "colicoords" / "test_data" / "ds1"
+    image = tmp_path / "field.tif"
+    tifffile.imwrite(image, tifffile.imread(root / "fluorescence" / "00001.tif")[118:182, 59:123])
+    mic = tmp_path / "mic.json"
+    mic.write_text(
+        json.dumps(
+            {"modality": "fluorescence", "pixel_size_um": 0.08, "NA": 1.4,
+             "refractive_index": 1.515, "wavelength_um": 0.52}
+        )
+    )
+    out = tmp_path / "out"
+    assert main(["diagnose", str(image), "--microscope", str(mic), "--out", str(out)]) == 0
     err = capsys.readouterr().err
     assert "its noise is correlated between neighbours" in err
     notes = json.loads((out / "diagnosis.json").read_text())["notes"]
