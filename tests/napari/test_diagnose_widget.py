@@ -109,6 +109,28 @@ def test_no_recording_is_a_notification(make_napari_viewer, qtbot, monkeypatch):
     assert widget.run_button.enabled
 
 
+def test_a_normalised_recording_is_refused_as_the_fit_refuses_it(
+    make_napari_viewer, monkeypatch, real_data_dir
+):
+    """The DeLTA trench (normalised, values down to -0.03) with its pixel size set."""
+    import tifffile
+
+    shown = []
+    monkeypatch.setattr(
+        "napari_symbac._widgets.diagnose.notify_warning", lambda message: shown.append(message)
+    )
+    viewer = make_napari_viewer()
+    data = tifffile.imread(real_data_dir / "ecoli_delta_phase_normalised.tiff")
+    viewer.add_image(data, name="delta", metadata={"pixel_size_um": 0.065, "modality": "phase"})
+    widget = DiagnoseWidget(viewer)
+    assert widget.reference.value is viewer.layers["delta"]
+    widget.run_button.clicked.emit()
+    assert widget.worker is None
+    assert "delta has negative values" in shown[0]
+    assert "negative values" in widget.status.value
+    assert [layer.name for layer in viewer.layers] == ["delta"]
+
+
 def test_error_in_the_worker_is_a_notification(diagnose_widget, qtbot, monkeypatch):
     shown = []
     monkeypatch.setattr(

@@ -137,6 +137,7 @@ class DiagnoseWidget(Container):
             With what to do, when no recording is chosen.
         """
         from napari_symbac.diagnose.region import MAX_DIAGNOSIS_PIXELS, default_region
+        from napari_symbac.fit.preflight import check_fit_image
         from napari_symbac.settings import RenderSettings
 
         layer = self.reference.value
@@ -151,6 +152,7 @@ class DiagnoseWidget(Container):
         frame = data[min(index, len(data) - 1)] if data.ndim == 3 else data
         if frame.ndim != 2:
             raise ValueError(f"{layer.name} must be one frame or a series, got {data.shape}")
+        check_fit_image(frame, layer.name)  # what the fit refuses (negative values)
         labels = None
         name = class_layer_name(layer.name)
         if name in self.viewer.layers:
