@@ -168,6 +168,23 @@ def test_auto_fit_error_is_a_notification_not_a_traceback(rendered, qtbot, real_
     assert not tune.cancel_fit_button.enabled
 
 
+def test_auto_fit_refuses_a_normalised_recording(rendered, real_data_dir):
+    """The DeLTA trench is normalised (values down to -0.03): refused before any fit, with
+    the words of `napari-symbac fit`, on the status line."""
+    import tifffile
+
+    viewer, tune = rendered
+    data = tifffile.imread(real_data_dir / "ecoli_delta_phase_normalised.tiff")
+    real = viewer.add_image(
+        data, name="delta", scale=(0.065, 0.065), metadata={"pixel_size_um": 0.065}
+    )
+    tune.reference.value = real
+    tune.fit_button.native.click()
+    assert tune.fit_worker is None
+    assert "delta has negative values" in tune.status.value
+    assert tune.fit_result is None
+
+
 def test_auto_fit_fits_a_fluorescence_recording(rendered, qtbot):
     """A fluorescence recording (the shipped ColiCoords field, bright cells on a dark
     background) is fitted with bright cells, not refused or fitted as phase."""

@@ -502,6 +502,9 @@ class TuneWidget(Container):
         real = np.asarray(reference.data)
         if real.ndim == 3:
             real = real[min(index, len(real) - 1)]
+        from napari_symbac.fit.preflight import check_fit_image
+
+        check_fit_image(real, reference.name)  # as `napari-symbac fit` (negative values)
         labels = None
         name = class_layer_name(reference.name)
         if name in self.viewer.layers:
