@@ -695,6 +695,10 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--n-synthetic", type=int, help="synthetic images per training set")
     parser.add_argument("--out", type=Path, help="folder for results JSON and pictures")
     parser.add_argument(
+        "--seeds", type=int, nargs="+", default=[0, 1],
+        help="seeds of the calibrated synthetic training sets and networks (default 0 1)",
+    )
+    parser.add_argument(
         "--no-baselines",
         action="store_true",
         help="skip the real-annotation folds and the defaults row (they do not depend on "
@@ -729,7 +733,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
             args.out.mkdir(parents=True, exist_ok=True)
             (args.out / "packing_omnipose.json").write_text(json.dumps(rows, indent=2))
         return rows
-    rows = run(args.data, budget, args.out, baselines=not args.no_baselines)
+    rows = run(
+        args.data, budget, args.out, seeds=tuple(args.seeds), baselines=not args.no_baselines
+    )
     print(table(rows))
     print(f"total {time.perf_counter() - start:.0f} s; load average {os.getloadavg()[0]:.1f}")
     return rows

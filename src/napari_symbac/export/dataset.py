@@ -103,6 +103,14 @@ class Randomisation:
         Range of ``render.defocus_sigma_um`` (eq. 14), absolute.
     noise_scale
         Multiplier of ``camera.dark_noise_e`` and ``render.gaussian_noise_sd_adu``.
+    exposure_scale
+        Multiplier of all the light together (cell, media and device intensities, eq. 3,
+        on top of their own scales): the exposure time, lamp power or expression level
+        of a field. The camera noise is not scaled, so the signal-to-noise of the item
+        changes with it (as between the fields of one slide). Drawn log-uniformly
+        (``low * (high / low) ** u``: as many images darker as brighter around the
+        geometric mean), one number of the item's generator after the others, and only
+        when ``low != high``: exports without it are unchanged bit for bit.
     """
 
     cell_intensity_scale: Range = field(default_factory=lambda: Range(0.85, 1.15))
@@ -111,6 +119,7 @@ class Randomisation:
     apodisation_sigma_scale: Range = field(default_factory=lambda: Range(1.0, 1.25))
     defocus_sigma_um: Range = field(default_factory=lambda: Range(0.0, 0.0))
     noise_scale: Range = field(default_factory=lambda: Range(0.8, 1.2))
+    exposure_scale: Range = field(default_factory=lambda: Range(1.0, 1.0))
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -125,6 +134,11 @@ class Randomisation:
                 _fail(f"Randomisation.{f.name} must be a range {{low, high}}, got {value!r}")
             if value.low < 0:
                 _fail(f"Randomisation.{f.name} must not be negative, got low={value.low}")
+        if self.exposure_scale.low <= 0:
+            _fail(
+                "Randomisation.exposure_scale is drawn log-uniformly: low must be above 0, "
+                f"got low={self.exposure_scale.low} (use e.g. {{low: 0.5, high: 2}})"
+            )
 
     def draw(self, rng: np.random.Generator, pipeline: PipelineSettings) -> dict[str, float]:
         """Draw one item's parameters; keys are ``"render.FIELD"`` / ``"camera.FIELD"``."""
@@ -135,11 +149,15 @@ class Randomisation:
         sigma = self.apodisation_sigma_scale.draw(rng)
         defocus = self.defocus_sigma_um.draw(rng)
         noise = self.noise_scale.draw(rng)
+        light = self.exposure_scale
+        exposure = light.low
+        if light.high > light.low:  # one more draw only when varied (streams unchanged)
+            exposure = light.low * (light.high / light.low) ** float(rng.random())
         bound = pipeline.microscope.min_apodisation_sigma_um
         return {
-            "render.cell_intensity": render.cell_intensity * cell,
-            "render.media_intensity": render.media_intensity * media,
-            "render.device_intensity": render.device_intensity * device,
+            "render.cell_intensity": render.cell_intensity * cell * exposure,
+            "render.media_intensity": render.media_intensity * media * exposure,
+            "render.device_intensity": render.device_intensity * device * exposure,
             "render.apodisation_sigma_um": max(render.apodisation_sigma_um * sigma, bound),
             "render.defocus_sigma_um": defocus,
             "render.gaussian_noise_sd_adu": render.gaussian_noise_sd_adu * noise,
