@@ -219,6 +219,12 @@ class ExportSettings:
         What to do with cells the image barely shows (per-cell contrast-to-noise below
         a threshold): flag them in the manifest (default) or drop them from the masks;
         see :mod:`napari_symbac.export.visibility`.
+    mask_dilation_um
+        The masks' outline convention: every exported cell mask (instance labels and
+        semantic mask) grown this far (um) into the background, after the faint cells
+        are dropped; the image is unchanged. 0 (default): the model cell (eq. 4-5).
+        ``napari-symbac calibrate --masks`` measures it from the user's masks
+        (:mod:`napari_symbac.export.outline`).
     """
 
     n_items: int = 100
@@ -232,6 +238,7 @@ class ExportSettings:
     coco_segmentation: Literal["polygon", "rle"] = "polygon"
     pipeline: PipelineSettings = field(default_factory=PipelineSettings)
     visibility: Visibility = field(default_factory=Visibility)
+    mask_dilation_um: float = 0.0
 
     def __post_init__(self) -> None:
         for name, cls in (
@@ -275,6 +282,16 @@ class ExportSettings:
             _fail(f"ExportSettings.seed must be a non-negative integer, got {self.seed!r}")
         if not (isinstance(self.val_fraction, (int, float)) and 0 <= self.val_fraction < 1):
             _fail(f"ExportSettings.val_fraction must be in [0, 1), got {self.val_fraction!r}")
+        dilation = self.mask_dilation_um
+        if (
+            isinstance(dilation, bool)
+            or not isinstance(dilation, (int, float))
+            or not 0 <= dilation < 5
+        ):
+            _fail(
+                f"ExportSettings.mask_dilation_um must be a number in [0, 5) um, got "
+                f"{dilation!r} (0: masks are the model cells)"
+            )
         if not isinstance(self.n_simulations, int) or self.n_simulations < 1:
             _fail(
                 f"ExportSettings.n_simulations must be an integer >= 1, got {self.n_simulations!r}"
@@ -468,10 +485,12 @@ class PipelineSource:
         }
 
     def make_unit(self, unit: int) -> list[ExportItem]:
+        from napari_symbac.export.outline import grow_masks
         from napari_symbac.optics import ForwardModel
         from napari_symbac.optics.batched import render_scenes
         from napari_symbac.pipeline import apply_cell_brightness
         from napari_symbac.scene import add_debris, add_media_texture, draw_scene, field_of
+        from napari_symbac.scene._draw import _semantic as semantic_of
 
         s = self.settings
         pipeline = s.pipeline
@@ -524,6 +543,11 @@ class PipelineSource:
             if faint and s.visibility.action == "drop":
                 semantic[np.isin(labels, faint)] = 0
                 labels[np.isin(labels, faint)] = 0
+            if s.mask_dilation_um > 0:  # the user's outline convention
+                labels = grow_masks(
+                    labels, s.mask_dilation_um / varied.microscope.pixel_size_um
+                )
+                semantic = semantic_of(labels)
             present = np.unique(labels)
             item_params = {"simulation": sim_index, "frame": frame, **params}
             items.append(
