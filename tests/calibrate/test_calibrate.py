@@ -88,19 +88,20 @@ def test_same_seed_same_dataset_item(fluorescence_calibration):
     assert not np.array_equal(first.image, other.make_unit(1)[0].image)
 
 
-def test_fluorescence_export_varies_the_light_between_images(fluorescence_calibration):
-    from napari_symbac.calibrate.core import FLUORESCENCE_EXPOSURE_SCALE
-    from napari_symbac.export.dataset import Range
-
-    settings = export_settings(fluorescence_calibration, n_items=4, seed=2)
-    assert settings.randomise.exposure_scale == Range(*FLUORESCENCE_EXPOSURE_SCALE)
-    source = PipelineSource(settings)
-    base = fluorescence_calibration.settings.render.cell_intensity
-    drawn = [source.make_unit(u)[0].params["render.cell_intensity"] / base for u in range(4)]
-    low, high = FLUORESCENCE_EXPOSURE_SCALE
-    cell = settings.randomise.cell_intensity_scale
-    assert all(low * cell.low <= d <= high * cell.high for d in drawn)
-    assert max(drawn) / min(drawn) > 1.2  # images differ in light, not only in noise
+def test_fluorescence_export_follows_the_masks_outline(fluorescence_calibration):
+    settings = export_settings(fluorescence_calibration, n_items=2, seed=2)
+    # with masks: their outline convention, measured against the fitted cells (the
+    # ColiCoords annotations lie outside the model cells)
+    offset = fluorescence_calibration.mask_offset_um
+    assert offset is not None
+    assert offset > 0
+    assert settings.mask_dilation_um == pytest.approx(offset, abs=1e-4)
+    assert any("mask outline +" in note for note in fluorescence_calibration.notes)
+    plain = dataclasses.replace(settings, mask_dilation_um=0.0)
+    grown = PipelineSource(settings).make_unit(0)[0]
+    model = PipelineSource(plain).make_unit(0)[0]
+    assert np.array_equal(grown.image, model.image)
+    assert (grown.labels > 0).sum() > (model.labels > 0).sum()
 
 
 def test_faint_cells_are_dropped_from_the_masks(fluorescence_calibration):

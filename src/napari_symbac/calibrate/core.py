@@ -632,14 +632,6 @@ def _drawn_phase(settings: PipelineSettings) -> tuple[PipelineSettings, str]:
 #: (``B <= 1``) of what the default intensity draws span.
 PHASE_TRANSMISSION_SCALE = (0.77, 1.0)
 
-#: Range of the light (exposure, lamp power, expression) of each image of a calibrated
-#: fluorescence dataset relative to the calibrated field, drawn log-uniformly
-#: (``Randomisation.exposure_scale``): the calibrated field is one field, the other
-#: fields of a slide differ. Half to twice: the ten ColiCoords ds1 fields' median
-#: cell-over-background contrast to pixel noise spans 10-28, 0.8-2.2 times field 1's
-#: (docs/proof.md).
-FLUORESCENCE_EXPOSURE_SCALE = (0.5, 2.0)
-
 #: Bounds of the division-length correction of :func:`_compacted`.
 _LENGTH_CORRECTION = (0.7, 1.3)
 
@@ -762,12 +754,12 @@ def export_settings(
     default's darkest draw), and the media level is kept (a per-image normalisation
     removes it). Without any such draw the transfer benchmark's F1 fell (docs/rendering.md).
 
-    Fluorescence: each image's light (cells, media, device together) is drawn from
-    :data:`FLUORESCENCE_EXPOSURE_SCALE` times the calibrated field's, the camera noise
-    kept: images as dim and as bright as other fields of the same slide. With masks
-    (fluorescence), the masks follow their outline convention: grown by
-    ``calibration.mask_offset_um`` (``mask_dilation_um``; an offset inside the model
-    cell is not applied: masks are never shrunk).
+    Fluorescence with masks: the dataset's masks follow their outline convention, grown
+    by ``calibration.mask_offset_um`` (``mask_dilation_um``; an offset inside the model
+    cell is not applied: masks are never shrunk). The light is not varied between
+    images (``Randomisation.exposure_scale`` stays 1): on the ColiCoords transfer
+    benchmark every range tried lowered the mean F1 of the calibration without masks
+    (docs/proof.md).
     """
     from napari_symbac.export.dataset import ExportSettings, Randomisation, Range
     from napari_symbac.export.visibility import Visibility
@@ -778,10 +770,6 @@ def export_settings(
     first = max(0, n_frames - 1 - (n_frames - 1) // 8)
     # the fitted defocus (eq. 14), not the export's default absolute 0
     randomise = Randomisation(defocus_sigma_um=Range(defocus, defocus))
-    if calibration.settings.microscope.modality == "fluorescence":
-        randomise = dataclasses.replace(
-            randomise, exposure_scale=Range(*FLUORESCENCE_EXPOSURE_SCALE)
-        )
     if calibration.settings.microscope.modality == "phase" and (
         render.phase_model == "partially_coherent"
     ):
