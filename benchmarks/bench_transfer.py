@@ -50,6 +50,9 @@ without the compaction calibrate chose: gravity 0, 15 physics iterations): the c
 fraction of the colonies, the seams between neighbouring cells, cell sizes and
 curvature, the overlap depth of the simulated cells; prints a markdown table.
 
+``--seeds`` sets the seeds of the calibrated rows (default 0 1; each seed is one
+synthetic training set and one network).
+
 ``--no-baselines`` skips the real-annotation folds and the defaults row (neither
 depends on ``calibrate``; the folds are most of the run's time).
 
