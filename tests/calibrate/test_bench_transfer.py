@@ -99,10 +99,14 @@ def test_quick_run_has_every_row(real_data_dir, tmp_path, monkeypatch):
     assert methods == [
         "Otsu + watershed",
         "U-Net, real annotations (leave-one-image-out)",
+        "U-Net, real annotations (leave-one-image-out), fields 2-10",
         "U-Net, calibrated synthetic only (seed 0)",
         "U-Net, calibrated synthetic only (seed 1)",
+        "U-Net, calibrated with field 1's masks, fields 2-10 (seed 0)",
+        "U-Net, calibrated with field 1's masks, fields 2-10 (seed 1)",
         "U-Net, tool defaults (modality switched)",
     ]
+    assert "masks grown" in rows[5]["note"]
     for row in rows:
         assert 0 <= row["f1"] <= 1
         assert 0 <= row["pixel_iou"] <= 1

@@ -88,6 +88,22 @@ def test_same_seed_same_dataset_item(fluorescence_calibration):
     assert not np.array_equal(first.image, other.make_unit(1)[0].image)
 
 
+def test_fluorescence_export_follows_the_masks_outline(fluorescence_calibration):
+    settings = export_settings(fluorescence_calibration, n_items=2, seed=2)
+    # with masks: their outline convention, measured against the fitted cells (the
+    # ColiCoords annotations lie outside the model cells)
+    offset = fluorescence_calibration.mask_offset_um
+    assert offset is not None
+    assert offset > 0
+    assert settings.mask_dilation_um == pytest.approx(offset, abs=1e-4)
+    assert any("mask outline +" in note for note in fluorescence_calibration.notes)
+    plain = dataclasses.replace(settings, mask_dilation_um=0.0)
+    grown = PipelineSource(settings).make_unit(0)[0]
+    model = PipelineSource(plain).make_unit(0)[0]
+    assert np.array_equal(grown.image, model.image)
+    assert (grown.labels > 0).sum() > (model.labels > 0).sum()
+
+
 def test_faint_cells_are_dropped_from_the_masks(fluorescence_calibration):
     cal = fluorescence_calibration
     dim = dataclasses.replace(

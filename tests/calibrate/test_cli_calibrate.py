@@ -48,6 +48,12 @@ def test_calibrate_writes_a_matched_dataset_and_report(colicoords_files, capsys)
     report = (out / "report.txt").read_text()
     assert "fluorescence" in report
     assert "power spectrum" in report
+    # the masks' outline convention, measured against the fitted cells, goes to the
+    # dataset: the ColiCoords annotations lie outside the model cells
+    assert "mask outline +" in report
+    dilation = manifest["settings"]["mask_dilation_um"]
+    assert 0.02 < dilation < 0.4
+    assert f"{dilation:.3f}" in report or f"{dilation:+.3f}" in report
     picture = iio.imread(out / "report.png")
     assert picture.ndim == 3
     assert picture.shape[1] > 2 * 192

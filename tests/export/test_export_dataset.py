@@ -219,3 +219,34 @@ def test_real_time_series_tracking_ground_truth(tmp_path):
     items = PipelineSource(settings).make_unit(0)
     assert [it.frame for it in items] == list(range(10))
     assert len({json.dumps(dict(it.params) | {"frame": 0}) for it in items}) == 1
+
+
+def test_exposure_scales_all_light_and_keeps_default_streams():
+    plain, doubled = Randomisation(), Randomisation(exposure_scale=Range(2.0, 2.0))
+    rng_a, rng_b = np.random.default_rng(3), np.random.default_rng(3)
+    a, b = plain.draw(rng_a, PIPELINE), doubled.draw(rng_b, PIPELINE)
+    for key in ("render.cell_intensity", "render.media_intensity", "render.device_intensity"):
+        assert b[key] == pytest.approx(2.0 * a[key])
+    # the camera noise is not scaled: the signal-to-noise changes with the exposure
+    assert b["camera.dark_noise_e"] == a["camera.dark_noise_e"]
+    # a fixed exposure draws no number: the item's later draws are those of before
+    assert rng_a.random() == rng_b.random()
+
+
+def test_exposure_is_drawn_log_uniformly_between_its_bounds():
+    varied = Randomisation(exposure_scale=Range(0.5, 2.0))
+    rng, fixed_rng = np.random.default_rng(11), np.random.default_rng(11)
+    ratios = []
+    for _ in range(400):
+        v = varied.draw(rng, PIPELINE)
+        f = Randomisation().draw(fixed_rng, PIPELINE)
+        fixed_rng.random()  # keep the two streams in step (the varied one drew once more)
+        ratios.append(v["render.cell_intensity"] / f["render.cell_intensity"])
+    ratios = np.array(ratios)
+    assert ratios.min() >= 0.5
+    assert ratios.max() <= 2.0
+    # log-uniform: as many below the geometric mean (1) as above, a quarter below 1/sqrt 2
+    assert 0.4 < (ratios < 1.0).mean() < 0.6
+    assert 0.18 < (ratios < 2**-0.5).mean() < 0.32
+    with pytest.raises(ValueError, match=r"exposure_scale .*low must be above 0"):
+        Randomisation(exposure_scale=Range(0.0, 2.0))

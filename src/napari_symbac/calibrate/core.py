@@ -96,6 +96,12 @@ class Calibration:
         has no colony of at least 5 cells: gravity stays 0).
     notes
         Plain sentences: where each setting came from, what could not be measured.
+    mask_offset_um
+        Fluorescence with masks: how far the masks' outlines lie outside the fitted
+        model cells (median over the crop's matched cells,
+        :func:`~napari_symbac.export.outline.outline_offset_px`), the annotation
+        convention :func:`export_settings` gives the dataset's masks; ``None``
+        otherwise.
     """
 
     settings: PipelineSettings
@@ -108,6 +114,7 @@ class Calibration:
     packing: ColonyPacking | None = None
     compaction: tuple[CompactionTrial, ...] = ()
     notes: tuple[str, ...] = ()
+    mask_offset_um: float | None = None
 
 
 def best_crop(masks: np.ndarray, size_px: int) -> tuple[slice, slice]:
@@ -397,6 +404,7 @@ def calibrate(
             f"pixel size {px:.4f} um = cell width {cell_width_um} um / median mask width"
         )
     bit_depth = 8 if frame.dtype == np.uint8 else 16
+    mask_offset_um = None
     valid = ~censored_pixels(frame, camera)
     frame = frame.astype(np.float64)
     if masks is not None:  # at least 16 cell widths across, to hold whole cells
@@ -472,6 +480,11 @@ def calibrate(
             mask_len = float(np.median(crop_m.lengths_px)) * microscope.pixel_size_um
             length_scale = float(np.clip(np.median(result.cells.length_um) / mask_len, 0.7, 1.3))
             field_masks = masks
+            if microscope.modality == "fluorescence":
+                mask_offset_um, note = _outline_offset_um(
+                    crop_masks, result.scene.camera_labels(), microscope.pixel_size_um
+                )
+                notes.append(note)
         else:  # the fit's own cells are the masks: the crop is the field
             field_masks = np.asarray(result.scene.camera_labels(), np.int32)
             if not (field_masks > 0).any():
@@ -527,6 +540,26 @@ def calibrate(
         packing=packing,
         compaction=tuple(trials),
         notes=(*notes, *more),
+        mask_offset_um=mask_offset_um,
+    )
+
+
+def _outline_offset_um(
+    masks: np.ndarray, model_labels: np.ndarray, pixel_size_um: float
+) -> tuple[float | None, str]:
+    """Median offset of the masks' outlines outside the fitted model cells (um), and a
+    note; ``None`` when no mask matches a model cell."""
+    from napari_symbac.export.outline import outline_offset_px
+
+    offsets = outline_offset_px(masks, model_labels)
+    if not offsets.size:
+        return None, "mask outline: no mask matches a fitted cell, not measured"
+    offset = float(np.median(offsets)) * pixel_size_um
+    return offset, (
+        f"mask outline {offset:+.3f} um outside the fitted cells (median of {offsets.size} "
+        f"cells, quartiles {np.percentile(offsets, 25) * pixel_size_um:+.3f} to "
+        f"{np.percentile(offsets, 75) * pixel_size_um:+.3f} um): the dataset's masks grow by "
+        "it (ExportSettings.mask_dilation_um)"
     )
 
 
@@ -720,6 +753,13 @@ def export_settings(
     lose up to as much light to absorption and to scattering out of the pupil as the
     default's darkest draw), and the media level is kept (a per-image normalisation
     removes it). Without any such draw the transfer benchmark's F1 fell (docs/rendering.md).
+
+    Fluorescence with masks: the dataset's masks follow their outline convention, grown
+    by ``calibration.mask_offset_um`` (``mask_dilation_um``; an offset inside the model
+    cell is not applied: masks are never shrunk). The light is not varied between
+    images (``Randomisation.exposure_scale`` stays 1): on the ColiCoords transfer
+    benchmark every range tried lowered the mean F1 of the calibration without masks
+    (docs/proof.md).
     """
     from napari_symbac.export.dataset import ExportSettings, Randomisation, Range
     from napari_symbac.export.visibility import Visibility
@@ -751,4 +791,5 @@ def export_settings(
         pipeline=calibration.settings,
         visibility=Visibility(min_contrast_to_noise=1.0, action="drop"),
         randomise=randomise,
+        mask_dilation_um=max(0.0, round(calibration.mask_offset_um or 0.0, 4)),
     )

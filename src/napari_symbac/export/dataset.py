@@ -103,6 +103,14 @@ class Randomisation:
         Range of ``render.defocus_sigma_um`` (eq. 14), absolute.
     noise_scale
         Multiplier of ``camera.dark_noise_e`` and ``render.gaussian_noise_sd_adu``.
+    exposure_scale
+        Multiplier of all the light together (cell, media and device intensities, eq. 3,
+        on top of their own scales): the exposure time, lamp power or expression level
+        of a field. The camera noise is not scaled, so the signal-to-noise of the item
+        changes with it (as between the fields of one slide). Drawn log-uniformly
+        (``low * (high / low) ** u``: as many images darker as brighter around the
+        geometric mean), one number of the item's generator after the others, and only
+        when ``low != high``: exports without it are unchanged bit for bit.
     """
 
     cell_intensity_scale: Range = field(default_factory=lambda: Range(0.85, 1.15))
@@ -111,6 +119,7 @@ class Randomisation:
     apodisation_sigma_scale: Range = field(default_factory=lambda: Range(1.0, 1.25))
     defocus_sigma_um: Range = field(default_factory=lambda: Range(0.0, 0.0))
     noise_scale: Range = field(default_factory=lambda: Range(0.8, 1.2))
+    exposure_scale: Range = field(default_factory=lambda: Range(1.0, 1.0))
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -125,6 +134,11 @@ class Randomisation:
                 _fail(f"Randomisation.{f.name} must be a range {{low, high}}, got {value!r}")
             if value.low < 0:
                 _fail(f"Randomisation.{f.name} must not be negative, got low={value.low}")
+        if self.exposure_scale.low <= 0:
+            _fail(
+                "Randomisation.exposure_scale is drawn log-uniformly: low must be above 0, "
+                f"got low={self.exposure_scale.low} (use e.g. {{low: 0.5, high: 2}})"
+            )
 
     def draw(self, rng: np.random.Generator, pipeline: PipelineSettings) -> dict[str, float]:
         """Draw one item's parameters; keys are ``"render.FIELD"`` / ``"camera.FIELD"``."""
@@ -135,11 +149,15 @@ class Randomisation:
         sigma = self.apodisation_sigma_scale.draw(rng)
         defocus = self.defocus_sigma_um.draw(rng)
         noise = self.noise_scale.draw(rng)
+        light = self.exposure_scale
+        exposure = light.low
+        if light.high > light.low:  # one more draw only when varied (streams unchanged)
+            exposure = light.low * (light.high / light.low) ** float(rng.random())
         bound = pipeline.microscope.min_apodisation_sigma_um
         return {
-            "render.cell_intensity": render.cell_intensity * cell,
-            "render.media_intensity": render.media_intensity * media,
-            "render.device_intensity": render.device_intensity * device,
+            "render.cell_intensity": render.cell_intensity * cell * exposure,
+            "render.media_intensity": render.media_intensity * media * exposure,
+            "render.device_intensity": render.device_intensity * device * exposure,
             "render.apodisation_sigma_um": max(render.apodisation_sigma_um * sigma, bound),
             "render.defocus_sigma_um": defocus,
             "render.gaussian_noise_sd_adu": render.gaussian_noise_sd_adu * noise,
@@ -201,6 +219,12 @@ class ExportSettings:
         What to do with cells the image barely shows (per-cell contrast-to-noise below
         a threshold): flag them in the manifest (default) or drop them from the masks;
         see :mod:`napari_symbac.export.visibility`.
+    mask_dilation_um
+        The masks' outline convention: every exported cell mask (instance labels and
+        semantic mask) grown this far (um) into the background, after the faint cells
+        are dropped; the image is unchanged. 0 (default): the model cell (eq. 4-5).
+        ``napari-symbac calibrate --masks`` measures it from the user's masks
+        (:mod:`napari_symbac.export.outline`).
     """
 
     n_items: int = 100
@@ -214,6 +238,7 @@ class ExportSettings:
     coco_segmentation: Literal["polygon", "rle"] = "polygon"
     pipeline: PipelineSettings = field(default_factory=PipelineSettings)
     visibility: Visibility = field(default_factory=Visibility)
+    mask_dilation_um: float = 0.0
 
     def __post_init__(self) -> None:
         for name, cls in (
@@ -257,6 +282,16 @@ class ExportSettings:
             _fail(f"ExportSettings.seed must be a non-negative integer, got {self.seed!r}")
         if not (isinstance(self.val_fraction, (int, float)) and 0 <= self.val_fraction < 1):
             _fail(f"ExportSettings.val_fraction must be in [0, 1), got {self.val_fraction!r}")
+        dilation = self.mask_dilation_um
+        if (
+            isinstance(dilation, bool)
+            or not isinstance(dilation, (int, float))
+            or not 0 <= dilation < 5
+        ):
+            _fail(
+                f"ExportSettings.mask_dilation_um must be a number in [0, 5) um, got "
+                f"{dilation!r} (0: masks are the model cells)"
+            )
         if not isinstance(self.n_simulations, int) or self.n_simulations < 1:
             _fail(
                 f"ExportSettings.n_simulations must be an integer >= 1, got {self.n_simulations!r}"
@@ -450,10 +485,12 @@ class PipelineSource:
         }
 
     def make_unit(self, unit: int) -> list[ExportItem]:
+        from napari_symbac.export.outline import grow_masks
         from napari_symbac.optics import ForwardModel
         from napari_symbac.optics.batched import render_scenes
         from napari_symbac.pipeline import apply_cell_brightness
         from napari_symbac.scene import add_debris, add_media_texture, draw_scene, field_of
+        from napari_symbac.scene._draw import _semantic as semantic_of
 
         s = self.settings
         pipeline = s.pipeline
@@ -506,6 +543,11 @@ class PipelineSource:
             if faint and s.visibility.action == "drop":
                 semantic[np.isin(labels, faint)] = 0
                 labels[np.isin(labels, faint)] = 0
+            if s.mask_dilation_um > 0:  # the user's outline convention
+                labels = grow_masks(
+                    labels, s.mask_dilation_um / varied.microscope.pixel_size_um
+                )
+                semantic = semantic_of(labels)
             present = np.unique(labels)
             item_params = {"simulation": sim_index, "frame": frame, **params}
             items.append(
