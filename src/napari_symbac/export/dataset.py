@@ -489,8 +489,13 @@ class PipelineSource:
         from napari_symbac.optics import ForwardModel
         from napari_symbac.optics.batched import render_scenes
         from napari_symbac.pipeline import apply_cell_brightness
-        from napari_symbac.scene import add_debris, add_media_texture, draw_scene, field_of
-        from napari_symbac.scene._draw import _semantic as semantic_of
+        from napari_symbac.scene import (
+            add_debris,
+            add_media_texture,
+            draw_scene,
+            field_of,
+            semantic_from_labels,
+        )
 
         s = self.settings
         pipeline = s.pipeline
@@ -547,7 +552,7 @@ class PipelineSource:
                 labels = grow_masks(
                     labels, s.mask_dilation_um / varied.microscope.pixel_size_um
                 )
-                semantic = semantic_of(labels)
+                semantic = semantic_from_labels(labels)
             present = np.unique(labels)
             item_params = {"simulation": sim_index, "frame": frame, **params}
             items.append(

@@ -10,6 +10,7 @@ from napari_symbac.scene._draw import (
     FrameCellsLike,
     Scene,
     draw_scene,
+    semantic_from_labels,
     spherocylinder_distance,
 )
 from napari_symbac.scene._field import (
@@ -34,5 +35,6 @@ __all__ = [
     "field_of",
     "kymograph",
     "scene_from_masks",
+    "semantic_from_labels",
     "spherocylinder_distance",
 ]

@@ -27,6 +27,7 @@ __all__ = [
     "FrameCellsLike",
     "Scene",
     "draw_scene",
+    "semantic_from_labels",
     "spherocylinder_distance",
 ]
 
@@ -352,7 +353,7 @@ def _block_labels(
     return out
 
 
-def _semantic(labels: np.ndarray) -> np.ndarray:
+def semantic_from_labels(labels: np.ndarray) -> np.ndarray:
     """Semantic mask (uint8) of an instance mask: cells, minus pixels next to smaller ids.
 
     A cell pixel is 0 where a neighbour (8-connectivity) is a cell of a smaller id.
@@ -399,7 +400,7 @@ def _camera_masks(
         labels = _block_labels(np.ascontiguousarray(labels_full), b, u, rows, cols)
     else:
         labels = np.array(labels_full[b : b + rows, b : b + cols], np.uint32)
-    return labels, _semantic(labels)
+    return labels, semantic_from_labels(labels)
 
 
 def _checked_image(name: str, image: Any) -> np.ndarray:
