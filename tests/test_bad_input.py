@@ -224,15 +224,24 @@ def test_ctrl_c_during_multi_worker_export(tmp_path):
     )
     out = tmp_path / "dataset"
     command = [sys.executable, "-m", "napari_symbac.cli", "export", "--config", str(config)]
-    process = subprocess.Popen(
-        [*command, "--out", str(out), "--workers", "2"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-        # start the workers however quick the items (300 tiny ones would stay in one process)
-        env={**os.environ, "NAPARI_SYMBAC_CLUSTER_START_S": "0"},
-    )
+    # The command must start as from a terminal, taking Ctrl-C. A test run started as a
+    # background job of a script (`pytest ... &`) has SIGINT ignored, and every child
+    # inherits that: the export then rightly ignored the interrupt and ran to its end
+    # (seen twice in such runs). A handled SIGINT is reset to the default in the child.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        process = subprocess.Popen(
+            [*command, "--out", str(out), "--workers", "2"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            start_new_session=True,
+            # start the workers however quick the items (300 tiny ones would stay in one
+            # process)
+            env={**os.environ, "NAPARI_SYMBAC_CLUSTER_START_S": "0"},
+        )
+    finally:
+        signal.signal(signal.SIGINT, previous)
     items = out / "manifest_items"
     try:
         while not (items.is_dir() and len(os.listdir(items)) >= 4):
