@@ -7,9 +7,11 @@ import json
 import numpy as np
 import pytest
 import yaml
+from threadpoolctl import threadpool_info, threadpool_limits
 
 from napari_symbac.diagnose import diagnose, load_extra_stages, parse_microscope, updated_settings
 from napari_symbac.diagnose.concealed import _cells, _draw, base_settings, make_case
+from napari_symbac.diagnose.run import _diagnose
 from napari_symbac.optics import ForwardModel
 from napari_symbac.settings import PipelineSettings
 
@@ -120,3 +122,33 @@ def test_strong_mean_effect_is_named_before_the_variance_it_inflates(effect, see
         case.images, case.design, n_bootstrap=10, max_steps=1, rng=np.random.default_rng(seed + 1)
     )
     assert [e.name for e in result.accepted] == [effect], result.report()
+
+
+def test_blas_runs_single_threaded_inside_the_diagnosis():
+    seen = []
+
+    def progress(done, total):
+        seen.extend(p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas")
+
+    case = make_case("stray_light", fraction_of_sd=0.6, seed=5)
+    limited = diagnose(
+        case.images, case.design, n_bootstrap=10, rng=np.random.default_rng(3), progress=progress
+    )
+    assert seen
+    assert set(seen) == {1}
+    with threadpool_limits(limits=2, user_api="blas"):
+        threaded = _diagnose(
+            case.images,
+            case.design,
+            candidates=None,
+            alpha=0.01,
+            n_bootstrap=10,
+            max_steps=4,
+            max_tries=3,
+            rng=np.random.default_rng(3),
+            valid=None,
+            progress=None,
+            cancel=None,
+        )
+    assert [e.name for e in threaded.accepted] == [e.name for e in limited.accepted]
+    assert threaded.base_fit["held_out"] == pytest.approx(limited.base_fit["held_out"], rel=1e-9)
