@@ -1,0 +1,60 @@
+"""The touching fluorescent colony of docs/fitting.md ("Not done yet", time series).
+
+Renders it (simulated pad, one colony of two founders, seed 0, frames 1-7, 96 x 96 px
+drifting field; tests/fit/_series_synthetic.py) and prints, per frame, the number of
+true cells in view and the number of blobs the fluorescence start
+(``bright_instances``) finds and the finer seeds inside them. ``--fit`` also runs
+``fit_series`` (minutes) and prints the fitted counts.
+
+    PYTHONPATH=src python docs/scripts/fit_touching_colony.py [--fit]
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "tests" / "fit"))
+
+from _series_synthetic import in_view, render_pad_series  # noqa: E402
+
+from napari_symbac.fit.bright_start import bright_instances  # noqa: E402
+
+
+def finer_seeds(image: np.ndarray, pixel_um: float, sigma_um: float = 0.12,
+                ratio: float = 1.4) -> int:  # fmt: skip
+    """Maxima of the image smoothed by ``sigma_um`` whose dynamics exceed ``ratio``
+    (h-maxima of ``log(smooth - median)``), counted inside the start's blobs."""
+    from scipy import ndimage
+    from skimage.morphology import h_maxima
+
+    blobs = bright_instances(image, pixel_um) > 0
+    smooth = ndimage.gaussian_filter(np.asarray(image, float), sigma_um / pixel_um)
+    height = np.log(np.maximum(smooth - np.median(smooth), 1.0))
+    return int(ndimage.label(h_maxima(height, np.log(ratio)) & blobs)[0].max())
+
+
+def main() -> None:
+    truth = render_pad_series(seed=0, first=1, count=7, colonies=1)
+    px = truth.microscope.pixel_size_um
+    size_um = (truth.stack.shape[1] * px, truth.stack.shape[2] * px)
+    frames = truth.simulation.frames[truth.first_frame : truth.first_frame + len(truth.stack)]
+    seen = in_view(list(frames), truth.origins_um, size_um)
+    starts = [int(bright_instances(image, px).max()) for image in truth.stack]
+    print("true cells in view:", [len(c.ids) for c in seen])
+    print("bright_instances blobs:", starts)
+    print("finer seeds (0.12 um, 1.4):", [finer_seeds(image, px) for image in truth.stack])
+    if "--fit" in sys.argv:
+        from napari_symbac.fit import fit_series
+        from napari_symbac.settings import RenderSettings
+
+        fit = fit_series(truth.stack, truth.microscope, RenderSettings(defocus_sigma_um=0.0),
+                         None, geometry="open")  # fmt: skip
+        print("fitted cells:", [len(f.cells) for f in fit.frames])
+
+
+if __name__ == "__main__":
+    main()
