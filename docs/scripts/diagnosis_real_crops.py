@@ -1,4 +1,4 @@
-"""Crops of the ColiCoords fluorescence fields used in docs/diagnosis.md (MIT data, Smit et al. 2019).
+"""Crops of the ColiCoords fluorescence fields of docs/diagnosis.md (MIT data, Smit et al. 2019).
 
 Run: ``python docs/scripts/diagnosis_real_crops.py REAL_DATA_DIR OUT_DIR``. Writes
 ``ds1_flu_crop.tif`` (one background-subtracted field, 128 x 128) and
