@@ -11,6 +11,17 @@ import tifffile
 from napari_symbac.cli import main
 from napari_symbac.diagnose.concealed import make_case
 
+PHASE_100X = {"modality": "phase", "pixel_size_um": 0.065, "NA": 1.45,
+              "refractive_index": 1.518, "wavelength_um": 0.65}  # fmt: skip
+
+
+def _microscope_file(tmp_path, **keys):
+    """A diagnose microscope file (JSON) of the 100x phase microscope, keys replaced."""
+    path = tmp_path / "mic.json"
+    path.write_text(json.dumps({**PHASE_100X, **keys}))
+    return path
+
+
 
 def test_missing_microscope_key_is_a_clear_error(tmp_path, capsys):
     image = tmp_path / "image.tif"
@@ -28,13 +39,7 @@ def test_missing_microscope_key_is_a_clear_error(tmp_path, capsys):
 def test_a_bad_region_is_a_clear_error(tmp_path, capsys, region):
     image = tmp_path / "image.tif"
     tifffile.imwrite(image, np.full((64, 32), 500, np.uint16))
-    mic = tmp_path / "mic.json"
-    mic.write_text(
-        json.dumps(
-            {"modality": "phase", "pixel_size_um": 0.065, "NA": 1.45,
-             "refractive_index": 1.518, "wavelength_um": 0.65}
-        )
-    )
+    mic = _microscope_file(tmp_path)
     out = tmp_path / "o"
     code = main(
         ["diagnose", str(image), "--microscope", str(mic), "--out", str(out), "--region", region]
@@ -111,13 +116,7 @@ def test_diagnose_refuses_what_fit_refuses(tmp_path, capsys, real_data_dir):
     """The DeLTA trench is normalised (values from -0.03): `fit` refused it with what to
     pass, `diagnose` ran on it and reported a camera of 1.6e-06 ADU/e-."""
     image = real_data_dir / "ecoli_delta_phase_normalised.tiff"
-    mic = tmp_path / "mic.json"
-    mic.write_text(
-        json.dumps(
-            {"modality": "phase", "pixel_size_um": 0.065, "NA": 1.45,
-             "refractive_index": 1.518, "wavelength_um": 0.65}
-        )
-    )
+    mic = _microscope_file(tmp_path)
     out = tmp_path / "out"
     assert main(["diagnose", str(image), "--microscope", str(mic), "--out", str(out)]) == 2
     err = capsys.readouterr().err
@@ -134,13 +133,10 @@ def test_diagnose_says_when_the_noise_is_correlated(tmp_path, capsys, real_data_
     root = real_data_dir / "colicoords" / "test_data" / "ds1"
     image = tmp_path / "field.tif"
     tifffile.imwrite(image, tifffile.imread(root / "fluorescence" / "00001.tif")[118:182, 59:123])
-    mic = tmp_path / "mic.json"
-    mic.write_text(
-        json.dumps(
-            {"modality": "fluorescence", "pixel_size_um": 0.08, "NA": 1.4,
-             "refractive_index": 1.515, "wavelength_um": 0.52}
-        )
-    )
+    mic = _microscope_file(
+        tmp_path, modality="fluorescence", pixel_size_um=0.08, NA=1.4, refractive_index=1.515,
+        wavelength_um=0.52,
+    )  # fmt: skip
     out = tmp_path / "out"
     assert main(["diagnose", str(image), "--microscope", str(mic), "--out", str(out)]) == 0
     err = capsys.readouterr().err
