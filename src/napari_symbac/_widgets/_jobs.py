@@ -115,6 +115,7 @@ class Job:
         self._queue: list[tuple[str, Any]] = []
         self._busy = False
         self._closed = False
+        self._outcome = False  # a return, an error or an abort was delivered
         self.done = False
         self.cancelled = threading.Event() if cancelled is None else cancelled
 
@@ -180,6 +181,15 @@ class Job:
 
     def _handle(self, kind: str, payload: Any) -> None:
         callback = self._callbacks[kind]
+        if kind in ("return", "error", "abort"):
+            self._outcome = True
+        if kind == "finish" and not self._outcome and self.cancelled.is_set():
+            # superqt emits neither ``returned`` nor ``aborted`` when the generator ends
+            # by itself after a quit was asked but before its next yield (a cancelled
+            # blocking step returns at once): the cancel is what happened.
+            self._outcome = True
+            if self._callbacks["abort"] is not None:
+                self._callbacks["abort"]()
         if kind == "yield":
             done, message = payload
             if self.progress is not None and done > self.progress.n:
