@@ -262,7 +262,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     import numpy as np
     import yaml
 
-    from napari_symbac._cli_fit import TRENCH_MAX_WIDTH_PX
+    from napari_symbac._cli_fit import default_geometry
     from napari_symbac.diagnose.config import load_microscope_file
     from napari_symbac.diagnose.figures import write_figures
     from napari_symbac.diagnose.model import build_design
@@ -317,10 +317,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                     "another window, --region full the whole frame",
                     file=sys.stderr,
                 )
-        geometry = "open" if args.geometry == "field" else args.geometry
-        if geometry is None:
-            wide = stack.shape[-1] > TRENCH_MAX_WIDTH_PX
-            geometry = "open" if wide or microscope.modality == "fluorescence" else "trench"
+        named = args.geometry or default_geometry({}, stack.shape[-1], microscope.modality)
+        geometry = "open" if named == "field" else named  # `fit`'s rule and words
     start = RenderSettings()
     if microscope.modality == "fluorescence":
         start = RenderSettings(cell_intensity=2000.0, media_intensity=200.0, device_intensity=200.0)

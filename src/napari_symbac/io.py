@@ -9,7 +9,14 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Recording", "napari_get_reader", "read_image", "read_recording", "write_dataset"]
+__all__ = [
+    "Recording",
+    "grey_channel",
+    "napari_get_reader",
+    "read_image",
+    "read_recording",
+    "write_dataset",
+]
 
 _TIFF_SUFFIXES = (".tif", ".tiff", ".ome.tif", ".ome.tiff")
 _PNG_SUFFIXES = (".png",)
@@ -210,17 +217,24 @@ def read_image(path: str | Path, what: str = "image") -> Recording:
         )
     data = recording.data
     if data.ndim == 3 and data.shape[-1] in (3, 4) and min(data.shape[:2]) > 4:
-        colour = data[..., :3]
-        if not (
-            np.array_equal(colour[..., 0], colour[..., 1])
-            and np.array_equal(colour[..., 0], colour[..., 2])
-        ):
+        grey = grey_channel(data)
+        if grey is None:
             raise ValueError(
                 f"{what} {path.name} is a colour image {data.shape}: save one grey channel "
                 "(the camera's raw frame)"
             )
-        recording = dataclasses.replace(recording, data=np.ascontiguousarray(data[..., 0]))
+        recording = dataclasses.replace(recording, data=np.ascontiguousarray(grey))
     return recording
+
+
+def grey_channel(rgb: np.ndarray) -> np.ndarray | None:
+    """The grey channel of an RGB(A) ``(..., 3|4)`` array whose red, green and blue are
+    equal (a grey image saved as colour), or ``None`` for a colour image."""
+    colour = np.asarray(rgb)[..., :3]
+    red = colour[..., 0]
+    if np.array_equal(red, colour[..., 1]) and np.array_equal(red, colour[..., 2]):
+        return red
+    return None
 
 
 def napari_get_reader(path):

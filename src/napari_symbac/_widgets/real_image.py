@@ -180,12 +180,12 @@ class RealImageWidget(Container):
         layer = event.value
         if not getattr(layer, "rgb", False) or f"{layer.name} grey" in self.viewer.layers:
             return
-        colour = np.asarray(layer.data)[..., :3]
-        if np.array_equal(colour[..., 0], colour[..., 1]) and np.array_equal(
-            colour[..., 0], colour[..., 2]
-        ):
+        from napari_symbac.io import grey_channel
+
+        grey = grey_channel(layer.data)
+        if grey is not None:
             self.viewer.add_image(
-                colour[..., 0],
+                grey,
                 name=f"{layer.name} grey",
                 scale=layer.scale,
                 translate=layer.translate,
