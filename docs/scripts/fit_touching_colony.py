@@ -4,7 +4,8 @@ Renders it (simulated pad, one colony of two founders, seed 0, frames 1-7, 96 x 
 drifting field; tests/fit/_series_synthetic.py) and prints, per frame, the number of
 true cells in view and the number of blobs the fluorescence start
 (``bright_instances``) finds and the finer seeds inside them. ``--fit`` also runs
-``fit_series`` (minutes) and prints the fitted counts.
+``fit_series`` (minutes) and prints the fitted counts, the reseed moves and how many
+relations to the previous frame (link, division, new) differ from the simulator's.
 
     PYTHONPATH=src python docs/scripts/fit_touching_colony.py [--fit]
 """
@@ -19,7 +20,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests" / "fit"))
 
-from _series_synthetic import in_view, render_pad_series  # noqa: E402
+from _series_synthetic import (  # noqa: E402
+    in_view,
+    lineage_relations,
+    render_pad_series,
+    truth_relations,
+)
 
 from napari_symbac.fit.bright_start import bright_instances  # noqa: E402
 
@@ -54,6 +60,20 @@ def main() -> None:
         fit = fit_series(truth.stack, truth.microscope, RenderSettings(defocus_sigma_um=0.0),
                          None, geometry="open")  # fmt: skip
         print("fitted cells:", [len(f.cells) for f in fit.frames])
+        print("moves:", [m for f in fit.frames for m in f.moves if "touching" in m])
+        truth_ids, far = [], 0.0
+        for frame, cells in zip(fit.frames, seen):
+            distance = np.hypot(frame.cells.x_um[:, None] - cells.x_um[None, :],
+                                frame.cells.y_um[:, None] - cells.y_um[None, :])  # fmt: skip
+            nearest = distance.argmin(axis=1)
+            far = max(far, float(distance.min(axis=1).max()))
+            truth_ids.append(cells.ids[nearest])
+        want = truth_relations(truth.simulation, truth_ids, first=truth.first_frame)
+        got = lineage_relations(fit.lineage)
+        wrong = sum(got[t][j] != r for t, step in enumerate(want) for j, r in step.items())
+        total = sum(len(step) for step in want)
+        print(f"relations to the previous frame wrong: {wrong} of {total}; "
+              f"farthest fitted centre from its true cell: {far:.2f} um")
 
 
 if __name__ == "__main__":

@@ -8,7 +8,7 @@ import tifffile
 from scipy import ndimage
 
 from napari_symbac.fit import fit_scene
-from napari_symbac.fit.bright_start import bright_instances
+from napari_symbac.fit.bright_start import bright_instances, touching_cells
 from napari_symbac.fit.camera_estimate import censored_pixels
 from napari_symbac.fit.start import start_scene
 from napari_symbac.settings import Microscope, RenderSettings
@@ -80,3 +80,33 @@ def test_colicoords_field_2_fit_keeps_the_dim_cells(field_2):
     microscope = Microscope(pixel_size_um=PX, modality="fluorescence")
     fit = fit_scene(image[crop], microscope, RenderSettings(), None, geometry="open")
     assert sorted(_on_mask(fit.cells, labels[crop]).tolist()) == [2, 3, 4], fit.moves
+
+
+def _chord(shape, centre, length_px, width_px, angle):
+    """A rod's thickness (px) along the line of sight: its fluorescence."""
+    rows, cols = np.indices(shape)
+    dy, dx = rows - centre[0], cols - centre[1]
+    along = dx * np.sin(angle) + dy * np.cos(angle)
+    across = dx * np.cos(angle) - dy * np.sin(angle)
+    half = (length_px - width_px) / 2
+    distance = np.hypot(np.clip(np.abs(along) - half, 0, None), across)
+    return 2 * np.sqrt(np.clip((width_px / 2) ** 2 - distance**2, 0, None))
+
+
+def test_touching_cells_cuts_a_blob_at_its_valleys_and_leaves_one_cell_whole():
+    rng = np.random.default_rng(5)
+    shape = (100, 100)
+    # two daughters end to end (their poles touch at the septum) and a lone cell
+    pair = _chord(shape, (30, 33), 26, 12, np.pi / 2) + _chord(shape, (30, 59), 26, 12, np.pi / 2)
+    lone = _chord(shape, (75, 50), 30, 12, 0.4)
+    clean = ndimage.gaussian_filter(150 * (pair + lone), 1.5) + 100
+    image = clean + rng.normal(0, 15, shape)
+    blobs = bright_instances(image, PX)
+    assert blobs.max() == 2  # at the start's smoothing the pair is one blob
+    pair_blob = blobs == blobs[30, 46]
+    parts = touching_cells(image, PX, pair_blob)
+    assert parts.max() == 2
+    assert parts[30, 30] != parts[30, 62]
+    assert min(parts[30, 30], parts[30, 62]) > 0
+    assert not parts[~pair_blob].any()
+    assert touching_cells(image, PX, blobs == blobs[75, 50]).max() == 1

@@ -356,12 +356,14 @@ def pad_series():
 @pytest.mark.slow
 def test_just_divided_fluorescent_daughters_are_fitted_apart_and_linked(pad_series):
     """The daughters touch end to end: the fluorescence dips at the septum (the
-    rounded poles), so the split move cuts each mother there the frame they appear,
-    and every relation to the previous frame is the simulator's."""
+    rounded poles), so a move cuts each mother there the frame they appear (the
+    reseed at the blob's finer maxima, else the split at the septum), and every
+    relation to the previous frame is the simulator's."""
     truth, fit = pad_series
     frames = truth.simulation.frames[truth.first_frame : truth.first_frame + 4]
     assert [len(f.cells) for f in fit.frames] == [len(c) for c in frames] == [2, 2, 4, 4]
-    assert sum("at its septum" in move for move in fit.frames[2].moves) >= 1
+    cuts = [m for m in fit.frames[2].moves if "at its septum" in m or "touching cells" in m]
+    assert len(cuts) >= 1
     truth_ids = []
     for frame, cells, origin in zip(fit.frames, frames, truth.origins_um):
         distance = np.hypot(
@@ -377,3 +379,30 @@ def test_just_divided_fluorescent_daughters_are_fitted_apart_and_linked(pad_seri
     assert lineage_relations(fit.lineage) == want
     assert len(fit.lineage.divisions()) == 2
     assert fit.lineage.gaps == ()
+
+
+@pytest.mark.slow
+def test_a_touching_fluorescent_colony_is_cut_into_its_cells():
+    """One colony of two founders (docs/scripts/fit_touching_colony.py), simulator
+    frame 4: its four cells touch, so the start's detector sees one blob; the reseed
+    move cuts it at the finer maxima and every fitted cell lies on its own true cell
+    (before it the fit had 3 rods there, one across two cells)."""
+    from napari_symbac.fit import fit_scene
+    from napari_symbac.fit.bright_start import bright_instances
+
+    truth = render_pad_series(seed=0, first=1, count=4, colonies=1)
+    px = truth.microscope.pixel_size_um
+    image = truth.stack[3]
+    frames = truth.simulation.frames[truth.first_frame : truth.first_frame + 4]
+    cells = in_view(list(frames), truth.origins_um, (96 * px, 96 * px))[3]
+    assert bright_instances(image, px).max() == 1
+    fit = fit_scene(image, truth.microscope, RenderSettings(defocus_sigma_um=0.0), None,
+                    geometry="open")  # fmt: skip
+    assert len(fit.cells) == len(cells) == 4
+    distance = np.hypot(
+        fit.cells.x_um[:, None] - cells.x_um[None, :],
+        fit.cells.y_um[:, None] - cells.y_um[None, :],
+    )
+    assert sorted(distance.argmin(axis=1).tolist()) == [0, 1, 2, 3]
+    assert distance.min(axis=1).max() < 0.15
+    assert any("touching cells" in move for move in fit.moves)

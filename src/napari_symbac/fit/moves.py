@@ -15,6 +15,11 @@ model):
   within a cell width, overlapping or end to end) into one rod between the two
   poles furthest apart;
 * **split** a rod longer than 1.6 times the median cell length in two halves;
+* **reseed** (fluorescence) a bright blob of the image that holds fewer rods than
+  its finer maxima show touching cells
+  (:func:`~napari_symbac.fit.bright_start.touching_cells`): its rods replaced by one
+  per watershed basin (a touching colony is one blob at the start's smoothing, and
+  a rod across two cells of different pairs is neither split nor merged right);
 * **add** a cell on a blob of significant residual of the cells' polarity where the
   model has no cell but room for one (media: inside the trench, on the pad); in
   fluorescence the blobs are those of the start's detector
@@ -35,7 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
-from napari_symbac.fit.bright_start import bright_instances
+from napari_symbac.fit.bright_start import bright_instances, touching_cells
 from napari_symbac.fit.lm import State
 from napari_symbac.fit.overlap import segment_distance
 from napari_symbac.fit.problem import Problem
@@ -329,6 +334,64 @@ def _split_pass(
     return state, False
 
 
+#: Each cell of an accepted reseed is at least this many widths long: touching
+#: bacteria are rods (newborns about twice as long as wide). A cut that leaves a
+#: round piece is texture inside one wide cell (two bright foci of a ColiCoords ds1
+#: cell, field 1, fitted 1.34 and 2.31 um long at 1.36 um wide), not a septum.
+RESEED_ASPECT = 1.25
+
+
+def _reseed_pass(problem: Problem, state: State, ctx: _Context) -> tuple[State, bool]:
+    """Replace the rods of a bright blob by one per touching cell its finer maxima
+    show, when they are more than the rods: accepted by the BIC when every new cell
+    is a rod (:data:`RESEED_ASPECT`)."""
+    blocks, shared = problem.blocks(state.x)
+    rows, cols = problem.shape
+    px = problem.microscope.pixel_size_um
+    image = problem.y.reshape(rows, cols)
+    used = problem.w.reshape(rows, cols) > 0
+    blobs = bright_instances(image, px, valid=used)
+    rod_rows = np.clip((blocks[:, 1] / px).astype(int), 0, rows - 1)
+    rod_cols = np.clip((blocks[:, 0] / px).astype(int), 0, cols - 1)
+    rod_blob = blobs[rod_rows, rod_cols]
+    for index, box in enumerate(ndimage.find_objects(blobs), start=1):
+        if box is None:
+            continue
+        cy, cx = ((sl.start + sl.stop) / 2 * px for sl in box)
+        if ctx.near("reseed", cx, cy) or ctx.tried("reseed", cx, cy, 0.0):
+            continue
+        inside = np.flatnonzero(rod_blob == index)
+        parts = touching_cells(image, px, blobs == index, valid=used)
+        if parts.max() <= inside.size:
+            continue
+        try:
+            new, _ = cells_from_instances(parts, px, max_cell_length_um=math.inf)
+        except ValueError:
+            continue
+        if len(new) <= inside.size:
+            continue
+        added = np.zeros((len(new), problem.layout.per_cell))
+        added[:, 0], added[:, 1], added[:, 2] = new.x_um, new.y_um, new.angle_rad
+        added[:, 3] = np.maximum(new.length_um, shared[0])
+        kept = np.delete(blocks, inside, axis=0)
+        trial_blocks = np.vstack([kept, added])
+        refit = list(range(len(kept), len(trial_blocks)))
+        trial = _try(problem, state, trial_blocks, shared, refit, ctx)
+        dn = len(new) - inside.size
+        fitted, fitted_shared = problem.blocks(trial.x)
+        lay = problem.layout
+        widths = fitted_shared[0] + (fitted[len(kept) :, lay.i_dwidth] if lay.per_cell_width else 0)
+        rods = fitted[len(kept) :, 3] >= RESEED_ASPECT * widths
+        if rods.all() and _accept(problem, state, trial, dn, ctx):
+            for x, y in zip(new.x_um, new.y_um):
+                ctx.history.append(("split", float(x), float(y)))
+            message = f"cut the blob at ({cx:.2f}, {cy:.2f}) um into {len(new)} touching cells"
+            ctx.accept("reseed", cx, cy, message + f" (it held {inside.size})")
+            return trial, True
+        ctx.reject("reseed", cx, cy, 0.0)
+    return state, False
+
+
 def _add_pass(
     problem: Problem, state: State, ctx: _Context, polarity: str, max_tries: int = 4
 ) -> tuple[State, bool]:
@@ -390,7 +453,8 @@ def _add_pass(
 def improve_scene(
     problem: Problem, state: State, polarity: str, max_moves: int = 20
 ) -> tuple[State, list[str], float]:
-    """Apply remove, merge, split and add moves while the BIC falls.
+    """Apply (fluorescence: reseed,) remove, merge, split and add moves while the BIC
+    falls.
 
     The chi-square differences are divided by the residual's :func:`dispersion`
     where the move changes the model (a quasi-likelihood BIC): where the model
@@ -404,8 +468,13 @@ def improve_scene(
     """
     ctx = _Context(dispersion(problem, state))
     split = functools.partial(_split_pass, polarity=polarity)  # its septum's sign
+    passes = [_remove_pass, _merge_pass, split]
+    if polarity == "bright":
+        # before the merges: a rod across two cells of different pairs merged with
+        # its neighbour is not split right again
+        passes.insert(0, _reseed_pass)
     for _ in range(max_moves):
-        for move in (_remove_pass, _merge_pass, split):
+        for move in passes:
             state, changed = move(problem, state, ctx)
             if changed:
                 break
