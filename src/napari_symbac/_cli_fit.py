@@ -296,6 +296,8 @@ def _prepare_one(args, frame, labels, masks, microscope, base, keys):
         check_instance_masks,
         check_modality,
     )
+    from napari_symbac.fit.report import fit_notes
+
     name = Path(args.image).name
     check_fit_image(frame, name)
     if labels is not None:
@@ -321,13 +323,7 @@ def _prepare_one(args, frame, labels, masks, microscope, base, keys):
     if args.max_iterations is not None:
         options["max_iterations"] = args.max_iterations
     options.update(_model_options(args))
-    if geometry == "open" and microscope.modality == "phase":
-        notes.append(
-            "phase contrast is fitted here with the linear (weak-phase) kernel of eq. 7-14, "
-            "which cannot make the bright halos and gaps of dense colonies on a pad "
-            "(docs/rendering.md); `napari-symbac calibrate IMAGE --masks M` fits the "
-            "partially coherent phase model to such an image"
-        )
+    notes += fit_notes(microscope.modality, geometry)
     if "illumination_order" in options:
         notes.append(
             f"an illumination surface of degree {options['illumination_order']} is fitted "

@@ -113,7 +113,50 @@ def test_auto_fit_runs_the_scene_fit_on_the_recording(rendered, qtbot, real_data
     assert FIT_RESIDUAL_LAYER in viewer.layers
     assert tune.terms_table.shape[0] == len(result.terms)
     assert "Fitted in" in tune.status.value
+    # what the CLI's report says is said here too: 2 iterations stop at the limit
+    assert f"{len(result.cells)} cells fitted" in tune.status.value
+    assert "Problem: warning: round 1: the fit stopped at the iteration limit" in (
+        tune.status.value
+    )
+    assert "Note:" not in tune.status.value  # a trench: the linear kernel is right
     assert tune.fit_button.enabled
+
+
+def test_auto_fit_of_a_phase_colony_says_what_the_linear_kernel_cannot_do(
+    rendered, qtbot, real_data_dir
+):
+    """A phase recording of a colony on a pad (a crop of the Omnipose Sample000033,
+    pixel size entered by the user) fitted after an agar-pad simulation: the status
+    and a notification carry the CLI report's note on the colony's halo."""
+    import dataclasses
+
+    from napari.utils.notifications import notification_manager
+
+    from napari_symbac.fit.report import OPEN_PHASE_NOTE
+    from napari_symbac.io import read_image
+
+    viewer, tune = rendered
+    metadata = tune.source.value.metadata[SYMBAC_METADATA_KEY]
+    settings = metadata["settings"]
+    simulation = dataclasses.replace(settings.simulation, geometry="agar_pad")
+    metadata["settings"] = dataclasses.replace(settings, simulation=simulation)
+    colony = read_image(real_data_dir / "omnipose" / "Sample000033.png").data[100:164, 150:214]
+    real = viewer.add_image(
+        colony.astype(np.float32),
+        name="colony",
+        scale=(0.065, 0.065),
+        metadata={"pixel_size_um": 0.065, "modality": "phase"},
+    )
+    tune.reference.value = real
+    tune.fit_iterations.value = 2
+    seen = []
+    notification_manager.notification_ready.connect(seen.append)
+    tune.fit_button.native.click()
+    qtbot.waitUntil(lambda: tune.fit_worker is None, timeout=300_000)
+    assert tune.fit_result is not None, tune.status.value
+    assert tune.fit_result.trench is None  # fitted as an open field
+    assert f"Note: {OPEN_PHASE_NOTE}" in tune.status.value
+    assert any(OPEN_PHASE_NOTE in str(n.message) for n in seen)
 
 
 def test_auto_fit_with_nan_terms_reports_them(rendered, qtbot, real_data_dir, monkeypatch):

@@ -240,6 +240,7 @@ class TuneWidget(Container):
         self.fit_button.changed.connect(self.auto_fit)
         self.cancel_fit_button.changed.connect(self.cancel_fit)
         self.fit_worker: Job | None = None
+        self._fit_notes: list[str] = []  # what the running fit cannot do (fit_notes)
         self.fit_result = None
         self._modality = None
         self._polarity_changed = False
@@ -431,6 +432,9 @@ class TuneWidget(Container):
             notify_warning(str(err))
             return
         real, labels, microscope, render, camera, geometry = job_input
+        from napari_symbac.fit.report import fit_notes
+
+        self._fit_notes = fit_notes(microscope.modality, geometry)
         iterations = self.fit_iterations.value
         cancelled = threading.Event()
 
@@ -584,6 +588,20 @@ class TuneWidget(Container):
             )
             self.status.value += f"<br>{message}"
             notify_warning(message)
+        from napari_symbac.fit.report import fit_problems
+
+        hint = f"see the layer '{FIT_RESIDUAL_LAYER}'; the Diagnose widget looks for it"
+        problems = fit_problems(result, residual_hint=hint)
+        moves = tuple(getattr(result, "moves", ()) or ())
+        lines = [f"{len(result.cells)} cells fitted"]
+        lines += [f"Moves: {'; '.join(moves)}"] if moves else []
+        lines += [f"Problem: {problem}" for problem in problems]
+        lines += [f"Note: {note}" for note in self._fit_notes]
+        self.status.value += "".join(f"<br>{line}" for line in lines)
+        if problems or self._fit_notes:
+            notify_warning(
+                "Auto-fit: " + "; ".join([*problems, *self._fit_notes])
+            )
 
     def _show_fit_layers(self, result) -> None:
         """The fitted synthetic image and the residual, over the real image."""

@@ -17,8 +17,10 @@ from typing import Any
 import numpy as np
 
 __all__ = [
+    "OPEN_PHASE_NOTE",
     "camera_text",
     "cells_records",
+    "fit_notes",
     "fit_problems",
     "parameter_table",
     "report_text",
@@ -27,6 +29,13 @@ __all__ = [
 
 #: Reduced chi-square above which the report says the model misses structure.
 CHI2_MISFIT = 2.0
+#: Said of every phase-contrast fit of an open field (CLI report, GUI Auto-fit).
+OPEN_PHASE_NOTE = (
+    "phase contrast is fitted here with the linear (weak-phase) kernel of eq. 7-14, "
+    "which cannot make the bright halos and gaps of dense colonies on a pad "
+    "(docs/rendering.md); `napari-symbac calibrate IMAGE --masks M` fits the "
+    "partially coherent phase model to such an image"
+)
 
 
 def _plain(value: Any) -> Any:
@@ -76,8 +85,20 @@ def parameter_table(result: Any) -> list[dict[str, Any]]:
     ]
 
 
-def fit_problems(result: Any) -> list[str]:
-    """What did not converge, what sits at a bound, and a fit worse than its start."""
+def fit_notes(modality: str, geometry: str) -> list[str]:
+    """What a fit of this modality and geometry cannot do (said with every such fit)."""
+    return [OPEN_PHASE_NOTE] if modality == "phase" and geometry == "open" else []
+
+
+def fit_problems(
+    result: Any,
+    residual_hint: str = "see residual.tif; `napari-symbac diagnose` looks for it",
+) -> list[str]:
+    """What did not converge, what sits at a bound, and a fit worse than its start.
+
+    ``residual_hint`` says where the user sees the residual (the CLI's file, the
+    GUI's layer) when the model misses structure.
+    """
     warnings = [str(w) for w in getattr(result, "warnings", ()) or ()]
     problems = [f"warning: {w}" for w in warnings]
     at_bounds = tuple(getattr(result, "at_bounds", ()) or ())
@@ -94,7 +115,7 @@ def fit_problems(result: Any) -> list[str]:
     if math.isfinite(after) and after > CHI2_MISFIT:
         problems.append(
             f"reduced chi-square {after:.3g} > {CHI2_MISFIT:g}: the model misses structure "
-            "beyond the camera noise (see residual.tif; `napari-symbac diagnose` looks for it)"
+            f"beyond the camera noise ({residual_hint})"
         )
     return problems
 
