@@ -129,6 +129,23 @@ def test_cells_records_and_report_say_what_went_wrong():
     worse = _result(objective_after=4.0, warnings=(), at_bounds=())
     assert any("worse than its start" in p for p in fit_problems(worse))
     assert any("misses structure" in p for p in fit_problems(worse))
+    # the engine's own warnings of both are said once each, with where to look
+    engine = _result(
+        objective_after=4.0,
+        at_bounds=(),
+        warnings=(
+            "the fit is worse than its start (reduced chi-square 4 > 3)",
+            "reduced chi-square 4: the model misses structure of the image, so the standard "
+            "errors are too small",
+        ),
+        standard_errors=[0.1],
+    )
+    said = fit_problems(engine, residual_hint="see the residual layer")
+    assert sum("worse than its start" in p for p in said) == 1
+    assert [p for p in said if "reduced chi-square 4" in p and "misses" in p] == [
+        "reduced chi-square 4 > 2: the model misses structure beyond the camera noise, so the "
+        "standard errors are too small (see the residual layer)"
+    ]
     clean = report_text(_result(warnings=(), at_bounds=()), {})
     assert "none: converged, nothing at a bound" in clean
     assert "no convergence diagnostics" in report_text(_result(), {})

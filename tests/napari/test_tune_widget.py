@@ -115,9 +115,7 @@ def test_auto_fit_runs_the_scene_fit_on_the_recording(rendered, qtbot, real_data
     assert "Fitted in" in tune.status.value
     # what the CLI's report says is said here too: 2 iterations stop at the limit
     assert f"{len(result.cells)} cells fitted" in tune.status.value
-    assert "Problem: warning: round 1: the fit stopped at the iteration limit" in (
-        tune.status.value
-    )
+    assert "Problem: round 1: the fit stopped at the iteration limit" in tune.status.value
     assert "Note:" not in tune.status.value  # a trench: the linear kernel is right
     assert tune.fit_button.enabled
 

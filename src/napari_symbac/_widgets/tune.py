@@ -591,7 +591,7 @@ class TuneWidget(Container):
         from napari_symbac.fit.report import fit_problems
 
         hint = f"see the layer '{FIT_RESIDUAL_LAYER}'; the Diagnose widget looks for it"
-        problems = fit_problems(result, residual_hint=hint)
+        problems = [p.removeprefix("warning: ") for p in fit_problems(result, residual_hint=hint)]
         moves = tuple(getattr(result, "moves", ()) or ())
         lines = [f"{len(result.cells)} cells fitted"]
         lines += [f"Moves: {'; '.join(moves)}"] if moves else []

@@ -100,22 +100,29 @@ def fit_problems(
     GUI's layer) when the model misses structure.
     """
     warnings = [str(w) for w in getattr(result, "warnings", ()) or ()]
-    problems = [f"warning: {w}" for w in warnings]
+    before, after = result.objective_before, result.objective_after
+    misfit = math.isfinite(after) and after > CHI2_MISFIT
+    # the engine's own misfit warning is said once, below, with where to look
+    problems = [
+        f"warning: {w}" for w in warnings if not (misfit and w.startswith("reduced chi-square"))
+    ]
     at_bounds = tuple(getattr(result, "at_bounds", ()) or ())
     if at_bounds and not any("bound" in w for w in warnings):
         problems.append(
             "at a bound (its value is a limit, not a measurement; its standard error means "
             f"nothing): {', '.join(at_bounds)}"
         )
-    before, after = result.objective_before, result.objective_after
-    if math.isfinite(before) and math.isfinite(after) and after > before:
+    worse = math.isfinite(before) and math.isfinite(after) and after > before
+    if worse and not any("worse than its start" in w for w in warnings):
         problems.append(
             f"the fit ended worse than its start (chi-square {before:.3g} -> {after:.3g})"
         )
-    if math.isfinite(after) and after > CHI2_MISFIT:
+    if misfit:
+        errors = getattr(result, "standard_errors", None) is not None
         problems.append(
             f"reduced chi-square {after:.3g} > {CHI2_MISFIT:g}: the model misses structure "
-            f"beyond the camera noise ({residual_hint})"
+            "beyond the camera noise" + (", so the standard errors are too small" * errors)
+            + f" ({residual_hint})"
         )
     return problems
 
