@@ -374,6 +374,7 @@ def _outputs_one(
 
     from napari_symbac.fit.figure import before_after_figure
     from napari_symbac.fit.report import (
+        UNMEASURED_READ_NOISE,
         camera_text,
         cells_records,
         parameter_table,
@@ -430,6 +431,8 @@ def _outputs_one(
         "censored pixels": censor_note,
     }
     problems = _cell_problems(result, frame.shape, microscope.pixel_size_um, masks)
+    if camera is None and camera_used.dark_noise_e == 0:
+        notes.append(UNMEASURED_READ_NOISE)
     if camera is None:  # the engine estimated it from its residual: check it model-free
         check, problem = _model_free_gain(frame, camera_used)
         facts["camera (model-free)"] = check

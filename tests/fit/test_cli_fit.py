@@ -96,6 +96,7 @@ def test_fit_writes_settings_cells_residual_figure_and_report(tmp_path, truth, i
     assert _fact(report, "start") == "painted labels"
     assert "PROBLEMS" in report
     assert "ADU/e-" in _fact(report, "camera used")
+    assert "read noise is too small to measure" not in report  # the truth's 8 e- is measured
 
 
 def test_fit_settings_are_reusable_by_render(tmp_path, inputs):
@@ -233,6 +234,10 @@ def test_real_trench_with_config_closed_end_round(tmp_path, real_data_dir):
     table = json.loads((out / "cells.json").read_text())
     assert 3 <= len(table["cells"]) <= 8
     assert table["trench"]["closed_end"] == "round"
+    # this recording's noise at the baseline is all shot noise: no read noise to measure,
+    # and the report says so instead of giving 0 e- as a measurement
+    assert "dark noise 0 e-" in _fact(report, "camera used")
+    assert "the read noise is too small to measure from this image" in report
 
 
 def test_a_phase_colony_fit_says_the_linear_kernel_lacks_its_halo(tmp_path, real_data_dir):

@@ -581,6 +581,10 @@ class TuneWidget(Container):
                 f"ADU/e-, read noise {cam.dark_noise_e:.3g} e-, baseline "
                 f"{cam.baseline_adu:.4g} ADU (used by the preview and Export)"
             )
+            if cam.dark_noise_e == 0:
+                from napari_symbac.fit.report import UNMEASURED_READ_NOISE
+
+                self.status.value += f"<br>Note: {UNMEASURED_READ_NOISE}"
         if nan_terms:
             message = (
                 f"Not computable (NaN): {', '.join(nan_terms)}; paint longer strokes of each "

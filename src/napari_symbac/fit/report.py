@@ -18,6 +18,7 @@ import numpy as np
 
 __all__ = [
     "OPEN_PHASE_NOTE",
+    "UNMEASURED_READ_NOISE",
     "camera_text",
     "cells_records",
     "fit_notes",
@@ -83,6 +84,14 @@ def parameter_table(result: Any) -> list[dict[str, Any]]:
         {"name": name, "value": _plain(float(v)), "se": _plain(float(e))}
         for name, v, e in zip(names, values, errors, strict=False)
     ]
+
+
+#: Said when a camera measured from the image came out with no read noise.
+UNMEASURED_READ_NOISE = (
+    "the read noise is too small to measure from this image (the noise variance at the "
+    "baseline is at or below zero after the shot noise): 0 e- is used; give the camera "
+    "(or dark frames) when it matters, e.g. for dim fluorescence"
+)
 
 
 def fit_notes(modality: str, geometry: str) -> list[str]:
