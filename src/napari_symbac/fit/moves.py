@@ -337,14 +337,28 @@ def _split_pass(
 #: Each cell of an accepted reseed is at least this many widths long: touching
 #: bacteria are rods (newborns about twice as long as wide). A cut that leaves a
 #: round piece is texture inside one wide cell (two bright foci of a ColiCoords ds1
-#: cell, field 1, fitted 1.34 and 2.31 um long at 1.36 um wide), not a septum.
+#: cell, field 1, fitted 1.34 and 2.31 um long at 1.36 um wide), not a septum. A cell
+#: on the image's edge is exempt (the edge may cut it shorter).
 RESEED_ASPECT = 1.25
+
+
+def _on_edge(parts: np.ndarray, x_um: np.ndarray, y_um: np.ndarray, px: float) -> np.ndarray:
+    """Whether the basin of ``parts`` under each centre touches the image's edge."""
+    rows, cols = parts.shape
+    edge = np.zeros(parts.shape, bool)
+    edge[[0, -1], :] = edge[:, [0, -1]] = True
+    cut = np.unique(parts[edge])
+    under = parts[
+        np.clip((y_um / px).astype(int), 0, rows - 1),
+        np.clip((x_um / px).astype(int), 0, cols - 1),
+    ]
+    return (under > 0) & np.isin(under, cut)
 
 
 def _reseed_pass(problem: Problem, state: State, ctx: _Context) -> tuple[State, bool]:
     """Replace the rods of a bright blob by one per touching cell its finer maxima
     show, when they are more than the rods: accepted by the BIC when every new cell
-    is a rod (:data:`RESEED_ASPECT`)."""
+    off the image's edge is a rod (:data:`RESEED_ASPECT`)."""
     blocks, shared = problem.blocks(state.x)
     rows, cols = problem.shape
     px = problem.microscope.pixel_size_um
@@ -370,6 +384,7 @@ def _reseed_pass(problem: Problem, state: State, ctx: _Context) -> tuple[State, 
             continue
         if len(new) <= inside.size:
             continue
+        at_edge = _on_edge(parts, new.x_um, new.y_um, px)
         added = np.zeros((len(new), problem.layout.per_cell))
         added[:, 0], added[:, 1], added[:, 2] = new.x_um, new.y_um, new.angle_rad
         added[:, 3] = np.maximum(new.length_um, shared[0])
@@ -381,7 +396,8 @@ def _reseed_pass(problem: Problem, state: State, ctx: _Context) -> tuple[State, 
         fitted, fitted_shared = problem.blocks(trial.x)
         lay = problem.layout
         widths = fitted_shared[0] + (fitted[len(kept) :, lay.i_dwidth] if lay.per_cell_width else 0)
-        rods = fitted[len(kept) :, 3] >= RESEED_ASPECT * widths
+        # a cell cut by the image's edge may show less than a rod's length
+        rods = (fitted[len(kept) :, 3] >= RESEED_ASPECT * widths) | at_edge
         if rods.all() and _accept(problem, state, trial, dn, ctx):
             for x, y in zip(new.x_um, new.y_um):
                 ctx.history.append(("split", float(x), float(y)))
