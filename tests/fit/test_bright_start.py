@@ -16,14 +16,18 @@ from napari_symbac.settings import Microscope, RenderSettings
 PX = 0.08
 
 
-def _rod(shape, centre, length_px, width_px, angle):
+def _axis_distance(shape, centre, length_px, width_px, angle):
+    """Each pixel's distance (px) from a rod's axis segment."""
     rows, cols = np.indices(shape)
     dy, dx = rows - centre[0], cols - centre[1]
     along = dx * np.sin(angle) + dy * np.cos(angle)
     across = dx * np.cos(angle) - dy * np.sin(angle)
     half = (length_px - width_px) / 2
-    distance = np.hypot(np.clip(np.abs(along) - half, 0, None), across)
-    return (distance <= width_px / 2).astype(float)
+    return np.hypot(np.clip(np.abs(along) - half, 0, None), across)
+
+
+def _rod(shape, centre, length_px, width_px, angle):
+    return (_axis_distance(shape, centre, length_px, width_px, angle) <= width_px / 2).astype(float)
 
 
 def test_a_dim_cell_beside_a_bright_one_is_found_and_a_spot_is_not():
@@ -84,12 +88,7 @@ def test_colicoords_field_2_fit_keeps_the_dim_cells(field_2):
 
 def _chord(shape, centre, length_px, width_px, angle):
     """A rod's thickness (px) along the line of sight: its fluorescence."""
-    rows, cols = np.indices(shape)
-    dy, dx = rows - centre[0], cols - centre[1]
-    along = dx * np.sin(angle) + dy * np.cos(angle)
-    across = dx * np.cos(angle) - dy * np.sin(angle)
-    half = (length_px - width_px) / 2
-    distance = np.hypot(np.clip(np.abs(along) - half, 0, None), across)
+    distance = _axis_distance(shape, centre, length_px, width_px, angle)
     return 2 * np.sqrt(np.clip((width_px / 2) ** 2 - distance**2, 0, None))
 
 
