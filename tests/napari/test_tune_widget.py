@@ -86,6 +86,7 @@ def _real_trench(viewer, real_data_dir, *, paint: dict | None = None):
 
 def test_auto_fit_runs_the_scene_fit_on_the_recording(rendered, qtbot, real_data_dir):
     from napari_symbac._widgets.tune import FIT_RESIDUAL_LAYER, FIT_SYNTHETIC_LAYER
+    from napari_symbac.fit.report import OPEN_PHASE_NOTE
 
     viewer, tune = rendered
     real = _real_trench(viewer, real_data_dir)
@@ -107,6 +108,9 @@ def test_auto_fit_runs_the_scene_fit_on_the_recording(rendered, qtbot, real_data
     assert stored.camera == result.camera
     assert tune.preview.model.camera == result.camera
     assert "Camera measured from the recording" in tune.status.value
+    # all shot noise at this recording's baseline: the 0 e- read noise is said to be unmeasured
+    assert result.camera.dark_noise_e == 0
+    assert "Note: the read noise is too small to measure from this image" in tune.status.value
     synthetic = viewer.layers[FIT_SYNTHETIC_LAYER]
     assert synthetic.data.shape == real.data.shape
     assert tuple(synthetic.scale) == tuple(real.scale)
@@ -116,7 +120,7 @@ def test_auto_fit_runs_the_scene_fit_on_the_recording(rendered, qtbot, real_data
     # what the CLI's report says is said here too: 2 iterations stop at the limit
     assert f"{len(result.cells)} cells fitted" in tune.status.value
     assert "Problem: round 1: the fit stopped at the iteration limit" in tune.status.value
-    assert "Note:" not in tune.status.value  # a trench: the linear kernel is right
+    assert OPEN_PHASE_NOTE not in tune.status.value  # a trench: the linear kernel is right
     assert tune.fit_button.enabled
 
 

@@ -537,6 +537,8 @@ class TuneWidget(Container):
         self.status.value = f"Fitting: {done} of about {total} renders"
 
     def _on_fit_returned(self, result) -> None:
+        from napari_symbac.fit.report import UNMEASURED_READ_NOISE, fit_problems
+
         self.fit_result = result
         fitted = {name: float(getattr(result.render, name)) for name in SLIDERS}
         self._loading = True
@@ -582,8 +584,6 @@ class TuneWidget(Container):
                 f"{cam.baseline_adu:.4g} ADU (used by the preview and Export)"
             )
             if cam.dark_noise_e == 0:
-                from napari_symbac.fit.report import UNMEASURED_READ_NOISE
-
                 self.status.value += f"<br>Note: {UNMEASURED_READ_NOISE}"
         if nan_terms:
             message = (
@@ -592,8 +592,6 @@ class TuneWidget(Container):
             )
             self.status.value += f"<br>{message}"
             notify_warning(message)
-        from napari_symbac.fit.report import fit_problems
-
         hint = f"see the layer '{FIT_RESIDUAL_LAYER}'; the Diagnose widget looks for it"
         problems = [p.removeprefix("warning: ") for p in fit_problems(result, residual_hint=hint)]
         moves = tuple(getattr(result, "moves", ()) or ())
@@ -603,9 +601,7 @@ class TuneWidget(Container):
         lines += [f"Note: {note}" for note in self._fit_notes]
         self.status.value += "".join(f"<br>{line}" for line in lines)
         if problems or self._fit_notes:
-            notify_warning(
-                "Auto-fit: " + "; ".join([*problems, *self._fit_notes])
-            )
+            notify_warning("Auto-fit: " + "; ".join([*problems, *self._fit_notes]))
 
     def _show_fit_layers(self, result) -> None:
         """The fitted synthetic image and the residual, over the real image."""
