@@ -102,10 +102,12 @@ def test_touching_cells_cuts_a_blob_at_its_valleys_and_leaves_one_cell_whole():
     image = clean + rng.normal(0, 15, shape)
     blobs = bright_instances(image, PX)
     assert blobs.max() == 2  # at the start's smoothing the pair is one blob
-    pair_blob = blobs == blobs[30, 46]
-    parts = touching_cells(image, PX, pair_blob)
-    assert parts.max() == 2
+    parts = touching_cells(image, PX, blobs)
+    assert parts.max() == 3  # the pair in two, the lone cell whole
     assert parts[30, 30] != parts[30, 62]
     assert min(parts[30, 30], parts[30, 62]) > 0
-    assert not parts[~pair_blob].any()
-    assert touching_cells(image, PX, blobs == blobs[75, 50]).max() == 1
+    assert np.unique(parts[blobs == blobs[30, 46]]).tolist() == sorted(
+        {int(parts[30, 30]), int(parts[30, 62])}
+    )
+    assert np.unique(parts[blobs == blobs[75, 50]]).size == 1
+    assert not parts[blobs == 0].any()

@@ -124,18 +124,18 @@ def bright_instances(
 def touching_cells(
     image: np.ndarray,
     pixel_size_um: float,
-    blob: np.ndarray,
+    blobs: np.ndarray,
     *,
     valid: np.ndarray | None = None,
 ) -> np.ndarray:
-    """A bright blob cut into the touching cells its finer maxima show.
+    """Bright blobs, each cut into the touching cells its finer maxima show.
 
-    The image (censored pixels set to the blob's median) is smoothed by a Gaussian
-    of :data:`TOUCHING_SIGMA_UM`; its maxima inside ``blob`` whose dynamics exceed a
-    factor :data:`TOUCHING_RATIO` above the image's median (h-maxima of
-    ``log(smooth - median)``) seed a watershed of the blob. A proposal only: the
-    fit keeps it when the penalised likelihood says so
-    (:mod:`napari_symbac.fit.moves`).
+    The image (censored pixels set to the blobs' median) is smoothed by a Gaussian
+    of :data:`TOUCHING_SIGMA_UM`; its maxima inside the blobs whose dynamics exceed
+    a factor :data:`TOUCHING_RATIO` above the image's median (h-maxima of
+    ``log(smooth - median)``, found once for the whole image) seed a watershed of
+    each blob. A proposal only: the fit keeps it when the penalised likelihood says
+    so (:mod:`napari_symbac.fit.moves`).
 
     Parameters
     ----------
@@ -143,29 +143,40 @@ def touching_cells(
         The frame (ADU), cells brighter than the background.
     pixel_size_um
         Camera pixel size.
-    blob
-        The pixels to cut (one cell or several touching ones).
+    blobs
+        Instance labels of the blobs to cut (one cell or several touching ones
+        each), e.g. of :func:`bright_instances`.
     valid
         Pixels to trust (False: censored); default all.
 
     Returns
     -------
     numpy.ndarray
-        Instance labels ``1..k`` inside ``blob`` (0 elsewhere); ``k`` may be 1.
+        Instance labels ``1..k`` of the cut blobs' parts, blob by blob (0 outside the
+        blobs); a blob without a seed stays whole.
     """
     from skimage.morphology import h_maxima
     from skimage.segmentation import watershed
 
     image = np.asarray(image, float)
-    blob = np.asarray(blob, bool)
-    if not blob.any():
-        return np.zeros(image.shape, np.int64)
+    blobs = np.asarray(blobs, np.int64)
+    out = np.zeros(image.shape, np.int64)
     valid = np.ones(image.shape, bool) if valid is None else np.asarray(valid, bool)
-    filled = np.where(valid, image, np.median(image[blob & valid]) if (blob & valid).any() else 0)
+    trusted = (blobs > 0) & valid
+    if not trusted.any():
+        return out
+    filled = np.where(valid, image, np.median(image[trusted]))
     smooth = ndimage.gaussian_filter(filled, TOUCHING_SIGMA_UM / pixel_size_um)
     floor = float(np.median(smooth))
     height = np.log(np.maximum(smooth - floor, 1e-6 * max(float(smooth.max()) - floor, 1.0)))
-    markers = ndimage.label(h_maxima(height, math.log(TOUCHING_RATIO)) & blob)[0]
-    if markers.max() == 0:
-        return blob.astype(np.int64)
-    return watershed(-smooth, markers, mask=blob).astype(np.int64)
+    peaks = h_maxima(height, math.log(TOUCHING_RATIO)).astype(bool) & (blobs > 0)
+    count = 0
+    for index, box in enumerate(ndimage.find_objects(blobs), start=1):
+        if box is None:
+            continue
+        blob = blobs[box] == index
+        seeds = ndimage.label(peaks[box] & blob)[0]
+        parts = watershed(-smooth[box], seeds, mask=blob) if seeds.max() else blob.astype(int)
+        out[box][parts > 0] = parts[parts > 0] + count
+        count += int(parts.max())
+    return out

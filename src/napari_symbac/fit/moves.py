@@ -368,6 +368,7 @@ def _reseed_pass(problem: Problem, state: State, ctx: _Context) -> tuple[State, 
     rod_rows = np.clip((blocks[:, 1] / px).astype(int), 0, rows - 1)
     rod_cols = np.clip((blocks[:, 0] / px).astype(int), 0, cols - 1)
     rod_blob = blobs[rod_rows, rod_cols]
+    all_parts = touching_cells(image, px, blobs, valid=used)
     for index, box in enumerate(ndimage.find_objects(blobs), start=1):
         if box is None:
             continue
@@ -375,8 +376,8 @@ def _reseed_pass(problem: Problem, state: State, ctx: _Context) -> tuple[State, 
         if ctx.near("reseed", cx, cy) or ctx.tried("reseed", cx, cy, 0.0):
             continue
         inside = np.flatnonzero(rod_blob == index)
-        parts = touching_cells(image, px, blobs == index, valid=used)
-        if parts.max() <= inside.size:
+        parts = np.where(blobs == index, all_parts, 0)
+        if np.unique(parts[box]).size - 1 <= inside.size:
             continue
         try:
             new, _ = cells_from_instances(parts, px, max_cell_length_um=math.inf)
