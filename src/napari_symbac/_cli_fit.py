@@ -431,9 +431,9 @@ def _outputs_one(
         "censored pixels": censor_note,
     }
     problems = _cell_problems(result, frame.shape, microscope.pixel_size_um, masks)
-    if camera is None and camera_used.dark_noise_e == 0:
-        notes.append(UNMEASURED_READ_NOISE)
     if camera is None:  # the engine estimated it from its residual: check it model-free
+        if camera_used.dark_noise_e == 0:
+            notes.append(UNMEASURED_READ_NOISE)
         check, problem = _model_free_gain(frame, camera_used)
         facts["camera (model-free)"] = check
         problems += [problem] if problem else []

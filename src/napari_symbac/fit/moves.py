@@ -342,33 +342,51 @@ def _split_pass(
 RESEED_ASPECT = 1.25
 
 
-def _on_edge(parts: np.ndarray, x_um: np.ndarray, y_um: np.ndarray, px: float) -> np.ndarray:
-    """Whether the basin of ``parts`` under each centre touches the image's edge."""
-    rows, cols = parts.shape
-    edge = np.zeros(parts.shape, bool)
-    edge[[0, -1], :] = edge[:, [0, -1]] = True
-    cut = np.unique(parts[edge])
-    under = parts[
+def _under(labels: np.ndarray, x_um: np.ndarray, y_um: np.ndarray, px: float) -> np.ndarray:
+    """The label under each centre (a centre off the image: its nearest edge pixel)."""
+    rows, cols = labels.shape
+    return labels[
         np.clip((y_um / px).astype(int), 0, rows - 1),
         np.clip((x_um / px).astype(int), 0, cols - 1),
     ]
-    return (under > 0) & np.isin(under, cut)
 
 
-def _reseed_pass(problem: Problem, state: State, ctx: _Context) -> tuple[State, bool]:
-    """Replace the rods of a bright blob by one per touching cell its finer maxima
-    show, when they are more than the rods: accepted by the BIC when every new cell
-    off the image's edge is a rod (:data:`RESEED_ASPECT`)."""
-    blocks, shared = problem.blocks(state.x)
+def _on_edge(parts: np.ndarray, x_um: np.ndarray, y_um: np.ndarray, px: float) -> np.ndarray:
+    """Whether the basin of ``parts`` under each centre touches the image's edge."""
+    edge = np.zeros(parts.shape, bool)
+    edge[[0, -1], :] = edge[:, [0, -1]] = True
+    under = _under(parts, x_um, y_um, px)
+    return (under > 0) & np.isin(under, np.unique(parts[edge]))
+
+
+def _touching_proposals(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
+    """The image's bright blobs and their cut into touching cells, for the reseed.
+
+    They depend on the image alone, not on the model: found once per
+    :func:`improve_scene`, not once per pass.
+    """
     rows, cols = problem.shape
     px = problem.microscope.pixel_size_um
     image = problem.y.reshape(rows, cols)
     used = problem.w.reshape(rows, cols) > 0
     blobs = bright_instances(image, px, valid=used)
-    rod_rows = np.clip((blocks[:, 1] / px).astype(int), 0, rows - 1)
-    rod_cols = np.clip((blocks[:, 0] / px).astype(int), 0, cols - 1)
-    rod_blob = blobs[rod_rows, rod_cols]
-    all_parts = touching_cells(image, px, blobs, valid=used)
+    return blobs, touching_cells(image, px, blobs, valid=used)
+
+
+def _reseed_pass(
+    problem: Problem,
+    state: State,
+    ctx: _Context,
+    blobs: np.ndarray,
+    all_parts: np.ndarray,
+) -> tuple[State, bool]:
+    """Replace the rods of a bright blob by one per touching cell its finer maxima
+    show (``blobs``, ``all_parts``: :func:`_touching_proposals`), when they are more
+    than the rods: accepted by the BIC when every new cell off the image's edge is a
+    rod (:data:`RESEED_ASPECT`)."""
+    blocks, shared = problem.blocks(state.x)
+    px = problem.microscope.pixel_size_um
+    rod_blob = _under(blobs, blocks[:, 0], blocks[:, 1], px)
     for index, box in enumerate(ndimage.find_objects(blobs), start=1):
         if box is None:
             continue
@@ -376,9 +394,10 @@ def _reseed_pass(problem: Problem, state: State, ctx: _Context) -> tuple[State, 
         if ctx.near("reseed", cx, cy) or ctx.tried("reseed", cx, cy, 0.0):
             continue
         inside = np.flatnonzero(rod_blob == index)
-        parts = np.where(blobs == index, all_parts, 0)
-        if np.unique(parts[box]).size - 1 <= inside.size:
+        cut = all_parts[box][blobs[box] == index]
+        if np.unique(cut[cut > 0]).size <= inside.size:
             continue
+        parts = np.where(blobs == index, all_parts, 0)
         try:
             new, _ = cells_from_instances(parts, px, max_cell_length_um=math.inf)
         except ValueError:
@@ -489,7 +508,8 @@ def improve_scene(
     if polarity == "bright":
         # before the merges: a rod across two cells of different pairs merged with
         # its neighbour is not split right again
-        passes.insert(0, _reseed_pass)
+        blobs, parts = _touching_proposals(problem)
+        passes.insert(0, functools.partial(_reseed_pass, blobs=blobs, all_parts=parts))
     for _ in range(max_moves):
         for move in passes:
             state, changed = move(problem, state, ctx)
