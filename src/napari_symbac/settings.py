@@ -625,7 +625,8 @@ class RenderSettings:
         bright gaps and weak shade-off of dense colonies that the linear model
         cannot. Uses ``cell_phase_rad``, ``device_phase_rad``,
         ``plate_transmission``, ``plate_phase_rad``, ``phase_ring_width_scale``,
-        ``apodisation_sigma_um``, ``defocus_sigma_um`` and ``source_points``; the
+        ``apodisation_sigma_um``, ``defocus_sigma_um``, ``focus_offset_um`` and
+        ``source_points``; the
         intensities give the bright-field transmission ``B = I_k / I_media`` and the
         level of the empty field (``media_intensity``); ``ring_contrast``,
         ``psf_offset``, ``ring_model`` and the ``*_phase_adu`` are not used.
@@ -641,6 +642,11 @@ class RenderSettings:
     source_points
         Points of the condenser annulus summed by the partially coherent model
         (angles x 2 radii; >= 8).
+    focus_offset_um
+        Distance of the focal plane from the sample, um, as the pupil phase of free
+        propagation in the immersion medium (positive: focus past the sample, towards
+        the objective); partially coherent model. Unlike ``defocus_sigma_um`` (a blur)
+        it moves light between a cell's rim and centre; 0 = in focus.
     noise_model
         ``"camera"`` (EMVA1288, eq. 17), ``"gaussian"`` or ``"none"``.
     gaussian_noise_sd_adu
@@ -692,6 +698,7 @@ class RenderSettings:
     plate_transmission: float = 0.25
     plate_phase_rad: float = 1.5707963267948966
     source_points: int = 24
+    focus_offset_um: float = 0.0
     noise_model: NoiseModel = "camera"
     gaussian_noise_sd_adu: float = 20.0
     texture_amplitude: float = 0.0
@@ -748,6 +755,10 @@ class RenderSettings:
             and 0 < self.plate_phase_rad < math.pi,
             "RenderSettings.plate_phase_rad must be in (0, pi) (pi/2: positive phase "
             f"contrast), got {self.plate_phase_rad!r}",
+        )
+        _require(
+            isinstance(self.focus_offset_um, (int, float)) and math.isfinite(self.focus_offset_um),
+            f"RenderSettings.focus_offset_um must be a finite number, got {self.focus_offset_um!r}",
         )
         _require(
             isinstance(self.source_points, int) and self.source_points >= 8,

@@ -72,6 +72,41 @@ def test_weak_phase_gives_the_linear_annulus_kernel(plate_transmission):
     np.testing.assert_allclose(image, predicted, atol=0.01 * np.abs(deviation).max())
 
 
+def test_defocus_obeys_the_transport_of_intensity_equation_of_the_annulus():
+    """Out of focus, bright field of a weak smooth phase bump: ``I(z) - I(-z) =
+    -2 z (lambda / 2 pi n) F nabla^2 phi`` to first order in ``z`` (transport of
+    intensity), where the annulus' oblique light of angle ``t`` adds
+    ``F = (1 + tan^2(t) / 2) / cos(t)`` (the pupil phase expanded to second order in the
+    spatial frequency and averaged over the ring's directions), averaged over the two
+    source radii the model sums. In focus the bump is invisible."""
+    from napari_symbac.settings import CONDENSERS
+
+    n, px, sigma_um, z_um, index = 256, 0.06, 1.2, 0.05, 1.518
+    yy, xx = (np.mgrid[:n, :n] - n // 2) * px
+    r2 = (yy**2 + xx**2) / sigma_um**2
+    phi = 0.05 * np.exp(-r2 / 2)
+    laplacian = phi * (r2 - 2) / sigma_um**2
+    ring = CONDENSERS["Ph3"]
+    centre = 0.5 * (ring.outer_fraction + ring.inner_fraction)
+    half = 0.5 * (ring.outer_fraction - ring.inner_fraction)
+    factors = []
+    for radius in (centre - 0.5 * half, centre + 0.5 * half):
+        sine = radius * 1.45 / index
+        cosine = math.sqrt(1 - sine**2)
+        factors.append((1 + 0.5 * (sine / cosine) ** 2) / cosine)
+    bright_field = {"plate_transmission": 1.0, "plate_phase_rad": 0.0, "apodisation_sigma_um": 5.0}
+    images = {
+        z: annular_phase_image(np.ones((n, n)), phi, px, **OPTICS, **bright_field,
+                               focus_offset_um=z, refractive_index=index)
+        for z in (-z_um, 0.0, z_um)
+    }  # fmt: skip
+    predicted = -2 * z_um * 0.55 / (2 * math.pi * index) * np.mean(factors) * laplacian
+    difference = images[z_um] - images[-z_um]
+    assert difference[n // 2, n // 2] > 0  # a denser bump is a converging lens: focus past it
+    np.testing.assert_allclose(difference, predicted, atol=0.03 * np.abs(predicted).max())
+    assert np.abs(images[0.0] - 1).max() < 0.01 * np.abs(predicted).max()
+
+
 def _two_touching_rods(n: int = 160) -> np.ndarray:
     """Two spherocylinders 13 px (~1 um) wide, 80 px long, side by side and touching."""
     yy, xx = np.mgrid[:n, :n] + 0.5
@@ -102,6 +137,39 @@ def test_strong_phase_pair_has_dark_cells_bright_seam_and_halo_above_background(
     assert seam > cells + 0.7 * (background - cells)  # a bright line between them
     with pytest.raises(ValueError, match="not a sum of convolved components"):
         model.components(scene)
+
+
+def test_focus_offset_moves_light_into_the_cells_of_a_phase_colony_and_is_fitted():
+    """Out of focus by the pupil's phase, the cells of a strong-phase pair are lighter
+    (either way); the pixel fit recovers the focus from an image rendered out of focus."""
+    from napari_symbac.fit import fit_parameters
+
+    microscope = Microscope(pixel_size_um=PX, wavelength_um=0.55)
+    render = RenderSettings(
+        upsample=1, psf_radius_px=60, cell_intensity=100.0, media_intensity=100.0,
+        device_intensity=100.0, apodisation_sigma_um=3.0, phase_model="partially_coherent",
+        cell_phase_rad=1.0, plate_transmission=0.15, noise_model="gaussian",
+        gaussian_noise_sd_adu=1.0, source_points=12,
+    )  # fmt: skip
+    labels = _two_touching_rods()
+    scene = scene_from_masks(labels, microscope, render)
+    model = ForwardModel(microscope, render, Camera(baseline_adu=0.0))
+    cells = {
+        z: np.median(model.with_render(dataclasses.replace(render, focus_offset_um=z))
+                     .render_clean(scene)[labels > 0])
+        for z in (-0.3, 0.0, 0.3)
+    }  # fmt: skip
+    assert cells[-0.3] > cells[0.0] + 6  # 0.3 um either way: cells ~12 % of the media lighter
+    assert cells[0.3] > cells[0.0] + 6
+    truth = dataclasses.replace(render, focus_offset_um=-0.25)
+    real = model.with_render(truth).render(scene, np.random.default_rng(1))
+    result = fit_parameters(
+        real, None, scene, microscope, dataclasses.replace(render, focus_offset_um=-0.1),
+        Camera(baseline_adu=0.0), terms=("pixel",), fit=("focus_offset_um",),
+        max_evaluations=30, global_search=False,
+    )  # fmt: skip
+    assert result.render.focus_offset_um == pytest.approx(-0.25, abs=0.02)
+    assert result.objective_after < result.objective_before
 
 
 def test_partially_coherent_empty_scene_renders_the_media_level():

@@ -250,6 +250,7 @@ class ForwardModel:
                         "phase_ring_width_scale": r.phase_ring_width_scale,
                         "apodisation_sigma_um": r.apodisation_sigma_um,
                         "defocus_sigma_um": r.defocus_sigma_um,
+                        "focus_offset_um": r.focus_offset_um,
                         "source_points": r.source_points,
                         **intensity_params,
                     },
@@ -323,6 +324,7 @@ class ForwardModel:
             r.plate_transmission,
             r.plate_phase_rad,
             r.source_points,
+            r.focus_offset_um,
         )
         cached = self._cache.get(key)
         if cached is not None:
@@ -353,6 +355,8 @@ class ForwardModel:
             r.apodisation_sigma_um,
             r.phase_ring_width_scale,
             r.source_points,
+            r.focus_offset_um,
+            m.refractive_index,
         )
         if r.defocus_sigma_um > 0:
             from scipy.ndimage import gaussian_filter

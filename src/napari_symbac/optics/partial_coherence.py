@@ -18,9 +18,13 @@ the plate (``q = sqrt(T_plate) exp(-i theta)`` on the ring conjugate to the annu
 1 elsewhere). Dividing by the empty field's value (``|q|^2`` for a sharp ring) makes
 an empty field 1. Gaussian apodisation
 of eq. 11-12 (the PSF times ``G(r, sigma)``) is a Gaussian blur of the pupil
-functions, applied here as soft edges of the pupil and the ring. To first order in
-``phi`` this is ``1 + (2 sin(theta) / |q|) phi conv h`` with ``h`` the transfer
-function of :func:`~napari_symbac.optics.psf.annulus_transfer_function` (tested).
+functions, applied here as soft edges of the pupil and the ring. Defocus is the pupil
+phase of free propagation, ``exp(i 2 pi z (sqrt(n^2 / lambda^2 - |k|^2) - n / lambda))``
+at spatial frequency ``k`` (``z`` the focal plane's distance from the sample, ``n`` the
+immersion index): unlike the Gaussian blur of eq. 14, which only smooths, it moves
+light between a cell's rim and its centre, and its sign matters. In focus (``z = 0``)
+and to first order in ``phi`` this is ``1 + (2 sin(theta) / |q|) phi conv h`` with ``h``
+the transfer function of :func:`~napari_symbac.optics.psf.annulus_transfer_function` (tested).
 """
 
 from __future__ import annotations
@@ -54,6 +58,8 @@ def annular_phase_image(
     apodisation_sigma_um: float,
     ring_width_scale: float = 1.0,
     n_source_points: int = 48,
+    focus_offset_um: float = 0.0,
+    refractive_index: float = 1.518,
 ) -> np.ndarray:
     """Partially coherent phase-contrast image of a thin sample (module notes).
 
@@ -80,6 +86,11 @@ def annular_phase_image(
         Plate ring width over the catalogue annulus width (>= 0.5).
     n_source_points
         Points of the annulus summed (angles x 2 radii).
+    focus_offset_um
+        Distance of the focal plane from the sample along the light's path, um:
+        positive when the focus lies past the sample, towards the objective.
+    refractive_index
+        Index ``n`` of the medium the defocus is in (the immersion's), ``> NA``.
 
     Returns
     -------
@@ -110,6 +121,12 @@ def annular_phase_image(
             f"{wavelength_um / (4 * numerical_aperture):.4f} um): render with a larger "
             "upsample"
         )
+    if not math.isfinite(focus_offset_um):
+        raise ValueError(f"focus_offset_um must be finite, got {focus_offset_um!r}")
+    if not refractive_index > numerical_aperture:
+        raise ValueError(
+            f"refractive_index {refractive_index!r} must exceed the NA {numerical_aperture}"
+        )
     if n_source_points < 8:
         raise ValueError(f"n_source_points must be at least 8, got {n_source_points!r}")
     cond = condenser if isinstance(condenser, Condenser) else CONDENSERS.get(condenser)
@@ -134,10 +151,24 @@ def annular_phase_image(
         for angle in np.arange(n_angles) * (2 * math.pi / n_angles):
             u = np.hypot(fx + radius * math.cos(angle), fy + radius * math.sin(angle))
             pupil = _plate_pupil(u, q, ring_in, ring_out, softness)
+            if focus_offset_um:
+                pupil = pupil * _defocus_phase(
+                    u * cutoff, focus_offset_um, refractive_index / wavelength_um
+                )
             image += np.abs(np.fft.ifft2(spectrum * pupil)) ** 2
             # the direct light of this source point (f = 0) meets the plate at u = radius
             empty += abs(_plate_pupil(np.array(radius), q, ring_in, ring_out, softness)) ** 2
     return image / empty
+
+
+def _defocus_phase(k: np.ndarray, z_um: float, n_over_lambda: float) -> np.ndarray:
+    """Free propagation by ``z_um`` of the plane wave of spatial frequency ``|k|`` (1/um).
+
+    The constant ``n / lambda`` is taken out (a phase common to the whole image); the
+    evanescent part beyond ``n / lambda``, reached only by a soft pupil edge, gets none.
+    """
+    kz = np.sqrt(np.maximum(n_over_lambda**2 - k**2, 0.0))
+    return np.exp(2j * math.pi * z_um * (kz - n_over_lambda))
 
 
 def _plate_pupil(
