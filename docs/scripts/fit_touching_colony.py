@@ -4,10 +4,12 @@ Renders it (simulated pad, one colony of two founders, seed 0, frames 1-7, 96 x 
 drifting field; tests/fit/_series_synthetic.py) and prints, per frame, the number of
 true cells in view and the number of blobs the fluorescence start
 (``bright_instances``) finds and the finer seeds inside them. ``--fit`` also runs
-``fit_series`` (minutes) and prints the fitted counts, the reseed moves and how many
-relations to the previous frame (link, division, new) differ from the simulator's.
+``fit_series`` (minutes) and prints the fitted counts, the reseed moves, which frames
+kept the start carried over from the previous frame and how many relations to the
+previous frame (link, division, new) differ from the simulator's; ``--no-carry`` fits
+every frame from its own start (``carry_cells=False``).
 
-    PYTHONPATH=src python docs/scripts/fit_touching_colony.py [--fit]
+    PYTHONPATH=src python docs/scripts/fit_touching_colony.py [--fit [--no-carry]]
 """
 
 from __future__ import annotations
@@ -57,14 +59,27 @@ def main() -> None:
         from napari_symbac.fit import fit_series
         from napari_symbac.settings import RenderSettings
 
+        carry = "--no-carry" not in sys.argv
         fit = fit_series(truth.stack, truth.microscope, RenderSettings(defocus_sigma_um=0.0),
-                         None, geometry="open")  # fmt: skip
-        print("fitted cells:", [len(f.cells) for f in fit.frames])
+                         None, geometry="open", carry_cells=carry)  # fmt: skip
+        inside = [
+            int(np.sum((f.cells.x_um >= 0) & (f.cells.x_um <= size_um[1])
+                       & (f.cells.y_um >= 0) & (f.cells.y_um <= size_um[0])))
+            for f in fit.frames
+        ]  # fmt: skip
+        print("fitted cells, centre in view:", inside)
+        print("fitted cells, all (cells cut by the edge included):",
+              [len(f.cells) for f in fit.frames])  # fmt: skip
+        print("carried start kept:", list(fit.carried))
         print("moves:", [m for f in fit.frames for m in f.moves if "touching" in m])
         truth_ids, far = [], 0.0
-        for frame, cells in zip(fit.frames, seen):
-            distance = np.hypot(frame.cells.x_um[:, None] - cells.x_um[None, :],
-                                frame.cells.y_um[:, None] - cells.y_um[None, :])  # fmt: skip
+        for t, frame in enumerate(fit.frames):
+            # every simulated cell in the field's coordinates, those cut by its edge too
+            cells = frames[t]
+            x_um = cells.x_um - truth.origins_um[t][0]
+            y_um = cells.y_um - truth.origins_um[t][1]
+            distance = np.hypot(frame.cells.x_um[:, None] - x_um[None, :],
+                                frame.cells.y_um[:, None] - y_um[None, :])  # fmt: skip
             nearest = distance.argmin(axis=1)
             far = max(far, float(distance.min(axis=1).max()))
             truth_ids.append(cells.ids[nearest])

@@ -174,7 +174,11 @@ def _camera_for(
     if config_has_camera:
         return base_camera, f"from --config {args.config}"
     if engine_estimates:
-        return None, "estimated by the fit from its residual (no --camera, --dark or config camera)"
+        return None, (
+            "estimated from the image by the fit: photon transfer of its high-pass part, or "
+            "the model's residual where the levels span too little (no --camera, --dark or "
+            "config camera)"
+        )
     # One image fixes only the slope and K * offset - read variance: keep the configured
     # (or default) baseline, lowered to the image's darkest values if it lies above them.
     lowest = float(np.percentile(frame, 0.1))
@@ -197,9 +201,10 @@ _GAIN_RATIO = 1.5
 
 
 def _model_free_gain(frame: np.ndarray, fitted) -> tuple[str, str | None]:
-    """The high-pass photon-transfer gain beside the one the fit took from its residual.
+    """The high-pass photon-transfer gain beside the one the fit used.
 
-    A residual that holds structure the model lacks inflates the fit's gain, and then a
+    Where the fit fell back to its residual (levels spanning too little for photon
+    transfer), structure the model lacks inflates the gain, and then a
     reduced chi-square near 1 says nothing; the model-free estimate does not see the
     model at all.
     """
@@ -431,7 +436,7 @@ def _outputs_one(
         "censored pixels": censor_note,
     }
     problems = _cell_problems(result, frame.shape, microscope.pixel_size_um, masks)
-    if camera is None:  # the engine estimated it from its residual: check it model-free
+    if camera is None:  # the engine estimated it: check it model-free
         if camera_used.dark_noise_e == 0:
             notes.append(UNMEASURED_READ_NOISE)
         check, problem = _model_free_gain(frame, camera_used)
@@ -517,8 +522,9 @@ def _fit_frames_jointly(
             track_ids=lineage.track_ids[k],
         )
         writers.update({f"frame_{index:04d}/{k}": v for k, v in writers_one.items()})
+        carried = f" (from frame {frames[k - 1]}'s cells)" if series.carried[k] else ""
         summaries.append(
-            f"frame {index}: fitted {len(result.cells)} cells; pixel chi2 "
+            f"frame {index}: fitted {len(result.cells)} cells{carried}; pixel chi2 "
             f"{result.objective_before:.3g} -> {result.objective_after:.3g}"
         )
     table = {
@@ -540,6 +546,7 @@ def _fit_frames_jointly(
         },
         "camera": None if series.camera is None else dataclasses.asdict(series.camera),
         "warnings": list(series.warnings),
+        "started_from_previous_frame": dict(zip(map(str, frames), series.carried)),
         "lineage": {
             "tracks": lineage.table(frames),
             "track_ids": {str(f): ids.tolist() for f, ids in zip(frames, lineage.track_ids)},

@@ -449,6 +449,12 @@ _YES_HELP = (
     f"start a run of more than {LARGE_RUN_FRAMES:,} frames without refusing (hours of work)"
 )
 
+MICROSCOPE_HELP = (
+    "microscope YAML/JSON: modality, pixel_size_um, numerical_aperture, refractive_index, "
+    "wavelength_um, condenser[, camera]; write one to edit with `napari-symbac defaults "
+    "microscope --out M.yaml`"
+)
+
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
@@ -533,7 +539,7 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument(
         "image", help="real image (TIFF, or a grey PNG): one frame or a (T, Y, X) series"
     )
-    fit.add_argument("--microscope", required=True, help="Microscope YAML/JSON")
+    fit.add_argument("--microscope", required=True, help=MICROSCOPE_HELP)
     fit.add_argument("--out", required=True, help="output folder")
     start = fit.add_mutually_exclusive_group()
     start.add_argument("--labels", help="painted class labels TIFF (1 cell, 2 media, 3 device)")
@@ -600,7 +606,7 @@ def build_parser() -> argparse.ArgumentParser:
         "report.png (real | synthetic), export_settings.yaml and masks.tif.",
     )
     cal.add_argument("image", help="real image: one 2D frame (TIFF, or a grey PNG)")
-    cal.add_argument("--microscope", required=True, help="Microscope YAML/JSON")
+    cal.add_argument("--microscope", required=True, help=MICROSCOPE_HELP)
     cal.add_argument("--out", required=True, help="output folder (new or empty)")
     cal_start = cal.add_mutually_exclusive_group()
     cal_start.add_argument("--masks", help="instance masks TIFF (0 background, 1..N cells)")
@@ -631,8 +637,7 @@ def build_parser() -> argparse.ArgumentParser:
     diag.add_argument(
         "--microscope",
         required=True,
-        help="microscope JSON/YAML: modality, pixel_size_um, NA, refractive_index, "
-        "wavelength_um[, camera] (or the file of `napari-symbac defaults microscope`)",
+        help=MICROSCOPE_HELP,
     )
     diag.add_argument(
         "--geometry",

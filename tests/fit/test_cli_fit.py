@@ -179,6 +179,8 @@ def test_frames_of_a_series_are_fitted_jointly_each_into_its_folder(
         assert {p.name for p in folder.iterdir()} == OUTPUTS
     series = json.loads((out / "series.json").read_text())
     assert series["frames"] == [0, 1]
+    assert series["started_from_previous_frame"]["0"] is False  # frame 1: either start
+    assert isinstance(series["started_from_previous_frame"]["1"], bool)
     # the second frame is the first mirrored left-right: the same three cells, same rows
     lineage = series["lineage"]
     assert lineage["tracks"] == [

@@ -406,3 +406,30 @@ def test_a_touching_fluorescent_colony_is_cut_into_its_cells():
     assert sorted(distance.argmin(axis=1).tolist()) == [0, 1, 2, 3]
     assert distance.min(axis=1).max() < 0.15
     assert any("touching cells" in move for move in fit.moves)
+
+
+@pytest.mark.slow
+def test_a_series_frame_starts_from_the_previous_frames_cells():
+    """The touching colony's frames 5 and 6 (docs/scripts/fit_touching_colony.py): in
+    frame 6 two cells meet at a T without a valley between them (in the 7-frame series
+    the frame's own start fits 4 cells for 5 there). Started from frame 5's fitted
+    cells moved by the drift, the fit is kept by the BIC and puts each of the 5 cells
+    in view on its own cell."""
+    truth = render_pad_series(seed=0, first=1, count=6, colonies=1)
+    px = truth.microscope.pixel_size_um
+    size_um = (96 * px, 96 * px)
+    frames = truth.simulation.frames[truth.first_frame : truth.first_frame + 6]
+    cells = in_view(list(frames), truth.origins_um, size_um)[5]
+    fit = fit_series(truth.stack[4:6], truth.microscope, RenderSettings(defocus_sigma_um=0.0),
+                     None, geometry="open")  # fmt: skip
+    fitted = fit.frames[1].cells
+    inside = (fitted.x_um >= 0) & (fitted.x_um <= size_um[1])
+    inside &= (fitted.y_um >= 0) & (fitted.y_um <= size_um[0])
+    distance = np.hypot(
+        fitted.x_um[inside, None] - cells.x_um[None, :],
+        fitted.y_um[inside, None] - cells.y_um[None, :],
+    )
+    assert fit.carried == (False, True)
+    assert inside.sum() == len(cells) == 5
+    assert sorted(distance.argmin(axis=1).tolist()) == [0, 1, 2, 3, 4]
+    assert distance.min(axis=1).max() < 0.15

@@ -76,9 +76,11 @@ class SceneFit:
     cells
         Fitted cells (image coordinates, um), model-based lengths and widths.
     initial_cells
-        The Otsu / watershed / moments start.
+        The Otsu / watershed / moments start, or the cells a series fit carried over
+        from the previous frame (:func:`~napari_symbac.fit.fit_series`).
     otsu_width_um
-        Otsu width of each initial cell (area and length of its region).
+        Otsu width of each initial cell (area and length of its region); for carried
+        cells, their fitted widths.
     trench
         Fitted trench placement (``None`` for an open field).
     render
@@ -436,8 +438,13 @@ def _run_frame(
     moves: bool = True,
     progress: Callable[[int, int], None] | None = None,
     cancel: Callable[[], bool] | None = None,
+    start_cells: FrameCells | None = None,
 ) -> _FrameRun:
-    """Check the inputs, start, and run the rounds and moves of :func:`fit_scene`."""
+    """Check the inputs, start, and run the rounds and moves of :func:`fit_scene`.
+
+    ``start_cells`` (a series fit's previous frame, moved by the drift) replace the
+    automatic start's cells; the trench is still found from the image.
+    """
     real = as_single_image(real_image, name="real_image")
     if geometry not in ("trench", "open"):
         raise ValueError(f"geometry must be 'trench' or 'open', got {geometry!r}")
@@ -492,6 +499,8 @@ def _run_frame(
         depth_um=depth,
         valid=valid,
     )
+    if start_cells is not None:
+        init_cells, otsu_w = start_cells, np.asarray(start_cells.width_um, np.float64) - 0.1
     placement = None if geometry == "open" else (trench if trench is not None else found)
     if placement is not None and closed_end is not None:
         placement = dataclasses.replace(placement, closed_end=closed_end)

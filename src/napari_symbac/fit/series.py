@@ -29,10 +29,12 @@ from typing import Literal
 
 import numpy as np
 from scipy import sparse
+from skimage.registration import phase_cross_correlation
 
 from napari_symbac.fit.camera_estimate import censored_pixels, estimate_camera
 from napari_symbac.fit.lineage import Lineage, LinkSettings, link_cells
 from napari_symbac.fit.lm import State, damped_step, evaluate
+from napari_symbac.fit.moves import dispersion
 from napari_symbac.fit.overlap import overlap_terms
 from napari_symbac.fit.placement import TrenchPlacement
 from napari_symbac.fit.scene_fit import (
@@ -44,6 +46,7 @@ from napari_symbac.fit.scene_fit import (
     _run_frame,
 )
 from napari_symbac.settings import Camera, Microscope, RenderSettings, TrenchGeometry
+from napari_symbac.sim import FrameCells
 
 __all__ = ["SeriesFit", "fit_series"]
 
@@ -84,6 +87,9 @@ class SeriesFit:
         the track of each cell of ``frames[t].cells`` (same order), ``lineage.tracks``
         one ``(track, first frame, last frame, parent track)`` row per track, frames
         numbered from 0 within the series.
+    carried
+        Per frame: whether the fit kept started from the previous frame's cells
+        (``carry_cells``); False for the first frame.
     """
 
     frames: tuple[SceneFit, ...]
@@ -99,6 +105,7 @@ class SeriesFit:
     iterations: int = 0
     warnings: tuple[str, ...] = ()
     lineage: Lineage | None = field(default=None, repr=False)
+    carried: tuple[bool, ...] = ()
 
     @property
     def track_ids(self) -> tuple[np.ndarray, ...]:
@@ -154,6 +161,7 @@ def fit_series(
     joint_iterations: int = 15,
     linking: LinkSettings | None = None,
     growth_prior_sd_um: float = 0.0,
+    carry_cells: bool = True,
     progress: Callable[[int, int], None] | None = None,
     cancel: Callable[[], bool] | None = None,
     **frame_options,
@@ -180,6 +188,14 @@ def fit_series(
         growth per frame) and two daughters' summed length to their mother's (plus a
         third of her width) by a Gaussian prior of this s.d.: a cell cut by the image's
         edge borrows its length from its past.
+    carry_cells
+        True (default, when no masks are given): each frame after the first is also
+        fitted from the previous frame's fitted cells, moved by the drift between the
+        two frames (phase correlation), and the fit whose BIC is lower (both scored
+        with the first fit's weights and residual dispersion, the price of a cell as
+        in the moves) is kept: where the image alone hides a boundary (two touching
+        cells without a valley), the previous frame still knows it, and a division
+        since then is a split move away. False: every frame from its own start.
     linking
         How cells are linked between frames
         (:class:`~napari_symbac.fit.lineage.LinkSettings`; default: its defaults). In a
@@ -210,24 +226,34 @@ def fit_series(
     n_frames = stack.shape[0]
     shared_camera = camera if camera is not None else _pooled_camera(stack)
     runs: list[_FrameRun] = []
+    carried_from: list[bool] = []
     for t in range(n_frames):
+        frame_run = functools.partial(
+            _run_frame,
+            stack[t],
+            microscope,
+            render,
+            shared_camera,
+            geometry=geometry,
+            labels=_per_frame(labels, t, n_frames, "labels"),
+            masks=_per_frame(masks, t, n_frames, "masks"),
+            valid=_per_frame(valid, t, n_frames, "valid"),
+            trench=trench,
+            closed_end=closed_end,
+            fit_optics=fit_optics,
+            progress=progress,
+            cancel=cancel,
+            **frame_options,
+        )
         try:
-            run = _run_frame(
-                stack[t],
-                microscope,
-                render,
-                shared_camera,
-                geometry=geometry,
-                labels=_per_frame(labels, t, n_frames, "labels"),
-                masks=_per_frame(masks, t, n_frames, "masks"),
-                valid=_per_frame(valid, t, n_frames, "valid"),
-                trench=trench,
-                closed_end=closed_end,
-                fit_optics=fit_optics,
-                progress=progress,
-                cancel=cancel,
-                **frame_options,
-            )
+            run = frame_run()
+            carried = False
+            if carry_cells and t > 0 and masks is None:
+                moved = _carried_cells(runs[-1], stack[t - 1], stack[t], microscope.pixel_size_um)
+                if moved is not None and len(moved.ids):
+                    other = frame_run(start_cells=moved)
+                    carried = _lower_bic(other, run)
+                    run = other if carried else run
         except ValueError as err:
             advice = (
                 ". A series fit needs cells in every frame: fit the frames before and "
@@ -237,6 +263,7 @@ def fit_series(
             )
             raise ValueError(f"frame {t} of the series: {err}{advice}") from err
         runs.append(run)
+        carried_from.append(carried)
     alone = tuple(_frame_result(run) for run in runs)
     optics = runs[0].problem.layout.optics
     names = tuple(optics)
@@ -283,7 +310,71 @@ def fit_series(
         iterations=iterations,
         warnings=tuple(warnings),
         lineage=lineage,
+        carried=tuple(carried_from),
     )
+
+
+#: Correlation of two registered frames below which a series fit takes them for
+#: different fields and does not carry cells from one to the other: 0.88-0.95 between
+#: the frames of a drifting fluorescent colony, 0.15-0.48 between the four unrelated
+#: fields of ColiCoords ds3 (docs/fitting.md).
+CARRY_MIN_CORRELATION = 0.6
+
+
+def _carried_cells(
+    previous: _FrameRun, before: np.ndarray, after: np.ndarray, pixel_um: float
+) -> FrameCells | None:
+    """The previous frame's fitted cells moved by the drift from ``before`` to ``after``.
+
+    The drift is the phase correlation of the two frames (to a tenth of a pixel);
+    cells the move takes wholly off the image (centre beyond half a length) are
+    dropped. None when the frames' overlap, so
+    registered, correlates less than :data:`CARRY_MIN_CORRELATION`: two different
+    fields, whose cells the previous frame does not know.
+    """
+    a, b = before.astype(np.float64), after.astype(np.float64)
+    # the shift that registers ``after`` onto ``before``: minus the drift
+    shift_px = phase_cross_correlation(a, b, upsample_factor=10, normalization=None)[0]
+    dy, dx = (round(float(v)) for v in shift_px)
+    rows, cols = a.shape
+    overlap_a = a[max(dy, 0) : rows + min(dy, 0), max(dx, 0) : cols + min(dx, 0)]
+    overlap_b = b[max(-dy, 0) : rows + min(-dy, 0), max(-dx, 0) : cols + min(-dx, 0)]
+    if overlap_a.size < 100 or overlap_a.std() == 0 or overlap_b.std() == 0:
+        return None
+    if np.corrcoef(overlap_a.ravel(), overlap_b.ravel())[0, 1] < CARRY_MIN_CORRELATION:
+        return None
+    problem, x = previous.problem, previous.state.x
+    cells = problem.model(problem.n_cells(x)).unpack(x)[0]
+    dy_um, dx_um = -shift_px[0] * pixel_um, -shift_px[1] * pixel_um
+    x_um, y_um = cells.x_um + dx_um, cells.y_um + dy_um
+    reach = 0.5 * np.asarray(cells.length_um)  # a cell cut by the edge still shows
+    keep = (x_um >= -reach) & (x_um <= cols * pixel_um + reach)
+    keep &= (y_um >= -reach) & (y_um <= rows * pixel_um + reach)
+    return FrameCells(
+        ids=np.asarray(cells.ids)[keep],
+        x_um=x_um[keep],
+        y_um=y_um[keep],
+        angle_rad=np.asarray(cells.angle_rad)[keep],
+        length_um=np.asarray(cells.length_um)[keep],
+        width_um=np.asarray(cells.width_um)[keep],
+    )
+
+
+def _lower_bic(candidate: _FrameRun, incumbent: _FrameRun) -> bool:
+    """Whether ``candidate``'s fit has the lower BIC, both scored on ``incumbent``'s terms.
+
+    Scored with the incumbent's weights (its camera variance of the last round) and
+    the dispersion of its residual, each cell priced as in the moves
+    (:func:`~napari_symbac.fit.moves.dispersion`, ``Problem.bic_per_cell``).
+    """
+    problem = incumbent.problem
+    phi = dispersion(problem, incumbent.state)
+    rescored = problem.evaluate(candidate.state.x)
+
+    def bic(state: State) -> float:
+        return state.cost / phi + problem.n_cells(state.x) * problem.bic_per_cell
+
+    return bic(rescored) < bic(incumbent.state)
 
 
 def _link(
