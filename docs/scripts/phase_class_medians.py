@@ -33,6 +33,24 @@ from napari_symbac.scene import scene_from_masks
 from napari_symbac.settings import Microscope
 
 
+def calibrated_colony(path: Path):
+    """An Omnipose colony (grey image, its masks) and its ``calibrate`` result as
+    ``benchmarks/bench_transfer.py`` makes it (0.55 um, 1 um cells, 160 px crop, 25
+    renders)."""
+    data = np.asarray(iio.imread(path))
+    image = data[..., 0] if data.ndim == 3 else data
+    masks = tifffile.imread(path.parent / f"{path.stem}_cp_masks.tif").astype(np.int32)
+    cal = calibrate(
+        image,
+        masks=masks,
+        microscope=Microscope(wavelength_um=0.55, modality="phase"),
+        cell_width_um=1.0,
+        crop_px=160,
+        max_evaluations=25,
+    )
+    return image, masks, cal
+
+
 def on_real_masks(cal, masks: np.ndarray) -> np.ndarray:
     """The real masks' scene rendered with the optics fitted to it (the phase as fitted
     per unit of the masks' material, before it is rescaled for the drawn pad)."""
@@ -80,17 +98,7 @@ def main() -> None:
     )
     print("|---|---|---|---|---|---|---|")
     for path in sorted(folder.glob("Sample*.png")):
-        data = np.asarray(iio.imread(path))
-        image = data[..., 0] if data.ndim == 3 else data
-        masks = tifffile.imread(folder / f"{path.stem}_cp_masks.tif").astype(np.int32)
-        cal = calibrate(
-            image,
-            masks=masks,
-            microscope=Microscope(wavelength_um=0.55, modality="phase"),
-            cell_width_um=1.0,
-            crop_px=160,
-            max_evaluations=25,
-        )
+        image, masks, cal = calibrated_colony(path)
         source = PipelineSource(export_settings(cal, n_items=n, seed=0))
         rows, first = [], None
         for unit in range(n):

@@ -1,6 +1,7 @@
 """The pupil's defocus on the Omnipose colonies: does it bring the fitted cells to the real ones?
 
-Run: ``python docs/scripts/phase_focus_offset.py REAL_DATA_DIR``. For each Omnipose colony
+Run: ``python docs/scripts/phase_focus_offset.py REAL_DATA_DIR`` (from the repository
+root; it imports ``phase_class_medians`` beside it). For each Omnipose colony
 (MIT, ``REAL_DATA_DIR/omnipose``): ``calibrate`` with its masks as
 ``docs/scripts/phase_class_medians.py`` does (0.55 um, 1 um cells, 160 px crop, 25 renders),
 then the partially coherent fit of its crop once more, from the calibrated optics, with
@@ -16,16 +17,14 @@ import dataclasses
 import sys
 from pathlib import Path
 
-import imageio.v3 as iio
 import numpy as np
-import tifffile
+from phase_class_medians import calibrated_colony
 
-from napari_symbac.calibrate import calibrate, compare_images
+from napari_symbac.calibrate import compare_images
 from napari_symbac.fit import fit_parameters
 from napari_symbac.fit.parameters import DEFAULT_FIT_PARTIALLY_COHERENT
 from napari_symbac.optics import ForwardModel
 from napari_symbac.scene import scene_from_masks
-from napari_symbac.settings import Microscope
 
 
 def main() -> None:
@@ -33,17 +32,7 @@ def main() -> None:
     print("| image | focus start (um) | fitted focus (um) | reduced chi-square | cells | bg |")
     print("|---|---|---|---|---|---|")
     for path in sorted(folder.glob("Sample*.png")):
-        data = np.asarray(iio.imread(path))
-        image = data[..., 0] if data.ndim == 3 else data
-        masks = tifffile.imread(folder / f"{path.stem}_cp_masks.tif").astype(np.int32)
-        cal = calibrate(
-            image,
-            masks=masks,
-            microscope=Microscope(wavelength_um=0.55, modality="phase"),
-            cell_width_um=1.0,
-            crop_px=160,
-            max_evaluations=25,
-        )
+        image, masks, cal = calibrated_colony(path)
         s = cal.settings
         depth, width = s.simulation.trench.depth_um, s.simulation.cell_width_um
         # the phase per unit of the masks' material, as fitted (calibrate rescales it

@@ -626,10 +626,10 @@ class RenderSettings:
         cannot. Uses ``cell_phase_rad``, ``device_phase_rad``,
         ``plate_transmission``, ``plate_phase_rad``, ``phase_ring_width_scale``,
         ``apodisation_sigma_um``, ``defocus_sigma_um``, ``focus_offset_um`` and
-        ``source_points``; the
-        intensities give the bright-field transmission ``B = I_k / I_media`` and the
-        level of the empty field (``media_intensity``); ``ring_contrast``,
-        ``psf_offset``, ``ring_model`` and the ``*_phase_adu`` are not used.
+        ``source_points``; the intensities give the bright-field transmission
+        ``B = I_k / I_media`` and the level of the empty field (``media_intensity``);
+        ``ring_contrast``, ``psf_offset``, ``ring_model`` and the ``*_phase_adu`` are
+        not used.
     cell_phase_rad, device_phase_rad
         Phase delay of a full-depth column of cells (device) against the media,
         ``2 pi (n - n_media) depth / lambda`` (eq. OPL1-3), partially coherent model.

@@ -88,8 +88,8 @@ class SeriesFit:
         one ``(track, first frame, last frame, parent track)`` row per track, frames
         numbered from 0 within the series.
     carried
-        Per frame: whether the fit kept started from the previous frame's cells
-        (``carry_cells``); False for the first frame.
+        Per frame: whether the fit that was kept started from the previous frame's
+        cells (``carry_cells``); False for the first frame.
     """
 
     frames: tuple[SceneFit, ...]
@@ -328,9 +328,9 @@ def _carried_cells(
 
     The drift is the phase correlation of the two frames (to a tenth of a pixel);
     cells the move takes wholly off the image (centre beyond half a length) are
-    dropped. None when the frames' overlap, so
-    registered, correlates less than :data:`CARRY_MIN_CORRELATION`: two different
-    fields, whose cells the previous frame does not know.
+    dropped. None when the frames' overlap, so registered, correlates less than
+    :data:`CARRY_MIN_CORRELATION`: two different fields, whose cells the previous
+    frame does not know.
     """
     a, b = before.astype(np.float64), after.astype(np.float64)
     # the shift that registers ``after`` onto ``before``: minus the drift
