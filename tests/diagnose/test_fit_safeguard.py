@@ -95,3 +95,36 @@ def test_collinear_effects_with_a_rounded_jacobian_still_fit():
     assert np.all(np.isfinite(both.mu))
     assert deviance(data, both, mask).sum() <= deviance(data, alone, mask).sum() + 1.0
     assert abs(sum(t[0] for _, t in both.effects) - 25.0) < 1.0
+
+
+def test_the_jacobian_reapplies_only_the_effects_from_the_one_it_differentiates():
+    """``_jacobian`` differences each effect from the mean entering it (issue 11's
+    speed): the same columns, bit for bit, as differences of whole predictions,
+    for a chain whose effects act on what comes before them (illumination times
+    the mean, stray light and fixed-pattern offsets added)."""
+    from napari_symbac.diagnose.effects import CATALOGUE
+    from napari_symbac.diagnose.model import _jacobian, predict
+
+    design, y, _ = _case(3)
+    beta = fit_model(design, y, np.ones(y.shape, bool)).beta
+    rng = np.random.default_rng(0)
+    effects = []
+    for name in ("uneven_illumination", "stray_light", "fixed_pattern_noise"):
+        effect = CATALOGUE[name](design.geometry)
+        effects.append((effect, 0.01 * rng.standard_normal(effect.n_params())))
+    mu = predict(design, beta, effects)
+    expected = []
+    for i, (effect, theta) in enumerate(effects):
+        for k, step in enumerate(effect.steps(theta)):
+            up, down = theta.copy(), theta.copy()
+            up[k] += step
+            down[k] -= step
+            chain_up = [*effects[:i], (effect, up), *effects[i + 1 :]]
+            chain_down = [*effects[:i], (effect, down), *effects[i + 1 :]]
+            expected.append(
+                (predict(design, beta, chain_up) - predict(design, beta, chain_down)) / (2 * step)
+            )
+    columns = _jacobian(design, beta, effects, mu)
+    assert columns.shape[0] == len(beta) + len(expected)
+    np.testing.assert_array_equal(columns[len(beta) :], np.stack(expected))
+    assert np.abs(columns[len(beta) :]).max() > 0

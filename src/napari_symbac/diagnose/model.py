@@ -344,9 +344,28 @@ def predict(
     design: BaseDesign, beta: np.ndarray, effects: Sequence[tuple[Effect, np.ndarray]]
 ) -> np.ndarray:
     """Mean image of the base model with coefficients ``beta`` and the effects applied."""
-    cols = design.columns()
-    mu = np.tensordot(beta, cols, axes=1)
-    parts = beta[:3, None, None, None] * design.components
+    mu, parts = _base_mean(design, beta)
+    return apply_effects(mu, effects, parts, design)
+
+
+def _base_mean(design: BaseDesign, beta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The base model's mean image and its per-class parts (what the effects act on)."""
+    mu = np.tensordot(beta, design.columns(), axes=1)
+    return mu, beta[:3, None, None, None] * design.components
+
+
+def apply_effects(
+    mu: np.ndarray,
+    effects: Sequence[tuple[Effect, np.ndarray]],
+    parts: np.ndarray,
+    design: BaseDesign,
+) -> np.ndarray:
+    """``mu`` passed through ``effects`` in turn (the chain of :func:`predict`).
+
+    A finite difference in one effect's parameters re-applies only that effect and
+    those after it to the mean before it: the same operations as :func:`predict`, so
+    the same numbers, without re-rendering the base model and the earlier effects.
+    """
     for effect, theta in effects:
         mu = effect.mean(np.asarray(theta, float), mu, parts, design.geometry)
     return mu
@@ -361,22 +380,18 @@ def _jacobian(design: BaseDesign, beta: np.ndarray, effects: list, mu: np.ndarra
             b = beta.copy()
             b[j] += 1.0
             cols.append(predict(design, b, effects) - mu)
+    before, parts = _base_mean(design, beta)  # the mean entering effect i
     for i, (effect, theta) in enumerate(effects):
         steps = effect.steps(theta)
+        after = effects[i + 1 :]
         for k in range(len(theta)):
-            up = [list(e) for e in effects]
-            down = [list(e) for e in effects]
             tu, td = np.array(theta, float), np.array(theta, float)
             tu[k] += steps[k]
             td[k] -= steps[k]
-            up[i][1], down[i][1] = tu, td
-            cols.append(
-                (
-                    predict(design, beta, [tuple(e) for e in up])
-                    - predict(design, beta, [tuple(e) for e in down])
-                )
-                / (2 * steps[k])
-            )
+            up = apply_effects(before, [(effect, tu), *after], parts, design)
+            down = apply_effects(before, [(effect, td), *after], parts, design)
+            cols.append((up - down) / (2 * steps[k]))
+        before = apply_effects(before, [(effect, theta)], parts, design)
     return np.stack(cols) if cols else np.zeros((0, *mu.shape))
 
 
@@ -514,9 +529,13 @@ def fit_model(
             if a is None or (round_index == rounds - 1 and _inner == 0):
                 jac = _jacobian(design, beta, effects, mu)
                 a = jac.reshape(len(jac), -1)[:, idx].T
+            if _inner == 0:
+                # the weights are fixed within a round and the Jacobian is taken only
+                # before its first step: the second step reuses the normal matrix
+                aw = a * w[:, None]
+                a_normal = a.T @ aw
             r = yv - mu.ravel()[idx]
-            aw = a * w[:, None]
-            normal = a.T @ aw
+            normal = a_normal
             rhs = aw.T @ r
             cost = float(np.sum(w * r**2))
             if shrinkage is None:

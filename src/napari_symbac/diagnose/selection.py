@@ -36,10 +36,11 @@ from napari_symbac.diagnose.model import (
     BaseDesign,
     Censor,
     FittedModel,
+    _base_mean,
     _jacobian,
+    apply_effects,
     deviance,
     fit_model,
-    predict,
 )
 from napari_symbac.diagnose.statistics import neg_log10_p_chi2
 
@@ -146,7 +147,11 @@ def score_test(
         return ScoreTest(evidence, 1, evidence if censor is not None else 0.0)
     theta0 = effect.null()
     effects = list(current.effects)
-    base_mu = predict(design, current.beta, [*effects, (effect, theta0)])
+    # the current model's mean, before the tested effect: each difference below
+    # applies only the tested effect to it
+    mean, parts = _base_mean(design, current.beta)
+    before = apply_effects(mean, effects, parts, design)
+    base_mu = apply_effects(before, [(effect, theta0)], parts, design)
     steps = effect.steps(theta0)
     cols = []
     for k in range(len(theta0)):
@@ -155,8 +160,8 @@ def score_test(
         down[k] -= steps[k]
         cols.append(
             (
-                predict(design, current.beta, [*effects, (effect, up)])
-                - predict(design, current.beta, [*effects, (effect, down)])
+                apply_effects(before, [(effect, up)], parts, design)
+                - apply_effects(before, [(effect, down)], parts, design)
             )
             / (2 * steps[k])
         )
