@@ -348,9 +348,20 @@ def predict(
     return apply_effects(mu, effects, parts, design)
 
 
+def weighted_sum(weights: np.ndarray, stack: np.ndarray) -> np.ndarray:
+    """``sum_k weights[k] stack[k]``.
+
+    The arithmetic of ``np.tensordot(weights, stack, axes=1)`` (one matrix product,
+    the same numbers) without its Python overhead, which a diagnosis pays a few
+    hundred thousand times.
+    """
+    w = np.asarray(weights)
+    return np.dot(w.reshape(1, -1), stack.reshape(len(w), -1)).reshape(stack.shape[1:])
+
+
 def _base_mean(design: BaseDesign, beta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The base model's mean image and its per-class parts (what the effects act on)."""
-    mu = np.tensordot(beta, design.columns(), axes=1)
+    mu = weighted_sum(beta, design.columns())
     return mu, beta[:3, None, None, None] * design.components
 
 

@@ -8,7 +8,7 @@ from itertools import islice
 import numpy as np
 
 from napari_symbac.diagnose.effects.base import Effect
-from napari_symbac.diagnose.model import Geometry
+from napari_symbac.diagnose.model import Geometry, weighted_sum
 
 __all__ = ["BackgroundTexture", "mode_images", "support_modes", "texture_basis", "texture_modes"]
 
@@ -146,14 +146,14 @@ class BackgroundTexture(Effect):
 
     def mean(self, theta, mu, parts, geo):
         if self._own is None or not len(theta):
-            return mu + np.tensordot(theta, self._basis, axes=1)[None] * parts[1]
+            return mu + weighted_sum(theta, self._basis)[None] * parts[1]
         if self._probe_value == 0:
             return mu
         intensity = parts[1].ravel()[self._probe] / self._probe_value
-        return mu + intensity * np.tensordot(theta, self._own, axes=1)
+        return mu + intensity * weighted_sum(theta, self._own)
 
     def summary(self, theta, mu):
-        field = np.tensordot(theta, self._basis, axes=1)
+        field = weighted_sum(theta, self._basis)
         media = self.geometry.labels[0] == 0
         return {"rms_fraction": float(field[media].std()) if media.any() else 0.0}
 

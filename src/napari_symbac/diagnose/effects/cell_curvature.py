@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from napari_symbac.diagnose.effects.base import Effect
-from napari_symbac.diagnose.model import Geometry
+from napari_symbac.diagnose.model import Geometry, weighted_sum
 
 __all__ = ["CellCurvature"]
 
@@ -70,8 +70,8 @@ class CellCurvature(Effect):
         if not len(theta):
             return mu
         gy, gx = np.gradient(parts[0] * (1.0 - self.geometry.media_per_cell), axis=(1, 2))
-        shift_x = np.tensordot(theta, self._bow * self._nx, axes=1)
-        shift_y = np.tensordot(theta, self._bow * self._ny, axes=1)
+        shift_x = weighted_sum(theta, self._bow * self._nx)
+        shift_y = weighted_sum(theta, self._bow * self._ny)
         return mu - shift_x * gx - shift_y * gy
 
     def summary(self, theta, mu):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from napari_symbac.diagnose.effects.base import Effect
-from napari_symbac.diagnose.model import Geometry
+from napari_symbac.diagnose.model import Geometry, weighted_sum
 
 __all__ = ["CellIntensityVariability"]
 
@@ -61,8 +61,8 @@ class CellIntensityVariability(Effect):
             if self._probe_value == 0:
                 return mu
             intensity = parts[0].ravel()[self._probe] / self._probe_value
-            return mu + intensity * np.tensordot(theta, self._own, axes=1)
-        return mu + np.tensordot(theta, self._masks, axes=1) * parts[0]
+            return mu + intensity * weighted_sum(theta, self._own)
+        return mu + weighted_sum(theta, self._masks) * parts[0]
 
     def summary(self, theta, mu):
         return {

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from napari_symbac.diagnose.effects.base import Effect
-from napari_symbac.diagnose.model import Geometry
+from napari_symbac.diagnose.model import Geometry, weighted_sum
 from napari_symbac.optics.forward import Stage
 
 __all__ = ["UnevenIllumination"]
@@ -40,10 +40,10 @@ class UnevenIllumination(Effect):
         return 5
 
     def mean(self, theta, mu, parts, geo):
-        return mu * (1.0 + np.tensordot(theta, self._basis, axes=1))[None]
+        return mu * (1.0 + weighted_sum(theta, self._basis))[None]
 
     def summary(self, theta, mu):
-        surface = np.tensordot(theta, self._basis, axes=1)
+        surface = weighted_sum(theta, self._basis)
         return {
             "peak_to_peak_fraction": float(surface.max() - surface.min()),
             "coefficients": [float(c) for c in theta],
