@@ -344,7 +344,7 @@ def predict(
     design: BaseDesign, beta: np.ndarray, effects: Sequence[tuple[Effect, np.ndarray]]
 ) -> np.ndarray:
     """Mean image of the base model with coefficients ``beta`` and the effects applied."""
-    mu, parts = _base_mean(design, beta)
+    mu, parts = base_mean(design, beta)
     return apply_effects(mu, effects, parts, design)
 
 
@@ -359,7 +359,7 @@ def weighted_sum(weights: np.ndarray, stack: np.ndarray) -> np.ndarray:
     return np.dot(w.reshape(1, -1), stack.reshape(len(w), -1)).reshape(stack.shape[1:])
 
 
-def _base_mean(design: BaseDesign, beta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def base_mean(design: BaseDesign, beta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The base model's mean image and its per-class parts (what the effects act on)."""
     mu = weighted_sum(beta, design.columns())
     return mu, beta[:3, None, None, None] * design.components
@@ -391,7 +391,7 @@ def _jacobian(design: BaseDesign, beta: np.ndarray, effects: list, mu: np.ndarra
             b = beta.copy()
             b[j] += 1.0
             cols.append(predict(design, b, effects) - mu)
-    before, parts = _base_mean(design, beta)  # the mean entering effect i
+    before, parts = base_mean(design, beta)  # the mean entering effect i
     for i, (effect, theta) in enumerate(effects):
         steps = effect.steps(theta)
         after = effects[i + 1 :]

@@ -36,9 +36,9 @@ from napari_symbac.diagnose.model import (
     BaseDesign,
     Censor,
     FittedModel,
-    _base_mean,
     _jacobian,
     apply_effects,
+    base_mean,
     deviance,
     fit_model,
 )
@@ -149,7 +149,7 @@ def score_test(
     effects = list(current.effects)
     # the current model's mean, before the tested effect: each difference below
     # applies only the tested effect to it
-    mean, parts = _base_mean(design, current.beta)
+    mean, parts = base_mean(design, current.beta)
     before = apply_effects(mean, effects, parts, design)
     base_mu = apply_effects(before, [(effect, theta0)], parts, design)
     steps = effect.steps(theta0)
