@@ -500,7 +500,7 @@ def _run_frame(
         valid=valid,
     )
     if start_cells is not None:
-        init_cells, otsu_w = start_cells, np.asarray(start_cells.width_um, np.float64) - 0.1
+        init_cells, otsu_w = start_cells, np.asarray(start_cells.width_um, np.float64)
     placement = None if geometry == "open" else (trench if trench is not None else found)
     if placement is not None and closed_end is not None:
         placement = dataclasses.replace(placement, closed_end=closed_end)
@@ -528,8 +528,9 @@ def _run_frame(
         cell_lower.append(-0.8)
         cell_upper.append(4.0)
         cell_sd.append(1.0)
-    # Otsu is biased narrow (section 1.3): start a little wider.
-    width0 = float(np.clip(np.median(otsu_w) + 0.1, 0.4, 2.0))
+    # Otsu is biased narrow (section 1.3): start a little wider; fitted widths as they are.
+    widening = 0.1 if start_cells is None else 0.0
+    width0 = float(np.clip(np.median(otsu_w) + widening, 0.4, 2.0))
     g0, g_lo, g_hi = [width0], [0.3], [2.5]
     if placement is not None:
         g0 += [placement.left_um, placement.width_um]
