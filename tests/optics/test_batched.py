@@ -12,6 +12,7 @@ import torch
 from napari_symbac.optics import ForwardModel, texture_stage
 from napari_symbac.optics.batched import BatchedRenderer, render_scenes, resolve_backend
 from napari_symbac.optics.camera import apply_camera_noise, apply_gaussian_noise
+from napari_symbac.optics.static import static_layers
 from napari_symbac.pipeline import iter_scenes, render_simulation
 from napari_symbac.settings import (
     AgarPadGeometry,
@@ -25,6 +26,9 @@ from napari_symbac.sim import simulate
 
 CLEAN = RenderSettings(noise_model="none")
 SEPARATE = RenderSettings(noise_model="none", cell_phase_adu=300.0, device_phase_adu=120.0)
+#: torch devices the device tests run on: the CPU everywhere, and a CUDA GPU where torch
+#: sees one (the same assertions; CI has none)
+DEVICES = ["cpu", *(["cuda"] if torch.cuda.is_available() else [])]
 
 
 @pytest.fixture(scope="module")
@@ -53,28 +57,40 @@ def _relative_difference(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.abs(a - b).max() / np.ptp(b))
 
 
-@pytest.mark.parametrize("geometry", ["trench", "field"])
+@pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize("geometry", ["trench", "field", "trench-plain"])
 @pytest.mark.parametrize(
     ("render", "modality"),
     [(CLEAN, "phase"), (SEPARATE, "phase"), (CLEAN, "fluorescence")],
     ids=["phase", "separate-ring", "fluorescence"],
 )
-def test_noise_free_batch_equals_cpu_path(geometry, render, modality, request):
+def test_noise_free_batch_equals_cpu_path(geometry, render, modality, device, request):
+    """Drawn scenes take the static-layer path (cells alone on the device, the open and
+    device layers' image once); "plain" copies of them, which do not carry their open
+    fraction, the composed path (eq. 3 composed on the host, one plane)."""
     if modality == "fluorescence":
         render = dataclasses.replace(
             render, cell_intensity=2000.0, media_intensity=150.0, device_intensity=100.0
         )
     microscope = Microscope(modality=modality)
-    pipeline, scenes = _scenes(request.getfixturevalue(geometry), render, microscope)
+    sim_pair = request.getfixturevalue(geometry.partition("-")[0])
+    pipeline, scenes = _scenes(sim_pair, render, microscope)
+    if geometry.endswith("plain"):
+        scenes = [dataclasses.replace(scene) for scene in scenes]
+    assert (static_layers(scenes[0]) is None) == geometry.endswith("plain")
     model = ForwardModel(pipeline.microscope, pipeline.render, pipeline.camera)
     expected = np.stack([model.render_clean(scene, cache=False) for scene in scenes])
-    got = BatchedRenderer(model, "cpu", batch_frames=3).render_clean(scenes)
+    got = BatchedRenderer(model, device, batch_frames=3).render_clean(scenes)
     assert got.dtype == np.float32
     assert got.shape == expected.shape == (len(scenes), *scenes[0].camera_shape)
     assert _relative_difference(got, expected) < 1e-5
     # and the cached per-component path, which the live tuning uses
     cached = np.stack([model.render_clean(scene) for scene in scenes])
     assert _relative_difference(got, cached) < 1e-5
+    # one frame with a model that has not seen its geometry: composed, as on the CPU
+    fresh = ForwardModel(pipeline.microscope, pipeline.render, pipeline.camera)
+    one = BatchedRenderer(fresh, device).render_clean(scenes[:1])
+    assert _relative_difference(one, expected[:1]) < 1e-5
 
 
 def _noise_statistics(counts: np.ndarray, clean: np.ndarray, baseline: float, edges):
@@ -89,10 +105,13 @@ def _noise_statistics(counts: np.ndarray, clean: np.ndarray, baseline: float, ed
     return np.array(stats)
 
 
+@pytest.mark.parametrize("device", DEVICES)
 @pytest.mark.parametrize(
     ("noise_model", "dark_noise_e"), [("camera", 8.0), ("camera", 1.0), ("gaussian", 8.0)]
 )
-def test_noise_has_the_cpu_paths_mean_and_variance_per_level(trench, noise_model, dark_noise_e):
+def test_noise_has_the_cpu_paths_mean_and_variance_per_level(
+    trench, noise_model, dark_noise_e, device
+):
     """Per level of the clean image: mean and variance as the CPU path's and eq. 17's.
 
     With 8 e- of read noise every pixel takes the single Gaussian draw; with 1 e- the
@@ -104,19 +123,19 @@ def test_noise_has_the_cpu_paths_mean_and_variance_per_level(trench, noise_model
     model = ForwardModel(pipeline.microscope, render, camera)
     clean = model.render_clean(scenes[0], cache=False)
     draws = 24
-    device = BatchedRenderer(model, "cpu").render(scenes * draws, np.random.default_rng(5))
+    ours = BatchedRenderer(model, device).render(scenes * draws, np.random.default_rng(5))
     rng = np.random.default_rng(5)
     if noise_model == "camera":
         cpu = np.stack([apply_camera_noise(clean, camera, rng) for _ in range(draws)])
     else:
         cpu = np.stack([apply_gaussian_noise(clean, camera, 15.0, rng) for _ in range(draws)])
-    assert device.dtype == np.uint16
-    assert device.shape == cpu.shape
+    assert ours.dtype == np.uint16
+    assert ours.shape == cpu.shape
     edges = np.quantile(clean, np.linspace(0, 1, 7))
     edges[-1] += 1.0
-    ours = _noise_statistics(device, clean, camera.baseline_adu, edges)
+    stats = _noise_statistics(ours, clean, camera.baseline_adu, edges)
     theirs = _noise_statistics(cpu, clean, camera.baseline_adu, edges)
-    for (m1, v1, level, n), (m2, v2, _, _) in zip(ours, theirs):
+    for (m1, v1, level, n), (m2, v2, _, _) in zip(stats, theirs):
         # means: both at the clean level (eq. 17 is unbiased), within 5 standard errors
         assert abs(m1 - m2) < 5 * np.sqrt((v1 + v2) / n)
         assert abs(m1) < 5 * np.sqrt(v1 / n)
@@ -130,37 +149,52 @@ def test_noise_has_the_cpu_paths_mean_and_variance_per_level(trench, noise_model
         assert v1 == pytest.approx(theory, rel=0.04)
 
 
-def test_same_seed_same_images_whatever_the_batch_size(trench):
+def _same_but_for_transform_rounding(a: np.ndarray, b: np.ndarray) -> None:
+    """The same noise streams in another batch size: FFT libraries may round a batch of
+    transforms differently (seen with MKL on a 16-core host and with cuFFT), which moves
+    a count by 1 where the clean value lies at a rounding boundary."""
+    difference = np.abs(a.astype(int) - b.astype(int))
+    assert difference.max() <= 1
+    assert np.count_nonzero(difference) <= 1e-3 * a.size
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_same_seed_same_images_whatever_the_batch_size(trench, device):
+    """Same call, same bits; the noise of a frame does not depend on the batch it is in."""
     render = dataclasses.replace(CLEAN, noise_model="camera")
     pipeline, scenes = _scenes(trench, render)
     model = ForwardModel(pipeline.microscope, render, pipeline.camera)
-    a = BatchedRenderer(model, "cpu").render(scenes, np.random.default_rng(11))
-    b = BatchedRenderer(model, "cpu", batch_frames=2).render(scenes, np.random.default_rng(11))
+    a = BatchedRenderer(model, device).render(scenes, np.random.default_rng(11))
+    np.testing.assert_array_equal(
+        a, BatchedRenderer(model, device).render(scenes, np.random.default_rng(11))
+    )
+    b = BatchedRenderer(model, device, batch_frames=2).render(scenes, np.random.default_rng(11))
+    _same_but_for_transform_rounding(a, b)
     # a batch of 10 frames is filled on the host by several threads
     many = scenes * 2
-    c1 = BatchedRenderer(model, "cpu", batch_frames=10).render(many, np.random.default_rng(3))
-    c2 = BatchedRenderer(model, "cpu", batch_frames=1).render(many, np.random.default_rng(3))
-    np.testing.assert_array_equal(c1, c2)
-    c = BatchedRenderer(model, "cpu").render(scenes, np.random.default_rng(12))
-    np.testing.assert_array_equal(a, b)
-    assert not np.array_equal(a, c)
+    c1 = BatchedRenderer(model, device, batch_frames=10).render(many, np.random.default_rng(3))
+    c2 = BatchedRenderer(model, device, batch_frames=1).render(many, np.random.default_rng(3))
+    _same_but_for_transform_rounding(c1, c2)
+    c = BatchedRenderer(model, device).render(scenes, np.random.default_rng(12))
+    assert np.abs(a.astype(int) - c.astype(int)).max() > 1
     # each frame its own stream: two frames of one scene get different noise
-    twice = BatchedRenderer(model, "cpu").render(scenes[:1] * 2, np.random.default_rng(11))
+    twice = BatchedRenderer(model, device).render(scenes[:1] * 2, np.random.default_rng(11))
     assert not np.array_equal(twice[0], twice[1])
     # noise model "none": the rounded clean image plus the baseline, as on the CPU
-    exact = BatchedRenderer(model.with_render(CLEAN), "cpu").render(
+    exact = BatchedRenderer(model.with_render(CLEAN), device).render(
         scenes, np.random.default_rng(0)
     )
     cpu = np.stack([model.with_render(CLEAN).render(s, np.random.default_rng(0)) for s in scenes])
     assert np.abs(exact.astype(int) - cpu.astype(int)).max() <= 1
 
 
-def test_clipping_at_the_bit_depth(trench):
+@pytest.mark.parametrize("device", DEVICES)
+def test_clipping_at_the_bit_depth(trench, device):
     camera = Camera(bit_depth=8, baseline_adu=100.0)
     render = dataclasses.replace(CLEAN, noise_model="camera")
     pipeline, scenes = _scenes(trench, render, last=2)
     model = ForwardModel(pipeline.microscope, render, camera)
-    images = BatchedRenderer(model, "cpu").render(scenes, np.random.default_rng(0))
+    images = BatchedRenderer(model, device).render(scenes, np.random.default_rng(0))
     assert images.max() == 255  # media at ~1000 ADU saturates an 8-bit camera
     assert images.min() >= 0
 
@@ -250,4 +284,5 @@ def test_render_scenes_same_images_whatever_the_chunking(trench):
         )
         return np.stack([image for _, image in pairs])
 
-    np.testing.assert_array_equal(images(3), images(7))
+    np.testing.assert_array_equal(images(3), images(3))
+    _same_but_for_transform_rounding(images(3), images(7))

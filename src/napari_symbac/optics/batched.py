@@ -1,18 +1,22 @@
 """Batched rendering on a PyTorch device: scene components in, camera counts out.
 
-A batch of frames goes to the device once (the cells / media / device fractions of
-every frame, at render sampling), stays there through every stage of the
+A batch of frames goes to the device once (what each frame adds to the image, at
+render sampling), stays there through every stage of the
 :class:`~napari_symbac.optics.forward.ForwardModel` and comes back once, as the
 finished uint16 camera images:
 
-1. ``psf`` + ``resample`` (eq. 15 and the area average to camera pixels): the
-   components are weighted by the ``intensity`` stage's amplitudes (eq. 3, linear, so
-   weighting before convolving is the same image), transformed once per frame and
-   multiplied by the spectrum of the kernel convolved with the ``upsample x upsample``
-   mean filter; the block average is folded into alias sums of that spectrum, exactly
-   as :meth:`~napari_symbac.optics.backends.ScipyBackend.convolve_resample` does on the
-   CPU (same transform sizes, same kernel spectrum). With separate phase amplitudes the
-   ring kernel's product is subtracted before the inverse transform.
+1. ``psf`` + ``resample`` (eq. 15 and the area average to camera pixels), as
+   :meth:`~napari_symbac.optics.forward.ForwardModel.render_clean` with ``cache=False``
+   computes them on the CPU: for drawn scenes of one geometry the open and device
+   layers' image is made once (:mod:`~napari_symbac.optics.static`) and only the
+   cells, over the columns and rows they can reach, go to the device; other scenes
+   are composed on the host (eq. 3, float32, the CPU path's arithmetic) and go as one
+   plane (two with separate phase amplitudes, whose ring image is subtracted). Each
+   plane is transformed once and multiplied by the spectrum of the kernel convolved
+   with the ``upsample x upsample`` mean filter; the block average is folded into
+   alias sums of that spectrum, exactly as
+   :meth:`~napari_symbac.optics.backends.ScipyBackend.convolve_resample` does on the
+   CPU (same transform sizes, same kernel spectrum).
 2. ``camera`` (eq. 17): shot noise ``Poisson(S / s)`` electrons, read noise ``N(0,
    sigma_d^2)`` electrons, gain ``s``, baseline, rounding and clipping to the bit depth
    (or the ``gaussian`` / ``none`` noise models), drawn on the device. As on the CPU
@@ -27,18 +31,24 @@ and kernels, so the two paths cannot drift apart; a stage it cannot run on the d
 is refused with a :class:`ValueError` naming it.
 
 Noise stream: each frame's noise comes from its own :class:`torch.Generator`, seeded
-with one 63-bit integer drawn for that frame from the numpy ``Generator`` passed in.
-The same seed gives the same images on the same device, whatever the batch size; the
-numbers differ from the CPU path's (numpy's Poisson and normal samplers), and between
-torch's CPU and CUDA generators, with the same distribution. Noise-free images equal
-the CPU path's within float32 rounding (``tests/optics/test_batched.py``).
+with one 63-bit integer drawn for that frame from the numpy ``Generator`` passed in,
+so a frame's noise does not depend on the batch it is rendered in; the numbers differ
+from the CPU path's (numpy's Poisson and normal samplers), and between torch's CPU and
+CUDA generators, with the same distribution. The same call with the same seed gives
+the same images on the same device bit for bit (the default batch size depends on the
+frame size and the kind of device only). Another batch size can move a count by 1
+where the clean value lies at a rounding boundary: FFT libraries round a batch of
+transforms differently by its size (MKL on a 16-core host, cuFFT). Noise-free images
+equal the CPU path's within float32 rounding (``tests/optics/test_batched.py``).
 """
 
 from __future__ import annotations
 
+import itertools
 import os
 from collections.abc import Iterable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -46,6 +56,7 @@ import numpy as np
 from napari_symbac.optics.backends import resample_fft_shape, resample_kernel_spectrum
 from napari_symbac.optics.camera import GAUSSIAN_SKEWNESS_MAX, exact_poisson_range
 from napari_symbac.optics.forward import ForwardModel
+from napari_symbac.optics.static import static_layers
 
 __all__ = [
     "BACKENDS",
@@ -63,12 +74,48 @@ DEVICES = ("auto", "cpu", "cuda")
 #: Stages the batched renderer runs on the device.
 DEVICE_STAGES = ("psf", "resample", "intensity", "camera")
 #: Working memory per batch the default batch size aims at: 32 MiB on the CPU (a frame
-#: or a few: larger batches fall out of the caches and ran slower), a quarter of the
-#: free memory on a GPU; at most 1024 frames.
+#: or a few: larger batches fall out of the caches and ran slower), on a GPU 3 GiB or an
+#: eighth of its memory, whichever is less (the device's size, not the memory free at
+#: the time, so that the same call renders the same images); at most 1024 frames.
 _BATCH_BYTES_CPU = 32 * 2**20
+_BATCH_BYTES_GPU = 3 * 2**30
 _MAX_BATCH_FRAMES = 1024
-#: Frames per thread below which a batch is filled on the host by one thread.
-_FRAMES_PER_FILL_THREAD = 4
+#: Host buffers smaller than this are filled by one thread.
+_PARALLEL_FILL_BYTES = 4 * 2**20
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """How a batch of scenes goes through the device.
+
+    Attributes
+    ----------
+    source
+        ``(rows, cols)`` of each scene's arrays that the host copies.
+    planes
+        Per input plane, the ``(component, weight)`` pairs the host sums (eq. 3): the
+        composed image (and with separate phase amplitudes the phase image), or the
+        cells alone when the scenes share static layers (:mod:`~napari_symbac.optics.static`).
+    kernels
+        Per plane, the ``(weight, kernel)`` pairs whose fused spectra it is multiplied by.
+    transform
+        Size of the (circular) transform of each plane.
+    out_shape
+        Camera pixels the transform gives.
+    out
+        Where they land in the camera image (static layers), ``None``: they are it.
+    static
+        The camera image of the static layers (open and device convolved once), or
+        ``None``.
+    """
+
+    source: tuple[slice, slice]
+    planes: tuple[tuple[tuple[str, float], ...], ...]
+    kernels: tuple[tuple[tuple[float, np.ndarray], ...], ...]
+    transform: tuple[int, int]
+    out_shape: tuple[int, int]
+    out: tuple[slice, slice] | None
+    static: np.ndarray | None
 
 
 def _torch():
@@ -174,6 +221,7 @@ class BatchedRenderer:
         self.batch_frames = batch_frames
         self._spectra: dict[tuple, Any] = {}
         self._buffers: dict[tuple, Any] = {}
+        self._statics: dict[int, tuple[np.ndarray, Any]] = {}
         self._budget: int | None = None
         self._pool: ThreadPoolExecutor | None = None
 
@@ -181,13 +229,17 @@ class BatchedRenderer:
     def _stage(self, name: str) -> dict[str, Any]:
         return next(s.parameters for s in self.model.stages if s.name == name)
 
-    def _spectrum(self, kernel: np.ndarray, factor: int, shape: tuple[int, int], tag: str):
-        """The kernel's fused spectrum on the device (computed once per kernel and size)."""
-        key = (tag, kernel.shape, factor, shape, kernel.tobytes())
+    def _spectrum(self, kernels: tuple[tuple[float, np.ndarray], ...], factor: int, shape):
+        """``sum w_k spectrum(kernel_k)`` of the fused convolution + block average, on the
+        device (computed once per kernels, weights and size)."""
+        key = (factor, shape, *((w, k.shape, k.tobytes()) for w, k in kernels))
         spectrum = self._spectra.get(key)
         if spectrum is None:
-            host = resample_kernel_spectrum(kernel, factor, shape)
-            spectrum = self.torch.from_numpy(host).to(self.device)
+            host = sum(
+                np.float64(w) * resample_kernel_spectrum(k, factor, shape).astype(np.complex128)
+                for w, k in kernels
+            )
+            spectrum = self.torch.from_numpy(np.asarray(host, np.complex64)).to(self.device)
             if len(self._spectra) >= 4:
                 self._spectra.pop(next(iter(self._spectra)))
             self._spectra[key] = spectrum
@@ -203,85 +255,173 @@ class BatchedRenderer:
             self._buffers[slot] = buffer
         return buffer[:size].view(shape)
 
-    def _upload(self, scenes: Sequence[Any], slot: int):
-        """Cells / media / device of every scene, cropped to the PSF's reach: ``(N, 3, Y, X)``.
+    def _layout(self, scenes: Sequence[Any]) -> _Layout:
+        """How ``scenes`` go through the device (see :class:`_Layout`); checks the scenes.
 
-        One transfer per batch, from a host buffer kept per ``slot`` (two slots
-        alternate, so filling the next batch overlaps the device's work on this one).
+        Scenes that share static layers take the static path when there are several
+        (its image costs two transforms of the frame on the CPU, once per geometry);
+        a single frame of a geometry this model has not rendered yet is composed, as
+        :meth:`~napari_symbac.optics.forward.ForwardModel.render_clean` decides.
         """
-        first = scenes[0]
+        model, first = self.model, scenes[0]
         for scene in scenes:
-            self.model._check_scene(scene)
-            if scene.cells.shape != first.cells.shape:
+            model._check_scene(scene)
+            if (scene.cells.shape, scene.upsample, scene.pixel_size_um) != (
+                first.cells.shape,
+                first.upsample,
+                first.pixel_size_um,
+            ):
                 raise ValueError(
-                    f"a batch needs scenes of one size: {scene.cells.shape} and "
+                    f"a batch needs scenes of one size and sampling: {scene.cells.shape} and "
                     f"{first.cells.shape}; render scenes of each size in their own batch"
                 )
-        trim = first.border_px - self.model.render_settings.psf_radius_px
-        crop = (slice(trim, -trim),) * 2 if trim else (slice(None),) * 2
-        height, width = first.cells[crop].shape
-        buffer = self._pinned(("in", slot), (len(scenes), 3, height, width), self.torch.float32)
+        layers = static_layers(first)
+        if layers is not None and all(
+            (other := static_layers(scene)) is not None
+            and other.fingerprint == layers.fingerprint
+            and scene.border_px == first.border_px
+            for scene in scenes
+        ):
+            plan = model._static_plan(first, always=len(scenes) > 1)
+            if plan is not None:
+                kernels = tuple((float(w), k) for w, k in plan.cell_kernels)
+                return _Layout(
+                    source=plan.cells or (slice(0, 0), slice(0, 0)),
+                    planes=((("cells", 1.0),),) if plan.cells and kernels else (),
+                    kernels=(kernels,),
+                    transform=plan.transform_shape,
+                    out_shape=plan.out_shape,
+                    out=plan.out,
+                    static=plan.static,
+                )
+        return self._composed_layout(first)
+
+    def _composed_layout(self, first: Any) -> _Layout:
+        """The layout of scenes composed on the host (eq. 3): one plane, two with
+        separate phase amplitudes, over the frame cropped to the PSF's reach."""
+        model = self.model
+        r = model.render_settings
+        px = first.pixel_size_um
+        kernel = model.kernel(px)
+        trim = first.border_px - r.psf_radius_px
+        rows, cols = (n - 2 * trim for n in first.cells.shape)
+        factor = first.upsample
+        composed = (
+            ("cells", r.cell_intensity),
+            ("media", r.media_intensity),
+            ("device", r.device_intensity),
+        )
+        planes: list[tuple[tuple[str, float], ...]] = [composed]
+        plane_kernels: list[tuple[tuple[float, np.ndarray], ...]] = [((1.0, kernel),)]
+        if model.separate_phase:  # separate phase amplitudes: minus the ring image
+            p_cell, p_device = r.phase_amplitudes()
+            planes.append((("cells", p_cell), ("device", p_device)))
+            plane_kernels.append(((-1.0, model.ring_kernel(px)),))
+        valid = ((rows - kernel.shape[0] + 1) // factor, (cols - kernel.shape[1] + 1) // factor)
+        return _Layout(
+            source=(slice(trim, trim + rows), slice(trim, trim + cols)),
+            planes=tuple(planes),
+            kernels=tuple(plane_kernels),
+            transform=resample_fft_shape(rows, cols, factor),
+            out_shape=valid,
+            out=None,
+            static=None,
+        )
+
+    def _upload(self, scenes: Sequence[Any], layout: _Layout, slot: int):
+        """The input planes of every scene (``layout.planes`` over ``layout.source``):
+        ``(N, P, Y, X)`` float32 on the device.
+
+        Each plane is the weighted sum of eq. 3 in float32, in the order of the CPU path
+        (bit for bit its composed image), or the cells alone (static layers). One
+        transfer per batch, from a host buffer kept per ``slot`` (two slots alternate,
+        so filling the next batch overlaps the device's work on this one).
+        """
+        rows, cols = layout.source
+        height, width = rows.stop - rows.start, cols.stop - cols.start
+        n, n_planes = len(scenes), len(layout.planes)
+        buffer = self._pinned(("in", slot), (n, n_planes, height, width), self.torch.float32)
         host = buffer.numpy()
 
-        def fill(frames: range) -> None:
-            for i in frames:
-                host[i, 0] = scenes[i].cells[crop]
-                host[i, 1] = scenes[i].media[crop]
-                host[i, 2] = scenes[i].device[crop]
+        def fill(task: tuple[int, int, int, int]) -> None:
+            i0, i1, r0, r1 = task
+            window = (slice(rows.start + r0, rows.start + r1), cols)
+            for i in range(i0, i1):
+                for p, ((name, weight), *rest) in enumerate(layout.planes):
+                    out = host[i, p, r0:r1]
+                    source = getattr(scenes[i], name)[window]
+                    if weight == 1.0 and not rest:
+                        out[...] = source
+                        continue
+                    np.multiply(np.float32(weight), source, out=out)
+                    for other, w in rest:
+                        out += np.float32(w) * getattr(scenes[i], other)[window]
 
-        # The copies release the GIL: on a batch of many frames, one thread per core
-        # (at most 8) fills its share (the host side of a GPU batch is memory-bound).
-        workers = min(8, os.cpu_count() or 1, len(scenes) // _FRAMES_PER_FILL_THREAD)
-        if workers > 1:
-            if self._pool is None:
-                self._pool = ThreadPoolExecutor(min(8, os.cpu_count() or 1))
-            shares = np.array_split(np.arange(len(scenes)), workers)
-            list(self._pool.map(fill, [range(int(p[0]), int(p[-1]) + 1) for p in shares]))
+        # The copies release the GIL: one thread per core (at most 8) fills its share,
+        # whole frames when there are many, bands of rows of each frame when there are
+        # few (the host side of a GPU batch is memory-bound).
+        workers = min(8, os.cpu_count() or 1)
+        if host.nbytes < _PARALLEL_FILL_BYTES or workers == 1:
+            fill((0, n, 0, height))
         else:
-            fill(range(len(scenes)))
+            if self._pool is None:
+                self._pool = ThreadPoolExecutor(workers)
+            tasks = 4 * workers
+            if n >= tasks:
+                edges = np.linspace(0, n, tasks + 1).astype(int)
+                jobs = [(a, b, 0, height) for a, b in itertools.pairwise(edges) if b > a]
+            else:
+                bands = np.linspace(0, height, min(height, -(-tasks // n)) + 1).astype(int)
+                jobs = [
+                    (i, i + 1, a, b)
+                    for i in range(n)
+                    for a, b in itertools.pairwise(bands)
+                    if b > a
+                ]
+            list(self._pool.map(fill, jobs))
         if self.device == "cpu":
             return buffer
         return buffer.to(self.device, non_blocking=True)
 
+    def _static_image(self, static: np.ndarray):
+        """The camera image of the static layers on the device (kept per array)."""
+        key = id(static)
+        held = self._statics.get(key)
+        if held is None or held[0] is not static:
+            held = (static, self.torch.from_numpy(np.array(static)).to(self.device))
+            if len(self._statics) >= 2:
+                self._statics.pop(next(iter(self._statics)))
+            self._statics[key] = held
+        return held[1]
+
     def _clean(self, scenes: Sequence[Any], slot: int = 0):
         """``psf``, ``resample`` and ``intensity`` stages on the device: ``(N, Y', X')`` float32."""
         torch = self.torch
-        model, first = self.model, scenes[0]
-        factor = first.upsample
-        px = first.pixel_size_um
-        stack = self._upload(scenes, slot)
-        n, _, height, width = stack.shape
-        kernel = model.kernel(px)
-        ky, kx = kernel.shape
-        rows, cols = height - ky + 1, width - kx + 1
-        shape = resample_fft_shape(height, width, factor)
-        m1 = shape[0] // factor
-        amplitudes = self._stage("intensity")
-        weights = [
-            np.float32(amplitudes[f"{name}_intensity"]) for name in ("cell", "media", "device")
-        ]
-        # eq. 3 at render sampling (float32; in place: no batch-sized temporaries)
-        composed = torch.mul(stack[:, 0], float(weights[0]))
-        composed.add_(stack[:, 1], alpha=float(weights[1]))
-        composed.add_(stack[:, 2], alpha=float(weights[2]))
-        spectrum = torch.fft.rfft2(composed, s=shape)
-        del composed
-        spectrum *= self._spectrum(kernel, factor, shape, "psf")
-        if "cell_phase_adu" in amplitudes:  # separate phase amplitudes: minus the ring image
-            phase = torch.mul(stack[:, 0], float(np.float32(amplitudes["cell_phase_adu"])))
-            phase.add_(stack[:, 2], alpha=float(np.float32(amplitudes["device_phase_adu"])))
-            ring = torch.fft.rfft2(phase, s=shape)
-            del phase
-            ring *= self._spectrum(model.ring_kernel(px), factor, shape, "ring")
-            spectrum -= ring
-            del ring
-        del stack
-        # decimate the rows (alias sum of the complex row frequencies), then the columns
-        folded = spectrum.reshape(n, factor, m1, -1).sum(dim=1)
-        del spectrum
-        folded = torch.fft.ifft(folded, dim=1)
-        full = torch.fft.irfft(folded[:, : rows // factor], n=shape[1], dim=-1)
-        return full[:, :, :cols:factor].contiguous()
+        layout = self._layout(scenes)
+        n, factor = len(scenes), scenes[0].upsample
+        part = None
+        if layout.planes:
+            stack = self._upload(scenes, layout, slot)
+            spectrum = None
+            for p, kernels in enumerate(layout.kernels):
+                product = torch.fft.rfft2(stack[:, p], s=layout.transform)
+                product *= self._spectrum(kernels, factor, layout.transform)
+                spectrum = product if spectrum is None else spectrum.add_(product)
+                del product
+            del stack
+            # decimate the rows (alias sum of the complex row frequencies), then the columns
+            m1 = layout.transform[0] // factor
+            folded = spectrum.reshape(n, factor, m1, -1).sum(dim=1)
+            del spectrum
+            folded = torch.fft.ifft(folded, dim=1)
+            full = torch.fft.irfft(folded[:, : layout.out_shape[0]], n=layout.transform[1], dim=-1)
+            part = full[:, :, : layout.out_shape[1] * factor : factor]
+        if layout.static is None:
+            return part.contiguous()
+        image = self._static_image(layout.static).expand(n, *layout.static.shape).clone()
+        if part is not None:
+            image[(slice(None), *layout.out)] += part
+        return image
 
     def _camera(self, clean, seeds: np.ndarray):
         """The ``camera`` stage (eq. 17) on the device; returns uint16 on the device.
@@ -334,15 +474,24 @@ class BatchedRenderer:
 
     # ------------------------------------------------------------------ public
     def frames_per_batch(self, scene: Any) -> int:
-        """Frames of ``scene``'s size per device batch (``batch_frames`` when given)."""
+        """Frames of ``scene``'s size per device batch (``batch_frames`` when given).
+
+        A function of the frame's size and the device only (never of the memory free at
+        the time), so that a rendering is repeatable bit for bit: the transforms'
+        rounding can depend on how many frames they batch. Sized for the composed
+        path (the static path's window needs less).
+        """
         if self.batch_frames is not None:
             return self.batch_frames
         if self._budget is None:
             self._budget = _BATCH_BYTES_CPU
             if self.device != "cpu":
-                free, _ = self.torch.cuda.mem_get_info(self.device)
-                self._budget = max(_BATCH_BYTES_CPU, free // 4)
-        per_frame = scene.cells.nbytes * 3 * 4  # components, spectra, temporaries
+                total = self.torch.cuda.get_device_properties(self.device).total_memory
+                self._budget = min(_BATCH_BYTES_GPU, total // 8)
+        self.model._check_scene(scene)
+        layout = self._composed_layout(scene)
+        # input planes, spectrum and temporaries, each about a transform's size
+        per_frame = 4 * layout.transform[0] * layout.transform[1] * (len(layout.planes) + 3)
         return int(min(_MAX_BATCH_FRAMES, max(1, self._budget // per_frame)))
 
     def _batches(self, scenes: Sequence[Any]) -> Iterator[Sequence[Any]]:

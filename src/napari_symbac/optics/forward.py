@@ -659,17 +659,18 @@ class ForwardModel:
             image[plan.out] += part
         return image
 
-    def _static_plan(self, scene: Any) -> _StaticPlan | None:
+    def _static_plan(self, scene: Any, *, always: bool = False) -> _StaticPlan | None:
         """The static image and the cells' transform of ``scene``'s geometry, or ``None``
         where the composed path renders it.
 
         ``None`` for scenes without static layers (not from ``draw_scene``, or
-        modified since), backends without the circular transform, and the first frame
-        of a geometry this model renders unless its static layers are in the shared
-        cache already: they cost two transforms of the frame, which pay from the
-        second frame of a series on (a model that renders one frame, e.g. an export
-        item with randomised settings, stays on the composed path). The plan is
-        memoised per geometry with this model's settings.
+        modified since), backends without the circular transform, and (unless
+        ``always``: a caller with many frames in hand) the first frame of a geometry
+        this model renders unless its static layers are in the shared cache already:
+        they cost two transforms of the frame, which pay from the second frame of a
+        series on (a model that renders one frame, e.g. an export item with
+        randomised settings, stays on the composed path). The plan is memoised per
+        geometry with this model's settings.
         """
         self._check_scene(scene)
         if not hasattr(self.backend, "convolve_resample_circular"):
@@ -696,7 +697,7 @@ class ForwardModel:
         kkey = self._kernel_key(px)
         u = scene.upsample
         trim = scene.border_px - r.psf_radius_px
-        if key not in self._seen and not self._cache.has(
+        if not always and key not in self._seen and not self._cache.has(
             (("open", layers.fingerprint), ("static", *kkey), trim, u)
         ):
             if len(self._seen) >= 64:
