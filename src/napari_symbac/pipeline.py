@@ -5,7 +5,10 @@ Each function here is the public, headless call behind a widget or a CLI command
 
 from __future__ import annotations
 
+import os
+from collections import deque
 from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,6 +39,11 @@ __all__ = [
 ]
 
 Progress = Callable[[int, int], None]
+
+#: Threads that draw scenes (and their masks) ahead of the renderer in
+#: :func:`iter_render`: the compiled drawing kernels release the GIL, so a frame's
+#: drawing overlaps the others' and the rendering (at most 8; 1 draws in the caller).
+DRAW_THREADS = min(8, os.cpu_count() or 1)
 
 
 @dataclass(frozen=True)
@@ -172,6 +180,36 @@ def iter_scenes(simulation: Simulation, settings: PipelineSettings) -> Iterator[
         yield _draw(simulation, settings, index, curvature, field)
 
 
+def _drawn_scenes(
+    simulation: Simulation, settings: PipelineSettings, threads: int
+) -> Iterator[Scene]:
+    """The scenes of :func:`iter_scenes`, in order, each with its camera masks made,
+    drawn by ``threads`` threads at most ``2 * threads`` frames ahead of the caller."""
+    curvature = _curvature(simulation)
+    field = field_of(simulation)
+    count = len(simulation.frames)
+
+    def draw(index: int) -> Scene:
+        scene = _draw(simulation, settings, index, curvature, field)
+        scene.camera_labels()  # the masks, made once per scene, in this thread
+        return scene
+
+    if threads <= 1 or count < 2:
+        yield from map(draw, range(count))
+        return
+    pool = ThreadPoolExecutor(threads, thread_name_prefix="napari-symbac-draw")
+    pending: deque[Future[Scene]] = deque()
+    try:
+        for index in range(count):
+            pending.append(pool.submit(draw, index))
+            if len(pending) >= 2 * threads:
+                yield pending.popleft().result()
+        while pending:
+            yield pending.popleft().result()
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
 def _check_render_inputs(
     simulation: Simulation, settings: PipelineSettings, rng: np.random.Generator | None
 ) -> None:
@@ -208,16 +246,21 @@ def iter_render(
     ``backend`` is a name of :func:`~napari_symbac.optics.batched.resolve_backend`:
     ``"scipy"`` (default, frame by frame on the CPU) or ``"torch"`` (frames rendered
     in batches on a torch device, yielded as each batch finishes; a different noise
-    stream, see :mod:`napari_symbac.optics.batched`).
+    stream, see :mod:`napari_symbac.optics.batched`). The scenes and their masks are
+    drawn by :data:`DRAW_THREADS` threads ahead of the renderer; the images are the
+    same, bit for bit, as drawing them one by one.
     """
     from napari_symbac.optics.batched import render_scenes
 
     _check_render_inputs(simulation, settings, rng)
     rng = noise_rng(settings) if rng is None else rng
     model = ForwardModel(settings.microscope, settings.render, settings.camera)
-    scenes = iter_scenes(simulation, settings)
-    for scene, image in render_scenes(model, scenes, rng, backend=backend):
-        yield image, scene.camera_labels(), scene.semantic_mask()
+    scenes = _drawn_scenes(simulation, settings, DRAW_THREADS)
+    try:
+        for scene, image in render_scenes(model, scenes, rng, backend=backend):
+            yield image, scene.camera_labels(), scene.semantic_mask()
+    finally:
+        scenes.close()  # a caller that stops early stops the drawing threads now
 
 
 def render_simulation(

@@ -298,7 +298,7 @@ _FIELDS = tuple(f.name for f in fields(Scene))
 _MASK_CHUNK_PIXELS = 1 << 18
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _block_labels(
     labels: np.ndarray, border: int, u: int, rows: int, cols: int
 ) -> np.ndarray:

@@ -89,7 +89,7 @@ def chord(
 _NEAR = 1.0 + 2.0**-20
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _chord_row(
     out: np.ndarray,
     xc: np.ndarray,
@@ -148,7 +148,7 @@ def _chord_row(
         out[j] = np.float32(2.0 * math.sqrt(q if q >= 0.0 else 0.0))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _chord_grid(
     out: np.ndarray,
     xc: np.ndarray,
@@ -175,7 +175,7 @@ def _chord_grid(
         )
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _row_span(
     dy: float,
     sin_a: float,
@@ -217,7 +217,7 @@ def _row_span(
     return int(first), max(int(last), int(first))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _rows_of_cells(boxes: np.ndarray, rows: int) -> tuple[np.ndarray, np.ndarray]:
     """For every image row, the cells whose boxes cover it, in input order.
 
@@ -238,7 +238,7 @@ def _rows_of_cells(boxes: np.ndarray, rows: int) -> tuple[np.ndarray, np.ndarray
     return start, members
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _rasterise(
     cells: np.ndarray,
     labels: np.ndarray,
