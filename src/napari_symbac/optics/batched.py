@@ -611,9 +611,12 @@ def render_scenes(
         return
     renderer = BatchedRenderer(model, name.partition(":")[2], batch_frames=batch_frames)
     pending: list[Any] = []
+    size = 0
     for scene in scenes:
+        if not pending:  # a batch's size, once per batch
+            size = renderer.frames_per_batch(scene)
         pending.append(scene)
-        if len(pending) == renderer.frames_per_batch(pending[0]):
+        if len(pending) == size:
             yield from zip(pending, renderer.render(pending, rng))
             pending = []
     if pending:
