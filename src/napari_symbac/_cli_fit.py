@@ -230,8 +230,11 @@ def _model_free_gain(frame: np.ndarray, fitted) -> tuple[str, str | None]:
     return text, None
 
 
-def _cell_problems(result, shape: tuple[int, int], pixel_um: float, masks) -> list[str]:
-    """Cells outside the image, and a count that differs from the masks given."""
+def _cell_problems(
+    result, shape: tuple[int, int], pixel_um: float, masks, colony: bool = False
+) -> list[str]:
+    """Cells outside the image, and a count that differs from the masks given (a
+    colony's cells are its masks: those too small to measure are said instead)."""
     problems = []
     cells = result.cells
     height_um, width_um = shape[0] * pixel_um, shape[1] * pixel_um
@@ -244,7 +247,13 @@ def _cell_problems(result, shape: tuple[int, int], pixel_um: float, masks) -> li
             )
     if masks is not None:
         n_masks = int(np.count_nonzero(np.unique(masks)))
-        if len(cells) != n_masks:
+        if colony and len(cells) < n_masks:
+            problems.append(
+                f"{n_masks - len(cells)} of the {n_masks} masks are too small to measure "
+                "(under 6 px or 0.25 um^2; cut by the image's edge?): drawn in the fitted "
+                "image, not listed in cells.json"
+            )
+        elif len(cells) != n_masks and not colony:
             problems.append(
                 f"the fit ended with {len(cells)} cells from the {n_masks} of --masks (its "
                 "moves added or removed cells): check the figure"
@@ -264,6 +273,7 @@ class _Prepared:
     censor_note: str
     notes: list[str]
     polarity: str
+    colony: bool = False  # a phase colony fitted from its masks (fit_colony)
 
 
 def _model_options(args) -> dict[str, Any]:
@@ -327,9 +337,19 @@ def _prepare_one(args, frame, labels, masks, microscope, base, keys):
         options["closed_end"] = base.simulation.trench.closed_end
     if args.max_iterations is not None:
         options["max_iterations"] = args.max_iterations
-    options.update(_model_options(args))
-    notes += fit_notes(microscope.modality, geometry)
-    if "illumination_order" in options:
+    model_options = _model_options(args)
+    options.update(model_options)
+    from napari_symbac.fit.colony import is_dense_colony
+
+    colony = geometry == "open" and is_dense_colony(masks, microscope.modality)
+    notes += fit_notes(microscope.modality, geometry, colony=colony)
+    if colony and (model_options or args.max_iterations is not None or args.config):
+        notes.append(
+            "--cell-brightness, --width-sd-um, --illumination-order, --max-iterations and "
+            "--config's render settings belong to the scene fit: the colony fit starts "
+            "from its own optics and does not use them"
+        )
+    if "illumination_order" in options and not colony:
         notes.append(
             f"an illumination surface of degree {options['illumination_order']} is fitted "
             "(parameters illumination.*); settings.yaml holds none: render and export draw "
@@ -349,22 +369,30 @@ def _prepare_one(args, frame, labels, masks, microscope, base, keys):
         " left out of the likelihood" if "valid" in accepted else
         " NOT left out (this fit engine takes no valid mask)"
     )
-    return _Prepared(masks, labels, camera, camera_note, options, censor_note, notes, polarity)
+    return _Prepared(
+        masks, labels, camera, camera_note, options, censor_note, notes, polarity, colony
+    )
 
 
 def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, keys, stages, timer):
     """Check, fit and prepare the outputs of one frame: returns (writers, result)."""
-    from napari_symbac.fit import fit_scene
+    from napari_symbac.fit import fit_colony, fit_scene
 
     prepared = _prepare_one(args, frame, labels, masks, microscope, base, keys)
-    stages.stage(f"fitting frame {index} ({frame.shape[0]} x {frame.shape[1]} px)")
+    what = "colony from its masks, partially coherent phase model, " * prepared.colony
+    stages.stage(f"fitting frame {index} ({what}{frame.shape[0]} x {frame.shape[1]} px)")
     update, close = stages.bar(f"fit frame {index}")
     with timer.step(f"fit frame {index}"):
         try:
-            result = fit_scene(
-                frame, microscope, base.render, prepared.camera, progress=update,
-                **prepared.options,
-            )
+            if prepared.colony:
+                result = fit_colony(
+                    frame, microscope, prepared.masks, prepared.camera, progress=update
+                )
+            else:
+                result = fit_scene(
+                    frame, microscope, base.render, prepared.camera, progress=update,
+                    **prepared.options,
+                )
         finally:
             close()
     return _outputs_one(args, frame, index, prepared, result, microscope, pixel_note, base, keys)
@@ -435,8 +463,23 @@ def _outputs_one(
         "camera used": camera_text(camera_used),
         "censored pixels": censor_note,
     }
-    problems = _cell_problems(result, frame.shape, microscope.pixel_size_um, masks)
-    if camera is None:  # the engine estimated it: check it model-free
+    problems = _cell_problems(
+        result, frame.shape, microscope.pixel_size_um, masks, prepared.colony
+    )
+    if prepared.colony:
+        facts["start"] = "instance masks (the cells as given; the optics fitted to them)"
+        sd = result.render.gaussian_noise_sd_adu
+        facts["camera"] = (
+            f"not fitted: Gaussian noise of {sd:.3g} ADU (pixel differences of the image"
+            + (
+                "; below its grey-level step, so the likelihood's variance is the "
+                "quantisation's, 1/12 ADU^2)" if sd < 0.5 else ")"
+            )
+            + f", baseline {camera_used.baseline_adu:g} ADU"
+            + (" (--camera)" if args.camera else "")
+        )
+        del facts["camera used"]
+    elif camera is None:  # the engine estimated it: check it model-free
         if camera_used.dark_noise_e == 0:
             notes.append(UNMEASURED_READ_NOISE)
         check, problem = _model_free_gain(frame, camera_used)

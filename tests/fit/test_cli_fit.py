@@ -242,23 +242,71 @@ def test_real_trench_with_config_closed_end_round(tmp_path, real_data_dir):
     assert "the read noise is too small to measure from this image" in report
 
 
-def test_a_phase_colony_fit_says_the_linear_kernel_lacks_its_halo(tmp_path, real_data_dir):
-    """Found as a user: `fit` on an Omnipose colony (a grey PNG with its masks) gives a
-    grey copy of the cells without the colony's halo; the report points to calibrate."""
+def test_a_phase_colony_with_its_masks_is_fitted_with_its_halo(tmp_path, real_data_dir):
+    """Found as a user: `fit` on an Omnipose colony with its masks (a grey PNG) drew the
+    cells through the linear kernel, a grey copy without the colony's halo, dropped
+    cells and took minutes. Now the masks' scene is fitted with the partially coherent
+    model: every measurable mask a cell, the halo beside the colony reproduced."""
     root = real_data_dir / "omnipose"
-    grey = iio.imread(root / "Sample000193.png")[..., 0][250:330, 250:330]
-    masks = tifffile.imread(root / "Sample000193_cp_masks.tif")[250:330, 250:330]
+    crop = (slice(80, 176), slice(336, 432))  # half cells, half pad beside the colony
+    grey = iio.imread(root / "Sample000193.png")[..., 0][crop]
+    masks = tifffile.imread(root / "Sample000193_cp_masks.tif")[crop]
     image, mask_file = tmp_path / "colony.png", tmp_path / "masks.tif"
     iio.imwrite(image, grey)
     tifffile.imwrite(mask_file, masks)
     microscope = save_settings(Microscope(pixel_size_um=0.0745), tmp_path / "microscope.yaml")
     out = tmp_path / "fit"
     assert _fit(image, "--microscope", microscope, "--geometry", "field", "--masks", mask_file,
-                "--out", out, "--max-iterations", 2) == 0  # fmt: skip
+                "--out", out) == 0  # fmt: skip
     report = (out / "report.txt").read_text()
-    notes = report[report.index("NOTES") :]
+    assert "dense colony: the cells are the masks'" in report[report.index("NOTES") :]
+    assert _fact(report, "camera").startswith("not fitted: Gaussian noise of")
+    before, after = map(float, re.search(r"pixel: (\S+) -> (\S+)", report).groups())
+    assert after < 0.8 * before
+    settings = load_settings(out / "settings.yaml", PipelineSettings)
+    assert settings.render.phase_model == "partially_coherent"
+    assert settings.render.noise_model == "gaussian"
+    assert settings.simulation.geometry == "agar_pad"
+    table = json.loads((out / "cells.json").read_text())
+    sizes = np.bincount(masks.ravel())[1:]
+    assert len(table["cells"]) == int(np.count_nonzero(sizes * 0.0745**2 >= 0.25))
+    phase = next(p for p in table["parameters"] if p["name"] == "cell_phase_rad")
+    assert 0 < phase["se"] < 0.05 * phase["value"]
+    # the halo: the pad within 4 px of the colony is brighter than the pad beyond 12 px,
+    # in the real image and, by at least half as much, in the fitted one
+    fitted = grey - tifffile.imread(out / "residual.tif")
+    distance = ndimage.distance_transform_edt(masks == 0)
+    near, far = (distance > 0) & (distance <= 4), distance > 12
+    real_halo = np.median(grey[near]) - np.median(grey[far])
+    fitted_halo = np.median(fitted[near]) - np.median(fitted[far])
+    assert real_halo > 5
+    assert fitted_halo > 0.5 * real_halo
+
+
+def test_a_phase_field_of_separate_cells_keeps_the_scene_fit(tmp_path):
+    """Masks of cells that do not touch are no colony: the scene fit (linear kernel)
+    fits their geometry, and the report says what it cannot do."""
+    from _fit_synthetic import TRUTH, make_cells
+
+    from napari_symbac.optics import ForwardModel
+    from napari_symbac.scene import Field, draw_scene
+    from napari_symbac.settings import TrenchGeometry
+
+    scope = Microscope(pixel_size_um=0.08)
+    cells = make_cells(y_um=[1.8, 5.4], x_um=[1.6, 5.6], angle_rad=[0.3, 1.2])
+    scene = draw_scene(cells, TrenchGeometry(), scope, TRUTH, field=Field(7.68, 7.68))
+    frame = ForwardModel(scope, TRUTH, Camera()).render(scene, np.random.default_rng(3))
+    image, mask_file = tmp_path / "field.tif", tmp_path / "masks.tif"
+    tifffile.imwrite(image, frame)
+    tifffile.imwrite(mask_file, scene.camera_labels().astype(np.uint16))
+    microscope = save_settings(scope, tmp_path / "m.yaml")
+    out = tmp_path / "fit"
+    assert _fit(image, "--microscope", microscope, "--geometry", "field", "--masks", mask_file,
+                "--out", out, "--max-iterations", 2) == 0  # fmt: skip
+    notes = (out / "report.txt").read_text().split("NOTES")[1]
     assert "linear (weak-phase) kernel" in notes
-    assert "napari-symbac calibrate IMAGE --masks M" in notes
+    assert "napari-symbac fit IMAGE --masks M" in notes
+    assert "dense colony" not in notes
 
 
 @pytest.mark.slow

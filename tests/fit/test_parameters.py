@@ -55,6 +55,18 @@ def test_pixel_fit_recovers_intensities_apodisation_and_defocus(pixel_fit, truth
     assert abs(float(result.residual.mean())) < 5
 
 
+def test_pixel_fit_gives_standard_errors_that_cover_the_truth(pixel_fit, truth):
+    """Every free nonlinear parameter gets a standard error from the Fisher information;
+    the truth lies within 3 of them (the intensities are solved exactly, not listed)."""
+    result, _ = pixel_fit
+    assert set(result.standard_errors) == set(result.fitted)
+    for name in ("defocus_sigma_um", "psf_offset", "apodisation_sigma_um"):
+        error = result.standard_errors[name]
+        assert error > 0, name  # NaN fails too
+        fitted, true = getattr(result.render, name), getattr(truth.render, name)
+        assert abs(fitted - true) < 3 * error + 1e-6, (name, fitted, true, error)
+
+
 def test_progress_is_reported_and_bounded(pixel_fit):
     result, calls = pixel_fit
     assert calls

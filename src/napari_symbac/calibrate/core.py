@@ -278,48 +278,6 @@ def _fit_scene_crop(crop_image, crop_masks, microscope, render, camera, labels, 
     return result
 
 
-def _band_upsample(microscope: Microscope) -> int:
-    """Smallest render upsampling whose pixels sample the image band ``2 NA / lambda``."""
-    nyquist_um = microscope.wavelength_um / (4 * microscope.numerical_aperture)
-    return max(1, math.ceil(microscope.pixel_size_um / nyquist_um - 1e-9))
-
-
-def _phase_colony_fit(crop_image, crop_masks, microscope, camera, noise_adu, max_evaluations):
-    """Partially coherent phase model fitted to the scene drawn from the masks."""
-    from napari_symbac.fit import fit_parameters
-    from napari_symbac.scene import scene_from_masks
-
-    level = float(np.percentile(crop_image, 50))
-    upsample = _band_upsample(microscope)
-    render = RenderSettings(
-        upsample=upsample,
-        psf_radius_px=max(8, round(3.0 * upsample / microscope.pixel_size_um)),
-        phase_model="partially_coherent",
-        cell_intensity=level,
-        media_intensity=level,
-        device_intensity=level,
-        cell_phase_rad=0.6,
-        plate_transmission=0.2,
-        apodisation_sigma_um=2.0,
-        noise_model="gaussian",
-        gaussian_noise_sd_adu=max(noise_adu, 0.5),
-        source_points=12,
-    )
-    scene = scene_from_masks(crop_masks, microscope, render)
-    result = fit_parameters(
-        crop_image,
-        None,
-        scene,
-        microscope,
-        render,
-        camera,
-        terms=("pixel",),
-        max_evaluations=max_evaluations,
-        global_search=False,
-    )
-    return result
-
-
 def calibrate(
     image: np.ndarray,
     *,
@@ -430,9 +388,11 @@ def calibrate(
         background = ~(np.asarray(crop_masks) > 0)
         noise = pixel_noise(crop_image, background)
         base_camera = Camera(baseline_adu=0.0, bit_depth=bit_depth) if camera is None else camera
-        result = _phase_colony_fit(
+        from napari_symbac.fit.colony import colony_optics
+
+        result = colony_optics(
             crop_image, crop_masks, microscope, base_camera, noise, max_evaluations
-        )
+        )[0]
         # rendered as fitted: the upsampling that samples the image band (1 for pixels
         # finer than lambda / 4 NA); the partially coherent model sums source points, so
         # a 3x finer grid would cost 9x per image

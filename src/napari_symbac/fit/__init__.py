@@ -10,11 +10,14 @@
   so the rendered image overlays the real one pixel for pixel, with the camera,
   censoring and standard errors (stages in ``start``, ``noise``, ``engine``, ``lm``,
   ``overlap``, ``moves``);
+* :func:`fit_colony`: a dense phase-contrast colony from its instance masks, the
+  partially coherent phase model fitted to them (``colony``);
 * :func:`fit_series`: a ``(T, Y, X)`` series with the optics (and camera) shared by
   the frames and the cells per frame, linked into tracks and a lineage
   (:func:`link_cells`, :class:`LinkSettings`, :class:`Lineage`).
 """
 
+from napari_symbac.fit.colony import ColonyFit, fit_colony
 from napari_symbac.fit.inputs import (
     CLASS_NAMES,
     CLASS_VALUES,
@@ -50,6 +53,7 @@ __all__ = [
     "DEFAULT_TERMS",
     "TERM_NAMES",
     "ClassStatistics",
+    "ColonyFit",
     "FitCancelled",
     "FitResult",
     "Lineage",
@@ -61,6 +65,7 @@ __all__ = [
     "as_label_stack",
     "as_single_image",
     "class_statistics",
+    "fit_colony",
     "fit_parameters",
     "fit_scene",
     "fit_series",

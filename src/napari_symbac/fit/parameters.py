@@ -145,6 +145,12 @@ class FitResult:
         0.1 % of the range of) one of its bounds, a phase amplitude beyond its
         physical bound, or an objective that ended worse than it started. Empty
         when the fit is trustworthy by these checks.
+    standard_errors
+        Pixel term only: the standard error of every fitted nonlinear parameter
+        (name -> value, in its own units), from the Fisher information ``J^T W J`` of
+        the last weighted solve with the intensities solved in closed form (profiled
+        out); NaN for a parameter at a bound or one the image does not determine.
+        Empty with the statistics terms.
     """
 
     render: RenderSettings
@@ -157,6 +163,7 @@ class FitResult:
     residual: np.ndarray | None = field(default=None, repr=False)
     message: str = ""
     warnings: tuple[str, ...] = ()
+    standard_errors: dict[str, float] = field(default_factory=dict)
 
     @property
     def terms_before(self) -> dict[str, float]:
@@ -526,6 +533,7 @@ def fit_parameters(
         # IRLS: the variance is held fixed within each weighted solve, then updated.
         var = _variance(np.maximum(y, 0.0), render, camera)
         z = np.zeros(len(names))
+        jacobian = None
         current = render
         for round_index in range(3):
             sw = 1 / np.sqrt(var).ravel()
@@ -557,6 +565,7 @@ def fit_parameters(
                 )
                 z = sol.x - _Z_OFFSET
                 message = str(sol.message)
+                jacobian = sol.jac
             current = _render_with(render, names, z, start)
             a = components(current)
             am = a.reshape(n_amp, -1).T
@@ -575,6 +584,7 @@ def fit_parameters(
         # before and after weighed with one variance, so they compare
         terms_before = all_terms(render, a0, var)
         residual_image = (real - synthetic(final, a_final, False)).astype(np.float32)
+        errors = _standard_errors(names, jacobian, z, z_lo, z_hi)
     else:
 
         def scalar(zz: np.ndarray) -> float:
@@ -606,6 +616,7 @@ def fit_parameters(
         final = with_intensities(final, solve_class_means(a_final, final))
         terms_after = all_terms(final, a_final, None)
         residual_image = None
+        errors = {}
 
     terms_table = {k: (terms_before[k], terms_after[k]) for k in terms_after}
     if progress is not None:
@@ -625,7 +636,38 @@ def fit_parameters(
         fitted=names,
         residual=residual_image,
         message=message,
+        standard_errors=errors,
     )
+
+
+def _standard_errors(
+    names: tuple[str, ...],
+    jacobian: np.ndarray | None,
+    z: np.ndarray,
+    z_lo: np.ndarray,
+    z_hi: np.ndarray,
+) -> dict[str, float]:
+    """Standard errors of the pixel fit's nonlinear parameters (``FitResult``).
+
+    ``jacobian`` is the last weighted solve's ``d r / d z`` (``r`` the residual over the
+    camera's standard deviation, the intensities solved inside it), so ``J^T J`` is the
+    Fisher information of ``z``; a parameter is ``start + _SCALE * z``. Parameters
+    within 0.1 % of their range of a bound are left out of the inversion (NaN).
+    """
+    errors = dict.fromkeys(names, math.nan)
+    if jacobian is None or not names:
+        return errors
+    margin = 1e-3 * (z_hi - z_lo)
+    free = (z > z_lo + margin) & (z < z_hi - margin)
+    info = np.asarray(jacobian, float).T @ np.asarray(jacobian, float)
+    sub = info[np.ix_(free, free)]
+    if not free.any() or np.linalg.cond(sub) > 1e12:
+        return errors
+    variances = np.diag(np.linalg.inv(sub))
+    for name, variance in zip(np.array(names)[free], variances):
+        if variance > 0:
+            errors[str(name)] = float(_SCALE[str(name)] * math.sqrt(variance))
+    return errors
 
 
 def fit_warnings(

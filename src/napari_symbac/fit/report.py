@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 __all__ = [
+    "COLONY_NOTE",
     "OPEN_PHASE_NOTE",
     "UNMEASURED_READ_NOISE",
     "camera_text",
@@ -34,8 +35,14 @@ CHI2_MISFIT = 2.0
 OPEN_PHASE_NOTE = (
     "phase contrast is fitted here with the linear (weak-phase) kernel of eq. 7-14, "
     "which cannot make the bright halos and gaps of dense colonies on a pad "
-    "(docs/rendering.md); `napari-symbac calibrate IMAGE --masks M` fits the "
-    "partially coherent phase model to such an image"
+    "(docs/rendering.md); given instance masks of such a colony, "
+    "`napari-symbac fit IMAGE --masks M` fits the partially coherent phase model instead"
+)
+#: Said of a phase-contrast colony fitted from its masks (:func:`~napari_symbac.fit.fit_colony`).
+COLONY_NOTE = (
+    "dense colony: the cells are the masks' (not refitted; no standard errors) and the "
+    "partially coherent phase model (halo, bright seams) is fitted to them pixel by "
+    "pixel, with Gaussian noise of the background's pixel noise (docs/fitting.md)"
 )
 
 
@@ -94,8 +101,11 @@ UNMEASURED_READ_NOISE = (
 )
 
 
-def fit_notes(modality: str, geometry: str) -> list[str]:
-    """What a fit of this modality and geometry cannot do (said with every such fit)."""
+def fit_notes(modality: str, geometry: str, colony: bool = False) -> list[str]:
+    """What a fit of this modality and geometry cannot do (said with every such fit);
+    ``colony``: a colony fitted from its masks (:func:`~napari_symbac.fit.fit_colony`)."""
+    if colony:
+        return [COLONY_NOTE]
     return [OPEN_PHASE_NOTE] if modality == "phase" and geometry == "open" else []
 
 

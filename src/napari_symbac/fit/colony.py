@@ -1,0 +1,289 @@
+"""Dense phase-contrast colonies: the masks' scene with the partially coherent optics fitted.
+
+The scene fit (:func:`~napari_symbac.fit.fit_scene`) renders phase contrast through
+the linear (weak-phase) kernel of eq. 7-14, which cannot make the bright halo around a
+colony on a pad nor the bright seams between its touching cells (docs/rendering.md).
+Given instance masks of such a colony, :func:`fit_colony` draws the masks' scene
+(:func:`~napari_symbac.scene.scene_from_masks`: each cell's thickness the chord across
+its mask) and fits the partially coherent phase model (docs/physics.md) to it pixel by
+pixel with :func:`~napari_symbac.fit.fit_parameters`: the cells' phase, apodisation,
+ring width and defocus, the media level in closed form, with Gaussian noise of the
+background's pixel noise (the 8-bit exports such colonies come in are not raw camera
+counts). The cells are the masks' (centre, length, width and angle from each mask's
+moments), not refitted. :func:`is_dense_colony` says when to take this path.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import ndimage
+
+from napari_symbac.settings import Camera, Microscope, RenderSettings
+from napari_symbac.sim.cells import FrameCells
+
+__all__ = [
+    "MIN_TOUCHING_CELLS",
+    "ColonyFit",
+    "band_upsample",
+    "colony_optics",
+    "colony_start",
+    "fit_colony",
+    "is_dense_colony",
+    "touching_cells",
+]
+
+#: Fewest cells that touch another for masks to hold a colony (:func:`is_dense_colony`).
+MIN_TOUCHING_CELLS = 5
+
+
+def touching_cells(masks: np.ndarray) -> int:
+    """How many cells of an instance mask touch another cell (8-neighbours)."""
+    labels = np.asarray(masks, np.int64)
+    footprint = np.ones((3, 3), bool)
+    above = int(labels.max()) + 1  # background and outside: above every label
+    high = ndimage.maximum_filter(labels, footprint=footprint, mode="constant")
+    low = ndimage.minimum_filter(
+        np.where(labels > 0, labels, above), footprint=footprint, mode="constant", cval=above
+    )
+    cell = labels > 0
+    touching = cell & ((high != labels) | (low != labels))
+    return int(np.unique(labels[touching]).size)
+
+
+def is_dense_colony(masks: np.ndarray | None, modality: str) -> bool:
+    """Phase contrast whose masks hold a colony: at least :data:`MIN_TOUCHING_CELLS`
+    cells, and at least half of them, touch another (the Omnipose colonies: 96-98 % of
+    neighbouring pairs touch), so that the halo and seams matter."""
+    if masks is None or modality != "phase":
+        return False
+    n_cells = int(np.count_nonzero(np.unique(np.asarray(masks))))
+    n_touching = touching_cells(masks)
+    return n_touching >= MIN_TOUCHING_CELLS and n_touching >= 0.5 * n_cells
+
+
+def band_upsample(microscope: Microscope) -> int:
+    """Smallest render upsampling whose pixels sample the image band ``2 NA / lambda``."""
+    nyquist_um = microscope.wavelength_um / (4 * microscope.numerical_aperture)
+    return max(1, math.ceil(microscope.pixel_size_um / nyquist_um - 1e-9))
+
+
+def colony_optics(
+    image: np.ndarray,
+    masks: np.ndarray,
+    microscope: Microscope,
+    camera: Camera,
+    noise_adu: float,
+    max_evaluations: int,
+    *,
+    progress: Any = None,
+    cancel: Any = None,
+) -> tuple[Any, Any, RenderSettings]:
+    """The partially coherent phase model fitted to the scene of ``masks``.
+
+    Starts from phase 0.6 rad, plate transmission 0.2, apodisation 2 um and the image's
+    median as every intensity, at :func:`band_upsample`, 12 source points; the noise is
+    Gaussian, ``noise_adu`` (at least 0.5 ADU). Returns the
+    :class:`~napari_symbac.fit.FitResult`, the scene and the starting render settings.
+    """
+    from napari_symbac.fit.parameters import fit_parameters
+
+    render, scene = colony_start(masks, microscope, float(np.percentile(image, 50)), noise_adu)
+    result = fit_parameters(
+        image,
+        None,
+        scene,
+        microscope,
+        render,
+        camera,
+        terms=("pixel",),
+        max_evaluations=max_evaluations,
+        global_search=False,
+        progress=progress,
+        cancel=cancel,
+    )
+    return result, scene, render
+
+
+def colony_start(
+    masks: np.ndarray, microscope: Microscope, level_adu: float, noise_adu: float
+) -> tuple[RenderSettings, Any]:
+    """The start of :func:`colony_optics` (its notes) and the scene of ``masks``:
+    every intensity ``level_adu`` (the image's median)."""
+    from napari_symbac.scene import scene_from_masks
+
+    level = level_adu
+    upsample = band_upsample(microscope)
+    render = RenderSettings(
+        upsample=upsample,
+        psf_radius_px=max(8, round(3.0 * upsample / microscope.pixel_size_um)),
+        phase_model="partially_coherent",
+        cell_intensity=level,
+        media_intensity=level,
+        device_intensity=level,
+        cell_phase_rad=0.6,
+        plate_transmission=0.2,
+        apodisation_sigma_um=2.0,
+        noise_model="gaussian",
+        gaussian_noise_sd_adu=max(noise_adu, 0.5),
+        source_points=12,
+    )
+    return render, scene_from_masks(masks, microscope, render)
+
+
+@dataclass(frozen=True)
+class ColonyFit:
+    """Outcome of :func:`fit_colony`, read like a :class:`~napari_symbac.fit.SceneFit`
+    (the ``fit`` command writes both alike).
+
+    Attributes
+    ----------
+    cells
+        The masks' cells: centre, length, width and angle from each mask's moments.
+    render
+        Fitted render settings (partially coherent phase model, Gaussian noise).
+    scene
+        The masks' scene.
+    synthetic, synthetic_before
+        The fitted and the starting image without noise, baseline included (ADU).
+    residual
+        ``real - synthetic`` (ADU).
+    terms
+        ``{"pixel": (before, after)}``: reduced chi-square with the Gaussian noise.
+    objective_before, objective_after
+        The pixel term at the start and at the end.
+    parameter_names, parameters, standard_errors
+        The fitted optics and the media level; standard errors from the fit's Fisher
+        information (NaN for the media level, solved in closed form, and for a
+        parameter at a bound).
+    warnings, at_bounds
+        What sits at a bound, a fit worse than its start.
+    n_evaluations
+        Renders used.
+    camera
+        The camera of the likelihood (its baseline and bit depth; the noise is the
+        render's Gaussian).
+    """
+
+    cells: FrameCells
+    render: RenderSettings
+    scene: Any = field(repr=False)
+    synthetic: np.ndarray = field(repr=False)
+    synthetic_before: np.ndarray = field(repr=False)
+    residual: np.ndarray = field(repr=False)
+    terms: dict[str, tuple[float, float]]
+    objective_before: float
+    objective_after: float
+    parameter_names: tuple[str, ...]
+    parameters: np.ndarray
+    standard_errors: np.ndarray
+    warnings: tuple[str, ...]
+    at_bounds: tuple[str, ...]
+    n_evaluations: int
+    camera: Camera
+    trench: None = None
+
+    def cells_table(self) -> dict[str, list]:
+        """The cells as lists (JSON), as :meth:`SceneFit.cells_table` (no standard errors:
+        the cells are the masks', not fitted)."""
+        table: dict[str, list] = {
+            name: np.asarray(getattr(self.cells, name)).tolist()
+            for name in ("ids", "x_um", "y_um", "angle_rad", "length_um", "width_um")
+        }
+        return table
+
+
+def fit_colony(
+    image: np.ndarray,
+    microscope: Microscope,
+    masks: np.ndarray,
+    camera: Camera | None = None,
+    *,
+    max_evaluations: int = 40,
+    progress: Any = None,
+    cancel: Any = None,
+) -> ColonyFit:
+    """Fit a phase-contrast colony drawn from its masks (module notes).
+
+    Parameters
+    ----------
+    image
+        One 2D frame (ADU; an 8-bit image is read as 8-bit counts with baseline 0).
+    microscope
+        Pixel size, wavelength, numerical aperture; modality phase.
+    masks
+        Instance masks of ``image`` (0 background).
+    camera
+        Its baseline and bit depth; default baseline 0 and the image's bit depth.
+    max_evaluations
+        Renders of the partially coherent model (each sums its source points).
+    progress, cancel
+        As :func:`~napari_symbac.fit.fit_parameters`.
+
+    Raises
+    ------
+    ValueError
+        Not phase contrast, masks of another shape, or masks without background.
+    """
+    from napari_symbac.export.visibility import pixel_noise
+    from napari_symbac.fit.start import start_scene
+    from napari_symbac.optics import ForwardModel
+
+    if microscope.modality != "phase":
+        raise ValueError(
+            "fit_colony fits the partially coherent phase-contrast model: the microscope's "
+            f"modality is {microscope.modality!r} (use fit_scene for fluorescence)"
+        )
+    frame = np.asarray(image)
+    masks = np.asarray(masks)
+    if masks.shape != frame.shape:
+        raise ValueError(f"masks of shape {masks.shape} do not match the image {frame.shape}")
+    background = masks == 0
+    if not background.any() or background.all():
+        raise ValueError("the masks must hold cells and background")
+    bit_depth = 8 if frame.dtype == np.uint8 else 16
+    camera = Camera(baseline_adu=0.0, bit_depth=bit_depth) if camera is None else camera
+    real = frame.astype(np.float64)
+    noise = pixel_noise(real, background)
+    result, scene, start = colony_optics(
+        real,
+        masks,
+        microscope,
+        camera,
+        noise if math.isfinite(noise) else 1.0,
+        max_evaluations,
+        progress=progress,
+        cancel=cancel,
+    )
+    render = result.render
+    synthetic = (real - result.residual).astype(np.float32)
+    before = ForwardModel(microscope, start, camera).render_clean(scene, cache=False)
+    before = np.asarray(before, np.float32) + np.float32(camera.baseline_adu)
+    cells = start_scene(real, microscope, geometry="open", masks=masks)[0]
+    names = (*result.fitted, "media_intensity")
+    values = np.array([float(getattr(render, n)) for n in names])
+    errors = np.array(
+        [result.standard_errors.get(n, math.nan) for n in result.fitted] + [math.nan]
+    )
+    at_bounds = tuple(n for n in result.fitted if any(n in w for w in result.warnings))
+    return ColonyFit(
+        cells=cells,
+        render=render,
+        scene=scene,
+        synthetic=synthetic,
+        synthetic_before=before,
+        residual=np.asarray(result.residual, np.float32),
+        terms={"pixel": result.terms["pixel"]},
+        objective_before=result.objective_before,
+        objective_after=result.objective_after,
+        parameter_names=names,
+        parameters=values,
+        standard_errors=errors,
+        warnings=result.warnings,
+        at_bounds=at_bounds,
+        n_evaluations=result.n_evaluations,
+        camera=camera,
+    )

@@ -1,0 +1,89 @@
+"""fit_colony: a dense phase colony drawn from its masks, the partially coherent optics fitted."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import tifffile
+
+from napari_symbac.fit import fit_colony
+from napari_symbac.fit.colony import colony_start, is_dense_colony, touching_cells
+from napari_symbac.optics import ForwardModel
+from napari_symbac.settings import Camera, Microscope
+
+#: A corner of Sample000193 (Omnipose, MIT): half cells (14 masks), half pad with the halo.
+CROP = (slice(80, 176), slice(336, 432))
+MICROSCOPE = Microscope(pixel_size_um=0.0745, wavelength_um=0.55, modality="phase")
+
+
+@pytest.fixture(scope="module")
+def colony_masks(real_data_dir):
+    masks = tifffile.imread(real_data_dir / "omnipose" / "Sample000193_cp_masks.tif")
+    return np.asarray(masks[CROP], np.int64)
+
+
+def _rods(touching: bool) -> np.ndarray:
+    masks = np.zeros((60, 80), np.int64)
+    gap = 0 if touching else 3
+    for k in range(6):
+        top = 5 + k * (6 + gap)
+        masks[top : top + 6, 10:60] = k + 1
+    return masks
+
+
+def test_touching_cells_make_a_colony_and_separate_ones_do_not():
+    assert touching_cells(_rods(True)) == 6
+    assert touching_cells(_rods(False)) == 0
+    assert is_dense_colony(_rods(True), "phase")
+    assert not is_dense_colony(_rods(False), "phase")
+    assert not is_dense_colony(_rods(True), "fluorescence")  # no halo to fit
+    assert not is_dense_colony(None, "phase")
+    few = np.where(_rods(True) <= 4, _rods(True), 0)  # 4 touching cells: too few
+    assert not is_dense_colony(few, "phase")
+
+
+def test_fit_colony_recovers_the_optics_of_a_rendered_colony(colony_masks):
+    """Truth known: the real colony's masks rendered with chosen optics and Gaussian
+    noise, then fitted from the default start: each optic within 3 standard errors
+    (and 5 %) of the truth, the residual at the noise."""
+    rng = np.random.default_rng(7)
+    start, scene = colony_start(colony_masks, MICROSCOPE, 80.0, 1.0)
+    truth = dataclasses.replace(
+        start,
+        cell_phase_rad=0.45,
+        apodisation_sigma_um=2.6,
+        phase_ring_width_scale=1.15,
+        media_intensity=90.0,
+        cell_intensity=90.0,
+        device_intensity=90.0,
+    )
+    clean = ForwardModel(MICROSCOPE, truth, Camera()).render_clean(scene, cache=False)
+    image = clean + rng.normal(0.0, 1.0, clean.shape)
+    fit = fit_colony(image, MICROSCOPE, colony_masks, Camera(baseline_adu=0.0))
+    values = dict(zip(fit.parameter_names, fit.parameters, strict=True))
+    errors = dict(zip(fit.parameter_names, fit.standard_errors, strict=True))
+    for name in ("cell_phase_rad", "apodisation_sigma_um", "phase_ring_width_scale"):
+        true = getattr(truth, name)
+        assert errors[name] > 0, name  # NaN fails too
+        assert abs(values[name] - true) < max(3 * errors[name], 1e-3), (name, values[name])
+        assert values[name] == pytest.approx(true, rel=0.05), name
+    assert values["media_intensity"] == pytest.approx(90.0, rel=0.02)
+    assert fit.objective_after < 1.3 < fit.objective_before
+    assert fit.warnings == ()
+    sizes = np.bincount(colony_masks.ravel())[1:]
+    measurable = int(np.count_nonzero(sizes * MICROSCOPE.pixel_size_um**2 >= 0.25))
+    assert len(fit.cells) == measurable  # the masks' cells, slivers cut by the edge aside
+    assert np.std(fit.residual) == pytest.approx(1.0, rel=0.15)
+
+
+def test_fit_colony_refuses_fluorescence_and_masks_of_another_shape(colony_masks):
+    image = np.full(colony_masks.shape, 50.0)
+    fluorescence = dataclasses.replace(MICROSCOPE, modality="fluorescence")
+    with pytest.raises(ValueError, match="fluorescence"):
+        fit_colony(image, fluorescence, colony_masks)
+    with pytest.raises(ValueError, match="do not match the image"):
+        fit_colony(image[:50], MICROSCOPE, colony_masks)
+    with pytest.raises(ValueError, match="cells and background"):
+        fit_colony(image, MICROSCOPE, np.zeros_like(colony_masks))
