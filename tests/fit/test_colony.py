@@ -87,3 +87,16 @@ def test_fit_colony_refuses_fluorescence_and_masks_of_another_shape(colony_masks
         fit_colony(image[:50], MICROSCOPE, colony_masks)
     with pytest.raises(ValueError, match="cells and background"):
         fit_colony(image, MICROSCOPE, np.zeros_like(colony_masks))
+
+
+def test_resample_render_keeps_the_optics_and_the_kernel_reach_in_um():
+    from napari_symbac.fit.colony import band_upsample, resample_render
+    from napari_symbac.settings import RenderSettings
+
+    fitted = RenderSettings(upsample=1, psf_radius_px=40, cell_phase_rad=0.45)  # 0.0745 um px
+    coarse = Microscope(pixel_size_um=0.13, wavelength_um=0.55)
+    moved = resample_render(fitted, 0.0745, coarse)
+    assert moved.upsample == band_upsample(coarse) == 2  # 0.13 um > lambda / 4 NA
+    assert moved.psf_radius_px * 0.13 / 2 == pytest.approx(40 * 0.0745, abs=0.065)
+    assert moved.psf_radius_px * 0.13 / 2 >= 40 * 0.0745  # never shorter
+    assert moved.cell_phase_rad == 0.45

@@ -225,3 +225,22 @@ def test_a_grey_png_saved_as_colour_is_used_by_its_grey_channel(
     assert "colour image" in widget.warning.value
     assert any("open one grey channel" in message for message in notifications)
     assert "colour grey" not in viewer.layers
+
+
+def test_or_open_takes_a_grey_png_as_the_fit_command_does(make_napari_viewer, real_data_dir):
+    """Found as a user: *or open* took only TIFFs ("Sample000033.png is not a TIFF
+    file"), while `napari-symbac fit` reads the same PNG; it opens as its grey channel,
+    and with no pixel size recorded the widget asks for one."""
+    viewer = make_napari_viewer()
+    widget = RealImageWidget(viewer)
+    widget.file.value = real_data_dir / "omnipose" / "Sample000033.png"
+    layer = widget.image.value
+    assert layer is viewer.layers["Sample000033"]
+    assert not layer.rgb
+    assert layer.data.shape == (287, 377)
+    low, high = layer.contrast_limits  # the image's own 19 grey levels, not 0-255
+    assert layer.data.min() <= low < high <= layer.data.max()
+    assert widget.pixel_size.value == 0.0
+    assert "no pixel size" in widget.warning.value
+    widget.pixel_size.value = 0.134
+    assert layer.metadata["pixel_size_um"] == 0.134

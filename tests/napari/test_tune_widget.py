@@ -161,6 +161,54 @@ def test_auto_fit_of_a_phase_colony_says_what_the_linear_kernel_cannot_do(
     assert any(OPEN_PHASE_NOTE in str(n.message) for n in seen)
 
 
+def test_auto_fit_of_a_phase_colony_with_its_masks_fits_the_halo(
+    rendered, qtbot, real_data_dir
+):
+    """The same kind of recording with its instance masks opened as a Labels layer and
+    chosen as the cell masks: Auto-fit fits the partially coherent model to the masks'
+    scene (as `napari-symbac fit --masks`), and the preview and Export take it."""
+    import dataclasses
+
+    import imageio.v3 as iio
+    import tifffile
+
+    from napari_symbac._widgets.tune import FIT_SYNTHETIC_LAYER
+    from napari_symbac.fit import ColonyFit
+    from napari_symbac.fit.report import COLONY_NOTE
+
+    viewer, tune = rendered
+    metadata = tune.source.value.metadata[SYMBAC_METADATA_KEY]
+    settings = metadata["settings"]
+    simulation = dataclasses.replace(settings.simulation, geometry="agar_pad")
+    metadata["settings"] = dataclasses.replace(settings, simulation=simulation)
+    root = real_data_dir / "omnipose"
+    crop = (slice(80, 176), slice(336, 432))  # half cells, half pad beside the colony
+    grey = iio.imread(root / "Sample000193.png")[..., 0][crop]
+    masks = tifffile.imread(root / "Sample000193_cp_masks.tif")[crop]
+    real = viewer.add_image(
+        grey, name="colony", scale=(0.0745, 0.0745),
+        metadata={"pixel_size_um": 0.0745, "modality": "phase"},
+    )  # fmt: skip
+    labels = viewer.add_labels(masks.astype(np.int32), name="colony masks", scale=(0.0745,) * 2)
+    tune.reference.value = real
+    tune.masks.reset_choices()
+    assert labels in tune.masks.choices
+    tune.masks.value = labels
+    tune.fit_button.native.click()
+    qtbot.waitUntil(lambda: tune.fit_worker is None, timeout=300_000)
+    result = tune.fit_result
+    assert isinstance(result, ColonyFit), tune.status.value
+    assert result.objective_after < result.objective_before
+    assert "partially coherent" in tune.status.value
+    assert f"Note: {COLONY_NOTE}" in tune.status.value
+    assert tune.noise_model.value == "gaussian"
+    stored = tune.source.value.metadata[SYMBAC_METADATA_KEY]["settings"].render
+    assert stored.phase_model == "partially_coherent"  # Export renders the fitted model
+    assert stored.cell_phase_rad == pytest.approx(result.render.cell_phase_rad)
+    assert viewer.layers[FIT_SYNTHETIC_LAYER].data.shape == grey.shape
+    assert tune.fit_button.enabled
+
+
 def test_auto_fit_with_nan_terms_reports_them(rendered, qtbot, real_data_dir, monkeypatch):
     """Defect 1: a NaN term (rough strokes) ended the fit in a ValueError, status stuck."""
     import napari_symbac.fit as fit

@@ -36,7 +36,7 @@ class RealImageWidget(Container):
     """Your recording: its pixel size and microscope, rough class labels, their statistics.
 
     * **real image**: any image layer, or open a TIFF (pixel size and modality read
-      from its metadata). A file without a pixel size shows a warning and asks for it;
+      from its metadata) or a grey PNG. A file without a pixel size shows a warning and asks for it;
       the value entered is remembered with the layer (``layer.metadata``) and sets the
       layer's scale, so real and synthetic layers share micrometre coordinates.
     * **microscope**: pixel size, objective, wavelength, condenser and modality; the
@@ -59,9 +59,12 @@ class RealImageWidget(Container):
         self.file = FileEdit(
             name="file",
             label="or open",
-            filter="*.tif *.tiff",
+            filter="*.tif *.tiff *.png",
             mode="r",
-            tooltip="Open a TIFF recording; its pixel size and modality are read if recorded.",
+            tooltip=(
+                "Open a TIFF recording (its pixel size and modality are read if recorded) "
+                "or a grey PNG (which records neither)."
+            ),
         )
         self.microscope = SettingsForm(
             Microscope, name="microscope", label="microscope", title="microscope"
@@ -128,18 +131,21 @@ class RealImageWidget(Container):
         ]
 
     def _open_file(self) -> None:
-        from napari_symbac.io import read_recording
+        from napari_symbac.io import read_image
 
         path = self.file.value
         if not path or not path.is_file():
             return
         try:
-            recording = read_recording(path)
+            recording = read_image(path, "recording")
         except (ValueError, OSError) as err:
             self.result.value = f"Cannot open {path.name}: {err}"
             notify_warning(f"Cannot open {path.name}: {err}")
             return
-        kwargs = {}
+        # the image's own range: napari's default for 8 bits is 0-255, which shows an
+        # 8-bit export of 19 grey levels (the Omnipose colonies) as black
+        low, high = np.percentile(recording.data, (0.1, 99.9))
+        kwargs = {"contrast_limits": (float(low), float(high))} if high > low else {}
         if recording.pixel_size_um:
             kwargs["scale"] = (1.0,) * (recording.data.ndim - 2) + (recording.pixel_size_um,) * 2
         layer = self.viewer.add_image(

@@ -154,6 +154,9 @@ class TuneWidget(Container):
         self.reference = ComboBox(
             name="reference", label="real image", choices=self._references, nullable=True
         )
+        self.masks = ComboBox(
+            name="masks", label="cell masks", choices=self._mask_layers, nullable=True
+        )
         self.modality = ComboBox(
             name="modality", label="modality", choices=["phase", "fluorescence"]
         )
@@ -172,6 +175,12 @@ class TuneWidget(Container):
             slider.tooltip = docs.get(name, slider.label)
         self.source.tooltip = "The rendered layer to tune (made by Simulate and render)."
         self.reference.tooltip = "The real recording to compare with, match to and fit to."
+        self.masks.tooltip = (
+            "Instance masks of the real image (a Labels layer, 0 background, one number per "
+            "cell, e.g. from Cellpose or Omnipose): Auto-fit starts from these cells; a "
+            "phase-contrast colony is then fitted with the partially coherent model (halo, "
+            "bright seams). Empty: painted classes or the fit's own segmentation."
+        )
         self.modality.tooltip = (
             "phase: dark cells on bright media; fluorescence: bright cells on a dark "
             "background (switching sets intensities of that polarity)."
@@ -222,6 +231,7 @@ class TuneWidget(Container):
             [
                 self.source,
                 self.reference,
+                self.masks,
                 self.modality,
                 self.noise_model,
                 *self.sliders.values(),
@@ -241,6 +251,7 @@ class TuneWidget(Container):
         self.cancel_fit_button.changed.connect(self.cancel_fit)
         self.fit_worker: Job | None = None
         self._fit_notes: list[str] = []  # what the running fit cannot do (fit_notes)
+        self._fit_pixel_um = 0.0  # the recording's pixel size the running fit uses
         self.fit_result = None
         self._modality = None
         self._polarity_changed = False
@@ -280,10 +291,22 @@ class TuneWidget(Container):
             and SYMBAC_METADATA_KEY not in layer.metadata
         ]
 
+    def _mask_layers(self, _widget=None) -> list:
+        from napari.layers import Labels
+
+        return [
+            layer
+            for layer in self.viewer.layers
+            if isinstance(layer, Labels)
+            and SYMBAC_METADATA_KEY not in layer.metadata
+            and not layer.name.endswith(class_layer_name(""))
+        ]
+
     def _refresh_choices(self, _event=None) -> None:
         previous = self.source.value
         self.source.reset_choices()
         self.reference.reset_choices()
+        self.masks.reset_choices()
         if self.reference.value is None:  # your recording, once its pixel size is set
             recordings = [c for c in self.reference.choices if c is not None and is_recording(c)]
             if recordings:
@@ -431,32 +454,38 @@ class TuneWidget(Container):
             self.status.value = str(err)
             notify_warning(str(err))
             return
-        real, labels, microscope, render, camera, geometry = job_input
+        real, labels, masks, microscope, render, camera, geometry = job_input
+        from napari_symbac.fit.colony import is_dense_colony
         from napari_symbac.fit.report import fit_notes
 
-        self._fit_notes = fit_notes(microscope.modality, geometry)
+        colony = geometry == "open" and is_dense_colony(masks, microscope.modality)
+        self._fit_notes = fit_notes(microscope.modality, geometry, colony=colony)
+        self._fit_pixel_um = microscope.pixel_size_um
+        if masks is not None and labels is not None:
+            self._fit_notes.append("the cell masks were used; the painted classes were not")
         iterations = self.fit_iterations.value
         cancelled = threading.Event()
 
-        def work():
-            from napari_symbac.fit import fit_scene
+        def fit(progress, cancel):
+            from napari_symbac.fit import fit_colony, fit_scene
 
-            return (
-                yield from blocking_steps(
-                    lambda progress, cancel: fit_scene(
-                        real,
-                        microscope,
-                        render,
-                        camera,
-                        labels=labels,
-                        geometry=geometry,
-                        max_iterations=iterations,
-                        progress=progress,
-                        cancel=cancel,
-                    ),
-                    cancelled.is_set,
-                )
+            if colony:
+                return fit_colony(real, microscope, masks, progress=progress, cancel=cancel)
+            return fit_scene(
+                real,
+                microscope,
+                render,
+                camera,
+                labels=None if masks is not None else labels,
+                masks=masks,
+                geometry=geometry,
+                max_iterations=iterations,
+                progress=progress,
+                cancel=cancel,
             )
+
+        def work():
+            return (yield from blocking_steps(fit, cancelled.is_set))
 
         self.fit_worker = Job(
             work,
@@ -476,7 +505,8 @@ class TuneWidget(Container):
         self.fit_worker.start()
 
     def _fit_input(self) -> tuple:
-        """Real frame, painted classes (or ``None``), microscope, render, camera, geometry.
+        """Real frame, painted classes and cell masks (or ``None``), microscope, render,
+        camera, geometry.
 
         Raises
         ------
@@ -517,6 +547,14 @@ class TuneWidget(Container):
                 labels = labels[min(index, len(labels) - 1)]
             if not labels.any():
                 labels = None
+        masks = None
+        if self.masks.value is not None:
+            from napari_symbac.fit.preflight import check_instance_masks
+
+            masks = np.asarray(self.masks.value.data)
+            if masks.ndim == 3:
+                masks = masks[min(index, len(masks) - 1)]
+            check_instance_masks(masks, real.shape, f"cell masks '{self.masks.value.name}'")
         # In fluorescence the device is as dark as the media: no wall to place, so the
         # cells are fitted as in an open field.
         walled = settings.simulation.geometry in ("trench", "chamber")
@@ -524,7 +562,7 @@ class TuneWidget(Container):
         # The GUI takes no camera from the user: the fit measures it from the recording
         # (``camera=None``: photon transfer, then its residual), as the CLI does without
         # --camera, and the fitted camera then renders the preview and the export.
-        return real, labels, microscope, self.preview.render_settings, None, geometry
+        return real, labels, masks, microscope, self.preview.render_settings, None, geometry
 
     def cancel_fit(self) -> None:
         """Stop the fit before its next render; the parameters stay as they were."""
@@ -546,11 +584,31 @@ class TuneWidget(Container):
             for name, value in fitted.items():
                 if np.isfinite(value):
                     _set_slider(self.sliders[name], value)
+            self.noise_model.value = result.render.noise_model  # a colony fit: gaussian
         finally:
             self._loading = False
+        from napari_symbac.fit import ColonyFit
+
+        colony = isinstance(result, ColonyFit)
         try:
             camera = {} if result.camera is None else dataclasses.asdict(result.camera)
-            self.preview.update(**dataclasses.asdict(result.render), **camera)
+            render = result.render
+            if colony:  # its sampling was chosen for the recording's pixels
+                from napari_symbac.fit.colony import resample_render
+
+                render = resample_render(render, self._fit_pixel_um, self.preview.model.microscope)
+            now = self.preview.render_settings
+            if (render.upsample, render.psf_radius_px) != (now.upsample, now.psf_radius_px):
+                # the scenes are drawn at that sampling: a new preview draws them anew
+                meta = self.source.value.metadata[SYMBAC_METADATA_KEY]
+                meta["settings"] = dataclasses.replace(
+                    meta["settings"],
+                    render=render,
+                    camera=dataclasses.replace(meta["settings"].camera, **camera),
+                )
+                self._load_source()
+            else:
+                self.preview.update(**dataclasses.asdict(render), **camera)
             self._stale = set(range(self.preview.n_frames))
             self._show(self._current_frame())
             self._store_settings()
@@ -576,7 +634,13 @@ class TuneWidget(Container):
             f"Fitted in {result.n_evaluations} renders: objective "
             f"{_format(result.objective_before)} -> {_format(result.objective_after)}"
         )
-        if result.camera is not None:
+        if colony:
+            self.status.value += (
+                "<br>Colony fitted from its masks with the partially coherent phase model; "
+                f"noise: Gaussian, {result.render.gaussian_noise_sd_adu:.3g} ADU measured "
+                "on the recording (used by the preview and Export)"
+            )
+        elif result.camera is not None:
             cam = result.camera
             self.status.value += (
                 f"<br>Camera measured from the recording: {cam.sensitivity_adu_per_e:.3g} "

@@ -15,6 +15,7 @@ moments), not refitted. :func:`is_dense_colony` says when to take this path.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -33,6 +34,7 @@ __all__ = [
     "colony_start",
     "fit_colony",
     "is_dense_colony",
+    "resample_render",
     "touching_cells",
 ]
 
@@ -69,6 +71,18 @@ def band_upsample(microscope: Microscope) -> int:
     """Smallest render upsampling whose pixels sample the image band ``2 NA / lambda``."""
     nyquist_um = microscope.wavelength_um / (4 * microscope.numerical_aperture)
     return max(1, math.ceil(microscope.pixel_size_um / nyquist_um - 1e-9))
+
+
+def resample_render(
+    render: RenderSettings, fitted_pixel_um: float, microscope: Microscope
+) -> RenderSettings:
+    """``render`` fitted on camera pixels of ``fitted_pixel_um``, for rendering with
+    ``microscope``'s pixels: :func:`band_upsample` of that microscope, and a PSF radius of
+    the same reach in um (the rest, the optics, are physical and stay)."""
+    upsample = band_upsample(microscope)
+    reach_um = render.psf_radius_px * fitted_pixel_um / render.upsample
+    radius_px = max(8, math.ceil(reach_um * upsample / microscope.pixel_size_um - 1e-9))
+    return dataclasses.replace(render, upsample=upsample, psf_radius_px=radius_px)
 
 
 def colony_optics(
@@ -185,6 +199,11 @@ class ColonyFit:
     n_evaluations: int
     camera: Camera
     trench: None = None
+
+    @property
+    def history(self) -> tuple[float, float]:
+        """The pixel term at the start and the end (the scene fit's convergence curve)."""
+        return (self.objective_before, self.objective_after)
 
     def cells_table(self) -> dict[str, list]:
         """The cells as lists (JSON), as :meth:`SceneFit.cells_table` (no standard errors:
