@@ -207,6 +207,21 @@ def test_auto_fit_of_a_phase_colony_with_its_masks_fits_the_halo(
     assert stored.cell_phase_rad == pytest.approx(result.render.cell_phase_rad)
     assert viewer.layers[FIT_SYNTHETIC_LAYER].data.shape == grey.shape
     assert tune.fit_button.enabled
+    # the sliders are the partially coherent model's: phase, ring width, plate, and the
+    # linear kernel's ring contrast and PSF offset are hidden; the phase slider acts
+    phase = tune.sliders["cell_phase_rad"]
+    assert phase.value == pytest.approx(result.render.cell_phase_rad, abs=0.01)
+    assert not phase.native.isHidden()
+    assert tune.sliders["ring_contrast"].native.isHidden()
+    assert tune.sliders["psf_offset"].native.isHidden()
+    assert tune.sliders["apodisation_sigma_um"].value == pytest.approx(
+        result.render.apodisation_sigma_um, abs=0.01
+    )  # beyond the slider's first range (3 um): widened, not refused
+    layer = tune.source.value
+    frame = tune._current_frame()
+    before = layer.data[frame].astype(float).copy()
+    phase.value = phase.value + 0.5
+    assert np.abs(layer.data[frame].astype(float) - before).max() > 1
 
 
 def test_auto_fit_with_nan_terms_reports_them(rendered, qtbot, real_data_dir, monkeypatch):

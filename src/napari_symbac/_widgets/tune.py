@@ -51,7 +51,15 @@ SLIDERS: dict[str, tuple[str, float, float]] = {
     "ring_contrast": ("ring contrast", 0.0, 3.0),
     "psf_offset": ("PSF offset", -0.05, 0.05),
     "gaussian_noise_sd_adu": ("gaussian noise sd (ADU)", 0.0, 1000.0),
+    # the partially coherent phase model's own (docs/physics.md), shown in its place of
+    # ring contrast and PSF offset (COHERENT_ONLY, LINEAR_ONLY)
+    "cell_phase_rad": ("cell phase (rad)", 0.0, 3.0),
+    "phase_ring_width_scale": ("phase ring width", 0.5, 3.0),
+    "plate_transmission": ("phase plate transmission", 0.02, 1.0),
 }
+#: Sliders of one phase model only: the others leave that model's image unchanged.
+COHERENT_ONLY = ("cell_phase_rad", "phase_ring_width_scale", "plate_transmission")
+LINEAR_ONLY = ("ring_contrast", "psf_offset")
 
 
 def terms_plot(terms: dict[str, tuple[float, float]], width: int = 240) -> np.ndarray:
@@ -338,7 +346,8 @@ class TuneWidget(Container):
         self._loading = True
         try:
             for name, slider in self.sliders.items():
-                slider.value = getattr(settings.render, name)
+                _set_slider(slider, getattr(settings.render, name))
+            self._show_model_sliders(settings.render, settings.microscope.modality)
             self.sliders["apodisation_sigma_um"].min = round(
                 settings.microscope.min_apodisation_sigma_um, 3
             )
@@ -362,6 +371,14 @@ class TuneWidget(Container):
         layer.data[index] = image.astype(layer.data.dtype)
         self._stale.discard(index)
         layer.refresh()
+
+    def _show_model_sliders(self, render: Any, modality: str) -> None:
+        """The sliders that act on the phase model in use (fluorescence: the linear ones)."""
+        coherent = modality == "phase" and render.phase_model == "partially_coherent"
+        for name in COHERENT_ONLY:
+            self.sliders[name].visible = coherent
+        for name in LINEAR_ONLY:
+            self.sliders[name].visible = not coherent
 
     def _store_settings(self) -> None:
         layer = self.source.value
@@ -412,6 +429,7 @@ class TuneWidget(Container):
         try:
             for name, slider in self.sliders.items():
                 _set_slider(slider, float(getattr(render, name)))
+            self._show_model_sliders(render, modality)
         finally:
             self._loading = False
         self._modality = modality
@@ -578,13 +596,14 @@ class TuneWidget(Container):
         from napari_symbac.fit.report import UNMEASURED_READ_NOISE, fit_problems
 
         self.fit_result = result
-        fitted = {name: float(getattr(result.render, name)) for name in SLIDERS}
+        fitted = {name: float(getattr(result.render, name)) for name in self.sliders}
         self._loading = True
         try:
             for name, value in fitted.items():
                 if np.isfinite(value):
                     _set_slider(self.sliders[name], value)
             self.noise_model.value = result.render.noise_model  # a colony fit: gaussian
+            self._show_model_sliders(result.render, self.modality.value)
         finally:
             self._loading = False
         from napari_symbac.fit import ColonyFit
