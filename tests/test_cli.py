@@ -116,6 +116,24 @@ def test_simulate_then_render(tmp_path):
     assert labels.dtype == np.uint32
 
 
+def test_simulate_takes_the_simulation_of_a_pipeline_file(tmp_path, capsys):
+    """Found as a user: `simulate --config` with the settings.yaml that `fit` wrote (a
+    pipeline file) refused its camera, microscope and render sections."""
+    from napari_symbac.settings import PipelineSettings, SimulationSettings, save_settings
+    from napari_symbac.sim.io import load_simulation
+
+    simulation = SimulationSettings(n_frames=3, seed=4, geometry="agar_pad")
+    config = save_settings(PipelineSettings(simulation=simulation), tmp_path / "settings.yaml")
+    assert main(["simulate", "--config", str(config), "--out", str(tmp_path / "sim")]) == 0
+    saved = load_simulation(tmp_path / "sim")
+    assert saved.settings.geometry == "agar_pad"
+    assert len(saved.frames) == 3
+    # a field the simulation does not know is still refused, naming the section
+    config.write_text("simulation:\n  n_frame: 3\n")
+    assert main(["simulate", "--config", str(config), "--out", str(tmp_path / "x")]) == 2
+    assert "n_frame" in capsys.readouterr().err
+
+
 def test_defaults_round_trip(tmp_path):
     from napari_symbac.settings import PipelineSettings, load_settings
 

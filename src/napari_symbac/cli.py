@@ -101,13 +101,13 @@ def _load_pipeline(config: str | None):
 def _cmd_simulate(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from napari_symbac.settings import SimulationSettings, load_settings
+    from napari_symbac.settings import SimulationSettings, load_simulation_settings
     from napari_symbac.sim import simulate
 
     settings = (
         SimulationSettings()
         if args.config is None
-        else load_settings(args.config, SimulationSettings)
+        else load_simulation_settings(args.config)
     )
     overrides = {k: v for k, v in (("n_frames", args.frames), ("seed", args.seed)) if v is not None}
     out = _output_folder(args.out or settings.save_dir or "simulation")
@@ -485,7 +485,11 @@ def build_parser() -> argparse.ArgumentParser:
         description="Simulate cell growth in a mother-machine trench with pymunk physics and "
         "save settings, per-frame cell states and lineage to a folder.",
     )
-    simulate.add_argument("--config", help="SimulationSettings YAML/JSON (default: built-in)")
+    simulate.add_argument(
+        "--config",
+        help="SimulationSettings YAML/JSON, or a pipeline file (its simulation section: the "
+        "settings.yaml of fit or calibrate); default: built-in",
+    )
     simulate.add_argument("--out", help="output folder (default: save_dir of the config)")
     simulate.add_argument("--frames", type=_at_least_one, help="override n_frames")
     simulate.add_argument("--seed", type=int, help="override the seed")

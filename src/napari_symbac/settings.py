@@ -41,6 +41,7 @@ __all__ = [
     "from_dict",
     "load_microscope",
     "load_settings",
+    "load_simulation_settings",
     "save_settings",
     "to_dict",
 ]
@@ -952,6 +953,17 @@ def load_settings(path: str | Path, cls: type[T]) -> T:
     file is an error, so that a wrong or blank file never silently means the defaults.
     """
     return from_dict(cls, _read_mapping(path))
+
+
+def load_simulation_settings(path: str | Path) -> SimulationSettings:
+    """Read :class:`SimulationSettings` from their own file, or from the ``simulation``
+    section of a :class:`PipelineSettings` file (what ``fit`` and ``calibrate`` write as
+    settings.yaml, so that one file simulates, renders and exports alike)."""
+    data = _read_mapping(path)
+    pipeline_keys = {f.name for f in dataclasses.fields(PipelineSettings)}
+    if isinstance(data, dict) and "simulation" in data and set(data) <= pipeline_keys:
+        return from_dict(SimulationSettings, data["simulation"] or {}, _where="simulation")
+    return from_dict(SimulationSettings, data)
 
 
 def load_microscope(path: str | Path) -> Microscope:
