@@ -250,3 +250,18 @@ def test_exposure_is_drawn_log_uniformly_between_its_bounds():
     assert 0.18 < (ratios < 2**-0.5).mean() < 0.32
     with pytest.raises(ValueError, match=r"exposure_scale .*low must be above 0"):
         Randomisation(exposure_scale=Range(0.0, 2.0))
+
+
+def test_a_pipeline_file_is_the_pipeline_of_the_default_export(tmp_path):
+    """Found as a user: `export --config` with the settings.yaml `fit` wrote (a pipeline
+    file) was refused; it is read as the pipeline of the default export. A file that is
+    neither keeps the export's own message."""
+    from napari_symbac.export import ExportSettings, load_export_settings
+    from napari_symbac.settings import PipelineSettings, RenderSettings, save_settings
+
+    pipeline = PipelineSettings(render=RenderSettings(cell_intensity=1234.0))
+    path = save_settings(pipeline, tmp_path / "settings.yaml")
+    assert load_export_settings(path) == ExportSettings(pipeline=pipeline)
+    (tmp_path / "bad.yaml").write_text("n_itemz: 3\n")
+    with pytest.raises(ValueError, match=r"n_itemz.*ExportSettings"):
+        load_export_settings(tmp_path / "bad.yaml")

@@ -338,9 +338,19 @@ def load_export_settings(path: str | os.PathLike) -> ExportSettings:
     """Read :class:`ExportSettings` (with its nested pipeline settings) from YAML or JSON.
 
     Missing fields take their defaults; ``save_settings(export_settings, path)`` of
-    :mod:`napari_symbac.settings` writes such a file.
+    :mod:`napari_symbac.settings` writes such a file. A :class:`PipelineSettings` file
+    (the settings.yaml ``fit`` writes) is read as the pipeline of the default export.
     """
-    return load_settings(path, ExportSettings)
+    from napari_symbac.settings import PipelineSettings
+
+    try:
+        return load_settings(path, ExportSettings)
+    except ValueError as err:
+        try:
+            pipeline = load_settings(path, PipelineSettings)
+        except ValueError:
+            raise err from None
+        return ExportSettings(pipeline=pipeline)
 
 
 def export_settings_from_dict(data: Mapping[str, Any]) -> ExportSettings:
