@@ -191,12 +191,21 @@ def test_fluorescence_export_with_phase_intensities_is_refused():
 
 
 def test_calibrate_without_masks_measures_the_fitted_crop(colicoords_crop):
-    image, _ = colicoords_crop
+    from scipy import ndimage
+
+    image, masks = colicoords_crop
     microscope = Microscope(pixel_size_um=0.08, wavelength_um=0.53, modality="fluorescence")
     cal = calibrate(image, microscope=microscope, crop_px=128)
     assert cal.reference.shape == cal.masks.shape == (128, 128)
     assert cal.measurements.n_cells == len(np.unique(cal.masks)) - 1 >= 1
-    assert cal.settings.simulation.agar_pad.field_width_um == pytest.approx(128 * 0.08)
+    # the simulated field is the whole image with its clusters of cells: the crop is
+    # chosen for holding the most cells, so its density would overstate the field's
+    pad = cal.settings.simulation.agar_pad
+    assert pad.field_width_um == pytest.approx(256 * 0.08)
+    assert pad.field_height_um == pytest.approx(256 * 0.08)
+    annotated = ndimage.label(masks > 0)[1]
+    assert 1 <= pad.n_colonies <= annotated
+    assert cal.settings.simulation.n_founders == pad.n_colonies
     assert cal.settings.render.cell_intensity > cal.settings.render.media_intensity
 
 

@@ -128,6 +128,14 @@ def test_calibrate_from_painted_labels(colicoords_files, capsys):
     )
     assert code == 0, capsys.readouterr().err
     report = (out / "report.txt").read_text()
-    assert "no masks: sizes and layout from the fit's cells" in report
+    assert "no masks: sizes from the fit's cells on the crop" in report
     fitted = tifffile.imread(out / "masks.tif")
     assert len(np.unique(fitted)) - 1 >= 1  # the fit's own cells were measured
+    # the simulated field is the whole image, with the image's clusters, not the crop's
+    from napari_symbac.export import load_export_settings
+
+    image = tifffile.imread(d / "flu.tif")
+    pad = load_export_settings(out / "export_settings.yaml").pipeline.simulation.agar_pad
+    assert pad.field_height_um == pytest.approx(image.shape[0] * 0.08)
+    assert pad.field_width_um == pytest.approx(image.shape[1] * 0.08)
+    assert f"the whole image ({image.shape[0]} x {image.shape[1]} px)" in report

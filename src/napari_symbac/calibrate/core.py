@@ -156,6 +156,22 @@ def _rough_cells(image: np.ndarray, modality: str) -> np.ndarray:
     return labels
 
 
+def _whole_image_layout(
+    image: np.ndarray, modality: str, fitted_cells: np.ndarray
+) -> tuple[tuple[int, int], int]:
+    """The whole image's shape and its clusters of cells, for a calibration without masks.
+
+    A cluster is a region of :func:`_rough_cells` covering at least half the median area
+    of the fit's cells (``fitted_cells``, labels of the crop); smaller regions are specks.
+    On ColiCoords ds1 (fluorescence, 512 x 512) this finds 7 clusters in field 1 for its 8
+    annotated cells (1-7 in the ten fields, 3-8 annotated).
+    """
+    areas = np.bincount(np.asarray(fitted_cells).ravel())[1:]
+    cell_area = float(np.median(areas[areas > 0]))
+    sizes = np.bincount(_rough_cells(np.asarray(image, float), modality).ravel())[1:]
+    return tuple(int(n) for n in np.shape(image)), int(np.count_nonzero(sizes >= cell_area / 2))
+
+
 def _division_length_um(lengths_um: np.ndarray) -> tuple[float, float]:
     """Sizer division length and its variance from a population's lengths.
 
@@ -183,6 +199,7 @@ def settings_from_fit(
     *,
     width_um: float | None = None,
     length_scale: float = 1.0,
+    layout: tuple[tuple[int, int], int] | None = None,
 ) -> tuple[PipelineSettings, list[str]]:
     """Pipeline settings matched to a measured field and its fitted optics.
 
@@ -197,6 +214,10 @@ def settings_from_fit(
     length_scale
         Fitted over mask length of the crop's cells (the masks of thresholded
         probability maps run long); the masks' length distribution is scaled by it.
+    layout
+        ``((rows, columns), n_colonies)`` of the simulated field when it is not the
+        measured one (:func:`_whole_image_layout`); default the measurements' shape and
+        clusters.
 
     Returns
     -------
@@ -217,8 +238,9 @@ def settings_from_fit(
         f"(mean length {np.mean(lengths):.2f} um / ln 2; masks x {length_scale:.2f}), "
         f"variance {division_var:.3f} um^2"
     )
-    height_um, field_um = m.shape[0] * px, m.shape[1] * px
-    n_colonies = int(max(1, m.cluster_sizes.size))
+    shape, n_colonies = layout or (m.shape, m.cluster_sizes.size)
+    height_um, field_um = shape[0] * px, shape[1] * px
+    n_colonies = int(max(1, n_colonies))
     per_colony = float(np.mean(m.cluster_sizes)) if m.cluster_sizes.size else 1.0
     growth = _frames_for(per_colony)
     n_frames = growth + 1
@@ -363,6 +385,7 @@ def calibrate(
         )
     bit_depth = 8 if frame.dtype == np.uint8 else 16
     mask_offset_um = None
+    layout = None  # the simulated field: that of the measurements
     valid = ~censored_pixels(frame, camera)
     frame = frame.astype(np.float64)
     if masks is not None:  # at least 16 cell widths across, to hold whole cells
@@ -445,16 +468,20 @@ def calibrate(
                     crop_masks, result.scene.camera_labels(), microscope.pixel_size_um
                 )
                 notes.append(note)
-        else:  # the fit's own cells are the masks: the crop is the field
+        else:  # the fit's own cells are the masks: sizes from the crop
             field_masks = np.asarray(result.scene.camera_labels(), np.int32)
             if not (field_masks > 0).any():
                 raise ValueError(
                     "the fit found no cell in the crop: pass --masks or paint --labels"
                 )
+            layout = _whole_image_layout(frame, microscope.modality, field_masks)
             frame, valid = crop_image, valid[crop]
             notes.append(
-                "no masks: sizes and layout from the fit's cells on the crop, which is the "
-                "simulated field"
+                "no masks: sizes from the fit's cells on the crop; the simulated field is "
+                f"the whole image ({layout[0][0]} x {layout[0][1]} px) with its {layout[1]} "
+                "clusters of cells (Otsu regions of the smoothed image at least half the "
+                "fitted cells' median area): the crop holds the most cells, so its density "
+                "would overstate the field's"
             )
     measurements = measure_field(frame, field_masks, valid=valid)
     if microscope.modality == "fluorescence":
@@ -477,6 +504,7 @@ def calibrate(
         fitted_camera,
         width_um=width_fit,
         length_scale=length_scale,
+        layout=layout,
     )
     packing, trials = None, []
     if masks is not None:
