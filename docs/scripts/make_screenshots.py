@@ -5,8 +5,9 @@ Run under a virtual display (Debian: ``apt-get install xvfb``)::
     xvfb-run -a -s "-screen 0 1366x768x24" python docs/scripts/make_screenshots.py [--napari-only]
 
 Writes ``docs/images/napari-*.png`` (the flow of docs/gui.md on the real SyMBac trench,
-read from ``../shared/data/real`` or ``$NAPARI_SYMBAC_REAL_DATA``, in a 1366 x 768 window)
-and the demo montage ``docs/images/demo-preview.png``.
+and a phase colony fitted from its masks, read from ``../shared/data/real`` or
+``$NAPARI_SYMBAC_REAL_DATA``, in a 1366 x 768 window) and the demo montage
+``docs/images/demo-preview.png``.
 """
 
 from __future__ import annotations
@@ -121,6 +122,48 @@ def real_trench_flow(folder: Path) -> None:
     viewer.close()
 
 
+def colony_flow() -> None:
+    """A phase colony (Omnipose Sample000033, a PNG without pixel size) opened from the
+    Recording tab, its masks as a labels layer, fitted by Auto-fit from them."""
+    import tifffile
+
+    default = IMAGES.parents[2] / "shared" / "data" / "real"
+    root = Path(os.environ.get("NAPARI_SYMBAC_REAL_DATA", default)) / "omnipose"
+    viewer = napari.Viewer(title="napari-symbac")
+    viewer.window._qt_window.resize(*WINDOW)
+    _, flow = viewer.window.add_plugin_dock_widget(PLUGIN, "SyMBac workflow (all steps)")
+    flow.real_image.file.value = root / "Sample000033.png"
+    dismiss_notifications(viewer)
+    flow.real_image.pixel_size.value = 0.134  # a 1 um cell width (docs/rendering.md)
+    flow.setCurrentIndex(1)
+    flow.simulate.form.geometry.value = "agar_pad"
+    flow.simulate.form.n_frames.value = 30
+    flow.simulate.run_button.native.click()
+    wait_for(lambda: flow.simulate.worker is None and flow.simulate.series is not None)
+    real = viewer.layers["Sample000033"]
+    masks = viewer.add_labels(
+        tifffile.imread(root / "Sample000033_cp_masks.tif"),
+        name="Sample000033 masks",
+        scale=real.scale,
+    )
+    flow.setCurrentIndex(2)
+    flow.tune.reference.value = real
+    flow.tune.masks.value = masks
+    flow.tune.fit_button.native.click()
+    wait_for(lambda: flow.tune.fit_worker is None)
+    print(flow.tune.status.value)
+    dismiss_notifications(viewer)
+    masks.visible = False
+    for name in ("synthetic", "synthetic labels"):
+        viewer.layers[name].visible = False
+    viewer.layers["auto-fit synthetic"].translate = (0, 377 * 0.134 + 2.0)
+    viewer.reset_view()
+    viewer.camera.center = (0, 287 * 0.134 / 2, 377 * 0.134 + 1.0)
+    viewer.camera.zoom = 320 / (2 * 377 * 0.134 + 2.0)  # both images across the canvas
+    shot(viewer, "napari-colony-fit.png")
+    viewer.close()
+
+
 def demo_montage() -> None:
     import tempfile
 
@@ -142,3 +185,4 @@ if __name__ == "__main__":
         demo_montage()
     with tempfile.TemporaryDirectory() as tmp:
         real_trench_flow(Path(tmp))
+    colony_flow()

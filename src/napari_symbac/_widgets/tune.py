@@ -657,7 +657,11 @@ class TuneWidget(Container):
             self.status.value += (
                 "<br>Colony fitted from its masks with the partially coherent phase model; "
                 f"noise: Gaussian, {result.render.gaussian_noise_sd_adu:.3g} ADU measured "
-                "on the recording (used by the preview and Export)"
+                "on the recording"
+                + (" (below one grey level: quantisation)" * (
+                    result.render.gaussian_noise_sd_adu < 0.5
+                ))
+                + " (used by the preview and Export)"
             )
         elif result.camera is not None:
             cam = result.camera
