@@ -8,10 +8,11 @@ whole field model-free (:mod:`~napari_symbac.calibrate.measure`):
   painted labels, or from its own segmentation; it gives the intensities (eq. 3),
   defocus (eq. 14) and, in phase, the kernel (eq. 7-15), and the camera (eq. 17)
   measured from the image;
-* phase contrast of dense colonies (more than a quarter of the crop is cell): the
+* phase contrast of dense colonies (the crop's masks hold a colony,
+  :func:`~napari_symbac.fit.colony.is_dense_colony`, as for ``fit --masks``): the
   scene drawn from the masks (:func:`~napari_symbac.scene.scene_from_masks`) and the
   partially coherent phase model fitted to it pixel by pixel
-  (:func:`~napari_symbac.fit.fit_parameters`), which reaches the halo and the bright
+  (:func:`~napari_symbac.fit.colony.colony_optics`), which reaches the halo and the bright
   gaps that the linear kernel cannot (docs/rendering.md).
 
 The settings (:func:`settings_from_fit`) then hold what a user would otherwise set by
@@ -57,8 +58,6 @@ __all__ = ["Calibration", "best_crop", "calibrate", "export_settings", "settings
 #: 512 x 512 ColiCoords field holds 3-10 cells; a 160 px crop of it often one).
 NO_MASKS_CROP_PX = 512
 
-#: Cell-area fraction of the crop above which phase contrast is fitted as a dense colony.
-DENSE_FRACTION = 0.25
 #: Doubling time and frame interval of the simulated colonies (minutes).
 _DOUBLING_MIN = 25.0
 _FRAME_MIN = 3.0
@@ -400,19 +399,15 @@ def calibrate(
     crop_image = frame[crop]
     crop_masks = None if masks is None else masks[crop]
     crop_labels = None if labels is None else np.asarray(labels)[crop]
-    dense = (
-        microscope.modality == "phase"
-        and crop_masks is not None
-        and float((crop_masks > 0).mean()) > DENSE_FRACTION
-    )
+    from napari_symbac.fit.colony import colony_optics, is_dense_colony
+
+    dense = is_dense_colony(crop_masks, microscope.modality)
     if dense:
         from napari_symbac.export.visibility import pixel_noise
 
         background = ~(np.asarray(crop_masks) > 0)
         noise = pixel_noise(crop_image, background)
         base_camera = Camera(baseline_adu=0.0, bit_depth=bit_depth) if camera is None else camera
-        from napari_symbac.fit.colony import colony_optics
-
         result = colony_optics(
             crop_image, crop_masks, microscope, base_camera, noise, max_evaluations
         )[0]

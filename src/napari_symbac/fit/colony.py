@@ -6,8 +6,8 @@ colony on a pad nor the bright seams between its touching cells (docs/rendering.
 Given instance masks of such a colony, :func:`fit_colony` draws the masks' scene
 (:func:`~napari_symbac.scene.scene_from_masks`: each cell's thickness the chord across
 its mask) and fits the partially coherent phase model (docs/physics.md) to it pixel by
-pixel with :func:`~napari_symbac.fit.fit_parameters`: the cells' phase, apodisation,
-ring width and defocus, the media level in closed form, with Gaussian noise of the
+pixel with :func:`~napari_symbac.fit.fit_parameters`: the cells' phase, apodisation and
+ring width, the media level in closed form, with Gaussian noise of the
 background's pixel noise (the 8-bit exports such colonies come in are not raw camera
 counts). The cells are the masks' (centre, length, width and angle from each mask's
 moments), not refitted. :func:`is_dense_colony` says when to take this path.
@@ -129,15 +129,14 @@ def colony_start(
     every intensity ``level_adu`` (the image's median)."""
     from napari_symbac.scene import scene_from_masks
 
-    level = level_adu
     upsample = band_upsample(microscope)
     render = RenderSettings(
         upsample=upsample,
         psf_radius_px=max(8, round(3.0 * upsample / microscope.pixel_size_um)),
         phase_model="partially_coherent",
-        cell_intensity=level,
-        media_intensity=level,
-        device_intensity=level,
+        cell_intensity=level_adu,
+        media_intensity=level_adu,
+        device_intensity=level_adu,
         cell_phase_rad=0.6,
         plate_transmission=0.2,
         apodisation_sigma_um=2.0,
