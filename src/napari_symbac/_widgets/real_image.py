@@ -36,9 +36,10 @@ class RealImageWidget(Container):
     """Your recording: its pixel size and microscope, rough class labels, their statistics.
 
     * **real image**: any image layer, or open a TIFF (pixel size and modality read
-      from its metadata) or a grey PNG. A file without a pixel size shows a warning and asks for it;
-      the value entered is remembered with the layer (``layer.metadata``) and sets the
-      layer's scale, so real and synthetic layers share micrometre coordinates.
+      from its metadata) or a grey PNG. A file without a pixel size shows a warning and
+      asks for it; the value entered is remembered with the layer (``layer.metadata``)
+      and sets the layer's scale, so real and synthetic layers share micrometre
+      coordinates.
     * **microscope**: pixel size, objective, wavelength, condenser and modality; the
       other widgets simulate, tune, fit and export with it.
     * **Paint classes**: adds a labels layer with the classes cell (1), media (2) and
