@@ -247,13 +247,14 @@ def _cell_problems(
             )
     if masks is not None:
         n_masks = int(np.count_nonzero(np.unique(masks)))
-        if colony and len(cells) < n_masks:
-            problems.append(
-                f"{n_masks - len(cells)} of the {n_masks} masks are too small to measure "
-                "(under 6 px or 0.25 um^2; cut by the image's edge?): drawn in the fitted "
-                "image, not listed in cells.json"
-            )
-        elif len(cells) != n_masks and not colony:
+        if colony:
+            if len(cells) < n_masks:
+                problems.append(
+                    f"{n_masks - len(cells)} of the {n_masks} masks are too small to measure "
+                    "(under 6 px or 0.25 um^2; cut by the image's edge?): drawn in the "
+                    "fitted image, not listed in cells.json"
+                )
+        elif len(cells) != n_masks:
             problems.append(
                 f"the fit ended with {len(cells)} cells from the {n_masks} of --masks (its "
                 "moves added or removed cells): check the figure"

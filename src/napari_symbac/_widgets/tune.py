@@ -259,7 +259,6 @@ class TuneWidget(Container):
         self.cancel_fit_button.changed.connect(self.cancel_fit)
         self.fit_worker: Job | None = None
         self._fit_notes: list[str] = []  # what the running fit cannot do (fit_notes)
-        self._fit_pixel_um = 0.0  # the recording's pixel size the running fit uses
         self.fit_result = None
         self._modality = None
         self._polarity_changed = False
@@ -478,7 +477,6 @@ class TuneWidget(Container):
 
         colony = geometry == "open" and is_dense_colony(masks, microscope.modality)
         self._fit_notes = fit_notes(microscope.modality, geometry, colony=colony)
-        self._fit_pixel_um = microscope.pixel_size_um
         if masks is not None and labels is not None:
             self._fit_notes.append("the cell masks were used; the painted classes were not")
         iterations = self.fit_iterations.value
@@ -615,7 +613,9 @@ class TuneWidget(Container):
             if colony:  # its sampling was chosen for the recording's pixels
                 from napari_symbac.fit.colony import resample_render
 
-                render = resample_render(render, self._fit_pixel_um, self.preview.model.microscope)
+                render = resample_render(
+                    render, result.pixel_size_um, self.preview.model.microscope
+                )
             now = self.preview.render_settings
             if (render.upsample, render.psf_radius_px) != (now.upsample, now.psf_radius_px):
                 # the scenes are drawn at that sampling: a new preview draws them anew

@@ -156,19 +156,20 @@ def _rough_cells(image: np.ndarray, modality: str) -> np.ndarray:
 
 
 def _whole_image_layout(
-    image: np.ndarray, modality: str, fitted_cells: np.ndarray
+    rough: np.ndarray, fitted_cells: np.ndarray
 ) -> tuple[tuple[int, int], int]:
     """The whole image's shape and its clusters of cells, for a calibration without masks.
 
-    A cluster is a region of :func:`_rough_cells` covering at least half the median area
-    of the fit's cells (``fitted_cells``, labels of the crop); smaller regions are specks.
-    On ColiCoords ds1 (fluorescence, 512 x 512) this finds 7 clusters in field 1 for its 8
-    annotated cells (1-7 in the ten fields, 3-8 annotated).
+    A cluster is a region of ``rough`` (:func:`_rough_cells` of the whole image, as the
+    crop was chosen on) covering at least half the median area of the fit's cells
+    (``fitted_cells``, labels of the crop); smaller regions are specks. On ColiCoords
+    ds1 (fluorescence, 512 x 512) this finds 7 clusters in field 1 for its 8 annotated
+    cells (1-7 in the ten fields, 3-8 annotated).
     """
     areas = np.bincount(np.asarray(fitted_cells).ravel())[1:]
     cell_area = float(np.median(areas[areas > 0]))
-    sizes = np.bincount(_rough_cells(np.asarray(image, float), modality).ravel())[1:]
-    return tuple(int(n) for n in np.shape(image)), int(np.count_nonzero(sizes >= cell_area / 2))
+    sizes = np.bincount(np.asarray(rough).ravel())[1:]
+    return tuple(int(n) for n in np.shape(rough)), int(np.count_nonzero(sizes >= cell_area / 2))
 
 
 def _division_length_um(lengths_um: np.ndarray) -> tuple[float, float]:
@@ -395,7 +396,8 @@ def calibrate(
         crop = best_crop(masks, crop_px)
     else:
         crop_px = NO_MASKS_CROP_PX if crop_px is None else crop_px
-        crop = best_crop(_rough_cells(frame, microscope.modality), crop_px)
+        rough = _rough_cells(frame, microscope.modality)
+        crop = best_crop(rough, crop_px)
     crop_image = frame[crop]
     crop_masks = None if masks is None else masks[crop]
     crop_labels = None if labels is None else np.asarray(labels)[crop]
@@ -469,7 +471,7 @@ def calibrate(
                 raise ValueError(
                     "the fit found no cell in the crop: pass --masks or paint --labels"
                 )
-            layout = _whole_image_layout(frame, microscope.modality, field_masks)
+            layout = _whole_image_layout(rough, field_masks)
             frame, valid = crop_image, valid[crop]
             notes.append(
                 "no masks: sizes from the fit's cells on the crop; the simulated field is "

@@ -200,6 +200,11 @@ class ColonyFit:
     trench: None = None
 
     @property
+    def pixel_size_um(self) -> float:
+        """The camera pixel the optics were fitted on (``render``'s sampling is for it)."""
+        return float(self.scene.pixel_size_um * self.scene.upsample)
+
+    @property
     def history(self) -> tuple[float, float]:
         """The pixel term at the start and the end (the scene fit's convergence curve)."""
         return (self.objective_before, self.objective_after)
