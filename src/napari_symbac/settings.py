@@ -41,6 +41,7 @@ __all__ = [
     "from_dict",
     "load_microscope",
     "load_settings",
+    "load_settings_or_pipeline",
     "load_simulation_settings",
     "save_settings",
     "to_dict",
@@ -955,15 +956,30 @@ def load_settings(path: str | Path, cls: type[T]) -> T:
     return from_dict(cls, _read_mapping(path))
 
 
+def _is_pipeline_mapping(data: Any) -> bool:
+    """Whether a settings file holds :class:`PipelineSettings`: a mapping of its sections
+    only (what ``fit`` and ``calibrate`` write as settings.yaml)."""
+    sections = {f.name for f in dataclasses.fields(PipelineSettings)}
+    return isinstance(data, dict) and set(data) <= sections
+
+
 def load_simulation_settings(path: str | Path) -> SimulationSettings:
     """Read :class:`SimulationSettings` from their own file, or from the ``simulation``
-    section of a :class:`PipelineSettings` file (what ``fit`` and ``calibrate`` write as
-    settings.yaml, so that one file simulates, renders and exports alike)."""
+    section of a :class:`PipelineSettings` file (so that one file simulates, renders and
+    exports alike)."""
     data = _read_mapping(path)
-    pipeline_keys = {f.name for f in dataclasses.fields(PipelineSettings)}
-    if isinstance(data, dict) and "simulation" in data and set(data) <= pipeline_keys:
+    if _is_pipeline_mapping(data) and "simulation" in data:
         return from_dict(SimulationSettings, data["simulation"] or {}, _where="simulation")
     return from_dict(SimulationSettings, data)
+
+
+def load_settings_or_pipeline(path: str | Path, cls: type[T]) -> T | PipelineSettings:
+    """Settings of type ``cls`` from their own file, or the :class:`PipelineSettings` of a
+    pipeline file (:func:`_is_pipeline_mapping`), whose errors then name its sections."""
+    data = _read_mapping(path)
+    if _is_pipeline_mapping(data):
+        return from_dict(PipelineSettings, data)
+    return from_dict(cls, data)
 
 
 def load_microscope(path: str | Path) -> Microscope:

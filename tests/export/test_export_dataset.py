@@ -265,3 +265,8 @@ def test_a_pipeline_file_is_the_pipeline_of_the_default_export(tmp_path):
     (tmp_path / "bad.yaml").write_text("n_itemz: 3\n")
     with pytest.raises(ValueError, match=r"n_itemz.*ExportSettings"):
         load_export_settings(tmp_path / "bad.yaml")
+    # a pipeline file's own mistake is named, not taken for a wrong ExportSettings file
+    (tmp_path / "typo.yaml").write_text("render:\n  cell_intensty: 3\n")
+    with pytest.raises(ValueError, match="cell_intensty") as raised:
+        load_export_settings(tmp_path / "typo.yaml")
+    assert "ExportSettings" not in str(raised.value)

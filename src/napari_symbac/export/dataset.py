@@ -38,7 +38,7 @@ from napari_symbac.export.visibility import (
     contrast_to_noise,
     faint_cells,
 )
-from napari_symbac.settings import PipelineSettings, from_dict, load_settings, to_dict
+from napari_symbac.settings import PipelineSettings, from_dict, to_dict
 
 __all__ = [
     "ExportSettings",
@@ -341,16 +341,10 @@ def load_export_settings(path: str | os.PathLike) -> ExportSettings:
     :mod:`napari_symbac.settings` writes such a file. A :class:`PipelineSettings` file
     (the settings.yaml ``fit`` writes) is read as the pipeline of the default export.
     """
-    from napari_symbac.settings import PipelineSettings
+    from napari_symbac.settings import load_settings_or_pipeline
 
-    try:
-        return load_settings(path, ExportSettings)
-    except ValueError as err:
-        try:
-            pipeline = load_settings(path, PipelineSettings)
-        except ValueError:
-            raise err from None
-        return ExportSettings(pipeline=pipeline)
+    loaded = load_settings_or_pipeline(path, ExportSettings)
+    return loaded if isinstance(loaded, ExportSettings) else ExportSettings(pipeline=loaded)
 
 
 def export_settings_from_dict(data: Mapping[str, Any]) -> ExportSettings:
