@@ -155,21 +155,31 @@ def _rough_cells(image: np.ndarray, modality: str) -> np.ndarray:
     return labels
 
 
-def _whole_image_layout(
-    rough: np.ndarray, fitted_cells: np.ndarray
-) -> tuple[tuple[int, int], int]:
-    """The whole image's shape and its clusters of cells, for a calibration without masks.
+def _clusters_outside(
+    rough: np.ndarray, crop: tuple[slice, slice], fitted_cells: np.ndarray
+) -> int:
+    """Clusters of cells of the whole image outside the fitted crop, for a calibration
+    without masks (the crop's own clusters are the fit's cells).
 
     A cluster is a region of ``rough`` (:func:`_rough_cells` of the whole image, as the
     crop was chosen on) covering at least half the median area of the fit's cells
-    (``fitted_cells``, labels of the crop); smaller regions are specks. On ColiCoords
-    ds1 (fluorescence, 512 x 512) this finds 7 clusters in field 1 for its 8 annotated
-    cells (1-7 in the ten fields, 3-8 annotated).
+    (``fitted_cells``, labels of the crop; smaller regions are specks) whose centroid
+    lies outside ``crop``. 0 when the crop is the whole image.
     """
+    from scipy import ndimage
+
     areas = np.bincount(np.asarray(fitted_cells).ravel())[1:]
     cell_area = float(np.median(areas[areas > 0]))
-    sizes = np.bincount(np.asarray(rough).ravel())[1:]
-    return tuple(int(n) for n in np.shape(rough)), int(np.count_nonzero(sizes >= cell_area / 2))
+    rough = np.asarray(rough)
+    sizes = np.bincount(rough.ravel())[1:]
+    big = np.flatnonzero(sizes >= cell_area / 2) + 1
+    if big.size == 0:
+        return 0
+    centres = np.asarray(ndimage.center_of_mass(rough > 0, rough, big)).reshape(-1, 2)
+    inside = np.ones(len(big), bool)
+    for axis, window in enumerate(crop):
+        inside &= (centres[:, axis] >= window.start) & (centres[:, axis] < window.stop)
+    return int(np.count_nonzero(~inside))
 
 
 def _division_length_um(lengths_um: np.ndarray) -> tuple[float, float]:
@@ -216,8 +226,8 @@ def settings_from_fit(
         probability maps run long); the masks' length distribution is scaled by it.
     layout
         ``((rows, columns), n_colonies)`` of the simulated field when it is not the
-        measured one (:func:`_whole_image_layout`); default the measurements' shape and
-        clusters.
+        measured one (the whole image around a fitted crop, :func:`_clusters_outside`);
+        default the measurements' shape and clusters.
 
     Returns
     -------
@@ -471,16 +481,20 @@ def calibrate(
                 raise ValueError(
                     "the fit found no cell in the crop: pass --masks or paint --labels"
                 )
-            layout = _whole_image_layout(rough, field_masks)
+            outside = _clusters_outside(rough, crop, field_masks)
+            image_shape = frame.shape
             frame, valid = crop_image, valid[crop]
-            notes.append(
-                "no masks: sizes from the fit's cells on the crop; the simulated field is "
-                f"the whole image ({layout[0][0]} x {layout[0][1]} px) with its {layout[1]} "
-                "clusters of cells (Otsu regions of the smoothed image at least half the "
-                "fitted cells' median area): the crop holds the most cells, so its density "
-                "would overstate the field's"
-            )
     measurements = measure_field(frame, field_masks, valid=valid)
+    if masks is None:  # the whole image's layout: the crop's clusters and those outside it
+        layout = (image_shape, measurements.cluster_sizes.size + outside)
+        notes.append(
+            "no masks: sizes from the fit's cells on the crop; the simulated field is the "
+            f"whole image ({image_shape[0]} x {image_shape[1]} px) with its {layout[1]} "
+            f"clusters of cells: the fit's {measurements.cluster_sizes.size} on the crop "
+            f"and {outside} outside it (Otsu regions of the smoothed image at least half "
+            "the fitted cells' median area), since the crop holds the most cells and its "
+            "density would overstate the field's"
+        )
     if microscope.modality == "fluorescence":
         cv = measurements.brightness_cv
         render = dataclasses.replace(render, cell_brightness_cv=float(min(cv, 2.0)))
