@@ -205,7 +205,13 @@ def test_calibrate_without_masks_measures_the_fitted_crop(colicoords_crop):
     assert pad.field_height_um == pytest.approx(256 * 0.08)
     annotated = ndimage.label(masks > 0)[1]
     assert 1 <= pad.n_colonies <= annotated
+    assert pad.n_colonies >= cal.measurements.cluster_sizes.size  # the crop's, and more
     assert cal.settings.simulation.n_founders == pad.n_colonies
+    # a crop that is the whole image: its fitted clusters are all (none outside)
+    whole = calibrate(image, microscope=microscope, crop_px=256)
+    assert whole.settings.simulation.agar_pad.n_colonies == max(
+        1, whole.measurements.cluster_sizes.size
+    )
     assert cal.settings.render.cell_intensity > cal.settings.render.media_intensity
 
 
