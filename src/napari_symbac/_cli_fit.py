@@ -531,6 +531,10 @@ def _fit_frames_jointly(
         )
         for index in frames
     ]
+    if masks is not None and any(p.colony for p in prepared):
+        return _fit_colony_frames(
+            args, stack, frames, prepared, microscope, pixel_note, base, keys, stages, timer
+        )
     first = prepared[0]
     camera = first.camera
     if camera is None:
@@ -615,6 +619,90 @@ def _fit_frames_jointly(
     summaries.append(
         f"tracks: {len(lineage.tracks)} over {len(frames)} frames, {len(divisions)} "
         f"division(s) (series.json 'lineage', ctc/01_RES/res_track.txt)"
+    )
+    return writers, summaries
+
+
+def _fit_colony_frames(
+    args, stack, frames, prepared, microscope, pixel_note, base, keys, stages, timer
+):
+    """A phase colony's time-lapse with its masks (:func:`~napari_symbac.fit.fit_colony_series`):
+    the optics fitted on the frame whose masks cover most, shared; every frame drawn
+    from its masks with its own media level; the masks' cells tracked. Files as
+    :func:`_fit_frames_jointly` writes them."""
+    from napari_symbac.fit import fit_colony_series
+    from napari_symbac.fit.report import COLONY_NOTE, OPEN_PHASE_NOTE
+
+    # frames of a colony too young to be dense are drawn alike (the model is the same)
+    prepared = [
+        dataclasses.replace(
+            p, colony=True, notes=[n for n in p.notes if n not in (OPEN_PHASE_NOTE, COLONY_NOTE)]
+            + [COLONY_NOTE]
+        )
+        for p in prepared
+    ]
+    shape = stack.shape[1:]
+    stages.stage(
+        f"fitting frames {', '.join(map(str, frames))} (colony from its masks, partially "
+        f"coherent phase model, optics shared; {shape[0]} x {shape[1]} px)"
+    )
+    update, close = stages.bar("fit frames")
+    with timer.step("fit frames"):
+        try:
+            series = fit_colony_series(
+                stack[frames], microscope, [p.masks for p in prepared], prepared[0].camera,
+                progress=update,
+            )
+        finally:
+            close()
+    writers: dict[str, Callable[[Path], None]] = {}
+    summaries = []
+    lineage = series.lineage
+    reference = frames[series.reference]
+    for k, (index, ready, result) in enumerate(zip(frames, prepared, series.frames, strict=True)):
+        if k != series.reference:
+            shared = f"the optics are frame {reference}'s (its masks cover most): only the "
+            ready.notes.append(shared + "media level is fitted here (fit_colony_series)")
+        writers_one, _ = _outputs_one(
+            args, stack[index], index, ready, result, microscope, pixel_note, base, keys,
+            track_ids=lineage.track_ids[k],
+        )
+        writers.update({f"frame_{index:04d}/{k}": v for k, v in writers_one.items()})
+        optics = " (the optics fitted here)" if k == series.reference else ""
+        summaries.append(
+            f"frame {index}: {len(result.cells)} cells from the masks{optics}; pixel chi2 "
+            f"{result.objective_before:.3g} -> {result.objective_after:.3g}"
+        )
+    table = {
+        "frames": frames,
+        "optics_fitted_on_frame": reference,
+        "shared": {
+            name: {"value": value, "se": se} for name, (value, se) in series.shared().items()
+        },
+        "media_intensity": [
+            {"frame": f, "value": float(v)} for f, v in zip(frames, series.media_levels())
+        ],
+        "warnings": list(series.warnings),
+        "lineage": {
+            "tracks": lineage.table(frames),
+            "track_ids": {str(f): ids.tolist() for f, ids in zip(frames, lineage.track_ids)},
+            "cell_ids": "each frame's cells.json ids are its masks' labels",
+            "growth_per_frame": lineage.growth_per_frame,
+            "drift_um": lineage.drift_um.tolist(),
+            "ctc": "ctc/01_RES: mask{TTT}.tif (track ids) and res_track.txt (L B E P); "
+            "CTC frame k is the k-th of 'frames'",
+        },
+    }
+    writers["series.json"] = lambda p: p.write_text(json.dumps(table, indent=2))
+    writers.update(_ctc_result(series, frames, microscope.pixel_size_um))
+    summaries += [
+        f"shared {name}: {value:.4g} +- {se:.2g} (fitted on frame {reference})"
+        for name, (value, se) in series.shared().items()
+    ]
+    summaries.append(
+        f"tracks: {len(lineage.tracks)} over {len(frames)} frames, "
+        f"{len(lineage.divisions())} division(s) (series.json 'lineage', "
+        "ctc/01_RES/res_track.txt)"
     )
     return writers, summaries
 

@@ -283,6 +283,57 @@ def test_a_phase_colony_with_its_masks_is_fitted_with_its_halo(tmp_path, real_da
     assert fitted_halo > 0.5 * real_halo
 
 
+def test_a_phase_colony_time_lapse_shares_its_optics_and_tracks_the_masks(
+    tmp_path, real_data_dir
+):
+    """Found as a user: `fit --frames` on a colony's time-lapse with its masks went
+    through the linear series fit (no halo). Now the optics are fitted once, on the frame
+    whose masks cover most, and shared; each frame's cells are its masks' (ids = the
+    masks' labels) linked into tracks, written as a CTC result. Two windows of a real
+    colony 3 px apart stand for a drifting stage."""
+    root = real_data_dir / "omnipose"
+    grey = iio.imread(root / "Sample000193.png")[..., 0]
+    full = tifffile.imread(root / "Sample000193_cp_masks.tif")
+    windows = [(slice(80, 176), slice(336, 432)), (slice(77, 173), slice(338, 434))]
+    image, mask_file = tmp_path / "series.tif", tmp_path / "masks.tif"
+    tifffile.imwrite(image, np.stack([grey[w] for w in windows]))
+    masks = np.stack([full[w] for w in windows])
+    tifffile.imwrite(mask_file, masks)
+    microscope = save_settings(Microscope(pixel_size_um=0.0745), tmp_path / "microscope.yaml")
+    out = tmp_path / "fit"
+    assert _fit(image, "--microscope", microscope, "--geometry", "field", "--masks", mask_file,
+                "--frames", "0-1", "--out", out) == 0  # fmt: skip
+    series = json.loads((out / "series.json").read_text())
+    reference = series["optics_fitted_on_frame"]
+    assert reference in (0, 1)
+    assert 0 < series["shared"]["cell_phase_rad"]["se"] < 0.05
+    for t in (0, 1):
+        report = (out / f"frame_{t:04d}" / "report.txt").read_text()
+        notes = report[report.index("NOTES") :]
+        assert "dense colony: the cells are the masks'" in notes
+        assert ("only the media level is fitted here" in notes) == (t != reference)
+        before, after = map(float, re.search(r"pixel: (\S+) -> (\S+)", report).groups())
+        assert after < 0.8 * before
+        settings = load_settings(out / f"frame_{t:04d}" / "settings.yaml", PipelineSettings)
+        assert settings.render.phase_model == "partially_coherent"
+    # cells.json ids are the masks' labels; a cell whole in both windows keeps its track
+    tracks = []
+    for t in (0, 1):
+        cells = json.loads((out / f"frame_{t:04d}" / "cells.json").read_text())["cells"]
+        assert {c["id"] for c in cells} <= set(np.unique(masks[t]).tolist()) - {0}
+        tracks.append({c["id"]: c["track"] for c in cells})
+    inner = masks[:, 1:-1, 1:-1]
+    whole = [
+        k for k in set(tracks[0]) & set(tracks[1])
+        if all((inner[t] == k).sum() == (masks[t] == k).sum() for t in (0, 1))
+    ]
+    assert len(whole) >= 5
+    assert all(tracks[0][k] == tracks[1][k] for k in whole)
+    ctc = tifffile.imread(out / "ctc" / "01_RES" / "mask001.tif")
+    for k in whole:
+        assert set(np.unique(ctc[masks[1] == k]).tolist()) == {tracks[1][k]}
+
+
 def test_a_phase_field_of_separate_cells_keeps_the_scene_fit(tmp_path):
     """Masks of cells that do not touch are no colony: the scene fit (linear kernel)
     fits their geometry, and the report says what it cannot do."""

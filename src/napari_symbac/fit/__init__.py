@@ -11,13 +11,16 @@
   censoring and standard errors (stages in ``start``, ``noise``, ``engine``, ``lm``,
   ``overlap``, ``moves``);
 * :func:`fit_colony`: a dense phase-contrast colony from its instance masks, the
-  partially coherent phase model fitted to them (``colony``);
+  partially coherent phase model fitted to them (``colony``); :func:`fit_colony_series`
+  a time-lapse of one, the optics shared and the masks' cells tracked
+  (``colony_series``);
 * :func:`fit_series`: a ``(T, Y, X)`` series with the optics (and camera) shared by
   the frames and the cells per frame, linked into tracks and a lineage
   (:func:`link_cells`, :class:`LinkSettings`, :class:`Lineage`).
 """
 
 from napari_symbac.fit.colony import ColonyFit, fit_colony
+from napari_symbac.fit.colony_series import ColonySeriesFit, fit_colony_series
 from napari_symbac.fit.inputs import (
     CLASS_NAMES,
     CLASS_VALUES,
@@ -54,6 +57,7 @@ __all__ = [
     "TERM_NAMES",
     "ClassStatistics",
     "ColonyFit",
+    "ColonySeriesFit",
     "FitCancelled",
     "FitResult",
     "Lineage",
@@ -66,6 +70,7 @@ __all__ = [
     "as_single_image",
     "class_statistics",
     "fit_colony",
+    "fit_colony_series",
     "fit_parameters",
     "fit_scene",
     "fit_series",

@@ -30,10 +30,13 @@ __all__ = [
     "MIN_TOUCHING_CELLS",
     "ColonyFit",
     "band_upsample",
+    "checked_colony_frame",
     "colony_optics",
+    "colony_result",
     "colony_start",
     "fit_colony",
     "is_dense_colony",
+    "rendered_start",
     "resample_render",
     "touching_cells",
 ]
@@ -155,7 +158,8 @@ class ColonyFit:
     Attributes
     ----------
     cells
-        The masks' cells: centre, length, width and angle from each mask's moments.
+        The masks' cells: centre, length, width and angle from each mask's moments;
+        each cell's id is its mask's label.
     render
         Fitted render settings (partially coherent phase model, Gaussian noise).
     scene
@@ -251,9 +255,47 @@ def fit_colony(
     ValueError
         Not phase contrast, masks of another shape, or masks without background.
     """
+    real, masks, camera, noise = checked_colony_frame(image, microscope, masks, camera)
+    result, scene, start = colony_optics(
+        real, masks, microscope, camera, noise, max_evaluations, progress=progress, cancel=cancel
+    )
+    before = rendered_start(microscope, start, camera, scene)
+    names = (*result.fitted, "media_intensity")
+    values = np.array([float(getattr(result.render, n)) for n in names])
+    errors = np.array([result.standard_errors.get(n, math.nan) for n in result.fitted] + [math.nan])
+    return colony_result(
+        real,
+        masks,
+        microscope,
+        camera,
+        scene,
+        result.render,
+        synthetic=real - result.residual,
+        before=before,
+        objective=(result.objective_before, result.objective_after),
+        parameter_names=names,
+        parameters=values,
+        standard_errors=errors,
+        warnings=result.warnings,
+        at_bounds=tuple(n for n in result.fitted if any(n in w for w in result.warnings)),
+        n_evaluations=result.n_evaluations,
+    )
+
+
+def checked_colony_frame(
+    image: np.ndarray, microscope: Microscope, masks: np.ndarray, camera: Camera | None
+) -> tuple[np.ndarray, np.ndarray, Camera, float]:
+    """One frame and its masks checked for :func:`fit_colony`: the image as float64,
+    the masks (int64; a binary mask: one cell per connected region), the camera
+    (default baseline 0 and the image's bit depth) and the background's Gaussian pixel
+    noise (1 ADU where too little background to measure).
+
+    Raises
+    ------
+    ValueError
+        Not phase contrast, masks of another shape, or masks without background.
+    """
     from napari_symbac.export.visibility import pixel_noise
-    from napari_symbac.fit.start import start_scene
-    from napari_symbac.optics import ForwardModel
 
     if microscope.modality != "phase":
         raise ValueError(
@@ -262,6 +304,9 @@ def fit_colony(
         )
     frame = np.asarray(image)
     masks = np.asarray(masks)
+    if masks.dtype == bool or masks.max(initial=0) <= 1:  # binary: a cell per region
+        masks = ndimage.label(masks > 0)[0]
+    masks = masks.astype(np.int64)
     if masks.shape != frame.shape:
         raise ValueError(f"masks of shape {masks.shape} do not match the image {frame.shape}")
     background = masks == 0
@@ -271,42 +316,59 @@ def fit_colony(
     camera = Camera(baseline_adu=0.0, bit_depth=bit_depth) if camera is None else camera
     real = frame.astype(np.float64)
     noise = pixel_noise(real, background)
-    result, scene, start = colony_optics(
-        real,
-        masks,
-        microscope,
-        camera,
-        noise if math.isfinite(noise) else 1.0,
-        max_evaluations,
-        progress=progress,
-        cancel=cancel,
-    )
-    render = result.render
-    synthetic = (real - result.residual).astype(np.float32)
-    before = ForwardModel(microscope, start, camera).render_clean(scene, cache=False)
-    before = np.asarray(before, np.float32) + np.float32(camera.baseline_adu)
-    cells = start_scene(real, microscope, geometry="open", masks=masks)[0]
-    names = (*result.fitted, "media_intensity")
-    values = np.array([float(getattr(render, n)) for n in names])
-    errors = np.array(
-        [result.standard_errors.get(n, math.nan) for n in result.fitted] + [math.nan]
-    )
-    at_bounds = tuple(n for n in result.fitted if any(n in w for w in result.warnings))
+    return real, masks, camera, noise if math.isfinite(noise) else 1.0
+
+
+def rendered_start(
+    microscope: Microscope, start: RenderSettings, camera: Camera, scene: Any
+) -> np.ndarray:
+    """The image of ``scene`` with the starting optics, noise-free, baseline included (ADU)."""
+    from napari_symbac.optics import ForwardModel
+
+    clean = ForwardModel(microscope, start, camera).render_clean(scene, cache=False)
+    return np.asarray(clean, np.float64) + camera.baseline_adu
+
+
+def colony_result(
+    real: np.ndarray,
+    masks: np.ndarray,
+    microscope: Microscope,
+    camera: Camera,
+    scene: Any,
+    render: RenderSettings,
+    *,
+    synthetic: np.ndarray,
+    before: np.ndarray,
+    objective: tuple[float, float],
+    parameter_names: tuple[str, ...],
+    parameters: np.ndarray,
+    standard_errors: np.ndarray,
+    warnings: tuple[str, ...],
+    at_bounds: tuple[str, ...],
+    n_evaluations: int,
+) -> ColonyFit:
+    """A :class:`ColonyFit` of one frame: the masks' cells measured (each cell's id its
+    mask's label), the images as
+    float32, the residual ``real - synthetic`` (images in ADU, baseline included)."""
+    from napari_symbac.fit.start import cells_from_instances
+
+    cells = cells_from_instances(masks, microscope.pixel_size_um, math.inf, keep_labels=True)[0]
+    synthetic = np.asarray(synthetic, np.float32)
     return ColonyFit(
         cells=cells,
         render=render,
         scene=scene,
         synthetic=synthetic,
-        synthetic_before=before,
-        residual=np.asarray(result.residual, np.float32),
-        terms={"pixel": result.terms["pixel"]},
-        objective_before=result.objective_before,
-        objective_after=result.objective_after,
-        parameter_names=names,
-        parameters=values,
-        standard_errors=errors,
-        warnings=result.warnings,
+        synthetic_before=np.asarray(before, np.float32),
+        residual=(real - synthetic).astype(np.float32),
+        terms={"pixel": objective},
+        objective_before=objective[0],
+        objective_after=objective[1],
+        parameter_names=parameter_names,
+        parameters=parameters,
+        standard_errors=standard_errors,
+        warnings=warnings,
         at_bounds=at_bounds,
-        n_evaluations=result.n_evaluations,
+        n_evaluations=n_evaluations,
         camera=camera,
     )

@@ -317,7 +317,11 @@ MIN_CELL_AREA_UM2 = 0.25
 
 
 def cells_from_instances(
-    instances: np.ndarray, pixel_size_um: float, max_cell_length_um: float = 4.0
+    instances: np.ndarray,
+    pixel_size_um: float,
+    max_cell_length_um: float = 4.0,
+    *,
+    keep_labels: bool = False,
 ) -> tuple[FrameCells, np.ndarray]:
     """One spherocylinder per region of an instance mask (region moments).
 
@@ -327,11 +331,16 @@ def cells_from_instances(
     and starts as equal rods along its axis. Regions of fewer than 6 pixels or
     smaller than :data:`MIN_CELL_AREA_UM2` are left out (fragments).
 
+    With ``keep_labels`` each cell's id is its region's label (one cell per region:
+    ``max_cell_length_um`` must be infinite); otherwise ids are ``1..n``.
+
     Returns
     -------
     cells, widths
         The cells (sorted by ``y`` then ``x``) and their moment widths (um).
     """
+    if keep_labels and math.isfinite(max_cell_length_um):
+        raise ValueError("keep_labels keeps one cell per region: pass max_cell_length_um=inf")
     px = pixel_size_um
     rows_list = []
     instances = np.asarray(instances)
@@ -366,14 +375,14 @@ def cells_from_instances(
         for j in range(k):
             offset = (j + 0.5) * length / k - length / 2
             rows_list.append(
-                (cx + offset * vx, cy + offset * vy, angle, max(length / k, width), width)
+                (cx + offset * vx, cy + offset * vy, angle, max(length / k, width), width, index)
             )
     if not rows_list:
         raise ValueError("the start found no cells in the image (no region of 6 pixels or more)")
     rows_list.sort(key=lambda row: (row[1], row[0]))
     table = np.array(rows_list)
     cells = FrameCells(
-        ids=np.arange(1, len(table) + 1),
+        ids=table[:, 5].astype(np.int64) if keep_labels else np.arange(1, len(table) + 1),
         x_um=table[:, 0],
         y_um=table[:, 1],
         angle_rad=table[:, 2],
