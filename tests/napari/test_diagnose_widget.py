@@ -36,6 +36,15 @@ def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
 
     viewer, widget, _ = diagnose_widget
     assert widget.reference.value is viewer.layers["real"]  # the newest recording
+    # Export docked beside it from the start, as in the workflow dock, with a simulation
+    # already chosen as its source
+    simulated = viewer.add_image(
+        np.zeros((2, 8, 8), np.uint16),
+        name="synthetic",
+        metadata={SYMBAC_METADATA_KEY: {"simulation": None, "settings": PipelineSettings()}},
+    )
+    export = ExportWidget(viewer)
+    assert export.source.value is simulated
     widget.run_button.clicked.emit()
     assert not widget.run_button.enabled
     qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
@@ -71,8 +80,8 @@ def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
     # at most refines the gain measured on this window (1.82 -> 2.0, the whole trench's)
     # where the plain residual had made it 13x
     assert settings.camera.sensitivity_adu_per_e == pytest.approx(2.0, rel=0.2)
-    # Export offers the diagnosis' settings
-    export = ExportWidget(viewer)
+    # Export takes the diagnosis' settings, the newest, without picking them by hand
+    # (found as a user: the workflow's Export kept the first simulation's)
     assert export.source.value is residual
     assert export.settings().pipeline.render == settings.render
     # the button works again: a second run with the same seed gives the same report

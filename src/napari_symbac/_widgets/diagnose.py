@@ -16,8 +16,9 @@ import threading
 from typing import TYPE_CHECKING
 
 import numpy as np
-from magicgui.widgets import ComboBox, Container, Label, PushButton, SpinBox, TextEdit
+from magicgui.widgets import ComboBox, Container, PushButton, SpinBox, TextEdit
 
+from napari_symbac._widgets._forms import message_label
 from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
 from napari_symbac._widgets._recording import (
     is_recording,
@@ -87,8 +88,7 @@ class DiagnoseWidget(Container):
         self.cancel_button = PushButton(
             name="cancel", text="Cancel", enabled=False, tooltip="Stop the diagnosis."
         )
-        self.status = Label(name="status", value="")
-        self.status.native.setWordWrap(True)
+        self.status = message_label("status")
         self.report = TextEdit(name="report", label="report", value="")
         self.report.read_only = True
         self.report.native.setMinimumWidth(0)
@@ -321,8 +321,8 @@ class DiagnoseWidget(Container):
         self.status.value = (
             f"Accepted: {names}{self._window_note}; camera measured from the recording "
             f"({camera.sensitivity_adu_per_e:.3g} ADU/e-, read noise {camera.dark_noise_e:.3g} "
-            f"e-). Updated settings are in the '{DIAGNOSIS_RESIDUAL_LAYER}' layer: choose it "
-            "under Export's 'settings from'."
+            f"e-). Updated settings are in the '{DIAGNOSIS_RESIDUAL_LAYER}' layer, which "
+            "Export now takes (its 'settings from')."
         )
 
     def _on_cancelled(self) -> None:

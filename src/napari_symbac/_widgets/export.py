@@ -16,13 +16,13 @@ from magicgui.widgets import (
     Container,
     FileEdit,
     FloatSpinBox,
-    Label,
     PushButton,
     Select,
     SpinBox,
 )
 
 from napari_symbac._widgets._backend import backend_combo
+from napari_symbac._widgets._forms import message_label
 from napari_symbac._widgets._jobs import Job, blocking_steps
 from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
 from napari_symbac.export import FORMATS, ExportSettings
@@ -72,8 +72,7 @@ class ExportWidget(Container):
         self.folder = FileEdit(name="folder", label="output folder", mode="d")
         self.export_button = PushButton(name="export", text="Export")
         self.cancel_button = PushButton(name="cancel", text="Cancel", enabled=False)
-        self.status = Label(name="status", value="")
-        self.status.native.setWordWrap(True)  # long messages must not widen the dock
+        self.status = message_label("status")
         self.extend(
             [
                 self.source,
@@ -111,11 +110,15 @@ class ExportWidget(Container):
         self.report = None
         self._refresh_source()
 
-    def _refresh_source(self, _event=None) -> None:
-        """Offer the rendered layers; choose the newest when none (or a removed one) is."""
+    def _refresh_source(self, event=None) -> None:
+        """Offer the rendered layers; choose the newest: one just added (a simulation, a
+        diagnosis' settings), else the newest left when none (or a removed one) is."""
         self.source.reset_choices()
         choices = [c for c in self.source.choices if c is not None]
-        if self.source.value is None and choices:
+        added = getattr(event, "value", None) if getattr(event, "type", "") == "inserted" else None
+        if added is not None and any(added is c for c in choices):
+            self.source.value = added
+        elif self.source.value is None and choices:
             self.source.value = choices[-1]
 
     def _rendered(self, _widget=None) -> list:

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from magicgui.widgets import ComboBox, Container, FileEdit, Label, PushButton
 
-from napari_symbac._widgets._forms import SettingsForm, hide_label
+from napari_symbac._widgets._forms import SettingsForm, hide_label, message_label
 from napari_symbac._widgets._jobs import notify_warning
 from napari_symbac._widgets._recording import pixel_size_problem
 from napari_symbac.fit import CLASS_VALUES, class_statistics
@@ -75,9 +75,8 @@ class RealImageWidget(Container):
         self.microscope.pixel_size_um.step = 0.001
         self.pixel_size = self.microscope.pixel_size_um
         self.modality = self.microscope.modality
-        self.warning = Label(name="warning", value="", label="")
+        self.warning = message_label("warning", label="")
         self.warning.visible = False
-        self.warning.native.setWordWrap(True)  # a long message must not widen the dock
         self.paint_button = PushButton(
             name="paint",
             text="Paint classes",
@@ -93,7 +92,7 @@ class RealImageWidget(Container):
             for (name, colour), value in zip(CLASS_COLOURS.items(), CLASS_VALUES.values())
         )
         self.legend = Label(name="legend", value=legend)
-        self.result = Label(name="result", value="")
+        self.result = message_label("result")
         self.extend(
             [
                 self.image,

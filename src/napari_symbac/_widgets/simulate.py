@@ -10,10 +10,10 @@ import dataclasses
 from typing import TYPE_CHECKING
 
 import numpy as np
-from magicgui.widgets import CheckBox, ComboBox, Container, Label, PushButton
+from magicgui.widgets import CheckBox, ComboBox, Container, PushButton
 
 from napari_symbac._widgets._backend import backend_combo
-from napari_symbac._widgets._forms import SettingsForm, hide_label
+from napari_symbac._widgets._forms import SettingsForm, hide_label, message_label
 from napari_symbac._widgets._jobs import Job
 from napari_symbac._widgets._recording import (
     modality_render,
@@ -90,8 +90,7 @@ class SimulateWidget(Container):
         self.cancel_button = PushButton(
             text="Cancel", name="cancel", enabled=False, tooltip="Stop; nothing is kept."
         )
-        self.status = Label(value="", name="status")
-        self.status.native.setWordWrap(True)  # long messages must not widen the dock
+        self.status = message_label("status")
         self.extend(
             [
                 self.recording,

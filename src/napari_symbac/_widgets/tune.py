@@ -17,12 +17,12 @@ from magicgui.widgets import (
     Container,
     FloatSlider,
     Image,
-    Label,
     PushButton,
     SpinBox,
     Table,
 )
 
+from napari_symbac._widgets._forms import message_label
 from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
 from napari_symbac._widgets._recording import is_recording, modality_render, watch_recordings
 from napari_symbac._widgets.real_image import class_layer_name
@@ -204,8 +204,7 @@ class TuneWidget(Container):
         self.match_noise.tooltip = (
             "Gaussian noise with the sd measured on the real image (SyMBac's match_noise)."
         )
-        self.status = Label(name="status", value="")
-        self.status.native.setWordWrap(True)  # long messages must not widen the dock
+        self.status = message_label("status")
         self.fit_iterations = SpinBox(
             name="fit_iterations",
             label="fit iterations",
