@@ -498,3 +498,244 @@ def test_render_simulation_with_wrong_settings_and_rng():
         render_simulation(simulation, {})
     with pytest.raises(TypeError, match=r"rng must be a numpy\.random\.Generator, got int"):
         render_simulation(simulation, PipelineSettings(), rng=3)
+
+
+# --------------------------------------------------------------------------------------
+# fit, calibrate, diagnose: inputs and --out checked before the work
+# --------------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def fit_inputs(tmp_path) -> tuple[Path, Path]:
+    """A noisy 64 x 32 frame of camera counts and a microscope file of one key."""
+    image = tmp_path / "frame.tif"
+    tifffile.imwrite(image, np.random.default_rng(0).poisson(500, (64, 32)).astype(np.uint16))
+    microscope = tmp_path / "m65.yaml"
+    microscope.write_text("pixel_size_um: 0.065\n")
+    return image, microscope
+
+
+FIT_COMMANDS = ["fit", "calibrate", "diagnose"]
+
+
+@pytest.mark.parametrize("command", FIT_COMMANDS)
+def test_fit_out_that_is_a_file_is_refused_before_the_fit(
+    tmp_path, fit_inputs, command, capsys
+):
+    image, microscope = fit_inputs
+    out = tmp_path / "afile"
+    out.write_text("x")
+    start = time.monotonic()
+    code, err = _run([command, str(image), "--microscope", str(microscope), "--out", str(out)],
+                     capsys)  # fmt: skip
+    assert code == 2
+    assert f"--out {out} is a file, not a folder: give the path of a folder" in err
+    assert "File exists" not in err
+    assert time.monotonic() - start < 10  # refused up front, not after the fit
+    assert out.read_text() == "x"
+
+
+@pytest.mark.parametrize("command", FIT_COMMANDS)
+def test_fit_out_inside_a_file_is_refused_before_the_fit(tmp_path, fit_inputs, command, capsys):
+    image, microscope = fit_inputs
+    blocker = tmp_path / "afile"
+    blocker.write_text("x")
+    out = blocker / "result"
+    code, err = _run([command, str(image), "--microscope", str(microscope), "--out", str(out)],
+                     capsys)  # fmt: skip
+    assert code == 2
+    assert f"--out {out} cannot be created: {blocker} is a file, not a folder" in err
+    assert ".partial-" not in err
+
+
+@pytest.mark.parametrize(
+    ("command", "code", "fix"),
+    [
+        ("fit", errno.EACCES, "give yourself write permission on it"),
+        ("calibrate", errno.EACCES, "give yourself write permission on it"),
+        ("diagnose", errno.EROFS, "give a folder on a writable disk"),
+        ("render", errno.EACCES, "give yourself write permission on it"),
+    ],
+)
+def test_out_in_a_read_only_folder_is_refused_up_front(
+    tmp_path, fit_inputs, saved_simulation, monkeypatch, capsys, command, code, fix
+):
+    """A read-only folder (injected: the tests run as root, whom permissions do not stop)
+    is named with the --out it blocks, not as a hidden temporary name after the work."""
+    import tempfile
+
+    def refuse(*_args, **_kwargs):
+        raise OSError(code, os.strerror(code))
+
+    image, microscope = fit_inputs
+    read_only = tmp_path / "ro"
+    read_only.mkdir()
+    out = read_only / "x"
+    monkeypatch.setattr(tempfile, "TemporaryFile", refuse)
+    inputs = [str(saved_simulation)] if command == "render" else [
+        str(image), "--microscope", str(microscope)
+    ]  # fmt: skip
+    exit_code, err = _run([command, *inputs, "--out", str(out)], capsys)
+    assert exit_code == 2
+    assert f"--out {out} cannot be created: {read_only} is not writable" in err
+    assert fix in err
+    assert "partial" not in err
+    assert "run the same export again" not in err  # render, fit: no resume
+    assert err.count("\n") == 1
+    assert _files(read_only) == []
+
+
+def test_render_disk_full_says_run_render_again_not_the_export(
+    tmp_path, saved_simulation, monkeypatch, capsys
+):
+    monkeypatch.setattr(tifffile, "imwrite", _enospc)
+    out = tmp_path / "rendered"
+    code, err = _run(["render", str(saved_simulation), "--out", str(out)], capsys)
+    assert code == 2
+    assert "disk is full" in err
+    assert "run the same export again" not in err
+    assert "finished items are kept" not in err
+    assert err.rstrip().endswith("then run the same command again")
+
+
+@pytest.mark.parametrize(
+    ("command", "option"),
+    [("fit", None), ("fit", "--masks"), ("calibrate", None), ("diagnose", "--labels")],
+)
+def test_image_that_is_a_folder(tmp_path, fit_inputs, capsys, command, option):
+    image, microscope = fit_inputs
+    folder = tmp_path / "images"
+    folder.mkdir()
+    args = [command, str(folder if option is None else image), "--microscope", str(microscope)]
+    if option is not None:
+        args += [option, str(folder)]
+    code, err = _run([*args, "--out", str(tmp_path / "o")], capsys)
+    assert code == 2
+    what = "IMAGE" if option is None else option
+    assert f"{what} {folder} is a folder: give the path of an image file (TIFF or PNG)" in err
+    assert "does not exist" not in err
+
+
+def test_diagnose_fills_the_microscope_file_as_fit_does(tmp_path, fit_inputs, capsys):
+    """A microscope file of pixel_size_um only: the other keys take the defaults (the
+    negative image is then refused, after the microscope file was read)."""
+    _, microscope = fit_inputs
+    image = tmp_path / "negative.tif"
+    tifffile.imwrite(image, np.random.default_rng(0).normal(0, 5, (64, 32)).astype(np.float32))
+    code, err = _run(["diagnose", str(image), "--microscope", str(microscope),
+                      "--out", str(tmp_path / "o")], capsys)  # fmt: skip
+    assert code == 2
+    assert "lacks the required key" not in err
+    assert "negative values" in err
+
+
+def test_diagnose_names_an_unknown_microscope_key(tmp_path, fit_inputs, capsys):
+    image, _ = fit_inputs
+    microscope = tmp_path / "typo.yaml"
+    microscope.write_text("pxel_size_um: 0.065\n")
+    code, err = _run(["diagnose", str(image), "--microscope", str(microscope),
+                      "--out", str(tmp_path / "o")], capsys)  # fmt: skip
+    assert code == 2
+    assert "unknown field(s) pxel_size_um in Microscope" in err
+    assert "pixel_size_um" in err.split("valid fields are:")[1]
+
+
+def test_diagnose_checks_the_image_before_the_microscope_file(tmp_path, capsys):
+    image = tmp_path / "missing.tif"
+    code, err = _run(["diagnose", str(image), "--microscope", str(tmp_path / "nope.yaml"),
+                      "--out", str(tmp_path / "o")], capsys)  # fmt: skip
+    assert code == 2
+    assert f"IMAGE {image} does not exist" in err
+
+
+def test_diagnose_microscope_file_of_microscope_fields_with_a_camera(tmp_path):
+    from napari_symbac.diagnose.config import load_microscope_file
+    from napari_symbac.settings import Microscope
+
+    path = tmp_path / "m.yaml"
+    path.write_text(
+        "pixel_size_um: 0.08\ncondenser: Ph2\n"
+        "camera: {baseline_adu: 100, sensitivity_adu_per_e: 2.9, dark_noise_e: 8}\n"
+        "trench_width_um: 1.4\n"
+    )
+    config = load_microscope_file(path)
+    assert config.microscope == Microscope(pixel_size_um=0.08, condenser="Ph2")
+    assert config.camera.baseline_adu == 100
+    assert config.camera.sensitivity_adu_per_e == 2.9
+    assert config.trench_width_um == 1.4
+
+
+def test_diagnose_negative_values_point_to_the_microscope_file_camera(
+    tmp_path, fit_inputs, capsys
+):
+    """diagnose has no --camera: its refusal says where its camera goes."""
+    _, microscope = fit_inputs
+    image = tmp_path / "negative.tif"
+    tifffile.imwrite(image, np.random.default_rng(0).normal(0, 5, (64, 32)).astype(np.float32))
+    code, err = _run(["diagnose", str(image), "--microscope", str(microscope),
+                      "--out", str(tmp_path / "o")], capsys)  # fmt: skip
+    assert code == 2
+    assert "baseline_adu in the microscope file's camera section (camera: {" in err
+    assert "--camera" not in err
+
+
+def test_fit_negative_values_still_point_to_camera_option():
+    from napari_symbac.fit.preflight import check_fit_image
+
+    with pytest.raises(ValueError, match="give that constant as baseline_adu with --camera"):
+        check_fit_image(np.array([[-1.0, 2.0]]), "frame.tif")
+
+
+@pytest.mark.parametrize("option", ["--microscope", "--config"])
+def test_settings_file_that_is_binary(tmp_path, fit_inputs, capsys, option):
+    image, microscope = fit_inputs
+    settings = {"--microscope": str(microscope), option: str(image)}  # the TIFF as settings
+    args = [arg for pair in settings.items() for arg in pair]
+    code, err = _run(["fit", str(image), *args, "--out", str(tmp_path / "o")], capsys)
+    assert code == 2
+    assert f"settings file {image} is not a YAML/JSON text file" in err
+    assert "codec" not in err
+
+
+def test_diagnose_microscope_file_that_is_binary(tmp_path, fit_inputs, capsys):
+    image, _ = fit_inputs
+    code, err = _run(["diagnose", str(image), "--microscope", str(image),
+                      "--out", str(tmp_path / "o")], capsys)  # fmt: skip
+    assert code == 2
+    assert f"settings file {image} is not a YAML/JSON text file" in err
+
+
+def test_calibrate_cell_width_below_zero_names_the_option(tmp_path, fit_inputs, capsys):
+    image, microscope = fit_inputs
+    code, err = _run(["calibrate", str(image), "--microscope", str(microscope),
+                      "--out", str(tmp_path / "o"), "--cell-width-um", "-1"], capsys)  # fmt: skip
+    assert code == 2
+    assert "--cell-width-um must be positive, got -1.0" in err
+    assert "cell_width_um" not in err
+
+
+def test_calibrate_masks_of_the_wrong_shape_named_as_fit_names_them(
+    tmp_path, fit_inputs, capsys
+):
+    image, microscope = fit_inputs
+    wrong = tmp_path / "wrong.tif"
+    masks = np.zeros((60, 32), np.uint16)
+    masks[10:20, 10:20] = 1
+    tifffile.imwrite(wrong, masks)
+    code, err = _run(["calibrate", str(image), "--microscope", str(microscope),
+                      "--out", str(tmp_path / "o"), "--masks", str(wrong)], capsys)  # fmt: skip
+    assert code == 2
+    assert "--masks wrong.tif has shape (60, 32) but the image frame has shape (64, 32)" in err
+
+
+def test_calibrate_constant_image_names_the_file(tmp_path, fit_inputs, capsys):
+    import imageio.v3 as iio
+
+    _, microscope = fit_inputs
+    blank = tmp_path / "blank.png"
+    iio.imwrite(blank, np.zeros((64, 32), np.uint8))
+    code, err = _run(["calibrate", str(blank), "--microscope", str(microscope),
+                      "--out", str(tmp_path / "o")], capsys)  # fmt: skip
+    assert code == 2
+    assert "IMAGE blank.png is constant (every pixel is 0)" in err
+    assert "real_image" not in err

@@ -42,6 +42,44 @@ def _write_png(path: Path, rgb: np.ndarray) -> None:
     iio.imwrite(path, rgb)
 
 
+def _check_cell_width(cell_width_um: float | None, masks: str | None) -> None:
+    """``--cell-width-um``: a positive width, and masks to measure it on."""
+    if cell_width_um is None:
+        return
+    if not (np.isfinite(cell_width_um) and cell_width_um > 0):
+        raise ValueError(
+            f"--cell-width-um must be positive, got {cell_width_um}: give the cells' width "
+            "in um (e.g. 1.0 for E. coli), or leave it out to use the microscope's pixel size"
+        )
+    if masks is None:
+        raise ValueError(
+            "--cell-width-um sets the pixel size from the masks' cell widths: pass --masks too"
+        )
+
+
+def _check_inputs(
+    args: argparse.Namespace,
+    image: np.ndarray,
+    masks: np.ndarray | None,
+    labels: np.ndarray | None,
+) -> None:
+    """The fit's refusals of the image, masks and labels, naming the files as ``fit`` does."""
+    from napari_symbac._cli_fit import refuse_constant
+    from napari_symbac.fit.preflight import (
+        check_class_labels,
+        check_fit_image,
+        check_instance_masks,
+    )
+
+    name = Path(args.image).name
+    check_fit_image(image, name)
+    refuse_constant(image, name)
+    if masks is not None:
+        check_instance_masks(masks, image.shape, f"--masks {Path(args.masks).name}")
+    if labels is not None:
+        check_class_labels(labels, image.shape, f"--labels {Path(args.labels).name}")
+
+
 def run_calibrate(args: argparse.Namespace) -> int:
     """Run ``napari-symbac calibrate`` with parsed arguments; returns the exit code."""
     import tifffile
@@ -68,12 +106,14 @@ def run_calibrate(args: argparse.Namespace) -> int:
             f"--formats {args.formats!r}: unknown format(s) {', '.join(unknown) or '(none)'}; "
             f"known formats: {', '.join(FORMATS)}"
         )
+    _check_cell_width(args.cell_width_um, args.masks)
     with timer.step("load"):
         image, file_pixel, file_modality = read_frame(args.image, "IMAGE")
         masks = None if args.masks is None else read_frame(args.masks, "--masks")[0]
         labels = None if args.labels is None else read_frame(args.labels, "--labels")[0]
         if masks is not None and not np.issubdtype(masks.dtype, np.integer):
             raise ValueError(f"--masks must hold integer cell ids, got {masks.dtype}")
+        _check_inputs(args, image, masks, labels)
         microscope = load_microscope(args.microscope)
         camera = None if args.camera is None else load_settings(args.camera, Camera)
         microscope, pixel_note = resolve_pixel_size(file_pixel, microscope)

@@ -47,13 +47,29 @@ def parse_frames(spec: str | None, n_frames: int, name: str) -> list[int]:
         raise ValueError(
             f"--frames {spec!r} is not a frame list: write e.g. 0, 0,2,5 or 0-3"
         ) from None
-    bad = [f for f in frames if not 0 <= f < n_frames]
-    if bad or not frames:
+    if not frames:
         raise ValueError(
-            f"--frames {spec!r} asks for frame(s) {bad or frames} but {name} has {n_frames} "
-            f"frame(s), numbered 0-{n_frames - 1}"
+            f"--frames {spec!r} names no frame: write a range from low to high, e.g. 0-3"
         )
+    bad = sorted({f for f in frames if not 0 <= f < n_frames})
+    if bad:
+        has = (
+            f"{name} has 1 frame (frame 0)" if n_frames == 1 else
+            f"{name} has {n_frames} frames, numbered 0-{n_frames - 1}"
+        )
+        raise ValueError(f"--frames {spec!r}: frame(s) {_runs(bad)} do not exist: {has}")
     return sorted(set(frames))
+
+
+def _runs(numbers: list[int]) -> str:
+    """Sorted whole numbers with their runs compressed: ``[1, 3, 4, 5]`` -> ``"1, 3-5"``."""
+    runs: list[list[int]] = []
+    for number in numbers:
+        if runs and number == runs[-1][-1] + 1:
+            runs[-1].append(number)
+        else:
+            runs.append([number])
+    return ", ".join(f"{r[0]}-{r[-1]}" if len(r) > 1 else f"{r[0]}" for r in runs)
 
 
 def _explicit_keys(config: str | None) -> dict[str, Any]:
@@ -116,6 +132,15 @@ def _read_stack(path: str, what: str) -> np.ndarray:
     return np.asarray(read_image(path, what).data)
 
 
+def refuse_constant(frame: np.ndarray, name: str) -> None:
+    """Refuse a frame whose pixels all hold one value (a blank image: nothing to fit)."""
+    if frame.size and np.min(frame) == np.max(frame):
+        raise ValueError(
+            f"IMAGE {name} is constant (every pixel is {float(frame.flat[0]):g}): nothing to "
+            "fit; give the recording with the cells in it"
+        )
+
+
 def _per_frame(array: np.ndarray | None, frame: int, n_frames: int, shape: tuple) -> Any:
     """A 2D label/mask for every frame, or a (T, Y, X) one indexed like the image."""
     if array is None:
@@ -168,9 +193,24 @@ def _camera_for(
         return camera, f"from --camera {args.camera}"
     if args.dark is not None:
         dark = _read_stack(args.dark, "--dark")
+        name = Path(args.dark).name
+        if dark.ndim not in (2, 3):
+            raise ValueError(
+                f"--dark {name} has shape {dark.shape}: give one dark frame or a (T, Y, X) "
+                "stack of them"
+            )
+        if dark.min() == dark.max():
+            raise ValueError(
+                f"--dark {name} has no noise (every pixel is {dark.flat[0]}): raw dark "
+                "frames of a camera scatter by its read noise; give the camera's raw dark "
+                "frames (lens capped, same exposure and gain), or --camera C.yaml"
+            )
         valid = ~censored_pixels(frame)
         estimate = estimate_camera(frame, valid=valid, dark_frames=dark, bit_depth=bit_depth)
-        return estimate.camera, f"{estimate.summary()} (--dark {args.dark})"
+        note = f"{estimate.summary()} (--dark {args.dark}"
+        if dark.shape[-2:] != frame.shape:  # only their statistics are used: any region
+            note += f"; {dark.shape[-2]} x {dark.shape[-1]} px frames, another region"
+        return estimate.camera, note + ")"
     if config_has_camera:
         return base_camera, f"from --config {args.config}"
     if engine_estimates:
@@ -411,6 +451,7 @@ def _outputs_one(
         UNMEASURED_READ_NOISE,
         camera_text,
         cells_records,
+        colony_noise_text,
         parameter_table,
         report_text,
     )
@@ -427,13 +468,38 @@ def _outputs_one(
     try:
         simulation = base.simulation
         if result.trench is not None:
-            trench = result.trench_geometry(frame.shape[0], microscope.pixel_size_um)
+            trench = result.trench_geometry(frame.shape, microscope.pixel_size_um)
             simulation = dataclasses.replace(simulation, trench=trench)
-        elif simulation.geometry in ("trench", "chamber"):  # a field fit renders as a pad
-            simulation = dataclasses.replace(simulation, geometry="agar_pad")
+        else:  # a field fit renders as a pad of the recording's size
+            if simulation.geometry in ("trench", "chamber"):
+                simulation = dataclasses.replace(simulation, geometry="agar_pad")
+            given = ((keys.get("simulation") or {}).get("agar_pad") or {}).keys()
+            if simulation.geometry == "agar_pad" and not {
+                "field_width_um", "field_height_um"
+            } & set(given):
+                rows, cols = frame.shape
+                pad = dataclasses.replace(
+                    simulation.agar_pad,
+                    field_width_um=cols * microscope.pixel_size_um,
+                    field_height_um=rows * microscope.pixel_size_um,
+                )
+                simulation = dataclasses.replace(simulation, agar_pad=pad)
         if len(result.cells):
+            from napari_symbac.calibrate.core import division_length_um
+
+            # cells as wide as the fitted ones, dividing at the length that makes the
+            # fitted lengths the mean of an asynchronous population (as calibrate)
             width = float(np.median(result.cells.width_um))
-            simulation = dataclasses.replace(simulation, cell_width_um=width)
+            division, variance = division_length_um(np.asarray(result.cells.length_um))
+            sizes = {
+                "cell_width_um": width,
+                "cell_max_length_um": max(division, 1.3 * width),
+                "max_length_var_um2": variance,
+            }
+            given = keys.get("simulation") or {}
+            simulation = dataclasses.replace(
+                simulation, **{k: v for k, v in sizes.items() if k not in given}
+            )
         settings = dataclasses.replace(settings, simulation=simulation)
     except ValueError as err:
         notes.append(f"simulation settings kept from the config: {err}")
@@ -469,15 +535,9 @@ def _outputs_one(
     )
     if prepared.colony:
         facts["start"] = "instance masks (the cells as given; the optics fitted to them)"
-        sd = result.render.gaussian_noise_sd_adu
         facts["camera"] = (
-            f"not fitted: Gaussian noise of {sd:.3g} ADU (pixel differences of the image"
-            + (
-                "; below its grey-level step, so the likelihood's variance is the "
-                "quantisation's, 1/12 ADU^2)" if sd < 0.5 else ")"
-            )
-            + f", baseline {camera_used.baseline_adu:g} ADU"
-            + (" (--camera)" if args.camera else "")
+            f"not fitted: Gaussian noise, {colony_noise_text(result)}, baseline "
+            f"{camera_used.baseline_adu:g} ADU" + (" (--camera)" if args.camera else "")
         )
         del facts["camera used"]
     elif camera is None:  # the engine estimated it: check it model-free
@@ -726,7 +786,7 @@ def _ctc_result(series, frames: list[int], pixel_size_um: float) -> dict:
 
 def run_fit(args: argparse.Namespace) -> int:
     """Run ``napari-symbac fit`` with parsed arguments; returns the exit code."""
-    from napari_symbac.fit.preflight import resolve_pixel_size
+    from napari_symbac.fit.preflight import check_fit_image, resolve_pixel_size
     from napari_symbac.fit.report import write_atomically
     from napari_symbac.io import read_image
     from napari_symbac.settings import PipelineSettings, load_microscope, load_settings
@@ -742,10 +802,16 @@ def run_fit(args: argparse.Namespace) -> int:
             raise ValueError(f"{name} must be one 2D frame or a (T, Y, X) series, got {data.shape}")
         stack = data if data.ndim == 3 else data[None]
         frames = parse_frames(args.frames, stack.shape[0], name)
-        keys = _explicit_keys(args.config)
+        for index in frames:  # negative values first: a constant negative image has them
+            frame_name = name + (f" frame {index}" if len(stack) > 1 else "")
+            check_fit_image(stack[index], frame_name)
+            refuse_constant(stack[index], frame_name)
+        if args.max_iterations is not None and args.max_iterations < 1:
+            raise ValueError(f"--max-iterations must be at least 1, got {args.max_iterations}")
         base = PipelineSettings() if args.config is None else load_settings(
             args.config, PipelineSettings
         )
+        keys = _explicit_keys(args.config)  # after load_settings: its refusals name the file
         microscope = load_microscope(args.microscope)
         modality = args.modality or recording.modality or microscope.modality
         if modality != microscope.modality:

@@ -42,15 +42,75 @@ def _at_least_one(text: str) -> int:
     return value
 
 
-def _output_folder(path: str | Path, option: str = "--out") -> Path:
-    """``path`` as a folder to write into; refuses an existing file."""
+def _output_folder(path: str | Path, option: str = "--out", *, staged: bool = False) -> Path:
+    """``path`` as a folder to write into, checked before any work is done.
+
+    Parameters
+    ----------
+    path
+        The folder given on the command line (created later if missing).
+    option
+        How messages name it.
+    staged
+        Whether the command makes its outputs in a hidden folder beside ``path`` first
+        (``fit``, ``calibrate``): its parent must then be writable as well.
+
+    Raises
+    ------
+    ValueError
+        If ``path`` is a file, lies inside a file, or it (or the folder it would be made
+        in) cannot be written; the message names the path and the fix.
+    """
     out = Path(path)
     if out.exists() and not out.is_dir():
         raise ValueError(
             f"{option} {out} is a file, not a folder: give the path of a folder (it is "
             "created if missing), or move the file away"
         )
+    for folder in (out, out.resolve().parent) if staged else (out,):
+        _check_writable(out, folder, option)
     return out
+
+
+def _nearest_existing(path: Path) -> Path:
+    """``path`` itself if it exists, else its nearest existing parent."""
+    while not path.exists() and path.parent != path:
+        path = path.parent
+    return path
+
+
+def _check_writable(out: Path, folder: Path, option: str) -> None:
+    """Refuse ``out`` when ``folder`` (``out`` or its parent) cannot be created or written:
+    a file in the way, or no permission (probed with a temporary file, so that a read-only
+    disk is found whoever runs the command)."""
+    import errno
+    import tempfile
+
+    existing = _nearest_existing(folder)
+    if not existing.is_dir():
+        raise ValueError(
+            f"{option} {out} cannot be created: {existing} is a file, not a folder: check "
+            "that the path is right, or move the file away"
+        )
+    try:
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError as err:
+        if existing == out:
+            problem = "is not writable"
+        elif out.exists():  # a staged command's parent
+            problem = (
+                f"cannot be written: its outputs are made beside it, in {existing}, which "
+                "is not writable"
+            )
+        else:
+            problem = f"cannot be created: {existing} is not writable"
+        fix = (
+            "give a folder on a writable disk" if err.errno == errno.EROFS else
+            "give a folder you can write to, or give yourself write permission on it "
+            "(e.g. chmod u+w)"
+        )
+        raise ValueError(f"{option} {out} {problem} ({err.strerror or err}): {fix}") from None
 
 
 #: Simulated plus rendered frames above which a run needs ``--yes``.
@@ -225,12 +285,14 @@ def _cmd_export(args: argparse.Namespace) -> int:
 def _cmd_fit(args: argparse.Namespace) -> int:
     from napari_symbac._cli_fit import run_fit
 
+    _output_folder(args.out, staged=True)  # before the fit, not after it
     return run_fit(args)
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     from napari_symbac._cli_calibrate import run_calibrate
 
+    _output_folder(args.out, staged=True)  # before the fit, not after it
     return run_calibrate(args)
 
 
@@ -255,6 +317,13 @@ def _measured_camera_note(frame, camera) -> str:
     return note
 
 
+#: Where ``diagnose`` takes the camera (it has no ``--camera``), for its refusals.
+_DIAGNOSE_CAMERA_HINT = (
+    "in the microscope file's camera section (camera: {baseline_adu: ..., "
+    "sensitivity_adu_per_e: ..., dark_noise_e: ...})"
+)
+
+
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     import dataclasses
     import json
@@ -274,12 +343,13 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from napari_symbac.io import read_image
     from napari_symbac.settings import PipelineSettings, RenderSettings, save_settings
 
+    out = _output_folder(args.out)
     timer = StepTimer()
     with timer.step("load"):
+        recording = read_image(args.image, "IMAGE")
         config = load_microscope_file(args.microscope)
         for note in config.notes:
             print(f"note: {note}", file=sys.stderr)
-        recording = read_image(args.image, "IMAGE")
         microscope, pixel_note = resolve_pixel_size(recording.pixel_size_um, config.microscope)
         if "disagrees" in pixel_note:
             print(f"note: {pixel_note}", file=sys.stderr)
@@ -290,7 +360,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             )
         stack = image[None] if image.ndim == 2 else image
         for k, frame in enumerate(stack):  # the fit's refusals (negative values: not counts)
-            check_fit_image(frame, Path(args.image).name + (f" frame {k}" if k else ""))
+            name = Path(args.image).name + (f" frame {k}" if k else "")
+            check_fit_image(frame, name, camera_hint=_DIAGNOSE_CAMERA_HINT)
         labels = None
         if args.labels is not None:
             labels = np.asarray(read_image(args.labels, "--labels").data)
@@ -345,7 +416,6 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         design = build_design(scenes, microscope, render, camera)
         result = diagnose(stack, design, rng=np.random.default_rng(args.seed), progress=update)
     bar.close()
-    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     with timer.step("write"):
         doc = result.as_dict()
@@ -356,7 +426,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         doc["region"] = {"rows": [y0, y1], "columns": [x0, x1]}
         (out / "diagnosis.json").write_text(json.dumps(doc, indent=2, default=float))
         (out / "report.txt").write_text(result.report() + "\n")
-        figures = write_figures(result, stack, out)
+        figures = write_figures(result, stack, out, name=Path(args.image).name)
         base = PipelineSettings(microscope=microscope, render=render, camera=camera)
         accepted = [(e.name, e.params) for e in result.accepted]
         settings, extra = updated_settings(base, accepted)
@@ -704,7 +774,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return args.func(args)
     except (ValueError, TypeError, OSError, ExportError) as err:
-        print(f"napari-symbac {args.command}: error: {_one_line(err)}", file=sys.stderr)
+        text = _one_line(err)
+        if args.command in _STARTS_OVER:
+            text = _without_resume_advice(text)
+        print(f"napari-symbac {args.command}: error: {text}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(
@@ -713,6 +786,20 @@ def main(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 130
+
+
+#: Commands that do not resume a run that stopped: they start over when run again.
+_STARTS_OVER = ("render", "fit", "calibrate", "diagnose")
+#: The advice of a disk error (:func:`napari_symbac.export.atomic.explain_os_error`) that
+#: holds for an export only.
+_EXPORT_RESUMES = "then run the same export again"
+
+
+def _without_resume_advice(text: str) -> str:
+    """A disk error's message for a command that starts over: "run the same export again:
+    finished items are kept" becomes "run the same command again"."""
+    head, found, _ = text.partition(_EXPORT_RESUMES)
+    return f"{head}then run the same command again" if found else text
 
 
 def _one_line(err: BaseException) -> str:

@@ -194,10 +194,14 @@ def read_image(path: str | Path, what: str = "image") -> Recording:
     Raises
     ------
     ValueError
-        If the file is missing, not a TIFF or PNG, unreadable, or in colour; the message
-        names the file and what to do.
+        If the file is missing or a folder, not a TIFF or PNG, unreadable, or in colour;
+        the message names the file and what to do.
     """
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(
+            f"{what} {path} is a folder: give the path of an image file (TIFF or PNG)"
+        )
     if not path.is_file():
         raise ValueError(f"{what} {path} does not exist")
     lower = path.name.lower()

@@ -43,6 +43,7 @@ __all__ = [
     "load_settings",
     "load_settings_or_pipeline",
     "load_simulation_settings",
+    "read_settings_mapping",
     "save_settings",
     "to_dict",
 ]
@@ -953,7 +954,7 @@ def load_settings(path: str | Path, cls: type[T]) -> T:
     A file may also hold only some fields (the rest take their defaults); an empty
     file is an error, so that a wrong or blank file never silently means the defaults.
     """
-    return from_dict(cls, _read_mapping(path))
+    return from_dict(cls, read_settings_mapping(path))
 
 
 def _is_pipeline_mapping(data: Any) -> bool:
@@ -967,7 +968,7 @@ def load_simulation_settings(path: str | Path) -> SimulationSettings:
     """Read :class:`SimulationSettings` from their own file, or from the ``simulation``
     section of a :class:`PipelineSettings` file (so that one file simulates, renders and
     exports alike)."""
-    data = _read_mapping(path)
+    data = read_settings_mapping(path)
     if _is_pipeline_mapping(data) and "simulation" in data:
         return from_dict(SimulationSettings, data["simulation"] or {}, _where="simulation")
     return from_dict(SimulationSettings, data)
@@ -976,7 +977,7 @@ def load_simulation_settings(path: str | Path) -> SimulationSettings:
 def load_settings_or_pipeline(path: str | Path, cls: type[T]) -> T | PipelineSettings:
     """Settings of type ``cls`` from their own file, or the :class:`PipelineSettings` of a
     pipeline file (:func:`_is_pipeline_mapping`), whose errors then name its sections."""
-    data = _read_mapping(path)
+    data = read_settings_mapping(path)
     if _is_pipeline_mapping(data):
         return from_dict(PipelineSettings, data)
     return from_dict(cls, data)
@@ -987,7 +988,7 @@ def load_microscope(path: str | Path) -> Microscope:
     some or all), or the microscope file of ``napari-symbac diagnose`` (``NA``,
     ``objective``, ...; :func:`napari_symbac.diagnose.config.parse_microscope`), so that
     one file serves every command."""
-    data = _read_mapping(path)
+    data = read_settings_mapping(path)
     if isinstance(data, dict) and "NA" in data:
         from napari_symbac.diagnose.config import parse_microscope
 
@@ -995,14 +996,21 @@ def load_microscope(path: str | Path) -> Microscope:
     return from_dict(Microscope, data)
 
 
-def _read_mapping(path: str | Path) -> Any:
-    """The parsed contents of a YAML/JSON settings file (refused when empty)."""
+def read_settings_mapping(path: str | Path) -> Any:
+    """The parsed contents of a YAML/JSON settings file (refused when empty, a folder,
+    missing, binary or not valid YAML/JSON, with a message that names the file)."""
     path = Path(path)
     if path.is_dir():
         raise ValueError(f"settings file {path} is a folder: give the path of a .yaml/.json file")
     if not path.is_file():
         raise FileNotFoundError(f"settings file {path} does not exist")
-    text = path.read_text(encoding="utf-8")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise ValueError(
+            f"settings file {path} is not a YAML/JSON text file (it holds binary data, e.g. "
+            "an image): give the path of the .yaml/.json settings file"
+        ) from None
     try:
         data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
     except (json.JSONDecodeError, yaml.YAMLError) as err:

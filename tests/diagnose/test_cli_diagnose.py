@@ -24,14 +24,16 @@ def _microscope_file(tmp_path, **keys):
 
 
 def test_missing_microscope_key_is_a_clear_error(tmp_path, capsys):
+    """A file in diagnose's own keys (NA, ...) needs them all, as for `fit`; a file of
+    Microscope fields may give some (tests/test_bad_input.py)."""
     image = tmp_path / "image.tif"
     tifffile.imwrite(image, np.full((32, 32), 500, np.uint16))
     mic = tmp_path / "mic.json"
-    mic.write_text(json.dumps({"modality": "phase", "pixel_size_um": 0.065}))
+    mic.write_text(json.dumps({"NA": 1.45, "pixel_size_um": 0.065}))
     code = main(["diagnose", str(image), "--microscope", str(mic), "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
     assert code == 2
-    assert "NA" in err
+    assert "lacks the required key(s) modality" in err
     assert "Traceback" not in err
 
 

@@ -112,6 +112,28 @@ def test_fit_settings_are_reusable_by_render(tmp_path, inputs):
     assert tifffile.imread(rendered / "images.tif").shape[0] == 2
 
 
+def test_a_trench_fit_renders_frames_of_the_recordings_size(tmp_path, truth):
+    """Found as a user: the real trench (256 x 46 px, its walls 0.69 and 0.88 um from
+    the edges) fitted, then rendered with the fit's settings.yaml, gave 256 x 43 px
+    frames (equal margins from the left wall): a dataset of another size than the
+    recording. Here the truth trench cut asymmetrically (3 columns off its right)."""
+    image, labels = tmp_path / "real.tif", tmp_path / "labels.tif"
+    recording = truth.image[:, :-3]
+    tifffile.imwrite(image, recording)
+    tifffile.imwrite(labels, scene_classes(truth.scene)[:, :-3].astype(np.uint8))
+    microscope = save_settings(truth.microscope, tmp_path / "microscope.yaml")
+    out = tmp_path / "fit"
+    assert _fit(image, "--labels", labels, "--microscope", microscope, "--out", out,
+                "--max-iterations", 2) == 0  # fmt: skip
+    simulation = tmp_path / "sim"
+    assert main(["simulate", "--config", str(out / "settings.yaml"), "--out", str(simulation),
+                 "--frames", "2", "--seed", "1"]) == 0  # fmt: skip
+    rendered = tmp_path / "rendered"
+    assert main(["render", str(simulation), "--config", str(out / "settings.yaml"),
+                 "--out", str(rendered)]) == 0  # fmt: skip
+    assert tifffile.imread(rendered / "images.tif").shape[1:] == recording.shape
+
+
 def test_camera_file_and_dark_frames_are_used(tmp_path, truth, inputs):
     image, labels, microscope = inputs
     camera = Camera(baseline_adu=100.0, sensitivity_adu_per_e=2.9)
@@ -133,6 +155,7 @@ def test_camera_file_and_dark_frames_are_used(tmp_path, truth, inputs):
                 "--dark", dark, "--max-iterations", 3) == 0  # fmt: skip
     report = (out / "report.txt").read_text()
     assert "(dark frames)" in report
+    assert "64 x 64 px frames, another region" in report
     # the dark frames' mean: 100 ADU, standard error 2.9 * 8 / sqrt(3 * 64 * 64) = 0.21
     baseline = re.search(r"baseline ([0-9.]+) ADU", report)
     assert baseline is not None
@@ -260,13 +283,16 @@ def test_a_phase_colony_with_its_masks_is_fitted_with_its_halo(tmp_path, real_da
                 "--out", out) == 0  # fmt: skip
     report = (out / "report.txt").read_text()
     assert "dense colony: the cells are the masks'" in report[report.index("NOTES") :]
-    assert _fact(report, "camera").startswith("not fitted: Gaussian noise of")
+    assert _fact(report, "camera").startswith("not fitted: Gaussian noise, ")
     before, after = map(float, re.search(r"pixel: (\S+) -> (\S+)", report).groups())
     assert after < 0.8 * before
     settings = load_settings(out / "settings.yaml", PipelineSettings)
     assert settings.render.phase_model == "partially_coherent"
     assert settings.render.noise_model == "gaussian"
     assert settings.simulation.geometry == "agar_pad"
+    # a pad of the recording's size (it was the default 40 um: 537 px frames for 96)
+    pad = settings.simulation.agar_pad
+    assert (pad.field_height_um, pad.field_width_um) == pytest.approx((96 * 0.0745,) * 2)
     table = json.loads((out / "cells.json").read_text())
     sizes = np.bincount(masks.ravel())[1:]
     assert len(table["cells"]) == int(np.count_nonzero(sizes * 0.0745**2 >= 0.25))
@@ -397,6 +423,17 @@ def test_real_colicoords_fluorescence_field_with_masks(tmp_path, real_data_dir):
     assert simulation.geometry == "agar_pad"
     widths = [c["width_um"] for c in json.loads((out / "cells.json").read_text())["cells"]]
     assert simulation.cell_width_um == pytest.approx(float(np.median(widths)))
+    # and dividing at the length that makes the fitted lengths a population's mean (it
+    # kept the default 3.5 um where the real trench's cells are 4.6-5.3 um long)
+    lengths = [c["length_um"] for c in cells]
+    assert simulation.cell_max_length_um == pytest.approx(
+        max(np.mean(lengths) / np.log(2), 1.3 * simulation.cell_width_um)
+    )
+    # on a pad of the recording's size
+    pad = simulation.agar_pad
+    assert (pad.field_height_um, pad.field_width_um) == pytest.approx(
+        (masks.shape[0] * 0.08, masks.shape[1] * 0.08)
+    )
 
     # a binary mask (0/1) of the same cells: its connected regions are the cells; no
     # --geometry: fluorescence shows no walls, so the default is the open field
@@ -508,7 +545,7 @@ def test_refuses_a_series_without_frames_and_frames_out_of_range(tmp_path, truth
     error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope)
     assert "has 2 frames: pass --frames" in error
     error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope, "--frames", "5")
-    assert "numbered 0-1" in error
+    assert "frame(s) 5 do not exist: series.tif has 2 frames, numbered 0-1" in error
     error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope, "--frames", "x")
     assert "not a frame list" in error
 
@@ -654,3 +691,48 @@ def test_fit_reads_the_diagnose_microscope_file(tmp_path, truth, inputs, capsys)
     settings = load_settings(out / "settings.yaml", PipelineSettings)
     assert settings.microscope.numerical_aperture == m.numerical_aperture
     assert settings.microscope.pixel_size_um == m.pixel_size_um
+
+
+def test_refuses_dark_frames_without_noise(tmp_path, inputs, capsys):
+    """Found as a user: constant 'dark frames' (no read noise: not a camera's raw dark
+    frames) were taken, and the report gave 0 +- 0 e- of read noise."""
+    image, labels, microscope = inputs
+    dark = tmp_path / "dark.tif"
+    tifffile.imwrite(dark, np.full((5, 10, 10), 100, np.uint16))
+    error = _refused(capsys, tmp_path / "o", image, "--labels", labels,
+                     "--microscope", microscope, "--dark", dark)  # fmt: skip
+    assert "--dark dark.tif has no noise (every pixel is 100)" in error
+
+
+def test_refuses_a_constant_image_naming_the_file(tmp_path, inputs, capsys):
+    _, _, microscope = inputs
+    blank = tmp_path / "blank.png"
+    iio.imwrite(blank, np.zeros((64, 32), np.uint8))
+    error = _refused(capsys, tmp_path / "o", blank, "--microscope", microscope)
+    assert "IMAGE blank.png is constant (every pixel is 0): nothing to fit" in error
+    assert "real_image" not in error
+
+
+def test_refuses_max_iterations_below_one_naming_the_option(tmp_path, inputs, capsys):
+    image, labels, microscope = inputs
+    error = _refused(capsys, tmp_path / "o", image, "--labels", labels,
+                     "--microscope", microscope, "--max-iterations", 0)  # fmt: skip
+    assert "--max-iterations must be at least 1, got 0" in error
+    assert "irls_rounds" not in error
+
+
+@pytest.mark.parametrize(
+    ("spec", "n_frames", "message"),
+    [
+        ("2-7", 3, "--frames '2-7': frame(s) 3-7 do not exist: stack.tif has 3 frames, "
+                   "numbered 0-2"),
+        ("0,4,6-8", 3, "frame(s) 4, 6-8 do not exist: stack.tif has 3 frames, numbered 0-2"),
+        ("1", 1, "--frames '1': frame(s) 1 do not exist: stack.tif has 1 frame (frame 0)"),
+        ("3-1", 3, "--frames '3-1' names no frame"),
+    ],
+)  # fmt: skip
+def test_frames_that_do_not_exist_are_named_as_runs(spec, n_frames, message):
+    from napari_symbac._cli_fit import parse_frames
+
+    with pytest.raises(ValueError, match=re.escape(message)):
+        parse_frames(spec, n_frames, "stack.tif")

@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 import tifffile
+from scipy import ndimage
 
 from napari_symbac.fit import fit_colony
 from napari_symbac.fit.colony import colony_start, is_dense_colony, touching_cells
@@ -100,3 +101,29 @@ def test_resample_render_keeps_the_optics_and_the_kernel_reach_in_um():
     assert moved.psf_radius_px * 0.13 / 2 == pytest.approx(40 * 0.0745, abs=0.065)
     assert moved.psf_radius_px * 0.13 / 2 >= 40 * 0.0745  # never shorter
     assert moved.cell_phase_rad == 0.45
+
+
+def test_a_colony_below_one_grey_level_of_noise_is_drawn_with_noise(real_data_dir):
+    """Found as a user: an 8-bit colony (Omnipose Sample000033) whose pixel noise is
+    below one grey level measured 0 ADU, and its fitted settings rendered noiseless
+    images. The measured noise is kept for the likelihood; the drawn noise is at least
+    MIN_NOISE_ADU, so an image rendered with the fitted settings scatters as the real
+    one does (a corner of it: 11 cells, 85 % pad)."""
+    import imageio.v3 as iio
+
+    from napari_symbac.fit.colony import MIN_NOISE_ADU
+
+    root = real_data_dir / "omnipose"
+    crop = (slice(150, 246), slice(0, 96))
+    image = iio.imread(root / "Sample000033.png")[..., 0][crop]
+    masks = np.asarray(tifffile.imread(root / "Sample000033_cp_masks.tif")[crop], np.int64)
+    scope = dataclasses.replace(MICROSCOPE, pixel_size_um=0.134)  # a 1 um cell width
+    fit = fit_colony(image, scope, masks, max_evaluations=6)
+    assert fit.measured_noise_adu == 0.0
+    assert fit.render.gaussian_noise_sd_adu == MIN_NOISE_ADU
+    camera = Camera(baseline_adu=0.0, bit_depth=8)
+    drawn = ForwardModel(scope, fit.render, camera).render(fit.scene, np.random.default_rng(1))
+    flat = ndimage.binary_erosion(masks == 0, iterations=12)  # the pad beyond the halo
+    real_sd, drawn_sd = (float(np.std(np.asarray(a, float)[flat])) for a in (image, drawn))
+    assert real_sd > 0.2
+    assert 0.5 * real_sd < drawn_sd < 3 * real_sd

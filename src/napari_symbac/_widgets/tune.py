@@ -653,14 +653,12 @@ class TuneWidget(Container):
             f"{_format(result.objective_before)} -> {_format(result.objective_after)}"
         )
         if colony:
+            from napari_symbac.fit.report import colony_noise_text
+
             self.status.value += (
                 "<br>Colony fitted from its masks with the partially coherent phase model; "
-                f"noise: Gaussian, {result.render.gaussian_noise_sd_adu:.3g} ADU measured "
-                "on the recording"
-                + (" (below one grey level: quantisation)" * (
-                    result.render.gaussian_noise_sd_adu < 0.5
-                ))
-                + " (used by the preview and Export)"
+                f"noise: Gaussian, {colony_noise_text(result)} (used by the preview and "
+                "Export)"
             )
         elif result.camera is not None:
             cam = result.camera

@@ -131,21 +131,47 @@ def montage(
     real_masks: np.ndarray | None = None,
     synthetic_labels: np.ndarray | None = None,
 ) -> np.ndarray:
-    """8-bit RGB: real | synthetic side by side (each at its own 0.5-99.5 percentiles),
-    mask outlines in green below each when given; shapes are cropped to the smaller.
+    """8-bit RGB figure: real | synthetic side by side, each titled and at its own
+    0.5-99.5 percentiles with a grey colour bar (ADU), under a heading; when masks are
+    given a second row shows each with its mask outlines in green (a trench's four
+    panels stand in one row). Shapes are cropped to the smaller; small images are
+    enlarged by whole pixels (nearest neighbour).
     """
+    from napari_symbac.diagnose.figures import (
+        ColourBar,
+        map_body,
+        map_scale,
+        titled_grid,
+        with_heading,
+    )
+
     h = min(real.shape[0], synthetic.shape[0])
     w = min(real.shape[1], synthetic.shape[1])
-    panels = []
-    for image, labels in ((real, real_masks), (synthetic, synthetic_labels)):
-        grey = np.repeat(_grey(np.asarray(image)[:h, :w])[..., None], 3, axis=-1)
+    scale = map_scale((h, w))
+    cropped = "" if real.shape == synthetic.shape else f" (both cropped to {h} x {w} px)"
+    plain, outlined = [], []
+    for image, labels, what in (
+        (real, real_masks, "real image"),
+        (synthetic, synthetic_labels, "synthetic image (dataset item)"),
+    ):
+        image = np.asarray(image, float)[:h, :w]
+        low, high = (float(v) for v in np.percentile(image, [0.5, 99.5]))
+        bar = ColourBar("grey", low, high, "ADU")
+        grey = np.repeat(_grey(image)[..., None], 3, axis=-1)
+        plain.append((what, map_body(np.repeat(np.repeat(grey, scale, 0), scale, 1), bar)))
         if labels is not None:
-            edge = _outline(np.asarray(labels)[:h, :w])
             overlay = grey.copy()
-            overlay[edge] = (0, 255, 0)
-            grey = np.concatenate([grey, np.zeros((4, w, 3), np.uint8), overlay], axis=0)
-        panels.append(grey)
-    height = max(p.shape[0] for p in panels)
-    panels = [np.pad(p, ((0, height - p.shape[0]), (0, 0), (0, 0))) for p in panels]
-    gap = np.zeros((height, 4, 3), np.uint8)
-    return np.concatenate([panels[0], gap, panels[1]], axis=1)
+            overlay[_outline(np.asarray(labels)[:h, :w])] = (0, 255, 0)
+            overlay = np.repeat(np.repeat(overlay, scale, 0), scale, 1)
+            mask_word = "masks" if what.startswith("real") else "labels"
+            title = f"{what} with its {mask_word} outlined (green)"
+            outlined.append((title, map_body(overlay, bar)))
+    items = plain + outlined
+    columns = len(items) if h >= 2 * w else 2  # a trench: all panels in one row
+    return with_heading(
+        titled_grid(items, columns),
+        f"Real against synthetic, {h} x {w} px{cropped}",
+        "The real recording, then the synthetic image (a dataset item), each shown "
+        "at its own 0.5-99.5 percentiles (grey bars, ADU)"
+        + ("; then the same with mask outlines in green." if outlined else "."),
+    )

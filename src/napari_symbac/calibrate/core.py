@@ -51,7 +51,14 @@ from napari_symbac.settings import (
     SimulationSettings,
 )
 
-__all__ = ["Calibration", "best_crop", "calibrate", "export_settings", "settings_from_fit"]
+__all__ = [
+    "Calibration",
+    "best_crop",
+    "calibrate",
+    "division_length_um",
+    "export_settings",
+    "settings_from_fit",
+]
 
 #: Side of the crop fitted without masks: the fit's cells are then the only measurement of
 #: sizes and layout, so as much of the field as a fit takes in a minute or two (a sparse
@@ -182,7 +189,7 @@ def _clusters_outside(
     return int(np.count_nonzero(~inside))
 
 
-def _division_length_um(lengths_um: np.ndarray) -> tuple[float, float]:
+def division_length_um(lengths_um: np.ndarray) -> tuple[float, float]:
     """Sizer division length and its variance from a population's lengths.
 
     An asynchronous population of cells born at ``L_d / 2`` that grow exponentially to
@@ -240,7 +247,7 @@ def settings_from_fit(
     widths = m.widths_px * px
     width = float(np.median(widths)) if width_um is None else float(width_um)
     width_var = float(np.clip(np.var(widths), 0.0004, 0.04))
-    division, division_var = _division_length_um(lengths)
+    division, division_var = division_length_um(lengths)
     division = max(division, 1.3 * width)
     notes.append(
         f"cells: width {width:.2f} um ({'fit' if width_um is not None else 'masks'}), "

@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import json
+import dataclasses
 import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
 
-import yaml
-
-from napari_symbac.settings import Camera, Microscope
+from napari_symbac.settings import Camera, Microscope, from_dict, read_settings_mapping
 
 __all__ = ["DiagnoseConfig", "load_microscope_file", "parse_microscope"]
 
@@ -121,14 +119,38 @@ def parse_microscope(data: object, where: str = "microscope file") -> DiagnoseCo
     return DiagnoseConfig(microscope, camera, width, interval, tuple(notes))
 
 
+#: Keys of the diagnose microscope file beside the :class:`Microscope` fields.
+DIAGNOSE_KEYS = ("camera", "trench_width_um", "frame_interval_s")
+
+
 def load_microscope_file(path: str | Path) -> DiagnoseConfig:
-    """Read and validate a JSON or YAML microscope file."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"microscope file {path} does not exist")
-    text = path.read_text(encoding="utf-8")
+    """Read a JSON or YAML microscope file of ``napari-symbac diagnose``.
+
+    Either :class:`~napari_symbac.settings.Microscope` fields as ``fit`` reads them (any
+    may be left out and takes its default; an unknown key is named) plus the keys of
+    :data:`DIAGNOSE_KEYS`, or diagnose's own spelling (``NA``, ...; :func:`parse_microscope`).
+    """
+    data = read_settings_mapping(path)
+    if isinstance(data, dict) and "NA" in data:
+        return parse_microscope(data, str(path))
+    if not isinstance(data, dict):
+        raise ValueError(
+            f"microscope file {path} must be a mapping of keys to values, got "
+            f"{type(data).__name__}"
+        )
+    extras = {key: data[key] for key in DIAGNOSE_KEYS if key in data}
     try:
-        data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as err:
-        raise ValueError(f"{path} is not valid JSON/YAML: {err}") from err
-    return parse_microscope(data, str(path))
+        microscope = from_dict(Microscope, {k: v for k, v in data.items() if k not in extras})
+    except ValueError as err:
+        if str(err).startswith("unknown field"):
+            raise ValueError(f"{err}; and for diagnose {', '.join(DIAGNOSE_KEYS)}") from None
+        raise
+    spelled = {  # diagnose's own keys, so that parse_microscope reads the extras
+        "modality": microscope.modality,
+        "pixel_size_um": microscope.pixel_size_um,
+        "NA": microscope.numerical_aperture,
+        "refractive_index": microscope.refractive_index,
+        "wavelength_um": microscope.wavelength_um,
+    }
+    config = parse_microscope({**spelled, **extras}, str(path))
+    return dataclasses.replace(config, microscope=microscope)

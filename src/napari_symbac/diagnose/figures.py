@@ -1,15 +1,43 @@
-"""PNG figures of a diagnosis (numpy only: no plotting library needed)."""
+"""PNG figures of a diagnosis, drawn with numpy and Pillow (no plotting library needed).
+
+``residuals.png`` shows the frame and the standardised residual of the base fit and of
+the fit with the accepted effects; ``effect_<name>.png`` an accepted effect's map (the
+change it makes to the model) beside the discrepancy profile of the base fit that
+revealed it. Every panel is titled, every map has a colour bar with its unit, every
+curve labelled axes, and each figure a heading naming the image or the effect. Small
+maps are enlarged by whole pixels (nearest neighbour, so a 256 x 46 trench is drawn
+1024 px tall), as :func:`napari_symbac.fit.figure.before_after_figure` does, and text is
+Pillow's bundled font at 16 px: the same diagnosis gives the same PNG bytes.
+
+The layout helpers (:func:`titled_grid`, :func:`map_body`, :func:`with_heading`) also
+draw ``napari-symbac calibrate``'s report.png.
+"""
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy import ndimage
 
-from napari_symbac.diagnose.run import Diagnosis
+from napari_symbac.fit.figure import panel_scale
 
-__all__ = ["diverging", "line_plot", "write_figures"]
+if TYPE_CHECKING:
+    from napari_symbac.diagnose.run import Diagnosis
+
+__all__ = [
+    "ColourBar",
+    "diverging",
+    "line_plot",
+    "map_body",
+    "map_scale",
+    "titled_grid",
+    "with_heading",
+    "write_figures",
+]
 
 #: The discrepancy statistic shown with each accepted effect (a key of ``Mismatch.where``).
 REVEALING = {
@@ -27,6 +55,43 @@ REVEALING = {
     "stage_drift": "distance to the nearest cell edge",
 }
 
+_RESIDUAL = "mean standardised residual (s.d.)"
+#: For each profile (a prefix of ``Mismatch.where``): x label, y label, the value that
+#: means "as modelled", and the x of bin ``i``.
+_PROFILE_AXES = {
+    "along the field (rows)": ("row (px)", _RESIDUAL, 0.0, lambda i: i),
+    "across the field (columns)": ("column (px)", _RESIDUAL, 0.0, lambda i: i),
+    "distance to the nearest cell edge": (
+        "distance to the nearest cell edge (px; < 0 inside a cell)",
+        _RESIDUAL,
+        0.0,
+        lambda i: i - 5.5,  # 1-px rings from -6 px (bin 0 holds everything deeper)
+    ),
+    "intensity level": (
+        "model mean: quantile bin (1 darkest, 8 brightest)",
+        "variance ratio, mean r^2 (1 = as modelled)",
+        1.0,
+        lambda i: i + 1,
+    ),
+}
+
+FONT_PX = 16
+HEADING_PX = 20
+_PAD = 10
+_BAR_PX = 18
+_BLACK = (0, 0, 0)
+_WHITE = (255, 255, 255)
+
+
+def _font(size: int = FONT_PX):
+    from PIL import ImageFont
+
+    return ImageFont.load_default(size=size)
+
+
+def _line_px(size: int) -> int:
+    return round(1.3 * size)
+
 
 def diverging(image: np.ndarray, limit: float) -> np.ndarray:
     """Blue-white-red RGB (uint8) of ``image`` clipped to ``[-limit, limit]``."""
@@ -37,89 +102,385 @@ def diverging(image: np.ndarray, limit: float) -> np.ndarray:
     return (np.stack([r, g, b], axis=-1) * 255).astype(np.uint8)
 
 
-def grey(image: np.ndarray) -> np.ndarray:
-    lo, hi = np.percentile(image, (0.5, 99.5))
-    t = np.clip((image - lo) / max(hi - lo, 1e-12), 0, 1)
+def grey(image: np.ndarray, low: float | None = None, high: float | None = None) -> np.ndarray:
+    """Grey RGB (uint8) from ``low`` to ``high`` (default the 0.5th to 99.5th percentiles)."""
+    image = np.asarray(image, float)
+    if low is None or high is None:
+        low, high = np.percentile(image, (0.5, 99.5))
+    t = np.clip((image - low) / max(high - low, 1e-12), 0, 1)
     return np.repeat((t * 255).astype(np.uint8)[..., None], 3, axis=-1)
 
 
-def line_plot(
-    values: np.ndarray, height: int = 120, width: int = 320, band: float | None = None
-) -> np.ndarray:
-    """A white RGB panel with ``values`` drawn as a black polyline; zero as a grey line.
-
-    ``band`` draws the +-band (e.g. the noise s.e.) as light grey lines.
-    """
-    panel = np.full((height, width, 3), 255, np.uint8)
-    v = np.asarray(values, float)
-    if v.size < 2:
-        return panel
-    span = max(np.abs(v).max(), band or 0.0, 1e-12) * 1.1
-
-    def row(x: np.ndarray) -> np.ndarray:
-        return np.clip(((1 - (x / span + 1) / 2) * (height - 1)).round().astype(int), 0, height - 1)
-
-    panel[row(np.zeros(1))[0], :] = 180
-    if band:
-        panel[row(np.array([band]))[0], :] = 220
-        panel[row(np.array([-band]))[0], :] = 220
-    xs = np.linspace(0, width - 1, v.size)
-    for i in range(v.size - 1):
-        n = int(abs(xs[i + 1] - xs[i])) + 2
-        px = np.linspace(xs[i], xs[i + 1], n).round().astype(int)
-        py = row(np.linspace(v[i], v[i + 1], n))
-        panel[py, px] = 0
-    return panel
+def map_scale(shape: tuple[int, int], *, min_long_px: int = 400) -> int:
+    """Whole-pixel enlargement of a map: :func:`~napari_symbac.fit.figure.panel_scale`
+    (short side to 200 px, long side at most 1200 px), and the long side at least
+    ``min_long_px`` where that cap allows."""
+    long = max(shape)
+    cap = max(1, 1200 // long)
+    return max(panel_scale(shape), min(math.ceil(min_long_px / long), cap))
 
 
 def _upscale(rgb: np.ndarray, factor: int) -> np.ndarray:
     return np.repeat(np.repeat(rgb, factor, axis=0), factor, axis=1)
 
 
-def _row_of(panels: list[np.ndarray], gap: int = 6) -> np.ndarray:
-    h = max(p.shape[0] for p in panels)
+def _wrap(text: str, font, width: float) -> list[str]:
+    lines: list[str] = []
+    for paragraph in text.split("\n"):
+        line = ""
+        for word in paragraph.split():
+            trial = f"{line} {word}" if line else word
+            if line and font.getlength(trial) > width:
+                lines.append(line)
+                line = word
+            else:
+                line = trial
+        lines.append(line)
+    return lines
+
+
+def text_block(text: str, width: int, size: int = FONT_PX) -> np.ndarray:
+    """White RGB strip, at least ``width`` px wide, with ``text`` wrapped to it."""
+    from PIL import Image, ImageDraw
+
+    font = _font(size)
+    longest = max((font.getlength(w) for w in text.split()), default=0.0)
+    width = max(int(width), math.ceil(longest) + 2)
+    lines = _wrap(text, font, width)
+    step = _line_px(size)
+    picture = Image.new("RGB", (width, step * len(lines) + 4), _WHITE)
+    draw = ImageDraw.Draw(picture)
+    for k, line in enumerate(lines):
+        draw.text((0, 2 + k * step), line, fill=_BLACK, font=font)
+    return np.asarray(picture)
+
+
+def _pad_to(image: np.ndarray, height: int, width: int) -> np.ndarray:
+    out = np.full((height, width, 3), 255, np.uint8)
+    out[: image.shape[0], : image.shape[1]] = image
+    return out
+
+
+def _stack(parts: Sequence[np.ndarray], *, axis: int, gap: int = 0) -> np.ndarray:
+    """Parts one below the other (``axis=0``) or side by side, top/left aligned."""
+    height = max(p.shape[0] for p in parts) if axis == 1 else None
+    width = max(p.shape[1] for p in parts) if axis == 0 else None
     out = []
-    for p in panels:
-        pad = np.full((h - p.shape[0], p.shape[1], 3), 255, np.uint8)
-        out += [np.concatenate([p, pad]), np.full((h, gap, 3), 255, np.uint8)]
-    return np.concatenate(out[:-1], axis=1)
+    for p in parts:
+        out.append(_pad_to(p, height or p.shape[0], width or p.shape[1]))
+        shape = (gap, width, 3) if axis == 0 else (height, gap, 3)
+        out.append(np.full(shape, 255, np.uint8))
+    return np.concatenate(out[:-1], axis=axis)
 
 
-def write_figures(result: Diagnosis, image: np.ndarray, out: Path) -> list[str]:
+class ColourBar:
+    """A colour bar: ``"diverging"`` (symmetric about 0) or ``"grey"``, ``low`` to
+    ``high`` in ``unit``."""
+
+    def __init__(self, kind: str, low: float, high: float, unit: str) -> None:
+        if kind not in ("diverging", "grey"):
+            raise ValueError(f"colour bar kind {kind!r}: 'diverging' or 'grey'")
+        self.kind, self.low, self.high, self.unit = kind, float(low), float(high), unit
+
+    def colours(self, values: np.ndarray) -> np.ndarray:
+        if self.kind == "diverging":
+            return diverging(values, max(abs(self.low), abs(self.high)))
+        return grey(values, self.low, self.high)
+
+
+def _colour_bar(bar: ColourBar, height: int, top: int) -> np.ndarray:
+    """The bar ``height`` px tall starting ``top`` px down (the unit above it), with
+    its top, middle and bottom values written beside it."""
+    from PIL import Image, ImageDraw
+
+    font = _font()
+    values = (bar.high, (bar.high + bar.low) / 2, bar.low)
+    labels = [f"{v + 0.0:+.3g}" if bar.kind == "diverging" else f"{v + 0.0:.4g}" for v in values]
+    label_w = math.ceil(max(font.getlength(s) for s in labels))
+    width = max(_BAR_PX + 6 + label_w + 2, math.ceil(font.getlength(bar.unit)) + 2)
+    canvas = np.full((top + height + FONT_PX, width, 3), 255, np.uint8)
+    ramp = np.linspace(bar.high, bar.low, height)[:, None] * np.ones((1, _BAR_PX))
+    canvas[top : top + height, :_BAR_PX] = bar.colours(ramp)
+    picture = Image.fromarray(canvas)
+    draw = ImageDraw.Draw(picture)
+    draw.rectangle((0, top, _BAR_PX - 1, top + height - 1), outline=_BLACK)
+    draw.text((0, top - _line_px(FONT_PX) - FONT_PX // 2 + 2), bar.unit, fill=_BLACK, font=font)
+    for label, row in zip(labels, (0, (height - 1) // 2, height - 1), strict=True):
+        draw.line((_BAR_PX, top + row, _BAR_PX + 3, top + row), fill=_BLACK)
+        draw.text((_BAR_PX + 6, top + row - FONT_PX // 2 - 2), label, fill=_BLACK, font=font)
+    return np.asarray(picture)
+
+
+def map_body(rgb: np.ndarray, bar: ColourBar | None = None) -> np.ndarray:
+    """A map (already coloured and enlarged) with its colour bar to the right.
+
+    Space for the bar's unit is kept above every map, with or without a bar, so maps
+    titled side by side line up.
+    """
+    top = _line_px(FONT_PX) + FONT_PX // 2
+    body = np.full((top + rgb.shape[0] + FONT_PX, rgb.shape[1], 3), 255, np.uint8)
+    body[top : top + rgb.shape[0]] = rgb
+    if bar is None:
+        return body
+    return _stack([body, _colour_bar(bar, rgb.shape[0], top)], axis=1, gap=6)
+
+
+def titled_grid(
+    items: Sequence[tuple[str, np.ndarray]], columns: int, *, min_title_px: int = 200
+) -> np.ndarray:
+    """Panels ``(title, body)`` in rows of ``columns``, each under its wrapped title.
+
+    Titles in a row are padded to one height and panels in a column to one width, so
+    the bodies line up.
+    """
+    columns = max(1, min(columns, len(items)))
+    titles = [text_block(t, max(b.shape[1], min_title_px)) for t, b in items]
+    cells = [(t, b) for t, (_, b) in zip(titles, items, strict=True)]
+    widths = [
+        max(max(t.shape[1], b.shape[1]) for t, b in cells[c::columns]) for c in range(columns)
+    ]
+    rows = []
+    for r in range(0, len(cells), columns):
+        row = cells[r : r + columns]
+        title_h = max(t.shape[0] for t, _ in row)
+        body_h = max(b.shape[0] for _, b in row)
+        rows.append(
+            _stack(
+                [
+                    np.concatenate([_pad_to(t, title_h, w), _pad_to(b, body_h, w)])
+                    for (t, b), w in zip(row, widths, strict=False)
+                ],
+                axis=1,
+                gap=2 * _PAD,
+            )
+        )
+    return _stack(rows, axis=0, gap=_PAD)
+
+
+def with_heading(figure: np.ndarray, heading: str, note: str = "") -> np.ndarray:
+    """``figure`` under a heading (20 px) and a note (16 px), with a white margin."""
+    width = max(figure.shape[1], 480)
+    parts = [text_block(heading, width, HEADING_PX)]
+    if note:
+        parts.append(text_block(note, width))
+    parts.append(figure)
+    body = _stack(parts, axis=0, gap=_PAD // 2)
+    return np.pad(body, ((_PAD, _PAD), (_PAD, _PAD), (0, 0)), constant_values=255)
+
+
+def _ticks(low: float, high: float, n: int = 5) -> np.ndarray:
+    span = high - low if high > low else 1.0
+    raw = span / n
+    magnitude = 10.0 ** math.floor(math.log10(raw))
+    step = next(m * magnitude for m in (1, 2, 2.5, 5, 10) if m * magnitude >= raw * 0.999)
+    first = math.ceil(low / step - 1e-9) * step
+    ticks = np.arange(first, high + step * 1e-6, step)
+    return np.round(ticks / step) * step
+
+
+def _tick_label(value: float) -> str:
+    return f"{round(value, 10) + 0.0:.4g}"
+
+
+def line_plot(
+    values: np.ndarray,
+    height: int = 260,
+    width: int = 420,
+    band: float | None = None,
+    *,
+    x: np.ndarray | None = None,
+    xlabel: str = "",
+    ylabel: str = "",
+    reference: float = 0.0,
+    faint: np.ndarray | None = None,
+) -> np.ndarray:
+    """A curve of ``values`` against ``x`` on labelled axes, as an RGB uint8 array.
+
+    The plotting area is ``height`` x ``width`` px; tick values, ``xlabel`` below and
+    ``ylabel`` (turned) at the left are drawn around it. ``reference`` (the value that
+    means "as modelled") is a grey line, ``band`` a light grey ``reference +- band``,
+    and ``faint`` (e.g. the unsmoothed values) a light grey curve under the black one.
+    """
+    from PIL import Image, ImageDraw
+
+    font = _font()
+    v = np.asarray(values, float)
+    xs = np.arange(v.size, dtype=float) if x is None else np.asarray(x, float)
+    shown = [v, [reference]] + ([] if faint is None else [np.asarray(faint, float)])
+    if band:
+        shown.append([reference - band, reference + band])
+    finite = np.concatenate([np.ravel(s) for s in shown])
+    finite = finite[np.isfinite(finite)]
+    low, high = (float(finite.min()), float(finite.max())) if finite.size else (-1.0, 1.0)
+    margin = 0.08 * (high - low) or max(abs(high), 1.0) * 0.1
+    low, high = low - margin, high + margin
+    x0, x1 = (float(xs.min()), float(xs.max())) if xs.size > 1 else (0.0, 1.0)
+    if x1 <= x0:
+        x1 = x0 + 1.0
+    yticks, xticks = _ticks(low, high), _ticks(x0, x1)
+    ylabels = [_tick_label(t) for t in yticks]
+    left = math.ceil(max(font.getlength(s) for s in ylabels)) + _line_px(FONT_PX) + 12
+    bottom = 2 * _line_px(FONT_PX) + 8
+    canvas = Image.new("RGB", (left + width + 16, 8 + height + bottom), _WHITE)
+    draw = ImageDraw.Draw(canvas)
+    top = 8
+
+    def px(xv: float) -> float:
+        return left + (xv - x0) / (x1 - x0) * (width - 1)
+
+    def py(yv: float) -> float:
+        return top + (high - yv) / (high - low) * (height - 1)
+
+    for t, label in zip(yticks, ylabels, strict=True):
+        y = round(py(t))
+        draw.line((left, y, left + width - 1, y), fill=(235, 235, 235))
+        draw.line((left - 4, y, left, y), fill=_BLACK)
+        lw = font.getlength(label)
+        draw.text((left - 6 - lw, y - FONT_PX // 2 - 2), label, fill=_BLACK, font=font)
+    for t in xticks:
+        xx = round(px(t))
+        draw.line((xx, top + height - 1, xx, top + height + 3), fill=_BLACK)
+        label = _tick_label(t)
+        draw.text((xx - font.getlength(label) / 2, top + height + 5), label, fill=_BLACK, font=font)
+    if band:
+        for yv in (reference - band, reference + band):
+            draw.line((left, round(py(yv)), left + width - 1, round(py(yv))), fill=(200, 200, 200))
+    yr = round(py(reference))
+    draw.line((left, yr, left + width - 1, yr), fill=(140, 140, 140))
+
+    def curve(ys: np.ndarray, colour: tuple[int, int, int], line_width: int) -> None:
+        points = [(px(a), py(b)) for a, b in zip(xs, ys, strict=True) if np.isfinite(b)]
+        if len(points) > 1:
+            draw.line(points, fill=colour, width=line_width)
+        if len(points) <= 30:
+            for a, b in points:
+                draw.ellipse((a - 3, b - 3, a + 3, b + 3), fill=colour)
+
+    if faint is not None:
+        curve(np.asarray(faint, float), (170, 170, 170), 1)
+    curve(v, _BLACK, 2)
+    draw.rectangle((left, top, left + width - 1, top + height - 1), outline=_BLACK)
+    xl = font.getlength(xlabel)
+    xy = (left + (width - xl) / 2, top + height + 8 + _line_px(FONT_PX))
+    draw.text(xy, xlabel, fill=_BLACK, font=font)
+    if ylabel:
+        size = (math.ceil(font.getlength(ylabel)) + 2, _line_px(FONT_PX))
+        turned = Image.new("RGB", size, _WHITE)
+        ImageDraw.Draw(turned).text((0, 0), ylabel, fill=_BLACK, font=font)
+        turned = turned.rotate(90, expand=True)
+        ty = max(0, round(top + (height - turned.height) / 2))
+        canvas.paste(turned, (2, ty))
+    return np.asarray(canvas)
+
+
+def _profile_panel(stat) -> tuple[str, np.ndarray]:
+    key = next((k for k in _PROFILE_AXES if stat.where.startswith(k)), None)
+    xlabel, ylabel, reference, x_of = _PROFILE_AXES.get(
+        key, ("bin", "mean standardised residual (s.d.)", 0.0, lambda i: i)
+    )
+    raw = np.asarray(stat.profile, float)
+    profile, faint, smoothing = raw, None, ""
+    if raw.size > 40:  # smooth long line-mean profiles so a trend shows
+        size = max(3, raw.size // 16)
+        profile, faint = ndimage.uniform_filter1d(raw, size), raw
+        smoothing = f"; black: running mean over {size} lines, grey: each line"
+    plot = line_plot(
+        profile,
+        x=np.array([x_of(i) for i in range(raw.size)], float),
+        xlabel=xlabel,
+        ylabel=ylabel,
+        reference=reference,
+        faint=faint,
+    )
+    title = (
+        f"what revealed it (base fit), {stat.where}: {stat.statistic} = {stat.value:.4g}, "
+        f"-log10 p = {stat.significance:.1f}{smoothing}"
+    )
+    return title, plot
+
+
+def write_figures(
+    result: Diagnosis, image: np.ndarray, out: Path, *, name: str | None = None
+) -> list[str]:
     """Write ``residuals.png`` (image, residual before, after) and ``effect_<name>.png``.
 
     Residuals are standardised and smoothed (Gaussian, 2 px) so that structure below
     the pixel noise shows; the colour limit (shared by both panels) is 4 noise s.e. of
     the smoothed mean or the 98th percentile of the smoothed base residual if larger.
+    ``name`` (the image file's name) goes into the headings. Returns the names written.
     """
     import imageio.v3 as iio
 
+    from napari_symbac.diagnose.effects import CATALOGUE
+
     out = Path(out)
-    frame = np.asarray(image, float).reshape((-1, *image.shape[-2:]))[0]
-    factor = max(1, int(np.ceil(200 / max(frame.shape))))
+    stack = np.asarray(image, float).reshape((-1, *image.shape[-2:]))
+    frame = stack[0]
+    rows, cols = frame.shape
+    factor = map_scale(frame.shape)
+    # tall maps (a trench) side by side, wide ones (a field) one below the other
+    columns = 3 if rows * 2 >= cols else 1
     sigma = 2.0
     limit = 4.0 / (2 * np.sqrt(np.pi) * sigma)  # s.d. of a Gaussian-smoothed white field
     before = ndimage.gaussian_filter(result.residual_before[0], sigma)
     after = ndimage.gaussian_filter(result.residual_after[0], sigma)
     # one colour scale for both panels, wide enough for the larger misfit
     limit = max(limit, float(np.percentile(np.abs(before), 98)))
-    panels = [grey(frame), diverging(before, limit), diverging(after, limit)]
-    iio.imwrite(out / "residuals.png", _upscale(_row_of(panels), factor))
+    low, high = (float(v) for v in np.percentile(frame, (0.5, 99.5)))
+    residual_bar = ColourBar("diverging", -limit, limit, "s.d.")
+    what = f"{name} ({rows} x {cols} px)" if name else f"a {rows} x {cols} px frame"
+    frames = f", frame 1 of {len(stack)}" if len(stack) > 1 else ""
+    accepted = result.accepted
+    after_title = "after the accepted effects" if accepted else "after the accepted effects (none)"
+    image_bar = ColourBar("grey", low, high, "ADU")
+    before_bar = None if columns == 3 else residual_bar  # side by side: one bar for both
+    items = [
+        (
+            f"image (ADU, 0.5-99.5 percentiles){frames}",
+            map_body(_upscale(grey(frame, low, high), factor), image_bar),
+        ),
+        (
+            f"standardised residual, base fit; held-out deviance {result.base_fit['held_out']:.4g}",
+            map_body(_upscale(diverging(before, limit), factor), before_bar),
+        ),
+        (
+            f"{after_title}; held-out deviance {result.final_fit['held_out']:.4g}",
+            map_body(_upscale(diverging(after, limit), factor), residual_bar),
+        ),
+    ]
+    names = ", ".join(e.name for e in accepted) or "none"
+    figure = with_heading(
+        titled_grid(items, columns),
+        f"Diagnosis of {what}: residuals before and after the accepted effects",
+        "Standardised residual (image - model) / model noise s.d., Gaussian-smoothed "
+        f"(sigma {sigma:g} px); one colour scale for both residual maps; red: image brighter "
+        f"than the model, blue: darker. Accepted effects: {names}.",
+    )
+    iio.imwrite(out / "residuals.png", figure)
     written = ["residuals.png"]
-    for effect in result.accepted:
-        parts = []
+    for k, effect in enumerate(accepted, start=1):
+        items = []
         if effect.effect_map is not None:
-            emap = effect.effect_map[0]
-            parts.append(_upscale(diverging(emap, max(np.abs(emap).max(), 1e-12)), factor))
+            emap = np.asarray(effect.effect_map[0], float)
+            peak = max(float(np.abs(emap).max()), 1e-12)
+            kind = getattr(CATALOGUE.get(effect.name), "kind", "mean")
+            what_map = "model mean" if kind == "mean" else "model noise s.d."
+            effect_bar = ColourBar("diverging", -peak, peak, "ADU")
+            body = map_body(_upscale(diverging(emap, peak), factor), effect_bar)
+            items.append((f"change of the {what_map} it makes (ADU){frames}", body))
         key = REVEALING.get(effect.name, "")
         stat = next((m for m in result.mismatches if m.where.startswith(key) and m.profile), None)
         if stat is not None:
-            profile = np.asarray(stat.profile)
-            if profile.size > 40:  # smooth long line-mean profiles so a trend shows
-                profile = ndimage.uniform_filter1d(profile, max(3, profile.size // 16))
-            parts.append(line_plot(profile))
-        if parts:
-            name = f"effect_{effect.name}.png"
-            iio.imwrite(out / name, _row_of(parts))
-            written.append(name)
+            items.append(_profile_panel(stat))
+        if not items:
+            continue
+        heading = f"Accepted effect {k}: {effect.name}" + (f" ({name})" if name else "")
+        note = (
+            f"{effect.explanation} Evidence {effect.evidence:.1f} (-log10 p); held-out "
+            f"deviance {effect.held_out_before:.4g} -> {effect.held_out_after:.4g} per pixel."
+        )
+        file = f"effect_{effect.name}.png"
+        grid = titled_grid(items, len(items) if columns == 3 else 1)
+        iio.imwrite(out / file, with_heading(grid, heading, note))
+        written.append(file)
     return written

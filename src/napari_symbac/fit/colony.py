@@ -27,6 +27,7 @@ from napari_symbac.settings import Camera, Microscope, RenderSettings
 from napari_symbac.sim.cells import FrameCells
 
 __all__ = [
+    "MIN_NOISE_ADU",
     "MIN_TOUCHING_CELLS",
     "ColonyFit",
     "band_upsample",
@@ -43,6 +44,12 @@ __all__ = [
 
 #: Fewest cells that touch another for masks to hold a colony (:func:`is_dense_colony`).
 MIN_TOUCHING_CELLS = 5
+#: Least Gaussian noise a colony fit draws (ADU). Below one grey level of an 8-bit
+#: export the robust noise estimate (median absolute pixel differences) reads 0 while
+#: the pixels still scatter by a fraction of a level; drawing no noise would make
+#: flat, noiseless training images (Sample000033: background s.d. 0.33 over levels
+#: 7-9). 0.5 ADU, quantised, scatters the pixels by ~0.58 ADU.
+MIN_NOISE_ADU = 0.5
 
 
 def touching_cells(masks: np.ndarray) -> int:
@@ -103,7 +110,7 @@ def colony_optics(
 
     Starts from phase 0.6 rad, plate transmission 0.2, apodisation 2 um and the image's
     median as every intensity, at :func:`band_upsample`, 12 source points; the noise is
-    Gaussian, ``noise_adu`` (at least 0.5 ADU). Returns the
+    Gaussian, ``noise_adu`` (at least :data:`MIN_NOISE_ADU`). Returns the
     :class:`~napari_symbac.fit.FitResult`, the scene and the starting render settings.
     """
     from napari_symbac.fit.parameters import fit_parameters
@@ -144,7 +151,7 @@ def colony_start(
         plate_transmission=0.2,
         apodisation_sigma_um=2.0,
         noise_model="gaussian",
-        gaussian_noise_sd_adu=max(noise_adu, 0.5),
+        gaussian_noise_sd_adu=max(noise_adu, MIN_NOISE_ADU),
         source_points=12,
     )
     return render, scene_from_masks(masks, microscope, render)
@@ -161,7 +168,8 @@ class ColonyFit:
         The masks' cells: centre, length, width and angle from each mask's moments;
         each cell's id is its mask's label.
     render
-        Fitted render settings (partially coherent phase model, Gaussian noise).
+        Fitted render settings (partially coherent phase model, Gaussian noise of
+        ``measured_noise_adu``, at least :data:`MIN_NOISE_ADU`).
     scene
         The masks' scene.
     synthetic, synthetic_before
@@ -183,6 +191,9 @@ class ColonyFit:
     camera
         The camera of the likelihood (its baseline and bit depth; the noise is the
         render's Gaussian).
+    measured_noise_adu
+        The image's pixel noise (robust, from pixel differences; 0 below one grey level),
+        whose variance plus the quantisation's (1/12 ADU^2) weighs the pixel term.
     """
 
     cells: FrameCells
@@ -201,6 +212,7 @@ class ColonyFit:
     at_bounds: tuple[str, ...]
     n_evaluations: int
     camera: Camera
+    measured_noise_adu: float = 0.0
     trench: None = None
 
     @property
@@ -348,15 +360,18 @@ def colony_result(
     n_evaluations: int,
 ) -> ColonyFit:
     """A :class:`ColonyFit` of one frame: the masks' cells measured (each cell's id its
-    mask's label), the images as
+    mask's label), ``render``'s noise (the measured) drawn at least
+    :data:`MIN_NOISE_ADU`, the images as
     float32, the residual ``real - synthetic`` (images in ADU, baseline included)."""
     from napari_symbac.fit.start import cells_from_instances
 
     cells = cells_from_instances(masks, microscope.pixel_size_um, math.inf, keep_labels=True)[0]
     synthetic = np.asarray(synthetic, np.float32)
+    measured = render.gaussian_noise_sd_adu
+    drawn = dataclasses.replace(render, gaussian_noise_sd_adu=max(measured, MIN_NOISE_ADU))
     return ColonyFit(
         cells=cells,
-        render=render,
+        render=drawn,
         scene=scene,
         synthetic=synthetic,
         synthetic_before=np.asarray(before, np.float32),
@@ -371,4 +386,5 @@ def colony_result(
         at_bounds=at_bounds,
         n_evaluations=n_evaluations,
         camera=camera,
+        measured_noise_adu=measured,
     )

@@ -35,8 +35,20 @@ _HIGH_PASS = np.outer([1.0, -2.0, 1.0], [1.0, -2.0, 1.0]) / 6.0
 _RING_PX = 3
 
 
-def check_fit_image(image: np.ndarray, name: str = "image") -> None:
+def check_fit_image(
+    image: np.ndarray, name: str = "image", *, camera_hint: str = "with --camera"
+) -> None:
     """Refuse images the forward model cannot produce.
+
+    Parameters
+    ----------
+    image
+        The frame to fit.
+    name
+        How the message names it.
+    camera_hint
+        Where the command takes the camera's ``baseline_adu`` (``fit``: ``--camera``;
+        ``diagnose``: its microscope file), ending the message's advice.
 
     Raises
     ------
@@ -48,7 +60,7 @@ def check_fit_image(image: np.ndarray, name: str = "image") -> None:
         raise ValueError(
             f"{name} has negative values (minimum {low:.4g}): the fit needs camera counts "
             "(ADU, camera baseline included). Pass the raw recording, or add a constant so "
-            "that all values are >= 0 and give that constant as baseline_adu with --camera"
+            f"that all values are >= 0 and give that constant as baseline_adu {camera_hint}"
         )
 
 

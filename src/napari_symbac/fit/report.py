@@ -22,6 +22,7 @@ __all__ = [
     "UNMEASURED_READ_NOISE",
     "camera_text",
     "cells_records",
+    "colony_noise_text",
     "fit_notes",
     "fit_problems",
     "parameter_table",
@@ -99,6 +100,19 @@ UNMEASURED_READ_NOISE = (
     "baseline is at or below zero after the shot noise): 0 e- is used; give the camera "
     "(or dark frames) when it matters, e.g. for dim fluorescence"
 )
+
+
+def colony_noise_text(result: Any) -> str:
+    """The noise of a colony fit (:class:`~napari_symbac.fit.ColonyFit`) in words: the
+    image's measured pixel noise and the noise drawn (at least
+    :data:`~napari_symbac.fit.colony.MIN_NOISE_ADU`)."""
+    measured, drawn = result.measured_noise_adu, result.render.gaussian_noise_sd_adu
+    text = f"{measured:.3g} ADU measured from the image's pixel differences"
+    if measured == 0:
+        text += " (below one grey level: the likelihood's variance is the quantisation's)"
+    if drawn > measured:
+        text += f"; drawn with {drawn:.3g} ADU, the least, so that synthetic pixels scatter"
+    return text
 
 
 def fit_notes(modality: str, geometry: str, colony: bool = False) -> list[str]:

@@ -205,16 +205,21 @@ class SceneFit:
             if a != 0
         }
 
-    def trench_geometry(self, image_rows: int, pixel_size_um: float) -> TrenchGeometry:
+    def trench_geometry(
+        self, image_shape: tuple[int, int], pixel_size_um: float
+    ) -> TrenchGeometry:
         """An approximate :class:`TrenchGeometry` for re-rendering with the pipeline.
 
-        The pipeline centres the trench with equal margins; the margin is taken from
-        the fitted left wall.
+        The pipeline centres the trench between equal side margins; they are chosen so
+        that a rendered frame has the recording's ``(rows, columns)`` (the trench sits
+        half the difference of the fitted left and right margins off its place in the
+        recording: a training image of another size than the recording's would not do).
         """
         if self.trench is None:
             raise ValueError("an open-field fit has no trench")
-        margin = max(self.trench.left_um, 0.0)
-        length = max(image_rows * pixel_size_um - margin, self.trench.width_um)
+        rows, cols = image_shape
+        margin = max((cols * pixel_size_um - self.trench.width_um) / 2, 0.0)
+        length = max(rows * pixel_size_um - margin, self.trench.width_um)
         return TrenchGeometry(
             length_um=length,
             width_um=self.trench.width_um,
