@@ -739,3 +739,14 @@ def test_calibrate_constant_image_names_the_file(tmp_path, fit_inputs, capsys):
     assert code == 2
     assert "IMAGE blank.png is constant (every pixel is 0)" in err
     assert "real_image" not in err
+
+
+@pytest.mark.parametrize("command", ["render", "fit", "calibrate", "diagnose"])
+def test_ctrl_c_of_a_command_that_starts_over_promises_no_resume(command):
+    """Found as a user: Ctrl-C of any command said "an export resumes when run again"."""
+    from napari_symbac.cli import interrupted_text
+
+    text = interrupted_text(command)
+    assert f"run the same {command} again (it starts over" in text
+    assert "finished files are kept" not in text
+    assert "resumes when run again" in interrupted_text("export")

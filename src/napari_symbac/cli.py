@@ -13,7 +13,7 @@ from pathlib import Path
 from napari_symbac import __version__
 from napari_symbac._timing import StepTimer
 
-__all__ = ["main"]
+__all__ = ["interrupted_text", "main"]
 
 
 def _tqdm_progress(
@@ -780,11 +780,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"napari-symbac {args.command}: error: {text}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(
-            f"napari-symbac {args.command}: interrupted; finished files are kept (an "
-            "export resumes when run again)",
-            file=sys.stderr,
-        )
+        print(f"napari-symbac {args.command}: {interrupted_text(args.command)}", file=sys.stderr)
         return 130
 
 
@@ -793,6 +789,13 @@ _STARTS_OVER = ("render", "fit", "calibrate", "diagnose")
 #: The advice of a disk error (:func:`napari_symbac.export.atomic.explain_os_error`) that
 #: holds for an export only.
 _EXPORT_RESUMES = "then run the same export again"
+
+
+def interrupted_text(command: str) -> str:
+    """What ``command`` leaves when stopped with Ctrl-C, and what to do then."""
+    if command in _STARTS_OVER:
+        return f"interrupted: run the same {command} again (it starts over; only an export resumes)"
+    return "interrupted; finished files are kept (an export resumes when run again)"
 
 
 def _without_resume_advice(text: str) -> str:
