@@ -283,6 +283,10 @@ def test_render_disk_full_leaves_no_partial_file(
     assert "disk is full" in err
     assert str(out / "images.tif") in err
     assert _files(out) == []
+    # render starts over: no export's resume advice (found as a user)
+    assert "run the same export again" not in err
+    assert "finished items are kept" not in err
+    assert err.rstrip().endswith("then run the same command again")
 
 
 def test_render_out_is_a_file(tmp_path, saved_simulation, capsys):
@@ -585,19 +589,6 @@ def test_out_in_a_read_only_folder_is_refused_up_front(
     assert _files(read_only) == []
 
 
-def test_render_disk_full_says_run_render_again_not_the_export(
-    tmp_path, saved_simulation, monkeypatch, capsys
-):
-    monkeypatch.setattr(tifffile, "imwrite", _enospc)
-    out = tmp_path / "rendered"
-    code, err = _run(["render", str(saved_simulation), "--out", str(out)], capsys)
-    assert code == 2
-    assert "disk is full" in err
-    assert "run the same export again" not in err
-    assert "finished items are kept" not in err
-    assert err.rstrip().endswith("then run the same command again")
-
-
 @pytest.mark.parametrize(
     ("command", "option"),
     [("fit", None), ("fit", "--masks"), ("calibrate", None), ("diagnose", "--labels")],
@@ -618,7 +609,8 @@ def test_image_that_is_a_folder(tmp_path, fit_inputs, capsys, command, option):
 
 def test_diagnose_fills_the_microscope_file_as_fit_does(tmp_path, fit_inputs, capsys):
     """A microscope file of pixel_size_um only: the other keys take the defaults (the
-    negative image is then refused, after the microscope file was read)."""
+    negative image is then refused, after the microscope file was read, and, as diagnose
+    has no --camera, the refusal says where its camera goes)."""
     _, microscope = fit_inputs
     image = tmp_path / "negative.tif"
     tifffile.imwrite(image, np.random.default_rng(0).normal(0, 5, (64, 32)).astype(np.float32))
@@ -627,6 +619,8 @@ def test_diagnose_fills_the_microscope_file_as_fit_does(tmp_path, fit_inputs, ca
     assert code == 2
     assert "lacks the required key" not in err
     assert "negative values" in err
+    assert "baseline_adu in the microscope file's camera section (camera: {" in err
+    assert "--camera" not in err
 
 
 def test_diagnose_names_an_unknown_microscope_key(tmp_path, fit_inputs, capsys):
@@ -663,20 +657,6 @@ def test_diagnose_microscope_file_of_microscope_fields_with_a_camera(tmp_path):
     assert config.camera.baseline_adu == 100
     assert config.camera.sensitivity_adu_per_e == 2.9
     assert config.trench_width_um == 1.4
-
-
-def test_diagnose_negative_values_point_to_the_microscope_file_camera(
-    tmp_path, fit_inputs, capsys
-):
-    """diagnose has no --camera: its refusal says where its camera goes."""
-    _, microscope = fit_inputs
-    image = tmp_path / "negative.tif"
-    tifffile.imwrite(image, np.random.default_rng(0).normal(0, 5, (64, 32)).astype(np.float32))
-    code, err = _run(["diagnose", str(image), "--microscope", str(microscope),
-                      "--out", str(tmp_path / "o")], capsys)  # fmt: skip
-    assert code == 2
-    assert "baseline_adu in the microscope file's camera section (camera: {" in err
-    assert "--camera" not in err
 
 
 def test_fit_negative_values_still_point_to_camera_option():
