@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from napari_symbac.calibrate import montage
-from napari_symbac.diagnose.figures import map_scale
+from napari_symbac.figure_layout import map_scale
 
 
 def _grey_bars(picture: np.ndarray, min_length: int) -> int:

@@ -6,9 +6,10 @@ from __future__ import annotations
 import imageio.v3 as iio
 import numpy as np
 
-from napari_symbac.diagnose.figures import line_plot, map_scale, write_figures
+from napari_symbac.diagnose.figures import write_figures
 from napari_symbac.diagnose.run import Diagnosis, EffectResult
 from napari_symbac.diagnose.statistics import Mismatch
+from napari_symbac.figure_layout import line_plot, map_scale
 
 ROWS, COLS = 256, 46  # the trench of ecoli_100x_oil_exponential.tiff
 

@@ -137,7 +137,7 @@ def montage(
     panels stand in one row). Shapes are cropped to the smaller; small images are
     enlarged by whole pixels (nearest neighbour).
     """
-    from napari_symbac.diagnose.figures import (
+    from napari_symbac.figure_layout import (
         ColourBar,
         map_body,
         map_scale,
