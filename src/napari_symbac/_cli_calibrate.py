@@ -64,11 +64,11 @@ def _check_inputs(
     labels: np.ndarray | None,
 ) -> None:
     """The fit's refusals of the image, masks and labels, naming the files as ``fit`` does."""
-    from napari_symbac._cli_fit import refuse_constant
     from napari_symbac.fit.preflight import (
         check_class_labels,
         check_fit_image,
         check_instance_masks,
+        refuse_constant,
     )
 
     name = Path(args.image).name

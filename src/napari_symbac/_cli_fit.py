@@ -132,15 +132,6 @@ def _read_stack(path: str, what: str) -> np.ndarray:
     return np.asarray(read_image(path, what).data)
 
 
-def refuse_constant(frame: np.ndarray, name: str) -> None:
-    """Refuse a frame whose pixels all hold one value (a blank image: nothing to fit)."""
-    if frame.size and np.min(frame) == np.max(frame):
-        raise ValueError(
-            f"IMAGE {name} is constant (every pixel is {float(frame.flat[0]):g}): nothing to "
-            "fit; give the recording with the cells in it"
-        )
-
-
 def _per_frame(array: np.ndarray | None, frame: int, n_frames: int, shape: tuple) -> Any:
     """A 2D label/mask for every frame, or a (T, Y, X) one indexed like the image."""
     if array is None:
@@ -348,14 +339,12 @@ def _prepare_one(args, frame, labels, masks, microscope, base, keys):
     from napari_symbac.fit.camera_estimate import censored_pixels
     from napari_symbac.fit.preflight import (
         check_class_labels,
-        check_fit_image,
         check_instance_masks,
         check_modality,
     )
     from napari_symbac.fit.report import fit_notes
 
-    name = Path(args.image).name
-    check_fit_image(frame, name)
+    # the frame itself was checked by run_fit (check_fit_image, refuse_constant)
     if labels is not None:
         check_class_labels(labels, frame.shape, f"--labels {Path(args.labels).name}")
     notes = []
@@ -655,14 +644,7 @@ def _fit_frames_jointly(
         "camera": None if series.camera is None else dataclasses.asdict(series.camera),
         "warnings": list(series.warnings),
         "started_from_previous_frame": dict(zip(map(str, frames), series.carried)),
-        "lineage": {
-            "tracks": lineage.table(frames),
-            "track_ids": {str(f): ids.tolist() for f, ids in zip(frames, lineage.track_ids)},
-            "growth_per_frame": lineage.growth_per_frame,
-            "drift_um": lineage.drift_um.tolist(),
-            "ctc": "ctc/01_RES: mask{TTT}.tif (track ids) and res_track.txt (L B E P); "
-            "CTC frame k is the k-th of 'frames'",
-        },
+        "lineage": _lineage_record(lineage, frames),
     }
     if np.any(np.diff(frames) != 1):
         table["lineage"]["note"] = (
@@ -675,11 +657,7 @@ def _fit_frames_jointly(
         f"shared {name}: {value:.4g} +- {se:.2g} (joint)"
         for name, (value, se) in series.shared().items()
     ]
-    divisions = lineage.divisions()
-    summaries.append(
-        f"tracks: {len(lineage.tracks)} over {len(frames)} frames, {len(divisions)} "
-        f"division(s) (series.json 'lineage', ctc/01_RES/res_track.txt)"
-    )
+    summaries.append(_tracks_line(lineage, frames))
     return writers, summaries
 
 
@@ -744,13 +722,8 @@ def _fit_colony_frames(
         ],
         "warnings": list(series.warnings),
         "lineage": {
-            "tracks": lineage.table(frames),
-            "track_ids": {str(f): ids.tolist() for f, ids in zip(frames, lineage.track_ids)},
+            **_lineage_record(lineage, frames),
             "cell_ids": "each frame's cells.json ids are its masks' labels",
-            "growth_per_frame": lineage.growth_per_frame,
-            "drift_um": lineage.drift_um.tolist(),
-            "ctc": "ctc/01_RES: mask{TTT}.tif (track ids) and res_track.txt (L B E P); "
-            "CTC frame k is the k-th of 'frames'",
         },
     }
     writers["series.json"] = lambda p: p.write_text(json.dumps(table, indent=2))
@@ -759,12 +732,30 @@ def _fit_colony_frames(
         f"shared {name}: {value:.4g} +- {se:.2g} (fitted on frame {reference})"
         for name, (value, se) in series.shared().items()
     ]
-    summaries.append(
+    summaries.append(_tracks_line(lineage, frames))
+    return writers, summaries
+
+
+def _lineage_record(lineage, frames: list[int]) -> dict:
+    """series.json's ``lineage``: the tracks, each frame's track ids, the growth and drift
+    the links found, and where the CTC result is."""
+    return {
+        "tracks": lineage.table(frames),
+        "track_ids": {str(f): ids.tolist() for f, ids in zip(frames, lineage.track_ids)},
+        "growth_per_frame": lineage.growth_per_frame,
+        "drift_um": lineage.drift_um.tolist(),
+        "ctc": "ctc/01_RES: mask{TTT}.tif (track ids) and res_track.txt (L B E P); "
+        "CTC frame k is the k-th of 'frames'",
+    }
+
+
+def _tracks_line(lineage, frames: list[int]) -> str:
+    """The summary line of a series' tracks."""
+    return (
         f"tracks: {len(lineage.tracks)} over {len(frames)} frames, "
         f"{len(lineage.divisions())} division(s) (series.json 'lineage', "
         "ctc/01_RES/res_track.txt)"
     )
-    return writers, summaries
 
 
 def _ctc_result(series, frames: list[int], pixel_size_um: float) -> dict:
@@ -786,7 +777,7 @@ def _ctc_result(series, frames: list[int], pixel_size_um: float) -> dict:
 
 def run_fit(args: argparse.Namespace) -> int:
     """Run ``napari-symbac fit`` with parsed arguments; returns the exit code."""
-    from napari_symbac.fit.preflight import check_fit_image, resolve_pixel_size
+    from napari_symbac.fit.preflight import check_fit_image, refuse_constant, resolve_pixel_size
     from napari_symbac.fit.report import write_atomically
     from napari_symbac.io import read_image
     from napari_symbac.settings import PipelineSettings, load_microscope, load_settings

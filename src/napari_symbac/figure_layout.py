@@ -15,8 +15,6 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from napari_symbac.fit.figure import panel_scale
-
 __all__ = [
     "FONT_PX",
     "HEADING_PX",
@@ -26,6 +24,7 @@ __all__ = [
     "line_plot",
     "map_body",
     "map_scale",
+    "panel_scale",
     "text_block",
     "titled_grid",
     "upscale",
@@ -68,8 +67,16 @@ def grey(image: np.ndarray, low: float | None = None, high: float | None = None)
     return np.repeat((t * 255).astype(np.uint8)[..., None], 3, axis=-1)
 
 
+def panel_scale(shape: tuple[int, int], *, min_side_px: int = 200, max_side_px: int = 1200) -> int:
+    """Integer upscaling so a panel's short side reaches ``min_side_px`` (long side capped)."""
+    short, long = min(shape), max(shape)
+    up = math.ceil(min_side_px / short)
+    cap = max(1, max_side_px // long)
+    return max(1, min(up, cap))
+
+
 def map_scale(shape: tuple[int, int], *, min_long_px: int = 400) -> int:
-    """Whole-pixel enlargement of a map: :func:`~napari_symbac.fit.figure.panel_scale`
+    """Whole-pixel enlargement of a map: :func:`panel_scale`
     (short side to 200 px, long side at most 1200 px), and the long side at least
     ``min_long_px`` where that cap allows."""
     long = max(shape)

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import tifffile
 
-from napari_symbac.fit.figure import before_after_figure, panel_scale
+from napari_symbac.figure_layout import panel_scale
+from napari_symbac.fit.figure import before_after_figure
 from napari_symbac.fit.preflight import (
     check_class_labels,
     check_fit_image,

@@ -112,12 +112,6 @@ def compare_images(
     return Comparison((rc, sc), (rb, sb), (rn, sn), f, pr, ps)
 
 
-def _grey(image: np.ndarray) -> np.ndarray:
-    low, high = np.percentile(image, [0.5, 99.5])
-    grey = np.clip((np.asarray(image, float) - low) / max(high - low, 1e-9), 0, 1)
-    return (grey * 255).astype(np.uint8)
-
-
 def _outline(labels: np.ndarray) -> np.ndarray:
     labels = np.asarray(labels)
     eroded = ndimage.grey_erosion(labels, size=3)
@@ -139,9 +133,11 @@ def montage(
     """
     from napari_symbac.figure_layout import (
         ColourBar,
+        grey,
         map_body,
         map_scale,
         titled_grid,
+        upscale,
         with_heading,
     )
 
@@ -157,12 +153,12 @@ def montage(
         image = np.asarray(image, float)[:h, :w]
         low, high = (float(v) for v in np.percentile(image, [0.5, 99.5]))
         bar = ColourBar("grey", low, high, "ADU")
-        grey = np.repeat(_grey(image)[..., None], 3, axis=-1)
-        plain.append((what, map_body(np.repeat(np.repeat(grey, scale, 0), scale, 1), bar)))
+        shown = grey(image, low, high)
+        plain.append((what, map_body(upscale(shown, scale), bar)))
         if labels is not None:
-            overlay = grey.copy()
+            overlay = shown.copy()
             overlay[_outline(np.asarray(labels)[:h, :w])] = (0, 255, 0)
-            overlay = np.repeat(np.repeat(overlay, scale, 0), scale, 1)
+            overlay = upscale(overlay, scale)
             mask_word = "masks" if what.startswith("real") else "labels"
             title = f"{what} with its {mask_word} outlined (green)"
             outlined.append((title, map_body(overlay, bar)))

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import re
 from dataclasses import dataclass
@@ -101,7 +100,13 @@ def parse_microscope(data: object, where: str = "microscope file") -> DiagnoseCo
             notes.append(
                 f"objective {data['objective']!r}: no magnification found (e.g. '100x oil')"
             )
-    microscope = Microscope(**kwargs)
+    return _with_extras(Microscope(**kwargs), data, where, notes)
+
+
+def _with_extras(
+    microscope: Microscope, data: dict, where: str, notes: list[str]
+) -> DiagnoseConfig:
+    """``microscope`` with the keys of :data:`DIAGNOSE_KEYS` read from ``data``."""
     camera = None
     if "camera" in data:
         cam = data["camera"]
@@ -145,12 +150,4 @@ def load_microscope_file(path: str | Path) -> DiagnoseConfig:
         if str(err).startswith("unknown field"):
             raise ValueError(f"{err}; and for diagnose {', '.join(DIAGNOSE_KEYS)}") from None
         raise
-    spelled = {  # diagnose's own keys, so that parse_microscope reads the extras
-        "modality": microscope.modality,
-        "pixel_size_um": microscope.pixel_size_um,
-        "NA": microscope.numerical_aperture,
-        "refractive_index": microscope.refractive_index,
-        "wavelength_um": microscope.wavelength_um,
-    }
-    config = parse_microscope({**spelled, **extras}, str(path))
-    return dataclasses.replace(config, microscope=microscope)
+    return _with_extras(microscope, extras, str(path), [])

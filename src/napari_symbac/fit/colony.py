@@ -360,9 +360,8 @@ def colony_result(
     n_evaluations: int,
 ) -> ColonyFit:
     """A :class:`ColonyFit` of one frame: the masks' cells measured (each cell's id its
-    mask's label), ``render``'s noise (the measured) drawn at least
-    :data:`MIN_NOISE_ADU`, the images as
-    float32, the residual ``real - synthetic`` (images in ADU, baseline included)."""
+    mask's label), ``render``'s noise (the measured) drawn at least :data:`MIN_NOISE_ADU`,
+    the images as float32 and the residual ``real - synthetic`` (ADU, baseline included)."""
     from napari_symbac.fit.start import cells_from_instances
 
     cells = cells_from_instances(masks, microscope.pixel_size_um, math.inf, keep_labels=True)[0]

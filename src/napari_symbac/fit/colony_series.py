@@ -93,8 +93,8 @@ def refit_colony_level(
     after, both weighed with this frame's noise. Two renders.
     """
     from napari_symbac.fit.colony import checked_colony_frame, colony_result, rendered_start
-    from napari_symbac.fit.objectives import noise_variance, objective_terms
-    from napari_symbac.fit.parameters import scene_classes
+    from napari_symbac.fit.objectives import measured_noise_sd_adu, objective_terms
+    from napari_symbac.fit.parameters import scene_classes, with_media_level
     from napari_symbac.optics import ForwardModel
 
     real, masks, camera, noise = checked_colony_frame(image, microscope, masks, optics.camera)
@@ -103,14 +103,9 @@ def refit_colony_level(
     y = real - camera.baseline_adu
     unit = ForwardModel(microscope, optics.render, camera).phase_image(scene)
     media = max(float(np.sum(unit * y) / np.sum(unit * unit)), 0.0)  # as fit_colony's NNLS
-    scale = media / optics.render.media_intensity
-    sd = float(np.sqrt(max(noise_variance(real) - 1 / 12, 0.0)))
+    sd = measured_noise_sd_adu(real)  # as fit_colony's last round
     render = dataclasses.replace(
-        optics.render,
-        cell_intensity=optics.render.cell_intensity * scale,
-        media_intensity=media,
-        device_intensity=optics.render.device_intensity * scale,
-        gaussian_noise_sd_adu=sd,
+        with_media_level(optics.render, media), gaussian_noise_sd_adu=sd
     )
     synthetic = media * unit + camera.baseline_adu
     before = rendered_start(microscope, start, camera, scene)

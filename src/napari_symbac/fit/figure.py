@@ -10,26 +10,15 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["before_after_figure", "panel_scale"]
+from napari_symbac.figure_layout import grey, panel_scale, upscale
+
+__all__ = ["before_after_figure"]
 
 _TITLE_PX = 28
 _GAP_PX = 8
 _BAR_PX = 18
 _BAR_TEXT_PX = 78
 _FONT_PX = 16
-
-
-def panel_scale(shape: tuple[int, int], *, min_side_px: int = 200, max_side_px: int = 1200) -> int:
-    """Integer upscaling so a panel's short side reaches ``min_side_px`` (long side capped)."""
-    short, long = min(shape), max(shape)
-    up = math.ceil(min_side_px / short)
-    cap = max(1, max_side_px // long)
-    return max(1, min(up, cap))
-
-
-def _grey(image: np.ndarray, low: float, high: float) -> np.ndarray:
-    scaled = np.clip((np.asarray(image, np.float64) - low) / max(high - low, 1e-12), 0, 1)
-    return np.repeat((255 * scaled).astype(np.uint8)[..., None], 3, axis=-1)
 
 
 def _diverging(values: np.ndarray, limit: float) -> np.ndarray:
@@ -40,10 +29,6 @@ def _diverging(values: np.ndarray, limit: float) -> np.ndarray:
     green = 1 - 0.75 * (pos + neg)
     blue = 1 - 0.75 * pos
     return (255 * np.stack([red, green, blue], axis=-1)).astype(np.uint8)
-
-
-def _upscale(rgb: np.ndarray, scale: int) -> np.ndarray:
-    return np.repeat(np.repeat(rgb, scale, axis=0), scale, axis=1)
 
 
 def before_after_figure(
@@ -90,8 +75,8 @@ def before_after_figure(
     low, high = np.percentile(np.asarray(real, np.float64), [0.5, 99.5])
     limit = float(np.percentile(np.abs(residual), 99.0)) or 1.0
     scale = panel_scale(shape)
-    panels = [_upscale(_grey(a, low, high), scale) for a in images]
-    panels.append(_upscale(_diverging(residual, limit), scale))
+    panels = [upscale(grey(a, low, high), scale) for a in images]
+    panels.append(upscale(_diverging(residual, limit), scale))
     height, width = panels[0].shape[:2]
     # Tall panels (a trench) side by side; wide ones (a field) in two columns.
     columns = len(panels) if height >= width else 2

@@ -28,6 +28,7 @@ __all__ = [
     "TERM_NAMES",
     "class_masks",
     "edge_profile",
+    "measured_noise_sd_adu",
     "noise_variance",
     "objective_terms",
     "total_objective",
@@ -128,6 +129,12 @@ def noise_variance(image: np.ndarray) -> float:
     d = image[:, 2:] - 2 * image[:, 1:-1] + image[:, :-2]
     mad = np.median(np.abs(d - np.median(d)))
     return float(max((1.4826 * mad) ** 2 / 6.0, 1e-12))
+
+
+def measured_noise_sd_adu(image: np.ndarray) -> float:
+    """The recording's Gaussian pixel noise beyond its quantisation (ADU): the robust
+    :func:`noise_variance` less 1/12 ADU^2, 0 below one grey level."""
+    return float(np.sqrt(max(noise_variance(image) - 1 / 12, 0.0)))
 
 
 def objective_terms(

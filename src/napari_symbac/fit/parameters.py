@@ -24,7 +24,7 @@ from napari_symbac.fit.inputs import CLASS_VALUES, as_label_stack, as_single_ima
 from napari_symbac.fit.objectives import (
     DEFAULT_TERMS,
     TERM_NAMES,
-    noise_variance,
+    measured_noise_sd_adu,
     objective_terms,
     total_objective,
 )
@@ -43,6 +43,7 @@ __all__ = [
     "fit_warnings",
     "parameter_bounds",
     "scene_classes",
+    "with_media_level",
 ]
 
 Progress = Callable[[int, int], None]
@@ -326,6 +327,19 @@ def _render_with(render: RenderSettings, names: tuple[str, ...], z: np.ndarray, 
     return dataclasses.replace(render, **values)
 
 
+def with_media_level(render: RenderSettings, media_adu: float) -> RenderSettings:
+    """``render`` of the partially coherent model with the media level ``media_adu``: it
+    scales the image; the cells' and device's bright-field transmission (their
+    intensities' ratios to the media's) stay as they were."""
+    scale = media_adu / render.media_intensity
+    return dataclasses.replace(
+        render,
+        cell_intensity=render.cell_intensity * scale,
+        media_intensity=media_adu,
+        device_intensity=render.device_intensity * scale,
+    )
+
+
 def fit_parameters(
     real_image: np.ndarray,
     labels: np.ndarray,
@@ -494,15 +508,7 @@ def fit_parameters(
 
     def with_intensities(r: RenderSettings, intens: np.ndarray) -> RenderSettings:
         if coherent:
-            # the media level scales the image; the cells' and device's bright-field
-            # transmission (their ratios to it) stay as they were
-            scale = float(intens[0]) / r.media_intensity
-            return dataclasses.replace(
-                r,
-                cell_intensity=r.cell_intensity * scale,
-                media_intensity=float(intens[0]),
-                device_intensity=r.device_intensity * scale,
-            )
+            return with_media_level(r, float(intens[0]))
         return dataclasses.replace(r, **{k: float(v) for k, v in zip(amplitude_names, intens)})
 
     def synthetic(r: RenderSettings, a: np.ndarray, noisy: bool) -> np.ndarray:
@@ -575,7 +581,7 @@ def fit_parameters(
             if render.noise_model == "gaussian":
                 # The noise of the recording, not the model's misfit: a robust
                 # estimate from pixel-to-pixel differences (smooth misfit cancels).
-                sd = float(np.sqrt(max(noise_variance(real) - 1 / 12, 0.0)))
+                sd = measured_noise_sd_adu(real)
                 current = dataclasses.replace(current, gaussian_noise_sd_adu=sd)
             var = _variance(clean, current, camera)
         final = current

@@ -22,6 +22,7 @@ __all__ = [
     "check_instance_masks",
     "check_modality",
     "image_polarity",
+    "refuse_constant",
     "resolve_pixel_size",
 ]
 
@@ -156,6 +157,16 @@ def check_modality(
             "cells and media settle it)"
         )
     return polarity
+
+
+def refuse_constant(frame: np.ndarray, name: str) -> None:
+    """Refuse a frame whose pixels all hold one value (a blank image: nothing to
+    fit); ``name`` is the image file's."""
+    if frame.size and np.min(frame) == np.max(frame):
+        raise ValueError(
+            f"IMAGE {name} is constant (every pixel is {float(frame.flat[0]):g}): nothing to "
+            "fit; give the recording with the cells in it"
+        )
 
 
 def check_class_labels(labels: np.ndarray, shape: tuple[int, ...], name: str = "labels") -> None:
