@@ -665,9 +665,9 @@ def _fit_colony_frames(
     args, stack, frames, prepared, microscope, pixel_note, base, keys, stages, timer
 ):
     """A phase colony's time-lapse with its masks (:func:`~napari_symbac.fit.fit_colony_series`):
-    the optics fitted on the frame whose masks cover most, shared; every frame drawn
-    from its masks with its own media level; the masks' cells tracked. Files as
-    :func:`_fit_frames_jointly` writes them."""
+    the optics fitted on all frames jointly (started from the frame whose masks cover
+    most), every frame drawn from its masks with its own media level; the masks' cells
+    tracked. Files as :func:`_fit_frames_jointly` writes them."""
     from napari_symbac.fit import fit_colony_series
     from napari_symbac.fit.report import COLONY_NOTE, OPEN_PHASE_NOTE
 
@@ -682,7 +682,7 @@ def _fit_colony_frames(
     shape = stack.shape[1:]
     stages.stage(
         f"fitting frames {', '.join(map(str, frames))} (colony from its masks, partially "
-        f"coherent phase model, optics shared; {shape[0]} x {shape[1]} px)"
+        f"coherent phase model, optics fitted jointly; {shape[0]} x {shape[1]} px)"
     )
     update, close = stages.bar("fit frames")
     with timer.step("fit frames"):
@@ -698,22 +698,25 @@ def _fit_colony_frames(
     lineage = series.lineage
     reference = frames[series.reference]
     for k, (index, ready, result) in enumerate(zip(frames, prepared, series.frames, strict=True)):
-        if k != series.reference:
-            shared = f"the optics are frame {reference}'s (its masks cover most): only the "
-            ready.notes.append(shared + "media level is fitted here (fit_colony_series)")
+        ready.notes.append(
+            "the optics are fitted on all frames jointly (started from frame "
+            f"{reference}'s own fit: its masks cover most); the media level is this frame's "
+            "(fit_colony_series; series.json)"
+        )
         writers_one, _ = _outputs_one(
             args, stack[index], index, ready, result, microscope, pixel_note, base, keys,
             track_ids=lineage.track_ids[k],
         )
         writers.update({f"frame_{index:04d}/{k}": v for k, v in writers_one.items()})
-        optics = " (the optics fitted here)" if k == series.reference else ""
         summaries.append(
-            f"frame {index}: {len(result.cells)} cells from the masks{optics}; pixel chi2 "
+            f"frame {index}: {len(result.cells)} cells from the masks; pixel chi2 "
             f"{result.objective_before:.3g} -> {result.objective_after:.3g}"
         )
+    before, after = series.joint_objective
     table = {
         "frames": frames,
-        "optics_fitted_on_frame": reference,
+        "optics_started_on_frame": reference,
+        "joint_chi2": {"start": before, "end": after},
         "shared": {
             name: {"value": value, "se": se} for name, (value, se) in series.shared().items()
         },
@@ -728,9 +731,12 @@ def _fit_colony_frames(
     }
     writers["series.json"] = lambda p: p.write_text(json.dumps(table, indent=2))
     writers.update(_ctc_result(series, frames, microscope.pixel_size_um))
+    summaries.append(
+        f"optics fitted on frames {', '.join(map(str, frames))} jointly (started from frame "
+        f"{reference}'s fit): pixel chi2 over all frames {before:.4g} -> {after:.4g}"
+    )
     summaries += [
-        f"shared {name}: {value:.4g} +- {se:.2g} (fitted on frame {reference})"
-        for name, (value, se) in series.shared().items()
+        f"shared {name}: {value:.4g} +- {se:.2g}" for name, (value, se) in series.shared().items()
     ]
     summaries.append(_tracks_line(lineage, frames))
     return writers, summaries

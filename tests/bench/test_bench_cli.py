@@ -34,7 +34,7 @@ def test_quick_bench_prints_every_row_and_writes_outputs(tmp_path, capsys):
             assert row["note"] == "not run with --quick"
             continue
         # every other row measured (the gui extra is installed in the tests), costs positive
-        assert row["ours"] is not None, row
+        assert row["ours"] is not None, row["note"]
         assert 0 < row["ours"]["low"] <= row["ours"]["median"] <= row["ours"]["high"]
         if spec.fft_key is not None:
             assert math.isfinite(row["x_fft"]["median"]), row

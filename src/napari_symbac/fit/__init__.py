@@ -12,7 +12,7 @@
   ``overlap``, ``moves``);
 * :func:`fit_colony`: a dense phase-contrast colony from its instance masks, the
   partially coherent phase model fitted to them (``colony``); :func:`fit_colony_series`
-  a time-lapse of one, the optics shared and the masks' cells tracked
+  a time-lapse of one, the optics fitted on all frames jointly and the masks' cells tracked
   (``colony_series``);
 * :func:`fit_series`: a ``(T, Y, X)`` series with the optics (and camera) shared by
   the frames and the cells per frame, linked into tracks and a lineage

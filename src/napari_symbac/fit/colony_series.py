@@ -1,18 +1,22 @@
-"""A time-lapse of a phase colony with its masks: optics shared, cells tracked.
+"""A time-lapse of a phase colony with its masks: optics fitted jointly, cells tracked.
 
 :func:`fit_colony` fits the partially coherent optics to one frame drawn from its
 masks. In a time-lapse the optics are the microscope's and do not change between
-frames, so :func:`fit_colony_series` fits them once, on the frame whose masks cover the
-most pixels (the most cells, edges and halo: the most information), and draws every
-other frame through them with its own media level (the lamp may drift), solved in
-closed form. Each frame's cells are its masks'; :func:`~napari_symbac.fit.link_cells`
-links them into tracks and a lineage as in :func:`~napari_symbac.fit.fit_series`.
+frames, so :func:`fit_colony_series` fits them to all frames together: first alone on
+the frame whose masks cover the most pixels (the most cells, edges and halo: the most
+information; its global start), then jointly, by least squares over every frame's
+pixels, each frame weighed by its own noise and drawn with its own media level (the lamp
+may drift), solved in closed form inside the fit. The standard errors come from the
+joint Fisher information. Each frame's cells are its masks';
+:func:`~napari_symbac.fit.link_cells` links them into tracks and a lineage as in
+:func:`~napari_symbac.fit.fit_series`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -22,7 +26,7 @@ from napari_symbac.fit.colony import ColonyFit, colony_start, fit_colony
 from napari_symbac.fit.lineage import Lineage, LinkSettings, link_cells
 from napari_symbac.settings import Camera, Microscope, RenderSettings
 
-__all__ = ["ColonySeriesFit", "fit_colony_series", "refit_colony_level"]
+__all__ = ["ColonySeriesFit", "fit_colony_series"]
 
 
 @dataclass(frozen=True)
@@ -32,11 +36,14 @@ class ColonySeriesFit:
     Attributes
     ----------
     frames
-        One :class:`~napari_symbac.fit.ColonyFit` per frame, in time order: the
-        reference frame's is its own fit, the others' are drawn with its optics and
-        their own media level.
+        One :class:`~napari_symbac.fit.ColonyFit` per frame, in time order, each drawn
+        with the jointly fitted optics and its own media level; their parameters and
+        standard errors are the joint fit's (the media level each frame's own).
     reference
-        Index in ``frames`` of the frame the optics were fitted on.
+        Index in ``frames`` of the frame whose fit alone started the joint fit.
+    joint_objective
+        The reduced pixel chi-square over all frames' pixels (each over its own noise)
+        at the start of the joint fit (the reference frame's optics) and at its end.
     lineage
         The masks' cells linked into tracks (:class:`~napari_symbac.fit.Lineage`):
         ``lineage.track_ids[t]`` is the track of each cell of ``frames[t].cells``.
@@ -45,15 +52,16 @@ class ColonySeriesFit:
     frames: tuple[ColonyFit, ...]
     reference: int
     lineage: Lineage = field(repr=False)
+    joint_objective: tuple[float, float] = (math.nan, math.nan)
 
     @property
     def render(self) -> RenderSettings:
-        """The shared optics (the reference frame's fitted render settings)."""
+        """The shared optics (with the reference frame's media level)."""
         return self.frames[self.reference].render
 
     @property
     def warnings(self) -> tuple[str, ...]:
-        """The optics fit's warnings (a parameter at a bound, a fit worse than its start)."""
+        """The joint fit's warnings (a parameter at a bound, a fit worse than its start)."""
         return self.frames[self.reference].warnings
 
     @property
@@ -62,8 +70,8 @@ class ColonySeriesFit:
         return self.frames[self.reference].camera
 
     def shared(self) -> dict[str, tuple[float, float]]:
-        """The shared optics: ``{name: (value, standard error)}`` (the media level is
-        each frame's own and is left out)."""
+        """The shared optics: ``{name: (value, standard error)}`` from the joint fit
+        (the media level is each frame's own and is left out)."""
         fit = self.frames[self.reference]
         return {
             name: (float(value), float(se))
@@ -78,60 +86,159 @@ class ColonySeriesFit:
         return np.array([fit.render.media_intensity for fit in self.frames])
 
 
-def refit_colony_level(
-    image: np.ndarray,
-    microscope: Microscope,
-    masks: np.ndarray,
-    optics: ColonyFit,
-) -> ColonyFit:
-    """One frame drawn from its masks with ``optics``' fitted optics, its media level
-    solved in closed form (least squares; the noise is Gaussian and uniform).
+@dataclass(frozen=True)
+class _Frame:
+    """One frame ready for the joint fit: the checked image, its masks' scene and the
+    starting optics of :func:`~napari_symbac.fit.colony.colony_start`, its noise."""
 
-    The result reads as :func:`fit_colony`'s: the optics' values and standard errors
-    (shared, not refitted here), this frame's level (standard error NaN, as there), the
-    pixel term before (:func:`~napari_symbac.fit.colony.colony_start`'s optics) and
-    after, both weighed with this frame's noise. Two renders.
+    real: np.ndarray
+    masks: np.ndarray
+    scene: Any
+    start: RenderSettings
+    sd_adu: float  # the likelihood's: measured noise and quantisation
+
+    @classmethod
+    def of(cls, image: np.ndarray, microscope: Microscope, masks: np.ndarray, camera: Camera):
+        from napari_symbac.fit.colony import checked_colony_frame
+        from napari_symbac.fit.objectives import measured_noise_sd_adu
+
+        real, masks, camera, noise = checked_colony_frame(image, microscope, masks, camera)
+        start, scene = colony_start(masks, microscope, float(np.percentile(real, 50)), noise)
+        sd = math.sqrt(measured_noise_sd_adu(real) ** 2 + 1 / 12)  # as fit_colony's
+        return cls(real, masks, scene, start, sd)
+
+
+def _media_level(unit: np.ndarray, y: np.ndarray) -> float:
+    """The media level that draws ``y`` best as ``level * unit``: least squares (uniform
+    Gaussian noise), at least 0, as :func:`~napari_symbac.fit.fit_colony`'s NNLS."""
+    return max(float(np.sum(unit * y) / np.sum(unit * unit)), 0.0)
+
+
+def _joint_optics(
+    frames: list[_Frame],
+    microscope: Microscope,
+    camera: Camera,
+    optics: ColonyFit,
+    max_evaluations: int,
+    tick: Callable[[], None],
+) -> tuple[ColonyFit, tuple[float, float]]:
+    """The optics that ``optics`` fitted on one frame, refined on all ``frames`` at once.
+
+    Least squares over the frames' pixels, each over its noise, each frame's media level
+    solved in closed form at every step (profiled out); ``max_evaluations`` evaluations
+    of all frames (finite differences counted), ``tick()`` after every render. Returns
+    ``optics`` with the joint values, standard errors (the stacked residuals' Jacobian:
+    the summed Fisher information), warnings and bounds, and the reduced chi-square over
+    all frames' pixels before and after.
     """
-    from napari_symbac.fit.colony import checked_colony_frame, colony_result, rendered_start
+    from scipy import optimize
+
+    from napari_symbac.fit.parameters import (
+        _SCALE,
+        _Z_OFFSET,
+        _render_with,
+        _standard_errors,
+        fit_warnings,
+        parameter_bounds,
+    )
+    from napari_symbac.optics import ForwardModel
+
+    names = tuple(n for n in optics.parameter_names if n != "media_intensity")
+    start = dict(zip(names, (float(v) for v in optics.parameters)))
+    bounds = [parameter_bounds(n, microscope, coherent=True) for n in names]
+    z_lo = np.array([(lo - start[n]) / _SCALE[n] for n, (lo, _) in zip(names, bounds)])
+    z_hi = np.array([(hi - start[n]) / _SCALE[n] for n, (_, hi) in zip(names, bounds)])
+    targets = [(f.real - camera.baseline_adu).ravel() for f in frames]
+    first: list[float] = []  # the chi-square at the start: least squares' first call
+
+    def residual(z: np.ndarray) -> np.ndarray:
+        render = _render_with(optics.render, names, z, start)
+        model = ForwardModel(microscope, render, camera)
+        parts = []
+        for frame, y in zip(frames, targets, strict=True):
+            tick()
+            unit = model.phase_image(frame.scene).ravel()
+            parts.append((y - _media_level(unit, y) * unit) / frame.sd_adu)
+        out = np.concatenate(parts)
+        if not first:
+            first.append(chi2(out))
+        return out
+
+    def chi2(r: np.ndarray) -> float:
+        return float(r @ r) / r.size
+
+    z0 = np.clip(np.zeros(len(names)), z_lo, z_hi)
+    # z + _Z_OFFSET: finite-difference steps of ~0.02 of a scale (as fit_parameters)
+    sol = optimize.least_squares(
+        lambda w: residual(w - _Z_OFFSET),
+        z0 + _Z_OFFSET,
+        bounds=(z_lo + _Z_OFFSET, z_hi + _Z_OFFSET),
+        diff_step=0.02 / _Z_OFFSET,
+        x_scale=1.0,
+        xtol=1e-8,
+        ftol=1e-9,
+        max_nfev=max(max_evaluations // (len(names) + 1), 1),
+    )
+    z = sol.x - _Z_OFFSET
+    before, after = first[0], chi2(sol.fun)
+    render = _render_with(optics.render, names, z, start)
+    errors = _standard_errors(names, sol.jac, z, z_lo, z_hi)
+    warnings = fit_warnings(render, names, bounds, before, after)
+    values = [start[n] + _SCALE[n] * zi for n, zi in zip(names, z)]
+    joint = dataclasses.replace(
+        optics,
+        render=render,
+        parameters=np.array([*values, optics.parameters[-1]]),
+        standard_errors=np.array([errors[n] for n in names] + [math.nan]),
+        warnings=warnings,
+        at_bounds=tuple(n for n in names if any(w.startswith(f"{n} =") for w in warnings)),
+    )
+    return joint, (before, after)
+
+
+def _drawn_with(frame: _Frame, microscope: Microscope, optics: ColonyFit) -> ColonyFit:
+    """``frame`` drawn from its masks with ``optics``' (shared) optics and its own media
+    level, read as :func:`fit_colony`'s result: the shared values, standard errors and
+    warnings, this frame's level (standard error NaN, as there), the pixel term before
+    (:func:`~napari_symbac.fit.colony.colony_start`'s optics) and after, both weighed with
+    this frame's noise. Two renders."""
+    from napari_symbac.fit.colony import colony_result, rendered_start
     from napari_symbac.fit.objectives import measured_noise_sd_adu, objective_terms
     from napari_symbac.fit.parameters import scene_classes, with_media_level
     from napari_symbac.optics import ForwardModel
 
-    real, masks, camera, noise = checked_colony_frame(image, microscope, masks, optics.camera)
-    level = float(np.percentile(real, 50))
-    start, scene = colony_start(masks, microscope, level, noise)
-    y = real - camera.baseline_adu
-    unit = ForwardModel(microscope, optics.render, camera).phase_image(scene)
-    media = max(float(np.sum(unit * y) / np.sum(unit * unit)), 0.0)  # as fit_colony's NNLS
-    sd = measured_noise_sd_adu(real)  # as fit_colony's last round
+    camera = optics.camera
+    y = frame.real - camera.baseline_adu
+    unit = ForwardModel(microscope, optics.render, camera).phase_image(frame.scene)
+    media = _media_level(unit, y)
     render = dataclasses.replace(
-        with_media_level(optics.render, media), gaussian_noise_sd_adu=sd
+        with_media_level(optics.render, media),
+        gaussian_noise_sd_adu=measured_noise_sd_adu(frame.real),
     )
     synthetic = media * unit + camera.baseline_adu
-    before = rendered_start(microscope, start, camera, scene)
-    variance = sd**2 + 1 / 12
-    classes = scene_classes(scene)
+    before = rendered_start(microscope, frame.start, camera, frame.scene)
+    classes = scene_classes(frame.scene)
 
     def pixel_term(model: np.ndarray) -> float:
-        terms = objective_terms(model, real, classes, terms=("pixel",), variance=variance)
+        terms = objective_terms(
+            model, frame.real, classes, terms=("pixel",), variance=frame.sd_adu**2
+        )
         return float(terms["pixel"])
 
-    after_term, before_term = pixel_term(synthetic), pixel_term(before)
-    values = np.array([*optics.parameters[:-1], media])
     return colony_result(
-        real,
-        masks,
+        frame.real,
+        frame.masks,
         microscope,
         camera,
-        scene,
+        frame.scene,
         render,
         synthetic=synthetic,
         before=before,
-        objective=(before_term, after_term),
+        objective=(pixel_term(before), pixel_term(synthetic)),
         parameter_names=optics.parameter_names,
-        parameters=values,
+        parameters=np.array([*optics.parameters[:-1], media]),
         standard_errors=optics.standard_errors,
-        warnings=(),
+        warnings=optics.warnings,
         at_bounds=optics.at_bounds,
         n_evaluations=2,
     )
@@ -144,6 +251,7 @@ def fit_colony_series(
     camera: Camera | None = None,
     *,
     max_evaluations: int = 40,
+    joint_evaluations: int = 16,
     linking: LinkSettings | None = None,
     progress: Any = None,
     cancel: Any = None,
@@ -162,12 +270,15 @@ def fit_colony_series(
     camera
         Its baseline and bit depth; default baseline 0 and the images' bit depth.
     max_evaluations
-        Renders of the optics fit on the reference frame.
+        Renders of the optics fit on the reference frame alone.
+    joint_evaluations
+        Evaluations of every frame in the joint fit (finite differences included: each
+        is ``T`` renders).
     linking
         :class:`~napari_symbac.fit.LinkSettings` of the tracking (default its defaults).
     progress, cancel
         As :func:`~napari_symbac.fit.fit_colony`; ``progress(done, total)`` counts the
-        optics fit's renders and then two per other frame.
+        renders: the reference frame's fit, the joint fit's, then two per frame.
 
     Raises
     ------
@@ -175,24 +286,38 @@ def fit_colony_series(
         Fewer than two frames, as many masks as frames not given, or what
         :func:`~napari_symbac.fit.fit_colony` refuses.
     """
-    frames = [np.asarray(frame) for frame in stack]
+    from napari_symbac.fit.parameters import FitCancelled
+
+    images = [np.asarray(frame) for frame in stack]
     all_masks = [np.asarray(m) for m in masks]
-    if len(frames) < 2:
+    if len(images) < 2:
         raise ValueError("fit_colony_series fits a time-lapse of at least 2 frames: use fit_colony")
-    if len(all_masks) != len(frames):
+    if len(all_masks) != len(images):
         raise ValueError(
-            f"{len(all_masks)} masks for {len(frames)} frames: give each frame its masks"
+            f"{len(all_masks)} masks for {len(images)} frames: give each frame its masks"
         )
     covered = [int(np.count_nonzero(m)) for m in all_masks]
     reference = int(np.argmax(covered))
-    total = max_evaluations + 2 * (len(frames) - 1)
+    n_frames = len(images)
+    total = max_evaluations + (joint_evaluations + 2) * n_frames
+    done = 0
 
-    def optics_progress(done: int, _total: int) -> None:
+    def tick() -> None:
+        nonlocal done
+        if cancel is not None and cancel():
+            raise FitCancelled("fit cancelled")
+        done += 1
         if progress is not None:
-            progress(min(done, max_evaluations), total)
+            progress(min(done, total), total)
+
+    def optics_progress(renders: int, _total: int) -> None:
+        nonlocal done
+        done = min(renders, max_evaluations)
+        if progress is not None:
+            progress(done, total)
 
     optics = fit_colony(
-        frames[reference],
+        images[reference],
         microscope,
         all_masks[reference],
         camera,
@@ -200,23 +325,23 @@ def fit_colony_series(
         progress=optics_progress,
         cancel=cancel,
     )
-    fits: list[ColonyFit] = []
     done = max_evaluations
-    for t, (frame, frame_masks) in enumerate(zip(frames, all_masks, strict=True)):
-        if t == reference:
-            fits.append(optics)
-            continue
-        if cancel is not None and cancel():
-            from napari_symbac.fit.parameters import FitCancelled
-
-            raise FitCancelled("fit cancelled")
-        fits.append(refit_colony_level(frame, microscope, frame_masks, optics))
-        done += 2
-        if progress is not None:
-            progress(done, total)
-    height, width = frames[0].shape
+    frames = [_Frame.of(i, microscope, m, optics.camera) for i, m in zip(images, all_masks)]
+    joint, objective = _joint_optics(
+        frames, microscope, optics.camera, optics, joint_evaluations, tick
+    )
+    fits = []
+    for frame in frames:
+        fits.append(_drawn_with(frame, microscope, joint))
+        tick()
+        tick()
+    if progress is not None:
+        progress(total, total)  # the joint fit may converge within its budget
+    height, width = images[0].shape
     pixel_um = microscope.pixel_size_um
     lineage = link_cells(
         [fit.cells for fit in fits], linking, image_size_um=(height * pixel_um, width * pixel_um)
     )
-    return ColonySeriesFit(frames=tuple(fits), reference=reference, lineage=lineage)
+    return ColonySeriesFit(
+        frames=tuple(fits), reference=reference, lineage=lineage, joint_objective=objective
+    )
