@@ -89,7 +89,7 @@ def test_export_out_is_a_file(tmp_path, export_config, capsys):
     code, err = _run(["export", "--config", str(export_config), "--out", str(out)], capsys)
     assert code == 2
     assert "is a file, not a folder" in err
-    assert "run the same export again" not in err  # the old, wrong advice
+    assert "finished items" not in err  # nothing was written: nothing to resume
     assert out.read_bytes() == b"not a folder"
 
 
@@ -200,7 +200,7 @@ def test_export_write_errors_name_path_and_fix(
     assert exit_code == 2
     assert message in err
     assert str(out / "tiff") in err
-    assert "run the same export again" in err
+    assert "run the same command again: the export keeps its finished items" in err
     assert err.count("\n") == 1  # one line
     assert not list(out.rglob("*.tif"))
 
@@ -284,8 +284,7 @@ def test_render_disk_full_leaves_no_partial_file(
     assert str(out / "images.tif") in err
     assert _files(out) == []
     # render starts over: no export's resume advice (found as a user)
-    assert "run the same export again" not in err
-    assert "finished items are kept" not in err
+    assert "finished items" not in err
     assert err.rstrip().endswith("then run the same command again")
 
 
@@ -584,7 +583,7 @@ def test_out_in_a_read_only_folder_is_refused_up_front(
     assert f"--out {out} cannot be created: {read_only} is not writable" in err
     assert fix in err
     assert "partial" not in err
-    assert "run the same export again" not in err  # render, fit: no resume
+    assert "finished items" not in err  # render, fit: no resume
     assert err.count("\n") == 1
     assert _files(read_only) == []
 

@@ -775,8 +775,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         return args.func(args)
     except (ValueError, TypeError, OSError, ExportError) as err:
         text = _one_line(err)
-        if args.command in _STARTS_OVER:
-            text = _without_resume_advice(text)
         print(f"napari-symbac {args.command}: error: {text}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -786,9 +784,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 #: Commands that do not resume a run that stopped: they start over when run again.
 _STARTS_OVER = ("render", "fit", "calibrate", "diagnose")
-#: The advice of a disk error (:func:`napari_symbac.export.atomic.explain_os_error`) that
-#: holds for an export only.
-_EXPORT_RESUMES = "then run the same export again"
 
 
 def interrupted_text(command: str) -> str:
@@ -796,13 +791,6 @@ def interrupted_text(command: str) -> str:
     if command in _STARTS_OVER:
         return f"interrupted: run the same {command} again (it starts over; only an export resumes)"
     return "interrupted; finished files are kept (an export resumes when run again)"
-
-
-def _without_resume_advice(text: str) -> str:
-    """A disk error's message for a command that starts over: "run the same export again:
-    finished items are kept" becomes "run the same command again"."""
-    head, found, _ = text.partition(_EXPORT_RESUMES)
-    return f"{head}then run the same command again" if found else text
 
 
 def _one_line(err: BaseException) -> str:

@@ -21,7 +21,7 @@ import tifffile
 from _export_synthetic import SyntheticSource, tree_digest
 
 from napari_symbac.export import ExportError, run_export
-from napari_symbac.export.atomic import write_tiff
+from napari_symbac.export.atomic import EXPORT_RESUMES, write_tiff
 from napari_symbac.export.manifest import ITEMS_DIR
 
 FORMATS = ("tiff", "omnipose", "stardist", "coco")
@@ -204,7 +204,7 @@ def test_disk_full_stops_with_clear_message(tmp_path, monkeypatch):
     message = str(info.value)
     assert "disk is full" in message
     assert "free some space" in message
-    assert "run the same export again" in message
+    assert message.endswith(f"then run the same command again: {EXPORT_RESUMES}")
     assert info.value.errno == errno.ENOSPC
     assert info.value.path
     assert Path(info.value.path).parent.is_relative_to(tmp_path)

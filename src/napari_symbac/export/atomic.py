@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 __all__ = [
+    "EXPORT_RESUMES",
     "TIFF_KINDS",
     "TIFF_KIND_KEY",
     "ExportError",
@@ -38,6 +39,10 @@ __all__ = [
 ]
 
 _TEMP_RE = re.compile(r"^\..+\.tmp-\d+-[0-9a-f]{8}(\.[A-Za-z0-9]+)?$")
+
+
+#: What an export adds to a disk error's advice (:func:`explain_os_error`).
+EXPORT_RESUMES = "the export keeps its finished items and completes the rest"
 
 
 class ExportError(RuntimeError):
@@ -65,11 +70,12 @@ class ExportError(RuntimeError):
 def explain_os_error(err: OSError, path: str | os.PathLike | None = None) -> ExportError:
     """Turn an :class:`OSError` raised while writing into an :class:`ExportError`.
 
-    The message names the path and says how to fix the problem; every export resumes
-    where it stopped when the same command is run again.
+    The message names the path and says how to fix the problem, then to run the same
+    command again (every command that writes uses these writers; an export adds that it
+    resumes: :data:`EXPORT_RESUMES`).
     """
     where = str(path if path is not None else (err.filename or "the output folder"))
-    again = "then run the same export again: finished items are kept and the rest is completed"
+    again = "then run the same command again"
     if err.errno in (errno.ENOSPC, errno.EDQUOT):
         message = (
             f"the disk is full (no space left on device) while writing {where}: free some "

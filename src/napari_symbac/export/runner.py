@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
-from napari_symbac.export.atomic import ExportError, remove_stale_temporaries
+from napari_symbac.export.atomic import EXPORT_RESUMES, ExportError, remove_stale_temporaries
 from napari_symbac.export.cluster import (
     check_workers,
     close_quietly,
@@ -440,6 +440,10 @@ def run_export(
             source, out, formats, writers, options, n_workers, client, progress, cancel,
             batch_size, overlap_start, start,
         )
+    except ExportError as err:
+        if err.errno is None:  # not the disk's: nothing was written to resume
+            raise
+        raise ExportError(f"{err}: {EXPORT_RESUMES}", err.path, err.errno) from err
     finally:
         if client is not None:
             close_quietly(client, None)
