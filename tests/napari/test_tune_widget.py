@@ -161,9 +161,7 @@ def test_auto_fit_of_a_phase_colony_says_what_the_linear_kernel_cannot_do(
     assert any(OPEN_PHASE_NOTE in str(n.message) for n in seen)
 
 
-def test_auto_fit_of_a_phase_colony_with_its_masks_fits_the_halo(
-    rendered, qtbot, real_data_dir
-):
+def test_auto_fit_of_a_phase_colony_with_its_masks_fits_the_halo(rendered, qtbot, real_data_dir):
     """The same kind of recording with its instance masks opened as a Labels layer and
     chosen as the cell masks: Auto-fit fits the partially coherent model to the masks'
     scene (as `napari-symbac fit --masks`), and the preview and Export take it."""
@@ -222,6 +220,106 @@ def test_auto_fit_of_a_phase_colony_with_its_masks_fits_the_halo(
     before = layer.data[frame].astype(float).copy()
     phase.value = phase.value + 0.5
     assert np.abs(layer.data[frame].astype(float) - before).max() > 1
+
+
+def test_auto_fit_of_all_frames_fits_a_trench_time_lapse_jointly(rendered, qtbot, real_data_dir):
+    """The real trench as a 2-frame time-lapse (the second frame 2 px further down the
+    trench): 'all frames jointly' runs the series fit (optics and camera shared), the
+    layers hold both frames and the sliders the shown frame's intensities."""
+    from napari_symbac._widgets.tune import FIT_SYNTHETIC_LAYER
+    from napari_symbac.fit import SeriesFit
+
+    viewer, tune = rendered
+    trench = _real_trench(viewer, real_data_dir).data
+    stack = np.stack([trench[2:], trench[:-2]])
+    real = viewer.add_image(
+        stack, name="trench time-lapse", scale=(1.0, 0.065, 0.065),
+        metadata={"pixel_size_um": 0.065, "modality": "phase"},
+    )  # fmt: skip
+    tune.reference.value = real
+    tune.fit_iterations.value = 2
+    tune.fit_all_frames.value = True
+    tune.fit_button.native.click()
+    qtbot.waitUntil(lambda: tune.fit_worker is None, timeout=600_000)
+    series = tune.fit_result
+    assert isinstance(series, SeriesFit), tune.status.value
+    assert "Fitted 2 frames jointly" in tune.status.value
+    assert viewer.layers[FIT_SYNTHETIC_LAYER].data.shape == stack.shape
+    shown = series.frames[tune._current_frame()]
+    assert tune.sliders["media_intensity"].value == pytest.approx(shown.render.media_intensity)
+    assert tune.preview.model.camera == series.camera  # measured once from both frames
+    assert tune.fit_button.enabled
+
+
+def test_auto_fit_of_all_frames_fits_a_colony_time_lapse_jointly(rendered, qtbot, real_data_dir):
+    """A time-lapse opened as one (T, Y, X) layer with its masks (two windows of the real
+    colony 3 px apart: a drifting stage) and 'all frames jointly' ticked: one fit of every
+    frame (as `napari-symbac fit --frames`), the optics shared, the cells tracked, the
+    synthetic and residual layers holding every frame. A single frame with the box
+    ticked is refused with the fix."""
+    import dataclasses
+
+    import imageio.v3 as iio
+    import tifffile
+
+    from napari_symbac._widgets.tune import FIT_RESIDUAL_LAYER, FIT_SYNTHETIC_LAYER
+    from napari_symbac.fit import ColonySeriesFit
+
+    viewer, tune = rendered
+    metadata = tune.source.value.metadata[SYMBAC_METADATA_KEY]
+    settings = metadata["settings"]
+    simulation = dataclasses.replace(settings.simulation, geometry="agar_pad")
+    metadata["settings"] = dataclasses.replace(settings, simulation=simulation)
+    root = real_data_dir / "omnipose"
+    grey = iio.imread(root / "Sample000193.png")[..., 0]
+    full = tifffile.imread(root / "Sample000193_cp_masks.tif")
+    windows = [(slice(80, 176), slice(336, 432)), (slice(77, 173), slice(338, 434))]
+    scale = (1.0, 0.0745, 0.0745)
+    real = viewer.add_image(
+        np.stack([grey[w] for w in windows]), name="time-lapse", scale=scale,
+        metadata={"pixel_size_um": 0.0745, "modality": "phase"},
+    )  # fmt: skip
+    masks = np.stack([full[w] for w in windows]).astype(np.int32)
+    labels = viewer.add_labels(masks, name="time-lapse masks", scale=scale)
+    tune.reference.value = real
+    tune.masks.reset_choices()
+    tune.masks.value = labels
+    tune.fit_all_frames.value = True
+    tune.fit_button.native.click()
+    qtbot.waitUntil(lambda: tune.fit_worker is None, timeout=300_000)
+    series = tune.fit_result
+    assert isinstance(series, ColonySeriesFit), tune.status.value
+    assert len(series.frames) == 2
+    assert "Fitted 2 frames jointly" in tune.status.value
+    assert series.joint_objective[1] <= series.joint_objective[0]
+    for name in (FIT_SYNTHETIC_LAYER, FIT_RESIDUAL_LAYER):
+        assert viewer.layers[name].data.shape == real.data.shape
+        assert tuple(viewer.layers[name].scale) == scale
+    shown = series.frames[tune._current_frame()]
+    assert tune.sliders["cell_phase_rad"].value == pytest.approx(
+        shown.render.cell_phase_rad, abs=0.01
+    )
+    stored = tune.source.value.metadata[SYMBAC_METADATA_KEY]["settings"].render
+    assert stored.cell_phase_rad == pytest.approx(series.shared()["cell_phase_rad"][0])
+    # the masks' cells whole in both windows keep their tracks
+    ids = [
+        dict(zip(f.cells.ids.tolist(), t.tolist()))
+        for f, t in zip(series.frames, series.lineage.track_ids)
+    ]
+    common = set(ids[0]) & set(ids[1])
+    assert len(common) >= 5
+    assert sum(ids[0][k] == ids[1][k] for k in common) >= 5
+    # one frame with the box ticked: refused, with the fix, nothing run
+    single = viewer.add_image(
+        grey[windows[0]], name="one frame", scale=scale[1:],
+        metadata={"pixel_size_um": 0.0745, "modality": "phase"},
+    )  # fmt: skip
+    tune.reference.value = single
+    tune.masks.value = None
+    tune.fit_button.native.click()
+    assert tune.fit_worker is None
+    assert "is a single frame: untick it" in tune.status.value
+    assert tune.fit_result is series
 
 
 def test_auto_fit_with_nan_terms_reports_them(rendered, qtbot, real_data_dir, monkeypatch):

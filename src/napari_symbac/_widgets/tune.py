@@ -213,6 +213,15 @@ class TuneWidget(Container):
             max=500,
             tooltip="Gauss-Newton iterations per reweighting round of the scene fit.",
         )
+        self.fit_all_frames = CheckBox(
+            name="fit_all_frames",
+            text="all frames jointly (a time-lapse)",
+            tooltip=(
+                "Fit every frame of the real time-lapse at once: one set of optics and one "
+                "camera for all frames, each frame its own cells and intensities, cells "
+                "linked into tracks (as napari-symbac fit --frames). Unticked: the frame shown."
+            ),
+        )
         self.fit_button = PushButton(
             name="fit",
             text="Auto-fit to the real image",
@@ -246,6 +255,7 @@ class TuneWidget(Container):
                 self.match_histogram,
                 self.match_noise,
                 self.fit_iterations,
+                self.fit_all_frames,
                 self.fit_button,
                 self.cancel_fit_button,
                 self.status,
@@ -458,14 +468,19 @@ class TuneWidget(Container):
 
         Runs :func:`napari_symbac.fit.fit_scene` on the chosen real image with its
         recording's microscope (pixel size set in *Real image and classes*) and the
-        painted classes when there are any. Progress and cancel go through napari's
-        activity dock and the Cancel fit button; the fitted render settings become the
-        rendered layer's settings (so Export uses them).
+        painted classes when there are any (:func:`~napari_symbac.fit.fit_colony` for a
+        phase colony with its masks). With *all frames jointly* ticked, every frame of
+        the time-lapse at once (:func:`~napari_symbac.fit.fit_series`,
+        :func:`~napari_symbac.fit.fit_colony_series`): the shown frame's fitted settings
+        go to the sliders, the synthetic and residual layers hold every frame. Progress
+        and cancel go through napari's activity dock and the Cancel fit button; the
+        fitted render settings become the rendered layer's settings (so Export uses them).
         """
         if self.fit_worker is not None:
             return
+        all_frames = self.fit_all_frames.value
         try:
-            job_input = self._fit_input()
+            job_input = self._fit_input(all_frames)
         except ValueError as err:
             self.status.value = str(err)
             notify_warning(str(err))
@@ -474,7 +489,10 @@ class TuneWidget(Container):
         from napari_symbac.fit.colony import is_dense_colony
         from napari_symbac.fit.report import fit_notes
 
-        colony = geometry == "open" and is_dense_colony(masks, microscope.modality)
+        frames_masks = [] if masks is None else (masks if all_frames else [masks])
+        colony = geometry == "open" and any(
+            is_dense_colony(m, microscope.modality) for m in frames_masks
+        )  # a time-lapse: once any frame is a colony, every frame is drawn alike (as the CLI)
         self._fit_notes = fit_notes(microscope.modality, geometry, colony=colony)
         if masks is not None and labels is not None:
             self._fit_notes.append("the cell masks were used; the painted classes were not")
@@ -482,11 +500,12 @@ class TuneWidget(Container):
         cancelled = threading.Event()
 
         def fit(progress, cancel):
-            from napari_symbac.fit import fit_colony, fit_scene
+            from napari_symbac.fit import fit_colony, fit_colony_series, fit_scene, fit_series
 
             if colony:
-                return fit_colony(real, microscope, masks, progress=progress, cancel=cancel)
-            return fit_scene(
+                fit_one = fit_colony_series if all_frames else fit_colony
+                return fit_one(real, microscope, masks, progress=progress, cancel=cancel)
+            return (fit_series if all_frames else fit_scene)(
                 real,
                 microscope,
                 render,
@@ -519,9 +538,9 @@ class TuneWidget(Container):
         self.status.value = "Fitting..."
         self.fit_worker.start()
 
-    def _fit_input(self) -> tuple:
+    def _fit_input(self, all_frames: bool = False) -> tuple:
         """Real frame, painted classes and cell masks (or ``None``), microscope, render,
-        camera, geometry.
+        camera, geometry; with ``all_frames`` the ``(T, Y, X)`` stacks of the time-lapse.
 
         Raises
         ------
@@ -547,29 +566,36 @@ class TuneWidget(Container):
         modality = reference.metadata.get("modality") or microscope.modality
         if modality != microscope.modality:
             microscope = dataclasses.replace(microscope, modality=modality)
-        index = self._current_frame()
         real = np.asarray(reference.data)
-        if real.ndim == 3:
-            real = real[min(index, len(real) - 1)]
-        from napari_symbac.fit.preflight import check_fit_image
+        if all_frames and (real.ndim != 3 or len(real) < 2):
+            raise ValueError(
+                f"'all frames jointly' fits a time-lapse, but the real image '{reference.name}' "
+                "is a single frame: untick it to fit this frame"
+            )
+        from napari_symbac.fit.preflight import check_fit_image, check_instance_masks
 
+        pick = self._frames_of if all_frames else self._frame_of
+        real = pick(real)
         check_fit_image(real, reference.name)  # as `napari-symbac fit` (negative values)
         labels = None
         name = class_layer_name(reference.name)
         if name in self.viewer.layers:
-            labels = np.asarray(self.viewer.layers[name].data)
-            if labels.ndim == 3:
-                labels = labels[min(index, len(labels) - 1)]
-            if not labels.any():
+            labels = pick(np.asarray(self.viewer.layers[name].data), name)
+            painted = [bool(frame.any()) for frame in (labels if all_frames else [labels])]
+            if not any(painted):
                 labels = None
+            elif not all(painted):
+                raise ValueError(
+                    f"the classes '{name}' are painted in some frames only: paint them in "
+                    "every frame (or clear them all for the automatic start) to fit all "
+                    "frames jointly"
+                )
         masks = None
         if self.masks.value is not None:
-            from napari_symbac.fit.preflight import check_instance_masks
-
-            masks = np.asarray(self.masks.value.data)
-            if masks.ndim == 3:
-                masks = masks[min(index, len(masks) - 1)]
-            check_instance_masks(masks, real.shape, f"cell masks '{self.masks.value.name}'")
+            layer = self.masks.value
+            masks = pick(np.asarray(layer.data), f"cell masks '{layer.name}'")
+            for frame in masks if all_frames else [masks]:
+                check_instance_masks(frame, real.shape[-2:], f"cell masks '{layer.name}'")
         # In fluorescence the device is as dark as the media: no wall to place, so the
         # cells are fitted as in an open field.
         walled = settings.simulation.geometry in ("trench", "chamber")
@@ -578,6 +604,25 @@ class TuneWidget(Container):
         # (``camera=None``: photon transfer, then its residual), as the CLI does without
         # --camera, and the fitted camera then renders the preview and the export.
         return real, labels, masks, microscope, self.preview.render_settings, None, geometry
+
+    def _frame_of(self, data: np.ndarray, _name: str = "") -> np.ndarray:
+        """The frame shown of ``data`` (a 2D layer is every frame's)."""
+        return data[min(self._current_frame(), len(data) - 1)] if data.ndim == 3 else data
+
+    def _frames_of(self, data: np.ndarray, name: str = "") -> np.ndarray:
+        """Every frame of ``data`` for a joint fit of the real time-lapse."""
+        n_frames = len(self.reference.value.data)
+        if data.ndim == 2 and name:
+            raise ValueError(
+                f"{name} holds one frame but the real time-lapse has {n_frames}: give "
+                "every frame its own (or untick 'all frames jointly')"
+            )
+        if data.ndim == 3 and len(data) != n_frames:
+            raise ValueError(
+                f"{name or 'the real image'} has {len(data)} frames but the real time-lapse "
+                f"has {n_frames}: give every frame its own"
+            )
+        return data
 
     def cancel_fit(self) -> None:
         """Stop the fit before its next render; the parameters stay as they were."""
@@ -590,9 +635,13 @@ class TuneWidget(Container):
         self.status.value = f"Fitting: {done} of about {total} renders"
 
     def _on_fit_returned(self, result) -> None:
+        from napari_symbac.fit import ColonySeriesFit, SeriesFit
         from napari_symbac.fit.report import UNMEASURED_READ_NOISE, fit_problems
 
         self.fit_result = result
+        series = result if isinstance(result, (SeriesFit, ColonySeriesFit)) else None
+        if series is not None:  # the frame shown sets the sliders (the optics are shared)
+            result = series.frames[min(self._current_frame(), len(series.frames) - 1)]
         fitted = {name: float(getattr(result.render, name)) for name in self.sliders}
         self._loading = True
         try:
@@ -632,7 +681,7 @@ class TuneWidget(Container):
             self._store_settings()
         except ValueError as err:
             notify_warning(f"The fitted settings were not applied to the preview: {err}")
-        self._show_fit_layers(result)
+        self._show_fit_layers(series or result)
         self.source.value.reset_contrast_limits()  # the fitted intensities may lie outside
         nan_terms = [
             name
@@ -652,6 +701,11 @@ class TuneWidget(Container):
             f"Fitted in {result.n_evaluations} renders: objective "
             f"{_format(result.objective_before)} -> {_format(result.objective_after)}"
         )
+        if series is not None:
+            self.status.value = _series_status(series, self._current_frame()) + (
+                f"<br>This frame: objective {_format(result.objective_before)} -> "
+                f"{_format(result.objective_after)}"
+            )
         if colony:
             from napari_symbac.fit.report import colony_noise_text
 
@@ -678,6 +732,8 @@ class TuneWidget(Container):
             notify_warning(message)
         hint = f"see the layer '{FIT_RESIDUAL_LAYER}'; the Diagnose widget looks for it"
         problems = [p.removeprefix("warning: ") for p in fit_problems(result, residual_hint=hint)]
+        if series is not None:  # the joint fit's own (the colony's are its frames')
+            problems += [w for w in series.warnings if w not in problems]
         moves = tuple(getattr(result, "moves", ()) or ())
         lines = [f"{len(result.cells)} cells fitted"]
         lines += [f"Moves: {'; '.join(moves)}"] if moves else []
@@ -688,15 +744,23 @@ class TuneWidget(Container):
             notify_warning("Auto-fit: " + "; ".join([*problems, *self._fit_notes]))
 
     def _show_fit_layers(self, result) -> None:
-        """The fitted synthetic image and the residual, over the real image."""
+        """The fitted synthetic image and the residual, over the real image (of every
+        frame, for a joint fit of a time-lapse)."""
         reference = self.reference.value
+        frames = getattr(result, "frames", None)
+        if frames is not None:
+            synthetic = np.stack([frame.synthetic for frame in frames])
+            residual = np.stack([frame.residual for frame in frames])
+            axes = reference.ndim
+        else:
+            synthetic, residual, axes = result.synthetic, result.residual, 2
         kwargs = {
-            "scale": tuple(reference.scale[-2:]),
-            "translate": tuple(reference.translate[-2:]),
+            "scale": tuple(reference.scale[-axes:]),
+            "translate": tuple(reference.translate[-axes:]),
         }
         for name, data, extra in (
-            (FIT_SYNTHETIC_LAYER, result.synthetic, {}),
-            (FIT_RESIDUAL_LAYER, result.residual, {"colormap": "PiYG", "visible": False}),
+            (FIT_SYNTHETIC_LAYER, synthetic, {}),
+            (FIT_RESIDUAL_LAYER, residual, {"colormap": "PiYG", "visible": False}),
         ):
             if name in self.viewer.layers:
                 self.viewer.layers.remove(name)
@@ -772,3 +836,21 @@ def _set_slider(slider: FloatSlider, value: float) -> None:
     if value < slider.min:
         slider.min = value - room
     slider.value = value
+
+
+def _series_status(series, shown: int) -> str:
+    """A joint fit of a time-lapse in a line or two: frames, shared optics, tracks."""
+    shared = ", ".join(
+        f"{name} {value:.4g} +- {se:.2g}" for name, (value, se) in series.shared().items()
+    )
+    lineage = series.lineage
+    tracks = (
+        ""
+        if lineage is None
+        else (f"; {len(lineage.tracks)} tracks, {len(lineage.divisions())} division(s)")
+    )
+    n_frames = len(series.frames)
+    return (
+        f"Fitted {n_frames} frames jointly (optics shared: {shared}){tracks}. The sliders "
+        f"show frame {min(shown, n_frames - 1)}'s fit; the layers hold every frame"
+    )
