@@ -84,6 +84,16 @@ def _real_trench(viewer, real_data_dir, *, paint: dict | None = None):
     return layer
 
 
+def _as_agar_pad(tune) -> None:
+    """The rendered layer's simulation made an agar pad: Auto-fit fits an open field."""
+    import dataclasses
+
+    metadata = tune.source.value.metadata[SYMBAC_METADATA_KEY]
+    settings = metadata["settings"]
+    simulation = dataclasses.replace(settings.simulation, geometry="agar_pad")
+    metadata["settings"] = dataclasses.replace(settings, simulation=simulation)
+
+
 def test_auto_fit_runs_the_scene_fit_on_the_recording(rendered, qtbot, real_data_dir):
     from napari_symbac._widgets.tune import FIT_RESIDUAL_LAYER, FIT_SYNTHETIC_LAYER
     from napari_symbac.fit.report import OPEN_PHASE_NOTE
@@ -130,7 +140,6 @@ def test_auto_fit_of_a_phase_colony_says_what_the_linear_kernel_cannot_do(
     """A phase recording of a colony on a pad (a crop of the Omnipose Sample000033,
     pixel size entered by the user) fitted after an agar-pad simulation: the status
     and a notification carry the CLI report's note on the colony's halo."""
-    import dataclasses
 
     from napari.utils.notifications import notification_manager
 
@@ -138,10 +147,7 @@ def test_auto_fit_of_a_phase_colony_says_what_the_linear_kernel_cannot_do(
     from napari_symbac.io import read_image
 
     viewer, tune = rendered
-    metadata = tune.source.value.metadata[SYMBAC_METADATA_KEY]
-    settings = metadata["settings"]
-    simulation = dataclasses.replace(settings.simulation, geometry="agar_pad")
-    metadata["settings"] = dataclasses.replace(settings, simulation=simulation)
+    _as_agar_pad(tune)
     colony = read_image(real_data_dir / "omnipose" / "Sample000033.png").data[100:164, 150:214]
     real = viewer.add_image(
         colony.astype(np.float32),
@@ -165,7 +171,6 @@ def test_auto_fit_of_a_phase_colony_with_its_masks_fits_the_halo(rendered, qtbot
     """The same kind of recording with its instance masks opened as a Labels layer and
     chosen as the cell masks: Auto-fit fits the partially coherent model to the masks'
     scene (as `napari-symbac fit --masks`), and the preview and Export take it."""
-    import dataclasses
 
     import imageio.v3 as iio
     import tifffile
@@ -175,10 +180,7 @@ def test_auto_fit_of_a_phase_colony_with_its_masks_fits_the_halo(rendered, qtbot
     from napari_symbac.fit.report import COLONY_NOTE
 
     viewer, tune = rendered
-    metadata = tune.source.value.metadata[SYMBAC_METADATA_KEY]
-    settings = metadata["settings"]
-    simulation = dataclasses.replace(settings.simulation, geometry="agar_pad")
-    metadata["settings"] = dataclasses.replace(settings, simulation=simulation)
+    _as_agar_pad(tune)
     root = real_data_dir / "omnipose"
     crop = (slice(80, 176), slice(336, 432))  # half cells, half pad beside the colony
     grey = iio.imread(root / "Sample000193.png")[..., 0][crop]
@@ -257,7 +259,6 @@ def test_auto_fit_of_all_frames_fits_a_colony_time_lapse_jointly(rendered, qtbot
     frame (as `napari-symbac fit --frames`), the optics shared, the cells tracked, the
     synthetic and residual layers holding every frame. A single frame with the box
     ticked is refused with the fix."""
-    import dataclasses
 
     import imageio.v3 as iio
     import tifffile
@@ -266,10 +267,7 @@ def test_auto_fit_of_all_frames_fits_a_colony_time_lapse_jointly(rendered, qtbot
     from napari_symbac.fit import ColonySeriesFit
 
     viewer, tune = rendered
-    metadata = tune.source.value.metadata[SYMBAC_METADATA_KEY]
-    settings = metadata["settings"]
-    simulation = dataclasses.replace(settings.simulation, geometry="agar_pad")
-    metadata["settings"] = dataclasses.replace(settings, simulation=simulation)
+    _as_agar_pad(tune)
     root = real_data_dir / "omnipose"
     grey = iio.imread(root / "Sample000193.png")[..., 0]
     full = tifffile.imread(root / "Sample000193_cp_masks.tif")

@@ -131,15 +131,13 @@ def _joint_optics(
     the summed Fisher information), warnings and bounds, and the reduced chi-square over
     all frames' pixels before and after.
     """
-    from scipy import optimize
-
     from napari_symbac.fit.parameters import (
         _SCALE,
-        _Z_OFFSET,
         _render_with,
         _standard_errors,
         fit_warnings,
         parameter_bounds,
+        scaled_least_squares,
     )
     from napari_symbac.optics import ForwardModel
 
@@ -167,19 +165,13 @@ def _joint_optics(
     def chi2(r: np.ndarray) -> float:
         return float(r @ r) / r.size
 
-    z0 = np.clip(np.zeros(len(names)), z_lo, z_hi)
-    # z + _Z_OFFSET: finite-difference steps of ~0.02 of a scale (as fit_parameters)
-    sol = optimize.least_squares(
-        lambda w: residual(w - _Z_OFFSET),
-        z0 + _Z_OFFSET,
-        bounds=(z_lo + _Z_OFFSET, z_hi + _Z_OFFSET),
-        diff_step=0.02 / _Z_OFFSET,
-        x_scale=1.0,
-        xtol=1e-8,
-        ftol=1e-9,
-        max_nfev=max(max_evaluations // (len(names) + 1), 1),
+    sol = scaled_least_squares(
+        residual,
+        np.zeros(len(names)),
+        (z_lo, z_hi),
+        max(max_evaluations // (len(names) + 1), 1),
     )
-    z = sol.x - _Z_OFFSET
+    z = sol.x
     before, after = first[0], chi2(sol.fun)
     render = _render_with(optics.render, names, z, start)
     errors = _standard_errors(names, sol.jac, z, z_lo, z_hi)

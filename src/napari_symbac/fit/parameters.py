@@ -556,20 +556,13 @@ def fit_parameters(
                         names, z, start, bounds, lambda zz: float(np.sum(residual(zz) ** 2))
                     )
                 remaining = max(budget.total - budget.done, 2 * len(names) + 2)
-                # scipy's diff_step is relative to |x| and falls back to 1.5e-8 at
-                # x = 0 (every start): optimise z + _Z_OFFSET so that the finite
-                # differences step ~0.02 of a parameter's _SCALE everywhere.
-                sol = optimize.least_squares(
-                    lambda w, sw=sw: residual(w - _Z_OFFSET, sw),
-                    np.clip(z, z_lo, z_hi) + _Z_OFFSET,
-                    bounds=(z_lo + _Z_OFFSET, z_hi + _Z_OFFSET),
-                    diff_step=0.02 / _Z_OFFSET,
-                    x_scale=1.0,
-                    xtol=1e-8,
-                    ftol=1e-9,
-                    max_nfev=max(remaining // (len(names) + 1), 3),
+                sol = scaled_least_squares(
+                    lambda zz, sw=sw: residual(zz, sw),
+                    z,
+                    (z_lo, z_hi),
+                    max(remaining // (len(names) + 1), 3),
                 )
-                z = sol.x - _Z_OFFSET
+                z = sol.x
                 message = str(sol.message)
                 jacobian = sol.jac
             current = _render_with(render, names, z, start)
@@ -644,6 +637,35 @@ def fit_parameters(
         message=message,
         standard_errors=errors,
     )
+
+
+def scaled_least_squares(
+    residual: Callable[[np.ndarray], np.ndarray],
+    z: np.ndarray,
+    bounds: tuple[np.ndarray, np.ndarray],
+    max_nfev: int,
+) -> optimize.OptimizeResult:
+    """Bounded least squares of ``residual(z)``, z in the parameters' natural scales
+    (:data:`_SCALE`), starting at ``z`` (clipped to ``bounds``).
+
+    scipy's ``diff_step`` is relative to ``|x|`` and falls back to 1.5e-8 at ``x = 0``
+    (every start): the solver works on ``z + _Z_OFFSET`` so that its finite differences
+    step ~0.02 of a scale everywhere. Returns scipy's result with ``x`` in ``z`` units
+    (``jac`` is ``d residual / d z`` either way).
+    """
+    z_lo, z_hi = bounds
+    sol = optimize.least_squares(
+        lambda w: residual(w - _Z_OFFSET),
+        np.clip(z, z_lo, z_hi) + _Z_OFFSET,
+        bounds=(z_lo + _Z_OFFSET, z_hi + _Z_OFFSET),
+        diff_step=0.02 / _Z_OFFSET,
+        x_scale=1.0,
+        xtol=1e-8,
+        ftol=1e-9,
+        max_nfev=max_nfev,
+    )
+    sol.x = sol.x - _Z_OFFSET
+    return sol
 
 
 def _standard_errors(
