@@ -41,6 +41,49 @@ def test_no_effect_control_accepts_nothing(seed):
     assert abs(result.base_fit["value"] - 1.0) < 0.05
 
 
+def test_a_plain_effect_is_decided_early_and_alike():
+    """A strong concealed effect (1.5 s.d.) passes its held-out check after a few
+    bootstrap replicates (its gain far beyond the null); the full bootstrap accepts the
+    same effects with the same fitted parameters."""
+    from napari_symbac.diagnose import selection
+
+    case = make_case("uneven_illumination", fraction_of_sd=1.5, seed=4)
+    result = diagnose(case.images, case.design, n_bootstrap=30, rng=np.random.default_rng(0))
+    effect = result.accepted[0]
+    assert effect.name == "uneven_illumination"
+    assert selection.MIN_REPLICATES <= effect.null_replicates < 30
+    assert effect.as_dict()["null_replicates"] == effect.null_replicates
+    margin = selection.EARLY_MARGIN
+    selection.EARLY_MARGIN = float("inf")  # never early: every check draws all 30
+    try:
+        full = diagnose(case.images, case.design, n_bootstrap=30, rng=np.random.default_rng(0))
+    finally:
+        selection.EARLY_MARGIN = margin
+    assert full.accepted[0].null_replicates == 30
+    assert [e.name for e in full.accepted] == [e.name for e in result.accepted]
+    assert full.accepted[0].params == effect.params
+    assert effect.held_out_gain_nats > full.accepted[0].null_threshold_nats
+
+
+def test_a_check_of_an_absent_effect_draws_every_replicate():
+    """No effect concealed: a held-out check of one (uneven illumination) finds no
+    gain beyond its null and draws the whole bootstrap, however it ends."""
+    from napari_symbac.diagnose.effects import CATALOGUE
+    from napari_symbac.diagnose.selection import ModelSpec, held_out
+
+    case = make_case(None, modality="fluorescence", fraction_of_sd=0.5, seed=31)
+    y = np.asarray(case.images, np.float64)
+    y = (y[None] if y.ndim == 2 else y) - case.design.camera.baseline_adu
+    valid = np.ones(y.shape, bool)
+    spec = ModelSpec()
+    current = spec.fit(case.design, y, valid)
+    effect = CATALOGUE["uneven_illumination"](case.design.geometry)
+    rng = np.random.default_rng(0)
+    check = held_out(effect, case.design, y, spec, current, valid, rng, n_bootstrap=12)
+    assert check.replicates == 12
+    assert not check.passed
+
+
 def test_same_seed_same_diagnosis():
     case = make_case("stray_light", fraction_of_sd=0.6, seed=5)
     one = diagnose(case.images, case.design, n_bootstrap=10, rng=np.random.default_rng(3))

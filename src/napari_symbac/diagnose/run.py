@@ -35,6 +35,7 @@ class EffectResult:
     held_out_after: float
     held_out_gain_nats: float = 0.0
     null_threshold_nats: float = float("nan")
+    null_replicates: int = 0
     step: int = 0
     effect_map: np.ndarray | None = field(default=None, repr=False)
 
@@ -49,6 +50,7 @@ class EffectResult:
             "held_out_after": _finite(self.held_out_after),
             "held_out_gain_nats": _finite(self.held_out_gain_nats),
             "null_threshold_nats": _finite(self.null_threshold_nats),
+            "null_replicates": self.null_replicates,
             "score_dof": self.dof,
             "signature": self.signature,
         }
@@ -322,6 +324,7 @@ def _diagnose(
             res = results[effect.name]
             res.held_out_before, res.held_out_after = check.before, check.after
             res.held_out_gain_nats, res.null_threshold_nats = check.gain_nats, check.threshold_nats
+            res.null_replicates = check.replicates
             res.step = step
             if check.passed:
                 accepted_now = effect
