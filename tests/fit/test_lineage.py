@@ -433,3 +433,36 @@ def test_a_series_frame_starts_from_the_previous_frames_cells():
     assert inside.sum() == len(cells) == 5
     assert sorted(distance.argmin(axis=1).tolist()) == [0, 1, 2, 3, 4]
     assert distance.min(axis=1).max() < 0.15
+
+
+def test_cells_cut_by_the_edge_of_a_drifting_real_colony_are_not_divisions(real_data_dir):
+    """Real masks: three 200 x 200 px windows of the Omnipose colony Sample000193 stepped
+    like a drifting stage (one mask image, so a label is one cell throughout and nothing
+    divides). A cell cut by the image's edge shows less of itself as the stage drifts;
+    told which cells the edge cuts, the linker takes none of them for a division's lone
+    daughter (without: 6 divisions), and nearly every label keeps its track."""
+    import math
+
+    import tifffile
+
+    from napari_symbac.fit.start import cells_from_instances, cut_by_edge
+
+    full = tifffile.imread(real_data_dir / "omnipose" / "Sample000193_cp_masks.tif")
+    pixel_um = 0.0745
+    windows = [full[r : r + 200, c : c + 200] for r, c in ((208, 300), (204, 305), (200, 312))]
+    cells = [cells_from_instances(w, pixel_um, math.inf, keep_labels=True)[0] for w in windows]
+    size_um = (200 * pixel_um, 200 * pixel_um)
+    flags = [cut_by_edge(w, c.ids) for w, c in zip(windows, cells)]
+    assert all(f.any() for f in flags)  # the edge cuts cells in every window
+    lineage = link_cells(cells, image_size_um=size_um, cut_by_edge=flags)
+    assert lineage.divisions() == {}
+    kept = total = 0
+    for t in range(2):
+        before = dict(zip(cells[t].ids.tolist(), lineage.track_ids[t].tolist()))
+        after = dict(zip(cells[t + 1].ids.tolist(), lineage.track_ids[t + 1].tolist()))
+        common = set(before) & set(after)
+        total += len(common)
+        kept += sum(before[k] == after[k] for k in common)
+    assert kept >= 0.9 * total
+    with pytest.raises(ValueError, match="one flag per cell"):
+        link_cells(cells, image_size_um=size_um, cut_by_edge=flags[:2])

@@ -24,6 +24,7 @@ import numpy as np
 
 from napari_symbac.fit.colony import ColonyFit, colony_start, fit_colony
 from napari_symbac.fit.lineage import Lineage, LinkSettings, link_cells
+from napari_symbac.fit.start import cut_by_edge
 from napari_symbac.settings import Camera, Microscope, RenderSettings
 
 __all__ = ["ColonySeriesFit", "fit_colony_series"]
@@ -332,7 +333,10 @@ def fit_colony_series(
     height, width = images[0].shape
     pixel_um = microscope.pixel_size_um
     lineage = link_cells(
-        [fit.cells for fit in fits], linking, image_size_um=(height * pixel_um, width * pixel_um)
+        [fit.cells for fit in fits],
+        linking,
+        image_size_um=(height * pixel_um, width * pixel_um),
+        cut_by_edge=[cut_by_edge(f.masks, fit.cells.ids) for f, fit in zip(frames, fits)],
     )
     return ColonySeriesFit(
         frames=tuple(fits), reference=reference, lineage=lineage, joint_objective=objective

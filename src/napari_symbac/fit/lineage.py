@@ -503,13 +503,15 @@ def _division_cost(
 
 
 def _division_candidates(
-    pred: _Predicted, nxt: FrameCells, s: LinkSettings
+    pred: _Predicted, nxt: FrameCells, s: LinkSettings, cut: np.ndarray | None = None
 ) -> list[tuple[int, tuple[int, ...], float]]:
     """Every ``(mother, daughters, cost)`` within the gates.
 
     Daughters lie within reach of the mother's predicted centre; a pair's summed length
     is within ``length_gate_um`` of hers; a lone daughter is considered only for a
-    mother reaching out of the field of view (where her sister may have gone).
+    mother reaching out of the field of view (where her sister may have gone), and not
+    when ``cut`` says she is herself cut by the image's edge: her septum pole is then
+    not in view, and a shorter part in view is the same cell seen less (a drift).
     """
     centres = np.stack([nxt.x_um, nxt.y_um], axis=1)
     expected = pred.length_um + pred.width_um / 3
@@ -519,7 +521,10 @@ def _division_candidates(
     candidates = []
     for k in range(len(expected)):
         near = np.flatnonzero(np.linalg.norm(centres - pred.centre[k], axis=1) <= reach[k])
-        options: list[tuple[int, ...]] = [(int(a),) for a in near] if out_of_view[k] else []
+        lone = near if out_of_view[k] else near[:0]
+        if cut is not None:
+            lone = lone[~cut[lone]]
+        options: list[tuple[int, ...]] = [(int(a),) for a in lone]
         if near.size > 1:
             a, b = np.triu_indices(near.size, 1)
             total = nxt.length_um[near[a]] + nxt.length_um[near[b]]
@@ -539,6 +544,7 @@ def _divisions(
     cost: np.ndarray,
     end_cost: np.ndarray,
     s: LinkSettings,
+    cut: np.ndarray | None = None,
 ) -> tuple[dict[int, tuple[int, ...]], np.ndarray]:
     """Divisions that explain the cells better than the assignment did, and the links left.
 
@@ -549,7 +555,7 @@ def _divisions(
     """
     m = cost.shape[1]
     match = match.copy()
-    candidates = _division_candidates(pred, nxt, s)
+    candidates = _division_candidates(pred, nxt, s, cut)
     chosen: dict[int, tuple[int, ...]] = {}
     used: set[int] = set()
     while True:
@@ -603,13 +609,14 @@ def _link_pair(
     drift_um: np.ndarray,
     size_um: tuple[float, float],
     s: LinkSettings,
+    cut_after: np.ndarray | None = None,
 ) -> _Step:
     """Assignment, then divisions, for one pair of frames; ``total`` is its whole cost."""
     pred = _predict(before, growth, placements, drift_um, size_um, s.exit_margin_um)
     cost = _link_costs(pred, after, s)
     end_cost = np.where(pred.leaving, 0.0, s.unlinked_cost)
     match = _assign(cost, end_cost, s.unlinked_cost)
-    split, match = _divisions(pred, after, match, cost, end_cost, s)
+    split, match = _divisions(pred, after, match, cost, end_cost, s, cut_after)
     explained = np.zeros(len(after), bool)
     total = 0.0
     free_ends = 0.0
@@ -639,6 +646,7 @@ def link_cells(
     *,
     trench: Sequence[TrenchPlacement | None] | None = None,
     image_size_um: tuple[float, float] | None = None,
+    cut_by_edge: Sequence[np.ndarray] | None = None,
     passes: int = 3,
 ) -> Lineage:
     """Give the cells of consecutive frames track ids and a lineage.
@@ -658,6 +666,12 @@ def link_cells(
     image_size_um
         ``(height, width)`` of the field of view: a cell predicted beyond it (below
         the image in a trench) may leave at no cost. Default: no edge.
+    cut_by_edge
+        Per frame, whether each cell is cut by the image's edge (its mask reaches the
+        border: only its part in view was measured), when that is known
+        (:func:`~napari_symbac.fit.start.cut_by_edge`). Such a cell is never taken as
+        a division's lone daughter (her sister out of view): when the stage drifts,
+        the part of a cell in view shrinks without any septum.
     passes
         Rounds of linking: after each, the growth factor (when not given) and the
         field's drift are measured again from the links.
@@ -676,6 +690,11 @@ def link_cells(
         )
     if passes < 1:
         raise ValueError(f"passes must be at least 1, got {passes}")
+    cut: list[np.ndarray | None] = [None] * len(frames)
+    if cut_by_edge is not None:
+        cut = [np.asarray(c, bool) for c in cut_by_edge]
+        if len(cut) != len(frames) or any(c.shape != (len(f),) for c, f in zip(cut, frames)):
+            raise ValueError("cut_by_edge needs one flag per cell of every frame")
     size = image_size_um if image_size_um is not None else (math.inf, math.inf)
     is_trench = trench is not None and any(p is not None for p in trench)
     growth = s.growth_per_frame if s.growth_per_frame is not None else 1.0
@@ -690,12 +709,14 @@ def link_cells(
                 # the field's shift: the candidate whose links cost least (ends all
                 # priced alike: a shift must not win by pushing cells out of view)
                 tries = [
-                    (_link_pair(frames[t], frames[t + 1], growth, None, d, size, s), d)
+                    (_link_pair(frames[t], frames[t + 1], growth, None, d, size, s, cut[t + 1]), d)
                     for d in _shift_candidates(frames[t], frames[t + 1], s)
                 ]
                 step, drift[t] = min(tries, key=lambda sd: sd[0].score)
             else:
-                step = _link_pair(frames[t], frames[t + 1], growth, pair, drift[t], size, s)
+                step = _link_pair(
+                    frames[t], frames[t + 1], growth, pair, drift[t], size, s, cut[t + 1]
+                )
             steps.append(step)
         ratios = []
         for t, step in enumerate(steps):

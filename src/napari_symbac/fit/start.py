@@ -22,7 +22,7 @@ from napari_symbac.fit.placement import TrenchPlacement
 from napari_symbac.settings import Microscope
 from napari_symbac.sim import FrameCells
 
-__all__ = ["cells_from_instances", "otsu_cells", "polarity_of", "start_scene"]
+__all__ = ["cells_from_instances", "cut_by_edge", "otsu_cells", "polarity_of", "start_scene"]
 
 
 def _spherocylinder_width(area_um2: float, length_um: float) -> float:
@@ -314,6 +314,16 @@ def otsu_cells(
 
 #: Regions smaller than this are fragments, not cells (a 0.6 um sphere is 0.28 um^2).
 MIN_CELL_AREA_UM2 = 0.25
+
+
+def cut_by_edge(instances: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """Whether each region of ``ids`` in an instance mask reaches the image's border
+    (only its part in view is measured: :func:`~napari_symbac.fit.link_cells`)."""
+    instances = np.asarray(instances)
+    border = np.concatenate(
+        [instances[0], instances[-1], instances[:, 0], instances[:, -1]]
+    )
+    return np.isin(np.asarray(ids), border[border > 0])
 
 
 def cells_from_instances(
