@@ -27,3 +27,18 @@ def _no_worker_outlives_its_test():
     from superqt.utils._qthreading import WorkerBase
 
     WorkerBase.await_workers(msecs=120_000)
+
+
+@pytest.fixture(autouse=True)
+def _notifications_in_the_report():
+    """Print every warning and error notification a test raised, so that a failed wait
+    (a widget that never showed its result) says why in the test's captured output."""
+    from napari.utils.notifications import NotificationSeverity, notification_manager
+
+    def echo(notification):
+        if notification.severity >= NotificationSeverity.WARNING:
+            print(f"napari {notification.severity}: {notification.message}", flush=True)
+
+    notification_manager.notification_ready.connect(echo)
+    yield
+    notification_manager.notification_ready.disconnect(echo)

@@ -307,6 +307,18 @@ def test_auto_fit_of_all_frames_fits_a_colony_time_lapse_jointly(rendered, qtbot
     common = set(ids[0]) & set(ids[1])
     assert len(common) >= 5
     assert sum(ids[0][k] == ids[1][k] for k in common) >= 5
+    # masks of one frame, or of another number of frames: refused, with the fix
+    for data, message in (
+        (masks[0], "holds one frame but the real time-lapse has 2: give every frame its own"),
+        (np.concatenate([masks, masks[:1]]), "has 3 frames but the real time-lapse has 2"),
+    ):
+        layer = viewer.add_labels(data, name=f"masks of {data.shape}", scale=scale[-data.ndim :])
+        tune.masks.reset_choices()
+        tune.masks.value = layer
+        tune.fit_button.native.click()
+        assert tune.fit_worker is None
+        assert message in tune.status.value
+        assert tune.fit_result is series
     # one frame with the box ticked: refused, with the fix, nothing run
     single = viewer.add_image(
         grey[windows[0]], name="one frame", scale=scale[1:],

@@ -575,7 +575,7 @@ class TuneWidget(Container):
         from napari_symbac.fit.preflight import check_fit_image, check_instance_masks
 
         pick = self._frames_of if all_frames else self._frame_of
-        real = pick(real)
+        real = real if all_frames else self._frame_of(real)  # a time-lapse: checked above
         check_fit_image(real, reference.name)  # as `napari-symbac fit` (negative values)
         labels = None
         name = class_layer_name(reference.name)
@@ -609,18 +609,19 @@ class TuneWidget(Container):
         """The frame shown of ``data`` (a 2D layer is every frame's)."""
         return data[min(self._current_frame(), len(data) - 1)] if data.ndim == 3 else data
 
-    def _frames_of(self, data: np.ndarray, name: str = "") -> np.ndarray:
-        """Every frame of ``data`` for a joint fit of the real time-lapse."""
+    def _frames_of(self, data: np.ndarray, name: str) -> np.ndarray:
+        """Every frame of layer ``name``'s ``data`` for a joint fit of the real
+        time-lapse: one per frame of it."""
         n_frames = len(self.reference.value.data)
-        if data.ndim == 2 and name:
+        if data.ndim == 2:
             raise ValueError(
                 f"{name} holds one frame but the real time-lapse has {n_frames}: give "
                 "every frame its own (or untick 'all frames jointly')"
             )
-        if data.ndim == 3 and len(data) != n_frames:
+        if len(data) != n_frames:
             raise ValueError(
-                f"{name or 'the real image'} has {len(data)} frames but the real time-lapse "
-                f"has {n_frames}: give every frame its own"
+                f"{name} has {len(data)} frames but the real time-lapse has {n_frames}: "
+                "give every frame its own"
             )
         return data
 
@@ -635,11 +636,10 @@ class TuneWidget(Container):
         self.status.value = f"Fitting: {done} of about {total} renders"
 
     def _on_fit_returned(self, result) -> None:
-        from napari_symbac.fit import ColonySeriesFit, SeriesFit
         from napari_symbac.fit.report import UNMEASURED_READ_NOISE, fit_problems
 
         self.fit_result = result
-        series = result if isinstance(result, (SeriesFit, ColonySeriesFit)) else None
+        series = _series_of(result)
         if series is not None:  # the frame shown sets the sliders (the optics are shared)
             result = series.frames[min(self._current_frame(), len(series.frames) - 1)]
         fitted = {name: float(getattr(result.render, name)) for name in self.sliders}
@@ -747,10 +747,10 @@ class TuneWidget(Container):
         """The fitted synthetic image and the residual, over the real image (of every
         frame, for a joint fit of a time-lapse)."""
         reference = self.reference.value
-        frames = getattr(result, "frames", None)
-        if frames is not None:
-            synthetic = np.stack([frame.synthetic for frame in frames])
-            residual = np.stack([frame.residual for frame in frames])
+        series = _series_of(result)
+        if series is not None:
+            synthetic = np.stack([frame.synthetic for frame in series.frames])
+            residual = np.stack([frame.residual for frame in series.frames])
             axes = reference.ndim
         else:
             synthetic, residual, axes = result.synthetic, result.residual, 2
@@ -836,6 +836,14 @@ def _set_slider(slider: FloatSlider, value: float) -> None:
     if value < slider.min:
         slider.min = value - room
     slider.value = value
+
+
+def _series_of(result):
+    """``result`` when it is a time-lapse's joint fit (its ``frames`` one fit each), else
+    ``None``."""
+    from napari_symbac.fit import ColonySeriesFit, SeriesFit
+
+    return result if isinstance(result, (SeriesFit, ColonySeriesFit)) else None
 
 
 def _series_status(series, shown: int) -> str:

@@ -96,7 +96,13 @@ class _Frame:
     masks: np.ndarray
     scene: Any
     start: RenderSettings
-    sd_adu: float  # the likelihood's: measured noise and quantisation
+    noise_sd_adu: float  # measured on the frame (the render's noise)
+
+    @property
+    def sd_adu(self) -> float:
+        """The likelihood's pixel s.d.: the measured noise and quantisation, as
+        :func:`~napari_symbac.fit.fit_colony`'s."""
+        return math.sqrt(self.noise_sd_adu**2 + 1 / 12)
 
     @classmethod
     def of(cls, image: np.ndarray, microscope: Microscope, masks: np.ndarray, camera: Camera):
@@ -105,8 +111,7 @@ class _Frame:
 
         real, masks, camera, noise = checked_colony_frame(image, microscope, masks, camera)
         start, scene = colony_start(masks, microscope, float(np.percentile(real, 50)), noise)
-        sd = math.sqrt(measured_noise_sd_adu(real) ** 2 + 1 / 12)  # as fit_colony's
-        return cls(real, masks, scene, start, sd)
+        return cls(real, masks, scene, start, measured_noise_sd_adu(real))
 
 
 def _media_level(unit: np.ndarray, y: np.ndarray) -> float:
@@ -196,7 +201,7 @@ def _drawn_with(frame: _Frame, microscope: Microscope, optics: ColonyFit) -> Col
     (:func:`~napari_symbac.fit.colony.colony_start`'s optics) and after, both weighed with
     this frame's noise. Two renders."""
     from napari_symbac.fit.colony import colony_result, rendered_start
-    from napari_symbac.fit.objectives import measured_noise_sd_adu, objective_terms
+    from napari_symbac.fit.objectives import objective_terms
     from napari_symbac.fit.parameters import scene_classes, with_media_level
     from napari_symbac.optics import ForwardModel
 
@@ -206,7 +211,7 @@ def _drawn_with(frame: _Frame, microscope: Microscope, optics: ColonyFit) -> Col
     media = _media_level(unit, y)
     render = dataclasses.replace(
         with_media_level(optics.render, media),
-        gaussian_noise_sd_adu=measured_noise_sd_adu(frame.real),
+        gaussian_noise_sd_adu=frame.noise_sd_adu,
     )
     synthetic = media * unit + camera.baseline_adu
     before = rendered_start(microscope, frame.start, camera, frame.scene)
