@@ -440,7 +440,9 @@ def test_cells_cut_by_the_edge_of_a_drifting_real_colony_are_not_divisions(real_
     like a drifting stage (one mask image, so a label is one cell throughout and nothing
     divides). A cell cut by the image's edge shows less of itself as the stage drifts;
     told which cells the edge cuts, the linker takes none of them for a division's lone
-    daughter (without: 6 divisions), and nearly every label keeps its track."""
+    daughter (without: 6 divisions), and every label keeps its track: a cell lying along
+    the edge shows a sliver of itself, whose width and axis are not the cell's, so they
+    are not compared (without: 8 of the 124 restart their track)."""
     import math
 
     import tifffile
@@ -463,6 +465,7 @@ def test_cells_cut_by_the_edge_of_a_drifting_real_colony_are_not_divisions(real_
         common = set(before) & set(after)
         total += len(common)
         kept += sum(before[k] == after[k] for k in common)
-    assert kept >= 0.9 * total
+    assert total == 124
+    assert kept == total
     with pytest.raises(ValueError, match="one flag per cell"):
         link_cells(cells, image_size_um=size_um, cut_by_edge=flags[:2])

@@ -380,10 +380,15 @@ def _visible(
     return centre + u * middle[:, None], seen
 
 
-def _link_costs(pred: _Predicted, nxt: FrameCells, s: LinkSettings) -> np.ndarray:
+def _link_costs(
+    pred: _Predicted, nxt: FrameCells, s: LinkSettings, partial: np.ndarray | None = None
+) -> np.ndarray:
     """``(n_t, n_t+1)`` costs of the one-to-one links (``inf``: outside the gates).
 
     Centres and lengths are those of the parts of the cells in the field of view.
+    ``partial`` (``(n_t, n_t+1)`` bool) marks the pairs of which one cell is cut by the
+    image's edge: its width and axis are those of the part in view (a cell lying along
+    the edge shows a sliver of itself), so only centre and length are compared.
     """
     centre_p, length_p = _visible(
         pred.centre, pred.angle_rad, pred.length_um, pred.width_um, pred.size_um
@@ -403,14 +408,24 @@ def _link_costs(pred: _Predicted, nxt: FrameCells, s: LinkSettings) -> np.ndarra
         _elongation(length_p, pred.width_um)[:, None],
         _elongation(length_n, nxt.width_um)[None, :],
     )
-    cost = (
-        (distance / s.position_sd_um) ** 2
-        + (d_length / s.length_sd_um) ** 2
-        + (d_width / s.width_sd_um) ** 2
-        + weight * (d_angle / s.angle_sd_rad) ** 2
-    )
+    shape_terms = (d_width / s.width_sd_um) ** 2 + weight * (d_angle / s.angle_sd_rad) ** 2
+    if partial is not None:
+        shape_terms = np.where(partial, 0.0, shape_terms)
+    cost = (distance / s.position_sd_um) ** 2 + (d_length / s.length_sd_um) ** 2 + shape_terms
     cost[(distance > s.gate_um) | (np.abs(d_length) > s.length_gate_um)] = np.inf
     return cost
+
+
+def _partial_pairs(
+    cut_before: np.ndarray | None, cut_after: np.ndarray | None
+) -> np.ndarray | None:
+    """Pairs (frame ``t`` cell, frame ``t + 1`` cell) of which either is cut by the
+    image's edge, broadcastable to ``(n_t, n_t+1)``; ``None``: not known in either frame."""
+    if cut_before is None and cut_after is None:
+        return None
+    rows = False if cut_before is None else cut_before[:, None]
+    columns = False if cut_after is None else cut_after[None, :]
+    return np.logical_or(rows, columns)
 
 
 def _assign(cost: np.ndarray, end_cost: np.ndarray, start_cost: float) -> np.ndarray:
@@ -609,11 +624,14 @@ def _link_pair(
     drift_um: np.ndarray,
     size_um: tuple[float, float],
     s: LinkSettings,
-    cut_after: np.ndarray | None = None,
+    cut: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
 ) -> _Step:
-    """Assignment, then divisions, for one pair of frames; ``total`` is its whole cost."""
+    """Assignment, then divisions, for one pair of frames; ``total`` is its whole cost.
+    ``cut``: which cells of ``before`` and of ``after`` the image's edge cuts (or
+    ``None``: not known)."""
     pred = _predict(before, growth, placements, drift_um, size_um, s.exit_margin_um)
-    cost = _link_costs(pred, after, s)
+    cut_before, cut_after = cut
+    cost = _link_costs(pred, after, s, _partial_pairs(cut_before, cut_after))
     end_cost = np.where(pred.leaving, 0.0, s.unlinked_cost)
     match = _assign(cost, end_cost, s.unlinked_cost)
     split, match = _divisions(pred, after, match, cost, end_cost, s, cut_after)
@@ -671,7 +689,9 @@ def link_cells(
         border: only its part in view was measured), when that is known
         (:func:`~napari_symbac.fit.start.cut_by_edge`). Such a cell is never taken as
         a division's lone daughter (her sister out of view): when the stage drifts,
-        the part of a cell in view shrinks without any septum.
+        the part of a cell in view shrinks without any septum. Its links compare
+        centre and length only (of the parts in view): its measured width and axis
+        are its part's.
     passes
         Rounds of linking: after each, the growth factor (when not given) and the
         field's drift are measured again from the links.
@@ -705,17 +725,18 @@ def link_cells(
         steps = []
         for t in range(len(frames) - 1):
             pair = _placements(trench, t)
+            pair_cut = (cut[t], cut[t + 1])
             if trench is None and round_ == 0:
                 # the field's shift: the candidate whose links cost least (ends all
                 # priced alike: a shift must not win by pushing cells out of view)
                 tries = [
-                    (_link_pair(frames[t], frames[t + 1], growth, None, d, size, s, cut[t + 1]), d)
+                    (_link_pair(frames[t], frames[t + 1], growth, None, d, size, s, pair_cut), d)
                     for d in _shift_candidates(frames[t], frames[t + 1], s)
                 ]
                 step, drift[t] = min(tries, key=lambda sd: sd[0].score)
             else:
                 step = _link_pair(
-                    frames[t], frames[t + 1], growth, pair, drift[t], size, s, cut[t + 1]
+                    frames[t], frames[t + 1], growth, pair, drift[t], size, s, pair_cut
                 )
             steps.append(step)
         ratios = []
@@ -737,7 +758,7 @@ def link_cells(
                 drift[t] = drift[t] + np.median(shift, axis=0) if shift.size else 0.0
         if s.growth_per_frame is None and ratios:
             growth = float(np.clip(np.median(ratios), 0.5, 2.0))
-    gaps = _close_gaps(frames, steps, growth, drift, trench, size, s) if s.close_gaps else []
+    gaps = _close_gaps(frames, steps, growth, drift, trench, size, s, cut) if s.close_gaps else []
     return _lineage(frames, steps, growth, drift, gaps)
 
 
@@ -779,6 +800,7 @@ def _close_gaps(
     trench,
     size_um: tuple[float, float],
     s: LinkSettings,
+    cut: list[np.ndarray | None],
 ) -> list[_GapLink]:
     """Links and divisions over one missing frame (:attr:`LinkSettings.close_gaps`).
 
@@ -816,7 +838,12 @@ def _close_gaps(
         full = _predict(frames[t - 1], growth**2, pair, shift, size_um, s.exit_margin_um)
         pred = _take(full, ended)
         nxt = _subset(frames[t + 1], started)
-        cost = _link_costs(pred, nxt, wide)
+        cut_before, cut_after = cut[t - 1], cut[t + 1]
+        partial = _partial_pairs(
+            None if cut_before is None else cut_before[ended],
+            None if cut_after is None else cut_after[started],
+        )
+        cost = _link_costs(pred, nxt, wide, partial)
         options = [
             (float(cost[a, b]) - s.unlinked_cost, a, (int(b),), float(cost[a, b]))
             for a, b in zip(*np.nonzero(np.isfinite(cost)))
