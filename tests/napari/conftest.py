@@ -20,6 +20,15 @@ def _x_display(xvfb):
 
 
 @pytest.fixture(autouse=True)
+def _x_server_alive(xvfb):
+    """Fail at once, saying why, when the session's Xvfb server has exited: every canvas
+    would fail then (a layer added in a widget's callback only as a notification)."""
+    server = getattr(xvfb, "_virtual_display", None)
+    if server is not None and not server.is_alive():
+        pytest.fail(f"the Xvfb server of this test session (display :{xvfb.display}) has exited")
+
+
+@pytest.fixture(autouse=True)
 def _no_worker_outlives_its_test():
     """A test that fails while a worker thread still runs must not leave it running into
     the next test (its signals would reach a closed viewer there)."""
