@@ -112,6 +112,20 @@ def test_calibrate_refuses_a_colour_image_and_a_full_out_folder(colicoords_files
     assert [p.name for p in (d / "full").iterdir()] == ["x.txt"]
 
 
+def test_calibrate_refuses_an_implausible_pixel_size(colicoords_files, capsys):
+    d = colicoords_files
+    (d / "m8.yaml").write_text("pixel_size_um: 8.0\nmodality: fluorescence\n")
+    code = main(
+        ["calibrate", str(d / "flu.tif"), "--masks", str(d / "mask.tif"), "--microscope",
+         str(d / "m8.yaml"), "--out", str(d / "o8")]
+    )  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "pixel size 8 um (from --microscope" in err
+    assert "Traceback" not in err
+    assert not (d / "o8").exists()
+
+
 def test_calibrate_from_painted_labels(colicoords_files, capsys):
     d = colicoords_files
     from scipy import ndimage

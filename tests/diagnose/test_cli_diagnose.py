@@ -128,6 +128,18 @@ def test_diagnose_refuses_what_fit_refuses(tmp_path, capsys, real_data_dir):
     assert not out.exists()
 
 
+def test_diagnose_refuses_an_implausible_pixel_size(tmp_path, capsys):
+    image = tmp_path / "image.tif"
+    tifffile.imwrite(image, np.random.default_rng(0).poisson(500, (32, 32)).astype(np.uint16))
+    mic = _microscope_file(tmp_path, pixel_size_um=65.0)  # the camera's pixel, not the sample's
+    out = tmp_path / "out"
+    assert main(["diagnose", str(image), "--microscope", str(mic), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "pixel size 65 um (from --microscope" in err
+    assert "Traceback" not in err
+    assert not out.exists()
+
+
 @pytest.mark.slow
 def test_diagnose_says_when_the_noise_is_correlated(tmp_path, capsys, real_data_dir):
     """ColiCoords' fields carry noise correlated between neighbouring pixels (lag-2 /

@@ -78,6 +78,18 @@ def test_pixel_size_from_the_tiff_wins():
     assert "records none" in note
 
 
+@pytest.mark.parametrize(
+    ("file_um", "given_um", "source"),
+    [(None, 8.0, "from --microscope"), (6.5, 0.065, "recorded in the image file"),
+     (None, 0.005, "from --microscope")],
+)  # fmt: skip
+def test_an_implausible_pixel_size_is_refused_with_the_fix(file_um, given_um, source):
+    """A camera pixel given for the sample's (6.5 um), or nm read as um: the fit would
+    place sub-pixel cells and exit 0 with nonsense (found by trying the CLI as a user)."""
+    with pytest.raises(ValueError, match=f"um \\({source}.*camera pixel divided by"):
+        resolve_pixel_size(file_um, Microscope(pixel_size_um=given_um))
+
+
 def test_figure_is_upscaled_titled_and_has_a_colour_bar():
     rng = np.random.default_rng(1)
     real = rng.normal(1000, 30, (60, 20))

@@ -92,9 +92,14 @@ def message_label(name: str, label: str | None = None) -> Label:
     """A label for a message of any length: its words wrap at the dock's width, and it
     never widens the dock (a word-wrapped QLabel's minimum width grows with its text:
     an Auto-fit report took the dock from 508 to 674 px of a 1366 px screen)."""
+    from qtpy.QtWidgets import QSizePolicy
+
     widget = Label(name=name, value="", label=label)
     widget.native.setWordWrap(True)
     widget.native.setMinimumWidth(1)
+    # magicgui's labels are Fixed: wrapped, the text then got the width Qt guesses for
+    # it (61 of a 471 px row: a word or two a line); it takes the row's width instead
+    widget.native.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Preferred)
     return widget
 
 

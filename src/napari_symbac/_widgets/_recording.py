@@ -21,10 +21,10 @@ import dataclasses
 from collections.abc import Callable
 from typing import Any
 
+from napari_symbac.fit.preflight import PLAUSIBLE_PIXEL_UM
 from napari_symbac.settings import Microscope, RenderSettings
 
 __all__ = [
-    "PLAUSIBLE_PIXEL_UM",
     "is_recording",
     "modality_render",
     "pixel_size_problem",
@@ -33,9 +33,6 @@ __all__ = [
     "watch_recordings",
 ]
 
-#: Pixel sizes (um, in the sample plane) of real bacterial micrographs: 20 nm (super-
-#: resolution camera pixels at 250x) to 1 um (a 10x objective).
-PLAUSIBLE_PIXEL_UM = (0.02, 1.0)
 
 #: Starting intensities of eq. 3 (ADU above the baseline) per modality when nothing was
 #: measured: phase contrast shows dark cells on bright media, fluorescence bright cells

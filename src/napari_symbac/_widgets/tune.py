@@ -693,9 +693,11 @@ class TuneWidget(Container):
             "before": [_format(before) for before, _ in result.terms.values()],
             "after": [_format(after) for _, after in result.terms.values()],
         }
-        self.terms_image.value = np.concatenate(
-            [terms_plot(result.terms), convergence_plot(result.history)]
-        )
+        plot = np.concatenate([terms_plot(result.terms), convergence_plot(result.history)])
+        self.terms_image.value = plot
+        # magicgui's image takes what the layout leaves it (18 px under a long status):
+        # ask for the plot's own height
+        self.terms_image.native.setMinimumHeight(plot.shape[0])
         self.terms_image.visible = True
         self.status.value = (
             f"Fitted in {result.n_evaluations} renders: objective "

@@ -421,8 +421,15 @@ def _reseed_pass(
         if rods.all() and _accept(problem, state, trial, dn, ctx):
             for x, y in zip(new.x_um, new.y_um):
                 ctx.history.append(("split", float(x), float(y)))
-            message = f"cut the blob at ({cx:.2f}, {cy:.2f}) um into {len(new)} touching cells"
-            ctx.accept("reseed", cx, cy, message + f" (it held {inside.size})")
+            if inside.size:
+                message = (
+                    f"cut the blob at ({cx:.2f}, {cy:.2f}) um into {len(new)} touching cells "
+                    f"(it held {inside.size})"
+                )
+            else:  # a blob no cell covered: its cells are new
+                cells = "a cell" if len(new) == 1 else f"{len(new)} touching cells"
+                message = f"added {cells} in the unexplained blob at ({cx:.2f}, {cy:.2f}) um"
+            ctx.accept("reseed", cx, cy, message)
             return trial, True
         ctx.reject("reseed", cx, cy, 0.0)
     return state, False

@@ -17,10 +17,12 @@ from scipy import ndimage
 from napari_symbac.settings import Microscope
 
 __all__ = [
+    "PLAUSIBLE_PIXEL_UM",
     "check_class_labels",
     "check_fit_image",
     "check_instance_masks",
     "check_modality",
+    "check_pixel_size",
     "image_polarity",
     "refuse_constant",
     "resolve_pixel_size",
@@ -210,6 +212,30 @@ def check_instance_masks(masks: np.ndarray, shape: tuple[int, ...], name: str = 
         raise ValueError(f"{name} has no background (0) pixel: the fit needs some background")
 
 
+#: Pixel sizes (um, in the sample plane) of real bacterial micrographs: 20 nm (super-
+#: resolution camera pixels at 250x) to 1 um (a 10x objective); beyond, cells are not
+#: resolved.
+PLAUSIBLE_PIXEL_UM = (0.02, 1.0)
+
+
+def check_pixel_size(pixel_size_um: float, source: str) -> None:
+    """Refuse a pixel size (from ``source``) no bacterial micrograph has.
+
+    Raises
+    ------
+    ValueError
+        Outside :data:`PLAUSIBLE_PIXEL_UM`, naming the fix (a pixel size in um, e.g. a
+        camera pixel given for the sample's, or nm for um).
+    """
+    low, high = PLAUSIBLE_PIXEL_UM
+    if not low <= pixel_size_um <= high:
+        raise ValueError(
+            f"pixel size {pixel_size_um:g} um ({source}) is outside {low:g}-{high:g} um, "
+            "implausible for a bacterial micrograph: give it in um in the sample, i.e. the "
+            "camera pixel divided by the magnification (6.5 um / 100x = 0.065 um)"
+        )
+
+
 def resolve_pixel_size(
     file_pixel_um: float | None, microscope: Microscope, *, tolerance: float = 0.01
 ) -> tuple[Microscope, str]:
@@ -220,12 +246,19 @@ def resolve_pixel_size(
     microscope, note
         The microscope with the pixel size used, and a sentence saying where the pixel
         size came from (and the disagreement, if any).
+
+    Raises
+    ------
+    ValueError
+        The pixel size used is implausible (:func:`check_pixel_size`).
     """
     given = microscope.pixel_size_um
     if file_pixel_um is None or not math.isfinite(file_pixel_um) or file_pixel_um <= 0:
+        check_pixel_size(given, "from --microscope; the image file records none")
         return microscope, (
             f"pixel size {given:.4g} um from --microscope (the image file records none)"
         )
+    check_pixel_size(file_pixel_um, "recorded in the image file")
     if abs(file_pixel_um - given) <= tolerance * given:
         return microscope, f"pixel size {file_pixel_um:.4g} um (TIFF and --microscope agree)"
     try:
