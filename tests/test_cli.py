@@ -228,3 +228,22 @@ def test_render_and_export_on_the_torch_backend(tmp_path, capsys):
     item = regenerate(tmp_path / "ds", entry["name"])
     stored = tifffile.imread(tmp_path / "ds" / entry["files"]["tiff"][0])
     np.testing.assert_array_equal(item.image, stored)
+
+
+def test_progress_is_lines_when_piped(capsys):
+    """A long `diagnose` sent to a log file said nothing for 10 minutes (tqdm is silent
+    off a terminal): piped, progress is a line when the count moves, at most every
+    PIPED_PROGRESS_INTERVAL_S, and always the last step."""
+    from napari_symbac import cli
+
+    update, handle = cli._tqdm_progress("diagnose", unit="held-out checks")
+    update(0, 3)  # nothing done yet: no line
+    update(1, 3)
+    update(2, 3)  # within the interval of the line before: none
+    update(3, 3)  # the last: always
+    handle.close()
+    err = capsys.readouterr().err
+    assert err.splitlines() == [
+        "napari-symbac diagnose: 1 of 3 held-out checks",
+        "napari-symbac diagnose: 3 of 3 held-out checks",
+    ]

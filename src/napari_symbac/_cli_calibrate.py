@@ -106,6 +106,14 @@ def run_calibrate(args: argparse.Namespace) -> int:
             f"--formats {args.formats!r}: unknown format(s) {', '.join(unknown) or '(none)'}; "
             f"known formats: {', '.join(FORMATS)}"
         )
+    tracking = [f for f in formats if FORMATS[f].timeseries_only]
+    if tracking:  # refused before the fit, in calibrate's words (not ExportSettings.kind's)
+        raise ValueError(
+            f"--formats {', '.join(tracking)}: tracking ground truth needs a time series, and "
+            "calibrate writes single frames; give frame formats here, then set kind: "
+            f"timeseries and these formats in {out / 'export_settings.yaml'} and run "
+            "`napari-symbac export --config` on it"
+        )
     _check_cell_width(args.cell_width_um, args.masks)
     with timer.step("load"):
         image, file_pixel, file_modality = read_frame(args.image, "IMAGE")

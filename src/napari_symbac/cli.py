@@ -6,7 +6,9 @@ Run ``napari-symbac --help`` or ``napari-symbac COMMAND --help``.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -16,12 +18,45 @@ from napari_symbac._timing import StepTimer
 __all__ = ["interrupted_text", "main"]
 
 
+#: Least seconds between two progress lines when stderr is not a terminal.
+PIPED_PROGRESS_INTERVAL_S = 10.0
+
+
+class _PipedProgress:
+    """Progress as lines on a pipe (a log file, CI, nohup), where a bar would be silent:
+    a line when the count moves, at most every :data:`PIPED_PROGRESS_INTERVAL_S`
+    seconds, and always the last step."""
+
+    def __init__(self, desc: str, unit: str, stream) -> None:
+        self.desc, self.unit, self.stream = desc, unit, stream
+        self.shown = (0, None)
+        self.when = -math.inf
+
+    def __call__(self, done: int, total: int | None) -> None:
+        now = time.monotonic()
+        last = total is not None and done >= total
+        due = last or now - self.when >= PIPED_PROGRESS_INTERVAL_S
+        if done == 0 or (done, total) == self.shown or not due:
+            return
+        of = f" of {total}" if total else ""
+        print(f"napari-symbac {self.desc}: {done}{of} {self.unit}", file=self.stream, flush=True)
+        self.shown, self.when = (done, total), now
+
+    def close(self) -> None:
+        pass
+
+
 def _tqdm_progress(
-    desc: str, total: int | None = None
+    desc: str, total: int | None = None, unit: str = "frames"
 ) -> tuple[Callable[[int, int], None], object]:
+    """``(update, handle)``: a tqdm bar on a terminal, lines when piped
+    (:class:`_PipedProgress`)."""
+    if not sys.stderr.isatty():
+        piped = _PipedProgress(desc, unit, sys.stderr)
+        return piped, piped
     from tqdm import tqdm
 
-    bar = tqdm(total=total, desc=desc, unit="frame", leave=False, file=sys.stderr, disable=None)
+    bar = tqdm(total=total, desc=desc, unit=unit.rstrip("s"), leave=False, file=sys.stderr)
 
     def update(done: int, total_now: int) -> None:
         bar.total = total_now
@@ -266,7 +301,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
         n_simulated + settings.n_images, f"exporting {settings.n_images:,} images", args.yes
     )
     timer = StepTimer()
-    update, bar = _tqdm_progress("export", settings.n_images)
+    update, bar = _tqdm_progress("export", settings.n_images, "images")
     with timer.step("export"):
         report = export_dataset(
             settings,
@@ -411,7 +446,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             render = fit.render
             update(k + 1, len(stack))
     bar.close()
-    update, bar = _tqdm_progress("diagnose")
+    update, bar = _tqdm_progress("diagnose", unit="held-out checks")
     with timer.step("diagnose"):
         design = build_design(scenes, microscope, render, camera)
         result = diagnose(stack, design, rng=np.random.default_rng(args.seed), progress=update)

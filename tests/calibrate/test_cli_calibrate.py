@@ -66,6 +66,7 @@ def test_calibrate_writes_a_matched_dataset_and_report(colicoords_files, capsys)
         (["--modality", "phase"], "does not look like phase"),
         (["--masks", "MISSING.tif"], "does not exist"),
         (["--formats", "nonsense"], "unknown format"),
+        (["--formats", "tiff,ctc"], "--formats ctc: tracking ground truth needs a time series"),
     ],
 )
 def test_calibrate_bad_input_is_one_line_and_writes_nothing(

@@ -472,6 +472,18 @@ def test_refuses_negative_values(tmp_path, truth, inputs, capsys):
     assert "--camera" in error
 
 
+def test_refuses_a_normalised_image(tmp_path, truth, inputs, capsys):
+    """A recording divided by its maximum (float 0..1) was fitted as camera counts, exit 0,
+    a camera of 0.011 ADU/e-, and datasets drawn from the fit held only 0 and 1 (found
+    by trying the CLI as a user)."""
+    _, _, microscope = inputs
+    image = tmp_path / "normalised.tif"
+    tifffile.imwrite(image, (truth.image / truth.image.max()).astype(np.float32))
+    error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope)
+    assert "holds values within 0..1 only (maximum 1)" in error
+    assert "Pass the raw recording" in error
+
+
 def test_refuses_a_fluorescence_field_fitted_as_phase(tmp_path, real_data_dir, capsys):
     image = real_data_dir / "colicoords" / "test_data" / "ds1" / "fluorescence" / "00001.tif"
     microscope = save_settings(Microscope(pixel_size_um=0.08), tmp_path / "microscope.yaml")

@@ -56,7 +56,10 @@ def check_fit_image(
     Raises
     ------
     ValueError
-        For negative values (the model renders camera counts, baseline included).
+        For negative values (the model renders camera counts, baseline included), and
+        for an image whose values all lie within 0..1 (normalised, or a mask): no
+        camera counts, no noise to measure, and a dataset drawn from its fit holds
+        only 0 and 1.
     """
     low = float(np.min(image))
     if low < 0:
@@ -64,6 +67,12 @@ def check_fit_image(
             f"{name} has negative values (minimum {low:.4g}): the fit needs camera counts "
             "(ADU, camera baseline included). Pass the raw recording, or add a constant so "
             f"that all values are >= 0 and give that constant as baseline_adu {camera_hint}"
+        )
+    high = float(np.max(image))
+    if low < high <= 1:  # (a constant image is refused as such: refuse_constant)
+        raise ValueError(
+            f"{name} holds values within 0..1 only (maximum {high:.4g}): a normalised image "
+            "or a mask, not camera counts (ADU). Pass the raw recording as the camera wrote it"
         )
 
 
