@@ -201,7 +201,7 @@ def test_export_write_errors_name_path_and_fix(
     assert exit_code == 2
     assert message in err
     assert str(out / "tiff") in err
-    assert "run the same command again: the export keeps its finished items" in err
+    assert "run it again: the export keeps its finished items" in err
     assert err.count("\n") == 1  # one line
     assert not list(out.rglob("*.tif"))
 
@@ -289,7 +289,7 @@ def test_render_disk_full_leaves_no_partial_file(
     assert _files(out) == []
     # render starts over: no export's resume advice (found as a user)
     assert "finished items" not in err
-    assert err.rstrip().endswith("then run the same command again")
+    assert err.rstrip().endswith("then run it again")
 
 
 def test_render_out_is_a_file(tmp_path, saved_simulation, capsys):

@@ -71,6 +71,10 @@ def test_fluorescence_calibration_is_bright_on_dark_and_matches_the_field(
     widths_um = cal.measurements.widths_px * 0.08
     assert widths_um.min() - 0.3 < s.simulation.cell_width_um < widths_um.max() + 0.1
     assert 0.1 < s.render.cell_brightness_cv < 2.0
+    # the field is background-subtracted, ~17-19 % of its pixels clipped to 0: said
+    censored = [n for n in cal.notes if n.startswith("censored pixels:")]
+    assert len(censored) == 1
+    assert 10 < float(censored[0].split("(")[1].split(" %")[0]) < 30
     item = PipelineSource(export_settings(cal, n_items=2, seed=3)).make_unit(0)[0]
     assert item.image.shape == colicoords_crop[0].shape
     cells = item.labels > 0

@@ -204,7 +204,7 @@ def test_disk_full_stops_with_clear_message(tmp_path, monkeypatch):
     message = str(info.value)
     assert "disk is full" in message
     assert "free some space" in message
-    assert message.endswith(f"then run the same command again: {EXPORT_RESUMES}")
+    assert message.endswith(f"then run it again: {EXPORT_RESUMES}")
     assert info.value.errno == errno.ENOSPC
     assert info.value.path
     assert Path(info.value.path).parent.is_relative_to(tmp_path)

@@ -87,17 +87,39 @@ def test_tuned_settings_travel_into_the_manifest(widget, qtbot, tmp_path):
     assert manifest["settings"]["pipeline"]["render"]["cell_intensity"] == 1234.5
 
 
-def test_export_error_is_reported_and_the_widget_stays_usable(widget, qtbot, tmp_path):
-    """Defect 7: an ExportError (a RuntimeError) froze the widget: superqt treats a
-    RuntimeError in a generator worker as an aborted thread (no error, no finish)."""
-    from napari.utils.notifications import notification_manager
-
+def test_an_unwritable_folder_is_refused_before_the_export(widget, tmp_path):
+    """As the CLI: a folder that cannot be made is refused at once, naming the fix (the
+    worker's write error said "No such file or directory; fix the cause")."""
     blocker = tmp_path / "not-a-folder"
     blocker.write_text("a file where the dataset folder should go")
+    widget.folder.value = blocker / "dataset"
+    widget.export_button.native.click()
+    assert widget.worker is None
+    assert widget.status.value == (
+        f"Not exported: the output folder {blocker / 'dataset'} cannot be created: {blocker} "
+        "is a file, not a folder: check that the path is right, or move the file away"
+    )
+    assert not (tmp_path / "dataset").exists()
+
+
+def test_export_error_is_reported_and_the_widget_stays_usable(
+    widget, qtbot, tmp_path, monkeypatch
+):
+    """Defect 7: an ExportError (a RuntimeError) froze the widget: superqt treats a
+    RuntimeError in a generator worker as an aborted thread (no error, no finish). The
+    disk fails while writing (injected)."""
+    import errno
+
+    from napari.utils.notifications import notification_manager
+
+    def failing_disk(*_args, **_kwargs):
+        raise OSError(errno.EIO, "Input/output error")
+
+    monkeypatch.setattr(tifffile, "imwrite", failing_disk)
     seen = []
     notification_manager.notification_ready.connect(seen.append)
     widget.n_items.value = 1
-    widget.folder.value = blocker / "dataset"
+    widget.folder.value = tmp_path / "dataset"
     widget.export_button.native.click()
     qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
     assert widget.status.value.startswith("Export failed")

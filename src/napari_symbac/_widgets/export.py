@@ -163,6 +163,13 @@ class ExportWidget(Container):
         except ValueError as err:
             self.status.value = f"Invalid settings: {err}"
             return
+        from napari_symbac.export.atomic import check_output_folder
+
+        try:  # as the CLI: a folder that cannot be written is refused before any work
+            check_output_folder(folder, "the output folder")
+        except ValueError as err:
+            self.status.value = f"Not exported: {err}"
+            return
         workers = self.workers.value
         backend = self.backend.value
         origin = self.source.value.name if self.source.value is not None else "built-in defaults"

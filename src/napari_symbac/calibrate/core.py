@@ -404,6 +404,12 @@ def calibrate(
     mask_offset_um = None
     layout = None  # the simulated field: that of the measurements
     valid = ~censored_pixels(frame, camera)
+    if not valid.all():
+        notes.append(
+            f"censored pixels: {int((~valid).sum())} ({100 * (~valid).mean():.2f} %), clipped "
+            "at the image's lowest or highest grey level (saturated, or background-subtracted "
+            "to 0): left out of every measurement and fit"
+        )
     frame = frame.astype(np.float64)
     if masks is not None:  # at least 16 cell widths across, to hold whole cells
         from napari_symbac.fit.masks import cell_widths_px

@@ -28,6 +28,7 @@ __all__ = [
     "TIFF_KIND_KEY",
     "ExportError",
     "atomic_path",
+    "check_output_folder",
     "explain_os_error",
     "remove_stale_temporaries",
     "tiff_metadata",
@@ -70,12 +71,12 @@ class ExportError(RuntimeError):
 def explain_os_error(err: OSError, path: str | os.PathLike | None = None) -> ExportError:
     """Turn an :class:`OSError` raised while writing into an :class:`ExportError`.
 
-    The message names the path and says how to fix the problem, then to run the same
-    command again (every command that writes uses these writers; an export adds that it
-    resumes: :data:`EXPORT_RESUMES`).
+    The message names the path and says how to fix the problem, then to run the step
+    (a command, a widget's button) again: every step that writes uses these writers;
+    an export adds that it resumes (:data:`EXPORT_RESUMES`).
     """
     where = str(path if path is not None else (err.filename or "the output folder"))
-    again = "then run the same command again"
+    again = "then run it again"
     if err.errno in (errno.ENOSPC, errno.EDQUOT):
         message = (
             f"the disk is full (no space left on device) while writing {where}: free some "
@@ -263,3 +264,75 @@ def remove_stale_temporaries(folder: str | os.PathLike) -> int:
                 _unlink_quietly(Path(root) / name)
                 removed += 1
     return removed
+
+
+def check_output_folder(
+    path: str | os.PathLike, option: str = "--out", *, staged: bool = False
+) -> Path:
+    """``path`` as a folder to write into, checked before any work is done.
+
+    Parameters
+    ----------
+    path
+        The folder to write into (created later if missing).
+    option
+        How messages name it (the command's option, or "the output folder").
+    staged
+        Whether the command makes its outputs in a hidden folder beside ``path`` first
+        (``fit``, ``calibrate``): its parent must then be writable as well.
+
+    Raises
+    ------
+    ValueError
+        If ``path`` is a file, lies inside a file, or it (or the folder it would be made
+        in) cannot be written; the message names the path and the fix.
+    """
+    out = Path(path)
+    if out.exists() and not out.is_dir():
+        raise ValueError(
+            f"{option} {out} is a file, not a folder: give the path of a folder (it is "
+            "created if missing), or move the file away"
+        )
+    for folder in (out, out.resolve().parent) if staged else (out,):
+        _check_writable(out, folder, option)
+    return out
+
+
+def _nearest_existing(path: Path) -> Path:
+    """``path`` itself if it exists, else its nearest existing parent."""
+    while not path.exists() and path.parent != path:
+        path = path.parent
+    return path
+
+
+def _check_writable(out: Path, folder: Path, option: str) -> None:
+    """Refuse ``out`` when ``folder`` (``out`` or its parent) cannot be created or written:
+    a file in the way, or no permission (probed with a temporary file, so that a read-only
+    disk is found whoever runs the command)."""
+    import tempfile
+
+    existing = _nearest_existing(folder)
+    if not existing.is_dir():
+        raise ValueError(
+            f"{option} {out} cannot be created: {existing} is a file, not a folder: check "
+            "that the path is right, or move the file away"
+        )
+    try:
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError as err:
+        if existing == out:
+            problem = "is not writable"
+        elif out.exists():  # a staged command's parent
+            problem = (
+                f"cannot be written: its outputs are made beside it, in {existing}, which "
+                "is not writable"
+            )
+        else:
+            problem = f"cannot be created: {existing} is not writable"
+        fix = (
+            "give a folder on a writable disk" if err.errno == errno.EROFS else
+            "give a folder you can write to, or give yourself write permission on it "
+            "(e.g. chmod u+w)"
+        )
+        raise ValueError(f"{option} {out} {problem} ({err.strerror or err}): {fix}") from None
