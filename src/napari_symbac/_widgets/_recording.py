@@ -21,7 +21,7 @@ import dataclasses
 from collections.abc import Callable
 from typing import Any
 
-from napari_symbac.fit.preflight import PLAUSIBLE_PIXEL_UM
+from napari_symbac.fit.preflight import check_pixel_size
 from napari_symbac.settings import Microscope, RenderSettings
 
 __all__ = [
@@ -44,18 +44,17 @@ _DEFAULT_INTENSITIES = {
 
 
 def pixel_size_problem(pixel_size_um: float | None) -> str | None:
-    """Why ``pixel_size_um`` cannot be used as it is, or ``None`` when it is plausible."""
-    low, high = PLAUSIBLE_PIXEL_UM
+    """Why ``pixel_size_um`` cannot be used as it is, or ``None`` when it is plausible
+    (:func:`~napari_symbac.fit.preflight.check_pixel_size`, as fit and diagnose)."""
     if not pixel_size_um:
         return (
             "no pixel size: the file does not record one. Enter it (camera pixel / "
             "magnification, e.g. 6.5 um / 100x = 0.065 um)"
         )
-    if not low <= pixel_size_um <= high:
-        return (
-            f"pixel size {pixel_size_um:g} um is outside {low:g}-{high:g} um, implausible for "
-            "a bacterial micrograph: check it (in um, camera pixel / magnification)"
-        )
+    try:
+        check_pixel_size(pixel_size_um, "entered")
+    except ValueError as err:
+        return str(err)
     return None
 
 

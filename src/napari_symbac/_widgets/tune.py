@@ -699,15 +699,12 @@ class TuneWidget(Container):
         # ask for the plot's own height
         self.terms_image.native.setMinimumHeight(plot.shape[0])
         self.terms_image.visible = True
-        self.status.value = (
-            f"Fitted in {result.n_evaluations} renders: objective "
-            f"{_format(result.objective_before)} -> {_format(result.objective_after)}"
-        )
-        if series is not None:
-            self.status.value = _series_status(series, self._current_frame()) + (
-                f"<br>This frame: objective {_format(result.objective_before)} -> "
-                f"{_format(result.objective_after)}"
-            )
+        objective = f"{_format(result.objective_before)} -> {_format(result.objective_after)}"
+        if series is None:
+            self.status.value = f"Fitted in {result.n_evaluations} renders: objective {objective}"
+        else:
+            shown = _series_status(series, self._current_frame())
+            self.status.value = f"{shown}<br>This frame: objective {objective}"
         if colony:
             from napari_symbac.fit.report import colony_noise_text
 

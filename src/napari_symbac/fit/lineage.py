@@ -381,7 +381,7 @@ def _visible(
 
 
 def _link_costs(
-    pred: _Predicted, nxt: FrameCells, s: LinkSettings, partial: np.ndarray | None = None
+    pred: _Predicted, nxt: FrameCells, s: LinkSettings, partial: np.ndarray
 ) -> np.ndarray:
     """``(n_t, n_t+1)`` costs of the one-to-one links (``inf``: outside the gates).
 
@@ -409,23 +409,10 @@ def _link_costs(
         _elongation(length_n, nxt.width_um)[None, :],
     )
     shape_terms = (d_width / s.width_sd_um) ** 2 + weight * (d_angle / s.angle_sd_rad) ** 2
-    if partial is not None:
-        shape_terms = np.where(partial, 0.0, shape_terms)
+    shape_terms = np.where(partial, 0.0, shape_terms)
     cost = (distance / s.position_sd_um) ** 2 + (d_length / s.length_sd_um) ** 2 + shape_terms
     cost[(distance > s.gate_um) | (np.abs(d_length) > s.length_gate_um)] = np.inf
     return cost
-
-
-def _partial_pairs(
-    cut_before: np.ndarray | None, cut_after: np.ndarray | None
-) -> np.ndarray | None:
-    """Pairs (frame ``t`` cell, frame ``t + 1`` cell) of which either is cut by the
-    image's edge, broadcastable to ``(n_t, n_t+1)``; ``None``: not known in either frame."""
-    if cut_before is None and cut_after is None:
-        return None
-    rows = False if cut_before is None else cut_before[:, None]
-    columns = False if cut_after is None else cut_after[None, :]
-    return np.logical_or(rows, columns)
 
 
 def _assign(cost: np.ndarray, end_cost: np.ndarray, start_cost: float) -> np.ndarray:
@@ -518,7 +505,7 @@ def _division_cost(
 
 
 def _division_candidates(
-    pred: _Predicted, nxt: FrameCells, s: LinkSettings, cut: np.ndarray | None = None
+    pred: _Predicted, nxt: FrameCells, s: LinkSettings, cut: np.ndarray
 ) -> list[tuple[int, tuple[int, ...], float]]:
     """Every ``(mother, daughters, cost)`` within the gates.
 
@@ -536,9 +523,7 @@ def _division_candidates(
     candidates = []
     for k in range(len(expected)):
         near = np.flatnonzero(np.linalg.norm(centres - pred.centre[k], axis=1) <= reach[k])
-        lone = near if out_of_view[k] else near[:0]
-        if cut is not None:
-            lone = lone[~cut[lone]]
+        lone = near[~cut[near]] if out_of_view[k] else near[:0]
         options: list[tuple[int, ...]] = [(int(a),) for a in lone]
         if near.size > 1:
             a, b = np.triu_indices(near.size, 1)
@@ -559,7 +544,7 @@ def _divisions(
     cost: np.ndarray,
     end_cost: np.ndarray,
     s: LinkSettings,
-    cut: np.ndarray | None = None,
+    cut: np.ndarray,
 ) -> tuple[dict[int, tuple[int, ...]], np.ndarray]:
     """Divisions that explain the cells better than the assignment did, and the links left.
 
@@ -624,14 +609,13 @@ def _link_pair(
     drift_um: np.ndarray,
     size_um: tuple[float, float],
     s: LinkSettings,
-    cut: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
+    cut: tuple[np.ndarray, np.ndarray],
 ) -> _Step:
     """Assignment, then divisions, for one pair of frames; ``total`` is its whole cost.
-    ``cut``: which cells of ``before`` and of ``after`` the image's edge cuts (or
-    ``None``: not known)."""
+    ``cut``: which cells of ``before`` and of ``after`` the image's edge cuts."""
     pred = _predict(before, growth, placements, drift_um, size_um, s.exit_margin_um)
     cut_before, cut_after = cut
-    cost = _link_costs(pred, after, s, _partial_pairs(cut_before, cut_after))
+    cost = _link_costs(pred, after, s, cut_before[:, None] | cut_after[None, :])
     end_cost = np.where(pred.leaving, 0.0, s.unlinked_cost)
     match = _assign(cost, end_cost, s.unlinked_cost)
     split, match = _divisions(pred, after, match, cost, end_cost, s, cut_after)
@@ -710,7 +694,7 @@ def link_cells(
         )
     if passes < 1:
         raise ValueError(f"passes must be at least 1, got {passes}")
-    cut: list[np.ndarray | None] = [None] * len(frames)
+    cut = [np.zeros(len(f), bool) for f in frames]  # not known: none
     if cut_by_edge is not None:
         cut = [np.asarray(c, bool) for c in cut_by_edge]
         if len(cut) != len(frames) or any(c.shape != (len(f),) for c, f in zip(cut, frames)):
@@ -800,7 +784,7 @@ def _close_gaps(
     trench,
     size_um: tuple[float, float],
     s: LinkSettings,
-    cut: list[np.ndarray | None],
+    cut: list[np.ndarray],
 ) -> list[_GapLink]:
     """Links and divisions over one missing frame (:attr:`LinkSettings.close_gaps`).
 
@@ -838,19 +822,15 @@ def _close_gaps(
         full = _predict(frames[t - 1], growth**2, pair, shift, size_um, s.exit_margin_um)
         pred = _take(full, ended)
         nxt = _subset(frames[t + 1], started)
-        cut_before, cut_after = cut[t - 1], cut[t + 1]
-        partial = _partial_pairs(
-            None if cut_before is None else cut_before[ended],
-            None if cut_after is None else cut_after[started],
-        )
-        cost = _link_costs(pred, nxt, wide, partial)
+        cut_before, cut_after = cut[t - 1][ended], cut[t + 1][started]
+        cost = _link_costs(pred, nxt, wide, cut_before[:, None] | cut_after[None, :])
         options = [
             (float(cost[a, b]) - s.unlinked_cost, a, (int(b),), float(cost[a, b]))
             for a, b in zip(*np.nonzero(np.isfinite(cost)))
         ]
         options += [
             (c - 2 * s.unlinked_cost, k, daughters, c)
-            for k, daughters, c in _division_candidates(pred, nxt, wide)
+            for k, daughters, c in _division_candidates(pred, nxt, wide, cut_after)
             if len(daughters) == 2
         ]
         taken_a: set[int] = set()
