@@ -18,8 +18,20 @@ from napari_symbac.settings import PipelineSettings
 
 def test_concealed_illumination_is_accepted_and_improves_held_out_pixels():
     case = make_case("uneven_illumination", fraction_of_sd=0.5, seed=4)
-    result = diagnose(case.images, case.design, n_bootstrap=20, rng=np.random.default_rng(0))
+    calls = []
+    result = diagnose(
+        case.images,
+        case.design,
+        n_bootstrap=20,
+        rng=np.random.default_rng(0),
+        progress=lambda done, total: calls.append((done, total)),
+    )
     assert [e.name for e in result.accepted] == ["uneven_illumination"]
+    # one call per held-out check against the most there can be (4 steps x 3 tries), then
+    # the end: the diagnosis stopped sooner, and its last report says it is done
+    checks = len(calls) - 1
+    assert 1 <= checks < 12
+    assert calls == [(k, 12) for k in range(1, checks + 1)] + [(checks, checks)]
     effect = result.accepted[0]
     assert effect.held_out_gain_nats > effect.null_threshold_nats > 0
     assert effect.held_out_after < effect.held_out_before

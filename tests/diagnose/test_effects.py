@@ -7,6 +7,7 @@ import pytest
 
 from napari_symbac.diagnose.concealed import make_case
 from napari_symbac.diagnose.effects import CATALOGUE
+from napari_symbac.diagnose.effects.fixed_pattern_noise import column_basis
 from napari_symbac.diagnose.model import fit_model
 from napari_symbac.diagnose.run import _params
 from napari_symbac.diagnose.selection import ModelSpec, rank
@@ -64,3 +65,21 @@ def test_no_effect_control_flags_nothing():
         current = fit_model(control.design, y, valid)
         ranked = rank(pool, control.design, y, current, valid)
         assert ranked[0][1].evidence < -np.log10(0.01 / len(pool)), ranked[0]
+
+
+@pytest.mark.parametrize(("cols", "pixel_um", "n_modes"), [(46, 0.065, 42), (256, 0.08, 228)])
+def test_column_offsets_leave_smooth_trends_to_illumination_and_texture(cols, pixel_um, n_modes):
+    """Column offsets are the columns' modes shorter than the texture's 1.5 um: a smooth
+    profile (what a cells' misfit cancelled by the texture looked like on a real field)
+    is out of their reach, independent column offsets nearly all within it."""
+    basis = column_basis(cols, pixel_um)
+    assert basis.shape == (cols, n_modes)
+    np.testing.assert_allclose(basis.T @ basis, np.eye(n_modes), atol=1e-12)
+    x = np.linspace(-1, 1, cols)
+    waves = [np.cos(2 * np.pi * np.arange(cols) * pixel_um / 3.0 + phase) for phase in (0, 1, 2)]
+    for smooth in (np.ones(cols), x, x**2, *waves):  # the waves: 3 um, twice the texture's 1.5
+        kept = basis @ (basis.T @ smooth)
+        assert np.linalg.norm(kept) < 0.25 * np.linalg.norm(smooth)
+    stripes = np.random.default_rng(0).normal(size=(200, cols))
+    kept = stripes @ basis
+    assert np.sum(kept**2) / np.sum(stripes**2) > 0.8

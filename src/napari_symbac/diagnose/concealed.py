@@ -315,7 +315,7 @@ def make_case(
         theta = direction * _scale_to(probe, sd, fraction_of_sd)
         signal = eff.mean(theta, clean, parts, design.geometry)
         if effect == "fixed_pattern_noise":
-            column_offsets = theta - theta.mean()
+            column_offsets = eff.column_offsets(theta)
             signal = clean
     noise_model = ForwardModel(microscope, truth_render, cam)
     images = np.stack(

@@ -195,6 +195,9 @@ def diagnose(
         Effects accepted at most; candidates fitted per step.
     rng
         Generator of the bootstrap (same seed, same result).
+    progress
+        Called with ``(held-out checks done, the most there can be)`` after each check,
+        and with ``(done, done)`` when the diagnosis ends (it usually ends sooner).
 
     Notes
     -----
@@ -270,7 +273,7 @@ def _diagnose(
     mismatches = discrepancy_statistics(r0, current.mu, geo, valid)
     base_summary = _fit_summary(y, current, spec, design, valid)
     results: dict[str, EffectResult] = {}
-    total = max_steps * (max_tries + 1)
+    total = max_steps * max_tries  # the most held-out checks; a diagnosis may stop sooner
     done = 0
     for step in range(1, max_steps + 1):
         remaining = [e for e in pool if not (e.name in results and results[e.name].accepted)]
@@ -342,6 +345,8 @@ def _diagnose(
             if accepted_now.kind == "mean"
             else np.sqrt(current.var) - np.sqrt(base_model.var)
         )
+    if progress is not None and done:
+        progress(done, done)  # stopped before the most possible checks: done all the same
     # parameters of accepted effects after the last joint fit
     for e in spec.effects:
         results[e.name].params = _params(e, current, spec, design)
