@@ -562,6 +562,7 @@ def test_fit_out_inside_a_file_is_refused_before_the_fit(tmp_path, fit_inputs, c
         ("calibrate", errno.EACCES, "give yourself write permission on it"),
         ("diagnose", errno.EROFS, "give a folder on a writable disk"),
         ("render", errno.EACCES, "give yourself write permission on it"),
+        ("render", errno.ENOENT, "give a folder on a writable disk"),  # /proc: no files there
     ],
 )
 def test_out_in_a_read_only_folder_is_refused_up_front(
@@ -571,12 +572,18 @@ def test_out_in_a_read_only_folder_is_refused_up_front(
     is named with the --out it blocks, not as a hidden temporary name after the work."""
     import tempfile
 
-    def refuse(*_args, **_kwargs):
-        raise OSError(code, os.strerror(code))
-
     image, microscope = fit_inputs
     read_only = tmp_path / "ro"
     read_only.mkdir()
+    temporary_file = tempfile.TemporaryFile
+
+    def refuse(*args, **kwargs):
+        # only there: numba's cache, set up when a command first imports the raster
+        # module, probes its own folder with a temporary file too
+        if Path(kwargs.get("dir") or ".").resolve().is_relative_to(read_only.resolve()):
+            raise OSError(code, os.strerror(code))
+        return temporary_file(*args, **kwargs)
+
     out = read_only / "x"
     monkeypatch.setattr(tempfile, "TemporaryFile", refuse)
     inputs = [str(saved_simulation)] if command == "render" else [
@@ -586,6 +593,7 @@ def test_out_in_a_read_only_folder_is_refused_up_front(
     assert exit_code == 2
     assert f"--out {out} cannot be created: {read_only} is not writable" in err
     assert fix in err
+    assert ("chmod" in err) == (code == errno.EACCES)  # permissions only when they are the cause
     assert "partial" not in err
     assert "finished items" not in err  # render, fit: no resume
     assert err.count("\n") == 1

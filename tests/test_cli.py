@@ -247,3 +247,20 @@ def test_progress_is_lines_when_piped(capsys):
         "napari-symbac diagnose: 1 of 3 held-out checks",
         "napari-symbac diagnose: 3 of 3 held-out checks",
     ]
+
+
+def test_render_refuses_a_simulation_file_as_its_config_in_one_line(tmp_path, capsys):
+    """Found as a user: `render --config sim.yaml` listed 26 fields as unknown."""
+    from napari_symbac.settings import SimulationSettings, save_settings
+
+    assert main(["simulate", "--out", str(tmp_path / "sim"), "--frames", "2"]) == 0
+    config = save_settings(SimulationSettings(n_frames=2), tmp_path / "sim.yaml")
+    capsys.readouterr()
+    out = tmp_path / "r"
+    code = main(["render", str(tmp_path / "sim"), "--config", str(config), "--out", str(out)])
+    error = capsys.readouterr().err
+    assert code == 2
+    assert "holds simulation settings only" in error
+    assert "napari-symbac defaults pipeline" in error
+    assert "unknown field" not in error
+    assert not (tmp_path / "r").exists()

@@ -47,6 +47,7 @@ def test_reader_contract(tmp_path):
     ((_data, meta, kind),) = reader(str(path))
     assert kind == "image"
     assert meta["scale"] == pytest.approx((0.1, 0.1))
+    assert meta["units"] == ("um", "um")  # napari's scale bar reads um, not "pixel"
     assert napari_get_reader(str(tmp_path / "a.png")) is None
 
 

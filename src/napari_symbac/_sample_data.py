@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from napari_symbac.io import micrometre_axes
 from napari_symbac.settings import PipelineSettings
 
 __all__ = ["colicoords_field", "synthetic_agar_pad", "synthetic_trench"]
@@ -38,11 +39,10 @@ def synthetic_trench() -> list[tuple]:
     )
     simulation = simulate(settings.simulation)
     series = render_simulation(simulation, settings)
-    pixel = settings.microscope.pixel_size_um
-    scale = (1.0, pixel, pixel)
+    axes = micrometre_axes(settings.microscope.pixel_size_um, 3)
     return [
-        (series.images, {"name": "synthetic trench", "scale": scale}, "image"),
-        (series.labels, {"name": "synthetic trench labels", "scale": scale}, "labels"),
+        (series.images, {"name": "synthetic trench", **axes}, "image"),
+        (series.labels, {"name": "synthetic trench labels", **axes}, "labels"),
     ]
 
 
@@ -79,11 +79,10 @@ def synthetic_agar_pad() -> list[tuple]:
         scene = draw_frame(simulation, settings, index)
         images.append(model.render(scene, rng, cache=False))
         labels.append(scene.camera_labels())
-    pixel = settings.microscope.pixel_size_um
-    scale = (1.0, pixel, pixel)
+    axes = micrometre_axes(settings.microscope.pixel_size_um, 3)
     return [
-        (np.stack(images), {"name": "synthetic agar pad", "scale": scale}, "image"),
-        (np.stack(labels), {"name": "synthetic agar pad labels", "scale": scale}, "labels"),
+        (np.stack(images), {"name": "synthetic agar pad", **axes}, "image"),
+        (np.stack(labels), {"name": "synthetic agar pad labels", **axes}, "labels"),
     ]
 
 
@@ -98,19 +97,19 @@ def colicoords_field() -> list[tuple]:
     brightfield = read_recording(folder / "colicoords_brightfield.tif")
     fluorescence = read_recording(folder / "colicoords_fluorescence.tif")
     masks = read_recording(folder / "colicoords_binary.tif")
-    scale = (brightfield.pixel_size_um,) * 2
+    axes = micrometre_axes(brightfield.pixel_size_um, 2)
     return [
-        (brightfield.data, {"name": "ColiCoords brightfield", "scale": scale}, "image"),
+        (brightfield.data, {"name": "ColiCoords brightfield", **axes}, "image"),
         (
             fluorescence.data,
             {
                 "name": "ColiCoords fluorescence",
-                "scale": scale,
+                **axes,
                 "colormap": "green",
                 "blending": "additive",
                 "visible": False,
             },
             "image",
         ),
-        (masks.data, {"name": "ColiCoords cells", "scale": scale, "opacity": 0.4}, "labels"),
+        (masks.data, {"name": "ColiCoords cells", **axes, "opacity": 0.4}, "labels"),
     ]

@@ -241,6 +241,20 @@ def grey_channel(rgb: np.ndarray) -> np.ndarray | None:
     return None
 
 
+def micrometre_axes(pixel_size_um: float, ndim: int) -> dict[str, tuple]:
+    """Layer keyword arguments that place a ``(..., Y, X)`` layer in micrometres.
+
+    The scale of the last two axes and their unit, so that napari's scale bar and the
+    cursor's coordinates read um rather than "pixel" (the leading axes, frames, keep a
+    step of 1 and napari's default unit).
+    """
+    lead = ndim - 2
+    return {
+        "scale": (1.0,) * lead + (float(pixel_size_um),) * 2,
+        "units": ("pixel",) * lead + ("um", "um"),
+    }
+
+
 def napari_get_reader(path):
     """npe2 reader: a TIFF recording as an image layer scaled to micrometres."""
     if isinstance(path, list) or not str(path).lower().endswith(_TIFF_SUFFIXES):
@@ -255,8 +269,7 @@ def _read_layers(path) -> list[tuple]:
         "metadata": {"pixel_size_um": recording.pixel_size_um, "modality": recording.modality},
     }
     if recording.pixel_size_um:
-        scale = (recording.pixel_size_um,) * 2
-        meta["scale"] = (1.0,) * (recording.data.ndim - 2) + scale
+        meta.update(micrometre_axes(recording.pixel_size_um, recording.data.ndim))
     is_mask = recording.kind in ("labels", "semantic")
     if is_mask and np.issubdtype(recording.data.dtype, np.integer):
         return [(recording.data, meta, "labels")]

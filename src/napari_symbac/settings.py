@@ -954,7 +954,28 @@ def load_settings(path: str | Path, cls: type[T]) -> T:
     A file may also hold only some fields (the rest take their defaults); an empty
     file is an error, so that a wrong or blank file never silently means the defaults.
     """
-    return from_dict(cls, read_settings_mapping(path))
+    data = read_settings_mapping(path)
+    if cls is PipelineSettings:
+        _refuse_a_section_file(data, path)
+    return from_dict(cls, data)
+
+
+def _refuse_a_section_file(data: Any, path: str | Path) -> None:
+    """Refuse, in one line, a file of one section's fields given where a pipeline file
+    is wanted (``render --config sim.yaml``): before, the message listed its 26 fields
+    as unknown."""
+    if not isinstance(data, dict) or not data or _is_pipeline_mapping(data):
+        return
+    hints = typing.get_type_hints(PipelineSettings)
+    for section in dataclasses.fields(PipelineSettings):
+        names = {f.name for f in dataclasses.fields(hints[section.name])}
+        if set(data) <= names:
+            raise ValueError(
+                f"{path} holds {section.name} settings only, and a pipeline file is wanted "
+                "here: its sections are camera, microscope, render and simulation (start "
+                "from `napari-symbac defaults pipeline --out FILE`, or put these fields "
+                f"under `{section.name}:`)"
+            )
 
 
 def _is_pipeline_mapping(data: Any) -> bool:

@@ -135,3 +135,24 @@ def test_keep_measures_nothing(tmp_path):
     export_dataset(settings, tmp_path, workers=1)
     [entry] = _entries(tmp_path)
     assert "faint_cells" not in entry
+
+
+@pytest.mark.parametrize("sd", [0.3, 0.45, 0.8, 1.5])
+def test_noise_of_a_grey_level_or_two_is_measured(sd):
+    """An 8-bit recording's camera: noise below a grey level, most neighbours equal.
+    The MAD alone gave 0 at 0.45 ADU, so every cell's CNR was infinite and none was faint."""
+    rng = np.random.default_rng(4)
+    labels = np.zeros((120, 120), np.uint32)
+    truth = np.full(labels.shape, 120.0)
+    for k, level in enumerate((60.0, 120.2)):  # a dark cell, and one as bright as the medium
+        rr, cc = ellipse(30 + 60 * k, 60, 12, 6, shape=labels.shape)
+        labels[rr, cc] = k + 1
+        truth[rr, cc] = level
+    truth += np.linspace(0, 6, 120)[None, :]  # a slow shading is not noise
+    image = np.rint(truth + rng.normal(0, sd, truth.shape))
+    noise = pixel_noise(image, labels == 0)
+    assert noise == pytest.approx(np.sqrt(sd**2 + 1 / 12), rel=0.15)
+    cnr = contrast_to_noise(image, labels)
+    assert np.isfinite(cnr[1])
+    assert cnr[1] > 20
+    assert faint_cells(cnr, 1.0) == [2]

@@ -63,6 +63,7 @@ def test_real_sample_field_opens(make_napari_viewer):
     cells = viewer.layers["ColiCoords cells"]
     assert brightfield.data.shape == cells.data.shape == (512, 512)
     assert brightfield.scale[-1] == pytest.approx(0.08)
+    assert [str(unit) for unit in cells.units] == ["micrometer", "micrometer"]
     assert cells.data.max() >= 5  # several labelled cells
 
 

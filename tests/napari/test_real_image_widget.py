@@ -135,6 +135,8 @@ def test_missing_pixel_size_is_asked_for_and_remembered(
     assert widget.warning.value == ""
     assert layer.metadata["pixel_size_um"] == pytest.approx(0.065)
     assert tuple(layer.scale) == pytest.approx((0.065, 0.065))
+    # the scale bar and the cursor read um, not "pixel" (found as a user)
+    assert [str(unit) for unit in layer.units] == ["micrometer", "micrometer"]
     assert layer.metadata["microscope"].pixel_size_um == pytest.approx(0.065)
     # remembered with the layer: choosing the other image and back restores it
     widget.image.value = viewer.layers["sized"]
@@ -154,6 +156,7 @@ def test_measured_means_are_kept_with_the_layer(make_napari_viewer):
     widget.paint_button.native.click()
     labels = viewer.layers[class_layer_name("img")]
     assert tuple(labels.scale) == pytest.approx((0.065, 0.065))
+    assert [str(unit) for unit in labels.units] == ["micrometer", "micrometer"]
     labels.paint((15, 15), CLASS_VALUES["cell"], refresh=False)
     labels.paint((30, 25), CLASS_VALUES["media"], refresh=False)
     widget.measure_button.native.click()

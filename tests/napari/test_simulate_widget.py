@@ -137,6 +137,7 @@ def test_recording_sets_pixel_size_microscope_and_modality(widget, qtbot):
     image = widget.viewer.layers[RESULT_IMAGE_LAYER]
     labels = widget.viewer.layers[RESULT_LABELS_LAYER].data
     assert tuple(image.scale[1:]) == tuple(recording.scale)  # same physical scale
+    assert [str(unit) for unit in image.units[1:]] == ["micrometer", "micrometer"]
     frame = image.data[-1].astype(float)
     assert frame[labels[-1] > 0].mean() > 3 * frame[labels[-1] == 0].mean()  # bright cells
 

@@ -124,6 +124,7 @@ def test_auto_fit_runs_the_scene_fit_on_the_recording(rendered, qtbot, real_data
     synthetic = viewer.layers[FIT_SYNTHETIC_LAYER]
     assert synthetic.data.shape == real.data.shape
     assert tuple(synthetic.scale) == tuple(real.scale)
+    assert tuple(synthetic.units) == tuple(real.units)
     assert FIT_RESIDUAL_LAYER in viewer.layers
     assert tune.terms_table.shape[0] == len(result.terms)
     assert "Fitted in" in tune.status.value

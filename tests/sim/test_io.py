@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import stat
 
 import numpy as np
 import pytest
@@ -83,8 +85,11 @@ def test_corrupt_simulation_gives_clear_error(sim, tmp_path, damage):
 
 
 def test_missing_simulation(tmp_path):
-    with pytest.raises(FileNotFoundError, match=r"simulation\.json is missing"):
+    with pytest.raises(FileNotFoundError, match=r"nothing does not exist"):
         load_simulation(tmp_path / "nothing")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(FileNotFoundError, match=r"simulation\.json is missing"):
+        load_simulation(tmp_path / "empty")
 
 
 def test_never_overwrites_foreign_folders(sim, tmp_path):
@@ -148,3 +153,30 @@ def test_missing_dxf_file(tmp_path):
     with pytest.raises(OSError, match="dxf_path"):
         simulate(settings)
     shutil.rmtree(tmp_path, ignore_errors=True)
+
+
+def test_a_foreign_save_dir_fails_before_simulating(tmp_path):
+    """Found as a user: `simulate --out` a folder of notes ran all its frames, then refused."""
+    folder = tmp_path / "notes"
+    folder.mkdir()
+    (folder / "notes.txt").write_text("x")
+    calls = []
+    with pytest.raises(FileExistsError, match="holds other files"):
+        simulate(
+            SimulationSettings(n_frames=5, save_dir=str(folder)),
+            progress=lambda *a: calls.append(a),
+        )
+    assert calls == []  # failed before any work
+    assert [p.name for p in folder.iterdir()] == ["notes.txt"]
+
+
+def test_a_saved_simulation_has_the_mode_of_any_new_folder(sim, tmp_path):
+    """Found as a user: the folder kept tempfile's 0o700, unreadable to colleagues."""
+    old = os.umask(0o022)
+    try:
+        path = save_simulation(sim, tmp_path / "shared")
+        save_simulation(sim, tmp_path / "shared")  # replaced: the same mode
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o755
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["shared"]

@@ -277,7 +277,7 @@ class DiagnoseWidget(Container):
         scale = tuple(layer.scale[-2:])
         y0, _, x0, _ = self._region  # the layers sit over the window diagnosed
         translate = (layer.translate[-2] + y0 * scale[0], layer.translate[-1] + x0 * scale[1])
-        kwargs = {"scale": scale, "translate": translate}
+        kwargs = {"scale": scale, "units": tuple(layer.units[-2:]), "translate": translate}
         limit = max(3.0, float(np.percentile(np.abs(result.residual_before[0]), 99)))
         for name in [n for n in self.viewer.layers if str(n).startswith("diagnosis ")]:
             self.viewer.layers.remove(name)

@@ -16,6 +16,7 @@ from napari_symbac._widgets._forms import SettingsForm, hide_label, message_labe
 from napari_symbac._widgets._jobs import notify_warning
 from napari_symbac._widgets._recording import pixel_size_problem
 from napari_symbac.fit import CLASS_VALUES, class_statistics
+from napari_symbac.io import micrometre_axes
 from napari_symbac.settings import Camera, Microscope
 
 if TYPE_CHECKING:
@@ -147,7 +148,7 @@ class RealImageWidget(Container):
         low, high = np.percentile(recording.data, (0.1, 99.9))
         kwargs = {"contrast_limits": (float(low), float(high))} if high > low else {}
         if recording.pixel_size_um:
-            kwargs["scale"] = (1.0,) * (recording.data.ndim - 2) + (recording.pixel_size_um,) * 2
+            kwargs.update(micrometre_axes(recording.pixel_size_um, recording.data.ndim))
         layer = self.viewer.add_image(
             recording.data,
             name=recording.name,
@@ -194,6 +195,7 @@ class RealImageWidget(Container):
                 grey,
                 name=f"{layer.name} grey",
                 scale=layer.scale,
+                units=layer.units,
                 translate=layer.translate,
             )
 
@@ -246,6 +248,7 @@ class RealImageWidget(Container):
             "modality": microscope.modality,
             "microscope": microscope,
         }
+        axes = micrometre_axes(pixel, layer.ndim)
         scale = (*layer.scale[:-2], pixel, pixel)
         targets = [layer]
         if class_layer_name(layer.name) in self.viewer.layers:
@@ -253,6 +256,8 @@ class RealImageWidget(Container):
         for target in targets:
             if tuple(target.scale) != scale:
                 target.scale = scale
+            if tuple(str(u) for u in target.units[-2:]) != ("micrometer", "micrometer"):
+                target.units = (*target.units[:-2], *axes["units"][-2:])
         if not any(_is_synthetic(other) for other in self.viewer.layers):
             self.viewer.reset_view()
 
@@ -272,6 +277,7 @@ class RealImageWidget(Container):
                 np.zeros(layer.data.shape, np.uint8),
                 name=name,
                 scale=layer.scale,
+                units=layer.units,
                 translate=layer.translate,
                 opacity=0.5,
                 colormap=DirectLabelColormap(color_dict=colours),

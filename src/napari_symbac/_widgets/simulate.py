@@ -21,6 +21,7 @@ from napari_symbac._widgets._recording import (
     recordings,
     watch_recordings,
 )
+from napari_symbac.io import micrometre_axes
 from napari_symbac.settings import PipelineSettings, SimulationSettings
 
 if TYPE_CHECKING:
@@ -232,7 +233,7 @@ class SimulateWidget(Container):
                 self.viewer.layers[PREVIEW_LAYER].data = labels
             else:
                 self.viewer.add_labels(
-                    labels, name=PREVIEW_LAYER, scale=(self._pixel_um, self._pixel_um)
+                    labels, name=PREVIEW_LAYER, **micrometre_axes(self._pixel_um, 2)
                 )
         elif stage == "rendered":
             self._remove_preview()
@@ -244,7 +245,7 @@ class SimulateWidget(Container):
         self.simulation, self.pipeline, self.series, opl = result
         self._remove_preview()
         metadata = {SYMBAC_METADATA_KEY: {"simulation": self.simulation, "settings": self.pipeline}}
-        scale = (1.0, *(2 * (self.pipeline.microscope.pixel_size_um,)))
+        axes = micrometre_axes(self.pipeline.microscope.pixel_size_um, 3)
         for name, data, kind in (
             (RESULT_IMAGE_LAYER, self.series.images, "image"),
             (RESULT_LABELS_LAYER, self.series.labels, "labels"),
@@ -252,9 +253,9 @@ class SimulateWidget(Container):
             if name in self.viewer.layers:
                 self.viewer.layers.remove(name)  # new shape, scale or modality
             if kind == "image":
-                self.viewer.add_image(data, name=name, scale=scale, metadata=metadata)
+                self.viewer.add_image(data, name=name, metadata=metadata, **axes)
             else:
-                self.viewer.add_labels(data, name=name, scale=scale, metadata=metadata)
+                self.viewer.add_labels(data, name=name, metadata=metadata, **axes)
         if opl is not None:
             self._show_opl(opl, metadata)
         n_cells = len(self.simulation.lineage)
@@ -267,7 +268,7 @@ class SimulateWidget(Container):
         # Camera pixel i covers render pixels upsample*i .. upsample*(i+1) - 1.
         offset = pixel * (1 / (2 * upsample) - 0.5)
         kwargs = {
-            "scale": (1.0, pixel / upsample, pixel / upsample),
+            **micrometre_axes(pixel / upsample, 3),
             "translate": (0.0, offset, offset),
             "metadata": metadata,
             "colormap": "magma",

@@ -755,6 +755,7 @@ class TuneWidget(Container):
             synthetic, residual, axes = result.synthetic, result.residual, 2
         kwargs = {
             "scale": tuple(reference.scale[-axes:]),
+            "units": tuple(reference.units[-axes:]),
             "translate": tuple(reference.translate[-axes:]),
         }
         for name, data, extra in (

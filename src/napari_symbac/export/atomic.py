@@ -330,9 +330,11 @@ def _check_writable(out: Path, folder: Path, option: str) -> None:
             )
         else:
             problem = f"cannot be created: {existing} is not writable"
-        fix = (
-            "give a folder on a writable disk" if err.errno == errno.EROFS else
-            "give a folder you can write to, or give yourself write permission on it "
-            "(e.g. chmod u+w)"
-        )
+        if err.errno in (errno.EACCES, errno.EPERM):
+            fix = (
+                "give a folder you can write to, or give yourself write permission on it "
+                "(e.g. chmod u+w)"
+            )
+        else:  # a read-only disk, or no files at all there (/proc, /sys)
+            fix = "give a folder on a writable disk"
         raise ValueError(f"{option} {out} {problem} ({err.strerror or err}): {fix}") from None

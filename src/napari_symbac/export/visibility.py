@@ -73,19 +73,31 @@ class Visibility:
             raise ValueError(f"Visibility.ring_px must be an integer >= 1, got {self.ring_px!r}")
 
 
+#: Pixel noise (ADU s.d.) below which :func:`pixel_noise` stops trusting the MAD.
+FEW_GREY_LEVELS = 2.0
+
+
 def pixel_noise(image: np.ndarray, background: np.ndarray) -> float:
     """Robust standard deviation of the pixel noise over ``background`` pixels.
 
     ``1.4826 * MAD / sqrt(2)`` of the differences between horizontally adjacent pixels
-    that are both background; ``nan`` if there are fewer than 10 such pairs.
+    that are both background; ``nan`` if there are fewer than 10 such pairs. When that
+    is within :data:`FEW_GREY_LEVELS` of 0, the noise is a grey level or two of an
+    integer image (an 8-bit recording's camera): most neighbours are equal, the MAD
+    moves in steps of 1 ADU (0 for noise of 0.45 ADU, which made every cell "visible"),
+    and the rms of the differences within that many grey levels measures it instead.
     """
     image = np.asarray(image, dtype=np.float64)
     pairs = background[:, 1:] & background[:, :-1]
     d = (image[:, 1:] - image[:, :-1])[pairs]
     if d.size < 10:
         return math.nan
-    mad = np.median(np.abs(d - np.median(d)))
-    return float(1.4826 * mad / math.sqrt(2))
+    d = d - np.median(d)
+    robust = float(1.4826 * np.median(np.abs(d)) / math.sqrt(2))
+    if robust >= FEW_GREY_LEVELS:
+        return robust
+    near = d[np.abs(d) <= 2 * FEW_GREY_LEVELS]  # not the halo's or the cells' edges
+    return float(np.sqrt(np.mean(near**2) / 2))
 
 
 def camera_medium(scene) -> np.ndarray:

@@ -31,7 +31,13 @@ import napari_symbac
 from napari_symbac.settings import SimulationSettings, from_dict, to_dict
 from napari_symbac.sim.cells import FATES, FrameCells, LineageRecord, Simulation
 
-__all__ = ["FORMAT_NAME", "FORMAT_VERSION", "load_simulation", "save_simulation"]
+__all__ = [
+    "FORMAT_NAME",
+    "FORMAT_VERSION",
+    "check_simulation_folder",
+    "load_simulation",
+    "save_simulation",
+]
 
 FORMAT_NAME = "napari-symbac-simulation"
 #: Version of the folder layout; readers accept this and every older version.
@@ -50,20 +56,11 @@ def save_simulation(sim: Simulation, directory: str | os.PathLike) -> Path:
         If the folder cannot be written, or exists and holds something other than a
         saved simulation (it is never overwritten then).
     """
-    target = Path(directory).expanduser()
-    if target.exists() and not target.is_dir():
-        raise FileExistsError(
-            f"cannot save the simulation to {target}: it is a file; choose a folder path"
-        )
-    if target.is_dir() and any(target.iterdir()) and not (target / _META).is_file():
-        raise FileExistsError(
-            f"cannot save the simulation to {target}: the folder holds other files and no "
-            f"{_META}; choose an empty or new folder"
-        )
+    target = check_simulation_folder(directory)
     parent = target.parent
     try:
         parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.tmp-", dir=parent))
+        tmp = _new_folder(parent, f".{target.name}.tmp-")
     except OSError as err:
         raise OSError(
             f"cannot save the simulation to {target}: {parent} is not writable "
@@ -87,6 +84,43 @@ def save_simulation(sim: Simulation, directory: str | os.PathLike) -> Path:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return target
+
+
+def check_simulation_folder(directory: str | os.PathLike) -> Path:
+    """``directory`` as a folder :func:`save_simulation` may write: missing, empty, or
+    holding a saved simulation (replaced). Call it before simulating, so that a long run
+    is not thrown away at the end.
+
+    Raises
+    ------
+    FileExistsError
+        If it is a file, or a folder that holds other files and no simulation.
+    """
+    target = Path(directory).expanduser()
+    if target.exists() and not target.is_dir():
+        raise FileExistsError(
+            f"cannot save the simulation to {target}: it is a file; choose a folder path"
+        )
+    if target.is_dir() and any(target.iterdir()) and not (target / _META).is_file():
+        raise FileExistsError(
+            f"cannot save the simulation to {target}: the folder holds other files and no "
+            f"{_META}; choose an empty or new folder"
+        )
+    return target
+
+
+def _new_folder(parent: Path, prefix: str) -> Path:
+    """A new folder in ``parent`` with the mode of any new folder (``0o777`` less the
+    umask). ``tempfile.mkdtemp`` makes it ``0o700``, and the saved simulation kept that
+    mode after the rename: colleagues on a shared machine could not read it."""
+    for n in itertools.count():
+        folder = parent / f"{prefix}{os.getpid()}-{n}"
+        try:
+            folder.mkdir()
+        except FileExistsError:
+            continue
+        return folder
+    raise AssertionError("unreachable")
 
 
 def _write(sim: Simulation, folder: Path) -> None:
@@ -145,6 +179,11 @@ def load_simulation(directory: str | os.PathLike) -> Simulation:
     """
     folder = Path(directory).expanduser()
     meta_path = folder / _META
+    if not folder.exists():
+        raise FileNotFoundError(
+            f"{folder} does not exist: give the folder that `napari-symbac simulate --out` "
+            "(or napari_symbac.sim.save_simulation) wrote"
+        )
     if not meta_path.is_file():
         raise FileNotFoundError(
             f"{folder} is not a saved simulation: {_META} is missing (save one with "

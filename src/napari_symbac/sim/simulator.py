@@ -633,8 +633,12 @@ def check_save_dir(save_dir: str | os.PathLike) -> Path:
     Raises
     ------
     OSError
-        If the directory (or its nearest existing parent) is not writable.
+        If the directory (or its nearest existing parent) is not writable, or it holds
+        other files and no saved simulation (which :func:`~napari_symbac.sim.io.
+        save_simulation` would refuse only after the whole run).
     """
+    from napari_symbac.sim.io import check_simulation_folder
+
     path = Path(save_dir).expanduser()
     probe_dir = path
     while not probe_dir.exists():
@@ -654,7 +658,7 @@ def check_save_dir(save_dir: str | os.PathLike) -> Path:
             f"SimulationSettings.save_dir={str(save_dir)!r} is not writable ({err.strerror}): "
             "choose a directory you can write to"
         ) from err
-    return path
+    return check_simulation_folder(path)
 
 
 def simulate(
