@@ -264,3 +264,23 @@ def test_render_refuses_a_simulation_file_as_its_config_in_one_line(tmp_path, ca
     assert "napari-symbac defaults pipeline" in error
     assert "unknown field" not in error
     assert not (tmp_path / "r").exists()
+
+
+def test_export_of_a_pipeline_file_takes_n_items(tmp_path, capsys):
+    """Found as a user: exporting fit's settings.yaml made the default 100 items, and
+    only a hand-written export file could ask for fewer."""
+    from napari_symbac.settings import PipelineSettings, SimulationSettings, save_settings
+
+    pipeline = PipelineSettings(simulation=SimulationSettings(n_frames=4, seed=2))
+    config = save_settings(pipeline, tmp_path / "settings.yaml")
+    out = tmp_path / "ds"
+    args = ["export", "--config", str(config), "--out", str(out), "--workers", "1"]
+    assert main([*args, "--n-items", "3"]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["status"] == "complete"
+    assert len(manifest["items"]) == 3
+    assert manifest["settings"]["n_items"] == 3
+    with pytest.raises(SystemExit) as refused:  # argparse's usage error
+        main([*args, "--n-items", "0"])
+    assert refused.value.code == 2
+    assert "--n-items: must be at least 1" in capsys.readouterr().err

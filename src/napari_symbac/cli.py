@@ -225,9 +225,13 @@ def _cmd_render(args: argparse.Namespace) -> int:
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
+    import dataclasses
+
     from napari_symbac.export import export_dataset, load_export_settings
 
     settings = load_export_settings(args.config)
+    if args.n_items is not None:
+        settings = dataclasses.replace(settings, n_items=args.n_items)
     out = _output_folder(args.out)
     backend = _backend(args)
     sim_frames = settings.pipeline.simulation.n_frames
@@ -559,6 +563,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     export.add_argument("--config", required=True, help="ExportSettings YAML/JSON")
     export.add_argument("--out", required=True, help="output folder")
+    export.add_argument(
+        "--n-items",
+        type=_at_least_one,
+        help="images (or time series) to export, instead of the config's n_items",
+    )
     export.add_argument(
         "--workers",
         type=_at_least_one,
