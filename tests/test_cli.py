@@ -114,6 +114,9 @@ def test_simulate_then_render(tmp_path):
     assert images.shape == labels.shape
     assert images.shape[0] == 4
     assert labels.dtype == np.uint32
+    for name in ("images", "labels", "semantic"):  # frames, rows, columns for tifffile
+        with tifffile.TiffFile(tmp_path / "render" / f"{name}.tif") as tif:
+            assert tif.series[0].axes == "TYX", name
 
 
 def test_simulate_takes_the_simulation_of_a_pipeline_file(tmp_path, capsys):

@@ -183,7 +183,8 @@ def tiff_metadata(
     pixels per micrometre, ``unit=um``, ``finterval`` in seconds for ``(T, Y, X)``
     stacks), which ImageJ/Fiji, tifffile, napari and this plugin's reader all read.
     Wider label images (uint32), which ImageJ cannot hold, carry the resolution in
-    pixels per centimetre (TIFF ``ResolutionUnit`` 3) and a JSON description. Both
+    pixels per centimetre (TIFF ``ResolutionUnit`` 3) and a JSON description with their
+    axes. Both
     name the kind (``image``, ``labels``, ``semantic``) under :data:`TIFF_KIND_KEY`,
     so the reader reopens masks as napari Labels layers.
     """
@@ -204,6 +205,8 @@ def tiff_metadata(
             metadata["finterval"] = float(frame_interval_min) * 60.0
         return kwargs
     metadata = {TIFF_KIND_KEY: kind}
+    if axes is not None:  # tifffile's JSON description names them: "TYX", not "QYX"
+        metadata["axes"] = axes
     kwargs = {"metadata": metadata}
     if pixel_size_um is not None:
         per_cm = 1e4 / pixel_size_um
