@@ -247,3 +247,19 @@ def test_or_open_takes_a_grey_png_as_the_fit_command_does(make_napari_viewer, re
     assert "no pixel size" in widget.warning.value
     widget.pixel_size.value = 0.134
     assert layer.metadata["pixel_size_um"] == 0.134
+
+
+def test_a_recording_without_a_modality_gets_one_from_what_it_shows(
+    make_napari_viewer, real_data_dir
+):
+    """Found as a user: a ColiCoords fluorescence field (no modality, no pixel size in
+    the TIFF) opened as phase contrast with a Ph3 condenser."""
+    viewer = make_napari_viewer()
+    widget = RealImageWidget(viewer)
+    fields = real_data_dir / "colicoords" / "test_data" / "ds2"
+    widget.file.value = fields / "fluorescence" / "00066.tif"
+    assert widget.modality.value == "fluorescence"
+    assert "records no modality: fluorescence" in widget.result.value
+    widget.file.value = fields / "brightfield" / "00066.tif"
+    assert widget.modality.value == "phase"
+    assert "dark objects" in widget.result.value

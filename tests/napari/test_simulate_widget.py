@@ -123,6 +123,7 @@ def test_recording_sets_pixel_size_microscope_and_modality(widget, qtbot):
         },
     )
     assert widget.recording.value is recording  # the newest recording, chosen for you
+    assert widget.form.geometry.value == "agar_pad"  # fluorescence: an open field, as fit
     widget.form.n_frames.value = 3
     widget.run_button.native.click()
     qtbot.waitUntil(lambda: RESULT_LABELS_LAYER in widget.viewer.layers, timeout=120_000)
@@ -192,3 +193,22 @@ def test_backend_choice_renders_on_torch(widget, qtbot):
     assert images.dtype == np.uint16
     assert images.std() > 0
     assert widget.status.value.startswith("Done: 4 frames")
+
+
+@pytest.mark.parametrize(
+    ("width_px", "modality", "geometry"),
+    [(46, "phase", "trench"), (512, "phase", "agar_pad"), (46, "fluorescence", "agar_pad")],
+)
+def test_a_chosen_recording_sets_the_geometry_as_fit_would(widget, width_px, modality, geometry):
+    """Found as a user: an open fluorescence field was simulated, and so Auto-fitted, as a
+    trench until the user found the geometry in the form."""
+    import numpy as np
+
+    widget.form.geometry.value = "chamber"
+    widget.viewer.add_image(
+        np.zeros((64, width_px), np.uint16),
+        name="recording",
+        metadata={"pixel_size_um": 0.1, "modality": modality},
+    )
+    assert widget.recording.value.name == "recording"
+    assert widget.form.geometry.value == geometry

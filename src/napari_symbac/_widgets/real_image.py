@@ -175,10 +175,32 @@ class RealImageWidget(Container):
                 self.microscope.value = meta["microscope"]
             if meta.get("modality") in self.modality.choices:
                 self.modality.value = meta["modality"]
+            elif not isinstance(meta.get("microscope"), Microscope):
+                self._guess_modality(layer)
             self.pixel_size.value = pixel or 0.0
         finally:
             self._loading = False
         self._store()
+
+    def _guess_modality(self, layer) -> None:
+        """A recording that does not say its modality: fluorescence when it shows bright
+        objects on a dark background and nothing darker, phase contrast when it shows
+        dark ones (:func:`~napari_symbac.fit.preflight.image_polarity`, the fit's own
+        check); an unclear image keeps the form's choice. Said in the dock, to change."""
+        from napari_symbac.fit.preflight import image_polarity
+
+        frame = np.asarray(layer.data[(0,) * (layer.ndim - 2)], np.float64)
+        guess = {"bright cells": "fluorescence", "dark cells": "phase"}.get(
+            image_polarity(frame)
+        )
+        if guess is None:
+            return
+        self.modality.value = guess
+        shows = "bright objects on a dark" if guess == "fluorescence" else "dark objects on a light"
+        self.result.value = (
+            f"{layer.name} records no modality: {guess}, as it shows {shows} background "
+            "(change it if wrong)"
+        )
 
     def _add_grey_channel(self, event) -> None:
         """A grey image saved as colour (equal red, green and blue: the Omnipose and

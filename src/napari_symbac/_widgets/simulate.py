@@ -104,11 +104,12 @@ class SimulateWidget(Container):
             ]
         )
         hide_label(self.form)
-        watch_recordings(viewer, self._refresh_recordings)
-        self._refresh_recordings()
         if hasattr(self.form, "geometry"):
             self.form.geometry.changed.connect(self._show_geometry_settings)
             self._show_geometry_settings()
+        self.recording.changed.connect(self._follow_recording)
+        watch_recordings(viewer, self._refresh_recordings)
+        self._refresh_recordings()
         self.run_button.changed.connect(self.run)
         self.cancel_button.changed.connect(self.cancel)
         self.worker: Job | None = None
@@ -122,6 +123,20 @@ class SimulateWidget(Container):
         choices = [c for c in self.recording.choices if c is not None]
         if self.recording.value is None and choices:
             self.recording.value = choices[-1]
+
+    def _follow_recording(self, layer=None) -> None:
+        """A newly chosen recording sets the geometry as ``napari-symbac fit`` would
+        choose it for that image: a trench when it is a phase image at most
+        :data:`~napari_symbac._cli_fit.TRENCH_MAX_WIDTH_PX` wide, else an agar pad (found
+        as a user: an open fluorescence field was simulated, and Auto-fitted, as a
+        trench). The form can still be changed after."""
+        from napari_symbac._cli_fit import default_geometry
+
+        if layer is None or not hasattr(self.form, "geometry"):
+            return
+        modality = recording_microscope(layer, self.pipeline.microscope).modality
+        field = default_geometry({}, int(layer.data.shape[-1]), modality) == "field"
+        self.form.geometry.value = "agar_pad" if field else "trench"
 
     def pipeline_settings(self) -> PipelineSettings:
         """The settings to run: the form, and the chosen recording's microscope.
