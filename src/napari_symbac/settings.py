@@ -490,6 +490,12 @@ class SimulationSettings:
             isinstance(self.seed, int) and self.seed >= 0,
             f"SimulationSettings.seed must be a non-negative integer, got {self.seed!r}",
         )
+        _require(
+            self.geometry != "agar_pad" or self.agar_pad.n_colonies <= self.n_founders,
+            f"AgarPadGeometry.n_colonies={self.agar_pad.n_colonies} exceeds "
+            f"SimulationSettings.n_founders={self.n_founders}: every colony needs a founder; "
+            "raise n_founders",
+        )
         widest_um = self.cell_width_um + 3 * math.sqrt(self.width_var_um2)
         _require(
             self.geometry not in ("trench", "chamber") or widest_um < self.trench.width_um,

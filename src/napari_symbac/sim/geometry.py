@@ -251,11 +251,6 @@ def _agar_pad_spots(
     """
     fw, fh = pad.field_width_um, pad.field_height_um
     spacing = pad.founder_spacing_um or max_length_um
-    if pad.n_colonies > n:
-        raise ValueError(
-            f"AgarPadGeometry.n_colonies={pad.n_colonies} exceeds SimulationSettings."
-            f"n_founders={n}: every colony needs a founder; raise n_founders"
-        )
     if pad.n_colonies == 1 and pad.scattered_cells == 0:
         return _grid((fw / 2, fh / 2), n, spacing), ((fw / 2, fh / 2),)
     m = pad.edge_margin_um
