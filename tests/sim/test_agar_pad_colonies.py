@@ -84,7 +84,7 @@ def test_impossible_layouts_are_rejected():
     with pytest.raises(ValueError, match="cannot place"):
         _layout(_settings(n_colonies=5, colony_separation_um=30.0))
     # refused by the settings themselves, so a form says so before any run starts
-    with pytest.raises(ValueError, match="n_colonies=7 exceeds SimulationSettings.n_founders=6"):
+    with pytest.raises(ValueError, match=r"n_colonies=7 exceeds SimulationSettings\.n_founders=6"):
         _settings(n_colonies=7)
     with pytest.raises(ValueError, match="n_colonies must be an integer"):
         AgarPadGeometry(n_colonies=0)
