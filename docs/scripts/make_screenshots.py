@@ -141,10 +141,9 @@ def colony_flow() -> None:
     flow.simulate.run_button.native.click()
     wait_for(lambda: flow.simulate.worker is None and flow.simulate.series is not None)
     real = viewer.layers["Sample000033"]
-    masks = viewer.add_labels(
+    masks = viewer.add_labels(  # in pixels, as its file: placed over the recording
         tifffile.imread(root / "Sample000033_cp_masks.tif"),
         name="Sample000033 masks",
-        scale=real.scale,
     )
     flow.setCurrentIndex(2)
     flow.tune.reference.value = real

@@ -263,3 +263,27 @@ def test_a_recording_without_a_modality_gets_one_from_what_it_shows(
     widget.file.value = fields / "brightfield" / "00066.tif"
     assert widget.modality.value == "phase"
     assert "dark objects" in widget.result.value
+
+
+def test_masks_and_the_colour_original_are_placed_over_the_recording(
+    make_napari_viewer, real_data_dir
+):
+    """Found with the scale bar's units: a masks file (no pixel size) stayed 1 unit per
+    pixel beside a recording in micrometres, 7x larger than it, and napari warned that
+    the layers' units were inconsistent."""
+    viewer = make_napari_viewer()
+    widget = RealImageWidget(viewer)
+    original = viewer.open(real_data_dir / "omnipose" / "Sample000033.png")[0]
+    widget.image.value = original
+    grey = widget.image.value
+    early = viewer.add_labels(np.zeros(grey.data.shape, np.uint16), name="early masks")
+    widget.pixel_size.value = 0.134
+    late = viewer.add_labels(np.zeros(grey.data.shape, np.uint16), name="late masks")
+    for layer in (grey, original, early, late):
+        assert tuple(layer.scale[-2:]) == pytest.approx((0.134, 0.134)), layer.name
+        assert [str(unit) for unit in layer.units[-2:]] == ["micrometer", "micrometer"]
+    # what napari draws by (None: "Inconsistent units across layers", a warning)
+    assert viewer.layers.extent.units is not None
+    # another grey image of that size may come from another microscope: left alone
+    other = viewer.add_image(np.zeros(grey.data.shape, np.uint8), name="another field")
+    assert tuple(other.scale) == (1.0, 1.0)

@@ -114,6 +114,7 @@ class RealImageWidget(Container):
         self.paint_button.changed.connect(self.paint)
         self.measure_button.changed.connect(self.measure)
         viewer.layers.events.inserted.connect(self._add_grey_channel)
+        viewer.layers.events.inserted.connect(self._place_over_recording)
         viewer.layers.events.inserted.connect(self.image.reset_choices)
         viewer.layers.events.removed.connect(self.image.reset_choices)
         self.statistics = None
@@ -202,6 +203,44 @@ class RealImageWidget(Container):
             "(change it if wrong)"
         )
 
+    def _unplaced_over(self, recording) -> list:
+        """Layers over the same camera pixels as ``recording`` still in pixels: labels
+        (a masks file opened beside it) and the colour original of its grey channel.
+        They take its pixel size, so they overlay it and napari's units agree across
+        the layers (mixed, napari warns and drops them). Another grey image of the same
+        size is left alone: it may come from another microscope."""
+        from napari.layers import Labels
+
+        source = recording.name.removesuffix(" grey")
+
+        def overlays(other) -> bool:
+            return isinstance(other, Labels) or (
+                getattr(other, "rgb", False) and other.name == source
+            )
+
+        return [
+            other
+            for other in self.viewer.layers
+            if other is not recording
+            and overlays(other)
+            and _camera_shape(other) == _camera_shape(recording)
+            and _in_pixels(other)
+        ]
+
+    def _place_over_recording(self, event) -> None:
+        """Labels added in pixels over a recording with a pixel size (masks opened from
+        their file, which records none) are placed in its micrometres."""
+        from napari.layers import Labels
+
+        layer = event.value
+        if not isinstance(layer, Labels) or not _in_pixels(layer):
+            return
+        for other in self.viewer.layers:
+            pixel = other.metadata.get("pixel_size_um")
+            if other is not layer and pixel and _camera_shape(other) == _camera_shape(layer):
+                _place_in_micrometres(layer, float(pixel))
+                return
+
     def _add_grey_channel(self, event) -> None:
         """A grey image saved as colour (equal red, green and blue: the Omnipose and
         Cellpose datasets' PNGs, which napari opens as RGBA) gets its grey channel as a
@@ -270,16 +309,11 @@ class RealImageWidget(Container):
             "modality": microscope.modality,
             "microscope": microscope,
         }
-        axes = micrometre_axes(pixel, layer.ndim)
-        scale = (*layer.scale[:-2], pixel, pixel)
-        targets = [layer]
+        targets = [layer, *self._unplaced_over(layer)]
         if class_layer_name(layer.name) in self.viewer.layers:
             targets.append(self.viewer.layers[class_layer_name(layer.name)])
         for target in targets:
-            if tuple(target.scale) != scale:
-                target.scale = scale
-            if tuple(str(u) for u in target.units[-2:]) != ("micrometer", "micrometer"):
-                target.units = (*target.units[:-2], *axes["units"][-2:])
+            _place_in_micrometres(target, pixel)
         if not any(_is_synthetic(other) for other in self.viewer.layers):
             self.viewer.reset_view()
 
@@ -340,3 +374,26 @@ def _is_synthetic(layer) -> bool:
     from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
 
     return SYMBAC_METADATA_KEY in layer.metadata
+
+
+def _camera_shape(layer) -> tuple[int, ...]:
+    """The ``(Y, X)`` pixels a layer covers (a colour image's last axis is its channels)."""
+    shape = tuple(layer.data.shape)
+    return shape[-3:-1] if getattr(layer, "rgb", False) else shape[-2:]
+
+
+def _in_pixels(layer) -> bool:
+    """Whether a layer is still at napari's default placement: 1 unit per pixel."""
+    return all(float(s) == 1.0 for s in layer.scale[-2:]) and all(
+        str(u) == "pixel" for u in layer.units[-2:]
+    )
+
+
+def _place_in_micrometres(layer, pixel_um: float) -> None:
+    """Scale a layer's last two axes to ``pixel_um`` and give them um as their unit."""
+    axes = micrometre_axes(pixel_um, layer.ndim)
+    scale = (*layer.scale[:-2], *axes["scale"][-2:])
+    if tuple(layer.scale) != scale:
+        layer.scale = scale
+    if tuple(str(u) for u in layer.units[-2:]) != ("micrometer", "micrometer"):
+        layer.units = (*layer.units[:-2], *axes["units"][-2:])
