@@ -229,7 +229,9 @@ class RealImageWidget(Container):
 
     def _place_over_recording(self, event) -> None:
         """Labels added in pixels over a recording with a pixel size (masks opened from
-        their file, which records none) are placed in its micrometres."""
+        their file, which records none) are placed in its micrometres. (napari's canvas
+        draws a new layer before any plugin hears of it, so it warns once that the
+        layers' units differ; from then on they agree.)"""
         from napari.layers import Labels
 
         layer = event.value
