@@ -528,8 +528,9 @@ def build_parser() -> argparse.ArgumentParser:
     simulate = sub.add_parser(
         "simulate",
         help="run the growth simulation and save it",
-        description="Simulate cell growth in a mother-machine trench with pymunk physics and "
-        "save settings, per-frame cell states and lineage to a folder.",
+        description="Simulate cell growth with pymunk physics (in a mother-machine trench, a "
+        "chamber, on an agar pad or within drawn walls: the config's geometry) and save "
+        "settings, per-frame cell states and lineage to a folder.",
     )
     simulate.add_argument(
         "--config",

@@ -260,9 +260,11 @@ def test_a_recording_without_a_modality_gets_one_from_what_it_shows(
     widget.file.value = fields / "fluorescence" / "00066.tif"
     assert widget.modality.value == "fluorescence"
     assert "records no modality: fluorescence" in widget.result.value
+    assert widget.microscope.condenser.native.isHidden()  # a phase-contrast setting
     widget.file.value = fields / "brightfield" / "00066.tif"
     assert widget.modality.value == "phase"
     assert "dark objects" in widget.result.value
+    assert not widget.microscope.condenser.native.isHidden()
 
 
 def test_masks_and_the_colour_original_are_placed_over_the_recording(

@@ -111,6 +111,8 @@ class RealImageWidget(Container):
         self.file.changed.connect(self._open_file)
         self.image.changed.connect(self._load_layer)
         self.microscope.changed.connect(self._store)
+        self.modality.changed.connect(self._show_condenser)
+        self._show_condenser()
         self.paint_button.changed.connect(self.paint)
         self.measure_button.changed.connect(self.measure)
         viewer.layers.events.inserted.connect(self._add_grey_channel)
@@ -182,6 +184,11 @@ class RealImageWidget(Container):
         finally:
             self._loading = False
         self._store()
+
+    def _show_condenser(self, _value=None) -> None:
+        """The phase condenser (annulus) is a phase-contrast setting: hidden for
+        fluorescence, where it is not used."""
+        self.microscope.condenser.visible = self.modality.value == "phase"
 
     def _guess_modality(self, layer) -> None:
         """A recording that does not say its modality: fluorescence when it shows bright
