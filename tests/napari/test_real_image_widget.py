@@ -286,6 +286,9 @@ def test_masks_and_the_colour_original_are_placed_over_the_recording(
         assert [str(unit) for unit in layer.units[-2:]] == ["micrometer", "micrometer"]
     # what napari draws by (None: "Inconsistent units across layers", a warning)
     assert viewer.layers.extent.units is not None
+    widget.pixel_size.value = 0.1  # corrected: they follow
+    for layer in (grey, original, early, late):
+        assert tuple(layer.scale[-2:]) == pytest.approx((0.1, 0.1)), layer.name
     # another grey image of that size may come from another microscope: left alone
     other = viewer.add_image(np.zeros(grey.data.shape, np.uint8), name="another field")
     assert tuple(other.scale) == (1.0, 1.0)

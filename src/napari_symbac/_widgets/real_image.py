@@ -210,15 +210,18 @@ class RealImageWidget(Container):
             "(change it if wrong)"
         )
 
-    def _unplaced_over(self, recording) -> list:
-        """Layers over the same camera pixels as ``recording`` still in pixels: labels
-        (a masks file opened beside it) and the colour original of its grey channel.
-        They take its pixel size, so they overlay it and napari's units agree across
-        the layers (mixed, napari warns and drops them). Another grey image of the same
-        size is left alone: it may come from another microscope."""
+    def _overlays(self, recording) -> list:
+        """Layers that follow ``recording``'s placement: labels over its camera pixels (its
+        painted classes, a masks file opened beside it) and the colour original of its
+        grey channel, placed as it is or still in pixels (a masks file records no pixel
+        size). They take its pixel size with it, so they keep overlaying it when the
+        pixel size is entered or corrected, and napari's units agree across the layers
+        (mixed, napari warns and drops them). Another grey image of the same size is left
+        alone: it may come from another microscope."""
         from napari.layers import Labels
 
         source = recording.name.removesuffix(" grey")
+        placed = (tuple(recording.scale[-2:]), tuple(recording.units[-2:]))
 
         def overlays(other) -> bool:
             return isinstance(other, Labels) or (
@@ -231,7 +234,7 @@ class RealImageWidget(Container):
             if other is not recording
             and overlays(other)
             and _camera_shape(other) == _camera_shape(recording)
-            and _in_pixels(other)
+            and (_in_pixels(other) or (tuple(other.scale[-2:]), tuple(other.units[-2:])) == placed)
         ]
 
     def _place_over_recording(self, event) -> None:
@@ -318,10 +321,7 @@ class RealImageWidget(Container):
             "modality": microscope.modality,
             "microscope": microscope,
         }
-        targets = [layer, *self._unplaced_over(layer)]
-        if class_layer_name(layer.name) in self.viewer.layers:
-            targets.append(self.viewer.layers[class_layer_name(layer.name)])
-        for target in targets:
+        for target in [layer, *self._overlays(layer)]:
             _place_in_micrometres(target, pixel)
         if not any(_is_synthetic(other) for other in self.viewer.layers):
             self.viewer.reset_view()
