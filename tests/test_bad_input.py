@@ -84,6 +84,20 @@ def test_export_to_folder_of_another_export(tmp_path, export_config, capsys):
     assert _files(out) == before
 
 
+def test_export_to_a_folder_of_other_files(tmp_path, export_config, capsys):
+    """Found as a user: ``export --out`` a folder of their own files wrote the dataset's
+    folders among them."""
+    out = tmp_path / "project"
+    out.mkdir()
+    (out / "notes.txt").write_text("my notes")
+    (out / ".hidden").write_text("")  # a hidden file (.DS_Store, a lock) is no objection
+    code, err = _run(["export", "--config", str(export_config), "--out", str(out)], capsys)
+    assert code == 2
+    assert "holds other files (notes.txt) and no manifest.json" in err
+    assert "empty or new folder" in err
+    assert sorted(p.name for p in out.iterdir()) == [".hidden", "notes.txt"]
+
+
 def test_export_out_is_a_file(tmp_path, export_config, capsys):
     out = tmp_path / "dataset.tif"
     out.write_bytes(b"not a folder")

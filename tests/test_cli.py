@@ -106,9 +106,10 @@ def test_bad_config_is_one_clear_line(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
-def test_simulate_then_render(tmp_path):
+def test_simulate_then_render(tmp_path, capsys):
     assert main(["simulate", "--out", str(tmp_path / "sim"), "--frames", "4", "--seed", "1"]) == 0
     assert main(["render", str(tmp_path / "sim"), "--out", str(tmp_path / "render")]) == 0
+    assert "replaced" not in capsys.readouterr().err
     images = tifffile.imread(tmp_path / "render" / "images.tif")
     labels = tifffile.imread(tmp_path / "render" / "labels.tif")
     assert images.shape == labels.shape
@@ -117,6 +118,9 @@ def test_simulate_then_render(tmp_path):
     for name in ("images", "labels", "semantic"):  # frames, rows, columns for tifffile
         with tifffile.TiffFile(tmp_path / "render" / f"{name}.tif") as tif:
             assert tif.series[0].axes == "TYX", name
+    # rendered again into the same folder: the earlier files are replaced, and it says so
+    assert main(["render", str(tmp_path / "sim"), "--out", str(tmp_path / "render")]) == 0
+    assert "replaced the images.tif, labels.tif, semantic.tif" in capsys.readouterr().err
 
 
 def test_simulate_takes_the_simulation_of_a_pipeline_file(tmp_path, capsys):

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
-from napari_symbac._timing import StepTimer
+from napari_symbac._timing import StepTimer, terminal_bar
 
 __all__ = ["parse_frames", "run_fit"]
 
@@ -82,26 +82,6 @@ def _explicit_keys(config: str | None) -> dict[str, Any]:
     return data if isinstance(data, dict) else {}
 
 
-#: Frames at most this wide (pixels) are taken for a mother-machine trench, as in
-#: ``napari-symbac diagnose``.
-TRENCH_MAX_WIDTH_PX = 100
-
-
-def default_geometry(keys: dict[str, Any], width_px: int, modality: str) -> str:
-    """The CLI's geometry when ``--geometry`` is not given.
-
-    ``field`` when the config's simulation is an agar pad, when the image is wider than
-    :data:`TRENCH_MAX_WIDTH_PX` or when it is fluorescence (no walls to find); else
-    ``trench``. A config that names a trench or chamber keeps ``trench`` for phase.
-    """
-    explicit = (keys.get("simulation", {}) or {}).get("geometry")
-    if explicit == "agar_pad" or modality == "fluorescence":
-        return "field"
-    if explicit in ("trench", "chamber"):
-        return "trench"
-    return "trench" if width_px <= TRENCH_MAX_WIDTH_PX else "field"
-
-
 def _config_note(config: str | None, keys: dict[str, Any], geometry: str) -> str:
     """Which parts of --config the fit used, and which it could not."""
     if config is None:
@@ -155,15 +135,7 @@ class _Stages:
     def bar(self, desc: str) -> tuple[Callable[[int, int], None], Callable[[], None]]:
         if not self.tty:
             return (lambda done, total: None), (lambda: None)
-        from tqdm import tqdm
-
-        bar = tqdm(total=None, desc=desc, unit="step", leave=False, file=self.stream)
-
-        def update(done: int, total: int) -> None:
-            bar.total = total
-            bar.n = done
-            bar.refresh()
-
+        update, bar = terminal_bar(desc, None, "steps", self.stream)
         return update, bar.close
 
 
@@ -783,7 +755,12 @@ def _ctc_result(series, frames: list[int], pixel_size_um: float) -> dict:
 
 def run_fit(args: argparse.Namespace) -> int:
     """Run ``napari-symbac fit`` with parsed arguments; returns the exit code."""
-    from napari_symbac.fit.preflight import check_fit_image, refuse_constant, resolve_pixel_size
+    from napari_symbac.fit.preflight import (
+        check_fit_image,
+        default_geometry,
+        refuse_constant,
+        resolve_pixel_size,
+    )
     from napari_symbac.fit.report import write_atomically
     from napari_symbac.io import read_image
     from napari_symbac.settings import PipelineSettings, load_microscope, load_settings
@@ -817,7 +794,8 @@ def run_fit(args: argparse.Namespace) -> int:
         if "disagrees" in pixel_note:
             print(f"napari-symbac fit: note: {pixel_note}", file=sys.stderr)
         if args.geometry is None:
-            args.geometry = default_geometry(keys, stack.shape[-1], microscope.modality)
+            configured = (keys.get("simulation", {}) or {}).get("geometry")
+            args.geometry = default_geometry(stack.shape[-1], microscope.modality, configured)
         elif args.geometry == "trench" and microscope.modality == "fluorescence":
             raise ValueError(
                 "a fluorescence image shows no trench walls to find (the PDMS is as dark as "

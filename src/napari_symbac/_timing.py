@@ -1,12 +1,32 @@
-"""Timing of named steps, reported as a table (used by the CLI and the demo)."""
+"""Timing of named steps, reported as a table, and the progress bar shown on a terminal
+(used by the CLI and the demo)."""
 
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from typing import Any, TextIO
 
-__all__ = ["StepTimer"]
+__all__ = ["StepTimer", "terminal_bar"]
+
+
+def terminal_bar(
+    desc: str, total: int | None, unit: str, stream: TextIO
+) -> tuple[Callable[[int, int], None], Any]:
+    """``(update, bar)``: a tqdm bar on ``stream`` (a terminal) that ``update(done,
+    total)`` moves, the total allowed to change as the work learns it; ``bar.close()``
+    clears it."""
+    from tqdm import tqdm
+
+    bar = tqdm(total=total, desc=desc, unit=unit.rstrip("s"), leave=False, file=stream)
+
+    def update(done: int, total_now: int) -> None:
+        bar.total = total_now
+        bar.n = done
+        bar.refresh()
+
+    return update, bar
 
 
 class StepTimer:

@@ -13,7 +13,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from napari_symbac import __version__
-from napari_symbac._timing import StepTimer
+from napari_symbac._timing import StepTimer, terminal_bar
 
 __all__ = ["interrupted_text", "main"]
 
@@ -54,16 +54,7 @@ def _tqdm_progress(
     if not sys.stderr.isatty():
         piped = _PipedProgress(desc, unit, sys.stderr)
         return piped, piped
-    from tqdm import tqdm
-
-    bar = tqdm(total=total, desc=desc, unit=unit.rstrip("s"), leave=False, file=sys.stderr)
-
-    def update(done: int, total_now: int) -> None:
-        bar.total = total_now
-        bar.n = done
-        bar.refresh()
-
-    return update, bar
+    return terminal_bar(desc, total, unit, sys.stderr)
 
 
 def _at_least_one(text: str) -> int:
@@ -210,16 +201,20 @@ def _cmd_render(args: argparse.Namespace) -> int:
         "frame_interval_min": settings.simulation.frame_interval_min,
         "compression": "zlib",
     }
+    arrays = {"images": series.images, "labels": series.labels, "semantic": series.semantic}
+    replaced = [f"{name}.tif" for name in arrays if (out / f"{name}.tif").exists()]
     with timer.step("write"):
         # each file atomically: a full disk leaves no partial file, and names the path
-        for name, array in (
-            ("images", series.images),
-            ("labels", series.labels),
-            ("semantic", series.semantic),
-        ):
+        for name, array in arrays.items():
             kind = "image" if name == "images" else name
             write_tiff(out / f"{name}.tif", array, kind=kind, **calibration)
     print(f"wrote images.tif, labels.tif, semantic.tif {series.images.shape} to {out}")
+    if replaced:
+        print(
+            f"napari-symbac render: note: replaced the {', '.join(replaced)} that {out} "
+            "held (render to another --out to keep both)",
+            file=sys.stderr,
+        )
     print(timer.report())
     return 0
 
@@ -307,7 +302,6 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     import numpy as np
     import yaml
 
-    from napari_symbac._cli_fit import default_geometry
     from napari_symbac.diagnose.config import load_microscope_file
     from napari_symbac.diagnose.figures import write_figures
     from napari_symbac.diagnose.model import build_design
@@ -315,7 +309,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from napari_symbac.diagnose.run import diagnose
     from napari_symbac.diagnose.stages import updated_settings
     from napari_symbac.fit import fit_scene
-    from napari_symbac.fit.preflight import check_fit_image, resolve_pixel_size
+    from napari_symbac.fit.preflight import check_fit_image, default_geometry, resolve_pixel_size
     from napari_symbac.io import read_image
     from napari_symbac.settings import PipelineSettings, RenderSettings, save_settings
 
@@ -364,7 +358,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                     "another window, --region full the whole frame",
                     file=sys.stderr,
                 )
-        named = args.geometry or default_geometry({}, stack.shape[-1], microscope.modality)
+        named = args.geometry or default_geometry(stack.shape[-1], microscope.modality)
         geometry = "open" if named == "field" else named  # `fit`'s rule and words
     start = RenderSettings()
     if microscope.modality == "fluorescence":

@@ -149,8 +149,12 @@ def test_missing_file_is_rewritten(tmp_path, reference):
 
 
 def test_stale_temporary_files_are_removed(tmp_path, reference):
+    """A run killed mid-write leaves temporaries beside its items: the next run removes
+    them."""
+    cancelled = run_export(SyntheticSource(12), tmp_path, FORMATS, workers=1, cancel=lambda: True)
+    assert not cancelled.complete
     stale = tmp_path / "stardist" / "train" / "images" / ".000001.tmp-123-deadbeef.tif"
-    stale.parent.mkdir(parents=True)
+    stale.parent.mkdir(parents=True, exist_ok=True)
     stale.write_bytes(b"partial")
     run_export(SyntheticSource(12), tmp_path, FORMATS, workers=1)
     assert not stale.exists()

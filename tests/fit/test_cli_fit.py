@@ -505,20 +505,21 @@ def test_refuses_a_fluorescence_trench_it_cannot_place(tmp_path, real_data_dir, 
 
 
 @pytest.mark.parametrize(
-    ("config", "width_px", "modality", "expected"),
+    ("configured", "width_px", "modality", "expected"),
     [
-        ({}, 46, "phase", "trench"),
-        ({}, 512, "phase", "field"),
-        ({}, 46, "fluorescence", "field"),
-        ({"simulation": {"geometry": "agar_pad"}}, 46, "phase", "field"),
-        ({"simulation": {"geometry": "trench"}}, 512, "phase", "trench"),
-        ({"simulation": {"geometry": "trench"}}, 46, "fluorescence", "field"),
+        (None, 46, "phase", "trench"),
+        (None, 512, "phase", "field"),
+        (None, 46, "fluorescence", "field"),
+        ("agar_pad", 46, "phase", "field"),
+        ("trench", 512, "phase", "trench"),
+        ("chamber", 512, "phase", "trench"),
+        ("trench", 46, "fluorescence", "field"),
     ],
 )
-def test_default_geometry(config, width_px, modality, expected):
-    from napari_symbac._cli_fit import default_geometry
+def test_default_geometry(configured, width_px, modality, expected):
+    from napari_symbac.fit.preflight import default_geometry
 
-    assert default_geometry(config, width_px, modality) == expected
+    assert default_geometry(width_px, modality, configured) == expected
 
 
 def test_refuses_masks_whose_cells_contradict_the_modality(tmp_path, real_data_dir, capsys):

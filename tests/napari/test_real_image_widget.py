@@ -261,10 +261,18 @@ def test_a_recording_without_a_modality_gets_one_from_what_it_shows(
     assert widget.modality.value == "fluorescence"
     assert "records no modality: fluorescence" in widget.result.value
     assert widget.microscope.condenser.native.isHidden()  # a phase-contrast setting
+    fluorescence = widget.image.value
     widget.file.value = fields / "brightfield" / "00066.tif"
     assert widget.modality.value == "phase"
     assert "dark objects" in widget.result.value
     assert not widget.microscope.condenser.native.isHidden()
+    # the user's choice, made before any pixel size, is kept when the layer is chosen again
+    brightfield = widget.image.value
+    widget.modality.value = "fluorescence"
+    widget.image.value = fluorescence
+    widget.image.value = brightfield
+    assert widget.modality.value == "fluorescence"
+    assert widget.pixel_size.value == 0.0  # still asked for
 
 
 def test_masks_and_the_colour_original_are_placed_over_the_recording(

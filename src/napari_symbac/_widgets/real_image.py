@@ -310,7 +310,13 @@ class RealImageWidget(Container):
             if self.warning.value != getattr(self, "_warned", None):
                 notify_warning(f"{layer.name}: {problem}")
             self._warned = self.warning.value
-            layer.metadata = {**layer.metadata, "pixel_size_um": None}
+            # the modality is kept all the same: chosen again before the pixel size is
+            # entered, the recording keeps the user's choice instead of a new guess
+            layer.metadata = {
+                **layer.metadata,
+                "pixel_size_um": None,
+                "modality": self.modality.value,
+            }
             return
         self.warning.value = ""
         self.warning.visible = False

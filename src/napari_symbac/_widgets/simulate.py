@@ -127,15 +127,15 @@ class SimulateWidget(Container):
     def _follow_recording(self, layer=None) -> None:
         """A newly chosen recording sets the geometry as ``napari-symbac fit`` would
         choose it for that image: a trench when it is a phase image at most
-        :data:`~napari_symbac._cli_fit.TRENCH_MAX_WIDTH_PX` wide, else an agar pad (found
+        :data:`~napari_symbac.fit.preflight.TRENCH_MAX_WIDTH_PX` wide, else an agar pad (found
         as a user: an open fluorescence field was simulated, and Auto-fitted, as a
         trench). The form can still be changed after."""
-        from napari_symbac._cli_fit import default_geometry
+        from napari_symbac.fit.preflight import default_geometry
 
         if layer is None or not hasattr(self.form, "geometry"):
             return
         modality = recording_microscope(layer, self.pipeline.microscope).modality
-        field = default_geometry({}, int(layer.data.shape[-1]), modality) == "field"
+        field = default_geometry(int(layer.data.shape[-1]), modality) == "field"
         self.form.geometry.value = "agar_pad" if field else "trench"
 
     def pipeline_settings(self) -> PipelineSettings:

@@ -132,7 +132,8 @@ def check_or_start_manifest(out_dir: Path, header: Mapping[str, Any]) -> dict[st
     ------
     ExportError
         If the folder holds an export made with other settings or another version of
-        napari-symbac (items would not match), or cannot be written.
+        napari-symbac (items would not match), holds other files and no manifest, or
+        cannot be written.
     """
     out_dir = Path(out_dir)
     path = out_dir / MANIFEST
@@ -144,6 +145,18 @@ def check_or_start_manifest(out_dir: Path, header: Mapping[str, Any]) -> dict[st
         "status": "incomplete",
     }
     document = json.loads(json.dumps(document))  # plain JSON types, for comparison
+    others = sorted(
+        entry.name
+        for entry in (out_dir.iterdir() if out_dir.is_dir() else ())
+        if not entry.name.startswith(".")
+    )
+    if others and not path.is_file():
+        shown = ", ".join(others[:3]) + (", ..." if len(others) > 3 else "")
+        raise ExportError(
+            f"{out_dir} holds other files ({shown}) and no {MANIFEST}: the dataset's folders "
+            "would be written among them; export to an empty or new folder",
+            path,
+        )
     if path.is_file():
         try:
             old = json.loads(path.read_text("utf-8"))

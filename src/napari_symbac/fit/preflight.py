@@ -18,11 +18,13 @@ from napari_symbac.settings import Microscope
 
 __all__ = [
     "PLAUSIBLE_PIXEL_UM",
+    "TRENCH_MAX_WIDTH_PX",
     "check_class_labels",
     "check_fit_image",
     "check_instance_masks",
     "check_modality",
     "check_pixel_size",
+    "default_geometry",
     "image_polarity",
     "refuse_constant",
     "resolve_pixel_size",
@@ -219,6 +221,25 @@ def check_instance_masks(masks: np.ndarray, shape: tuple[int, ...], name: str = 
         raise ValueError(f"{name} holds no cell (all 0): pass masks with cells in them")
     if (masks > 0).all():
         raise ValueError(f"{name} has no background (0) pixel: the fit needs some background")
+
+
+#: Frames at most this wide (pixels) are taken for a mother-machine trench.
+TRENCH_MAX_WIDTH_PX = 100
+
+
+def default_geometry(width_px: int, modality: str, configured: str | None = None) -> str:
+    """The fit's geometry, ``trench`` or ``field``, when the user names none.
+
+    ``field`` when the configured simulation is an agar pad, when the image is wider than
+    :data:`TRENCH_MAX_WIDTH_PX` or when it is fluorescence (no walls to find); else
+    ``trench``. A configured trench or chamber keeps ``trench`` for phase. Used alike by
+    ``napari-symbac fit``, ``diagnose`` and the Simulate dock.
+    """
+    if configured == "agar_pad" or modality == "fluorescence":
+        return "field"
+    if configured in ("trench", "chamber"):
+        return "trench"
+    return "trench" if width_px <= TRENCH_MAX_WIDTH_PX else "field"
 
 
 #: Pixel sizes (um, in the sample plane) of real bacterial micrographs: 20 nm (super-
