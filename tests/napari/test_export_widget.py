@@ -102,6 +102,19 @@ def test_an_unwritable_folder_is_refused_before_the_export(widget, tmp_path):
     assert not (tmp_path / "dataset").exists()
 
 
+def test_a_folder_of_other_files_is_refused_before_the_export(widget, tmp_path):
+    """A folder picked in the dialog that holds the user's own files: refused at once,
+    the files left as they were (the dataset's folders would be written among them)."""
+    (tmp_path / "notes.txt").write_text("mine")
+    widget.folder.value = tmp_path
+    widget.export_button.native.click()
+    assert widget.worker is None
+    assert widget.status.value.startswith("Not exported: ")
+    assert "holds other files (notes.txt)" in widget.status.value
+    assert "empty or new folder" in widget.status.value
+    assert [p.name for p in tmp_path.iterdir()] == ["notes.txt"]
+
+
 def test_export_error_is_reported_and_the_widget_stays_usable(
     widget, qtbot, tmp_path, monkeypatch
 ):

@@ -164,10 +164,12 @@ class ExportWidget(Container):
             self.status.value = f"Invalid settings: {err}"
             return
         from napari_symbac.export.atomic import check_output_folder
+        from napari_symbac.export.manifest import check_dataset_folder
 
         try:  # as the CLI: a folder that cannot be written is refused before any work
             check_output_folder(folder, "the output folder")
-        except ValueError as err:
+            check_dataset_folder(folder)
+        except (ValueError, RuntimeError) as err:  # ExportError is a RuntimeError
             self.status.value = f"Not exported: {err}"
             return
         workers = self.workers.value

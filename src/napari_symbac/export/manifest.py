@@ -125,6 +125,30 @@ def read_entries(out_dir: Path, names: Iterable[str] | None = None) -> list[dict
     return sorted(finished_items(out_dir, names).values(), key=lambda e: (e["index"], e["name"]))
 
 
+def check_dataset_folder(out_dir: str | os.PathLike) -> None:
+    """Refuse a folder that holds other files and no :data:`MANIFEST`: the dataset's
+    folders would be written among the user's files. A missing or empty folder, or one
+    holding an export (resumed or refused by :func:`check_or_start_manifest`), passes;
+    hidden files (``.DS_Store``, a lock) are no objection.
+
+    Raises
+    ------
+    ExportError
+        Naming a few of the files and the fix.
+    """
+    out_dir = Path(out_dir)
+    if not out_dir.is_dir() or (out_dir / MANIFEST).is_file():
+        return
+    others = sorted(entry.name for entry in out_dir.iterdir() if not entry.name.startswith("."))
+    if others:
+        shown = ", ".join(others[:3]) + (", ..." if len(others) > 3 else "")
+        raise ExportError(
+            f"{out_dir} holds other files ({shown}) and no {MANIFEST}: the dataset's folders "
+            "would be written among them; export to an empty or new folder",
+            out_dir / MANIFEST,
+        )
+
+
 def check_or_start_manifest(out_dir: Path, header: Mapping[str, Any]) -> dict[str, Any]:
     """Start ``manifest.json`` in ``out_dir``, or check that it describes the same export.
 
@@ -145,18 +169,7 @@ def check_or_start_manifest(out_dir: Path, header: Mapping[str, Any]) -> dict[st
         "status": "incomplete",
     }
     document = json.loads(json.dumps(document))  # plain JSON types, for comparison
-    others = sorted(
-        entry.name
-        for entry in (out_dir.iterdir() if out_dir.is_dir() else ())
-        if not entry.name.startswith(".")
-    )
-    if others and not path.is_file():
-        shown = ", ".join(others[:3]) + (", ..." if len(others) > 3 else "")
-        raise ExportError(
-            f"{out_dir} holds other files ({shown}) and no {MANIFEST}: the dataset's folders "
-            "would be written among them; export to an empty or new folder",
-            path,
-        )
+    check_dataset_folder(out_dir)
     if path.is_file():
         try:
             old = json.loads(path.read_text("utf-8"))
