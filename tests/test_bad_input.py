@@ -258,8 +258,14 @@ def test_ctrl_c_during_multi_worker_export(tmp_path):
     finally:
         signal.signal(signal.SIGINT, previous)
     items = out / "manifest_items"
+
+    def finished() -> int:
+        """Items written: their entries, not the hidden temporaries of one in progress
+        (counted, an interrupt that removed one left 3 where 4 had been seen)."""
+        return sum(not name.startswith(".") for name in os.listdir(items))
+
     try:
-        while not (items.is_dir() and len(os.listdir(items)) >= 4):
+        while not (items.is_dir() and finished() >= 4):
             assert process.poll() is None, process.communicate()
             time.sleep(0.05)
         os.killpg(process.pid, signal.SIGINT)
@@ -276,7 +282,7 @@ def test_ctrl_c_during_multi_worker_export(tmp_path):
         "napari-symbac export: interrupted; finished files are kept (an export resumes "
         "when run again)"
     ]
-    done = len(os.listdir(items))
+    done = finished()
     assert 4 <= done < 300
     resumed = subprocess.run(
         [*command, "--out", str(out), "--workers", "1"], capture_output=True, text=True
@@ -755,3 +761,61 @@ def test_ctrl_c_of_a_command_that_starts_over_promises_no_resume(command):
     assert f"run the same {command} again (it starts over" in text
     assert "finished files are kept" not in text
     assert "resumes when run again" in interrupted_text("export")
+
+
+@pytest.mark.parametrize("command", ["fit", "diagnose", "calibrate"])
+def test_a_pixel_size_given_nowhere_is_refused(tmp_path, fit_inputs, capsys, command):
+    """Found as a user: an image and a microscope file that both lack the pixel size
+    were fitted (and calibrated into a dataset) at the default 0.065 um, said to come
+    "from --microscope", cells 0.5 um wide."""
+    image, _ = fit_inputs
+    microscope = tmp_path / "phase.yaml"
+    microscope.write_text("wavelength_um: 0.65\nmodality: phase\n")
+    out = tmp_path / "o"
+    code, err = _run([command, str(image), "--microscope", str(microscope), "--out", str(out)],
+                     capsys)  # fmt: skip
+    assert code == 2
+    assert "neither the image nor --microscope gives the pixel size" in err
+    assert "add pixel_size_um to the microscope file" in err
+    assert "Traceback" not in err
+    assert not out.exists()
+
+
+def test_a_bad_value_in_a_settings_file_names_the_file(tmp_path, fit_inputs, capsys):
+    image, _ = fit_inputs
+    microscope = tmp_path / "scope.yaml"
+    microscope.write_text("pixel_size_um: -0.065\n")
+    code, err = _run(["fit", str(image), "--microscope", str(microscope),
+                      "--out", str(tmp_path / "o")], capsys)  # fmt: skip
+    assert code == 2
+    assert f"settings file {microscope}: Microscope.pixel_size_um must be" in err
+    config = tmp_path / "pipeline.yaml"
+    config.write_text("microscope:\n  numerical_apperture: 1.4\n")
+    microscope.write_text("pixel_size_um: 0.065\n")
+    code, err = _run(["fit", str(image), "--microscope", str(microscope), "--config",
+                      str(config), "--out", str(tmp_path / "o")], capsys)  # fmt: skip
+    assert code == 2
+    assert f"settings file {config}: unknown field(s) numerical_apperture" in err
+
+
+def test_diagnose_refuses_a_folder_of_another_commands_files(tmp_path, fit_inputs, capsys):
+    """Found as a user: `diagnose` into a fit's folder mixed the two, and a second
+    diagnosis kept the first one's effect figures."""
+    from napari_symbac.cli import _diagnose_writes
+    from napari_symbac.export.atomic import earlier_run
+
+    image, microscope = fit_inputs
+    out = tmp_path / "fitted"
+    out.mkdir()
+    (out / "cells.json").write_text("{}")
+    code, err = _run(["diagnose", str(image), "--microscope", str(microscope),
+                      "--out", str(out)], capsys)  # fmt: skip
+    assert code == 2
+    assert "holds files napari-symbac diagnose does not write (cells.json)" in err
+    assert [p.name for p in out.iterdir()] == ["cells.json"]
+    # an earlier diagnosis' files are all its own: found, to be replaced
+    (out / "cells.json").unlink()
+    for name in ("diagnosis.json", "report.txt", "effect_halo.png", ".hidden"):
+        (out / name).write_text("")
+    found = earlier_run(out, "diagnose", _diagnose_writes)
+    assert sorted(p.name for p in found) == ["diagnosis.json", "effect_halo.png", "report.txt"]

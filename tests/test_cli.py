@@ -287,7 +287,12 @@ def test_export_of_a_pipeline_file_takes_n_items(tmp_path, capsys):
     assert manifest["status"] == "complete"
     assert len(manifest["items"]) == 3
     assert manifest["settings"]["n_items"] == 3
+    capsys.readouterr()
     with pytest.raises(SystemExit) as refused:  # argparse's usage error
         main([*args, "--n-items", "0"])
     assert refused.value.code == 2
-    assert "--n-items: must be at least 1" in capsys.readouterr().err
+    error = capsys.readouterr().err
+    assert error == (  # one line, not the usage block first
+        "napari-symbac export: error: argument --n-items: must be at least 1, got 0 "
+        "(see napari-symbac export --help)\n"
+    )

@@ -88,7 +88,13 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from napari_symbac.export import export_dataset
     from napari_symbac.export.dataset import PipelineSource
     from napari_symbac.fit.preflight import resolve_pixel_size
-    from napari_symbac.settings import Camera, load_microscope, load_settings, save_settings
+    from napari_symbac.settings import (
+        Camera,
+        load_microscope,
+        load_settings,
+        microscope_sets_pixel_size,
+        save_settings,
+    )
 
     timer = StepTimer()
     out = Path(args.out)
@@ -124,7 +130,13 @@ def run_calibrate(args: argparse.Namespace) -> int:
         _check_inputs(args, image, masks, labels)
         microscope = load_microscope(args.microscope)
         camera = None if args.camera is None else load_settings(args.camera, Camera)
-        microscope, pixel_note = resolve_pixel_size(file_pixel, microscope)
+        microscope, pixel_note = resolve_pixel_size(
+            file_pixel,
+            microscope,
+            # --cell-width-um sets it from the masks
+            microscope_gives_it=args.cell_width_um is not None
+            or microscope_sets_pixel_size(args.microscope),
+        )
         modality = args.modality or file_modality or microscope.modality
         if args.cell_width_um is not None:
             pixel_note = f"from the masks' median width and --cell-width-um {args.cell_width_um}"
@@ -154,6 +166,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
             report = export_dataset(settings, staging / "dataset", workers=1)
         m = calibration.measurements
         px = calibration.settings.microscope.pixel_size_um
+        modality_used = calibration.settings.microscope.modality
         text = "\n".join(
             [
                 "napari-symbac calibrate",
@@ -162,7 +175,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
                 f"pixel size {px:.4g} um ({pixel_note})",
                 f"method: {calibration.method}; pixel chi2 {calibration.fit_chi2[0]:.3g} -> "
                 f"{calibration.fit_chi2[1]:.3g}",
-                f"real field: {m.summary(px)}",
+                f"real field: {m.summary(px, modality_used)}",
                 "",
                 "WHERE THE SETTINGS CAME FROM",
                 *(f"- {n}" for n in calibration.notes),
@@ -183,7 +196,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
             os.replace(entry, out / entry.name)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
-    print(f"{calibration.method}: {m.summary(px)}")
+    print(f"{calibration.method}: {m.summary(px, modality_used)}")
     print(f"wrote dataset/ ({report.n_items} items, {', '.join(settings.formats)}), report.txt, "
           f"report.png, export_settings.yaml, masks.tif to {out}")
     print(timer.report())

@@ -11,6 +11,7 @@ import argparse
 import dataclasses
 import inspect
 import json
+import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -19,7 +20,7 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
-from napari_symbac._timing import StepTimer, terminal_bar
+from napari_symbac._timing import PipedProgress, StepTimer, terminal_bar
 
 __all__ = ["parse_frames", "run_fit"]
 
@@ -82,6 +83,19 @@ def _explicit_keys(config: str | None) -> dict[str, Any]:
     return data if isinstance(data, dict) else {}
 
 
+#: What ``fit`` writes directly in its --out: a frame's files, and a series' folder per
+#: frame, ``series.json`` and ``ctc/``.
+_FIT_OUTPUTS = frozenset(
+    {"settings.yaml", "cells.json", "residual.tif", "before_after.png", "report.txt",
+     "series.json", "ctc"}
+)  # fmt: skip
+
+
+def _fit_writes(name: str) -> bool:
+    """Whether ``fit`` writes an entry of this name directly in its --out."""
+    return name in _FIT_OUTPUTS or re.fullmatch(r"frame_\d{4,}", name) is not None
+
+
 def _config_note(config: str | None, keys: dict[str, Any], geometry: str) -> str:
     """Which parts of --config the fit used, and which it could not."""
     if config is None:
@@ -122,7 +136,8 @@ def _per_frame(array: np.ndarray | None, frame: int, n_frames: int, shape: tuple
 
 
 class _Stages:
-    """Progress: a tqdm bar on a terminal, one line per stage when piped."""
+    """Progress: a tqdm bar on a terminal; when piped, one line per stage and a line of
+    the steps done every :data:`~napari_symbac._timing.PIPED_PROGRESS_INTERVAL_S`."""
 
     def __init__(self, stream=None) -> None:
         self.stream = sys.stderr if stream is None else stream
@@ -133,8 +148,9 @@ class _Stages:
             print(f"napari-symbac fit: {text}", file=self.stream, flush=True)
 
     def bar(self, desc: str) -> tuple[Callable[[int, int], None], Callable[[], None]]:
-        if not self.tty:
-            return (lambda done, total: None), (lambda: None)
+        if not self.tty:  # a line every few seconds: a long fit is not silent in a log
+            piped = PipedProgress(desc, "steps", self.stream)
+            return piped, piped.close
         update, bar = terminal_bar(desc, None, "steps", self.stream)
         return update, bar.close
 
@@ -379,8 +395,11 @@ def _prepare_one(args, frame, labels, masks, microscope, base, keys):
 def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, keys, stages, timer):
     """Check, fit and prepare the outputs of one frame: returns (writers, result)."""
     from napari_symbac.fit import fit_colony, fit_scene
+    from napari_symbac.fit.report import OPEN_PHASE_NOTE
 
     prepared = _prepare_one(args, frame, labels, masks, microscope, base, keys)
+    if OPEN_PHASE_NOTE in prepared.notes:  # before a fit that may take minutes, not after
+        print(f"napari-symbac fit: note: {OPEN_PHASE_NOTE}", file=stages.stream, flush=True)
     what = "colony from its masks, partially coherent phase model, " * prepared.colony
     stages.stage(f"fitting frame {index} ({what}{frame.shape[0]} x {frame.shape[1]} px)")
     update, close = stages.bar(f"fit frame {index}")
@@ -408,6 +427,7 @@ def _outputs_one(
     import tifffile
 
     from napari_symbac.fit.figure import before_after_figure
+    from napari_symbac.fit.fitted_settings import fitted_simulation
     from napari_symbac.fit.report import (
         UNMEASURED_READ_NOISE,
         camera_text,
@@ -426,41 +446,12 @@ def _outputs_one(
     settings = dataclasses.replace(
         base, microscope=microscope, render=result.render, camera=camera_used
     )
+    given = keys.get("simulation") or {}
+    keep = {*given, *(f"agar_pad.{k}" for k in (given.get("agar_pad") or {}))}
     try:
-        simulation = base.simulation
-        if result.trench is not None:
-            trench = result.trench_geometry(frame.shape, microscope.pixel_size_um)
-            simulation = dataclasses.replace(simulation, trench=trench)
-        else:  # a field fit renders as a pad of the recording's size
-            if simulation.geometry in ("trench", "chamber"):
-                simulation = dataclasses.replace(simulation, geometry="agar_pad")
-            given = ((keys.get("simulation") or {}).get("agar_pad") or {}).keys()
-            if simulation.geometry == "agar_pad" and not {
-                "field_width_um", "field_height_um"
-            } & set(given):
-                rows, cols = frame.shape
-                pad = dataclasses.replace(
-                    simulation.agar_pad,
-                    field_width_um=cols * microscope.pixel_size_um,
-                    field_height_um=rows * microscope.pixel_size_um,
-                )
-                simulation = dataclasses.replace(simulation, agar_pad=pad)
-        if len(result.cells):
-            from napari_symbac.calibrate.core import division_length_um
-
-            # cells as wide as the fitted ones, dividing at the length that makes the
-            # fitted lengths the mean of an asynchronous population (as calibrate)
-            width = float(np.median(result.cells.width_um))
-            division, variance = division_length_um(np.asarray(result.cells.length_um))
-            sizes = {
-                "cell_width_um": width,
-                "cell_max_length_um": max(division, 1.3 * width),
-                "max_length_var_um2": variance,
-            }
-            given = keys.get("simulation") or {}
-            simulation = dataclasses.replace(
-                simulation, **{k: v for k, v in sizes.items() if k not in given}
-            )
+        simulation = fitted_simulation(
+            base.simulation, result, frame.shape, microscope.pixel_size_um, keep
+        )
         settings = dataclasses.replace(settings, simulation=simulation)
     except ValueError as err:
         notes.append(f"simulation settings kept from the config: {err}")
@@ -755,6 +746,7 @@ def _ctc_result(series, frames: list[int], pixel_size_um: float) -> dict:
 
 def run_fit(args: argparse.Namespace) -> int:
     """Run ``napari-symbac fit`` with parsed arguments; returns the exit code."""
+    from napari_symbac.export.atomic import earlier_run
     from napari_symbac.fit.preflight import (
         check_fit_image,
         default_geometry,
@@ -763,8 +755,14 @@ def run_fit(args: argparse.Namespace) -> int:
     )
     from napari_symbac.fit.report import write_atomically
     from napari_symbac.io import read_image
-    from napari_symbac.settings import PipelineSettings, load_microscope, load_settings
+    from napari_symbac.settings import (
+        PipelineSettings,
+        load_microscope,
+        load_settings,
+        microscope_sets_pixel_size,
+    )
 
+    earlier = earlier_run(args.out, "fit", _fit_writes)
     timer = StepTimer()
     stages = _Stages()
     stages.stage("loading inputs")
@@ -790,7 +788,11 @@ def run_fit(args: argparse.Namespace) -> int:
         modality = args.modality or recording.modality or microscope.modality
         if modality != microscope.modality:
             microscope = dataclasses.replace(microscope, modality=modality)
-        microscope, pixel_note = resolve_pixel_size(recording.pixel_size_um, microscope)
+        microscope, pixel_note = resolve_pixel_size(
+            recording.pixel_size_um,
+            microscope,
+            microscope_gives_it=microscope_sets_pixel_size(args.microscope),
+        )
         if "disagrees" in pixel_note:
             print(f"napari-symbac fit: note: {pixel_note}", file=sys.stderr)
         if args.geometry is None:
@@ -837,7 +839,7 @@ def run_fit(args: argparse.Namespace) -> int:
         )
     stages.stage("writing outputs")
     with timer.step("write"):
-        written = write_atomically(args.out, writers)
+        written = write_atomically(args.out, writers, replaced=earlier)
     print("\n".join(summaries))
     print(f"wrote {', '.join(sorted({p.name for p in written}))} to {args.out}")
     print(timer.report())

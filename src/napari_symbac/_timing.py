@@ -1,14 +1,43 @@
-"""Timing of named steps, reported as a table, and the progress bar shown on a terminal
-(used by the CLI and the demo)."""
+"""Timing of named steps, reported as a table, and progress: a bar on a terminal, lines
+on a pipe (used by the CLI and the demo)."""
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any, TextIO
 
-__all__ = ["StepTimer", "terminal_bar"]
+__all__ = ["PIPED_PROGRESS_INTERVAL_S", "PipedProgress", "StepTimer", "terminal_bar"]
+
+
+#: Least seconds between two progress lines when stderr is not a terminal.
+PIPED_PROGRESS_INTERVAL_S = 10.0
+
+
+class PipedProgress:
+    """Progress as lines on a pipe (a log file, CI, nohup), where a bar would be silent:
+    a line when the count moves, at most every :data:`PIPED_PROGRESS_INTERVAL_S`
+    seconds, and always the last step."""
+
+    def __init__(self, desc: str, unit: str, stream) -> None:
+        self.desc, self.unit, self.stream = desc, unit, stream
+        self.shown = (0, None)
+        self.when = -math.inf
+
+    def __call__(self, done: int, total: int | None) -> None:
+        now = time.monotonic()
+        last = total is not None and done >= total
+        due = last or now - self.when >= PIPED_PROGRESS_INTERVAL_S
+        if done == 0 or (done, total) == self.shown or not due:
+            return
+        of = f" of {total}" if total else ""
+        print(f"napari-symbac {self.desc}: {done}{of} {self.unit}", file=self.stream, flush=True)
+        self.shown, self.when = (done, total), now
+
+    def close(self) -> None:
+        pass
 
 
 def terminal_bar(

@@ -6,53 +6,24 @@ Run ``napari-symbac --help`` or ``napari-symbac COMMAND --help``.
 from __future__ import annotations
 
 import argparse
-import math
+import re
 import sys
-import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from napari_symbac import __version__
-from napari_symbac._timing import StepTimer, terminal_bar
+from napari_symbac._timing import PipedProgress, StepTimer, terminal_bar
 
 __all__ = ["interrupted_text", "main"]
-
-
-#: Least seconds between two progress lines when stderr is not a terminal.
-PIPED_PROGRESS_INTERVAL_S = 10.0
-
-
-class _PipedProgress:
-    """Progress as lines on a pipe (a log file, CI, nohup), where a bar would be silent:
-    a line when the count moves, at most every :data:`PIPED_PROGRESS_INTERVAL_S`
-    seconds, and always the last step."""
-
-    def __init__(self, desc: str, unit: str, stream) -> None:
-        self.desc, self.unit, self.stream = desc, unit, stream
-        self.shown = (0, None)
-        self.when = -math.inf
-
-    def __call__(self, done: int, total: int | None) -> None:
-        now = time.monotonic()
-        last = total is not None and done >= total
-        due = last or now - self.when >= PIPED_PROGRESS_INTERVAL_S
-        if done == 0 or (done, total) == self.shown or not due:
-            return
-        of = f" of {total}" if total else ""
-        print(f"napari-symbac {self.desc}: {done}{of} {self.unit}", file=self.stream, flush=True)
-        self.shown, self.when = (done, total), now
-
-    def close(self) -> None:
-        pass
 
 
 def _tqdm_progress(
     desc: str, total: int | None = None, unit: str = "frames"
 ) -> tuple[Callable[[int, int], None], object]:
     """``(update, handle)``: a tqdm bar on a terminal, lines when piped
-    (:class:`_PipedProgress`)."""
+    (:class:`~napari_symbac._timing.PipedProgress`)."""
     if not sys.stderr.isatty():
-        piped = _PipedProgress(desc, unit, sys.stderr)
+        piped = PipedProgress(desc, unit, sys.stderr)
         return piped, piped
     return terminal_bar(desc, total, unit, sys.stderr)
 
@@ -295,6 +266,17 @@ _DIAGNOSE_CAMERA_HINT = (
 )
 
 
+#: What ``diagnose`` writes in its --out, besides ``effect_<name>.png`` per accepted effect.
+_DIAGNOSE_OUTPUTS = frozenset(
+    {"diagnosis.json", "report.txt", "residuals.png", "settings.yaml", "extra_stages.yaml"}
+)
+
+
+def _diagnose_writes(name: str) -> bool:
+    """Whether ``diagnose`` writes an entry of this name in its --out."""
+    return name in _DIAGNOSE_OUTPUTS or re.fullmatch(r"effect_\w+\.png", name) is not None
+
+
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     import dataclasses
     import json
@@ -307,20 +289,31 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from napari_symbac.diagnose.model import build_design
     from napari_symbac.diagnose.region import default_region, parse_region
     from napari_symbac.diagnose.run import diagnose
-    from napari_symbac.diagnose.stages import updated_settings
+    from napari_symbac.diagnose.stages import drawn_by_export, updated_settings
+    from napari_symbac.export.atomic import earlier_run, remove_earlier_run
     from napari_symbac.fit import fit_scene
     from napari_symbac.fit.preflight import check_fit_image, default_geometry, resolve_pixel_size
     from napari_symbac.io import read_image
-    from napari_symbac.settings import PipelineSettings, RenderSettings, save_settings
+    from napari_symbac.settings import (
+        PipelineSettings,
+        RenderSettings,
+        microscope_sets_pixel_size,
+        save_settings,
+    )
 
     out = _output_folder(args.out)
+    earlier = earlier_run(out, "diagnose", _diagnose_writes)
     timer = StepTimer()
     with timer.step("load"):
         recording = read_image(args.image, "IMAGE")
         config = load_microscope_file(args.microscope)
         for note in config.notes:
             print(f"note: {note}", file=sys.stderr)
-        microscope, pixel_note = resolve_pixel_size(recording.pixel_size_um, config.microscope)
+        microscope, pixel_note = resolve_pixel_size(
+            recording.pixel_size_um,
+            config.microscope,
+            microscope_gives_it=microscope_sets_pixel_size(args.microscope),
+        )
         if "disagrees" in pixel_note:
             print(f"note: {pixel_note}", file=sys.stderr)
         image = np.asarray(recording.data)
@@ -363,7 +356,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     start = RenderSettings()
     if microscope.modality == "fluorescence":
         start = RenderSettings(cell_intensity=2000.0, media_intensity=200.0, device_intensity=200.0)
-    update, bar = _tqdm_progress("fit")
+    # named as the diagnose command's (piped, it said "napari-symbac fit: 1 of 1 frames")
+    update, bar = _tqdm_progress("diagnose", unit="frames fitted")
     scenes = []
     camera = config.camera
     with timer.step("base fit"):
@@ -386,6 +380,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         design = build_design(scenes, microscope, render, camera)
         result = diagnose(stack, design, rng=np.random.default_rng(args.seed), progress=update)
     bar.close()
+    remove_earlier_run(earlier)
     out.mkdir(parents=True, exist_ok=True)
     with timer.step("write"):
         doc = result.as_dict()
@@ -403,12 +398,15 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         save_settings(settings, out / "settings.yaml")
         stages_text = yaml.safe_dump({"extra_stages": extra}, sort_keys=False)
         (out / "extra_stages.yaml").write_text(stages_text)
-    names = ", ".join(e.name for e in result.accepted) or "nothing significant"
+    accepted_names = [e.name for e in result.accepted]
+    names = ", ".join(accepted_names) or "nothing significant"
     print(
         f"accepted: {names}; held-out deviance {result.base_fit['held_out']:.4f} -> "
         f"{result.final_fit['held_out']:.4f}; wrote diagnosis.json, report.txt, "
         f"{', '.join(figures)}, settings.yaml, extra_stages.yaml to {out}"
     )
+    if accepted_names:
+        print(f"with settings.yaml, {drawn_by_export(accepted_names)}")
     print(timer.report())
     return 0
 
@@ -496,8 +494,16 @@ MICROSCOPE_HELP = (
 )
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser, whose usage errors are one line (argparse prints the whole usage
+    block first: nine lines for calibrate, the error last)."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="napari-symbac",
         description="Synthetic micrographs of bacteria with perfect ground truth (SyMBac method).",
     )

@@ -16,11 +16,13 @@ Conventions
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
 import types
 import typing
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, TypeVar
@@ -43,6 +45,7 @@ __all__ = [
     "load_settings",
     "load_settings_or_pipeline",
     "load_simulation_settings",
+    "microscope_sets_pixel_size",
     "read_settings_mapping",
     "save_settings",
     "to_dict",
@@ -963,7 +966,21 @@ def load_settings(path: str | Path, cls: type[T]) -> T:
     data = read_settings_mapping(path)
     if cls is PipelineSettings:
         _refuse_a_section_file(data, path)
-    return from_dict(cls, data)
+    with _naming_the_file(path):
+        return from_dict(cls, data)
+
+
+@contextlib.contextmanager
+def _naming_the_file(path: str | Path) -> Iterator[None]:
+    """A settings file's invalid value or unknown key, said with the file's path (found
+    as a user: "unknown field(s) numerical_apperture in Microscope" left the user to
+    guess which of the command's files held it)."""
+    try:
+        yield
+    except (TypeError, ValueError) as err:
+        if str(path) in str(err):
+            raise
+        raise type(err)(f"settings file {path}: {err}") from None
 
 
 def _refuse_a_section_file(data: Any, path: str | Path) -> None:
@@ -1020,7 +1037,16 @@ def load_microscope(path: str | Path) -> Microscope:
         from napari_symbac.diagnose.config import parse_microscope
 
         return parse_microscope(data, str(path)).microscope
-    return from_dict(Microscope, data)
+    with _naming_the_file(path):
+        return from_dict(Microscope, data)
+
+
+def microscope_sets_pixel_size(path: str | Path) -> bool:
+    """Whether the microscope file at ``path`` gives a pixel size (``pixel_size_um``, or
+    the camera pixel and magnification of ``napari-symbac diagnose``'s spelling), rather
+    than leaving :class:`Microscope`'s default of 0.065 um."""
+    data = read_settings_mapping(path)
+    return isinstance(data, dict) and ("pixel_size_um" in data or "NA" in data)
 
 
 def read_settings_mapping(path: str | Path) -> Any:

@@ -45,6 +45,21 @@ def test_measure_field_counts_the_masks_regions(colicoords_crop):
     assert np.all(m.brightness_adu > 0)  # fluorescent cells are brighter than the pad
     assert np.all(m.lengths_px >= m.widths_px)
     assert m.cluster_sizes.sum() == m.n_cells
+    # the summary gives a brightness CV for fluorescence only (a phase-contrast cell's
+    # level above the background is no brightness of its own)
+    assert f"brightness CV {m.brightness_cv:.2f}" in m.summary(0.08)
+    assert "brightness" not in m.summary(0.08, "phase")
+    assert f"{m.n_cells} cells" in m.summary(0.08, "phase")
+
+
+def test_cluster_sizes_counts_the_cells_that_touch():
+    from napari_symbac.calibrate.measure import cluster_sizes
+
+    labels = np.zeros((20, 40), np.int32)
+    labels[2:6, 2:12] = 1
+    labels[6:10, 2:12] = 2  # touches 1
+    labels[2:6, 25:35] = 3  # alone
+    assert sorted(cluster_sizes(labels).tolist()) == [1, 2]
 
 
 def test_best_crop_holds_whole_cells():

@@ -73,6 +73,8 @@ def test_diagnose_command_writes_the_issue_outputs(tmp_path):
         )
     )
     out = tmp_path / "out"
+    out.mkdir()  # an earlier diagnosis' figure of an effect this one does not accept
+    (out / "effect_stray_light.png").write_bytes(b"earlier")
     args = ["diagnose", str(image), "--microscope", str(mic), "--out", str(out)]
     assert main([*args, "--region", "0:96,0:46"]) == 0
     doc = json.loads((out / "diagnosis.json").read_text())
@@ -85,6 +87,10 @@ def test_diagnose_command_writes_the_issue_outputs(tmp_path):
     assert evidence == sorted(evidence, reverse=True)
     for name in ("report.txt", "residuals.png", "settings.yaml", "extra_stages.yaml"):
         assert (out / name).is_file()
+    accepted = {f"effect_{e['name']}.png" for e in doc["effects"] if e["accepted"]}
+    assert {p.name for p in out.glob("effect_*.png")} <= accepted
+    earlier = out / "effect_stray_light.png"
+    assert not earlier.exists() or earlier.read_bytes() != b"earlier"  # gone or this run's
 
 
 @pytest.mark.slow

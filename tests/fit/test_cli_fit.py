@@ -361,7 +361,7 @@ def test_a_phase_colony_time_lapse_shares_its_optics_and_tracks_the_masks(
         assert set(np.unique(ctc[masks[1] == k]).tolist()) == {tracks[1][k]}
 
 
-def test_a_phase_field_of_separate_cells_keeps_the_scene_fit(tmp_path):
+def test_a_phase_field_of_separate_cells_keeps_the_scene_fit(tmp_path, capsys):
     """Masks of cells that do not touch are no colony: the scene fit (linear kernel)
     fits their geometry, and the report says what it cannot do."""
     from _fit_synthetic import TRUTH, make_cells
@@ -385,6 +385,11 @@ def test_a_phase_field_of_separate_cells_keeps_the_scene_fit(tmp_path):
     assert "linear (weak-phase) kernel" in notes
     assert "napari-symbac fit IMAGE --masks M" in notes
     assert "dense colony" not in notes
+    # said before the fit too (found as a user: a colony without masks fitted for
+    # minutes in silence, the advice only in the report at the end)
+    err = capsys.readouterr().err
+    note = err.index("napari-symbac fit: note: phase contrast is fitted here with the linear")
+    assert note < err.index("fitting frame 0")
 
 
 @pytest.mark.slow
@@ -632,7 +637,9 @@ def test_progress_is_a_bar_on_a_terminal_and_lines_when_piped():
         update, close = stages.bar("fit frame 0")
         update(3, 10)
         close()
-    assert piped.getvalue() == "napari-symbac fit: fitting frame 0\n"
+    assert piped.getvalue() == (
+        "napari-symbac fit: fitting frame 0\nnapari-symbac fit frame 0: 3 of 10 steps\n"
+    )
     assert "fit frame 0" in terminal.getvalue()
     assert "3/10" in terminal.getvalue()  # the tqdm bar
     assert "napari-symbac fit: fitting" not in terminal.getvalue()
@@ -750,3 +757,27 @@ def test_frames_that_do_not_exist_are_named_as_runs(spec, n_frames, message):
 
     with pytest.raises(ValueError, match=re.escape(message)):
         parse_frames(spec, n_frames, "stack.tif")
+
+
+def test_fit_replaces_an_earlier_fit_and_refuses_other_files(tmp_path, inputs, capsys):
+    """Found as a user: `fit` into a folder kept an earlier run's files beside its own
+    (a diagnosis there, another fit's frames), which then read as this run's."""
+    image, labels, microscope = inputs
+    out = tmp_path / "fit"
+    (out / "frame_0003").mkdir(parents=True)  # an earlier fit of a series
+    (out / "frame_0003" / "report.txt").write_text("earlier")
+    (out / "report.txt").write_text("earlier")
+    assert _fit(image, "--labels", labels, "--microscope", microscope, "--out", out,
+                "--max-iterations", 1) == 0  # fmt: skip
+    assert not (out / "frame_0003").exists()
+    assert (out / "report.txt").read_text() != "earlier"
+    assert {p.name for p in out.iterdir()} == {
+        "settings.yaml", "cells.json", "residual.tif", "before_after.png", "report.txt"
+    }  # fmt: skip
+    capsys.readouterr()
+    (out / "diagnosis.json").write_text("{}")  # another command's
+    assert _fit(image, "--labels", labels, "--microscope", microscope, "--out", out) == 2
+    error = capsys.readouterr().err
+    assert "holds files napari-symbac fit does not write (diagnosis.json)" in error
+    assert "give a new or empty folder" in error
+    assert (out / "diagnosis.json").read_text() == "{}"

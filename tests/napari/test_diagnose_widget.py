@@ -62,6 +62,12 @@ def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
     for effect in widget.result.accepted:
         if effect.effect_map is not None:
             assert f"diagnosis effect: {effect.name}" in viewer.layers
+    # what Export will draw of them is said (an extra stage is not drawn yet)
+    from napari_symbac.diagnose.stages import drawn_by_export
+
+    accepted = [effect.name for effect in widget.result.accepted]
+    assert accepted, widget.status.value  # the real trench's misfit names some effect
+    assert drawn_by_export(accepted) in widget.status.value
     text = widget.report.value
     assert text.startswith("Diagnosis of the mismatch")
     for name in CANDIDATES:

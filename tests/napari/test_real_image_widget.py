@@ -300,3 +300,22 @@ def test_masks_and_the_colour_original_are_placed_over_the_recording(
     # another grey image of that size may come from another microscope: left alone
     other = viewer.add_image(np.zeros(grey.data.shape, np.uint8), name="another field")
     assert tuple(other.scale) == (1.0, 1.0)
+
+
+def test_a_refused_file_is_not_still_said_when_the_next_one_opens(
+    make_napari_viewer, real_data_dir, tmp_path
+):
+    """Found as a user: "Cannot open colour.png" stayed in the dock after the next image
+    opened."""
+    import imageio.v3 as iio
+
+    viewer = make_napari_viewer()
+    widget = RealImageWidget(viewer)
+    colour = np.random.default_rng(0).integers(0, 255, (32, 32, 3), dtype=np.uint8)
+    iio.imwrite(tmp_path / "colour.png", colour)
+    widget.file.value = tmp_path / "colour.png"
+    assert "Cannot open colour.png" in widget.result.value
+    fields = real_data_dir / "colicoords" / "test_data" / "ds2"
+    widget.file.value = fields / "fluorescence" / "00066.tif"
+    assert "Cannot open" not in widget.result.value
+    assert "records no modality" in widget.result.value

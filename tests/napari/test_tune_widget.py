@@ -63,6 +63,30 @@ def test_invalid_value_is_reported(rendered):
     assert "Not applied" in tune.status.value
 
 
+def _export_simulates_the_fit(tune, stored, result, real) -> None:
+    """``stored`` (the rendered layer's settings after Auto-fit) simulates cells of the
+    fitted width in frames of the recording's size in um (in its pixels when simulated
+    at its pixel size), and the preview still draws the simulation that was run."""
+    import dataclasses
+
+    from napari_symbac.pipeline import render_simulation
+    from napari_symbac.sim import simulate
+
+    width = float(np.median(result.cells.width_um))
+    assert stored.simulation.cell_width_um == pytest.approx(width)
+    assert "Export simulates cells" in tune.status.value
+    two_frames = dataclasses.replace(stored.simulation, n_frames=2)
+    short = dataclasses.replace(stored, simulation=two_frames)
+    series = render_simulation(simulate(short.simulation, np.random.default_rng(0)), short)
+    drawn_um = stored.microscope.pixel_size_um
+    recorded_um = real.metadata["pixel_size_um"]
+    size_um = np.array(series.images.shape[-2:]) * drawn_um
+    assert size_um == pytest.approx(np.array(real.data.shape[-2:]) * recorded_um, abs=drawn_um)
+    if drawn_um != recorded_um:
+        assert "Simulate again with the recording chosen there" in tune.status.value
+    assert tune.preview.frame(0).shape == tune.source.value.data.shape[-2:]
+
+
 def _real_trench(viewer, real_data_dir, *, paint: dict | None = None):
     """The SyMBac trench as a recording at 0.065 um/px, with optional painted strokes."""
     import tifffile
@@ -133,6 +157,9 @@ def test_auto_fit_runs_the_scene_fit_on_the_recording(rendered, qtbot, real_data
     assert "Problem: round 1: the fit stopped at the iteration limit" in tune.status.value
     assert OPEN_PHASE_NOTE not in tune.status.value  # a trench: the linear kernel is right
     assert tune.fit_button.enabled
+    # the fitted cells and trench are the simulation Export runs, as in `fit`'s
+    # settings.yaml (found as a user: Export drew the Simulate tab's cells and trench)
+    _export_simulates_the_fit(tune, stored, result, real)
 
 
 def test_auto_fit_of_a_phase_colony_says_what_the_linear_kernel_cannot_do(
@@ -441,6 +468,13 @@ def test_auto_fit_fits_a_fluorescence_recording(rendered, qtbot):
     contrast_real = field[bright].mean() - field[~bright].mean()
     contrast_fit = synthetic[bright].mean() - synthetic[~bright].mean()
     assert 0.5 * contrast_real < contrast_fit < 1.5 * contrast_real  # bright cells, same scale
+    # Export simulates a pad of the field's size with a colony per fitted cluster (two
+    # lone cells here), not one colony of the defaults
+    stored = tune.source.value.metadata[SYMBAC_METADATA_KEY]["settings"]
+    assert stored.simulation.geometry == "agar_pad"
+    assert stored.simulation.agar_pad.n_colonies == stored.simulation.n_founders == 2
+    assert stored.simulation.agar_pad.field_width_um == pytest.approx(256 * 0.08)
+    _export_simulates_the_fit(tune, stored, result, real)
 
 
 def test_fluorescence_gives_bright_cells_on_dark(rendered):

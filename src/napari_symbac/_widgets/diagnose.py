@@ -316,13 +316,17 @@ class DiagnoseWidget(Container):
                 visible=False,
                 **kwargs,
             )
+        from napari_symbac.diagnose.stages import drawn_by_export
+
         self.report.value = result.report()
-        names = ", ".join(e.name for e in result.accepted) or "nothing significant"
+        accepted = [e.name for e in result.accepted]
+        names = ", ".join(accepted) or "nothing significant"
         self.status.value = (
             f"Accepted: {names}{self._window_note}; camera measured from the recording "
             f"({camera.sensitivity_adu_per_e:.3g} ADU/e-, read noise {camera.dark_noise_e:.3g} "
             f"e-). Updated settings are in the '{DIAGNOSIS_RESIDUAL_LAYER}' layer, which "
-            "Export now takes (its 'settings from')."
+            "Export now takes (its 'settings from')"
+            + (f": {drawn_by_export(accepted)}." if accepted else ".")
         )
 
     def _on_cancelled(self) -> None:

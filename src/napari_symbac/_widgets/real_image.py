@@ -168,6 +168,7 @@ class RealImageWidget(Container):
         if getattr(layer, "rgb", False):
             self._use_grey_channel(layer)
             return
+        self.result.value = ""  # another layer's words (a refused file, its measures)
         meta = layer.metadata
         pixel = meta.get("pixel_size_um")
         if not pixel and layer.scale[-1] != 1:  # a layer already scaled to micrometres
@@ -276,11 +277,12 @@ class RealImageWidget(Container):
         """A colour layer cannot be fitted: choose its grey-channel layer, or say why."""
         name = f"{layer.name} grey"
         if name in self.viewer.layers:
-            self.result.value = (
+            self.image.value = self.viewer.layers[name]  # its own words first, then ours
+            said = (
                 f"{layer.name} is a grey image saved as colour: its grey channel is the "
                 f"layer '{name}', used from here on"
             )
-            self.image.value = self.viewer.layers[name]
+            self.result.value = "<br>".join(filter(None, (said, self.result.value)))
             return
         message = (
             f"{layer.name} is a colour image {tuple(layer.data.shape)}: open one grey "

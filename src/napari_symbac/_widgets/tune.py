@@ -6,6 +6,7 @@ Headless equivalent: :class:`napari_symbac.fit.live.LivePreview`.
 from __future__ import annotations
 
 import dataclasses
+import math
 import threading
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
@@ -30,6 +31,7 @@ from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
 
 if TYPE_CHECKING:
     import napari
+    from napari_symbac.settings import Microscope
 
 __all__ = ["FIT_RESIDUAL_LAYER", "FIT_SYNTHETIC_LAYER", "SLIDERS", "TuneWidget", "terms_plot"]
 
@@ -268,6 +270,7 @@ class TuneWidget(Container):
         self.cancel_fit_button.changed.connect(self.cancel_fit)
         self.fit_worker: Job | None = None
         self._fit_notes: list[str] = []  # what the running fit cannot do (fit_notes)
+        self._fit_microscope: Microscope | None = None  # the recording's, of the last fit
         self.fit_result = None
         self._modality = None
         self._polarity_changed = False
@@ -343,8 +346,11 @@ class TuneWidget(Container):
             return
         simulation = layer.metadata[SYMBAC_METADATA_KEY]["simulation"]
         settings = layer.metadata[SYMBAC_METADATA_KEY]["settings"]
+        # the frames are drawn in the trench they were simulated in; after Auto-fit the
+        # layer's settings hold the fitted simulation, which Export simulates anew
+        drawn = dataclasses.replace(settings, simulation=simulation.settings)
         self.preview = LivePreview(
-            lambda index: draw_frame(simulation, settings, index),
+            lambda index: draw_frame(simulation, drawn, index),
             settings.microscope,
             settings.render,
             settings.camera,
@@ -387,6 +393,45 @@ class TuneWidget(Container):
             self.sliders[name].visible = coherent
         for name in LINEAR_ONLY:
             self.sliders[name].visible = not coherent
+
+    def _store_fitted_simulation(self, result) -> str:
+        """The simulation the fit implies (the fitted cells' width and division length,
+        the fitted trench or a pad laid out as the recording's field:
+        :func:`~napari_symbac.fit.fitted_settings.fitted_simulation`, as in ``napari-symbac
+        fit``'s settings.yaml) becomes the layer's, which Export simulates, with the
+        recording's microscope (found as a user: Export after Auto-fit drew the Simulate
+        tab's 3.5 um cells in a 16 um trench for a recording of 5 um cells). Returns a
+        sentence for the status."""
+        from napari_symbac.fit.fitted_settings import fitted_simulation
+
+        meta = self.source.value.metadata[SYMBAC_METADATA_KEY]
+        shape = tuple(self.reference.value.data.shape[-2:])
+        microscope = self._fit_microscope
+        try:
+            simulation = fitted_simulation(
+                meta["settings"].simulation, result, shape, microscope.pixel_size_um
+            )
+        except ValueError as err:
+            return f"the simulation is kept as it was ({err})"
+        meta["settings"] = dataclasses.replace(meta["settings"], simulation=simulation)
+        drawn_um = meta["settings"].microscope.pixel_size_um
+        if not math.isclose(drawn_um, microscope.pixel_size_um, rel_tol=1e-3):
+            different = (
+                f"; it is drawn at this layer's {drawn_um:g} um per pixel, not the "
+                f"recording's {microscope.pixel_size_um:g}: Simulate again with the "
+                "recording chosen there to export frames of the recording's pixels"
+            )
+        else:
+            different = ""
+        where = (
+            f"a {simulation.trench.length_um:.1f} um trench"
+            if simulation.geometry in ("trench", "chamber")
+            else f"{simulation.agar_pad.n_colonies} colonies on a pad the recording's size"
+        )
+        return (
+            f"Export simulates cells {simulation.cell_width_um:.2f} um wide dividing at "
+            f"{simulation.cell_max_length_um:.2f} um in {where}, as fitted{different}"
+        )
 
     def _store_settings(self) -> None:
         layer = self.source.value
@@ -486,6 +531,7 @@ class TuneWidget(Container):
             notify_warning(str(err))
             return
         real, labels, masks, microscope, render, camera, geometry = job_input
+        self._fit_microscope = microscope  # the recording's: it sizes the fitted scene
         from napari_symbac.fit.colony import is_dense_colony
         from napari_symbac.fit.report import fit_notes
 
@@ -655,6 +701,7 @@ class TuneWidget(Container):
         from napari_symbac.fit import ColonyFit
 
         colony = isinstance(result, ColonyFit)
+        simulated = ""
         try:
             camera = {} if result.camera is None else dataclasses.asdict(result.camera)
             render = result.render
@@ -679,6 +726,7 @@ class TuneWidget(Container):
             self._stale = set(range(self.preview.n_frames))
             self._show(self._current_frame())
             self._store_settings()
+            simulated = self._store_fitted_simulation(result)
         except ValueError as err:
             notify_warning(f"The fitted settings were not applied to the preview: {err}")
         self._show_fit_layers(series or result)
@@ -734,7 +782,7 @@ class TuneWidget(Container):
         if series is not None:  # the joint fit's own (the colony's are its frames')
             problems += [w for w in series.warnings if w not in problems]
         moves = tuple(getattr(result, "moves", ()) or ())
-        lines = [f"{len(result.cells)} cells fitted"]
+        lines = [f"{len(result.cells)} cells fitted"] + [simulated] * bool(simulated)
         lines += [f"Moves: {'; '.join(moves)}"] if moves else []
         lines += [f"Problem: {problem}" for problem in problems]
         lines += [f"Note: {note}" for note in self._fit_notes]

@@ -208,6 +208,50 @@ def _frames_for(cluster_cells: float) -> int:
     return math.ceil(generations * _DOUBLING_MIN / _FRAME_MIN)
 
 
+def pad_layout(
+    shape_px: tuple[int, int], pixel_size_um: float, n_colonies: int, cells_per_colony: float
+) -> tuple[dict, str]:
+    """The simulation of an agar pad laid out as an image: the image's size, one colony
+    per cluster of its cells, each grown from one founder (sizer, doubling
+    :data:`_DOUBLING_MIN` min, frames of :data:`_FRAME_MIN` min) to the clusters' mean
+    size.
+
+    Returns
+    -------
+    fields, note
+        :class:`SimulationSettings` fields (geometry, pad, founders, frames, growth) and
+        a sentence saying them.
+    """
+    height_um, field_um = shape_px[0] * pixel_size_um, shape_px[1] * pixel_size_um
+    n_colonies = int(max(1, n_colonies))
+    growth = _frames_for(cells_per_colony)
+    separation = float(min(10.0, 0.5 * math.sqrt(height_um * field_um / n_colonies)))
+    margin = float(min(3.0, 0.15 * min(height_um, field_um)))
+    pad = AgarPadGeometry(
+        field_width_um=field_um,
+        field_height_um=height_um,
+        n_colonies=n_colonies,
+        colony_separation_um=separation,
+        edge_margin_um=margin,
+    )
+    note = (
+        f"layout: agar pad {field_um:.1f} x {height_um:.1f} um (the image), {n_colonies} "
+        f"colonies of one founder each grown {growth} frames of {_FRAME_MIN:g} min (doubling "
+        f"{_DOUBLING_MIN:g} min) to ~{cells_per_colony:.1f} cells, as the image's clusters"
+    )
+    fields = {
+        "n_frames": growth + 1,
+        "geometry": "agar_pad",
+        "agar_pad": pad,
+        "n_founders": n_colonies,
+        "frame_interval_min": _FRAME_MIN,
+        "growth_model": "sizer",
+        "interdivision_time_min": _DOUBLING_MIN,
+        "growth_rate_per_min": math.log(2) / _DOUBLING_MIN,
+    }
+    return fields, note
+
+
 def settings_from_fit(
     measurements: FieldMeasurements,
     microscope: Microscope,
@@ -256,38 +300,15 @@ def settings_from_fit(
         f"variance {division_var:.3f} um^2"
     )
     shape, n_colonies = layout or (m.shape, m.cluster_sizes.size)
-    height_um, field_um = shape[0] * px, shape[1] * px
-    n_colonies = int(max(1, n_colonies))
     per_colony = float(np.mean(m.cluster_sizes)) if m.cluster_sizes.size else 1.0
-    growth = _frames_for(per_colony)
-    n_frames = growth + 1
-    separation = float(min(10.0, 0.5 * math.sqrt(height_um * field_um / n_colonies)))
-    margin = float(min(3.0, 0.15 * min(height_um, field_um)))
-    pad = AgarPadGeometry(
-        field_width_um=field_um,
-        field_height_um=height_um,
-        n_colonies=n_colonies,
-        colony_separation_um=separation,
-        edge_margin_um=margin,
-    )
-    notes.append(
-        f"layout: agar pad {field_um:.1f} x {height_um:.1f} um (the image), {n_colonies} "
-        f"colonies of one founder each grown {growth} frames of {_FRAME_MIN:g} min (doubling "
-        f"{_DOUBLING_MIN:g} min) to ~{per_colony:.1f} cells, as the image's clusters"
-    )
+    fields, note = pad_layout(shape, px, n_colonies, per_colony)
+    notes.append(note)
     simulation = SimulationSettings(
-        n_frames=n_frames,
-        geometry="agar_pad",
-        agar_pad=pad,
-        n_founders=n_colonies,
-        frame_interval_min=_FRAME_MIN,
+        **fields,
         cell_max_length_um=division,
         max_length_var_um2=division_var,
         cell_width_um=width,
         width_var_um2=width_var,
-        growth_model="sizer",
-        interdivision_time_min=_DOUBLING_MIN,
-        growth_rate_per_min=math.log(2) / _DOUBLING_MIN,
     )
     return (
         PipelineSettings(

@@ -32,7 +32,7 @@ from napari_symbac.diagnose.effects import (
 from napari_symbac.optics.forward import Stage
 from napari_symbac.settings import PipelineSettings
 
-__all__ = ["load_extra_stages", "stage_for", "updated_settings"]
+__all__ = ["drawn_by_export", "load_extra_stages", "stage_for", "updated_settings"]
 
 _STATIC = {
     "uneven_illumination": uneven_illumination.stage,
@@ -44,6 +44,25 @@ _STATIC = {
 _PER_FRAME = {"photobleaching": photobleaching.stage, "stage_drift": stage_drift.stage}
 #: Effects carried by existing settings fields rather than extra stages.
 IN_SETTINGS = ("camera_noise", "cell_intensity_variability", "background_texture")
+
+
+def drawn_by_export(names: list[str]) -> str:
+    """What of the accepted effects ``names`` render and export draw, in words: those
+    carried by settings (:data:`IN_SETTINGS`, folded in by :func:`updated_settings`), and
+    not yet the others, whose stages are written to ``extra_stages.yaml`` for
+    ``ForwardModel(..., extra_stages=...)`` (found as a user: the Diagnose dock said
+    Export takes the updated settings, and the column offsets, illumination and stray
+    light it had accepted reached no exported image). Empty for no effect."""
+    drawn = [n for n in names if n in IN_SETTINGS]
+    staged = [n for n in names if n not in IN_SETTINGS]
+    parts = [f"render and export draw {', '.join(drawn)} (settings)"] if drawn else []
+    if staged:
+        parts.append(
+            f"they do not draw {', '.join(staged)}: no pipeline stage of "
+            f"{'it' if len(staged) == 1 else 'them'} yet (extra_stages.yaml holds "
+            "the fitted parameters, for ForwardModel(extra_stages=...))"
+        )
+    return "; ".join(parts)
 
 
 def stage_for(

@@ -29,7 +29,9 @@ __all__ = [
     "ExportError",
     "atomic_path",
     "check_output_folder",
+    "earlier_run",
     "explain_os_error",
+    "remove_earlier_run",
     "remove_stale_temporaries",
     "tiff_metadata",
     "write_bytes",
@@ -299,6 +301,49 @@ def check_output_folder(
     for folder in (out, out.resolve().parent) if staged else (out,):
         _check_writable(out, folder, option)
     return out
+
+
+def earlier_run(out: str | os.PathLike, command: str, owns: Callable[[str], bool]) -> list[Path]:
+    """What an earlier run of ``command`` left in ``out``: to be removed when this run's
+    files are in, so that none of them is taken for this run's (found as a user: a second
+    ``diagnose`` into a folder kept the first one's ``effect_*.png`` of effects it did
+    not accept, and ``fit`` into a diagnosis' folder mixed the two). Call it before any
+    work.
+
+    Parameters
+    ----------
+    owns
+        Whether a name (of an entry directly in ``out``) is one ``command`` writes.
+
+    Raises
+    ------
+    ValueError
+        If ``out`` holds anything else (hidden files aside), naming a few and the fix.
+    """
+    out = Path(out)
+    if not out.is_dir():
+        return []
+    entries = sorted(e for e in out.iterdir() if not e.name.startswith("."))
+    foreign = [e.name for e in entries if not owns(e.name)]
+    if foreign:
+        shown = ", ".join(foreign[:3]) + (", ..." if len(foreign) > 3 else "")
+        raise ValueError(
+            f"--out {out} holds files napari-symbac {command} does not write ({shown}): "
+            f"give a new or empty folder, or the folder of an earlier {command} (whose "
+            "files are then replaced)"
+        )
+    return entries
+
+
+def remove_earlier_run(entries: list[Path]) -> None:
+    """Remove what :func:`earlier_run` found (files and folders)."""
+    import shutil
+
+    for entry in entries:
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry)
+        else:
+            entry.unlink(missing_ok=True)
 
 
 def _nearest_existing(path: Path) -> Path:

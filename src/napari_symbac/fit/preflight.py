@@ -267,9 +267,19 @@ def check_pixel_size(pixel_size_um: float, source: str) -> None:
 
 
 def resolve_pixel_size(
-    file_pixel_um: float | None, microscope: Microscope, *, tolerance: float = 0.01
+    file_pixel_um: float | None,
+    microscope: Microscope,
+    *,
+    microscope_gives_it: bool = True,
+    tolerance: float = 0.01,
 ) -> tuple[Microscope, str]:
     """The TIFF's own pixel size wins over the microscope file; say when they disagree.
+
+    ``microscope_gives_it``: whether the microscope file sets the pixel size
+    (:func:`~napari_symbac.settings.microscope_sets_pixel_size`); when neither it nor
+    the image does, the pixel size is refused, not taken from :class:`Microscope`'s
+    default (found as a user: a PNG and a microscope file without ``pixel_size_um``
+    were calibrated at 0.065 um, "from --microscope", cells 0.5 um wide).
 
     Returns
     -------
@@ -280,10 +290,17 @@ def resolve_pixel_size(
     Raises
     ------
     ValueError
-        The pixel size used is implausible (:func:`check_pixel_size`).
+        The pixel size used is implausible (:func:`check_pixel_size`), or neither the
+        image nor the microscope file gives one.
     """
     given = microscope.pixel_size_um
     if file_pixel_um is None or not math.isfinite(file_pixel_um) or file_pixel_um <= 0:
+        if not microscope_gives_it:
+            raise ValueError(
+                "neither the image nor --microscope gives the pixel size: add "
+                "pixel_size_um to the microscope file, in um in the sample (the camera "
+                "pixel divided by the magnification: 6.5 um / 100x = 0.065)"
+            )
         check_pixel_size(given, "from --microscope; the image file records none")
         return microscope, (
             f"pixel size {given:.4g} um from --microscope (the image file records none)"

@@ -196,11 +196,18 @@ def report_text(
     return "\n".join(lines) + "\n"
 
 
-def write_atomically(out: str | Path, writers: Mapping[str, Callable[[Path], None]]) -> list[Path]:
+def write_atomically(
+    out: str | Path,
+    writers: Mapping[str, Callable[[Path], None]],
+    replaced: Sequence[Path] = (),
+) -> list[Path]:
     """Write every file into a hidden folder beside ``out``, then move them all in.
 
     ``writers`` maps a relative path to a function that writes it. If any writer fails,
-    nothing lands in ``out`` (a folder that did not exist is not created).
+    nothing lands in ``out`` (a folder that did not exist is not created) and nothing is
+    removed; else the ``replaced`` files and folders (an earlier run's,
+    :func:`~napari_symbac.export.atomic.earlier_run`) are removed before the new ones
+    move in.
 
     Returns
     -------
@@ -216,6 +223,9 @@ def write_atomically(out: str | Path, writers: Mapping[str, Callable[[Path], Non
             target = staging / name
             target.parent.mkdir(parents=True, exist_ok=True)
             write(target)
+        from napari_symbac.export.atomic import remove_earlier_run
+
+        remove_earlier_run(list(replaced))
         out.mkdir(exist_ok=True)
         written = []
         for name in writers:

@@ -1,0 +1,87 @@
+"""The simulation a fit implies: what ``render`` and ``export`` simulate so that a dataset
+matches the fitted recording, written by ``napari-symbac fit`` into its settings.yaml and
+taken by the Tune dock's Auto-fit for Export."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Collection
+from typing import Any
+
+import numpy as np
+
+from napari_symbac.settings import SimulationSettings
+
+__all__ = ["fitted_simulation"]
+
+
+def fitted_simulation(
+    simulation: SimulationSettings,
+    result: Any,
+    image_shape: tuple[int, int],
+    pixel_size_um: float,
+    keep: Collection[str] = (),
+) -> SimulationSettings:
+    """``simulation`` with what ``result`` (a scene or colony fit) found in the recording.
+
+    - A trench fit: the fitted trench, sized so a rendered frame has the recording's
+      ``image_shape`` (``result.trench_geometry``).
+    - A field fit: an agar pad laid out as the recording (``calibrate.core.pad_layout``):
+      its size, one colony per cluster of touching fitted cells, each grown from one
+      founder to the clusters' mean size (a field of scattered cells gives scattered
+      cells, not one colony of the defaults' size).
+    - Fitted cells: their median width, and the sizer division length (and its
+      variance) that makes the fitted lengths the mean of an asynchronous exponential
+      population (``calibrate.core.division_length_um``, as ``calibrate``), at least
+      1.3 widths.
+
+    Parameters
+    ----------
+    keep
+        Fields the user set, left as they are: simulation field names, and
+        ``agar_pad.NAME`` for a field of the pad.
+
+    Raises
+    ------
+    ValueError
+        If the settings this makes are invalid (e.g. a trench the cells do not fit in).
+    """
+    if result.trench is not None:
+        trench = result.trench_geometry(image_shape, pixel_size_um)
+        simulation = dataclasses.replace(simulation, trench=trench)
+    elif len(result.cells):
+        simulation = _laid_out_as_fitted(simulation, result, image_shape, pixel_size_um, keep)
+    if len(result.cells):
+        from napari_symbac.calibrate.core import division_length_um
+
+        width = float(np.median(result.cells.width_um))
+        division, variance = division_length_um(np.asarray(result.cells.length_um))
+        sizes = {
+            "cell_width_um": width,
+            "cell_max_length_um": max(division, 1.3 * width),
+            "max_length_var_um2": variance,
+        }
+        simulation = dataclasses.replace(
+            simulation, **{k: v for k, v in sizes.items() if k not in keep}
+        )
+    return simulation
+
+
+def _laid_out_as_fitted(
+    simulation: SimulationSettings,
+    result: Any,
+    image_shape: tuple[int, int],
+    pixel_size_um: float,
+    keep: Collection[str],
+) -> SimulationSettings:
+    """``simulation`` as an agar pad laid out as the fitted field's cells."""
+    from napari_symbac.calibrate.core import pad_layout
+    from napari_symbac.calibrate.measure import cluster_sizes
+
+    sizes = cluster_sizes(result.scene.camera_labels())
+    fields, _note = pad_layout(image_shape, pixel_size_um, sizes.size, float(np.mean(sizes)))
+    mine = {k.removeprefix("agar_pad."): None for k in keep if k.startswith("agar_pad.")}
+    if mine:
+        kept = {k: getattr(simulation.agar_pad, k) for k in mine}
+        fields["agar_pad"] = dataclasses.replace(fields["agar_pad"], **kept)
+    return dataclasses.replace(simulation, **{k: v for k, v in fields.items() if k not in keep})
