@@ -270,3 +270,26 @@ def test_a_pipeline_file_is_the_pipeline_of_the_default_export(tmp_path):
     with pytest.raises(ValueError, match="cell_intensty") as raised:
         load_export_settings(tmp_path / "typo.yaml")
     assert "ExportSettings" not in str(raised.value)
+
+
+def test_the_default_export_of_a_pad_draws_from_several_simulations(tmp_path):
+    """Found exporting a fitted ColiCoords field (a pad of one frame, its 8 lone cells):
+    every image of the one default simulation showed the same cells in the same places.
+    A pad's default export draws from up to 16 simulations, each its own layout; a
+    trench keeps one, whose frames differ."""
+    from napari_symbac.export import ExportSettings, export_of, load_export_settings
+    from napari_symbac.export.dataset import PAD_SIMULATIONS
+
+    pad = PipelineSettings(simulation=SimulationSettings(geometry="agar_pad", n_frames=1))
+    path = save_settings(pad, tmp_path / "settings.yaml")
+    assert load_export_settings(path) == ExportSettings(pipeline=pad, n_simulations=16)
+    assert export_of(pad, n_items=3).n_simulations == 3
+    assert export_of(pad, n_simulations=2).n_simulations == 2  # given: kept
+    assert PAD_SIMULATIONS == 16
+    assert export_of(PipelineSettings()).n_simulations == 1  # the default trench
+    # the images differ: their cells are in other places
+    settings = export_of(pad, n_items=2, formats=["tiff"], val_fraction=0.0)
+    source = PipelineSource(settings)
+    first, second = (source.make_unit(unit)[0] for unit in (0, 1))
+    assert first.labels.shape == second.labels.shape
+    assert not np.array_equal(first.labels > 0, second.labels > 0)

@@ -25,7 +25,7 @@ from napari_symbac._widgets._backend import backend_combo
 from napari_symbac._widgets._forms import message_label
 from napari_symbac._widgets._jobs import Job, blocking_steps
 from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
-from napari_symbac.export import FORMATS, ExportSettings
+from napari_symbac.export import FORMATS, ExportSettings, export_of
 from napari_symbac.settings import PipelineSettings
 
 if TYPE_CHECKING:
@@ -136,16 +136,16 @@ class ExportWidget(Container):
             if layer is not None
             else PipelineSettings()
         )
-        return ExportSettings(
+        return export_of(
+            dataclasses.replace(
+                pipeline,
+                simulation=dataclasses.replace(pipeline.simulation, seed=self.seed.value),
+            ),
             n_items=self.n_items.value,
             kind=self.kind.value,
             formats=list(self.formats.value),
             seed=self.seed.value,
             val_fraction=self.val_fraction.value,
-            pipeline=dataclasses.replace(
-                pipeline,
-                simulation=dataclasses.replace(pipeline.simulation, seed=self.seed.value),
-            ),
         )
 
     def export(self) -> None:

@@ -45,6 +45,7 @@ __all__ = [
     "PipelineSource",
     "Randomisation",
     "Range",
+    "export_of",
     "load_export_settings",
     "sequence_of",
     "split_of",
@@ -344,7 +345,27 @@ def load_export_settings(path: str | os.PathLike) -> ExportSettings:
     from napari_symbac.settings import load_settings_or_pipeline
 
     loaded = load_settings_or_pipeline(path, ExportSettings)
-    return loaded if isinstance(loaded, ExportSettings) else ExportSettings(pipeline=loaded)
+    return loaded if isinstance(loaded, ExportSettings) else export_of(loaded)
+
+
+#: Simulations the default export of a pad draws its images from (:func:`export_of`).
+PAD_SIMULATIONS = 16
+
+
+def export_of(pipeline: PipelineSettings, **fields: Any) -> ExportSettings:
+    """The default export of ``pipeline`` (``fields`` set the others).
+
+    An agar pad or an outline is simulated ``min(n_items, PAD_SIMULATIONS)`` times, each
+    with its own layout, and the images drawn from them in turn: a pad keeps its founders'
+    places for the whole run, and the pad a fit lays out as a field of lone cells has one
+    frame, so every image of one simulation showed the same cells (found exporting a
+    ColiCoords fit: 3 items, 8 cells in the same places). A trench or chamber keeps one
+    simulation, whose frames differ as it fills and divides.
+    """
+    settings = ExportSettings(pipeline=pipeline, **fields)
+    if "n_simulations" in fields or pipeline.simulation.geometry in ("trench", "chamber"):
+        return settings
+    return dataclasses.replace(settings, n_simulations=min(settings.n_items, PAD_SIMULATIONS))
 
 
 def export_settings_from_dict(data: Mapping[str, Any]) -> ExportSettings:
