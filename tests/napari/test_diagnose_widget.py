@@ -32,16 +32,23 @@ def diagnose_widget(make_napari_viewer, real_data_dir):
 
 def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
     from napari_symbac._widgets.export import ExportWidget
-    from napari_symbac.settings import PipelineSettings
+    from napari_symbac.settings import PipelineSettings, SimulationSettings
+    from napari_symbac.sim import simulate
 
     viewer, widget, _ = diagnose_widget
     assert widget.reference.value is viewer.layers["real"]  # the newest recording
     # Export docked beside it from the start, as in the workflow dock, with a simulation
-    # already chosen as its source
+    # already chosen as its source (its settings, as after Auto-fit: cells 0.9 um wide)
+    fitted = SimulationSettings(n_frames=2, cell_width_um=0.9)
     simulated = viewer.add_image(
         np.zeros((2, 8, 8), np.uint16),
         name="synthetic",
-        metadata={SYMBAC_METADATA_KEY: {"simulation": None, "settings": PipelineSettings()}},
+        metadata={
+            SYMBAC_METADATA_KEY: {
+                "simulation": simulate(SimulationSettings(n_frames=2)),
+                "settings": PipelineSettings(simulation=fitted),
+            }
+        },
     )
     export = ExportWidget(viewer)
     assert export.source.value is simulated
@@ -75,6 +82,7 @@ def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
     settings = residual.metadata[SYMBAC_METADATA_KEY]["settings"]
     assert isinstance(settings, PipelineSettings)
     assert settings.microscope.pixel_size_um == 0.065
+    assert settings.simulation == fitted  # Export after the diagnosis simulates as before
     # the camera is measured from the recording (2.0 ADU/e- on the whole trench, 1.8 on
     # this window), not assumed (2.9 ADU/e- by default)
     pattern = r"camera measured from the recording \(([0-9.]+) ADU/e-"

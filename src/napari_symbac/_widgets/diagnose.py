@@ -174,8 +174,10 @@ class DiagnoseWidget(Container):
         else:  # the CLI's start (``napari-symbac diagnose``)
             render = RenderSettings()
         camera = None  # measured by the base fit
-        # as the CLI: a narrow field is a trench; fluorescence shows no walls
-        walled = frame.shape[-1] <= 100 and microscope.modality == "phase"
+        # as the CLI: a narrow phase field is a trench; fluorescence shows no walls
+        from napari_symbac.fit.preflight import default_geometry
+
+        walled = default_geometry(frame.shape[-1], microscope.modality) == "trench"
         geometry = "trench" if walled else "open"
         return frame, labels, microscope, render, camera, geometry, region
 
@@ -259,6 +261,19 @@ class DiagnoseWidget(Container):
             self.worker.quit()
             self.status.value = "Cancelling..."
 
+    def _simulation_to_export(self):
+        """The simulation of the newest simulated layer (after Auto-fit, the fitted one:
+        the recording's cells and trench), kept in the diagnosis' settings so that Export
+        from them simulates what it did before the diagnosis; the defaults without one."""
+        from napari_symbac.settings import PipelineSettings
+
+        for layer in reversed(self.viewer.layers):
+            meta = layer.metadata.get(SYMBAC_METADATA_KEY) or {}
+            settings = meta.get("settings")
+            if meta.get("simulation") is not None and isinstance(settings, PipelineSettings):
+                return settings.simulation
+        return PipelineSettings().simulation
+
     def _on_progress(self, message) -> None:
         done, total = message
         if total > 1:
@@ -271,7 +286,12 @@ class DiagnoseWidget(Container):
         fit, result = output
         self.result = result
         camera = fit.camera
-        base = PipelineSettings(microscope=self._microscope, render=fit.render, camera=camera)
+        base = PipelineSettings(
+            simulation=self._simulation_to_export(),
+            microscope=self._microscope,
+            render=fit.render,
+            camera=camera,
+        )
         settings, extra = updated_settings(base, [(e.name, e.params) for e in result.accepted])
         layer = self._layer
         scale = tuple(layer.scale[-2:])
