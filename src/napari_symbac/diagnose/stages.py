@@ -59,8 +59,8 @@ def drawn_by_export(names: list[str]) -> str:
     if staged:
         parts.append(
             f"they do not draw {', '.join(staged)}: no pipeline stage of "
-            f"{'it' if len(staged) == 1 else 'them'} yet (extra_stages.yaml holds "
-            "the fitted parameters, for ForwardModel(extra_stages=...))"
+            f"{'it' if len(staged) == 1 else 'them'} yet (their fitted parameters are kept "
+            "as extra stages, for ForwardModel(extra_stages=...))"
         )
     return "; ".join(parts)
 
