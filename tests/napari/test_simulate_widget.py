@@ -212,3 +212,9 @@ def test_a_chosen_recording_sets_the_geometry_as_fit_would(widget, width_px, mod
     )
     assert widget.recording.value.name == "recording"
     assert widget.form.geometry.value == geometry
+    if geometry == "agar_pad":  # the pad the recording's size (a 512 px field had 500 px)
+        assert widget.form.agar_pad.field_width_um.value == pytest.approx(width_px * 0.1)
+        assert widget.form.agar_pad.field_height_um.value == pytest.approx(64 * 0.1)
+        assert widget.pipeline_settings().simulation.agar_pad.field_width_um == pytest.approx(
+            width_px * 0.1
+        )

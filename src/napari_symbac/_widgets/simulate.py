@@ -129,14 +129,24 @@ class SimulateWidget(Container):
         choose it for that image: a trench when it is a phase image at most
         :data:`~napari_symbac.fit.preflight.TRENCH_MAX_WIDTH_PX` wide, else an agar pad (found
         as a user: an open fluorescence field was simulated, and Auto-fitted, as a
-        trench). The form can still be changed after."""
+        trench), the pad the size of the recording (a 500 px pad beside a 512 px field
+        left a strip of the recording uncovered). The form can still be changed after."""
         from napari_symbac.fit.preflight import default_geometry
 
         if layer is None or not hasattr(self.form, "geometry"):
             return
-        modality = recording_microscope(layer, self.pipeline.microscope).modality
-        field = default_geometry(int(layer.data.shape[-1]), modality) == "field"
+        microscope = recording_microscope(layer, self.pipeline.microscope)
+        rows, cols = (int(n) for n in layer.data.shape[-2:])
+        field = default_geometry(cols, microscope.modality) == "field"
         self.form.geometry.value = "agar_pad" if field else "trench"
+        pad = getattr(self.form, "agar_pad", None)
+        if field and pad is not None:
+            width_um, height_um = cols * microscope.pixel_size_um, rows * microscope.pixel_size_um
+            # a small field keeps room inside its margin (as calibrate lays a pad out)
+            margin = min(pad.edge_margin_um.value, 0.15 * min(width_um, height_um))
+            pad.edge_margin_um.value = round(margin, 3)
+            pad.field_width_um.value = width_um
+            pad.field_height_um.value = height_um
 
     def pipeline_settings(self) -> PipelineSettings:
         """The settings to run: the form, and the chosen recording's microscope.
