@@ -763,7 +763,7 @@ def test_ctrl_c_of_a_command_that_starts_over_promises_no_resume(command):
     assert "resumes when run again" in interrupted_text("export")
 
 
-@pytest.mark.parametrize("command", ["fit", "diagnose", "calibrate"])
+@pytest.mark.parametrize("command", FIT_COMMANDS)
 def test_a_pixel_size_given_nowhere_is_refused(tmp_path, fit_inputs, capsys, command):
     """Found as a user: an image and a microscope file that both lack the pixel size
     were fitted (and calibrated into a dataset) at the default 0.065 um, said to come

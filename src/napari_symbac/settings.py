@@ -1022,9 +1022,8 @@ def load_settings_or_pipeline(path: str | Path, cls: type[T]) -> T | PipelineSet
     """Settings of type ``cls`` from their own file, or the :class:`PipelineSettings` of a
     pipeline file (:func:`_is_pipeline_mapping`), whose errors then name its sections."""
     data = read_settings_mapping(path)
-    if _is_pipeline_mapping(data):
-        return from_dict(PipelineSettings, data)
-    return from_dict(cls, data)
+    with _naming_the_file(path):
+        return from_dict(PipelineSettings if _is_pipeline_mapping(data) else cls, data)
 
 
 def load_microscope(path: str | Path) -> Microscope:
@@ -1042,9 +1041,9 @@ def load_microscope(path: str | Path) -> Microscope:
 
 
 def microscope_sets_pixel_size(path: str | Path) -> bool:
-    """Whether the microscope file at ``path`` gives a pixel size (``pixel_size_um``, or
-    the camera pixel and magnification of ``napari-symbac diagnose``'s spelling), rather
-    than leaving :class:`Microscope`'s default of 0.065 um."""
+    """Whether the microscope file at ``path`` gives a pixel size (``pixel_size_um``; the
+    spelling of ``napari-symbac diagnose``, with ``NA``, requires it), rather than leaving
+    :class:`Microscope`'s default of 0.065 um."""
     data = read_settings_mapping(path)
     return isinstance(data, dict) and ("pixel_size_um" in data or "NA" in data)
 

@@ -398,9 +398,10 @@ class TuneWidget(Container):
         """The simulation the fit implies (the fitted cells' width and division length,
         the fitted trench or a pad laid out as the recording's field:
         :func:`~napari_symbac.fit.fitted_settings.fitted_simulation`, as in ``napari-symbac
-        fit``'s settings.yaml) becomes the layer's, which Export simulates, with the
-        recording's microscope (found as a user: Export after Auto-fit drew the Simulate
-        tab's 3.5 um cells in a 16 um trench for a recording of 5 um cells). Returns a
+        fit``'s settings.yaml) becomes the layer's, which Export simulates (found as a
+        user: Export after Auto-fit drew the Simulate tab's 3.5 um cells in a 16 um trench
+        for a recording of 5 um cells). The scene is sized in the recording's pixels; the
+        status says so when the layer was simulated at another pixel size. Returns a
         sentence for the status."""
         from napari_symbac.fit.fitted_settings import fitted_simulation
 
