@@ -427,7 +427,9 @@ class TuneWidget(Container):
         where = (
             f"a {simulation.trench.length_um:.1f} um trench"
             if simulation.geometry in ("trench", "chamber")
-            else f"{simulation.agar_pad.n_colonies} colonies on a pad the recording's size"
+            else f"{simulation.agar_pad.n_colonies} "
+            f"{'colony' if simulation.agar_pad.n_colonies == 1 else 'colonies'} on a pad the "
+            "recording's size"
         )
         return (
             f"Export simulates cells {simulation.cell_width_um:.2f} um wide dividing at "
