@@ -288,7 +288,7 @@ def test_ctrl_c_during_multi_worker_export(tmp_path):
         [*command, "--out", str(out), "--workers", "1"], capture_output=True, text=True
     )
     assert resumed.returncode == 0, resumed.stderr
-    assert "complete; 300 items" in resumed.stdout
+    assert "complete; 300 images" in resumed.stdout
     assert f"{300 - done} written, {done} already there" in resumed.stdout
 
 
@@ -739,17 +739,21 @@ def test_calibrate_masks_of_the_wrong_shape_named_as_fit_names_them(
     assert "--masks wrong.tif has shape (60, 32) but the image frame has shape (64, 32)" in err
 
 
-def test_calibrate_constant_image_names_the_file(tmp_path, fit_inputs, capsys):
+@pytest.mark.parametrize("command", ["calibrate", "diagnose"])
+def test_a_constant_image_names_the_file(tmp_path, fit_inputs, capsys, command):
+    """Found as a user: diagnose said "real_image is constant", an internal name."""
     import imageio.v3 as iio
 
     _, microscope = fit_inputs
     blank = tmp_path / "blank.png"
     iio.imwrite(blank, np.zeros((64, 32), np.uint8))
-    code, err = _run(["calibrate", str(blank), "--microscope", str(microscope),
-                      "--out", str(tmp_path / "o")], capsys)  # fmt: skip
+    out = tmp_path / "o"
+    code, err = _run([command, str(blank), "--microscope", str(microscope),
+                      "--out", str(out)], capsys)  # fmt: skip
     assert code == 2
     assert "IMAGE blank.png is constant (every pixel is 0)" in err
     assert "real_image" not in err
+    assert not out.exists()
 
 
 @pytest.mark.parametrize("command", ["render", "fit", "calibrate", "diagnose"])

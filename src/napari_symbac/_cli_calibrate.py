@@ -116,9 +116,10 @@ def run_calibrate(args: argparse.Namespace) -> int:
     if tracking:  # refused before the fit, in calibrate's words (not ExportSettings.kind's)
         raise ValueError(
             f"--formats {', '.join(tracking)}: tracking ground truth needs a time series, and "
-            "calibrate writes single frames; give frame formats here, then set kind: "
-            f"timeseries and these formats in {out / 'export_settings.yaml'} and run "
-            "`napari-symbac export --config` on it"
+            "calibrate writes single frames; run it with frame formats (e.g. --formats "
+            f"tiff), then set kind: timeseries and formats: [{', '.join(tracking)}] in the "
+            f"{out / 'export_settings.yaml'} it writes and run `napari-symbac export "
+            "--config` on that file"
         )
     _check_cell_width(args.cell_width_um, args.masks)
     with timer.step("load"):

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
-from napari_symbac._timing import PipedProgress, StepTimer, terminal_bar
+from napari_symbac._timing import StepTimer, progress_bar
 
 __all__ = ["parse_frames", "run_fit"]
 
@@ -31,9 +31,11 @@ def parse_frames(spec: str | None, n_frames: int, name: str) -> list[int]:
     """``"3"``, ``"0,2,5"`` or ``"0-3"`` (inclusive) -> frame indices, checked."""
     if spec is None:
         if n_frames > 1:
-            raise ValueError(
+            last = n_frames - 1
+            pair = "0,1" if n_frames == 2 else f"0,{last // 2}"
+            raise ValueError(  # examples that exist (found as a user: 0-3 of 3 frames)
                 f"{name} has {n_frames} frames: pass --frames to pick them (e.g. --frames 0, "
-                "--frames 0,2 or --frames 0-3)"
+                f"--frames {pair} or --frames 0-{last})"
             )
         return [0]
     frames: list[int] = []
@@ -148,11 +150,9 @@ class _Stages:
             print(f"napari-symbac fit: {text}", file=self.stream, flush=True)
 
     def bar(self, desc: str) -> tuple[Callable[[int, int], None], Callable[[], None]]:
-        if not self.tty:  # a line every few seconds: a long fit is not silent in a log
-            piped = PipedProgress(desc, "steps", self.stream)
-            return piped, piped.close
-        update, bar = terminal_bar(desc, None, "steps", self.stream)
-        return update, bar.close
+        # piped: a line every few seconds, so that a long fit is not silent in a log
+        update, handle = progress_bar(desc, None, "steps", self.stream)
+        return update, handle.close
 
 
 def _camera_for(
@@ -529,6 +529,7 @@ def _fit_frames_jointly(
     the tracks as a Cell Tracking Challenge result in ``ctc/01_RES/`` (``mask{TTT}.tif``
     with track ids, ``res_track.txt``; CTC frame ``k`` is the ``k``-th fitted frame)."""
     from napari_symbac.fit import fit_series
+    from napari_symbac.fit.report import UNMEASURED_READ_NOISE
 
     n_frames = stack.shape[0]
     prepared = [
@@ -576,7 +577,10 @@ def _fit_frames_jointly(
     lineage = series.lineage
     for k, (index, ready, result) in enumerate(zip(frames, prepared, series.frames, strict=True)):
         if camera is None:
-            ready = dataclasses.replace(ready, camera=series.camera)
+            measured = [UNMEASURED_READ_NOISE] if series.camera.dark_noise_e == 0 else []
+            ready = dataclasses.replace(
+                ready, camera=series.camera, notes=[*ready.notes, *measured]
+            )
         writers_one, _ = _outputs_one(
             args, stack[index], index, ready, result, microscope, pixel_note, base, keys,
             track_ids=lineage.track_ids[k],
@@ -837,10 +841,28 @@ def run_fit(args: argparse.Namespace) -> int:
             f"frame {index}: fitted {len(result.cells)} cells; pixel chi2 "
             f"{result.objective_before:.3g} -> {result.objective_after:.3g}"
         )
+    first = f"frame_{frames[0]:04d}/settings.yaml"
+    if len(frames) > 1 and first in writers:  # found as a user: `export --config
+        writers["settings.yaml"] = writers[first]  # OUT/settings.yaml` of a series failed
     stages.stage("writing outputs")
     with timer.step("write"):
-        written = write_atomically(args.out, writers, replaced=earlier)
+        write_atomically(args.out, writers, replaced=earlier)
     print("\n".join(summaries))
-    print(f"wrote {', '.join(sorted({p.name for p in written}))} to {args.out}")
+    print(_written_text(writers, args.out, frames[0]))
     print(timer.report())
     return 0
+
+
+def _written_text(writers: dict[str, Any], out: str, first_frame: int) -> str:
+    """The files ``fit`` wrote, in words: a series' folders by name, and what each holds."""
+    top = sorted({name.split("/")[0] + ("/" if "/" in name else "") for name in writers})
+    per_frame = sorted(
+        {name.split("/", 1)[1] for name in writers if name.startswith("frame_")}
+    )
+    text = f"wrote {', '.join(top)} to {out}"
+    if per_frame:
+        text += (
+            f" (each frame_NNNN/ holds {', '.join(per_frame)}; settings.yaml is frame "
+            f"{first_frame}'s)"
+        )
+    return text

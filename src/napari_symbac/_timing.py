@@ -9,7 +9,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any, TextIO
 
-__all__ = ["PIPED_PROGRESS_INTERVAL_S", "PipedProgress", "StepTimer", "terminal_bar"]
+__all__ = ["PIPED_PROGRESS_INTERVAL_S", "PipedProgress", "StepTimer", "progress_bar"]
 
 
 #: Least seconds between two progress lines when stderr is not a terminal.
@@ -40,12 +40,15 @@ class PipedProgress:
         pass
 
 
-def terminal_bar(
+def progress_bar(
     desc: str, total: int | None, unit: str, stream: TextIO
 ) -> tuple[Callable[[int, int], None], Any]:
-    """``(update, bar)``: a tqdm bar on ``stream`` (a terminal) that ``update(done,
-    total)`` moves, the total allowed to change as the work learns it; ``bar.close()``
-    clears it."""
+    """``(update, handle)``: a tqdm bar on ``stream`` when it is a terminal, else
+    :class:`PipedProgress` lines. ``update(done, total)`` moves it, the total allowed to
+    change as the work learns it; ``handle.close()`` ends it."""
+    if not getattr(stream, "isatty", lambda: False)():
+        piped = PipedProgress(desc, unit, stream)
+        return piped, piped
     from tqdm import tqdm
 
     bar = tqdm(total=total, desc=desc, unit=unit.rstrip("s"), leave=False, file=stream)

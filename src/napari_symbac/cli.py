@@ -12,7 +12,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from napari_symbac import __version__
-from napari_symbac._timing import PipedProgress, StepTimer, terminal_bar
+from napari_symbac._timing import StepTimer, progress_bar
 
 __all__ = ["interrupted_text", "main"]
 
@@ -20,12 +20,9 @@ __all__ = ["interrupted_text", "main"]
 def _tqdm_progress(
     desc: str, total: int | None = None, unit: str = "frames"
 ) -> tuple[Callable[[int, int], None], object]:
-    """``(update, handle)``: a tqdm bar on a terminal, lines when piped
-    (:class:`~napari_symbac._timing.PipedProgress`)."""
-    if not sys.stderr.isatty():
-        piped = PipedProgress(desc, unit, sys.stderr)
-        return piped, piped
-    return terminal_bar(desc, total, unit, sys.stderr)
+    """``(update, handle)``: a tqdm bar on a terminal, lines when piped (stderr;
+    :func:`~napari_symbac._timing.progress_bar`)."""
+    return progress_bar(desc, total, unit, sys.stderr)
 
 
 def _at_least_one(text: str) -> int:
@@ -242,11 +239,14 @@ def _measured_camera_note(frame, camera) -> str:
     """What the base fit measured, and what the image's own photon transfer says of it
     (correlated noise, or an image that is not raw camera counts)."""
     from napari_symbac.fit.camera_estimate import estimate_camera
+    from napari_symbac.fit.report import UNMEASURED_READ_NOISE
 
     note = (
         f"camera measured from the recording: {camera.sensitivity_adu_per_e:.3g} ADU/e-, "
         f"read noise {camera.dark_noise_e:.3g} e-, baseline {camera.baseline_adu:.4g} ADU"
     )
+    if camera.dark_noise_e == 0:  # said, as `fit` and Auto-fit say it
+        note += f" ({UNMEASURED_READ_NOISE})"
     try:
         estimate = estimate_camera(frame, camera=camera, bit_depth=camera.bit_depth)
     except ValueError as err:
@@ -292,11 +292,18 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from napari_symbac.diagnose.stages import drawn_by_export, updated_settings
     from napari_symbac.export.atomic import earlier_run, remove_earlier_run
     from napari_symbac.fit import fit_scene
-    from napari_symbac.fit.preflight import check_fit_image, default_geometry, resolve_pixel_size
+    from napari_symbac.fit.fitted_settings import fitted_simulation
+    from napari_symbac.fit.preflight import (
+        check_fit_image,
+        default_geometry,
+        refuse_constant,
+        resolve_pixel_size,
+    )
     from napari_symbac.io import read_image
     from napari_symbac.settings import (
         PipelineSettings,
         RenderSettings,
+        SimulationSettings,
         microscope_sets_pixel_size,
         save_settings,
     )
@@ -325,6 +332,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         for k, frame in enumerate(stack):  # the fit's refusals (negative values: not counts)
             name = Path(args.image).name + (f" frame {k}" if k else "")
             check_fit_image(frame, name, camera_hint=_DIAGNOSE_CAMERA_HINT)
+            refuse_constant(frame, name)
         labels = None
         if args.labels is not None:
             labels = np.asarray(read_image(args.labels, "--labels").data)
@@ -360,6 +368,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     update, bar = _tqdm_progress("diagnose", unit="frames fitted")
     scenes = []
     camera = config.camera
+    first_fit = None
     with timer.step("base fit"):
         render = start
         for k, frame in enumerate(stack):
@@ -367,6 +376,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             # read noise from the image, as `napari-symbac fit` does); the other frames
             # and the diagnosis use that camera.
             fit = fit_scene(frame, microscope, render, camera, labels=labels, geometry=geometry)
+            if first_fit is None:  # the settings' simulation is fitted to frame 0
+                first_fit = fit
             if camera is None:
                 camera = fit.camera
                 measured_note = _measured_camera_note(frame, camera)
@@ -389,10 +400,17 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             doc["notes"].append(measured_note)
         doc["camera"] = dataclasses.asdict(camera)
         doc["region"] = {"rows": [y0, y1], "columns": [x0, x1]}
+        try:  # the simulation `fit` would write, so that an export matches the window
+            simulation = fitted_simulation(
+                SimulationSettings(), first_fit, stack.shape[-2:], microscope.pixel_size_um
+            )
+        except ValueError as err:
+            simulation = SimulationSettings()
+            doc["notes"].append(f"settings.yaml simulates the defaults: {err}")
         (out / "diagnosis.json").write_text(json.dumps(doc, indent=2, default=float))
         (out / "report.txt").write_text(result.report() + "\n")
         figures = write_figures(result, stack, out, name=Path(args.image).name)
-        base = PipelineSettings(microscope=microscope, render=render, camera=camera)
+        base = PipelineSettings(simulation, microscope, render, camera)
         accepted = [(e.name, e.params) for e in result.accepted]
         settings, extra = updated_settings(base, accepted)
         save_settings(settings, out / "settings.yaml")
@@ -562,7 +580,13 @@ def build_parser() -> argparse.ArgumentParser:
         description="Generate a randomised training dataset in parallel with dask; re-running "
         "the same command resumes an interrupted export.",
     )
-    export.add_argument("--config", required=True, help="ExportSettings YAML/JSON")
+    export.add_argument(
+        "--config",
+        required=True,
+        help="ExportSettings YAML/JSON (`defaults export`, calibrate's "
+        "export_settings.yaml), or a pipeline file such as the settings.yaml that fit and "
+        "diagnose write (its default export)",
+    )
     export.add_argument("--out", required=True, help="output folder")
     export.add_argument(
         "--n-items",
@@ -667,7 +691,11 @@ def build_parser() -> argparse.ArgumentParser:
     cal_start = cal.add_mutually_exclusive_group()
     cal_start.add_argument("--masks", help="instance masks TIFF (0 background, 1..N cells)")
     cal_start.add_argument("--labels", help="painted class labels TIFF (1 cell, 2 media)")
-    cal.add_argument("--modality", choices=["phase", "fluorescence"])
+    cal.add_argument(
+        "--modality",
+        choices=["phase", "fluorescence"],
+        help="the recording's contrast (default: the image file's, else the microscope file's)",
+    )
     cal.add_argument("--camera", help="Camera YAML/JSON (default: measured from the image)")
     cal.add_argument(
         "--cell-width-um",
@@ -677,7 +705,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cal.add_argument("--n-items", type=_at_least_one, default=100, help="images (default 100)")
     cal.add_argument(
-        "--formats", default="tiff", help="comma-separated export formats (default tiff)"
+        "--formats",
+        default="tiff",
+        help="comma-separated frame formats: tiff, png, delta, omnipose, stardist, coco, "
+        "ome-zarr (default tiff)",
     )
     cal.add_argument("--seed", type=int, default=0, help="dataset seed (default 0)")
     cal.set_defaults(func=_cmd_calibrate)

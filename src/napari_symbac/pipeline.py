@@ -250,11 +250,17 @@ def iter_render(
     drawn by :data:`DRAW_THREADS` threads ahead of the renderer; the images are the
     same, bit for bit, as drawing them one by one.
     """
+    from napari_symbac.diagnose.stages import drawn_stages
     from napari_symbac.optics.batched import render_scenes
 
     _check_render_inputs(simulation, settings, rng)
     rng = noise_rng(settings) if rng is None else rng
-    model = ForwardModel(settings.microscope, settings.render, settings.camera)
+    model = ForwardModel(
+        settings.microscope,
+        settings.render,
+        settings.camera,
+        extra_stages=drawn_stages(settings),
+    )
     scenes = _drawn_scenes(simulation, settings, DRAW_THREADS)
     try:
         for scene, image in render_scenes(model, scenes, rng, backend=backend):

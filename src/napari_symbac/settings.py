@@ -34,6 +34,7 @@ __all__ = [
     "AgarPadGeometry",
     "Camera",
     "Condenser",
+    "ExtraStage",
     "Microscope",
     "OutlineGeometry",
     "PipelineSettings",
@@ -841,13 +842,48 @@ class Camera:
 
 
 @dataclass(frozen=True)
+class ExtraStage:
+    """A physical effect that ``napari-symbac diagnose`` found in a recording and
+    accepted, drawn by render and export between the intensities (eq. 3) and the
+    camera (eq. 17) (:mod:`napari_symbac.diagnose.stages`).
+
+    Parameters
+    ----------
+    name
+        The effect: ``uneven_illumination``, ``halo``, ``stray_light``,
+        ``defocus_gradient``, ``fixed_pattern_noise`` or ``saturation``.
+    parameters
+        Its fitted parameters, as the diagnosis reports them (``diagnosis.json``).
+    """
+
+    name: str
+    parameters: dict[str, Any] = field(default_factory=dict, hash=False)
+
+    def __post_init__(self) -> None:
+        # imported here: the effects' modules import these settings
+        from napari_symbac.diagnose.stages import check_drawn_stage
+
+        _require(
+            isinstance(self.parameters, dict),
+            f"ExtraStage.parameters of {self.name!r} must be a mapping of its fitted "
+            f"parameters, got {self.parameters!r}",
+        )
+        check_drawn_stage(self.name, self.parameters)
+
+
+@dataclass(frozen=True)
 class PipelineSettings:
-    """Everything needed to simulate and render a dataset, in one file."""
+    """Everything needed to simulate and render a dataset, in one file.
+
+    ``extra_stages`` are the effects a diagnosis accepted (:class:`ExtraStage`), in the
+    order render and export apply them; empty by default.
+    """
 
     simulation: SimulationSettings = field(default_factory=SimulationSettings)
     microscope: Microscope = field(default_factory=Microscope)
     render: RenderSettings = field(default_factory=RenderSettings)
     camera: Camera = field(default_factory=Camera)
+    extra_stages: tuple[ExtraStage, ...] = ()
 
     def __post_init__(self) -> None:
         _nested(
@@ -857,6 +893,18 @@ class PipelineSettings:
             render=RenderSettings,
             camera=Camera,
         )
+        _require(
+            isinstance(self.extra_stages, (list, tuple)),
+            "PipelineSettings.extra_stages must be a list of {name, parameters}, got "
+            f"{self.extra_stages!r}",
+        )
+        stages = tuple(
+            s if isinstance(s, ExtraStage) else from_dict(
+                ExtraStage, s, _where=f"PipelineSettings.extra_stages[{k}]"
+            )
+            for k, s in enumerate(self.extra_stages)
+        )
+        object.__setattr__(self, "extra_stages", stages)
         _require(
             self.render.apodisation_sigma_um >= self.microscope.min_apodisation_sigma_um,
             f"RenderSettings.apodisation_sigma_um={self.render.apodisation_sigma_um} is below "
@@ -991,6 +1039,8 @@ def _refuse_a_section_file(data: Any, path: str | Path) -> None:
         return
     hints = typing.get_type_hints(PipelineSettings)
     for section in dataclasses.fields(PipelineSettings):
+        if not dataclasses.is_dataclass(hints[section.name]):
+            continue  # extra_stages: a list, not a section of fields
         names = {f.name for f in dataclasses.fields(hints[section.name])}
         if set(data) <= names:
             raise ValueError(

@@ -154,3 +154,15 @@ def test_calibrate_from_painted_labels(colicoords_files, capsys):
     assert pad.field_height_um == pytest.approx(image.shape[0] * 0.08)
     assert pad.field_width_um == pytest.approx(image.shape[1] * 0.08)
     assert f"the whole image ({image.shape[0]} x {image.shape[1]} px)" in report
+
+
+def test_calibrate_help_lists_the_frame_formats_it_writes(capsys):
+    """Found as a user: the help did not say which formats calibrate takes."""
+    from napari_symbac.export.formats import FORMATS
+
+    with pytest.raises(SystemExit):
+        main(["calibrate", "--help"])
+    words = " ".join(capsys.readouterr().out.split())
+    frames = [name for name, fmt in FORMATS.items() if not fmt.timeseries_only]
+    assert f"frame formats: {', '.join(frames)} (default tiff)" in words
+    assert "the recording's contrast" in words  # --modality says what it is

@@ -39,8 +39,8 @@ def test_missing_microscope_key_is_a_clear_error(tmp_path, capsys):
 
 @pytest.mark.parametrize("region", ["0:300,0:32", "10:5,0:32", "0:32", "a:b,c:d"])
 def test_a_bad_region_is_a_clear_error(tmp_path, capsys, region):
-    image = tmp_path / "image.tif"
-    tifffile.imwrite(image, np.full((64, 32), 500, np.uint16))
+    image = tmp_path / "image.tif"  # not constant: a blank image is refused first
+    tifffile.imwrite(image, np.arange(64 * 32, dtype=np.uint16).reshape(64, 32) + 500)
     mic = _microscope_file(tmp_path)
     out = tmp_path / "o"
     code = main(

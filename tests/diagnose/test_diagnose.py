@@ -122,22 +122,27 @@ def test_accepted_effects_become_settings_and_stages(tmp_path):
     ratio = lit / plain
     assert ratio[0].mean() == pytest.approx(0.9, abs=0.01)
     assert ratio[-1].mean() == pytest.approx(1.1, abs=0.01)
-    # said as it is: the settings' effect is drawn by render and export, the stage not yet
-    from napari_symbac.diagnose.stages import IN_SETTINGS, drawn_by_export
+    # every effect is a settings field or a stage the settings carry, for render and
+    # export (tests/diagnose/test_drawn_stages.py), but the time-dependent ones
+    from napari_symbac.diagnose.effects import CATALOGUE
+    from napari_symbac.diagnose.stages import DRAWN, IN_SETTINGS, TIME_DEPENDENT, drawn_by_export
 
-    said = drawn_by_export([name for name, _ in accepted])
-    assert said.startswith("render and export draw camera_noise (settings)")
-    assert "they do not draw uneven_illumination: no pipeline stage of it yet" in said
-    assert drawn_by_export([]) == ""
-    # every effect said to be drawn is one updated_settings folds into the settings
+    assert set(CATALOGUE) == {*DRAWN, *IN_SETTINGS, *TIME_DEPENDENT}
     parameters = {
         "camera_noise": {"gain_ratio": 1.0, "read_variance_ratio": 1.0},
         "cell_intensity_variability": {"cv": 0.2},
         "background_texture": {"rms_fraction": 0.1},
+        "cell_curvature": {"rms_bow_um": 0.05, "bow_um": {1: 0.05}},
     }
     assert set(parameters) == set(IN_SETTINGS)
-    _, extra = updated_settings(PipelineSettings(), list(parameters.items()))
+    folded, extra = updated_settings(PipelineSettings(), list(parameters.items()))
     assert extra == []
+    assert folded.extra_stages == ()
+    assert folded.simulation.do_transformation  # curved cells
+    assert drawn_by_export(list(parameters)) == (
+        f"render and export draw {', '.join(parameters)}"
+    )
+    assert drawn_by_export([]) == ""
 
 
 def test_microscope_file_checks():

@@ -21,7 +21,13 @@ from napari_symbac.export import (
     run_export,
 )
 from napari_symbac.export.dataset import PipelineSource, _simulation, sequence_of, split_of
-from napari_symbac.settings import PipelineSettings, SimulationSettings, save_settings, to_dict
+from napari_symbac.settings import (
+    PipelineSettings,
+    SimulationSettings,
+    TrenchGeometry,
+    save_settings,
+    to_dict,
+)
 
 PIPELINE = PipelineSettings(simulation=SimulationSettings(n_frames=10))
 
@@ -261,7 +267,8 @@ def test_a_pipeline_file_is_the_pipeline_of_the_default_export(tmp_path):
 
     pipeline = PipelineSettings(render=RenderSettings(cell_intensity=1234.0))
     path = save_settings(pipeline, tmp_path / "settings.yaml")
-    assert load_export_settings(path) == ExportSettings(pipeline=pipeline)
+    default = ExportSettings(pipeline=pipeline, first_frame=23)  # the trench full
+    assert load_export_settings(path) == default
     (tmp_path / "bad.yaml").write_text("n_itemz: 3\n")
     with pytest.raises(ValueError, match=r"n_itemz.*ExportSettings"):
         load_export_settings(tmp_path / "bad.yaml")
@@ -293,3 +300,29 @@ def test_the_default_export_of_a_pad_draws_from_several_simulations(tmp_path):
     first, second = (source.make_unit(unit)[0] for unit in (0, 1))
     assert first.labels.shape == second.labels.shape
     assert not np.array_equal(first.labels > 0, second.labels > 0)
+
+
+@pytest.mark.parametrize(
+    "simulation",
+    [
+        SimulationSettings(),
+        SimulationSettings(n_founders=2),
+        SimulationSettings(growth_model="adder", added_length_um=2.0),
+        # the trench `fit` writes for the SyMBac trench: 15.85 um, cells dividing at 6.15 um
+        SimulationSettings(trench=TrenchGeometry(length_um=15.85), cell_max_length_um=6.15),
+    ],
+)
+def test_the_default_export_of_a_trench_draws_full_trenches(simulation):
+    """Found exporting a fit of the SyMBac trench, full of cells: frames were drawn from
+    the whole run, and a quarter showed one or two cells in an empty trench. The default
+    export starts where the simulation holds nearly as many cells as it keeps after."""
+    from napari_symbac.export import export_of
+    from napari_symbac.sim import simulate
+
+    counts = np.array([len(f.ids) for f in simulate(simulation).frames])
+    first = export_of(PipelineSettings(simulation=simulation)).first_frame
+    full = np.median(counts[first:])
+    assert 0 < first <= simulation.n_frames // 2
+    assert counts[first:].min() >= 0.7 * full  # no frame of a trench still filling
+    assert counts[first // 2] < 0.7 * full  # half-way there the trench was filling
+    assert export_of(PipelineSettings(simulation=simulation), first_frame=0).first_frame == 0

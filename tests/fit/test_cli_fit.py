@@ -197,9 +197,16 @@ def test_frames_of_a_series_are_fitted_jointly_each_into_its_folder(
     out = tmp_path / "fit"
     assert _fit(image, "--microscope", microscope, "--labels", labels, "--out", out,
                 "--frames", "0-1", "--max-iterations", 3) == 0  # fmt: skip
-    assert {p.name for p in out.iterdir()} == {"frame_0000", "frame_0001", "series.json", "ctc"}
+    assert {p.name for p in out.iterdir()} == {
+        "frame_0000", "frame_0001", "series.json", "ctc", "settings.yaml"
+    }  # fmt: skip
     for folder in (out / "frame_0000", out / "frame_0001"):
         assert {p.name for p in folder.iterdir()} == OUTPUTS
+    # `export --config OUT/settings.yaml` works for a series too (frame 0's settings), and
+    # the command says where each file is (found as a user: it named settings.yaml and
+    # cells.json as if they were in OUT)
+    settings = (out / "settings.yaml").read_bytes()
+    assert settings == (out / "frame_0000" / "settings.yaml").read_bytes()
     series = json.loads((out / "series.json").read_text())
     assert series["frames"] == [0, 1]
     assert series["started_from_previous_frame"]["0"] is False  # frame 1: either start
@@ -239,6 +246,8 @@ def test_frames_of_a_series_are_fitted_jointly_each_into_its_folder(
     printed = capsys.readouterr().out
     assert "frame 1: fitted" in printed
     assert "(joint)" in printed
+    assert "wrote ctc/, frame_0000/, frame_0001/, series.json, settings.yaml to" in printed
+    assert "each frame_NNNN/ holds before_after.png, cells.json" in printed
 
 
 @pytest.mark.slow

@@ -108,6 +108,14 @@ def test_figure_is_upscaled_titled_and_has_a_colour_bar():
     assert (figure < 100).all(axis=-1)[:28].any()  # dark title text
     wide = before_after_figure(rng.normal(size=(20, 60)), np.zeros((20, 60)), np.zeros((20, 60)))
     assert wide.shape[0] > wide.shape[1] / 3  # wide fields in two columns
+    # a residual of thousands of ADU: its labels fit beside the bar (found as a user:
+    # "+1.26e+04" was cut off at the figure's edge)
+    for factor in (126.0, 12600.0):  # +12,600 and +1,260,000 ADU at the bar's top
+        large = before_after_figure(real, real, residual * factor, start=real)
+        text = (large[:, 4 * (20 * scale + 8) + 30 :] < 100).all(axis=-1)
+        assert text.any()
+        assert not text[:, -3:].any()  # nothing cut at the figure's edge
+    assert large.shape[1] > figure.shape[1]  # widened for the longest label
 
 
 def _result(**extra):

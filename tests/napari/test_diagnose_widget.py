@@ -69,7 +69,7 @@ def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
     for effect in widget.result.accepted:
         if effect.effect_map is not None:
             assert f"diagnosis effect: {effect.name}" in viewer.layers
-    # what Export will draw of them is said (an extra stage is not drawn yet)
+    # what Export will draw of them is said
     from napari_symbac.diagnose.stages import drawn_by_export
 
     accepted = [effect.name for effect in widget.result.accepted]
@@ -98,6 +98,7 @@ def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
     # (found as a user: the workflow's Export kept the first simulation's)
     assert export.source.value is residual
     assert export.settings().pipeline.render == settings.render
+    assert export.settings().pipeline.extra_stages == settings.extra_stages  # drawn
     # the button works again: a second run with the same seed gives the same report
     widget.run_button.clicked.emit()
     qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)

@@ -319,3 +319,32 @@ def test_a_refused_file_is_not_still_said_when_the_next_one_opens(
     widget.file.value = fields / "fluorescence" / "00066.tif"
     assert "Cannot open" not in widget.result.value
     assert "records no modality" in widget.result.value
+
+
+def test_what_the_fit_refuses_is_not_opened_and_a_missing_file_is_said(
+    make_napari_viewer, tmp_path, monkeypatch
+):
+    """Found as a user: an all-zero and a negative-valued TIFF opened as recordings (the
+    CLI refuses both, Auto-fit failed only later), and a mistyped path did nothing,
+    under the previous file's "Cannot open"."""
+    import tifffile
+
+    shown = []
+    monkeypatch.setattr(
+        "napari_symbac._widgets.real_image.notify_warning", lambda message: shown.append(message)
+    )
+    viewer = make_napari_viewer()
+    widget = RealImageWidget(viewer)
+    tifffile.imwrite(tmp_path / "zeros.tif", np.zeros((32, 32), np.uint16))
+    tifffile.imwrite(tmp_path / "negative.tif", np.linspace(-1, 50, 32 * 32).reshape(32, 32))
+    refusals = {"zeros.tif": "is constant (every pixel is 0)", "negative.tif": "negative values"}
+    for name, words in refusals.items():
+        widget.file.value = tmp_path / name
+        assert f"Cannot open {name}" in widget.result.value
+        assert words in widget.result.value
+        assert words in shown[-1]
+    assert "--camera` (the docks take no camera file)" in widget.result.value
+    assert len(viewer.layers) == 0
+    widget.file.value = tmp_path / "no_such.tif"
+    assert widget.result.value == f"No such file: {tmp_path / 'no_such.tif'}"
+    assert len(shown) == 2  # said in the dock as it is typed, not as a notification

@@ -25,6 +25,7 @@ from napari_symbac.fit.preflight import check_pixel_size
 from napari_symbac.settings import Microscope, RenderSettings
 
 __all__ = [
+    "check_recording_frame",
     "is_recording",
     "modality_render",
     "pixel_size_problem",
@@ -41,6 +42,30 @@ _DEFAULT_INTENSITIES = {
     "phase": {"cell_intensity": 1400.0, "media_intensity": 2600.0, "device_intensity": 900.0},
     "fluorescence": {"cell_intensity": 3000.0, "media_intensity": 150.0, "device_intensity": 60.0},
 }
+
+
+def check_recording_frame(frame: Any, name: str) -> None:
+    """Refuse, as ``napari-symbac fit`` does, a frame the fit cannot use: negative or
+    normalised values (:func:`~napari_symbac.fit.preflight.check_fit_image`) or a
+    constant image; said in the docks' words.
+
+    Raises
+    ------
+    ValueError
+        Naming the recording, the problem and what to open instead.
+    """
+    import numpy as np
+
+    from napari_symbac.fit.preflight import check_fit_image
+
+    frame = np.asarray(frame)
+    if frame.size and np.min(frame) == np.max(frame):
+        raise ValueError(
+            f"{name} is constant (every pixel is {float(frame.flat[0]):g}): nothing to fit; "
+            "open the recording with the cells in it"
+        )
+    check_fit_image(frame, name, camera_hint="with `napari-symbac fit --camera` (the docks "
+                    "take no camera file)")  # fmt: skip
 
 
 def pixel_size_problem(pixel_size_um: float | None) -> str | None:

@@ -21,6 +21,7 @@ from magicgui.widgets import ComboBox, Container, PushButton, SpinBox, TextEdit
 from napari_symbac._widgets._forms import message_label
 from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
 from napari_symbac._widgets._recording import (
+    check_recording_frame,
     is_recording,
     modality_render,
     recording_microscope,
@@ -137,7 +138,6 @@ class DiagnoseWidget(Container):
             With what to do, when no recording is chosen.
         """
         from napari_symbac.diagnose.region import MAX_DIAGNOSIS_PIXELS, default_region
-        from napari_symbac.fit.preflight import check_fit_image
         from napari_symbac.settings import RenderSettings
 
         layer = self.reference.value
@@ -152,7 +152,7 @@ class DiagnoseWidget(Container):
         frame = data[min(index, len(data) - 1)] if data.ndim == 3 else data
         if frame.ndim != 2:
             raise ValueError(f"{layer.name} must be one frame or a series, got {data.shape}")
-        check_fit_image(frame, layer.name)  # what the fit refuses (negative values)
+        check_recording_frame(frame, layer.name)  # what the fit refuses
         labels = None
         name = class_layer_name(layer.name)
         if name in self.viewer.layers:
@@ -177,8 +177,8 @@ class DiagnoseWidget(Container):
         # as the CLI: a narrow phase field is a trench; fluorescence shows no walls
         from napari_symbac.fit.preflight import default_geometry
 
-        walled = default_geometry(frame.shape[-1], microscope.modality) == "trench"
-        geometry = "trench" if walled else "open"
+        named = default_geometry(frame.shape[-1], microscope.modality)
+        geometry = "open" if named == "field" else named
         return frame, labels, microscope, render, camera, geometry, region
 
     # -- run ------------------------------------------------------------------------------

@@ -14,7 +14,7 @@ from magicgui.widgets import ComboBox, Container, FileEdit, Label, PushButton
 
 from napari_symbac._widgets._forms import SettingsForm, hide_label, message_label
 from napari_symbac._widgets._jobs import notify_warning
-from napari_symbac._widgets._recording import pixel_size_problem
+from napari_symbac._widgets._recording import check_recording_frame, pixel_size_problem
 from napari_symbac.fit import CLASS_VALUES, class_statistics
 from napari_symbac.io import micrometre_axes
 from napari_symbac.settings import Camera, Microscope
@@ -138,10 +138,17 @@ class RealImageWidget(Container):
         from napari_symbac.io import read_image
 
         path = self.file.value
-        if not path or not path.is_file():
+        if not path or path.is_dir():
+            return
+        if not path.is_file():  # said as it is typed (found as a user: a mistyped path
+            self.result.value = f"No such file: {path}"  # did nothing, under an old message)
             return
         try:
             recording = read_image(path, "recording")
+            data = np.asarray(recording.data)
+            # what the fit refuses, refused here (found as a user: an all-zero and a
+            # negative-valued TIFF opened as recordings, and failed only at Auto-fit)
+            check_recording_frame(data if data.ndim == 2 else data[0], path.name)
         except (ValueError, OSError) as err:
             self.result.value = f"Cannot open {path.name}: {err}"
             notify_warning(f"Cannot open {path.name}: {err}")

@@ -131,6 +131,7 @@ class SimulateWidget(Container):
         as a user: an open fluorescence field was simulated, and Auto-fitted, as a
         trench), the pad the size of the recording (a 500 px pad beside a 512 px field
         left a strip of the recording uncovered). The form can still be changed after."""
+        from napari_symbac.calibrate.core import pad_edge_margin_um
         from napari_symbac.fit.preflight import default_geometry
 
         if layer is None or not hasattr(self.form, "geometry"):
@@ -143,7 +144,7 @@ class SimulateWidget(Container):
         if field and pad is not None:
             width_um, height_um = cols * microscope.pixel_size_um, rows * microscope.pixel_size_um
             # a small field keeps room inside its margin (as calibrate lays a pad out)
-            margin = min(pad.edge_margin_um.value, 0.15 * min(width_um, height_um))
+            margin = pad_edge_margin_um(width_um, height_um, pad.edge_margin_um.value)
             pad.edge_margin_um.value = round(margin, 3)
             pad.field_width_um.value = width_um
             pad.field_height_um.value = height_um

@@ -25,7 +25,12 @@ from magicgui.widgets import (
 
 from napari_symbac._widgets._forms import message_label
 from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
-from napari_symbac._widgets._recording import is_recording, modality_render, watch_recordings
+from napari_symbac._widgets._recording import (
+    check_recording_frame,
+    is_recording,
+    modality_render,
+    watch_recordings,
+)
 from napari_symbac._widgets.real_image import class_layer_name
 from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
 
@@ -621,11 +626,11 @@ class TuneWidget(Container):
                 f"'all frames jointly' fits a time-lapse, but the real image '{reference.name}' "
                 "is a single frame: untick it to fit this frame"
             )
-        from napari_symbac.fit.preflight import check_fit_image, check_instance_masks
+        from napari_symbac.fit.preflight import check_instance_masks
 
         pick = self._frames_of if all_frames else self._frame_of
         real = real if all_frames else self._frame_of(real)  # a time-lapse: checked above
-        check_fit_image(real, reference.name)  # as `napari-symbac fit` (negative values)
+        check_recording_frame(real, reference.name)  # as `napari-symbac fit`
         labels = None
         name = class_layer_name(reference.name)
         if name in self.viewer.layers:

@@ -208,6 +208,12 @@ def _frames_for(cluster_cells: float) -> int:
     return math.ceil(generations * _DOUBLING_MIN / _FRAME_MIN)
 
 
+def pad_edge_margin_um(width_um: float, height_um: float, margin_um: float = 3.0) -> float:
+    """``margin_um``, or less on a small field, so that the field keeps room inside its
+    margins (15 % of its shorter side at most)."""
+    return float(min(margin_um, 0.15 * min(width_um, height_um)))
+
+
 def pad_layout(
     shape_px: tuple[int, int], pixel_size_um: float, n_colonies: int, cells_per_colony: float
 ) -> tuple[dict, str]:
@@ -226,13 +232,12 @@ def pad_layout(
     n_colonies = int(max(1, n_colonies))
     growth = _frames_for(cells_per_colony)
     separation = float(min(10.0, 0.5 * math.sqrt(height_um * field_um / n_colonies)))
-    margin = float(min(3.0, 0.15 * min(height_um, field_um)))
     pad = AgarPadGeometry(
         field_width_um=field_um,
         field_height_um=height_um,
         n_colonies=n_colonies,
         colony_separation_um=separation,
-        edge_margin_um=margin,
+        edge_margin_um=pad_edge_margin_um(field_um, height_um),
     )
     note = (
         f"layout: agar pad {field_um:.1f} x {height_um:.1f} um (the image), {n_colonies} "

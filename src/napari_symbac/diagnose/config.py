@@ -147,8 +147,7 @@ def load_microscope_file(path: str | Path) -> DiagnoseConfig:
     try:
         microscope = from_dict(Microscope, {k: v for k, v in data.items() if k not in extras})
     except ValueError as err:
-        keys = f"; and for diagnose {', '.join(DIAGNOSE_KEYS)}"
-        if not str(err).startswith("unknown field"):
-            keys = ""
+        unknown = str(err).startswith("unknown field")
+        keys = f"; and for diagnose {', '.join(DIAGNOSE_KEYS)}" if unknown else ""
         raise ValueError(f"microscope file {path}: {err}{keys}") from None
     return _with_extras(microscope, extras, str(path), [])

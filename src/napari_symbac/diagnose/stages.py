@@ -1,12 +1,14 @@
 """Accepted effects as forward-model stages and updated settings (for render / export).
 
-The diagnosis writes ``settings.yaml`` (a :class:`~napari_symbac.settings.PipelineSettings`
-whose render and camera carry the effects that map onto existing settings:
-``camera_noise`` -> the camera, ``cell_intensity_variability`` ->
-``render.cell_brightness_cv``, ``background_texture`` -> ``render.texture_amplitude``)
-and ``extra_stages.yaml`` (the other accepted effects, by name and parameters).
-:func:`load_extra_stages` turns the latter back into
-:class:`~napari_symbac.optics.forward.Stage` objects for
+The diagnosis writes ``settings.yaml``, a :class:`~napari_symbac.settings.PipelineSettings`
+that carries every accepted effect render and export can draw: those that map onto
+existing settings (``camera_noise`` -> the camera, ``cell_intensity_variability`` ->
+``render.cell_brightness_cv``, ``background_texture`` -> ``render.texture_amplitude``,
+``cell_curvature`` -> ``simulation.do_transformation``) and the other effects of one
+frame (:data:`DRAWN`) as ``extra_stages``, drawn with :func:`drawn_stages`. It also
+writes ``extra_stages.yaml``: every accepted effect without a settings field, the
+time-dependent ones (:data:`TIME_DEPENDENT`) included, which :func:`load_extra_stages`
+turns back into :class:`~napari_symbac.optics.forward.Stage` objects for
 ``ForwardModel(..., extra_stages=...)``.
 """
 
@@ -30,9 +32,19 @@ from napari_symbac.diagnose.effects import (
     uneven_illumination,
 )
 from napari_symbac.optics.forward import Stage
-from napari_symbac.settings import PipelineSettings
+from napari_symbac.settings import ExtraStage, PipelineSettings
 
-__all__ = ["drawn_by_export", "load_extra_stages", "stage_for", "updated_settings"]
+__all__ = [
+    "DRAWN",
+    "IN_SETTINGS",
+    "TIME_DEPENDENT",
+    "check_drawn_stage",
+    "drawn_by_export",
+    "drawn_stages",
+    "load_extra_stages",
+    "stage_for",
+    "updated_settings",
+]
 
 _STATIC = {
     "uneven_illumination": uneven_illumination.stage,
@@ -41,26 +53,69 @@ _STATIC = {
     "stray_light": stray_light.stage,
     "fixed_pattern_noise": fixed_pattern_noise.stage,
 }
-_PER_FRAME = {"photobleaching": photobleaching.stage, "stage_drift": stage_drift.stage}
+#: Effects that change from frame to frame of the recording: kept in extra_stages.yaml.
+TIME_DEPENDENT = {"photobleaching": photobleaching.stage, "stage_drift": stage_drift.stage}
 #: Effects carried by existing settings fields rather than extra stages.
-IN_SETTINGS = ("camera_noise", "cell_intensity_variability", "background_texture")
+IN_SETTINGS = (
+    "camera_noise",
+    "cell_intensity_variability",
+    "background_texture",
+    "cell_curvature",
+)
+#: Effects of one frame that render and export draw as ``PipelineSettings.extra_stages``.
+DRAWN = (*_STATIC, "saturation")
+
+
+def check_drawn_stage(name: str, parameters: dict[str, Any]) -> None:
+    """Refuse an :class:`~napari_symbac.settings.ExtraStage` that render and export
+    cannot draw: an unknown or time-dependent effect, or parameters its stage cannot
+    be built from (a settings file edited by hand)."""
+    if name in TIME_DEPENDENT:
+        raise ValueError(
+            f"extra stage {name!r} changes from frame to frame of the recording, so render "
+            "and export do not draw it: remove it from extra_stages (diagnose keeps it in "
+            "extra_stages.yaml, for ForwardModel(extra_stages=load_extra_stages(path, "
+            "frame=t)))"
+        )
+    if name not in DRAWN:
+        raise ValueError(
+            f"extra stage {name!r} is not an effect render and export draw; they draw "
+            f"{', '.join(DRAWN)}"
+        )
+    try:
+        stage_for(name, parameters)
+        if name == "uneven_illumination" and len(parameters["coefficients"]) != 5:
+            raise ValueError("coefficients must be 5 numbers (x, y, x^2, y^2, xy)")
+    except (KeyError, TypeError, ValueError) as err:
+        reason = f"it lacks {err}" if isinstance(err, KeyError) else str(err)
+        raise ValueError(
+            f"extra stage {name!r} has parameters {parameters!r} that do not make its "
+            f"stage ({reason}): copy them from diagnosis.json, or re-run the diagnosis"
+        ) from None
+
+
+def drawn_stages(settings: PipelineSettings) -> list[Stage]:
+    """The forward-model stages of ``settings.extra_stages``, in order (render, export)."""
+    baseline = settings.camera.baseline_adu
+    return [
+        stage_for(s.name, s.parameters, baseline_adu=baseline) for s in settings.extra_stages
+    ]
 
 
 def drawn_by_export(names: list[str]) -> str:
-    """What of the accepted effects ``names`` render and export draw, in words: those
-    carried by settings (:data:`IN_SETTINGS`, folded in by :func:`updated_settings`), and
-    not yet the others, whose stages are written to ``extra_stages.yaml`` for
+    """What of the accepted effects ``names`` render and export draw, in words: all but
+    the time-dependent ones, whose stages are kept in ``extra_stages.yaml`` for
     ``ForwardModel(..., extra_stages=...)`` (found as a user: the Diagnose dock said
     Export takes the updated settings, and the column offsets, illumination and stray
     light it had accepted reached no exported image). Empty for no effect."""
-    drawn = [n for n in names if n in IN_SETTINGS]
-    staged = [n for n in names if n not in IN_SETTINGS]
-    parts = [f"render and export draw {', '.join(drawn)} (settings)"] if drawn else []
-    if staged:
+    drawn = [n for n in names if n in IN_SETTINGS or n in DRAWN]
+    kept = [n for n in names if n in TIME_DEPENDENT]
+    parts = [f"render and export draw {', '.join(drawn)}"] if drawn else []
+    if kept:
         parts.append(
-            f"they do not draw {', '.join(staged)}: no pipeline stage of "
-            f"{'it' if len(staged) == 1 else 'them'} yet (their fitted parameters are kept "
-            "as extra stages, for ForwardModel(extra_stages=...))"
+            f"they do not draw {', '.join(kept)}, which change{'s' if len(kept) == 1 else ''}"
+            " from frame to frame of the recording (kept as extra stages, for "
+            "ForwardModel(extra_stages=...))"
         )
     return "; ".join(parts)
 
@@ -71,8 +126,8 @@ def stage_for(
     """The stage of an accepted effect (``frame`` for time-dependent effects)."""
     if name in _STATIC:
         return _STATIC[name](parameters)
-    if name in _PER_FRAME:
-        return _PER_FRAME[name](parameters, frame)
+    if name in TIME_DEPENDENT:
+        return TIME_DEPENDENT[name](parameters, frame)
     if name == "saturation":
         return saturation.stage(parameters, baseline_adu)
     raise ValueError(f"effect {name!r} has no stage (it is carried by the settings: {IN_SETTINGS})")
@@ -81,8 +136,11 @@ def stage_for(
 def updated_settings(
     settings: PipelineSettings, accepted: list[tuple[str, dict]]
 ) -> tuple[PipelineSettings, list[dict]]:
-    """Settings with the accepted effects folded in, and the extra-stage specs."""
-    render, camera = settings.render, settings.camera
+    """Settings with the accepted effects folded in (settings fields, and the effects
+    of :data:`DRAWN` appended to ``extra_stages``), and the specs of every accepted
+    effect without a settings field (for ``extra_stages.yaml``)."""
+    simulation, render, camera = settings.simulation, settings.render, settings.camera
+    drawn = list(settings.extra_stages)
     extra: list[dict] = []
     for name, params in accepted:
         if name == "camera_noise":
@@ -91,9 +149,16 @@ def updated_settings(
             render = dataclasses.replace(render, cell_brightness_cv=float(params["cv"]))
         elif name == "background_texture":
             render = dataclasses.replace(render, texture_amplitude=float(params["rms_fraction"]))
+        elif name == "cell_curvature":  # bent cells: eq. 1's curvature when drawn
+            simulation = dataclasses.replace(simulation, do_transformation=True)
         else:
             extra.append({"name": name, "parameters": params})
-    return dataclasses.replace(settings, render=render, camera=camera), extra
+            if name in DRAWN:
+                drawn.append(ExtraStage(name, dict(params)))
+    updated = dataclasses.replace(
+        settings, simulation=simulation, render=render, camera=camera, extra_stages=tuple(drawn)
+    )
+    return updated, extra
 
 
 def load_extra_stages(

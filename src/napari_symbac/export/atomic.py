@@ -27,6 +27,7 @@ __all__ = [
     "TIFF_KINDS",
     "TIFF_KIND_KEY",
     "ExportError",
+    "a_few",
     "atomic_path",
     "check_output_folder",
     "earlier_run",
@@ -34,6 +35,7 @@ __all__ = [
     "remove_earlier_run",
     "remove_stale_temporaries",
     "tiff_metadata",
+    "visible_entries",
     "write_bytes",
     "write_json",
     "write_png",
@@ -323,16 +325,26 @@ def earlier_run(out: str | os.PathLike, command: str, owns: Callable[[str], bool
     out = Path(out)
     if not out.is_dir():
         return []
-    entries = sorted(e for e in out.iterdir() if not e.name.startswith("."))
+    entries = visible_entries(out)
     foreign = [e.name for e in entries if not owns(e.name)]
     if foreign:
-        shown = ", ".join(foreign[:3]) + (", ..." if len(foreign) > 3 else "")
         raise ValueError(
-            f"--out {out} holds files napari-symbac {command} does not write ({shown}): "
+            f"--out {out} holds files napari-symbac {command} does not write "
+            f"({a_few(foreign)}): "
             f"give a new or empty folder, or the folder of an earlier {command} (whose "
             "files are then replaced)"
         )
     return entries
+
+
+def visible_entries(folder: Path) -> list[Path]:
+    """The entries of ``folder``, sorted, hidden ones (``.DS_Store``, a lock) aside."""
+    return sorted(e for e in folder.iterdir() if not e.name.startswith("."))
+
+
+def a_few(names: list[str]) -> str:
+    """The first three of ``names`` for a message, ``...`` when there are more."""
+    return ", ".join(names[:3]) + (", ..." if len(names) > 3 else "")
 
 
 def remove_earlier_run(entries: list[Path]) -> None:

@@ -38,7 +38,7 @@ from napari_symbac.export.visibility import (
     contrast_to_noise,
     faint_cells,
 )
-from napari_symbac.settings import PipelineSettings, from_dict, to_dict
+from napari_symbac.settings import PipelineSettings, SimulationSettings, from_dict, to_dict
 
 __all__ = [
     "ExportSettings",
@@ -49,6 +49,7 @@ __all__ = [
     "load_export_settings",
     "sequence_of",
     "split_of",
+    "trench_filled_frame",
     "unit_rng",
 ]
 
@@ -360,12 +361,40 @@ def export_of(pipeline: PipelineSettings, **fields: Any) -> ExportSettings:
     places for the whole run, and the pad a fit lays out as a field of lone cells has one
     frame, so every image of one simulation showed the same cells (found exporting a
     ColiCoords fit: 3 items, 8 cells in the same places). A trench or chamber keeps one
-    simulation, whose frames differ as it fills and divides.
+    simulation, whose frames differ as it fills and divides, and its images are drawn
+    from the frames after it has filled (:func:`trench_filled_frame`; found exporting a
+    fit of the SyMBac trench, full of cells: a quarter of the images showed one or two
+    cells in an empty trench).
     """
+    simulation = pipeline.simulation
+    if simulation.geometry in ("trench", "chamber"):
+        fields = {"first_frame": trench_filled_frame(simulation), **fields}
     settings = ExportSettings(pipeline=pipeline, **fields)
-    if "n_simulations" in fields or pipeline.simulation.geometry in ("trench", "chamber"):
+    if "n_simulations" in fields or simulation.geometry in ("trench", "chamber"):
         return settings
     return dataclasses.replace(settings, n_simulations=min(settings.n_items, PAD_SIMULATIONS))
+
+
+def trench_filled_frame(simulation: SimulationSettings) -> int:
+    """The frame by which the founders' descendants fill the trench, at most half the run.
+
+    A full trench holds ``length / mean length`` cells; the mean length of an
+    asynchronous population dividing at ``L`` is ``L ln 2`` (the adder's ``L`` is twice
+    the added length); the founders fill it in ``log2(capacity / founders)`` doublings
+    of ``ln 2 / growth rate`` (the timer's interdivision time). On the defaults (a 16 um
+    trench, cells dividing at 3.5 um) that is frame 23 of 60, where the simulation holds
+    6 of the 6-7 cells it keeps from then on.
+    """
+    division_um = simulation.cell_max_length_um
+    if simulation.growth_model == "adder":
+        division_um = 2 * simulation.added_length_um
+    doubling_min = math.log(2) / simulation.growth_rate_per_min
+    if simulation.growth_model == "timer":
+        doubling_min = simulation.interdivision_time_min
+    capacity = simulation.trench.length_um / (division_um * math.log(2))
+    doublings = math.log2(max(1.0, capacity / simulation.n_founders))
+    frame = math.ceil(doublings * doubling_min / simulation.frame_interval_min)
+    return min(frame, simulation.n_frames // 2)
 
 
 def export_settings_from_dict(data: Mapping[str, Any]) -> ExportSettings:
@@ -510,6 +539,7 @@ class PipelineSource:
         }
 
     def make_unit(self, unit: int) -> list[ExportItem]:
+        from napari_symbac.diagnose.stages import drawn_stages
         from napari_symbac.export.outline import grow_masks
         from napari_symbac.optics import ForwardModel
         from napari_symbac.optics.batched import render_scenes
@@ -535,7 +565,12 @@ class PipelineSource:
             frames = list(range(n_frames))
         params = s.randomise.draw(rng, pipeline)
         varied = apply_params(pipeline, params)
-        model = ForwardModel(varied.microscope, varied.render, varied.camera)
+        model = ForwardModel(
+            varied.microscope,
+            varied.render,
+            varied.camera,
+            extra_stages=drawn_stages(varied),
+        )
         curvature = _curvature(simulation)
         parents = {int(c): int(r.parent_id) for c, r in simulation.lineage.items()}
         max_label = max(parents, default=0)

@@ -25,7 +25,13 @@ from typing import Any
 
 import numpy as np
 
-from napari_symbac.export.atomic import ExportError, explain_os_error, write_json
+from napari_symbac.export.atomic import (
+    ExportError,
+    a_few,
+    explain_os_error,
+    visible_entries,
+    write_json,
+)
 from napari_symbac.export.formats import FormatWriter
 from napari_symbac.export.item import ExportItem, item_objects
 
@@ -139,12 +145,11 @@ def check_dataset_folder(out_dir: str | os.PathLike) -> None:
     out_dir = Path(out_dir)
     if not out_dir.is_dir() or (out_dir / MANIFEST).is_file():
         return
-    others = sorted(entry.name for entry in out_dir.iterdir() if not entry.name.startswith("."))
+    others = [entry.name for entry in visible_entries(out_dir)]
     if others:
-        shown = ", ".join(others[:3]) + (", ..." if len(others) > 3 else "")
         raise ExportError(
-            f"{out_dir} holds other files ({shown}) and no {MANIFEST}: the dataset's folders "
-            "would be written among them; export to an empty or new folder",
+            f"{out_dir} holds other files ({a_few(others)}) and no {MANIFEST}: the dataset's "
+            "folders would be written among them; export to an empty or new folder",
             out_dir / MANIFEST,
         )
 

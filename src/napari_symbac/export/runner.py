@@ -113,7 +113,7 @@ class ExportReport:
     def __str__(self) -> str:
         state = "complete" if self.complete else "CANCELLED - run again to resume"
         return (
-            f"export to {self.out_dir}: {state}; {self.n_items} items "
+            f"export to {self.out_dir}: {state}; {self.n_items} images "
             f"({self.n_written} written, {self.n_skipped} already there) in "
             f"{', '.join(self.formats)}; {self.seconds:.1f} s with {self.workers} worker(s)"
         )

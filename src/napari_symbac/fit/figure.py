@@ -83,7 +83,11 @@ def before_after_figure(
     rows = math.ceil(len(panels) / columns)
     cell_h, cell_w = _TITLE_PX + height + _GAP_PX, width + _GAP_PX
     bar_x = columns * cell_w
-    canvas = np.full((rows * cell_h, bar_x + _BAR_PX + _BAR_TEXT_PX, 3), 255, np.uint8)
+    font = ImageFont.load_default(size=_FONT_PX)
+    # whole numbers above 1000 ADU (found as a user: "+1.26e+04" was cut off at the edge)
+    ticks = [(v, f"{v:+.3g}" if abs(v) < 1000 else f"{v:+,.0f}") for v in (limit, 0.0, -limit)]
+    text_px = max(_BAR_TEXT_PX, 8 + max(math.ceil(font.getlength(t)) for _, t in ticks))
+    canvas = np.full((rows * cell_h, bar_x + _BAR_PX + text_px, 3), 255, np.uint8)
     origins = [(cell_h * (i // columns), cell_w * (i % columns)) for i in range(len(panels))]
     for (y, x), panel in zip(origins, panels, strict=True):
         canvas[y + _TITLE_PX : y + _TITLE_PX + height, x : x + width] = panel
@@ -93,11 +97,10 @@ def before_after_figure(
 
     picture = Image.fromarray(canvas)
     draw = ImageDraw.Draw(picture)
-    font = ImageFont.load_default(size=_FONT_PX)
     for (y, x), title in zip(origins, titles, strict=False):
         draw.text((x + 2, y + 4), title, fill=(0, 0, 0), font=font)
-    for value, row in ((limit, 0), (0.0, height // 2), (-limit, height - 1)):
+    for (_, text), row in zip(ticks, (0, height // 2, height - 1), strict=True):
         y = bar_y + min(max(row - _FONT_PX // 2, 0), height - _FONT_PX)
-        draw.text((bar_x + _BAR_PX + 4, y), f"{value:+.3g}", fill=(0, 0, 0), font=font)
+        draw.text((bar_x + _BAR_PX + 4, y), text, fill=(0, 0, 0), font=font)
     draw.text((bar_x, bar_y - _TITLE_PX + 4), residual_unit, fill=(0, 0, 0), font=font)
     return np.asarray(picture)

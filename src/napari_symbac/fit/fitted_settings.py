@@ -80,7 +80,7 @@ def _laid_out_as_fitted(
 
     sizes = cluster_sizes(result.scene.camera_labels())
     fields, _note = pad_layout(image_shape, pixel_size_um, sizes.size, float(np.mean(sizes)))
-    mine = {k.removeprefix("agar_pad."): None for k in keep if k.startswith("agar_pad.")}
+    mine = {k.removeprefix("agar_pad.") for k in keep if k.startswith("agar_pad.")}
     if mine:
         kept = {k: getattr(simulation.agar_pad, k) for k in mine}
         fields["agar_pad"] = dataclasses.replace(fields["agar_pad"], **kept)

@@ -80,15 +80,20 @@ class FixedPatternNoise(Effect):
 
 
 def stage(parameters: dict) -> Stage:
-    """Forward-model stage adding the fitted column offsets."""
+    """Forward-model stage adding the fitted column offsets.
+
+    An image of as many columns as the diagnosed one gets exactly those offsets. A
+    narrower image gets the first of them and a wider one the offsets repeated (an
+    exported frame the size of a simulation, not of the diagnosed window): stripes of
+    the fitted size and pattern, where the sensor's own columns beyond the window are
+    unknown.
+    """
     offsets = np.asarray(parameters["column_offsets_adu"], np.float32)
+    if offsets.ndim != 1 or offsets.size == 0:
+        raise ValueError("column_offsets_adu must be a list of one offset per column")
 
     def apply(image: np.ndarray, scene: object) -> np.ndarray:
-        if image.shape[-1] != offsets.size:
-            raise ValueError(
-                f"fixed_pattern_noise was fitted on {offsets.size} columns, the image has "
-                f"{image.shape[-1]}: re-run the diagnosis on images of this size"
-            )
-        return image + offsets[None, :]
+        cols = image.shape[-1]
+        return image + np.tile(offsets, -(-cols // offsets.size))[None, :cols]
 
     return Stage(FixedPatternNoise.name, False, dict(parameters), apply)

@@ -1,0 +1,107 @@
+"""Figure of docs/diagnosis.md, "From diagnosis to dataset": the effects that
+``napari-symbac diagnose`` accepted on the SyMBac trench, drawn by ``export``.
+
+Runs, as a user would, ``diagnose`` on ``ecoli_100x_oil_exponential.tiff`` (GPL-2 test
+data, read from ``../shared/data/real``; not copied), then ``export --config`` with its
+settings.yaml and with the same settings less their ``extra_stages``, and writes
+``docs/images/diagnosis/export_with_effects.png``: the recording | an exported frame
+without the stages | the same frame with them | their difference, and the column means
+of the difference against the fitted column offsets. Prints the numbers quoted in the
+docs. Run from the repository root (about a minute on 2 cores).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+import tifffile
+
+from napari_symbac.cli import main
+from napari_symbac.settings import PipelineSettings, load_settings, save_settings
+
+ROOT = Path(__file__).resolve().parents[2]
+REAL = ROOT.parent / "shared" / "data" / "real" / "ecoli_100x_oil_exponential.tiff"
+OUT = ROOT / "docs" / "images" / "diagnosis" / "export_with_effects.png"
+MICROSCOPE = {"modality": "phase", "pixel_size_um": 0.065, "NA": 1.45, "refractive_index": 1.518,
+              "wavelength_um": 0.65, "condenser": "Ph3", "objective": "100x oil"}  # fmt: skip
+
+
+def export(settings: PipelineSettings, folder: Path) -> np.ndarray:
+    config = save_settings(settings, folder.with_suffix(".yaml"))
+    code = main(["export", "--config", str(config), "--n-items", "4", "--out", str(folder)])
+    if code:
+        sys.exit(code)
+    return np.stack([tifffile.imread(p) for p in sorted(folder.glob("tiff/*/images/*.tif"))])
+
+
+def run() -> None:
+    work = Path(tempfile.mkdtemp())
+    (work / "microscope.json").write_text(json.dumps(MICROSCOPE))
+    out = work / "diagnosis"
+    args = ["diagnose", str(REAL), "--microscope", str(work / "microscope.json"), "--out", str(out)]
+    if main(args):
+        sys.exit("diagnose failed")
+    doc = json.loads((out / "diagnosis.json").read_text())
+    accepted = {e["name"]: e["params"] for e in doc["effects"] if e["accepted"]}
+    diagnosed = load_settings(out / "settings.yaml", PipelineSettings)
+    plain = dataclasses.replace(diagnosed, extra_stages=())
+    with_stages = export(diagnosed, work / "diagnosed").astype(float)
+    without = export(plain, work / "plain").astype(float)
+    step = with_stages - without
+    columns = step.mean(axis=(0, 1))
+    offsets = np.asarray(accepted.get("fixed_pattern_noise", {}).get("column_offsets_adu", []))
+    real = tifffile.imread(REAL).astype(float)
+    print("accepted:", ", ".join(accepted))
+    print("extra stages drawn:", ", ".join(s.name for s in diagnosed.extra_stages))
+    print(f"frame {with_stages.shape[1:]}, recording {real.shape}")
+    print(f"mean: recording {real.mean():.0f}, export without {without.mean():.0f}, "
+          f"with {with_stages.mean():.0f} ADU")  # fmt: skip
+    if offsets.size:
+        r = np.corrcoef(columns - columns.mean(), offsets)[0, 1]
+        print(f"column means of the difference vs fitted offsets: r = {r:.3f}")
+
+    fig = plt.figure(figsize=(11, 6.2))
+    grid = fig.add_gridspec(1, 5, width_ratios=[1, 1, 1, 1, 2.6], wspace=0.55)
+    low, high = np.percentile(real, [0.5, 99.5])
+    panels = [
+        ("recording", real, "gray", (low, high)),
+        ("export, no stages", without[0], "gray", (low, high)),
+        ("export, diagnosed", with_stages[0], "gray", (low, high)),
+        ("difference (ADU)", step[0], "PiYG", (-600, 600)),
+    ]
+    for k, (title, image, cmap, limits) in enumerate(panels):
+        ax = fig.add_subplot(grid[k])
+        shown = ax.imshow(image, cmap=cmap, vmin=limits[0], vmax=limits[1])
+        ax.set_title(title, fontsize=9)
+        ax.set_xticks([])
+        ax.set_yticks([])
+        if k == 3:
+            fig.colorbar(shown, ax=ax, orientation="horizontal", fraction=0.05, pad=0.03)
+    ax = fig.add_subplot(grid[4])
+    ax.plot(columns - columns.mean(), "o-", ms=3, label="export: column means of the difference")
+    if offsets.size:
+        ax.plot(offsets, "s--", ms=3, label="diagnosis: fitted column offsets")
+    ax.set_xlabel("column (px)")
+    ax.set_ylabel("ADU (mean removed)")
+    ax.legend(fontsize=8, loc="lower left")
+    ax.set_title("column offsets reach the dataset", fontsize=9)
+    fig.suptitle(
+        "SyMBac trench: diagnose accepted " + ", ".join(accepted) + "; export draws them",
+        fontsize=10,
+    )
+    OUT.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(OUT, dpi=90, bbox_inches="tight")
+    print("wrote", OUT)
+
+
+if __name__ == "__main__":
+    run()

@@ -1,0 +1,123 @@
+"""Accepted effects reach the images: ``PipelineSettings.extra_stages`` drawn by render and
+export, from settings written by ``napari-symbac diagnose`` on the real trench."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+import tifffile
+import yaml
+
+from napari_symbac.cli import main
+from napari_symbac.diagnose.stages import drawn_by_export, updated_settings
+from napari_symbac.pipeline import render_simulation
+from napari_symbac.settings import (
+    ExtraStage,
+    PipelineSettings,
+    SimulationSettings,
+    load_settings,
+    save_settings,
+)
+from napari_symbac.sim import simulate
+
+PHASE_100X = {"modality": "phase", "pixel_size_um": 0.065, "NA": 1.45, "refractive_index": 1.518,
+              "wavelength_um": 0.65, "condenser": "Ph3", "objective": "100x oil"}  # fmt: skip
+ILLUMINATION = {"coefficients": [0.0, 0.1, 0.0, 0.0, 0.0]}  # 10 % brighter at the bottom
+
+
+def _quiet(settings: PipelineSettings) -> PipelineSettings:
+    """No noise: an image is the rounded clean image plus the baseline."""
+    return dataclasses.replace(
+        settings, render=dataclasses.replace(settings.render, noise_model="none")
+    )
+
+
+def test_settings_carry_the_drawn_effects_and_refuse_others(tmp_path):
+    accepted = [
+        ("uneven_illumination", ILLUMINATION),
+        ("camera_noise", {"gain_ratio": 1.2, "read_variance_ratio": 1.0}),
+        ("stage_drift", {"velocity_x_px_per_frame": 0.1, "velocity_y_px_per_frame": 0.0}),
+    ]
+    settings, extra = updated_settings(PipelineSettings(), accepted)
+    assert settings.extra_stages == (ExtraStage("uneven_illumination", ILLUMINATION),)
+    assert [e["name"] for e in extra] == ["uneven_illumination", "stage_drift"]
+    path = save_settings(settings, tmp_path / "settings.yaml")
+    assert load_settings(path, PipelineSettings) == settings
+    hash(settings)  # settings stay usable as keys
+    said = drawn_by_export([name for name, _ in accepted])
+    assert said.startswith("render and export draw uneven_illumination, camera_noise;")
+    assert "they do not draw stage_drift, which changes from frame to frame" in said
+    refusals = {
+        "stage_drift": "changes from frame to frame",
+        "vignette": "not an effect render and export draw",
+        "halo": "lacks 'amplitude_adu'",
+    }
+    for name, words in refusals.items():
+        bad = {"extra_stages": [{"name": name, "parameters": {}}]}
+        path.write_text(yaml.safe_dump(bad))
+        with pytest.raises(ValueError, match=words) as err:
+            load_settings(path, PipelineSettings)
+        assert str(path) in str(err.value)  # the file that holds it is named
+
+
+def test_render_draws_the_extra_stages_on_any_frame_size():
+    """Illumination scales each row by its surface; column offsets fitted on 10 columns
+    are repeated over a wider frame (a simulation's, not the diagnosed window's)."""
+    simulation = simulate(SimulationSettings(n_frames=3, seed=2))
+    plain = _quiet(PipelineSettings(simulation=simulation.settings))
+    offsets = [40.0, -40.0] * 5
+    lit = dataclasses.replace(
+        plain,
+        extra_stages=(
+            ExtraStage("uneven_illumination", ILLUMINATION),
+            ExtraStage("fixed_pattern_noise", {"column_offsets_adu": offsets}),
+        ),
+    )
+    before = render_simulation(simulation, plain).images.astype(float) - 100
+    after = render_simulation(simulation, lit).images.astype(float) - 100
+    rows, cols = before.shape[-2:]
+    assert cols > len(offsets)
+    surface = 1 + 0.1 * np.linspace(-1, 1, rows)[:, None]
+    expected = before * surface + np.tile(offsets, 10)[:cols]
+    assert np.abs(after - expected).max() <= 0.5 + 1e-3 * before.max()  # rounding
+
+
+@pytest.mark.slow
+def test_diagnose_settings_export_the_accepted_effects_of_the_real_trench(
+    tmp_path, capsys, real_data_dir
+):
+    """The user's round trip: diagnose the SyMBac trench, export with its settings.yaml.
+    The dataset has the recording's frame, and the column offsets diagnose accepted."""
+    microscope = tmp_path / "phase100x.json"
+    microscope.write_text(json.dumps(PHASE_100X))
+    image = real_data_dir / "ecoli_100x_oil_exponential.tiff"  # 256 x 46
+    out = tmp_path / "diagnosis"
+    assert main(["diagnose", str(image), "--microscope", str(microscope), "--out", str(out)]) == 0
+    said, noted = capsys.readouterr()
+    # read noise 0 e- (the trench's photon transfer has no positive intercept), said why
+    assert "read noise 0 e-, baseline 100 ADU (the read noise is too small to measure" in noted
+    doc = json.loads((out / "diagnosis.json").read_text())
+    accepted = {e["name"]: e["params"] for e in doc["effects"] if e["accepted"]}
+    # the column offsets are the first effect accepted on this trench (docs/diagnosis.md)
+    assert "fixed_pattern_noise" in accepted, said
+    assert f"with settings.yaml, {drawn_by_export(list(accepted))}" in said
+    settings = _quiet(load_settings(out / "settings.yaml", PipelineSettings))
+    assert "fixed_pattern_noise" in [s.name for s in settings.extra_stages]
+    plain = dataclasses.replace(settings, extra_stages=())
+    frames = {}
+    for name, pipeline in (("plain", plain), ("diagnosed", settings)):
+        config = save_settings(pipeline, tmp_path / f"{name}.yaml")
+        folder = tmp_path / name
+        args = ["export", "--config", str(config), "--n-items", "2", "--out", str(folder)]
+        assert main(args) == 0
+        paths = sorted(folder.glob("tiff/*/images/*.tif"))
+        frames[name] = np.stack([tifffile.imread(p) for p in paths]).astype(float)
+    assert frames["plain"].shape[1:] == (256, 46)  # the fitted trench, the recording's frame
+    step = frames["diagnosed"] - frames["plain"]
+    offsets = np.asarray(accepted["fixed_pattern_noise"]["column_offsets_adu"])
+    columns = step.mean(axis=(0, 1))
+    columns -= columns.mean()  # the illumination and stray light shift the mean
+    assert np.corrcoef(columns, offsets)[0, 1] > 0.95
