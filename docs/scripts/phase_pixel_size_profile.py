@@ -33,9 +33,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import make_phase_figures as phase  # noqa: E402
+import make_phase_figures as phase
 
-from napari_symbac.fit.masks import class_medians, estimate_pixel_size_um  # noqa: E402
+from napari_symbac.fit.masks import class_medians, estimate_pixel_size_um
 
 OUT = phase.OUT
 
