@@ -177,6 +177,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
             kind = "image" if name == "images" else name
             write_tiff(out / f"{name}.tif", array, kind=kind, **calibration)
     print(f"wrote images.tif, labels.tif, semantic.tif {series.images.shape} to {out}")
+    _say_extra_stages(settings)
     if replaced:
         print(
             f"napari-symbac render: note: replaced the {', '.join(replaced)} that {out} "
@@ -217,8 +218,17 @@ def _cmd_export(args: argparse.Namespace) -> int:
         )
     bar.close()
     print(report)
+    _say_extra_stages(settings.pipeline)
     print(timer.report())
     return 0
+
+
+def _say_extra_stages(pipeline) -> None:
+    """Name the diagnosed effects drawn as extra stages (found as a user: diagnose said
+    export draws them, and export's own lines did not say it had)."""
+    if pipeline.extra_stages:
+        names = ", ".join(stage.name for stage in pipeline.extra_stages)
+        print(f"drawn with the settings' extra stages: {names}")
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
@@ -425,6 +435,12 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     )
     if accepted_names:
         print(f"with settings.yaml, {drawn_by_export(accepted_names)}")
+    if region != (0, frame_shape[0], 0, frame_shape[1]):  # found as a user: a 256 x 256
+        print(  # export of a 512 x 512 field, said nowhere
+            f"settings.yaml simulates the diagnosed {y1 - y0} x {x1 - x0} px window, not the "
+            f"{frame_shape[0]} x {frame_shape[1]} frame (--region full diagnoses the whole "
+            "frame)"
+        )
     print(timer.report())
     return 0
 

@@ -54,7 +54,7 @@ def test_a_bad_region_is_a_clear_error(tmp_path, capsys, region):
 
 
 @pytest.mark.slow
-def test_diagnose_command_writes_the_issue_outputs(tmp_path):
+def test_diagnose_command_writes_the_issue_outputs(tmp_path, capsys):
     case = make_case("fixed_pattern_noise", fraction_of_sd=0.9, seed=7)
     image = tmp_path / "trench.tif"
     tifffile.imwrite(image, case.images[0])  # 256 x 46: diagnosed on its first 96 rows
@@ -77,6 +77,8 @@ def test_diagnose_command_writes_the_issue_outputs(tmp_path):
     (out / "effect_stray_light.png").write_bytes(b"earlier")
     args = ["diagnose", str(image), "--microscope", str(mic), "--out", str(out)]
     assert main([*args, "--region", "0:96,0:46"]) == 0
+    said = capsys.readouterr().out
+    assert "settings.yaml simulates the diagnosed 96 x 46 px window, not the 256 x 46" in said
     doc = json.loads((out / "diagnosis.json").read_text())
     assert doc["region"] == {"rows": [0, 96], "columns": [0, 46]}
     assert set(doc) >= {"base_fit", "mismatches", "effects", "final_fit"}

@@ -52,7 +52,9 @@ def test_settings_carry_the_drawn_effects_and_refuse_others(tmp_path):
     assert "they do not draw stage_drift, which changes from frame to frame" in said
     refusals = {
         "stage_drift": "changes from frame to frame",
-        "vignette": "not an effect render and export draw",
+        "vignette": "not an effect render and export draw as a stage; the stages are",
+        "stray_lite": "(did you mean 'stray_light'?)",
+        "cell_intensity_variability": "are settings fields, not stages",
         "halo": "lacks 'amplitude_adu'",
     }
     for name, words in refusals.items():
@@ -113,6 +115,8 @@ def test_diagnose_settings_export_the_accepted_effects_of_the_real_trench(
         folder = tmp_path / name
         args = ["export", "--config", str(config), "--n-items", "2", "--out", str(folder)]
         assert main(args) == 0
+        drawn = "drawn with the settings' extra stages: fixed_pattern_noise"
+        assert (drawn in capsys.readouterr().out) == (name == "diagnosed")
         paths = sorted(folder.glob("tiff/*/images/*.tif"))
         frames[name] = np.stack([tifffile.imread(p) for p in paths]).astype(float)
     assert frames["plain"].shape[1:] == (256, 46)  # the fitted trench, the recording's frame

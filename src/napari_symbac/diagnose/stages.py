@@ -78,9 +78,14 @@ def check_drawn_stage(name: str, parameters: dict[str, Any]) -> None:
             "frame=t)))"
         )
     if name not in DRAWN:
+        import difflib
+
+        close = difflib.get_close_matches(str(name), [*DRAWN, *IN_SETTINGS], n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close and name not in IN_SETTINGS else ""
         raise ValueError(
-            f"extra stage {name!r} is not an effect render and export draw; they draw "
-            f"{', '.join(DRAWN)}"
+            f"extra stage {name!r} is not an effect render and export draw as a stage"
+            f"{hint}; the stages are {', '.join(DRAWN)} ({', '.join(IN_SETTINGS)} are "
+            "settings fields, not stages)"
         )
     try:
         stage_for(name, parameters)
