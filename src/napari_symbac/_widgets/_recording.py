@@ -56,14 +56,10 @@ def check_recording_frame(frame: Any, name: str) -> None:
     """
     import numpy as np
 
-    from napari_symbac.fit.preflight import check_fit_image
+    from napari_symbac.fit.preflight import check_fit_image, refuse_constant
 
     frame = np.asarray(frame)
-    if frame.size and np.min(frame) == np.max(frame):
-        raise ValueError(
-            f"{name} is constant (every pixel is {float(frame.flat[0]):g}): nothing to fit; "
-            "open the recording with the cells in it"
-        )
+    refuse_constant(frame, name, what="")
     check_fit_image(frame, name, camera_hint="with `napari-symbac fit --camera` (the docks "
                     "take no camera file)")  # fmt: skip
 

@@ -367,10 +367,11 @@ def export_of(pipeline: PipelineSettings, **fields: Any) -> ExportSettings:
     cells in an empty trench).
     """
     simulation = pipeline.simulation
-    if simulation.geometry in ("trench", "chamber"):
+    walled = simulation.geometry in ("trench", "chamber")
+    if walled:
         fields = {"first_frame": trench_filled_frame(simulation), **fields}
     settings = ExportSettings(pipeline=pipeline, **fields)
-    if "n_simulations" in fields or simulation.geometry in ("trench", "chamber"):
+    if "n_simulations" in fields or walled:
         return settings
     return dataclasses.replace(settings, n_simulations=min(settings.n_items, PAD_SIMULATIONS))
 

@@ -172,12 +172,13 @@ def check_modality(
     return polarity
 
 
-def refuse_constant(frame: np.ndarray, name: str) -> None:
+def refuse_constant(frame: np.ndarray, name: str, *, what: str = "IMAGE ") -> None:
     """Refuse a frame whose pixels all hold one value (a blank image: nothing to
-    fit); ``name`` is the image file's."""
+    fit); ``name`` is the image file's, after ``what`` (the CLI's argument; the docks
+    give ``""``)."""
     if frame.size and np.min(frame) == np.max(frame):
         raise ValueError(
-            f"IMAGE {name} is constant (every pixel is {float(frame.flat[0]):g}): nothing to "
+            f"{what}{name} is constant (every pixel is {float(frame.flat[0]):g}): nothing to "
             "fit; give the recording with the cells in it"
         )
 
