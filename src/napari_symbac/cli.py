@@ -297,7 +297,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from napari_symbac.diagnose.config import load_microscope_file
     from napari_symbac.diagnose.figures import write_figures
     from napari_symbac.diagnose.model import build_design
-    from napari_symbac.diagnose.region import default_region, parse_region
+    from napari_symbac.diagnose.region import default_region, parse_region, simulated_shape
     from napari_symbac.diagnose.run import diagnose
     from napari_symbac.diagnose.stages import drawn_by_export, updated_settings
     from napari_symbac.export.atomic import earlier_run, remove_earlier_run
@@ -410,9 +410,10 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             doc["notes"].append(measured_note)
         doc["camera"] = dataclasses.asdict(camera)
         doc["region"] = {"rows": [y0, y1], "columns": [x0, x1]}
-        try:  # the simulation `fit` would write, so that an export matches the window
+        layout = simulated_shape(region, frame_shape, first_fit.trench is not None)
+        try:  # the simulation `fit` would write, so that an export matches the recording
             simulation = fitted_simulation(
-                SimulationSettings(), first_fit, stack.shape[-2:], microscope.pixel_size_um
+                SimulationSettings(), first_fit, layout, microscope.pixel_size_um
             )
         except ValueError as err:
             simulation = SimulationSettings()
@@ -435,8 +436,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     )
     if accepted_names:
         print(f"with settings.yaml, {drawn_by_export(accepted_names)}")
-    if region != (0, frame_shape[0], 0, frame_shape[1]):  # found as a user: a 256 x 256
-        print(  # export of a 512 x 512 field, said nowhere
+    if layout != tuple(frame_shape):  # found as a user: a 256 x 256 export of a 512 x 512
+        print(  # field, said nowhere
             f"settings.yaml simulates the diagnosed {y1 - y0} x {x1 - x0} px window, not the "
             f"{frame_shape[0]} x {frame_shape[1]} frame (--region full diagnoses the whole "
             "frame)"

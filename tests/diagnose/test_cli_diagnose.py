@@ -10,6 +10,7 @@ import tifffile
 
 from napari_symbac.cli import main
 from napari_symbac.diagnose.concealed import make_case
+from napari_symbac.settings import PipelineSettings, load_settings
 
 PHASE_100X = {"modality": "phase", "pixel_size_um": 0.065, "NA": 1.45,
               "refractive_index": 1.518, "wavelength_um": 0.65}  # fmt: skip
@@ -78,7 +79,10 @@ def test_diagnose_command_writes_the_issue_outputs(tmp_path, capsys):
     args = ["diagnose", str(image), "--microscope", str(mic), "--out", str(out)]
     assert main([*args, "--region", "0:96,0:46"]) == 0
     said = capsys.readouterr().out
-    assert "settings.yaml simulates the diagnosed 96 x 46 px window, not the 256 x 46" in said
+    # a trench diagnosed on a window of its rows is simulated as long as the recording
+    assert "settings.yaml simulates the diagnosed" not in said
+    trench = load_settings(out / "settings.yaml", PipelineSettings).simulation.trench
+    assert trench.length_um + trench.margin_um == pytest.approx(256 * 0.065, abs=1e-9)
     doc = json.loads((out / "diagnosis.json").read_text())
     assert doc["region"] == {"rows": [0, 96], "columns": [0, 46]}
     assert set(doc) >= {"base_fit", "mismatches", "effects", "final_fit"}

@@ -4,7 +4,12 @@ from __future__ import annotations
 
 import pytest
 
-from napari_symbac.diagnose.region import MAX_DIAGNOSIS_PIXELS, default_region, parse_region
+from napari_symbac.diagnose.region import (
+    MAX_DIAGNOSIS_PIXELS,
+    default_region,
+    parse_region,
+    simulated_shape,
+)
 
 
 def test_a_small_frame_is_diagnosed_whole():
@@ -37,3 +42,12 @@ def test_parse_region():
         parse_region("0:65,0:32", (64, 32))
     with pytest.raises(ValueError, match="not of the form"):
         parse_region("0-64,0-32", (64, 32))
+
+
+def test_a_trench_window_is_simulated_as_long_as_the_frame():
+    # all the columns of a trench: the whole frame (a window may be too short to divide in)
+    assert simulated_shape((80, 176, 0, 46), (256, 46), trench=True) == (256, 46)
+    # a field, or a trench window that cuts its columns: the window
+    assert simulated_shape((128, 384, 128, 384), (512, 512), trench=False) == (256, 256)
+    assert simulated_shape((0, 96, 4, 40), (256, 46), trench=True) == (96, 36)
+    assert simulated_shape((0, 256, 0, 46), (256, 46), trench=False) == (256, 46)

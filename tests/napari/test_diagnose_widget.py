@@ -82,7 +82,18 @@ def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
     settings = residual.metadata[SYMBAC_METADATA_KEY]["settings"]
     assert isinstance(settings, PipelineSettings)
     assert settings.microscope.pixel_size_um == 0.065
-    assert settings.simulation == fitted  # Export after the diagnosis simulates as before
+    # Export after the diagnosis simulates the cells and trench its fit found (as the
+    # CLI's settings.yaml), on the Simulate tab's other choices: not the 0.9 um cells of
+    # the layer before it, nor the defaults' 3.5 um-wide trench; the trench as long as
+    # the recording, not the 96-row window (too short for the fitted cells to divide in)
+    simulation = settings.simulation
+    assert "the cells and layout fitted, sized as the recording" in widget.status.value
+    assert simulation.n_frames == fitted.n_frames
+    assert simulation.geometry == "trench"
+    assert 0.95 <= simulation.cell_width_um <= 1.3, simulation
+    trench = simulation.trench
+    assert trench.width_um + 2 * trench.margin_um == pytest.approx(46 * 0.065, abs=1e-9)
+    assert trench.length_um + trench.margin_um == pytest.approx(256 * 0.065, abs=1e-9)
     # the camera is measured from the recording (2.0 ADU/e- on the whole trench, 1.8 on
     # this window), not assumed (2.9 ADU/e- by default)
     pattern = r"camera measured from the recording \(([0-9.]+) ADU/e-"

@@ -46,6 +46,20 @@ def effect_layer_name(name: str) -> str:
     return f"diagnosis effect: {name}"
 
 
+def fitted_export_simulation(simulation, fit, shape: tuple[int, int], microscope) -> tuple:
+    """``simulation`` with what the diagnosis' base ``fit`` found (its cells' width and
+    division length, the trench or the pad's layout), sized for frames of ``shape`` px
+    (:func:`~napari_symbac.diagnose.region.simulated_shape`), as ``napari-symbac
+    diagnose`` writes to settings.yaml, and ``""``; ``simulation`` as it was and the
+    reason when the fitted one would be invalid."""
+    from napari_symbac.fit.fitted_settings import fitted_simulation
+
+    try:
+        return fitted_simulation(simulation, fit, shape, microscope.pixel_size_um), ""
+    except ValueError as err:
+        return simulation, str(err)
+
+
 class DiagnoseWidget(Container):
     """Find, name and fit the effects the forward model misses in a recording.
 
@@ -196,9 +210,11 @@ class DiagnoseWidget(Container):
             return
         cancelled = threading.Event()
         seed, candidates, n_bootstrap = self.seed.value, self.candidates, self.n_bootstrap
+        base_simulation = self._simulation_to_export()
 
         def compute(progress, cancel):
             from napari_symbac.diagnose.model import build_design
+            from napari_symbac.diagnose.region import simulated_shape
             from napari_symbac.diagnose.run import diagnose
             from napari_symbac.fit import fit_scene
 
@@ -214,6 +230,8 @@ class DiagnoseWidget(Container):
             )
             if cancel():
                 raise InterruptedError("diagnosis cancelled")
+            layout = simulated_shape(region, full, fit.trench is not None)
+            exported = fitted_export_simulation(base_simulation, fit, layout, microscope)
             design = build_design([fit.scene], microscope, fit.render, fit.camera)
             result = diagnose(
                 frame,
@@ -224,7 +242,7 @@ class DiagnoseWidget(Container):
                 progress=progress,
                 cancel=cancel,
             )
-            return fit, result
+            return fit, result, (*exported, layout != tuple(full))
 
         self.worker = Job(
             lambda: (yield from blocking_steps(compute, cancelled.is_set)),
@@ -262,9 +280,9 @@ class DiagnoseWidget(Container):
             self.status.value = "Cancelling..."
 
     def _simulation_to_export(self):
-        """The simulation of the newest simulated layer (after Auto-fit, the fitted one:
-        the recording's cells and trench), kept in the diagnosis' settings so that Export
-        from them simulates what it did before the diagnosis; the defaults without one."""
+        """The simulation of the newest simulated layer (the Simulate tab's choices, or
+        Auto-fit's), the defaults without one: the base that the diagnosis' own fit
+        updates (:func:`fitted_export_simulation`)."""
         from napari_symbac.settings import PipelineSettings
 
         for layer in reversed(self.viewer.layers):
@@ -283,11 +301,11 @@ class DiagnoseWidget(Container):
         from napari_symbac.diagnose.stages import updated_settings
         from napari_symbac.settings import PipelineSettings
 
-        fit, result = output
+        fit, result, (simulation, kept, windowed) = output
         self.result = result
         camera = fit.camera
         base = PipelineSettings(
-            simulation=self._simulation_to_export(),
+            simulation=simulation,
             microscope=self._microscope,
             render=fit.render,
             camera=camera,
@@ -341,12 +359,17 @@ class DiagnoseWidget(Container):
         self.report.value = result.report()
         accepted = [e.name for e in result.accepted]
         names = ", ".join(accepted) or "nothing significant"
+        if kept:
+            simulated = f"the simulation is kept as it was ({kept})"
+        else:
+            where = "the diagnosed window" if windowed else "the recording"
+            simulated = f"the cells and layout fitted, sized as {where}"
         self.status.value = (
             f"Accepted: {names}{self._window_note}; camera measured from the recording "
             f"({camera.sensitivity_adu_per_e:.3g} ADU/e-, read noise {camera.dark_noise_e:.3g} "
             f"e-). Updated settings are in the '{DIAGNOSIS_RESIDUAL_LAYER}' layer, which "
-            "Export now takes (its 'settings from')"
-            + (f": {drawn_by_export(accepted)}." if accepted else ".")
+            f"Export now takes (its 'settings from'): {simulated}"
+            + (f"; {drawn_by_export(accepted)}." if accepted else ".")
         )
 
     def _on_cancelled(self) -> None:

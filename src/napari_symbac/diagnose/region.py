@@ -14,7 +14,13 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["MAX_DIAGNOSIS_PIXELS", "Region", "default_region", "parse_region"]
+__all__ = [
+    "MAX_DIAGNOSIS_PIXELS",
+    "Region",
+    "default_region",
+    "parse_region",
+    "simulated_shape",
+]
 
 #: The most pixels per frame a diagnosis looks at unless told otherwise (256 x 256).
 MAX_DIAGNOSIS_PIXELS = 256 * 256
@@ -68,3 +74,17 @@ def parse_region(text: str, shape: tuple[int, int]) -> Region:
             f"region {text!r} is empty or outside the {rows} x {cols} frame: {form}"
         )
     return (y0, y1, x0, x1)
+
+
+def simulated_shape(region: Region, shape: tuple[int, int], trench: bool) -> tuple[int, int]:
+    """The frame, in pixels, that the settings of a diagnosis of ``region`` simulate.
+
+    A trench diagnosed on a window of all its columns is simulated as long as the whole
+    ``shape``: the window only saves the diagnosis' time, and a trench cut to it can be
+    too short for the fitted cells to divide in. Any other window (a field's) is
+    simulated as it is, with the cells it holds.
+    """
+    y0, y1, x0, x1 = region
+    if trench and (x0, x1) == (0, int(shape[1])):
+        return (int(shape[0]), int(shape[1]))
+    return (y1 - y0, x1 - x0)
