@@ -98,6 +98,26 @@ def test_overlapping_rods_are_penalised_and_touching_ones_are_not():
     assert np.abs(jac).sum() > 0
 
 
+def test_a_rod_through_a_trench_wall_is_penalised_and_a_tilted_one_is_not():
+    layout = Layout(1, False, False, True, False, ())  # x, y, angle, length; w, left, width
+    upright = np.array([1.2, 3.0, 0.0, 3.0, 1.0, 0.5, 1.4])
+    tilted = np.array([1.2, 3.0, -0.14, 4.7, 1.0, 0.5, 1.4])  # as on the real trench
+    across = np.array([1.2, 3.0, 1.5, 3.0, 1.0, 0.5, 1.4])  # 3 um across a 1.4 um trench
+    assert overlap_terms(upright, layout)[0].size == 0
+    assert overlap_terms(tilted, layout)[0].size == 0
+    res, jac = overlap_terms(across, layout, np.full(7, 0.05))
+    # reaches 2.99 sin(1.5) / 2 + 0.5 = 1.49 um from its centre, 0.79 um past each wall
+    expected = (1.0 * np.sin(1.5) + 0.5 - 0.7 - 0.25 * 1.0) / 0.02
+    np.testing.assert_allclose(res, [expected], rtol=1e-9)
+    # turning it upright and widening the trench both relieve it; y does not matter
+    assert jac[0, 2] > 0
+    assert jac[0, 6] < 0
+    assert jac[0, 1] == 0
+    # a pad has no walls
+    pad = Layout(1, False, False, False, False, ())
+    assert overlap_terms(across[:5], pad)[0].size == 0
+
+
 def test_polarity_comes_from_labels_before_the_modality():
     image = np.full((20, 20), 100.0)
     image[5:15, 5:15] = 500.0
