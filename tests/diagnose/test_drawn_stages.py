@@ -87,6 +87,35 @@ def test_render_draws_the_extra_stages_on_any_frame_size():
     assert np.abs(after - expected).max() <= 0.5 + 1e-3 * before.max()  # rounding
 
 
+def test_clipping_acts_on_the_recorded_values():
+    """A recording clipped at zero after background subtraction (ColiCoords: 19 % of the
+    pixels at 0) is drawn with the same spike: the noisy pixels below the level, not the
+    clean image, are clipped; the others are untouched."""
+    simulation = simulate(SimulationSettings(n_frames=2, seed=3))
+    plain = PipelineSettings(simulation=simulation.settings)
+    level = float(np.percentile(render_simulation(simulation, plain).images, 20))
+    clipped = dataclasses.replace(
+        plain,
+        extra_stages=(ExtraStage("saturation", {"clip_level_adu": level, "high": False}),),
+    )
+    before = render_simulation(simulation, plain).images  # the same seed: the same noise
+    after = render_simulation(simulation, clipped).images
+    assert after.dtype == before.dtype == np.uint16
+    np.testing.assert_array_equal(after, np.maximum(before, round(level)))
+    assert np.mean(after == round(level)) >= 0.19  # the spike
+    assert [stage.name for stage in _stages(clipped)][-2:] == ["camera", "saturation"]
+
+
+def _stages(settings: PipelineSettings):
+    from napari_symbac.diagnose.stages import drawn_stages
+    from napari_symbac.optics.forward import ForwardModel
+
+    return ForwardModel(
+        settings.microscope, settings.render, settings.camera,
+        extra_stages=drawn_stages(settings),
+    ).stages  # fmt: skip
+
+
 @pytest.mark.slow
 def test_diagnose_settings_export_the_accepted_effects_of_the_real_trench(
     tmp_path, capsys, real_data_dir

@@ -101,10 +101,7 @@ def check_drawn_stage(name: str, parameters: dict[str, Any]) -> None:
 
 def drawn_stages(settings: PipelineSettings) -> list[Stage]:
     """The forward-model stages of ``settings.extra_stages``, in order (render, export)."""
-    baseline = settings.camera.baseline_adu
-    return [
-        stage_for(s.name, s.parameters, baseline_adu=baseline) for s in settings.extra_stages
-    ]
+    return [stage_for(s.name, s.parameters) for s in settings.extra_stages]
 
 
 def drawn_by_export(names: list[str]) -> str:
@@ -125,16 +122,14 @@ def drawn_by_export(names: list[str]) -> str:
     return "; ".join(parts)
 
 
-def stage_for(
-    name: str, parameters: dict[str, Any], *, frame: int = 0, baseline_adu: float = 0.0
-) -> Stage:
+def stage_for(name: str, parameters: dict[str, Any], *, frame: int = 0) -> Stage:
     """The stage of an accepted effect (``frame`` for time-dependent effects)."""
     if name in _STATIC:
         return _STATIC[name](parameters)
     if name in TIME_DEPENDENT:
         return TIME_DEPENDENT[name](parameters, frame)
     if name == "saturation":
-        return saturation.stage(parameters, baseline_adu)
+        return saturation.stage(parameters)
     raise ValueError(f"effect {name!r} has no stage (it is carried by the settings: {IN_SETTINGS})")
 
 
@@ -166,14 +161,10 @@ def updated_settings(
     return updated, extra
 
 
-def load_extra_stages(
-    path: str | Path, *, frame: int = 0, baseline_adu: float = 0.0
-) -> list[Stage]:
+def load_extra_stages(path: str | Path, *, frame: int = 0) -> list[Stage]:
     """Stages from an ``extra_stages.yaml`` written by ``napari-symbac diagnose``."""
     data = yaml.safe_load(Path(path).read_text(encoding="utf-8")) or {}
     specs = data.get("extra_stages", []) if isinstance(data, dict) else None
     if not isinstance(specs, list):
         raise ValueError(f"{path} must hold 'extra_stages: [{{name, parameters}}, ...]'")
-    return [
-        stage_for(s["name"], s["parameters"], frame=frame, baseline_adu=baseline_adu) for s in specs
-    ]
+    return [stage_for(s["name"], s["parameters"], frame=frame) for s in specs]

@@ -84,12 +84,17 @@ class Stage:
     apply
         For extra (non-built-in) stages: ``apply(image, scene) -> image`` on the
         clean camera-resolution float32 image.
+    recorded
+        For extra stages: ``apply`` acts on the recorded image after the camera (uint16
+        ADU, baseline included), as clipping by the camera or a later processing step
+        does, not on the clean image.
     """
 
     name: str
     linear: bool
     parameters: dict[str, Any] = field(default_factory=dict)
     apply: Callable[[np.ndarray, Any], np.ndarray] | None = None
+    recorded: bool = False
 
 
 class _Cache:
@@ -157,7 +162,8 @@ class ForwardModel:
         frames on a GPU is :class:`~napari_symbac.optics.batched.BatchedRenderer` (every
         stage on the device; ``--backend torch``).
     extra_stages
-        Pointwise stages applied to the clean image before the camera.
+        Pointwise stages applied to the clean image before the camera, or (those marked
+        ``recorded``) to the recorded image after it.
 
     Examples
     --------
@@ -255,16 +261,26 @@ class ForwardModel:
                         **intensity_params,
                     },
                 ),
-                *self.extra_stages,
+                *self._clean_stages,
                 self._camera_stage(),
+                *self._recorded_stages,
             )
         return (
             Stage("psf", True, psf_params),
             Stage("resample", True, {"upsample": r.upsample}),
             Stage("intensity", False, intensity_params),
-            *self.extra_stages,
+            *self._clean_stages,
             self._camera_stage(),
+            *self._recorded_stages,
         )
+
+    @property
+    def _clean_stages(self) -> tuple[Stage, ...]:
+        return tuple(stage for stage in self.extra_stages if not stage.recorded)
+
+    @property
+    def _recorded_stages(self) -> tuple[Stage, ...]:
+        return tuple(stage for stage in self.extra_stages if stage.recorded)
 
     def _camera_stage(self) -> Stage:
         r = self.render_settings
@@ -634,7 +650,7 @@ class ForwardModel:
                 phase += np.float32(p_device) * scene.device[crop]
                 ring = self.ring_kernel(scene.pixel_size_um)
                 image = image - self._convolve_resample(phase[None], ring, scene.upsample)[0]
-        for stage in self.extra_stages:
+        for stage in self._clean_stages:
             image = np.asarray(stage.apply(image, scene), dtype=np.float32)  # type: ignore[misc]
         return image.astype(np.float32, copy=False)
 
@@ -766,15 +782,22 @@ class ForwardModel:
         return out
 
     def add_noise(self, clean: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """The ``camera`` stage: noise of ``render.noise_model``, baseline, uint16 (eq. 17)."""
+        """The ``camera`` stage: noise of ``render.noise_model``, baseline, uint16 (eq. 17),
+        then the extra stages that act on the recorded image (clipping)."""
         model = self.render_settings.noise_model
         if model == "camera":
-            return apply_camera_noise(clean, self.camera, rng)
-        if model == "gaussian":
-            return apply_gaussian_noise(
+            recorded = apply_camera_noise(clean, self.camera, rng)
+        elif model == "gaussian":
+            recorded = apply_gaussian_noise(
                 clean, self.camera, self.render_settings.gaussian_noise_sd_adu, rng
             )
-        return quantise(np.asarray(clean, np.float64) + self.camera.baseline_adu, self.camera)
+        else:
+            recorded = quantise(
+                np.asarray(clean, np.float64) + self.camera.baseline_adu, self.camera
+            )
+        for stage in self._recorded_stages:
+            recorded = np.asarray(stage.apply(recorded, None), dtype=recorded.dtype)  # type: ignore[misc]
+        return recorded
 
     def render(self, scene: Any, rng: np.random.Generator, *, cache: bool = True) -> np.ndarray:
         """Camera image (uint16) with the noise model of ``render.noise_model``.

@@ -65,12 +65,15 @@ def detect(y: np.ndarray, mu: np.ndarray, v: np.ndarray) -> tuple[Censor | None,
     return best
 
 
-def stage(parameters: dict, baseline_adu: float = 0.0) -> Stage:
-    """Forward-model stage clipping the clean image at the fitted level (above baseline)."""
-    level = float(parameters["clip_level_adu"]) - baseline_adu
+def stage(parameters: dict) -> Stage:
+    """Forward-model stage clipping the recorded image (after the camera's noise, as the
+    camera or a background subtraction clipped the recording) at the fitted level (ADU,
+    baseline included): a spike of pixels at that value, as in the recording. (Clipping
+    the clean image before the noise, as this stage did, left no spike.)"""
+    level = round(float(parameters["clip_level_adu"]))
     high = bool(parameters.get("high", True))
 
     def apply(image: np.ndarray, scene: object) -> np.ndarray:
         return np.minimum(image, level) if high else np.maximum(image, level)
 
-    return Stage(Saturation.name, False, dict(parameters), apply)
+    return Stage(Saturation.name, False, dict(parameters), apply, recorded=True)
