@@ -426,6 +426,8 @@ def _outputs_one(
     cell's track in a series (``track`` in cells.json)."""
     import tifffile
 
+    from napari_symbac.fit.camera_estimate import censored_pixels
+    from napari_symbac.fit.clipped_background import clipped_background, drawn_clipped
     from napari_symbac.fit.figure import before_after_figure
     from napari_symbac.fit.fitted_settings import fitted_simulation
     from napari_symbac.fit.report import (
@@ -455,6 +457,13 @@ def _outputs_one(
         settings = dataclasses.replace(settings, simulation=simulation)
     except ValueError as err:
         notes.append(f"simulation settings kept from the config: {err}")
+    if microscope.modality == "fluorescence" and not prepared.colony:
+        clipped = clipped_background(
+            frame, result.scene.camera_labels() > 0, censored_pixels(frame, camera)
+        )
+        if clipped is not None:  # settings.yaml draws the recording's clipped background
+            settings, sentence = drawn_clipped(settings, clipped)
+            notes.append(sentence)
 
     records = cells_records(result)
     if track_ids is not None:

@@ -95,6 +95,19 @@ def test_fluorescence_calibration_is_bright_on_dark_and_matches_the_field(
     cells = item.labels > 0
     assert cells.any()
     assert np.median(item.image[cells]) > np.median(item.image[~cells]) + 50
+    # its background is the recording's: clipped at 0 as often (19 % of the crop's
+    # pixels; 2-3 % before the censored background fit), at its level (median 26 ADU;
+    # 42 before), not the brighter, smoother one of the pixels above 0
+    real = colicoords_crop[0]
+    assert any(n.startswith("background clipped at 0 ADU") for n in cal.notes), cal.notes
+    assert np.mean(item.image == 0) == pytest.approx(np.mean(real == 0), abs=0.04)
+    real_median = np.median(real[_outside_masks(colicoords_crop)])
+    assert np.median(item.image[~cells]) == pytest.approx(real_median, rel=0.25)
+
+
+def _outside_masks(crop) -> np.ndarray:
+    """The crop's pixels outside its masks."""
+    return ~(np.asarray(crop[1]) > 0)
 
 
 def test_same_seed_same_dataset_item(fluorescence_calibration):

@@ -475,6 +475,15 @@ def test_auto_fit_fits_a_fluorescence_recording(rendered, qtbot):
     assert stored.simulation.agar_pad.n_colonies == stored.simulation.n_founders == 2
     assert stored.simulation.agar_pad.field_width_um == pytest.approx(256 * 0.08)
     _export_simulates_the_fit(tune, stored, result, real)
+    # the field is background-subtracted (19 % of its pixels at 0): the fit leaves those
+    # out, so its media level is the mean above 0; the preview and Export take the
+    # censored fit's lower level, more read noise, and clip the recorded values at 0
+    assert "The recording's background clipped at 0 ADU" in tune.status.value
+    assert stored.render.media_intensity < 0.9 * result.render.media_intensity
+    assert tune.sliders["media_intensity"].value == pytest.approx(stored.render.media_intensity)
+    assert stored.camera.dark_noise_e > result.camera.dark_noise_e
+    assert stored.extra_stages[-1].name == "saturation"
+    assert stored.extra_stages[-1].parameters == {"clip_level_adu": 0.0, "high": False}
 
 
 def test_fluorescence_gives_bright_cells_on_dark(rendered):

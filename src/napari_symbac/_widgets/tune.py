@@ -441,6 +441,31 @@ class TuneWidget(Container):
             f"{simulation.cell_max_length_um:.2f} um in {where}, as fitted{different}"
         )
 
+    def _clipped_background(self, result):
+        """A fluorescence recording's background clipped at 0 (background subtraction),
+        fitted as censored (:mod:`napari_symbac.fit.clipped_background`, as ``napari-symbac
+        fit`` and ``calibrate`` do): ``(render, camera, clip stage, sentence)`` for the
+        preview and Export, or None when the frame shown is not clipped."""
+        from napari_symbac.fit import ColonyFit
+        from napari_symbac.fit.camera_estimate import censored_pixels
+        from napari_symbac.fit.clipped_background import (
+            clip_stage,
+            clipped_background,
+            clipped_render,
+        )
+
+        if isinstance(result, ColonyFit) or result.camera is None:
+            return None
+        if self._fit_microscope.modality != "fluorescence":
+            return None
+        frame = self._frame_of(np.asarray(self.reference.value.data))
+        cells = result.scene.camera_labels() > 0
+        clipped = clipped_background(frame, cells, censored_pixels(frame))
+        if clipped is None:
+            return None
+        render, camera, sentence = clipped_render(result.render, result.camera, clipped)
+        return render, camera, clip_stage(clipped), sentence
+
     def _store_settings(self) -> None:
         layer = self.source.value
         meta = layer.metadata[SYMBAC_METADATA_KEY]
@@ -696,7 +721,9 @@ class TuneWidget(Container):
         series = _series_of(result)
         if series is not None:  # the frame shown sets the sliders (the optics are shared)
             result = series.frames[min(self._current_frame(), len(series.frames) - 1)]
-        fitted = {name: float(getattr(result.render, name)) for name in self.sliders}
+        clipped = self._clipped_background(result)
+        fit_render, fit_camera = (result.render, result.camera) if clipped is None else clipped[:2]
+        fitted = {name: float(getattr(fit_render, name)) for name in self.sliders}
         self._loading = True
         try:
             for name, value in fitted.items():
@@ -711,8 +738,8 @@ class TuneWidget(Container):
         colony = isinstance(result, ColonyFit)
         simulated = ""
         try:
-            camera = {} if result.camera is None else dataclasses.asdict(result.camera)
-            render = result.render
+            camera = {} if fit_camera is None else dataclasses.asdict(fit_camera)
+            render = fit_render
             if colony:  # its sampling was chosen for the recording's pixels
                 from napari_symbac.fit.colony import resample_render
 
@@ -734,6 +761,12 @@ class TuneWidget(Container):
             self._stale = set(range(self.preview.n_frames))
             self._show(self._current_frame())
             self._store_settings()
+            if clipped is not None:  # Export clips the recorded values as the recording
+                meta = self.source.value.metadata[SYMBAC_METADATA_KEY]
+                kept = (s for s in meta["settings"].extra_stages if s.name != "saturation")
+                meta["settings"] = dataclasses.replace(
+                    meta["settings"], extra_stages=(*kept, clipped[2])
+                )
             simulated = self._store_fitted_simulation(result)
         except ValueError as err:
             notify_warning(f"The fitted settings were not applied to the preview: {err}")
@@ -769,8 +802,8 @@ class TuneWidget(Container):
                 f"noise: Gaussian, {colony_noise_text(result)} (used by the preview and "
                 "Export)"
             )
-        elif result.camera is not None:
-            cam = result.camera
+        elif fit_camera is not None:
+            cam = fit_camera
             self.status.value += (
                 f"<br>Camera measured from the recording: {cam.sensitivity_adu_per_e:.3g} "
                 f"ADU/e-, read noise {cam.dark_noise_e:.3g} e-, baseline "
@@ -778,6 +811,8 @@ class TuneWidget(Container):
             )
             if cam.dark_noise_e == 0:
                 self.status.value += f"<br>Note: {UNMEASURED_READ_NOISE}"
+        if clipped is not None:
+            self.status.value += f"<br>The recording's {clipped[3]}"
         if nan_terms:
             message = (
                 f"Not computable (NaN): {', '.join(nan_terms)}; paint longer strokes of each "

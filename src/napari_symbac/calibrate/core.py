@@ -556,6 +556,13 @@ def calibrate(
         length_scale=length_scale,
         layout=layout,
     )
+    if microscope.modality == "fluorescence":
+        from napari_symbac.fit.clipped_background import clipped_background, drawn_clipped
+
+        clipped = clipped_background(frame, np.asarray(field_masks) > 0, ~valid)
+        if clipped is not None:
+            settings, note = drawn_clipped(settings, clipped)
+            more.append(note)
     packing, trials = None, []
     if masks is not None:
         packing = measure_packing(field_masks)
