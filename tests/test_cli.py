@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -13,7 +14,9 @@ import tifffile
 
 from napari_symbac.cli import build_parser, main
 
-COMMANDS = ["demo", "simulate", "render", "fit", "export", "defaults"]
+COMMANDS = [
+    "demo", "simulate", "render", "fit", "calibrate", "diagnose", "export", "bench", "defaults"
+]  # fmt: skip
 
 
 def test_top_level_help_lists_every_command():
@@ -26,7 +29,19 @@ def test_every_command_has_help(command, capsys):
     with pytest.raises(SystemExit) as exit_info:
         main([command, "--help"])
     assert exit_info.value.code == 0
-    assert "usage: napari-symbac" in capsys.readouterr().out
+    text = capsys.readouterr().out
+    assert "usage: napari-symbac" in text
+    # the help ends with examples, one command a line, each one the parser takes
+    examples = text.split("\nexamples:\n")[1].splitlines()
+    commands = [
+        part.partition("#")[0].strip()
+        for line in examples
+        for part in line.split("&&")
+        if part.strip().startswith("napari-symbac")
+    ]
+    assert any(c.startswith(f"napari-symbac {command}") for c in commands), examples
+    for example in commands:
+        build_parser().parse_args(shlex.split(example)[1:])  # exits 2 on a usage error
 
 
 def test_console_script_is_installed():

@@ -529,6 +529,74 @@ MICROSCOPE_HELP = (
 )
 
 
+class _HelpFormatter(argparse.HelpFormatter):
+    """argparse's help, with an ``examples:`` epilog kept line by line (argparse would
+    run its commands together into one paragraph)."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        if text.startswith("examples:"):
+            return "\n".join(indent + line for line in text.splitlines())
+        return super()._fill_text(text, width, indent)
+
+
+def _examples(*lines: str) -> str:
+    """An ``examples:`` epilog of commands (and ``# comments``), one a line."""
+    return "examples:\n" + "\n".join(f"  {line}" for line in lines)
+
+
+#: Each command's examples, as a new user would type them.
+_EXAMPLES = {
+    "demo": _examples("napari-symbac demo --out symbac-demo"),
+    "simulate": _examples(
+        "napari-symbac defaults simulation --out sim.yaml   # edit, then:",
+        "napari-symbac simulate --config sim.yaml --out sim/",
+        "napari-symbac simulate --config fitted/settings.yaml --out sim/ --frames 100",
+    ),
+    "render": _examples("napari-symbac render sim/ --config fitted/settings.yaml --out images/"),
+    "export": _examples(
+        "napari-symbac export --config fitted/settings.yaml --out dataset/ --n-items 500",
+        "napari-symbac defaults export --out export.yaml   # edit formats, sizes, then:",
+        "napari-symbac export --config export.yaml --out dataset/ --workers 2",
+    ),
+    "fit": _examples(
+        "napari-symbac defaults microscope --out microscope.yaml   # set pixel_size_um, ...",
+        "napari-symbac fit trench.tif --microscope microscope.yaml --out fitted/",
+        "napari-symbac fit field.tif --microscope microscope.yaml --modality fluorescence "
+        "--masks masks.tif --out fitted/",
+        "napari-symbac fit movie.tif --microscope microscope.yaml --frames 0-9 --out fitted/",
+        "# then a training dataset that matches the recording:",
+        "napari-symbac export --config fitted/settings.yaml --out dataset/",
+    ),
+    "calibrate": _examples(
+        "napari-symbac calibrate field.tif --microscope microscope.yaml --out matched/ "
+        "--n-items 500 --formats tiff,omnipose",
+        "napari-symbac calibrate colony.png --microscope microscope.yaml --masks "
+        "colony_masks.tif --cell-width-um 1.0 --out matched/   # pixel size unknown",
+    ),
+    "diagnose": _examples(
+        "napari-symbac diagnose trench.tif --microscope microscope.yaml --out diagnosis/",
+        "napari-symbac diagnose field.tif --microscope microscope.yaml --region full "
+        "--out diagnosis/",
+        "# then a dataset drawn with the effects it accepted:",
+        "napari-symbac export --config diagnosis/settings.yaml --out dataset/",
+    ),
+    "bench": _examples(
+        "napari-symbac bench --quick",
+        "bash tools/make-symbac-env.sh && napari-symbac bench --symbac-python "
+        "symbac-venv/bin/python --out bench/",
+    ),
+    "defaults": _examples(
+        "napari-symbac defaults microscope --out microscope.yaml",
+        "napari-symbac defaults pipeline   # print every setting",
+    ),
+}
+
+
+def _add_command(sub, name: str, **kwargs) -> argparse.ArgumentParser:
+    """The subcommand ``name``, its help ending with its examples."""
+    return sub.add_parser(name, epilog=_EXAMPLES[name], formatter_class=_HelpFormatter, **kwargs)
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse's parser, whose usage errors are one line (argparse prints the whole usage
     block first: nine lines for calibrate, the error last)."""
@@ -545,7 +613,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    demo = sub.add_parser(
+    demo = _add_command(
+        sub,
         "demo",
         help="simulate, render and export a small mother-machine dataset (no input needed)",
         description="Run the main job on the built-in defaults: simulate a mother-machine "
@@ -560,7 +629,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--yes", action="store_true", help=_YES_HELP)
     demo.set_defaults(func=_cmd_demo)
 
-    simulate = sub.add_parser(
+    simulate = _add_command(
+        sub,
         "simulate",
         help="run the growth simulation and save it",
         description="Simulate cell growth with pymunk physics (in a mother-machine trench, a "
@@ -578,7 +648,8 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--yes", action="store_true", help=_YES_HELP)
     simulate.set_defaults(func=_cmd_simulate)
 
-    render = sub.add_parser(
+    render = _add_command(
+        sub,
         "render",
         help="render a saved simulation to images and masks",
         description="Draw and render every frame of a saved simulation; writes images.tif "
@@ -591,7 +662,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_backend_options(render)
     render.set_defaults(func=_cmd_render)
 
-    export = sub.add_parser(
+    export = _add_command(
+        sub,
         "export",
         help="generate a training dataset (DeLTA, Cellpose, StarDist, COCO, CTC, ...)",
         description="Generate a randomised training dataset in parallel with dask; re-running "
@@ -624,7 +696,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_backend_options(export)
     export.set_defaults(func=_cmd_export)
 
-    fit = sub.add_parser(
+    fit = _add_command(
+        sub,
         "fit",
         help="fit cells, trench and optics to a real image (analysis by synthesis)",
         description="Fit every cell, the trench (or an open field) and the optics so the "
@@ -692,7 +765,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     fit.set_defaults(func=_cmd_fit)
 
-    cal = sub.add_parser(
+    cal = _add_command(
+        sub,
         "calibrate",
         help="fit a real image and export a training dataset matched to it",
         description="Fit a real recording (the scene fit, or the masks' scene with the "
@@ -730,7 +804,8 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument("--seed", type=int, default=0, help="dataset seed (default 0)")
     cal.set_defaults(func=_cmd_calibrate)
 
-    diag = sub.add_parser(
+    diag = _add_command(
+        sub,
         "diagnose",
         help="find where the fitted model and a recording differ, name and fit the missing physics",
         description="Fit the scene, test the catalogue of missing effects, keep those that "
@@ -759,7 +834,8 @@ def build_parser() -> argparse.ArgumentParser:
     diag.add_argument("--out", required=True, help="output folder")
     diag.set_defaults(func=_cmd_diagnose)
 
-    bench = sub.add_parser(
+    bench = _add_command(
+        sub,
         "bench",
         help="run every benchmark and print one table (optionally beside SyMBac 0.5.2)",
         description="Run every benchmark of napari-symbac (simulation, render, slider, fit, "
@@ -781,7 +857,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bench.set_defaults(func=_cmd_bench)
 
-    defaults = sub.add_parser(
+    defaults = _add_command(
+        sub,
         "defaults",
         help="print or write the default settings as a starting config",
         description="Print (or write with --out) the default settings of one kind as YAML, "

@@ -11,9 +11,10 @@ smoother background than the recording and no spike at 0 (on ColiCoords field 1:
 Here the background is fitted as what it is, a censored normal sample: pixels at the
 clip level contribute ``P(Y <= level)``, those above it their density (a Tobit model);
 the brightest 5 % (debris, out-of-focus cells) are left out and the rest is taken as
-truncated there, so that no outlier sets the spread. Its mean becomes the media intensity, its variance beyond
-the camera's shot noise the read noise, and the clip a ``saturation`` stage on the recorded
-values (:func:`napari_symbac.diagnose.effects.saturation.stage`), so that the dataset's
+truncated there, so that no outlier sets the spread. Its mean becomes the media
+intensity, its variance beyond the camera's shot noise the read noise, and the clip a
+``saturation`` stage on the recorded values
+(:func:`napari_symbac.diagnose.effects.saturation.stage`), so that the dataset's
 background has the recording's level, spread and spike at 0.
 """
 
