@@ -46,11 +46,14 @@ def fitted_simulation(
     ValueError
         If the settings this makes are invalid (e.g. a trench the cells do not fit in).
     """
+    # every change in one replace: the settings are checked as a whole (found as a user:
+    # the fitted 1.15 um trench was checked against the defaults' 1 um cells before the
+    # fitted 0.79 um cells replaced them, and the whole fit was dropped)
+    changes: dict[str, Any] = {}
     if result.trench is not None:
-        trench = result.trench_geometry(image_shape, pixel_size_um)
-        simulation = dataclasses.replace(simulation, trench=trench)
+        changes["trench"] = result.trench_geometry(image_shape, pixel_size_um)
     elif len(result.cells):
-        simulation = _laid_out_as_fitted(simulation, result, image_shape, pixel_size_um, keep)
+        changes.update(_pad_as_fitted(simulation, result, image_shape, pixel_size_um, keep))
     if len(result.cells):
         from napari_symbac.calibrate.core import division_length_um
 
@@ -61,20 +64,18 @@ def fitted_simulation(
             "cell_max_length_um": max(division, 1.3 * width),
             "max_length_var_um2": variance,
         }
-        simulation = dataclasses.replace(
-            simulation, **{k: v for k, v in sizes.items() if k not in keep}
-        )
-    return simulation
+        changes.update({k: v for k, v in sizes.items() if k not in keep})
+    return dataclasses.replace(simulation, **changes)
 
 
-def _laid_out_as_fitted(
+def _pad_as_fitted(
     simulation: SimulationSettings,
     result: Any,
     image_shape: tuple[int, int],
     pixel_size_um: float,
     keep: Collection[str],
-) -> SimulationSettings:
-    """``simulation`` as an agar pad laid out as the fitted field's cells."""
+) -> dict[str, Any]:
+    """The fields that lay ``simulation`` out as an agar pad like the fitted field's cells."""
     from napari_symbac.calibrate.core import pad_layout
     from napari_symbac.calibrate.measure import cluster_sizes
 
@@ -84,4 +85,4 @@ def _laid_out_as_fitted(
     if mine:
         kept = {k: getattr(simulation.agar_pad, k) for k in mine}
         fields["agar_pad"] = dataclasses.replace(fields["agar_pad"], **kept)
-    return dataclasses.replace(simulation, **{k: v for k, v in fields.items() if k not in keep})
+    return {k: v for k, v in fields.items() if k not in keep}
