@@ -131,6 +131,9 @@ def test_missing_pixel_size_is_asked_for_and_remembered(
     assert "implausible" in widget.warning.value
     assert not layer.metadata.get("pixel_size_um")
 
+    widget.pixel_size.value = 0.0745  # as docs/gui.md gives Sample000193: not rounded
+    assert layer.metadata["pixel_size_um"] == 0.0745
+    assert layer.scale[-1] == 0.0745
     widget.pixel_size.value = 0.065
     assert widget.warning.value == ""
     assert layer.metadata["pixel_size_um"] == pytest.approx(0.065)

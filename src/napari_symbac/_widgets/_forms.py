@@ -8,6 +8,7 @@ validates) the dataclass; invalid input raises the dataclass' own ``ValueError``
 from __future__ import annotations
 
 import dataclasses
+import math
 import typing
 from typing import Any, Literal
 
@@ -155,9 +156,13 @@ def _field_widget(name: str, annotation: Any, value: Any) -> Widget | None:
     if annotation is int:
         return SpinBox(name=name, label=label, value=value, min=-(2**31), max=2**31 - 1)
     if annotation is float:
-        return FloatSpinBox(
-            name=name, label=label, value=value, min=-1e9, max=1e9, step=_float_step(value)
-        )
+        box = FloatSpinBox(name=name, label=label, min=-1e9, max=1e9, step=_float_step(value))
+        # four significant digits of the default's size: Qt rounds every value to the
+        # box's decimals (found as a user: a pixel size of 0.0745 um became 0.074)
+        magnitude = math.floor(math.log10(abs(value))) if value else 0
+        box.native.setDecimals(max(box.native.decimals(), 3 - magnitude))
+        box.value = value
+        return box
     if _is_text(annotation):  # text and optional text (paths): empty -> None
         return LineEdit(name=name, label=label, value="" if value is None else str(value))
     return None
