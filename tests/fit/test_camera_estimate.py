@@ -223,3 +223,25 @@ def test_real_colicoords_ds3_fluorescence(real_data_dir):
     difference = first.camera.sensitivity_adu_per_e - second.camera.sensitivity_adu_per_e
     combined = np.hypot(first.sensitivity_se_adu_per_e, second.sensitivity_se_adu_per_e)
     assert abs(difference) < 4 * combined
+
+
+def test_a_kept_camera_offset_becomes_the_fits_baseline(real_data_dir):
+    """ColiCoords ds3 kept its camera offset (every pixel above 1717 ADU): the 100 ADU
+    guess would count 1650 ADU of offset as light and predict a background noise 4x the
+    real one; the variance line's zero (about 1760 ADU) is the baseline instead."""
+    from napari_symbac.fit import fit_scene
+    from napari_symbac.settings import Microscope, RenderSettings
+
+    stack = tifffile.imread(real_data_dir / "colicoords" / "test_data" / "ds3" / "flu.tif")
+    frame = stack[3, 192:320, 192:320].astype(np.float64)
+    microscope = Microscope(pixel_size_um=0.08, wavelength_um=0.53, modality="fluorescence")
+    fit = fit_scene(frame, microscope, RenderSettings(), None, geometry="open",
+                    max_iterations=3)  # fmt: skip
+    assert 1700 < fit.camera.baseline_adu <= np.quantile(frame, 0.001)
+    # the noise the fitted camera predicts on the background is the image's own
+    background = frame < np.percentile(frame, 60)
+    level = np.median(frame[background]) - fit.camera.baseline_adu
+    predicted_sd = np.sqrt(fit.camera.sensitivity_adu_per_e * level)
+    pairs = np.diff(frame, axis=1)[background[:, 1:] & background[:, :-1]]
+    measured_sd = 1.4826 * np.median(np.abs(pairs - np.median(pairs))) / np.sqrt(2)
+    assert predicted_sd == pytest.approx(measured_sd, rel=0.5)

@@ -768,14 +768,31 @@ def _measured_camera(real: np.ndarray, valid: np.ndarray, camera: Camera) -> Cam
     """The camera from the image alone: photon transfer on its high-pass residual
     (:func:`~napari_symbac.fit.camera_estimate.estimate_camera`), free of any model.
 
-    The baseline is kept from ``camera`` (one frame cannot separate it from the read
-    noise). ``None`` when the estimate fails (too little range of levels): the fit
-    then uses :func:`_camera_from_model`.
+    The baseline is the guess in ``camera`` (one frame cannot separate it from the read
+    noise), unless the variance line puts the level of zero variance so far above it
+    that the guess would predict at least twice the variance the line gives at the
+    darkest pixels (their 0.1 % quantile): the baseline is then that level (at most the
+    quantile), and the read noise 0. (Found as a user: a fluorescence series that kept
+    its camera offset, all pixels above 1717 ADU and the line's zero at 1761 ADU, was
+    fitted with the 100 ADU guess, and its noise predicted 4x too wide.) ``None`` when
+    the estimate fails (too little range of levels): the fit then uses
+    :func:`_camera_from_model`.
     """
     try:
-        return estimate_camera(real, valid=valid, camera=camera).camera
+        estimate = estimate_camera(real, valid=valid, camera=camera)
     except ValueError:
         return None
+    measured = estimate.camera
+    gain = measured.sensitivity_adu_per_e
+    zero_variance_adu = -estimate.variance_intercept_adu2 / gain
+    darkest = float(np.quantile(real[valid], 0.001))
+    if darkest - camera.baseline_adu > 2 * (darkest - zero_variance_adu):
+        baseline = min(zero_variance_adu, darkest)
+        read_variance = max(estimate.variance_intercept_adu2 + gain * baseline, 0.0)
+        measured = dataclasses.replace(
+            measured, baseline_adu=baseline, dark_noise_e=math.sqrt(read_variance) / gain
+        )
+    return measured
 
 
 def _camera_from_model(
