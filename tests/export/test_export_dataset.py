@@ -326,3 +326,20 @@ def test_the_default_export_of_a_trench_draws_full_trenches(simulation):
     assert counts[first:].min() >= 0.7 * full  # no frame of a trench still filling
     assert counts[first // 2] < 0.7 * full  # half-way there the trench was filling
     assert export_of(PipelineSettings(simulation=simulation), first_frame=0).first_frame == 0
+
+
+def test_the_default_export_of_a_fitted_colony_draws_grown_colonies():
+    """Found exporting after Auto-fit of a 182-cell Omnipose colony: images of 1, 21,
+    229 and 81 cells, from the whole run of a colony grown from one founder. A pad's
+    default export draws from its colonies' last doubling."""
+    from napari_symbac.calibrate.core import pad_layout
+    from napari_symbac.export import export_of
+    from napari_symbac.sim import simulate
+
+    fields, _ = pad_layout((400, 400), 0.07, n_colonies=1, cells_per_colony=100)
+    simulation = SimulationSettings(**fields, seed=1)
+    counts = np.array([len(f.ids) for f in simulate(simulation).frames])
+    first = export_of(PipelineSettings(simulation=simulation)).first_frame
+    assert counts[first:].min() >= 0.4 * counts[-1]
+    assert counts[first // 2] < 0.2 * counts[-1]  # the whole run held far fewer
+    assert export_of(PipelineSettings(simulation=simulation), first_frame=0).first_frame == 0

@@ -364,12 +364,16 @@ def export_of(pipeline: PipelineSettings, **fields: Any) -> ExportSettings:
     simulation, whose frames differ as it fills and divides, and its images are drawn
     from the frames after it has filled (:func:`trench_filled_frame`; found exporting a
     fit of the SyMBac trench, full of cells: a quarter of the images showed one or two
-    cells in an empty trench).
+    cells in an empty trench). A pad's images are drawn from its colonies' last doubling
+    (:func:`colony_grown_frame`; found exporting after Auto-fit of a 182-cell colony:
+    images of 1, 21, 229 and 81 cells).
     """
     simulation = pipeline.simulation
     walled = simulation.geometry in ("trench", "chamber")
     if walled:
         fields = {"first_frame": trench_filled_frame(simulation), **fields}
+    elif simulation.geometry == "agar_pad":
+        fields = {"first_frame": colony_grown_frame(simulation), **fields}
     settings = ExportSettings(pipeline=pipeline, **fields)
     if "n_simulations" in fields or walled:
         return settings
@@ -396,6 +400,21 @@ def trench_filled_frame(simulation: SimulationSettings) -> int:
     doublings = math.log2(max(1.0, capacity / simulation.n_founders))
     frame = math.ceil(doublings * doubling_min / simulation.frame_interval_min)
     return min(frame, simulation.n_frames // 2)
+
+
+def colony_grown_frame(simulation: SimulationSettings) -> int:
+    """The first frame of an agar pad's last doubling, where each colony holds at least
+    about half the cells it ends with (``calibrate`` and a fit lay a pad out so that its
+    colonies end the run at the recording's size).
+
+    The doubling time is ``ln 2 / growth rate`` (the timer's interdivision time); a run
+    shorter than one doubling gives frame 0.
+    """
+    doubling_min = math.log(2) / simulation.growth_rate_per_min
+    if simulation.growth_model == "timer":
+        doubling_min = simulation.interdivision_time_min
+    frames = math.ceil(doubling_min / simulation.frame_interval_min)
+    return max(0, simulation.n_frames - 1 - frames)
 
 
 def export_settings_from_dict(data: Mapping[str, Any]) -> ExportSettings:
