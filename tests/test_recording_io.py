@@ -112,3 +112,22 @@ def test_read_image_refuses_colour_and_other_formats_by_name(tmp_path):
     tiff = tmp_path / "stack.tif"
     tifffile.imwrite(tiff, np.ones((3, 8, 8), np.uint16))
     assert read_image(tiff).data.shape == (3, 8, 8)
+
+
+def test_a_normalised_image_is_read_as_counts():
+    from napari_symbac.io import NORMALISED_ADU_PER_UNIT, as_counts
+
+    rng = np.random.default_rng(0)
+    normalised = rng.normal(0.5, 0.1, (20, 20)).astype(np.float32)
+    normalised[0, 0] = -0.02
+    counts, note = as_counts(normalised)
+    assert counts.min() == 0
+    np.testing.assert_allclose(counts, (normalised + 0.02) * NORMALISED_ADU_PER_UNIT,
+                               rtol=1e-6)  # fmt: skip
+    assert note.startswith("normalised values (-0.02..")
+    # counts stored as floats, integers, wide ranges: as they are
+    for image in (np.round(normalised * 1000), (normalised * 1000).astype(np.uint16),
+                  normalised * 100, np.zeros((4, 4), np.uint8)):  # fmt: skip
+        same, nothing = as_counts(image)
+        assert same is image
+        assert nothing is None

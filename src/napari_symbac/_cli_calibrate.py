@@ -26,7 +26,9 @@ def read_frame(path: str, what: str) -> tuple[np.ndarray, float | None, str | No
     (:func:`napari_symbac.io.read_image`)."""
     from napari_symbac.io import read_image
 
-    recording = read_image(path, what)
+    recording = read_image(path, what, counts=True)
+    if recording.note:
+        print(f"note: {Path(path).name}: {recording.note}", file=sys.stderr)
     data = np.asarray(recording.data)
     if data.ndim != 2:
         raise ValueError(

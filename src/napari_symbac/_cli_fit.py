@@ -780,7 +780,9 @@ def run_fit(args: argparse.Namespace) -> int:
     stages = _Stages()
     stages.stage("loading inputs")
     with timer.step("load"):
-        recording = read_image(args.image, "IMAGE")
+        recording = read_image(args.image, "IMAGE", counts=True)
+        if recording.note:
+            print(f"note: {Path(args.image).name}: {recording.note}", file=sys.stderr)
         data = np.asarray(recording.data)
         name = Path(args.image).name
         if data.ndim not in (2, 3):

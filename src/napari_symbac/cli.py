@@ -322,7 +322,9 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     earlier = earlier_run(out, "diagnose", _diagnose_writes)
     timer = StepTimer()
     with timer.step("load"):
-        recording = read_image(args.image, "IMAGE")
+        recording = read_image(args.image, "IMAGE", counts=True)
+        if recording.note:
+            print(f"note: {Path(args.image).name}: {recording.note}", file=sys.stderr)
         config = load_microscope_file(args.microscope)
         for note in config.notes:
             print(f"note: {note}", file=sys.stderr)

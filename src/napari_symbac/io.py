@@ -10,13 +10,22 @@ from pathlib import Path
 import numpy as np
 
 __all__ = [
+    "NORMALISED_ADU_PER_UNIT",
+    "NORMALISED_MAX_RANGE",
     "Recording",
+    "as_counts",
     "grey_channel",
     "napari_get_reader",
     "read_image",
     "read_recording",
     "write_dataset",
 ]
+
+#: A floating-point image of fractional values spanning at most this much holds
+#: normalised intensities (DeLTA's crops, an image divided by its maximum), not counts.
+NORMALISED_MAX_RANGE = 16.0
+#: ADU per unit of a normalised image read as counts (:func:`as_counts`).
+NORMALISED_ADU_PER_UNIT = 10_000.0
 
 _TIFF_SUFFIXES = (".tif", ".tiff", ".ome.tif", ".ome.tiff")
 _PNG_SUFFIXES = (".png",)
@@ -43,6 +52,9 @@ class Recording:
         metadata by the dataset writers, or named like a mask: ``*_masks.tif``,
         ``man_seg*.tif``, ``man_track*.tif``, or in a ``labels/`` or ``masks/`` folder),
         ``"semantic"`` for semantic masks, else ``"image"``.
+    note
+        What reading did to the values, if anything (a normalised image read as
+        counts: :func:`as_counts`).
     """
 
     data: np.ndarray
@@ -50,6 +62,7 @@ class Recording:
     name: str
     modality: str | None = None
     kind: str = "image"
+    note: str | None = None
 
 
 def _pixel_size_um(tif) -> float | None:
@@ -176,7 +189,39 @@ def read_recording(path: str | Path) -> Recording:
     return Recording(data=data, pixel_size_um=pixel, name=name, modality=modality, kind=kind)
 
 
-def read_image(path: str | Path, what: str = "image") -> Recording:
+def as_counts(data: np.ndarray) -> tuple[np.ndarray, str | None]:
+    """A normalised image as counts the model can render, and a sentence; other images
+    as they are, and ``None``.
+
+    A normalised image (floating point, fractional values spanning at most
+    :data:`NORMALISED_MAX_RANGE`) has no camera counts: its noise and intensities are
+    a camera's divided by some constant. Read as they are, its dataset holds only the
+    integers 0 and 1 (found as a user on DeLTA's normalised trench). It is shifted so
+    that its minimum is 0 when it has negative values and scaled by
+    :data:`NORMALISED_ADU_PER_UNIT`: a linear map, which keeps the photon-transfer
+    line from which the fit measures the camera.
+    """
+    array = np.asarray(data)
+    if not np.issubdtype(array.dtype, np.floating) or array.size == 0:
+        return data, None
+    finite = array[np.isfinite(array)]
+    if finite.size == 0 or np.ptp(finite) > NORMALISED_MAX_RANGE:
+        return data, None
+    if np.all(finite == np.round(finite)):
+        return data, None  # whole numbers: counts (or a mask) stored as floats
+    low = float(finite.min())
+    shift = -low if low < 0 else 0.0
+    counts = (array.astype(np.float64) + shift) * NORMALISED_ADU_PER_UNIT
+    shifted = f" + {shift:.4g}" if shift else ""
+    note = (
+        f"normalised values ({low:.4g}..{float(finite.max()):.4g}, not camera counts): "
+        f"read as (value{shifted}) x {NORMALISED_ADU_PER_UNIT:g} ADU, so that the fit can "
+        "measure their noise; intensities and datasets are in those units"
+    )
+    return counts, note
+
+
+def read_image(path: str | Path, what: str = "image", *, counts: bool = False) -> Recording:
     """Read a recording for the command line: a TIFF (:func:`read_recording`) or a PNG.
 
     A PNG records no pixel size or modality. An RGB(A) image whose colour channels are
@@ -190,6 +235,9 @@ def read_image(path: str | Path, what: str = "image") -> Recording:
         ``.tif``/``.tiff``/``.ome.tif`` or ``.png`` file.
     what
         How messages name the file (``"IMAGE"``, ``"--masks"``, ...).
+    counts
+        Read a normalised image as counts (:func:`as_counts`; the recording's ``note``
+        says so): for the recording to fit, not for masks or dark frames.
 
     Raises
     ------
@@ -228,6 +276,9 @@ def read_image(path: str | Path, what: str = "image") -> Recording:
                 "(the camera's raw frame)"
             )
         recording = dataclasses.replace(recording, data=np.ascontiguousarray(grey))
+    if counts:
+        data, note = as_counts(recording.data)
+        recording = dataclasses.replace(recording, data=data, note=note)
     return recording
 
 

@@ -274,6 +274,31 @@ def test_real_trench_with_config_closed_end_round(tmp_path, real_data_dir):
     assert "the read noise is too small to measure from this image" in report
 
 
+def test_a_normalised_trench_is_read_as_counts_and_exports_phase_contrast(
+    tmp_path, real_data_dir, capsys
+):
+    """DeLTA's normalised trench (float32, -0.03..1.01): refused for its negative values,
+    then, shifted by hand, fitted and exported as a dataset of the integers 0 and 1
+    (found as a user). Read as counts it fits, and its dataset shows the trench."""
+    from napari_symbac.export import export_of
+    from napari_symbac.export.dataset import PipelineSource
+
+    microscope = save_settings(Microscope(pixel_size_um=0.065), tmp_path / "microscope.yaml")
+    out = tmp_path / "fit"
+    image = real_data_dir / "ecoli_delta_phase_normalised.tiff"
+    assert _fit(image, "--microscope", microscope, "--out", out, "--max-iterations", 2) == 0
+    said = capsys.readouterr().err
+    assert "normalised values (-0.02847..1.007, not camera counts): read as (value + " in said
+    settings = load_settings(out / "settings.yaml", PipelineSettings)
+    item = PipelineSource(export_of(settings, n_items=1)).make_unit(0)[0]
+    assert item.image.shape == (256, 32)
+    cells, rest = item.image[item.labels > 0], item.image[item.labels == 0]
+    assert np.unique(item.image).size > 500  # grey levels, not 0 and 1
+    assert len(np.unique(item.labels)) >= 4  # three cells or more
+    # dark cells against the bright media between them, as in the recording
+    assert np.median(cells) < np.percentile(rest, 90) - 1000
+
+
 def test_a_phase_colony_with_its_masks_is_fitted_with_its_halo(tmp_path, real_data_dir):
     """Found as a user: `fit` on an Omnipose colony with its masks (a grey PNG) drew the
     cells through the linear kernel, a grey copy without the colony's halo, dropped
@@ -486,16 +511,26 @@ def test_refuses_negative_values(tmp_path, truth, inputs, capsys):
     assert "--camera" in error
 
 
-def test_refuses_a_normalised_image(tmp_path, truth, inputs, capsys):
+def test_a_normalised_image_is_fitted_as_counts(tmp_path, truth, inputs, capsys):
     """A recording divided by its maximum (float 0..1) was fitted as camera counts, exit 0,
     a camera of 0.011 ADU/e-, and datasets drawn from the fit held only 0 and 1 (found
-    by trying the CLI as a user)."""
-    _, _, microscope = inputs
+    by trying the CLI as a user); then refused. It is read as counts, x 10000: a linear
+    map, so the photon-transfer line gives the camera's gain times the same factor."""
+    from napari_symbac.io import NORMALISED_ADU_PER_UNIT
+
+    raw, _, microscope = inputs
     image = tmp_path / "normalised.tif"
-    tifffile.imwrite(image, (truth.image / truth.image.max()).astype(np.float32))
-    error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope)
-    assert "holds values within 0..1 only (maximum 1)" in error
-    assert "Pass the raw recording" in error
+    top = float(truth.image.max())
+    tifffile.imwrite(image, (truth.image / top).astype(np.float32))
+    gains = []
+    for path in (raw, image):
+        out = tmp_path / path.stem
+        assert _fit(path, "--microscope", microscope, "--out", out, "--max-iterations", 2) == 0
+        camera = load_settings(out / "settings.yaml", PipelineSettings).camera
+        gains.append(camera.sensitivity_adu_per_e)
+    assert "not camera counts): read as (value) x 10000 ADU" in capsys.readouterr().err
+    assert gains[1] == pytest.approx(gains[0] * NORMALISED_ADU_PER_UNIT / top, rel=1e-3)
+    assert gains[0] == pytest.approx(truth.camera.sensitivity_adu_per_e, rel=0.2)
 
 
 def test_refuses_a_fluorescence_field_fitted_as_phase(tmp_path, real_data_dir, capsys):

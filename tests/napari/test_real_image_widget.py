@@ -8,6 +8,7 @@ import tifffile
 
 pytest.importorskip("napari", reason="the [gui] extra (napari + Qt) is not installed")
 
+from napari_symbac._widgets._recording import check_recording_frame
 from napari_symbac._widgets.real_image import RealImageWidget, class_layer_name
 from napari_symbac.fit import CLASS_VALUES
 
@@ -250,6 +251,22 @@ def test_or_open_takes_a_grey_png_as_the_fit_command_does(make_napari_viewer, re
     assert "no pixel size" in widget.warning.value
     widget.pixel_size.value = 0.134
     assert layer.metadata["pixel_size_um"] == 0.134
+
+
+def test_or_open_reads_a_normalised_trench_as_counts(make_napari_viewer, real_data_dir):
+    """Found as a user: DeLTA's normalised trench (float, -0.03..1.01) could not be
+    opened ("has negative values ... the docks take no camera file"); it opens as
+    counts, said on the dock, and the steps after take it."""
+    viewer = make_napari_viewer()
+    widget = RealImageWidget(viewer)
+    widget.file.value = real_data_dir / "ecoli_delta_phase_normalised.tiff"
+    layer = widget.image.value
+    assert layer is viewer.layers["ecoli_delta_phase_normalised"]
+    assert layer.data.min() == 0
+    assert 10_000 < layer.data.max() < 10_500
+    assert "not camera counts): read as (value + 0.02847) x 10000 ADU" in widget.result.value
+    widget.pixel_size.value = 0.065
+    check_recording_frame(layer.data, layer.name)  # what Auto-fit and Diagnose check
 
 
 def test_a_recording_without_a_modality_gets_one_from_what_it_shows(

@@ -426,6 +426,9 @@ def test_auto_fit_refuses_a_normalised_recording(rendered, real_data_dir):
     tune.fit_button.native.click()
     assert tune.fit_worker is None
     assert "delta has negative values" in tune.status.value
+    # and says how the dock reads such a file
+    assert "opened by napari-symbac (the commands, or the Real image dock's 'or open') is " \
+        "read as counts" in tune.status.value
     assert tune.fit_result is None
 
 

@@ -144,7 +144,7 @@ class RealImageWidget(Container):
             self.result.value = f"No such file: {path}"  # did nothing, under an old message)
             return
         try:
-            recording = read_image(path, "recording")
+            recording = read_image(path, "recording", counts=True)
             data = np.asarray(recording.data)
             # what the fit refuses, refused here (found as a user: an all-zero and a
             # negative-valued TIFF opened as recordings, and failed only at Auto-fit)
@@ -166,6 +166,10 @@ class RealImageWidget(Container):
             **kwargs,
         )
         self.image.value = layer
+        if recording.note:  # after the layer's own words: choosing it clears them
+            self.result.value = "<br>".join(
+                filter(None, (f"{recording.name}: {recording.note}", self.result.value))
+            )
 
     def _load_layer(self, _value=None) -> None:
         """Show the chosen layer's pixel size, modality and microscope (never another's)."""

@@ -68,13 +68,17 @@ def check_fit_image(
         raise ValueError(
             f"{name} has negative values (minimum {low:.4g}): the fit needs camera counts "
             "(ADU, camera baseline included). Pass the raw recording, or add a constant so "
-            f"that all values are >= 0 and give that constant as baseline_adu {camera_hint}"
+            f"that all values are >= 0 and give that constant as baseline_adu {camera_hint}; "
+            "a normalised image opened by napari-symbac (the commands, or the Real image "
+            "dock's 'or open') is read as counts"
         )
     high = float(np.max(image))
     if low < high <= 1:  # (a constant image is refused as such: refuse_constant)
         raise ValueError(
             f"{name} holds values within 0..1 only (maximum {high:.4g}): a normalised image "
-            "or a mask, not camera counts (ADU). Pass the raw recording as the camera wrote it"
+            "or a mask, not camera counts (ADU). Pass the raw recording as the camera wrote "
+            "it; a normalised image opened by napari-symbac (the commands, or the Real "
+            "image dock's 'or open') is read as counts"
         )
 
 
