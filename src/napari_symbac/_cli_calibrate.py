@@ -21,20 +21,32 @@ from napari_symbac._timing import StepTimer
 
 __all__ = ["read_frame", "run_calibrate"]
 
-def read_frame(path: str, what: str) -> tuple[np.ndarray, float | None, str | None]:
+def read_frame(
+    path: str, what: str, frame: int | None = None
+) -> tuple[np.ndarray, float | None, str | None]:
     """One grey 2D frame from a TIFF (with its pixel size and modality) or a PNG
-    (:func:`napari_symbac.io.read_image`)."""
+    (:func:`napari_symbac.io.read_image`; a normalised image as counts): frame ``frame``
+    of a ``(T, Y, X)`` series."""
     from napari_symbac.io import read_image
 
-    recording = read_image(path, what, counts=True)
+    recording = read_image(path, what, counts=what == "IMAGE")
     if recording.note:
         print(f"note: {Path(path).name}: {recording.note}", file=sys.stderr)
     data = np.asarray(recording.data)
-    if data.ndim != 2:
+    name = Path(path).name
+    if data.ndim == 3 and frame is not None:
+        if not 0 <= frame < len(data):
+            raise ValueError(
+                f"--frame {frame}: {what} {name} has frames 0..{len(data) - 1}"
+            )
+        data = data[frame]
+    elif data.ndim == 3:
         raise ValueError(
-            f"{what} {Path(path).name} must be one 2D frame, got shape {data.shape}: save the "
-            "frame to calibrate on by itself"
+            f"{what} {name} holds {len(data)} frames: pass --frame K (0..{len(data) - 1}) "
+            "to calibrate on one of them"
         )
+    if data.ndim != 2:
+        raise ValueError(f"{what} {name} must be one 2D frame, got shape {data.shape}")
     return data, recording.pixel_size_um, recording.modality
 
 
@@ -125,9 +137,11 @@ def run_calibrate(args: argparse.Namespace) -> int:
         )
     _check_cell_width(args.cell_width_um, args.masks)
     with timer.step("load"):
-        image, file_pixel, file_modality = read_frame(args.image, "IMAGE")
-        masks = None if args.masks is None else read_frame(args.masks, "--masks")[0]
-        labels = None if args.labels is None else read_frame(args.labels, "--labels")[0]
+        image, file_pixel, file_modality = read_frame(args.image, "IMAGE", args.frame)
+        masks = None if args.masks is None else read_frame(args.masks, "--masks", args.frame)[0]
+        labels = (
+            None if args.labels is None else read_frame(args.labels, "--labels", args.frame)[0]
+        )
         if masks is not None and not np.issubdtype(masks.dtype, np.integer):
             raise ValueError(f"--masks must hold integer cell ids, got {masks.dtype}")
         _check_inputs(args, image, masks, labels)

@@ -526,8 +526,9 @@ _YES_HELP = (
 
 MICROSCOPE_HELP = (
     "microscope YAML/JSON: modality, pixel_size_um, numerical_aperture, refractive_index, "
-    "wavelength_um, condenser[, camera]; write one to edit with `napari-symbac defaults "
-    "microscope --out M.yaml`"
+    "wavelength_um, condenser, and optionally a camera section (baseline_adu, "
+    "sensitivity_adu_per_e, dark_noise_e; without it the camera is measured from the "
+    "image); write one to edit with `napari-symbac defaults microscope --out M.yaml`"
 )
 
 
@@ -574,6 +575,8 @@ _EXAMPLES = {
         "--n-items 500 --formats tiff,omnipose",
         "napari-symbac calibrate colony.png --microscope microscope.yaml --masks "
         "colony_masks.tif --cell-width-um 1.0 --out matched/   # pixel size unknown",
+        "napari-symbac calibrate movie.tif --frame 3 --masks movie_masks.tif --microscope "
+        "microscope.yaml --out matched/",
     ),
     "diagnose": _examples(
         "napari-symbac diagnose trench.tif --microscope microscope.yaml --out diagnosis/",
@@ -709,7 +712,9 @@ def build_parser() -> argparse.ArgumentParser:
         "sits at a bound). Refuses inputs it cannot fit, saying what to pass instead.",
     )
     fit.add_argument(
-        "image", help="real image (TIFF, or a grey PNG): one frame or a (T, Y, X) series"
+        "image",
+        help="real image (TIFF or PNG; a colour PNG of equal channels is read as grey): one "
+        "frame or a (T, Y, X) series",
     )
     fit.add_argument("--microscope", required=True, help=MICROSCOPE_HELP)
     fit.add_argument("--out", required=True, help="output folder")
@@ -778,12 +783,22 @@ def build_parser() -> argparse.ArgumentParser:
         "report.txt (real against synthetic: class medians, noise, power spectrum), "
         "report.png (real | synthetic), export_settings.yaml and masks.tif.",
     )
-    cal.add_argument("image", help="real image: one 2D frame (TIFF, or a grey PNG)")
+    cal.add_argument(
+        "image",
+        help="real image (TIFF or PNG; a colour PNG of equal channels is read as grey): one "
+        "2D frame, or a (T, Y, X) series with --frame",
+    )
+    cal.add_argument(
+        "--frame", type=int, help="the frame of a (T, Y, X) series to calibrate on (and of "
+        "its masks or labels when they are a series too)"
+    )
     cal.add_argument("--microscope", required=True, help=MICROSCOPE_HELP)
     cal.add_argument("--out", required=True, help="output folder (new or empty)")
     cal_start = cal.add_mutually_exclusive_group()
     cal_start.add_argument("--masks", help="instance masks TIFF (0 background, 1..N cells)")
-    cal_start.add_argument("--labels", help="painted class labels TIFF (1 cell, 2 media)")
+    cal_start.add_argument(
+        "--labels", help="painted class labels TIFF (1 cell, 2 media, 3 device)"
+    )
     cal.add_argument(
         "--modality",
         choices=["phase", "fluorescence"],

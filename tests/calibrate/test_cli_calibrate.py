@@ -166,3 +166,28 @@ def test_calibrate_help_lists_the_frame_formats_it_writes(capsys):
     frames = [name for name, fmt in FORMATS.items() if not fmt.timeseries_only]
     assert f"frame formats: {', '.join(frames)} (default tiff)" in words
     assert "the recording's contrast" in words  # --modality says what it is
+
+
+def test_calibrate_takes_one_frame_of_a_series(real_data_dir, tmp_path, capsys):
+    """Found as a user: a (T, Y, X) recording needed a script to cut one frame out. ColiCoords
+    ds3 (4 fluorescence frames that kept the camera offset, masks for each): --frame
+    picks the frame and its masks; the offset becomes the camera baseline."""
+    ds3 = real_data_dir / "colicoords" / "test_data" / "ds3"
+    stack = tifffile.imread(ds3 / "flu.tif")[:, 128:384, 128:384]
+    masks = tifffile.imread(ds3 / "binary.tif")[:, 128:384, 128:384]
+    tifffile.imwrite(tmp_path / "movie.tif", stack)
+    tifffile.imwrite(tmp_path / "movie_masks.tif", masks)
+    (tmp_path / "m.yaml").write_text("pixel_size_um: 0.08\nwavelength_um: 0.53\n")
+    args = [
+        "calibrate", str(tmp_path / "movie.tif"), "--masks", str(tmp_path / "movie_masks.tif"),
+        "--microscope", str(tmp_path / "m.yaml"), "--modality", "fluorescence",
+        "--n-items", "2",
+    ]  # fmt: skip
+    assert main([*args, "--out", str(tmp_path / "a")]) == 2
+    assert "holds 4 frames: pass --frame K (0..3)" in capsys.readouterr().err
+    assert main([*args, "--out", str(tmp_path / "b"), "--frame", "4"]) == 2
+    assert "--frame 4: IMAGE movie.tif has frames 0..3" in capsys.readouterr().err
+    assert main([*args, "--out", str(tmp_path / "c"), "--frame", "3"]) == 0
+    report = (tmp_path / "c" / "report.txt").read_text()
+    baseline = float(report.split("camera: measured from the image: baseline ")[1].split()[0])
+    assert 1700 < baseline < float(stack[3].min()) + 50
