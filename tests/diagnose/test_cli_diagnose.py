@@ -126,10 +126,13 @@ def test_diagnose_measures_the_camera_and_reads_a_png(tmp_path, capsys):
     assert final == pytest.approx(2.9, rel=0.1)
 
 
-def test_diagnose_refuses_what_fit_refuses(tmp_path, capsys, real_data_dir):
-    """The DeLTA trench is normalised (values from -0.03): `fit` refused it with what to
-    pass, `diagnose` ran on it and reported a camera of 1.6e-06 ADU/e-."""
-    image = real_data_dir / "ecoli_delta_phase_normalised.tiff"
+def test_diagnose_refuses_what_fit_refuses(tmp_path, capsys):
+    """Found as a user: `fit` refused negative values with what to pass, `diagnose` ran on
+    them (DeLTA's normalised trench, which both now read as counts) and reported a camera
+    of 1.6e-06 ADU/e-. Counts with an offset taken off below zero are refused by both."""
+    image = tmp_path / "subtracted.tif"
+    counts = np.random.default_rng(1).poisson(500, (64, 32)).astype(np.int32) - 520
+    tifffile.imwrite(image, counts)
     mic = _microscope_file(tmp_path)
     out = tmp_path / "out"
     assert main(["diagnose", str(image), "--microscope", str(mic), "--out", str(out)]) == 2
