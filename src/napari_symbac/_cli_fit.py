@@ -429,7 +429,7 @@ def _outputs_one(
     from napari_symbac.fit.camera_estimate import censored_pixels
     from napari_symbac.fit.clipped_background import clipped_background, drawn_clipped
     from napari_symbac.fit.figure import before_after_figure
-    from napari_symbac.fit.fitted_settings import fitted_simulation
+    from napari_symbac.fit.fitted_settings import fitted_render, fitted_simulation
     from napari_symbac.fit.report import (
         UNMEASURED_READ_NOISE,
         camera_text,
@@ -445,9 +445,8 @@ def _outputs_one(
     censor_note, polarity = prepared.censor_note, prepared.polarity
     geometry = _GEOMETRIES[args.geometry]
     camera_used = getattr(result, "camera", None) or camera or base.camera
-    settings = dataclasses.replace(
-        base, microscope=microscope, render=result.render, camera=camera_used
-    )
+    render = result.render if prepared.colony else fitted_render(result)  # cells' spread
+    settings = dataclasses.replace(base, microscope=microscope, render=render, camera=camera_used)
     given = keys.get("simulation") or {}
     keep = {*given, *(f"agar_pad.{k}" for k in (given.get("agar_pad") or {}))}
     try:

@@ -474,6 +474,16 @@ def test_real_colicoords_fluorescence_field_with_masks(tmp_path, real_data_dir):
     assert (pad.field_height_um, pad.field_width_um) == pytest.approx(
         (masks.shape[0] * 0.08, masks.shape[1] * 0.08)
     )
+    # drawn with the spread of the fitted cells' own intensities, not every cell alike
+    intensities = np.array([c["intensity_adu"] for c in cells])
+    render = load_settings(out / "settings.yaml", PipelineSettings).render
+    assert render.cell_brightness_cv == pytest.approx(
+        np.std(intensities, ddof=1) / np.mean(intensities)
+    )
+    assert render.cell_brightness_cv > 0.1
+    # and with the background's clip: 0 ADU, as in the recording
+    stages = load_settings(out / "settings.yaml", PipelineSettings).extra_stages
+    assert [(s.name, s.parameters["clip_level_adu"]) for s in stages] == [("saturation", 0.0)]
 
     # a binary mask (0/1) of the same cells: its connected regions are the cells; no
     # --geometry: fluorescence shows no walls, so the default is the open field

@@ -715,6 +715,8 @@ class TuneWidget(Container):
         self.status.value = f"Fitting: {done} of about {total} renders"
 
     def _on_fit_returned(self, result) -> None:
+        from napari_symbac.fit import ColonyFit
+        from napari_symbac.fit.fitted_settings import fitted_render
         from napari_symbac.fit.report import UNMEASURED_READ_NOISE, fit_problems
 
         self.fit_result = result
@@ -723,6 +725,10 @@ class TuneWidget(Container):
             result = series.frames[min(self._current_frame(), len(series.frames) - 1)]
         clipped = self._clipped_background(result)
         fit_render, fit_camera = (result.render, result.camera) if clipped is None else clipped[:2]
+        if not isinstance(result, ColonyFit):  # the cells' own brightness spread
+            fit_render = dataclasses.replace(
+                fit_render, cell_brightness_cv=fitted_render(result).cell_brightness_cv
+            )
         fitted = {name: float(getattr(fit_render, name)) for name in self.sliders}
         self._loading = True
         try:
@@ -733,8 +739,6 @@ class TuneWidget(Container):
             self._show_model_sliders(result.render, self.modality.value)
         finally:
             self._loading = False
-        from napari_symbac.fit import ColonyFit
-
         colony = isinstance(result, ColonyFit)
         simulated = ""
         try:
