@@ -131,3 +131,15 @@ def test_a_normalised_image_is_read_as_counts():
         same, nothing = as_counts(image)
         assert same is image
         assert nothing is None
+
+
+def test_the_reader_reads_a_normalised_image_as_counts(real_data_dir):
+    """Found as a user: File -> Open with napari-symbac's reader kept DeLTA's normalised
+    trench as floats, which Auto-fit then refused, while the dock's *or open* read it as
+    counts."""
+    path = real_data_dir / "ecoli_delta_phase_normalised.tiff"
+    ((data, meta, kind),) = napari_get_reader(str(path))(str(path))
+    assert kind == "image"
+    assert data.min() == 0
+    assert 10_000 < data.max() < 10_500
+    assert "read as (value + 0.02847) x 10000 ADU" in meta["metadata"]["counts_note"]

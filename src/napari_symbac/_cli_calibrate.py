@@ -50,6 +50,24 @@ def read_frame(
     return data, recording.pixel_size_um, recording.modality
 
 
+def _refuse_a_trench(image: np.ndarray, modality: str, path: str) -> None:
+    """calibrate lays a field out as an agar pad; a mother-machine trench (a phase image
+    at most :data:`~napari_symbac.fit.preflight.TRENCH_MAX_WIDTH_PX` wide, the fit's own
+    rule) is refused with the commands that match one (found as a user: DeLTA's trench
+    became a 2 x 17 um pad, and 3 of 4 images held no cell)."""
+    from napari_symbac.fit.preflight import default_geometry
+
+    if default_geometry(image.shape[-1], modality) == "trench":
+        name = Path(path).name
+        raise ValueError(
+            f"IMAGE {name} is {image.shape[-1]} px wide: a mother-machine trench, which "
+            "calibrate does not lay out (it matches fields: agar pads and colonies). Fit the "
+            f"trench and export from its settings: `napari-symbac fit {name} --microscope "
+            "M.yaml --out FIT`, then `napari-symbac export --config FIT/settings.yaml --out "
+            "DATASET`"
+        )
+
+
 def _write_png(path: Path, rgb: np.ndarray) -> None:
     import imageio.v3 as iio
 
@@ -155,6 +173,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
             or microscope_sets_pixel_size(args.microscope),
         )
         modality = args.modality or file_modality or microscope.modality
+        _refuse_a_trench(image, modality, args.image)
         if args.cell_width_um is not None:
             pixel_note = f"from the masks' median width and --cell-width-um {args.cell_width_um}"
     print("napari-symbac calibrate: fitting", file=sys.stderr, flush=True)

@@ -324,7 +324,10 @@ def _read_layers(path) -> list[tuple]:
     is_mask = recording.kind in ("labels", "semantic")
     if is_mask and np.issubdtype(recording.data.dtype, np.integer):
         return [(recording.data, meta, "labels")]
-    return [(recording.data, meta, "image")]
+    data, note = as_counts(recording.data)  # as the Real image dock's *or open* reads it
+    if note:
+        meta["metadata"]["counts_note"] = note
+    return [(data, meta, "image")]
 
 
 def _layer_pixel_size_um(meta: dict) -> float:

@@ -191,3 +191,18 @@ def test_calibrate_takes_one_frame_of_a_series(real_data_dir, tmp_path, capsys):
     report = (tmp_path / "c" / "report.txt").read_text()
     baseline = float(report.split("camera: measured from the image: baseline ")[1].split()[0])
     assert 1700 < baseline < float(stack[3].min()) + 50
+
+
+def test_calibrate_refuses_a_trench_and_names_fit_and_export(real_data_dir, tmp_path, capsys):
+    """Found as a user: DeLTA's trench (32 px wide) was laid out as a 2 x 17 um agar pad,
+    and 3 of 4 images held no cell."""
+    (tmp_path / "m.yaml").write_text("pixel_size_um: 0.065\n")
+    image = real_data_dir / "ecoli_delta_phase_normalised.tiff"
+    out = tmp_path / "out"
+    code = main(["calibrate", str(image), "--microscope", str(tmp_path / "m.yaml"),
+                 "--out", str(out)])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "is 32 px wide: a mother-machine trench" in err
+    assert "napari-symbac export --config FIT/settings.yaml" in err
+    assert not out.exists()

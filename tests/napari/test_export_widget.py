@@ -35,6 +35,11 @@ def test_export_three_items(widget, qtbot, tmp_path):
         assert tifffile.imread(path).ndim == 2
     assert (tmp_path / "dataset" / "manifest.json").is_file()
     assert "complete" in widget.status.value
+    # no rendered layer: the dataset is the defaults', said when it is done (found as a
+    # user: said only while exporting)
+    assert widget.status.value.endswith(
+        "(settings: the built-in defaults, not matched to any recording: simulate or fit first)"
+    )
 
 
 def test_no_folder_is_reported(widget):

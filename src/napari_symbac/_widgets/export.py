@@ -108,6 +108,7 @@ class ExportWidget(Container):
             event.connect(self._refresh_source)
         self.worker: Job | None = None
         self.report = None
+        self._origin = ""
         self._refresh_source()
 
     def _refresh_source(self, event=None) -> None:
@@ -174,7 +175,11 @@ class ExportWidget(Container):
             return
         workers = self.workers.value
         backend = self.backend.value
-        origin = self.source.value.name if self.source.value is not None else "built-in defaults"
+        origin = (
+            f"'{self.source.value.name}'"
+            if self.source.value is not None
+            else "the built-in defaults, not matched to any recording: simulate or fit first"
+        )
         cancelled = threading.Event()
 
         def work():
@@ -206,6 +211,7 @@ class ExportWidget(Container):
         )
         self.export_button.enabled = False
         self.cancel_button.enabled = True
+        self._origin = origin
         self.status.value = (
             f"Exporting {settings.n_images} images to {folder} (settings: {origin})..."
         )
@@ -223,7 +229,9 @@ class ExportWidget(Container):
 
     def _on_returned(self, report) -> None:
         self.report = report
-        self.status.value = str(report)
+        # which settings stays said (found as a user: with no rendered layer the dataset
+        # was the defaults' trench, said only while exporting)
+        self.status.value = f"{report} (settings: {self._origin})"
 
     def _on_errored(self, err: BaseException) -> None:
         self.status.value = f"Export failed: {err}"

@@ -162,14 +162,14 @@ class RealImageWidget(Container):
         layer = self.viewer.add_image(
             recording.data,
             name=recording.name,
-            metadata={"pixel_size_um": recording.pixel_size_um, "modality": recording.modality},
+            metadata={
+                "pixel_size_um": recording.pixel_size_um,
+                "modality": recording.modality,
+                **({"counts_note": recording.note} if recording.note else {}),
+            },
             **kwargs,
         )
         self.image.value = layer
-        if recording.note:  # after the layer's own words: choosing it clears them
-            self.result.value = "<br>".join(
-                filter(None, (f"{recording.name}: {recording.note}", self.result.value))
-            )
 
     def _load_layer(self, _value=None) -> None:
         """Show the chosen layer's pixel size, modality and microscope (never another's)."""
@@ -179,8 +179,11 @@ class RealImageWidget(Container):
         if getattr(layer, "rgb", False):
             self._use_grey_channel(layer)
             return
-        self.result.value = ""  # another layer's words (a refused file, its measures)
         meta = layer.metadata
+        # not another layer's words (a refused file, its measures); a normalised image
+        # read as counts says so (the reader's, or *or open*'s: io.as_counts)
+        note = meta.get("counts_note")
+        self.result.value = f"{layer.name}: {note}" if note else ""
         pixel = meta.get("pixel_size_um")
         if not pixel and layer.scale[-1] != 1:  # a layer already scaled to micrometres
             pixel = float(layer.scale[-1])
