@@ -461,7 +461,7 @@ def _outputs_one(
             frame, result.scene.camera_labels() > 0, censored_pixels(frame, camera)
         )
         if clipped is not None:  # settings.yaml draws the recording's clipped background
-            settings, sentence = drawn_clipped(settings, clipped)
+            settings, sentence = drawn_clipped(settings, clipped, noise=camera is None)
             notes.append(sentence)
 
     records = cells_records(result)

@@ -58,3 +58,13 @@ def test_the_drawn_background_has_the_fitted_mean_spread_and_clip():
     assert settings.extra_stages[-1].name == "saturation"
     assert settings.extra_stages[-1].parameters == {"clip_level_adu": 0.0, "high": False}
     assert "background clipped at 0 ADU (25" in sentence
+
+
+def test_a_given_camera_keeps_its_read_noise():
+    image, cells = _subtracted_field(seed=4)
+    clipped = clipped_background(image, cells, censored_pixels(image))
+    camera = Camera(baseline_adu=1.0, sensitivity_adu_per_e=4.0, dark_noise_e=0.5)
+    settings, sentence = drawn_clipped(PipelineSettings(camera=camera), clipped, noise=False)
+    assert settings.camera == camera
+    assert settings.render.media_intensity == pytest.approx(clipped.mean_adu - 1.0)
+    assert "read noise" not in sentence

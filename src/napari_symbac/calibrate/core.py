@@ -545,8 +545,6 @@ def calibrate(
             )
         render, note = _with_debris(frame, field_masks, valid, microscope, render)
         notes.append(note)
-    if not dense:
-        notes.append("camera: " + _camera_note(fitted_camera, camera))
     settings, more = settings_from_fit(
         measurements,
         microscope,
@@ -561,8 +559,10 @@ def calibrate(
 
         clipped = clipped_background(frame, np.asarray(field_masks) > 0, ~valid)
         if clipped is not None:
-            settings, note = drawn_clipped(settings, clipped)
+            settings, note = drawn_clipped(settings, clipped, noise=camera is None)
             more.append(note)
+    if not dense:  # the camera drawn (a clipped background's read noise included)
+        notes.append("camera: " + _camera_note(settings.camera, camera))
     packing, trials = None, []
     if masks is not None:
         packing = measure_packing(field_masks)

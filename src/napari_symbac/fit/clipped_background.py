@@ -126,32 +126,33 @@ def clipped_background(
 
 
 def clipped_render(
-    render: RenderSettings, camera: Camera, clipped: ClippedBackground
+    render: RenderSettings, camera: Camera, clipped: ClippedBackground, *, noise: bool = True
 ) -> tuple[RenderSettings, Camera, str]:
     """``render`` and ``camera`` whose images have the background of ``clipped`` before
     its clipping, and a sentence.
 
     The media intensity becomes the background's mean above the camera baseline, and
-    the noise beyond the shot noise of that level the camera's read noise (the Gaussian
-    noise's s.d. for ``noise_model: gaussian``). :func:`clip_stage` then clips them.
+    (with ``noise``; not for a camera the user gave) the noise beyond the shot noise of
+    that level the camera's read noise (the Gaussian noise's s.d. for ``noise_model:
+    gaussian``). :func:`clip_stage` then clips them.
     """
     media = max(clipped.mean_adu - camera.baseline_adu, 0.0)
-    noise = ""
-    if render.noise_model == "camera":
+    said = ""
+    if noise and render.noise_model == "camera":
         gain = camera.sensitivity_adu_per_e
         read_variance = clipped.sd_adu**2 - gain * media
         if read_variance > 0:
             camera = dataclasses.replace(camera, dark_noise_e=math.sqrt(read_variance) / gain)
-            noise = f", read noise {camera.dark_noise_e:.2f} e- (the spread beyond shot noise)"
-    elif render.noise_model == "gaussian":
+            said = f", read noise {camera.dark_noise_e:.2f} e- (the spread beyond shot noise)"
+    elif noise and render.noise_model == "gaussian":
         render = dataclasses.replace(render, gaussian_noise_sd_adu=clipped.sd_adu)
-        noise = f", Gaussian noise {clipped.sd_adu:.1f} ADU"
+        said = f", Gaussian noise {clipped.sd_adu:.1f} ADU"
     sentence = (
         f"background clipped at {clipped.level_adu:g} ADU ({100 * clipped.fraction:.1f} % of "
         f"the background pixels; background subtraction): fitted as censored, mean "
         f"{clipped.mean_adu:.1f} ADU, s.d. {clipped.sd_adu:.1f} (the fit without the clipped "
         f"pixels: media {render.media_intensity:.1f} ADU above the baseline); drawn with media "
-        f"{media:.1f} ADU{noise} and the recorded values clipped at {clipped.level_adu:g} ADU"
+        f"{media:.1f} ADU{said} and the recorded values clipped at {clipped.level_adu:g} ADU"
     )
     return dataclasses.replace(render, media_intensity=media), camera, sentence
 
@@ -162,11 +163,13 @@ def clip_stage(clipped: ClippedBackground) -> ExtraStage:
 
 
 def drawn_clipped(
-    settings: PipelineSettings, clipped: ClippedBackground
+    settings: PipelineSettings, clipped: ClippedBackground, *, noise: bool = True
 ) -> tuple[PipelineSettings, str]:
     """``settings`` whose renders have the background of ``clipped`` (:func:`clipped_render`
     and :func:`clip_stage`, in place of any clipping they had), and a sentence."""
-    render, camera, sentence = clipped_render(settings.render, settings.camera, clipped)
+    render, camera, sentence = clipped_render(
+        settings.render, settings.camera, clipped, noise=noise
+    )
     stages = (*(s for s in settings.extra_stages if s.name != "saturation"), clip_stage(clipped))
     drawn = dataclasses.replace(settings, render=render, camera=camera, extra_stages=stages)
     return drawn, sentence
