@@ -289,6 +289,9 @@ def test_a_normalised_trench_is_read_as_counts_and_exports_phase_contrast(
     assert _fit(image, "--microscope", microscope, "--out", out, "--max-iterations", 2) == 0
     said = capsys.readouterr().err
     assert "normalised values (-0.02847..1.007, not camera counts): read as (value + " in said
+    # its cells are darker than the linear kernel draws them: the limit is said
+    report = (out / "report.txt").read_text()
+    assert "at a bound: cell_intensity is 0 ADU, the least the model allows" in report
     settings = load_settings(out / "settings.yaml", PipelineSettings)
     item = PipelineSource(export_of(settings, n_items=1)).make_unit(0)[0]
     assert item.image.shape == (256, 32)

@@ -145,6 +145,14 @@ def fit_problems(
             "at a bound (its value is a limit, not a measurement; its standard error means "
             f"nothing): {', '.join(at_bounds)}"
         )
+    render = getattr(result, "render", None)
+    if render is not None and len(getattr(result, "cells", ())) and render.cell_intensity <= 0:
+        # the intensities are solved in closed form, never below 0: no engine bound says
+        # it (found as a user on DeLTA's normalised trench: "cell_intensity 0 +- 1.97")
+        problems.append(
+            "at a bound: cell_intensity is 0 ADU, the least the model allows (the cells are "
+            "darker than its kernel draws them; a limit, not a measurement)"
+        )
     worse = math.isfinite(before) and math.isfinite(after) and after > before
     if worse and not any("worse than its start" in w for w in warnings):
         problems.append(
