@@ -27,11 +27,9 @@ def read_frame(
     """One grey 2D frame from a TIFF (with its pixel size and modality) or a PNG
     (:func:`napari_symbac.io.read_image`; a normalised image as counts): frame ``frame``
     of a ``(T, Y, X)`` series."""
-    from napari_symbac.io import read_image
+    from napari_symbac._cli_fit import read_recording
 
-    recording = read_image(path, what, counts=what == "IMAGE")
-    if recording.note:
-        print(f"note: {Path(path).name}: {recording.note}", file=sys.stderr)
+    recording = read_recording(path, what, counts=what == "IMAGE")
     data = np.asarray(recording.data)
     name = Path(path).name
     if data.ndim == 3 and frame is not None:

@@ -22,7 +22,7 @@ from scipy import ndimage
 
 from napari_symbac._timing import StepTimer, progress_bar
 
-__all__ = ["parse_frames", "run_fit"]
+__all__ = ["parse_frames", "read_recording", "run_fit"]
 
 _GEOMETRIES = {"trench": "trench", "field": "open"}
 
@@ -120,6 +120,17 @@ def _config_note(config: str | None, keys: dict[str, Any], geometry: str) -> str
         )
     note = f"{config}: used {', '.join(used)}"
     return note + (f"; not used: {'; '.join(ignored)}" if ignored else "")
+
+
+def read_recording(path: str, what: str = "IMAGE", *, counts: bool = True):
+    """The recording at ``path`` (:func:`napari_symbac.io.read_image`, a normalised image
+    as counts when ``counts``), its reading note ("read as counts ...") said on stderr."""
+    from napari_symbac.io import read_image
+
+    recording = read_image(path, what, counts=counts)
+    if recording.note:
+        print(f"note: {Path(path).name}: {recording.note}", file=sys.stderr)
+    return recording
 
 
 def _read_stack(path: str, what: str) -> np.ndarray:
@@ -766,7 +777,6 @@ def run_fit(args: argparse.Namespace) -> int:
         resolve_pixel_size,
     )
     from napari_symbac.fit.report import write_atomically
-    from napari_symbac.io import read_image
     from napari_symbac.settings import (
         PipelineSettings,
         load_microscope,
@@ -779,9 +789,7 @@ def run_fit(args: argparse.Namespace) -> int:
     stages = _Stages()
     stages.stage("loading inputs")
     with timer.step("load"):
-        recording = read_image(args.image, "IMAGE", counts=True)
-        if recording.note:
-            print(f"note: {Path(args.image).name}: {recording.note}", file=sys.stderr)
+        recording = read_recording(args.image)
         data = np.asarray(recording.data)
         name = Path(args.image).name
         if data.ndim not in (2, 3):

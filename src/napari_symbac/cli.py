@@ -294,6 +294,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     import numpy as np
     import yaml
 
+    from napari_symbac._cli_fit import read_recording
     from napari_symbac.diagnose.config import load_microscope_file
     from napari_symbac.diagnose.figures import write_figures
     from napari_symbac.diagnose.model import build_design
@@ -302,7 +303,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from napari_symbac.diagnose.stages import drawn_by_export, updated_settings
     from napari_symbac.export.atomic import earlier_run, remove_earlier_run
     from napari_symbac.fit import fit_scene
-    from napari_symbac.fit.fitted_settings import fitted_simulation
+    from napari_symbac.fit.fitted_settings import fitted_or_kept
     from napari_symbac.fit.preflight import (
         check_fit_image,
         default_geometry,
@@ -322,9 +323,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     earlier = earlier_run(out, "diagnose", _diagnose_writes)
     timer = StepTimer()
     with timer.step("load"):
-        recording = read_image(args.image, "IMAGE", counts=True)
-        if recording.note:
-            print(f"note: {Path(args.image).name}: {recording.note}", file=sys.stderr)
+        recording = read_recording(args.image)
         config = load_microscope_file(args.microscope)
         for note in config.notes:
             print(f"note: {note}", file=sys.stderr)
@@ -413,13 +412,12 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         doc["camera"] = dataclasses.asdict(camera)
         doc["region"] = {"rows": [y0, y1], "columns": [x0, x1]}
         layout = simulated_shape(region, frame_shape, first_fit.trench is not None)
-        try:  # the simulation `fit` would write, so that an export matches the recording
-            simulation = fitted_simulation(
-                SimulationSettings(), first_fit, layout, microscope.pixel_size_um
-            )
-        except ValueError as err:
-            simulation = SimulationSettings()
-            doc["notes"].append(f"settings.yaml simulates the defaults: {err}")
+        # the simulation `fit` would write, so that an export matches the recording
+        simulation, invalid = fitted_or_kept(
+            SimulationSettings(), first_fit, layout, microscope.pixel_size_um
+        )
+        if invalid:
+            doc["notes"].append(f"settings.yaml simulates the defaults: {invalid}")
         (out / "diagnosis.json").write_text(json.dumps(doc, indent=2, default=float))
         (out / "report.txt").write_text(result.report() + "\n")
         figures = write_figures(result, stack, out, name=Path(args.image).name)

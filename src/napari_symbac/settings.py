@@ -179,6 +179,9 @@ class TrenchGeometry:
         this leave media above and below them.
     margin_um
         Device (PDMS) shown around the trench on the left, right and closed end.
+    top_margin_um
+        Device shown above the closed end when it differs from the sides' (a fit keeps
+        the recording's: ``napari-symbac fit`` writes it); ``None``: ``margin_um``.
     closed_end
         Shape of the closed end in the rendered image: ``"square"`` (corners of media)
         or ``"round"`` (a semicircle of diameter ``width_um``, PDMS in the corners, as
@@ -189,12 +192,20 @@ class TrenchGeometry:
     width_um: float = 1.4
     depth_um: float = 1.2
     margin_um: float = 0.8
+    top_margin_um: float | None = None
     closed_end: ClosedEnd = "square"
 
     def __post_init__(self) -> None:
         _positive(self, "length_um", "width_um", "depth_um")
         _non_negative(self, "margin_um")
+        if self.top_margin_um is not None:
+            _non_negative(self, "top_margin_um")
         _choice(self, "closed_end", typing.get_args(ClosedEnd))
+
+    @property
+    def shown_top_um(self) -> float:
+        """Device shown above the closed end: ``top_margin_um``, else ``margin_um``."""
+        return self.margin_um if self.top_margin_um is None else self.top_margin_um
 
 
 @dataclass(frozen=True)

@@ -15,13 +15,15 @@ from napari_symbac.sim import simulate
 def test_a_narrow_trench_of_narrow_cells_is_kept_whole():
     """Cells 0.8 um wide in a 1.1 um trench (as DeLTA's): the defaults' 1 um cells do
     not fit the fitted trench, the fitted cells do (found as a user: the trench was
-    checked against the defaults' cells first, and the whole fit was dropped)."""
+    checked against the defaults' cells first, and the whole fit was dropped). Its
+    closed end, 1.5 um below the image's top edge, stays there (found as a user: the
+    export's closed end sat at the sides' margin, 15 px too high on DeLTA's trench)."""
     narrow = SimulationSettings(
         n_frames=30,
         seed=4,
         cell_width_um=0.8,
         width_var_um2=0.0,
-        trench=TrenchGeometry(length_um=10.0, width_um=1.1, margin_um=0.6),
+        trench=TrenchGeometry(length_um=10.0, width_um=1.1, margin_um=0.6, top_margin_um=1.5),
     )
     simulation = simulate(narrow)
     settings = PipelineSettings(simulation=narrow)
@@ -35,4 +37,9 @@ def test_a_narrow_trench_of_narrow_cells_is_kept_whole():
     assert fitted.cell_width_um == pytest.approx(0.8, abs=0.1)
     assert fitted.trench.width_um + 2 * fitted.trench.margin_um == pytest.approx(
         frame.shape[1] * 0.065
+    )
+    # the closed end stays where it was fitted (not at the sides' margin)
+    assert fitted.trench.top_margin_um == pytest.approx(1.5, abs=0.1)
+    assert fitted.trench.length_um + fitted.trench.top_margin_um == pytest.approx(
+        frame.shape[0] * 0.065
     )

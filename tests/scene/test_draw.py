@@ -207,6 +207,36 @@ def test_trench_origin_and_camera_shape_place_the_trench(cells_factory):
         draw_scene(cells, TRENCH, MIC, RS, camera_shape=(0, 10))
 
 
+def test_a_top_margin_of_its_own_moves_the_closed_end_down(cells_factory):
+    """``top_margin_um`` (a fitted trench's closed end) adds device rows above the
+    trench, and is the same as placing the trench there by hand."""
+    import dataclasses
+
+    cells = cells_factory([3.0, 7.0])
+    top = dataclasses.replace(TRENCH, top_margin_um=2.0)
+    assert TRENCH.shown_top_um == TRENCH.margin_um and top.shown_top_um == 2.0
+    scene = draw_scene(cells, top, MIC, RS)
+    plain = draw_scene(cells, TRENCH, MIC, RS)
+    extra_rows = round((TRENCH.length_um + 2.0) / MIC.pixel_size_um) - plain.camera_shape[0]
+    assert scene.camera_shape == (plain.camera_shape[0] + extra_rows, plain.camera_shape[1])
+    placed = draw_scene(
+        cells,
+        TRENCH,
+        MIC,
+        RS,
+        trench_origin_um=(TRENCH.margin_um, 2.0),
+        camera_shape=scene.camera_shape,
+    )
+    for name in ("cells", "media", "device", "labels"):
+        np.testing.assert_array_equal(getattr(scene, name), getattr(placed, name))
+    # the closed end: device down to 2 um in the trench's middle column
+    column = scene.device[:, scene.shape[1] // 2]
+    first_media = np.argmax(column < 0.5) - RS.psf_radius_px
+    assert first_media * scene.pixel_size_um == pytest.approx(2.0, abs=scene.pixel_size_um)
+    with pytest.raises(ValueError, match="top_margin_um"):
+        TrenchGeometry(top_margin_um=-1.0)
+
+
 def test_empty_frame_and_scene_is_read_only(cells_factory):
     scene = draw_scene(cells_factory([]), TRENCH, MIC, RS)
     assert scene.labels.max() == 0

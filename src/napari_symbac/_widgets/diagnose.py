@@ -46,20 +46,6 @@ def effect_layer_name(name: str) -> str:
     return f"diagnosis effect: {name}"
 
 
-def fitted_export_simulation(simulation, fit, shape: tuple[int, int], microscope) -> tuple:
-    """``simulation`` with what the diagnosis' base ``fit`` found (its cells' width and
-    division length, the trench or the pad's layout), sized for frames of ``shape`` px
-    (:func:`~napari_symbac.diagnose.region.simulated_shape`), as ``napari-symbac
-    diagnose`` writes to settings.yaml, and ``""``; ``simulation`` as it was and the
-    reason when the fitted one would be invalid."""
-    from napari_symbac.fit.fitted_settings import fitted_simulation
-
-    try:
-        return fitted_simulation(simulation, fit, shape, microscope.pixel_size_um), ""
-    except ValueError as err:
-        return simulation, str(err)
-
-
 class DiagnoseWidget(Container):
     """Find, name and fit the effects the forward model misses in a recording.
 
@@ -217,6 +203,7 @@ class DiagnoseWidget(Container):
             from napari_symbac.diagnose.region import simulated_shape
             from napari_symbac.diagnose.run import diagnose
             from napari_symbac.fit import fit_scene
+            from napari_symbac.fit.fitted_settings import fitted_or_kept
 
             fit = fit_scene(
                 frame,
@@ -231,7 +218,7 @@ class DiagnoseWidget(Container):
             if cancel():
                 raise InterruptedError("diagnosis cancelled")
             layout = simulated_shape(region, full, fit.trench is not None)
-            exported = fitted_export_simulation(base_simulation, fit, layout, microscope)
+            exported = fitted_or_kept(base_simulation, fit, layout, microscope.pixel_size_um)
             design = build_design([fit.scene], microscope, fit.render, fit.camera)
             result = diagnose(
                 frame,
@@ -282,7 +269,7 @@ class DiagnoseWidget(Container):
     def _simulation_to_export(self):
         """The simulation of the newest simulated layer (the Simulate tab's choices, or
         Auto-fit's), the defaults without one: the base that the diagnosis' own fit
-        updates (:func:`fitted_export_simulation`)."""
+        updates (:func:`~napari_symbac.fit.fitted_settings.fitted_or_kept`)."""
         from napari_symbac.settings import PipelineSettings
 
         for layer in reversed(self.viewer.layers):

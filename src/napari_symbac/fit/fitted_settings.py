@@ -89,6 +89,18 @@ def fitted_simulation(
     return dataclasses.replace(simulation, **changes)
 
 
+def fitted_or_kept(
+    simulation: SimulationSettings, result: Any, image_shape: tuple[int, int], pixel_size_um: float
+) -> tuple[SimulationSettings, str]:
+    """:func:`fitted_simulation` and ``""``; ``simulation`` as it was and the reason
+    when the fitted settings would be invalid (``napari-symbac diagnose`` and the
+    Diagnose dock say it, and the export keeps the settings it had)."""
+    try:
+        return fitted_simulation(simulation, result, image_shape, pixel_size_um), ""
+    except ValueError as err:
+        return simulation, str(err)
+
+
 def _pad_as_fitted(
     simulation: SimulationSettings,
     result: Any,

@@ -214,17 +214,22 @@ class SceneFit:
         that a rendered frame has the recording's ``(rows, columns)`` (the trench sits
         half the difference of the fitted left and right margins off its place in the
         recording: a training image of another size than the recording's would not do).
+        The closed end keeps its fitted place (``top_margin_um``; found as a user: with
+        the sides' margin above it, DeLTA's exported closed end sat 15 px too high).
         """
         if self.trench is None:
             raise ValueError("an open-field fit has no trench")
         rows, cols = image_shape
         margin = max((cols * pixel_size_um - self.trench.width_um) / 2, 0.0)
-        length = max(rows * pixel_size_um - margin, self.trench.width_um)
+        room = max(rows * pixel_size_um - self.trench.width_um, 0.0)
+        top = min(max(self.trench.top_um, 0.0), room)  # a closed end above the image: 0
+        length = max(rows * pixel_size_um - top, self.trench.width_um)
         return TrenchGeometry(
             length_um=length,
             width_um=self.trench.width_um,
             depth_um=self.trench.depth_um,
             margin_um=margin,
+            top_margin_um=top,
             closed_end=self.trench.closed_end,
         )
 
@@ -348,8 +353,8 @@ def fit_scene(
         segmenter's.
     trench
         Starting trench placement (:class:`TrenchPlacement` in image coordinates, or a
-        :class:`TrenchGeometry` read as ``left = top = margin_um``); default: found
-        from the image.
+        :class:`TrenchGeometry` read as ``left = margin_um``, ``top =
+        shown_top_um``); default: found from the image.
     closed_end
         Shape of the trench's closed end: ``"square"`` or ``"round"``; default: that
         of ``trench`` if given, else ``"square"``.
@@ -491,7 +496,7 @@ def _run_frame(
     depth = trench.depth_um if trench is not None else 1.2
     if isinstance(trench, TrenchGeometry):
         trench = TrenchPlacement(
-            trench.margin_um, trench.width_um, trench.margin_um, depth, trench.closed_end
+            trench.margin_um, trench.width_um, trench.shown_top_um, depth, trench.closed_end
         )
     polarity = polarity_of(real, modality, labels)
     init_cells, otsu_w, found, _ = start_scene(

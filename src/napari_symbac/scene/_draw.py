@@ -564,7 +564,8 @@ def draw_scene(
     Cells are 3-D spherocylinders lying at mid-depth: the light crosses a chord of
     thickness ``2 sqrt(r^2 - d^2)`` (``d`` = distance to the axis segment), which is
     the ``2 r sin(theta)`` of eq. OPL2. The field of view is the trench plus
-    ``trench.margin_um`` of PDMS on the left, right and at the closed end (top); the
+    ``trench.margin_um`` of PDMS on the left and right and ``trench.shown_top_um`` at
+    the closed end (top); the
     open end is flush with the bottom edge (the trench runs on into the border). The
     closed end is square or, with ``trench.closed_end="round"``, a semicircle.
     Around the field of view a border of ``render.psf_radius_px`` render pixels is
@@ -599,8 +600,8 @@ def draw_scene(
     trench_origin_um
         Position ``(x, y)`` of the trench's top-left corner (left wall, closed end)
         in the field of view, in um from its top-left corner; the cells' coordinates
-        stay relative to the trench. Default ``(margin_um, margin_um)``: the trench
-        centred with equal margins. Trench only (not with ``field``).
+        stay relative to the trench. Default ``(margin_um, shown_top_um)``: the trench
+        centred between equal side margins. Trench only (not with ``field``).
     camera_shape
         ``(rows, columns)`` of the camera image, for a field of view other than the
         trench plus its margins (e.g. a crop of a real recording, see
@@ -644,9 +645,9 @@ def draw_scene(
     cam_px = microscope.pixel_size_um
     px = cam_px / u
     if field is None:
-        m = trench.margin_um
-        off_x = off_y = m
-        rows = round((trench.length_um + m) / cam_px)
+        m, top = trench.margin_um, trench.shown_top_um
+        off_x, off_y = m, top
+        rows = round((trench.length_um + top) / cam_px)
         cols = round((trench.width_um + 2 * m) / cam_px)
         if trench_origin_um is not None:
             off_x, off_y = (float(v) for v in trench_origin_um)
