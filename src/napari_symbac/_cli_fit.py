@@ -93,6 +93,19 @@ _FIT_OUTPUTS = frozenset(
 )  # fmt: skip
 
 
+def _given_trench(keys: dict[str, Any]) -> dict[str, Any]:
+    """The trench settings a config file gives (its ``simulation.trench`` mapping)."""
+    simulation = keys.get("simulation") or {}
+    trench = simulation.get("trench") if isinstance(simulation, dict) else None
+    return trench if isinstance(trench, dict) else {}
+
+
+def _closed_end_said(result, options: dict[str, Any]) -> str:
+    """The fitted trench's closed end, and who chose it."""
+    end = result.trench.closed_end if result.trench is not None else options.get("closed_end")
+    return f"{end}, from --config" if "closed_end" in options else f"{end}, chosen by the fit"
+
+
 def _fit_writes(name: str) -> bool:
     """Whether ``fit`` writes an entry of this name directly in its --out."""
     return name in _FIT_OUTPUTS or re.fullmatch(r"frame_\d{4,}", name) is not None
@@ -105,7 +118,7 @@ def _config_note(config: str | None, keys: dict[str, Any], geometry: str) -> str
     used = ["render settings as the start" if "render" in keys else "default render start"]
     if "camera" in keys:
         used.append("camera")
-    if geometry == "trench":
+    if geometry == "trench" and "closed_end" in _given_trench(keys):
         used.append("trench closed end")
     ignored = []
     if "microscope" in keys:
@@ -362,8 +375,8 @@ def _prepare_one(args, frame, labels, masks, microscope, base, keys):
     censored = censored_pixels(frame, camera)
     geometry = _GEOMETRIES[args.geometry]
     options: dict[str, Any] = {"geometry": geometry, "labels": labels}
-    if geometry == "trench":
-        options["closed_end"] = base.simulation.trench.closed_end
+    if geometry == "trench" and "closed_end" in _given_trench(keys):
+        options["closed_end"] = base.simulation.trench.closed_end  # else the fit chooses
     if args.max_iterations is not None:
         options["max_iterations"] = args.max_iterations
     model_options = _model_options(args)
@@ -490,7 +503,7 @@ def _outputs_one(
         "image": f"{args.image} (frame {index}, {frame.shape[0]} x {frame.shape[1]} px)",
         "modality": f"{microscope.modality} (image polarity: {polarity})",
         "geometry": args.geometry + (
-            f" (closed end: {options['closed_end']})" if geometry == "trench" else ""
+            f" (closed end: {_closed_end_said(result, options)})" if geometry == "trench" else ""
         ),
         "start": "painted labels" if labels is not None else (
             "instance masks" if masks is not None else "automatic segmentation"

@@ -251,23 +251,32 @@ def test_frames_of_a_series_are_fitted_jointly_each_into_its_folder(
 
 
 @pytest.mark.slow
-def test_real_trench_with_config_closed_end_round(tmp_path, real_data_dir):
-    """The SyMBac trench: `closed_end: round` of the config reaches the fit."""
-    config = tmp_path / "config.yaml"
-    config.write_text(yaml.safe_dump({"simulation": {"trench": {"closed_end": "round"}}}))
+def test_real_trench_closed_end_chosen_by_the_fit_or_the_config(tmp_path, real_data_dir):
+    """The SyMBac trench: its moulded round end is found by the fit (issue 10: "round
+    closed end found from the CLI"); `closed_end` of the config is used as given."""
     microscope = save_settings(Microscope(pixel_size_um=0.065), tmp_path / "microscope.yaml")
-    out = tmp_path / "fit"
     image = real_data_dir / "ecoli_100x_oil_exponential.tiff"
+    chosen = tmp_path / "chosen"
+    assert _fit(image, "--microscope", microscope, "--out", chosen, "--max-iterations", 4) == 0
+    report = (chosen / "report.txt").read_text()
+    assert _fact(report, "geometry") == "trench (closed end: round, chosen by the fit)"
+    assert "closed end: round, which fits better" in report
+    settings = load_settings(chosen / "settings.yaml", PipelineSettings)
+    assert settings.simulation.trench.closed_end == "round"
+    config = tmp_path / "config.yaml"
+    config.write_text(yaml.safe_dump({"simulation": {"trench": {"closed_end": "square"}}}))
+    out = tmp_path / "fit"
     assert _fit(image, "--microscope", microscope, "--config", config, "--out", out,
                 "--max-iterations", 2) == 0  # fmt: skip
     report = (out / "report.txt").read_text()
-    assert _fact(report, "geometry") == "trench (closed end: round)"
+    assert _fact(report, "geometry") == "trench (closed end: square, from --config)"
     assert "used default render start, trench closed end" in _fact(report, "config")
+    assert "which fits better" not in report
     settings = load_settings(out / "settings.yaml", PipelineSettings)
-    assert settings.simulation.trench.closed_end == "round"
+    assert settings.simulation.trench.closed_end == "square"
     table = json.loads((out / "cells.json").read_text())
     assert 3 <= len(table["cells"]) <= 8
-    assert table["trench"]["closed_end"] == "round"
+    assert table["trench"]["closed_end"] == "square"
     # this recording's noise at the baseline is all shot noise: no read noise to measure,
     # and the report says so instead of giving 0 e- as a measurement
     assert "dark noise 0 e-" in _fact(report, "camera used")

@@ -214,7 +214,8 @@ def test_a_top_margin_of_its_own_moves_the_closed_end_down(cells_factory):
 
     cells = cells_factory([3.0, 7.0])
     top = dataclasses.replace(TRENCH, top_margin_um=2.0)
-    assert TRENCH.shown_top_um == TRENCH.margin_um and top.shown_top_um == 2.0
+    assert TRENCH.shown_top_um == TRENCH.margin_um
+    assert top.shown_top_um == 2.0
     scene = draw_scene(cells, top, MIC, RS)
     plain = draw_scene(cells, TRENCH, MIC, RS)
     extra_rows = round((TRENCH.length_um + 2.0) / MIC.pixel_size_um) - plain.camera_shape[0]

@@ -129,6 +129,11 @@ class Problem:
         out._models = self._models
         return out
 
+    def with_placement(self, placement: TrenchPlacement) -> Problem:
+        """The same problem with another trench placement (its own scene models), that
+        reports no steps (for a trial of the other closed end)."""
+        return dataclasses.replace(self, placement=placement, on_step=None)
+
     def without_history(self) -> Problem:
         """The same problem that reports no steps (for trial refits of proposed moves)."""
         out = dataclasses.replace(self, on_step=None)

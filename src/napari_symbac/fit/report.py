@@ -182,6 +182,7 @@ def report_text(
     lines += [
         "",
         f"cells fitted: {len(result.cells)}",
+        *(f"  {choice}" for choice in getattr(result, "moves", ())),
         "pixel chi-square (reduced; 1 = fitted to the noise): "
         f"{result.objective_before:.4g} (start) -> {result.objective_after:.4g} (fit)",
     ]

@@ -283,6 +283,8 @@ def fit_series(
         )
         try:
             run = frame_run(progress=steps.run(n_frames - t))
+            if t == 0 and closed_end is None and run.problem.placement is not None:
+                closed_end = run.problem.placement.closed_end  # one trench: one end
             carried = False
             if carry_cells and t > 0 and masks is None:
                 moved = _carried_cells(runs[-1], stack[t - 1], stack[t], microscope.pixel_size_um)
