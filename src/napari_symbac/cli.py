@@ -300,7 +300,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from napari_symbac.diagnose.model import build_design
     from napari_symbac.diagnose.region import default_region, parse_region, simulated_shape
     from napari_symbac.diagnose.run import diagnose
-    from napari_symbac.diagnose.stages import drawn_by_export, updated_settings
+    from napari_symbac.diagnose.stages import drawn_by_export, refitted_render, updated_settings
     from napari_symbac.export.atomic import earlier_run, remove_earlier_run
     from napari_symbac.fit import fit_scene
     from napari_symbac.fit.fitted_settings import fitted_or_kept
@@ -418,10 +418,15 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         )
         if invalid:
             doc["notes"].append(f"settings.yaml simulates the defaults: {invalid}")
+        # the intensities and optics refitted with the accepted effects
+        final_render, held = refitted_render(render, result.final_model)
+        if held:
+            doc["notes"].append(held)
+            print(f"note: {held}", file=sys.stderr)
         (out / "diagnosis.json").write_text(json.dumps(doc, indent=2, default=float))
         (out / "report.txt").write_text(result.report() + "\n")
         figures = write_figures(result, stack, out, name=Path(args.image).name)
-        base = PipelineSettings(simulation, microscope, render, camera)
+        base = PipelineSettings(simulation, microscope, final_render, camera)
         accepted = [(e.name, e.params) for e in result.accepted]
         settings, extra = updated_settings(base, accepted)
         save_settings(settings, out / "settings.yaml")

@@ -82,7 +82,7 @@ def test_diagnose_command_writes_the_issue_outputs(tmp_path, capsys):
     # a trench diagnosed on a window of its rows is simulated as long as the recording
     assert "settings.yaml simulates the diagnosed" not in said
     trench = load_settings(out / "settings.yaml", PipelineSettings).simulation.trench
-    assert trench.length_um + trench.margin_um == pytest.approx(256 * 0.065, abs=1e-9)
+    assert trench.length_um + trench.shown_top_um == pytest.approx(256 * 0.065, abs=1e-9)
     doc = json.loads((out / "diagnosis.json").read_text())
     assert doc["region"] == {"rows": [0, 96], "columns": [0, 46]}
     assert set(doc) >= {"base_fit", "mismatches", "effects", "final_fit"}

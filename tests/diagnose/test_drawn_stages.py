@@ -154,3 +154,39 @@ def test_diagnose_settings_export_the_accepted_effects_of_the_real_trench(
     columns = step.mean(axis=(0, 1))
     columns -= columns.mean()  # the illumination and stray light shift the mean
     assert np.corrcoef(columns, offsets)[0, 1] > 0.95
+
+
+def test_the_settings_carry_the_final_models_intensities():
+    """The diagnosis refits the base model's intensities (eq. 3) with the effects;
+    settings.yaml draws those, not the base fit's (found as a user: DeLTA's exported
+    images came out 20 % brighter than the recording). A base fit 10 % off in its media
+    and device intensities is put right in the settings; its optics are kept."""
+    from napari_symbac.diagnose import diagnose
+    from napari_symbac.diagnose.concealed import _cells, _draw, base_settings
+    from napari_symbac.diagnose.model import FittedModel, build_design
+    from napari_symbac.diagnose.stages import refitted_render
+    from napari_symbac.optics import ForwardModel
+
+    microscope, render, camera = base_settings("phase")
+    cells, trench, field, shape = _cells("trench", np.random.default_rng(0))
+    scene = _draw(cells, trench, field, shape, microscope, render)
+    image = ForwardModel(microscope, render, camera).render(scene, np.random.default_rng(1))
+    off = dataclasses.replace(
+        render, media_intensity=1.1 * render.media_intensity,
+        device_intensity=0.9 * render.device_intensity,
+    )  # fmt: skip
+    design = build_design([scene], microscope, off, camera)
+    result = diagnose(image[None], design, n_bootstrap=10, rng=np.random.default_rng(2))
+    final, note = refitted_render(off, result.final_model)
+    assert note == ""
+    for name in ("cell_intensity", "media_intensity", "device_intensity"):
+        assert getattr(final, name) == pytest.approx(getattr(render, name), rel=0.02), name
+    assert dataclasses.replace(final, cell_intensity=0, media_intensity=0, device_intensity=0) == (
+        dataclasses.replace(off, cell_intensity=0, media_intensity=0, device_intensity=0)
+    )
+    # an intensity the settings cannot draw is kept at 0, and said
+    dark = FittedModel(beta=np.array([-50.0, 2600.0, 900.0, 0.0, 0.0, 0.0]), effects=())
+    held, said = refitted_render(render, dark)
+    assert held.cell_intensity == 0.0
+    assert held.media_intensity == 2600.0
+    assert said.startswith("the final model's cell_intensity -50 ADU is drawn as 0")

@@ -93,7 +93,7 @@ def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
     assert 0.95 <= simulation.cell_width_um <= 1.3, simulation
     trench = simulation.trench
     assert trench.width_um + 2 * trench.margin_um == pytest.approx(46 * 0.065, abs=1e-9)
-    assert trench.length_um + trench.margin_um == pytest.approx(256 * 0.065, abs=1e-9)
+    assert trench.length_um + trench.shown_top_um == pytest.approx(256 * 0.065, abs=1e-9)
     # the camera is measured from the recording (2.0 ADU/e- on the whole trench, 1.8 on
     # this window), not assumed (2.9 ADU/e- by default)
     pattern = r"camera measured from the recording \(([0-9.]+) ADU/e-"

@@ -202,6 +202,7 @@ class DiagnoseWidget(Container):
             from napari_symbac.diagnose.model import build_design
             from napari_symbac.diagnose.region import simulated_shape
             from napari_symbac.diagnose.run import diagnose
+            from napari_symbac.diagnose.stages import refitted_render
             from napari_symbac.fit import fit_scene
             from napari_symbac.fit.fitted_settings import fitted_or_kept
 
@@ -229,7 +230,8 @@ class DiagnoseWidget(Container):
                 progress=progress,
                 cancel=cancel,
             )
-            return fit, result, (*exported, layout != tuple(full))
+            final = refitted_render(fit.render, result.final_model)
+            return fit, result, final, (*exported, layout != tuple(full))
 
         self.worker = Job(
             lambda: (yield from blocking_steps(compute, cancelled.is_set)),
@@ -288,13 +290,13 @@ class DiagnoseWidget(Container):
         from napari_symbac.diagnose.stages import updated_settings
         from napari_symbac.settings import PipelineSettings
 
-        fit, result, (simulation, kept, windowed) = output
+        fit, result, (final_render, held), (simulation, kept, windowed) = output
         self.result = result
         camera = fit.camera
         base = PipelineSettings(
             simulation=simulation,
             microscope=self._microscope,
-            render=fit.render,
+            render=final_render,  # the intensities refitted with the effects
             camera=camera,
         )
         settings, extra = updated_settings(base, [(e.name, e.params) for e in result.accepted])
@@ -357,6 +359,7 @@ class DiagnoseWidget(Container):
             f"e-). Updated settings are in the '{DIAGNOSIS_RESIDUAL_LAYER}' layer, which "
             f"Export now takes (its 'settings from'): {simulated}"
             + (f"; {drawn_by_export(accepted)}." if accepted else ".")
+            + (f" Note: {held}." if held else "")
         )
 
     def _on_cancelled(self) -> None:

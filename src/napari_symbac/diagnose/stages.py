@@ -32,7 +32,7 @@ from napari_symbac.diagnose.effects import (
     uneven_illumination,
 )
 from napari_symbac.optics.forward import Stage
-from napari_symbac.settings import ExtraStage, PipelineSettings
+from napari_symbac.settings import ExtraStage, PipelineSettings, RenderSettings
 
 __all__ = [
     "DRAWN",
@@ -42,6 +42,7 @@ __all__ = [
     "drawn_by_export",
     "drawn_stages",
     "load_extra_stages",
+    "refitted_render",
     "stage_for",
     "updated_settings",
 ]
@@ -131,6 +132,36 @@ def stage_for(name: str, parameters: dict[str, Any], *, frame: int = 0) -> Stage
     if name == "saturation":
         return saturation.stage(parameters)
     raise ValueError(f"effect {name!r} has no stage (it is carried by the settings: {IN_SETTINGS})")
+
+
+#: The base model's linear coefficients (eq. 3), in the order of ``FittedModel.beta``.
+_INTENSITIES = ("cell_intensity", "media_intensity", "device_intensity")
+
+
+def refitted_render(render: RenderSettings, model: Any) -> tuple[RenderSettings, str]:
+    """The render settings with the intensities of the diagnosis' final model, and a
+    note ("" when none).
+
+    The diagnosis refits the base model's intensities (eq. 3, the first three of
+    ``model.beta``) together with the accepted effects; the settings that draw those
+    effects must carry them too. Found as a user on DeLTA's trench: settings.yaml kept
+    the base fit's device at 1198 ADU while the final model, with stray light added,
+    had it at 246, and the exported images came out 20 % brighter than the recording.
+    The optics keep the base fit's values: the diagnosis' first-order changes of them
+    are not measurements (on a synthetic trench rendered with the very optics of the
+    design they came out 0.36 um of apodisation, seven times the linearisation's step).
+    An intensity below 0, which the settings cannot draw, is kept at 0 and said.
+    """
+    changes = dict(zip(_INTENSITIES, (float(b) for b in model.beta[:3])))
+    held = [f"{name} {value:.4g} ADU" for name, value in changes.items() if value < 0]
+    changes = {name: max(value, 0.0) for name, value in changes.items()}
+    note = (
+        f"the final model's {', '.join(held)} is drawn as 0 (the cells are darker than "
+        "the model draws them)"
+        if held
+        else ""
+    )
+    return dataclasses.replace(render, **changes), note
 
 
 def updated_settings(
