@@ -119,10 +119,13 @@ def _as_agar_pad(tune) -> None:
 
 
 def test_auto_fit_runs_the_scene_fit_on_the_recording(rendered, qtbot, real_data_dir):
+    from napari_symbac._widgets.export import ExportWidget
     from napari_symbac._widgets.tune import FIT_RESIDUAL_LAYER, FIT_SYNTHETIC_LAYER
     from napari_symbac.fit.report import OPEN_PHASE_NOTE
 
     viewer, tune = rendered
+    export = ExportWidget(viewer)
+    assert export.source.current_choice == RESULT_IMAGE_LAYER
     real = _real_trench(viewer, real_data_dir)
     tune.reference.value = real
     tune.fit_iterations.value = 2
@@ -160,6 +163,10 @@ def test_auto_fit_runs_the_scene_fit_on_the_recording(rendered, qtbot, real_data
     # the fitted cells and trench are the simulation Export runs, as in `fit`'s
     # settings.yaml (found as a user: Export drew the Simulate tab's cells and trench)
     _export_simulates_the_fit(tune, stored, result, real)
+    # and Export says that its settings are the fitted ones (found as a user: it still
+    # read "synthetic" after Auto-fit)
+    assert export.source.value is tune.source.value
+    assert export.source.current_choice == f"{RESULT_IMAGE_LAYER} (fitted to real)"
 
 
 def test_auto_fit_of_a_phase_colony_says_what_the_linear_kernel_cannot_do(
@@ -432,17 +439,29 @@ def test_auto_fit_refuses_a_normalised_recording(rendered, real_data_dir):
     assert tune.fit_result is None
 
 
-def test_auto_fit_fits_a_fluorescence_recording(rendered, qtbot):
+def test_auto_fit_fits_a_fluorescence_recording(rendered, qtbot, monkeypatch):
     """A fluorescence recording (the shipped ColiCoords field, bright cells on a dark
     background) is fitted with bright cells, not refused or fitted as phase."""
+    import threading
     from pathlib import Path
 
     import tifffile
 
     import napari_symbac
+    import napari_symbac.fit.clipped_background as clipping
     from napari_symbac._widgets.tune import FIT_SYNTHETIC_LAYER
 
     viewer, tune = rendered
+    # the censored background fit runs in the fit's worker, not on the GUI thread (found
+    # by review: it ran in the callback that shows the result); the real one, watched
+    threads = []
+    censored_fit = clipping.clipped_background
+
+    def watched(*args, **kwargs):
+        threads.append(threading.current_thread())
+        return censored_fit(*args, **kwargs)
+
+    monkeypatch.setattr(clipping, "clipped_background", watched)
     path = Path(napari_symbac.__file__).parent / "sample_data" / "colicoords_fluorescence.tif"
     field = tifffile.imread(path).astype(np.float32)[:256, :256]
     mask = tifffile.imread(path.with_name("colicoords_binary.tif"))[:256, :256]
@@ -487,6 +506,9 @@ def test_auto_fit_fits_a_fluorescence_recording(rendered, qtbot):
     assert stored.camera.dark_noise_e > result.camera.dark_noise_e
     assert stored.extra_stages[-1].name == "saturation"
     assert stored.extra_stages[-1].parameters == {"clip_level_adu": 0.0, "high": False}
+    assert [s.name for s in stored.extra_stages].count("saturation") == 1
+    assert threads
+    assert threading.main_thread() not in threads
 
 
 def test_fluorescence_gives_bright_cells_on_dark(rendered):

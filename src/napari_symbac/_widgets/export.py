@@ -24,7 +24,8 @@ from magicgui.widgets import (
 from napari_symbac._widgets._backend import backend_combo
 from napari_symbac._widgets._forms import message_label
 from napari_symbac._widgets._jobs import Job, blocking_steps
-from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
+from napari_symbac._widgets._recording import watch_recordings
+from napari_symbac._widgets.simulate import FITTED_TO_KEY, SYMBAC_METADATA_KEY
 from napari_symbac.export import FORMATS, ExportSettings, export_of
 from napari_symbac.settings import PipelineSettings
 
@@ -39,10 +40,12 @@ class ExportWidget(Container):
 
     The settings (your recording's microscope and modality, as simulated, tuned and
     fitted) come from the chosen rendered layer: the newest one unless you pick
-    another; with none, the built-in defaults (said in the status line). The settings
-    are saved with the dataset (its manifest), and a cancelled export resumes when run
-    again into the same folder. Errors (read-only folder, full disk) are shown as a
-    notification and the widget stays usable.
+    another; a layer Auto-fit has fitted is listed as ``name (fitted to recording)``,
+    its fitted settings being what the export uses. With none, the built-in defaults
+    (said in the status line). The settings are saved with the dataset (its manifest),
+    and a cancelled export resumes when run again into the same folder. Errors
+    (read-only folder, full disk) are shown as a notification and the widget stays
+    usable.
     """
 
     def __init__(self, viewer: napari.viewer.Viewer):
@@ -55,7 +58,8 @@ class ExportWidget(Container):
             nullable=True,
             tooltip=(
                 "The rendered layer whose simulation, optics and noise (as tuned and "
-                "fitted) the dataset uses; the newest one by default."
+                "fitted) the dataset uses; the newest one by default. After Auto-fit it "
+                "reads '(fitted to <recording>)': the fitted settings are used."
             ),
         )
         self.formats = Select(
@@ -104,8 +108,8 @@ class ExportWidget(Container):
         }
         for widget, tip in tips.items():
             widget.tooltip = tip
-        for event in (viewer.layers.events.inserted, viewer.layers.events.removed):
-            event.connect(self._refresh_source)
+        # layers added or removed, and a layer's settings fitted (its metadata)
+        watch_recordings(viewer, self._refresh_source)
         self.worker: Job | None = None
         self.report = None
         self._origin = ""
@@ -113,18 +117,23 @@ class ExportWidget(Container):
 
     def _refresh_source(self, event=None) -> None:
         """Offer the rendered layers; choose the newest: one just added (a simulation, a
-        diagnosis' settings), else the newest left when none (or a removed one) is."""
+        diagnosis' settings), else the one chosen while it is left (renamed as fitted),
+        else the newest left."""
+        previous = self.source.value
         self.source.reset_choices()
         choices = [c for c in self.source.choices if c is not None]
         added = getattr(event, "value", None) if getattr(event, "type", "") == "inserted" else None
         if added is not None and any(added is c for c in choices):
             self.source.value = added
-        elif self.source.value is None and choices:
+        elif any(previous is c for c in choices):
+            self.source.value = previous
+        elif choices:
             self.source.value = choices[-1]
 
-    def _rendered(self, _widget=None) -> list:
+    def _rendered(self, _widget=None) -> list[tuple[str, object]]:
+        """``(label, layer)`` of each rendered layer; the label says when it is fitted."""
         return [
-            layer
+            (_source_label(layer), layer)
             for layer in self.viewer.layers
             if SYMBAC_METADATA_KEY in layer.metadata and not hasattr(layer, "selected_label")
         ]
@@ -176,7 +185,7 @@ class ExportWidget(Container):
         workers = self.workers.value
         backend = self.backend.value
         origin = (
-            f"'{self.source.value.name}'"
+            f"'{self.source.current_choice}'"
             if self.source.value is not None
             else "the built-in defaults, not matched to any recording: simulate or fit first"
         )
@@ -240,3 +249,9 @@ class ExportWidget(Container):
         self.worker = None
         self.export_button.enabled = True
         self.cancel_button.enabled = False
+
+
+def _source_label(layer) -> str:
+    """``layer``'s name, and the recording it was fitted to once Auto-fit has fitted it."""
+    fitted = layer.metadata[SYMBAC_METADATA_KEY].get(FITTED_TO_KEY)
+    return layer.name if fitted is None else f"{layer.name} (fitted to {fitted})"

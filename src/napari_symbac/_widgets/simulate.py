@@ -28,6 +28,7 @@ if TYPE_CHECKING:
     import napari
 
 __all__ = [
+    "FITTED_TO_KEY",
     "PREVIEW_LAYER",
     "RESULT_IMAGE_LAYER",
     "RESULT_LABELS_LAYER",
@@ -42,6 +43,9 @@ RESULT_LABELS_LAYER = "synthetic labels"
 RESULT_OPL_LAYER = "synthetic optical path length"
 #: Layer-metadata key under which rendered layers carry their simulation and settings.
 SYMBAC_METADATA_KEY = "symbac"
+#: Key, in a rendered layer's SyMBac metadata, of the name of the recording Auto-fit
+#: fitted the layer's settings to (absent until a fit).
+FITTED_TO_KEY = "fitted_to"
 
 
 class SimulateWidget(Container):

@@ -32,7 +32,7 @@ from napari_symbac._widgets._recording import (
     watch_recordings,
 )
 from napari_symbac._widgets.real_image import class_layer_name
-from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
+from napari_symbac._widgets.simulate import FITTED_TO_KEY, SYMBAC_METADATA_KEY
 
 if TYPE_CHECKING:
     import napari
@@ -441,30 +441,13 @@ class TuneWidget(Container):
             f"{simulation.cell_max_length_um:.2f} um in {where}, as fitted{different}"
         )
 
-    def _clipped_background(self, result):
-        """A fluorescence recording's background clipped at 0 (background subtraction),
-        fitted as censored (:mod:`napari_symbac.fit.clipped_background`, as ``napari-symbac
-        fit`` and ``calibrate`` do): ``(render, camera, clip stage, sentence)`` for the
-        preview and Export, or None when the frame shown is not clipped."""
-        from napari_symbac.fit import ColonyFit
-        from napari_symbac.fit.camera_estimate import censored_pixels
-        from napari_symbac.fit.clipped_background import (
-            clip_stage,
-            clipped_background,
-            clipped_render,
-        )
-
-        if isinstance(result, ColonyFit) or result.camera is None:
-            return None
-        if self._fit_microscope.modality != "fluorescence":
-            return None
-        frame = self._frame_of(np.asarray(self.reference.value.data))
-        cells = result.scene.camera_labels() > 0
-        clipped = clipped_background(frame, cells, censored_pixels(frame))
-        if clipped is None:
-            return None
-        render, camera, sentence = clipped_render(result.render, result.camera, clipped)
-        return render, camera, clip_stage(clipped), sentence
+    def _mark_fitted(self) -> None:
+        """Note in the rendered layer's metadata the recording its settings are now fitted
+        to, and say so (``events.metadata``): Export's list then names the layer as
+        fitted (found as a user: it still read "synthetic" after Auto-fit)."""
+        layer = self.source.value
+        layer.metadata[SYMBAC_METADATA_KEY][FITTED_TO_KEY] = self.reference.value.name
+        layer.events.metadata()
 
     def _store_settings(self) -> None:
         layer = self.source.value
@@ -597,8 +580,13 @@ class TuneWidget(Container):
                 cancel=cancel,
             )
 
+        shown = self._current_frame()
+
         def work():
-            return (yield from blocking_steps(fit, cancelled.is_set))
+            result = yield from blocking_steps(fit, cancelled.is_set)
+            frame = real[min(shown, len(real) - 1)] if all_frames else real
+            clipped = _clipped_background(_shown_fit(result, shown), frame, microscope)
+            return _FitOutcome(result, shown, clipped)
 
         self.fit_worker = Job(
             work,
@@ -714,16 +702,16 @@ class TuneWidget(Container):
         done, total = message
         self.status.value = f"Fitting: {done} of about {total} renders"
 
-    def _on_fit_returned(self, result) -> None:
+    def _on_fit_returned(self, outcome: _FitOutcome) -> None:
         from napari_symbac.fit import ColonyFit
+        from napari_symbac.fit.clipped_background import with_clip
         from napari_symbac.fit.fitted_settings import fitted_render
         from napari_symbac.fit.report import UNMEASURED_READ_NOISE, fit_problems
 
+        result, clipped = outcome.result, outcome.clipped
         self.fit_result = result
         series = _series_of(result)
-        if series is not None:  # the frame shown sets the sliders (the optics are shared)
-            result = series.frames[min(self._current_frame(), len(series.frames) - 1)]
-        clipped = self._clipped_background(result)
+        result = _shown_fit(result, outcome.shown)  # it sets the sliders (optics are shared)
         fit_render, fit_camera = (result.render, result.camera) if clipped is None else clipped[:2]
         if not isinstance(result, ColonyFit):  # the cells' own brightness spread
             fit_render = dataclasses.replace(
@@ -767,11 +755,12 @@ class TuneWidget(Container):
             self._store_settings()
             if clipped is not None:  # Export clips the recorded values as the recording
                 meta = self.source.value.metadata[SYMBAC_METADATA_KEY]
-                kept = (s for s in meta["settings"].extra_stages if s.name != "saturation")
                 meta["settings"] = dataclasses.replace(
-                    meta["settings"], extra_stages=(*kept, clipped[2])
+                    meta["settings"],
+                    extra_stages=with_clip(meta["settings"].extra_stages, clipped[2]),
                 )
             simulated = self._store_fitted_simulation(result)
+            self._mark_fitted()
         except ValueError as err:
             notify_warning(f"The fitted settings were not applied to the preview: {err}")
         self._show_fit_layers(series or result)
@@ -796,7 +785,7 @@ class TuneWidget(Container):
         if series is None:
             self.status.value = f"Fitted in {result.n_evaluations} renders: objective {objective}"
         else:
-            shown = _series_status(series, self._current_frame())
+            shown = _series_status(series, outcome.shown)
             self.status.value = f"{shown}<br>This frame: objective {objective}"
         if colony:
             from napari_symbac.fit.report import colony_noise_text
@@ -918,6 +907,63 @@ class TuneWidget(Container):
             self._show(self._current_frame())
 
 
+@dataclasses.dataclass(frozen=True)
+class _FitOutcome:
+    """What the Auto-fit worker hands back to the GUI thread.
+
+    Attributes
+    ----------
+    result
+        The fit (a joint fit of a time-lapse: every frame's).
+    shown
+        The frame shown when the fit started: its fit sets the sliders.
+    clipped
+        :func:`_clipped_background` of that frame, computed in the worker.
+    """
+
+    result: Any
+    shown: int
+    clipped: tuple | None
+
+
+def _clipped_background(result, frame: np.ndarray, microscope: Microscope) -> tuple | None:
+    """A fluorescence recording's background clipped at 0 (background subtraction),
+    fitted as censored (:mod:`napari_symbac.fit.clipped_background`, as ``napari-symbac
+    fit`` and ``calibrate`` do).
+
+    Runs in the Auto-fit worker (a dilation and a likelihood fit over the background).
+
+    Parameters
+    ----------
+    result
+        The fit of ``frame`` (of a time-lapse's joint fit: that frame's).
+    frame
+        The recorded frame shown when the fit started.
+    microscope
+        The recording's microscope (its modality).
+
+    Returns
+    -------
+    tuple or None
+        ``(render, camera, ClippedBackground, sentence)`` for the preview and Export, or
+        None when the frame is not clipped, not fluorescence, or a colony fit.
+    """
+    from napari_symbac.fit import ColonyFit
+    from napari_symbac.fit.camera_estimate import censored_pixels
+    from napari_symbac.fit.clipped_background import clipped_background, clipped_render
+
+    if isinstance(result, ColonyFit) or result.camera is None:
+        return None
+    if microscope.modality != "fluorescence":
+        return None
+    cells = result.scene.camera_labels() > 0
+    clipped = clipped_background(frame, cells, censored_pixels(frame))
+    if clipped is None:
+        return None
+    render, camera, sentence = clipped_render(result.render, result.camera, clipped)
+    return render, camera, clipped, sentence
+
+
 def _format(value: float) -> str:
     return f"{value:.4g}" if np.isfinite(value) else "NaN"
 
@@ -939,6 +985,12 @@ def _series_of(result):
     from napari_symbac.fit import ColonySeriesFit, SeriesFit
 
     return result if isinstance(result, (SeriesFit, ColonySeriesFit)) else None
+
+
+def _shown_fit(result, shown: int):
+    """The fit of frame ``shown``: ``result`` itself, or that frame's of a joint fit."""
+    series = _series_of(result)
+    return result if series is None else series.frames[min(shown, len(series.frames) - 1)]
 
 
 def _series_status(series, shown: int) -> str:

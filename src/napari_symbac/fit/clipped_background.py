@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,6 +38,7 @@ __all__ = [
     "clipped_background",
     "clipped_render",
     "drawn_clipped",
+    "with_clip",
 ]
 
 #: Fraction of the background pixels at the image minimum from which the background is
@@ -162,6 +164,12 @@ def clip_stage(clipped: ClippedBackground) -> ExtraStage:
     return ExtraStage("saturation", {"clip_level_adu": clipped.level_adu, "high": False})
 
 
+def with_clip(stages: Iterable[ExtraStage], clipped: ClippedBackground) -> tuple[ExtraStage, ...]:
+    """``stages`` with :func:`clip_stage` of ``clipped`` in place of any ``saturation``
+    stage they had (last, so that it clips the recorded values)."""
+    return (*(s for s in stages if s.name != "saturation"), clip_stage(clipped))
+
+
 def drawn_clipped(
     settings: PipelineSettings, clipped: ClippedBackground, *, noise: bool = True
 ) -> tuple[PipelineSettings, str]:
@@ -170,6 +178,6 @@ def drawn_clipped(
     render, camera, sentence = clipped_render(
         settings.render, settings.camera, clipped, noise=noise
     )
-    stages = (*(s for s in settings.extra_stages if s.name != "saturation"), clip_stage(clipped))
+    stages = with_clip(settings.extra_stages, clipped)
     drawn = dataclasses.replace(settings, render=render, camera=camera, extra_stages=stages)
     return drawn, sentence
