@@ -149,6 +149,49 @@ def test_missing_pixel_size_is_asked_for_and_remembered(
     assert widget.pixel_size.value == pytest.approx(0.065)
 
 
+def test_retyping_the_pixel_size_warns_only_when_it_is_entered(
+    make_napari_viewer, qtbot, tmp_path, real_data_dir, notifications
+):
+    """Found as a user: retyping the pixel size showed "no pixel size" at the first
+    keystroke (the field at 0 for a moment) and kept that toast after a valid value.
+    The value is taken when the editing is finished (Enter, leaving the field)."""
+    from qtpy.QtCore import Qt
+
+    source = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")
+    path = tmp_path / "sized.tif"
+    tifffile.imwrite(
+        path, source, imagej=True, resolution=(1 / 0.11, 1 / 0.11), metadata={"unit": "um"}
+    )
+    viewer = make_napari_viewer()
+    widget = RealImageWidget(viewer)
+    viewer.window.add_dock_widget(widget)
+    widget.file.value = path
+    layer = widget.image.value
+    box = widget.pixel_size.native
+
+    def retype(text: str) -> None:
+        box.selectAll()
+        qtbot.keyClicks(box, text)
+
+    retype("0.065")  # passes through 0, 0., 0.0 and 0.06
+    assert not any("pixel size" in message for message in notifications)
+    assert widget.warning.value == ""
+    assert layer.metadata["pixel_size_um"] == pytest.approx(0.11)  # not yet entered
+    qtbot.keyClick(box, Qt.Key.Key_Return)
+    assert layer.metadata["pixel_size_um"] == pytest.approx(0.065)
+    assert not any("pixel size" in message for message in notifications)
+
+    retype("0")  # really none after editing: warned once, then
+    qtbot.keyClick(box, Qt.Key.Key_Return)
+    assert sum("no pixel size" in message for message in notifications) == 1
+    assert "no pixel size" in widget.warning.value
+    retype("0.08")  # a valid value typed: no further warning
+    qtbot.keyClick(box, Qt.Key.Key_Return)
+    assert sum("no pixel size" in message for message in notifications) == 1
+    assert widget.warning.value == ""
+    assert layer.metadata["pixel_size_um"] == pytest.approx(0.08)
+
+
 def test_measured_means_are_kept_with_the_layer(make_napari_viewer):
     rng = np.random.default_rng(3)
     image = rng.normal(1100, 10, (40, 30))

@@ -74,6 +74,9 @@ class RealImageWidget(Container):
         self.microscope.pixel_size_um.min = 0.0
         self.microscope.pixel_size_um.max = 100.0
         self.microscope.pixel_size_um.step = 0.001
+        # taken when the editing is finished (Enter, leaving the field, the arrows), not
+        # at each keystroke: retyping passed through 0 and warned "no pixel size"
+        self.microscope.pixel_size_um.native.setKeyboardTracking(False)
         self.pixel_size = self.microscope.pixel_size_um
         self.modality = self.microscope.modality
         self.warning = message_label("warning", label="")
