@@ -35,6 +35,10 @@ def test_run_to_completion_adds_aligned_layers(widget, qtbot):
     assert PREVIEW_LAYER not in widget.viewer.layers
     assert widget.status.value.startswith("Done: 6 frames")
     assert widget.run_button.enabled
+    # the frame slider is named "frame" and starts at frame 0 (found as a user: it read
+    # "-3", napari's default name of that axis, taken for the frame number)
+    assert widget.viewer.dims.axis_labels == ("frame", "y", "x")
+    assert widget.viewer.dims.current_step[0] == 0
 
 
 def test_cancel_midway_leaves_no_half_state(widget, qtbot):

@@ -167,6 +167,10 @@ def test_auto_fit_runs_the_scene_fit_on_the_recording(rendered, qtbot, real_data
     # read "synthetic" after Auto-fit)
     assert export.source.value is tune.source.value
     assert export.source.current_choice == f"{RESULT_IMAGE_LAYER} (fitted to real)"
+    # the fit's layers keep the frame slider named "frame" (it read "-3": napari's
+    # default axis name) and at the frame shown
+    assert viewer.dims.axis_labels[0] == "frame"
+    assert viewer.dims.current_step[0] == tune._current_frame() >= 0
 
 
 def test_auto_fit_of_a_phase_colony_says_what_the_linear_kernel_cannot_do(

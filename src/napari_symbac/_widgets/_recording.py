@@ -25,8 +25,10 @@ from napari_symbac.fit.preflight import check_pixel_size
 from napari_symbac.settings import Microscope, RenderSettings
 
 __all__ = [
+    "AXIS_LABELS",
     "check_recording_frame",
     "is_recording",
+    "layer_axes",
     "modality_render",
     "pixel_size_problem",
     "recording_microscope",
@@ -42,6 +44,19 @@ _DEFAULT_INTENSITIES = {
     "phase": {"cell_intensity": 1400.0, "media_intensity": 2600.0, "device_intensity": 900.0},
     "fluorescence": {"cell_intensity": 3000.0, "media_intensity": 150.0, "device_intensity": 60.0},
 }
+
+
+#: Names of a layer's ``(frame, Y, X)`` axes. napari's own are ``-3, -2, -1``, and its frame
+#: slider read "-3" (found as a user, after Auto-fit: taken for the frame number).
+AXIS_LABELS = ("frame", "y", "x")
+
+
+def layer_axes(pixel_size_um: float, ndim: int) -> dict[str, tuple]:
+    """Layer keyword arguments that place a ``(..., Y, X)`` layer in micrometres
+    (:func:`~napari_symbac.io.micrometre_axes`) with its axes named (:data:`AXIS_LABELS`)."""
+    from napari_symbac.io import micrometre_axes
+
+    return {**micrometre_axes(pixel_size_um, ndim), "axis_labels": AXIS_LABELS[-ndim:]}
 
 
 def check_recording_frame(frame: Any, name: str) -> None:

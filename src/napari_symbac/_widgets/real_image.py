@@ -14,7 +14,12 @@ from magicgui.widgets import ComboBox, Container, FileEdit, Label, PushButton
 
 from napari_symbac._widgets._forms import SettingsForm, hide_label, message_label
 from napari_symbac._widgets._jobs import notify_warning
-from napari_symbac._widgets._recording import check_recording_frame, pixel_size_problem
+from napari_symbac._widgets._recording import (
+    AXIS_LABELS,
+    check_recording_frame,
+    layer_axes,
+    pixel_size_problem,
+)
 from napari_symbac.fit import CLASS_VALUES, class_statistics
 from napari_symbac.io import micrometre_axes
 from napari_symbac.settings import Camera, Microscope
@@ -161,7 +166,9 @@ class RealImageWidget(Container):
         low, high = np.percentile(recording.data, (0.1, 99.9))
         kwargs = {"contrast_limits": (float(low), float(high))} if high > low else {}
         if recording.pixel_size_um:
-            kwargs.update(micrometre_axes(recording.pixel_size_um, recording.data.ndim))
+            kwargs.update(layer_axes(recording.pixel_size_um, recording.data.ndim))
+        else:
+            kwargs["axis_labels"] = AXIS_LABELS[-recording.data.ndim :]
         layer = self.viewer.add_image(
             recording.data,
             name=recording.name,

@@ -16,12 +16,12 @@ from napari_symbac._widgets._backend import backend_combo
 from napari_symbac._widgets._forms import SettingsForm, hide_label, message_label
 from napari_symbac._widgets._jobs import Job
 from napari_symbac._widgets._recording import (
+    layer_axes,
     modality_render,
     recording_microscope,
     recordings,
     watch_recordings,
 )
-from napari_symbac.io import micrometre_axes
 from napari_symbac.settings import PipelineSettings, SimulationSettings
 
 if TYPE_CHECKING:
@@ -263,7 +263,7 @@ class SimulateWidget(Container):
                 self.viewer.layers[PREVIEW_LAYER].data = labels
             else:
                 self.viewer.add_labels(
-                    labels, name=PREVIEW_LAYER, **micrometre_axes(self._pixel_um, 2)
+                    labels, name=PREVIEW_LAYER, **layer_axes(self._pixel_um, 2)
                 )
         elif stage == "rendered":
             self._remove_preview()
@@ -275,7 +275,7 @@ class SimulateWidget(Container):
         self.simulation, self.pipeline, self.series, opl = result
         self._remove_preview()
         metadata = {SYMBAC_METADATA_KEY: {"simulation": self.simulation, "settings": self.pipeline}}
-        axes = micrometre_axes(self.pipeline.microscope.pixel_size_um, 3)
+        axes = layer_axes(self.pipeline.microscope.pixel_size_um, 3)
         for name, data, kind in (
             (RESULT_IMAGE_LAYER, self.series.images, "image"),
             (RESULT_LABELS_LAYER, self.series.labels, "labels"),
@@ -288,6 +288,7 @@ class SimulateWidget(Container):
                 self.viewer.add_labels(data, name=name, metadata=metadata, **axes)
         if opl is not None:
             self._show_opl(opl, metadata)
+        self.viewer.dims.set_current_step(0, 0)  # from its first frame (napari: the middle)
         n_cells = len(self.simulation.lineage)
         self.status.value = f"Done: {len(self.simulation.frames)} frames, {n_cells} cells"
 
@@ -298,7 +299,7 @@ class SimulateWidget(Container):
         # Camera pixel i covers render pixels upsample*i .. upsample*(i+1) - 1.
         offset = pixel * (1 / (2 * upsample) - 0.5)
         kwargs = {
-            **micrometre_axes(pixel / upsample, 3),
+            **layer_axes(pixel / upsample, 3),
             "translate": (0.0, offset, offset),
             "metadata": metadata,
             "colormap": "magma",

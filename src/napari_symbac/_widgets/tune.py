@@ -26,6 +26,7 @@ from magicgui.widgets import (
 from napari_symbac._widgets._forms import message_label
 from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
 from napari_symbac._widgets._recording import (
+    AXIS_LABELS,
     check_recording_frame,
     is_recording,
     modality_render,
@@ -841,6 +842,7 @@ class TuneWidget(Container):
             "scale": tuple(reference.scale[-axes:]),
             "units": tuple(reference.units[-axes:]),
             "translate": tuple(reference.translate[-axes:]),
+            "axis_labels": AXIS_LABELS[-axes:],
         }
         for name, data, extra in (
             (FIT_SYNTHETIC_LAYER, synthetic, {}),
