@@ -147,6 +147,26 @@ def test_recording_sets_pixel_size_microscope_and_modality(widget, qtbot):
     assert frame[labels[-1] > 0].mean() > 3 * frame[labels[-1] == 0].mean()  # bright cells
 
 
+def test_a_trench_recording_sizes_the_trench(widget, qtbot):
+    """Found as a user: the default trench was drawn 46 px wide beside a 32 px wide
+    recording (the DeLTA crop) until Auto-fit; the frames now have the recording's size."""
+    recording = widget.viewer.add_image(
+        np.full((256, 32), 1000, np.uint16),
+        name="narrow trench",
+        scale=(0.065, 0.065),
+        metadata={"pixel_size_um": 0.065, "modality": "phase"},
+    )
+    assert widget.recording.value is recording
+    assert widget.form.geometry.value == "trench"
+    widget.form.n_frames.value = 2
+    widget.run_button.native.click()
+    qtbot.waitUntil(lambda: RESULT_LABELS_LAYER in widget.viewer.layers, timeout=120_000)
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=10_000)
+    assert widget.viewer.layers[RESULT_IMAGE_LAYER].data.shape[1:] == (256, 32)
+    trench = widget.pipeline.simulation.trench
+    assert trench.width_um > widget.pipeline.simulation.cell_width_um  # still holds cells
+
+
 def test_closing_the_viewer_during_a_run_is_clean(make_napari_viewer, qtbot):
     """Defect 2: closing the viewer mid-run raised KeyError in _on_yielded /
     _remove_preview (pytest-qt fails the test on any exception in the event loop)."""

@@ -130,8 +130,9 @@ class SimulateWidget(Container):
 
     def _follow_recording(self, layer=None) -> None:
         """A newly chosen recording sets the geometry as ``napari-symbac fit`` would
-        choose it for that image: a trench when it is a phase image at most
-        :data:`~napari_symbac.fit.preflight.TRENCH_MAX_WIDTH_PX` wide, else an agar pad (found
+        choose it for that image: a trench of the recording's size when it is a phase
+        image at most :data:`~napari_symbac.fit.preflight.TRENCH_MAX_WIDTH_PX` wide
+        (:meth:`_size_trench`), else an agar pad (found
         as a user: an open fluorescence field was simulated, and Auto-fitted, as a
         trench), the pad the size of the recording (a 500 px pad beside a 512 px field
         left a strip of the recording uncovered). The form can still be changed after."""
@@ -144,6 +145,8 @@ class SimulateWidget(Container):
         rows, cols = (int(n) for n in layer.data.shape[-2:])
         field = default_geometry(cols, microscope.modality) == "field"
         self.form.geometry.value = "agar_pad" if field else "trench"
+        if not field and hasattr(self.form, "trench"):
+            self._size_trench(rows, cols, microscope.pixel_size_um)
         pad = getattr(self.form, "agar_pad", None)
         if field and pad is not None:
             width_um, height_um = cols * microscope.pixel_size_um, rows * microscope.pixel_size_um
@@ -152,6 +155,19 @@ class SimulateWidget(Container):
             pad.edge_margin_um.value = round(margin, 3)
             pad.field_width_um.value = width_um
             pad.field_height_um.value = height_um
+
+    def _size_trench(self, rows: int, cols: int, pixel_um: float) -> None:
+        """Frames of the recording's size: the trench and its margins of PDMS as wide as
+        the recording (``cols`` pixels of ``pixel_um``; the margins shrink for a narrow
+        one, then the trench), the trench as long as it less the top margin (found as a
+        user: the default trench was drawn 46 px wide beside a 32 px wide recording)."""
+        trench = self.form.trench
+        width_um, height_um = cols * pixel_um, rows * pixel_um
+        room = max((width_um - trench.width_um.value) / 2, 0.0)
+        margin = round(min(trench.margin_um.value, room), 3)
+        trench.margin_um.value = margin
+        trench.width_um.value = round(width_um - 2 * margin, 3)
+        trench.length_um.value = round(height_um - margin, 3)
 
     def pipeline_settings(self) -> PipelineSettings:
         """The settings to run: the form, and the chosen recording's microscope.
