@@ -51,3 +51,18 @@ def _notifications_in_the_report():
     notification_manager.notification_ready.connect(echo)
     yield
     notification_manager.notification_ready.disconnect(echo)
+
+
+@pytest.fixture
+def notifications():
+    """Messages of the napari notifications shown during the test."""
+    from napari.utils.notifications import notification_manager
+
+    seen: list[str] = []
+
+    def record(notification):
+        seen.append(str(notification.message))
+
+    notification_manager.notification_ready.connect(record)
+    yield seen
+    notification_manager.notification_ready.disconnect(record)

@@ -87,21 +87,6 @@ def test_paint_and_measure_a_time_series(make_napari_viewer):
     assert widget.statistics["media"].mean == pytest.approx(1000, abs=15)
 
 
-@pytest.fixture
-def notifications():
-    """Messages of the napari notifications shown during the test."""
-    from napari.utils.notifications import notification_manager
-
-    seen: list[str] = []
-
-    def record(notification):
-        seen.append(str(notification.message))
-
-    notification_manager.notification_ready.connect(record)
-    yield seen
-    notification_manager.notification_ready.disconnect(record)
-
-
 def test_missing_pixel_size_is_asked_for_and_remembered(
     make_napari_viewer, tmp_path, real_data_dir, notifications
 ):

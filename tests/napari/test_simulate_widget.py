@@ -11,6 +11,7 @@ from napari_symbac._widgets.simulate import (
     PREVIEW_LAYER,
     RESULT_IMAGE_LAYER,
     RESULT_LABELS_LAYER,
+    RESULT_OPL_LAYER,
     SimulateWidget,
 )
 
@@ -242,3 +243,89 @@ def test_a_chosen_recording_sets_the_geometry_as_fit_would(widget, width_px, mod
         assert widget.pipeline_settings().simulation.agar_pad.field_width_um == pytest.approx(
             width_px * 0.1
         )
+
+
+def _units_warnings(viewer, notifications: list[str]) -> list[str]:
+    """Draw the canvas (napari checks the layers' units when it draws) and return the
+    "Inconsistent units" warnings shown so far."""
+    viewer.screenshot(canvas_only=True)
+    return [message for message in notifications if "Inconsistent units" in message]
+
+
+def _simulate(widget, qtbot, n_frames: int = 3, show_opl: bool = False) -> None:
+    widget.form.n_frames.value = n_frames
+    widget.show_opl.value = show_opl
+    widget.run_button.native.click()
+    qtbot.waitUntil(lambda: RESULT_LABELS_LAYER in widget.viewer.layers, timeout=120_000)
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=10_000)
+
+
+def test_a_recording_still_in_pixels_and_a_simulation_share_units(
+    make_napari_viewer, qtbot, real_data_dir, notifications
+):
+    """Found as a user: a recording opened without a pixel size, then simulated beside,
+    made napari warn "Inconsistent units across layers" (the synthetic layers were in
+    um, the recording in pixels). They are in pixels until the pixel size is entered,
+    then both in um, over each other."""
+    from napari_symbac._widgets.real_image import RealImageWidget
+
+    viewer = make_napari_viewer()
+    recording = RealImageWidget(viewer)
+    simulate = SimulateWidget(viewer)
+    viewer.window.add_dock_widget(recording)
+    viewer.window.add_dock_widget(simulate)
+    recording.file.value = real_data_dir / "ecoli_100x_oil_exponential.tiff"
+    assert simulate.recording.value is None  # no pixel size yet: not a recording
+    _simulate(simulate, qtbot, show_opl=True)
+    synthetic = viewer.layers[RESULT_IMAGE_LAYER]
+    assert [str(u) for u in synthetic.units[-2:]] == ["pixel", "pixel"]
+    assert _units_warnings(viewer, notifications) == []
+
+    recording.pixel_size.value = 0.065
+    pixel = simulate.pipeline.microscope.pixel_size_um  # the simulation's, built in
+    real = viewer.layers["ecoli_100x_oil_exponential"]
+    for layer in (synthetic, viewer.layers[RESULT_LABELS_LAYER]):
+        assert [str(u) for u in layer.units[-2:]] == ["micrometer", "micrometer"]
+        np.testing.assert_allclose(layer.data_to_world((0, 5, 7)), (0, 5 * pixel, 7 * pixel))
+    np.testing.assert_allclose(real.data_to_world((5, 7)), (5 * 0.065, 7 * 0.065))
+    # the optical path length's render pixels still sit over the camera pixels
+    opl = viewer.layers[RESULT_OPL_LAYER]
+    upsample = simulate.pipeline.render.upsample
+    centre = upsample // 2
+    np.testing.assert_allclose(
+        opl.data_to_world((0, centre + upsample * 5, centre + upsample * 7)),
+        synthetic.data_to_world((0, 5, 7)),
+        atol=1e-9,
+    )
+    assert _units_warnings(viewer, notifications) == []
+    # simulated again, now with the recording: in um at once
+    assert simulate.recording.value is real
+    _simulate(simulate, qtbot)
+    assert [str(u) for u in viewer.layers[RESULT_IMAGE_LAYER].units[-2:]] == [
+        "micrometer",
+        "micrometer",
+    ]
+    assert _units_warnings(viewer, notifications) == []
+
+
+def test_a_recording_opened_in_pixels_after_a_simulation_shares_its_units(
+    make_napari_viewer, qtbot, real_data_dir, notifications
+):
+    """The other order: simulated first (in um), then a recording without a pixel size
+    opened: the simulation follows it into pixels instead of napari warning."""
+    from napari_symbac._widgets.real_image import RealImageWidget
+
+    viewer = make_napari_viewer()
+    recording = RealImageWidget(viewer)
+    simulate = SimulateWidget(viewer)
+    _simulate(simulate, qtbot)
+    synthetic = viewer.layers[RESULT_IMAGE_LAYER]
+    assert [str(u) for u in synthetic.units[-2:]] == ["micrometer", "micrometer"]
+    recording.file.value = real_data_dir / "ecoli_100x_oil_exponential.tiff"
+    assert [str(u) for u in synthetic.units[-2:]] == ["pixel", "pixel"]
+    np.testing.assert_allclose(synthetic.data_to_world((0, 5, 7)), (0, 5, 7))
+    assert _units_warnings(viewer, notifications) == []
+    recording.pixel_size.value = 0.08
+    pixel = simulate.pipeline.microscope.pixel_size_um
+    np.testing.assert_allclose(synthetic.data_to_world((0, 5, 7)), (0, 5 * pixel, 7 * pixel))
+    assert _units_warnings(viewer, notifications) == []

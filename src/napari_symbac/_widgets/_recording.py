@@ -27,6 +27,7 @@ from napari_symbac.settings import Microscope, RenderSettings
 __all__ = [
     "AXIS_LABELS",
     "check_recording_frame",
+    "in_pixel_units",
     "is_recording",
     "layer_axes",
     "modality_render",
@@ -57,6 +58,12 @@ def layer_axes(pixel_size_um: float, ndim: int) -> dict[str, tuple]:
     from napari_symbac.io import micrometre_axes
 
     return {**micrometre_axes(pixel_size_um, ndim), "axis_labels": AXIS_LABELS[-ndim:]}
+
+
+def in_pixel_units(layer: Any) -> bool:
+    """Whether a layer's ``Y`` and ``X`` axes are in napari's default unit, the pixel (an
+    image opened without a pixel size), whatever its scale."""
+    return all(str(unit) == "pixel" for unit in layer.units[-2:])
 
 
 def check_recording_frame(frame: Any, name: str) -> None:

@@ -17,6 +17,7 @@ from napari_symbac._widgets._jobs import notify_warning
 from napari_symbac._widgets._recording import (
     AXIS_LABELS,
     check_recording_frame,
+    in_pixel_units,
     layer_axes,
     pixel_size_problem,
 )
@@ -125,6 +126,7 @@ class RealImageWidget(Container):
         self.measure_button.changed.connect(self.measure)
         viewer.layers.events.inserted.connect(self._add_grey_channel)
         viewer.layers.events.inserted.connect(self._place_over_recording)
+        viewer.layers.events.inserted.connect(self._follow_image_in_pixels)
         viewer.layers.events.inserted.connect(self.image.reset_choices)
         viewer.layers.events.removed.connect(self.image.reset_choices)
         self.statistics = None
@@ -169,6 +171,7 @@ class RealImageWidget(Container):
             kwargs.update(layer_axes(recording.pixel_size_um, recording.data.ndim))
         else:
             kwargs["axis_labels"] = AXIS_LABELS[-recording.data.ndim :]
+            _follow_pixels(self.viewer)  # before napari draws the image (and checks units)
         layer = self.viewer.add_image(
             recording.data,
             name=recording.name,
@@ -278,6 +281,17 @@ class RealImageWidget(Container):
                 _place_in_micrometres(layer, float(pixel))
                 return
 
+    def _follow_image_in_pixels(self, event) -> None:
+        """An image added in pixels by napari's *File > Open* (a TIFF without a pixel
+        size) takes Simulate's layers into pixels with it. napari has drawn it and warned
+        "Inconsistent units across layers" once by then (its canvas hears of a new layer
+        before any plugin); *or open* moves them before adding the image, unwarned."""
+        from napari.layers import Image
+
+        layer = event.value
+        if isinstance(layer, Image) and not _is_synthetic(layer) and in_pixel_units(layer):
+            _follow_pixels(self.viewer)
+
     def _add_grey_channel(self, event) -> None:
         """A grey image saved as colour (equal red, green and blue: the Omnipose and
         Cellpose datasets' PNGs, which napari opens as RGBA) gets its grey channel as a
@@ -355,6 +369,7 @@ class RealImageWidget(Container):
         }
         for target in [layer, *self._overlays(layer)]:
             _place_in_micrometres(target, pixel)
+        _move_simulation(self.viewer, to_micrometres=True)
         if not any(_is_synthetic(other) for other in self.viewer.layers):
             self.viewer.reset_view()
 
@@ -415,6 +430,44 @@ def _is_synthetic(layer) -> bool:
     from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
 
     return SYMBAC_METADATA_KEY in layer.metadata
+
+
+def _drawn_pixel_um(layer) -> float | None:
+    """The pixel size a layer of Simulate's was drawn at, or ``None`` for other layers
+    (Diagnose's and Tune's are placed over the recording, not by their own pixels)."""
+    from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
+
+    meta = layer.metadata.get(SYMBAC_METADATA_KEY) or {}
+    settings = meta.get("settings") if "simulation" in meta else None
+    microscope = getattr(settings, "microscope", None)
+    return getattr(microscope, "pixel_size_um", None)
+
+
+def _move_simulation(viewer, to_micrometres: bool) -> None:
+    """Move Simulate's layers into micrometres (each by the pixel size it was drawn at)
+    or back into pixels: scale and translate together, so that the optical path
+    length's render pixels stay over the camera pixels."""
+    for layer in viewer.layers:
+        pixel = _drawn_pixel_um(layer)
+        if not pixel or in_pixel_units(layer) != to_micrometres:
+            continue
+        factor = pixel if to_micrometres else 1.0 / pixel
+        lead = layer.ndim - 2
+        unit = "um" if to_micrometres else "pixel"
+        layer.scale = (*layer.scale[:lead], *(float(s) * factor for s in layer.scale[lead:]))
+        layer.translate = (
+            *layer.translate[:lead],
+            *(float(t) * factor for t in layer.translate[lead:]),
+        )
+        layer.units = (*layer.units[:lead], unit, unit)
+
+
+def _follow_pixels(viewer) -> None:
+    """Simulate's layers into pixels, when no layer of the user's is in micrometres:
+    beside an image that is still in pixels, and nothing else to overlay."""
+    users = [layer for layer in viewer.layers if not _is_synthetic(layer)]
+    if all(in_pixel_units(layer) for layer in users):
+        _move_simulation(viewer, to_micrometres=False)
 
 
 def _camera_shape(layer) -> tuple[int, ...]:

@@ -16,6 +16,8 @@ from napari_symbac._widgets._backend import backend_combo
 from napari_symbac._widgets._forms import SettingsForm, hide_label, message_label
 from napari_symbac._widgets._jobs import Job
 from napari_symbac._widgets._recording import (
+    AXIS_LABELS,
+    in_pixel_units,
     layer_axes,
     modality_render,
     recording_microscope,
@@ -275,12 +277,13 @@ class SimulateWidget(Container):
         stage, done, labels = message
         if stage == "simulated":
             self.status.value = f"Simulated frame {done} of {self._n_frames}"
+            placement = self._placement(self._pixel_um, 2)
             if PREVIEW_LAYER in self.viewer.layers:
-                self.viewer.layers[PREVIEW_LAYER].data = labels
+                preview = self.viewer.layers[PREVIEW_LAYER]
+                preview.data = labels
+                _follow_placement(preview, placement)  # a pixel size entered meanwhile
             else:
-                self.viewer.add_labels(
-                    labels, name=PREVIEW_LAYER, **layer_axes(self._pixel_um, 2)
-                )
+                self.viewer.add_labels(labels, name=PREVIEW_LAYER, **placement)
         elif stage == "rendered":
             self._remove_preview()
             self.status.value = f"Rendered frame {done} of {self._n_frames}"
@@ -291,7 +294,7 @@ class SimulateWidget(Container):
         self.simulation, self.pipeline, self.series, opl = result
         self._remove_preview()
         metadata = {SYMBAC_METADATA_KEY: {"simulation": self.simulation, "settings": self.pipeline}}
-        axes = layer_axes(self.pipeline.microscope.pixel_size_um, 3)
+        axes = self._placement(self.pipeline.microscope.pixel_size_um, 3)
         for name, data, kind in (
             (RESULT_IMAGE_LAYER, self.series.images, "image"),
             (RESULT_LABELS_LAYER, self.series.labels, "labels"),
@@ -310,12 +313,14 @@ class SimulateWidget(Container):
 
     def _show_opl(self, opl: np.ndarray, metadata: dict) -> None:
         """Show the render-resolution OPL aligned with the camera-resolution layers."""
-        pixel = self.pipeline.microscope.pixel_size_um
+        placement = self._placement(self.pipeline.microscope.pixel_size_um, 3)
+        pixel = placement.get("scale", (1.0,))[-1]  # of the camera, in its units
         upsample = self.pipeline.render.upsample
         # Camera pixel i covers render pixels upsample*i .. upsample*(i+1) - 1.
         offset = pixel * (1 / (2 * upsample) - 0.5)
         kwargs = {
-            **layer_axes(pixel / upsample, 3),
+            **placement,
+            "scale": (1.0, pixel / upsample, pixel / upsample),
             "translate": (0.0, offset, offset),
             "metadata": metadata,
             "colormap": "magma",
@@ -323,6 +328,20 @@ class SimulateWidget(Container):
         if RESULT_OPL_LAYER in self.viewer.layers:
             self.viewer.layers.remove(RESULT_OPL_LAYER)
         self.viewer.add_image(opl, name=RESULT_OPL_LAYER, visible=False, **kwargs)
+
+    def _placement(self, pixel_um: float, ndim: int) -> dict[str, tuple]:
+        """Layer keyword arguments placing a new ``ndim``-axis layer drawn at ``pixel_um``.
+
+        In micrometres (:func:`~napari_symbac._widgets._recording.layer_axes`), except
+        while no recording is chosen and the viewer shows a layer still in pixels (an
+        image whose pixel size is not entered yet): then in pixels, with a step of 1.
+        napari compares the layers' units axis by axis and, when they differ, warns
+        "Inconsistent units across layers" and drops them (found as a user). The
+        *Recording* dock moves the layers to micrometres when the pixel size is entered.
+        """
+        if self.recording.value is None and _shown_in_pixels(self.viewer):
+            return {"axis_labels": AXIS_LABELS[-ndim:]}
+        return layer_axes(pixel_um, ndim)
 
     def _on_aborted(self) -> None:
         self._remove_preview()
@@ -340,3 +359,21 @@ class SimulateWidget(Container):
     def _remove_preview(self) -> None:
         if PREVIEW_LAYER in self.viewer.layers:
             self.viewer.layers.remove(PREVIEW_LAYER)
+
+
+def _follow_placement(layer, placement: dict[str, tuple]) -> None:
+    """Give a ``(Y, X)`` layer the scale and units of ``placement`` when they differ."""
+    scale = tuple(placement.get("scale", (1.0, 1.0)))
+    units = tuple(placement.get("units", ("pixel", "pixel")))
+    if in_pixel_units(layer) != (units[-1] == "pixel") or tuple(layer.scale) != scale:
+        layer.scale = scale
+        layer.units = units
+
+
+def _shown_in_pixels(viewer: napari.viewer.Viewer) -> bool:
+    """Whether the viewer shows a layer of the user's (not Simulate's) still in pixels."""
+    return any(
+        in_pixel_units(layer)
+        for layer in viewer.layers
+        if SYMBAC_METADATA_KEY not in layer.metadata and layer.name != PREVIEW_LAYER
+    )
