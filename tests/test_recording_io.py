@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import tifffile
 
-from napari_symbac.io import napari_get_reader, read_image, read_recording
+from napari_symbac.io import axis_labels, napari_get_reader, read_image, read_recording
 
 
 def test_imagej_pixel_size(tmp_path):
@@ -143,3 +143,24 @@ def test_the_reader_reads_a_normalised_image_as_counts(real_data_dir):
     assert data.min() == 0
     assert 10_000 < data.max() < 10_500
     assert "read as (value + 0.02847) x 10000 ADU" in meta["metadata"]["counts_note"]
+
+
+@pytest.mark.parametrize(
+    ("shape", "labels"),
+    [((8, 9), ("y", "x")), ((3, 8, 9), ("frame", "y", "x"))],
+)
+@pytest.mark.parametrize("sized", [True, False])
+def test_the_reader_names_the_axes(tmp_path, shape, labels, sized):
+    """Found as a user: a time series opened with File -> Open showed its frame slider as
+    "-3" (napari's default name), where the docks' layers read "frame"."""
+    path = tmp_path / "a.tif"
+    extra = {"imagej": True, "resolution": (10, 10), "metadata": {"unit": "um"}} if sized else {}
+    tifffile.imwrite(path, np.ones(shape, np.uint16), **extra)
+    ((_data, meta, _kind),) = napari_get_reader(str(path))(str(path))
+    assert meta["axis_labels"] == labels
+    assert len(meta["axis_labels"]) == len(meta.get("scale", shape))
+
+
+def test_axis_labels_name_leading_axes_by_position():
+    assert axis_labels(2) == ("y", "x")
+    assert axis_labels(4) == ("axis 0", "frame", "y", "x")

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = [
+    "AXIS_LABELS",
     "NORMALISED_ADU_PER_UNIT",
     "NORMALISED_MAX_RANGE",
     "Recording",
@@ -26,6 +27,11 @@ __all__ = [
 NORMALISED_MAX_RANGE = 16.0
 #: ADU per unit of a normalised image read as counts (:func:`as_counts`).
 NORMALISED_ADU_PER_UNIT = 10_000.0
+
+#: Names of a layer's ``(frame, Y, X)`` axes, for napari (the reader's layers and the
+#: docks'). napari's own are ``-3, -2, -1``, and its frame slider read "-3" (found as a
+#: user, taken for the frame number).
+AXIS_LABELS = ("frame", "y", "x")
 
 _TIFF_SUFFIXES = (".tif", ".tiff", ".ome.tif", ".ome.tiff")
 _PNG_SUFFIXES = (".png",)
@@ -306,6 +312,14 @@ def micrometre_axes(pixel_size_um: float, ndim: int) -> dict[str, tuple]:
     }
 
 
+def axis_labels(ndim: int) -> tuple[str, ...]:
+    """Names of the axes of an ``ndim``-axis ``(..., frame, Y, X)`` layer: ``y, x`` for a
+    frame, ``frame, y, x`` for a time series (:data:`AXIS_LABELS`), any axis before those
+    named by its position."""
+    lead = tuple(f"axis {i}" for i in range(max(ndim - len(AXIS_LABELS), 0)))
+    return lead + AXIS_LABELS[-min(ndim, len(AXIS_LABELS)) :]
+
+
 def napari_get_reader(path):
     """npe2 reader: a TIFF recording as an image layer scaled to micrometres."""
     if isinstance(path, list) or not str(path).lower().endswith(_TIFF_SUFFIXES):
@@ -318,6 +332,7 @@ def _read_layers(path) -> list[tuple]:
     meta = {
         "name": recording.name,
         "metadata": {"pixel_size_um": recording.pixel_size_um, "modality": recording.modality},
+        "axis_labels": axis_labels(recording.data.ndim),
     }
     if recording.pixel_size_um:
         meta.update(micrometre_axes(recording.pixel_size_um, recording.data.ndim))

@@ -198,3 +198,17 @@ def _leaves(container):
             yield from _leaves(widget)
         elif not isinstance(widget, (Label, Image, Table)):
             yield widget
+
+
+def test_file_open_names_the_frame_axis(make_napari_viewer, tmp_path):
+    """Found as a user: a time series opened by napari's File -> Open with this plugin's
+    reader had a frame slider named "-3" (napari's default), not "frame"."""
+    import numpy as np
+    import tifffile
+
+    path = tmp_path / "movie.tif"
+    tifffile.imwrite(path, np.ones((3, 16, 12), np.uint16))
+    viewer = make_napari_viewer()
+    (layer,) = viewer.open(path, plugin="napari-symbac")
+    assert layer.axis_labels == ("frame", "y", "x")
+    assert viewer.dims.axis_labels == ("frame", "y", "x")

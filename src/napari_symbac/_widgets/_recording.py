@@ -22,10 +22,12 @@ from collections.abc import Callable
 from typing import Any
 
 from napari_symbac.fit.preflight import check_pixel_size
+from napari_symbac.io import AXIS_LABELS, axis_labels, micrometre_axes
 from napari_symbac.settings import Microscope, RenderSettings
 
 __all__ = [
     "AXIS_LABELS",
+    "axis_labels",
     "check_recording_frame",
     "in_pixel_units",
     "is_recording",
@@ -47,17 +49,11 @@ _DEFAULT_INTENSITIES = {
 }
 
 
-#: Names of a layer's ``(frame, Y, X)`` axes. napari's own are ``-3, -2, -1``, and its frame
-#: slider read "-3" (found as a user, after Auto-fit: taken for the frame number).
-AXIS_LABELS = ("frame", "y", "x")
-
-
 def layer_axes(pixel_size_um: float, ndim: int) -> dict[str, tuple]:
     """Layer keyword arguments that place a ``(..., Y, X)`` layer in micrometres
-    (:func:`~napari_symbac.io.micrometre_axes`) with its axes named (:data:`AXIS_LABELS`)."""
-    from napari_symbac.io import micrometre_axes
-
-    return {**micrometre_axes(pixel_size_um, ndim), "axis_labels": AXIS_LABELS[-ndim:]}
+    (:func:`~napari_symbac.io.micrometre_axes`) with its axes named
+    (:func:`~napari_symbac.io.axis_labels`, as the plugin's reader names them)."""
+    return {**micrometre_axes(pixel_size_um, ndim), "axis_labels": axis_labels(ndim)}
 
 
 def in_pixel_units(layer: Any) -> bool:

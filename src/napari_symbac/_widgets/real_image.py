@@ -15,7 +15,7 @@ from magicgui.widgets import ComboBox, Container, FileEdit, Label, PushButton
 from napari_symbac._widgets._forms import SettingsForm, hide_label, message_label
 from napari_symbac._widgets._jobs import notify_warning
 from napari_symbac._widgets._recording import (
-    AXIS_LABELS,
+    axis_labels,
     check_recording_frame,
     in_pixel_units,
     layer_axes,
@@ -170,7 +170,7 @@ class RealImageWidget(Container):
         if recording.pixel_size_um:
             kwargs.update(layer_axes(recording.pixel_size_um, recording.data.ndim))
         else:
-            kwargs["axis_labels"] = AXIS_LABELS[-recording.data.ndim :]
+            kwargs["axis_labels"] = axis_labels(recording.data.ndim)
             _follow_pixels(self.viewer)  # before napari draws the image (and checks units)
         layer = self.viewer.add_image(
             recording.data,

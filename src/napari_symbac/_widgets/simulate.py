@@ -16,7 +16,7 @@ from napari_symbac._widgets._backend import backend_combo
 from napari_symbac._widgets._forms import SettingsForm, hide_label, message_label
 from napari_symbac._widgets._jobs import Job
 from napari_symbac._widgets._recording import (
-    AXIS_LABELS,
+    axis_labels,
     in_pixel_units,
     layer_axes,
     modality_render,
@@ -340,7 +340,7 @@ class SimulateWidget(Container):
         *Recording* dock moves the layers to micrometres when the pixel size is entered.
         """
         if self.recording.value is None and _shown_in_pixels(self.viewer):
-            return {"axis_labels": AXIS_LABELS[-ndim:]}
+            return {"axis_labels": axis_labels(ndim)}
         return layer_axes(pixel_um, ndim)
 
     def _on_aborted(self) -> None:

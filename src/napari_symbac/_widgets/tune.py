@@ -26,7 +26,7 @@ from magicgui.widgets import (
 from napari_symbac._widgets._forms import message_label
 from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
 from napari_symbac._widgets._recording import (
-    AXIS_LABELS,
+    axis_labels,
     check_recording_frame,
     is_recording,
     modality_render,
@@ -842,7 +842,7 @@ class TuneWidget(Container):
             "scale": tuple(reference.scale[-axes:]),
             "units": tuple(reference.units[-axes:]),
             "translate": tuple(reference.translate[-axes:]),
-            "axis_labels": AXIS_LABELS[-axes:],
+            "axis_labels": axis_labels(axes),
         }
         for name, data, extra in (
             (FIT_SYNTHETIC_LAYER, synthetic, {}),
