@@ -212,3 +212,27 @@ def test_file_open_names_the_frame_axis(make_napari_viewer, tmp_path):
     (layer,) = viewer.open(path, plugin="napari-symbac")
     assert layer.axis_labels == ("frame", "y", "x")
     assert viewer.dims.axis_labels == ("frame", "y", "x")
+
+
+def test_workflow_steps_sit_at_the_top_of_their_tabs(make_napari_viewer, qtbot, real_data_dir):
+    """Found as a user: the *1 Recording* tab, at 1366 x 768, spread its spare height
+    between its rows (each ~65 px tall for a 24 px field, gaps under every row)."""
+    from napari_symbac._widgets.workflow import WorkflowWidget
+
+    viewer = make_napari_viewer(show=True)
+    viewer.window._qt_window.resize(1366, 768)
+    workflow = WorkflowWidget(viewer)
+    viewer.window.add_dock_widget(workflow, name="SyMBac", area="right")
+    workflow.real_image.file.value = real_data_dir / "ecoli_100x_oil_exponential.tiff"
+    steps = (workflow.real_image, workflow.simulate, workflow.tune, workflow.diagnose,
+             workflow.export)  # fmt: skip
+    for index, step in enumerate(steps):
+        workflow.setCurrentIndex(index)
+        area = workflow.widget(index)
+        qtbot.waitUntil(lambda area=area: area.viewport().height() > 100, timeout=10_000)
+        native = step.native
+        qtbot.waitUntil(lambda native=native: native.height() > 0, timeout=10_000)
+        assert native.height() <= max(native.sizeHint().height(), native.minimumHeight()), index
+    # the rows of the Recording tab are packed: "or open" right under "real image"
+    image_row = workflow.real_image.image.native.parentWidget()
+    assert image_row.height() < 2 * workflow.real_image.image.native.height()

@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from qtpy.QtCore import QEvent, QObject
-from qtpy.QtWidgets import QFrame, QScrollArea, QStyle, QTabWidget
+from qtpy.QtWidgets import QFrame, QScrollArea, QStyle, QTabWidget, QVBoxLayout, QWidget
 
 from napari_symbac._widgets.diagnose import DiagnoseWidget
 from napari_symbac._widgets.export import ExportWidget
@@ -56,7 +56,7 @@ class WorkflowWidget(QTabWidget):
             area = QScrollArea()
             area.setWidgetResizable(True)
             area.setFrameShape(QFrame.Shape.NoFrame)
-            area.setWidget(widget.native)
+            area.setWidget(_at_the_top(widget.native))
             widget.native.installEventFilter(self)
             index = self.addTab(area, title)
             self.setTabToolTip(index, tip)
@@ -76,3 +76,18 @@ class WorkflowWidget(QTabWidget):
         if event.type() == QEvent.Type.LayoutRequest:
             self._fit_widest_step()
         return super().eventFilter(watched, event)
+
+
+def _at_the_top(step: QWidget) -> QWidget:
+    """A page holding ``step`` at its top, the room left below it.
+
+    The scroll area stretches its widget to the tab's height; a step stretched so spread
+    its spare height between its rows (found as a user: gaps of ~40 px between the
+    *Recording* tab's rows at 1366 x 768).
+    """
+    page = QWidget()
+    layout = QVBoxLayout(page)
+    layout.setContentsMargins(0, 0, 0, 0)
+    layout.addWidget(step)
+    layout.addStretch(1)
+    return page
