@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from qtpy.QtCore import QEvent, QObject
-from qtpy.QtWidgets import QFrame, QScrollArea, QStyle, QTabWidget, QVBoxLayout, QWidget
+from qtpy.QtWidgets import QFrame, QScrollArea, QStyle, QTabWidget, QWidget
 
 from napari_symbac._widgets.diagnose import DiagnoseWidget
 from napari_symbac._widgets.export import ExportWidget
@@ -56,7 +56,8 @@ class WorkflowWidget(QTabWidget):
             area = QScrollArea()
             area.setWidgetResizable(True)
             area.setFrameShape(QFrame.Shape.NoFrame)
-            area.setWidget(_at_the_top(widget.native))
+            _rows_at_the_top(widget.native)
+            area.setWidget(widget.native)
             widget.native.installEventFilter(self)
             index = self.addTab(area, title)
             self.setTabToolTip(index, tip)
@@ -78,16 +79,14 @@ class WorkflowWidget(QTabWidget):
         return super().eventFilter(watched, event)
 
 
-def _at_the_top(step: QWidget) -> QWidget:
-    """A page holding ``step`` at its top, the room left below it.
+def _rows_at_the_top(step: QWidget) -> None:
+    """Keep the rows of ``step`` at its top, the room left below them.
 
     The scroll area stretches its widget to the tab's height; a step stretched so spread
     its spare height between its rows (found as a user: gaps of ~40 px between the
-    *Recording* tab's rows at 1366 x 768).
+    *Recording* tab's rows at 1366 x 768). A stretch after the last row takes it
+    (magicgui inserts rows by their index, before it).
     """
-    page = QWidget()
-    layout = QVBoxLayout(page)
-    layout.setContentsMargins(0, 0, 0, 0)
-    layout.addWidget(step)
-    layout.addStretch(1)
-    return page
+    layout = step.layout()
+    if layout is not None and hasattr(layout, "addStretch"):
+        layout.addStretch(1)
