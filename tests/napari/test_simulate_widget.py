@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -166,6 +168,13 @@ def test_a_trench_recording_sizes_the_trench(widget, qtbot):
     assert widget.viewer.layers[RESULT_IMAGE_LAYER].data.shape[1:] == (256, 32)
     trench = widget.pipeline.simulation.trench
     assert trench.width_um > widget.pipeline.simulation.cell_width_um  # still holds cells
+    # a fitted closed end (its own top margin) keeps its place; the frame its height
+    fitted = dataclasses.replace(trench, top_margin_um=1.2)
+    widget.form.value = dataclasses.replace(widget.form.value, trench=fitted)
+    widget._follow_recording(recording)
+    sized = widget.form.value.trench
+    assert sized.top_margin_um == 1.2
+    assert sized.length_um + sized.shown_top_um == pytest.approx(256 * 0.065, abs=1e-3)
 
 
 def test_closing_the_viewer_during_a_run_is_clean(make_napari_viewer, qtbot):

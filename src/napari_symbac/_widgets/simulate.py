@@ -161,15 +161,17 @@ class SimulateWidget(Container):
     def _size_trench(self, rows: int, cols: int, pixel_um: float) -> None:
         """Frames of the recording's size: the trench and its margins of PDMS as wide as
         the recording (``cols`` pixels of ``pixel_um``; the margins shrink for a narrow
-        one, then the trench), the trench as long as it less the top margin (found as a
-        user: the default trench was drawn 46 px wide beside a 32 px wide recording)."""
+        one, then the trench), the trench as long as it less the top margin (a fitted
+        ``top_margin_um``, else the sides'; found as a user: the default trench was drawn
+        46 px wide beside a 32 px wide recording)."""
         trench = self.form.trench
         width_um, height_um = cols * pixel_um, rows * pixel_um
         room = max((width_um - trench.width_um.value) / 2, 0.0)
         margin = round(min(trench.margin_um.value, room), 3)
+        top = trench.value.top_margin_um  # a fitted closed end's place, kept
         trench.margin_um.value = margin
         trench.width_um.value = round(width_um - 2 * margin, 3)
-        trench.length_um.value = round(height_um - margin, 3)
+        trench.length_um.value = round(height_um - (margin if top is None else top), 3)
 
     def pipeline_settings(self) -> PipelineSettings:
         """The settings to run: the form, and the chosen recording's microscope.
