@@ -109,8 +109,6 @@ def test_agar_pad_run_previews_and_renders_its_field(widget, qtbot):
 
 def test_recording_sets_pixel_size_microscope_and_modality(widget, qtbot):
     """Defect 3: Simulate always used 0.065 um, NA 1.45, Ph3, whatever the recording."""
-    import dataclasses
-
     import numpy as np
 
     from napari_symbac.settings import Microscope
