@@ -102,7 +102,7 @@ class RealImageWidget(Container):
             for (name, colour), value in zip(CLASS_COLOURS.items(), CLASS_VALUES.values())
         )
         self.legend = Label(name="legend", value=legend)
-        self.result = message_label("result")
+        self.result = message_label("result", label="")  # no empty "result" row
         self.extend(
             [
                 self.image,
