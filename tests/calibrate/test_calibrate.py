@@ -62,6 +62,32 @@ def test_cluster_sizes_counts_the_cells_that_touch():
     assert sorted(cluster_sizes(labels).tolist()) == [1, 2]
 
 
+def test_a_field_is_laid_out_as_its_clusters_before_any_fit(real_data_dir):
+    """Simulate's start for a fluorescence field (found as a user: one founder on an
+    empty pad beside a field of eight cells): one colony per cluster of bright cells,
+    each of the clusters' size; a blank image lays nothing out."""
+    from scipy import ndimage
+
+    from napari_symbac.calibrate.core import rough_pad_layout
+    from napari_symbac.settings import SimulationSettings
+
+    ds1 = real_data_dir / "colicoords" / "test_data" / "ds1"
+    cell_area_um2 = 1.0 * 0.75 * 3.5
+    for name in ("00001", "00003"):
+        image = tifffile.imread(ds1 / "fluorescence" / f"{name}.tif")
+        masks = tifffile.imread(ds1 / "binary" / f"{name}_Probabilities_filtered.tif") > 0
+        # clusters: the masks' cells within 0.5 um (7 px at 80 nm) of each other
+        clusters = ndimage.label(ndimage.binary_dilation(masks, iterations=6))[1]
+        fields, note = rough_pad_layout(image, 0.08, cell_area_um2)
+        found = fields["agar_pad"].n_colonies  # a rough count: the blur joins a pair
+        assert abs(found - clusters) <= 1, (name, found, clusters)
+        assert fields["n_founders"] == found
+        assert fields["agar_pad"].field_width_um == pytest.approx(512 * 0.08)
+        assert f"{found} colonies" in note
+        SimulationSettings(**fields)  # a valid simulation
+    assert rough_pad_layout(np.full((64, 64), 100.0), 0.08, cell_area_um2) is None
+
+
 def test_best_crop_holds_whole_cells():
     masks = np.zeros((100, 100), np.int32)
     masks[70:80, 70:80] = 1

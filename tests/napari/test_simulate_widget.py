@@ -252,6 +252,30 @@ def test_a_chosen_recording_sets_the_geometry_as_fit_would(widget, width_px, mod
         )
 
 
+def test_a_fluorescence_field_is_laid_out_as_its_cells(widget, qtbot, real_data_dir):
+    """Found as a user: a ColiCoords field of eight cells was simulated as one founder on
+    an empty 41 um pad until Auto-fit; the pad now has a colony per cluster of cells."""
+    import tifffile
+
+    image = tifffile.imread(
+        real_data_dir / "colicoords" / "test_data" / "ds1" / "fluorescence" / "00001.tif"
+    )
+    widget.viewer.add_image(
+        image, name="field 1", scale=(0.08, 0.08),
+        metadata={"pixel_size_um": 0.08, "modality": "fluorescence"},
+    )  # fmt: skip
+    assert widget.form.geometry.value == "agar_pad"
+    settings = widget.pipeline_settings().simulation
+    assert 6 <= settings.agar_pad.n_colonies <= 8  # the field's 8 cells, a pair touching
+    assert settings.n_founders == settings.agar_pad.n_colonies
+    assert "colonies of one founder each" in widget.status.value
+    widget.run_button.native.click()
+    qtbot.waitUntil(lambda: RESULT_LABELS_LAYER in widget.viewer.layers, timeout=120_000)
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=10_000)
+    labels = widget.viewer.layers[RESULT_LABELS_LAYER].data
+    assert len(np.unique(labels[-1])) - 1 >= 6  # cells over the pad, not one
+
+
 def _units_warnings(viewer, notifications: list[str]) -> list[str]:
     """Draw the canvas (napari checks the layers' units when it draws) and return the
     "Inconsistent units" warnings shown so far."""

@@ -157,6 +157,29 @@ class SimulateWidget(Container):
             pad.edge_margin_um.value = round(margin, 3)
             pad.field_width_um.value = width_um
             pad.field_height_um.value = height_um
+            if microscope.modality == "fluorescence":
+                self._lay_out_as(layer, microscope.pixel_size_um)
+
+    def _lay_out_as(self, layer, pixel_um: float) -> None:
+        """The pad's colonies as the recording's clusters of bright cells, before any fit
+        (:func:`~napari_symbac.calibrate.core.rough_pad_layout` of its first frame; found
+        as a user: a ColiCoords field of eight cells was simulated as one founder on an
+        empty pad). Said in the status; Auto-fit lays it out from the fitted cells."""
+        from napari_symbac.calibrate.core import rough_pad_layout
+
+        frame = np.asarray(layer.data[(0,) * (layer.data.ndim - 2)], np.float64)
+        settings = self.form.value
+        cell_area_um2 = settings.cell_width_um * 0.75 * settings.cell_max_length_um
+        layout = rough_pad_layout(frame, pixel_um, cell_area_um2)
+        if layout is None:  # no cell to see: the defaults' colony
+            return
+        fields, note = layout
+        try:
+            self.form.value = dataclasses.replace(settings, **fields)
+        except ValueError as err:  # e.g. more colonies than the pad has room for
+            self.status.value = f"The pad is not laid out as {layer.name}: {err}"
+            return
+        self.status.value = f"{layer.name}: {note}"
 
     def _size_trench(self, rows: int, cols: int, pixel_um: float) -> None:
         """Frames of the recording's size: the trench and its margins of PDMS as wide as

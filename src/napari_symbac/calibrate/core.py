@@ -57,6 +57,7 @@ __all__ = [
     "calibrate",
     "division_length_um",
     "export_settings",
+    "rough_pad_layout",
     "settings_from_fit",
 ]
 
@@ -160,6 +161,41 @@ def _rough_cells(image: np.ndarray, modality: str) -> np.ndarray:
     cells = smooth > threshold if modality == "fluorescence" else smooth < threshold
     labels, _ = ndimage.label(ndimage.binary_opening(cells, iterations=2))
     return labels
+
+
+#: Distance (um) within which a field's rough cell regions are one cluster, a colony:
+#: the bright seams between a phase colony's touching cells are thinner.
+_CLUSTER_REACH_UM = 0.5
+
+
+def rough_pad_layout(
+    image: np.ndarray, pixel_size_um: float, cell_area_um2: float
+) -> tuple[dict, str] | None:
+    """A fluorescence field's agar pad laid out before any fit (Simulate's start):
+    :func:`pad_layout` with one colony per cluster of the image's bright regions
+    (:func:`_rough_cells`; regions of at least half a cell of ``cell_area_um2``,
+    joined within :data:`_CLUSTER_REACH_UM`), each of the clusters' mean area in cells.
+    Found as a user: a ColiCoords field of eight scattered cells was simulated as one
+    founder on an empty 41 um pad until Auto-fit laid it out. Fluorescence only: in
+    phase contrast the background far from a colony is darker than its halo, and an
+    Otsu threshold takes it for cells (1 colony of thousands of cells on the Omnipose
+    images). ``None`` for an image without a bright region of a cell's size."""
+    from scipy import ndimage
+
+    image = np.asarray(image, np.float64)
+    if not np.ptp(image) > 0:
+        return None
+    regions = _rough_cells(image, "fluorescence")
+    area_px = np.bincount(regions.ravel())[1:]
+    kept = np.flatnonzero(area_px * pixel_size_um**2 >= 0.5 * cell_area_um2) + 1
+    cells = np.isin(regions, kept)
+    reach = max(1, round(_CLUSTER_REACH_UM / pixel_size_um))
+    clusters, n_clusters = ndimage.label(ndimage.binary_dilation(cells, iterations=reach))
+    if n_clusters == 0:
+        return None
+    in_cells = np.bincount(clusters[cells], minlength=n_clusters + 1)[1:]
+    per_colony = float(in_cells.mean()) * pixel_size_um**2 / cell_area_um2
+    return pad_layout(image.shape[-2:], pixel_size_um, n_clusters, max(per_colony, 1.0))
 
 
 def _clusters_outside(
