@@ -590,8 +590,11 @@ _EXAMPLES = {
     ),
     "bench": _examples(
         "napari-symbac bench --quick",
-        "bash tools/make-symbac-env.sh && napari-symbac bench --symbac-python "
-        "symbac-venv/bin/python --out bench/",
+        "# once: an environment with SyMBac 0.5.2 (in a source checkout: bash "
+        "tools/make-symbac-env.sh)",
+        "python -m venv symbac-venv && symbac-venv/bin/pip install SyMBac==0.5.2 "
+        "opencv-python-headless",
+        "napari-symbac bench --symbac-python symbac-venv/bin/python --out bench/",
     ),
     "defaults": _examples(
         "napari-symbac defaults microscope --out microscope.yaml",
@@ -861,8 +864,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Run every benchmark of napari-symbac (simulation, render, slider, fit, "
         "export, memory) and print one table: each cost, its ratio to one plain FFT "
         "convolution of the same frame, and SyMBac 0.5.2's cost at the same settings when "
-        "--symbac-python names an interpreter that has it (make one with "
-        "tools/make-symbac-env.sh). Rounds interleave the two tools; the table shows the "
+        "--symbac-python names an interpreter that has it (make one with `python -m venv "
+        "DIR && DIR/bin/pip install SyMBac==0.5.2`, or tools/make-symbac-env.sh in a source "
+        "checkout). Rounds interleave the two tools; the table shows the "
         "median and range. A full run takes tens of minutes; --quick about a minute.",
     )
     bench.add_argument(

@@ -80,4 +80,7 @@ def test_bench_refuses_an_interpreter_without_symbac(tmp_path, capsys):
     assert main(["bench", "--quick", "--symbac-python", str(fake)]) == 2
     err = capsys.readouterr().err
     assert "not an executable file" in err
-    assert "tools/make-symbac-env.sh" in err
+    # how to make one, with or without a source checkout (found as a user: the script
+    # the message named is not installed with the package)
+    assert "python -m venv DIR && DIR/bin/pip install SyMBac==0.5.2" in err
+    assert "tools/make-symbac-env.sh DIR in a source checkout" in err

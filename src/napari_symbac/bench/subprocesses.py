@@ -108,7 +108,10 @@ def symbac_run(config: BenchConfig, render_shape: tuple[int, int], camera_shape:
 
 def check_symbac_python(python: str) -> str:
     """``python`` if it runs and imports SyMBac 0.5.2, else a ValueError saying how to fix it."""
-    fix = "make one with: bash tools/make-symbac-env.sh DIR, then pass DIR/bin/python"
+    fix = (
+        "make one with: python -m venv DIR && DIR/bin/pip install SyMBac==0.5.2 (or bash "
+        "tools/make-symbac-env.sh DIR in a source checkout), then pass DIR/bin/python"
+    )
     if not (os.path.isfile(python) and os.access(python, os.X_OK)):
         raise ValueError(f"--symbac-python {python}: not an executable file; {fix}")
     probe = subprocess.run(
