@@ -6,9 +6,12 @@ Run ``napari-symbac --help`` or ``napari-symbac COMMAND --help``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import re
+import signal
 import sys
-from collections.abc import Callable, Sequence
+import threading
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 from napari_symbac import __version__
@@ -903,14 +906,39 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return args.func(args)
+        with _terminate_as_interrupt():
+            return args.func(args)
     except (ValueError, TypeError, OSError, ExportError) as err:
         text = _one_line(err)
         print(f"napari-symbac {args.command}: error: {text}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as stop:
         print(f"napari-symbac {args.command}: {interrupted_text(args.command)}", file=sys.stderr)
-        return 130
+        return 143 if isinstance(stop, Terminated) else 130
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM received: the command unwinds as after Ctrl-C (exit status 143)."""
+
+
+def _raise_terminated(signum: int, frame: object) -> None:
+    raise Terminated
+
+
+@contextlib.contextmanager
+def _terminate_as_interrupt() -> Iterator[None]:
+    """SIGTERM (``timeout``, ``kill``, a cluster's job scheduler) unwinds the command as
+    Ctrl-C does, so that its staging folders are removed and a finished export is kept
+    (found as a user: ``timeout 120 napari-symbac calibrate ...`` left a 49 MB
+    ``.OUT.partial-*`` folder beside --out). Only the main thread handles signals."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 #: Commands that do not resume a run that stopped: they start over when run again.

@@ -206,3 +206,37 @@ def test_calibrate_refuses_a_trench_and_names_fit_and_export(real_data_dir, tmp_
     assert "is 32 px wide: a mother-machine trench" in err
     assert "napari-symbac export --config FIT/settings.yaml" in err
     assert not out.exists()
+
+
+def test_a_terminated_calibrate_leaves_nothing_behind(colicoords_files, capsys, monkeypatch):
+    """Found as a user: `timeout 120 napari-symbac calibrate ...` (SIGTERM) left a 49 MB
+    `.OUT.partial-*` folder beside --out. SIGTERM now unwinds as Ctrl-C: exit 143, the
+    staging removed, --out never made. (The signal is injected during the export.)"""
+    import os
+    import signal
+
+    import napari_symbac.export as export_module
+
+    real_export = export_module.export_dataset
+
+    def export_then_terminated(*args, **kwargs):
+        report = real_export(*args, **kwargs)  # the dataset is in the staging folder
+        os.kill(os.getpid(), signal.SIGTERM)
+        return report
+
+    monkeypatch.setattr(export_module, "export_dataset", export_then_terminated)
+    d = colicoords_files
+    out = d / "out"
+    previous = signal.getsignal(signal.SIGTERM)
+    code = main(
+        [
+            "calibrate", str(d / "flu.tif"), "--masks", str(d / "mask.tif"),
+            "--microscope", str(d / "m80.yaml"), "--modality", "fluorescence",
+            "--out", str(out), "--n-items", "2",
+        ]
+    )  # fmt: skip
+    assert code == 143
+    assert signal.getsignal(signal.SIGTERM) == previous  # the handler is put back
+    assert "calibrate: interrupted: run the same calibrate again" in capsys.readouterr().err
+    assert not out.exists()
+    assert not [p for p in d.iterdir() if p.name.startswith(".out")]  # staging removed

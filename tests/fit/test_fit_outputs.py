@@ -172,6 +172,23 @@ def test_cells_records_and_report_say_what_went_wrong():
     assert "no convergence diagnostics" in report_text(_result(), {})
 
 
+def test_a_wrong_pixel_size_is_said_through_the_cells_width(truth):
+    """Found as a user: a trench of 0.065 um pixels fitted at 0.13 um gave 1.8 um wide,
+    9-10 um long cells at the chi-square of the right pixel size, and nothing said it.
+    The report now says the width is unusual for bacteria; at the right size it does not."""
+    from napari_symbac.fit import fit_scene
+
+    options = {"geometry": "trench", "irls_rounds": 1, "max_iterations": 4, "moves": False}
+    said = {}
+    for pixel_um in (truth.microscope.pixel_size_um, 2 * truth.microscope.pixel_size_um):
+        microscope = Microscope(pixel_size_um=pixel_um)
+        fit = fit_scene(truth.image, microscope, truth.render, truth.camera, **options)
+        said[pixel_um] = [p for p in fit_problems(fit) if "unusual for bacteria" in p]
+    assert said[truth.microscope.pixel_size_um] == []
+    assert len(said[2 * truth.microscope.pixel_size_um]) == 1
+    assert "check the pixel size" in said[2 * truth.microscope.pixel_size_um][0]
+
+
 def test_atomic_write_leaves_nothing_on_failure(tmp_path):
     out = tmp_path / "out"
 

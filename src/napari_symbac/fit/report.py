@@ -123,6 +123,11 @@ def fit_notes(modality: str, geometry: str, colony: bool = False) -> list[str]:
     return [OPEN_PHASE_NOTE] if modality == "phase" and geometry == "open" else []
 
 
+#: Cell widths (um) of rod-shaped bacteria: a fit's median outside them most likely
+#: comes from a wrong pixel size (E. coli 0.5-1.5 um; ColiCoords' fitted 1.36 um).
+BACTERIAL_WIDTH_UM = (0.4, 1.6)
+
+
 def fit_problems(
     result: Any,
     residual_hint: str = "see residual.tif; `napari-symbac diagnose` looks for it",
@@ -152,6 +157,16 @@ def fit_problems(
         problems.append(
             "at a bound: cell_intensity is 0 ADU, the least the model allows (the cells are "
             "darker than its kernel draws them; a limit, not a measurement)"
+        )
+    widths = np.asarray(getattr(getattr(result, "cells", None), "width_um", ()), float)
+    if widths.size and not BACTERIAL_WIDTH_UM[0] <= np.median(widths) <= BACTERIAL_WIDTH_UM[1]:
+        # found as a user: 0.13 um/px for a 0.065 um/px trench fitted 1.8 um wide, 9-10 um
+        # long cells at the chi-square of the right pixel size, and nothing said it
+        low, high = BACTERIAL_WIDTH_UM
+        problems.append(
+            f"the cells' median width, {np.median(widths):.2f} um, is unusual for bacteria "
+            f"({low:g}-{high:g} um): check the pixel size (the fit measures widths in pixels "
+            "and converts them with it)"
         )
     worse = math.isfinite(before) and math.isfinite(after) and after > before
     if worse and not any("worse than its start" in w for w in warnings):
