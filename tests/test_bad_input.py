@@ -781,6 +781,10 @@ def test_a_pixel_size_given_nowhere_is_refused(tmp_path, fit_inputs, capsys, com
     assert code == 2
     assert "neither the image nor --microscope gives the pixel size" in err
     assert "add pixel_size_um to the microscope file" in err
+    # calibrate has another way, which its help shows for a colony PNG (found as a user)
+    assert ("--cell-width-um W sets it from the masks' median cell width" in err) == (
+        command == "calibrate"
+    )
     assert "Traceback" not in err
     assert not out.exists()
 

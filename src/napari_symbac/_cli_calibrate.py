@@ -169,6 +169,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
             # --cell-width-um sets it from the masks
             microscope_gives_it=args.cell_width_um is not None
             or microscope_sets_pixel_size(args.microscope),
+            other_way="or, with --masks, --cell-width-um W sets it from the masks' median "
+            "cell width (W um: 1.0 for E. coli)",
         )
         modality = args.modality or file_modality or microscope.modality
         _refuse_a_trench(image, modality, args.image)

@@ -277,6 +277,7 @@ def resolve_pixel_size(
     *,
     microscope_gives_it: bool = True,
     tolerance: float = 0.01,
+    other_way: str = "",
 ) -> tuple[Microscope, str]:
     """The TIFF's own pixel size wins over the microscope file; say when they disagree.
 
@@ -284,7 +285,8 @@ def resolve_pixel_size(
     (:func:`~napari_symbac.settings.microscope_sets_pixel_size`); when neither it nor
     the image does, the pixel size is refused, not taken from :class:`Microscope`'s
     default (found as a user: a PNG and a microscope file without ``pixel_size_um``
-    were calibrated at 0.065 um, "from --microscope", cells 0.5 um wide).
+    were calibrated at 0.065 um, "from --microscope", cells 0.5 um wide). ``other_way``:
+    another way the command has to set it, said in that refusal.
 
     Returns
     -------
@@ -305,6 +307,7 @@ def resolve_pixel_size(
                 "neither the image nor --microscope gives the pixel size: add "
                 "pixel_size_um to the microscope file, in um in the sample (the camera "
                 "pixel divided by the magnification: 6.5 um / 100x = 0.065)"
+                + (f"; {other_way}" if other_way else "")
             )
         check_pixel_size(given, "from --microscope; the image file records none")
         return microscope, (
