@@ -93,6 +93,17 @@ _FIT_OUTPUTS = frozenset(
 )  # fmt: skip
 
 
+def _polarity_said(polarity: str) -> str:
+    """What the image shows, for report.txt's modality line (found as a user: "image
+    polarity: unclear" for a plain phase trench read as the tool doubting it)."""
+    if polarity == "unclear":
+        return (
+            "image polarity: both darker and brighter than its background, as phase "
+            "contrast's halos are"
+        )
+    return f"image polarity: {polarity}"
+
+
 def _given_trench(keys: dict[str, Any]) -> dict[str, Any]:
     """The trench settings a config file gives (its ``simulation.trench`` mapping)."""
     simulation = keys.get("simulation") or {}
@@ -501,7 +512,7 @@ def _outputs_one(
     }
     facts = {
         "image": f"{args.image} (frame {index}, {frame.shape[0]} x {frame.shape[1]} px)",
-        "modality": f"{microscope.modality} (image polarity: {polarity})",
+        "modality": f"{microscope.modality} ({_polarity_said(polarity)})",
         "geometry": args.geometry + (
             f" (closed end: {_closed_end_said(result, options)})" if geometry == "trench" else ""
         ),

@@ -260,6 +260,11 @@ def test_real_trench_closed_end_chosen_by_the_fit_or_the_config(tmp_path, real_d
     assert _fit(image, "--microscope", microscope, "--out", chosen, "--max-iterations", 4) == 0
     report = (chosen / "report.txt").read_text()
     assert _fact(report, "geometry") == "trench (closed end: round, chosen by the fit)"
+    # dark cells with bright halos, said as what phase contrast shows, not as a doubt
+    assert _fact(report, "modality") == (
+        "phase (image polarity: both darker and brighter than its background, as phase "
+        "contrast's halos are)"
+    )
     assert "closed end: round, which fits better" in report
     settings = load_settings(chosen / "settings.yaml", PipelineSettings)
     assert settings.simulation.trench.closed_end == "round"

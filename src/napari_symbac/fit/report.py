@@ -197,7 +197,7 @@ def report_text(
     lines += [
         "",
         f"cells fitted: {len(result.cells)}",
-        *(f"  {choice}" for choice in getattr(result, "moves", ())),
+        *_choices(tuple(getattr(result, "moves", ()) or ())),
         "pixel chi-square (reduced; 1 = fitted to the noise): "
         f"{result.objective_before:.4g} (start) -> {result.objective_after:.4g} (fit)",
     ]
@@ -218,6 +218,18 @@ def report_text(
             se = "n/a" if row["se"] is None else f"{row['se']:.3g}"
             lines.append(f"  {row['name']}: {row['value']:.6g} +- {se}")
     return "\n".join(lines) + "\n"
+
+
+def _choices(moves: tuple[str, ...]) -> list[str]:
+    """report.txt's lines of what the fit chose, under a heading that says what they are
+    (found as a user: bare "merged cells at y = ..." lines read as a problem)."""
+    if not moves:
+        return []
+    heading = (
+        "  what the fit chose (the trench's closed end; cells added, removed, split or "
+        "merged where the likelihood asked for it, BIC):"
+    )
+    return [heading, *(f"    {move}" for move in moves)]
 
 
 def write_atomically(
