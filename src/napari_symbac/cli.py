@@ -421,7 +421,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         )
         if invalid:
             doc["notes"].append(f"settings.yaml simulates the defaults: {invalid}")
-        # the intensities and optics refitted with the accepted effects
+        # the intensities refitted with the accepted effects (the optics stay the fit's)
         final_render, held = refitted_render(render, result.final_model)
         if held:
             doc["notes"].append(held)
