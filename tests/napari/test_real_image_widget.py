@@ -13,15 +13,28 @@ from napari_symbac._widgets.real_image import RealImageWidget, class_layer_name
 from napari_symbac.fit import CLASS_VALUES
 
 
-def test_open_paint_measure(make_napari_viewer, tmp_path, real_data_dir):
+def _trench_with_pixel_size(real_data_dir, tmp_path, name: str, pixel_um: float):
+    """The SyMBac trench saved as an ImageJ TIFF that records ``pixel_um``."""
     source = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")
-    path = tmp_path / "trench.tif"
+    path = tmp_path / f"{name}.tif"
     tifffile.imwrite(
-        path, source, imagej=True, resolution=(1 / 0.065, 1 / 0.065), metadata={"unit": "um"}
+        path, source, imagej=True, resolution=(1 / pixel_um, 1 / pixel_um), metadata={"unit": "um"}
     )
+    return path
+
+
+def _docked(make_napari_viewer) -> RealImageWidget:
     viewer = make_napari_viewer()
     widget = RealImageWidget(viewer)
     viewer.window.add_dock_widget(widget)
+    return widget
+
+
+def test_open_paint_measure(make_napari_viewer, tmp_path, real_data_dir):
+    path = _trench_with_pixel_size(real_data_dir, tmp_path, "trench", 0.065)
+    source = tifffile.imread(path)
+    widget = _docked(make_napari_viewer)
+    viewer = widget.viewer
 
     widget.file.value = path
     assert widget.image.value.name == "trench"
@@ -142,14 +155,8 @@ def test_retyping_the_pixel_size_warns_only_when_it_is_entered(
     The value is taken when the editing is finished (Enter, leaving the field)."""
     from qtpy.QtCore import Qt
 
-    source = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")
-    path = tmp_path / "sized.tif"
-    tifffile.imwrite(
-        path, source, imagej=True, resolution=(1 / 0.11, 1 / 0.11), metadata={"unit": "um"}
-    )
-    viewer = make_napari_viewer()
-    widget = RealImageWidget(viewer)
-    viewer.window.add_dock_widget(widget)
+    path = _trench_with_pixel_size(real_data_dir, tmp_path, "sized", 0.11)
+    widget = _docked(make_napari_viewer)
     widget.file.value = path
     layer = widget.image.value
     box = widget.pixel_size.native
