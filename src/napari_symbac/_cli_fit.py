@@ -113,7 +113,7 @@ def _given_trench(keys: dict[str, Any]) -> dict[str, Any]:
 
 def _closed_end_said(result, options: dict[str, Any]) -> str:
     """The fitted trench's closed end, and who chose it."""
-    end = result.trench.closed_end if result.trench is not None else options.get("closed_end")
+    end = result.trench.closed_end
     return f"{end}, from --config" if "closed_end" in options else f"{end}, chosen by the fit"
 
 

@@ -136,7 +136,11 @@ class Problem:
 
     def without_history(self) -> Problem:
         """The same problem that reports no steps (for trial refits of proposed moves)."""
-        out = dataclasses.replace(self, on_step=None)
+        return self.reporting_to(None)
+
+    def reporting_to(self, on_step: Callable[[State], None] | None) -> Problem:
+        """The same problem (its scene models shared) that reports its steps to ``on_step``."""
+        out = dataclasses.replace(self, on_step=on_step)
         out._models = self._models
         return out
 

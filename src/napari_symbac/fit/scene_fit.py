@@ -718,9 +718,7 @@ def _better_closed_end(
     state, _ = problem.refit(state, None, iterations)
     n = max(problem.n_valid, 1)
     if trial.cost < state.cost:
-        chosen = dataclasses.replace(trial_problem, on_step=problem.on_step)
-        chosen._models = trial_problem._models
-        return chosen, trial, (
+        return trial_problem.reporting_to(problem.on_step), trial, (
             f"closed end: {other}, which fits better (pixel chi-square {trial.chi2 / n:.4g} "
             f"against {state.chi2 / n:.4g} {current})"
         )
