@@ -38,6 +38,9 @@ def test_open_paint_measure(make_napari_viewer, tmp_path, real_data_dir):
 
     widget.file.value = path
     assert widget.image.value.name == "trench"
+    # the messages take the whole row: no label column that reads "warning" or "result"
+    for message in (widget.warning, widget.result):
+        assert message._labeled_widget()._label_widget.native.isHidden(), message.name
     assert widget.pixel_size.value == pytest.approx(0.065, abs=1e-4)
 
     fluorescence = tmp_path / "fluo.ome.tif"

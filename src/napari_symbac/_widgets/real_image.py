@@ -102,7 +102,7 @@ class RealImageWidget(Container):
             for (name, colour), value in zip(CLASS_COLOURS.items(), CLASS_VALUES.values())
         )
         self.legend = Label(name="legend", value=legend)
-        self.result = message_label("result", label="")  # no empty "result" row
+        self.result = message_label("result")
         self.extend(
             [
                 self.image,
@@ -117,6 +117,7 @@ class RealImageWidget(Container):
         )
         hide_label(self.microscope)
         hide_label(self.warning)
+        hide_label(self.result)  # no row that reads just "result"
         self.file.changed.connect(self._open_file)
         self.image.changed.connect(self._load_layer)
         self.microscope.changed.connect(self._store)
