@@ -44,6 +44,31 @@ def test_concealed_illumination_is_accepted_and_improves_held_out_pixels():
     assert {"where", "statistic", "value", "significance"} <= set(doc["mismatches"][0])
 
 
+def test_concealed_column_offsets_are_confirmed_far_from_cells():
+    """Column offsets of the camera hidden at one noise s.d.: besides the held-out check,
+    the fitted offsets explain the column means of the pixels far from the cells (the
+    check that refuses the SyMBac trench's offsets), and the report says so."""
+    case = make_case("fixed_pattern_noise", fraction_of_sd=1.0, seed=3)
+    result = diagnose(case.images, case.design, n_bootstrap=10, rng=np.random.default_rng(4))
+    assert [e.name for e in result.accepted] == ["fixed_pattern_noise"], result.report()
+    effect = result.accepted[0]
+    assert effect.params["rms_column_offset_adu"] == pytest.approx(case.true_magnitude, rel=0.2)
+    confirmation = effect.confirmation
+    assert confirmation is not None
+    assert confirmation.confirmed
+    numbers = confirmation.numbers
+    assert numbers["columns_judged"] == numbers["columns"] == 46
+    assert numbers["far_column_misfit_with_offsets_adu2"] < 0.5 * numbers[
+        "far_column_misfit_without_offsets_adu2"
+    ]
+    assert numbers["far_column_mean_correlation"] > 0.7
+    assert confirmation.reason in result.report()
+    doc = json.loads(json.dumps(result.as_dict()))
+    said = doc["effects"][0]["confirmation"]
+    assert said["confirmed"] is True
+    assert said["reason"].startswith("column offsets confirmed far from cells")
+
+
 @pytest.mark.parametrize("seed", [31, 32])
 def test_no_effect_control_accepts_nothing(seed):
     case = make_case(None, modality="fluorescence", fraction_of_sd=0.5, seed=seed)

@@ -7,8 +7,8 @@ import pytest
 
 from napari_symbac.diagnose.concealed import make_case
 from napari_symbac.diagnose.effects import CATALOGUE
-from napari_symbac.diagnose.effects.fixed_pattern_noise import column_basis
-from napari_symbac.diagnose.model import fit_model
+from napari_symbac.diagnose.effects.fixed_pattern_noise import FixedPatternNoise, column_basis
+from napari_symbac.diagnose.model import fit_model, geometry_from_labels
 from napari_symbac.diagnose.run import _params
 from napari_symbac.diagnose.selection import ModelSpec, rank
 
@@ -83,3 +83,53 @@ def test_column_offsets_leave_smooth_trends_to_illumination_and_texture(cols, pi
     stripes = np.random.default_rng(0).normal(size=(200, cols))
     kept = stripes @ basis
     assert np.sum(kept**2) / np.sum(stripes**2) > 0.8
+
+
+def _trench_labels(rows: int, first_row: int) -> np.ndarray:
+    """``(1, rows, 46)`` labels: cells 15 px wide down the middle from ``first_row``."""
+    labels = np.zeros((1, rows, 46), np.int64)
+    for k, top in enumerate(range(first_row, rows, 40)):
+        labels[0, top : top + 37, 16:31] = k + 1
+    return labels
+
+
+def test_column_offsets_are_confirmed_only_where_they_fit_the_columns_far_from_cells():
+    """A camera's offsets act on every pixel of a column, so they also shift the column
+    means far from the cells; offsets that only the cells' pixels ask for (a misfit of the
+    cells or the trench walls taken as columns) do not, and are refused with the reason.
+    Columns with too few far pixels cannot judge them."""
+    labels = _trench_labels(256, 30)
+    geometry = geometry_from_labels(labels, (labels > 0).astype(float), 0.065, "phase")
+    effect = FixedPatternNoise(geometry)
+    theta = np.random.default_rng(0).normal(0.0, 20.0, effect.n_params())
+    offsets = effect.column_offsets(theta)
+    far = geometry.distance_px >= 8
+    assert far.sum(axis=(0, 1)).min() >= 8  # the 30 rows above the first cell
+    valid = np.ones(labels.shape, bool)
+    noise = np.random.default_rng(1).normal(0.0, 5.0, labels.shape)
+    # the fitted mean holds the offsets: a camera's columns leave the noise behind
+    camera = effect.confirm(theta, noise, valid)
+    assert camera.confirmed, camera.reason
+    assert camera.reason.startswith("column offsets confirmed far from cells")
+    numbers = camera.numbers
+    assert numbers["far_column_misfit_with_offsets_adu2"] < 0.2 * numbers[
+        "far_column_misfit_without_offsets_adu2"
+    ]
+    # the same offsets where only the pixels near cells had them: far from cells the
+    # fit put offsets the data lack, and subtracting them raises the misfit there
+    misfit = effect.confirm(theta, noise - np.where(far, offsets[None, None, :], 0.0), valid)
+    assert not misfit.confirmed
+    assert misfit.reason.startswith("column offsets do not match the columns far from cells")
+    assert misfit.reason.endswith("cell/trench misfit, not the camera")
+    assert misfit.numbers["far_column_misfit_with_offsets_adu2"] > misfit.numbers[
+        "far_column_misfit_without_offsets_adu2"
+    ]
+    # cells from the closed end down: the middle columns have no far pixel to judge by
+    crowded = _trench_labels(256, 2)
+    geometry = geometry_from_labels(crowded, (crowded > 0).astype(float), 0.065, "phase")
+    middle = np.zeros(46)
+    middle[12:35] = 30.0 * (-1.0) ** np.arange(23)
+    theta = column_basis(46, 0.065).T @ middle
+    unjudged = FixedPatternNoise(geometry).confirm(theta, noise, valid)
+    assert not unjudged.confirmed
+    assert unjudged.reason.startswith("column offsets cannot be confirmed: only ")

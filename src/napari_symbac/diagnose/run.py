@@ -11,7 +11,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from napari_symbac.diagnose.effects import CATALOGUE
-from napari_symbac.diagnose.effects.base import Effect
+from napari_symbac.diagnose.effects.base import Confirmation, Effect
 from napari_symbac.diagnose.model import BaseDesign, FittedModel, build_design
 from napari_symbac.diagnose.selection import ModelSpec, cross_fitted_deviance, held_out, rank
 from napari_symbac.diagnose.statistics import Mismatch, discrepancy_statistics
@@ -38,6 +38,8 @@ class EffectResult:
     null_replicates: int = 0
     step: int = 0
     effect_map: np.ndarray | None = field(default=None, repr=False)
+    #: the effect's own check (:meth:`Effect.confirm`), when it passed the held-out one
+    confirmation: Confirmation | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -53,6 +55,13 @@ class EffectResult:
             "null_replicates": self.null_replicates,
             "score_dof": self.dof,
             "signature": self.signature,
+            "confirmation": None
+            if self.confirmation is None
+            else {
+                "confirmed": self.confirmation.confirmed,
+                "reason": self.confirmation.reason,
+                **self.confirmation.numbers,
+            },
         }
 
 
@@ -130,6 +139,8 @@ class Diagnosis:
                     f"(noise alone would give < {e.null_threshold_nats:.1f}); "
                     f"deviance {e.held_out_before:.5f} -> {e.held_out_after:.5f}"
                 )
+            if e.confirmation is not None and e.confirmation.reason:
+                lines.append(f"      {e.confirmation.reason}")
             if e.accepted:
                 lines.append(f"      {e.explanation}")
                 short = {k: v for k, v in e.params.items() if not isinstance(v, (list, dict))}
@@ -293,6 +304,9 @@ def _diagnose(
                     {},
                     base_summary["held_out"],
                     base_summary["held_out"],
+                    # an earlier step's refusal by the effect's own check stays said
+                    # until a new check replaces it
+                    confirmation=None if old is None else old.confirmation,
                 )
         # Strongest evidence first (``rank``). camera_noise is not moved ahead: a large
         # misfit of the mean inflates the residual variance, so its variance score is
@@ -329,14 +343,21 @@ def _diagnose(
             res.held_out_gain_nats, res.null_threshold_nats = check.gain_nats, check.threshold_nats
             res.null_replicates = check.replicates
             res.step = step
-            if check.passed:
+            res.confirmation = None
+            if not check.passed:
+                continue
+            # the effect's own physical check, on the fit it would be accepted with
+            trial_spec = spec.with_effect(effect, y)
+            trial = trial_spec.fit(design, y, valid)
+            res.confirmation = _confirmation(effect, trial, y, valid)
+            if res.confirmation.confirmed:
                 accepted_now = effect
                 break
         if accepted_now is None:
             break
-        spec = spec.with_effect(accepted_now, y)
+        spec = trial_spec
         before_mu = current.mu
-        current = spec.fit(design, y, valid)
+        current = trial
         res = results[accepted_now.name]
         res.accepted = True
         res.params = _params(accepted_now, current, spec, design)
@@ -360,6 +381,19 @@ def _diagnose(
     return Diagnosis(
         base_summary, final_summary, mismatches, ordered, r0, r1, current, threshold, tuple(skipped)
     )
+
+
+def _confirmation(
+    effect: Effect, model: FittedModel, y: np.ndarray, valid: np.ndarray
+) -> Confirmation:
+    """:meth:`Effect.confirm` of ``effect`` as fitted in ``model``: a mean effect's
+    parameters and the pixels its fit used; variance and censor effects have no mean
+    parameters (the catalogue's keep the default, confirmed)."""
+    if effect.kind != "mean":
+        return effect.confirm(np.zeros(0), y - model.mu, valid)
+    theta = next(t for e, t in model.effects if e is effect)
+    fitted = valid & ~model.censor.mask(y) if model.censor is not None else valid
+    return effect.confirm(np.asarray(theta, float), y - model.mu, fitted)
 
 
 def _params(

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
@@ -10,7 +11,7 @@ import numpy as np
 from napari_symbac.diagnose.model import Geometry
 from napari_symbac.optics.forward import Stage, block_average
 
-__all__ = ["CellPatternEffect", "Effect", "gaussian"]
+__all__ = ["CellPatternEffect", "Confirmation", "Effect", "gaussian"]
 
 
 def gaussian(image: np.ndarray, sigma_px: float) -> np.ndarray:
@@ -18,6 +19,25 @@ def gaussian(image: np.ndarray, sigma_px: float) -> np.ndarray:
     from scipy import ndimage
 
     return ndimage.gaussian_filter(image, (0, sigma_px, sigma_px), mode="reflect")
+
+
+@dataclass(frozen=True, eq=False)
+class Confirmation:
+    """An effect's own check of its fit, beyond the held-out pixels (:meth:`Effect.confirm`).
+
+    Attributes
+    ----------
+    confirmed
+        Whether the fitted effect looks like the physics it names.
+    reason
+        Why, in a sentence for the report (empty when the effect has no check).
+    numbers
+        The measured quantities behind it (units in the names), for diagnosis.json.
+    """
+
+    confirmed: bool
+    reason: str = ""
+    numbers: Mapping[str, float] = field(default_factory=dict)
 
 
 class Effect:
@@ -86,6 +106,26 @@ class Effect:
         """Keep parameters in their physical range."""
         return theta
 
+    def confirm(
+        self, theta: np.ndarray, residual_adu: np.ndarray, valid: np.ndarray
+    ) -> Confirmation:
+        """Whether the fitted effect is the physics it names (the last condition of
+        acceptance, after the score test and the held-out check).
+
+        A flexible effect can gain on the held-out pixels by absorbing another misfit;
+        an effect with a physical check of its own (``fixed_pattern_noise``: a camera's
+        column offsets act far from the cells too) overrides this. The default has none.
+
+        Parameters
+        ----------
+        theta
+            The effect's fitted parameters (mean effects; as they act in the fitted mean).
+        residual_adu
+            ``(T, Y, X)`` data minus the fitted mean of the model with the effect (ADU).
+        valid
+            ``(T, Y, X)`` pixels the fit used.
+        """
+        return Confirmation(True)
 
     # ------------------------------------------------------------------ report
     def summary(self, theta: np.ndarray, mu: np.ndarray) -> dict[str, Any]:

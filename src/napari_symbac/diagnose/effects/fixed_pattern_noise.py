@@ -5,11 +5,19 @@ from __future__ import annotations
 import numpy as np
 
 from napari_symbac.diagnose.effects.background_texture import MIN_WAVELENGTH_UM
-from napari_symbac.diagnose.effects.base import Effect
+from napari_symbac.diagnose.effects.base import Confirmation, Effect
 from napari_symbac.diagnose.model import Geometry
 from napari_symbac.optics.forward import Stage
 
-__all__ = ["FixedPatternNoise", "column_basis"]
+__all__ = ["FAR_FROM_CELLS_PX", "MIN_FAR_PIXELS", "FixedPatternNoise", "column_basis"]
+
+#: Pixels at least this far from every cell edge (px) see no cell: a camera's column
+#: offset is all that a column term can do there.
+FAR_FROM_CELLS_PX = 8.0
+#: Far pixels (all frames together) a column needs for its mean to judge its offset.
+MIN_FAR_PIXELS = 8
+#: The columns that can be judged must carry this share of the offsets' power.
+MIN_JUDGED_POWER = 0.5
 
 
 def column_basis(cols: int, pixel_size_um: float) -> np.ndarray:
@@ -77,6 +85,68 @@ class FixedPatternNoise(Effect):
 
     def magnitude(self, summary):
         return summary["rms_column_offset_adu"]
+
+    def confirm(self, theta, residual_adu, valid):
+        """Column offsets of the camera must also fit the columns far from the cells.
+
+        A column offset acts on every pixel of its column, so it must explain the column
+        means of the residual (before the offsets) at the pixels at least
+        :data:`FAR_FROM_CELLS_PX` from any cell, where the cells' and the trench's misfit
+        do not reach. Confirmed when subtracting the offsets lowers
+        ``sum_x (m_x - o_x)^2``, the squared column means ``m_x`` of those pixels, over
+        the columns with :data:`MIN_FAR_PIXELS` or more of them; when those columns
+        carry less than :data:`MIN_JUDGED_POWER` of the offsets' power the offsets
+        cannot be confirmed. On the SyMBac trench the offsets (a smooth wave of 8-10
+        columns) took the cells' and the walls' misfit and would raise that of the far
+        pixels' column means (docs/diagnosis.md, section 6).
+        """
+        offsets = self.column_offsets(theta)
+        far = valid & (self.geometry.distance_px >= FAR_FROM_CELLS_PX)
+        counts = far.sum(axis=(0, 1))
+        judged = counts >= MIN_FAR_PIXELS
+        power = float(np.sum(offsets**2))
+        judged_power = float(np.sum(offsets[judged] ** 2))
+        numbers = {
+            "far_from_cells_px": FAR_FROM_CELLS_PX,
+            "columns_judged": int(judged.sum()),
+            "columns": int(offsets.size),
+            "judged_share_of_offset_power": judged_power / power if power > 0 else 0.0,
+        }
+        far_px = f"{FAR_FROM_CELLS_PX:g} px or more from any cell"
+        if not judged.any() or judged_power < MIN_JUDGED_POWER * power:
+            return Confirmation(
+                False,
+                f"column offsets cannot be confirmed: only {int(judged.sum())} of "
+                f"{offsets.size} columns have {MIN_FAR_PIXELS} or more pixels {far_px}, "
+                f"with {numbers['judged_share_of_offset_power']:.0%} of the offsets' power "
+                "(a camera's offsets must show there too)",
+                numbers,
+            )
+        before_offsets = residual_adu + offsets[None, None, :]
+        means = np.sum(np.where(far, before_offsets, 0.0), axis=(0, 1))[judged] / counts[judged]
+        own = offsets[judged]
+        without = float(np.mean(means**2))
+        with_offsets = float(np.mean((means - own) ** 2))
+        correlation = float(np.corrcoef(means, own)[0, 1]) if own.std() > 0 else 0.0
+        numbers |= {
+            "far_column_mean_rms_adu": float(np.sqrt(without)),
+            "far_column_misfit_without_offsets_adu2": without,
+            "far_column_misfit_with_offsets_adu2": with_offsets,
+            "far_column_mean_correlation": correlation,
+        }
+        said = (
+            f"at the pixels {far_px} ({int(judged.sum())} of {offsets.size} columns have "
+            f"{MIN_FAR_PIXELS} or more) the offsets take the columns' mean misfit from "
+            f"{without:.0f} to {with_offsets:.0f} ADU^2 (correlation {correlation:.2f})"
+        )
+        if with_offsets < without:
+            return Confirmation(True, f"column offsets confirmed far from cells: {said}", numbers)
+        return Confirmation(
+            False,
+            f"column offsets do not match the columns far from cells: {said}: cell/trench "
+            "misfit, not the camera",
+            numbers,
+        )
 
 
 def stage(parameters: dict) -> Stage:
