@@ -6,8 +6,9 @@ data, read from ``../shared/data/real``; not copied), then ``export --config`` w
 settings.yaml and with the same settings less their ``extra_stages``, and writes
 ``docs/images/diagnosis/export_with_effects.png``: the recording | an exported frame
 without the stages | the same frame with them | their difference, and the column means
-of the difference against the fitted column offsets. Prints the numbers quoted in the
-docs. Run from the repository root (about a minute on 2 cores).
+of the PDMS rows above the trench's closed end in the recording and in both exports (with
+the fitted column offsets, when ``fixed_pattern_noise`` is accepted). Prints the numbers
+quoted in the docs. Run from the repository root (about two minutes on 2 cores).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import tifffile
 from PIL import Image
 
 from napari_symbac.cli import main
+from napari_symbac.diagnose.effects.fixed_pattern_noise import column_basis
 from napari_symbac.settings import PipelineSettings, load_settings, save_settings
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -34,6 +36,9 @@ REAL = ROOT.parent / "shared" / "data" / "real" / "ecoli_100x_oil_exponential.ti
 OUT = ROOT / "docs" / "images" / "diagnosis" / "export_with_effects.png"
 MICROSCOPE = {"modality": "phase", "pixel_size_um": 0.065, "NA": 1.45, "refractive_index": 1.518,
               "wavelength_um": 0.65, "condenser": "Ph3", "objective": "100x oil"}  # fmt: skip
+#: Rows of the recording above the trench's closed end: PDMS only (the end's dark rim
+#: starts at row 12), where no cell shapes the column means.
+PDMS_ROWS = slice(0, 12)
 
 
 def export(settings: PipelineSettings, folder: Path) -> np.ndarray:
@@ -42,6 +47,20 @@ def export(settings: PipelineSettings, folder: Path) -> np.ndarray:
     if code:
         sys.exit(code)
     return np.stack([tifffile.imread(p) for p in sorted(folder.glob("tiff/*/images/*.tif"))])
+
+
+def pdms_columns(frames: np.ndarray) -> np.ndarray:
+    """``(n, X)`` column means of :data:`PDMS_ROWS` of each frame."""
+    return frames[:, PDMS_ROWS].mean(axis=1)
+
+
+def spreads(frames: np.ndarray) -> tuple[float, float]:
+    """Spread (s.d. over the columns, ADU) of the PDMS column means, mean over the frames,
+    and the rms of their part in the modes column offsets take (``column_basis``)."""
+    means = pdms_columns(frames)
+    basis = column_basis(frames.shape[-1], MICROSCOPE["pixel_size_um"])
+    stripes = np.sqrt(np.sum((means @ basis) ** 2, axis=1) / frames.shape[-1])
+    return float(means.std(axis=1).mean()), float(stripes.mean())
 
 
 def run() -> None:
@@ -58,20 +77,28 @@ def run() -> None:
     with_stages = export(diagnosed, work / "diagnosed").astype(float)
     without = export(plain, work / "plain").astype(float)
     step = with_stages - without
-    columns = step.mean(axis=(0, 1))
     offsets = np.asarray(accepted.get("fixed_pattern_noise", {}).get("column_offsets_adu", []))
     real = tifffile.imread(REAL).astype(float)
     print("accepted:", ", ".join(accepted))
+    for effect in doc["effects"]:
+        confirmation = effect.get("confirmation") or {}
+        if confirmation and not confirmation["confirmed"]:
+            print(f"not accepted, {effect['name']}: {confirmation['reason']}")
     print("extra stages drawn:", ", ".join(s.name for s in diagnosed.extra_stages))
     print(f"frame {with_stages.shape[1:]}, recording {real.shape}")
     print(f"mean: recording {real.mean():.0f}, export without {without.mean():.0f}, "
           f"with {with_stages.mean():.0f} ADU")  # fmt: skip
+    for name, frames in (("recording", real[None]), ("without", without), ("with", with_stages)):
+        spread, stripes = spreads(frames)
+        print(f"PDMS rows {PDMS_ROWS.start}-{PDMS_ROWS.stop - 1}, {name}: column means spread "
+              f"{spread:.1f} ADU, in the column offsets' modes {stripes:.1f} ADU rms")  # fmt: skip
     if offsets.size:
+        columns = step.mean(axis=(0, 1))
         r = np.corrcoef(columns - columns.mean(), offsets)[0, 1]
         print(f"column means of the difference vs fitted offsets: r = {r:.3f}")
 
     fig = plt.figure(figsize=(11, 6.2))
-    grid = fig.add_gridspec(1, 5, width_ratios=[1, 1, 1, 1, 2.6], wspace=0.55)
+    grid = fig.add_gridspec(1, 6, width_ratios=[1, 1, 1, 1, 0.35, 2.6], wspace=0.55)
     low, high = np.percentile(real, [0.5, 99.5])
     panels = [
         ("recording", real, "gray", (low, high)),
@@ -87,17 +114,29 @@ def run() -> None:
         ax.set_yticks([])
         if k == 3:
             fig.colorbar(shown, ax=ax, orientation="horizontal", fraction=0.05, pad=0.03)
-    ax = fig.add_subplot(grid[4])
-    ax.plot(columns - columns.mean(), "o-", ms=3, label="export: column means of the difference")
+    ax = fig.add_subplot(grid[5])  # grid[4]: room for the axis label
+    for label, frames, style in (
+        ("recording", real[None], "ko-"),
+        ("export, no stages", without, "o-"),
+        ("export, diagnosed", with_stages, "s-"),
+    ):
+        means = pdms_columns(frames).mean(axis=0)
+        ax.plot(means - means.mean(), style, ms=3, label=label)
     if offsets.size:
-        ax.plot(offsets, "s--", ms=3, label="diagnosis: fitted column offsets")
+        ax.plot(offsets, "^--", ms=3, label="diagnosis: fitted column offsets")
     ax.set_xlabel("column (px)")
     ax.set_ylabel("ADU (mean removed)")
     ax.legend(fontsize=8, loc="lower left")
-    ax.set_title("column offsets reach the dataset", fontsize=9)
+    ax.set_title(
+        f"column means of the PDMS above the closed end\n(rows {PDMS_ROWS.start}-"
+        f"{PDMS_ROWS.stop - 1})",
+        fontsize=9,
+    )
     fig.suptitle(
-        "SyMBac trench: diagnose accepted " + ", ".join(accepted) + "; export draws them",
+        "SyMBac trench: diagnose accepted " + ", ".join(accepted) + ";\nexport draws "
+        + ", ".join(s.name for s in diagnosed.extra_stages) + " as extra stages",
         fontsize=10,
+        y=1.04,
     )
     OUT.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(OUT, dpi=90, bbox_inches="tight")
