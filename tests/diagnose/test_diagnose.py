@@ -38,6 +38,15 @@ def test_concealed_illumination_is_accepted_and_improves_held_out_pixels():
     assert result.final_fit["held_out"] < result.base_fit["held_out"]
     magnitude = effect.params["peak_to_peak_fraction"]
     assert magnitude == pytest.approx(case.true_magnitude, rel=0.25)
+    # a light field shows far from the cells too: the PDMS beside and above the trench
+    # asks for the same surface (the check that refuses the SyMBac trench's surface)
+    confirmation = effect.confirmation
+    assert confirmation is not None
+    assert confirmation.confirmed, confirmation.reason
+    assert confirmation.reason.startswith("illumination confirmed far from cells")
+    assert confirmation.reason in result.report()
+    numbers = confirmation.numbers
+    assert numbers["far_disagreement_beyond_noise_adu"] < 0.5 * numbers["far_change_rms_adu"]
     doc = json.loads(json.dumps(result.as_dict()))
     assert set(doc) >= {"base_fit", "mismatches", "effects", "final_fit"}
     assert doc["effects"][0]["accepted"] is True

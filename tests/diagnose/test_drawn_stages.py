@@ -122,6 +122,12 @@ def _stages(settings: PipelineSettings):
 PDMS_ROWS = slice(0, 12)
 
 
+def _pdms_spread_adu(frames: np.ndarray) -> float:
+    """Spread (s.d. over the columns, ADU) of the column means of :data:`PDMS_ROWS`,
+    averaged over the frames."""
+    return float(frames[:, PDMS_ROWS].mean(axis=1).std(axis=1).mean())
+
+
 def _camera_stripes_adu(frames: np.ndarray) -> float:
     """Rms (ADU) of the column means of :data:`PDMS_ROWS` in the modes column offsets
     take (``column_basis``: the smooth trends left out), averaged over the frames."""
@@ -136,10 +142,13 @@ def test_diagnose_settings_export_the_accepted_effects_of_the_real_trench(
 ):
     """The user's round trip: diagnose the SyMBac trench, export with its settings.yaml.
     The dataset has the recording's frame and the effects diagnose accepted. Column
-    offsets are not among them: they gain on the held-out pixels by taking the trench's
-    and the cells' misfit, and would raise the misfit of the columns far from the cells;
-    the report says so, and the export's PDMS has no camera stripes the recording lacks
-    (with the offsets accepted: 82 ADU rms against the recording's 15)."""
+    offsets and an illumination surface are not among them: both gain on the held-out
+    pixels by taking the trench's and the cells' misfit, and the pixels far from the cells
+    do not show them (the columns' means would be worse with the offsets; those pixels
+    ask for another surface than the fitted one); the report says so, and the export's
+    PDMS above the closed end has neither the camera stripes nor the spread across the
+    columns that the recording lacks (with the offsets accepted: 82 ADU rms of stripes
+    against the recording's 15; with the surface: a spread of 85 ADU against 31)."""
     microscope = tmp_path / "phase100x.json"
     microscope.write_text(json.dumps(PHASE_100X))
     image = real_data_dir / "ecoli_100x_oil_exponential.tiff"  # 256 x 46
@@ -150,9 +159,22 @@ def test_diagnose_settings_export_the_accepted_effects_of_the_real_trench(
     assert "read noise 0 e-, baseline 100 ADU (the read noise is too small to measure" in noted
     doc = json.loads((out / "diagnosis.json").read_text())
     accepted = {e["name"]: e["params"] for e in doc["effects"] if e["accepted"]}
-    assert "uneven_illumination" in accepted, said
-    # the column offsets pass the held-out check but not their own (docs/diagnosis.md)
+    assert accepted, said  # the trench's misfit names some effect
+    # the column offsets and the illumination surface pass the held-out check but not
+    # their own (docs/diagnosis.md, section 2)
     assert "fixed_pattern_noise" not in accepted, said
+    assert "uneven_illumination" not in accepted, said
+    light = next(e for e in doc["effects"] if e["name"] == "uneven_illumination")
+    refused_light = light["confirmation"]
+    assert refused_light["confirmed"] is False
+    assert refused_light["tiles_judged"] >= 12
+    assert (
+        refused_light["far_disagreement_beyond_noise_adu"]
+        > 0.5 * refused_light["far_change_rms_adu"]
+    )
+    assert refused_light["reason"].startswith(
+        "illumination does not match the pixels far from cells"
+    )
     offsets = next(e for e in doc["effects"] if e["name"] == "fixed_pattern_noise")
     refused = offsets["confirmation"]
     assert refused["confirmed"] is False
@@ -164,6 +186,7 @@ def test_diagnose_settings_export_the_accepted_effects_of_the_real_trench(
     assert refused["reason"].startswith("column offsets do not match the columns far from cells")
     report = (out / "report.txt").read_text()
     assert "cell/trench misfit, not the camera" in report
+    assert "cell/trench misfit, not the light" in report
     assert report.index("fixed_pattern_noise") < report.index(refused["reason"])
     assert f"with settings.yaml, {drawn_by_export(list(accepted))}" in said
     settings = _quiet(load_settings(out / "settings.yaml", PipelineSettings))
@@ -187,6 +210,8 @@ def test_diagnose_settings_export_the_accepted_effects_of_the_real_trench(
     recording = tifffile.imread(image).astype(float)[None]
     stripes = _camera_stripes_adu(frames["diagnosed"])
     assert stripes < 2 * _camera_stripes_adu(recording), stripes
+    spread = _pdms_spread_adu(frames["diagnosed"])
+    assert spread < 1.5 * _pdms_spread_adu(recording), spread
 
 
 def test_the_settings_carry_the_final_models_intensities():

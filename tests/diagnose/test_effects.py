@@ -8,6 +8,7 @@ import pytest
 from napari_symbac.diagnose.concealed import make_case
 from napari_symbac.diagnose.effects import CATALOGUE
 from napari_symbac.diagnose.effects.fixed_pattern_noise import FixedPatternNoise, column_basis
+from napari_symbac.diagnose.effects.uneven_illumination import UnevenIllumination
 from napari_symbac.diagnose.model import fit_model, geometry_from_labels
 from napari_symbac.diagnose.run import _params
 from napari_symbac.diagnose.selection import ModelSpec, rank
@@ -107,8 +108,9 @@ def test_column_offsets_are_confirmed_only_where_they_fit_the_columns_far_from_c
     assert far.sum(axis=(0, 1)).min() >= 8  # the 30 rows above the first cell
     valid = np.ones(labels.shape, bool)
     noise = np.random.default_rng(1).normal(0.0, 5.0, labels.shape)
+    mean = np.full(labels.shape, 1000.0)  # the offsets' check does not use it
     # the fitted mean holds the offsets: a camera's columns leave the noise behind
-    camera = effect.confirm(theta, noise, valid)
+    camera = effect.confirm(theta, noise, valid, mean)
     assert camera.confirmed, camera.reason
     assert camera.reason.startswith("column offsets confirmed far from cells")
     numbers = camera.numbers
@@ -117,7 +119,9 @@ def test_column_offsets_are_confirmed_only_where_they_fit_the_columns_far_from_c
     ]
     # the same offsets where only the pixels near cells had them: far from cells the
     # fit put offsets the data lack, and subtracting them raises the misfit there
-    misfit = effect.confirm(theta, noise - np.where(far, offsets[None, None, :], 0.0), valid)
+    misfit = effect.confirm(
+        theta, noise - np.where(far, offsets[None, None, :], 0.0), valid, mean
+    )
     assert not misfit.confirmed
     assert misfit.reason.startswith("column offsets do not match the columns far from cells")
     assert misfit.reason.endswith("cell/trench misfit, not the camera")
@@ -130,6 +134,56 @@ def test_column_offsets_are_confirmed_only_where_they_fit_the_columns_far_from_c
     middle = np.zeros(46)
     middle[12:35] = 30.0 * (-1.0) ** np.arange(23)
     theta = column_basis(46, 0.065).T @ middle
-    unjudged = FixedPatternNoise(geometry).confirm(theta, noise, valid)
+    unjudged = FixedPatternNoise(geometry).confirm(theta, noise, valid, mean)
     assert not unjudged.confirmed
     assert unjudged.reason.startswith("column offsets cannot be confirmed: only ")
+
+
+def test_illumination_is_confirmed_only_where_the_pixels_far_from_cells_show_it():
+    """The light multiplies every pixel, so a true illumination field shows in the
+    PDMS and media far from the cells as it does in the cells; a surface that only the
+    cells ask for (their misfit taken as a light field) is not there, and is refused
+    with the reason. A background too dim for the surface to show cannot judge it."""
+    labels = _trench_labels(256, 30)
+    geometry = geometry_from_labels(labels, (labels > 0).astype(float), 0.065, "phase")
+    effect = UnevenIllumination(geometry)
+    theta = np.array([0.05, 0.08, 0.10, -0.06, 0.04])  # peak to peak about 0.4
+    surface = effect.mean(theta, np.ones(labels.shape), None, geometry)
+    cells = geometry.distance_px < 0
+    base = np.where(cells, 2000.0, 1000.0)  # dark media and PDMS, bright cells
+    lit = base * surface  # the fitted mean, the surface in it
+    valid = np.ones(labels.shape, bool)
+    noise = np.random.default_rng(1).normal(0.0, 30.0, labels.shape)
+    # the light: the fitted surface leaves the noise behind, far from cells too
+    light = effect.confirm(theta, noise, valid, lit)
+    assert light.confirmed, light.reason
+    assert light.reason.startswith("illumination confirmed far from cells")
+    numbers = light.numbers
+    assert numbers["tiles_judged"] >= 12
+    assert numbers["far_disagreement_beyond_noise_adu"] < 0.2 * numbers["far_change_rms_adu"]
+    for term, value in zip(("x", "y", "x^2", "y^2", "xy"), theta):
+        assert numbers[f"far_surface_{term}"] == pytest.approx(value, abs=0.01)
+    # the cells' misfit: the recording is brighter or darker only in and near the cells,
+    # where the fit put a surface; far from them it is flat, as the fit without a surface
+    near = geometry.distance_px < 4
+    recording = np.where(near, lit, base) + noise
+    misfit = effect.confirm(theta, recording - lit, valid, lit)
+    assert not misfit.confirmed
+    assert misfit.reason.startswith("illumination does not match the pixels far from cells")
+    assert misfit.reason.endswith("cell/trench misfit, not the light")
+    numbers = misfit.numbers
+    assert numbers["far_disagreement_beyond_noise_adu"] > 0.5 * numbers["far_change_rms_adu"]
+    assert abs(numbers["far_surface_x^2"]) < 0.01  # the far pixels ask for no bow
+    # a background near zero (a background-subtracted fluorescence field): the surface
+    # changes the far pixels by less than their noise, and cannot be confirmed there
+    dim = np.where(cells, 2000.0, 2.0) * surface
+    unjudged = effect.confirm(theta, noise, valid, dim)
+    assert not unjudged.confirmed
+    assert unjudged.reason.startswith("illumination cannot be confirmed: its change at the pixels")
+    # cells from the closed end down, nearly wall to wall: too few tiles far from cells
+    packed = np.zeros((1, 256, 46), np.int64)
+    packed[0, 2:, 2:44] = 1
+    geometry = geometry_from_labels(packed, (packed > 0).astype(float), 0.065, "phase")
+    crowded = UnevenIllumination(geometry).confirm(theta, noise, valid, lit)
+    assert not crowded.confirmed
+    assert crowded.reason.startswith("illumination cannot be confirmed: only 0 of 192 tiles")

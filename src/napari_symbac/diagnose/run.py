@@ -390,10 +390,10 @@ def _confirmation(
     parameters and the pixels its fit used; variance and censor effects have no mean
     parameters (the catalogue's keep the default, confirmed)."""
     if effect.kind != "mean":
-        return effect.confirm(np.zeros(0), y - model.mu, valid)
+        return effect.confirm(np.zeros(0), y - model.mu, valid, model.mu)
     theta = next(t for e, t in model.effects if e is effect)
     fitted = valid & ~model.censor.mask(y) if model.censor is not None else valid
-    return effect.confirm(np.asarray(theta, float), y - model.mu, fitted)
+    return effect.confirm(np.asarray(theta, float), y - model.mu, fitted, model.mu)
 
 
 def _params(

@@ -107,14 +107,20 @@ class Effect:
         return theta
 
     def confirm(
-        self, theta: np.ndarray, residual_adu: np.ndarray, valid: np.ndarray
+        self,
+        theta: np.ndarray,
+        residual_adu: np.ndarray,
+        valid: np.ndarray,
+        mean_adu: np.ndarray,
     ) -> Confirmation:
         """Whether the fitted effect is the physics it names (the last condition of
         acceptance, after the score test and the held-out check).
 
         A flexible effect can gain on the held-out pixels by absorbing another misfit;
-        an effect with a physical check of its own (``fixed_pattern_noise``: a camera's
-        column offsets act far from the cells too) overrides this. The default has none.
+        an effect with a physical check of its own overrides this: a camera's column
+        offsets (``fixed_pattern_noise``) and the light's surface
+        (``uneven_illumination``) act far from the cells too, and must fit there
+        (:mod:`~napari_symbac.diagnose.effects.far_from_cells`). The default has none.
 
         Parameters
         ----------
@@ -124,6 +130,9 @@ class Effect:
             ``(T, Y, X)`` data minus the fitted mean of the model with the effect (ADU).
         valid
             ``(T, Y, X)`` pixels the fit used.
+        mean_adu
+            ``(T, Y, X)`` that fitted mean (ADU above the baseline), the effect applied
+            last (as the diagnosis fits a candidate).
         """
         return Confirmation(True)
 

@@ -6,16 +6,16 @@ import numpy as np
 
 from napari_symbac.diagnose.effects.background_texture import MIN_WAVELENGTH_UM
 from napari_symbac.diagnose.effects.base import Confirmation, Effect
+from napari_symbac.diagnose.effects.far_from_cells import (
+    FAR_FROM_CELLS_PX,
+    MIN_FAR_PIXELS,
+    far_bins,
+)
 from napari_symbac.diagnose.model import Geometry
 from napari_symbac.optics.forward import Stage
 
 __all__ = ["FAR_FROM_CELLS_PX", "MIN_FAR_PIXELS", "FixedPatternNoise", "column_basis"]
 
-#: Pixels at least this far from every cell edge (px) see no cell: a camera's column
-#: offset is all that a column term can do there.
-FAR_FROM_CELLS_PX = 8.0
-#: Far pixels (all frames together) a column needs for its mean to judge its offset.
-MIN_FAR_PIXELS = 8
 #: The columns that can be judged must carry this share of the offsets' power.
 MIN_JUDGED_POWER = 0.5
 
@@ -86,24 +86,25 @@ class FixedPatternNoise(Effect):
     def magnitude(self, summary):
         return summary["rms_column_offset_adu"]
 
-    def confirm(self, theta, residual_adu, valid):
+    def confirm(self, theta, residual_adu, valid, mean_adu):
         """Column offsets of the camera must also fit the columns far from the cells.
 
         A column offset acts on every pixel of its column, so it must explain the column
         means of the residual (before the offsets) at the pixels at least
-        :data:`FAR_FROM_CELLS_PX` from any cell, where the cells' and the trench's misfit
-        do not reach. Confirmed when subtracting the offsets lowers
-        ``sum_x (m_x - o_x)^2``, the squared column means ``m_x`` of those pixels, over
-        the columns with :data:`MIN_FAR_PIXELS` or more of them; when those columns
-        carry less than :data:`MIN_JUDGED_POWER` of the offsets' power the offsets
-        cannot be confirmed. On the SyMBac trench the offsets (a smooth wave of 8-10
-        columns) took the cells' and the walls' misfit and would raise that of the far
-        pixels' column means (docs/diagnosis.md, section 6).
+        :data:`FAR_FROM_CELLS_PX` from any cell, where the cells' misfit does not reach
+        (:mod:`~napari_symbac.diagnose.effects.far_from_cells`). Confirmed when
+        subtracting the offsets lowers ``sum_x (m_x - o_x)^2``, the squared column means
+        ``m_x`` of those pixels, over the columns with :data:`MIN_FAR_PIXELS` or more of
+        them; when those columns carry less than :data:`MIN_JUDGED_POWER` of the
+        offsets' power the offsets cannot be confirmed. On the SyMBac trench the offsets
+        (a smooth wave of 8-10 columns) took the cells' and the walls' misfit and would
+        raise that of the far pixels' column means (docs/diagnosis.md, section 6).
+        ``mean_adu`` is not needed: the offsets are ``theta``'s.
         """
         offsets = self.column_offsets(theta)
-        far = valid & (self.geometry.distance_px >= FAR_FROM_CELLS_PX)
-        counts = far.sum(axis=(0, 1))
-        judged = counts >= MIN_FAR_PIXELS
+        columns = np.broadcast_to(np.arange(offsets.size), self.geometry.shape[1:])
+        bins = far_bins(self.geometry, valid, columns, offsets.size)
+        judged = bins.judged
         power = float(np.sum(offsets**2))
         judged_power = float(np.sum(offsets[judged] ** 2))
         numbers = {
@@ -122,8 +123,7 @@ class FixedPatternNoise(Effect):
                 "(a camera's offsets must show there too)",
                 numbers,
             )
-        before_offsets = residual_adu + offsets[None, None, :]
-        means = np.sum(np.where(far, before_offsets, 0.0), axis=(0, 1))[judged] / counts[judged]
+        means = bins.means(residual_adu + offsets[None, None, :])
         own = offsets[judged]
         without = float(np.mean(means**2))
         with_offsets = float(np.mean((means - own) ** 2))
