@@ -78,6 +78,47 @@ def test_concealed_column_offsets_are_confirmed_far_from_cells():
     assert said["reason"].startswith("column offsets confirmed far from cells")
 
 
+@pytest.mark.slow
+def test_a_refused_effect_is_asked_its_own_check_first_at_later_steps(monkeypatch):
+    """An effect its own check refused is tried again at later steps (the effects
+    accepted since may have taken the misfit it absorbed), its own check first: a
+    held-out check (a bootstrap) only when that passes. Here the check always refuses:
+    the surface is asked at each of the 4 steps and checked on held-out pixels once, and
+    the report gives that check's numbers with their step."""
+    from napari_symbac.diagnose import run
+    from napari_symbac.diagnose.effects.base import Confirmation
+    from napari_symbac.diagnose.effects.uneven_illumination import UnevenIllumination
+
+    asked, checked = [], []
+
+    def refuse(self, theta, residual_adu, valid, mean_adu):
+        asked.append(self.name)
+        return Confirmation(False, "refused by the test", {"asked": float(len(asked))})
+
+    def counted(effect, *args, **kwargs):
+        checked.append(effect.name)
+        return held_out(effect, *args, **kwargs)
+
+    held_out = run.held_out
+    monkeypatch.setattr(UnevenIllumination, "confirm", refuse)
+    monkeypatch.setattr(run, "held_out", counted)
+    case = make_case("uneven_illumination", fraction_of_sd=1.5, seed=4)
+    result = diagnose(case.images, case.design, n_bootstrap=5, rng=np.random.default_rng(0))
+    assert len(result.accepted) == 4, result.report()  # other effects took its misfit
+    assert asked == ["uneven_illumination"] * 4
+    assert checked.count("uneven_illumination") == 1
+    light = next(e for e in result.effects if e.name == "uneven_illumination")
+    assert not light.accepted
+    assert (light.held_out_step, light.step) == (1, 4)
+    assert light.held_out_gain_nats > light.null_threshold_nats > 0  # it had passed that
+    assert light.confirmation.numbers["asked"] == 4
+    report = result.report()
+    assert f"-> {light.held_out_after:.5f} (step 1)" in report
+    assert "step 4: refused by the test" in report
+    said = light.as_dict()
+    assert (said["held_out_step"], said["step"]) == (1, 4)
+
+
 @pytest.mark.parametrize("seed", [31, 32])
 def test_no_effect_control_accepts_nothing(seed):
     case = make_case(None, modality="fluorescence", fraction_of_sd=0.5, seed=seed)

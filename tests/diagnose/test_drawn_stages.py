@@ -184,6 +184,11 @@ def test_diagnose_settings_export_the_accepted_effects_of_the_real_trench(
         > refused["far_column_misfit_without_offsets_adu2"]
     )
     assert refused["reason"].startswith("column offsets do not match the columns far from cells")
+    # asked again at every later step, their own check first: their held-out check
+    # (a bootstrap) ran once, at the first step, and is not repeated while refused
+    for effect in (offsets, light):
+        assert effect["held_out_step"] == 1
+        assert effect["step"] > 1
     report = (out / "report.txt").read_text()
     assert "cell/trench misfit, not the camera" in report
     assert "cell/trench misfit, not the light" in report

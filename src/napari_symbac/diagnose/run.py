@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -40,6 +41,9 @@ class EffectResult:
     effect_map: np.ndarray | None = field(default=None, repr=False)
     #: the effect's own check (:meth:`Effect.confirm`), when it passed the held-out one
     confirmation: Confirmation | None = None
+    #: the step of the held-out check whose numbers these are: an earlier one than
+    #: ``step`` when the effect's own check refused it again first (not repeated then)
+    held_out_step: int = 0
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -55,6 +59,8 @@ class EffectResult:
             "null_replicates": self.null_replicates,
             "score_dof": self.dof,
             "signature": self.signature,
+            "step": self.step,
+            "held_out_step": self.held_out_step,
             "confirmation": None
             if self.confirmation is None
             else {
@@ -133,14 +139,17 @@ class Diagnosis:
         for e in self.effects:
             verdict = "ACCEPTED" if e.accepted else "not accepted"
             lines.append(f"  {e.name:28s} evidence {e.evidence:8.2f}  {verdict}")
+            earlier = 0 < e.held_out_step != e.step  # its own check refused it again first
             if e.accepted or math.isfinite(e.null_threshold_nats):
                 lines.append(
                     f"      held-out gain {e.held_out_gain_nats:.1f} nats "
                     f"(noise alone would give < {e.null_threshold_nats:.1f}); "
                     f"deviance {e.held_out_before:.5f} -> {e.held_out_after:.5f}"
+                    + (f" (step {e.held_out_step})" if earlier else "")
                 )
             if e.confirmation is not None and e.confirmation.reason:
-                lines.append(f"      {e.confirmation.reason}")
+                said = f"step {e.step}: " if earlier else ""
+                lines.append(f"      {said}{e.confirmation.reason}")
             if e.accepted:
                 lines.append(f"      {e.explanation}")
                 short = {k: v for k, v in e.params.items() if not isinstance(v, (list, dict))}
@@ -293,7 +302,13 @@ def _diagnose(
         ranked = rank(remaining, design, y, current, valid)
         for effect, test in ranked:
             old = results.get(effect.name)
-            if old is None or not old.accepted:
+            if old is not None and _refused(old):
+                # an earlier step's refusal by the effect's own check, and the held-out
+                # check it had passed, stay said until new checks replace them
+                results[effect.name] = dataclasses.replace(
+                    old, evidence=test.evidence, dof=test.dof
+                )
+            elif old is None or not old.accepted:
                 results[effect.name] = EffectResult(
                     effect.name,
                     effect.explanation,
@@ -304,9 +319,6 @@ def _diagnose(
                     {},
                     base_summary["held_out"],
                     base_summary["held_out"],
-                    # an earlier step's refusal by the effect's own check stays said
-                    # until a new check replaces it
-                    confirmation=None if old is None else old.confirmation,
                 )
         # Strongest evidence first (``rank``). camera_noise is not moved ahead: a large
         # misfit of the mean inflates the residual variance, so its variance score is
@@ -319,6 +331,20 @@ def _diagnose(
                 break
             if cancel is not None and cancel():
                 raise InterruptedError("diagnosis cancelled")
+            res = results[effect.name]
+            trial_spec = spec.with_effect(effect, y)
+            trial = None
+            if _refused(res):
+                # Its own check refused it at an earlier step: that check is asked first
+                # now (one fit, where the held-out check fits a bootstrap of dozens),
+                # and only a fit that the effects accepted since let pass goes on to
+                # the held-out check. A refusal costs the try, as it did before.
+                trial = trial_spec.fit(design, y, valid)
+                confirmation = _confirmation(effect, trial, y, valid)
+                res.step = step
+                if not confirmation.confirmed:
+                    res.confirmation = confirmation
+                    continue
             if current_deviance is None:
                 current_deviance = cross_fitted_deviance(design, y, valid, spec)
             check = held_out(
@@ -338,19 +364,19 @@ def _diagnose(
             done += 1
             if progress is not None:
                 progress(done, total)
-            res = results[effect.name]
             res.held_out_before, res.held_out_after = check.before, check.after
             res.held_out_gain_nats, res.null_threshold_nats = check.gain_nats, check.threshold_nats
             res.null_replicates = check.replicates
-            res.step = step
+            res.step = res.held_out_step = step
             res.confirmation = None
             if not check.passed:
                 continue
             # the effect's own physical check, on the fit it would be accepted with
-            trial_spec = spec.with_effect(effect, y)
-            trial = trial_spec.fit(design, y, valid)
-            res.confirmation = _confirmation(effect, trial, y, valid)
-            if res.confirmation.confirmed:
+            if trial is None:
+                trial = trial_spec.fit(design, y, valid)
+                confirmation = _confirmation(effect, trial, y, valid)
+            res.confirmation = confirmation
+            if confirmation.confirmed:
                 accepted_now = effect
                 break
         if accepted_now is None:
@@ -381,6 +407,11 @@ def _diagnose(
     return Diagnosis(
         base_summary, final_summary, mismatches, ordered, r0, r1, current, threshold, tuple(skipped)
     )
+
+
+def _refused(result: EffectResult) -> bool:
+    """Whether the effect's own check (:meth:`Effect.confirm`) refused it last."""
+    return result.confirmation is not None and not result.confirmation.confirmed
 
 
 def _confirmation(
