@@ -81,14 +81,18 @@ def resample_kernel_spectrum(kernel: np.ndarray, factor: int, shape: tuple[int, 
     """
     k64 = np.asarray(kernel, np.float64)
     ky, kx = k64.shape
-    padded = np.zeros(shape, np.float64)
     # kernel (*) box: the box sum of the kernel at every offset, divided by factor^2
+    boxed = np.zeros((ky + factor - 1, kx + factor - 1), np.float64)
     for dy in range(factor):
         for dx in range(factor):
-            padded[dy : dy + ky, dx : dx + kx] += k64
-    padded /= factor * factor
+            boxed[dy : dy + ky, dx : dx + kx] += k64
+    boxed /= factor * factor
+    # placed at the origin of a zero array of ``shape`` and rolled back by ``shift``
     shift = (ky + factor - 2, kx + factor - 2)
-    padded = np.roll(padded, (-shift[0], -shift[1]), axis=(0, 1))
+    rows = (np.arange(boxed.shape[0]) - shift[0]) % shape[0]
+    cols = (np.arange(boxed.shape[1]) - shift[1]) % shape[1]
+    padded = np.zeros(shape, np.float64)
+    padded[np.ix_(rows, cols)] = boxed
     return (sp_fft.rfft2(padded) / factor).astype(np.complex64)
 
 
