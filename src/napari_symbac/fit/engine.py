@@ -25,6 +25,7 @@ from scipy import sparse
 from napari_symbac.fit.illumination import illumination_basis, illumination_terms
 from napari_symbac.fit.placement import TrenchPlacement, draw_fitted
 from napari_symbac.optics import ForwardModel
+from napari_symbac.optics.backends import resample_fft_shape, resample_kernel_spectrum
 from napari_symbac.scene import Scene
 from napari_symbac.scene._raster import chord
 from napari_symbac.settings import Camera, Microscope, RenderSettings
@@ -275,21 +276,33 @@ class SceneModel:
     def design(self, x: np.ndarray) -> tuple[np.ndarray, Scene, RenderSettings]:
         """``(pixels, 3)`` design ``[C, M, D]`` (float64), the scene and the render settings.
 
-        With per-cell brightness the cells column is ``C + sum_i db_i C_i`` (``C_i`` the
-        convolved fraction of cell ``i`` alone); by the linearity of the convolution
-        it is the convolution of ``cells + sum_i db_i F_i`` (:meth:`_brightness`),
-        one transform for all cells. With an illumination surface every row is
+        Cells, media and device fractions add up to 1 at every render pixel, so two
+        transforms give all three columns: ``C`` and the trench ``T = C + M``; then
+        ``M = T - C`` and ``D = K - T``, ``K`` the kernel's sum (the convolution of
+        1). An open field has ``T = K`` (no device), one transform. With per-cell
+        brightness the cells column is ``C + sum_i db_i C_i`` (``C_i`` the convolved
+        fraction of cell ``i`` alone); by the linearity of the convolution it is the
+        convolution of ``cells + sum_i db_i F_i`` (:meth:`_brightness`), one more
+        transform for all cells. With an illumination surface every row is
         multiplied by it (:meth:`light`).
         """
         self.tick()
         cells, curvature, place, r = self.unpack(x)
         scene = draw_fitted(cells, place, self.shape, self.microscope, r, self.depth_um, curvature)
         forward = self.forward.with_render(r)
-        cells_image = scene.cells
+        images = [scene.cells]
         if self.layout.per_cell_brightness:
-            cells_image = cells_image + self._brightness(x, scene)
-        comps = self._convolve(forward, scene, (cells_image, scene.media, scene.device))
-        a = np.stack([comp.ravel() for comp in comps], axis=1).astype(np.float64)
+            images.insert(0, scene.cells + self._brightness(x, scene))
+        open_field = not scene.device.any()
+        if not open_field:
+            images.append(1.0 - scene.device)
+        convolved = self._convolve(forward, scene, tuple(images)).astype(np.float64)
+        whole = float(np.sum(forward.kernel(scene.pixel_size_um), dtype=np.float64))
+        trench = np.full(convolved.shape[1:], whole) if open_field else convolved[-1]
+        cells = convolved[1 if self.layout.per_cell_brightness else 0]
+        a = np.stack(
+            [convolved[0].ravel(), (trench - cells).ravel(), (whole - trench).ravel()], axis=1
+        )
         light = self.light(x)
         if light is not None:
             a *= light[:, None]  # the surface multiplies eq. 3: still linear in I
@@ -440,11 +453,8 @@ class SceneModel:
     ) -> tuple[int, int, np.ndarray]:
         """Change of the convolved cells image ``C`` when cell ``i`` moves from ``x`` to ``x_new``.
 
-        Only cell ``i``'s parameters may differ between ``x`` and ``x_new``. The cells
-        fraction is redrawn in the union of the cell's old and new boxes (as
-        :func:`~napari_symbac.scene.draw_scene` does: the thickest chord of any cell,
-        over the depth, capped by 1 and by the trench), the difference is convolved
-        with the kernel in full and area-averaged to camera pixels.
+        Only cell ``i``'s parameters (and the shared width) may differ between ``x``
+        and ``x_new``; :meth:`cell_deltas` for one ``x_new``.
 
         With ``alone``, the convolved fraction of cell ``i`` by itself (at ``x_new``).
 
@@ -454,74 +464,110 @@ class SceneModel:
             Camera-pixel position of the patch's top-left corner (may be negative or
             reach past the image: clip when adding) and the patch (float64).
         """
+        row0, col0, patches = self.cell_deltas(x, [x_new], i, scene, kernel, alone)
+        return row0, col0, patches[0]
+
+    def cell_deltas(
+        self,
+        x: np.ndarray,
+        x_news: list[np.ndarray],
+        i: int,
+        scene: Scene,
+        kernel: np.ndarray,
+        alone: bool = False,
+    ) -> tuple[int, int, np.ndarray]:
+        """:meth:`cell_delta` for several moves of cell ``i`` at once, in one patch.
+
+        Each ``x_new`` differs from ``x`` in cell ``i``'s parameters or the shared
+        width only; cell ``i`` is drawn from it, the other cells from ``x``. The cells
+        fraction is redrawn in the union of the cell's boxes (as
+        :func:`~napari_symbac.scene.draw_scene` does: the thickest chord of any cell,
+        over the depth, capped by 1 and by the trench), the differences are
+        convolved with the kernel in full and area-averaged to camera pixels, all in
+        one batch of transforms (:meth:`_convolve_patch`).
+
+        Returns
+        -------
+        row0, col0, patches
+            Camera-pixel position of the patches' top-left corner (may be negative or
+            reach past the image: clip when adding) and ``(len(x_news), h, w)``
+            patches (float64).
+        """
         u, bd = scene.upsample, scene.border_px
         S0, S1 = scene.shape
-        a0, a1, b0, b1, _ = self._cell_box(x, i, scene)
-        c0, c1, d0, d1, _ = self._cell_box(x_new, i, scene)
-        i0, i1, j0, j1 = min(a0, c0), max(a1, c1), min(b0, d0), max(b1, d1)
+        boxes = [self._cell_box(xn, i, scene) for xn in (x, *x_news)]
+        i0, i1 = min(b[0] for b in boxes), max(b[1] for b in boxes)
+        j0, j1 = min(b[2] for b in boxes), max(b[3] for b in boxes)
         s0 = 2 * bd + u * math.floor((i0 - 2 * bd) / u)
         s1 = u * math.ceil(i1 / u)
         t0 = 2 * bd + u * math.floor((j0 - 2 * bd) / u)
         t1 = u * math.ceil(j1 / u)
         r0, r1 = max(s0, 0), min(s1, S0)
         q0, q1 = max(t0, 0), min(t1, S1)
-        delta = np.zeros((s1 - s0, t1 - t0), np.float32)
+        delta = np.zeros((len(x_news), s1 - s0, t1 - t0), np.float32)
         if r0 < r1 and q0 < q1:
             px = scene.pixel_size_um
             yc = (np.arange(r0, r1) - bd + 0.5) * px
             xc = (np.arange(q0, q1) - bd + 0.5) * px
-            thick = np.zeros((r1 - r0, q1 - q0), np.float32)
-            if alone:
-                near = [i]
-            else:  # the cells whose boxes reach the patch (boxes of x, all at once)
+
+            def thickness(args: tuple[float, ...]) -> np.ndarray:
+                cx, cy, ang, ln, wd, bend = args
+                bent = (bend, CURVATURE_B, CURVATURE_C) if bend else None
+                return chord(xc, yc, (cx, cy), ang, ln, wd, bent)
+
+            others = np.zeros((r1 - r0, q1 - q0), np.float32)
+            if not alone:  # the cells whose boxes reach the patch (boxes of x, all at once)
                 b0, b1, c0, c1 = self._boxes(x, scene)
                 hit = (b1 > r0) & (b0 < r1) & (c1 > q0) & (c0 < q1)
-                hit[i] = True
-                near = np.flatnonzero(hit)
-            for j in near:
-                source = x_new if j == i else x
-                e0, e1, f0, f1, (cx, cy, ang, ln, wd, bend) = self._cell_box(source, j, scene)
-                if e1 <= r0 or e0 >= r1 or f1 <= q0 or f0 >= q1:
-                    continue
-                chord_k = chord(
-                    xc,
-                    yc,
-                    (cx, cy),
-                    ang,
-                    ln,
-                    wd,
-                    (bend, CURVATURE_B, CURVATURE_C) if bend else None,
-                )
-                np.maximum(thick, chord_k, out=thick)
+                hit[i] = False
+                for j in np.flatnonzero(hit):
+                    e0, e1, f0, f1, args = self._cell_box(x, int(j), scene)
+                    if e1 <= r0 or e0 >= r1 or f1 <= q0 or f0 >= q1:
+                        continue
+                    np.maximum(others, thickness(args), out=others)
             old = scene.cells[r0:r1, q0:q1]
             trench = old + scene.media[r0:r1, q0:q1]
             if alone:
                 old = np.zeros_like(old)
-            new = np.minimum(np.minimum(thick / np.float32(self.depth_um), 1.0), trench)
-            delta[r0 - s0 : r1 - s0, q0 - t0 : q1 - t0] = new - old
-        full = self._full_convolve(delta, kernel)
-        h, w = full.shape
-        patch = full.reshape(h // u, u, w // u, u).mean(axis=(1, 3))
-        return (s0 - 2 * bd) // u, (t0 - 2 * bd) // u, patch
+            depth = np.float32(self.depth_um)
+            for m, (e0, e1, f0, f1, args) in enumerate(boxes[1:]):
+                thick = others
+                if not (e1 <= r0 or e0 >= r1 or f1 <= q0 or f0 >= q1):
+                    thick = np.maximum(others, thickness(args))
+                new = np.minimum(np.minimum(thick / depth, 1.0), trench)
+                delta[m, r0 - s0 : r1 - s0, q0 - t0 : q1 - t0] = new - old
+        patches = self._convolve_patch(delta, kernel, u)
+        return (s0 - 2 * bd) // u, (t0 - 2 * bd) // u, patches
 
-    def _full_convolve(self, patch: np.ndarray, kernel: np.ndarray) -> np.ndarray:
-        """``fftconvolve(patch, kernel, "full")`` in float64, the kernel's spectrum cached.
+    def _convolve_patch(self, patch: np.ndarray, kernel: np.ndarray, factor: int) -> np.ndarray:
+        """``fftconvolve(patch, kernel, "full")`` block-averaged ``factor x factor`` (float64),
+        for each of ``(N, Y, X)`` patches.
 
-        Transform sizes are fast lengths of the full output; the kernel's spectrum
-        for each size is kept (a fit's patches come in a few sizes), so a patch costs
-        one forward and one inverse transform instead of two forward and one inverse.
+        The full convolution of a patch is the valid convolution of the patch with
+        ``kernel - 1`` zeros before it, so the fused convolution + block average of the
+        renders (:func:`~napari_symbac.optics.backends.resample_kernel_spectrum`: one
+        forward transform at render resolution, the inverse ``factor**2`` times
+        smaller) gives it. The full output's sides are multiples of ``factor`` (the
+        caller aligns the patch). The kernel's spectrum is kept for each transform
+        size (a fit's patches come in a few sizes).
         """
-        shape = tuple(p + k - 1 for p, k in zip(patch.shape, kernel.shape))
-        fshape = tuple(sp_fft.next_fast_len(n, real=True) for n in shape)
-        key = (hash(kernel.tobytes()), kernel.shape, fshape)
+        ky, kx = kernel.shape
+        rows, cols = patch.shape[-2] + ky - 1, patch.shape[-1] + kx - 1
+        shape = resample_fft_shape(rows, cols, factor)
+        key = (hash(kernel.tobytes()), kernel.shape, shape, factor)
         spectrum = self._kernel_spectra.get(key)
         if spectrum is None:
             if len(self._kernel_spectra) > 64:
                 self._kernel_spectra.clear()
-            spectrum = sp_fft.rfft2(np.asarray(kernel, np.float64), fshape)
+            spectrum = resample_kernel_spectrum(kernel, factor, shape)
             self._kernel_spectra[key] = spectrum
-        product = sp_fft.rfft2(np.asarray(patch, np.float64), fshape) * spectrum
-        return sp_fft.irfft2(product, fshape)[: shape[0], : shape[1]]
+        padded = np.zeros((len(patch), *shape), np.float32)
+        padded[:, ky - 1 : rows, kx - 1 : cols] = patch
+        product = sp_fft.rfft2(padded) * spectrum
+        m1 = shape[0] // factor
+        folded = sp_fft.ifft(product.reshape(len(patch), factor, m1, -1).sum(axis=1), axis=1)
+        full = sp_fft.irfft(folded[:, : rows // factor], n=shape[1], axis=-1)
+        return full[:, :, : cols : factor].astype(np.float64)
 
     # ----------------------------------------------------------------- Jacobian
     def jacobian(
@@ -558,15 +604,41 @@ class SceneModel:
         light = self.light(x)
         first_light = lay.n * pc + lay.i_illumination
         n_light = self._light_basis.shape[0]
-        data, indices, indptr = [], [], [0]
+        width_k = lay.n * pc
+        steps, moved = {}, {}
         for k in np.flatnonzero(free):
             h = step
             if upper is not None and x[k] + h * scales[k] > upper[k]:
                 h = -step
             xk = x.copy()
             xk[k] += h * scales[k]
-            owner = lay.owner(int(k))
-            shared_width = k == lay.n * pc
+            steps[int(k)], moved[int(k)] = h, xk
+        # Each cell's geometric columns (and its part of the shared width's) in one
+        # batch of patches.
+        geometric = [
+            k
+            for k in steps
+            if k == width_k
+            or (
+                lay.owner(k) >= 0
+                and not (lay.per_cell_brightness and k % pc == lay.i_brightness)
+            )
+        ]
+        patches: dict[tuple[int, int], tuple[int, int, np.ndarray]] = {}
+        for i in range(lay.n):
+            ks = [k for k in geometric if k == width_k or lay.owner(k) == i]
+            if not ks:
+                continue
+            for _ in ks:
+                self.tick()
+            row0, col0, batch = self.cell_deltas(x, [moved[k] for k in ks], i, scene, kernel)
+            for k, patch in zip(ks, batch):
+                patches[i, k] = (row0, col0, patch)
+        data, indices, indptr = [], [], [0]
+        for k in steps:
+            h, xk = steps[k], moved[k]
+            owner = lay.owner(k)
+            shared_width = k == width_k
             if first_light <= k < first_light + n_light:
                 # mu = light * mu_0 and light is linear in c_k: exact.
                 col = mu / light * self._light_basis[k - first_light] * scales[k]
@@ -584,9 +656,7 @@ class SceneModel:
                 # penalty keeps so).
                 col = np.zeros(npx)
                 for i in [owner] if owner >= 0 else range(lay.n):
-                    self.tick()
-                    patch = self.cell_delta(x, xk, i, scene, kernel)
-                    _add_patch(col, self.shape, *patch, contrast[i] / h)
+                    _add_patch(col, self.shape, *patches[i, k], contrast[i] / h)
                 if light is not None:
                     col *= light
             elif lay.global_names[k - lay.n * pc] in KERNEL_PARAMETERS:

@@ -43,31 +43,45 @@ OVERLAP_SD_UM = 0.02
 WALL_TOLERANCE = 0.25
 
 
-def _segment(block: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
-    cx, cy, angle, length = block[:4]
+Point = tuple[float, float]
+
+
+def _segment(block: np.ndarray, width: float) -> tuple[Point, Point]:
+    cx, cy, angle, length = (float(v) for v in block[:4])
     half = max(max(length, width) / 2 - width / 2, 0.0)
-    d = np.array([math.sin(angle), math.cos(angle)]) * half
-    c = np.array([cx, cy])
-    return c - d, c + d
+    dx, dy = math.sin(angle) * half, math.cos(angle) * half
+    return (cx - dx, cy - dy), (cx + dx, cy + dy)
 
 
-def segment_distance(p: tuple[np.ndarray, np.ndarray], q: tuple[np.ndarray, np.ndarray]) -> float:
+def _to_point(c: Point) -> Point:
+    return float(c[0]), float(c[1])
+
+
+def _point_distance(c: Point, a: Point, b: Point) -> float:
+    """Distance from point ``c`` to the segment ``a b``."""
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    ex, ey = c[0] - a[0], c[1] - a[1]
+    t = min(max((ex * dx + ey * dy) / max(dx * dx + dy * dy, 1e-12), 0.0), 1.0)
+    return math.hypot(ex - t * dx, ey - t * dy)
+
+
+def _side(u: Point, v: Point, w: Point) -> float:
+    return (v[0] - u[0]) * (w[1] - u[1]) - (v[1] - u[1]) * (w[0] - u[0])
+
+
+def segment_distance(p: tuple[Point, Point], q: tuple[Point, Point]) -> float:
     """Shortest distance between the segments ``p`` and ``q`` (2-D, end points)."""
-
-    def point(c: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
-        d = b - a
-        t = float(np.clip(np.dot(c - a, d) / max(float(np.dot(d, d)), 1e-12), 0.0, 1.0))
-        return float(np.hypot(*(c - a - t * d)))
-
+    a, b = _to_point(p[0]), _to_point(p[1])
+    c, e = _to_point(q[0]), _to_point(q[1])
     # Crossing segments: distance 0.
-    (a, b), (c, e) = p, q
-
-    def side(u: np.ndarray, v: np.ndarray, w: np.ndarray) -> float:
-        return float((v[0] - u[0]) * (w[1] - u[1]) - (v[1] - u[1]) * (w[0] - u[0]))
-
-    if side(a, b, c) * side(a, b, e) < 0 and side(c, e, a) * side(c, e, b) < 0:
+    if _side(a, b, c) * _side(a, b, e) < 0 and _side(c, e, a) * _side(c, e, b) < 0:
         return 0.0
-    return min(point(a, c, e), point(b, c, e), point(c, a, b), point(e, a, b))
+    return min(
+        _point_distance(a, c, e),
+        _point_distance(b, c, e),
+        _point_distance(c, a, b),
+        _point_distance(e, a, b),
+    )
 
 
 def _widths(blocks: np.ndarray, shared_width: float, layout: Layout) -> np.ndarray:
@@ -75,20 +89,33 @@ def _widths(blocks: np.ndarray, shared_width: float, layout: Layout) -> np.ndarr
     return np.maximum(np.broadcast_to(widths, (len(blocks),)), 0.2)
 
 
-def _pair(blocks: np.ndarray, widths: np.ndarray, i: int, j: int) -> float:
-    limit = OVERLAP_TOLERANCE * (widths[i] + widths[j]) / 2
-    d = segment_distance(_segment(blocks[i], widths[i]), _segment(blocks[j], widths[j]))
+def _width(x: np.ndarray, layout: Layout, i: int) -> float:
+    """Cell ``i``'s width (as :func:`_widths`), from the parameter vector."""
+    pc = layout.per_cell
+    width = float(x[layout.n * pc])
+    if layout.per_cell_width:
+        width += float(x[i * pc + layout.i_dwidth])
+    return max(width, 0.2)
+
+
+def _pair(x: np.ndarray, layout: Layout, i: int, j: int) -> float:
+    """How deep cells ``i`` and ``j`` overlap beyond the tolerance, in s.d."""
+    pc = layout.per_cell
+    wi, wj = _width(x, layout, i), _width(x, layout, j)
+    limit = OVERLAP_TOLERANCE * (wi + wj) / 2
+    d = segment_distance(
+        _segment(x[i * pc : i * pc + 4], wi), _segment(x[j * pc : j * pc + 4], wj)
+    )
     return max(limit - d, 0.0) / OVERLAP_SD_UM
 
 
 def _wall(x: np.ndarray, layout: Layout, i: int) -> float:
     """Cell ``i``'s reach past the nearer trench wall beyond the tolerance, in s.d."""
     n, pc = layout.n, layout.per_cell
-    blocks = x[: n * pc].reshape(n, pc)
-    width = float(_widths(blocks[i : i + 1], x[n * pc], layout)[0])
-    cx, _, angle, length = blocks[i, :4]
+    width = _width(x, layout, i)
+    cx, _, angle, length = (float(v) for v in x[i * pc : i * pc + 4])
     half_extent = abs(math.sin(angle)) * max(max(length, width) - width, 0.0) / 2 + width / 2
-    left, trench_width = x[n * pc + 1], x[n * pc + 2]
+    left, trench_width = float(x[n * pc + 1]), float(x[n * pc + 2])
     past = max(left - (cx - half_extent), (cx + half_extent) - (left + trench_width))
     return max(past - WALL_TOLERANCE * width, 0.0) / OVERLAP_SD_UM
 
@@ -110,12 +137,8 @@ def overlap_terms(
     gap = np.hypot(blocks[:, None, 0] - blocks[None, :, 0], blocks[:, None, 1] - blocks[None, :, 1])
     near = np.argwhere(np.triu(gap < reach[:, None] + reach[None, :], 1))
 
-    def pair(xk: np.ndarray, i: int, j: int) -> float:
-        bk = xk[: n * pc].reshape(n, pc)
-        return _pair(bk, _widths(bk, xk[n * pc], layout), i, j)
-
     terms = [
-        (functools.partial(pair, i=int(i), j=int(j)), [int(i), int(j)], [n * pc])
+        (functools.partial(_pair, layout=layout, i=int(i), j=int(j)), [int(i), int(j)], [n * pc])
         for i, j in near
     ]
     if layout.trench:

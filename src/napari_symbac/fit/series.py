@@ -28,12 +28,11 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-from scipy import sparse
 from skimage.registration import phase_cross_correlation
 
 from napari_symbac.fit.camera_estimate import censored_pixels, estimate_camera
 from napari_symbac.fit.lineage import Lineage, LinkSettings, link_cells
-from napari_symbac.fit.lm import State, damped_step, evaluate
+from napari_symbac.fit.lm import State, damped_step, evaluate, normal_equations
 from napari_symbac.fit.moves import dispersion
 from napari_symbac.fit.overlap import overlap_terms
 from napari_symbac.fit.placement import TrenchPlacement
@@ -591,9 +590,8 @@ def _joint_refine(
                 upper=up,
             )
             sw = np.sqrt(p.w)
-            jw = sparse.diags(sw) @ jac
-            jtj = (jw.T @ jw).toarray()
-            grad = -(jw.T @ (sw * (p.y - state.mu)))
+            jtj, jtr = normal_equations(jac, sw, sw * (p.y - state.mu))
+            grad = -jtr
             m = state.x.size
             sc = model.layout.scales()
             sd = p.prior_sd(n)
