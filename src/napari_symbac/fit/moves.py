@@ -27,8 +27,9 @@ model):
   leaves out spots smaller than a cell.
 
 Merged, split and added cells are refitted locally (their own parameters only)
-before the comparison, and, when that brings them close to acceptance, with every
-parameter free.
+before the comparison, and, when that brings them close to acceptance but short of
+it, with every parameter free. A refused merge is not proposed again at the same
+place: the evidence against it is local, and an accepted move elsewhere leaves it.
 """
 
 from __future__ import annotations
@@ -54,8 +55,8 @@ __all__ = ["improve_scene"]
 DIM_CELL = -0.5
 #: Iterations of the local refit of a proposed cell.
 LOCAL_ITERATIONS = 8
-#: A proposal within this many cell prices of acceptance after its local refit is
-#: refitted with every parameter free before the BIC decides.
+#: A proposal refused after its local refit but within this many cell prices of
+#: acceptance is refitted with every parameter free before the BIC decides.
 GLOBAL_MARGIN = 10.0
 
 
@@ -77,7 +78,11 @@ class _Context:
         self.log.append(message)
 
     def reject(self, kind: str, x: float, y: float, offset_um: float) -> None:
-        """Remember a refused proposal (not tried again at the same place)."""
+        """Remember a refused proposal (not tried again at the same place).
+
+        ``offset_um``: what tells proposals at one place apart (a septum's offset
+        from the rod's centre, a merged rod's length).
+        """
         self.refused.append((kind, x, y, offset_um))
 
     def tried(self, kind: str, x: float, y: float, offset_um: float) -> bool:
@@ -175,8 +180,10 @@ def _try(
         trial, _ = problem.refit(trial, _local_free(problem, len(blocks), refit), LOCAL_ITERATIONS)
         dn = len(blocks) - problem.n_cells(state.x)
         price = problem.bic_per_cell * ctx.dispersion
-        if trial.cost + dn * price < state.cost + GLOBAL_MARGIN * price:
-            # Close: let the neighbours, the width and the optics settle too.
+        close = trial.cost + dn * price < state.cost + GLOBAL_MARGIN * price
+        if close and not _accept(problem, state, trial, dn, ctx):
+            # Close: let the neighbours, the width and the optics settle too. (An
+            # accepted move is settled by the fit's next round.)
             trial, _ = problem.refit(trial, None, LOCAL_ITERATIONS)
     return trial
 
@@ -221,6 +228,8 @@ def _merge_pass(problem: Problem, state: State, ctx: _Context) -> tuple[State, b
             merged = _rod(far[0], far[1], blocks[i])
             if ctx.near("split", merged[0], merged[1]):
                 continue  # no undoing a split
+            if ctx.tried("merge", merged[0], merged[1], merged[3]):
+                continue
             trial_blocks = np.delete(blocks, j, axis=0)
             trial_blocks[i] = merged
             trial = _try(problem, state, trial_blocks, shared, [i], ctx)
@@ -228,6 +237,7 @@ def _merge_pass(problem: Problem, state: State, ctx: _Context) -> tuple[State, b
                 message = f"merged cells at y = {blocks[i, 1]:.2f} and {blocks[j, 1]:.2f} um"
                 ctx.accept("merge", merged[0], merged[1], message)
                 return trial, True
+            ctx.reject("merge", merged[0], merged[1], merged[3])
     return state, False
 
 
