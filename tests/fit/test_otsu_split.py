@@ -72,3 +72,20 @@ def test_septum_cuts_respect_prominence_and_length():
     assert start._septum_cuts(profile, noise, 10.0, 20) == [25, 50]  # low bar: both
     assert start._septum_cuts(profile, noise, 10.0, 30) == [50]  # 25 leaves < 30 bins
     assert start._septum_cuts(profile, np.full(x.size, 50.0), 10.0, 20) == []  # noise
+
+
+def test_prominent_maxima_are_scipy_find_peaks():
+    """The start's own peak finder gives find_peaks' peaks and prominences, flat tops
+    and ties included (it saves importing scipy.signal)."""
+    from scipy.signal import find_peaks
+
+    rng = np.random.default_rng(0)
+    for trial in range(400):
+        profile = rng.normal(size=int(rng.integers(1, 60)))
+        if trial % 2:
+            profile = np.repeat(np.round(profile * 2) / 2, rng.integers(1, 4))  # flat tops
+        min_prominence = float(rng.choice([0.0, 0.3, 1.0]))
+        peaks, props = find_peaks(profile, prominence=min_prominence)
+        found, prominences = start.prominent_maxima(profile, min_prominence)
+        np.testing.assert_array_equal(found, peaks)
+        np.testing.assert_allclose(prominences, props["prominences"], rtol=0, atol=1e-12)
