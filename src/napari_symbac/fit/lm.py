@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 from scipy import sparse
+from threadpoolctl import ThreadpoolController
 
 from napari_symbac.fit.engine import SceneModel, solve_intensities
 from napari_symbac.fit.overlap import overlap_terms
@@ -30,6 +31,10 @@ __all__ = ["State", "damped_step", "evaluate", "levenberg_marquardt", "normal_eq
 #: intensities', the trench's and the optics' columns fill it, and BLAS then beats the
 #: sparse product (a 256 x 46 trench with 7 cells: 0.5 M entries).
 DENSE_JACOBIAN_ENTRIES = 4_000_000
+#: BLAS is held to one thread for those products: a threaded OpenBLAS spins when the
+#: cores are busy (the DeLTA trench's fit took 51 s with the default threads and 32 s
+#: with one, beside a test suite on the 2-core machine), and they are small.
+_BLAS = ThreadpoolController()
 
 
 @dataclass
@@ -77,7 +82,8 @@ def normal_equations(
     """
     if jac.shape[0] * jac.shape[1] <= DENSE_JACOBIAN_ENTRIES:
         jw = jac.toarray() * sw[:, None]
-        jtj = jw.T @ jw
+        with _BLAS.limit(limits=1, user_api="blas"):
+            jtj = jw.T @ jw
     else:
         jw = sparse.diags(sw) @ jac
         jtj = (jw.T @ jw).toarray()
