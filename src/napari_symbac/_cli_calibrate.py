@@ -233,6 +233,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     print(f"{calibration.method}: {m.summary(px, modality_used)}")
+    print(f"real against synthetic: {comparison.verdict()} (report.txt says per quantity)")
     print(f"wrote dataset/ ({report.n_items} items, {', '.join(settings.formats)}), report.txt, "
           f"report.png, export_settings.yaml, masks.tif to {out}")
     print(timer.report())

@@ -48,6 +48,7 @@ def test_calibrate_writes_a_matched_dataset_and_report(colicoords_files, capsys)
     report = (out / "report.txt").read_text()
     assert "fluorescence" in report
     assert "power spectrum" in report
+    _assert_flags_follow_the_numbers(report, capsys.readouterr().out)
     # the masks' outline convention, measured against the fitted cells, goes to the
     # dataset: the ColiCoords annotations lie outside the model cells
     assert "mask outline +" in report
@@ -58,6 +59,38 @@ def test_calibrate_writes_a_matched_dataset_and_report(colicoords_files, capsys)
     assert picture.ndim == 3
     assert picture.shape[1] > 2 * 192
     assert not [p for p in d.iterdir() if p.name.startswith(".out")]  # staging removed
+
+
+def _assert_flags_follow_the_numbers(report: str, stdout: str) -> None:
+    """Each quantity's MATCH / MISMATCH agrees with the numbers report.txt prints (found
+    as a user: ColiCoords field 1's synthetic cells at 1.171 against the real 0.993, and
+    spectra 1.5-5x apart, were printed unflagged), and the summary counts them."""
+    from napari_symbac.calibrate.compare import MEDIAN_TOLERANCE
+
+    rows = {
+        line[:19].strip(): [float(v) for v in line[19:].split()]
+        for line in report.splitlines()
+        if line.startswith(("cells median", "background median"))
+    }
+    assert len(rows) == 2
+    matched = 0
+    for name, (real, synthetic) in rows.items():
+        word = "MATCH" if abs(synthetic - real) <= MEDIAN_TOLERANCE else "MISMATCH"
+        assert f"- {name}: {word}: synthetic {synthetic:.3f} against real {real:.3f}" in report
+        matched += word == "MATCH"
+    bands = [line for line in report.splitlines() if line.startswith("  0.")]
+    assert len(bands) == 16
+    out = [line for line in bands if line.endswith("MISMATCH")]
+    for line in out:  # a flagged band is at least the 1.5x tolerance away
+        ratio = float(line.split("x")[-1].split()[0])
+        assert not 1 / 1.5 <= ratio <= 1.5
+    spectrum = "MISMATCH" if out else "MATCH"
+    assert f"- power spectrum: {spectrum}:" in report
+    matched += spectrum == "MATCH"
+    matched += "- background noise: MATCH:" in report
+    summary = f"the synthetic data match the recording in {matched} of 4 comparisons"
+    assert summary in report
+    assert summary in stdout  # the CLI's summary says the same
 
 
 @pytest.mark.parametrize(

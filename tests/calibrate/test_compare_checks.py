@@ -1,0 +1,82 @@
+"""The comparison says per quantity whether the synthetic image matches the recording."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from napari_symbac.calibrate import compare_images
+from napari_symbac.calibrate.compare import (
+    MEDIAN_TOLERANCE,
+    SPECTRUM_FACTOR,
+    Comparison,
+    band_coefficients,
+)
+
+
+def _field(seed: int, *, cell_level: float = 1000.0, blur_px: float = 0.0):
+    """A 128 x 128 field of 12 bright rods on a dark noisy background, and its masks."""
+    rng = np.random.default_rng(seed)
+    labels = np.zeros((128, 128), np.int32)
+    y, x = np.mgrid[:128, :128]
+    for k in range(12):
+        cy, cx = 12 + 34 * (k // 4), 14 + 32 * (k % 4)
+        labels[((y - cy) / 4.0) ** 2 + ((x - cx) / 10.0) ** 2 <= 1] = k + 1
+    # a bright rim and a dimmer core, so that the 99th percentile lies on the rims and
+    # the cells' normalised median follows the core's level
+    rim = (labels > 0) & (ndimage.grey_erosion(labels, size=3) == 0)
+    clean = np.where(labels > 0, cell_level, 200.0) + np.where(rim, 600.0, 0.0)
+    if blur_px:
+        clean = ndimage.gaussian_filter(clean, blur_px)
+    return clean + rng.normal(0.0, 40.0, clean.shape), labels
+
+
+def test_two_draws_of_the_same_field_match_in_every_comparison():
+    real, masks = _field(0)
+    synthetic, labels = _field(1)
+    comparison = compare_images(real, masks, synthetic, labels)
+    assert all(check.matched for check in comparison.checks())
+    table = comparison.table()
+    assert "MISMATCH" not in table
+    assert "the synthetic data match the recording in 4 of 4 comparisons; mismatched: none" in (
+        table
+    )
+    assert f"tolerance +-{MEDIAN_TOLERANCE:g}" in table
+    assert "issue 16" in table  # why that tolerance
+
+
+def test_brighter_and_blurred_cells_are_flagged_with_what_to_do():
+    real, masks = _field(0)
+    synthetic, labels = _field(1, cell_level=1400.0, blur_px=1.5)
+    comparison = compare_images(real, masks, synthetic, labels)
+    by_name = {check.quantity: check for check in comparison.checks()}
+    assert abs(comparison.cells[1] - comparison.cells[0]) > MEDIAN_TOLERANCE
+    assert not by_name["cells median"].matched
+    assert not by_name["power spectrum"].matched
+    assert by_name["background median"].matched
+    table = comparison.table()
+    assert "- cells median: MISMATCH: synthetic" in table
+    assert "- power spectrum: MISMATCH:" in table
+    assert "- background median: MATCH:" in table
+    verdict = comparison.verdict()
+    assert verdict.startswith("the synthetic data match the recording in ")
+    assert "mismatched: cells median" in verdict
+    assert "power spectrum" in verdict.split("mismatched:")[1]
+    assert "lacks fine detail" in verdict  # the blur: high bands lower
+    assert "--masks" in verdict
+    assert verdict in table  # the summary line ends the table
+
+
+def test_small_bands_get_the_tolerance_their_sampling_needs():
+    counts = band_coefficients((48, 48), 16)
+    assert 0 < counts[0] < counts[-1]  # annuli grow with the frequency
+    assert (band_coefficients((128, 128), 16) > counts).all()  # and with the image
+    flat = np.full(16, 1 / 16)
+    comparison = Comparison(
+        (0.5, 0.5), (0.1, 0.1), (0.05, 0.05), np.linspace(0, 0.5, 16), flat, flat,
+        band_coefficients=counts,
+    )
+    factors = comparison.band_factors()
+    assert factors.min() == pytest.approx(SPECTRUM_FACTOR)  # well-sampled bands
+    assert factors[0] > 2 * SPECTRUM_FACTOR  # a band of a few coefficients
