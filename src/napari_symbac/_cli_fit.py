@@ -541,6 +541,14 @@ def _outputs_one(
         check, problem = _model_free_gain(frame, camera_used)
         facts["camera (model-free)"] = check
         problems += [problem] if problem else []
+    counts_note = getattr(args, "counts_note", None)
+    if counts_note:
+        facts = _said_in_read_counts(facts, counts_note)
+        notes.append(
+            f"every ADU and e- in this report is of the normalised image read as counts, "
+            f"{_counts_mapping(counts_note)}: not of a real camera (its gain, baseline and "
+            "noise in those units)"
+        )
     report = report_text(result, facts, problems)
     if notes:
         report += "\nNOTES\n" + "".join(f"- {n}\n" for n in notes)
@@ -561,6 +569,29 @@ def _outputs_one(
         "report.txt": lambda p: p.write_text(report),
     }
     return writers, result
+
+
+def _counts_mapping(counts_note: str) -> str:
+    """``(value + s) x 10000 ADU`` from :func:`napari_symbac.io.as_counts`' note."""
+    return counts_note.split("read as ", 1)[-1].split(",", 1)[0]
+
+
+def _said_in_read_counts(facts: dict[str, str], counts_note: str) -> dict[str, str]:
+    """report.txt's facts for a normalised image read as counts: the reading said after
+    the image, and each camera line that quotes ADU marked as in those units, so that
+    its gain is not taken for a real camera's (found as a user: DeLTA's trench, 0.015
+    ADU/e-, 531 e-)."""
+    marked = (
+        f" [normalised image read as counts, {_counts_mapping(counts_note)}: not a real "
+        "camera's units]"
+    )
+    said: dict[str, str] = {}
+    for key, value in facts.items():
+        quotes_adu = key.startswith("camera") and "ADU" in value
+        said[key] = value + marked if quotes_adu else value
+        if key == "image":
+            said["image values"] = counts_note
+    return said
 
 
 def _fit_frames_jointly(
@@ -814,6 +845,7 @@ def run_fit(args: argparse.Namespace) -> int:
     stages.stage("loading inputs")
     with timer.step("load"):
         recording = read_recording(args.image)
+        args.counts_note = recording.note  # report.txt says the reading too
         data = np.asarray(recording.data)
         name = Path(args.image).name
         if data.ndim not in (2, 3):

@@ -306,6 +306,17 @@ def test_a_normalised_trench_is_read_as_counts_and_exports_phase_contrast(
     # its cells are darker than the linear kernel draws them: the limit is said
     report = (out / "report.txt").read_text()
     assert "at a bound: cell_intensity is 0 ADU, the least the model allows" in report
+    # found as a user: report.txt's camera (0.015 ADU/e-, 531 e-) read as a real camera's
+    from napari_symbac.io import NORMALISED_ADU_PER_UNIT
+
+    read_as = f"(value + 0.02847) x {NORMALISED_ADU_PER_UNIT:g} ADU"
+    assert _fact(report, "image values").startswith("normalised values (-0.02847..1.007")
+    for key in ("camera used", "camera (model-free)"):
+        assert _fact(report, key).endswith(
+            f"[normalised image read as counts, {read_as}: not a real camera's units]"
+        )
+    every = "- every ADU and e- in this report is of the normalised image read as counts"
+    assert f"{every}, {read_as}" in report
     settings = load_settings(out / "settings.yaml", PipelineSettings)
     item = PipelineSource(export_of(settings, n_items=1)).make_unit(0)[0]
     assert item.image.shape == (256, 32)
@@ -549,12 +560,18 @@ def test_a_normalised_image_is_fitted_as_counts(tmp_path, truth, inputs, capsys)
     image = tmp_path / "normalised.tif"
     top = float(truth.image.max())
     tifffile.imwrite(image, (truth.image / top).astype(np.float32))
-    gains = []
+    gains, reports = [], []
     for path in (raw, image):
         out = tmp_path / path.stem
         assert _fit(path, "--microscope", microscope, "--out", out, "--max-iterations", 2) == 0
         camera = load_settings(out / "settings.yaml", PipelineSettings).camera
         gains.append(camera.sensitivity_adu_per_e)
+        reports.append((out / "report.txt").read_text())
+    # report.txt says the gain is of the image read as counts, not a camera's; the raw
+    # recording's report does not
+    marked = "[normalised image read as counts, (value) x 10000 ADU: not a real camera's units]"
+    assert _fact(reports[1], "camera used").endswith(marked)
+    assert "read as counts" not in reports[0]
     assert "not camera counts): read as (value) x 10000 ADU" in capsys.readouterr().err
     assert gains[1] == pytest.approx(gains[0] * NORMALISED_ADU_PER_UNIT / top, rel=1e-3)
     assert gains[0] == pytest.approx(truth.camera.sensitivity_adu_per_e, rel=0.2)
