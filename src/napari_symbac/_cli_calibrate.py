@@ -193,7 +193,9 @@ def run_calibrate(args: argparse.Namespace) -> int:
     with timer.step("compare"):
         item = PipelineSource(settings).make_unit(0)[0]
         real = calibration.reference
-        comparison = compare_images(real, calibration.masks, item.image, item.labels)
+        comparison = compare_images(
+            real, calibration.masks, item.image, item.labels, masks_given=masks is not None
+        )
         picture = montage(real, item.image, calibration.masks, item.labels)
     staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.resolve().parent))
     try:

@@ -49,6 +49,7 @@ def test_calibrate_writes_a_matched_dataset_and_report(colicoords_files, capsys)
     assert "fluorescence" in report
     assert "power spectrum" in report
     _assert_flags_follow_the_numbers(report, capsys.readouterr().out)
+    assert "pass --masks" not in report  # they were given: the advice does not ask for them
     # the masks' outline convention, measured against the fitted cells, goes to the
     # dataset: the ColiCoords annotations lie outside the model cells
     assert "mask outline +" in report

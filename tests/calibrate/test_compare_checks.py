@@ -66,6 +66,11 @@ def test_brighter_and_blurred_cells_are_flagged_with_what_to_do():
     assert "lacks fine detail" in verdict  # the blur: high bands lower
     assert "--masks" in verdict
     assert verdict in table  # the summary line ends the table
+    # with the user's masks given, the advice does not ask for them
+    given = compare_images(real, masks, synthetic, labels, masks_given=True).verdict()
+    assert "mismatched: cells median" in given
+    assert "--masks" not in given
+    assert "look at the montage" in given
 
 
 def test_small_bands_get_the_tolerance_their_sampling_needs():

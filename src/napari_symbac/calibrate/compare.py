@@ -152,6 +152,9 @@ class Comparison:
         Neighbour pairs the smaller noise estimate was measured on (its sampling).
     band_coefficients
         Fourier coefficients per band of the smaller image (the spectra's sampling).
+    masks_given
+        Whether the real cells are the user's masks (the advice then does not ask for
+        them) or the fit's.
     """
 
     cells: tuple[float, float]
@@ -162,6 +165,11 @@ class Comparison:
     power_synthetic: np.ndarray = field(repr=False)
     noise_pairs: int = 10_000
     band_coefficients: np.ndarray | None = field(default=None, repr=False)
+    masks_given: bool = False
+
+    def _masks_advice(self, why: str) -> str:
+        """``pass --masks ... (why), and `` unless they were given."""
+        return "" if self.masks_given else f"pass --masks if you have them ({why}), and "
 
     def band_factors(self) -> np.ndarray:
         """Each band's tolerated factor: :data:`SPECTRUM_FACTOR`, or 3 standard errors
@@ -182,15 +190,16 @@ class Comparison:
         return [
             _median_check(
                 "cells median", *self.cells,
-                "the cells' contrast against the background differs: pass --masks if you "
-                "have them (the cells as annotated), and look at the montage (report.png) "
-                "for cells the fit missed or drew too bright or too dark",
+                "the cells' contrast against the background differs: "
+                + self._masks_advice("the cells as annotated")
+                + "look at the montage (report.png) for cells the fit missed or drew too "
+                "bright or too dark",
             ),
             _median_check(
                 "background median", *self.background,
-                "the background level differs: pass --masks if you have them (cells are "
-                "then not counted as background), and look at the montage for debris or "
-                "uneven illumination",
+                "the background level differs: "
+                + self._masks_advice("cells are then not counted as background")
+                + "look at the montage for debris or uneven illumination",
             ),
             self._noise_check(),
             self._spectrum_check(),
@@ -200,8 +209,11 @@ class Comparison:
         real, synthetic = self.noise
         allowed = _factor_allowed(NOISE_FACTOR, 1.2 / np.sqrt(max(self.noise_pairs, 1)))
         if not (np.isfinite(real) and np.isfinite(synthetic)) or min(real, synthetic) <= 0:
+            advice = "a field with more background between the cells"
+            if not self.masks_given:
+                advice = f"pass --masks, or {advice}"
             return Check("background noise", False, "not measured (too little background)",
-                         "pass --masks, or a field with more background between the cells")
+                         advice)
         factor = max(real, synthetic) / min(real, synthetic)
         matched = bool(factor <= allowed)
         finding = (
@@ -298,8 +310,12 @@ def compare_images(
     *,
     far_px: float = 6.0,
     n_bins: int = 16,
+    masks_given: bool = False,
 ) -> Comparison:
-    """Compare a real image and a synthetic one (module notes); shapes may differ."""
+    """Compare a real image and a synthetic one (module notes); shapes may differ.
+
+    ``masks_given``: ``real_masks`` are the user's (:attr:`Comparison.masks_given`).
+    """
     real_n, synth_n = normalise_percentiles(real), normalise_percentiles(synthetic)
     rc, rb, rn, r_pairs = _classes(real_n, np.asarray(real_masks), far_px)
     sc, sb, sn, s_pairs = _classes(synth_n, np.asarray(synthetic_labels), far_px)
@@ -308,7 +324,7 @@ def compare_images(
     counts = np.minimum(band_coefficients(real.shape, n_bins), band_coefficients(
         synthetic.shape, n_bins))
     return Comparison(
-        (rc, sc), (rb, sb), (rn, sn), f, pr, ps, min(r_pairs, s_pairs), counts
+        (rc, sc), (rb, sb), (rn, sn), f, pr, ps, min(r_pairs, s_pairs), counts, masks_given
     )
 
 
