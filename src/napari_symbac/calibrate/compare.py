@@ -59,25 +59,27 @@ def radial_power(image: np.ndarray, n_bins: int = 16) -> tuple[np.ndarray, np.nd
     image = np.asarray(image, np.float64)
     image = image - image.mean()
     spectrum = np.abs(np.fft.fft2(image)) ** 2
-    fy = np.fft.fftfreq(image.shape[0])[:, None]
-    fx = np.fft.fftfreq(image.shape[1])[None, :]
-    radius = np.hypot(fy, fx)
-    edges = np.linspace(0.0, 0.5, n_bins + 1)
-    index = np.digitize(radius.ravel(), edges) - 1
-    ok = (index >= 0) & (index < n_bins) & (radius.ravel() > 0)
+    edges, index, ok = _bands(image.shape, n_bins)
     total = np.bincount(index[ok], spectrum.ravel()[ok], minlength=n_bins)
     count = np.bincount(index[ok], minlength=n_bins)
     power = total / np.maximum(count, 1)
     return (edges[:-1] + edges[1:]) / 2, power / max(power.sum(), 1e-300)
 
 
-def band_coefficients(shape: tuple[int, int], n_bins: int = 16) -> np.ndarray:
-    """Number of Fourier coefficients in each band of :func:`radial_power`."""
+def _bands(shape: tuple[int, int], n_bins: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The annuli of :func:`radial_power`: band edges (cycles/px), each Fourier
+    coefficient's band (flattened) and which coefficients count (not the mean)."""
     fy = np.fft.fftfreq(shape[0])[:, None]
     fx = np.fft.fftfreq(shape[1])[None, :]
     radius = np.hypot(fy, fx).ravel()
-    index = np.digitize(radius, np.linspace(0.0, 0.5, n_bins + 1)) - 1
-    ok = (index >= 0) & (index < n_bins) & (radius > 0)
+    edges = np.linspace(0.0, 0.5, n_bins + 1)
+    index = np.digitize(radius, edges) - 1
+    return edges, index, (index >= 0) & (index < n_bins) & (radius > 0)
+
+
+def band_coefficients(shape: tuple[int, int], n_bins: int = 16) -> np.ndarray:
+    """Number of Fourier coefficients in each band of :func:`radial_power`."""
+    _, index, ok = _bands(shape, n_bins)
     return np.bincount(index[ok], minlength=n_bins)
 
 
@@ -274,9 +276,7 @@ class Comparison:
     @property
     def spectrum_log_ratio(self) -> float:
         """Largest ``|log10(P_synthetic / P_real)|`` over the frequency bins."""
-        tiny = 1e-300
-        ratio = np.log10(np.maximum(self.power_synthetic, tiny) / np.maximum(self.power_real, tiny))
-        return float(np.max(np.abs(ratio)))
+        return float(np.max(np.abs(np.log10(self.band_ratios()))))
 
     def table(self) -> str:
         """The comparison as plain text: the numbers, then each quantity matched or not,

@@ -14,7 +14,7 @@ from napari_symbac.diagnose.effects.far_from_cells import (
 from napari_symbac.diagnose.model import Geometry
 from napari_symbac.optics.forward import Stage
 
-__all__ = ["FAR_FROM_CELLS_PX", "MIN_FAR_PIXELS", "FixedPatternNoise", "column_basis"]
+__all__ = ["FixedPatternNoise", "column_basis"]
 
 #: The columns that can be judged must carry this share of the offsets' power.
 MIN_JUDGED_POWER = 0.5
