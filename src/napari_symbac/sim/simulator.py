@@ -1,8 +1,8 @@
 """Agent-based growth with rigid-body physics (supplement section 2, Algorithm 1).
 
 Each cell is an agent (length, width, position, angle, growth-rate constant, division
-target, target width) and a pymunk body carrying a capsule shape (a
-:class:`pymunk.Segment` with a radius). Every frame:
+target, target width) and a pymunk body carrying a capsule shape (a rounded box: a thin
+:class:`pymunk.Poly` core with a radius, :func:`_core`). Every frame:
 
 1. Each cell lyses with probability ``lysis_p``; otherwise it elongates as
    ``L <- L exp(k dt I)``, ``I ~ U(1 - a, 1 + a)``, while its width relaxes towards a
@@ -92,7 +92,7 @@ class _Cell:
         self.age_min = 0.0
         self.shown_length_um = length_um  # length of the physics shape right now
         self.body: pymunk.Body | None = None
-        self.shape: pymunk.Segment | None = None
+        self.shape: pymunk.Poly | None = None
 
 
 class Simulator:
