@@ -120,17 +120,52 @@ def test_a_normalised_image_is_read_as_counts():
     rng = np.random.default_rng(0)
     normalised = rng.normal(0.5, 0.1, (20, 20)).astype(np.float32)
     normalised[0, 0] = -0.02
-    counts, note = as_counts(normalised)
+    counts, mapping = as_counts(normalised)
     assert counts.min() == 0
     np.testing.assert_allclose(counts, (normalised + 0.02) * NORMALISED_ADU_PER_UNIT,
                                rtol=1e-6)  # fmt: skip
-    assert note.startswith("normalised values (-0.02..")
+    assert mapping.shift == pytest.approx(0.02)
+    assert mapping.adu_per_unit == NORMALISED_ADU_PER_UNIT
+    assert (mapping.value_min, mapping.value_max) == (float(normalised.min()),
+                                                      float(normalised.max()))  # fmt: skip
+    assert mapping.formula == "(value + 0.02) x 10000 ADU"
+    assert mapping.note.startswith("normalised values (-0.02..")
+    assert f"read as {mapping.formula}, so that" in mapping.note
     # counts stored as floats, integers, wide ranges: as they are
     for image in (np.round(normalised * 1000), (normalised * 1000).astype(np.uint16),
                   normalised * 100, np.zeros((4, 4), np.uint8)):  # fmt: skip
         same, nothing = as_counts(image)
         assert same is image
         assert nothing is None
+
+
+def test_an_unshifted_normalised_image_says_no_shift():
+    """An image divided by its maximum (0..1, no negative values) is only scaled."""
+    from napari_symbac.io import as_counts
+
+    normalised = np.linspace(0.0, 1.0, 64, dtype=np.float32).reshape(8, 8)
+    counts, mapping = as_counts(normalised)
+    assert mapping.shift == 0.0
+    assert mapping.formula == "(value) x 10000 ADU"
+    np.testing.assert_allclose(mapping.values(counts), normalised, atol=1e-7)
+
+
+def test_the_delta_trench_read_as_counts_maps_back_to_its_values(real_data_dir):
+    """The mapping a recording carries is data: its counts map back to the file's values."""
+    path = real_data_dir / "ecoli_delta_phase_normalised.tiff"
+    stored = tifffile.imread(path)
+    recording = read_image(path, counts=True)
+    mapping = recording.counts_mapping
+    assert mapping.shift == pytest.approx(0.028468, abs=1e-6)
+    assert mapping.formula == "(value + 0.02847) x 10000 ADU"
+    assert recording.note == mapping.note
+    np.testing.assert_allclose(mapping.values(recording.data), stored, atol=1e-6)
+    np.testing.assert_allclose(mapping.counts_adu(stored), recording.data)
+    # read as it is (masks, dark frames), the same file carries no mapping
+    plain = read_image(path)
+    assert plain.counts_mapping is None
+    assert plain.note is None
+    np.testing.assert_array_equal(plain.data, stored)
 
 
 def test_the_reader_reads_a_normalised_image_as_counts(real_data_dir):
@@ -142,7 +177,9 @@ def test_the_reader_reads_a_normalised_image_as_counts(real_data_dir):
     assert kind == "image"
     assert data.min() == 0
     assert 10_000 < data.max() < 10_500
-    assert "read as (value + 0.02847) x 10000 ADU" in meta["metadata"]["counts_note"]
+    mapping = meta["metadata"]["counts_mapping"]
+    assert mapping.formula == "(value + 0.02847) x 10000 ADU"
+    np.testing.assert_allclose(mapping.values(data), tifffile.imread(path), atol=1e-6)
 
 
 @pytest.mark.parametrize(

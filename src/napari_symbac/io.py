@@ -13,6 +13,7 @@ __all__ = [
     "AXIS_LABELS",
     "NORMALISED_ADU_PER_UNIT",
     "NORMALISED_MAX_RANGE",
+    "CountsMapping",
     "Recording",
     "as_counts",
     "grey_channel",
@@ -39,6 +40,51 @@ _UNIT_TO_UM = {"um": 1.0, "µm": 1.0, "micron": 1.0, "\\u00B5m": 1.0, "nm": 1e-3
 
 
 @dataclass(frozen=True)
+class CountsMapping:
+    """How a normalised image was read as counts (:func:`as_counts`):
+    ``counts_adu = (value + shift) * adu_per_unit``.
+
+    Attributes
+    ----------
+    shift
+        Added to every normalised value first: minus the image's minimum when it has
+        negative values, else 0.
+    adu_per_unit
+        ADU per unit of the shifted values (:data:`NORMALISED_ADU_PER_UNIT`).
+    value_min, value_max
+        The image's normalised (finite) values span, before the map.
+    """
+
+    shift: float
+    adu_per_unit: float
+    value_min: float
+    value_max: float
+
+    def counts_adu(self, values: np.ndarray) -> np.ndarray:
+        """Normalised ``values`` as counts (ADU, float64)."""
+        return (np.asarray(values, np.float64) + self.shift) * self.adu_per_unit
+
+    def values(self, counts_adu: np.ndarray) -> np.ndarray:
+        """Counts (ADU) back to the normalised values they were read from (float64)."""
+        return np.asarray(counts_adu, np.float64) / self.adu_per_unit - self.shift
+
+    @property
+    def formula(self) -> str:
+        """The map in words: ``(value + 0.02847) x 10000 ADU`` (``(value) x ...`` unshifted)."""
+        shifted = f" + {self.shift:.4g}" if self.shift else ""
+        return f"(value{shifted}) x {self.adu_per_unit:g} ADU"
+
+    @property
+    def note(self) -> str:
+        """What reading did, for a user: the values' span, the map, and what is in ADU."""
+        return (
+            f"normalised values ({self.value_min:.4g}..{self.value_max:.4g}, not camera "
+            f"counts): read as {self.formula}, so that the fit can measure their noise; "
+            "intensities and datasets are in those units"
+        )
+
+
+@dataclass(frozen=True)
 class Recording:
     """A real image or time series with what its file says about it.
 
@@ -58,9 +104,9 @@ class Recording:
         metadata by the dataset writers, or named like a mask: ``*_masks.tif``,
         ``man_seg*.tif``, ``man_track*.tif``, or in a ``labels/`` or ``masks/`` folder),
         ``"semantic"`` for semantic masks, else ``"image"``.
-    note
-        What reading did to the values, if anything (a normalised image read as
-        counts: :func:`as_counts`).
+    counts_mapping
+        How ``data`` was mapped to counts when it was a normalised image read as counts
+        (:func:`as_counts`), else ``None``.
     """
 
     data: np.ndarray
@@ -68,7 +114,13 @@ class Recording:
     name: str
     modality: str | None = None
     kind: str = "image"
-    note: str | None = None
+    counts_mapping: CountsMapping | None = None
+
+    @property
+    def note(self) -> str | None:
+        """What reading did to the values, in words, if anything (``counts_mapping``'s
+        note)."""
+        return None if self.counts_mapping is None else self.counts_mapping.note
 
 
 def _pixel_size_um(tif) -> float | None:
@@ -195,9 +247,9 @@ def read_recording(path: str | Path) -> Recording:
     return Recording(data=data, pixel_size_um=pixel, name=name, modality=modality, kind=kind)
 
 
-def as_counts(data: np.ndarray) -> tuple[np.ndarray, str | None]:
-    """A normalised image as counts the model can render, and a sentence; other images
-    as they are, and ``None``.
+def as_counts(data: np.ndarray) -> tuple[np.ndarray, CountsMapping | None]:
+    """A normalised image as counts the model can render, and how it was mapped; other
+    images as they are, and ``None``.
 
     A normalised image (floating point, fractional values spanning at most
     :data:`NORMALISED_MAX_RANGE`) has no camera counts: its noise and intensities are
@@ -216,15 +268,13 @@ def as_counts(data: np.ndarray) -> tuple[np.ndarray, str | None]:
     if np.all(finite == np.round(finite)):
         return data, None  # whole numbers: counts (or a mask) stored as floats
     low = float(finite.min())
-    shift = -low if low < 0 else 0.0
-    counts = (array.astype(np.float64) + shift) * NORMALISED_ADU_PER_UNIT
-    shifted = f" + {shift:.4g}" if shift else ""
-    note = (
-        f"normalised values ({low:.4g}..{float(finite.max()):.4g}, not camera counts): "
-        f"read as (value{shifted}) x {NORMALISED_ADU_PER_UNIT:g} ADU, so that the fit can "
-        "measure their noise; intensities and datasets are in those units"
+    mapping = CountsMapping(
+        shift=-low if low < 0 else 0.0,
+        adu_per_unit=NORMALISED_ADU_PER_UNIT,
+        value_min=low,
+        value_max=float(finite.max()),
     )
-    return counts, note
+    return mapping.counts_adu(array), mapping
 
 
 def read_image(path: str | Path, what: str = "image", *, counts: bool = False) -> Recording:
@@ -242,8 +292,9 @@ def read_image(path: str | Path, what: str = "image", *, counts: bool = False) -
     what
         How messages name the file (``"IMAGE"``, ``"--masks"``, ...).
     counts
-        Read a normalised image as counts (:func:`as_counts`; the recording's ``note``
-        says so): for the recording to fit, not for masks or dark frames.
+        Read a normalised image as counts (:func:`as_counts`; the recording's
+        ``counts_mapping`` says how): for the recording to fit, not for masks or dark
+        frames.
 
     Raises
     ------
@@ -283,8 +334,8 @@ def read_image(path: str | Path, what: str = "image", *, counts: bool = False) -
             )
         recording = dataclasses.replace(recording, data=np.ascontiguousarray(grey))
     if counts:
-        data, note = as_counts(recording.data)
-        recording = dataclasses.replace(recording, data=data, note=note)
+        data, mapping = as_counts(recording.data)
+        recording = dataclasses.replace(recording, data=data, counts_mapping=mapping)
     return recording
 
 
@@ -339,9 +390,9 @@ def _read_layers(path) -> list[tuple]:
     is_mask = recording.kind in ("labels", "semantic")
     if is_mask and np.issubdtype(recording.data.dtype, np.integer):
         return [(recording.data, meta, "labels")]
-    data, note = as_counts(recording.data)  # as the Real image dock's *or open* reads it
-    if note:
-        meta["metadata"]["counts_note"] = note
+    data, mapping = as_counts(recording.data)  # as the Real image dock's *or open* reads it
+    if mapping is not None:
+        meta["metadata"]["counts_mapping"] = mapping
     return [(data, meta, "image")]
 
 

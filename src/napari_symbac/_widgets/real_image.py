@@ -179,7 +179,8 @@ class RealImageWidget(Container):
             metadata={
                 "pixel_size_um": recording.pixel_size_um,
                 "modality": recording.modality,
-                **({"counts_note": recording.note} if recording.note else {}),
+                **({"counts_mapping": recording.counts_mapping}
+                   if recording.counts_mapping is not None else {}),
             },
             **kwargs,
         )
@@ -196,8 +197,8 @@ class RealImageWidget(Container):
         meta = layer.metadata
         # not another layer's words (a refused file, its measures); a normalised image
         # read as counts says so (the reader's, or *or open*'s: io.as_counts)
-        note = meta.get("counts_note")
-        self.result.value = f"{layer.name}: {note}" if note else ""
+        mapping = meta.get("counts_mapping")
+        self.result.value = f"{layer.name}: {mapping.note}" if mapping is not None else ""
         pixel = meta.get("pixel_size_um")
         if not pixel and layer.scale[-1] != 1:  # a layer already scaled to micrometres
             pixel = float(layer.scale[-1])
