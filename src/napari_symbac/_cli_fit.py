@@ -21,8 +21,15 @@ import numpy as np
 from scipy import ndimage
 
 from napari_symbac._timing import StepTimer, progress_bar
+from napari_symbac.io import CountsMapping
 
-__all__ = ["parse_frames", "read_recording", "run_fit"]
+__all__ = [
+    "counts_units_mark",
+    "counts_units_note",
+    "parse_frames",
+    "read_recording",
+    "run_fit",
+]
 
 _GEOMETRIES = {"trench": "trench", "field": "open"}
 
@@ -541,14 +548,9 @@ def _outputs_one(
         check, problem = _model_free_gain(frame, camera_used)
         facts["camera (model-free)"] = check
         problems += [problem] if problem else []
-    counts_note = getattr(args, "counts_note", None)
-    if counts_note:
-        facts = _said_in_read_counts(facts, counts_note)
-        notes.append(
-            f"every ADU and e- in this report is of the normalised image read as counts, "
-            f"{_counts_mapping(counts_note)}: not of a real camera (its gain, baseline and "
-            "noise in those units)"
-        )
+    if args.counts_mapping is not None:
+        facts = _said_in_read_counts(facts, args.counts_mapping)
+        notes.append(counts_units_note(args.counts_mapping))
     report = report_text(result, facts, problems)
     if notes:
         report += "\nNOTES\n" + "".join(f"- {n}\n" for n in notes)
@@ -571,26 +573,47 @@ def _outputs_one(
     return writers, result
 
 
-def _counts_mapping(counts_note: str) -> str:
-    """``(value + s) x 10000 ADU`` from :func:`napari_symbac.io.as_counts`' note."""
-    return counts_note.split("read as ", 1)[-1].split(",", 1)[0]
+def counts_units_mark(mapping: CountsMapping) -> str:
+    """Appended to a line that quotes ADU when the image was read as counts: its ADU are
+    the map's, not a camera's."""
+    return f" [normalised image read as counts, {mapping.formula}: not a real camera's units]"
 
 
-def _said_in_read_counts(facts: dict[str, str], counts_note: str) -> dict[str, str]:
+def counts_units_note(mapping: CountsMapping, where: str = "this report") -> str:
+    """A note of ``where`` (a report, a file) when the image was read as counts: every
+    ADU and e- in it is the map's."""
+    return (
+        f"every ADU and e- in {where} is of the normalised image read as counts, "
+        f"{mapping.formula}: not of a real camera (its gain, baseline and noise in those "
+        "units)"
+    )
+
+
+def _counts_record(mapping: CountsMapping | None) -> dict[str, Any] | None:
+    """series.json's ``counts_mapping``: how a normalised image was read as counts
+    (``counts_adu = (value + shift) * adu_per_unit``) and that the file's camera and
+    intensities are in those units, as each frame's report.txt says; ``None`` for an
+    image of counts."""
+    if mapping is None:
+        return None
+    return {
+        **dataclasses.asdict(mapping),
+        "read_as": mapping.formula,
+        "note": counts_units_note(mapping, "this file"),
+    }
+
+
+def _said_in_read_counts(facts: dict[str, str], mapping: CountsMapping) -> dict[str, str]:
     """report.txt's facts for a normalised image read as counts: the reading said after
     the image, and each camera line that quotes ADU marked as in those units, so that
     its gain is not taken for a real camera's (found as a user: DeLTA's trench, 0.015
     ADU/e-, 531 e-)."""
-    marked = (
-        f" [normalised image read as counts, {_counts_mapping(counts_note)}: not a real "
-        "camera's units]"
-    )
     said: dict[str, str] = {}
     for key, value in facts.items():
         quotes_adu = key.startswith("camera") and "ADU" in value
-        said[key] = value + marked if quotes_adu else value
+        said[key] = value + counts_units_mark(mapping) if quotes_adu else value
         if key == "image":
-            said["image values"] = counts_note
+            said["image values"] = mapping.note
     return said
 
 
@@ -683,6 +706,7 @@ def _fit_frames_jointly(
             )
         },
         "camera": None if series.camera is None else dataclasses.asdict(series.camera),
+        "counts_mapping": _counts_record(args.counts_mapping),
         "warnings": list(series.warnings),
         "started_from_previous_frame": dict(zip(map(str, frames), series.carried)),
         "lineage": _lineage_record(lineage, frames),
@@ -764,6 +788,7 @@ def _fit_colony_frames(
         "media_intensity": [
             {"frame": f, "value": float(v)} for f, v in zip(frames, series.media_levels())
         ],
+        "counts_mapping": _counts_record(args.counts_mapping),
         "warnings": list(series.warnings),
         "lineage": {
             **_lineage_record(lineage, frames),
@@ -845,7 +870,7 @@ def run_fit(args: argparse.Namespace) -> int:
     stages.stage("loading inputs")
     with timer.step("load"):
         recording = read_recording(args.image)
-        args.counts_note = recording.note  # report.txt says the reading too
+        args.counts_mapping = recording.counts_mapping  # report.txt says the reading too
         data = np.asarray(recording.data)
         name = Path(args.image).name
         if data.ndim not in (2, 3):

@@ -209,6 +209,8 @@ def test_frames_of_a_series_are_fitted_jointly_each_into_its_folder(
     assert settings == (out / "frame_0000" / "settings.yaml").read_bytes()
     series = json.loads((out / "series.json").read_text())
     assert series["frames"] == [0, 1]
+    assert series["counts_mapping"] is None  # counts, not a normalised image
+    assert "read as counts" not in (out / "frame_0000" / "report.txt").read_text()
     assert series["started_from_previous_frame"]["0"] is False  # frame 1: either start
     assert isinstance(series["started_from_previous_frame"]["1"], bool)
     # the second frame is the first mirrored left-right: the same three cells, same rows
@@ -325,6 +327,44 @@ def test_a_normalised_trench_is_read_as_counts_and_exports_phase_contrast(
     assert len(np.unique(item.labels)) >= 4  # three cells or more
     # dark cells against the bright media between them, as in the recording
     assert np.median(cells) < np.percentile(rest, 90) - 1000
+
+
+def test_a_normalised_series_marks_its_camera_as_a_single_frame_does(
+    tmp_path, real_data_dir, capsys
+):
+    """A (T, Y, X) stack of DeLTA's normalised trench (its top half, and the same mirrored)
+    fitted jointly: each frame's report.txt marks its camera as a single frame's does,
+    and series.json, which holds the shared camera, carries the map as numbers."""
+    from napari_symbac.io import CountsMapping
+
+    trench = tifffile.imread(real_data_dir / "ecoli_delta_phase_normalised.tiff")[:128]
+    image = tmp_path / "normalised_series.tif"
+    tifffile.imwrite(image, np.stack([trench, trench[:, ::-1]]))
+    microscope = save_settings(Microscope(pixel_size_um=0.065), tmp_path / "microscope.yaml")
+    out = tmp_path / "fit"
+    assert _fit(image, "--microscope", microscope, "--out", out, "--frames", "0-1",
+                "--max-iterations", 1) == 0  # fmt: skip
+    read_as = "(value + 0.02847) x 10000 ADU"
+    every = "- every ADU and e- in this report is of the normalised image read as counts"
+    assert f"read as {read_as}" in capsys.readouterr().err
+    for folder in ("frame_0000", "frame_0001"):
+        report = (out / folder / "report.txt").read_text()
+        assert _fact(report, "image values").startswith("normalised values (-0.02847..1.007")
+        assert _fact(report, "camera used").endswith(
+            f"[normalised image read as counts, {read_as}: not a real camera's units]"
+        )
+        assert f"{every}, {read_as}" in report
+    series = json.loads((out / "series.json").read_text())
+    record = series["counts_mapping"]
+    assert record["read_as"] == read_as
+    assert record["note"].startswith("every ADU and e- in this file is of the normalised")
+    assert series["camera"]["sensitivity_adu_per_e"] > 0
+    # the numbers are the map: series.json's record maps the counts back to the file
+    mapping = CountsMapping(**{k: record[k] for k in ("shift", "adu_per_unit",
+                                                      "value_min", "value_max")})  # fmt: skip
+    counts = mapping.counts_adu(trench)
+    assert counts.min() == 0
+    np.testing.assert_allclose(mapping.values(counts), trench, atol=1e-6)
 
 
 def test_a_phase_colony_with_its_masks_is_fitted_with_its_halo(tmp_path, real_data_dir):
