@@ -9,6 +9,7 @@ or a failure leaves nothing half-written.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import shutil
 import sys
@@ -18,15 +19,14 @@ from pathlib import Path
 import numpy as np
 
 from napari_symbac._timing import StepTimer
+from napari_symbac.io import CountsMapping, Recording
 
 __all__ = ["read_frame", "run_calibrate"]
 
-def read_frame(
-    path: str, what: str, frame: int | None = None
-) -> tuple[np.ndarray, float | None, str | None]:
+def read_frame(path: str, what: str, frame: int | None = None) -> Recording:
     """One grey 2D frame from a TIFF (with its pixel size and modality) or a PNG
-    (:func:`napari_symbac.io.read_image`; a normalised image as counts): frame ``frame``
-    of a ``(T, Y, X)`` series."""
+    (:func:`napari_symbac.io.read_image`; the IMAGE, when normalised, as counts, its
+    ``counts_mapping`` kept): frame ``frame`` of a ``(T, Y, X)`` series."""
     from napari_symbac._cli_fit import read_recording
 
     recording = read_recording(path, what, counts=what == "IMAGE")
@@ -45,7 +45,26 @@ def read_frame(
         )
     if data.ndim != 2:
         raise ValueError(f"{what} {name} must be one 2D frame, got shape {data.shape}")
-    return data, recording.pixel_size_um, recording.modality
+    return dataclasses.replace(recording, data=data)
+
+
+def _image_lines(path: str, image: np.ndarray, mapping: CountsMapping | None) -> list[str]:
+    """report.txt's image line, and for a normalised image read as counts what its values
+    are (``fit``'s report says the same)."""
+    lines = [f"image: {path} ({image.shape[0]} x {image.shape[1]} px, {image.dtype})"]
+    return lines + ([f"image values: {mapping.note}"] if mapping is not None else [])
+
+
+def _settings_notes(notes: tuple[str, ...], mapping: CountsMapping | None) -> list[str]:
+    """The notes of WHERE THE SETTINGS CAME FROM; for a normalised image read as counts,
+    as ``fit``'s report: the camera's note marked as in those units, and a note that
+    every ADU and e- is (so that its gain is not taken for a real camera's)."""
+    if mapping is None:
+        return list(notes)
+    from napari_symbac._cli_fit import counts_units_mark, counts_units_note
+
+    marked = [n + counts_units_mark(mapping) if n.startswith("camera:") else n for n in notes]
+    return [*marked, counts_units_note(mapping)]
 
 
 def _refuse_a_trench(image: np.ndarray, modality: str, path: str) -> None:
@@ -153,10 +172,11 @@ def run_calibrate(args: argparse.Namespace) -> int:
         )
     _check_cell_width(args.cell_width_um, args.masks)
     with timer.step("load"):
-        image, file_pixel, file_modality = read_frame(args.image, "IMAGE", args.frame)
-        masks = None if args.masks is None else read_frame(args.masks, "--masks", args.frame)[0]
+        recording = read_frame(args.image, "IMAGE", args.frame)
+        image = recording.data
+        masks = None if args.masks is None else read_frame(args.masks, "--masks", args.frame).data
         labels = (
-            None if args.labels is None else read_frame(args.labels, "--labels", args.frame)[0]
+            None if args.labels is None else read_frame(args.labels, "--labels", args.frame).data
         )
         if masks is not None and not np.issubdtype(masks.dtype, np.integer):
             raise ValueError(f"--masks must hold integer cell ids, got {masks.dtype}")
@@ -164,7 +184,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         microscope = load_microscope(args.microscope)
         camera = None if args.camera is None else load_settings(args.camera, Camera)
         microscope, pixel_note = resolve_pixel_size(
-            file_pixel,
+            recording.pixel_size_um,
             microscope,
             # --cell-width-um sets it from the masks
             microscope_gives_it=args.cell_width_um is not None
@@ -172,7 +192,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
             other_way="or, with --masks, --cell-width-um W sets it from the masks' median "
             "cell width (W um: 1.0 for E. coli)",
         )
-        modality = args.modality or file_modality or microscope.modality
+        modality = args.modality or recording.modality or microscope.modality
         _refuse_a_trench(image, modality, args.image)
         if args.cell_width_um is not None:
             pixel_note = f"from the masks' median width and --cell-width-um {args.cell_width_um}"
@@ -208,7 +228,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         text = "\n".join(
             [
                 "napari-symbac calibrate",
-                f"image: {args.image} ({image.shape[0]} x {image.shape[1]} px, {image.dtype})",
+                *_image_lines(args.image, image, recording.counts_mapping),
                 f"modality: {calibration.settings.microscope.modality}",
                 f"pixel size {px:.4g} um ({pixel_note})",
                 f"method: {calibration.method}; pixel chi2 {calibration.fit_chi2[0]:.3g} -> "
@@ -216,7 +236,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
                 f"real field: {m.summary(px, modality_used)}",
                 "",
                 "WHERE THE SETTINGS CAME FROM",
-                *(f"- {n}" for n in calibration.notes),
+                *(f"- {n}" for n in _settings_notes(calibration.notes, recording.counts_mapping)),
                 "",
                 "REAL AGAINST SYNTHETIC (item 0 of the dataset; 1-99 % normalised)",
                 comparison.table(),

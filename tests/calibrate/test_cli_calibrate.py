@@ -50,6 +50,7 @@ def test_calibrate_writes_a_matched_dataset_and_report(colicoords_files, capsys)
     assert "power spectrum" in report
     _assert_flags_follow_the_numbers(report, capsys.readouterr().out)
     assert "pass --masks" not in report  # they were given: the advice does not ask for them
+    assert "read as counts" not in report  # camera counts: nothing to mark
     # the masks' outline convention, measured against the fitted cells, goes to the
     # dataset: the ColiCoords annotations lie outside the model cells
     assert "mask outline +" in report
@@ -60,6 +61,41 @@ def test_calibrate_writes_a_matched_dataset_and_report(colicoords_files, capsys)
     assert picture.ndim == 3
     assert picture.shape[1] > 2 * 192
     assert not [p for p in d.iterdir() if p.name.startswith(".out")]  # staging removed
+
+
+def test_calibrate_says_a_normalised_field_was_read_as_counts(colicoords_files, capsys):
+    """A real field divided by its maximum (0..1 floats, as normalised crops are; the
+    normalised DeLTA file is a trench, which calibrate refuses) is read as counts, x 10000
+    ADU. report.txt said nothing of it: its camera (ADU/e-, e-) read as a real camera's.
+    It now says so as ``fit``'s report does."""
+    d = colicoords_files
+    counts = tifffile.imread(d / "flu.tif")
+    tifffile.imwrite(d / "normalised.tif", (counts / counts.max()).astype(np.float32))
+    out = d / "out"
+    code = main(
+        [
+            "calibrate", str(d / "normalised.tif"), "--masks", str(d / "mask.tif"),
+            "--microscope", str(d / "m80.yaml"), "--modality", "fluorescence",
+            "--out", str(out), "--n-items", "1",
+        ]
+    )
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    read_as = "(value) x 10000 ADU"
+    assert f"not camera counts): read as {read_as}" in captured.err
+    lines = (out / "report.txt").read_text().splitlines()
+    assert lines[2] == (
+        f"image values: normalised values (0..1, not camera counts): read as {read_as}, so "
+        "that the fit can measure their noise; intensities and datasets are in those units"
+    )
+    (camera,) = [line for line in lines if line.startswith("- camera: measured from the image")]
+    assert camera.endswith(
+        f" e-, 16 bit [normalised image read as counts, {read_as}: not a real camera's units]"
+    )
+    assert (
+        f"- every ADU and e- in this report is of the normalised image read as counts, "
+        f"{read_as}: not of a real camera (its gain, baseline and noise in those units)"
+    ) in lines
 
 
 def _assert_flags_follow_the_numbers(report: str, stdout: str) -> None:
