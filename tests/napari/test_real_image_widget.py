@@ -303,6 +303,10 @@ def test_or_open_reads_a_normalised_trench_as_counts(make_napari_viewer, real_da
     assert layer.data.min() == 0
     assert 10_000 < layer.data.max() < 10_500
     assert "not camera counts): read as (value + 0.02847) x 10000 ADU" in widget.result.value
+    # the layer keeps the map as data: its counts map back to the file's values
+    stored = tifffile.imread(real_data_dir / "ecoli_delta_phase_normalised.tiff")
+    mapping = layer.metadata["counts_mapping"]
+    np.testing.assert_allclose(mapping.values(layer.data), stored, atol=1e-6)
     widget.pixel_size.value = 0.065
     check_recording_frame(layer.data, layer.name)  # what Auto-fit and Diagnose check
 
