@@ -52,7 +52,7 @@ class CountsMapping:
     adu_per_unit
         ADU per unit of the shifted values (:data:`NORMALISED_ADU_PER_UNIT`).
     value_min, value_max
-        The image's normalised (finite) values span, before the map.
+        The span of the image's normalised (finite) values, before the map.
     """
 
     shift: float
