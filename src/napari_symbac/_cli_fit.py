@@ -24,6 +24,7 @@ from napari_symbac._timing import StepTimer, progress_bar
 from napari_symbac.io import CountsMapping
 
 __all__ = [
+    "counts_record",
     "counts_units_mark",
     "counts_units_note",
     "parse_frames",
@@ -589,10 +590,10 @@ def counts_units_note(mapping: CountsMapping, where: str = "this report") -> str
     )
 
 
-def _counts_record(mapping: CountsMapping | None) -> dict[str, Any] | None:
-    """series.json's ``counts_mapping``: how a normalised image was read as counts
-    (``counts_adu = (value + shift) * adu_per_unit``) and that the file's camera and
-    intensities are in those units, as each frame's report.txt says; ``None`` for an
+def counts_record(mapping: CountsMapping | None) -> dict[str, Any] | None:
+    """series.json's and diagnosis.json's ``counts_mapping``: how a normalised image was
+    read as counts (``counts_adu = (value + shift) * adu_per_unit``) and that the file's
+    camera and intensities are in those units, as each report.txt says; ``None`` for an
     image of counts."""
     if mapping is None:
         return None
@@ -706,7 +707,7 @@ def _fit_frames_jointly(
             )
         },
         "camera": None if series.camera is None else dataclasses.asdict(series.camera),
-        "counts_mapping": _counts_record(args.counts_mapping),
+        "counts_mapping": counts_record(args.counts_mapping),
         "warnings": list(series.warnings),
         "started_from_previous_frame": dict(zip(map(str, frames), series.carried)),
         "lineage": _lineage_record(lineage, frames),
@@ -788,7 +789,7 @@ def _fit_colony_frames(
         "media_intensity": [
             {"frame": f, "value": float(v)} for f, v in zip(frames, series.media_levels())
         ],
-        "counts_mapping": _counts_record(args.counts_mapping),
+        "counts_mapping": counts_record(args.counts_mapping),
         "warnings": list(series.warnings),
         "lineage": {
             **_lineage_record(lineage, frames),

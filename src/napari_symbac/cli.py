@@ -290,6 +290,17 @@ def _diagnose_writes(name: str) -> bool:
     return name in _DIAGNOSE_OUTPUTS or re.fullmatch(r"effect_\w+\.png", name) is not None
 
 
+def _diagnose_report(report: str, mapping) -> str:
+    """diagnose's report.txt; for a normalised image read as counts
+    (:class:`~napari_symbac.io.CountsMapping`), what its values are first and a note that
+    every ADU and e- of the report is of that map, as ``fit``'s report says."""
+    if mapping is None:
+        return report + "\n"
+    from napari_symbac._cli_fit import counts_units_note
+
+    return f"image values: {mapping.note}\n\n{report}\n\nNOTES\n- {counts_units_note(mapping)}\n"
+
+
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     import dataclasses
     import json
@@ -297,7 +308,11 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     import numpy as np
     import yaml
 
-    from napari_symbac._cli_fit import read_recording
+    from napari_symbac._cli_fit import (
+        counts_record,
+        counts_units_mark,
+        read_recording,
+    )
     from napari_symbac.diagnose.config import load_microscope_file
     from napari_symbac.diagnose.figures import write_figures
     from napari_symbac.diagnose.model import build_design
@@ -327,6 +342,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     timer = StepTimer()
     with timer.step("load"):
         recording = read_recording(args.image)
+        mapping = recording.counts_mapping  # a normalised image read as counts, or None
         config = load_microscope_file(args.microscope)
         for note in config.notes:
             print(f"note: {note}", file=sys.stderr)
@@ -395,6 +411,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             if camera is None:
                 camera = fit.camera
                 measured_note = _measured_camera_note(frame, camera)
+                if mapping is not None:  # its ADU and e- are the map's, not a camera's
+                    measured_note += counts_units_mark(mapping)
                 print(f"note: {measured_note}", file=sys.stderr)
             scenes.append(fit.scene)
             render = fit.render
@@ -413,6 +431,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         if config.camera is None:
             doc["notes"].append(measured_note)
         doc["camera"] = dataclasses.asdict(camera)
+        doc["counts_mapping"] = counts_record(mapping)
         doc["region"] = {"rows": [y0, y1], "columns": [x0, x1]}
         layout = simulated_shape(region, frame_shape, first_fit.trench is not None)
         # the simulation `fit` would write, so that an export matches the recording
@@ -427,7 +446,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             doc["notes"].append(held)
             print(f"note: {held}", file=sys.stderr)
         (out / "diagnosis.json").write_text(json.dumps(doc, indent=2, default=float))
-        (out / "report.txt").write_text(result.report() + "\n")
+        (out / "report.txt").write_text(_diagnose_report(result.report(), mapping))
         figures = write_figures(result, stack, out, name=Path(args.image).name)
         base = PipelineSettings(simulation, microscope, final_render, camera)
         accepted = [(e.name, e.params) for e in result.accepted]

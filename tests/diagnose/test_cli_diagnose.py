@@ -85,6 +85,8 @@ def test_diagnose_command_writes_the_issue_outputs(tmp_path, capsys):
     assert trench.length_um + trench.shown_top_um == pytest.approx(256 * 0.065, abs=1e-9)
     doc = json.loads((out / "diagnosis.json").read_text())
     assert doc["region"] == {"rows": [0, 96], "columns": [0, 46]}
+    assert doc["counts_mapping"] is None  # camera counts: nothing to mark
+    assert "read as counts" not in (out / "report.txt").read_text()
     assert set(doc) >= {"base_fit", "mismatches", "effects", "final_fit"}
     assert {"metric", "value", "held_out"} <= set(doc["base_fit"])
     for effect in doc["effects"]:
@@ -141,6 +143,36 @@ def test_diagnose_refuses_what_fit_refuses(tmp_path, capsys):
     assert "baseline_adu" in err
     assert "Traceback" not in err
     assert not out.exists()
+
+
+def test_a_normalised_trench_is_diagnosed_in_the_units_it_was_read_in(
+    tmp_path, capsys, real_data_dir
+):
+    """Found as a user: `diagnose` read DeLTA's normalised trench as counts (x 10000 ADU)
+    and said so on stderr only; report.txt and diagnosis.json gave its 0.016 ADU/e- and
+    ~500 e- as a camera's. Both now say what the values are, as `fit`'s report does."""
+    image = real_data_dir / "ecoli_delta_phase_normalised.tiff"
+    mic = _microscope_file(tmp_path)
+    out = tmp_path / "out"
+    args = ["diagnose", str(image), "--microscope", str(mic), "--out", str(out)]
+    assert main([*args, "--region", "0:64,0:32"]) == 0
+    read_as = "(value + 0.02847) x 10000 ADU"
+    err = capsys.readouterr().err
+    (camera_note,) = [line for line in err.splitlines() if "camera measured from" in line]
+    assert camera_note.endswith(f"[normalised image read as counts, {read_as}: not a real "
+                                "camera's units]")  # fmt: skip
+    report = (out / "report.txt").read_text()
+    assert report.startswith(
+        f"image values: normalised values (-0.02847..1.007, not camera counts): read as {read_as}"
+    )
+    assert report.rstrip().endswith(
+        f"- every ADU and e- in this report is of the normalised image read as counts, "
+        f"{read_as}: not of a real camera (its gain, baseline and noise in those units)"
+    )
+    doc = json.loads((out / "diagnosis.json").read_text())
+    assert doc["counts_mapping"]["read_as"] == read_as
+    assert doc["counts_mapping"]["shift"] == pytest.approx(0.028468, abs=1e-6)
+    assert any(note.endswith("not a real camera's units]") for note in doc["notes"])
 
 
 def test_diagnose_refuses_an_implausible_pixel_size(tmp_path, capsys):
