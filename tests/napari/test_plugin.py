@@ -261,3 +261,42 @@ def test_workflow_steps_sit_at_the_top_of_their_tabs(make_napari_viewer, qtbot, 
     workflow.setCurrentIndex(0)
     image_row = workflow.real_image.image.native.parentWidget()
     assert image_row.height() < 2 * workflow.real_image.image.native.height()
+
+
+#: The single-step docks of *Plugins > SyMBac synthetic micrographs* (manifest names), and
+#: the button at the bottom of each that a user must reach.
+SINGLE_STEPS = {
+    "Real image and classes": "measure_button",
+    "Simulate and render": "run_button",
+    "Tune optics and noise": "fit_button",
+    "Diagnose model mismatch": "run_button",
+    "Export dataset": "export_button",
+}
+
+
+@pytest.mark.parametrize("name", list(SINGLE_STEPS))
+def test_each_step_alone_fits_a_laptop_screen(make_napari_viewer, qtbot, name):
+    """Found as a user: *Plugins > Simulate and render*, opened alone as the README offers,
+    asked for 1032 px of height (Tune: 759 px); at 1366 x 768 napari's window grew to
+    1077 px and the *Run simulation* button lay below the screen. A step docked alone
+    scrolls inside its dock, as in the workflow's tabs, and is still the step widget."""
+    viewer = make_napari_viewer(show=True)
+    window = viewer.window._qt_window
+    window.resize(1366, 768)
+    dock, widget = viewer.window.add_plugin_dock_widget("napari-symbac", name)
+    assert dock.minimumSizeHint().height() < 600
+    qtbot.waitUntil(lambda: window.height() <= 768, timeout=10_000)
+    # the step's fields and buttons, as before; napari finds the same widget again
+    button = getattr(widget, SINGLE_STEPS[name])
+    assert button.enabled
+    assert viewer.window.add_plugin_dock_widget("napari-symbac", name)[1] is widget
+    assert dock.inner_widget() is widget
+    # the bottom button can be scrolled to, and nothing is cut at the sides
+    area = dock.widget()
+    qtbot.waitUntil(lambda: area.viewport().width() > 0, timeout=10_000)
+    area.ensureWidgetVisible(button.native)
+    qtbot.waitUntil(
+        lambda: button.native.visibleRegion().boundingRect().height() > 0, timeout=10_000
+    )
+    assert area.widget().minimumSizeHint().width() <= area.viewport().width()
+    assert not area.horizontalScrollBar().isVisible()

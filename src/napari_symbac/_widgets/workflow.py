@@ -1,15 +1,19 @@
-"""Dock widget: the whole workflow in one dock, one tab per step.
+"""Dock widget: the whole workflow in one dock, one tab per step; and each step alone.
 
 Four docked widgets stacked vertically need more than 2000 px of height; in tabs,
 each in a scroll area, the dock fits a 1366 x 768 laptop screen beside the canvas.
 ``napari -w napari-symbac`` opens this widget (the manifest lists it first).
+
+A step opened alone (*Plugins > SyMBac synthetic micrographs*) scrolls in its dock the
+same way (:class:`SimulateDock` and its siblings): napari docks a widget at its full
+height, and Simulate's form alone asks for over 1000 px.
 """
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from qtpy.QtCore import QEvent, QObject
+from qtpy.QtCore import QEvent, QObject, Qt
 from qtpy.QtWidgets import QFrame, QScrollArea, QStyle, QTabWidget, QWidget
 
 from napari_symbac._widgets.diagnose import DiagnoseWidget
@@ -21,7 +25,14 @@ from napari_symbac._widgets.tune import TuneWidget
 if TYPE_CHECKING:
     import napari
 
-__all__ = ["WorkflowWidget"]
+__all__ = [
+    "DiagnoseDock",
+    "ExportDock",
+    "RealImageDock",
+    "SimulateDock",
+    "TuneDock",
+    "WorkflowWidget",
+]
 
 #: Tab titles, in the order of the workflow.
 TABS = ("1 Recording", "2 Simulate", "3 Tune + fit", "4 Diagnose", "5 Export")
@@ -53,11 +64,7 @@ class WorkflowWidget(QTabWidget):
         for title, tip, widget in zip(
             TABS, tips, (self.real_image, self.simulate, self.tune, self.diagnose, self.export)
         ):
-            area = QScrollArea()
-            area.setWidgetResizable(True)
-            area.setFrameShape(QFrame.Shape.NoFrame)
-            _rows_at_the_top(widget.native)
-            area.setWidget(widget.native)
+            area = _scroll_area(widget.native)
             widget.native.installEventFilter(self)
             index = self.addTab(area, title)
             self.setTabToolTip(index, tip)
@@ -77,6 +84,77 @@ class WorkflowWidget(QTabWidget):
         if event.type() == QEvent.Type.LayoutRequest:
             self._fit_widest_step()
         return super().eventFilter(watched, event)
+
+
+class _StepArea(QScrollArea):
+    """One step alone in a scroll area: up and down as the dock's height asks, never
+    sideways (as wide as the step's widest row, followed when the step grows)."""
+
+    def __init__(self, step: QWidget):
+        super().__init__()
+        _scroll_area(step, self)
+        self.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        step.installEventFilter(self)
+        self._fit_step()
+
+    def _fit_step(self) -> None:
+        scrollbar = self.style().pixelMetric(QStyle.PixelMetric.PM_ScrollBarExtent)
+        width = self.widget().minimumSizeHint().width() + scrollbar + 4
+        if self.minimumWidth() != width:
+            self.setMinimumWidth(width)
+
+    def eventFilter(self, watched: QObject, event: QEvent) -> bool:
+        if event.type() == QEvent.Type.LayoutRequest:
+            self._fit_step()
+        return super().eventFilter(watched, event)
+
+
+class _Alone:
+    """Mixin of a step docked alone: napari docks ``native``, here the step's scroll
+    area; the step's rows stay in ``super().native``. The widget napari returns (and
+    finds again, ``dock.inner_widget()``) is still the step, with its fields and buttons."""
+
+    def __init__(self, viewer: napari.viewer.Viewer):
+        super().__init__(viewer)
+        area = _StepArea(super().native)
+        area._magic_widget = self  # napari's inner_widget(): the step, not the area
+        self._area = area
+
+    @property
+    def native(self) -> QWidget:
+        # __dict__: magicgui reads ``native`` while the step is built, before the area
+        return self.__dict__.get("_area") or super().native
+
+
+class RealImageDock(_Alone, RealImageWidget):
+    """*Real image and classes* docked alone (scrolls in its dock)."""
+
+
+class SimulateDock(_Alone, SimulateWidget):
+    """*Simulate and render* docked alone (scrolls in its dock)."""
+
+
+class TuneDock(_Alone, TuneWidget):
+    """*Tune optics and noise* docked alone (scrolls in its dock)."""
+
+
+class DiagnoseDock(_Alone, DiagnoseWidget):
+    """*Diagnose model mismatch* docked alone (scrolls in its dock)."""
+
+
+class ExportDock(_Alone, ExportWidget):
+    """*Export dataset* docked alone (scrolls in its dock)."""
+
+
+def _scroll_area(step: QWidget, area: QScrollArea | None = None) -> QScrollArea:
+    """``step`` in a frameless scroll area (``area``, or a new one) that gives it the
+    area's width, its rows at the top."""
+    area = QScrollArea() if area is None else area
+    area.setWidgetResizable(True)
+    area.setFrameShape(QFrame.Shape.NoFrame)
+    _rows_at_the_top(step)
+    area.setWidget(step)
+    return area
 
 
 def _rows_at_the_top(step: QWidget) -> None:
