@@ -288,6 +288,39 @@ def test_render_refuses_a_simulation_file_as_its_config_in_one_line(tmp_path, ca
     assert not (tmp_path / "r").exists()
 
 
+@pytest.mark.parametrize("command", ["simulate", "export"])
+def test_a_microscope_file_as_config_is_refused_in_one_line(tmp_path, capsys, command):
+    """Found as a user: `simulate --config microscope.yaml` (the file `fit` takes) said
+    "unknown field(s) condenser, magnification, ... in SimulationSettings; valid fields
+    are: ..." (26 of them), without naming the file or the kind of file wanted; `export`
+    said the same of ExportSettings. `render` already said it in one line."""
+    from napari_symbac.settings import Microscope, save_settings
+
+    config = save_settings(Microscope(), tmp_path / "microscope.yaml")
+    out = tmp_path / "out"
+    code = main([command, "--config", str(config), "--out", str(out)])
+    error = capsys.readouterr().err
+    assert code == 2
+    assert str(config) in error
+    assert "holds microscope settings" in error
+    kind = {"simulate": "simulation", "export": "export"}[command]
+    assert f"napari-symbac defaults {kind}" in error
+    assert "unknown field" not in error
+    assert not out.exists()
+
+
+def test_a_typo_in_a_simulation_file_names_the_file(tmp_path, capsys):
+    """`simulate --config` with a misspelt field: the message names the file, as every
+    other command's settings errors do."""
+    config = tmp_path / "sim.yaml"
+    config.write_text("n_frame: 4\n")
+    code = main(["simulate", "--config", str(config), "--out", str(tmp_path / "s")])
+    error = capsys.readouterr().err
+    assert code == 2
+    assert str(config) in error
+    assert "n_frame" in error
+
+
 def test_export_of_a_pipeline_file_takes_n_items(tmp_path, capsys):
     """Found as a user: exporting fit's settings.yaml made the default 100 items, and
     only a hand-written export file could ask for fewer."""

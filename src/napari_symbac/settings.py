@@ -1062,6 +1062,35 @@ def _refuse_a_section_file(data: Any, path: str | Path) -> None:
             )
 
 
+def _refuse_another_kind(data: Any, path: str | Path, cls: type) -> None:
+    """Refuse, in one line, a file of another kind of settings given where ``cls`` is
+    wanted: ``simulate --config microscope.yaml`` (the file ``fit`` takes) listed the
+    microscope's fields as unknown and the 26 valid ones, naming neither the file nor the
+    kind wanted. A file with any field of ``cls`` is left to :func:`from_dict` (a typo)."""
+    if not isinstance(data, dict) or not data:
+        return
+    if set(data) & {f.name for f in dataclasses.fields(cls)}:
+        return
+    hints = typing.get_type_hints(PipelineSettings)
+    for section in dataclasses.fields(PipelineSettings):
+        kind = hints[section.name]
+        if kind is cls or not dataclasses.is_dataclass(kind):
+            continue
+        if set(data) <= {f.name for f in dataclasses.fields(kind)}:
+            wanted = _kind_name(cls)
+            raise ValueError(
+                f"{path} holds {section.name} settings, and {wanted} settings are wanted "
+                f"here (start from `napari-symbac defaults {wanted} --out FILE`, or give "
+                "a pipeline file such as the settings.yaml that fit writes)"
+            )
+
+
+def _kind_name(cls: type) -> str:
+    """The kind of settings ``napari-symbac defaults`` names ``cls`` by: simulation,
+    export, microscope, ..."""
+    return cls.__name__.removesuffix("Settings").lower()
+
+
 def _is_pipeline_mapping(data: Any) -> bool:
     """Whether a settings file holds :class:`PipelineSettings`: a mapping of its sections
     only (what ``fit`` and ``calibrate`` write as settings.yaml)."""
@@ -1074,9 +1103,11 @@ def load_simulation_settings(path: str | Path) -> SimulationSettings:
     section of a :class:`PipelineSettings` file (so that one file simulates, renders and
     exports alike)."""
     data = read_settings_mapping(path)
-    if _is_pipeline_mapping(data) and "simulation" in data:
-        return from_dict(SimulationSettings, data["simulation"] or {}, _where="simulation")
-    return from_dict(SimulationSettings, data)
+    with _naming_the_file(path):
+        if _is_pipeline_mapping(data) and "simulation" in data:
+            return from_dict(SimulationSettings, data["simulation"] or {}, _where="simulation")
+        _refuse_another_kind(data, path, SimulationSettings)
+        return from_dict(SimulationSettings, data)
 
 
 def load_settings_or_pipeline(path: str | Path, cls: type[T]) -> T | PipelineSettings:
@@ -1084,7 +1115,10 @@ def load_settings_or_pipeline(path: str | Path, cls: type[T]) -> T | PipelineSet
     pipeline file (:func:`_is_pipeline_mapping`), whose errors then name its sections."""
     data = read_settings_mapping(path)
     with _naming_the_file(path):
-        return from_dict(PipelineSettings if _is_pipeline_mapping(data) else cls, data)
+        if _is_pipeline_mapping(data):
+            return from_dict(PipelineSettings, data)
+        _refuse_another_kind(data, path, cls)
+        return from_dict(cls, data)
 
 
 def load_microscope(path: str | Path) -> Microscope:
