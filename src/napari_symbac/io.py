@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -160,7 +161,9 @@ def _modality(tif) -> str | None:
     return _CONTRAST_METHODS.get(match.group(1)) if match else None
 
 
-_MASK_FOLDERS = ("labels", "masks")
+#: Words that name a file (its last word: ``cell_mask.tif``, ``Sample_cp_masks.tif``,
+#: ColiCoords' ``binary.tif``) or its folder (``binary/00001.tif``) as masks.
+_MASK_WORDS = ("binary", "label", "labels", "mask", "masks", "seg", "segmentation")
 
 
 def _kind(tif, path: Path) -> str:
@@ -170,10 +173,11 @@ def _kind(tif, path: Path) -> str:
         if metadata and metadata.get(TIFF_KIND_KEY) in TIFF_KINDS:
             return str(metadata[TIFF_KIND_KEY])
     name = path.name.lower()
+    words = re.split(r"[\s_.-]+", name.split(".")[0])
     if (
-        name.split(".")[0].endswith("_masks")
+        words[-1] in _MASK_WORDS
         or name.startswith(("man_seg", "man_track"))
-        or path.parent.name.lower() in _MASK_FOLDERS
+        or path.parent.name.lower() in _MASK_WORDS
     ):
         return "labels"
     return "image"
