@@ -321,6 +321,28 @@ def test_a_typo_in_a_simulation_file_names_the_file(tmp_path, capsys):
     assert "n_frame" in error
 
 
+def test_an_unknown_option_is_said_by_its_command(tmp_path, capsys):
+    """Found as a user: `diagnose IMAGE ... --frames 3` (an option of fit's) said
+    "napari-symbac: error: unrecognized arguments: --frames 3 (see napari-symbac --help)":
+    neither the command nor its help, where the options are. A misspelt option is also
+    given its nearest spelling."""
+    out = str(tmp_path / "d")
+    with pytest.raises(SystemExit) as refused:
+        main(["diagnose", "image.tif", "--microscope", "m.yaml", "--out", out, "--frames", "3"])
+    assert refused.value.code == 2
+    error = capsys.readouterr().err
+    assert error == (
+        "napari-symbac diagnose: error: unrecognized arguments: --frames 3 "
+        "(see napari-symbac diagnose --help)\n"
+    )
+    with pytest.raises(SystemExit):
+        main(["fit", "image.tif", "--microscope", "m.yaml", "--out", out, "--modalty", "phase"])
+    error = capsys.readouterr().err
+    assert error.startswith("napari-symbac fit: error: unrecognized arguments: --modalty phase")
+    assert "did you mean --modality?" in error
+    assert not (tmp_path / "d").exists()
+
+
 def test_export_of_a_pipeline_file_takes_n_items(tmp_path, capsys):
     """Found as a user: exporting fit's settings.yaml made the default 100 items, and
     only a hand-written export file could ask for fewer."""

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import difflib
 import re
 import signal
 import sys
@@ -636,6 +637,31 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+    def parse_args(self, args=None, namespace=None):
+        """Options no command takes are refused by the command given, with its help and
+        the nearest spelling (argparse refused them at the top level: "napari-symbac:
+        error: unrecognized arguments: --frames 3 (see napari-symbac --help)")."""
+        parsed, extras = self.parse_known_args(args, namespace)
+        if extras:
+            command = self._commands().get(getattr(parsed, "command", None), self)
+            message = f"unrecognized arguments: {' '.join(extras)}"
+            options = [o for action in command._actions for o in action.option_strings]
+            guesses = [
+                difflib.get_close_matches(extra.split("=")[0], options, n=1, cutoff=0.8)
+                for extra in extras
+                if extra.startswith("--")
+            ]
+            if any(guesses):
+                message += "; did you mean " + ", ".join(g[0] for g in guesses if g) + "?"
+            command.error(message)
+        return parsed
+
+    def _commands(self) -> dict[str, argparse.ArgumentParser]:
+        for action in self._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                return dict(action.choices)
+        return {}
 
 
 def build_parser() -> argparse.ArgumentParser:
