@@ -164,6 +164,25 @@ def test_defaults_round_trip(tmp_path):
     assert load_settings(path, PipelineSettings) == PipelineSettings()
 
 
+def test_defaults_never_replaces_an_edited_file(tmp_path, capsys):
+    """Found as a user: running the README's `defaults microscope --out microscope.yaml`
+    again (the line is pasted with the rest) silently replaced the pixel size entered in
+    the file with 0.065 um."""
+    path = tmp_path / "microscope.yaml"
+    assert main(["defaults", "microscope", "--out", str(path)]) == 0
+    assert main(["defaults", "microscope", "--out", str(path)]) == 0  # the same: harmless
+    edited = path.read_text().replace("pixel_size_um: 0.065", "pixel_size_um: 0.08")
+    path.write_text(edited)
+    capsys.readouterr()
+    assert main(["defaults", "microscope", "--out", str(path)]) == 2
+    error = capsys.readouterr().err
+    assert "exists and is not the default microscope settings" in error
+    assert "--force" in error
+    assert path.read_text() == edited
+    assert main(["defaults", "microscope", "--out", str(path), "--force"]) == 0
+    assert "pixel_size_um: 0.065" in path.read_text()
+
+
 def test_fit_refusal_from_the_shell_is_a_message_not_a_traceback(tmp_path):
     """The console script as a user pipes it: message, exit 2, nothing written."""
     image = tmp_path / "negative.tif"

@@ -534,11 +534,31 @@ def _cmd_defaults(args: argparse.Namespace) -> int:
         }
         default = classes[args.kind]()
     if args.out:
+        if not args.force and not _holds(args.out, settings_module.to_dict(default)):
+            raise ValueError(
+                f"{args.out} exists and is not the default {args.kind} settings (your "
+                "edits?): it is left as it is; give another file name, or add --force to "
+                "replace it"
+            )
         settings_module.save_settings(default, args.out)
         print(f"wrote default {args.kind} settings to {args.out}")
     else:
         print(yaml.safe_dump(settings_module.to_dict(default), sort_keys=False), end="")
     return 0
+
+
+def _holds(path: str, data: dict) -> bool:
+    """Whether ``path`` is missing or already holds the settings ``data`` (so that writing
+    them there loses nothing; found as a user: re-running the README's `defaults
+    microscope --out microscope.yaml` replaced the pixel size entered in it)."""
+    from napari_symbac.settings import read_settings_mapping
+
+    if not Path(path).exists():
+        return True
+    try:
+        return read_settings_mapping(path) == data
+    except (ValueError, OSError):
+        return False
 
 
 # --------------------------------------------------------------------------------------
@@ -940,6 +960,11 @@ def build_parser() -> argparse.ArgumentParser:
         "kind", choices=["pipeline", "simulation", "microscope", "render", "camera", "export"]
     )
     defaults.add_argument("--out", help="write to this .yaml/.json file instead of printing")
+    defaults.add_argument(
+        "--force",
+        action="store_true",
+        help="replace --out when it exists and holds other settings (edited ones)",
+    )
     defaults.set_defaults(func=_cmd_defaults)
     return parser
 
