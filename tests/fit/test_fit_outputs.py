@@ -65,6 +65,18 @@ def test_input_checks_name_the_problem():
         check_instance_masks(np.ones((4, 4), np.uint16), (4, 4))
 
 
+def test_instance_masks_given_as_class_labels_are_said_in_one_short_line():
+    """Found as a user: `fit colony.png --labels colony_cp_masks.tif` listed all 113 cell
+    numbers of the masks in the refusal."""
+    masks = np.arange(120, dtype=np.uint16).reshape(10, 12) % 117
+    with pytest.raises(ValueError, match="an instance mask goes to --masks") as refused:
+        check_class_labels(masks, (10, 12), "--labels colony_cp_masks.tif")
+    message = str(refused.value)
+    assert "classes [4, 5, 6, 7, 8, ..., 116] (113 values)" in message
+    assert len(message) < 250
+    assert "--masks" in message
+
+
 def test_pixel_size_from_the_tiff_wins():
     microscope = Microscope(pixel_size_um=0.065)
     same, note = resolve_pixel_size(0.0651, microscope)

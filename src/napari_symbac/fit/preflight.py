@@ -198,8 +198,14 @@ def check_class_labels(labels: np.ndarray, shape: tuple[int, ...], name: str = "
         raise ValueError(f"{name} must hold integer classes 0-3, got dtype {labels.dtype}")
     present = set(np.unique(labels).tolist())
     if not present <= {0, 1, 2, 3}:
+        others = sorted(present - {0, 1, 2, 3})
+        said = (
+            str(others)
+            if len(others) <= 6
+            else f"[{', '.join(map(str, others[:5]))}, ..., {others[-1]}] ({len(others)} values)"
+        )
         raise ValueError(
-            f"{name} holds classes {sorted(present - {0, 1, 2, 3})}; classes are 0 unpainted, "
+            f"{name} holds classes {said}; classes are 0 unpainted, "
             "1 cell, 2 media, 3 device (an instance mask goes to --masks instead)"
         )
     if 2 not in present:
