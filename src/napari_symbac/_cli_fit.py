@@ -436,7 +436,8 @@ def _prepare_one(args, frame, labels, masks, microscope, base, keys):
 
 
 def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, keys, stages, timer):
-    """Check, fit and prepare the outputs of one frame: returns (writers, result)."""
+    """Check, fit and prepare the outputs of one frame: returns (writers, result,
+    problems) as :func:`_outputs_one`."""
     from napari_symbac.fit import fit_colony, fit_scene
     from napari_symbac.fit.report import OPEN_PHASE_NOTE
 
@@ -465,20 +466,23 @@ def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, ke
 def _outputs_one(
     args, frame, index, prepared, result, microscope, pixel_note, base, keys, track_ids=None
 ):
-    """The files of one fitted frame: returns (writers, result). ``track_ids``: each
-    cell's track in a series (``track`` in cells.json)."""
+    """The files of one fitted frame: returns (writers, result, problems), ``problems``
+    those report.txt lists. ``track_ids``: each cell's track in a series (``track`` in
+    cells.json)."""
     import tifffile
 
     from napari_symbac.fit.camera_estimate import censored_pixels
     from napari_symbac.fit.clipped_background import clipped_background, drawn_clipped
     from napari_symbac.fit.figure import before_after_figure
     from napari_symbac.fit.fitted_settings import fitted_render, fitted_simulation
+    from napari_symbac.fit.preflight import camera_pixel_problem
     from napari_symbac.fit.report import (
         UNMEASURED_READ_NOISE,
         camera_text,
         cells_records,
         colony_noise_text,
         parameter_table,
+        report_problems,
         report_text,
     )
     from napari_symbac.settings import save_settings
@@ -536,6 +540,7 @@ def _outputs_one(
     problems = _cell_problems(
         result, frame.shape, microscope.pixel_size_um, masks, prepared.colony
     )
+    problems += [p] if (p := camera_pixel_problem(microscope)) else []
     if prepared.colony:
         facts["start"] = "instance masks (the cells as given; the optics fitted to them)"
         facts["camera"] = (
@@ -571,7 +576,18 @@ def _outputs_one(
         "before_after.png": write_png,
         "report.txt": lambda p: p.write_text(report),
     }
-    return writers, result
+    return writers, result, report_problems(result, problems)
+
+
+def _problems_said(index: int, problems: list[str]) -> str:
+    """Each problem of a frame's report.txt on stderr, as a warning, and the end of the
+    frame's line on stdout that counts them (found as a user: a 10x pixel-size slip gave
+    35 cells at their bounds, and stdout said only "fitted 35 cells")."""
+    for problem in problems:
+        said = problem.removeprefix("warning: ")
+        print(f"napari-symbac fit: frame {index}: problem: {said}", file=sys.stderr)
+    n = len(problems)
+    return f"; {n} problem{'s' * (n != 1)}, see report.txt" if n else ""
 
 
 def counts_units_mark(mapping: CountsMapping) -> str:
@@ -679,7 +695,7 @@ def _fit_frames_jointly(
             ready = dataclasses.replace(
                 ready, camera=series.camera, notes=[*ready.notes, *measured]
             )
-        writers_one, _ = _outputs_one(
+        writers_one, _, problems = _outputs_one(
             args, stack[index], index, ready, result, microscope, pixel_note, base, keys,
             track_ids=lineage.track_ids[k],
         )
@@ -688,6 +704,7 @@ def _fit_frames_jointly(
         summaries.append(
             f"frame {index}: fitted {len(result.cells)} cells{carried}; pixel chi2 "
             f"{result.objective_before:.3g} -> {result.objective_after:.3g}"
+            + _problems_said(index, problems)
         )
     table = {
         "frames": frames,
@@ -769,7 +786,7 @@ def _fit_colony_frames(
             f"{reference}'s own fit: its masks cover most); the media level is this frame's "
             "(fit_colony_series; series.json)"
         )
-        writers_one, _ = _outputs_one(
+        writers_one, _, problems = _outputs_one(
             args, stack[index], index, ready, result, microscope, pixel_note, base, keys,
             track_ids=lineage.track_ids[k],
         )
@@ -777,6 +794,7 @@ def _fit_colony_frames(
         summaries.append(
             f"frame {index}: {len(result.cells)} cells from the masks; pixel chi2 "
             f"{result.objective_before:.3g} -> {result.objective_after:.3g}"
+            + _problems_said(index, problems)
         )
     before, after = series.joint_objective
     table = {
@@ -852,6 +870,7 @@ def run_fit(args: argparse.Namespace) -> int:
     """Run ``napari-symbac fit`` with parsed arguments; returns the exit code."""
     from napari_symbac.export.atomic import earlier_run
     from napari_symbac.fit.preflight import (
+        camera_pixel_problem,
         check_fit_image,
         default_geometry,
         refuse_constant,
@@ -899,6 +918,8 @@ def run_fit(args: argparse.Namespace) -> int:
         )
         if "disagrees" in pixel_note:
             print(f"napari-symbac fit: note: {pixel_note}", file=sys.stderr)
+        if problem := camera_pixel_problem(microscope):  # before the fit, not after it
+            print(f"napari-symbac fit: warning: {problem}", file=sys.stderr)
         if args.geometry is None:
             configured = (keys.get("simulation", {}) or {}).get("geometry")
             args.geometry = default_geometry(stack.shape[-1], microscope.modality, configured)
@@ -923,7 +944,7 @@ def run_fit(args: argparse.Namespace) -> int:
         )
     for index in frames if len(frames) == 1 else []:
         frame = stack[index]
-        writers_one, result = _fit_one(
+        writers_one, result, problems = _fit_one(
             args,
             frame,
             index,
@@ -940,6 +961,7 @@ def run_fit(args: argparse.Namespace) -> int:
         summaries.append(
             f"frame {index}: fitted {len(result.cells)} cells; pixel chi2 "
             f"{result.objective_before:.3g} -> {result.objective_after:.3g}"
+            + _problems_said(index, problems)
         )
     first = f"frame_{frames[0]:04d}/settings.yaml"
     if len(frames) > 1 and first in writers:  # found as a user: `export --config

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
 import json
 import re
@@ -53,6 +54,47 @@ def _fact(report: str, key: str) -> str:
 # --------------------------------------------------------------------------------------
 # Outputs
 # --------------------------------------------------------------------------------------
+
+
+def test_a_pixel_size_no_camera_has_is_said_before_the_fit_and_counted_after(
+    tmp_path, truth, inputs, capsys
+):
+    """Found as a user: ``pixel_size_um: 0.65`` (a 10x slip) for the 100x objective gave
+    35 cells at their bounds, and stdout said only "fitted 35 cells" (report.txt alone
+    held the problems). The slip is a 65 um camera pixel: said before the fit, listed in
+    report.txt, and every problem of report.txt is said on stderr and counted on stdout."""
+    image, labels, _ = inputs
+    slip = dataclasses.replace(truth.microscope, pixel_size_um=10 * truth.microscope.pixel_size_um)
+    microscope = save_settings(slip, tmp_path / "slip.yaml")
+    out = tmp_path / "fit"
+    assert _fit(image, "--labels", labels, "--microscope", microscope, "--out", out,
+                "--max-iterations", 2) == 0  # fmt: skip
+    captured = capsys.readouterr()
+    camera_pixel = f"{10 * truth.microscope.pixel_size_um * slip.magnification:.3g} um camera pixel"
+    warned = captured.err.index(f"napari-symbac fit: warning: pixel size {slip.pixel_size_um:g}")
+    assert camera_pixel in captured.err[warned:].splitlines()[0]
+    assert warned < captured.err.index("napari-symbac fit: fitting frame 0")
+    problems = (out / "report.txt").read_text().split("PROBLEMS\n")[1].split("\n\n")[0]
+    listed = [line[2:] for line in problems.splitlines()]
+    assert any(camera_pixel in p for p in listed)
+    said = [line for line in captured.err.splitlines() if ": frame 0: problem: " in line]
+    assert len(said) == len(listed) >= 2  # the camera pixel, and the widths it makes
+    n = len(listed)
+    assert captured.out.splitlines()[0].endswith(f"; {n} problems, see report.txt")
+
+
+def test_the_camera_pixel_check_passes_real_cameras():
+    from napari_symbac.fit.preflight import camera_pixel_problem
+
+    for pixel_um, magnification in ((0.065, 100), (0.108, 60), (0.13, 100), (0.16, 100),
+                                    (0.325, 20), (0.043, 150)):  # fmt: skip
+        scope = Microscope(pixel_size_um=pixel_um, magnification=magnification)
+        assert camera_pixel_problem(scope) is None, (pixel_um, magnification)
+    for pixel_um, magnification in ((0.65, 100), (0.005, 100), (0.325, 150)):
+        scope = Microscope(pixel_size_um=pixel_um, magnification=magnification)
+        assert "check pixel_size_um and magnification" in camera_pixel_problem(scope)
+
+
 
 
 def test_fit_writes_settings_cells_residual_figure_and_report(tmp_path, truth, inputs, capsys):

@@ -17,8 +17,10 @@ from scipy import ndimage
 from napari_symbac.settings import Microscope
 
 __all__ = [
+    "CAMERA_PIXEL_UM",
     "PLAUSIBLE_PIXEL_UM",
     "TRENCH_MAX_WIDTH_PX",
+    "camera_pixel_problem",
     "check_class_labels",
     "check_fit_image",
     "check_instance_masks",
@@ -257,6 +259,33 @@ def default_geometry(width_px: int, modality: str, configured: str | None = None
 #: resolution camera pixels at 250x) to 1 um (a 10x objective); beyond, cells are not
 #: resolved.
 PLAUSIBLE_PIXEL_UM = (0.02, 1.0)
+
+
+#: Camera pixels, um, binning included (sCMOS 6.5-11, CCD 6.45, EMCCD 13-24; 2 x 2
+#: binning doubles them): the pixel size times the magnification falls here when the
+#: microscope file describes the objective the image was taken with.
+CAMERA_PIXEL_UM = (1.0, 40.0)
+
+
+def camera_pixel_problem(microscope: Microscope) -> str | None:
+    """A sentence when ``pixel_size_um x magnification`` is no camera's pixel, else None.
+
+    Found as a user: ``pixel_size_um: 0.65`` (a 10x slip) for a 100x objective was fitted
+    with 35 cells at their bounds, exit 0. The product is a 65 um camera pixel: either
+    the pixel size is wrong or the microscope file describes another objective (whose NA
+    shapes the PSF).
+    """
+    camera_um = microscope.pixel_size_um * microscope.magnification
+    low, high = CAMERA_PIXEL_UM
+    if low <= camera_um <= high:
+        return None
+    return (
+        f"pixel size {microscope.pixel_size_um:g} um at {microscope.magnification:g}x "
+        f"magnification is a {camera_um:.3g} um camera pixel, outside the {low:g}-{high:g} "
+        "um cameras have: check pixel_size_um and magnification (and the NA) in the "
+        "microscope file (pixel size = camera pixel / magnification: 6.5 um / 100x = "
+        "0.065 um)"
+    )
 
 
 def check_pixel_size(pixel_size_um: float, source: str) -> None:

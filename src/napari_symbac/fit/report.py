@@ -26,6 +26,7 @@ __all__ = [
     "fit_notes",
     "fit_problems",
     "parameter_table",
+    "report_problems",
     "report_text",
     "write_atomically",
 ]
@@ -183,6 +184,18 @@ def fit_problems(
     return problems
 
 
+def report_problems(result: Any, extra_problems: Sequence[str] = ()) -> list[str]:
+    """The problems report.txt lists under PROBLEMS: :func:`fit_problems`, then the
+    caller's ``extra_problems`` (e.g. a camera check)."""
+    problems = [*fit_problems(result), *extra_problems]
+    if not hasattr(result, "warnings"):
+        problems.append(
+            "this fit engine reports no convergence diagnostics (no warnings / at_bounds): "
+            "check the figure and the residual by eye"
+        )
+    return problems
+
+
 def report_text(
     result: Any, facts: Mapping[str, str], extra_problems: Sequence[str] = ()
 ) -> str:
@@ -204,12 +217,7 @@ def report_text(
     for term, (before, after) in getattr(result, "terms", {}).items():
         lines.append(f"  {term}: {before:.4g} -> {after:.4g}")
     lines += ["", "PROBLEMS"]
-    problems = [*fit_problems(result), *extra_problems]
-    if not hasattr(result, "warnings"):
-        problems.append(
-            "this fit engine reports no convergence diagnostics (no warnings / at_bounds): "
-            "check the figure and the residual by eye"
-        )
+    problems = report_problems(result, extra_problems)
     lines += [f"- {p}" for p in problems] if problems else ["none: converged, nothing at a bound"]
     parameters = parameter_table(result)
     if parameters:
