@@ -42,6 +42,19 @@ def test_partial_file_takes_defaults(tmp_path):
     assert loaded.cell_width_um == SimulationSettings().cell_width_um
 
 
+def test_an_empty_value_says_to_give_one_or_leave_the_line_out(tmp_path):
+    """Found as a user: ``pixel_size_um: null`` said "must be a number, got None"."""
+    from napari_symbac.settings import Microscope, load_settings
+
+    path = tmp_path / "microscope.yaml"
+    path.write_text("pixel_size_um: null\nmodality: phase\n")
+    with pytest.raises(ValueError, match=r"Microscope.pixel_size_um is empty \(null\): give "
+                       "it a value, or leave the line out"):  # fmt: skip
+        load_settings(path, Microscope)
+    path.write_text("modality: phase\n")
+    assert load_settings(path, Microscope) == Microscope()
+
+
 def test_settings_are_frozen():
     with pytest.raises(dataclasses.FrozenInstanceError):
         Microscope().numerical_aperture = 2.0  # type: ignore[misc]

@@ -960,6 +960,10 @@ def _convert(tp: Any, value: Any, where: str) -> Any:
         raise ValueError(f"{where} has an unsupported value {value!r}")
     if origin is Literal:
         return value  # checked by the dataclass' own validation
+    if value is None and tp in (bool, int, float, str):  # YAML's null, or an empty value
+        raise ValueError(
+            f"{where} is empty (null): give it a value, or leave the line out for the default"
+        )
     if tp is bool:
         if not isinstance(value, bool):
             raise ValueError(f"{where} must be true or false, got {value!r}")
