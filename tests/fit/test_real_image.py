@@ -108,3 +108,28 @@ def test_colicoords_fluorescence_count_equals_the_mask(real_data_dir):
     rows = (fit.cells.y_um / 0.08).astype(int)
     cols = (fit.cells.x_um / 0.08).astype(int)
     assert sorted(labels[rows, cols].tolist()) == [1, 2, 3, 4]
+
+
+def test_a_background_above_the_baseline_is_fitted_from_the_first_round(real_data_dir):
+    """ColiCoords ds3 frame 0 (its camera offset kept): the baseline guess (the 0.1 %
+    quantile) leaves a few hundred background pixels below it and no measurable read
+    noise, so weighing each pixel by its own value gave them 1/12 ADU^2 and about
+    40 000 times a background pixel's weight: the start solved the media intensity to 0
+    against a background 168 ADU above the baseline, and the moves then ran on that
+    misfit (a dispersion of 1.2e5: a real cell removed, a blob with its angle and bend at
+    their bounds in its place). The first round's variance now takes each pixel's level
+    from its 3 x 3 neighbours."""
+    from napari_symbac.fit.scene_fit import _run_frame
+
+    image = tifffile.imread(real_data_dir / "colicoords" / "test_data" / "ds3" / "flu.tif")[0]
+    microscope = Microscope(pixel_size_um=0.08, modality="fluorescence")
+    run = _run_frame(
+        image, microscope, RenderSettings(), None, geometry="open", irls_rounds=1,
+        max_iterations=1, moves=False,
+    )  # fmt: skip
+    background = float(np.median(run.y))
+    assert background > 100  # the pad's light above the baseline guess
+    media = run.start.intensities[1]
+    assert media == pytest.approx(background, rel=0.05)
+    weights = run.problem.w[run.problem.w > 0]
+    assert weights.max() < 20 * np.median(weights)

@@ -330,3 +330,29 @@ def test_a_cell_missing_from_the_start_mask_is_added(truth):
     order = np.argsort(fit.cells.y_um)
     true_y = truth.cells.y_um + TRENCH.margin_um
     np.testing.assert_allclose(fit.cells.y_um[order], true_y, atol=0.05)
+
+
+def test_a_cell_that_changes_no_pixel_is_pruned_after_the_last_round(truth):
+    """The moves run after the first round; a cell they added can be pushed off its
+    neighbour and out of the image by the later rounds, where it pays for nothing
+    (found on a crop of ColiCoords ds3 frame 0: three cells parked at the field's edge
+    bound). The final prune removes such a cell and keeps the three real ones."""
+    from napari_symbac.fit.moves import prune_cells
+    from napari_symbac.fit.problem import Problem
+    from napari_symbac.fit.scene_fit import _run_frame
+
+    run = _run_frame(
+        truth.image, truth.microscope, START, truth.camera, irls_rounds=1, max_iterations=6,
+        moves=False,
+    )  # fmt: skip
+    problem, state = run.problem, run.state
+    blocks, shared = problem.blocks(state.x)
+    assert len(blocks) == 3
+    parked = blocks[0].copy()
+    parked[0] = problem.lower(4)[0]  # its centre at the left bound, out of the image
+    with_parked = problem.evaluate(Problem.join(np.vstack([blocks, parked]), shared))
+    assert with_parked.chi2 == pytest.approx(state.chi2, rel=1e-9)  # it changes no pixel
+    pruned, log = prune_cells(problem, with_parked)
+    assert problem.n_cells(pruned.x) == 3
+    assert log == [f"removed cell at ({parked[0]:.2f}, {parked[1]:.2f}) um"]
+    np.testing.assert_array_equal(problem.blocks(pruned.x)[0], blocks)

@@ -48,7 +48,7 @@ from napari_symbac.fit.problem import Problem
 from napari_symbac.fit.start import cells_from_instances
 from napari_symbac.optics.forward import block_average
 
-__all__ = ["improve_scene"]
+__all__ = ["improve_scene", "prune_cells"]
 
 #: An added cell fitted dimmer than ``1 + DIM_CELL`` times the cells' intensity is a
 #: glow or background structure, not a cell (with per-cell brightness).
@@ -333,7 +333,9 @@ def _split_pass(
         for kind, offset in cuts:
             trial_blocks = _split_at(blocks, int(i), offset)
             trial = _try(problem, state, trial_blocks, shared, [int(i), int(i) + 1], ctx)
-            if _accept(problem, state, trial, +1, ctx):
+            if _daughters_are_rods(problem, trial, int(i)) and _accept(
+                problem, state, trial, +1, ctx
+            ):
                 where = f" at its septum ({offset:+.2f} um from its centre)" * (
                     kind == "septum"
                 )
@@ -344,12 +346,31 @@ def _split_pass(
     return state, False
 
 
-#: Each cell of an accepted reseed is at least this many widths long: touching
+#: Each cell of an accepted reseed or split is at least this many widths long: touching
 #: bacteria are rods (newborns about twice as long as wide). A cut that leaves a
 #: round piece is texture inside one wide cell (two bright foci of a ColiCoords ds1
-#: cell, field 1, fitted 1.34 and 2.31 um long at 1.36 um wide), not a septum. A cell
-#: on the image's edge is exempt (the edge may cut it shorter).
+#: cell, field 1, fitted 1.34 and 2.31 um long at 1.36 um wide; a bright pole of a ds3
+#: frame 1 cell split off as a "cell" 0.78 um long at 0.91 um wide), not a septum. A
+#: cell on the image's edge is exempt (the edge may cut it shorter).
 RESEED_ASPECT = 1.25
+
+
+def _daughters_are_rods(problem: Problem, trial: State, i: int) -> bool:
+    """Whether the two cells ``i`` and ``i + 1`` of a split, as refitted, are rods
+    (:data:`RESEED_ASPECT`), each unless its rod reaches past the image's edge."""
+    blocks, shared = problem.blocks(trial.x)
+    lay = problem.layout
+    rows, cols = problem.shape
+    px = problem.microscope.pixel_size_um
+    for k in (i, i + 1):
+        width = shared[0] + (blocks[k, lay.i_dwidth] if lay.per_cell_width else 0.0)
+        poles = np.array(_poles(blocks[k]))
+        inside = (poles >= width / 2).all() and (poles[:, 0] <= cols * px - width / 2).all() and (
+            poles[:, 1] <= rows * px - width / 2
+        ).all()
+        if inside and blocks[k, 3] < RESEED_ASPECT * width:
+            return False
+    return True
 
 
 def _under(labels: np.ndarray, x_um: np.ndarray, y_um: np.ndarray, px: float) -> np.ndarray:
@@ -537,3 +558,25 @@ def improve_scene(
         if not changed:
             break
     return state, ctx.log, ctx.dispersion
+
+
+def prune_cells(problem: Problem, state: State) -> tuple[State, list[str]]:
+    """Remove, one at a time, the cells the BIC no longer supports after the last round.
+
+    The moves run after the first round; the later rounds can leave a cell that pays
+    for nothing: an added cell pushed by the overlap penalty off its neighbour and out
+    of the image, where it changes no pixel (found on ColiCoords ds3 frame 0: three
+    cells parked at the field's edge bound, x = -2 um). The rule is the remove move's,
+    with the dispersion of the final residual.
+
+    Returns
+    -------
+    state, log
+        The state without those cells, and a line for each removed.
+    """
+    ctx = _Context(dispersion(problem, state))
+    while True:
+        state, removed = _remove_pass(problem, state, ctx)
+        if not removed:
+            return state, ctx.log
+
