@@ -364,10 +364,9 @@ def _daughters_are_rods(problem: Problem, trial: State, i: int) -> bool:
     px = problem.microscope.pixel_size_um
     for k in (i, i + 1):
         width = shared[0] + (blocks[k, lay.i_dwidth] if lay.per_cell_width else 0.0)
-        poles = np.array(_poles(blocks[k]))
-        inside = (poles >= width / 2).all() and (poles[:, 0] <= cols * px - width / 2).all() and (
-            poles[:, 1] <= rows * px - width / 2
-        ).all()
+        poles = np.array(_poles(blocks[k]))  # rows (x, y), um
+        far = np.array([cols, rows]) * px - width / 2
+        inside = bool(((poles >= width / 2) & (poles <= far)).all())
         if inside and blocks[k, 3] < RESEED_ASPECT * width:
             return False
     return True
@@ -579,4 +578,3 @@ def prune_cells(problem: Problem, state: State) -> tuple[State, list[str]]:
         state, removed = _remove_pass(problem, state, ctx)
         if not removed:
             return state, ctx.log
-
