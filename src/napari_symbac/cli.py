@@ -14,9 +14,13 @@ import sys
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from napari_symbac import __version__
 from napari_symbac._timing import StepTimer, progress_bar
+
+if TYPE_CHECKING:
+    from napari_symbac.io import CountsMapping
 
 __all__ = ["interrupted_text", "main"]
 
@@ -291,7 +295,7 @@ def _diagnose_writes(name: str) -> bool:
     return name in _DIAGNOSE_OUTPUTS or re.fullmatch(r"effect_\w+\.png", name) is not None
 
 
-def _diagnose_report(report: str, mapping) -> str:
+def _diagnose_report(report: str, mapping: CountsMapping | None) -> str:
     """diagnose's report.txt; for a normalised image read as counts
     (:class:`~napari_symbac.io.CountsMapping`), what its values are first and a note that
     every ADU and e- of the report is of that map, as ``fit``'s report says."""

@@ -686,7 +686,12 @@ def _run_frame(
         state, pruned = prune_cells(problem.without_history(), state)
         if pruned:  # the rest settles without them
             log += [f"{line} after the last round" for line in pruned]
-            state, _ = problem.refit(state, None, max_iterations)
+            state, converged = problem.refit(state, None, max_iterations)
+            if not converged:
+                warnings.append(
+                    f"after the cells removed at the end: the fit stopped at the iteration "
+                    f"limit ({max_iterations}) before converging"
+                )
     return _FrameRun(
         real,
         labels,
