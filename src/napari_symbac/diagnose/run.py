@@ -293,13 +293,18 @@ def _diagnose(
     mismatches = discrepancy_statistics(r0, current.mu, geo, valid)
     base_summary = _fit_summary(y, current, spec, design, valid)
     results: dict[str, EffectResult] = {}
-    total = max_steps * max_tries  # the most held-out checks; a diagnosis may stop sooner
     done = 0
     for step in range(1, max_steps + 1):
         remaining = [e for e in pool if not (e.name in results and results[e.name].accepted)]
         if not remaining:
             break
         ranked = rank(remaining, design, y, current, valid)
+        # The most held-out checks still possible: this step's tries above the
+        # threshold, then every later step's, so the total only shrinks as it is learnt.
+        possible_now = sum(test.evidence >= threshold for _, test in ranked[:max_tries])
+        total = done + possible_now + (max_steps - step) * max_tries
+        if progress is not None and done:
+            progress(done, total)
         for effect, test in ranked:
             old = results.get(effect.name)
             if old is not None and _refused(old):
