@@ -87,6 +87,50 @@ def test_cell_patch_equals_the_difference_of_full_renders(truth, k):
     np.testing.assert_allclose((a_new[:, 1] - a[:, 1]).reshape(full.shape), -full, atol=1e-5)
 
 
+@pytest.mark.parametrize("fused", [True, False])
+@pytest.mark.parametrize("factor", [1, 2, 3])
+def test_patch_convolution_is_fftconvolve_in_full_then_block_mean(factor, fused, monkeypatch):
+    """A cell patch goes through the backend's fused circular transform (or, for a backend
+    without it, the plain valid convolution of the zero-padded patch): both are the full
+    ``fftconvolve`` of the patch, block-averaged to camera pixels."""
+    from types import SimpleNamespace
+
+    from scipy.signal import fftconvolve
+
+    from napari_symbac.optics.backends import ScipyBackend
+    from napari_symbac.settings import Microscope
+
+    microscope = Microscope(pixel_size_um=0.065)
+    render = RenderSettings(upsample=factor, defocus_sigma_um=0.1)
+    layout = Layout(1, False, False, False, False, ())
+    model = SceneModel((40, 30), microscope, render, Camera(), None, 1.2, layout)
+    kernel = model.forward.kernel(microscope.pixel_size_um / factor)
+    ky, kx = kernel.shape
+    calls = []
+    if fused:
+        circular = model.forward.backend.convolve_resample_circular
+        monkeypatch.setattr(
+            model.forward.backend,
+            "convolve_resample_circular",
+            lambda *args: calls.append(args[0].shape) or circular(*args),
+        )
+    else:  # only what every backend has
+        model.forward.backend = SimpleNamespace(convolve_valid=ScipyBackend().convolve_valid)
+    rng = np.random.default_rng(factor)
+    height = factor * (-(-(ky + 30) // factor)) - (ky - 1)  # the full output a multiple
+    width = factor * (-(-(kx + 20) // factor)) - (kx - 1)
+    patch = (rng.random((3, height, width)) - 0.5).astype(np.float32)
+    patch[1, 5:9] += 2.0  # a sharp edge, as a cell's
+    got = model._convolve_patch(patch, kernel, factor)
+    full = np.stack([fftconvolve(p.astype(np.float64), kernel.astype(np.float64)) for p in patch])
+    rows, cols = full.shape[1] // factor, full.shape[2] // factor
+    want = full.reshape(3, rows, factor, cols, factor).mean(axis=(2, 4))  # in float64
+    assert calls == ([(3, height + ky - 1, width + kx - 1)] if fused else [])
+    assert got.dtype == np.float64
+    assert got.shape == want.shape == (3, (height + ky - 1) // factor, (width + kx - 1) // factor)
+    np.testing.assert_allclose(got, want, rtol=0, atol=3e-7 * np.ptp(want))
+
+
 def test_overlapping_rods_are_penalised_and_touching_ones_are_not():
     layout = Layout(2, False, False, False, False, ())
     apart = np.array([1.0, 1.5, 0.0, 2.0, 1.0, 3.5, 0.0, 2.0, 1.0])  # end to end

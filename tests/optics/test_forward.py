@@ -150,6 +150,21 @@ def test_fused_convolve_resample_matches_convolve_then_average(upsample):
     np.testing.assert_allclose(combined, np.tensordot(weights, expected, axes=1), rtol=1e-5)
 
 
+def test_kernel_spectra_are_kept_by_count_and_bytes_but_the_last_eight_always(monkeypatch):
+    """A scene fit's dozens of patch sizes stay cached; large frame spectra are held to a
+    byte budget, but never to fewer than the last 8 (the bound before)."""
+    from napari_symbac.optics import backends
+
+    backend = backends.ScipyBackend()
+    for i in range(200):
+        backend._cached(("patch", i), lambda: np.zeros(4, np.complex64))
+    assert list(backend._kernel_ffts) == [("patch", i) for i in range(72, 200)]
+    monkeypatch.setattr(backends, "_MAX_SPECTRA_BYTES", 1000)
+    for i in range(10):  # 800 bytes each: more than the budget beside any other
+        backend._cached(("frame", i), lambda: np.zeros(100, np.complex64))
+    assert list(backend._kernel_ffts) == [("frame", i) for i in range(2, 10)]
+
+
 @pytest.mark.parametrize("noise_model", ["none", "camera", "gaussian"])
 def test_fast_path_equals_cached_path(scene, cells_factory, noise_model):
     """``cache=False`` (static layers once, then the cells) is the cached render up to

@@ -19,13 +19,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import fft as sp_fft
 from scipy import sparse
 
 from napari_symbac.fit.illumination import illumination_basis, illumination_terms
 from napari_symbac.fit.placement import TrenchPlacement, draw_fitted
-from napari_symbac.optics import ForwardModel
-from napari_symbac.optics.backends import resample_fft_shape, resample_kernel_spectrum
+from napari_symbac.optics import ForwardModel, block_average
+from napari_symbac.optics.backends import resample_fft_shape
 from napari_symbac.scene import Scene
 from napari_symbac.scene._raster import chord
 from napari_symbac.settings import Camera, Microscope, RenderSettings
@@ -216,7 +215,6 @@ class SceneModel:
         self.forward = ForwardModel(microscope, render, camera)
         self.tick = tick if tick is not None else (lambda: None)
         self._box_cache: tuple | None = None
-        self._kernel_spectra: dict[tuple, np.ndarray] = {}
         basis = illumination_basis(shape, layout.illumination)
         self._light_basis = basis.reshape(basis.shape[0], shape[0] * shape[1])
 
@@ -544,30 +542,26 @@ class SceneModel:
         for each of ``(N, Y, X)`` patches.
 
         The full convolution of a patch is the valid convolution of the patch with
-        ``kernel - 1`` zeros before it, so the fused convolution + block average of the
-        renders (:func:`~napari_symbac.optics.backends.resample_kernel_spectrum`: one
-        forward transform at render resolution, the inverse ``factor**2`` times
-        smaller) gives it. The full output's sides are multiples of ``factor`` (the
-        caller aligns the patch). The kernel's spectrum is kept for each transform
-        size (a fit's patches come in a few sizes).
+        ``kernel - 1`` zeros on every side. The backend's fused convolution + block
+        average (:meth:`~napari_symbac.optics.backends.ScipyBackend.convolve_resample_circular`:
+        one forward transform at render resolution, the inverse ``factor**2`` times
+        smaller, the kernel's spectrum cached per transform size) needs the zeros
+        before the patch only: its transform pads the rest, and the circular wrap
+        lands in the leading zeros. The full output's sides are multiples of
+        ``factor`` (the caller aligns the patch).
         """
         ky, kx = kernel.shape
-        rows, cols = patch.shape[-2] + ky - 1, patch.shape[-1] + kx - 1
-        shape = resample_fft_shape(rows, cols, factor)
-        key = (hash(kernel.tobytes()), kernel.shape, shape, factor)
-        spectrum = self._kernel_spectra.get(key)
-        if spectrum is None:
-            if len(self._kernel_spectra) > 64:
-                self._kernel_spectra.clear()
-            spectrum = resample_kernel_spectrum(kernel, factor, shape)
-            self._kernel_spectra[key] = spectrum
-        padded = np.zeros((len(patch), *shape), np.float32)
+        n, height, width = patch.shape
+        rows, cols = height + ky - 1, width + kx - 1
+        padded = np.zeros((n, rows + ky - 1, cols + kx - 1), np.float32)
         padded[:, ky - 1 : rows, kx - 1 : cols] = patch
-        product = sp_fft.rfft2(padded) * spectrum
-        m1 = shape[0] // factor
-        folded = sp_fft.ifft(product.reshape(len(patch), factor, m1, -1).sum(axis=1), axis=1)
-        full = sp_fft.irfft(folded[:, : rows // factor], n=shape[1], axis=-1)
-        return full[:, :, : cols : factor].astype(np.float64)
+        backend = self.forward.backend
+        fused = getattr(backend, "convolve_resample_circular", None)
+        if fused is None:  # a backend without the fused transform
+            return block_average(backend.convolve_valid(padded, kernel), factor).astype(np.float64)
+        shape = resample_fft_shape(rows, cols, factor)
+        out_shape = (rows // factor, cols // factor)
+        return fused(padded[:, :rows, :cols], kernel, factor, shape, out_shape).astype(np.float64)
 
     # ----------------------------------------------------------------- Jacobian
     def jacobian(

@@ -96,11 +96,28 @@ def resample_kernel_spectrum(kernel: np.ndarray, factor: int, shape: tuple[int, 
     return (sp_fft.rfft2(padded) / factor).astype(np.complex64)
 
 
+#: Bounds of :class:`ScipyBackend`'s kernel-spectrum cache (oldest dropped first). A
+#: scene fit asks for one spectrum per kernel and transform size: its renders' frame
+#: and each size of its cell patches (:meth:`ScipyBackend.convolve_resample_circular`);
+#: its fitted optics change the kernel at nearly every render, so what must stay is one
+#: Jacobian's patch sizes under one kernel. Measured (fits' requests replayed): the real
+#: SyMBac trench (256 x 46) up to 23 spectra per kernel, a 256 x 256 field of 36 cells 29,
+#: a 512 x 512 field of 100 cells 49 (keeping 8, that fit would compute 2296 spectra
+#: instead of 563), which computes no more than 563 once 116 MiB are kept (frame spectra
+#: of 11.4 MB, patches' up to 190 kB). Hence 128 spectra and 192 MiB; but never fewer
+#: than the last 8 (the bound before), whatever their size: a 2048 x 2048 frame rendered
+#: 3x finer has a 150 MB spectrum.
+_MAX_SPECTRA = 128
+_MAX_SPECTRA_BYTES = 192 << 20
+_KEEP_SPECTRA = 8
+
+
 class ScipyBackend:
     """CPU convolution with :mod:`scipy.fft` (single precision, all cores).
 
-    The Fourier transforms of the last few kernels are kept, so rendering many
-    frames with one PSF transforms the kernel once.
+    The Fourier transforms of the last kernels and transform sizes are kept, so
+    rendering many frames with one PSF transforms the kernel once, and a scene fit's
+    cell patches (:meth:`convolve_resample_circular`) reuse the spectrum of their size.
     """
 
     name = "scipy"
@@ -113,9 +130,13 @@ class ScipyBackend:
         cached = self._kernel_ffts.get(key)
         if cached is None:
             cached = make()
-            if len(self._kernel_ffts) >= 8:
-                self._kernel_ffts.pop(next(iter(self._kernel_ffts)))
-            self._kernel_ffts[key] = cached
+            store = self._kernel_ffts
+            size = cached.nbytes + sum(spectrum.nbytes for spectrum in store.values())
+            while len(store) >= _KEEP_SPECTRA and (
+                len(store) >= _MAX_SPECTRA or size > _MAX_SPECTRA_BYTES
+            ):
+                size -= store.pop(next(iter(store))).nbytes  # the oldest first
+            store[key] = cached
         return cached
 
     def _kernel_fft(self, kernel: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -229,36 +250,65 @@ class ScipyBackend:
     ) -> np.ndarray:
         """The fused convolution + block average as a *circular* convolution of ``shape``.
 
-        ``image`` (2-D, at most ``shape``) is zero-padded to ``shape``; camera pixel
-        ``(p, q)`` of the ``out_shape`` result is the block average of the valid
-        outputs ``(p f .. p f + f - 1, q f .. q f + f - 1)`` of the periodic extension
-        of the padded image. That equals the linear result wherever the periodic copies
-        of the image do not reach those outputs' inputs: the caller chooses ``shape``
-        (see :func:`~napari_symbac.optics.static.axis_window`), which may be smaller
-        than the valid convolution of ``image`` would need, or than ``image`` plus
-        the kernel. ``shape`` must be multiples of ``factor`` with fast quotients
-        (:func:`resample_fft_shape` gives such sizes); returns float32.
+        The image is zero-padded to ``shape`` and transformed once at that size; the
+        inverse runs ``factor**2`` times smaller, at camera resolution (the block mean
+        is folded into the kernel's cached spectrum, the decimation into an aliasing
+        sum of the product spectrum). Camera pixel ``(p, q)`` of the result is the
+        block average of the valid outputs ``(p f .. p f + f - 1, q f .. q f + f - 1)``
+        of the periodic extension of the padded image. That equals the linear result
+        wherever the periodic copies of the image do not reach those outputs' inputs:
+        the caller chooses ``shape`` (see :func:`~napari_symbac.optics.static.axis_window`),
+        which may be smaller than the valid convolution of ``image`` would need, or
+        than ``image`` plus the kernel. With ``kernel - 1`` zero rows and columns
+        before an image, ``shape`` at least its size gives its *full* convolution
+        (the scene fit's cell patches).
+
+        Parameters
+        ----------
+        image
+            ``(Y, X)`` image, or ``(N, Y, X)`` images transformed together; at most
+            ``shape``.
+        kernel
+            ``(ky, kx)`` kernel; ``ky + factor - 1`` and ``kx + factor - 1`` at most
+            ``shape``.
+        factor
+            Side of the camera pixel in image pixels (the block average's).
+        shape
+            Transform size: multiples of ``factor`` with fast quotients
+            (:func:`resample_fft_shape` gives such sizes).
+        out_shape
+            Camera pixels kept from the top-left; ``out_shape * factor`` at most
+            ``shape``.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``out_shape`` (or ``(N,) + out_shape``) float32.
         """
         image = np.asarray(image, dtype=np.float32)
         kernel = np.asarray(kernel, dtype=np.float32)
         factor = int(factor)
-        if image.ndim != 2 or kernel.ndim != 2:
+        if image.ndim not in (2, 3) or kernel.ndim != 2:
             raise ValueError(
-                f"image and kernel must be 2-D, got shapes {image.shape} and {kernel.shape}"
+                f"image must be 2-D or 3-D and kernel 2-D, got shapes {image.shape} and "
+                f"{kernel.shape}"
             )
         shape = (int(shape[0]), int(shape[1]))
         out_shape = (int(out_shape[0]), int(out_shape[1]))
         for axis in (0, 1):
             if factor < 1 or shape[axis] % factor:
                 raise ValueError(f"transform shape {shape} is not a multiple of {factor}")
-            if image.shape[axis] > shape[axis] or kernel.shape[axis] + factor - 1 > shape[axis]:
+            size = image.shape[axis - 2]
+            if size > shape[axis] or kernel.shape[axis] + factor - 1 > shape[axis]:
                 raise ValueError(
                     f"image {image.shape} or kernel {kernel.shape} (+ the {factor} x "
                     f"{factor} block) does not fit the transform shape {shape}"
                 )
             if not 0 < out_shape[axis] * factor <= shape[axis]:
                 raise ValueError(f"out_shape {out_shape} does not fit the transform {shape}")
-        return self._fused(image[None], kernel, factor, shape, out_shape)[0]
+        if image.ndim == 2:
+            return self._fused(image[None], kernel, factor, shape, out_shape)[0]
+        return self._fused(image, kernel, factor, shape, out_shape)
 
     def _fused(
         self,
