@@ -45,6 +45,13 @@ def read_frame(path: str, what: str, frame: int | None = None) -> Recording:
         )
     if data.ndim != 2:
         raise ValueError(f"{what} {name} must be one 2D frame, got shape {data.shape}")
+    if what == "IMAGE" and frame not in (None, 0) and np.ndim(recording.data) == 2:
+        # found as a user: --frame 2 on a single frame was ignored, and calibrate ran on
+        # frame 0 with exit 0 (a 2D --masks or --labels serves every frame, as the help says)
+        raise ValueError(
+            f"--frame {frame}: {what} {name} is one frame (frame 0): leave --frame out, "
+            "or give the (T, Y, X) series the frame belongs to"
+        )
     return dataclasses.replace(recording, data=data)
 
 

@@ -263,6 +263,21 @@ def test_calibrate_takes_one_frame_of_a_series(real_data_dir, tmp_path, capsys):
     assert 1700 < baseline < float(stack[3].min()) + 50
 
 
+def test_calibrate_refuses_a_frame_a_single_image_lacks(colicoords_files, capsys):
+    """Found as a user: --frame 2 on one 2D frame was ignored, and calibrate fitted and
+    exported frame 0 with exit 0; now it is refused before the fit, nothing written."""
+    d = colicoords_files
+    args = [
+        "calibrate", str(d / "flu.tif"), "--microscope", str(d / "m80.yaml"),
+        "--modality", "fluorescence", "--n-items", "1", "--out", str(d / "out"),
+    ]  # fmt: skip
+    assert main([*args, "--frame", "2"]) == 2
+    err = capsys.readouterr().err
+    assert "--frame 2: IMAGE flu.tif is one frame (frame 0): leave --frame out" in err
+    assert "Traceback" not in err
+    assert not (d / "out").exists() or not any((d / "out").iterdir())
+
+
 def test_calibrate_refuses_a_trench_and_names_fit_and_export(real_data_dir, tmp_path, capsys):
     """Found as a user: DeLTA's trench (32 px wide) was laid out as a 2 x 17 um agar pad,
     and 3 of 4 images held no cell."""
