@@ -275,7 +275,16 @@ def _model_free_gain(frame: np.ndarray, fitted) -> tuple[str, str | None]:
     try:
         estimate = estimate_camera(frame, camera=fitted, bit_depth=fitted.bit_depth)
     except ValueError as err:
-        return f"not available ({err})", None
+        # found as a user: an 8-bit phase colony fitted without masks placed 8 cells beside
+        # its 116, with a camera of 0.001 ADU/e- and 1360 e- read noise that took up the
+        # misfit, and PROBLEMS said nothing of it (reduced chi-square near 1)
+        return f"not available ({err})", (
+            f"the fit's camera ({fitted.sensitivity_adu_per_e:.3g} ADU/e-, read noise "
+            f"{fitted.dark_noise_e:.3g} e-) cannot be checked against the image's own "
+            f"photon transfer ({err}); fitted to the residual, a camera takes up structure "
+            "the model lacks, so a chi-square near 1 does not mean the model explains the "
+            "image: check the figure, and pass --camera or --dark to fix the camera"
+        )
     free, fit = estimate.camera.sensitivity_adu_per_e, fitted.sensitivity_adu_per_e
     text = f"sensitivity {free:.3g} +- {estimate.sensitivity_se_adu_per_e:.2g} ADU/e-"
     correlation = estimate.neighbour_variance_ratio
@@ -553,6 +562,13 @@ def _outputs_one(
             notes.append(UNMEASURED_READ_NOISE)
         check, problem = _model_free_gain(frame, camera_used)
         facts["camera (model-free)"] = check
+        if problem and check.startswith("not available") and masks is None and (
+            labels is None and microscope.modality == "phase" and geometry != "trench"
+        ):
+            problem += (
+                " (a dense phase-contrast colony is fitted from its instance masks: pass "
+                "--masks, and the partially coherent model draws its halo and seams)"
+            )
         problems += [problem] if problem else []
     if args.counts_mapping is not None:
         facts = _said_in_read_counts(facts, args.counts_mapping)

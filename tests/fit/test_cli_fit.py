@@ -951,3 +951,37 @@ def test_fit_replaces_an_earlier_fit_and_refuses_other_files(tmp_path, inputs, c
     assert "holds files napari-symbac fit does not write (diagnosis.json)" in error
     assert "give a new or empty folder" in error
     assert (out / "diagnosis.json").read_text() == "{}"
+
+
+def test_a_camera_the_image_cannot_check_is_a_problem(real_data_dir):
+    """Found as a user: the Omnipose colony Sample000033 (8-bit PNG, not camera counts)
+    fitted without masks kept 8 cells beside its 116, with a camera of 0.001 ADU/e- and
+    1360 e- read noise fitted to the misfit; the model-free check was 'not available' and
+    PROBLEMS said nothing, so exit 0 looked like a fit."""
+    from napari_symbac._cli_fit import _model_free_gain
+    from napari_symbac.settings import Camera
+
+    grey = iio.imread(real_data_dir / "omnipose" / "Sample000033.png")[..., 0]
+    fitted = Camera(sensitivity_adu_per_e=0.001, dark_noise_e=1360.0, baseline_adu=4.0)
+    check, problem = _model_free_gain(grey.astype(np.float64), fitted)
+    assert check.startswith("not available (the pixel variance does not grow with the mean")
+    assert problem is not None
+    assert problem.startswith("the fit's camera (0.001 ADU/e-, read noise 1.36e+03 e-) cannot be")
+    assert "a chi-square near 1 does not mean the model explains the image" in problem
+
+
+@pytest.mark.slow
+def test_a_phase_colony_without_masks_is_told_to_pass_them(tmp_path, real_data_dir, capsys):
+    """The same colony through the command line: the uncheckable camera is a problem on
+    stderr and in report.txt, with the way to fit a colony (its masks)."""
+    microscope = save_settings(Microscope(pixel_size_um=0.065), tmp_path / "microscope.yaml")
+    out = tmp_path / "fit"
+    image = real_data_dir / "omnipose" / "Sample000033.png"
+    assert _fit(image, "--microscope", microscope, "--out", out, "--max-iterations", 1) == 0
+    err = capsys.readouterr().err
+    said = "problem: the fit's camera ("
+    assert said in err
+    assert "dense phase-contrast colony is fitted from its instance masks: pass --masks" in err
+    report = (out / "report.txt").read_text()
+    problems = report.split("PROBLEMS")[1]
+    assert "cannot be checked against the image's own photon transfer" in problems
