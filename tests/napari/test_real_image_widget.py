@@ -410,3 +410,39 @@ def test_what_the_fit_refuses_is_not_opened_and_a_missing_file_is_said(
     widget.file.value = tmp_path / "no_such.tif"
     assert widget.result.value == f"No such file: {tmp_path / 'no_such.tif'}"
     assert len(shown) == 2  # said in the dock as it is typed, not as a notification
+
+
+def test_a_pixel_size_no_camera_has_is_warned_and_used(
+    make_napari_viewer, tmp_path, real_data_dir, notifications
+):
+    """Found as a user: 0.65 um (a 10x slip) at the form's 100x was taken in silence,
+    where `napari-symbac fit` warns of the 65 um camera pixel; the GUI now says it too,
+    keeps the value (as fit does), and the warning goes when the form adds up."""
+    path = _trench_with_pixel_size(real_data_dir, tmp_path, "trench", 0.065)
+    widget = _docked(make_napari_viewer)
+    widget.file.value = path
+    layer = widget.image.value
+    assert widget.warning.value == ""
+    widget.pixel_size.value = 0.65
+    assert "is a 65 um camera pixel" in widget.warning.value
+    assert "in the microscope form below" in widget.warning.value
+    assert not widget.warning.native.isHidden()  # (the viewer itself is not shown)
+    assert sum("65 um camera pixel" in message for message in notifications) == 1
+    assert layer.metadata["pixel_size_um"] == pytest.approx(0.65)  # used all the same
+    widget.microscope.magnification.value = 10.0  # a 10x objective: 6.5 um camera pixel
+    assert widget.warning.value == ""
+    assert widget.warning.native.isHidden()
+    assert sum("camera pixel" in message for message in notifications) == 1
+
+
+def test_a_folder_typed_in_or_open_is_said(make_napari_viewer, tmp_path):
+    """Found as a user: a folder's path left the previous "No such file" in the dock."""
+    viewer = make_napari_viewer()
+    widget = RealImageWidget(viewer)
+    widget.file.value = tmp_path / "no_such.tif"
+    assert widget.result.value.startswith("No such file")
+    widget.file.value = tmp_path
+    assert widget.result.value == (
+        f"{tmp_path} is a folder: choose an image file in it (TIFF or PNG)"
+    )
+    assert len(viewer.layers) == 0

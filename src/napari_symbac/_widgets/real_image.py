@@ -22,6 +22,7 @@ from napari_symbac._widgets._recording import (
     pixel_size_problem,
 )
 from napari_symbac.fit import CLASS_VALUES, class_statistics
+from napari_symbac.fit.preflight import camera_pixel_problem
 from napari_symbac.io import micrometre_axes
 from napari_symbac.settings import Camera, Microscope
 
@@ -149,7 +150,11 @@ class RealImageWidget(Container):
         from napari_symbac.io import read_image
 
         path = self.file.value
-        if not path or path.is_dir():
+        if not path or str(path) in ("", "."):
+            return
+        if path.is_dir():  # typed or pasted (found as a user: the previous file's
+            # "No such file" stayed under a folder's path)
+            self.result.value = f"{path} is a folder: choose an image file in it (TIFF or PNG)"
             return
         if not path.is_file():  # said as it is typed (found as a user: a mistyped path
             self.result.value = f"No such file: {path}"  # did nothing, under an old message)
@@ -360,9 +365,19 @@ class RealImageWidget(Container):
                 "modality": self.modality.value,
             }
             return
-        self.warning.value = ""
-        self.warning.visible = False
-        self._warned = None
+        # used all the same, as `fit` warns and fits (found as a user: 0.65 um at the
+        # form's 100x, a 10x slip, was taken in silence, where `fit` says it)
+        slip = camera_pixel_problem(microscope, where="the microscope form below")
+        if slip is None:
+            self.warning.value = ""
+            self.warning.visible = False
+            self._warned = None
+        else:
+            self.warning.value = f"<b style='color:#ffb000'>&#9888; {layer.name}: {slip}</b>"
+            self.warning.visible = True
+            if self.warning.value != getattr(self, "_warned", None):
+                notify_warning(f"{layer.name}: {slip}")
+            self._warned = self.warning.value
         layer.metadata = {
             **layer.metadata,
             "pixel_size_um": pixel,

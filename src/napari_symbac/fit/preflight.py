@@ -267,8 +267,9 @@ PLAUSIBLE_PIXEL_UM = (0.02, 1.0)
 CAMERA_PIXEL_UM = (1.0, 40.0)
 
 
-def camera_pixel_problem(microscope: Microscope) -> str | None:
-    """A sentence when ``pixel_size_um x magnification`` is no camera's pixel, else None.
+def camera_pixel_problem(microscope: Microscope, where: str = "the microscope file") -> str | None:
+    """A sentence when ``pixel_size_um x magnification`` is no camera's pixel, else None;
+    ``where`` names where the user sets them (the GUI's form, not a file).
 
     Found as a user: ``pixel_size_um: 0.65`` (a 10x slip) for a 100x objective was fitted
     with 35 cells at their bounds, exit 0. The product is a 65 um camera pixel: either
@@ -282,9 +283,8 @@ def camera_pixel_problem(microscope: Microscope) -> str | None:
     return (
         f"pixel size {microscope.pixel_size_um:g} um at {microscope.magnification:g}x "
         f"magnification is a {camera_um:.3g} um camera pixel, outside the {low:g}-{high:g} "
-        "um cameras have: check pixel_size_um and magnification (and the NA) in the "
-        "microscope file (pixel size = camera pixel / magnification: 6.5 um / 100x = "
-        "0.065 um)"
+        "um cameras have: check pixel_size_um and magnification (and the NA) in "
+        f"{where} (pixel size = camera pixel / magnification: 6.5 um / 100x = 0.065 um)"
     )
 
 
