@@ -258,49 +258,6 @@ def _camera_for(
     )
 
 
-#: Ratio of the fit's gain to the model-free gain above which the report warns.
-_GAIN_RATIO = 1.5
-
-
-def _model_free_gain(frame: np.ndarray, fitted) -> tuple[str, str | None]:
-    """The high-pass photon-transfer gain beside the one the fit used.
-
-    Where the fit fell back to its residual (levels spanning too little for photon
-    transfer), structure the model lacks inflates the gain, and then a
-    reduced chi-square near 1 says nothing; the model-free estimate does not see the
-    model at all.
-    """
-    from napari_symbac.fit.camera_estimate import estimate_camera
-
-    try:
-        estimate = estimate_camera(frame, camera=fitted, bit_depth=fitted.bit_depth)
-    except ValueError as err:
-        # found as a user: an 8-bit phase colony fitted without masks placed 8 cells beside
-        # its 116, with a camera of 0.001 ADU/e- and 1360 e- read noise that took up the
-        # misfit, and PROBLEMS said nothing of it (reduced chi-square near 1)
-        return f"not available ({err})", (
-            f"the fit's camera ({fitted.sensitivity_adu_per_e:.3g} ADU/e-, read noise "
-            f"{fitted.dark_noise_e:.3g} e-) cannot be checked against the image's own "
-            f"photon transfer ({err}); fitted to the residual, a camera takes up structure "
-            "the model lacks, so a chi-square near 1 does not mean the model explains the "
-            "image: check the figure, and pass --camera or --dark to fix the camera"
-        )
-    free, fit = estimate.camera.sensitivity_adu_per_e, fitted.sensitivity_adu_per_e
-    text = f"sensitivity {free:.3g} +- {estimate.sensitivity_se_adu_per_e:.2g} ADU/e-"
-    correlation = estimate.neighbour_variance_ratio
-    if correlation > 1:  # correlated noise biases the model-free gain low by about this
-        text += f" (noise correlated between neighbours: up to {free * correlation:.3g})"
-        free *= correlation
-    if fit > _GAIN_RATIO * free:
-        return text, (
-            f"the fit's camera gain ({fit:.3g} ADU/e-) is {fit / free:.1f}x the model-free "
-            f"estimate ({free:.3g}): the residual holds structure the model lacks, so a "
-            "chi-square near 1 does not mean the model explains the image; pass --camera "
-            "or --dark to fix the camera"
-        )
-    return text, None
-
-
 def _cell_problems(
     result, shape: tuple[int, int], pixel_um: float, masks, colony: bool = False
 ) -> list[str]:
@@ -486,10 +443,12 @@ def _outputs_one(
     from napari_symbac.fit.fitted_settings import fitted_render, fitted_simulation
     from napari_symbac.fit.preflight import camera_pixel_problem
     from napari_symbac.fit.report import (
+        CLI_CAMERA_FIX,
         UNMEASURED_READ_NOISE,
         camera_text,
         cells_records,
         colony_noise_text,
+        model_free_camera_check,
         parameter_table,
         report_problems,
         report_text,
@@ -560,7 +519,7 @@ def _outputs_one(
     elif camera is None:  # the engine estimated it: check it model-free
         if camera_used.dark_noise_e == 0:
             notes.append(UNMEASURED_READ_NOISE)
-        check, problem = _model_free_gain(frame, camera_used)
+        check, problem = model_free_camera_check(frame, camera_used, CLI_CAMERA_FIX)
         facts["camera (model-free)"] = check
         if problem and check.startswith("not available") and masks is None and (
             labels is None and microscope.modality == "phase" and geometry != "trench"

@@ -958,12 +958,12 @@ def test_a_camera_the_image_cannot_check_is_a_problem(real_data_dir):
     fitted without masks kept 8 cells beside its 116, with a camera of 0.001 ADU/e- and
     1360 e- read noise fitted to the misfit; the model-free check was 'not available' and
     PROBLEMS said nothing, so exit 0 looked like a fit."""
-    from napari_symbac._cli_fit import _model_free_gain
+    from napari_symbac.fit.report import CLI_CAMERA_FIX, model_free_camera_check
     from napari_symbac.settings import Camera
 
     grey = iio.imread(real_data_dir / "omnipose" / "Sample000033.png")[..., 0]
     fitted = Camera(sensitivity_adu_per_e=0.001, dark_noise_e=1360.0, baseline_adu=4.0)
-    check, problem = _model_free_gain(grey.astype(np.float64), fitted)
+    check, problem = model_free_camera_check(grey.astype(np.float64), fitted, CLI_CAMERA_FIX)
     assert check.startswith("not available (the pixel variance does not grow with the mean")
     assert problem is not None
     assert problem.startswith("the fit's camera (0.001 ADU/e-, read noise 1.36e+03 e-) cannot be")

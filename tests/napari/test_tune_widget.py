@@ -145,6 +145,9 @@ def test_auto_fit_runs_the_scene_fit_on_the_recording(rendered, qtbot, real_data
     assert stored.camera == result.camera
     assert tune.preview.model.camera == result.camera
     assert "Camera measured from the recording" in tune.status.value
+    # and checked model-free against the image's own photon transfer, as `fit` does
+    assert "Camera, model-free: sensitivity " in tune.status.value
+    assert "Problem: the fit's camera gain" not in tune.status.value
     # all shot noise at this recording's baseline: the 0 e- read noise is said to be unmeasured
     assert result.camera.dark_noise_e == 0
     assert "Note: the read noise is too small to measure from this image" in tune.status.value
@@ -565,3 +568,28 @@ def test_match_noise_measures_the_real_image(rendered):
     assert tune.sliders["gaussian_noise_sd_adu"].value == pytest.approx(35.0, rel=0.08)
     assert tune.preview.render_settings.gaussian_noise_sd_adu == pytest.approx(35.0, rel=0.08)
     assert "Noise matched" in tune.status.value
+
+
+def test_a_camera_the_recording_cannot_check_is_an_auto_fit_problem(real_data_dir):
+    """Found as a user: the CLI says when the image's own photon transfer cannot check the
+    camera a fit measured (an 8-bit phase colony fitted without masks: 0.001 ADU/e-),
+    Auto-fit said nothing; the same check runs in its worker now, with the GUI's advice."""
+    import imageio.v3 as iio
+
+    from napari_symbac._widgets.tune import GUI_CAMERA_FIX, _camera_check
+    from napari_symbac.fit import ColonyFit
+    from napari_symbac.settings import Camera
+
+    grey = iio.imread(real_data_dir / "omnipose" / "Sample000033.png")[..., 0]
+    fitted = Camera(sensitivity_adu_per_e=0.001, dark_noise_e=1360.0, baseline_adu=4.0)
+
+    class Fitted:  # what the check reads of a scene fit
+        camera = fitted
+
+    text, problem = _camera_check(Fitted(), grey, GUI_CAMERA_FIX)
+    assert text.startswith("not available (")
+    assert problem is not None
+    assert problem.startswith("the fit's camera (0.001 ADU/e-")
+    assert problem.endswith(GUI_CAMERA_FIX)
+    assert "--dark" not in problem  # no CLI option is offered where none can be passed
+    assert _camera_check(ColonyFit.__new__(ColonyFit), grey, GUI_CAMERA_FIX) is None

@@ -582,12 +582,19 @@ class TuneWidget(Container):
             )
 
         shown = self._current_frame()
+        advice = GUI_CAMERA_FIX
+        if masks is None and labels is None and microscope.modality == "phase":
+            advice += (
+                "; a dense phase-contrast colony is fitted from its instance masks: choose "
+                "them as 'cell masks'"
+            ) * (geometry != "trench")
 
         def work():
             result = yield from blocking_steps(fit, cancelled.is_set)
             frame = real[min(shown, len(real) - 1)] if all_frames else real
-            clipped = _clipped_background(_shown_fit(result, shown), frame, microscope)
-            return _FitOutcome(result, shown, clipped)
+            shown_fit = _shown_fit(result, shown)
+            clipped = _clipped_background(shown_fit, frame, microscope)
+            return _FitOutcome(result, shown, clipped, _camera_check(shown_fit, frame, advice))
 
         self.fit_worker = Job(
             work,
@@ -805,6 +812,8 @@ class TuneWidget(Container):
             )
             if cam.dark_noise_e == 0:
                 self.status.value += f"<br>Note: {UNMEASURED_READ_NOISE}"
+        if outcome.camera_check is not None:
+            self.status.value += f"<br>Camera, model-free: {outcome.camera_check[0]}"
         if clipped is not None:
             self.status.value += f"<br>The recording's {clipped[3]}"
         if nan_terms:
@@ -818,6 +827,8 @@ class TuneWidget(Container):
         problems = [p.removeprefix("warning: ") for p in fit_problems(result, residual_hint=hint)]
         if series is not None:  # the joint fit's own (the colony's are its frames')
             problems += [w for w in series.warnings if w not in problems]
+        if outcome.camera_check is not None and outcome.camera_check[1] is not None:
+            problems.append(outcome.camera_check[1])  # as in fit's report.txt
         moves = tuple(getattr(result, "moves", ()) or ())
         lines = [f"{len(result.cells)} cells fitted"] + [simulated] * bool(simulated)
         lines += [f"Moves: {'; '.join(moves)}"] if moves else []
@@ -926,6 +937,26 @@ class _FitOutcome:
     result: Any
     shown: int
     clipped: tuple | None
+    camera_check: tuple[str, str | None] | None
+
+
+#: How a GUI user fixes a camera the recording cannot check (Auto-fit takes none).
+GUI_CAMERA_FIX = (
+    "Auto-fit measures the camera from the recording and takes none: fit with "
+    "`napari-symbac fit --camera CAMERA.yaml` to give it"
+)
+
+
+def _camera_check(result, frame: np.ndarray, advice: str) -> tuple[str, str | None] | None:
+    """``napari-symbac fit``'s model-free check of a camera the fit measured
+    (:func:`~napari_symbac.fit.report.model_free_camera_check`), run in the worker; None
+    for a colony fit (Gaussian noise, no camera)."""
+    from napari_symbac.fit import ColonyFit
+    from napari_symbac.fit.report import model_free_camera_check
+
+    if isinstance(result, ColonyFit) or result.camera is None:
+        return None
+    return model_free_camera_check(np.asarray(frame, np.float64), result.camera, advice)
 
 
 def _clipped_background(result, frame: np.ndarray, microscope: Microscope) -> tuple | None:

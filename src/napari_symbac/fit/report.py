@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 __all__ = [
+    "CLI_CAMERA_FIX",
     "COLONY_NOTE",
     "OPEN_PHASE_NOTE",
     "UNMEASURED_READ_NOISE",
@@ -25,6 +26,7 @@ __all__ = [
     "colony_noise_text",
     "fit_notes",
     "fit_problems",
+    "model_free_camera_check",
     "parameter_table",
     "report_problems",
     "report_text",
@@ -182,6 +184,54 @@ def fit_problems(
             + f" ({residual_hint})"
         )
     return problems
+
+
+#: Ratio of the fit's gain to the model-free gain above which the report warns.
+GAIN_RATIO = 1.5
+#: How a command-line user fixes the camera (``model_free_camera_check``'s ``fix``).
+CLI_CAMERA_FIX = "pass --camera or --dark to fix the camera"
+
+
+def model_free_camera_check(
+    frame: np.ndarray, fitted: Any, fix: str
+) -> tuple[str, str | None]:
+    """The high-pass photon-transfer gain beside the one a fit measured: ``(text,
+    problem)``, the problem ``None`` when they agree.
+
+    Where the fit fell back to its residual (levels spanning too little for photon
+    transfer), structure the model lacks inflates the gain, and then a reduced
+    chi-square near 1 says nothing; the model-free estimate does not see the model at
+    all. ``fit`` is the fitted :class:`~napari_symbac.settings.Camera`; ``fix`` ends
+    a problem with what the user can do (the CLI's options, the GUI's way).
+    """
+    from napari_symbac.fit.camera_estimate import estimate_camera
+
+    try:
+        estimate = estimate_camera(frame, camera=fitted, bit_depth=fitted.bit_depth)
+    except ValueError as err:
+        # found as a user: an 8-bit phase colony fitted without masks placed 8 cells beside
+        # its 116, with a camera of 0.001 ADU/e- and 1360 e- read noise that took up the
+        # misfit, and PROBLEMS said nothing of it (reduced chi-square near 1)
+        return f"not available ({err})", (
+            f"the fit's camera ({fitted.sensitivity_adu_per_e:.3g} ADU/e-, read noise "
+            f"{fitted.dark_noise_e:.3g} e-) cannot be checked against the image's own "
+            f"photon transfer ({err}); fitted to the residual, a camera takes up structure "
+            "the model lacks, so a chi-square near 1 does not mean the model explains the "
+            f"image: check the figure, and {fix}"
+        )
+    free, fit = estimate.camera.sensitivity_adu_per_e, fitted.sensitivity_adu_per_e
+    text = f"sensitivity {free:.3g} +- {estimate.sensitivity_se_adu_per_e:.2g} ADU/e-"
+    correlation = estimate.neighbour_variance_ratio
+    if correlation > 1:  # correlated noise biases the model-free gain low by about this
+        text += f" (noise correlated between neighbours: up to {free * correlation:.3g})"
+        free *= correlation
+    if fit > GAIN_RATIO * free:
+        return text, (
+            f"the fit's camera gain ({fit:.3g} ADU/e-) is {fit / free:.1f}x the model-free "
+            f"estimate ({free:.3g}): the residual holds structure the model lacks, so a "
+            f"chi-square near 1 does not mean the model explains the image; {fix}"
+        )
+    return text, None
 
 
 def report_problems(result: Any, extra_problems: Sequence[str] = ()) -> list[str]:
