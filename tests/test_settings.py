@@ -26,11 +26,15 @@ def test_pipeline_settings_round_trip(tmp_path, suffix):
     settings = PipelineSettings(
         simulation=SimulationSettings(n_frames=7, trench=TrenchGeometry(length_um=20.0), seed=3),
         microscope=Microscope(numerical_aperture=0.95, refractive_index=1.0, condenser="Ph2"),
-        render=RenderSettings(cell_intensity=123.0, noise_model="gaussian"),
+        render=RenderSettings(
+            cell_intensity=123.0, noise_model="gaussian", envelope_stain_fraction=0.35
+        ),
         camera=Camera(baseline_adu=50.0),
     )
     path = save_settings(settings, tmp_path / f"settings{suffix}")
-    assert load_settings(path, PipelineSettings) == settings
+    loaded = load_settings(path, PipelineSettings)
+    assert loaded == settings
+    assert loaded.render.envelope_stain_fraction == 0.35
 
 
 def test_partial_file_takes_defaults(tmp_path):
@@ -79,6 +83,14 @@ def test_settings_are_frozen():
         (lambda: Microscope(wavelength_um=650), r"looks like nanometres"),
         (lambda: Microscope(condenser="Ph9"), r"condenser must be one of"),
         (lambda: RenderSettings(upsample=0), r"upsample must be an integer >= 1"),
+        (
+            lambda: RenderSettings(envelope_stain_fraction=1.5),
+            r"envelope_stain_fraction must be in \[0, 1\]",
+        ),
+        (
+            lambda: RenderSettings(envelope_stain_fraction=float("nan")),
+            r"envelope_stain_fraction must be in \[0, 1\]",
+        ),
         (lambda: Camera(sensitivity_adu_per_e=0), r"sensitivity_adu_per_e must be a positive"),
         (
             lambda: PipelineSettings(render=RenderSettings(apodisation_sigma_um=0.05)),

@@ -21,9 +21,10 @@ from napari_symbac.scene import (
     add_media_texture,
     debris_rng,
     draw_scene,
+    envelope_stain,
     field_of,
 )
-from napari_symbac.settings import PipelineSettings
+from napari_symbac.settings import Microscope, PipelineSettings, RenderSettings
 from napari_symbac.sim import Simulation
 
 __all__ = [
@@ -36,6 +37,7 @@ __all__ = [
     "montage",
     "noise_rng",
     "render_simulation",
+    "stain_cells",
 ]
 
 Progress = Callable[[int, int], None]
@@ -135,6 +137,15 @@ def apply_cell_brightness(scene: Scene, cv: float, seed: int) -> Scene:
     return scene.replace_cells(scene.cells * per_pixel.astype(np.float32))
 
 
+def stain_cells(scene: Scene, microscope: Microscope, render: RenderSettings) -> Scene:
+    """The stain's place in the cells: ``render.envelope_stain_fraction`` of it in the
+    envelope (:func:`~napari_symbac.scene.envelope_stain`) in fluorescence; phase
+    contrast, which images the optical path and not a stain, returns ``scene``."""
+    if microscope.modality != "fluorescence":
+        return scene
+    return envelope_stain(scene, render.envelope_stain_fraction)
+
+
 def _draw(
     simulation: Simulation,
     settings: PipelineSettings,
@@ -151,6 +162,7 @@ def _draw(
         field=field,
     )
     scene = add_media_texture(scene, settings.render.texture_amplitude, simulation.settings.seed)
+    scene = stain_cells(scene, settings.microscope, settings.render)
     scene = apply_cell_brightness(
         scene, settings.render.cell_brightness_cv, simulation.settings.seed
     )
@@ -164,6 +176,8 @@ def draw_frame(simulation: Simulation, settings: PipelineSettings, index: int) -
     an outline in the field of view of :func:`~napari_symbac.scene.field_of`
     ``(simulation)``. With ``settings.render.texture_amplitude > 0`` the media carries
     the Perlin texture of the simulation's seed (:func:`~napari_symbac.scene.add_media_texture`);
+    in fluorescence with ``settings.render.envelope_stain_fraction > 0`` that part of the
+    stain sits in the cells' envelope (:func:`stain_cells`);
     with ``settings.render.cell_brightness_cv > 0`` each cell has its own brightness
     (:func:`apply_cell_brightness`, the same for a cell in every frame); with
     ``settings.render.debris_density_per_100um2 > 0`` unlabelled out-of-focus particles

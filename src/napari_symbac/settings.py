@@ -687,6 +687,16 @@ class RenderSettings:
         simulation seed, so a cell keeps its brightness in every frame and the same
         seed gives the same gains; 0 = every cell alike (in phase contrast it varies
         ``I_c`` per cell).
+    envelope_stain_fraction
+        Fluorescence: the fraction of each cell's stain that sits in its envelope
+        (a membrane dye, a periplasmic or surface label) instead of filling its
+        volume, in ``[0, 1]``; 0 (default) = a cytoplasmic stain, the image unchanged.
+        The envelope is a shell :data:`~napari_symbac.scene.ENVELOPE_THICKNESS_UM`
+        thick; its projection is brighter at the rim than on the centre line
+        (:func:`~napari_symbac.scene.envelope_stain`, extending eq. OPL2). The cell
+        intensity keeps its meaning: both stains put the same light per unit length
+        of a cell's cylinder. Phase contrast does not draw it (a stain does not
+        change the optical path).
     debris_density_per_100um2
         Debris (:func:`~napari_symbac.scene.add_debris`): unlabelled particles in the
         medium, out of focus, never in the masks: particles per 100 um^2 of the field
@@ -727,6 +737,7 @@ class RenderSettings:
     gaussian_noise_sd_adu: float = 20.0
     texture_amplitude: float = 0.0
     cell_brightness_cv: float = 0.0
+    envelope_stain_fraction: float = 0.0
     debris_density_per_100um2: float = 0.0
     debris_diameter_um: float = 0.8
     debris_diameter_cv: float = 0.4
@@ -760,6 +771,12 @@ class RenderSettings:
             "debris_defocus_sigma_um",
         )
         _positive(self, "apodisation_sigma_um", "debris_diameter_um")
+        _require(
+            isinstance(self.envelope_stain_fraction, (int, float))
+            and 0 <= self.envelope_stain_fraction <= 1,
+            "RenderSettings.envelope_stain_fraction must be in [0, 1] (the fraction of the "
+            f"stain in the cell envelope), got {self.envelope_stain_fraction!r}",
+        )
         _require(
             isinstance(self.psf_offset, (int, float)) and math.isfinite(self.psf_offset),
             f"RenderSettings.psf_offset must be a finite number, got {self.psf_offset!r}",

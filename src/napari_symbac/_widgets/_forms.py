@@ -56,6 +56,7 @@ _READABLE = {
     "psf_offset": "PSF offset (weight)",
     "texture_amplitude": "agar texture amplitude",
     "cell_brightness_cv": "cell brightness CV",
+    "envelope_stain_fraction": "stain in the envelope (fraction, fluorescence)",
     "debris_density_per_100um2": "debris particles per 100 µm²",
     "debris_brightness": "debris brightness (× cell column)",
     "debris_brightness_cv": "debris brightness CV",

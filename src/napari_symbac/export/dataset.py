@@ -563,7 +563,7 @@ class PipelineSource:
         from napari_symbac.export.outline import grow_masks
         from napari_symbac.optics import ForwardModel
         from napari_symbac.optics.batched import render_scenes
-        from napari_symbac.pipeline import apply_cell_brightness
+        from napari_symbac.pipeline import apply_cell_brightness, stain_cells
         from napari_symbac.scene import (
             add_debris,
             add_media_texture,
@@ -616,6 +616,7 @@ class PipelineSource:
                     varied.render.texture_amplitude,
                     simulation.settings.seed,
                 )
+                scene = stain_cells(scene, varied.microscope, varied.render)
                 scene = apply_cell_brightness(
                     scene, varied.render.cell_brightness_cv, simulation.settings.seed
                 )

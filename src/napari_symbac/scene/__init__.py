@@ -1,8 +1,9 @@
 """Scene drawing: cells, media and device at render resolution, masks, kymographs.
 
 Implements supplement section 3: the 3-D spherocylinder cells (eq. OPL1-3), the
-curvature transform (eq. 1), instance and semantic masks (eq. 4-5), and the 2-D
-fields of section 13 (agar pads, users' outlines; :func:`field_of`).
+curvature transform (eq. 1), instance and semantic masks (eq. 4-5), the 2-D
+fields of section 13 (agar pads, users' outlines; :func:`field_of`), and a stain in
+the cell envelope instead of the volume (fluorescence; :func:`envelope_stain`).
 """
 
 from napari_symbac.scene._debris import add_debris, debris_rng
@@ -21,8 +22,16 @@ from napari_symbac.scene._field import (
 )
 from napari_symbac.scene._kymograph import kymograph
 from napari_symbac.scene._masks import cell_thickness_from_masks, scene_from_masks
+from napari_symbac.scene._stain import (
+    ENVELOPE_THICKNESS_UM,
+    envelope_stain,
+    envelope_weight,
+    shell_chord_um,
+    stained_fraction,
+)
 
 __all__ = [
+    "ENVELOPE_THICKNESS_UM",
     "OUTLINE_WALL_THICKNESS_UM",
     "Field",
     "FrameCellsLike",
@@ -32,9 +41,13 @@ __all__ = [
     "cell_thickness_from_masks",
     "debris_rng",
     "draw_scene",
+    "envelope_stain",
+    "envelope_weight",
     "field_of",
     "kymograph",
     "scene_from_masks",
     "semantic_from_labels",
+    "shell_chord_um",
     "spherocylinder_distance",
+    "stained_fraction",
 ]
