@@ -305,10 +305,27 @@ class _Prepared:
     colony: bool = False  # a phase colony fitted from its masks (fit_colony)
 
 
-def _model_options(args) -> dict[str, Any]:
+#: Where a fit of the envelope's fraction of the stain starts (``--envelope-stain``)
+#: when the config gives none: from 0, its lower bound, the fit would start where the
+#: volume stain's cells (a third wider than the rims: 1.51 um on ColiCoords ds2)
+#: keep the gradient of the fraction below 0.
+ENVELOPE_START = 0.5
+
+
+def _model_options(args, modality: str) -> dict[str, Any]:
     """The scene model's optional terms asked for on the command line (fit_scene's
-    ``per_cell_brightness``, ``width_sd_um``, ``illumination_order``), checked."""
+    ``per_cell_brightness``, ``width_sd_um``, ``illumination_order``, the envelope's
+    fraction of the stain among the fitted optics), checked."""
     options: dict[str, Any] = {}
+    if getattr(args, "envelope_stain", False):
+        if modality != "fluorescence":
+            raise ValueError(
+                "--envelope-stain fits where a fluorescence stain sits in the cells; this "
+                f"image is {modality}: leave --envelope-stain out"
+            )
+        from napari_symbac.fit.scene_fit import DEFAULT_FIT_OPTICS
+
+        options["fit_optics"] = (*DEFAULT_FIT_OPTICS[modality], "envelope_stain_fraction")
     if args.cell_brightness is not None:
         options["per_cell_brightness"] = args.cell_brightness == "per-cell"
     if not (np.isfinite(args.width_sd_um) and 0.0 <= args.width_sd_um <= 1.0):
@@ -364,7 +381,7 @@ def _prepare_one(args, frame, labels, masks, microscope, base, keys):
         options["closed_end"] = base.simulation.trench.closed_end  # else the fit chooses
     if args.max_iterations is not None:
         options["max_iterations"] = args.max_iterations
-    model_options = _model_options(args)
+    model_options = _model_options(args, microscope.modality)
     options.update(model_options)
     from napari_symbac.fit.colony import is_dense_colony
 
@@ -421,7 +438,8 @@ def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, ke
                 )
             else:
                 result = fit_scene(
-                    frame, microscope, base.render, prepared.camera, progress=update,
+                    frame, microscope, _start_render(args, base.render), prepared.camera,
+                    progress=update,
                     **prepared.options,
                 )
         finally:
@@ -554,6 +572,14 @@ def _outputs_one(
     return writers, result, report_problems(result, problems)
 
 
+def _start_render(args, render):
+    """The render settings a fit starts from: with ``--envelope-stain`` and no fraction
+    given, the envelope's fraction at :data:`ENVELOPE_START`."""
+    if getattr(args, "envelope_stain", False) and render.envelope_stain_fraction == 0:
+        return dataclasses.replace(render, envelope_stain_fraction=ENVELOPE_START)
+    return render
+
+
 def _problems_said(index: int, problems: list[str]) -> str:
     """Each problem of a frame's report.txt on stderr, as a warning, and the end of the
     frame's line on stdout that counts them (found as a user: a 10x pixel-size slip gave
@@ -656,7 +682,8 @@ def _fit_frames_jointly(
     with timer.step("fit frames jointly"):
         try:
             series = fit_series(
-                stack[frames], microscope, base.render, camera, progress=update,
+                stack[frames], microscope, _start_render(args, base.render), camera,
+                progress=update,
                 **options, **per_frame,
             )
         finally:

@@ -848,6 +848,14 @@ def build_parser() -> argparse.ArgumentParser:
         "degree, fitted with the scene (vignetting; on a trench it also takes up the PDMS "
         "level beyond the kernel's reach, docs/fitting.md); single frames only",
     )
+    fit.add_argument(
+        "--envelope-stain",
+        action="store_true",
+        help="fluorescence: fit, with the cells and optics, the fraction of the stain in the "
+        "cell envelope (a membrane dye: cells brighter at the rim than on the centre line; "
+        "starts at 0.5 unless --config gives one); settings.yaml draws it "
+        "(render.envelope_stain_fraction)",
+    )
     fit.set_defaults(func=_cmd_fit)
 
     cal = _add_command(

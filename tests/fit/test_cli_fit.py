@@ -985,3 +985,29 @@ def test_a_phase_colony_without_masks_is_told_to_pass_them(tmp_path, real_data_d
     report = (out / "report.txt").read_text()
     problems = report.split("PROBLEMS")[1]
     assert "cannot be checked against the image's own photon transfer" in problems
+
+
+def test_envelope_stain_is_fitted_and_written_for_render(tmp_path, real_data_dir):
+    """`fit --envelope-stain` on the ColiCoords ds2 cell that is brighter at its rim: the
+    fraction is a fitted parameter in report.txt and settings.yaml draws it."""
+    root = real_data_dir / "colicoords" / "test_data" / "ds2"
+    image = tmp_path / "cell.tif"
+    tifffile.imwrite(image, tifffile.imread(root / "fluorescence" / "00066.tif")[0:64, 224:288])
+    microscope = save_settings(
+        Microscope(pixel_size_um=0.08, modality="fluorescence"), tmp_path / "microscope.yaml"
+    )
+    out = tmp_path / "fitted"
+    assert _fit(image, "--microscope", microscope, "--geometry", "field", "--envelope-stain",
+                "--out", out) == 0  # fmt: skip
+    report = (out / "report.txt").read_text()
+    assert "envelope_stain_fraction:" in report
+    settings = load_settings(out / "settings.yaml", PipelineSettings)
+    assert settings.render.envelope_stain_fraction > 0.8
+
+
+def test_refuses_an_envelope_stain_in_phase_contrast(tmp_path, inputs, capsys):
+    image, _, microscope = inputs
+    error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope,
+                     "--envelope-stain")  # fmt: skip
+    assert "--envelope-stain fits where a fluorescence stain sits" in error
+    assert "leave --envelope-stain out" in error

@@ -25,7 +25,7 @@ from napari_symbac.fit.illumination import illumination_basis, illumination_term
 from napari_symbac.fit.placement import TrenchPlacement, draw_fitted
 from napari_symbac.optics import ForwardModel, block_average
 from napari_symbac.optics.backends import resample_fft_shape
-from napari_symbac.scene import Scene
+from napari_symbac.scene import Scene, stained_fraction
 from napari_symbac.scene._raster import chord
 from napari_symbac.settings import Camera, Microscope, RenderSettings
 from napari_symbac.sim import FrameCells
@@ -47,6 +47,7 @@ _OPTICS_SCALE = {
     "defocus_sigma_um": 0.05,
     "ring_contrast": 0.1,
     "psf_offset": 0.05,
+    "envelope_stain_fraction": 0.1,
 }
 _INTENSITIES = ("cell_intensity", "media_intensity", "device_intensity")
 #: Render settings that change only the PSF kernel, not the drawn scene (whose
@@ -281,23 +282,25 @@ class SceneModel:
         brightness the cells column is ``C + sum_i db_i C_i`` (``C_i`` the convolved
         fraction of cell ``i`` alone); by the linearity of the convolution it is the
         convolution of ``cells + sum_i db_i F_i`` (:meth:`_brightness`), one more
-        transform for all cells. With an illumination surface every row is
-        multiplied by it (:meth:`light`).
+        transform for all cells. With part of a fluorescence stain in the envelope
+        (``envelope_stain_fraction``, :meth:`_cells_image`) the cells column is the
+        stain's image and the media column ``T`` less the cells' volume's. With an
+        illumination surface every row is multiplied by it (:meth:`light`).
         """
         self.tick()
         cells, curvature, place, r = self.unpack(x)
         scene = draw_fitted(cells, place, self.shape, self.microscope, r, self.depth_um, curvature)
         forward = self.forward.with_render(r)
-        images = [scene.cells]
-        if self.layout.per_cell_brightness:
-            images.insert(0, scene.cells + self._brightness(x, scene))
+        stain = self._cells_image(x, scene, r)
+        own_stain = stain is not scene.cells  # the stain differs from the cells' volume
+        images = [stain, scene.cells] if own_stain else [scene.cells]
         open_field = not scene.device.any()
         if not open_field:
             images.append(1.0 - scene.device)
         convolved = self._convolve(forward, scene, tuple(images)).astype(np.float64)
         whole = float(np.sum(forward.kernel(scene.pixel_size_um), dtype=np.float64))
         trench = np.full(convolved.shape[1:], whole) if open_field else convolved[-1]
-        cells = convolved[1 if self.layout.per_cell_brightness else 0]
+        cells = convolved[1 if own_stain else 0]
         a = np.stack(
             [convolved[0].ravel(), (trench - cells).ravel(), (whole - trench).ravel()], axis=1
         )
@@ -305,6 +308,34 @@ class SceneModel:
         if light is not None:
             a *= light[:, None]  # the surface multiplies eq. 3: still linear in I
         return a, scene, r
+
+    def _fraction(self, r: RenderSettings) -> float:
+        """The envelope's fraction of the stain the model draws (0 in phase contrast)."""
+        return r.envelope_stain_fraction if self.microscope.modality == "fluorescence" else 0.0
+
+    def _radius_lut(self, x: np.ndarray) -> np.ndarray:
+        """Radius (um) of every cell at ``x``, indexed by its label (``[0]`` = 0)."""
+        lay = self.layout
+        n, pc = lay.n, lay.per_cell
+        block = x[: n * pc].reshape(n, pc)
+        width = np.full(n, x[n * pc]) + (block[:, lay.i_dwidth] if lay.per_cell_width else 0.0)
+        return np.concatenate([[0.0], np.maximum(width, 0.2) / 2])
+
+    def _cells_image(self, x: np.ndarray, scene: Scene, r: RenderSettings) -> np.ndarray:
+        """The cells' stain at render resolution: the cells fraction, with
+        ``envelope_stain_fraction`` of it in the envelope (as
+        :func:`~napari_symbac.scene.envelope_stain` draws it, each cell's radius its
+        fitted width's half, as the patches of :meth:`cell_deltas` take it) and the
+        per-cell brightness (:meth:`_brightness`); ``scene.cells`` itself when neither
+        applies."""
+        image = scene.cells
+        fraction = self._fraction(r)
+        if fraction:
+            radius = self._radius_lut(x)[scene.labels]
+            image = stained_fraction(image, radius, fraction, self.depth_um)
+        if self.layout.per_cell_brightness:
+            image = image + self._brightness(x, scene, r)
+        return image
 
     def _convolve(
         self,
@@ -327,12 +358,14 @@ class SceneModel:
         out = forward._convolve_resample(stack, kernel, scene.upsample, weights)
         return out[None] if weights is not None and out.ndim == 2 else out
 
-    def _brightness(self, x: np.ndarray, scene: Scene) -> np.ndarray:
+    def _brightness(self, x: np.ndarray, scene: Scene, r: RenderSettings) -> np.ndarray:
         """``sum_i db_i F_i`` at render resolution, ``F_i`` cell ``i``'s fraction alone.
 
         ``F_i = min(chord_i / depth, 1, trench)`` in the cell's box, as
-        :meth:`cell_delta` draws it with ``alone``.
+        :meth:`cell_delta` draws it with ``alone`` (its stain: part of it in the
+        envelope when ``r`` says so).
         """
+        fraction = self._fraction(r)
         lay = self.layout
         pc, ib = lay.per_cell, lay.i_brightness
         out = np.zeros(scene.shape, np.float32)
@@ -357,6 +390,7 @@ class SceneModel:
             alone = np.minimum(
                 np.minimum(thickness_um / np.float32(self.depth_um), 1.0), trench[e0:e1, f0:f1]
             )
+            alone = stained_fraction(alone, wd / 2, fraction, self.depth_um)
             out[e0:e1, f0:f1] += np.float32(db) * alone
         return out
 
@@ -371,10 +405,7 @@ class SceneModel:
         self.tick()
         r = self.unpack(xk)[3]
         forward = self.forward.with_render(r)
-        cells_image = scene.cells
-        if self.layout.per_cell_brightness:
-            cells_image = cells_image + self._brightness(x, scene)
-        images = (cells_image, scene.media, scene.device)
+        images = (self._cells_image(x, scene, r), scene.media, scene.device)
         mu = (
             self._convolve(forward, scene, images, np.asarray(intensities, np.float32))[0]
             .ravel()
@@ -480,9 +511,14 @@ class SceneModel:
         width only; cell ``i`` is drawn from it, the other cells from ``x``. The cells
         fraction is redrawn in the union of the cell's boxes (as
         :func:`~napari_symbac.scene.draw_scene` does: the thickest chord of any cell,
-        over the depth, capped by 1 and by the trench), the differences are
+        over the depth, capped by 1 and by the trench; with part of a fluorescence
+        stain in the envelope, its stain, each pixel's by the radius of its thickest
+        cell: :func:`~napari_symbac.scene.stained_fraction`), the differences are
         convolved with the kernel in full and area-averaged to camera pixels, all in
-        one batch of transforms (:meth:`_convolve_patch`).
+        one batch of transforms (:meth:`_convolve_patch`). The Jacobian weighs a
+        patch by ``I_c - I_m``: with the stain in the envelope the media's part of it
+        (the cells' volume) is taken as the stain's, first order in ``I_m / I_c``,
+        which is small in fluorescence.
 
         Returns
         -------
@@ -513,7 +549,9 @@ class SceneModel:
                 bent = (bend, CURVATURE_B, CURVATURE_C) if bend else None
                 return chord(xc, yc, (cx, cy), ang, ln, wd, bent)
 
+            fraction = self._fraction(self.unpack(x)[3])
             others = np.zeros((r1 - r0, q1 - q0), np.float32)
+            others_radius = np.zeros((r1 - r0, q1 - q0))  # the thickest other cell's
             if not alone:  # the cells whose boxes reach the patch (boxes of x, all at once)
                 b0, b1, c0, c1 = self._boxes(x, scene)
                 hit = (b1 > r0) & (b0 < r1) & (c1 > q0) & (c0 < q1)
@@ -522,17 +560,26 @@ class SceneModel:
                     e0, e1, f0, f1, args = self._cell_box(x, int(j), scene)
                     if e1 <= r0 or e0 >= r1 or f1 <= q0 or f0 >= q1:
                         continue
-                    np.maximum(others, thickness(args), out=others)
+                    other = thickness(args)
+                    if fraction:
+                        others_radius[other > others] = args[4] / 2
+                    np.maximum(others, other, out=others)
             old = scene.cells[r0:r1, q0:q1]
             trench = old + scene.media[r0:r1, q0:q1]
             if alone:
                 old = np.zeros_like(old)
+            elif fraction:  # the scene's stain, each pixel's cell's radius at x
+                radius = self._radius_lut(x)[scene.labels[r0:r1, q0:q1]]
+                old = stained_fraction(old, radius, fraction, self.depth_um)
             depth = np.float32(self.depth_um)
             for m, (e0, e1, f0, f1, args) in enumerate(boxes[1:]):
-                thick = others
+                thick, radius = others, others_radius
                 if not (e1 <= r0 or e0 >= r1 or f1 <= q0 or f0 >= q1):
-                    thick = np.maximum(others, thickness(args))
+                    own = thickness(args)
+                    thick = np.maximum(others, own)
+                    radius = np.where(own > others, args[4] / 2, others_radius)
                 new = np.minimum(np.minimum(thick / depth, 1.0), trench)
+                new = stained_fraction(new, radius, fraction, self.depth_um)
                 delta[m, r0 - s0 : r1 - s0, q0 - t0 : q1 - t0] = new - old
         patches = self._convolve_patch(delta, kernel, u)
         return (s0 - 2 * bd) // u, (t0 - 2 * bd) // u, patches

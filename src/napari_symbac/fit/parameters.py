@@ -78,6 +78,7 @@ _FITTABLE = (
     "plate_transmission",
     "plate_phase_rad",
     "focus_offset_um",
+    "envelope_stain_fraction",
     "cell_transmission",
     "device_transmission",
     "gaussian_noise_sd_adu",
@@ -105,6 +106,7 @@ _SCALE = {
     "cell_transmission": 0.03,
     "device_transmission": 0.03,
     "gaussian_noise_sd_adu": 10.0,
+    "envelope_stain_fraction": 0.1,
 }
 _INTENSITIES = ("cell_intensity", "media_intensity", "device_intensity")
 _PHASE_AMPLITUDES = ("cell_phase_adu", "device_phase_adu")
@@ -224,6 +226,7 @@ def parameter_bounds(
     amplitudes (``RenderSettings.cell_phase_adu``), which the fit solves exactly.
     The bright-field transmissions of the partially coherent model (``B`` of eq. 3
     over the media's) are at most 1: nothing passes more light than the clear media.
+    The fraction of a fluorescence stain in the cell envelope is a fraction, ``[0, 1]``.
     """
     if name == "apodisation_sigma_um":
         low = microscope.min_apodisation_sigma_um if microscope.modality == "phase" else 0.05
@@ -261,6 +264,13 @@ def parameter_bounds(
         return (0.2, 1.0)
     if name == "gaussian_noise_sd_adu":
         return (0.0, max(5 * real_sd_adu, 1.0))
+    if name == "envelope_stain_fraction":
+        if microscope.modality != "fluorescence":
+            raise ValueError(
+                "envelope_stain_fraction is where a fluorescence stain sits in the cells: "
+                "fit it on a fluorescence image, not a phase-contrast one"
+            )
+        return (0.0, 1.0)
     raise ValueError(f"cannot fit {name!r}; fittable parameters are {', '.join(_FITTABLE)}")
 
 
