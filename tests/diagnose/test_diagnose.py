@@ -214,12 +214,14 @@ def test_accepted_effects_become_settings_and_stages(tmp_path):
         "cell_intensity_variability": {"cv": 0.2},
         "background_texture": {"rms_fraction": 0.1},
         "cell_curvature": {"rms_bow_um": 0.05, "bow_um": {1: 0.05}},
+        "envelope_stain": {"fraction": 0.4},
     }
     assert set(parameters) == set(IN_SETTINGS)
     folded, extra = updated_settings(PipelineSettings(), list(parameters.items()))
     assert extra == []
     assert folded.extra_stages == ()
     assert folded.simulation.do_transformation  # curved cells
+    assert folded.render.envelope_stain_fraction == 0.4
     assert drawn_by_export(list(parameters)) == (
         f"render and export draw {', '.join(parameters)}"
     )

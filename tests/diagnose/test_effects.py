@@ -26,6 +26,7 @@ CASES = [
     ("stray_light", "phase"),
     ("fixed_pattern_noise", "phase"),
     ("saturation", "phase"),
+    ("envelope_stain", "fluorescence"),
 ]
 
 

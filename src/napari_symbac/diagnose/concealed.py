@@ -4,7 +4,9 @@ Each case renders a scene with the project's forward model and injects one effec
 *physically* where the model allows it (a different camera for ``camera_noise``,
 bent cells of eq. 1 for ``cell_curvature``,
 moved cells for ``stage_drift``, Perlin media texture for ``background_texture``,
-per-cell brightness for ``cell_intensity_variability``, a focus that varies over the
+per-cell brightness for ``cell_intensity_variability``, part of the stain in the cell
+envelope for ``envelope_stain`` (:func:`~napari_symbac.scene.envelope_stain`, its true
+parameter the fraction drawn), a focus that varies over the
 field for ``defocus_gradient``, clipping of the camera output for ``saturation``, dimmer
 cells frame by frame for ``photobleaching``) and with the catalogue's stage otherwise
 (``uneven_illumination``, ``halo``, ``stray_light``, ``fixed_pattern_noise``;
@@ -28,7 +30,7 @@ import numpy as np
 
 from napari_symbac.diagnose.model import BaseDesign, build_design, fit_model, variance
 from napari_symbac.optics.forward import ForwardModel
-from napari_symbac.scene import Field, Scene, draw_scene
+from napari_symbac.scene import Field, Scene, draw_scene, envelope_stain
 from napari_symbac.settings import Camera, Microscope, RenderSettings, TrenchGeometry
 from napari_symbac.sim import FrameCells
 
@@ -230,6 +232,12 @@ def make_case(
             gain_map[scene.labels == i] = 1 + s * (g - 1)
         varied = scene.replace_cells(scene.cells * gain_map)
         signal = np.stack([model.render_clean(varied).astype(np.float64)] * n_frames)
+    elif effect == "envelope_stain":
+        probe = model.render_clean(envelope_stain(scene, 1.0)) - model.render_clean(scene)
+        fraction = min(_scale_to(np.stack([probe] * n_frames), sd, fraction_of_sd), 1.0)
+        stained = model.render_clean(envelope_stain(scene, fraction)).astype(np.float64)
+        signal = np.stack([stained] * n_frames)
+        truth_param = fraction
     elif effect == "background_texture":
         from napari_symbac.optics.texture import random_perlin_texture
 

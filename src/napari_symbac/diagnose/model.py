@@ -32,6 +32,7 @@ import numpy as np
 from scipy import ndimage, special
 
 from napari_symbac.optics.forward import ForwardModel, block_average
+from napari_symbac.pipeline import stain_cells
 from napari_symbac.settings import Camera, Microscope, RenderSettings
 
 if TYPE_CHECKING:
@@ -99,6 +100,14 @@ class Geometry:
     media_probe
         Flat index of the pixel where the convolved media component is largest, and
         its value there: the fitted media intensity is the media part over it (eq. 3).
+    envelope_component
+        ``(T, Y, X)``: the convolved cells component with all of the stain in the
+        cells' envelope (:func:`~napari_symbac.scene.envelope_stain`) less the
+        component with the stain filling them, at unit cell intensity (fluorescence;
+        ``None`` in phase contrast or when built from labels alone).
+    envelope_fraction
+        The fraction of the stain in the envelope that the base model draws
+        (``RenderSettings.envelope_stain_fraction``, fluorescence; 0 otherwise).
     """
 
     cell_fraction: np.ndarray
@@ -115,6 +124,8 @@ class Geometry:
     cell_components: np.ndarray | None = None
     texture_components: np.ndarray | None = None
     media_probe: tuple[int, float] = (0, 0.0)
+    envelope_component: np.ndarray | None = None
+    envelope_fraction: float = 0.0
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -217,7 +228,9 @@ def build_design(
 
     Needs nothing else from the base fit: the intensities are re-fitted linearly and
     the optics parameters in ``optics`` (default :data:`NUISANCE_OPTICS`) by one
-    linearisation (central differences of two renders each).
+    linearisation (central differences of two renders each). The scenes are drawn
+    as the pipeline draws them (part of a fluorescence stain in the cells' envelope
+    when ``render`` says so: :func:`~napari_symbac.pipeline.stain_cells`).
     """
     if not scenes:
         raise ValueError("build_design needs at least one scene")
@@ -227,7 +240,8 @@ def build_design(
         [render.cell_intensity, render.media_intensity, render.device_intensity], float
     )
     comps, derivs, fractions, labels, scene_list = [], [], [], [], []
-    for scene in scenes:
+    for raw in scenes:
+        scene = stain_cells(raw, microscope, render)  # the stain as the settings draw it
         scene_list.append(scene)
         parts = model.components(scene)
         comps.append(np.stack([parts[c] for c in ("cells", "media", "device")]))
@@ -247,7 +261,7 @@ def build_design(
         derivs.append(
             np.stack(frame_derivs) if frame_derivs else np.zeros((0, *parts["cells"].shape))
         )
-        fractions.append(block_average(scene.interior(scene.cells), scene.upsample))
+        fractions.append(block_average(raw.interior(raw.cells), raw.upsample))
         labels.append(scene.camera_labels())
     components = np.stack(comps, axis=1).astype(np.float64)
     optics_cols = np.stack(derivs, axis=1) if names else np.zeros((0, *components.shape[1:]))
@@ -265,6 +279,12 @@ def build_design(
         geometry,
         cell_components=_cell_components(model, scene_list, geometry.cell_ids),
         texture_components=_texture_components(model, scene_list, geometry),
+        envelope_component=_envelope_component(model, scenes)
+        if microscope.modality == "fluorescence"
+        else None,
+        envelope_fraction=render.envelope_stain_fraction
+        if microscope.modality == "fluorescence"
+        else 0.0,
         media_probe=(int(np.argmax(media)), float(components[1].ravel()[np.argmax(media)]))
         if media.size
         else (0, 0.0),
@@ -291,6 +311,18 @@ def _texture_components(
             textured = scene.replace_media((scene.media * mode).astype(np.float32))
             out[k, t] = model.components(textured)["media"]
     return out
+
+
+def _envelope_component(model: ForwardModel, scenes: Sequence[Any]) -> np.ndarray:
+    """``(T, Y, X)``: the convolved cells with their stain in the envelope less the
+    convolved cells with it filling them (eq. OPL2 and its shell), unit intensity."""
+    from napari_symbac.scene import envelope_stain
+
+    frames = []
+    for scene in scenes:
+        shift = envelope_stain(scene, 1.0).cells - scene.cells
+        frames.append(model.components(scene.replace_cells(shift))["cells"])
+    return np.stack(frames).astype(np.float64)
 
 
 def _cell_components(model: ForwardModel, scenes: Sequence[Any], ids: np.ndarray) -> np.ndarray:

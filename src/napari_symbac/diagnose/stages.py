@@ -4,7 +4,8 @@ The diagnosis writes ``settings.yaml``, a :class:`~napari_symbac.settings.Pipeli
 that carries every accepted effect render and export can draw: those that map onto
 existing settings (``camera_noise`` -> the camera, ``cell_intensity_variability`` ->
 ``render.cell_brightness_cv``, ``background_texture`` -> ``render.texture_amplitude``,
-``cell_curvature`` -> ``simulation.do_transformation``) and the other effects of one
+``cell_curvature`` -> ``simulation.do_transformation``, ``envelope_stain`` ->
+``render.envelope_stain_fraction``) and the other effects of one
 frame (:data:`DRAWN`) as ``extra_stages``, drawn with :func:`drawn_stages`. It also
 writes ``extra_stages.yaml``: every accepted effect without a settings field, the
 time-dependent ones (:data:`TIME_DEPENDENT`) included, which :func:`load_extra_stages`
@@ -62,6 +63,7 @@ IN_SETTINGS = (
     "cell_intensity_variability",
     "background_texture",
     "cell_curvature",
+    "envelope_stain",
 )
 #: Effects of one frame that render and export draw as ``PipelineSettings.extra_stages``.
 DRAWN = (*_STATIC, "saturation")
@@ -180,6 +182,9 @@ def updated_settings(
             render = dataclasses.replace(render, cell_brightness_cv=float(params["cv"]))
         elif name == "background_texture":
             render = dataclasses.replace(render, texture_amplitude=float(params["rms_fraction"]))
+        elif name == "envelope_stain":  # the stain's fraction in the cell envelope
+            fraction = min(max(float(params["fraction"]), 0.0), 1.0)
+            render = dataclasses.replace(render, envelope_stain_fraction=fraction)
         elif name == "cell_curvature":  # bent cells: eq. 1's curvature when drawn
             simulation = dataclasses.replace(simulation, do_transformation=True)
         else:

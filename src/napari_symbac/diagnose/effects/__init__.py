@@ -6,6 +6,7 @@ from napari_symbac.diagnose.effects.camera_noise import CameraNoise
 from napari_symbac.diagnose.effects.cell_curvature import CellCurvature
 from napari_symbac.diagnose.effects.cell_intensity_variability import CellIntensityVariability
 from napari_symbac.diagnose.effects.defocus_gradient import DefocusGradient
+from napari_symbac.diagnose.effects.envelope_stain import EnvelopeStain
 from napari_symbac.diagnose.effects.fixed_pattern_noise import FixedPatternNoise
 from napari_symbac.diagnose.effects.halo import Halo
 from napari_symbac.diagnose.effects.photobleaching import Photobleaching
@@ -27,6 +28,7 @@ CATALOGUE: dict[str, type[Effect]] = {
         CellIntensityVariability,
         BackgroundTexture,
         CellCurvature,
+        EnvelopeStain,
         StrayLight,
         FixedPatternNoise,
         Saturation,
