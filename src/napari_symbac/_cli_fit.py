@@ -305,13 +305,6 @@ class _Prepared:
     colony: bool = False  # a phase colony fitted from its masks (fit_colony)
 
 
-#: Where a fit of the envelope's fraction of the stain starts (``--envelope-stain``)
-#: when the config gives none: from 0, its lower bound, the fit would start where the
-#: volume stain's cells (a third wider than the rims: 1.51 um on ColiCoords ds2)
-#: keep the gradient of the fraction below 0.
-ENVELOPE_START = 0.5
-
-
 def _model_options(args, modality: str) -> dict[str, Any]:
     """The scene model's optional terms asked for on the command line (fit_scene's
     ``per_cell_brightness``, ``width_sd_um``, ``illumination_order``, the envelope's
@@ -323,9 +316,9 @@ def _model_options(args, modality: str) -> dict[str, Any]:
                 "--envelope-stain fits where a fluorescence stain sits in the cells; this "
                 f"image is {modality}: leave --envelope-stain out"
             )
-        from napari_symbac.fit.scene_fit import DEFAULT_FIT_OPTICS
+        from napari_symbac.fit.scene_fit import ENVELOPE_FIT_OPTICS
 
-        options["fit_optics"] = (*DEFAULT_FIT_OPTICS[modality], "envelope_stain_fraction")
+        options["fit_optics"] = ENVELOPE_FIT_OPTICS
     if args.cell_brightness is not None:
         options["per_cell_brightness"] = args.cell_brightness == "per-cell"
     if not (np.isfinite(args.width_sd_um) and 0.0 <= args.width_sd_um <= 1.0):
@@ -574,7 +567,9 @@ def _outputs_one(
 
 def _start_render(args, render):
     """The render settings a fit starts from: with ``--envelope-stain`` and no fraction
-    given, the envelope's fraction at :data:`ENVELOPE_START`."""
+    given, the envelope's fraction at :data:`~napari_symbac.fit.scene_fit.ENVELOPE_START`."""
+    from napari_symbac.fit.scene_fit import ENVELOPE_START
+
     if getattr(args, "envelope_stain", False) and render.envelope_stain_fraction == 0:
         return dataclasses.replace(render, envelope_stain_fraction=ENVELOPE_START)
     return render

@@ -593,3 +593,57 @@ def test_a_camera_the_recording_cannot_check_is_an_auto_fit_problem(real_data_di
     assert problem.endswith(GUI_CAMERA_FIX)
     assert "--dark" not in problem  # no CLI option is offered where none can be passed
     assert _camera_check(ColonyFit.__new__(ColonyFit), grey, GUI_CAMERA_FIX) is None
+
+
+def test_auto_fit_places_a_stain_in_the_cell_envelope(rendered, qtbot, real_data_dir):
+    """As `fit --envelope-stain`: ColiCoords ds2's top cell of field 00066 (a rhodamine-B
+    conjugate, brighter at its rim), fitted with the envelope's fraction free from the
+    check box; the fraction (started at 0.5) runs to ~1, the cell narrows to an E. coli's
+    width, and the preview and Export draw the fitted stain."""
+    import tifffile
+
+    from napari_symbac._widgets.tune import FIT_SYNTHETIC_LAYER
+    from napari_symbac.fit.scene_fit import ENVELOPE_START
+
+    viewer, tune = rendered
+    path = real_data_dir / "colicoords" / "test_data" / "ds2" / "fluorescence" / "00066.tif"
+    crop = tifffile.imread(path).astype(np.float32)[0:64, 224:288]
+    real = viewer.add_image(
+        crop, name="ds2", scale=(0.08, 0.08),
+        metadata={"pixel_size_um": 0.08, "modality": "fluorescence"},
+    )  # fmt: skip
+    tune.reference.value = real
+    assert tune.fit_envelope_stain.native.isHidden() == (tune.modality.value != "fluorescence")
+    tune.fit_envelope_stain.value = True
+    tune.fit_button.native.click()
+    qtbot.waitUntil(lambda: tune.fit_worker is None, timeout=300_000)
+    result = tune.fit_result
+    assert result is not None, tune.status.value
+    assert len(result.cells) == 1
+    assert result.render.envelope_stain_fraction > ENVELOPE_START  # the fit moved it up
+    assert result.cells.width_um[0] < 1.3  # the volume stain fits it 1.59 um wide
+    stored = tune.source.value.metadata[SYMBAC_METADATA_KEY]["settings"]
+    assert stored.render.envelope_stain_fraction == result.render.envelope_stain_fraction
+    assert tune.preview.render_settings.envelope_stain_fraction == (
+        result.render.envelope_stain_fraction
+    )
+    assert viewer.layers[FIT_SYNTHETIC_LAYER].data.shape == crop.shape
+
+
+def test_the_envelope_stain_box_is_fluorescence_only(rendered, real_data_dir):
+    """Shown for fluorescence only, unticked when hidden; ticked over a phase recording
+    (the preview switched to fluorescence) the fit is refused with the fix."""
+    viewer, tune = rendered
+    tune.reference.value = _real_trench(viewer, real_data_dir)
+    assert tune.modality.value == "phase"
+    box = tune.fit_envelope_stain
+    assert box.native.isHidden()  # (the viewer itself is not shown)
+    tune.modality.value = "fluorescence"
+    assert not box.native.isHidden()
+    tune.fit_envelope_stain.value = True
+    tune.fit_button.native.click()
+    assert tune.fit_worker is None
+    assert "this recording is phase: untick 'stain in the cell envelope'" in tune.status.value
+    tune.modality.value = "phase"
+    assert box.native.isHidden()
+    assert not box.value

@@ -230,6 +230,15 @@ class TuneWidget(Container):
                 "linked into tracks (as napari-symbac fit --frames). Unticked: the frame shown."
             ),
         )
+        self.fit_envelope_stain = CheckBox(
+            name="fit_envelope_stain",
+            text="stain in the cell envelope (membrane dye)",
+            tooltip=(
+                "Fluorescence: fit, with the cells and optics, the fraction of the stain in "
+                "the cell envelope (cells brighter at the rim than on the centre line), as "
+                "napari-symbac fit --envelope-stain; Export draws it."
+            ),
+        )
         self.fit_button = PushButton(
             name="fit",
             text="Auto-fit to the real image",
@@ -264,6 +273,7 @@ class TuneWidget(Container):
                 self.match_noise,
                 self.fit_iterations,
                 self.fit_all_frames,
+                self.fit_envelope_stain,
                 self.fit_button,
                 self.cancel_fit_button,
                 self.status,
@@ -399,6 +409,10 @@ class TuneWidget(Container):
             self.sliders[name].visible = coherent
         for name in LINEAR_ONLY:
             self.sliders[name].visible = not coherent
+        fluorescence = modality == "fluorescence"
+        self.fit_envelope_stain.visible = fluorescence
+        if not fluorescence:  # a hidden box asks for nothing
+            self.fit_envelope_stain.value = False
 
     def _store_fitted_simulation(self, result) -> str:
         """The simulation the fit implies (the fitted cells' width and division length,
@@ -557,6 +571,21 @@ class TuneWidget(Container):
             is_dense_colony(m, microscope.modality) for m in frames_masks
         )  # a time-lapse: once any frame is a colony, every frame is drawn alike (as the CLI)
         self._fit_notes = fit_notes(microscope.modality, geometry, colony=colony)
+        options = {}
+        if self.fit_envelope_stain.value:
+            from napari_symbac.fit.scene_fit import ENVELOPE_FIT_OPTICS, ENVELOPE_START
+
+            if microscope.modality != "fluorescence":
+                message = (
+                    "The stain's place in the cell envelope is fitted in fluorescence; this "
+                    f"recording is {microscope.modality}: untick 'stain in the cell envelope'"
+                )
+                self.status.value = message
+                notify_warning(message)
+                return
+            options["fit_optics"] = ENVELOPE_FIT_OPTICS
+            if render.envelope_stain_fraction == 0:  # from 0, its bound, it would stay
+                render = dataclasses.replace(render, envelope_stain_fraction=ENVELOPE_START)
         if masks is not None and labels is not None:
             self._fit_notes.append("the cell masks were used; the painted classes were not")
         iterations = self.fit_iterations.value
@@ -579,6 +608,7 @@ class TuneWidget(Container):
                 max_iterations=iterations,
                 progress=progress,
                 cancel=cancel,
+                **options,
             )
 
         shown = self._current_frame()
@@ -747,8 +777,10 @@ class TuneWidget(Container):
                     render, result.pixel_size_um, self.preview.model.microscope
                 )
             now = self.preview.render_settings
-            if (render.upsample, render.psf_radius_px) != (now.upsample, now.psf_radius_px):
-                # the scenes are drawn at that sampling: a new preview draws them anew
+            drawn = ("upsample", "psf_radius_px", "envelope_stain_fraction")
+            if any(getattr(render, name) != getattr(now, name) for name in drawn):
+                # the scenes are drawn at that sampling, with that stain: a new preview
+                # draws them anew
                 meta = self.source.value.metadata[SYMBAC_METADATA_KEY]
                 meta["settings"] = dataclasses.replace(
                     meta["settings"],
