@@ -253,3 +253,24 @@ def test_the_settings_carry_the_final_models_intensities():
     assert held.cell_intensity == 0.0
     assert held.media_intensity == 2600.0
     assert said.startswith("the final model's cell_intensity -50 ADU is drawn as 0")
+
+
+def test_an_open_field_keeps_the_device_intensity_it_cannot_see():
+    """Found as a user on ColiCoords ds1: an open field has no device, so its column in
+    the final model's fit is 0; the solver's rounding in that direction, divided by the
+    column's vanishing norm, made the device intensity -2.9e135 ADU, and the report said
+    it was "drawn as 0 (the cells are darker than the model draws them)". Nothing
+    depends on it: it keeps its start, and nothing is said."""
+    from napari_symbac.diagnose import diagnose
+    from napari_symbac.diagnose.concealed import make_case
+    from napari_symbac.diagnose.stages import refitted_render
+    from napari_symbac.settings import RenderSettings
+
+    case = make_case("uneven_illumination", modality="fluorescence", geometry="field",
+                     fraction_of_sd=1.0, seed=5)  # fmt: skip
+    assert not np.any(case.design.components[2])  # no device in the field
+    result = diagnose(case.images, case.design, n_bootstrap=10, rng=np.random.default_rng(0))
+    assert [e.name for e in result.accepted] == ["uneven_illumination"]
+    assert result.final_model.beta[2] == case.design.start()[2]
+    _, note = refitted_render(RenderSettings(), result.final_model)
+    assert note == ""

@@ -469,13 +469,20 @@ def _descent_step(design, beta, effects, normal, rhs, mu, yv, idx, w, cost, pena
     in their common direction: on a background-subtracted ColiCoords field it sent
     the mean to overflow and the diagnosis ended in "SVD did not converge".
     """
-    scale = np.sqrt(np.maximum(np.diag(normal), 1e-300))
+    diagonal = np.diag(normal)
+    # A parameter nothing depends on (an open field's device: its column is 0) does not
+    # move. Scaled by a vanishing norm, the solver's rounding in its direction became
+    # a step of 1e135 ADU (found as a user: "device_intensity -2.9e+135 ADU is drawn as
+    # 0" on ColiCoords ds1); its mean was unchanged, its number nonsense.
+    free = diagonal > 0
+    scale = np.sqrt(np.where(free, diagonal, 1.0))
     scaled, b = normal / np.outer(scale, scale), rhs / scale
     for damping in (0.0, *DAMPING):
         if damping == 0.0:
             z = np.linalg.lstsq(scaled, b, rcond=1e-12)[0]
         else:
             z = np.linalg.solve(scaled + damping * np.eye(len(b)), b)
+        z = np.where(free, z, 0.0)
         with np.errstate(over="ignore", invalid="ignore"):
             trial_beta, trial_effects, trial_mu = _trial(design, beta, effects, z / scale)
             trial_cost = float(np.sum(w * (yv - trial_mu.ravel()[idx]) ** 2))
