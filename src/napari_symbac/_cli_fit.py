@@ -566,13 +566,11 @@ def _outputs_one(
 
 
 def _start_render(args, render):
-    """The render settings a fit starts from: with ``--envelope-stain`` and no fraction
-    given, the envelope's fraction at :data:`~napari_symbac.fit.scene_fit.ENVELOPE_START`."""
-    from napari_symbac.fit.scene_fit import ENVELOPE_START
+    """The render settings a fit starts from: with ``--envelope-stain``,
+    :func:`~napari_symbac.fit.scene_fit.envelope_stain_start`'s."""
+    from napari_symbac.fit.scene_fit import envelope_stain_start
 
-    if getattr(args, "envelope_stain", False) and render.envelope_stain_fraction == 0:
-        return dataclasses.replace(render, envelope_stain_fraction=ENVELOPE_START)
-    return render
+    return envelope_stain_start(render) if getattr(args, "envelope_stain", False) else render
 
 
 def _problems_said(index: int, problems: list[str]) -> str:

@@ -573,7 +573,7 @@ class TuneWidget(Container):
         self._fit_notes = fit_notes(microscope.modality, geometry, colony=colony)
         options = {}
         if self.fit_envelope_stain.value:
-            from napari_symbac.fit.scene_fit import ENVELOPE_FIT_OPTICS, ENVELOPE_START
+            from napari_symbac.fit.scene_fit import ENVELOPE_FIT_OPTICS, envelope_stain_start
 
             if microscope.modality != "fluorescence":
                 message = (
@@ -584,8 +584,7 @@ class TuneWidget(Container):
                 notify_warning(message)
                 return
             options["fit_optics"] = ENVELOPE_FIT_OPTICS
-            if render.envelope_stain_fraction == 0:  # from 0, its bound, it would stay
-                render = dataclasses.replace(render, envelope_stain_fraction=ENVELOPE_START)
+            render = envelope_stain_start(render)
         if masks is not None and labels is not None:
             self._fit_notes.append("the cell masks were used; the painted classes were not")
         iterations = self.fit_iterations.value

@@ -72,6 +72,15 @@ ENVELOPE_FIT_OPTICS = (*DEFAULT_FIT_OPTICS["fluorescence"], "envelope_stain_frac
 #: fit would start where the volume stain's cells (a third wider than the rims: 1.51 um
 #: on ColiCoords ds2) keep the gradient of the fraction below 0.
 ENVELOPE_START = 0.5
+
+
+def envelope_stain_start(render: RenderSettings) -> RenderSettings:
+    """``render`` as a fit of the envelope's fraction of the stain starts from it: its
+    own fraction, or :data:`ENVELOPE_START` when it gives none (the CLI's
+    ``--envelope-stain`` and Auto-fit's check box, with :data:`ENVELOPE_FIT_OPTICS`)."""
+    if render.envelope_stain_fraction > 0:
+        return render
+    return dataclasses.replace(render, envelope_stain_fraction=ENVELOPE_START)
 #: Levenberg-Marquardt iterations the other closed end gets before the two are compared.
 CLOSED_END_ITERATIONS = 6
 #: Iterations of the first round when later rounds follow. It settles the cells
