@@ -177,6 +177,18 @@ def test_bad_inputs_give_clear_errors(truth):
         fit_parameters(truth.image, labels, *args, fit=("upsample",))
 
 
+def test_fluorescence_refuses_what_it_does_not_fit(truth):
+    """In fluorescence only defocus (and a Gaussian noise) are fitted: a named phase
+    parameter or the envelope stain is refused with the fix, not silently dropped."""
+    fluorescence = dataclasses.replace(truth.microscope, modality="fluorescence")
+    args = (truth.scene, fluorescence, START, truth.camera)
+    labels = scene_classes(truth.scene)
+    with pytest.raises(ValueError, match="drop psf_offset from fit"):
+        fit_parameters(truth.image, labels, *args, fit=("defocus_sigma_um", "psf_offset"))
+    with pytest.raises(ValueError, match="envelope-stain"):
+        fit_parameters(truth.image, labels, *args, fit=("envelope_stain_fraction",))
+
+
 def test_gaussian_noise_model_fits_the_noise_sd(truth):
     start = dataclasses.replace(
         truth.render, cell_intensity=1000.0, noise_model="gaussian", gaussian_noise_sd_adu=5.0

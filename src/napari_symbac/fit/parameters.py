@@ -83,6 +83,9 @@ _FITTABLE = (
     "device_transmission",
     "gaussian_noise_sd_adu",
 )
+#: What :func:`fit_parameters` fits in fluorescence: the phase kernel's parameters
+#: have no effect there.
+_FLUORESCENCE_FITTABLE = ("defocus_sigma_um", "gaussian_noise_sd_adu")
 #: Bright-field intensity transmissions of the partially coherent model (``B`` of
 #: eq. 3 relative to the media): not render settings of their own but the ratios
 #: ``cell_intensity / media_intensity`` and ``device_intensity / media_intensity``,
@@ -274,6 +277,24 @@ def parameter_bounds(
     raise ValueError(f"cannot fit {name!r}; fittable parameters are {', '.join(_FITTABLE)}")
 
 
+def _refuse_phase_only(names: tuple[str, ...]) -> None:
+    """Refuse, in fluorescence, the named parameters that :func:`fit_parameters` does not
+    fit there (the phase kernel's, and the envelope stain, which it does not draw)."""
+    unfit = [n for n in names if n not in _FLUORESCENCE_FITTABLE]
+    if not unfit:
+        return
+    fix = (
+        "; fit envelope_stain_fraction with the scene (fit_scene(..., fit_optics="
+        "ENVELOPE_FIT_OPTICS), or `napari-symbac fit --envelope-stain`)"
+        if "envelope_stain_fraction" in unfit
+        else ""
+    )
+    raise ValueError(
+        f"in fluorescence fit_parameters fits only {' and '.join(_FLUORESCENCE_FITTABLE)}; "
+        f"drop {', '.join(unfit)} from fit{fix}"
+    )
+
+
 def scene_classes(scene: Any) -> np.ndarray:
     """Class map (:data:`~napari_symbac.fit.CLASS_VALUES`) of a scene at camera resolution.
 
@@ -437,6 +458,7 @@ def fit_parameters(
     if pixel_mode and labels is None:
         labels = scene_classes(scene)
     real_classes = as_label_stack(labels, (1, *real.shape), required=required)[0]
+    fit_named = fit is not None
     if fit is None:
         if microscope.modality == "phase" and render.phase_model == "partially_coherent":
             fit = DEFAULT_FIT_PARTIALLY_COHERENT
@@ -455,7 +477,9 @@ def fit_parameters(
             "drop them from fit (the linear model solves the intensities exactly)"
         )
     if microscope.modality != "phase":
-        names = tuple(n for n in names if n in ("defocus_sigma_um", "gaussian_noise_sd_adu"))
+        if fit_named:
+            _refuse_phase_only(names)
+        names = tuple(n for n in names if n in _FLUORESCENCE_FITTABLE)
     rng = np.random.default_rng(0) if rng is None else rng
     base = ForwardModel(microscope, render, camera) if model is None else model.with_render(render)
     budget = _Budget(max_evaluations, progress, cancel)
