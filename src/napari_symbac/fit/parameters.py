@@ -21,6 +21,7 @@ import numpy as np
 from scipy import optimize
 
 from napari_symbac.fit.inputs import CLASS_VALUES, as_label_stack, as_single_image
+from napari_symbac.fit.noise import expected_level
 from napari_symbac.fit.objectives import (
     DEFAULT_TERMS,
     TERM_NAMES,
@@ -570,8 +571,10 @@ def fit_parameters(
     message = ""
 
     if pixel_mode:
-        # IRLS: the variance is held fixed within each weighted solve, then updated.
-        var = _variance(np.maximum(y, 0.0), render, camera)
+        # IRLS: the variance is held fixed within each weighted solve, then updated; the
+        # first round's from each pixel's 3 x 3 neighbourhood, as the scene fit's.
+        level = expected_level(y, np.ones(y.shape, bool)).reshape(y.shape)
+        var = _variance(level, render, camera)
         z = np.zeros(len(names))
         jacobian = None
         current = render

@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-from scipy import ndimage, sparse
+from scipy import sparse
 
 from napari_symbac.fit.camera_estimate import censored_pixels, estimate_camera
 from napari_symbac.fit.engine import CURVATURE_B, CURVATURE_C, Layout
@@ -43,7 +43,7 @@ from napari_symbac.fit.illumination import illumination_stage, illumination_term
 from napari_symbac.fit.inputs import as_label_stack, as_single_image
 from napari_symbac.fit.lm import State, normal_equations
 from napari_symbac.fit.moves import improve_scene, prune_cells
-from napari_symbac.fit.noise import variance
+from napari_symbac.fit.noise import expected_level, variance
 from napari_symbac.fit.objectives import objective_terms
 from napari_symbac.fit.parameters import DEFAULT_FIT, _Budget, _variance, parameter_bounds
 from napari_symbac.fit.placement import TrenchPlacement
@@ -607,14 +607,14 @@ def _run_frame(
         if measured is not None:
             baseline = measured.baseline_adu
             y = (real - baseline).ravel().astype(np.float64)
-            w = flat_valid / variance(_expected_level(y, valid), measured)
+            w = flat_valid / variance(expected_level(y, valid), measured)
             camera_used = measured
         else:
             noise = _pixel_noise(real, valid) or float(np.std(real[valid])) or 1.0
             w = flat_valid / noise**2
             camera_used = Camera(baseline_adu=baseline)
     else:
-        w = flat_valid / _variance(_expected_level(y, valid), render, camera)
+        w = flat_valid / _variance(expected_level(y, valid), render, camera)
         camera_used = camera
     per_cell = layout.per_cell
     history: list[float] = []
@@ -728,33 +728,6 @@ def _run_frame(
         budget,
         progress,
     )
-
-
-#: Side (camera pixels) of the box whose mean stands for a pixel's expected level in the
-#: first round's weights: 3 x 3 divides a pixel's noise by 3 and keeps most of a septum's
-#: 1-2 px dip between touching fluorescent cells (a 5 x 5 box spread the bright cells'
-#: level over the dip, and the fit of a touching synthetic colony merged two of its
-#: four cells: tests/fit/test_lineage.py).
-LEVEL_BOX_PX = 3
-
-
-def _expected_level(y: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Each pixel's expected signal above the baseline (ADU, flat, >= 0) for the first
-    round's variance: the mean of the valid pixels in a :data:`LEVEL_BOX_PX` box.
-
-    The pixel's own value is a noisy stand-in for its mean: where it falls below the
-    baseline, eq. 17 gives it the read noise alone, and with no measurable read noise
-    1/12 ADU^2, so a few hundred low background pixels outweighed the whole frame
-    (found on ColiCoords ds3 frame 0: the media intensity solved to 0 against a
-    background 168 ADU above the baseline, the moves then judged with a dispersion of
-    1.2e5 and a real cell removed).
-    """
-    image = y.reshape(valid.shape)
-    inside = valid.astype(np.float64)
-    total = ndimage.uniform_filter(np.where(valid, image, 0.0), LEVEL_BOX_PX, mode="nearest")
-    count = ndimage.uniform_filter(inside, LEVEL_BOX_PX, mode="nearest")
-    level = np.divide(total, count, out=np.maximum(image, 0.0), where=count > 0)
-    return np.maximum(level, 0.0).ravel()
 
 
 def _better_closed_end(
