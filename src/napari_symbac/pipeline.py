@@ -20,6 +20,7 @@ from napari_symbac.scene import (
     add_debris,
     add_media_texture,
     debris_rng,
+    depth_stain,
     draw_scene,
     envelope_stain,
     field_of,
@@ -139,10 +140,14 @@ def apply_cell_brightness(scene: Scene, cv: float, seed: int) -> Scene:
 
 def stain_cells(scene: Scene, microscope: Microscope, render: RenderSettings) -> Scene:
     """The stain's place in the cells: ``render.envelope_stain_fraction`` of it in the
-    envelope (:func:`~napari_symbac.scene.envelope_stain`) in fluorescence; phase
-    contrast, which images the optical path and not a stain, returns ``scene``."""
+    envelope (:func:`~napari_symbac.scene.envelope_stain`) in fluorescence, and with
+    ``render.depth_layers > 0`` its share in each slab through the depth (eq. 16,
+    :func:`~napari_symbac.scene.depth_stain`); phase contrast, which images the optical
+    path and not a stain, returns ``scene``."""
     if microscope.modality != "fluorescence":
         return scene
+    if render.depth_layers:
+        return depth_stain(scene, render.envelope_stain_fraction, render.depth_layers)
     return envelope_stain(scene, render.envelope_stain_fraction)
 
 

@@ -153,6 +153,11 @@ class Condenser:
         return (self.ring_radius_mm - self.ring_width_mm) / (self.pupil_diameter_mm / 2)
 
 
+#: Most slabs of the depth-resolved fluorescence image (``RenderSettings.depth_layers``):
+#: each is a convolution per frame; 5 slabs of a 1.2 um depth fit ColiCoords ds2 as
+#: well as 15 (docs/fitting.md).
+MAX_DEPTH_LAYERS = 32
+
 #: Nominal annulus dimensions (W, R, pupil diameter, mm) of the standard condensers,
 #: as used by SyMBac 0.5 (Fig. S4.2 of the supplement uses Ph2: W = 0.8, R = 5).
 CONDENSERS: dict[str, Condenser] = {
@@ -670,7 +675,10 @@ class RenderSettings:
         Distance of the focal plane from the sample, um, as the pupil phase of free
         propagation in the immersion medium (positive: focus past the sample, towards
         the objective); partially coherent model. Unlike ``defocus_sigma_um`` (a blur)
-        it moves light between a cell's rim and centre; 0 = in focus.
+        it moves light between a cell's rim and centre; 0 = in focus. In fluorescence
+        with ``depth_layers > 0``: the focal plane's distance from the cells'
+        mid-plane (the image is the same at ``+z`` and ``-z``: a cell is symmetric
+        about its mid-plane and the index-matched PSF about its focus).
     noise_model
         ``"camera"`` (EMVA1288, eq. 17), ``"gaussian"`` or ``"none"``.
     gaussian_noise_sd_adu
@@ -697,6 +705,18 @@ class RenderSettings:
         intensity keeps its meaning: both stains put the same light per unit length
         of a cell's cylinder. Phase contrast does not draw it (a stain does not
         change the optical path).
+    depth_layers
+        Fluorescence: the number of slabs through the optical depth in which the
+        cells' stain is imaged, each through the PSF defocused by its distance from
+        the focal plane, ``S = sum_z PSF_z conv OPL_z`` (eq. 16 of the supplement;
+        :func:`~napari_symbac.scene.stain_layers`,
+        :func:`~napari_symbac.optics.psf.born_wolf_psf_3d`). A cell's top and bottom,
+        out of focus by about its radius, are blurred more than its sides: a stain in
+        the envelope dips between its rims as recorded. 0 (default) = the 2-D
+        projection of eq. OPL2 through one PSF, the image unchanged. The media and
+        device (the background) stay imaged through the 2-D PSF. Phase contrast does
+        not use it (its focus is ``focus_offset_um`` of the partially coherent
+        model).
     debris_density_per_100um2
         Debris (:func:`~napari_symbac.scene.add_debris`): unlabelled particles in the
         medium, out of focus, never in the masks: particles per 100 um^2 of the field
@@ -738,6 +758,7 @@ class RenderSettings:
     texture_amplitude: float = 0.0
     cell_brightness_cv: float = 0.0
     envelope_stain_fraction: float = 0.0
+    depth_layers: int = 0
     debris_density_per_100um2: float = 0.0
     debris_diameter_um: float = 0.8
     debris_diameter_cv: float = 0.4
@@ -800,6 +821,13 @@ class RenderSettings:
         _require(
             isinstance(self.focus_offset_um, (int, float)) and math.isfinite(self.focus_offset_um),
             f"RenderSettings.focus_offset_um must be a finite number, got {self.focus_offset_um!r}",
+        )
+        _require(
+            isinstance(self.depth_layers, int)
+            and not isinstance(self.depth_layers, bool)
+            and 0 <= self.depth_layers <= MAX_DEPTH_LAYERS,
+            f"RenderSettings.depth_layers must be an integer in [0, {MAX_DEPTH_LAYERS}] (0: the "
+            f"2-D projection through one PSF), got {self.depth_layers!r}",
         )
         _require(
             isinstance(self.source_points, int) and self.source_points >= 8,

@@ -57,6 +57,7 @@ _READABLE = {
     "texture_amplitude": "agar texture amplitude",
     "cell_brightness_cv": "cell brightness CV",
     "envelope_stain_fraction": "stain in the envelope (fraction, fluorescence)",
+    "depth_layers": "depth slabs (eq. 16, fluorescence; 0 = 2-D)",
     "debris_density_per_100um2": "debris particles per 100 µm²",
     "debris_brightness": "debris brightness (× cell column)",
     "debris_brightness_cv": "debris brightness CV",

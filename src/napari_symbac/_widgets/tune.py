@@ -776,7 +776,7 @@ class TuneWidget(Container):
                     render, result.pixel_size_um, self.preview.model.microscope
                 )
             now = self.preview.render_settings
-            drawn = ("upsample", "psf_radius_px", "envelope_stain_fraction")
+            drawn = ("upsample", "psf_radius_px", "envelope_stain_fraction", "depth_layers")
             if any(getattr(render, name) != getattr(now, name) for name in drawn):
                 # the scenes are drawn at that sampling, with that stain: a new preview
                 # draws them anew

@@ -19,6 +19,13 @@ Stages, in order:
    with separate phase amplitudes); by linearity this equals the convolution of the
    composed image, so changing an intensity only recombines cached arrays.
 3. any ``extra_stages`` (pointwise effects found by fitting / diagnosis).
+
+In fluorescence with ``RenderSettings.depth_layers > 0`` a ``depth`` stage comes
+first: the cells' stain is imaged slab by slab through the depth (eq. 16;
+:mod:`~napari_symbac.optics.depth`, the scene's
+:attr:`~napari_symbac.scene.Scene.depth_profile`), each slab through the PSF defocused
+by its distance from the focal plane, while media and device go through the ``psf``
+stage's kernel.
 4. ``camera`` (eq. 17): noise, baseline, rounding and clipping to the bit depth.
 
 With ``RenderSettings.phase_model = "partially_coherent"`` stages 1-2 are one
@@ -42,6 +49,7 @@ import numpy as np
 
 from napari_symbac.optics.backends import ConvolutionBackend, get_backend, resample_fft_shape
 from napari_symbac.optics.camera import apply_camera_noise, apply_gaussian_noise, quantise
+from napari_symbac.optics.depth import depth_kernels
 from napari_symbac.optics.partial_coherence import annular_phase_image
 from napari_symbac.optics.psf import (
     airy_psf,
@@ -265,7 +273,17 @@ class ForwardModel:
                 self._camera_stage(),
                 *self._recorded_stages,
             )
+        depth = ()
+        if self.depth_layers:
+            depth = (
+                Stage(
+                    "depth",
+                    True,
+                    {"depth_layers": r.depth_layers, "focus_offset_um": r.focus_offset_um},
+                ),
+            )
         return (
+            *depth,
             Stage("psf", True, psf_params),
             Stage("resample", True, {"upsample": r.upsample}),
             Stage("intensity", False, intensity_params),
@@ -451,6 +469,49 @@ class ForwardModel:
         return key
 
     @property
+    def depth_layers(self) -> int:
+        """Slabs of the depth-resolved cells image (eq. 16); 0: the 2-D projection (and
+        always in phase contrast)."""
+        if self.microscope.modality != "fluorescence":
+            return 0
+        return self.render_settings.depth_layers
+
+    def depth_kernels(self, depth_um: float, pixel_size_um: float | None = None) -> np.ndarray:
+        """The slabs' PSFs (:func:`~napari_symbac.optics.depth.depth_kernels`), cached."""
+        m, r = self.microscope, self.render_settings
+        px = m.pixel_size_um / r.upsample if pixel_size_um is None else pixel_size_um
+        key = ("depth", *self._kernel_key(px), r.depth_layers, r.focus_offset_um, depth_um)
+        kernels = self._kernels.get(key)
+        if kernels is None:
+            kernels = depth_kernels(m, r, depth_um, px)
+            self._kernels[key] = kernels
+        return kernels
+
+    def _depth_cells(self, scene: Any, trim: int) -> np.ndarray:
+        """The cells image slab by slab through the slabs' PSFs, summed and area-averaged
+        (eq. 16), not cached. A scene without cells (no labels: debris alone) and no
+        profile has its light at the cells' mid-plane."""
+        from napari_symbac.scene._depth import midplane_share
+
+        profile = scene.depth_profile
+        if profile is None and not scene.labels.any():
+            profile = np.broadcast_to(
+                midplane_share(self.depth_layers)[:, None, None],
+                (self.depth_layers, *scene.shape),
+            )
+        if profile is None or profile.shape[0] != self.depth_layers:
+            raise ValueError(
+                f"RenderSettings.depth_layers={self.depth_layers} images the cells slab by "
+                "slab, but the scene has no depth profile of as many slabs: stain it with "
+                "napari_symbac.pipeline.stain_cells (or scene.depth_stain)"
+            )
+        crop = (slice(trim, -trim),) * 2 if trim else (slice(None),) * 2
+        layers = profile[(slice(None), *crop)] * scene.cells[crop][None]
+        kernels = self.depth_kernels(scene.depth_um, scene.pixel_size_um)
+        image = self.backend.convolve_valid(layers, kernels, sum_planes=True)
+        return block_average(image, scene.upsample)
+
+    @property
     def separate_phase(self) -> bool:
         """Whether the ring part is rendered with its own amplitudes (two kernels)."""
         return self.microscope.modality == "phase" and self.render_settings.phase_separate
@@ -573,7 +634,28 @@ class ForwardModel:
             )
         self._check_scene(scene)
         kkey = self._kernel_key(scene.pixel_size_um)
-        out = self._convolved(scene, COMPONENTS, self.kernel(scene.pixel_size_um), kkey)
+        kernel = self.kernel(scene.pixel_size_um)
+        if self.depth_layers:
+            from napari_symbac.scene._draw import _fingerprint
+
+            out = self._convolved(scene, ("media", "device"), kernel, kkey)
+            trim = scene.border_px - self.render_settings.psf_radius_px
+            profile = scene.depth_profile
+            if profile is None:
+                self._depth_cells(scene, trim)  # raises, naming the fix, unless no cells
+            r = self.render_settings
+            shares = "mid-plane" if profile is None else _fingerprint(profile)
+            key = (
+                ("depth", scene.fingerprints["cells"], shares),
+                (*kkey, r.depth_layers, r.focus_offset_um, scene.depth_um),
+                trim,
+            )
+            cells = self._cache.get(key)
+            if cells is None:
+                cells = np.ascontiguousarray(self._depth_cells(scene, trim))
+                self._cache.put(key, cells)
+            return {"cells": cells, **out}
+        out = self._convolved(scene, COMPONENTS, kernel, kkey)
         if self.separate_phase:
             ring = self._convolved(
                 scene, ("cells", "device"), self.ring_kernel(scene.pixel_size_um), ("ring", *kkey)
@@ -640,10 +722,16 @@ class ForwardModel:
             crop = (slice(trim, -trim),) * 2 if trim else (slice(None),) * 2
             # eq. 3 at render resolution (no stacked copy of the three components),
             # then one convolution of the composed image.
-            composed = np.float32(r.cell_intensity) * scene.cells[crop]
-            composed += np.float32(r.media_intensity) * scene.media[crop]
-            composed += np.float32(r.device_intensity) * scene.device[crop]
-            image = self._convolve_resample(composed[None], kernel, scene.upsample)[0]
+            if self.depth_layers:
+                composed = np.float32(r.media_intensity) * scene.media[crop]
+                composed += np.float32(r.device_intensity) * scene.device[crop]
+                image = self._convolve_resample(composed[None], kernel, scene.upsample)[0]
+                image += np.float32(r.cell_intensity) * self._depth_cells(scene, trim)
+            else:
+                composed = np.float32(r.cell_intensity) * scene.cells[crop]
+                composed += np.float32(r.media_intensity) * scene.media[crop]
+                composed += np.float32(r.device_intensity) * scene.device[crop]
+                image = self._convolve_resample(composed[None], kernel, scene.upsample)[0]
             if self.separate_phase:
                 p_cell, p_device = r.phase_amplitudes()
                 phase = np.float32(p_cell) * scene.cells[crop]
@@ -680,7 +768,8 @@ class ForwardModel:
         where the composed path renders it.
 
         ``None`` for scenes without static layers (not from ``draw_scene``, or
-        modified since), backends without the circular transform, and (unless
+        modified since), backends without the circular transform, the depth-resolved
+        cells image (eq. 16), and (unless
         ``always``: a caller with many frames in hand) the first frame of a geometry
         this model renders unless its static layers are in the shared cache already:
         they cost two transforms of the frame, which pay from the second frame of a
@@ -689,7 +778,7 @@ class ForwardModel:
         geometry with this model's settings.
         """
         self._check_scene(scene)
-        if not hasattr(self.backend, "convolve_resample_circular"):
+        if self.depth_layers or not hasattr(self.backend, "convolve_resample_circular"):
             return None
         layers = static_layers(scene)
         if layers is None:

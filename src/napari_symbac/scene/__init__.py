@@ -2,11 +2,13 @@
 
 Implements supplement section 3: the 3-D spherocylinder cells (eq. OPL1-3), the
 curvature transform (eq. 1), instance and semantic masks (eq. 4-5), the 2-D
-fields of section 13 (agar pads, users' outlines; :func:`field_of`), and a stain in
-the cell envelope instead of the volume (fluorescence; :func:`envelope_stain`).
+fields of section 13 (agar pads, users' outlines; :func:`field_of`), a stain in
+the cell envelope instead of the volume (fluorescence; :func:`envelope_stain`), and
+the stain in slabs through the depth (eq. 16; :func:`depth_stain`).
 """
 
 from napari_symbac.scene._debris import add_debris, debris_rng
+from napari_symbac.scene._depth import depth_layer_centres_um, depth_stain, stain_layers
 from napari_symbac.scene._draw import (
     FrameCellsLike,
     Scene,
@@ -40,6 +42,8 @@ __all__ = [
     "add_media_texture",
     "cell_thickness_from_masks",
     "debris_rng",
+    "depth_layer_centres_um",
+    "depth_stain",
     "draw_scene",
     "envelope_stain",
     "envelope_weight",
@@ -49,5 +53,6 @@ __all__ = [
     "semantic_from_labels",
     "shell_chord_um",
     "spherocylinder_distance",
+    "stain_layers",
     "stained_fraction",
 ]

@@ -175,7 +175,7 @@ class Scene:
         scene = Scene._unchecked(pending, **values)
         # The labels are the same array: so are the camera-resolution masks, and the
         # content hashes of the images that did not change.
-        for kept in ("_masks", "_narrow_labels"):
+        for kept in ("_masks", "_narrow_labels", "_depth_profile"):
             if kept in self.__dict__:
                 object.__setattr__(scene, kept, self.__dict__[kept])
         known = {
@@ -280,6 +280,30 @@ class Scene:
             )
         opl = self.depth_um * (n_cell * self.cells + n_media * self.media + n_pdms * self.device)
         return (opl + n_pdms * (s_pdms - self.depth_um)).astype(np.float32)
+
+    @property
+    def depth_profile(self) -> np.ndarray | None:
+        """Share of each pixel's cells image in each slab through the depth, ``(N, *shape)``
+        (eq. 16; :func:`~napari_symbac.scene.depth_stain`), or ``None`` (not drawn).
+
+        A geometric share (it adds up to 1 at every pixel), so the copies of
+        :meth:`replace_cells` with per-pixel gains and :meth:`replace_media` keep it.
+        """
+        return self.__dict__.get("_depth_profile")
+
+    def with_depth_profile(self, profile: np.ndarray) -> Scene:
+        """A copy of this scene with ``profile`` as its :attr:`depth_profile`."""
+        profile = np.ascontiguousarray(profile, np.float32)
+        if profile.ndim != 3 or profile.shape[1:] != self.shape or not profile.shape[0]:
+            raise ValueError(
+                f"a depth profile has shape (layers, *{self.shape}), got {profile.shape}"
+            )
+        if not np.all(np.isfinite(profile)):
+            raise ValueError("the depth profile must be finite")
+        scene = object.__new__(Scene)
+        scene.__dict__.update(self.__dict__)
+        object.__setattr__(scene, "_depth_profile", _readonly(profile))
+        return scene
 
     def replace_cells(self, cells: np.ndarray) -> Scene:
         """A copy of this scene with a new cells image (e.g. per-cell brightness)."""
