@@ -308,7 +308,8 @@ class _Prepared:
 def _model_options(args, modality: str) -> dict[str, Any]:
     """The scene model's optional terms asked for on the command line (fit_scene's
     ``per_cell_brightness``, ``width_sd_um``, ``illumination_order``, the envelope's
-    fraction of the stain among the fitted optics), checked."""
+    fraction of the stain and the depth-resolved image's focal plane among the fitted
+    optics), checked."""
     options: dict[str, Any] = {}
     if getattr(args, "envelope_stain", False):
         if modality != "fluorescence":
@@ -319,6 +320,23 @@ def _model_options(args, modality: str) -> dict[str, Any]:
         from napari_symbac.fit.scene_fit import ENVELOPE_FIT_OPTICS
 
         options["fit_optics"] = ENVELOPE_FIT_OPTICS
+    layers = getattr(args, "depth_layers", 0)
+    if layers:
+        from napari_symbac.fit.scene_fit import DEFAULT_FIT_OPTICS
+        from napari_symbac.settings import MAX_DEPTH_LAYERS
+
+        if modality != "fluorescence":
+            raise ValueError(
+                "--depth-layers images a fluorescence stain slab by slab; this image is "
+                f"{modality}: leave --depth-layers out"
+            )
+        if not 0 < layers <= MAX_DEPTH_LAYERS:
+            raise ValueError(
+                f"--depth-layers {layers} is not a number of slabs: pass 1-{MAX_DEPTH_LAYERS} "
+                "(5 fit ColiCoords ds2 as well as 15), or 0 for the 2-D projection"
+            )
+        optics = options.get("fit_optics", DEFAULT_FIT_OPTICS["fluorescence"])
+        options["fit_optics"] = (*optics, "focus_offset_um")
     if args.cell_brightness is not None:
         options["per_cell_brightness"] = args.cell_brightness == "per-cell"
     if not (np.isfinite(args.width_sd_um) and 0.0 <= args.width_sd_um <= 1.0):
@@ -567,10 +585,14 @@ def _outputs_one(
 
 def _start_render(args, render):
     """The render settings a fit starts from: with ``--envelope-stain``,
-    :func:`~napari_symbac.fit.scene_fit.envelope_stain_start`'s."""
-    from napari_symbac.fit.scene_fit import envelope_stain_start
+    :func:`~napari_symbac.fit.scene_fit.envelope_stain_start`'s; with ``--depth-layers``,
+    :func:`~napari_symbac.fit.scene_fit.depth_start`'s."""
+    from napari_symbac.fit.scene_fit import depth_start, envelope_stain_start
 
-    return envelope_stain_start(render) if getattr(args, "envelope_stain", False) else render
+    if getattr(args, "envelope_stain", False):
+        render = envelope_stain_start(render)
+    layers = getattr(args, "depth_layers", 0)
+    return depth_start(render, layers) if layers else render
 
 
 def _problems_said(index: int, problems: list[str]) -> str:

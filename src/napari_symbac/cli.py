@@ -856,6 +856,16 @@ def build_parser() -> argparse.ArgumentParser:
         "starts at 0.5 unless --config gives one); settings.yaml draws it "
         "(render.envelope_stain_fraction)",
     )
+    fit.add_argument(
+        "--depth-layers",
+        type=int,
+        default=0,
+        metavar="N",
+        help="fluorescence: image the cells' stain in N slabs through the depth, each "
+        "through the PSF defocused by its distance from the focal plane (eq. 16; 5 is "
+        "enough), and fit the focal plane's distance from the cells' mid-plane (starts at "
+        "0.2 um unless --config gives one); 0 (default): the 2-D projection through one PSF",
+    )
     fit.set_defaults(func=_cmd_fit)
 
     cal = _add_command(

@@ -1011,3 +1011,35 @@ def test_refuses_an_envelope_stain_in_phase_contrast(tmp_path, inputs, capsys):
                      "--envelope-stain")  # fmt: skip
     assert "--envelope-stain fits where a fluorescence stain sits" in error
     assert "leave --envelope-stain out" in error
+
+
+def test_depth_layers_are_fitted_and_written_for_render(tmp_path, real_data_dir):
+    """`fit --envelope-stain --depth-layers 5` on the same ds2 cell: the focal plane is a
+    fitted parameter, the fraction leaves its bound 1, and settings.yaml draws both."""
+    root = real_data_dir / "colicoords" / "test_data" / "ds2"
+    image = tmp_path / "cell.tif"
+    tifffile.imwrite(image, tifffile.imread(root / "fluorescence" / "00066.tif")[0:64, 224:288])
+    microscope = save_settings(
+        Microscope(pixel_size_um=0.08, modality="fluorescence"), tmp_path / "microscope.yaml"
+    )
+    out = tmp_path / "fitted"
+    assert _fit(image, "--microscope", microscope, "--geometry", "field", "--envelope-stain",
+                "--depth-layers", 5, "--out", out) == 0  # fmt: skip
+    assert "focus_offset_um:" in (out / "report.txt").read_text()
+    settings = load_settings(out / "settings.yaml", PipelineSettings)
+    assert settings.render.depth_layers == 5
+    assert 0.1 < abs(settings.render.focus_offset_um) < 0.4
+    assert 0.5 < settings.render.envelope_stain_fraction < 0.97
+
+
+@pytest.mark.parametrize(
+    ("modality", "layers", "said"),
+    [("phase", 5, "leave --depth-layers out"), ("fluorescence", 40, "is not a number of slabs")],
+)
+def test_refuses_depth_layers_in_phase_contrast_or_out_of_range(
+    tmp_path, inputs, capsys, modality, layers, said
+):
+    image, _, microscope = inputs
+    error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope,
+                     "--modality", modality, "--depth-layers", layers)  # fmt: skip
+    assert said in error

@@ -7,7 +7,9 @@ parameters changes ``C`` (and ``M = T - C``) only within the cell's bounding box
 plus the PSF radius (linearity of the convolution), so each cell's Jacobian
 columns come from rendering that patch alone (:meth:`SceneModel.cell_delta`).
 The intensities are solved exactly at every evaluation (a 3 x 3 normal-equation
-solve with an exact non-negativity fallback, :func:`solve_intensities`).
+solve with an exact non-negativity fallback, :func:`solve_intensities`). With the
+depth-resolved fluorescence image (``RenderSettings.depth_layers``, eq. 16) ``C`` is the
+stain's slabs each through its PSF, in the full render and in the patches alike.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from napari_symbac.fit.illumination import illumination_basis, illumination_term
 from napari_symbac.fit.placement import TrenchPlacement, draw_fitted
 from napari_symbac.optics import ForwardModel, block_average
 from napari_symbac.optics.backends import resample_fft_shape
-from napari_symbac.scene import Scene, stained_fraction
+from napari_symbac.scene import Scene, stain_layers, stained_fraction
 from napari_symbac.scene._raster import chord
 from napari_symbac.settings import Camera, Microscope, RenderSettings
 from napari_symbac.sim import FrameCells
@@ -48,6 +50,7 @@ _OPTICS_SCALE = {
     "ring_contrast": 0.1,
     "psf_offset": 0.05,
     "envelope_stain_fraction": 0.1,
+    "focus_offset_um": 0.05,
 }
 _INTENSITIES = ("cell_intensity", "media_intensity", "device_intensity")
 #: Render settings that change only the PSF kernel, not the drawn scene (whose
@@ -291,23 +294,52 @@ class SceneModel:
         cells, curvature, place, r = self.unpack(x)
         scene = draw_fitted(cells, place, self.shape, self.microscope, r, self.depth_um, curvature)
         forward = self.forward.with_render(r)
-        stain = self._cells_image(x, scene, r)
+        layered = self._layers(r) > 0
+        stain = None if layered else self._cells_image(x, scene, r)
         own_stain = stain is not scene.cells  # the stain differs from the cells' volume
-        images = [stain, scene.cells] if own_stain else [scene.cells]
+        images = [stain, scene.cells] if own_stain and not layered else [scene.cells]
         open_field = not scene.device.any()
         if not open_field:
             images.append(1.0 - scene.device)
         convolved = self._convolve(forward, scene, tuple(images)).astype(np.float64)
         whole = float(np.sum(forward.kernel(scene.pixel_size_um), dtype=np.float64))
         trench = np.full(convolved.shape[1:], whole) if open_field else convolved[-1]
-        cells = convolved[1 if own_stain else 0]
-        a = np.stack(
-            [convolved[0].ravel(), (trench - cells).ravel(), (whole - trench).ravel()], axis=1
-        )
+        cells = convolved[1 if own_stain and not layered else 0]
+        if layered:
+            stained = self._convolve_layers(forward, scene, self._cells_layers(x, scene, r))
+        else:
+            stained = convolved[0]
+        a = np.stack([stained.ravel(), (trench - cells).ravel(), (whole - trench).ravel()], axis=1)
         light = self.light(x)
         if light is not None:
             a *= light[:, None]  # the surface multiplies eq. 3: still linear in I
         return a, scene, r
+
+    def _layers(self, r: RenderSettings) -> int:
+        """Slabs of the depth-resolved stain (eq. 16; 0: the 2-D projection, and always
+        in phase contrast)."""
+        return r.depth_layers if self.microscope.modality == "fluorescence" else 0
+
+    def _cells_layers(self, x: np.ndarray, scene: Scene, r: RenderSettings) -> np.ndarray:
+        """The stain of :meth:`_cells_image` in the slabs of ``r.depth_layers``
+        (:func:`~napari_symbac.scene.stain_layers`), per-cell brightness included."""
+        radius = self._radius_lut(x)[scene.labels]
+        fraction, n_layers = self._fraction(r), self._layers(r)
+        layers = stain_layers(scene.cells, radius, fraction, self.depth_um, n_layers)
+        if self.layout.per_cell_brightness:
+            layers += self._brightness(x, scene, r)
+        return layers
+
+    def _convolve_layers(
+        self, forward: ForwardModel, scene: Scene, layers: np.ndarray
+    ) -> np.ndarray:
+        """The slabs through their PSFs (eq. 16), summed and area-averaged, float64."""
+        trim = scene.border_px - forward.render_settings.psf_radius_px
+        if trim:
+            layers = layers[:, trim:-trim, trim:-trim]
+        kernels = forward.depth_kernels(self.depth_um, scene.pixel_size_um)
+        image = forward.backend.convolve_valid(layers, kernels, sum_planes=True)
+        return block_average(image, scene.upsample).astype(np.float64)
 
     def _fraction(self, r: RenderSettings) -> float:
         """The envelope's fraction of the stain the model draws (0 in phase contrast)."""
@@ -363,12 +395,14 @@ class SceneModel:
 
         ``F_i = min(chord_i / depth, 1, trench)`` in the cell's box, as
         :meth:`cell_delta` draws it with ``alone`` (its stain: part of it in the
-        envelope when ``r`` says so).
+        envelope when ``r`` says so; in the slabs of ``r.depth_layers``, leading axis,
+        when there are any).
         """
         fraction = self._fraction(r)
+        n_layers = self._layers(r)
         lay = self.layout
         pc, ib = lay.per_cell, lay.i_brightness
-        out = np.zeros(scene.shape, np.float32)
+        out = np.zeros((n_layers, *scene.shape) if n_layers else scene.shape, np.float32)
         trench = None
         px, bd = scene.pixel_size_um, scene.border_px
         S0, S1 = scene.shape
@@ -390,8 +424,11 @@ class SceneModel:
             alone = np.minimum(
                 np.minimum(thickness_um / np.float32(self.depth_um), 1.0), trench[e0:e1, f0:f1]
             )
-            alone = stained_fraction(alone, wd / 2, fraction, self.depth_um)
-            out[e0:e1, f0:f1] += np.float32(db) * alone
+            if n_layers:
+                alone = stain_layers(alone, wd / 2, fraction, self.depth_um, n_layers)
+            else:
+                alone = stained_fraction(alone, wd / 2, fraction, self.depth_um)
+            out[..., e0:e1, f0:f1] += np.float32(db) * alone
         return out
 
     def kernel_column(
@@ -405,12 +442,14 @@ class SceneModel:
         self.tick()
         r = self.unpack(xk)[3]
         forward = self.forward.with_render(r)
-        images = (self._cells_image(x, scene, r), scene.media, scene.device)
-        mu = (
-            self._convolve(forward, scene, images, np.asarray(intensities, np.float32))[0]
-            .ravel()
-            .astype(np.float64)
-        )
+        weights = np.asarray(intensities, np.float32)
+        if self._layers(r):
+            stained = self._convolve_layers(forward, scene, self._cells_layers(x, scene, r))
+            rest = self._convolve(forward, scene, (scene.media, scene.device), weights[1:])[0]
+            mu = (intensities[0] * stained + rest).ravel()
+        else:
+            images = (self._cells_image(x, scene, r), scene.media, scene.device)
+            mu = self._convolve(forward, scene, images, weights)[0].ravel().astype(np.float64)
         light = self.light(x)
         return mu if light is None else mu * light
 
@@ -515,7 +554,9 @@ class SceneModel:
         stain in the envelope, its stain, each pixel's by the radius of its thickest
         cell: :func:`~napari_symbac.scene.stained_fraction`), the differences are
         convolved with the kernel in full and area-averaged to camera pixels, all in
-        one batch of transforms (:meth:`_convolve_patch`). The Jacobian weighs a
+        one batch of transforms (:meth:`_convolve_patch`; with ``depth_layers``, the
+        stain's slabs, each through its PSF: ``kernel`` is then the stack of
+        :meth:`~napari_symbac.optics.ForwardModel.depth_kernels`). The Jacobian weighs a
         patch by ``I_c - I_m``: with the stain in the envelope the media's part of it
         (the cells' volume) is taken as the stain's, first order in ``I_m / I_c``,
         which is small in fluorescence.
@@ -538,7 +579,16 @@ class SceneModel:
         t1 = u * math.ceil(j1 / u)
         r0, r1 = max(s0, 0), min(s1, S0)
         q0, q1 = max(t0, 0), min(t1, S1)
-        delta = np.zeros((len(x_news), s1 - s0, t1 - t0), np.float32)
+        render = self.unpack(x)[3]
+        fraction, n_layers = self._fraction(render), self._layers(render)
+        slabs = (n_layers,) if n_layers else ()
+        delta = np.zeros((len(x_news), *slabs, s1 - s0, t1 - t0), np.float32)
+
+        def stain(image: np.ndarray, radius: np.ndarray | float) -> np.ndarray:
+            if n_layers:
+                return stain_layers(image, radius, fraction, self.depth_um, n_layers)
+            return stained_fraction(image, radius, fraction, self.depth_um)
+
         if r0 < r1 and q0 < q1:
             px = scene.pixel_size_um
             yc = (np.arange(r0, r1) - bd + 0.5) * px
@@ -549,7 +599,6 @@ class SceneModel:
                 bent = (bend, CURVATURE_B, CURVATURE_C) if bend else None
                 return chord(xc, yc, (cx, cy), ang, ln, wd, bent)
 
-            fraction = self._fraction(self.unpack(x)[3])
             others = np.zeros((r1 - r0, q1 - q0), np.float32)
             others_radius = np.zeros((r1 - r0, q1 - q0))  # the thickest other cell's
             if not alone:  # the cells whose boxes reach the patch (boxes of x, all at once)
@@ -567,10 +616,9 @@ class SceneModel:
             old = scene.cells[r0:r1, q0:q1]
             trench = old + scene.media[r0:r1, q0:q1]
             if alone:
-                old = np.zeros_like(old)
-            elif fraction:  # the scene's stain, each pixel's cell's radius at x
-                radius = self._radius_lut(x)[scene.labels[r0:r1, q0:q1]]
-                old = stained_fraction(old, radius, fraction, self.depth_um)
+                old = np.zeros((*slabs, *old.shape), np.float32)
+            elif fraction or n_layers:  # the scene's stain, each pixel's cell's radius at x
+                old = stain(old, self._radius_lut(x)[scene.labels[r0:r1, q0:q1]])
             depth = np.float32(self.depth_um)
             for m, (e0, e1, f0, f1, args) in enumerate(boxes[1:]):
                 thick, radius = others, others_radius
@@ -578,10 +626,15 @@ class SceneModel:
                     own = thickness(args)
                     thick = np.maximum(others, own)
                     radius = np.where(own > others, args[4] / 2, others_radius)
-                new = np.minimum(np.minimum(thick / depth, 1.0), trench)
-                new = stained_fraction(new, radius, fraction, self.depth_um)
-                delta[m, r0 - s0 : r1 - s0, q0 - t0 : q1 - t0] = new - old
-        patches = self._convolve_patch(delta, kernel, u)
+                new = stain(np.minimum(np.minimum(thick / depth, 1.0), trench), radius)
+                delta[m, ..., r0 - s0 : r1 - s0, q0 - t0 : q1 - t0] = new - old
+        if n_layers:
+            patches = sum(
+                self._convolve_patch(np.ascontiguousarray(delta[:, k]), kernel[k], u)
+                for k in range(n_layers)
+            )
+        else:
+            patches = self._convolve_patch(delta, kernel, u)
         return (s0 - 2 * bd) // u, (t0 - 2 * bd) // u, patches
 
     def _convolve_patch(self, patch: np.ndarray, kernel: np.ndarray, factor: int) -> np.ndarray:
@@ -632,7 +685,11 @@ class SceneModel:
         the other shared parameters come from full renders.
         """
         scales = self.layout.scales()
-        kernel = self.forward.with_render(render).kernel(scene.pixel_size_um)
+        forward = self.forward.with_render(render)
+        if self._layers(render):
+            kernel = forward.depth_kernels(self.depth_um, scene.pixel_size_um)
+        else:
+            kernel = forward.kernel(scene.pixel_size_um)
         rows, cols = self.shape
         npx = rows * cols
         mu = a @ intensities

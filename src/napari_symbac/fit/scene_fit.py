@@ -74,6 +74,20 @@ ENVELOPE_FIT_OPTICS = (*DEFAULT_FIT_OPTICS["fluorescence"], "envelope_stain_frac
 ENVELOPE_START = 0.5
 
 
+#: Where the focal plane of the depth-resolved image (``depth_layers``) starts when the
+#: settings put it at the cells' mid-plane: the image is the same at ``+z`` and ``-z``,
+#: so at 0 the fit's gradient in it vanishes; ColiCoords ds2 fits 0.21 um (docs/fitting.md).
+DEPTH_FOCUS_START_UM = 0.2
+
+
+def depth_start(render: RenderSettings, layers: int) -> RenderSettings:
+    """``render`` as a fit of the depth-resolved image starts from it (``napari-symbac
+    fit --depth-layers``): ``layers`` slabs, its focal plane or
+    :data:`DEPTH_FOCUS_START_UM` when it gives none (fit ``focus_offset_um`` with it)."""
+    focus = render.focus_offset_um or DEPTH_FOCUS_START_UM
+    return dataclasses.replace(render, depth_layers=layers, focus_offset_um=focus)
+
+
 def envelope_stain_start(render: RenderSettings) -> RenderSettings:
     """``render`` as a fit of the envelope's fraction of the stain starts from it: its
     own fraction, or :data:`ENVELOPE_START` when it gives none (the CLI's
