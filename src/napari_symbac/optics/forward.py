@@ -19,6 +19,7 @@ Stages, in order:
    with separate phase amplitudes); by linearity this equals the convolution of the
    composed image, so changing an intensity only recombines cached arrays.
 3. any ``extra_stages`` (pointwise effects found by fitting / diagnosis).
+4. ``camera`` (eq. 17): noise, baseline, rounding and clipping to the bit depth.
 
 In fluorescence with ``RenderSettings.depth_layers > 0`` a ``depth`` stage comes
 first: the cells' stain is imaged slab by slab through the depth (eq. 16;
@@ -26,7 +27,6 @@ first: the cells' stain is imaged slab by slab through the depth (eq. 16;
 :attr:`~napari_symbac.scene.Scene.depth_profile`), each slab through the PSF defocused
 by its distance from the focal plane, while media and device go through the ``psf``
 stage's kernel.
-4. ``camera`` (eq. 17): noise, baseline, rounding and clipping to the bit depth.
 
 With ``RenderSettings.phase_model = "partially_coherent"`` stages 1-2 are one
 nonlinear stage, ``phase_image``: the sample's complex transmission imaged through
