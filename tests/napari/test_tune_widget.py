@@ -630,20 +630,56 @@ def test_auto_fit_places_a_stain_in_the_cell_envelope(rendered, qtbot, real_data
     assert viewer.layers[FIT_SYNTHETIC_LAYER].data.shape == crop.shape
 
 
-def test_the_envelope_stain_box_is_fluorescence_only(rendered, real_data_dir):
+def test_auto_fit_images_the_cells_in_depth(rendered, qtbot, real_data_dir):
+    """As `fit --envelope-stain --depth-layers 5`: the same ds2 cell with both boxes
+    ticked; the stain is imaged in 5 slabs, the focal plane is fitted, and the envelope's
+    fraction settles inside its bounds (the 2-D model runs it to 1); the preview draws
+    the slabs."""
+    import tifffile
+
+    from napari_symbac._widgets.tune import FIT_SYNTHETIC_LAYER
+    from napari_symbac.fit.scene_fit import DEPTH_FIT_LAYERS
+
+    viewer, tune = rendered
+    path = real_data_dir / "colicoords" / "test_data" / "ds2" / "fluorescence" / "00066.tif"
+    crop = tifffile.imread(path).astype(np.float32)[0:64, 224:288]
+    real = viewer.add_image(
+        crop, name="ds2", scale=(0.08, 0.08),
+        metadata={"pixel_size_um": 0.08, "modality": "fluorescence"},
+    )  # fmt: skip
+    tune.reference.value = real
+    assert tune.fit_depth.native.isHidden() == (tune.modality.value != "fluorescence")
+    tune.fit_envelope_stain.value = True
+    tune.fit_depth.value = True
+    tune.fit_button.native.click()
+    qtbot.waitUntil(lambda: tune.fit_worker is None, timeout=300_000)
+    result = tune.fit_result
+    assert result is not None, tune.status.value
+    assert len(result.cells) == 1
+    assert result.render.depth_layers == DEPTH_FIT_LAYERS
+    assert 0.1 < abs(result.render.focus_offset_um) < 0.5  # moved off its start, in range
+    assert 0.5 < result.render.envelope_stain_fraction < 0.99
+    assert "focus_offset_um" in result.parameter_names
+    assert tune.preview.render_settings.depth_layers == DEPTH_FIT_LAYERS
+    assert viewer.layers[FIT_SYNTHETIC_LAYER].data.shape == crop.shape
+
+
+def test_the_stain_boxes_are_fluorescence_only(rendered, real_data_dir):
     """Shown for fluorescence only, unticked when hidden; ticked over a phase recording
     (the preview switched to fluorescence) the fit is refused with the fix."""
     viewer, tune = rendered
     tune.reference.value = _real_trench(viewer, real_data_dir)
     assert tune.modality.value == "phase"
-    box = tune.fit_envelope_stain
-    assert box.native.isHidden()  # (the viewer itself is not shown)
-    tune.modality.value = "fluorescence"
-    assert not box.native.isHidden()
-    tune.fit_envelope_stain.value = True
-    tune.fit_button.native.click()
-    assert tune.fit_worker is None
-    assert "this recording is phase: untick 'stain in the cell envelope'" in tune.status.value
-    tune.modality.value = "phase"
-    assert box.native.isHidden()
-    assert not box.value
+    for box in (tune.fit_envelope_stain, tune.fit_depth):
+        assert box.native.isHidden()  # (the viewer itself is not shown)
+        tune.modality.value = "fluorescence"
+        assert not box.native.isHidden()
+        box.value = True
+        tune.fit_button.native.click()
+        assert tune.fit_worker is None
+        assert f"'{box.text}' is fitted in fluorescence; this recording is phase: untick it" in (
+            tune.status.value
+        )
+        tune.modality.value = "phase"
+        assert box.native.isHidden()
+        assert not box.value

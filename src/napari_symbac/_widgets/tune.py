@@ -239,6 +239,16 @@ class TuneWidget(Container):
                 "napari-symbac fit --envelope-stain; Export draws it."
             ),
         )
+        self.fit_depth = CheckBox(
+            name="fit_depth",
+            text="image the cells in depth (eq. 16)",
+            tooltip=(
+                "Fluorescence: image the stain in slabs through the cells, each through the "
+                "PSF defocused by its distance from the focal plane, which is fitted (a "
+                "cell's top and bottom are out of focus), as napari-symbac fit "
+                "--depth-layers 5; a fit takes 2-5 times as long. Export draws it."
+            ),
+        )
         self.fit_button = PushButton(
             name="fit",
             text="Auto-fit to the real image",
@@ -274,6 +284,7 @@ class TuneWidget(Container):
                 self.fit_iterations,
                 self.fit_all_frames,
                 self.fit_envelope_stain,
+                self.fit_depth,
                 self.fit_button,
                 self.cancel_fit_button,
                 self.status,
@@ -410,9 +421,10 @@ class TuneWidget(Container):
         for name in LINEAR_ONLY:
             self.sliders[name].visible = not coherent
         fluorescence = modality == "fluorescence"
-        self.fit_envelope_stain.visible = fluorescence
-        if not fluorescence:  # a hidden box asks for nothing
-            self.fit_envelope_stain.value = False
+        for box in (self.fit_envelope_stain, self.fit_depth):
+            box.visible = fluorescence
+            if not fluorescence:  # a hidden box asks for nothing
+                box.value = False
 
     def _store_fitted_simulation(self, result) -> str:
         """The simulation the fit implies (the fitted cells' width and division length,
@@ -572,19 +584,30 @@ class TuneWidget(Container):
         )  # a time-lapse: once any frame is a colony, every frame is drawn alike (as the CLI)
         self._fit_notes = fit_notes(microscope.modality, geometry, colony=colony)
         options = {}
+        stain_boxes = [b for b in (self.fit_envelope_stain, self.fit_depth) if b.value]
+        if stain_boxes and microscope.modality != "fluorescence":
+            message = (
+                f"'{stain_boxes[0].text}' is fitted in fluorescence; this recording is "
+                f"{microscope.modality}: untick it"
+            )
+            self.status.value = message
+            notify_warning(message)
+            return
         if self.fit_envelope_stain.value:
             from napari_symbac.fit.scene_fit import ENVELOPE_FIT_OPTICS, envelope_stain_start
 
-            if microscope.modality != "fluorescence":
-                message = (
-                    "The stain's place in the cell envelope is fitted in fluorescence; this "
-                    f"recording is {microscope.modality}: untick 'stain in the cell envelope'"
-                )
-                self.status.value = message
-                notify_warning(message)
-                return
             options["fit_optics"] = ENVELOPE_FIT_OPTICS
             render = envelope_stain_start(render)
+        if self.fit_depth.value:
+            from napari_symbac.fit.scene_fit import (
+                DEFAULT_FIT_OPTICS,
+                DEPTH_FIT_LAYERS,
+                depth_start,
+            )
+
+            optics = options.get("fit_optics", DEFAULT_FIT_OPTICS["fluorescence"])
+            options["fit_optics"] = (*optics, "focus_offset_um")
+            render = depth_start(render, DEPTH_FIT_LAYERS)
         if masks is not None and labels is not None:
             self._fit_notes.append("the cell masks were used; the painted classes were not")
         iterations = self.fit_iterations.value

@@ -78,6 +78,9 @@ ENVELOPE_START = 0.5
 #: settings put it at the cells' mid-plane: the image is the same at ``+z`` and ``-z``,
 #: so at 0 the fit's gradient in it vanishes; ColiCoords ds2 fits 0.21 um (docs/fitting.md).
 DEPTH_FOCUS_START_UM = 0.2
+#: Slabs of a depth-resolved fit when the user names none (Auto-fit's check box): 5 fit
+#: ColiCoords ds2 as well as 15 (docs/fitting.md).
+DEPTH_FIT_LAYERS = 5
 
 
 def depth_start(render: RenderSettings, layers: int) -> RenderSettings:
