@@ -328,6 +328,55 @@ def test_a_microscope_file_as_config_is_refused_in_one_line(tmp_path, capsys, co
     assert not out.exists()
 
 
+@pytest.mark.parametrize(
+    ("argv", "held", "wanted"),
+    [
+        (["fit", "IMAGE", "--microscope", "SIM"], "holds simulation settings", "microscope"),
+        (["fit", "IMAGE", "--microscope", "PIPE"], "is a pipeline file", "microscope"),
+        (["diagnose", "IMAGE", "--microscope", "SIM"], "holds simulation settings", "microscope"),
+        (["diagnose", "IMAGE", "--microscope", "PIPE"], "is a pipeline file", "microscope"),
+        (["calibrate", "IMAGE", "--microscope", "EXPORT"], "holds export settings", "microscope"),
+        (["export", "--config", "SIM"], "holds simulation settings", "export"),
+        (["simulate", "--config", "EXPORT"], "holds export settings", "simulation"),
+        (["render", "SIMDIR", "--config", "EXPORT"], "holds export settings", "pipeline"),
+    ],
+)
+def test_a_settings_file_of_another_kind_is_refused_in_one_line(
+    tmp_path, capsys, argv, held, wanted
+):
+    """Found as a user: `fit --microscope settings.yaml` (the pipeline file fit itself
+    writes), `diagnose --microscope sim.yaml`, `calibrate --microscope export.yaml`,
+    `simulate`/`render --config export.yaml` listed every field of the file as unknown
+    (26 for a simulation file), and `export --config sim.yaml` did too, since `seed` is a
+    field of both kinds. Now one line names the file, its kind and the kind wanted."""
+    from napari_symbac.export import ExportSettings
+    from napari_symbac.settings import PipelineSettings, SimulationSettings, save_settings
+
+    files = {
+        "SIM": save_settings(SimulationSettings(n_frames=2), tmp_path / "sim.yaml"),
+        "PIPE": save_settings(PipelineSettings(), tmp_path / "settings.yaml"),
+        "EXPORT": save_settings(ExportSettings(n_items=2), tmp_path / "export.yaml"),
+    }
+    image = tmp_path / "frame.tif"
+    tifffile.imwrite(image, np.random.default_rng(0).integers(900, 1100, (64, 64), np.uint16))
+    files["IMAGE"] = image
+    files["SIMDIR"] = tmp_path / "sim"
+    if "SIMDIR" in argv:
+        assert main(["simulate", "--out", str(tmp_path / "sim"), "--frames", "2"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "out"
+    code = main([str(files.get(a, a)) for a in argv] + ["--out", str(out)])
+    error = capsys.readouterr().err
+    assert code == 2
+    line = error.strip().splitlines()[-1]
+    assert held in line
+    assert str(files[argv[-1]]) in line
+    assert f"napari-symbac defaults {wanted} --out FILE" in line
+    assert "unknown field" not in error
+    assert "Traceback" not in error
+    assert not out.exists()
+
+
 def test_a_typo_in_a_simulation_file_names_the_file(tmp_path, capsys):
     """`simulate --config` with a misspelt field: the message names the file, as every
     other command's settings errors do."""

@@ -1094,7 +1094,7 @@ def _naming_the_file(path: str | Path) -> Iterator[None]:
 def _refuse_a_section_file(data: Any, path: str | Path) -> None:
     """Refuse, in one line, a file of one section's fields given where a pipeline file
     is wanted (``render --config sim.yaml``): before, the message listed its 26 fields
-    as unknown."""
+    as unknown. An export file (``render --config export.yaml``) is refused so too."""
     if not isinstance(data, dict) or not data or _is_pipeline_mapping(data):
         return
     hints = typing.get_type_hints(PipelineSettings)
@@ -1109,29 +1109,73 @@ def _refuse_a_section_file(data: Any, path: str | Path) -> None:
                 "from `napari-symbac defaults pipeline --out FILE`, or put these fields "
                 f"under `{section.name}:`)"
             )
+    _refuse_another_kind(data, path, PipelineSettings)
 
 
 def _refuse_another_kind(data: Any, path: str | Path, cls: type) -> None:
     """Refuse, in one line, a file of another kind of settings given where ``cls`` is
     wanted: ``simulate --config microscope.yaml`` (the file ``fit`` takes) listed the
     microscope's fields as unknown and the 26 valid ones, naming neither the file nor the
-    kind wanted. A file with any field of ``cls`` is left to :func:`from_dict` (a typo)."""
+    kind wanted. The kinds recognised are the pipeline's sections, an export file and a
+    pipeline file (where a pipeline is not wanted). A file whose fields are all of
+    ``cls``, or of no single other kind, is left to :func:`from_dict` (a typo there is
+    named by it).
+
+    Found as a user: ``fit --microscope settings.yaml`` (the file ``fit`` writes),
+    ``diagnose --microscope sim.yaml`` and ``export --config sim.yaml`` (whose ``seed``
+    is a field of both) listed every field of the file as unknown."""
     if not isinstance(data, dict) or not data:
         return
-    if set(data) & {f.name for f in dataclasses.fields(cls)}:
+    keys = set(data)
+    if keys <= _field_names(cls):
         return
-    hints = typing.get_type_hints(PipelineSettings)
-    for section in dataclasses.fields(PipelineSettings):
-        kind = hints[section.name]
-        if kind is cls or not dataclasses.is_dataclass(kind):
+    for kind, names in _settings_kinds():
+        if kind == _kind_name(cls) or not keys <= names:
             continue
-        if set(data) <= {f.name for f in dataclasses.fields(kind)}:
-            wanted = _kind_name(cls)
-            raise ValueError(
-                f"{path} holds {section.name} settings, and {wanted} settings are wanted "
-                f"here (start from `napari-symbac defaults {wanted} --out FILE`, or give "
-                "a pipeline file such as the settings.yaml that fit writes)"
+        wanted = _kind_name(cls)
+        held = "is a pipeline file" if kind == "pipeline" else f"holds {kind} settings"
+        if cls is Microscope and kind == "pipeline":
+            hint = (
+                "copy its microscope: section into a file of its own, or start from "
+                "`napari-symbac defaults microscope --out FILE`"
             )
+        elif cls is Microscope:
+            hint = (
+                "start from `napari-symbac defaults microscope --out FILE`, or copy the "
+                "microscope: section of a pipeline file (the settings.yaml that fit "
+                "writes) into a file of its own"
+            )
+        elif cls is PipelineSettings:
+            hint = "start from `napari-symbac defaults pipeline --out FILE`"
+            if kind == "export":
+                hint = f"copy its pipeline: section into a file of its own, or {hint}"
+        else:
+            hint = (
+                f"start from `napari-symbac defaults {wanted} --out FILE`, or give a "
+                "pipeline file such as the settings.yaml that fit writes"
+            )
+        wanted_text = "a pipeline file is" if cls is PipelineSettings else f"{wanted} settings are"
+        raise ValueError(f"{path} {held}, and {wanted_text} wanted here ({hint})")
+
+
+def _field_names(cls: type) -> set[str]:
+    return {f.name for f in dataclasses.fields(cls)}
+
+
+def _settings_kinds() -> list[tuple[str, set[str]]]:
+    """Each kind of settings file (as ``napari-symbac defaults`` names it) with its
+    fields: the pipeline's sections, then an export file, then a pipeline file."""
+    from napari_symbac.export.dataset import ExportSettings
+
+    hints = typing.get_type_hints(PipelineSettings)
+    kinds = [
+        (section.name, _field_names(hints[section.name]))
+        for section in dataclasses.fields(PipelineSettings)
+        if dataclasses.is_dataclass(hints[section.name])
+    ]
+    kinds.append(("export", _field_names(ExportSettings)))
+    kinds.append(("pipeline", _field_names(PipelineSettings)))
+    return kinds
 
 
 def _kind_name(cls: type) -> str:
@@ -1180,6 +1224,7 @@ def load_microscope(path: str | Path) -> Microscope:
         from napari_symbac.diagnose.config import parse_microscope
 
         return parse_microscope(data, str(path)).microscope
+    _refuse_another_kind(data, path, Microscope)
     with _naming_the_file(path):
         return from_dict(Microscope, data)
 
