@@ -434,3 +434,31 @@ def test_export_of_a_pipeline_file_takes_n_items(tmp_path, capsys):
         "napari-symbac export: error: argument --n-items: must be at least 1, got 0 "
         "(see napari-symbac export --help)\n"
     )
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["diagnose", "IMAGE", "--microscope", "M", "--seed", "-3"],
+        ["calibrate", "IMAGE", "--microscope", "M", "--seed=-4"],
+        ["simulate", "--seed", "-1"],
+        ["demo", "--seed", "two"],
+    ],
+)
+def test_a_negative_seed_is_a_usage_error_before_any_work(tmp_path, capsys, argv):
+    """Found as a user: `diagnose --seed -3` ran its 11 s base fit on the real trench,
+    then said "error: expected non-negative integer", naming no option; `calibrate
+    --seed -4` refused only after its 25 s fit. Now argparse refuses it at once."""
+    image = tmp_path / "frame.tif"
+    tifffile.imwrite(image, np.random.default_rng(0).integers(900, 1100, (64, 64), np.uint16))
+    microscope = tmp_path / "m.yaml"
+    microscope.write_text("pixel_size_um: 0.065\n")
+    argv = [{"IMAGE": str(image), "M": str(microscope)}.get(a, a) for a in argv]
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as exit_info:
+        main([*argv, "--out", str(out)])
+    error = capsys.readouterr().err
+    assert exit_info.value.code == 2
+    assert "argument --seed: must be" in error
+    assert len(error.strip().splitlines()) == 1
+    assert not out.exists()
