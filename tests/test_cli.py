@@ -462,3 +462,29 @@ def test_a_negative_seed_is_a_usage_error_before_any_work(tmp_path, capsys, argv
     assert "argument --seed: must be" in error
     assert len(error.strip().splitlines()) == 1
     assert not out.exists()
+
+
+def test_the_default_export_file_draws_filled_trenches(tmp_path, capsys):
+    """Found as a user following docs/export.md (`defaults export --out export.yaml`,
+    then `export --config export.yaml`): the file said first_frame: 0, and the first
+    image of the dataset was frame 1 of the simulation, one cell in an empty trench. The
+    file is now the default export of the default pipeline (`export.export_of`), whose
+    trench images are drawn after the trench has filled, as for a pipeline file."""
+    import json
+
+    from napari_symbac.export.dataset import trench_filled_frame
+    from napari_symbac.settings import SimulationSettings
+
+    config = tmp_path / "export.yaml"
+    assert main(["defaults", "export", "--out", str(config)]) == 0
+    out = tmp_path / "dataset"
+    code = main(["export", "--config", str(config), "--out", str(out), "--n-items", "8",
+                 "--workers", "1"])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    filled = trench_filled_frame(SimulationSettings())
+    frames = [
+        json.loads(p.read_text())["params"]["frame"]
+        for p in sorted((out / "manifest_items").glob("*.json"))
+    ]
+    assert len(frames) == 8
+    assert min(frames) >= filled > 0

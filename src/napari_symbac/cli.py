@@ -538,9 +538,13 @@ def _cmd_defaults(args: argparse.Namespace) -> int:
     from napari_symbac import settings as settings_module
 
     if args.kind == "export":
-        from napari_symbac.export import ExportSettings
+        from napari_symbac.export import export_of
 
-        default = ExportSettings()
+        # the default export of the default pipeline: its trench's images drawn from the
+        # frames after it has filled (found as a user: `defaults export` wrote
+        # first_frame: 0, and the export of that file drew frame 1, one cell in an
+        # empty trench, for the first of its images)
+        default = export_of(settings_module.PipelineSettings())
     else:
         classes = {
             "pipeline": settings_module.PipelineSettings,
