@@ -201,3 +201,26 @@ def test_closing_the_viewer_during_a_run_is_clean(diagnose_widget, qtbot):
     viewer.close()
     qtbot.waitUntil(lambda: job.cancelled.is_set(), timeout=10_000)
     qtbot.waitUntil(lambda: not job.worker.is_running, timeout=60_000)
+
+
+def test_diagnose_names_the_image_that_waits_for_its_pixel_size(
+    make_napari_viewer, real_data_dir
+):
+    """Found as a user: the real trench opened (it records no pixel size) and Diagnose
+    clicked before entering it said "No recording: open your image and set its pixel size
+    in Real image and classes": the image was open, and the workflow names that step
+    *1 Recording*. Now the image is named, with the tab to enter its pixel size in."""
+    import tifffile
+
+    viewer = make_napari_viewer()
+    widget = DiagnoseWidget(viewer, candidates=CANDIDATES, n_bootstrap=5)
+    widget.run_button.clicked.emit()
+    assert widget.status.value.startswith("No recording: open your image in the 1 Recording")
+    real = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")
+    viewer.add_image(real, name="my trench", metadata={"pixel_size_um": 0.0})
+    widget.run_button.clicked.emit()
+    assert widget.worker is None
+    assert widget.status.value == (
+        "my trench has no pixel size yet: enter it in the 1 Recording tab (or "
+        "the Real image and classes dock), then choose it here"
+    )

@@ -116,6 +116,36 @@ def recordings(viewer: Any) -> list:
     return [layer for layer in viewer.layers if is_recording(layer)]
 
 
+def no_recording_message(viewer: Any, then: str) -> str:
+    """Why no recording can be chosen, and what to do, ending with ``then``.
+
+    Found as a user: with the trench opened but its pixel size not yet entered, Diagnose
+    said "No recording: open your image and set its pixel size in Real image and
+    classes": the image was open, and the workflow dock names that step *1 Recording*.
+    An image that waits for its pixel size is now named, with the step to enter it in.
+    """
+    from napari.layers import Image
+
+    from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
+
+    step = "the 1 Recording tab (or the Real image and classes dock)"
+    waiting = [
+        layer
+        for layer in viewer.layers
+        if isinstance(layer, Image)
+        and not layer.rgb
+        and SYMBAC_METADATA_KEY not in layer.metadata
+        and not is_recording(layer)
+    ]
+    if waiting:
+        layer = waiting[-1]
+        problem = pixel_size_problem(layer.metadata.get("pixel_size_um")) or ""
+        if problem.startswith("no pixel size"):
+            return f"{layer.name} has no pixel size yet: enter it in {step}, then {then}"
+        return f"{layer.name}: {problem}; correct it in {step}, then {then}"
+    return f"No recording: open your image in {step} and set its pixel size, then {then}"
+
+
 def watch_recordings(viewer: Any, refresh: Callable[..., None]) -> None:
     """Call ``refresh`` whenever the viewer's recordings may have changed.
 

@@ -24,6 +24,7 @@ from napari_symbac._widgets._recording import (
     check_recording_frame,
     is_recording,
     modality_render,
+    no_recording_message,
     recording_microscope,
     watch_recordings,
 )
@@ -142,10 +143,7 @@ class DiagnoseWidget(Container):
 
         layer = self.reference.value
         if layer is None:
-            raise ValueError(
-                "No recording: open your image and set its pixel size in Real image and "
-                "classes, then choose it here"
-            )
+            raise ValueError(no_recording_message(self.viewer, "choose it here"))
         microscope = recording_microscope(layer)
         data = np.asarray(layer.data)
         index = int(self.viewer.dims.current_step[0]) if data.ndim == 3 else 0

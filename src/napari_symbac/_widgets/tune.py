@@ -30,6 +30,7 @@ from napari_symbac._widgets._recording import (
     check_recording_frame,
     is_recording,
     modality_render,
+    no_recording_message,
     watch_recordings,
 )
 from napari_symbac._widgets.real_image import class_layer_name
@@ -682,8 +683,7 @@ class TuneWidget(Container):
             )
         if reference is None:
             raise ValueError(
-                "No real image: open your recording and set its pixel size in Real image "
-                "and classes, then choose it as the real image here"
+                no_recording_message(self.viewer, "choose it as the real image here")
             )
         settings = self.source.value.metadata[SYMBAC_METADATA_KEY]["settings"]
         microscope = self.preview.model.microscope
