@@ -423,7 +423,15 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             # Without a camera in the file the first frame's fit measures it (gain and
             # read noise from the image, as `napari-symbac fit` does); the other frames
             # and the diagnosis use that camera.
-            fit = fit_scene(frame, microscope, render, camera, labels=labels, geometry=geometry)
+            try:
+                fit = fit_scene(
+                    frame, microscope, render, camera, labels=labels, geometry=geometry
+                )
+            except ValueError as err:
+                if "no cells" not in str(err):
+                    raise
+                advice = _no_cells_advice(err, k, len(stack), region, frame_shape)
+                raise ValueError(advice) from err
             if first_fit is None:  # the settings' simulation is fitted to frame 0
                 first_fit = fit
             if camera is None:
@@ -530,6 +538,32 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if out is not None:
         print(f"\nwrote {', '.join(p.name for p in written)} to {out}")
     return 0
+
+
+def _no_cells_advice(
+    err: Exception,
+    k: int,
+    n_frames: int,
+    region: tuple[int, int, int, int],
+    frame_shape: tuple[int, ...],
+) -> str:
+    """The base fit's "no cells" of diagnose, with where and what to do. Found as a
+    user: `diagnose` of ColiCoords ds3 (4 frames of 512 x 512 px, cells off centre) said
+    only "the start found no cells in the image": its frame 1 held none in the centre
+    256 x 256 px window that is diagnosed by default, which the message did not say."""
+    y0, y1, x0, x1 = region
+    where = f"frame {k}" if n_frames > 1 else "the image"
+    if region != (0, frame_shape[0], 0, frame_shape[1]):
+        where += f", rows {y0}:{y1}, columns {x0}:{x1}"
+    every = " in every frame" if n_frames > 1 else ""
+    fix = (
+        f"pass --region Y0:Y1,X0:X1 for a window with cells{every}, or --region full"
+        if region != (0, frame_shape[0], 0, frame_shape[1])
+        else "give an image with cells in it"
+    )
+    if n_frames > 1:
+        fix += ", or diagnose the frames with cells on their own (a TIFF of those frames)"
+    return f"{where}: {err}: {fix}"
 
 
 def _cmd_defaults(args: argparse.Namespace) -> int:

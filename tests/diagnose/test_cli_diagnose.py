@@ -204,3 +204,28 @@ def test_diagnose_says_when_the_noise_is_correlated(tmp_path, capsys, real_data_
     assert "its noise is correlated between neighbours" in err
     notes = json.loads((out / "diagnosis.json").read_text())["notes"]
     assert any("correlated between neighbours" in note for note in notes)
+
+
+@pytest.mark.parametrize("n_frames", [1, 2])
+def test_no_cells_in_the_diagnosed_window_names_it_and_the_fix(tmp_path, capsys, n_frames):
+    """Found as a user: `diagnose` of ColiCoords ds3 (4 frames of 512 x 512 px) said only
+    "error: the start found no cells in the image (no region of 6 pixels or more)": its
+    frame 1 held no cell in the centre 256 x 256 px window diagnosed by default, which
+    the message did not say, nor that --region picks another. Here a 300 x 300 field
+    whose only cell lies in a corner, outside that window."""
+    rng = np.random.default_rng(0)
+    frame = rng.poisson(200, (300, 300)).astype(np.float64) + 100
+    frame[3:12, 3:40] += 3000
+    image = tmp_path / "corner.tif"
+    tifffile.imwrite(image, np.stack([frame] * n_frames).astype(np.uint16).squeeze())
+    mic = tmp_path / "mic.yaml"
+    mic.write_text("pixel_size_um: 0.08\nmodality: fluorescence\nwavelength_um: 0.53\n")
+    out = tmp_path / "out"
+    code = main(["diagnose", str(image), "--microscope", str(mic), "--out", str(out)])
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert code == 2
+    where = "frame 0" if n_frames > 1 else "the image"
+    assert f"{where}, rows 22:278, columns 22:278: the start found no cells" in error
+    assert "pass --region Y0:Y1,X0:X1 for a window with cells" in error
+    assert "--region full" in error
+    assert not out.exists()
