@@ -224,3 +224,28 @@ def test_diagnose_names_the_image_that_waits_for_its_pixel_size(
         "my trench has no pixel size yet: enter it in the 1 Recording tab (or "
         "the Real image and classes dock), then choose it here"
     )
+
+
+def test_diagnose_says_the_centre_window_holds_no_cells(make_napari_viewer, qtbot):
+    """Found as a user: a 300 x 300 px fluorescence field whose only cell lies in a
+    corner, outside the centre 256 x 256 px that the dock diagnoses, said "Diagnosis
+    failed: the start found no cells in the image", of an image with a cell in it. Now the
+    window and the ways out (crop, or the CLI's --region) are said."""
+    rng = np.random.default_rng(0)
+    frame = rng.poisson(200, (300, 300)).astype(np.float64) + 100
+    frame[3:12, 3:40] += 3000
+    viewer = make_napari_viewer()
+    viewer.add_image(
+        frame.astype(np.uint16),
+        name="field",
+        scale=(0.08, 0.08),
+        metadata={"pixel_size_um": 0.08, "modality": "fluorescence"},
+    )
+    widget = DiagnoseWidget(viewer, candidates=CANDIDATES, n_bootstrap=5)
+    widget.run_button.clicked.emit()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=60_000)
+    status = widget.status.value
+    assert status.startswith("Diagnosis failed: the start found no cells")
+    assert "in the centre 256 x 256 px (rows 22:278, columns 22:278) of the 300 x 300" in status
+    assert "--region Y0:Y1,X0:X1" in status
+    assert DIAGNOSIS_RESIDUAL_LAYER not in viewer.layers

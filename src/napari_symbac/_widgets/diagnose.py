@@ -42,6 +42,22 @@ DIAGNOSIS_RESIDUAL_LAYER = "diagnosis residual"
 DIAGNOSIS_AFTER_LAYER = "diagnosis residual after"
 
 
+def no_cells_in_window(
+    err: Exception, region: tuple[int, int, int, int], full: tuple[int, ...]
+) -> str:
+    """The base fit's "no cells" in the window the dock diagnoses, said with that window
+    and what to do. Found as a user: a 300 x 300 px field whose cells lie outside its
+    centre 256 x 256 px said only "Diagnosis failed: the start found no cells in the
+    image", of an image with cells in it; the dock has no choice of window."""
+    y0, y1, x0, x1 = region
+    return (
+        f"{err}, in the centre {y1 - y0} x {x1 - x0} px (rows {y0}:{y1}, columns "
+        f"{x0}:{x1}) of the {full[0]} x {full[1]} frame, which is what the dock diagnoses: "
+        "crop the recording to a window with cells and diagnose that layer, or run "
+        "`napari-symbac diagnose IMAGE --region Y0:Y1,X0:X1` (or --region full)"
+    )
+
+
 def effect_layer_name(name: str) -> str:
     """The layer of an accepted effect's map."""
     return f"diagnosis effect: {name}"
@@ -204,16 +220,21 @@ class DiagnoseWidget(Container):
             from napari_symbac.fit import fit_scene
             from napari_symbac.fit.fitted_settings import fitted_or_kept
 
-            fit = fit_scene(
-                frame,
-                microscope,
-                render,
-                camera,
-                labels=labels,
-                geometry=geometry,
-                progress=lambda done, total: progress(0, 1),
-                cancel=cancel,
-            )
+            try:
+                fit = fit_scene(
+                    frame,
+                    microscope,
+                    render,
+                    camera,
+                    labels=labels,
+                    geometry=geometry,
+                    progress=lambda done, total: progress(0, 1),
+                    cancel=cancel,
+                )
+            except ValueError as err:
+                if "no cells" not in str(err) or region == (0, full[0], 0, full[1]):
+                    raise
+                raise ValueError(no_cells_in_window(err, region, full)) from err
             if cancel():
                 raise InterruptedError("diagnosis cancelled")
             layout = simulated_shape(region, full, fit.trench is not None)
