@@ -488,3 +488,25 @@ def test_the_default_export_file_draws_filled_trenches(tmp_path, capsys):
     ]
     assert len(frames) == 8
     assert min(frames) >= filled > 0
+
+
+@pytest.mark.parametrize("command", ["fit", "calibrate"])
+def test_float_masks_are_refused_with_the_fix(tmp_path, capsys, command):
+    """Found as a user: masks saved as a float 0/0.7 map got "--masks must hold integer
+    cell ids, got float32", which names the problem but not what to do."""
+    rng = np.random.default_rng(0)
+    image = tmp_path / "field.tif"
+    tifffile.imwrite(image, rng.integers(900, 1100, (128, 128), np.uint16))
+    masks = np.zeros((128, 128), np.float32)
+    masks[40:50, 30:70] = 0.7
+    tifffile.imwrite(tmp_path / "masks.tif", masks)
+    microscope = tmp_path / "m.yaml"
+    microscope.write_text("pixel_size_um: 0.08\nmodality: fluorescence\n")
+    out = tmp_path / "out"
+    code = main([command, str(image), "--masks", str(tmp_path / "masks.tif"),
+                 "--microscope", str(microscope), "--out", str(out)])  # fmt: skip
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert code == 2
+    assert "must hold integer cell ids (0 background, 1..N one id per cell), got float32" in error
+    assert "skimage.measure.label" in error
+    assert not out.exists()

@@ -143,7 +143,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from napari_symbac.calibrate import calibrate, compare_images, export_settings, montage
     from napari_symbac.export import export_dataset
     from napari_symbac.export.dataset import PipelineSource
-    from napari_symbac.fit.preflight import resolve_pixel_size
+    from napari_symbac.fit.preflight import not_integer_masks, resolve_pixel_size
     from napari_symbac.settings import (
         Camera,
         load_microscope,
@@ -186,7 +186,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
             None if args.labels is None else read_frame(args.labels, "--labels", args.frame).data
         )
         if masks is not None and not np.issubdtype(masks.dtype, np.integer):
-            raise ValueError(f"--masks must hold integer cell ids, got {masks.dtype}")
+            raise ValueError(not_integer_masks("--masks", masks.dtype))
         _check_inputs(args, image, masks, labels)
         microscope = load_microscope(args.microscope)
         camera = None if args.camera is None else load_settings(args.camera, Camera)

@@ -219,6 +219,17 @@ def check_class_labels(labels: np.ndarray, shape: tuple[int, ...], name: str = "
         raise ValueError(f"{name} has no cell class (1): paint at least one cell as 1")
 
 
+def not_integer_masks(name: str, dtype: object) -> str:
+    """What is wrong with masks of a non-integer ``dtype``, and the fix. Found as a user:
+    a float mask (a probability or binary map saved as float32) got "--masks must hold
+    integer cell ids, got float32", with no word of what to do."""
+    return (
+        f"{name} must hold integer cell ids (0 background, 1..N one id per cell), got "
+        f"{dtype}: save the masks as integer labels; a probability or 0/1 map is not "
+        "instance masks, label its cells first (e.g. skimage.measure.label(mask > 0.5))"
+    )
+
+
 def check_instance_masks(masks: np.ndarray, shape: tuple[int, ...], name: str = "masks") -> None:
     """Instance masks: the image's shape, integer ids, background 0 and some cells."""
     if masks.shape != shape:
@@ -227,7 +238,7 @@ def check_instance_masks(masks: np.ndarray, shape: tuple[int, ...], name: str = 
             "masks of this image (or crop both alike)"
         )
     if not (np.issubdtype(masks.dtype, np.integer) or masks.dtype == bool):
-        raise ValueError(f"{name} must hold integer cell ids (0 background), got {masks.dtype}")
+        raise ValueError(not_integer_masks(name, masks.dtype))
     if masks.min() < 0:
         raise ValueError(f"{name} has negative ids: cell ids must be >= 1, background 0")
     if not (masks > 0).any():
