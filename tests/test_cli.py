@@ -339,6 +339,8 @@ def test_a_microscope_file_as_config_is_refused_in_one_line(tmp_path, capsys, co
         (["export", "--config", "SIM"], "holds simulation settings", "export"),
         (["simulate", "--config", "EXPORT"], "holds export settings", "simulation"),
         (["render", "SIMDIR", "--config", "EXPORT"], "holds export settings", "pipeline"),
+        (["fit", "IMAGE", "--microscope", "MIC", "--camera", "MIC"], "holds microscope", "camera"),
+        (["fit", "IMAGE", "--microscope", "MIC", "--camera", "PIPE"], "is a pipeline", "camera"),
     ],
 )
 def test_a_settings_file_of_another_kind_is_refused_in_one_line(
@@ -346,16 +348,23 @@ def test_a_settings_file_of_another_kind_is_refused_in_one_line(
 ):
     """Found as a user: `fit --microscope settings.yaml` (the pipeline file fit itself
     writes), `diagnose --microscope sim.yaml`, `calibrate --microscope export.yaml`,
-    `simulate`/`render --config export.yaml` listed every field of the file as unknown
-    (26 for a simulation file), and `export --config sim.yaml` did too, since `seed` is a
-    field of both kinds. Now one line names the file, its kind and the kind wanted."""
+    `simulate`/`render --config export.yaml`, `fit --camera microscope.yaml` listed every
+    field of the file as unknown (26 for a simulation file), and `export --config
+    sim.yaml` did too, since `seed` is a field of both kinds. Now one line names the
+    file, its kind and the kind wanted."""
     from napari_symbac.export import ExportSettings
-    from napari_symbac.settings import PipelineSettings, SimulationSettings, save_settings
+    from napari_symbac.settings import (
+        Microscope,
+        PipelineSettings,
+        SimulationSettings,
+        save_settings,
+    )
 
     files = {
         "SIM": save_settings(SimulationSettings(n_frames=2), tmp_path / "sim.yaml"),
         "PIPE": save_settings(PipelineSettings(), tmp_path / "settings.yaml"),
         "EXPORT": save_settings(ExportSettings(n_items=2), tmp_path / "export.yaml"),
+        "MIC": save_settings(Microscope(pixel_size_um=0.08), tmp_path / "microscope.yaml"),
     }
     image = tmp_path / "frame.tif"
     tifffile.imwrite(image, np.random.default_rng(0).integers(900, 1100, (64, 64), np.uint16))

@@ -1074,6 +1074,8 @@ def load_settings(path: str | Path, cls: type[T]) -> T:
     data = read_settings_mapping(path)
     if cls is PipelineSettings:
         _refuse_a_section_file(data, path)
+    else:  # `fit --camera microscope.yaml` listed the microscope's fields as unknown
+        _refuse_another_kind(data, path, cls)
     with _naming_the_file(path):
         return from_dict(cls, data)
 
@@ -1134,26 +1136,20 @@ def _refuse_another_kind(data: Any, path: str | Path, cls: type) -> None:
             continue
         wanted = _kind_name(cls)
         held = "is a pipeline file" if kind == "pipeline" else f"holds {kind} settings"
-        if cls is Microscope and kind == "pipeline":
-            hint = (
-                "copy its microscope: section into a file of its own, or start from "
-                "`napari-symbac defaults microscope --out FILE`"
-            )
+        start = f"start from `napari-symbac defaults {wanted} --out FILE`"
+        if kind == "pipeline":  # a section is wanted: the file holds it
+            hint = f"copy its {wanted}: section into a file of its own, or {start}"
+        elif kind == "export" and cls is PipelineSettings:
+            hint = f"copy its pipeline: section into a file of its own, or {start}"
+        elif wanted in ("simulation", "export"):  # these commands take pipeline files
+            hint = f"{start}, or give a pipeline file such as the settings.yaml that fit writes"
         elif cls is Microscope:
             hint = (
-                "start from `napari-symbac defaults microscope --out FILE`, or copy the "
-                "microscope: section of a pipeline file (the settings.yaml that fit "
-                "writes) into a file of its own"
+                f"{start}, or copy the microscope: section of a pipeline file (the "
+                "settings.yaml that fit writes) into a file of its own"
             )
-        elif cls is PipelineSettings:
-            hint = "start from `napari-symbac defaults pipeline --out FILE`"
-            if kind == "export":
-                hint = f"copy its pipeline: section into a file of its own, or {hint}"
         else:
-            hint = (
-                f"start from `napari-symbac defaults {wanted} --out FILE`, or give a "
-                "pipeline file such as the settings.yaml that fit writes"
-            )
+            hint = start
         wanted_text = "a pipeline file is" if cls is PipelineSettings else f"{wanted} settings are"
         raise ValueError(f"{path} {held}, and {wanted_text} wanted here ({hint})")
 
