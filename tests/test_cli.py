@@ -519,3 +519,11 @@ def test_float_masks_are_refused_with_the_fix(tmp_path, capsys, command):
     assert "must hold integer cell ids (0 background, 1..N one id per cell), got float32" in error
     assert "skimage.measure.label" in error
     assert not out.exists()
+
+
+def test_simulate_counts_one_cell_in_the_singular(tmp_path, capsys):
+    """Found as a user: `simulate --frames 5` of a fitted trench said "wrote simulation
+    of 5 frames, 1 cells"."""
+    out = tmp_path / "sim"
+    assert main(["simulate", "--frames", "1", "--out", str(out)]) == 0
+    assert f"wrote simulation of 1 frame, 1 cell to {out}" in capsys.readouterr().out

@@ -44,6 +44,11 @@ def _at_least_one(text: str) -> int:
     return value
 
 
+def _count(n: int, noun: str) -> str:
+    """``n`` and ``noun``, plural unless ``n`` is 1 ("1 cell", "5 frames")."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
 def _seed(text: str) -> int:
     """argparse type: a seed, an integer >= 0 (numpy's seeds). Found as a user:
     `diagnose --seed -3` said "expected non-negative integer", naming no option, after
@@ -133,7 +138,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         simulation = simulate(settings, progress=update)
     bar.close()
     print(
-        f"wrote simulation of {settings.n_frames} frames, {len(simulation.lineage)} cells to {out}"
+        f"wrote simulation of {_count(settings.n_frames, 'frame')}, "
+        f"{_count(len(simulation.lineage), 'cell')} to {out}"
     )
     print(timer.report())
     return 0
