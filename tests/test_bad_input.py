@@ -827,3 +827,17 @@ def test_diagnose_refuses_a_folder_of_another_commands_files(tmp_path, fit_input
         (out / name).write_text("")
     found = earlier_run(out, "diagnose", _diagnose_writes)
     assert sorted(p.name for p in found) == ["diagnosis.json", "effect_halo.png", "report.txt"]
+
+
+def test_export_to_folder_of_another_export_names_what_differs(tmp_path, export_config, capsys):
+    """Found as a user: re-running `export --config calibrated/export_settings.yaml --out
+    calibrated/dataset` with another --n-items said only "different settings or formats";
+    the user had to compare two JSON files to find it was the number of items."""
+    out = tmp_path / "dataset"
+    args = ["export", "--config", str(export_config), "--out", str(out), "--workers", "1"]
+    assert _run([*args, "--n-items", "2"], capsys)[0] == 0
+    before = _files(out)
+    code, err = _run([*args, "--n-items", "3"], capsys)
+    assert code == 2
+    assert "different settings or formats (n_items: 2 there, 3 here); to resume" in err
+    assert _files(out) == before

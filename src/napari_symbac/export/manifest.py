@@ -154,6 +154,29 @@ def check_dataset_folder(out_dir: str | os.PathLike) -> None:
         )
 
 
+def _differences(old: Any, new: Any, most: int = 3) -> str:
+    """The settings that differ between two manifests' records, as "settings.n_items: 4
+    there, 3 here" (at most ``most``, then how many more). Found as a user: `export
+    --config calibrated/export_settings.yaml --out calibrated/dataset --n-items 3` said
+    only "different settings or formats", leaving the user to compare two JSON files to
+    find that it was the number of items."""
+
+    def walk(a: Any, b: Any, where: str) -> list[str]:
+        if isinstance(a, dict) and isinstance(b, dict):
+            return [
+                line
+                for key in sorted(set(a) | set(b), key=str)
+                for line in walk(a.get(key), b.get(key), f"{where}.{key}" if where else key)
+            ]
+        if a == b:
+            return []
+        return [f"{where}: {json.dumps(a)} there, {json.dumps(b)} here"]
+
+    lines = walk(old, new, "")
+    more = f", and {len(lines) - most} more" if len(lines) > most else ""
+    return "; ".join(lines[:most]) + more
+
+
 def check_or_start_manifest(out_dir: Path, header: Mapping[str, Any]) -> dict[str, Any]:
     """Start ``manifest.json`` in ``out_dir``, or check that it describes the same export.
 
@@ -185,10 +208,17 @@ def check_or_start_manifest(out_dir: Path, header: Mapping[str, Any]) -> dict[st
             ) from err
         keys = ("settings", "formats", "kind")
         if any(old.get(k) != document.get(k) for k in keys):
+            # the settings hold the formats and kind too: said once
+            same = old.get("settings") == document.get("settings")
+            changed = (
+                _differences({k: old.get(k) for k in keys}, {k: document.get(k) for k in keys})
+                if same
+                else _differences(old.get("settings"), document.get("settings"))
+            )
             raise ExportError(
-                f"{out_dir} already holds an export made with different settings or formats; "
-                "to resume it use its own settings (manifest.json records them), or export "
-                "to a new folder",
+                f"{out_dir} already holds an export made with different settings or formats "
+                f"({changed}); to resume it use its own settings (manifest.json records "
+                "them), or export to a new folder",
                 path,
             )
         if old.get("render_backend", "scipy") != document.get("render_backend", "scipy"):
