@@ -527,3 +527,26 @@ def test_simulate_counts_one_cell_in_the_singular(tmp_path, capsys):
     out = tmp_path / "sim"
     assert main(["simulate", "--frames", "1", "--out", str(out)]) == 0
     assert f"wrote simulation of 1 frame, 1 cell to {out}" in capsys.readouterr().out
+
+
+def test_render_of_one_frame_writes_three_files_of_one_shape(tmp_path, capsys):
+    """Found as a user: `render` of a one-frame simulation (the pad `simulate --config
+    fit/settings.yaml` lays out for a fitted field) wrote images.tif and semantic.tif that
+    tifffile, scikit-image and napari read as (Y, X), and labels.tif (uint32, not an
+    ImageJ file) as (1, Y, X): `images[labels > 0]` failed."""
+    import skimage.io
+
+    from napari_symbac.io import read_recording
+
+    sim = tmp_path / "sim"
+    assert main(["simulate", "--frames", "1", "--out", str(sim)]) == 0
+    out = tmp_path / "render"
+    assert main(["render", str(sim), "--out", str(out)]) == 0
+    capsys.readouterr()
+    shapes = set()
+    for name in ("images", "labels", "semantic"):
+        path = out / f"{name}.tif"
+        shapes |= {tifffile.imread(path).shape, skimage.io.imread(path).shape}
+        shapes.add(read_recording(path).data.shape)
+    assert len(shapes) == 1
+    assert len(shapes.pop()) == 2

@@ -230,11 +230,18 @@ def write_tiff(
 ) -> Path:
     """Write ``array`` as a TIFF atomically (no timestamps: reproducible bytes).
 
-    Pixel size and kind are recorded as :func:`tiff_metadata` describes.
+    Pixel size and kind are recorded as :func:`tiff_metadata` describes. A stack of one
+    frame, ``(1, Y, X)``, is written as that frame: readers (tifffile, scikit-image,
+    napari) give an ImageJ file of one frame back as ``(Y, X)``, and a uint32 label
+    image, not an ImageJ file, is now read back so too (found as a user: ``render`` of
+    a one-frame simulation wrote images.tif and semantic.tif that read as (512, 512) and
+    labels.tif as (1, 512, 512)).
     """
     import tifffile
 
     array = np.ascontiguousarray(array)
+    if array.ndim == 3 and array.shape[0] == 1:
+        array = array[0]
     kwargs = tiff_metadata(
         array, pixel_size_um=pixel_size_um, kind=kind, frame_interval_min=frame_interval_min
     )
