@@ -683,3 +683,34 @@ def test_the_stain_boxes_are_fluorescence_only(rendered, real_data_dir):
         tune.modality.value = "phase"
         assert box.native.isHidden()
         assert not box.value
+
+
+def test_masks_opened_beside_the_recording_become_its_cell_masks(make_napari_viewer, real_data_dir):
+    """Found as a user: Omnipose's Sample000193 opened with its `_cp_masks.tif` (a Labels
+    layer), the pixel size entered, Simulate, then Auto-fit: *cell masks* had stayed
+    empty, so the dense colony was fitted without them for 13 min (reduced chi-square
+    222, 45 of its 182 cells) and the report advised `napari-symbac fit --masks`. Now
+    the newest Labels layer of the real image's size with cells in it is chosen, whether
+    it was opened before the pixel size was entered or after; an empty or mis-sized one
+    is not, and a choice of none by hand stays."""
+    import imageio.v3 as iio
+    import tifffile
+
+    root = real_data_dir / "omnipose"
+    grey = np.asarray(iio.imread(root / "Sample000033.png"))[..., 0]
+    masks = tifffile.imread(root / "Sample000033_cp_masks.tif")
+    viewer = make_napari_viewer()
+    tune = TuneWidget(viewer)
+    real = viewer.add_image(grey, name="colony")  # no pixel size yet: not a recording
+    viewer.add_labels(np.zeros_like(masks), name="paint here")  # empty: never chosen
+    viewer.add_labels(masks[:100], name="other masks")  # another size: never chosen
+    opened = viewer.add_labels(masks, name="Sample000033_cp_masks")
+    assert tune.masks.value is None  # no real image yet
+    real.metadata = {**real.metadata, "pixel_size_um": 0.134, "modality": "phase"}
+    assert tune.reference.value is real
+    assert tune.masks.value is opened
+    tune.masks.value = None  # the user's choice: no masks
+    viewer.add_image(np.zeros((4, 4), np.uint16), name="unrelated")
+    assert tune.masks.value is None
+    later = viewer.add_labels(masks, name="masks opened after")
+    assert tune.masks.value is later
