@@ -259,6 +259,10 @@ def test_a_grey_png_saved_as_colour_is_used_by_its_grey_channel(
     assert widget.image.value is grey
     assert grey.data.shape == layer.data.shape[:2]
     np.testing.assert_array_equal(grey.data, np.asarray(layer.data)[..., 0])
+    # shown at its own grey levels (4-14 of 255), as *or open* shows it: napari's 0-255
+    # made the canvas black (found as a user)
+    low, high = grey.contrast_limits
+    assert grey.data.min() <= low < high <= grey.data.max()
     assert "grey image saved as colour" in widget.result.value
     widget.pixel_size.value = 0.065
     assert diagnose.reference.value is grey

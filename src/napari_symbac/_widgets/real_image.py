@@ -310,12 +310,18 @@ class RealImageWidget(Container):
 
         grey = grey_channel(layer.data)
         if grey is not None:
+            # the image's own range, as *or open* shows it (found as a user: the grey
+            # channel of Sample000033.png opened with File > Open, 8-bit values 4-14,
+            # was shown on napari's 0-255 as a black canvas)
+            low, high = np.percentile(grey, (0.1, 99.9))
+            kwargs = {"contrast_limits": (float(low), float(high))} if high > low else {}
             self.viewer.add_image(
                 grey,
                 name=f"{layer.name} grey",
                 scale=layer.scale,
                 units=layer.units,
                 translate=layer.translate,
+                **kwargs,
             )
 
     def _use_grey_channel(self, layer) -> None:
