@@ -290,6 +290,21 @@ def test_progress_is_lines_when_piped(capsys):
     ]
 
 
+def test_progress_of_a_shrinking_total_says_at_most(capsys):
+    """Found as a user: `diagnose`'s total is the most held-out checks still possible,
+    and its lines read "1 of 12", then "6 of 6"; they say "of at most" now."""
+    from napari_symbac import cli
+
+    update, handle = cli._tqdm_progress("diagnose", unit="held-out checks", bound=True)
+    update(1, 12)
+    update(6, 6)
+    handle.close()
+    assert capsys.readouterr().err.splitlines() == [
+        "napari-symbac diagnose: 1 of at most 12 held-out checks",
+        "napari-symbac diagnose: 6 of at most 6 held-out checks",
+    ]
+
+
 def test_render_refuses_a_simulation_file_as_its_config_in_one_line(tmp_path, capsys):
     """Found as a user: `render --config sim.yaml` listed 26 fields as unknown."""
     from napari_symbac.settings import SimulationSettings, save_settings

@@ -21,8 +21,9 @@ class PipedProgress:
     a line when the count moves, at most every :data:`PIPED_PROGRESS_INTERVAL_S`
     seconds, and always the last step."""
 
-    def __init__(self, desc: str, unit: str, stream) -> None:
+    def __init__(self, desc: str, unit: str, stream, *, bound: bool = False) -> None:
         self.desc, self.unit, self.stream = desc, unit, stream
+        self.of = " of at most" if bound else " of"
         self.shown = (0, None)
         self.when = -math.inf
 
@@ -32,7 +33,7 @@ class PipedProgress:
         due = last or now - self.when >= PIPED_PROGRESS_INTERVAL_S
         if done == 0 or (done, total) == self.shown or not due:
             return
-        of = f" of {total}" if total else ""
+        of = f"{self.of} {total}" if total else ""
         print(f"napari-symbac {self.desc}: {done}{of} {self.unit}", file=self.stream, flush=True)
         self.shown, self.when = (done, total), now
 
@@ -41,16 +42,18 @@ class PipedProgress:
 
 
 def progress_bar(
-    desc: str, total: int | None, unit: str, stream: TextIO
+    desc: str, total: int | None, unit: str, stream: TextIO, *, bound: bool = False
 ) -> tuple[Callable[[int, int], None], Any]:
     """``(update, handle)``: a tqdm bar on ``stream`` when it is a terminal, else
     :class:`PipedProgress` lines. ``update(done, total)`` moves it, the total allowed to
-    change as the work learns it; ``handle.close()`` ends it."""
+    change as the work learns it; ``handle.close()`` ends it. ``bound``: the total is the
+    most there can be, and shrinks ("1 of at most 12", then "6 of at most 6")."""
     if not getattr(stream, "isatty", lambda: False)():
-        piped = PipedProgress(desc, unit, stream)
+        piped = PipedProgress(desc, unit, stream, bound=bound)
         return piped, piped
     from tqdm import tqdm
 
+    desc = f"{desc} (of at most)" if bound else desc
     bar = tqdm(total=total, desc=desc, unit=unit.rstrip("s"), leave=False, file=stream)
 
     def update(done: int, total_now: int) -> None:

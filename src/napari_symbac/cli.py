@@ -26,11 +26,11 @@ __all__ = ["interrupted_text", "main"]
 
 
 def _tqdm_progress(
-    desc: str, total: int | None = None, unit: str = "frames"
+    desc: str, total: int | None = None, unit: str = "frames", *, bound: bool = False
 ) -> tuple[Callable[[int, int], None], object]:
     """``(update, handle)``: a tqdm bar on a terminal, lines when piped (stderr;
-    :func:`~napari_symbac._timing.progress_bar`)."""
-    return progress_bar(desc, total, unit, sys.stderr)
+    :func:`~napari_symbac._timing.progress_bar`; ``bound``: the total is an upper bound)."""
+    return progress_bar(desc, total, unit, sys.stderr, bound=bound)
 
 
 def _at_least_one(text: str) -> int:
@@ -450,7 +450,9 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             render = fit.render
             update(k + 1, len(stack))
     bar.close()
-    update, bar = _tqdm_progress("diagnose", unit="held-out checks")
+    # the total is the most checks still possible, and shrinks (found as a user: the
+    # lines read "1 of 12 held-out checks", then "6 of 6")
+    update, bar = _tqdm_progress("diagnose", unit="held-out checks", bound=True)
     with timer.step("diagnose"):
         design = build_design(scenes, microscope, render, camera)
         result = diagnose(stack, design, rng=np.random.default_rng(args.seed), progress=update)
