@@ -98,17 +98,26 @@ def colicoords_field() -> list[tuple]:
     fluorescence = read_recording(folder / "colicoords_fluorescence.tif")
     masks = read_recording(folder / "colicoords_binary.tif")
     axes = micrometre_axes(brightfield.pixel_size_um, 2)
+    # the fluorescence first, with its modality: the Recording dock takes the first image
+    # (found as a user: it took the brightfield, which the model does not image, and
+    # called it phase contrast with a Ph3 condenser)
     return [
-        (brightfield.data, {"name": "ColiCoords brightfield", **axes}, "image"),
         (
             fluorescence.data,
             {
                 "name": "ColiCoords fluorescence",
                 **axes,
                 "colormap": "green",
-                "blending": "additive",
-                "visible": False,
+                "metadata": {
+                    "pixel_size_um": fluorescence.pixel_size_um,
+                    "modality": "fluorescence",
+                },
             },
+            "image",
+        ),
+        (
+            brightfield.data,
+            {"name": "ColiCoords brightfield", **axes, "visible": False},
             "image",
         ),
         (masks.data, {"name": "ColiCoords cells", **axes, "opacity": 0.4}, "labels"),

@@ -69,6 +69,20 @@ def test_real_sample_field_opens(make_napari_viewer):
     assert cells.data.max() >= 5  # several labelled cells
 
 
+def test_the_real_sample_field_is_taken_as_fluorescence(make_napari_viewer):
+    """Found as a user: the Recording dock took the sample's brightfield image (which the
+    model does not image) and called it phase contrast with a Ph3 condenser; it takes
+    the fluorescence image, as fluorescence, with its pixel size."""
+    from napari_symbac._widgets.real_image import RealImageWidget
+
+    viewer = make_napari_viewer()
+    dock = RealImageWidget(viewer)
+    viewer.open_sample("napari-symbac", "colicoords")
+    assert dock.image.value is viewer.layers["ColiCoords fluorescence"]
+    assert dock.modality.value == "fluorescence"
+    assert dock.microscope.value.pixel_size_um == pytest.approx(0.08)
+
+
 def test_manifest_has_one_source_for_wheel_and_editable_installs(tmp_path, monkeypatch):
     """napari.yaml at the repository root is the manifest; the package's copy is a link
     to it (found by editable installs), and the wheel carries its content."""
