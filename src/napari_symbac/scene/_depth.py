@@ -18,10 +18,10 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy import ndimage
 
 from napari_symbac.scene._stain import (
     ENVELOPE_THICKNESS_UM,
+    cell_radius_um,
     envelope_stain,
     envelope_weight,
     stained_fraction,
@@ -141,18 +141,15 @@ def depth_stain(
     """
     _check_layers(n_layers)
     stained = envelope_stain(scene, fraction, thickness_um)
-    labels = scene.labels
-    present = np.unique(labels[labels > 0])
-    lut = np.zeros(int(present[-1]) + 1 if present.size else 1)
-    if present.size:
-        lut[present] = np.asarray(ndimage.maximum(scene.cells, labels, present)) * (
-            scene.depth_um / 2
-        )
-    radius = lut[labels]
+    radius = cell_radius_um(scene)
+    radius = np.zeros(scene.shape) if radius is None else radius
     layers = stain_layers(scene.cells, radius, fraction, scene.depth_um, n_layers, thickness_um)
     total = stained_fraction(scene.cells, radius, fraction, scene.depth_um, thickness_um)
+    # every pixel at the mid-plane, then the stained ones their own shares (flat indices:
+    # boolean masks over the whole frame cost more than the division)
     profile = np.empty_like(layers)
-    some = total > 0
-    profile[:, some] = layers[:, some] / total[some]
-    profile[:, ~some] = midplane_share(n_layers)[:, None]
+    profile[:] = midplane_share(n_layers)[:, None, None]
+    some = np.flatnonzero(total)
+    flat = profile.reshape(n_layers, -1)
+    flat[:, some] = layers.reshape(n_layers, -1)[:, some] / total.ravel()[some]
     return stained.with_depth_profile(profile)

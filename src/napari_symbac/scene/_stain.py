@@ -15,10 +15,10 @@ import math
 from typing import Any
 
 import numpy as np
-from scipy import ndimage
 
 __all__ = [
     "ENVELOPE_THICKNESS_UM",
+    "cell_radius_um",
     "envelope_stain",
     "envelope_weight",
     "shell_chord_um",
@@ -101,18 +101,27 @@ def envelope_stain(
     ids = np.asarray(scene.cell_ids, np.int64)
     if fraction == 0 or ids.size == 0:
         return scene
-    labels = scene.labels
-    present = np.unique(labels[labels > 0])
-    if present.size == 0:
+    radius = cell_radius_um(scene)
+    if radius is None:
         return scene
-    lut = np.zeros(int(present[-1]) + 1)
-    lut[present] = np.asarray(ndimage.maximum(scene.cells, labels, present)) * (
-        scene.depth_um / 2
-    )
-    cells = stained_fraction(
-        scene.cells, lut[labels], fraction, scene.depth_um, thickness_um
-    )
+    cells = stained_fraction(scene.cells, radius, fraction, scene.depth_um, thickness_um)
     return scene.replace_cells(cells)
+
+
+def cell_radius_um(scene: Any) -> np.ndarray | None:
+    """Each pixel's cell radius (um): half the thickest chord of the cell its label names
+    (0 off the cells), or ``None`` when no pixel is labelled. The maximum is taken over
+    the labelled pixels alone (``ndimage.maximum`` sorted the whole render frame: 0.19 s
+    of a 1616 x 1616 px field)."""
+    labels = np.asarray(scene.labels)
+    inside = np.flatnonzero(labels)
+    if inside.size == 0:
+        return None
+    ids = labels.ravel()[inside]
+    cells = np.asarray(scene.cells)
+    thickest = np.zeros(int(ids.max()) + 1, cells.dtype)
+    np.maximum.at(thickest, ids, cells.ravel()[inside])
+    return (thickest * (scene.depth_um / 2)).astype(np.float64)[labels]
 
 
 def stained_fraction(
