@@ -998,9 +998,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     diag.add_argument(
         "--region",
-        metavar="Y0:Y1,X0:X1|full",
-        help="the window of each frame to diagnose, in pixels (default: the whole frame "
-        "up to 256 x 256 pixels, else its centre window of that many pixels)",
+        metavar="Y0:Y1,X0:X1|full|centre",
+        help="the window of each frame to diagnose, in pixels (default, centre: the whole "
+        "frame up to 256 x 256 pixels, else its centre window of that many pixels)",
     )
     diag.add_argument("--seed", type=_seed, default=0, help="bootstrap seed (default: 0)")
     diag.add_argument("--out", required=True, help="output folder")

@@ -49,7 +49,8 @@ def test_a_bad_region_is_a_clear_error(tmp_path, capsys, region):
     )
     err = capsys.readouterr().err
     assert code == 2
-    assert "--region Y0:Y1,X0:X1" in err
+    assert f"--region {region!r} is" in err
+    assert "give Y0:Y1,X0:X1" in err
     assert "Traceback" not in err
     assert not out.exists()
 

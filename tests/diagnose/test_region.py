@@ -42,6 +42,16 @@ def test_parse_region():
         parse_region("0:65,0:32", (64, 32))
     with pytest.raises(ValueError, match="not of the form"):
         parse_region("0-64,0-32", (64, 32))
+    # the centre window, as by default (the Diagnose dock's default), of at most max_pixels
+    assert parse_region(" Centre ", (512, 512)) == default_region((512, 512))
+    assert parse_region("center", (512, 512)) == (128, 384, 128, 384)
+    assert parse_region("centre", (512, 512), max_pixels=64 * 64) == (224, 288, 224, 288)
+    assert parse_region("centre", (64, 32)) == (0, 64, 0, 32)
+    # the errors name what the user gave it as, and every form accepted
+    with pytest.raises(ValueError, match=r"^window 'middle' is not of the form") as err:
+        parse_region("middle", (64, 32), name="window")
+    assert "give Y0:Y1,X0:X1 (rows and columns in pixels" in str(err.value)
+    assert "full (the whole frame) or centre (its centre window of at most 256" in str(err.value)
 
 
 def test_a_trench_window_is_simulated_as_long_as_the_frame():

@@ -230,7 +230,7 @@ def test_diagnose_says_the_centre_window_holds_no_cells(make_napari_viewer, qtbo
     """Found as a user: a 300 x 300 px fluorescence field whose only cell lies in a
     corner, outside the centre 256 x 256 px that the dock diagnoses, said "Diagnosis
     failed: the start found no cells in the image", of an image with a cell in it. Now the
-    window and the ways out (crop, or the CLI's --region) are said."""
+    window and the way out (the dock's window field) are said."""
     rng = np.random.default_rng(0)
     frame = rng.poisson(200, (300, 300)).astype(np.float64) + 100
     frame[3:12, 3:40] += 3000
@@ -246,6 +246,98 @@ def test_diagnose_says_the_centre_window_holds_no_cells(make_napari_viewer, qtbo
     qtbot.waitUntil(lambda: widget.worker is None, timeout=60_000)
     status = widget.status.value
     assert status.startswith("Diagnosis failed: the start found no cells")
-    assert "in the centre 256 x 256 px (rows 22:278, columns 22:278) of the 300 x 300" in status
-    assert "--region Y0:Y1,X0:X1" in status
+    where = "the centre 256 x 256 px of the 300 x 300 frame, rows 22:278 and columns 22:278"
+    assert where in status
+    assert "enter one with cells in 'window (rows, columns)'" in status  # the dock's own
+    assert "--region" not in status
     assert DIAGNOSIS_RESIDUAL_LAYER not in viewer.layers
+
+
+@pytest.fixture
+def ds3_widget(make_napari_viewer, real_data_dir):
+    """ColiCoords ds3 (4 frames of 512 x 512 px, fluorescence, 80 nm), frame 1 on
+    screen: no cell in its centre 256 x 256 px, one at rows 113:167, columns 66:86."""
+    import tifffile
+
+    data = tifffile.imread(real_data_dir / "colicoords" / "test_data" / "ds3" / "flu.tif")
+    viewer = make_napari_viewer()
+    viewer.add_image(
+        data,
+        name="ds3",
+        scale=(0.08, 0.08),
+        metadata={"pixel_size_um": 0.08, "modality": "fluorescence"},
+    )
+    viewer.dims.set_current_step(0, 1)
+    return viewer, DiagnoseWidget(viewer, candidates=CANDIDATES, n_bootstrap=5)
+
+
+def test_the_window_chosen_is_the_one_diagnosed(ds3_widget, qtbot):
+    """Found as a user: Diagnose of ColiCoords ds3's frame 1 found no cells in the centre
+    window, the only one the dock could diagnose; the status sent the user to the CLI's
+    --region. The dock's window field takes the same forms, read by the same parser."""
+    viewer, widget = ds3_widget
+    assert widget.window.value == "centre"
+    widget.run_button.clicked.emit()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
+    assert "the centre 256 x 256 px of the 512 x 512 frame" in widget.status.value
+    assert "enter one with cells in 'window (rows, columns)'" in widget.status.value
+    assert DIAGNOSIS_RESIDUAL_LAYER not in viewer.layers
+    widget.window.value = " 96:192, 48:112 "  # around the cell; spaces as the CLI takes
+    widget.run_button.clicked.emit()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=180_000)
+    assert widget.result is not None, widget.status.value
+    assert widget.status.value.startswith("Accepted: ")
+    assert "in the chosen 96 x 64 px of the 512 x 512 frame, rows 96:192 and columns 48:112" in (
+        widget.status.value
+    )
+    for name in [n for n in viewer.layers if n.name.startswith("diagnosis ")]:
+        assert name.data.shape == (96, 64)  # the window, over it on the canvas
+        assert tuple(name.translate) == pytest.approx((96 * 0.08, 48 * 0.08))
+        assert tuple(name.scale) == (0.08, 0.08)
+
+
+@pytest.mark.parametrize(
+    ("text", "problem"),
+    [
+        ("middle", "window 'middle' is not of the form Y0:Y1,X0:X1"),
+        ("", "window '' is not of the form Y0:Y1,X0:X1"),
+        ("96:192", "window '96:192' is not of the form Y0:Y1,X0:X1"),
+        ("0:600,0:64", "window '0:600,0:64' is empty or outside the 512 x 512 frame"),
+        ("192:96,0:64", "window '192:96,0:64' is empty or outside the 512 x 512 frame"),
+    ],
+)
+def test_a_bad_window_is_refused_in_one_line(ds3_widget, monkeypatch, text, problem):
+    shown = []
+    monkeypatch.setattr(
+        "napari_symbac._widgets.diagnose.notify_warning", lambda message: shown.append(message)
+    )
+    viewer, widget = ds3_widget
+    widget.window.value = text
+    widget.run_button.clicked.emit()
+    assert widget.worker is None  # nothing started, the button still works
+    assert widget.run_button.enabled
+    status = widget.status.value
+    assert status.startswith(problem)
+    assert "give Y0:Y1,X0:X1 (rows and columns in pixels" in status
+    assert "full (the whole frame) or centre" in status
+    assert "\n" not in status
+    assert shown == [status]
+    assert [layer.name for layer in viewer.layers] == ["ds3"]
+
+
+def test_a_full_frame_above_the_cap_is_diagnosed_with_a_warning(ds3_widget, qtbot):
+    """As the CLI's --region full: the whole 512 x 512 frame is the user's choice, run,
+    with the status saying it may take long (and Cancel stopping it)."""
+    viewer, widget = ds3_widget
+    widget.window.value = "FULL"
+    widget.run_button.clicked.emit()
+    assert widget.worker is not None
+    assert widget.status.value == (
+        "Fitting the scene... (262,144 pixels, more than the 65,536 of 'centre': a "
+        "diagnosis's time and memory grow faster than its pixels, so this one may take "
+        "long and much memory; Cancel stops it)"
+    )
+    widget.cancel_button.clicked.emit()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
+    assert "cancelled" in widget.status.value
+    assert [layer.name for layer in viewer.layers] == ["ds3"]

@@ -16,7 +16,7 @@ import threading
 from typing import TYPE_CHECKING
 
 import numpy as np
-from magicgui.widgets import ComboBox, Container, PushButton, SpinBox, TextEdit
+from magicgui.widgets import ComboBox, Container, LineEdit, PushButton, SpinBox, TextEdit
 
 from napari_symbac._widgets._forms import message_label
 from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
@@ -40,21 +40,33 @@ __all__ = ["DIAGNOSIS_RESIDUAL_LAYER", "DiagnoseWidget", "effect_layer_name"]
 DIAGNOSIS_RESIDUAL_LAYER = "diagnosis residual"
 #: The layer of the residual after the accepted effects.
 DIAGNOSIS_AFTER_LAYER = "diagnosis residual after"
+#: The label of the dock's field of the window diagnosed.
+WINDOW_LABEL = "window (rows, columns)"
+
+
+def window_words(
+    region: tuple[int, int, int, int], full: tuple[int, ...], centre: bool
+) -> str:
+    """The window diagnosed, in words: ``"the centre 256 x 256 px of the 512 x 512 frame,
+    rows 128:384 and columns 128:384"`` ("the chosen" for a window chosen)."""
+    y0, y1, x0, x1 = region
+    which = "the centre" if centre else "the chosen"
+    return (
+        f"{which} {y1 - y0} x {x1 - x0} px of the {full[0]} x {full[1]} frame, rows "
+        f"{y0}:{y1} and columns {x0}:{x1}"
+    )
 
 
 def no_cells_in_window(
-    err: Exception, region: tuple[int, int, int, int], full: tuple[int, ...]
+    err: Exception, region: tuple[int, int, int, int], full: tuple[int, ...], centre: bool
 ) -> str:
     """The base fit's "no cells" in the window the dock diagnoses, said with that window
     and what to do. Found as a user: a 300 x 300 px field whose cells lie outside its
     centre 256 x 256 px said only "Diagnosis failed: the start found no cells in the
-    image", of an image with cells in it; the dock has no choice of window."""
-    y0, y1, x0, x1 = region
+    image", of an image with cells in it."""
     return (
-        f"{err}, in the centre {y1 - y0} x {x1 - x0} px (rows {y0}:{y1}, columns "
-        f"{x0}:{x1}) of the {full[0]} x {full[1]} frame, which is what the dock diagnoses: "
-        "crop the recording to a window with cells and diagnose that layer, or run "
-        "`napari-symbac diagnose IMAGE --region Y0:Y1,X0:X1` (or --region full)"
+        f"{err}, in {window_words(region, full, centre)}, the window diagnosed: enter "
+        f"one with cells in '{WINDOW_LABEL}' (Y0:Y1,X0:X1 in pixels, or full)"
     )
 
 
@@ -90,6 +102,14 @@ class DiagnoseWidget(Container):
             name="reference", label="real image", choices=self._recordings, nullable=True
         )
         self.reference.tooltip = "The recording to diagnose (its pixel size must be set)."
+        self.window = LineEdit(name="window", label=WINDOW_LABEL, value="centre")
+        self.window.tooltip = (
+            "The part of the frame to diagnose, in camera pixels: centre (the whole frame "
+            "up to 256 x 256 px, else its centre window of that many pixels), full (the "
+            "whole frame: a diagnosis's time and memory grow faster than its pixels), or "
+            "Y0:Y1,X0:X1 (rows Y0 to Y1, columns X0 to X1, e.g. 96:192,48:112); as "
+            "napari-symbac diagnose --region."
+        )
         self.seed = SpinBox(
             name="seed",
             label="seed",
@@ -114,6 +134,7 @@ class DiagnoseWidget(Container):
         self.extend(
             [
                 self.reference,
+                self.window,
                 self.seed,
                 self.run_button,
                 self.cancel_button,
@@ -144,17 +165,18 @@ class DiagnoseWidget(Container):
 
         The camera is ``None``: the base fit measures it from the recording (gain and read
         noise, as Auto-fit and ``napari-symbac fit`` do), so that the diagnosis does not
-        report the difference from an assumed camera as a finding. A frame larger than
-        :data:`~napari_symbac.diagnose.region.MAX_DIAGNOSIS_PIXELS`
-        is diagnosed on its centre window (``region``: rows ``y0:y1``, columns
-        ``x0:x1``), as the CLI does by default.
+        report the difference from an assumed camera as a finding. ``region`` (rows
+        ``y0:y1``, columns ``x0:x1``) is the *window* field's, read by the CLI's parser
+        (:func:`~napari_symbac.diagnose.region.parse_region`): by default a frame larger
+        than :data:`~napari_symbac.diagnose.region.MAX_DIAGNOSIS_PIXELS` is diagnosed on
+        its centre window, as the CLI does.
 
         Raises
         ------
         ValueError
-            With what to do, when no recording is chosen.
+            With what to do, when no recording is chosen or the window is not one.
         """
-        from napari_symbac.diagnose.region import MAX_DIAGNOSIS_PIXELS, default_region
+        from napari_symbac.diagnose.region import MAX_DIAGNOSIS_PIXELS, parse_region
         from napari_symbac.settings import RenderSettings
 
         layer = self.reference.value
@@ -175,7 +197,12 @@ class DiagnoseWidget(Container):
                 labels = labels[min(index, len(labels) - 1)]
             if labels.shape != frame.shape or not labels.any():
                 labels = None
-        region = default_region(frame.shape, self.max_pixels or MAX_DIAGNOSIS_PIXELS)
+        region = parse_region(
+            self.window.value,
+            frame.shape,
+            max_pixels=self.max_pixels or MAX_DIAGNOSIS_PIXELS,
+            name="window",
+        )
         y0, y1, x0, x1 = region
         frame = frame[y0:y1, x0:x1]
         if labels is not None:
@@ -211,6 +238,7 @@ class DiagnoseWidget(Container):
         cancelled = threading.Event()
         seed, candidates, n_bootstrap = self.seed.value, self.candidates, self.n_bootstrap
         base_simulation = self._simulation_to_export()
+        centre = self.window.value.strip().lower() in ("centre", "center")
 
         def compute(progress, cancel):
             from napari_symbac.diagnose.model import build_design
@@ -234,7 +262,7 @@ class DiagnoseWidget(Container):
             except ValueError as err:
                 if "no cells" not in str(err) or region == (0, full[0], 0, full[1]):
                     raise
-                raise ValueError(no_cells_in_window(err, region, full)) from err
+                raise ValueError(no_cells_in_window(err, region, full, centre)) from err
             if cancel():
                 raise InterruptedError("diagnosis cancelled")
             layout = simulated_shape(region, full, fit.trench is not None)
@@ -270,16 +298,36 @@ class DiagnoseWidget(Container):
         self._region = region
         self.run_button.enabled = False
         self.cancel_button.enabled = True
-        self._window_note = ""
-        if region != (0, full[0], 0, full[1]):
-            y0, y1, x0, x1 = region
-            self._window_note = (
-                f" (the centre {y1 - y0} x {x1 - x0} px of the {full[0]} x {full[1]} frame: "
-                "a diagnosis's time and memory grow faster than its pixels; the CLI's "
-                "--region picks another window)"
-            )
+        self._window_note = self._window_note_of(region, full, centre)
         self.status.value = "Fitting the scene..." + self._window_note
         self.worker.start()
+
+    def _window_note_of(
+        self, region: tuple[int, int, int, int], full: tuple[int, ...], centre: bool
+    ) -> str:
+        """What the status lines add about the window: which one, when not the whole
+        frame, and that it may take long when larger than the centre window may be (as
+        the CLI, a large window is diagnosed: the user chose it)."""
+        from napari_symbac.diagnose.region import MAX_DIAGNOSIS_PIXELS
+
+        note = ""
+        if region != (0, full[0], 0, full[1]):
+            note = f" (in {window_words(region, full, centre)}"
+            note += (
+                ": a diagnosis's time and memory grow faster than its pixels; "
+                f"'{WINDOW_LABEL}' picks another window)"
+                if centre
+                else ")"
+            )
+        y0, y1, x0, x1 = region
+        pixels, cap = (y1 - y0) * (x1 - x0), self.max_pixels or MAX_DIAGNOSIS_PIXELS
+        if pixels > cap:
+            note += (
+                f" ({pixels:,} pixels, more than the {cap:,} of 'centre': a diagnosis's "
+                "time and memory grow faster than its pixels, so this one may take long "
+                "and much memory; Cancel stops it)"
+            )
+        return note
 
     def cancel(self) -> None:
         """Stop the diagnosis at its next check; nothing is added."""

@@ -50,28 +50,60 @@ def default_region(shape: tuple[int, int], max_pixels: int = MAX_DIAGNOSIS_PIXEL
     return (y0, y0 + height, x0, x0 + width)
 
 
-def parse_region(text: str, shape: tuple[int, int]) -> Region:
-    """``"full"`` or ``"Y0:Y1,X0:X1"`` (pixels, half-open) as a region of ``shape``.
+def parse_region(
+    text: str,
+    shape: tuple[int, int],
+    *,
+    max_pixels: int = MAX_DIAGNOSIS_PIXELS,
+    name: str = "--region",
+) -> Region:
+    """``"centre"``, ``"full"`` or ``"Y0:Y1,X0:X1"`` (pixels, half-open) as a region of
+    ``shape``.
+
+    The one parser of a window to diagnose, for the CLI's ``--region`` and the Diagnose
+    dock's *window* field. ``"centre"`` (or ``"center"``) is :func:`default_region` of
+    ``shape`` with ``max_pixels``; ``"full"`` is the whole frame, however large (a
+    diagnosis of it may take long and much memory, but it is the user's choice).
+
+    Parameters
+    ----------
+    text
+        What the user gave; case and spaces around the parts are ignored.
+    shape
+        Rows and columns of the frame.
+    max_pixels
+        The most pixels of the centre window.
+    name
+        What the user gave it as (``"--region"``, ``"window"``), to name in errors.
 
     Raises
     ------
     ValueError
-        Naming what is wrong and the form to pass, when ``text`` is not one of those or
-        the window is empty or reaches outside the frame.
+        Naming ``name``, what is wrong and the forms accepted, when ``text`` is not one
+        of those forms or the window is empty or reaches outside the frame.
     """
     rows, cols = (int(n) for n in shape)
-    if text.strip().lower() == "full":
+    word = text.strip().lower()
+    if word == "full":
         return (0, rows, 0, cols)
-    form = "pass --region Y0:Y1,X0:X1 (rows and columns in pixels) or --region full"
+    if word in ("centre", "center"):
+        return default_region((rows, cols), max_pixels)
+    side = math.isqrt(max_pixels)
+    forms = (
+        "give Y0:Y1,X0:X1 (rows and columns in pixels, e.g. 0:128,64:192), full (the whole "
+        f"frame) or centre (its centre window of at most {side} x {side} px)"
+    )
     try:
         ys, xs = text.split(",")
         y0, y1 = (int(v) for v in ys.split(":"))
         x0, x1 = (int(v) for v in xs.split(":"))
     except ValueError:
-        raise ValueError(f"region {text!r} is not of the form Y0:Y1,X0:X1: {form}") from None
+        raise ValueError(
+            f"{name} {text!r} is not of the form Y0:Y1,X0:X1: {forms}"
+        ) from None
     if not (0 <= y0 < y1 <= rows and 0 <= x0 < x1 <= cols):
         raise ValueError(
-            f"region {text!r} is empty or outside the {rows} x {cols} frame: {form}"
+            f"{name} {text!r} is empty or outside the {rows} x {cols} frame: {forms}"
         )
     return (y0, y1, x0, x1)
 
