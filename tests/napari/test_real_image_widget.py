@@ -387,6 +387,45 @@ def test_a_refused_file_is_not_still_said_when_the_next_one_opens(
     assert "records no modality" in widget.result.value
 
 
+def test_or_open_shows_the_file_of_the_recording_chosen(
+    make_napari_viewer, real_data_dir, tmp_path
+):
+    """Found as a user: after a refused colour PNG, *or open* kept showing its path once
+    another recording was opened (File > Open) and chosen, as if it were that recording's
+    file. The field follows the chosen recording: its file, or empty for a layer from no
+    file; and showing a file does not open it again."""
+    import imageio.v3 as iio
+
+    viewer = make_napari_viewer()
+    widget = RealImageWidget(viewer)
+    colour = np.random.default_rng(0).integers(0, 255, (32, 32, 3), dtype=np.uint8)
+    iio.imwrite(tmp_path / "colour.png", colour)
+    widget.file.value = tmp_path / "colour.png"
+    assert "Cannot open colour.png" in widget.result.value
+    assert len(viewer.layers) == 0
+    fields = real_data_dir / "colicoords" / "test_data" / "ds2"
+    opened = viewer.open(fields / "fluorescence" / "00066.tif")[0]  # File > Open
+    assert widget.image.value is opened
+    assert widget.file.line_edit.value == str(fields / "fluorescence" / "00066.tif")
+    drawn = viewer.add_image(np.full((16, 16), 500, np.uint16), name="drawn")
+    widget.image.value = drawn  # no file
+    assert widget.file.line_edit.value == ""
+    widget.file.value = fields / "brightfield" / "00066.tif"  # *or open*
+    brightfield = widget.image.value
+    assert brightfield.source.path == str(fields / "brightfield" / "00066.tif")
+    widget.image.value = opened
+    assert widget.file.line_edit.value == str(fields / "fluorescence" / "00066.tif")
+    widget.image.value = brightfield
+    assert widget.file.line_edit.value == str(fields / "brightfield" / "00066.tif")
+    # shown, not opened again: one layer per file
+    assert [layer.name for layer in viewer.layers] == ["00066", "drawn", "00066 [1]"]
+    # a grey PNG saved as colour, opened with File > Open: its grey channel's file is it
+    png = real_data_dir / "omnipose" / "Sample000033.png"
+    widget.image.value = viewer.open(png)[0]
+    assert widget.image.value.name == "Sample000033 grey"
+    assert widget.file.line_edit.value == str(png)
+
+
 def test_what_the_fit_refuses_is_not_opened_and_a_missing_file_is_said(
     make_napari_viewer, tmp_path, monkeypatch
 ):

@@ -147,6 +147,8 @@ class RealImageWidget(Container):
         ]
 
     def _open_file(self) -> None:
+        from napari.layers._source import layer_source
+
         from napari_symbac.io import read_image
 
         path = self.file.value
@@ -178,22 +180,36 @@ class RealImageWidget(Container):
         else:
             kwargs["axis_labels"] = axis_labels(recording.data.ndim)
             _follow_pixels(self.viewer)  # before napari draws the image (and checks units)
-        layer = self.viewer.add_image(
-            recording.data,
-            name=recording.name,
-            metadata={
-                "pixel_size_um": recording.pixel_size_um,
-                "modality": recording.modality,
-                **({"counts_mapping": recording.counts_mapping}
-                   if recording.counts_mapping is not None else {}),
-            },
-            **kwargs,
-        )
+        # its file recorded as napari's File > Open records it (the layer's source,
+        # shown in the layer list's tooltip), so that *or open* shows it when chosen
+        with layer_source(path=str(path)):
+            layer = self.viewer.add_image(
+                recording.data,
+                name=recording.name,
+                metadata={
+                    "pixel_size_um": recording.pixel_size_um,
+                    "modality": recording.modality,
+                    **({"counts_mapping": recording.counts_mapping}
+                       if recording.counts_mapping is not None else {}),
+                },
+                **kwargs,
+            )
         self.image.value = layer
 
+    def _show_source(self, layer) -> None:
+        """*or open* shows the chosen recording's file (napari's ``layer.source.path``:
+        opened here or with File > Open), empty for a layer from no file. Found as a
+        user: a refused colour PNG's path stayed in the field after another recording
+        was opened and chosen, as if that file were the recording."""
+        path = getattr(getattr(layer, "source", None), "path", None)
+        with self.file.changed.blocked():  # shown, not opened again
+            self.file.line_edit.value = str(path) if path else ""
+
     def _load_layer(self, _value=None) -> None:
-        """Show the chosen layer's pixel size, modality and microscope (never another's)."""
+        """Show the chosen layer's file, pixel size, modality and microscope (never
+        another's)."""
         layer = self.image.value
+        self._show_source(layer)
         if layer is None:
             return
         if getattr(layer, "rgb", False):
@@ -315,14 +331,17 @@ class RealImageWidget(Container):
             # was shown on napari's 0-255 as a black canvas)
             low, high = np.percentile(grey, (0.1, 99.9))
             kwargs = {"contrast_limits": (float(low), float(high))} if high > low else {}
-            self.viewer.add_image(
-                grey,
-                name=f"{layer.name} grey",
-                scale=layer.scale,
-                units=layer.units,
-                translate=layer.translate,
-                **kwargs,
-            )
+            from napari.layers._source import layer_source
+
+            with layer_source(path=layer.source.path):  # the colour image's file
+                self.viewer.add_image(
+                    grey,
+                    name=f"{layer.name} grey",
+                    scale=layer.scale,
+                    units=layer.units,
+                    translate=layer.translate,
+                    **kwargs,
+                )
 
     def _use_grey_channel(self, layer) -> None:
         """A colour layer cannot be fitted: choose its grey-channel layer, or say why."""
