@@ -232,12 +232,13 @@ def test_file_open_names_the_frame_axis(make_napari_viewer, tmp_path):
 
 def _stretched_rows(step) -> list[tuple[int, int, int]]:
     """``(row, height, height asked)`` of the rows of ``step`` taller than they ask to be
-    (a wrapped message asks for its lines at its width)."""
+    (a wrapped message asks for its lines at its width), but for a row made to take the
+    spare height (``_forms.fill_height``: Diagnose's report)."""
     layout = step.native.layout()
     stretched = []
     for index in range(layout.count()):
         row = layout.itemAt(index).widget()
-        if row is None or row.isHidden():
+        if row is None or row.isHidden() or layout.stretch(index):
             continue
         asked = max(row.sizeHint().height(), row.minimumHeight(), row.heightForWidth(row.width()))
         if row.height() > asked:
@@ -271,6 +272,15 @@ def test_workflow_steps_sit_at_the_top_of_their_tabs(make_napari_viewer, qtbot, 
         assert _stretched_rows(step) == [], index
         checked.append(index)
     assert 0 in checked  # the Recording tab had room to spare
+    assert 3 in checked
+    # Diagnose's report takes the room below its rows, to the bottom of the tab (found as
+    # a user: 192 px tall, about 11 lines, above half a dock of nothing)
+    workflow.setCurrentIndex(3)
+    report, area = workflow.diagnose.report.native, workflow.widget(3)
+    bottom = report.mapTo(area.viewport(), report.rect().bottomLeft()).y()
+    assert area.viewport().height() - 30 < bottom <= area.viewport().height()
+    assert report.height() > 1.5 * report.sizeHint().height()
+    assert report.width() > 0.9 * area.viewport().width()  # no "report" label beside it
     # the rows of the Recording tab are packed: "or open" right under "real image"
     workflow.setCurrentIndex(0)
     image_row = workflow.real_image.image.native.parentWidget()

@@ -106,6 +106,22 @@ def message_label(name: str, label: str | None = None) -> Label:
     return widget
 
 
+def fill_height(container: Container, widget: Widget) -> None:
+    """Let ``widget`` (a report box) take the height ``container`` has spare.
+
+    Its row of ``container`` gets a stretch, so a docked step keeps no empty room below
+    it (``workflow._rows_at_the_top`` then adds none): found as a user, the Diagnose
+    report was 11 lines tall above half a dock of nothing, its text scrolled.
+    """
+    from qtpy.QtWidgets import QSizePolicy
+
+    policy = widget.native.sizePolicy()
+    policy.setVerticalPolicy(QSizePolicy.Policy.Expanding)
+    widget.native.setSizePolicy(policy)
+    row = getattr(widget, "_labeled_widget", lambda: None)() or widget
+    container.native.layout().setStretchFactor(row.native, 1)
+
+
 def hide_label(widget: Widget) -> None:
     """Hide the label column of ``widget`` inside its labelled container (a sub-form or a
     heading needs none; the column would take the dock's width)."""

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from magicgui.widgets import ComboBox, Container, LineEdit, PushButton, SpinBox, TextEdit
 
-from napari_symbac._widgets._forms import message_label
+from napari_symbac._widgets._forms import fill_height, hide_label, message_label
 from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
 from napari_symbac._widgets._recording import (
     check_recording_frame,
@@ -142,6 +142,10 @@ class DiagnoseWidget(Container):
                 self.report,
             ]
         )
+        # the report takes the dock's width and spare height (it starts "Diagnosis of
+        # the mismatch": no row label needed)
+        hide_label(self.report)
+        fill_height(self, self.report)
         self.worker: Job | None = None
         self.result = None
         self.run_button.changed.connect(self.run)

@@ -163,8 +163,11 @@ def _rows_at_the_top(step: QWidget) -> None:
     The scroll area stretches its widget to the tab's height; a step stretched so spread
     its spare height between its rows (found as a user: gaps of ~40 px between the
     *Recording* tab's rows at 1366 x 768). A stretch after the last row takes it
-    (magicgui inserts rows by their index, before it).
+    (magicgui inserts rows by their index, before it), unless a row stretches to take it
+    itself (:func:`~napari_symbac._widgets._forms.fill_height`: Diagnose's report).
     """
     layout = step.layout()
-    if layout is not None and hasattr(layout, "addStretch"):
+    if layout is None or not hasattr(layout, "addStretch"):
+        return
+    if not any(layout.stretch(i) for i in range(layout.count())):
         layout.addStretch(1)
