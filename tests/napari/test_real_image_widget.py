@@ -412,7 +412,7 @@ def test_or_open_shows_the_file_of_the_recording_chosen(
     assert widget.file.line_edit.value == ""
     widget.file.value = fields / "brightfield" / "00066.tif"  # *or open*
     brightfield = widget.image.value
-    assert brightfield.source.path == str(fields / "brightfield" / "00066.tif")
+    assert widget.file.line_edit.value == str(fields / "brightfield" / "00066.tif")
     widget.image.value = opened
     assert widget.file.line_edit.value == str(fields / "fluorescence" / "00066.tif")
     widget.image.value = brightfield

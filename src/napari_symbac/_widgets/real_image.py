@@ -40,6 +40,20 @@ def class_layer_name(image_name: str) -> str:
     return f"{image_name} classes"
 
 
+#: Layer metadata key of the file a recording was opened from by *or open* (or its
+#: colour original's), where napari's own ``layer.source.path`` is not set.
+SOURCE_PATH_KEY = "source_path"
+
+
+def _source_path(layer) -> str | None:
+    """The file ``layer`` came from: napari's ``layer.source.path`` (File > Open), else
+    the one *or open* recorded; ``None`` for a layer from no file."""
+    if layer is None:
+        return None
+    path = getattr(getattr(layer, "source", None), "path", None)
+    return path or layer.metadata.get(SOURCE_PATH_KEY)
+
+
 class RealImageWidget(Container):
     """Your recording: its pixel size and microscope, rough class labels, their statistics.
 
@@ -147,8 +161,6 @@ class RealImageWidget(Container):
         ]
 
     def _open_file(self) -> None:
-        from napari.layers._source import layer_source
-
         from napari_symbac.io import read_image
 
         path = self.file.value
@@ -180,20 +192,20 @@ class RealImageWidget(Container):
         else:
             kwargs["axis_labels"] = axis_labels(recording.data.ndim)
             _follow_pixels(self.viewer)  # before napari draws the image (and checks units)
-        # its file recorded as napari's File > Open records it (the layer's source,
-        # shown in the layer list's tooltip), so that *or open* shows it when chosen
-        with layer_source(path=str(path)):
-            layer = self.viewer.add_image(
-                recording.data,
-                name=recording.name,
-                metadata={
-                    "pixel_size_um": recording.pixel_size_um,
-                    "modality": recording.modality,
-                    **({"counts_mapping": recording.counts_mapping}
-                       if recording.counts_mapping is not None else {}),
-                },
-                **kwargs,
-            )
+        # its file recorded, so that *or open* shows it when the layer is chosen (napari's
+        # File > Open records it as the layer's source, which only napari's readers set)
+        layer = self.viewer.add_image(
+            recording.data,
+            name=recording.name,
+            metadata={
+                "pixel_size_um": recording.pixel_size_um,
+                "modality": recording.modality,
+                SOURCE_PATH_KEY: str(path),
+                **({"counts_mapping": recording.counts_mapping}
+                   if recording.counts_mapping is not None else {}),
+            },
+            **kwargs,
+        )
         self.image.value = layer
 
     def _show_source(self, layer) -> None:
@@ -201,7 +213,7 @@ class RealImageWidget(Container):
         opened here or with File > Open), empty for a layer from no file. Found as a
         user: a refused colour PNG's path stayed in the field after another recording
         was opened and chosen, as if that file were the recording."""
-        path = getattr(getattr(layer, "source", None), "path", None)
+        path = _source_path(layer)
         with self.file.changed.blocked():  # shown, not opened again
             self.file.line_edit.value = str(path) if path else ""
 
@@ -331,17 +343,16 @@ class RealImageWidget(Container):
             # was shown on napari's 0-255 as a black canvas)
             low, high = np.percentile(grey, (0.1, 99.9))
             kwargs = {"contrast_limits": (float(low), float(high))} if high > low else {}
-            from napari.layers._source import layer_source
-
-            with layer_source(path=layer.source.path):  # the colour image's file
-                self.viewer.add_image(
-                    grey,
-                    name=f"{layer.name} grey",
-                    scale=layer.scale,
-                    units=layer.units,
-                    translate=layer.translate,
-                    **kwargs,
-                )
+            path = _source_path(layer)  # the colour image's file
+            self.viewer.add_image(
+                grey,
+                name=f"{layer.name} grey",
+                scale=layer.scale,
+                units=layer.units,
+                translate=layer.translate,
+                metadata={SOURCE_PATH_KEY: path} if path else {},
+                **kwargs,
+            )
 
     def _use_grey_channel(self, layer) -> None:
         """A colour layer cannot be fitted: choose its grey-channel layer, or say why."""
