@@ -48,6 +48,7 @@ __all__ = [
     "load_simulation_settings",
     "microscope_sets_pixel_size",
     "read_settings_mapping",
+    "refuse_another_kind",
     "save_settings",
     "to_dict",
 ]
@@ -1075,7 +1076,7 @@ def load_settings(path: str | Path, cls: type[T]) -> T:
     if cls is PipelineSettings:
         _refuse_a_section_file(data, path)
     else:  # `fit --camera microscope.yaml` listed the microscope's fields as unknown
-        _refuse_another_kind(data, path, cls)
+        refuse_another_kind(data, path, cls)
     with _naming_the_file(path):
         return from_dict(cls, data)
 
@@ -1111,10 +1112,10 @@ def _refuse_a_section_file(data: Any, path: str | Path) -> None:
                 "from `napari-symbac defaults pipeline --out FILE`, or put these fields "
                 f"under `{section.name}:`)"
             )
-    _refuse_another_kind(data, path, PipelineSettings)
+    refuse_another_kind(data, path, PipelineSettings)
 
 
-def _refuse_another_kind(data: Any, path: str | Path, cls: type) -> None:
+def refuse_another_kind(data: Any, path: str | Path, cls: type) -> None:
     """Refuse, in one line, a file of another kind of settings given where ``cls`` is
     wanted: ``simulate --config microscope.yaml`` (the file ``fit`` takes) listed the
     microscope's fields as unknown and the 26 valid ones, naming neither the file nor the
@@ -1195,7 +1196,7 @@ def load_simulation_settings(path: str | Path) -> SimulationSettings:
     with _naming_the_file(path):
         if _is_pipeline_mapping(data) and "simulation" in data:
             return from_dict(SimulationSettings, data["simulation"] or {}, _where="simulation")
-        _refuse_another_kind(data, path, SimulationSettings)
+        refuse_another_kind(data, path, SimulationSettings)
         return from_dict(SimulationSettings, data)
 
 
@@ -1206,7 +1207,7 @@ def load_settings_or_pipeline(path: str | Path, cls: type[T]) -> T | PipelineSet
     with _naming_the_file(path):
         if _is_pipeline_mapping(data):
             return from_dict(PipelineSettings, data)
-        _refuse_another_kind(data, path, cls)
+        refuse_another_kind(data, path, cls)
         return from_dict(cls, data)
 
 
@@ -1220,7 +1221,7 @@ def load_microscope(path: str | Path) -> Microscope:
         from napari_symbac.diagnose.config import parse_microscope
 
         return parse_microscope(data, str(path)).microscope
-    _refuse_another_kind(data, path, Microscope)
+    refuse_another_kind(data, path, Microscope)
     with _naming_the_file(path):
         return from_dict(Microscope, data)
 

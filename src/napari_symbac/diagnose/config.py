@@ -10,9 +10,9 @@ from pathlib import Path
 from napari_symbac.settings import (
     Camera,
     Microscope,
-    _refuse_another_kind,
     from_dict,
     read_settings_mapping,
+    refuse_another_kind,
 )
 
 __all__ = ["DiagnoseConfig", "load_microscope_file", "parse_microscope"]
@@ -150,7 +150,7 @@ def load_microscope_file(path: str | Path) -> DiagnoseConfig:
             f"{type(data).__name__}"
         )
     extras = {key: data[key] for key in DIAGNOSE_KEYS if key in data}
-    _refuse_another_kind({k: v for k, v in data.items() if k not in extras}, path, Microscope)
+    refuse_another_kind({k: v for k, v in data.items() if k not in extras}, path, Microscope)
     try:
         microscope = from_dict(Microscope, {k: v for k, v in data.items() if k not in extras})
     except ValueError as err:
