@@ -322,7 +322,7 @@ def _model_options(args, modality: str) -> dict[str, Any]:
         options["fit_optics"] = ENVELOPE_FIT_OPTICS
     layers = getattr(args, "depth_layers", 0)
     if layers:
-        from napari_symbac.fit.scene_fit import DEFAULT_FIT_OPTICS
+        from napari_symbac.fit.scene_fit import depth_fit_optics
         from napari_symbac.settings import MAX_DEPTH_LAYERS
 
         if modality != "fluorescence":
@@ -335,8 +335,7 @@ def _model_options(args, modality: str) -> dict[str, Any]:
                 f"--depth-layers {layers} is not a number of slabs: pass 1-{MAX_DEPTH_LAYERS} "
                 "(5 fit ColiCoords ds2 as well as 15), or 0 for the 2-D projection"
             )
-        optics = options.get("fit_optics", DEFAULT_FIT_OPTICS["fluorescence"])
-        options["fit_optics"] = (*optics, "focus_offset_um")
+        options["fit_optics"] = depth_fit_optics(options.get("fit_optics"))
     if args.cell_brightness is not None:
         options["per_cell_brightness"] = args.cell_brightness == "per-cell"
     if not (np.isfinite(args.width_sd_um) and 0.0 <= args.width_sd_um <= 1.0):

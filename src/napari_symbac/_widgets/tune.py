@@ -627,14 +627,9 @@ class TuneWidget(Container):
             options["fit_optics"] = ENVELOPE_FIT_OPTICS
             render = envelope_stain_start(render)
         if self.fit_depth.value:
-            from napari_symbac.fit.scene_fit import (
-                DEFAULT_FIT_OPTICS,
-                DEPTH_FIT_LAYERS,
-                depth_start,
-            )
+            from napari_symbac.fit.scene_fit import DEPTH_FIT_LAYERS, depth_fit_optics, depth_start
 
-            optics = options.get("fit_optics", DEFAULT_FIT_OPTICS["fluorescence"])
-            options["fit_optics"] = (*optics, "focus_offset_um")
+            options["fit_optics"] = depth_fit_optics(options.get("fit_optics"))
             render = depth_start(render, DEPTH_FIT_LAYERS)
         if masks is not None and labels is not None:
             self._fit_notes.append("the cell masks were used; the painted classes were not")

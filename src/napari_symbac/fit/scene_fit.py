@@ -91,6 +91,12 @@ def depth_start(render: RenderSettings, layers: int) -> RenderSettings:
     return dataclasses.replace(render, depth_layers=layers, focus_offset_um=focus)
 
 
+def depth_fit_optics(optics: tuple[str, ...] | None = None) -> tuple[str, ...]:
+    """The optics a depth-resolved fit fits: ``optics`` (the fluorescence default when
+    ``None``) and the focal plane ``focus_offset_um`` (with :func:`depth_start`)."""
+    return (*(DEFAULT_FIT_OPTICS["fluorescence"] if optics is None else optics), "focus_offset_um")
+
+
 def envelope_stain_start(render: RenderSettings) -> RenderSettings:
     """``render`` as a fit of the envelope's fraction of the stain starts from it: its
     own fraction, or :data:`ENVELOPE_START` when it gives none (the CLI's
