@@ -33,33 +33,36 @@ def _tqdm_progress(
     return progress_bar(desc, total, unit, sys.stderr, bound=bound)
 
 
-def _at_least_one(text: str) -> int:
-    """argparse type: an integer >= 1 (a clear usage error otherwise)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
-    return value
+def _whole_number(minimum: int) -> Callable[[str], int]:
+    """argparse type: an integer >= ``minimum``, else a usage error naming the option
+    (argparse puts it first) and what was given."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"must be a whole number >= {minimum}, got {text!r}"
+            ) from None
+        if value < minimum:
+            least = f"at least {minimum}" if minimum else f"{minimum} or more"
+            raise argparse.ArgumentTypeError(f"must be {least}, got {value}")
+        return value
+
+    return parse
+
+
+#: An integer >= 1 (counts: frames, items, workers).
+_at_least_one = _whole_number(1)
+#: A seed, an integer >= 0 (numpy's seeds). Found as a user: `diagnose --seed -3` said
+#: "expected non-negative integer", naming no option, after its 11 s base fit, and
+#: `calibrate --seed -4` refused only after its fit.
+_seed = _whole_number(0)
 
 
 def _count(n: int, noun: str) -> str:
     """``n`` and ``noun``, plural unless ``n`` is 1 ("1 cell", "5 frames")."""
     return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
-
-
-def _seed(text: str) -> int:
-    """argparse type: a seed, an integer >= 0 (numpy's seeds). Found as a user:
-    `diagnose --seed -3` said "expected non-negative integer", naming no option, after
-    its 11 s base fit, and `calibrate --seed -4` refused only after its fit."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a whole number >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be 0 or more, got {value}")
-    return value
 
 
 def _output_folder(path: str | Path, option: str = "--out", *, staged: bool = False) -> Path:
