@@ -5,7 +5,7 @@ Run under a virtual display (Debian: ``apt-get install xvfb``)::
     xvfb-run -a -s "-screen 0 1366x768x24" python docs/scripts/make_screenshots.py [--napari-only]
 
 Writes ``docs/images/napari-*.png`` (the flow of docs/gui.md on the real SyMBac trench,
-and a phase colony fitted from its masks, read from ``../shared/data/real`` or
+Diagnose included, and a phase colony fitted from its masks, read from ``../shared/data/real`` or
 ``$NAPARI_SYMBAC_REAL_DATA``, in a 1366 x 768 window) and the demo montage
 ``docs/images/demo-preview.png``.
 """
@@ -111,6 +111,18 @@ def real_trench_flow(folder: Path) -> None:
     viewer.reset_view()
     flow.tune.native.parent().parent().verticalScrollBar().setValue(10_000)
     shot(viewer, "napari-simulate-tune.png")
+
+    flow.setCurrentIndex(flow.indexOf(flow.diagnose.native.parent().parent()))
+    flow.diagnose.reference.value = viewer.layers["my_trench"]
+    flow.diagnose.run_button.native.click()
+    wait_for(lambda: flow.diagnose.worker is None, timeout_s=1200.0)
+    print(flow.diagnose.status.value)
+    dismiss_notifications(viewer)
+    for layer in viewer.layers:
+        layer.visible = layer.name in ("my_trench", "diagnosis residual")
+    viewer.layers["diagnosis residual"].translate = (0, 4.0)
+    viewer.reset_view()
+    shot(viewer, "napari-diagnose.png")
 
     flow.setCurrentIndex(flow.indexOf(flow.export.native.parent().parent()))
     flow.export.folder.value = folder / "dataset"
