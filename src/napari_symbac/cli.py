@@ -355,6 +355,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         refuse_constant,
         resolve_pixel_size,
     )
+    from napari_symbac.fit.start import WideStartError
     from napari_symbac.io import read_image
     from napari_symbac.settings import (
         PipelineSettings,
@@ -436,6 +437,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                 fit = fit_scene(
                     frame, microscope, render, camera, labels=labels, geometry=geometry
                 )
+            except WideStartError as err:
+                raise ValueError(f"{err.cause}; {DIAGNOSE_WIDE_START_FIX}") from err
             except ValueError as err:
                 if "no cells" not in str(err):
                     raise
@@ -549,6 +552,14 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if out is not None:
         print(f"\nwrote {', '.join(p.name for p in written)} to {out}")
     return 0
+
+
+#: What diagnose, which starts from its own segmentation (no masks), asks of a start
+#: wider than any rod (:class:`~napari_symbac.fit.start.WideStartError`).
+DIAGNOSE_WIDE_START_FIX = (
+    "diagnose starts from its own segmentation (it takes no masks): pass --region "
+    "Y0:Y1,X0:X1 for a window of separate cells"
+)
 
 
 def _no_cells_advice(

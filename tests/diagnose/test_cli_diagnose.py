@@ -230,3 +230,21 @@ def test_no_cells_in_the_diagnosed_window_names_it_and_the_fix(tmp_path, capsys,
     assert "pass --region Y0:Y1,X0:X1 for a window with cells" in error
     assert "--region full" in error
     assert not out.exists()
+
+
+def test_a_colony_start_names_diagnoses_own_fix(tmp_path, capsys, real_data_dir):
+    """The Omnipose colony Sample000033 (touching cells; 0.118 um/px, 1 um per median
+    mask width): the automatic start takes them as wide regions and the base fit stops;
+    diagnose takes no masks, so the message asks for a window of separate cells, not for
+    the masks the fit's own message would ask for."""
+    mic = tmp_path / "mic.yaml"
+    mic.write_text("pixel_size_um: 0.118\nmodality: phase\n")
+    out = tmp_path / "out"
+    image = real_data_dir / "omnipose" / "Sample000033.png"
+    code = main(["diagnose", str(image), "--microscope", str(mic), "--out", str(out)])
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert code == 2
+    assert "cells the automatic start found are wider than any rod-shaped bacterium" in error
+    assert error.endswith("pass --region Y0:Y1,X0:X1 for a window of separate cells")
+    assert "instance masks" not in error
+    assert not out.exists()

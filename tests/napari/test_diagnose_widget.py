@@ -253,6 +253,33 @@ def test_diagnose_says_the_centre_window_holds_no_cells(make_napari_viewer, qtbo
     assert DIAGNOSIS_RESIDUAL_LAYER not in viewer.layers
 
 
+def test_diagnose_of_a_colony_asks_for_a_window_not_for_masks(
+    make_napari_viewer, qtbot, real_data_dir
+):
+    """The Omnipose colony Sample000033 (touching cells, 0.118 um/px): the automatic
+    start takes them as wide regions; the dock, which takes no masks, says so with its
+    own fix (its window field), not the fit's (masks)."""
+    from napari_symbac.io import read_image
+
+    viewer = make_napari_viewer()
+    viewer.add_image(
+        read_image(real_data_dir / "omnipose" / "Sample000033.png").data,
+        name="colony",
+        scale=(0.118, 0.118),
+        metadata={"pixel_size_um": 0.118, "modality": "phase"},
+    )
+    widget = DiagnoseWidget(viewer, candidates=CANDIDATES, n_bootstrap=5)
+    widget.run_button.clicked.emit()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=60_000)
+    status = widget.status.value
+    assert status.startswith("Diagnosis failed: ")
+    assert "wider than any rod-shaped bacterium" in status
+    assert status.endswith("enter a window of separate cells in 'window (rows, columns)'")
+    assert "instance masks" not in status
+    assert widget.run_button.enabled
+    assert DIAGNOSIS_RESIDUAL_LAYER not in viewer.layers
+
+
 @pytest.fixture
 def ds3_widget(make_napari_viewer, real_data_dir):
     """ColiCoords ds3 (4 frames of 512 x 512 px, fluorescence, 80 nm), frame 1 on

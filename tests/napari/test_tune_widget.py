@@ -209,6 +209,31 @@ def test_auto_fit_of_a_phase_colony_says_what_the_linear_kernel_cannot_do(
     assert any(OPEN_PHASE_NOTE in str(n.message) for n in seen)
 
 
+def test_auto_fit_of_a_whole_colony_without_masks_asks_for_them(rendered, qtbot, real_data_dir):
+    """The whole Sample000033 colony (116 touching cells) with no masks: the automatic
+    start takes the colony as a few wide regions, and Auto-fit stops there at once with
+    where to choose the masks (it ran a long fit that ended with a dozen cells)."""
+    from napari_symbac.io import read_image
+
+    viewer, tune = rendered
+    _as_agar_pad(tune)
+    colony = read_image(real_data_dir / "omnipose" / "Sample000033.png").data
+    real = viewer.add_image(
+        colony.astype(np.float32), name="colony", scale=(0.118, 0.118),
+        metadata={"pixel_size_um": 0.118, "modality": "phase"},
+    )  # fmt: skip
+    tune.reference.value = real
+    assert tune.masks.value is None
+    tune.fit_button.native.click()
+    qtbot.waitUntil(lambda: tune.fit_worker is None, timeout=120_000)
+    assert tune.fit_result is None
+    status = tune.status.value
+    assert status.startswith("Fit failed: ")
+    assert "wider than any rod-shaped bacterium" in status
+    assert status.endswith("choose it as 'cell masks'")
+    assert tune.fit_button.enabled
+
+
 def test_auto_fit_of_a_phase_colony_with_its_masks_fits_the_halo(rendered, qtbot, real_data_dir):
     """The same kind of recording with its instance masks opened as a Labels layer and
     chosen as the cell masks: Auto-fit fits the partially coherent model to the masks'

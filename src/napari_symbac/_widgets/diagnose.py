@@ -42,6 +42,12 @@ DIAGNOSIS_RESIDUAL_LAYER = "diagnosis residual"
 DIAGNOSIS_AFTER_LAYER = "diagnosis residual after"
 #: The label of the dock's field of the window diagnosed.
 WINDOW_LABEL = "window (rows, columns)"
+#: What the dock, which starts from its own segmentation (no masks), asks of a start
+#: wider than any rod (:class:`~napari_symbac.fit.start.WideStartError`).
+WIDE_START_FIX = (
+    f"Diagnose starts from its own segmentation (it takes no masks): enter a window of "
+    f"separate cells in '{WINDOW_LABEL}'"
+)
 
 
 def window_words(
@@ -438,9 +444,14 @@ class DiagnoseWidget(Container):
 
     def _on_errored(self, err: BaseException) -> bool:
         from napari_symbac.fit import FitCancelled
+        from napari_symbac.fit.start import WideStartError
 
         if isinstance(err, (FitCancelled, InterruptedError)) or self.worker.cancelled.is_set():
             self._on_cancelled()
+            return True
+        if isinstance(err, WideStartError):  # the engine's fix (masks) is not this dock's
+            self.status.value = f"Diagnosis failed: {err.cause}; {WIDE_START_FIX}"
+            notify_warning(self.status.value)
             return True
         self.status.value = f"Diagnosis failed: {err}"
         return False

@@ -943,11 +943,14 @@ class TuneWidget(Container):
 
     def _on_fit_errored(self, err: BaseException) -> bool:
         from napari_symbac.fit import FitCancelled
+        from napari_symbac.fit.start import WideStartError
 
         if isinstance(err, FitCancelled):
             self.status.value = "Fit cancelled: parameters unchanged"
             return True
         self.status.value = f"Fit failed: {err}"
+        if isinstance(err, WideStartError):
+            self.status.value += "; open the masks as a Labels layer and choose it as 'cell masks'"
         return False
 
     def _on_fit_finished(self) -> None:

@@ -22,7 +22,17 @@ from napari_symbac.fit.placement import TrenchPlacement
 from napari_symbac.settings import Microscope
 from napari_symbac.sim import FrameCells
 
-__all__ = ["cells_from_instances", "cut_by_edge", "otsu_cells", "polarity_of", "start_scene"]
+__all__ = [
+    "MAX_BLOB_SHARE",
+    "MAX_START_WIDTH_UM",
+    "WideStartError",
+    "cells_from_instances",
+    "cut_by_edge",
+    "otsu_cells",
+    "polarity_of",
+    "refuse_blobs",
+    "start_scene",
+]
 
 
 def _spherocylinder_width(area_um2: float, length_um: float) -> float:
@@ -458,6 +468,58 @@ def polarity_of(
     raise ValueError(f"unknown modality {modality!r}: paint cells and media to give the polarity")
 
 
+#: The widest rod-shaped bacterium a start may find (um). Rods are 0.4-2 um wide
+#: (B. megaterium, among the widest, ~1.5 um; Otsu widths run narrow, section 1.3);
+#: a start cell wider than this is several touching cells taken as one region, or the
+#: image is read at the wrong pixel size.
+MAX_START_WIDTH_UM = 3.0
+#: The share of such cells at which a start is refused: the automatic start of the
+#: three Omnipose colonies (at 1 um per median mask width) has 46-100 % of its cells
+#: wider than :data:`MAX_START_WIDTH_UM`, the SyMBac and DeLTA trenches and the
+#: ColiCoords fields none; a clump or a blob of debris among sparse cells is one cell.
+MAX_BLOB_SHARE = 0.25
+
+
+class WideStartError(ValueError):
+    """The automatic start found cells wider than any rod (:func:`refuse_blobs`).
+
+    ``cause`` says what was found and why; the message adds the fix of an interface
+    that takes masks. One that takes none (diagnose) words its own from ``cause``.
+    """
+
+    def __init__(self, cause: str) -> None:
+        self.cause = cause
+        super().__init__(
+            f"{cause}; give the cells' instance masks (e.g. from Omnipose or Cellpose): a "
+            "dense phase-contrast colony is then fitted with its own model"
+        )
+
+
+def refuse_blobs(widths_um: np.ndarray, pixel_size_um: float) -> None:
+    """Refuse an automatic start whose cells are wider than any rod.
+
+    Such a start is a colony's touching cells seen as a few wide regions (Otsu of a
+    dense phase-contrast colony takes ~90 % of the frame) or an image read at too
+    large a pixel size; a fit from it runs long and ends with a handful of cells.
+
+    Raises
+    ------
+    WideStartError
+        When at least :data:`MAX_BLOB_SHARE` of the cells are wider than
+        :data:`MAX_START_WIDTH_UM`; the message names both causes.
+    """
+    widths_um = np.asarray(widths_um, np.float64)
+    wide = widths_um > MAX_START_WIDTH_UM
+    if widths_um.size == 0 or wide.mean() < MAX_BLOB_SHARE:
+        return
+    raise WideStartError(
+        f"{int(wide.sum())} of the {widths_um.size} cells the automatic start found are "
+        f"wider than any rod-shaped bacterium (over {MAX_START_WIDTH_UM:g} um; median "
+        f"{float(np.median(widths_um[wide])):.1f} um): the cells touch in a colony that "
+        f"the start cannot separate, or the pixel size ({pixel_size_um:g} um) is too large"
+    )
+
+
 def start_scene(
     image: np.ndarray,
     microscope: Microscope,
@@ -497,11 +559,17 @@ def start_scene(
     -------
     cells, widths, trench, instances
         As :func:`otsu_cells`.
+
+    Raises
+    ------
+    WideStartError
+        Without ``masks``, when the cells found are wider than any rod
+        (:func:`refuse_blobs`).
     """
     polarity = polarity_of(image, microscope.modality, labels)
     px = microscope.pixel_size_um
     if masks is None and labels is None:
-        return otsu_cells(
+        start = otsu_cells(
             image,
             microscope,
             geometry=geometry,
@@ -511,6 +579,8 @@ def start_scene(
             trench=trench,
             valid=valid,
         )
+        refuse_blobs(start[1], px)
+        return start
     found = trench
     if geometry == "trench" and trench is None:
         if polarity == "bright":
@@ -552,6 +622,7 @@ def start_scene(
         instances = np.where(np.isin(instances, dropped), 0, instances)
         instances = _renumber(instances)
         cells, widths = cells_from_instances(instances, px, max_cell_length_um)
+    refuse_blobs(widths, px)
     return cells, widths, found, instances
 
 
