@@ -1074,7 +1074,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         with _terminate_as_interrupt():
             return args.func(args)
     except (ValueError, TypeError, OSError, ExportError) as err:
+        from napari_symbac.fit.start import WideStartError
+
         text = _one_line(err)
+        if isinstance(err, WideStartError):  # fit and calibrate take the masks so
+            text += " (--masks M)"
         print(f"napari-symbac {args.command}: error: {text}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as stop:

@@ -293,6 +293,24 @@ def test_calibrate_refuses_a_trench_and_names_fit_and_export(real_data_dir, tmp_
     assert not out.exists()
 
 
+def test_calibrate_of_a_colony_without_masks_asks_for_them(real_data_dir, tmp_path, capsys):
+    """The Omnipose colony Sample000033 (touching cells, 0.118 um/px) without masks: the
+    fit's automatic start takes the colony as wide regions; calibrate stops there and
+    asks for the masks, its option named, with nothing written."""
+    (tmp_path / "m.yaml").write_text("pixel_size_um: 0.118\nmodality: phase\n")
+    image = real_data_dir / "omnipose" / "Sample000033.png"
+    out = tmp_path / "out"
+    code = main(["calibrate", str(image), "--microscope", str(tmp_path / "m.yaml"),
+                 "--out", str(out)])  # fmt: skip
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert code == 2
+    assert error.startswith("napari-symbac calibrate: error: ")
+    assert "cells the automatic start found are wider than any rod-shaped bacterium" in error
+    assert error.endswith("(--masks M)")
+    assert not out.exists()
+    assert not list(tmp_path.glob(".out*"))
+
+
 def test_a_terminated_calibrate_leaves_nothing_behind(colicoords_files, capsys, monkeypatch):
     """Found as a user: `timeout 120 napari-symbac calibrate ...` (SIGTERM) left a 49 MB
     `.OUT.partial-*` folder beside --out. SIGTERM now unwinds as Ctrl-C: exit 143, the

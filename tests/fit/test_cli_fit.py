@@ -1007,7 +1007,7 @@ def test_a_phase_colony_without_masks_is_refused_at_its_start(
     error = _refused(capsys, tmp_path / "fit", image, "--microscope", microscope)
     line = error[error.index("napari-symbac fit: error: ") :].splitlines()[0]
     assert "cells the automatic start found are wider than any rod-shaped bacterium" in line
-    assert "give the cells' instance masks" in line
+    assert line.endswith("is then fitted with its own model (--masks M)")
 
 
 def test_envelope_stain_is_fitted_and_written_for_render(tmp_path, real_data_dir):
