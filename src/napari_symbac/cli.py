@@ -680,7 +680,7 @@ _EXAMPLES = {
     ),
     "render": _examples("napari-symbac render sim/ --config fitted/settings.yaml --out images/"),
     "export": _examples(
-        "napari-symbac export --config fitted/settings.yaml --out dataset/ --n-items 500",
+        "napari-symbac export --config fitted/settings.yaml --out matched/ --n-items 500",
         "napari-symbac defaults export --out export.yaml   # edit formats, sizes, then:",
         "napari-symbac export --config export.yaml --out dataset/ --workers 2",
     ),
