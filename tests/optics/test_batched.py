@@ -286,3 +286,86 @@ def test_render_scenes_same_images_whatever_the_chunking(trench):
 
     np.testing.assert_array_equal(images(3), images(3))
     _same_but_for_transform_rounding(images(3), images(7))
+
+
+#: depth-resolved fluorescence (eq. 16): the cells in 5 slabs, focus 0.2 um above the
+#: cells' mid-plane
+DEPTH = dataclasses.replace(
+    CLEAN,
+    depth_layers=5,
+    focus_offset_um=0.2,
+    cell_intensity=2000.0,
+    media_intensity=150.0,
+    device_intensity=100.0,
+)
+FLUORESCENCE = Microscope(modality="fluorescence")
+
+
+@pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize("geometry", ["trench", "field"])
+@pytest.mark.parametrize("envelope", [0.0, 0.6], ids=["volume", "envelope"])
+def test_depth_resolved_batch_equals_cpu_path(geometry, envelope, device, request):
+    """The depth stage on the device: each slab of the stain through its own kernel,
+    media and device through the 2-D one. A volume stain keeps the drawn scene's open
+    fraction (static path: the cells' window only); an envelope stain is a copy that
+    does not (composed path)."""
+    render = dataclasses.replace(DEPTH, envelope_stain_fraction=envelope)
+    pipeline, scenes = _scenes(request.getfixturevalue(geometry), render, FLUORESCENCE)
+    assert scenes[0].depth_profile.shape == (5, *scenes[0].shape)
+    model = ForwardModel(pipeline.microscope, pipeline.render, pipeline.camera)
+    assert model.stages[0].name == "depth"
+    renderer = BatchedRenderer(model, device, batch_frames=3)
+    layout = renderer._layout(scenes[:3])
+    assert (layout.static is not None) == (envelope == 0.0)
+    assert len(layout.planes) == 6  # 5 slabs + the 2-D plane (media and device, or -I_m C)
+    expected = np.stack([model.render_clean(scene, cache=False) for scene in scenes])
+    got = renderer.render_clean(scenes)
+    assert got.dtype == np.float32
+    assert got.shape == expected.shape == (len(scenes), *scenes[0].camera_shape)
+    assert _relative_difference(got, expected) < 1e-5
+    cached = np.stack([model.render_clean(scene) for scene in scenes])
+    assert _relative_difference(got, cached) < 1e-5
+    # the 2-D projection differs by far more: the depth stage did run
+    flat = ForwardModel(FLUORESCENCE, dataclasses.replace(render, depth_layers=0))
+    assert _relative_difference(got, BatchedRenderer(flat, device).render_clean(scenes)) > 1e-3
+    # one frame with a model that has not seen its geometry: composed
+    fresh = ForwardModel(pipeline.microscope, pipeline.render, pipeline.camera)
+    one = BatchedRenderer(fresh, device).render_clean(scenes[:1])
+    assert _relative_difference(one, expected[:1]) < 1e-5
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_depth_resolved_noise_same_seed_same_images_whatever_the_batch_size(trench, device):
+    render = dataclasses.replace(DEPTH, noise_model="camera")
+    pipeline, scenes = _scenes(trench, render, FLUORESCENCE)
+    model = ForwardModel(pipeline.microscope, render, pipeline.camera)
+    a = BatchedRenderer(model, device).render(scenes, np.random.default_rng(11))
+    np.testing.assert_array_equal(
+        a, BatchedRenderer(model, device).render(scenes, np.random.default_rng(11))
+    )
+    for size in (1, 2):
+        b = BatchedRenderer(model, device, batch_frames=size).render(
+            scenes, np.random.default_rng(11)
+        )
+        _same_but_for_transform_rounding(a, b)
+    c = BatchedRenderer(model, device).render(scenes, np.random.default_rng(12))
+    assert np.abs(a.astype(int) - c.astype(int)).max() > 1
+    # about the clean image plus the baseline: each frame's mean residual within 5
+    # standard errors of 0 (the noise is unbiased), its spread the camera's noise
+    clean = np.stack([model.render_clean(scene, cache=False) for scene in scenes])
+    residual = a.astype(np.float64) - pipeline.camera.baseline_adu - clean
+    pixels = residual[0].size
+    assert np.all(np.abs(residual.mean(axis=(1, 2))) < 5 * residual.std() / np.sqrt(pixels))
+    assert 1.0 < residual.std() < 0.5 * clean.std()
+
+
+def test_depth_resolved_batch_refuses_scenes_without_a_profile_or_of_two_depths(trench):
+    pipeline, scenes = _scenes(trench, DEPTH, FLUORESCENCE, last=2)
+    renderer = BatchedRenderer(ForwardModel(pipeline.microscope, pipeline.render), "cpu")
+    unstained = dataclasses.replace(scenes[0])  # a copy without the depth profile
+    with pytest.raises(ValueError, match="no depth profile of as many slabs: stain it"):
+        renderer.render_clean([unstained])
+    deeper = dataclasses.replace(scenes[1], depth_um=scenes[1].depth_um + 0.2)
+    deeper = deeper.with_depth_profile(scenes[1].depth_profile)
+    with pytest.raises(ValueError, match="scenes of one depth"):
+        renderer.render_clean([scenes[0], deeper])

@@ -72,7 +72,11 @@ BACKENDS = ("scipy", "torch", "cupy")
 #: Devices of the torch backend (``--device``); ``auto`` is cuda when available.
 DEVICES = ("auto", "cpu", "cuda")
 #: Stages the batched renderer runs on the device.
-DEVICE_STAGES = ("psf", "resample", "intensity", "camera")
+DEVICE_STAGES = ("depth", "psf", "resample", "intensity", "camera")
+#: Name of depth slab ``j``'s input plane in :attr:`_Layout.planes`: ``depth_profile[j]
+#: * cells``, float32 as :meth:`~napari_symbac.optics.forward.ForwardModel._depth_cells`
+#: forms it.
+_SLAB = "slab:"
 #: Working memory per batch the default batch size aims at: 32 MiB on the CPU (a frame
 #: or a few: larger batches fall out of the caches and ran slower), on a GPU 3 GiB or an
 #: eighth of its memory, whichever is less (the device's size, not the memory free at
@@ -96,6 +100,8 @@ class _Layout:
         Per input plane, the ``(component, weight)`` pairs the host sums (eq. 3): the
         composed image (and with separate phase amplitudes the phase image), or the
         cells alone when the scenes share static layers (:mod:`~napari_symbac.optics.static`).
+        Depth-resolved (eq. 16) the composed image is media and device only, and each
+        slab ``j`` of the cells is a plane of its own, ``(("slab:j", 1.0),)``.
     kernels
         Per plane, the ``(weight, kernel)`` pairs whose fused spectra it is multiplied by.
     transform
@@ -208,7 +214,7 @@ class BatchedRenderer:
             if stage.name not in DEVICE_STAGES:
                 raise ValueError(
                     f"the forward model's {stage.name!r} stage cannot run on the torch device "
-                    "(the batched path runs psf, resample, intensity and camera only): "
+                    "(the batched path runs depth, psf, resample, intensity and camera only): "
                     "render with --backend scipy"
                 )
         if batch_frames is not None and (
@@ -229,9 +235,12 @@ class BatchedRenderer:
     def _stage(self, name: str) -> dict[str, Any]:
         return next(s.parameters for s in self.model.stages if s.name == name)
 
-    def _spectrum(self, kernels: tuple[tuple[float, np.ndarray], ...], factor: int, shape):
+    def _spectrum(
+        self, kernels: tuple[tuple[float, np.ndarray], ...], factor: int, shape, keep: int = 4
+    ):
         """``sum w_k spectrum(kernel_k)`` of the fused convolution + block average, on the
-        device (computed once per kernels, weights and size)."""
+        device (computed once per kernels, weights and size; the last ``keep``, at least
+        4, are kept: a depth-resolved layout has one per slab)."""
         key = (factor, shape, *((w, k.shape, k.tobytes()) for w, k in kernels))
         spectrum = self._spectra.get(key)
         if spectrum is None:
@@ -240,7 +249,7 @@ class BatchedRenderer:
                 for w, k in kernels
             )
             spectrum = self.torch.from_numpy(np.asarray(host, np.complex64)).to(self.device)
-            if len(self._spectra) >= 4:
+            while len(self._spectra) >= max(4, keep):
                 self._spectra.pop(next(iter(self._spectra)))
             self._spectra[key] = spectrum
         return spectrum
@@ -262,8 +271,12 @@ class BatchedRenderer:
         (its image costs two transforms of the frame on the CPU, once per geometry);
         a single frame of a geometry this model has not rendered yet is composed, as
         :meth:`~napari_symbac.optics.forward.ForwardModel.render_clean` decides.
+        Depth-resolved scenes (eq. 16) take either path too (the CPU path composes them
+        always): static, the cells' 2-D plane carries ``-I_m`` (the static image holds
+        ``I_m O``) and each slab ``I_c`` through its own kernel, over the cells' window.
         """
         model, first = self.model, scenes[0]
+        depth = model.depth_layers
         for scene in scenes:
             model._check_scene(scene)
             if (scene.cells.shape, scene.upsample, scene.pixel_size_um) != (
@@ -275,6 +288,14 @@ class BatchedRenderer:
                     f"a batch needs scenes of one size and sampling: {scene.cells.shape} and "
                     f"{first.cells.shape}; render scenes of each size in their own batch"
                 )
+            if depth:
+                model._depth_profile(scene)  # raises, naming the fix, where there is none
+                if scene.depth_um != first.depth_um:
+                    raise ValueError(
+                        f"a depth-resolved batch needs scenes of one depth: {scene.depth_um} "
+                        f"and {first.depth_um} um; render scenes of each depth in their own "
+                        "batch"
+                    )
         layers = static_layers(first)
         if layers is not None and all(
             (other := static_layers(scene)) is not None
@@ -282,7 +303,26 @@ class BatchedRenderer:
             and scene.border_px == first.border_px
             for scene in scenes
         ):
-            plan = model._static_plan(first, always=len(scenes) > 1)
+            plan = model._static_plan(first, always=len(scenes) > 1, depth_cells=bool(depth))
+            if plan is not None and depth:
+                # (I_c - I_m) C of the 2-D path, split: - I_m C on the 2-D kernel, I_c C
+                # slab by slab on the slabs' kernels
+                r = model.render_settings
+                minus_media = np.float32(-r.media_intensity)
+                planes, plane_kernels = self._slab_planes(first)
+                if minus_media != 0:
+                    kernel = model.kernel(first.pixel_size_um)
+                    planes.insert(0, (("cells", 1.0),))
+                    plane_kernels.insert(0, ((float(minus_media), kernel),))
+                return _Layout(
+                    source=plan.cells or (slice(0, 0), slice(0, 0)),
+                    planes=tuple(planes) if plan.cells else (),
+                    kernels=tuple(plane_kernels),
+                    transform=plan.transform_shape,
+                    out_shape=plan.out_shape,
+                    out=plan.out,
+                    static=plan.static,
+                )
             if plan is not None:
                 kernels = tuple((float(w), k) for w, k in plan.cell_kernels)
                 return _Layout(
@@ -296,9 +336,24 @@ class BatchedRenderer:
                 )
         return self._composed_layout(first)
 
+    def _slab_planes(
+        self, first: Any
+    ) -> tuple[list[tuple[tuple[str, float], ...]], list[tuple[tuple[float, np.ndarray], ...]]]:
+        """The depth slabs' planes (eq. 16): ``depth_profile[j] * cells`` through slab
+        ``j``'s kernel, weighted by ``I_c`` after the convolution as the CPU path's
+        ``np.float32(I_c) * _depth_cells`` (here in the kernel's spectrum)."""
+        model = self.model
+        weight = float(np.float32(model.render_settings.cell_intensity))
+        kernels = model.depth_kernels(first.depth_um, first.pixel_size_um)
+        planes = [((f"{_SLAB}{j}", 1.0),) for j in range(len(kernels))]
+        return planes, [((weight, kernel),) for kernel in kernels]
+
     def _composed_layout(self, first: Any) -> _Layout:
         """The layout of scenes composed on the host (eq. 3): one plane, two with
-        separate phase amplitudes, over the frame cropped to the PSF's reach."""
+        separate phase amplitudes, over the frame cropped to the PSF's reach;
+        depth-resolved (eq. 16) media and device composed as one plane and the cells'
+        slabs one plane each, as :meth:`~napari_symbac.optics.forward.ForwardModel.render_clean`
+        composes them."""
         model = self.model
         r = model.render_settings
         px = first.pixel_size_um
@@ -313,6 +368,10 @@ class BatchedRenderer:
         )
         planes: list[tuple[tuple[str, float], ...]] = [composed]
         plane_kernels: list[tuple[tuple[float, np.ndarray], ...]] = [((1.0, kernel),)]
+        if model.depth_layers:  # media and device composed, the cells slab by slab
+            planes, plane_kernels = self._slab_planes(first)
+            planes.insert(0, composed[1:])
+            plane_kernels.insert(0, ((1.0, kernel),))
         if model.separate_phase:  # separate phase amplitudes: minus the ring image
             p_cell, p_device = r.phase_amplitudes()
             planes.append((("cells", p_cell), ("device", p_device)))
@@ -333,7 +392,8 @@ class BatchedRenderer:
         ``(N, P, Y, X)`` float32 on the device.
 
         Each plane is the weighted sum of eq. 3 in float32, in the order of the CPU path
-        (bit for bit its composed image), or the cells alone (static layers). One
+        (bit for bit its composed image), or the cells alone (static layers), or a
+        depth slab ``profile[j] * cells`` (bit for bit the CPU path's slab). One
         transfer per batch, from a host buffer kept per ``slot`` (two slots alternate,
         so filling the next batch overlaps the device's work on this one).
         """
@@ -342,6 +402,8 @@ class BatchedRenderer:
         n, n_planes = len(scenes), len(layout.planes)
         buffer = self._pinned(("in", slot), (n, n_planes, height, width), self.torch.float32)
         host = buffer.numpy()
+        slabs = any(name.startswith(_SLAB) for (name, _), *_ in layout.planes)
+        profiles = [self.model._depth_profile(scene) for scene in scenes] if slabs else []
 
         def fill(task: tuple[int, int, int, int]) -> None:
             i0, i1, r0, r1 = task
@@ -349,6 +411,10 @@ class BatchedRenderer:
             for i in range(i0, i1):
                 for p, ((name, weight), *rest) in enumerate(layout.planes):
                     out = host[i, p, r0:r1]
+                    if name.startswith(_SLAB):  # profile[j] * cells (weight 1, alone)
+                        j = int(name[len(_SLAB) :])
+                        np.multiply(profiles[i][j][window], scenes[i].cells[window], out=out)
+                        continue
                     source = getattr(scenes[i], name)[window]
                     if weight == 1.0 and not rest:
                         out[...] = source
@@ -405,7 +471,9 @@ class BatchedRenderer:
             spectrum = None
             for p, kernels in enumerate(layout.kernels):
                 product = torch.fft.rfft2(stack[:, p], s=layout.transform)
-                product *= self._spectrum(kernels, factor, layout.transform)
+                product *= self._spectrum(
+                    kernels, factor, layout.transform, keep=len(layout.kernels)
+                )
                 spectrum = product if spectrum is None else spectrum.add_(product)
                 del product
             del stack

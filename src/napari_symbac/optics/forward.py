@@ -487,10 +487,11 @@ class ForwardModel:
             self._kernels[key] = kernels
         return kernels
 
-    def _depth_cells(self, scene: Any, trim: int) -> np.ndarray:
-        """The cells image slab by slab through the slabs' PSFs, summed and area-averaged
-        (eq. 16), not cached. A scene without cells (no labels: debris alone) and no
-        profile has its light at the cells' mid-plane."""
+    def _depth_profile(self, scene: Any) -> np.ndarray:
+        """``scene``'s :attr:`~napari_symbac.scene.Scene.depth_profile` of
+        ``depth_layers`` slabs; a scene without cells (no labels: debris alone) and no
+        profile has its light at the cells' mid-plane. Raises, naming the fix, for a
+        scene with cells and no profile of as many slabs."""
         from napari_symbac.scene._depth import midplane_share
 
         profile = scene.depth_profile
@@ -505,6 +506,12 @@ class ForwardModel:
                 "slab, but the scene has no depth profile of as many slabs: stain it with "
                 "napari_symbac.pipeline.stain_cells (or scene.depth_stain)"
             )
+        return profile
+
+    def _depth_cells(self, scene: Any, trim: int) -> np.ndarray:
+        """The cells image slab by slab through the slabs' PSFs, summed and area-averaged
+        (eq. 16), not cached (profile: :meth:`_depth_profile`)."""
+        profile = self._depth_profile(scene)
         crop = (slice(trim, -trim),) * 2 if trim else (slice(None),) * 2
         layers = profile[(slice(None), *crop)] * scene.cells[crop][None]
         kernels = self.depth_kernels(scene.depth_um, scene.pixel_size_um)
@@ -763,7 +770,9 @@ class ForwardModel:
             image[plan.out] += part
         return image
 
-    def _static_plan(self, scene: Any, *, always: bool = False) -> _StaticPlan | None:
+    def _static_plan(
+        self, scene: Any, *, always: bool = False, depth_cells: bool = False
+    ) -> _StaticPlan | None:
         """The static image and the cells' transform of ``scene``'s geometry, or ``None``
         where the composed path renders it.
 
@@ -776,9 +785,16 @@ class ForwardModel:
         series on (a model that renders one frame, e.g. an export item with
         randomised settings, stays on the composed path). The plan is memoised per
         geometry with this model's settings.
+
+        ``depth_cells``: the caller images the cells through the depth itself (the
+        batched renderer, :mod:`~napari_symbac.optics.batched`), so a depth-resolved
+        model gets a plan too; its static image (media and device on the 2-D kernel)
+        and cells' window hold, its ``cell_kernels`` (the 2-D cells) do not.
         """
         self._check_scene(scene)
-        if self.depth_layers or not hasattr(self.backend, "convolve_resample_circular"):
+        if (self.depth_layers and not depth_cells) or not hasattr(
+            self.backend, "convolve_resample_circular"
+        ):
             return None
         layers = static_layers(scene)
         if layers is None:
