@@ -271,6 +271,56 @@ def test_render_and_export_on_the_torch_backend(tmp_path, capsys):
     np.testing.assert_array_equal(item.image, stored)
 
 
+def test_render_and_export_depth_resolved_fluorescence_on_torch(tmp_path, capsys):
+    """Settings with render.depth_layers > 0 (as `fit --depth-layers 5` writes them) were
+    refused by --backend torch ("'depth' stage cannot run on the torch device"); the
+    device now images the slabs: the same images as scipy's but for the noise stream."""
+    import yaml
+
+    assert main(["simulate", "--out", str(tmp_path / "sim"), "--frames", "3", "--seed", "1"]) == 0
+    pipeline = {
+        "microscope": {"modality": "fluorescence"},
+        "render": {
+            "depth_layers": 5,
+            "focus_offset_um": 0.2,
+            "envelope_stain_fraction": 0.5,
+            "cell_intensity": 3000.0,
+            "media_intensity": 150.0,
+            "device_intensity": 100.0,
+        },
+    }
+    config = tmp_path / "depth.yaml"
+    config.write_text(yaml.safe_dump(pipeline))
+    render = ["render", str(tmp_path / "sim"), "--config", str(config), "--out"]
+    assert main([*render, str(tmp_path / "cpu")]) == 0
+    capsys.readouterr()
+    assert main([*render, str(tmp_path / "dev"), "--backend", "torch", "--device", "cpu"]) == 0
+    captured = capsys.readouterr()
+    assert "render (torch:cpu)" in captured.out
+    assert "Traceback" not in captured.err
+    cpu = tifffile.imread(tmp_path / "cpu" / "images.tif").astype(float)
+    dev = tifffile.imread(tmp_path / "dev" / "images.tif").astype(float)
+    assert dev.shape == cpu.shape == (3, *dev.shape[1:])
+    assert not np.array_equal(dev, cpu)  # another noise stream
+    np.testing.assert_allclose(dev.mean(axis=(1, 2)), cpu.mean(axis=(1, 2)), rtol=5e-3)
+    export_config = tmp_path / "export.yaml"
+    export_config.write_text(
+        yaml.safe_dump(
+            {
+                "n_items": 1,
+                "kind": "timeseries",
+                "pipeline": {**pipeline, "simulation": {"n_frames": 3}},
+            }
+        )
+    )
+    export = ["export", "--config", str(export_config), "--out", str(tmp_path / "ds")]
+    assert main([*export, "--workers", "1", "--backend", "torch", "--device", "cpu"]) == 0
+    manifest = json.loads((tmp_path / "ds" / "manifest.json").read_text())
+    assert manifest["render_backend"] == "torch:cpu"
+    assert manifest["status"] == "complete"
+    assert len(manifest["items"]) == 3
+
+
 def test_progress_is_lines_when_piped(capsys):
     """A long `diagnose` sent to a log file said nothing for 10 minutes (tqdm is silent
     off a terminal): piped, progress is a line when the count moves, at most every
