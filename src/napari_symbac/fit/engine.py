@@ -338,8 +338,7 @@ class SceneModel:
         if trim:
             layers = layers[:, trim:-trim, trim:-trim]
         kernels = forward.depth_kernels(self.depth_um, scene.pixel_size_um)
-        image = forward.backend.convolve_valid(layers, kernels, sum_planes=True)
-        return block_average(image, scene.upsample).astype(np.float64)
+        return forward.convolve_depth(layers, kernels, scene.upsample).astype(np.float64)
 
     def _fraction(self, r: RenderSettings) -> float:
         """The envelope's fraction of the stain the model draws (0 in phase contrast)."""

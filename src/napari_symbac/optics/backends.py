@@ -310,6 +310,35 @@ class ScipyBackend:
             return self._fused(image[None], kernel, factor, shape, out_shape)[0]
         return self._fused(image, kernel, factor, shape, out_shape)
 
+    def convolve_resample_sum(
+        self, images: np.ndarray, kernels: np.ndarray, factor: int
+    ) -> np.ndarray:
+        """``sum_j`` of ``images[j]`` convolved (valid) with ``kernels[j]``, block-averaged
+        ``factor x factor``: the slabs of eq. 16 through their PSFs.
+
+        Equals ``block_average(convolve_valid(images, kernels, sum_planes=True), factor)``
+        (float rounding aside) as :meth:`convolve_resample` equals its unfused form: one
+        forward transform per slab, the slabs' spectral products summed, one inverse
+        ``factor**2`` times smaller. ``images`` ``(N, Y, X)``, ``kernels`` ``(N, ky,
+        kx)``; the result is ``((Y - ky + 1) // factor, (X - kx + 1) // factor)`` float32.
+        """
+        images, kernels = _check(images, kernels)
+        factor = int(factor)
+        n, height, width = images.shape
+        ky, kx = kernels.shape[1:]
+        rows, cols = height - ky + 1, width - kx + 1
+        if factor < 1 or rows % factor or cols % factor:
+            raise ValueError(
+                f"the valid convolution ({rows}, {cols}) is not a multiple of {factor}"
+            )
+        shape = resample_fft_shape(height, width, factor)
+        spectrum = None
+        for image, kernel in zip(images, np.broadcast_to(kernels, (n, ky, kx))):
+            product = sp_fft.rfft2(image, s=shape)
+            product *= self._resample_kernel_fft(kernel, factor, shape)
+            spectrum = product if spectrum is None else np.add(spectrum, product, out=spectrum)
+        return self._decimate(spectrum[None], factor, shape, (rows // factor, cols // factor))[0]
+
     def _fused(
         self,
         images: np.ndarray,
@@ -319,9 +348,17 @@ class ScipyBackend:
         out_shape: tuple[int, int],
     ) -> np.ndarray:
         """``(N, Y, X)`` float32 images -> ``(N,) + out_shape``: transforms of ``shape``."""
-        m1 = shape[0] // factor
         spectrum = sp_fft.rfft2(images, s=shape)
         spectrum *= self._resample_kernel_fft(kernel, factor, shape)
+        return self._decimate(spectrum, factor, shape, out_shape)
+
+    @staticmethod
+    def _decimate(
+        spectrum: np.ndarray, factor: int, shape: tuple[int, int], out_shape: tuple[int, int]
+    ) -> np.ndarray:
+        """The product spectra ``(N, shape[0], shape[1] // 2 + 1)`` -> the block-averaged
+        images ``(N,) + out_shape`` float32 (the kernel's spectrum carries the scale)."""
+        m1 = shape[0] // factor
         # Decimate the rows: sum the aliases of the (full, complex) row frequencies.
         folded = spectrum.reshape(spectrum.shape[0], factor, m1, -1).sum(axis=1)
         folded = sp_fft.ifft(folded, axis=1, overwrite_x=True)

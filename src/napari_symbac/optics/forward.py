@@ -515,8 +515,17 @@ class ForwardModel:
         crop = (slice(trim, -trim),) * 2 if trim else (slice(None),) * 2
         layers = profile[(slice(None), *crop)] * scene.cells[crop][None]
         kernels = self.depth_kernels(scene.depth_um, scene.pixel_size_um)
-        image = self.backend.convolve_valid(layers, kernels, sum_planes=True)
-        return block_average(image, scene.upsample)
+        return self.convolve_depth(layers, kernels, scene.upsample)
+
+    def convolve_depth(self, layers: np.ndarray, kernels: np.ndarray, factor: int) -> np.ndarray:
+        """Slab ``j`` of ``layers`` through ``kernels[j]`` (valid), summed and
+        block-averaged ``factor x factor`` (eq. 16): the backend's fused form where it
+        has one (``convolve_resample_sum``: the average folded into each slab's
+        spectrum, one inverse transform at camera resolution), float32."""
+        fused = getattr(self.backend, "convolve_resample_sum", None)
+        if fused is not None:
+            return fused(layers, kernels, factor)
+        return block_average(self.backend.convolve_valid(layers, kernels, sum_planes=True), factor)
 
     @property
     def separate_phase(self) -> bool:
