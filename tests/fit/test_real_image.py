@@ -133,3 +133,26 @@ def test_a_background_above_the_baseline_is_fitted_from_the_first_round(real_dat
     assert media == pytest.approx(background, rel=0.05)
     weights = run.problem.w[run.problem.w > 0]
     assert weights.max() < 20 * np.median(weights)
+
+
+def test_a_start_wider_than_any_rod_is_refused_unless_cells_are_given(real_data_dir):
+    """A 128 px corner of the Omnipose colony Sample000033 (0.118 um/px): its automatic
+    start takes touching cells as regions wider than 3 um, a quarter of them or more, and
+    is refused; painted strokes start the same way; ``refuse_wide=False`` (a series'
+    frame started from the last frame's cells, tests/fit/test_series.py) takes it."""
+    from napari_symbac.fit.start import MAX_START_WIDTH_UM, WideStartError, start_scene
+    from napari_symbac.io import read_image
+
+    image = np.asarray(read_image(real_data_dir / "omnipose" / "Sample000033.png").data, float)
+    crop = image[60:188, 100:228]
+    microscope = Microscope(pixel_size_um=0.118)
+    with pytest.raises(WideStartError, match="wider than any rod-shaped bacterium") as refused:
+        start_scene(crop, microscope, geometry="open")
+    assert "give the cells' instance masks" in str(refused.value)
+    assert "give" not in refused.value.cause
+    strokes = np.zeros(crop.shape, np.uint8)
+    strokes[::16, 64] = 1
+    with pytest.raises(WideStartError):
+        start_scene(crop, microscope, geometry="open", labels=strokes)
+    _, widths, _, _ = start_scene(crop, microscope, geometry="open", refuse_wide=False)
+    assert np.mean(widths > MAX_START_WIDTH_UM) >= 0.25

@@ -95,3 +95,29 @@ def _tracks_of_first(fit, truth):
         want.y_um[:, None] - frame.cells.y_um[None, :],
     )
     return fit.track_ids[0][distance.argmin(axis=1)].tolist()
+
+
+def test_a_frame_grown_dense_starts_from_the_last_frames_cells(real_data_dir):
+    """Two 64 px windows of the Omnipose colony Sample000033 (0.118 um/px), 2 px apart,
+    as a drifting series: the first starts on its own, the second's automatic start
+    takes touching cells as regions wider than any rod and is refused alone; in the
+    series it starts from the first frame's cells (carried), as a colony that grew dense
+    during a time-lapse would. Reversed, the refused frame comes first: nothing to
+    carry, and the series is refused naming it."""
+    from napari_symbac.fit.start import WideStartError, start_scene
+    from napari_symbac.io import read_image
+    from napari_symbac.settings import Microscope
+
+    image = np.asarray(read_image(real_data_dir / "omnipose" / "Sample000033.png").data, float)
+    stack = np.stack([image[96:160, 96:160], image[94:158, 98:162]])
+    microscope = Microscope(pixel_size_um=0.118)
+    start_scene(stack[0], microscope, geometry="open")
+    with pytest.raises(WideStartError):
+        start_scene(stack[1], microscope, geometry="open")
+    fit = fit_series(stack, microscope, RenderSettings(), None, geometry="open",
+                     max_iterations=1, irls_rounds=1, joint_iterations=1)  # fmt: skip
+    assert fit.carried == (False, True)
+    assert len(fit.frames[1].cells) >= 1
+    with pytest.raises(ValueError, match=r"frame 0 of the series: .* wider than any rod"):
+        fit_series(stack[::-1], microscope, RenderSettings(), None, geometry="open",
+                   max_iterations=1, irls_rounds=1, joint_iterations=1)  # fmt: skip

@@ -558,6 +558,7 @@ def _run_frame(
         trench=trench,
         depth_um=depth,
         valid=valid,
+        refuse_wide=start_cells is None,  # a series' frame starts from the last one's cells
     )
     if start_cells is not None:
         init_cells, otsu_w = start_cells, np.asarray(start_cells.width_um, np.float64)

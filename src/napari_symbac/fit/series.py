@@ -44,6 +44,7 @@ from napari_symbac.fit.scene_fit import (
     _FrameRun,
     _run_frame,
 )
+from napari_symbac.fit.start import WideStartError
 from napari_symbac.settings import Camera, Microscope, RenderSettings, TrenchGeometry
 from napari_symbac.sim import FrameCells
 
@@ -280,17 +281,27 @@ def fit_series(
             cancel=cancel,
             **frame_options,
         )
+        carry = carry_cells and t > 0 and masks is None
         try:
-            run = frame_run(progress=steps.run(n_frames - t))
+            try:
+                run = frame_run(progress=steps.run(n_frames - t))
+            except WideStartError as refused:
+                # a colony grown dense: its own start is refused, the last frame's cells
+                # are not (below); without them the refusal stands
+                if not carry:
+                    raise
+                run, wide = None, refused
             if t == 0 and closed_end is None and run.problem.placement is not None:
                 closed_end = run.problem.placement.closed_end  # one trench: one end
             carried = False
-            if carry_cells and t > 0 and masks is None:
+            if carry:
                 moved = _carried_cells(runs[-1], stack[t - 1], stack[t], microscope.pixel_size_um)
                 if moved is not None and len(moved.ids):
                     other = frame_run(start_cells=moved, progress=steps.run(n_frames - t))
-                    carried = _lower_bic(other, run)
+                    carried = run is None or _lower_bic(other, run)
                     run = other if carried else run
+            if run is None:
+                raise wide
         except ValueError as err:
             advice = (
                 ". A series fit needs cells in every frame: fit the frames before and "

@@ -531,6 +531,7 @@ def start_scene(
     depth_um: float = 1.2,
     valid: np.ndarray | None = None,
     max_cell_length_um: float = 4.0,
+    refuse_wide: bool = True,
 ) -> tuple[FrameCells, np.ndarray, TrenchPlacement | None, np.ndarray]:
     """The starting cells of a scene fit, from a mask, painted labels or the image.
 
@@ -554,6 +555,10 @@ def start_scene(
         Trench placement; found from the image (phase) when ``None``.
     depth_um, valid, max_cell_length_um
         As in :func:`otsu_cells`.
+    refuse_wide
+        Refuse a start without ``masks`` whose cells are wider than any rod
+        (:func:`refuse_blobs`); ``False`` where the caller starts from other cells
+        (a series fit's previous frame) and takes only the trench from here.
 
     Returns
     -------
@@ -564,7 +569,7 @@ def start_scene(
     ------
     WideStartError
         Without ``masks``, when the cells found are wider than any rod
-        (:func:`refuse_blobs`).
+        (:func:`refuse_blobs`) and ``refuse_wide``.
     """
     polarity = polarity_of(image, microscope.modality, labels)
     px = microscope.pixel_size_um
@@ -579,7 +584,8 @@ def start_scene(
             trench=trench,
             valid=valid,
         )
-        refuse_blobs(start[1], px)
+        if refuse_wide:
+            refuse_blobs(start[1], px)
         return start
     found = trench
     if geometry == "trench" and trench is None:
@@ -622,7 +628,8 @@ def start_scene(
         instances = np.where(np.isin(instances, dropped), 0, instances)
         instances = _renumber(instances)
         cells, widths = cells_from_instances(instances, px, max_cell_length_um)
-    refuse_blobs(widths, px)
+    if refuse_wide:
+        refuse_blobs(widths, px)
     return cells, widths, found, instances
 
 
