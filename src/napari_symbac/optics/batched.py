@@ -25,14 +25,15 @@ finished uint16 camera images:
    one composed plane, or on the static path in the static image, where the cells'
    window adds ``-I_m`` times the cells through the 2-D kernel (``media = open -
    cells``; an envelope stain is a copy without the open fraction and is composed).
-   The CPU path composes depth scenes always and convolves the slabs without the fused
-   block average (:meth:`~napari_symbac.optics.forward.ForwardModel._depth_cells`);
-   the two agree within float32 rounding (3-5e-7 of the range on trench and field
-   batches). Measured once (torch's CPU, one thread, against the scipy path frame by
-   frame, 20 trench frames of 258 x 46 px, 5 slabs, noise included, median of 3
-   interleaved rounds, 2-core machine shared at load 1.3-1.9): torch:cpu took 0.32x
-   scipy's time (volume stain, static path) and 0.35x (envelope stain, composed); on a
-   GPU unmeasured.
+   The CPU path composes depth scenes always, its slabs through the same fused block
+   average (:meth:`~napari_symbac.optics.forward.ForwardModel.convolve_depth`); the
+   two agree within float32 rounding (3-5e-7 of the range on trench and field
+   batches). Measured once, before the CPU path's slabs were fused (which made its
+   slab step 1.1-1.6x faster; not re-measured since), torch's CPU, one thread, against
+   the scipy path frame by frame (20 trench frames of 258 x 46 px, 5 slabs, noise
+   included, median of 3 interleaved rounds, 2-core machine shared at load 1.3-1.9):
+   torch:cpu took 0.32x scipy's time (volume stain, static path) and 0.35x (envelope
+   stain, composed); on a GPU unmeasured.
 2. ``camera`` (eq. 17): shot noise ``Poisson(S / s)`` electrons, read noise ``N(0,
    sigma_d^2)`` electrons, gain ``s``, baseline, rounding and clipping to the bit depth
    (or the ``gaussian`` / ``none`` noise models), drawn on the device. As on the CPU
