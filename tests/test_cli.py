@@ -271,6 +271,36 @@ def test_render_and_export_on_the_torch_backend(tmp_path, capsys):
     np.testing.assert_array_equal(item.image, stored)
 
 
+def test_an_export_the_device_cannot_draw_is_refused_before_its_folder(tmp_path, capsys):
+    """Found as a user: `export --backend torch` of settings with a diagnosed stage the
+    device cannot run (here uneven illumination) was refused after manifest.json was
+    written with the torch backend in it, so the `--backend scipy` run that the message
+    asks for was refused in turn ("rendered with the torch:cpu backend"). Now nothing is
+    written, and the scipy run goes through."""
+    import yaml
+
+    config = tmp_path / "export.yaml"
+    config.write_text(yaml.safe_dump({
+        "n_items": 2,
+        "pipeline": {
+            "simulation": {"n_frames": 4},
+            "extra_stages": [{"name": "uneven_illumination",
+                              "parameters": {"coefficients": [0.0, 0.1, 0.0, 0.0, 0.0]}}],
+        },
+    }))  # fmt: skip
+    out = tmp_path / "ds"
+    export = ["export", "--config", str(config), "--out", str(out), "--workers", "1"]
+    assert main([*export, "--backend", "torch", "--device", "cpu"]) == 2
+    error = capsys.readouterr().err
+    assert "'uneven_illumination' stage cannot run on the torch device" in error
+    assert "--backend scipy" in error
+    assert not out.exists()
+    assert main(export) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["status"] == "complete"
+    assert "render_backend" not in manifest
+
+
 def test_render_and_export_depth_resolved_fluorescence_on_torch(tmp_path, capsys):
     """Settings with render.depth_layers > 0 (as `fit --depth-layers 5` writes them) were
     refused by --backend torch ("'depth' stage cannot run on the torch device"); the

@@ -199,6 +199,28 @@ def test_clipping_at_the_bit_depth(trench, device):
     assert images.min() >= 0
 
 
+@pytest.mark.parametrize("device", DEVICES)
+def test_a_clip_of_the_recorded_image_is_drawn_as_on_the_cpu(trench, device):
+    """The ``saturation`` stage `fit` writes for a recording clipped at 0 by a background
+    subtraction (ColiCoords' fluorescence; `export --backend torch` refused it): applied
+    to the finished frames, the same images as the unclipped ones clipped, with the
+    recording's spike at the level."""
+    from napari_symbac.diagnose.effects.saturation import stage as clip
+
+    render = dataclasses.replace(CLEAN, noise_model="camera")
+    pipeline, scenes = _scenes(trench, render, last=3)
+    plain = ForwardModel(pipeline.microscope, render, Camera())
+    unclipped = BatchedRenderer(plain, device).render(scenes, np.random.default_rng(5))
+    level = int(np.median(unclipped))
+    stage = clip({"clip_level_adu": level, "high": False})
+    clipped_model = ForwardModel(pipeline.microscope, render, Camera(), extra_stages=[stage])
+    clipped = BatchedRenderer(clipped_model, device).render(scenes, np.random.default_rng(5))
+    assert clipped.dtype == np.uint16
+    np.testing.assert_array_equal(clipped, np.maximum(unclipped, level))
+    assert (clipped == level).mean() > 0.3  # the spike
+    assert not np.array_equal(clipped, unclipped)
+
+
 def test_refuses_stages_it_cannot_run_on_the_device(trench):
     _, scenes = _scenes(trench, CLEAN, last=1)
     coherent = dataclasses.replace(CLEAN, phase_model="partially_coherent")

@@ -504,10 +504,16 @@ class PipelineSource:
     """
 
     def __init__(self, settings: ExportSettings, backend: str = "scipy") -> None:
-        from napari_symbac.optics.batched import resolve_backend
+        from napari_symbac.diagnose.stages import drawn_stages
+        from napari_symbac.optics import ForwardModel
+        from napari_symbac.optics.batched import check_device_stages, resolve_backend
 
         self.settings = settings
         self.backend = resolve_backend(backend)
+        if self.backend.startswith("torch"):  # before the manifest records the backend
+            p = settings.pipeline
+            model = ForwardModel(p.microscope, p.render, p.camera, extra_stages=drawn_stages(p))
+            check_device_stages(model)
 
     def __getstate__(self) -> dict[str, Any]:
         """The settings, and the simulations of this dataset this process has made.

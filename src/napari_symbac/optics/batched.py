@@ -43,9 +43,12 @@ finished uint16 camera images:
    elsewhere.
 
 The renderer reads the model's :attr:`~napari_symbac.optics.forward.ForwardModel.stages`
-and kernels, so the two paths cannot drift apart; a stage it cannot run on the device
-(the partially coherent ``phase_image``, any extra stage found by fitting or diagnosis)
-is refused with a :class:`ValueError` naming it.
+and kernels, so the two paths cannot drift apart. Extra stages on the recorded image
+(``Stage.recorded``: the clip of a camera or of a background subtraction that ``fit``
+writes for a recording clipped at 0) are applied to the finished uint16 frames on the
+host, as the CPU path applies them; a stage it cannot run (the partially coherent
+``phase_image``, any other extra stage found by fitting or diagnosis) is refused with a
+:class:`ValueError` naming it.
 
 Noise stream: each frame's noise comes from its own :class:`torch.Generator`, seeded
 with one 63-bit integer drawn for that frame from the numpy ``Generator`` passed in,
@@ -78,6 +81,7 @@ from napari_symbac.optics.static import static_layers
 __all__ = [
     "BACKENDS",
     "BatchedRenderer",
+    "check_device_stages",
     "render_scenes",
     "resolve_backend",
 ]
@@ -150,6 +154,26 @@ def _torch():
             "docs/benchmarks.md for the CUDA wheels), or use --backend scipy"
         ) from err
     return torch
+
+
+def check_device_stages(model: ForwardModel) -> None:
+    """Refuse a model with a stage the batched renderer cannot run (module notes).
+
+    Raises
+    ------
+    ValueError
+        Naming the stage and the fix (the scipy backend). Called before anything is
+        written: an export refused later left a manifest that recorded the torch backend,
+        so the scipy run the message asks for was refused in turn.
+    """
+    for stage in model.stages:
+        if stage.name not in DEVICE_STAGES and not stage.recorded:
+            raise ValueError(
+                f"the forward model's {stage.name!r} stage cannot run on the torch device "
+                "(the batched path runs depth, psf, resample, intensity and camera, and "
+                "stages on the recorded image such as clipping): render with --backend "
+                "scipy"
+            )
 
 
 def resolve_backend(backend: str = "scipy", device: str | None = None) -> str:
@@ -227,13 +251,7 @@ class BatchedRenderer:
     ) -> None:
         if not isinstance(model, ForwardModel):
             raise ValueError(f"model must be a ForwardModel, got {type(model).__name__}")
-        for stage in model.stages:
-            if stage.name not in DEVICE_STAGES:
-                raise ValueError(
-                    f"the forward model's {stage.name!r} stage cannot run on the torch device "
-                    "(the batched path runs depth, psf, resample, intensity and camera only): "
-                    "render with --backend scipy"
-                )
+        check_device_stages(model)
         if batch_frames is not None and (
             isinstance(batch_frames, bool) or not isinstance(batch_frames, int) or batch_frames < 1
         ):
@@ -649,7 +667,13 @@ class BatchedRenderer:
         if not scenes:
             raise ValueError("render needs at least one scene")
         seeds = rng.integers(0, 2**63 - 1, size=len(scenes), dtype=np.int64)
-        return self._run(scenes, seeds)
+        images = self._run(scenes, seeds)
+        # the extra stages on the recorded image (clipping by the camera or a background
+        # subtraction), frame by frame on the host as the CPU path applies them
+        for stage in (stage for stage in self.model.stages if stage.recorded):
+            for i, image in enumerate(images):
+                images[i] = np.asarray(stage.apply(image, None), dtype=images.dtype)
+        return images
 
 
 def render_scenes(
