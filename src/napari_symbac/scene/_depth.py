@@ -22,6 +22,7 @@ import numpy as np
 from napari_symbac.scene._stain import (
     ENVELOPE_THICKNESS_UM,
     cell_radius_um,
+    check_stain,
     envelope_stain,
     envelope_weight,
     stained_fraction,
@@ -140,11 +141,17 @@ def depth_stain(
         Thickness of the envelope.
     """
     _check_layers(n_layers)
-    stained = envelope_stain(scene, fraction, thickness_um)
+    check_stain(fraction, thickness_um)
     radius = cell_radius_um(scene)
-    radius = np.zeros(scene.shape) if radius is None else radius
+    labelled = radius is not None
+    radius = radius if labelled else np.zeros(scene.shape)
     layers = stain_layers(scene.cells, radius, fraction, scene.depth_um, n_layers, thickness_um)
     total = stained_fraction(scene.cells, radius, fraction, scene.depth_um, thickness_um)
+    # the 2-D stain is that same image: made once (radius and stain each cost as much as
+    # the slabs' shares on a large field)
+    stained = envelope_stain(
+        scene, fraction, thickness_um, stained_cells=total if labelled else None
+    )
     # every pixel at the mid-plane, then the stained ones their own shares (flat indices:
     # boolean masks over the whole frame cost more than the division)
     profile = np.empty_like(layers)

@@ -66,7 +66,11 @@ def envelope_weight(radius_um: np.ndarray | float, thickness_um: float) -> np.nd
 
 
 def envelope_stain(
-    scene: Any, fraction: float, thickness_um: float = ENVELOPE_THICKNESS_UM
+    scene: Any,
+    fraction: float,
+    thickness_um: float = ENVELOPE_THICKNESS_UM,
+    *,
+    stained_cells: np.ndarray | None = None,
 ) -> Any:
     """The scene with ``fraction`` of each cell's stain in its envelope (fluorescence).
 
@@ -91,21 +95,34 @@ def envelope_stain(
         Fraction of the stain in the envelope, in ``[0, 1]``.
     thickness_um
         Thickness of the envelope (default :data:`ENVELOPE_THICKNESS_UM`).
+    stained_cells
+        The stained cells image when the caller has it already: :func:`stained_fraction`
+        of the scene with :func:`cell_radius_um` and these ``fraction`` and
+        ``thickness_um`` (:func:`~napari_symbac.scene.depth_stain` needs it for the
+        slabs' shares too), so that it is not made twice.
     """
+    check_stain(fraction, thickness_um)
+    ids = np.asarray(scene.cell_ids, np.int64)
+    if fraction == 0 or ids.size == 0:
+        return scene
+    if stained_cells is None:
+        radius = cell_radius_um(scene)
+        if radius is None:
+            return scene
+        stained_cells = stained_fraction(
+            scene.cells, radius, fraction, scene.depth_um, thickness_um
+        )
+    return scene.replace_cells(stained_cells)
+
+
+def check_stain(fraction: float, thickness_um: float) -> None:
+    """Refuse a fraction outside ``[0, 1]`` or a thickness that is not positive."""
     if not (isinstance(fraction, (int, float)) and 0 <= fraction <= 1):
         raise ValueError(f"fraction must be in [0, 1] (0: a volume stain), got {fraction!r}")
     if not (isinstance(thickness_um, (int, float)) and math.isfinite(thickness_um)):
         raise ValueError(f"thickness_um must be a positive number, got {thickness_um!r}")
     if thickness_um <= 0:
         raise ValueError(f"thickness_um must be a positive number, got {thickness_um!r}")
-    ids = np.asarray(scene.cell_ids, np.int64)
-    if fraction == 0 or ids.size == 0:
-        return scene
-    radius = cell_radius_um(scene)
-    if radius is None:
-        return scene
-    cells = stained_fraction(scene.cells, radius, fraction, scene.depth_um, thickness_um)
-    return scene.replace_cells(cells)
 
 
 def cell_radius_um(scene: Any) -> np.ndarray | None:
