@@ -236,6 +236,8 @@ class DiagnoseWidget(Container):
 
     def run(self) -> None:
         """Fit the scene and diagnose it in a worker (progress in napari's activity dock)."""
+        from napari_symbac.diagnose.region import names_centre
+
         if self.worker is not None:
             return
         try:
@@ -248,7 +250,7 @@ class DiagnoseWidget(Container):
         cancelled = threading.Event()
         seed, candidates, n_bootstrap = self.seed.value, self.candidates, self.n_bootstrap
         base_simulation = self._simulation_to_export()
-        centre = self.window.value.strip().lower() in ("centre", "center")
+        centre = names_centre(self.window.value)
 
         def compute(progress, cancel):
             from napari_symbac.diagnose.model import build_design

@@ -18,6 +18,7 @@ __all__ = [
     "MAX_DIAGNOSIS_PIXELS",
     "Region",
     "default_region",
+    "names_centre",
     "parse_region",
     "simulated_shape",
 ]
@@ -48,6 +49,12 @@ def default_region(shape: tuple[int, int], max_pixels: int = MAX_DIAGNOSIS_PIXEL
         height, width = int(rows * scale), int(cols * scale)
     y0, x0 = (rows - height) // 2, (cols - width) // 2
     return (y0, y0 + height, x0, x0 + width)
+
+
+def names_centre(text: str) -> bool:
+    """Whether ``text`` asks for the centre window (``"centre"`` or ``"center"``, case
+    and spaces aside), as :func:`parse_region` reads it."""
+    return text.strip().lower() in ("centre", "center")
 
 
 def parse_region(
@@ -83,10 +90,9 @@ def parse_region(
         of those forms or the window is empty or reaches outside the frame.
     """
     rows, cols = (int(n) for n in shape)
-    word = text.strip().lower()
-    if word == "full":
+    if text.strip().lower() == "full":
         return (0, rows, 0, cols)
-    if word in ("centre", "center"):
+    if names_centre(text):
         return default_region((rows, cols), max_pixels)
     side = math.isqrt(max_pixels)
     forms = (
