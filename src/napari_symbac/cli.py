@@ -574,13 +574,14 @@ def _no_cells_advice(
     only "the start found no cells in the image": its frame 1 held none in the centre
     256 x 256 px window that is diagnosed by default, which the message did not say."""
     y0, y1, x0, x1 = region
+    window = region != (0, frame_shape[0], 0, frame_shape[1])
     where = f"frame {k}" if n_frames > 1 else "the image"
-    if region != (0, frame_shape[0], 0, frame_shape[1]):
+    if window:
         where += f", rows {y0}:{y1}, columns {x0}:{x1}"
     every = " in every frame" if n_frames > 1 else ""
     fix = (
         f"pass --region Y0:Y1,X0:X1 for a window with cells{every}, or --region full"
-        if region != (0, frame_shape[0], 0, frame_shape[1])
+        if window
         else "give an image with cells in it"
     )
     if n_frames > 1:

@@ -1132,10 +1132,10 @@ def refuse_another_kind(data: Any, path: str | Path, cls: type) -> None:
     keys = set(data)
     if keys <= _field_names(cls):
         return
+    wanted = _kind_name(cls)
     for kind, names in _settings_kinds():
-        if kind == _kind_name(cls) or not keys <= names:
+        if kind == wanted or not keys <= names:
             continue
-        wanted = _kind_name(cls)
         held = "is a pipeline file" if kind == "pipeline" else f"holds {kind} settings"
         start = f"start from `napari-symbac defaults {wanted} --out FILE`"
         if kind == "pipeline":  # a section is wanted: the file holds it
