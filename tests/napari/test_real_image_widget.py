@@ -368,19 +368,24 @@ def test_masks_and_the_colour_original_are_placed_over_the_recording(
     assert tuple(other.scale) == (1.0, 1.0)
 
 
+def _open_refused_colour_png(widget, tmp_path) -> None:
+    """Open a 32 x 32 colour PNG with *or open*: refused, said in the dock."""
+    import imageio.v3 as iio
+
+    colour = np.random.default_rng(0).integers(0, 255, (32, 32, 3), dtype=np.uint8)
+    iio.imwrite(tmp_path / "colour.png", colour)
+    widget.file.value = tmp_path / "colour.png"
+    assert "Cannot open colour.png" in widget.result.value
+
+
 def test_a_refused_file_is_not_still_said_when_the_next_one_opens(
     make_napari_viewer, real_data_dir, tmp_path
 ):
     """Found as a user: "Cannot open colour.png" stayed in the dock after the next image
     opened."""
-    import imageio.v3 as iio
-
     viewer = make_napari_viewer()
     widget = RealImageWidget(viewer)
-    colour = np.random.default_rng(0).integers(0, 255, (32, 32, 3), dtype=np.uint8)
-    iio.imwrite(tmp_path / "colour.png", colour)
-    widget.file.value = tmp_path / "colour.png"
-    assert "Cannot open colour.png" in widget.result.value
+    _open_refused_colour_png(widget, tmp_path)
     fields = real_data_dir / "colicoords" / "test_data" / "ds2"
     widget.file.value = fields / "fluorescence" / "00066.tif"
     assert "Cannot open" not in widget.result.value
@@ -394,14 +399,9 @@ def test_or_open_shows_the_file_of_the_recording_chosen(
     another recording was opened (File > Open) and chosen, as if it were that recording's
     file. The field follows the chosen recording: its file, or empty for a layer from no
     file; and showing a file does not open it again."""
-    import imageio.v3 as iio
-
     viewer = make_napari_viewer()
     widget = RealImageWidget(viewer)
-    colour = np.random.default_rng(0).integers(0, 255, (32, 32, 3), dtype=np.uint8)
-    iio.imwrite(tmp_path / "colour.png", colour)
-    widget.file.value = tmp_path / "colour.png"
-    assert "Cannot open colour.png" in widget.result.value
+    _open_refused_colour_png(widget, tmp_path)
     assert len(viewer.layers) == 0
     fields = real_data_dir / "colicoords" / "test_data" / "ds2"
     opened = viewer.open(fields / "fluorescence" / "00066.tif")[0]  # File > Open

@@ -620,17 +620,11 @@ def test_a_camera_the_recording_cannot_check_is_an_auto_fit_problem(real_data_di
     assert _camera_check(ColonyFit.__new__(ColonyFit), grey, GUI_CAMERA_FIX) is None
 
 
-def test_auto_fit_places_a_stain_in_the_cell_envelope(rendered, qtbot, real_data_dir):
-    """As `fit --envelope-stain`: ColiCoords ds2's top cell of field 00066 (a rhodamine-B
-    conjugate, brighter at its rim), fitted with the envelope's fraction free from the
-    check box; the fraction (started at 0.5) runs to ~1, the cell narrows to an E. coli's
-    width, and the preview and Export draw the fitted stain."""
+def _ds2_top_cell(viewer, tune, real_data_dir) -> np.ndarray:
+    """ColiCoords ds2's top cell of field 00066 (64 x 64 px, 80 nm, fluorescence; a
+    rhodamine-B conjugate, brighter at its rim) as the real image of ``tune``."""
     import tifffile
 
-    from napari_symbac._widgets.tune import FIT_SYNTHETIC_LAYER
-    from napari_symbac.fit.scene_fit import ENVELOPE_START
-
-    viewer, tune = rendered
     path = real_data_dir / "colicoords" / "test_data" / "ds2" / "fluorescence" / "00066.tif"
     crop = tifffile.imread(path).astype(np.float32)[0:64, 224:288]
     real = viewer.add_image(
@@ -638,6 +632,19 @@ def test_auto_fit_places_a_stain_in_the_cell_envelope(rendered, qtbot, real_data
         metadata={"pixel_size_um": 0.08, "modality": "fluorescence"},
     )  # fmt: skip
     tune.reference.value = real
+    return crop
+
+
+def test_auto_fit_places_a_stain_in_the_cell_envelope(rendered, qtbot, real_data_dir):
+    """As `fit --envelope-stain`: ColiCoords ds2's top cell of field 00066 (a rhodamine-B
+    conjugate, brighter at its rim), fitted with the envelope's fraction free from the
+    check box; the fraction (started at 0.5) runs to ~1, the cell narrows to an E. coli's
+    width, and the preview and Export draw the fitted stain."""
+    from napari_symbac._widgets.tune import FIT_SYNTHETIC_LAYER
+    from napari_symbac.fit.scene_fit import ENVELOPE_START
+
+    viewer, tune = rendered
+    crop = _ds2_top_cell(viewer, tune, real_data_dir)
     assert tune.fit_envelope_stain.native.isHidden() == (tune.modality.value != "fluorescence")
     tune.fit_envelope_stain.value = True
     tune.fit_button.native.click()
@@ -660,19 +667,11 @@ def test_auto_fit_images_the_cells_in_depth(rendered, qtbot, real_data_dir):
     ticked; the stain is imaged in 5 slabs, the focal plane is fitted, and the envelope's
     fraction settles inside its bounds (the 2-D model runs it to 1); the preview draws
     the slabs."""
-    import tifffile
-
     from napari_symbac._widgets.tune import FIT_SYNTHETIC_LAYER
     from napari_symbac.fit.scene_fit import DEPTH_FIT_LAYERS
 
     viewer, tune = rendered
-    path = real_data_dir / "colicoords" / "test_data" / "ds2" / "fluorescence" / "00066.tif"
-    crop = tifffile.imread(path).astype(np.float32)[0:64, 224:288]
-    real = viewer.add_image(
-        crop, name="ds2", scale=(0.08, 0.08),
-        metadata={"pixel_size_um": 0.08, "modality": "fluorescence"},
-    )  # fmt: skip
-    tune.reference.value = real
+    crop = _ds2_top_cell(viewer, tune, real_data_dir)
     assert tune.fit_depth.native.isHidden() == (tune.modality.value != "fluorescence")
     tune.fit_envelope_stain.value = True
     tune.fit_depth.value = True
