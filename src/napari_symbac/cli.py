@@ -343,7 +343,12 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from napari_symbac.diagnose.config import load_microscope_file
     from napari_symbac.diagnose.figures import write_figures
     from napari_symbac.diagnose.model import build_design
-    from napari_symbac.diagnose.region import default_region, parse_region, simulated_shape
+    from napari_symbac.diagnose.region import (
+        default_region,
+        names_centre,
+        parse_region,
+        simulated_shape,
+    )
     from napari_symbac.diagnose.run import diagnose
     from napari_symbac.diagnose.stages import drawn_by_export, refitted_render, updated_settings
     from napari_symbac.export.atomic import earlier_run, remove_earlier_run
@@ -408,7 +413,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         if region != (0, frame_shape[0], 0, frame_shape[1]):
             stack = stack[:, y0:y1, x0:x1]
             labels = None if labels is None else labels[y0:y1, x0:x1]
-            if args.region is None:
+            if args.region is None or names_centre(args.region):
+                # the centre window's place is the program's choice: say where it is
                 print(
                     f"note: diagnosing rows {y0}:{y1}, columns {x0}:{x1} of the "
                     f"{frame_shape[0]} x {frame_shape[1]} frame ({stack[0].size:,} of "

@@ -207,13 +207,17 @@ def test_diagnose_says_when_the_noise_is_correlated(tmp_path, capsys, real_data_
     assert any("correlated between neighbours" in note for note in notes)
 
 
-@pytest.mark.parametrize("n_frames", [1, 2])
-def test_no_cells_in_the_diagnosed_window_names_it_and_the_fix(tmp_path, capsys, n_frames):
+@pytest.mark.parametrize(("n_frames", "region"), [(1, None), (2, None), (1, " Centre")])
+def test_no_cells_in_the_diagnosed_window_names_it_and_the_fix(
+    tmp_path, capsys, n_frames, region
+):
     """Found as a user: `diagnose` of ColiCoords ds3 (4 frames of 512 x 512 px) said only
     "error: the start found no cells in the image (no region of 6 pixels or more)": its
     frame 1 held no cell in the centre 256 x 256 px window diagnosed by default, which
     the message did not say, nor that --region picks another. Here a 300 x 300 field
-    whose only cell lies in a corner, outside that window."""
+    whose only cell lies in a corner, outside that window. The centre window's place is
+    said in a note whether it was the default or asked for by name (``--region centre``
+    said nothing of where it was)."""
     rng = np.random.default_rng(0)
     frame = rng.poisson(200, (300, 300)).astype(np.float64) + 100
     frame[3:12, 3:40] += 3000
@@ -222,9 +226,13 @@ def test_no_cells_in_the_diagnosed_window_names_it_and_the_fix(tmp_path, capsys,
     mic = tmp_path / "mic.yaml"
     mic.write_text("pixel_size_um: 0.08\nmodality: fluorescence\nwavelength_um: 0.53\n")
     out = tmp_path / "out"
-    code = main(["diagnose", str(image), "--microscope", str(mic), "--out", str(out)])
-    error = capsys.readouterr().err.strip().splitlines()[-1]
+    asked = [] if region is None else ["--region", region]
+    code = main(["diagnose", str(image), "--microscope", str(mic), "--out", str(out), *asked])
+    said = capsys.readouterr().err.strip().splitlines()
+    error = said[-1]
     assert code == 2
+    note = "note: diagnosing rows 22:278, columns 22:278 of the 300 x 300 frame"
+    assert any(line.startswith(note) for line in said)
     where = "frame 0" if n_frames > 1 else "the image"
     assert f"{where}, rows 22:278, columns 22:278: the start found no cells" in error
     assert "pass --region Y0:Y1,X0:X1 for a window with cells" in error
