@@ -333,7 +333,7 @@ def _split_pass(
         for kind, offset in cuts:
             trial_blocks = _split_at(blocks, int(i), offset)
             trial = _try(problem, state, trial_blocks, shared, [int(i), int(i) + 1], ctx)
-            if _daughters_are_rods(problem, trial, int(i)) and _accept(
+            if _are_rods(problem, trial.x, [int(i), int(i) + 1]) and _accept(
                 problem, state, trial, +1, ctx
             ):
                 where = f" at its septum ({offset:+.2f} um from its centre)" * (
@@ -355,14 +355,15 @@ def _split_pass(
 RESEED_ASPECT = 1.25
 
 
-def _daughters_are_rods(problem: Problem, trial: State, i: int) -> bool:
-    """Whether the two cells ``i`` and ``i + 1`` of a split, as refitted, are rods
-    (:data:`RESEED_ASPECT`), each unless its rod reaches past the image's edge."""
-    blocks, shared = problem.blocks(trial.x)
+def _are_rods(problem: Problem, x: np.ndarray, cells: list[int] | range) -> bool:
+    """Whether the fitted ``cells`` of parameters ``x`` are rods
+    (:data:`RESEED_ASPECT`), each unless its rod reaches past the image's edge (where
+    the edge may show it shorter): the one rule of a split's and a reseed's cells."""
+    blocks, shared = problem.blocks(x)
     lay = problem.layout
     rows, cols = problem.shape
     px = problem.microscope.pixel_size_um
-    for k in (i, i + 1):
+    for k in cells:
         width = shared[0] + (blocks[k, lay.i_dwidth] if lay.per_cell_width else 0.0)
         poles = np.array(_poles(blocks[k]))  # rows (x, y), um
         far = np.array([cols, rows]) * px - width / 2
@@ -379,14 +380,6 @@ def _under(labels: np.ndarray, x_um: np.ndarray, y_um: np.ndarray, px: float) ->
         np.clip((y_um / px).astype(int), 0, rows - 1),
         np.clip((x_um / px).astype(int), 0, cols - 1),
     ]
-
-
-def _on_edge(parts: np.ndarray, x_um: np.ndarray, y_um: np.ndarray, px: float) -> np.ndarray:
-    """Whether the basin of ``parts`` under each centre touches the image's edge."""
-    edge = np.zeros(parts.shape, bool)
-    edge[[0, -1], :] = edge[:, [0, -1]] = True
-    under = _under(parts, x_um, y_um, px)
-    return (under > 0) & np.isin(under, np.unique(parts[edge]))
 
 
 def _touching_proposals(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
@@ -434,7 +427,6 @@ def _reseed_pass(
             continue
         if len(new) <= inside.size:
             continue
-        at_edge = _on_edge(parts, new.x_um, new.y_um, px)
         added = np.zeros((len(new), problem.layout.per_cell))
         added[:, 0], added[:, 1], added[:, 2] = new.x_um, new.y_um, new.angle_rad
         added[:, 3] = np.maximum(new.length_um, shared[0])
@@ -443,12 +435,7 @@ def _reseed_pass(
         refit = list(range(len(kept), len(trial_blocks)))
         trial = _try(problem, state, trial_blocks, shared, refit, ctx)
         dn = len(new) - inside.size
-        fitted, fitted_shared = problem.blocks(trial.x)
-        lay = problem.layout
-        widths = fitted_shared[0] + (fitted[len(kept) :, lay.i_dwidth] if lay.per_cell_width else 0)
-        # a cell cut by the image's edge may show less than a rod's length
-        rods = (fitted[len(kept) :, 3] >= RESEED_ASPECT * widths) | at_edge
-        if rods.all() and _accept(problem, state, trial, dn, ctx):
+        if _are_rods(problem, trial.x, refit) and _accept(problem, state, trial, dn, ctx):
             for x, y in zip(new.x_um, new.y_um):
                 ctx.history.append(("split", float(x), float(y)))
             if inside.size:
