@@ -568,6 +568,11 @@ DIAGNOSE_WIDE_START_FIX = (
 )
 
 
+#: What diagnose asks when its automatic start found no bright cell
+#: (:class:`~napari_symbac.fit.start.FaintStartError`): it takes painted labels.
+DIAGNOSE_FAINT_START_FIX = "paint rough cell and background strokes and pass them as --labels L"
+
+
 def _no_cells_advice(
     err: Exception,
     k: int,
@@ -579,20 +584,22 @@ def _no_cells_advice(
     user: `diagnose` of ColiCoords ds3 (4 frames of 512 x 512 px, cells off centre) said
     only "the start found no cells in the image": its frame 1 held none in the centre
     256 x 256 px window that is diagnosed by default, which the message did not say."""
+    from napari_symbac.fit.start import FaintStartError
+
     y0, y1, x0, x1 = region
     window = region != (0, frame_shape[0], 0, frame_shape[1])
     where = f"frame {k}" if n_frames > 1 else "the image"
     if window:
         where += f", rows {y0}:{y1}, columns {x0}:{x1}"
     every = " in every frame" if n_frames > 1 else ""
-    fix = (
-        f"pass --region Y0:Y1,X0:X1 for a window with cells{every}, or --region full"
-        if window
-        else "give an image with cells in it"
-    )
+    faint = isinstance(err, FaintStartError)  # its fix is worded here: no masks
+    if window:
+        fix = f"pass --region Y0:Y1,X0:X1 for a window with cells{every}, or --region full"
+    else:
+        fix = DIAGNOSE_FAINT_START_FIX if faint else "give an image with cells in it"
     if n_frames > 1:
         fix += ", or diagnose the frames with cells on their own (a TIFF of those frames)"
-    return f"{where}: {err}: {fix}"
+    return f"{where}: {err.cause if faint else err}: {fix}"
 
 
 def _cmd_defaults(args: argparse.Namespace) -> int:
@@ -1081,11 +1088,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         with _terminate_as_interrupt():
             return args.func(args)
     except (ValueError, TypeError, OSError, ExportError) as err:
-        from napari_symbac.fit.start import WideStartError
+        from napari_symbac.fit.start import FaintStartError, WideStartError
 
         text = _one_line(err)
         if isinstance(err, WideStartError):  # fit and calibrate take the masks so
             text += " (--masks M)"
+        elif isinstance(err, FaintStartError):  # ... and the labels
+            text += " (--masks M or --labels L)"
         print(f"napari-symbac {args.command}: error: {text}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as stop:

@@ -256,3 +256,19 @@ def test_a_colony_start_names_diagnoses_own_fix(tmp_path, capsys, real_data_dir)
     assert error.endswith("pass --region Y0:Y1,X0:X1 for a window of separate cells")
     assert "instance masks" not in error
     assert not out.exists()
+
+
+def test_a_crop_around_one_cell_asks_diagnose_for_painted_labels(tmp_path, capsys, real_data_dir):
+    """ColiCoords' single-cell crop ``01``: diagnose takes no masks, so its words for a
+    start that found no cell name the painted labels it does take."""
+    mic = tmp_path / "mic.yaml"
+    mic.write_text("pixel_size_um: 0.08\nmodality: fluorescence\nwavelength_um: 0.53\n")
+    out = tmp_path / "out"
+    image = real_data_dir / "colicoords" / "01" / "fluorescence.tif"
+    code = main(["diagnose", str(image), "--microscope", str(mic), "--out", str(out)])
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert code == 2
+    assert "no bright region stands 40 times" in error
+    assert error.endswith("paint rough cell and background strokes and pass them as --labels L")
+    assert "masks" not in error
+    assert not out.exists()

@@ -111,3 +111,29 @@ def test_touching_cells_cuts_a_blob_at_its_valleys_and_leaves_one_cell_whole():
     )
     assert np.unique(parts[blobs == blobs[75, 50]]).size == 1
     assert not parts[blobs == 0].any()
+
+
+def test_a_crop_around_one_cell_is_refused_without_strokes_and_started_with_them(
+    real_data_dir,
+):
+    """Found as a user: ColiCoords' single-cell crop (``01``, 57 x 61 px, one cell 40 x 17
+    px) said "the start found no cells in the image (no region of 6 pixels or more)". The
+    cell's glow is most of the crop, so the lower half of the crop is no background: the
+    start now says how far its brightest region stands, and painted media strokes give
+    it the background to measure the cell against."""
+    from napari_symbac.fit.start import FaintStartError
+
+    folder = real_data_dir / "colicoords" / "01"
+    image = tifffile.imread(folder / "fluorescence.tif").astype(float)
+    mask = tifffile.imread(folder / "binary.tif") > 0
+    mic = Microscope(pixel_size_um=PX, modality="fluorescence", wavelength_um=0.53)
+    with pytest.raises(FaintStartError, match="the brightest stands 21 times") as caught:
+        start_scene(image, mic, geometry="open")
+    assert str(caught.value).endswith("give the cells' instance masks or painted labels")
+    strokes = np.zeros(image.shape, np.uint8)
+    strokes[27:31, 15:45] = 1  # along the cell
+    strokes[2:6, 2:20] = strokes[50:54, 40:58] = 2  # two corners of media
+    cells, _, _, instances = start_scene(image, mic, geometry="open", labels=strokes)
+    assert len(cells.x_um) == 1
+    overlap = ((instances > 0) & mask).sum() / ((instances > 0) | mask).sum()
+    assert overlap > 0.6

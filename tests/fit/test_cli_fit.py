@@ -1066,3 +1066,15 @@ def test_refuses_depth_layers_in_phase_contrast_or_out_of_range(
     error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope,
                      "--modality", modality, "--depth-layers", layers)  # fmt: skip
     assert said in error
+
+
+def test_a_crop_around_one_cell_asks_for_masks_or_labels(tmp_path, real_data_dir, capsys):
+    """ColiCoords' single-cell crop ``01`` without masks: the automatic start finds no
+    cell standing out of its glow, and says which two files would start it."""
+    scope = Microscope(pixel_size_um=0.08, modality="fluorescence", wavelength_um=0.53)
+    microscope = save_settings(scope, tmp_path / "microscope.yaml")
+    image = real_data_dir / "colicoords" / "01" / "fluorescence.tif"
+    error = _refused(capsys, tmp_path / "fit", image, "--microscope", microscope)
+    line = error[error.index("napari-symbac fit: error: ") :].splitlines()[0]
+    assert "no bright region stands 40 times the background's spread above it" in line
+    assert line.endswith("instance masks or painted labels (--masks M or --labels L)")

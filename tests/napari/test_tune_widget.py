@@ -234,6 +234,30 @@ def test_auto_fit_of_a_whole_colony_without_masks_asks_for_them(rendered, qtbot,
     assert tune.fit_button.enabled
 
 
+def test_auto_fit_of_a_crop_around_one_cell_names_both_starts(rendered, qtbot, real_data_dir):
+    """ColiCoords' single-cell crop ``01`` (fluorescence) with no masks and no strokes:
+    the automatic start finds no cell standing out of the cell's own glow, and Auto-fit
+    says at once where to give the masks or the strokes that start it."""
+    import tifffile
+
+    viewer, tune = rendered
+    _as_agar_pad(tune)
+    crop = tifffile.imread(real_data_dir / "colicoords" / "01" / "fluorescence.tif")
+    real = viewer.add_image(
+        crop, name="crop", scale=(0.08, 0.08),
+        metadata={"pixel_size_um": 0.08, "modality": "fluorescence"},
+    )  # fmt: skip
+    tune.reference.value = real
+    tune.fit_button.native.click()
+    qtbot.waitUntil(lambda: tune.fit_worker is None, timeout=120_000)
+    assert tune.fit_result is None
+    status = tune.status.value
+    assert status.startswith("Fit failed: the start found no cells in the image: ")
+    assert "the brightest stands 21 times" in status
+    assert status.endswith("or paint rough cell and media strokes in the Recording step)")
+    assert tune.fit_button.enabled
+
+
 def test_auto_fit_of_a_phase_colony_with_its_masks_fits_the_halo(rendered, qtbot, real_data_dir):
     """The same kind of recording with its instance masks opened as a Labels layer and
     chosen as the cell masks: Auto-fit fits the partially coherent model to the masks'

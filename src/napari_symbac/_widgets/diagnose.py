@@ -48,6 +48,9 @@ WIDE_START_FIX = (
     f"Diagnose starts from its own segmentation (it takes no masks): enter a window of "
     f"separate cells in '{WINDOW_LABEL}'"
 )
+#: The dock's words for a start that found no bright cell
+#: (:class:`~napari_symbac.fit.start.FaintStartError`): it reads the painted classes.
+FAINT_START_FIX = "paint rough cell and media strokes on the recording in the Recording step"
 
 
 def window_words(
@@ -71,7 +74,8 @@ def no_cells_in_window(
     centre 256 x 256 px said only "Diagnosis failed: the start found no cells in the
     image", of an image with cells in it."""
     return (
-        f"{err}, in {window_words(region, full, centre)}, the window diagnosed: enter "
+        f"{getattr(err, 'cause', err)}, in {window_words(region, full, centre)}, the window "
+        "diagnosed: enter "
         f"one with cells in '{WINDOW_LABEL}' (Y0:Y1,X0:X1 in pixels, or full)"
     )
 
@@ -446,13 +450,14 @@ class DiagnoseWidget(Container):
 
     def _on_errored(self, err: BaseException) -> bool:
         from napari_symbac.fit import FitCancelled
-        from napari_symbac.fit.start import WideStartError
+        from napari_symbac.fit.start import FaintStartError, WideStartError
 
         if isinstance(err, (FitCancelled, InterruptedError)) or self.worker.cancelled.is_set():
             self._on_cancelled()
             return True
-        if isinstance(err, WideStartError):  # the engine's fix (masks) is not this dock's
-            self.status.value = f"Diagnosis failed: {err.cause}; {WIDE_START_FIX}"
+        fix = {WideStartError: WIDE_START_FIX, FaintStartError: FAINT_START_FIX}.get(type(err))
+        if fix is not None:  # the engine's fix (masks) is not this dock's
+            self.status.value = f"Diagnosis failed: {err.cause}; {fix}"
             notify_warning(self.status.value)
             return True
         self.status.value = f"Diagnosis failed: {err}"

@@ -943,7 +943,7 @@ class TuneWidget(Container):
 
     def _on_fit_errored(self, err: BaseException) -> bool:
         from napari_symbac.fit import FitCancelled
-        from napari_symbac.fit.start import WideStartError
+        from napari_symbac.fit.start import FaintStartError, WideStartError
 
         if isinstance(err, FitCancelled):
             self.status.value = "Fit cancelled: parameters unchanged"
@@ -951,6 +951,11 @@ class TuneWidget(Container):
         self.status.value = f"Fit failed: {err}"
         if isinstance(err, WideStartError):
             self.status.value += "; open the masks as a Labels layer and choose it as 'cell masks'"
+        elif isinstance(err, FaintStartError):
+            self.status.value += (
+                " (open the masks as a Labels layer and choose it as 'cell masks', or paint "
+                "rough cell and media strokes in the Recording step)"
+            )
         return False
 
     def _on_fit_finished(self) -> None:

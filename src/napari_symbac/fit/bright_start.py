@@ -14,7 +14,7 @@ import math
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["bright_instances", "touching_cells"]
+__all__ = ["bright_instances", "brightest_contrast", "touching_cells"]
 
 #: Gaussian smoothing before detection (um): about the blur of a cell's edge, so
 #: that the texture inside a cell does not split it.
@@ -29,6 +29,9 @@ SPLIT_RATIO = 2.0
 #: A half-maximum region smaller than this is a spot (a diffraction-limited dot,
 #: 0.3-0.5 um^2 on ds1), not a cell (a 1 x 0.8 um cell is 0.7 um^2).
 MIN_BRIGHT_AREA_UM2 = 0.6
+#: The fewest painted background pixels :func:`bright_instances` measures the
+#: background on (a stroke of 3 x 10 px is 30).
+MIN_BACKGROUND_PIXELS = 20
 #: Finer seeds for touching cells: the valley between two touching daughters is
 #: shallower than :data:`SPLIT_RATIO` at :data:`DETECT_SIGMA_UM` (a touching colony
 #: of 4-6 cells is one blob), but shows at this smoothing (um) ...
@@ -44,6 +47,7 @@ def bright_instances(
     *,
     valid: np.ndarray | None = None,
     region: np.ndarray | None = None,
+    background: np.ndarray | None = None,
 ) -> np.ndarray:
     """Instance labels of bright cells, each cut at half its own peak.
 
@@ -69,6 +73,11 @@ def bright_instances(
         Pixels to trust (False: censored); default all.
     region
         Where cells may be (e.g. inside a trench); default the whole image.
+    background
+        Pixels known to hold no cell (painted media): ``b`` and ``s`` are measured on
+        them instead of on ``region``'s lower half, which in a crop around a few cells
+        is mostly their glow (at least :data:`MIN_BACKGROUND_PIXELS` of them inside
+        ``region``; fewer are not used).
 
     Returns
     -------
@@ -79,17 +88,11 @@ def bright_instances(
     from skimage.segmentation import watershed
 
     image = np.asarray(image, float)
-    valid = np.ones(image.shape, bool) if valid is None else np.asarray(valid, bool)
     region = np.ones(image.shape, bool) if region is None else np.asarray(region, bool)
-    usable = valid & region
-    if not usable.any():
+    smoothed = _smoothed(image, pixel_size_um, valid, region, background)
+    if smoothed is None:
         return np.zeros(image.shape, np.int64)
-    filled = np.where(valid, image, np.median(image[usable]))
-    smooth = ndimage.gaussian_filter(filled, DETECT_SIGMA_UM / pixel_size_um)
-    inside = smooth[region]
-    background = float(np.median(inside))
-    noise = background - float(np.percentile(inside, 15.87))
-    noise = max(noise, 1e-6 * max(float(inside.max()) - background, 1.0))
+    smooth, background, noise = smoothed
     above = (smooth > background + 3 * noise) & region
     height = np.log(np.maximum(smooth - background, 3 * noise))
     markers = ndimage.label(h_maxima(height, math.log(SPLIT_RATIO)) & above)[0]
@@ -119,6 +122,58 @@ def bright_instances(
                 break
             remaining &= ~ndimage.binary_dilation(half, iterations=3)
     return instances
+
+
+def brightest_contrast(
+    image: np.ndarray,
+    pixel_size_um: float,
+    *,
+    valid: np.ndarray | None = None,
+    region: np.ndarray | None = None,
+    background: np.ndarray | None = None,
+) -> float:
+    """How far the brightest smoothed pixel stands above the background, in the
+    background spreads that :func:`bright_instances` asks :data:`DETECT_SNR` of (0
+    when no pixel is usable): what an automatic start that found no cell says."""
+    image = np.asarray(image, float)
+    region = np.ones(image.shape, bool) if region is None else np.asarray(region, bool)
+    smoothed = _smoothed(image, pixel_size_um, valid, region, background)
+    if smoothed is None:
+        return 0.0
+    smooth, background, noise = smoothed
+    return (float(smooth[region].max()) - background) / noise
+
+
+def _smoothed(
+    image: np.ndarray,
+    pixel_size_um: float,
+    valid: np.ndarray | None,
+    region: np.ndarray,
+    background: np.ndarray | None,
+) -> tuple[np.ndarray, float, float] | None:
+    """The image smoothed by :data:`DETECT_SIGMA_UM` (censored pixels set to the
+    median), its background level and the background's spread; ``None`` when no pixel
+    of ``region`` is valid. On the ``background`` pixels (valid, in ``region``) when
+    there are :data:`MIN_BACKGROUND_PIXELS`: their median and their robust s.d. (half
+    the 15.9-84.1 percentile range); else on ``region``: its median and the median
+    less the 15.9th percentile (the lower tail, free of cells)."""
+    valid = np.ones(image.shape, bool) if valid is None else np.asarray(valid, bool)
+    usable = valid & region
+    if not usable.any():
+        return None
+    filled = np.where(valid, image, np.median(image[usable]))
+    smooth = ndimage.gaussian_filter(filled, DETECT_SIGMA_UM / pixel_size_um)
+    inside = smooth[region]
+    known = None if background is None else smooth[np.asarray(background, bool) & usable]
+    if known is not None and known.size >= MIN_BACKGROUND_PIXELS:
+        level = float(np.median(known))
+        low, high = np.percentile(known, [15.87, 84.13])
+        spread = float(high - low) / 2
+    else:
+        level = float(np.median(inside))
+        spread = level - float(np.percentile(inside, 15.87))
+    spread = max(spread, 1e-6 * max(float(inside.max()) - level, 1.0))
+    return smooth, level, spread
 
 
 def touching_cells(

@@ -17,7 +17,7 @@ from typing import Literal
 import numpy as np
 from scipy import ndimage
 
-from napari_symbac.fit.bright_start import bright_instances
+from napari_symbac.fit.bright_start import DETECT_SNR, bright_instances, brightest_contrast
 from napari_symbac.fit.placement import TrenchPlacement
 from napari_symbac.settings import Microscope
 from napari_symbac.sim import FrameCells
@@ -25,6 +25,7 @@ from napari_symbac.sim import FrameCells
 __all__ = [
     "MAX_BLOB_SHARE",
     "MAX_START_WIDTH_UM",
+    "FaintStartError",
     "WideStartError",
     "cells_from_instances",
     "cut_by_edge",
@@ -241,13 +242,15 @@ def otsu_cells(
     polarity: Literal["dark", "bright"] = "dark",
     trench: TrenchPlacement | None = None,
     valid: np.ndarray | None = None,
+    background: np.ndarray | None = None,
 ) -> tuple[FrameCells, np.ndarray, TrenchPlacement | None, np.ndarray]:
     """Plain segmentation: Otsu threshold, watershed, region moments.
 
     ``polarity="dark"``: cells darker than the media around them (phase contrast);
     ``"bright"``: cells brighter than their background (fluorescence), which differ
     in brightness, so each is cut at half its own peak instead of at one Otsu
-    threshold (:func:`~napari_symbac.fit.bright_start.bright_instances`). Pixels
+    threshold (:func:`~napari_symbac.fit.bright_start.bright_instances`; measured
+    against the ``background`` pixels, painted media, when given). Pixels
     outside ``valid`` (clipped) are left out of the thresholds. In a trench, unless
     ``trench`` gives its placement, the trench is found first from the column
     profile (90th percentile of each column, longest run above 30 % of its range)
@@ -336,7 +339,18 @@ def otsu_cells(
         raise ValueError(f"geometry must be 'trench' or 'open', got {geometry!r}")
     if polarity == "bright":
         # Fluorescent cells differ in brightness: one threshold per cell, not Otsu's.
-        instances = bright_instances(-image, px, valid=valid, region=region)
+        known = {"valid": valid, "region": region, "background": background}
+        instances = bright_instances(-image, px, **known)
+        if not instances.any():
+            # found as a user: a crop around one cell (ColiCoords' 01) said "no region
+            # of 6 pixels or more" of a cell 40 x 17 px; its glow is most of the crop
+            stand = brightest_contrast(-image, px, **known)
+            raise FaintStartError(
+                "the start found no cells in the image: no bright region stands "
+                f"{DETECT_SNR:g} times the background's spread above it (the brightest "
+                f"stands {stand:.0f} times: a faint field, or a crop around a few cells "
+                "whose glow is most of the image, which then is no background)"
+            )
         cells, widths = cells_from_instances(instances, px, max_cell_length_um)
         return cells, widths, (trench if geometry == "trench" else None), instances
     threshold = threshold_otsu(smooth[region])
@@ -495,6 +509,19 @@ class WideStartError(ValueError):
         )
 
 
+class FaintStartError(ValueError):
+    """The automatic start of bright cells found none (:func:`otsu_cells`).
+
+    ``cause`` says how far the brightest region stands out; the message adds the fix
+    in general words, each interface words its own from ``cause`` (the CLI's flags, a
+    dock's layers).
+    """
+
+    def __init__(self, cause: str) -> None:
+        self.cause = cause
+        super().__init__(f"{cause}; give the cells' instance masks or painted labels")
+
+
 def refuse_blobs(widths_um: np.ndarray, pixel_size_um: float) -> None:
     """Refuse an automatic start whose cells are wider than any rod.
 
@@ -546,8 +573,9 @@ def start_scene(
     labels
         Painted classes (1 cell, 2 media, 3 device, 0 unpainted): rough strokes. They
         give the polarity (cells darker or brighter than media); the cells come from
-        the automatic segmentation, less any region that lies mostly on painted media
-        or device. Paint whole cells? Pass them as ``masks``.
+        the automatic segmentation (bright cells measured against the painted media),
+        less any region that lies mostly on painted media or device. Paint whole
+        cells? Pass them as ``masks``.
     masks
         Instance mask (0 background, one integer per cell), or a binary mask whose
         connected components are the cells. Used as given (no split).
@@ -621,6 +649,7 @@ def start_scene(
         polarity=polarity,
         trench=found,
         valid=valid,
+        background=labels == 2,
     )
     on_empty = ndimage.mean(painted_empty, instances, np.arange(1, int(instances.max()) + 1))
     dropped = np.flatnonzero(np.asarray(on_empty) > 0.5) + 1
