@@ -60,4 +60,6 @@ ROWS[:] = [
         "images/s", symbac_key="export_overall_s_per_image"),
     Row("peak memory, export 1 worker (process)", "export_1", "peak_mib", "MiB", fft_key=None,
         symbac_key="peak_mib"),
+    Row("peak memory, export 2 workers (largest worker process)", "export_2", "peak_worker_mib",
+        "MiB", fft_key=None, symbac_note="one process"),
 ]  # fmt: skip

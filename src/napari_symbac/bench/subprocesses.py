@@ -56,7 +56,9 @@ def export_run(config: BenchConfig, workers: int) -> dict[str, float]:
 
     (An export left to itself stays in one process when it judges the cluster's start
     too costly: ``NAPARI_SYMBAC_CLUSTER_START_S=0`` makes it start the workers, so the
-    row measures them.)
+    row measures them.) Returns the numbers of
+    :func:`napari_symbac.bench.export_child.run`, ``peak_worker_mib`` among them when
+    the workers ran.
     """
     command = [sys.executable, "-m", "napari_symbac.bench.export_child"]
     command += ["--n", str(config.export_images), "--workers", str(workers)]
