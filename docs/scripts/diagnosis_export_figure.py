@@ -14,6 +14,7 @@ machine, 2026-11-29).
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import sys
@@ -147,5 +148,20 @@ def run() -> None:
     print("wrote", OUT)
 
 
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The command line: no arguments (``--help`` prints the docstring above)."""
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    args = parser.parse_args(argv)
+    if not REAL.is_file():
+        parser.error(
+            f"{REAL} not found: the SyMBac trench recording, in the folder of the project's "
+            "real recordings beside the repository (its README lists them)"
+        )
+    return args
+
+
 if __name__ == "__main__":
+    parse_args()
     run()

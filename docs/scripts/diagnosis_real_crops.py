@@ -11,8 +11,8 @@ microscope: ColiCoords records no optics; 80 nm pixels, NA 1.4 oil, 0.52 um).
 
 from __future__ import annotations
 
+import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -30,8 +30,7 @@ def best_window(mask: np.ndarray) -> tuple[int, int]:
     return int(r), int(c)
 
 
-def main() -> None:
-    real, out = Path(sys.argv[1]), Path(sys.argv[2])
+def main(real: Path, out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     cc = real / "colicoords" / "test_data"
     flu = tifffile.imread(cc / "ds1" / "fluorescence" / "00001.tif")
@@ -52,5 +51,27 @@ def main() -> None:
     (out / "fluorescence.json").write_text(json.dumps(microscope, indent=2))
 
 
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The command line: ``REAL_DATA_DIR OUT_DIR``."""
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "real",
+        type=Path,
+        metavar="REAL_DATA_DIR",
+        help="the folder of the project's real recordings",
+    )
+    parser.add_argument("out", type=Path, metavar="OUT_DIR", help="where the crops go")
+    args = parser.parse_args(argv)
+    if not args.real.is_dir():
+        parser.error(
+            f"{args.real} not found: pass the folder that holds the project's real recordings "
+            "(colicoords/test_data; its README lists them)"
+        )
+    return args
+
+
 if __name__ == "__main__":
-    main()
+    args = parse_args()
+    main(args.real, args.out)

@@ -16,18 +16,11 @@ from ``../shared/data/real`` and never copied.
 
 from __future__ import annotations
 
-import sys
+import argparse
 import time
 from pathlib import Path
 
 import numpy as np
-import tifffile
-from scipy import ndimage
-
-from napari_symbac.fit import fit_scene
-from napari_symbac.fit.camera_estimate import censored_pixels
-from napari_symbac.fit.start import start_scene
-from napari_symbac.settings import Microscope, RenderSettings
 
 ROOT = Path(__file__).resolve().parents[2]
 PX = 0.08
@@ -44,10 +37,15 @@ def _tally(x_um: np.ndarray, y_um: np.ndarray, labels: np.ndarray, edge_um: floa
     return len(set(hit[hit > 0].tolist())), int(off.sum()), int((off & near_edge).sum())
 
 
-def main(argv: list[str]) -> None:
-    do_fit = "--fit" in argv
-    args = [a for a in argv if a != "--fit"]
-    real = Path(args[0]) if args else ROOT.parent / "shared" / "data" / "real"
+def main(real: Path, do_fit: bool) -> None:
+    import tifffile
+    from scipy import ndimage
+
+    from napari_symbac.fit import fit_scene
+    from napari_symbac.fit.camera_estimate import censored_pixels
+    from napari_symbac.fit.start import start_scene
+    from napari_symbac.settings import Microscope, RenderSettings
+
     folder = real / "colicoords" / "test_data" / "ds1"
     microscope = Microscope(pixel_size_um=PX, modality="fluorescence")
     tiles = []
@@ -95,5 +93,32 @@ def main(argv: list[str]) -> None:
     )
 
 
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The command line: ``[REAL_DATA_DIR] [--fit]``."""
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "real",
+        nargs="?",
+        type=Path,
+        default=ROOT.parent / "shared" / "data" / "real",
+        metavar="REAL_DATA_DIR",
+        help="the folder of the project's real recordings (default: ../shared/data/real "
+        "beside the repository)",
+    )
+    parser.add_argument(
+        "--fit", action="store_true", help="fit every field as well (fit_scene; minutes)"
+    )
+    args = parser.parse_args(argv)
+    if not args.real.is_dir():
+        parser.error(
+            f"{args.real} not found: pass the folder that holds the project's real recordings "
+            "(colicoords/test_data/ds1; its README lists them)"
+        )
+    return args
+
+
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    args = parse_args()
+    main(args.real, args.fit)

@@ -13,7 +13,7 @@ residuals for the ds2 crops.
 
 from __future__ import annotations
 
-import sys
+import argparse
 import time
 from pathlib import Path
 
@@ -60,8 +60,7 @@ MODELS = {
 }
 
 
-def main() -> None:
-    real_dir = Path(sys.argv[1]) if len(sys.argv) > 1 else ROOT.parent / "shared" / "data" / "real"
+def main(real_dir: Path) -> None:
     print("| crop | model | reduced chi-square | fraction | width (um) | focal plane (um) | s |")
     print("|---|---|---|---|---|---|---|")
     panels = []
@@ -111,5 +110,28 @@ def _figure(panels: list, out: Path) -> None:
     fig.savefig(out, dpi=70)
 
 
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The command line: ``[REAL_DATA_DIR]``."""
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "real",
+        nargs="?",
+        type=Path,
+        default=ROOT.parent / "shared" / "data" / "real",
+        metavar="REAL_DATA_DIR",
+        help="the folder of the project's real recordings (default: ../shared/data/real "
+        "beside the repository)",
+    )
+    args = parser.parse_args(argv)
+    if not args.real.is_dir():
+        parser.error(
+            f"{args.real} not found: pass the folder that holds the project's real recordings "
+            "(colicoords/test_data; its README lists them)"
+        )
+    return args
+
+
 if __name__ == "__main__":
-    main()
+    main(parse_args().real)

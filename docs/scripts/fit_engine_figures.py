@@ -18,7 +18,7 @@ The real images are read from ``../shared/data/real`` and never copied.
 
 from __future__ import annotations
 
-import sys
+import argparse
 import time
 from pathlib import Path
 
@@ -125,11 +125,33 @@ def colicoords(real: Path) -> None:
     iio.imwrite(IMAGES / "fit_engine_colicoords.png", np.repeat(np.repeat(figure, 2, 0), 2, 1))
 
 
-def main() -> None:
-    real = Path(sys.argv[1]) if len(sys.argv) > 1 else ROOT.parent / "shared" / "data" / "real"
+def main(real: Path) -> None:
     trench(real)
     colicoords(real)
 
 
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The command line: ``[REAL_DATA_DIR]``."""
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "real",
+        nargs="?",
+        type=Path,
+        default=ROOT.parent / "shared" / "data" / "real",
+        metavar="REAL_DATA_DIR",
+        help="the folder of the project's real recordings (default: ../shared/data/real "
+        "beside the repository)",
+    )
+    args = parser.parse_args(argv)
+    if not args.real.is_dir():
+        parser.error(
+            f"{args.real} not found: pass the folder that holds the project's real recordings "
+            "(ecoli_100x_oil_exponential.tiff and colicoords/test_data; its README lists them)"
+        )
+    return args
+
+
 if __name__ == "__main__":
-    main()
+    main(parse_args().real)

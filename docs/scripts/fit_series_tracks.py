@@ -30,6 +30,7 @@ number carries its mother's (``5<2``: track 5, daughter of track 2).
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -179,12 +180,39 @@ def from_cli(fit_dir: Path, image: Path, out: Path) -> None:
          [f"frame {f}" for f in frames])  # fmt: skip
 
 
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The command line: ``trench``, ``pad`` or ``cli FIT_DIR IMAGE.tif OUT.png``."""
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    modes = parser.add_subparsers(dest="mode", required=True, metavar="{trench,pad,cli}")
+    modes.add_parser("trench", help="fit a simulated mother-machine run, draw its tracks")
+    modes.add_parser("pad", help="fit a simulated fluorescence agar pad, draw its tracks")
+    cli = modes.add_parser("cli", help="draw the tracks of a napari-symbac fit --frames run")
+    cli.add_argument(
+        "fit_dir",
+        type=Path,
+        metavar="FIT_DIR",
+        help="the --out folder of napari-symbac fit IMAGE --frames ...",
+    )
+    cli.add_argument("image", type=Path, metavar="IMAGE", help="the image it fitted")
+    cli.add_argument("out", type=Path, metavar="OUT", help="the PNG to write")
+    args = parser.parse_args(argv)
+    if args.mode == "cli" and not (args.fit_dir / "series.json").is_file():
+        cli.error(
+            f"{args.fit_dir / 'series.json'} not found: pass the folder that "
+            "napari-symbac fit IMAGE --frames ... --out FIT_DIR wrote"
+        )
+    if args.mode == "cli" and not args.image.is_file():
+        cli.error(f"{args.image} not found: pass the image that napari-symbac fit fitted")
+    return args
+
+
 if __name__ == "__main__":
-    if sys.argv[1:2] == ["trench"]:
+    args = parse_args()
+    if args.mode == "trench":
         trench()
-    elif sys.argv[1:2] == ["pad"]:
+    elif args.mode == "pad":
         pad()
-    elif sys.argv[1:2] == ["cli"] and len(sys.argv) == 5:
-        from_cli(Path(sys.argv[2]), Path(sys.argv[3]), Path(sys.argv[4]))
     else:
-        raise SystemExit(__doc__)
+        from_cli(args.fit_dir, args.image, args.out)

@@ -14,6 +14,7 @@ every frame from its own start (``carry_cells=False``).
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -45,7 +46,7 @@ def finer_seeds(image: np.ndarray, pixel_um: float, sigma_um: float = 0.12,
     return int(ndimage.label(h_maxima(height, np.log(ratio)) & blobs)[0].max())
 
 
-def main() -> None:
+def main(fit_it: bool, carry: bool) -> None:
     truth = render_pad_series(seed=0, first=1, count=7, colonies=1)
     px = truth.microscope.pixel_size_um
     size_um = (truth.stack.shape[1] * px, truth.stack.shape[2] * px)
@@ -55,11 +56,10 @@ def main() -> None:
     print("true cells in view:", [len(c.ids) for c in seen])
     print("bright_instances blobs:", starts)
     print("finer seeds (0.12 um, 1.4):", [finer_seeds(image, px) for image in truth.stack])
-    if "--fit" in sys.argv:
+    if fit_it:
         from napari_symbac.fit import fit_series
         from napari_symbac.settings import RenderSettings
 
-        carry = "--no-carry" not in sys.argv
         fit = fit_series(truth.stack, truth.microscope, RenderSettings(defocus_sigma_um=0.0),
                          None, geometry="open", carry_cells=carry)  # fmt: skip
         inside = [
@@ -91,5 +91,20 @@ def main() -> None:
               f"farthest fitted centre from its true cell: {far:.2f} um")
 
 
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The command line: ``[--fit [--no-carry]]``."""
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--fit", action="store_true", help="run fit_series too (minutes)")
+    parser.add_argument(
+        "--no-carry",
+        action="store_true",
+        help="with --fit: fit every frame from its own start (carry_cells=False)",
+    )
+    return parser.parse_args(argv)
+
+
 if __name__ == "__main__":
-    main()
+    args = parse_args()
+    main(args.fit, carry=not args.no_carry)

@@ -7,6 +7,7 @@ Run: ``python docs/scripts/make_calibrate_figures.py``.
 
 from __future__ import annotations
 
+import argparse
 import shutil
 import sys
 import tempfile
@@ -60,5 +61,22 @@ def main_figures() -> None:
     )
 
 
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The command line: no arguments (``--help`` prints the docstring above); the real
+    recordings are read from ../shared/data/real beside the repository."""
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    args = parser.parse_args(argv)
+    if not REAL.is_dir():
+        parser.error(
+            f"{REAL} not found: this script reads colicoords/test_data and omnipose from the "
+            "folder of the project's real recordings beside the repository (its README "
+            "lists them)"
+        )
+    return args
+
+
 if __name__ == "__main__":
+    parse_args()
     main_figures()

@@ -23,9 +23,9 @@ LICENSE_MIT.txt).
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
-import sys
 import time
 from pathlib import Path
 
@@ -261,8 +261,31 @@ def synthetic_pad() -> None:
     save(fig, OUT / "phase_agar_pad.png")
 
 
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The command line: ``[pad | NAME ...]``; the colonies are read from REAL."""
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "names",
+        nargs="*",
+        metavar="pad | NAME",
+        help="'pad': the agar-pad figure (after the fits); else the Omnipose colonies to "
+        f"fit (default: {' '.join(SAMPLES)})",
+    )
+    args = parser.parse_args(argv)
+    if not REAL.is_dir():
+        parser.error(
+            f"{REAL} not found: this script reads the Omnipose colonies from the omnipose "
+            "folder of the project's real recordings beside the repository (its README "
+            "lists them)"
+        )
+    return args
+
+
 if __name__ == "__main__":
-    if sys.argv[1:] == ["pad"]:
+    names = parse_args().names
+    if names == ["pad"]:
         synthetic_pad()
     else:
-        main(tuple(sys.argv[1:]) or SAMPLES)
+        main(tuple(names) or SAMPLES)

@@ -7,6 +7,7 @@ the repository) and writes PNGs to docs/images/. Run from the repository root:
 
 from __future__ import annotations
 
+import argparse
 import os
 import time
 from pathlib import Path
@@ -170,7 +171,24 @@ def benchmarks() -> None:
     plt.close(fig)
 
 
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The command line: no arguments (``--help`` prints the docstring above); the real
+    recordings are read from $NAPARI_SYMBAC_REAL_DATA, else ../shared/data/real."""
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    args = parser.parse_args(argv)
+    if not REAL.is_dir():
+        parser.error(
+            f"{REAL} not found: this script reads ecoli_100x_oil_exponential.tiff and "
+            "colicoords from the folder of the project's real recordings: set "
+            "$NAPARI_SYMBAC_REAL_DATA to it (its README lists them)"
+        )
+    return args
+
+
 if __name__ == "__main__":
+    parse_args()
     OUT.mkdir(parents=True, exist_ok=True)
     comparison()
     benchmarks()

@@ -12,6 +12,7 @@ Diagnose included, and a phase colony fitted from its masks, read from ``../shar
 
 from __future__ import annotations
 
+import argparse
 import os
 import time
 from pathlib import Path
@@ -187,12 +188,35 @@ def demo_montage() -> None:
     print("wrote", IMAGES / "demo-preview.png")
 
 
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The command line: ``[--napari-only]``; the real recordings are read from
+    ``$NAPARI_SYMBAC_REAL_DATA``, else ``../shared/data/real``."""
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--napari-only",
+        action="store_true",
+        help="only the napari windows' screenshots, not the demo montage",
+    )
+    args = parser.parse_args(argv)
+    default = IMAGES.parents[2] / "shared" / "data" / "real"
+    real_dir = Path(os.environ.get("NAPARI_SYMBAC_REAL_DATA", default))
+    if not real_dir.is_dir():
+        parser.error(
+            f"{real_dir} not found: this script reads ecoli_100x_oil_exponential.tiff and "
+            "omnipose from the folder of the project's real recordings: set "
+            "$NAPARI_SYMBAC_REAL_DATA to it (its README lists them)"
+        )
+    return args
+
+
 if __name__ == "__main__":
-    import sys
     import tempfile
 
+    args = parse_args()
     IMAGES.mkdir(parents=True, exist_ok=True)
-    if "--napari-only" not in sys.argv:
+    if not args.napari_only:
         demo_montage()
     with tempfile.TemporaryDirectory() as tmp:
         real_trench_flow(Path(tmp))

@@ -9,6 +9,7 @@ Run from the repository root: ``python docs/scripts/make_visibility_figure.py``.
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 from pathlib import Path
 
@@ -64,5 +65,14 @@ def main() -> None:
     print(f"wrote {OUT}")
 
 
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The command line: no arguments (``--help`` prints the docstring above)."""
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    return parser.parse_args(argv)
+
+
 if __name__ == "__main__":
+    parse_args()
     main()

@@ -18,8 +18,8 @@ normalisation the medians are taken at).
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
-import sys
 from pathlib import Path
 
 import imageio.v3 as iio
@@ -87,10 +87,8 @@ def figure(rows: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], path: Pat
     Image.open(path).convert("RGB").quantize(256).save(path, optimize=True)  # a third the bytes
 
 
-def main() -> None:
-    folder = Path(sys.argv[1]) / "omnipose"
-    n = int(sys.argv[2]) if len(sys.argv) > 2 else 2
-    picture = Path(sys.argv[3]) if len(sys.argv) > 3 else None
+def main(real: Path, n: int = 2, picture: Path | None = None) -> None:
+    folder = real / "omnipose"
     panels = []
     print(
         "| image | real cells | real background | synthetic cells | synthetic background | "
@@ -120,5 +118,37 @@ def main() -> None:
         figure(panels, picture)
 
 
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The command line: ``REAL_DATA_DIR [N_SYNTHETIC [FIGURE]]``."""
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "real",
+        type=Path,
+        metavar="REAL_DATA_DIR",
+        help="the folder of the project's real recordings (omnipose inside)",
+    )
+    parser.add_argument(
+        "n",
+        nargs="?",
+        type=int,
+        default=2,
+        metavar="N_SYNTHETIC",
+        help="images of each matched dataset to compare (default: 2)",
+    )
+    parser.add_argument(
+        "picture", nargs="?", type=Path, metavar="FIGURE", help="a PNG to draw the rows into"
+    )
+    args = parser.parse_args(argv)
+    if not (args.real / "omnipose").is_dir():
+        parser.error(
+            f"{args.real / 'omnipose'} not found: pass the folder that holds the project's "
+            "real recordings (omnipose; its README lists them)"
+        )
+    return args
+
+
 if __name__ == "__main__":
-    main()
+    args = parse_args()
+    main(args.real, args.n, args.picture)

@@ -13,8 +13,8 @@ the real image's and the calibrated optics' own.
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -27,8 +27,8 @@ from napari_symbac.optics import ForwardModel
 from napari_symbac.scene import scene_from_masks
 
 
-def main() -> None:
-    folder = Path(sys.argv[1]) / "omnipose"
+def main(real: Path) -> None:
+    folder = real / "omnipose"
     print("| image | focus start (um) | fitted focus (um) | reduced chi-square | cells | bg |")
     print("|---|---|---|---|---|---|")
     for path in sorted(folder.glob("Sample*.png")):
@@ -66,5 +66,25 @@ def main() -> None:
             )
 
 
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The command line: ``REAL_DATA_DIR``."""
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "real",
+        type=Path,
+        metavar="REAL_DATA_DIR",
+        help="the folder of the project's real recordings (omnipose inside)",
+    )
+    args = parser.parse_args(argv)
+    if not (args.real / "omnipose").is_dir():
+        parser.error(
+            f"{args.real / 'omnipose'} not found: pass the folder that holds the project's "
+            "real recordings (omnipose; its README lists them)"
+        )
+    return args
+
+
 if __name__ == "__main__":
-    main()
+    main(parse_args().real)

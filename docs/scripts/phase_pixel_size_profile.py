@@ -22,6 +22,7 @@ judged on the same pixels.
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 import time
@@ -94,8 +95,49 @@ def table(path: Path) -> None:
     print("wrote", OUT / "phase_pixel_profile.json", OUT / "phase_pixel_profile.png")
 
 
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The command line: ``NAME FACTOR ...`` or ``--table PATH``."""
+    parser = argparse.ArgumentParser(
+        usage="%(prog)s [-h] (NAME FACTOR [FACTOR ...] | --table PATH)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "name", nargs="?", metavar="NAME", help="the Omnipose colony to fit, e.g. Sample000252"
+    )
+    parser.add_argument(
+        "factors",
+        nargs="*",
+        type=float,
+        metavar="FACTOR",
+        help="pixel sizes to fit at, as multiples of the 1-um-cell estimate",
+    )
+    parser.add_argument(
+        "--table",
+        type=Path,
+        metavar="PATH",
+        help="instead: the JSON lines of earlier runs, to the profile's JSON and figure",
+    )
+    args = parser.parse_args(argv)
+    if args.table is not None:
+        if args.name is not None:
+            parser.error("pass either --table PATH or NAME FACTOR ..., not both")
+        if not args.table.is_file():
+            parser.error(f"{args.table} not found: pass the JSON lines NAME FACTOR ... printed")
+    elif args.name is None or not args.factors:
+        parser.error("pass NAME FACTOR ... (one fit per factor) or --table PATH")
+    elif not phase.REAL.is_dir():
+        parser.error(
+            f"{phase.REAL} not found: this script reads the Omnipose colonies from the omnipose "
+            "folder of the project's real recordings beside the repository (its README "
+            "lists them)"
+        )
+    return args
+
+
 if __name__ == "__main__":
-    if sys.argv[1] == "--table":
-        table(Path(sys.argv[2]))
+    args = parse_args()
+    if args.table is not None:
+        table(args.table)
     else:
-        profile(sys.argv[1], [float(f) for f in sys.argv[2:]])
+        profile(args.name, args.factors)
