@@ -22,6 +22,7 @@ import tempfile
 from pathlib import Path
 
 import matplotlib
+from _args import REAL_DATA, checked_real_data, script_parser
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
@@ -34,7 +35,7 @@ from napari_symbac.diagnose.effects.fixed_pattern_noise import column_basis
 from napari_symbac.settings import PipelineSettings, load_settings, save_settings
 
 ROOT = Path(__file__).resolve().parents[2]
-REAL = ROOT.parent / "shared" / "data" / "real" / "ecoli_100x_oil_exponential.tiff"
+REAL = REAL_DATA / "ecoli_100x_oil_exponential.tiff"
 OUT = ROOT / "docs" / "images" / "diagnosis" / "export_with_effects.png"
 MICROSCOPE = {"modality": "phase", "pixel_size_um": 0.065, "NA": 1.45, "refractive_index": 1.518,
               "wavelength_um": 0.65, "condenser": "Ph3", "objective": "100x oil"}  # fmt: skip
@@ -150,15 +151,9 @@ def run() -> None:
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     """The command line: no arguments (``--help`` prints the docstring above)."""
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = script_parser(__doc__)
     args = parser.parse_args(argv)
-    if not REAL.is_file():
-        parser.error(
-            f"{REAL} not found: the SyMBac trench recording, in the folder of the project's "
-            "real recordings beside the repository (its README lists them)"
-        )
+    checked_real_data(parser, REAL, "the SyMBac trench recording", given="repository", file=True)
     return args
 
 

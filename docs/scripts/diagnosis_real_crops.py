@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import tifffile
+from _args import add_real_data, checked_real_data, script_parser
 from scipy import ndimage
 
 SIZE = 128
@@ -53,22 +54,11 @@ def main(real: Path, out: Path) -> None:
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     """The command line: ``REAL_DATA_DIR OUT_DIR``."""
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument(
-        "real",
-        type=Path,
-        metavar="REAL_DATA_DIR",
-        help="the folder of the project's real recordings",
-    )
+    parser = script_parser(__doc__)
+    add_real_data(parser, required=True)
     parser.add_argument("out", type=Path, metavar="OUT_DIR", help="where the crops go")
     args = parser.parse_args(argv)
-    if not args.real.is_dir():
-        parser.error(
-            f"{args.real} not found: pass the folder that holds the project's real recordings "
-            "(colicoords/test_data; its README lists them)"
-        )
+    checked_real_data(parser, args.real, "colicoords/test_data")
     return args
 
 

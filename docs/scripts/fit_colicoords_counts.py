@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _args import add_real_data, checked_real_data, script_parser
 
 ROOT = Path(__file__).resolve().parents[2]
 PX = 0.08
@@ -95,27 +96,13 @@ def main(real: Path, do_fit: bool) -> None:
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     """The command line: ``[REAL_DATA_DIR] [--fit]``."""
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument(
-        "real",
-        nargs="?",
-        type=Path,
-        default=ROOT.parent / "shared" / "data" / "real",
-        metavar="REAL_DATA_DIR",
-        help="the folder of the project's real recordings (default: ../shared/data/real "
-        "beside the repository)",
-    )
+    parser = script_parser(__doc__)
+    add_real_data(parser)
     parser.add_argument(
         "--fit", action="store_true", help="fit every field as well (fit_scene; minutes)"
     )
     args = parser.parse_args(argv)
-    if not args.real.is_dir():
-        parser.error(
-            f"{args.real} not found: pass the folder that holds the project's real recordings "
-            "(colicoords/test_data/ds1; its README lists them)"
-        )
+    checked_real_data(parser, args.real, "colicoords/test_data/ds1")
     return args
 
 

@@ -13,11 +13,11 @@ residuals for the ds2 crops.
 
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
 
 import matplotlib
+from _args import parse_real_data
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
@@ -110,28 +110,5 @@ def _figure(panels: list, out: Path) -> None:
     fig.savefig(out, dpi=70)
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    """The command line: ``[REAL_DATA_DIR]``."""
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument(
-        "real",
-        nargs="?",
-        type=Path,
-        default=ROOT.parent / "shared" / "data" / "real",
-        metavar="REAL_DATA_DIR",
-        help="the folder of the project's real recordings (default: ../shared/data/real "
-        "beside the repository)",
-    )
-    args = parser.parse_args(argv)
-    if not args.real.is_dir():
-        parser.error(
-            f"{args.real} not found: pass the folder that holds the project's real recordings "
-            "(colicoords/test_data; its README lists them)"
-        )
-    return args
-
-
 if __name__ == "__main__":
-    main(parse_args().real)
+    main(parse_real_data(__doc__, "colicoords/test_data"))

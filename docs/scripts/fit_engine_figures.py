@@ -18,13 +18,13 @@ The real images are read from ``../shared/data/real`` and never copied.
 
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
 
 import imageio.v3 as iio
 import numpy as np
 import tifffile
+from _args import parse_real_data
 from scipy import ndimage
 
 from napari_symbac.fit import fit_scene
@@ -130,28 +130,5 @@ def main(real: Path) -> None:
     colicoords(real)
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    """The command line: ``[REAL_DATA_DIR]``."""
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument(
-        "real",
-        nargs="?",
-        type=Path,
-        default=ROOT.parent / "shared" / "data" / "real",
-        metavar="REAL_DATA_DIR",
-        help="the folder of the project's real recordings (default: ../shared/data/real "
-        "beside the repository)",
-    )
-    args = parser.parse_args(argv)
-    if not args.real.is_dir():
-        parser.error(
-            f"{args.real} not found: pass the folder that holds the project's real recordings "
-            "(ecoli_100x_oil_exponential.tiff and colicoords/test_data; its README lists them)"
-        )
-    return args
-
-
 if __name__ == "__main__":
-    main(parse_args().real)
+    main(parse_real_data(__doc__, "ecoli_100x_oil_exponential.tiff and colicoords/test_data"))

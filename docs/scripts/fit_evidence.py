@@ -13,7 +13,6 @@ real 100x trench ``ecoli_100x_oil_exponential.tiff`` (GPL-2 SyMBac sample data, 
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -21,6 +20,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 import tifffile
+from _args import parse_real_data
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests" / "fit"))
@@ -109,30 +109,7 @@ def real(data_dir: Path) -> None:
     print(f"- figure: {path.relative_to(ROOT)}")
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    """The command line: ``[REAL_DATA_DIR]``."""
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument(
-        "real",
-        nargs="?",
-        type=Path,
-        default=ROOT.parent / "shared" / "data" / "real",
-        metavar="REAL_DATA_DIR",
-        help="the folder of the project's real recordings (default: ../shared/data/real "
-        "beside the repository)",
-    )
-    args = parser.parse_args(argv)
-    if not args.real.is_dir():
-        parser.error(
-            f"{args.real} not found: pass the folder that holds the project's real recordings "
-            "(ecoli_100x_oil_exponential.tiff; its README lists them)"
-        )
-    return args
-
-
 if __name__ == "__main__":
-    data = parse_args().real
+    data = parse_real_data(__doc__, "ecoli_100x_oil_exponential.tiff")
     recovery()
     real(data)

@@ -36,6 +36,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from _args import script_parser
 
 ROOT = Path(__file__).resolve().parents[2]
 IMAGES = ROOT / "docs" / "images"
@@ -182,9 +183,7 @@ def from_cli(fit_dir: Path, image: Path, out: Path) -> None:
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     """The command line: ``trench``, ``pad`` or ``cli FIT_DIR IMAGE.tif OUT.png``."""
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = script_parser(__doc__)
     modes = parser.add_subparsers(dest="mode", required=True, metavar="{trench,pad,cli}")
     modes.add_parser("trench", help="fit a simulated mother-machine run, draw its tracks")
     modes.add_parser("pad", help="fit a simulated fluorescence agar pad, draw its tracks")

@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from _args import script_parser
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests" / "fit"))
@@ -93,9 +94,7 @@ def main(fit_it: bool, carry: bool) -> None:
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     """The command line: ``[--fit [--no-carry]]``."""
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = script_parser(__doc__)
     parser.add_argument("--fit", action="store_true", help="run fit_series too (minutes)")
     parser.add_argument(
         "--no-carry",

@@ -15,11 +15,12 @@ from pathlib import Path
 
 import imageio.v3 as iio
 import tifffile
+from _args import REAL_DATA, checked_real_data, script_parser
 
 from napari_symbac.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
-REAL = ROOT.parent / "shared" / "data" / "real"
+REAL = REAL_DATA
 IMAGES = ROOT / "docs" / "images"
 
 
@@ -64,16 +65,9 @@ def main_figures() -> None:
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     """The command line: no arguments (``--help`` prints the docstring above); the real
     recordings are read from ../shared/data/real beside the repository."""
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = script_parser(__doc__)
     args = parser.parse_args(argv)
-    if not REAL.is_dir():
-        parser.error(
-            f"{REAL} not found: this script reads colicoords/test_data and omnipose from the "
-            "folder of the project's real recordings beside the repository (its README "
-            "lists them)"
-        )
+    checked_real_data(parser, REAL, "colicoords/test_data and omnipose", given="repository")
     return args
 
 

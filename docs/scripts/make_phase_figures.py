@@ -30,6 +30,7 @@ import time
 from pathlib import Path
 
 import matplotlib
+from _args import REAL_DATA, checked_real_data, script_parser
 
 matplotlib.use("Agg")
 import imageio.v3 as iio
@@ -51,7 +52,7 @@ from napari_symbac.settings import Camera, Microscope, RenderSettings
 
 ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "docs" / "images"
-REAL = ROOT.parent / "shared" / "data" / "real" / "omnipose"
+REAL = REAL_DATA / "omnipose"
 SAMPLES = ("Sample000193", "Sample000033", "Sample000252")
 WAVELENGTH_UM, NA = 0.55, 1.45  # not recorded with the images: a green-filtered 100x oil
 CAMERA = Camera(baseline_adu=0.0, sensitivity_adu_per_e=1.0, dark_noise_e=0.0, bit_depth=8)
@@ -263,9 +264,7 @@ def synthetic_pad() -> None:
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     """The command line: ``[pad | NAME ...]``; the colonies are read from REAL."""
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = script_parser(__doc__)
     parser.add_argument(
         "names",
         nargs="*",
@@ -274,12 +273,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         f"fit (default: {' '.join(SAMPLES)})",
     )
     args = parser.parse_args(argv)
-    if not REAL.is_dir():
-        parser.error(
-            f"{REAL} not found: this script reads the Omnipose colonies from the omnipose "
-            "folder of the project's real recordings beside the repository (its README "
-            "lists them)"
-        )
+    checked_real_data(parser, REAL, "the Omnipose colonies", given="repository")
     return args
 
 

@@ -8,11 +8,11 @@ the repository) and writes PNGs to docs/images/. Run from the repository root:
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from pathlib import Path
 
 import matplotlib
+from _args import checked_real_data, real_data_from_environment, script_parser
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
@@ -26,7 +26,7 @@ from napari_symbac.pipeline import apply_cell_brightness
 from napari_symbac.settings import Camera, Microscope, RenderSettings
 
 ROOT = Path(__file__).resolve().parents[2]
-REAL = Path(os.environ.get("NAPARI_SYMBAC_REAL_DATA", ROOT.parent / "shared" / "data" / "real"))
+REAL = real_data_from_environment()
 OUT = ROOT / "docs" / "images"
 
 #: Optics of the 100x oil comparison; the rest is fitted (fit_scene) to the real trench.
@@ -174,16 +174,11 @@ def benchmarks() -> None:
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     """The command line: no arguments (``--help`` prints the docstring above); the real
     recordings are read from $NAPARI_SYMBAC_REAL_DATA, else ../shared/data/real."""
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = script_parser(__doc__)
     args = parser.parse_args(argv)
-    if not REAL.is_dir():
-        parser.error(
-            f"{REAL} not found: this script reads ecoli_100x_oil_exponential.tiff and "
-            "colicoords from the folder of the project's real recordings: set "
-            "$NAPARI_SYMBAC_REAL_DATA to it (its README lists them)"
-        )
+    checked_real_data(
+        parser, REAL, "ecoli_100x_oil_exponential.tiff and colicoords", given="environment"
+    )
     return args
 
 

@@ -17,6 +17,8 @@ import os
 import time
 from pathlib import Path
 
+from _args import checked_real_data, real_data_from_environment, script_parser
+
 os.environ.setdefault("QT_QPA_PLATFORM", "xcb")
 
 import imageio.v3 as iio
@@ -64,9 +66,7 @@ def real_trench_flow(folder: Path) -> None:
 
     from napari_symbac._widgets.real_image import class_layer_name
 
-    default = IMAGES.parents[2] / "shared" / "data" / "real"
-    real_dir = Path(os.environ.get("NAPARI_SYMBAC_REAL_DATA", default))
-    source = tifffile.imread(real_dir / "ecoli_100x_oil_exponential.tiff")
+    source = tifffile.imread(real_data_from_environment() / "ecoli_100x_oil_exponential.tiff")
     path = folder / "my_trench.tif"
     tifffile.imwrite(path, source)  # written without a pixel size, as many recordings are
 
@@ -140,8 +140,7 @@ def colony_flow() -> None:
     Recording tab, its masks as a labels layer, fitted by Auto-fit from them."""
     import tifffile
 
-    default = IMAGES.parents[2] / "shared" / "data" / "real"
-    root = Path(os.environ.get("NAPARI_SYMBAC_REAL_DATA", default)) / "omnipose"
+    root = real_data_from_environment() / "omnipose"
     viewer = napari.Viewer(title="napari-symbac")
     viewer.window._qt_window.resize(*WINDOW)
     _, flow = viewer.window.add_plugin_dock_widget(PLUGIN, "SyMBac workflow (all steps)")
@@ -191,23 +190,19 @@ def demo_montage() -> None:
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     """The command line: ``[--napari-only]``; the real recordings are read from
     ``$NAPARI_SYMBAC_REAL_DATA``, else ``../shared/data/real``."""
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = script_parser(__doc__)
     parser.add_argument(
         "--napari-only",
         action="store_true",
         help="only the napari windows' screenshots, not the demo montage",
     )
     args = parser.parse_args(argv)
-    default = IMAGES.parents[2] / "shared" / "data" / "real"
-    real_dir = Path(os.environ.get("NAPARI_SYMBAC_REAL_DATA", default))
-    if not real_dir.is_dir():
-        parser.error(
-            f"{real_dir} not found: this script reads ecoli_100x_oil_exponential.tiff and "
-            "omnipose from the folder of the project's real recordings: set "
-            "$NAPARI_SYMBAC_REAL_DATA to it (its README lists them)"
-        )
+    checked_real_data(
+        parser,
+        real_data_from_environment(),
+        "ecoli_100x_oil_exponential.tiff and omnipose",
+        given="environment",
+    )
     return args
 
 

@@ -8,11 +8,11 @@ optics), so the pictures show what the simulator itself produces.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 from pathlib import Path
 
 import matplotlib
+from _args import script_parser
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
@@ -122,14 +122,6 @@ def main() -> None:
     print(f"wrote figures to {OUT}")
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    """The command line: no arguments (``--help`` prints the docstring above)."""
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    return parser.parse_args(argv)
-
-
 if __name__ == "__main__":
-    parse_args()
+    script_parser(__doc__).parse_args()  # no arguments; --help prints the docstring above
     main()

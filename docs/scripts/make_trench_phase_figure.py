@@ -24,12 +24,12 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import os
 import sys
 import time
 from pathlib import Path
 
 import matplotlib
+from _args import checked_real_data, real_data_from_environment, script_parser
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
@@ -45,7 +45,7 @@ from make_phase_figures import save  # 256-colour PNG
 
 ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "docs" / "images"
-REAL = Path(os.environ.get("NAPARI_SYMBAC_REAL_DATA", ROOT.parent / "shared" / "data" / "real"))
+REAL = real_data_from_environment()
 MICROSCOPE = Microscope(pixel_size_um=0.065)  # 100x oil, NA 1.45, 0.65 um, Ph3
 FIVE = (
     "cell_phase_rad",
@@ -158,16 +158,9 @@ def main() -> None:
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     """The command line: no arguments (``--help`` prints the docstring above); the real
     recordings are read from $NAPARI_SYMBAC_REAL_DATA, else ../shared/data/real."""
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = script_parser(__doc__)
     args = parser.parse_args(argv)
-    if not REAL.is_dir():
-        parser.error(
-            f"{REAL} not found: this script reads ecoli_100x_oil_exponential.tiff from the "
-            "folder of the project's real recordings: set $NAPARI_SYMBAC_REAL_DATA to it "
-            "(its README lists them)"
-        )
+    checked_real_data(parser, REAL, "ecoli_100x_oil_exponential.tiff", given="environment")
     return args
 
 

@@ -9,12 +9,12 @@ Run from the repository root: ``python docs/scripts/make_visibility_figure.py``.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 from pathlib import Path
 
 import imageio.v3 as iio
 import numpy as np
+from _args import script_parser
 from skimage.segmentation import find_boundaries
 
 from napari_symbac.export import ExportSettings, PipelineSource
@@ -65,14 +65,6 @@ def main() -> None:
     print(f"wrote {OUT}")
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    """The command line: no arguments (``--help`` prints the docstring above)."""
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    return parser.parse_args(argv)
-
-
 if __name__ == "__main__":
-    parse_args()
+    script_parser(__doc__).parse_args()  # no arguments; --help prints the docstring above
     main()

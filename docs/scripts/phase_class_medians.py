@@ -25,6 +25,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 import tifffile
+from _args import add_real_data, checked_real_data, script_parser
 
 from napari_symbac.calibrate import calibrate, compare_images, export_settings
 from napari_symbac.export.dataset import PipelineSource
@@ -120,14 +121,9 @@ def main(real: Path, n: int = 2, picture: Path | None = None) -> None:
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     """The command line: ``REAL_DATA_DIR [N_SYNTHETIC [FIGURE]]``."""
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument(
-        "real",
-        type=Path,
-        metavar="REAL_DATA_DIR",
-        help="the folder of the project's real recordings (omnipose inside)",
+    parser = script_parser(__doc__)
+    add_real_data(
+        parser, required=True, help="the folder of the project's real recordings (omnipose inside)"
     )
     parser.add_argument(
         "n",
@@ -141,11 +137,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "picture", nargs="?", type=Path, metavar="FIGURE", help="a PNG to draw the rows into"
     )
     args = parser.parse_args(argv)
-    if not (args.real / "omnipose").is_dir():
-        parser.error(
-            f"{args.real / 'omnipose'} not found: pass the folder that holds the project's "
-            "real recordings (omnipose; its README lists them)"
-        )
+    checked_real_data(parser, args.real / "omnipose", "the Omnipose colonies")
     return args
 
 

@@ -18,6 +18,7 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
+from _args import add_real_data, checked_real_data, script_parser
 from phase_class_medians import calibrated_colony
 
 from napari_symbac.calibrate import compare_images
@@ -68,21 +69,12 @@ def main(real: Path) -> None:
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     """The command line: ``REAL_DATA_DIR``."""
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument(
-        "real",
-        type=Path,
-        metavar="REAL_DATA_DIR",
-        help="the folder of the project's real recordings (omnipose inside)",
+    parser = script_parser(__doc__)
+    add_real_data(
+        parser, required=True, help="the folder of the project's real recordings (omnipose inside)"
     )
     args = parser.parse_args(argv)
-    if not (args.real / "omnipose").is_dir():
-        parser.error(
-            f"{args.real / 'omnipose'} not found: pass the folder that holds the project's "
-            "real recordings (omnipose; its README lists them)"
-        )
+    checked_real_data(parser, args.real / "omnipose", "the Omnipose colonies")
     return args
 
 

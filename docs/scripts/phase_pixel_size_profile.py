@@ -29,6 +29,7 @@ import time
 from pathlib import Path
 
 import matplotlib
+from _args import checked_real_data, script_parser
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
@@ -97,11 +98,7 @@ def table(path: Path) -> None:
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     """The command line: ``NAME FACTOR ...`` or ``--table PATH``."""
-    parser = argparse.ArgumentParser(
-        usage="%(prog)s [-h] (NAME FACTOR [FACTOR ...] | --table PATH)",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    parser = script_parser(__doc__, usage="%(prog)s [-h] (NAME FACTOR [FACTOR ...] | --table PATH)")
     parser.add_argument(
         "name", nargs="?", metavar="NAME", help="the Omnipose colony to fit, e.g. Sample000252"
     )
@@ -126,12 +123,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
             parser.error(f"{args.table} not found: pass the JSON lines NAME FACTOR ... printed")
     elif args.name is None or not args.factors:
         parser.error("pass NAME FACTOR ... (one fit per factor) or --table PATH")
-    elif not phase.REAL.is_dir():
-        parser.error(
-            f"{phase.REAL} not found: this script reads the Omnipose colonies from the omnipose "
-            "folder of the project's real recordings beside the repository (its README "
-            "lists them)"
-        )
+    else:
+        checked_real_data(parser, phase.REAL, "the Omnipose colonies", given="repository")
     return args
 
 
