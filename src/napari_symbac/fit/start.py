@@ -598,6 +598,9 @@ def start_scene(
     WideStartError
         Without ``masks``, when the cells found are wider than any rod
         (:func:`refuse_blobs`) and ``refuse_wide``.
+    FaintStartError
+        Without ``masks``, when no bright cell stands out of the background
+        (fluorescence).
     """
     polarity = polarity_of(image, microscope.modality, labels)
     px = microscope.pixel_size_um
