@@ -201,3 +201,86 @@ def test_the_reader_names_the_axes(tmp_path, shape, labels, sized):
 def test_axis_labels_name_leading_axes_by_position():
     assert axis_labels(2) == ("y", "x")
     assert axis_labels(4) == ("axis 0", "frame", "y", "x")
+
+
+def _hyperstack(path, axes: str, shape: tuple[int, ...], mode: str = "composite") -> np.ndarray:
+    """An ImageJ hyperstack of ``axes`` (80 nm pixels) whose planes differ, shown in
+    ``mode`` (Fiji shows channels as ``composite``)."""
+    data = np.arange(int(np.prod(shape)), dtype=np.uint16).reshape(shape)
+    tifffile.imwrite(
+        path, data, imagej=True, resolution=(1 / 0.08, 1 / 0.08),
+        metadata={"axes": axes, "unit": "um", "mode": mode},
+    )  # fmt: skip
+    return data
+
+
+def test_a_channel_of_a_hyperstack_is_read_by_its_number(tmp_path):
+    """Found as a user: a phase + fluorescence ImageJ hyperstack (axes CYX) was read as
+    "2 frames", so `fit` asked for --frames and would have fitted the two channels as a
+    time series. Its channel axis is now known: one channel is read, by number."""
+    from napari_symbac.io import ChannelsError
+
+    path = tmp_path / "two_channels.tif"
+    data = _hyperstack(path, "TCYX", (3, 2, 16, 16))
+    with pytest.raises(ChannelsError, match=r"holds 2 channels \(axes TCYX") as caught:
+        read_recording(path)
+    assert caught.value.n_channels == 2
+    assert str(caught.value).endswith("a recording is one channel: pass channel=K (0..1)")
+    second = read_recording(path, 1)
+    np.testing.assert_array_equal(second.data, data[:, 1])
+    assert second.pixel_size_um == pytest.approx(0.08, rel=1e-4)
+    with pytest.raises(ValueError, match=r"channel 2: two_channels\.tif has channels 0\.\.1"):
+        read_recording(path, 2)
+    ome = tmp_path / "two_channels.ome.tif"  # Micro-Manager's and Bio-Formats' format
+    tifffile.imwrite(ome, data, metadata={"axes": "TCYX"})
+    with pytest.raises(ChannelsError, match="holds 2 channels"):
+        read_recording(ome)
+    np.testing.assert_array_equal(read_recording(ome, 0).data, data[:, 0])
+    one = tmp_path / "one.tif"
+    _hyperstack(one, "TYX", (3, 16, 16))
+    assert read_recording(one, 0).data.shape == (3, 16, 16)
+    with pytest.raises(ValueError, match="holds one channel"):
+        read_recording(one, 1)
+
+
+def test_a_grey_imagej_stack_is_frames_though_tifffile_calls_them_channels(tmp_path):
+    """`tifffile.imwrite(path, series, imagej=True)`, axes unsaid, records a (T, Y, X)
+    series as channels in grey mode: read as the frames it was written as (Fiji shows
+    real channels as composite or colour)."""
+    for axes, shape in (("CYX", (3, 16, 16)), ("TCYX", (2, 3, 16, 16))):
+        path = tmp_path / f"{axes}.tif"
+        data = _hyperstack(path, axes, shape, mode="grayscale")
+        np.testing.assert_array_equal(read_recording(path).data, data)
+    written = tmp_path / "written.tif"
+    series = np.ones((3, 16, 16), np.uint16)
+    tifffile.imwrite(written, series, imagej=True)
+    assert tifffile.TiffFile(written).series[0].axes == "CYX"
+    np.testing.assert_array_equal(read_recording(written).data, series)
+
+
+def test_focal_planes_beside_frames_are_refused_by_name(tmp_path):
+    """A time-lapse of z-stacks: its focal planes are refused, not fitted as frames. An
+    ImageJ stack that is no hyperstack names its pages slices (Z): they stay frames."""
+    path = tmp_path / "zstacks.tif"
+    _hyperstack(path, "TZCYX", (3, 5, 2, 16, 16))
+    with pytest.raises(ValueError, match=r"holds 5 focal planes \(axes TZCYX") as caught:
+        read_recording(path, 0)
+    assert "Make Substack" in str(caught.value)
+    plain = tmp_path / "plain_stack.tif"
+    data = _hyperstack(plain, "ZYX", (5, 16, 16))
+    np.testing.assert_array_equal(read_recording(plain).data, data)
+
+
+def test_the_reader_opens_a_layer_per_channel(tmp_path):
+    """napari's way with channels: one layer each, in micrometres, so that the channel to
+    fit is chosen as a layer."""
+    path = tmp_path / "two_channels.tif"
+    data = _hyperstack(path, "CYX", (2, 16, 16))
+    layers = napari_get_reader(str(path))(str(path))
+    assert [meta["name"] for _, meta, _ in layers] == [
+        "two_channels channel 0", "two_channels channel 1"
+    ]  # fmt: skip
+    for k, (array, meta, kind) in enumerate(layers):
+        assert kind == "image"
+        np.testing.assert_array_equal(array, data[k])
+        assert meta["scale"] == pytest.approx((0.08, 0.08), rel=1e-4)

@@ -23,13 +23,16 @@ from napari_symbac.io import CountsMapping, Recording
 
 __all__ = ["read_frame", "run_calibrate"]
 
-def read_frame(path: str, what: str, frame: int | None = None) -> Recording:
+def read_frame(
+    path: str, what: str, frame: int | None = None, channel: int | None = None
+) -> Recording:
     """One grey 2D frame from a TIFF (with its pixel size and modality) or a PNG
     (:func:`napari_symbac.io.read_image`; the IMAGE, when normalised, as counts, its
-    ``counts_mapping`` kept): frame ``frame`` of a ``(T, Y, X)`` series."""
+    ``counts_mapping`` kept): frame ``frame`` of a ``(T, Y, X)`` series, of channel
+    ``channel`` of a TIFF of several."""
     from napari_symbac._cli_fit import read_recording
 
-    recording = read_recording(path, what, counts=what == "IMAGE")
+    recording = read_recording(path, what, counts=what == "IMAGE", channel=channel)
     data = np.asarray(recording.data)
     name = Path(path).name
     if data.ndim == 3 and frame is not None:
@@ -179,7 +182,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         )
     _check_cell_width(args.cell_width_um, args.masks)
     with timer.step("load"):
-        recording = read_frame(args.image, "IMAGE", args.frame)
+        recording = read_frame(args.image, "IMAGE", args.frame, args.channel)
         image = recording.data
         masks = None if args.masks is None else read_frame(args.masks, "--masks", args.frame).data
         labels = (

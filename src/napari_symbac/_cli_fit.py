@@ -154,21 +154,32 @@ def _config_note(config: str | None, keys: dict[str, Any], geometry: str) -> str
     return note + (f"; not used: {'; '.join(ignored)}" if ignored else "")
 
 
-def read_recording(path: str, what: str = "IMAGE", *, counts: bool = True):
+def read_recording(
+    path: str, what: str = "IMAGE", *, counts: bool = True, channel: int | None = None
+):
     """The recording at ``path`` (:func:`napari_symbac.io.read_image`, a normalised image
-    as counts when ``counts``), its reading note ("read as counts ...") said on stderr."""
-    from napari_symbac.io import read_image
+    as counts when ``counts``; channel ``channel`` of a TIFF of several, which without
+    it is refused naming ``--channel``), its reading note ("read as counts ...") said on
+    stderr."""
+    from napari_symbac.io import ChannelsError, read_image
 
-    recording = read_image(path, what, counts=counts)
+    try:
+        recording = read_image(path, what, counts=counts, channel=channel)
+    except ChannelsError as err:  # --channel picks the IMAGE's; masks are one channel
+        fix = (
+            f", and a recording is one channel: choose it with --channel K "
+            f"(0..{err.n_channels - 1})"
+            if what == "IMAGE"
+            else f": save the channel of {what} to use as its own TIFF"
+        )
+        raise ValueError(err.cause + fix) from err
     if recording.note:
         print(f"note: {Path(path).name}: {recording.note}", file=sys.stderr)
     return recording
 
 
 def _read_stack(path: str, what: str) -> np.ndarray:
-    from napari_symbac.io import read_image
-
-    return np.asarray(read_image(path, what).data)
+    return np.asarray(read_recording(path, what, counts=False).data)
 
 
 def _per_frame(array: np.ndarray | None, frame: int, n_frames: int, shape: tuple) -> Any:
@@ -905,7 +916,7 @@ def run_fit(args: argparse.Namespace) -> int:
     stages = _Stages()
     stages.stage("loading inputs")
     with timer.step("load"):
-        recording = read_recording(args.image)
+        recording = read_recording(args.image, channel=args.channel)
         args.counts_mapping = recording.counts_mapping  # report.txt says the reading too
         data = np.asarray(recording.data)
         name = Path(args.image).name

@@ -374,7 +374,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     earlier = earlier_run(out, "diagnose", _diagnose_writes)
     timer = StepTimer()
     with timer.step("load"):
-        recording = read_recording(args.image)
+        recording = read_recording(args.image, channel=args.channel)
         mapping = recording.counts_mapping  # a normalised image read as counts, or None
         config = load_microscope_file(args.microscope)
         for note in config.notes:
@@ -661,6 +661,11 @@ _YES_HELP = (
     f"start a run of more than {LARGE_RUN_FRAMES:,} frames without refusing (hours of work)"
 )
 
+#: The ``--channel`` of the commands that read a recording.
+CHANNEL_HELP = (
+    "the channel to read of a TIFF of several (an ImageJ hyperstack or OME-TIFF with a "
+    "channel axis), counted from 0"
+)
 MICROSCOPE_HELP = (
     "microscope YAML/JSON: modality, pixel_size_um, numerical_aperture, refractive_index, "
     "wavelength_um, condenser, and optionally a camera section (baseline_adu, "
@@ -903,6 +908,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="frames of a series to fit, e.g. 0, 0,2,5 or 0-3 (several: fitted jointly, "
         "optics shared, cells linked into tracks)",
     )
+    fit.add_argument("--channel", type=_whole_number(0), help=CHANNEL_HELP)
     fit.add_argument(
         "--config", help="PipelineSettings YAML/JSON: starting render, camera, trench closed end"
     )
@@ -975,6 +981,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--frame", type=int, help="the frame of a (T, Y, X) series to calibrate on (and of "
         "its masks or labels when they are a series too)"
     )
+    cal.add_argument("--channel", type=_whole_number(0), help=CHANNEL_HELP)
     cal.add_argument("--microscope", required=True, help=MICROSCOPE_HELP)
     cal.add_argument("--out", required=True, help="output folder (new or empty)")
     cal_start = cal.add_mutually_exclusive_group()
@@ -1012,6 +1019,7 @@ def build_parser() -> argparse.ArgumentParser:
         "improve held-out pixels; write diagnosis.json, report.txt, figures and settings.",
     )
     diag.add_argument("image", help="recording (TIFF or PNG), one frame or a (T, Y, X) series")
+    diag.add_argument("--channel", type=_whole_number(0), help=CHANNEL_HELP)
     diag.add_argument("--labels", help="painted class labels TIFF (1 cell, 2 media, 3 device)")
     diag.add_argument(
         "--microscope",

@@ -14,6 +14,7 @@ __all__ = [
     "AXIS_LABELS",
     "NORMALISED_ADU_PER_UNIT",
     "NORMALISED_MAX_RANGE",
+    "ChannelsError",
     "CountsMapping",
     "Recording",
     "as_counts",
@@ -205,15 +206,92 @@ def _check_complete(tif, path: Path) -> None:
         )
 
 
-def read_recording(path: str | Path) -> Recording:
+class ChannelsError(ValueError):
+    """A TIFF of several channels read without the channel to take
+    (:func:`read_recording`'s ``channel``). ``cause`` says what the file holds and
+    ``n_channels`` how many; the message adds the fix of the Python API, each other
+    interface words its own (``--channel``, a layer per channel)."""
+
+    def __init__(self, name: str, n_channels: int, axes: str, shape: tuple[int, ...]) -> None:
+        self.n_channels = n_channels
+        self.cause = f"{name} holds {n_channels} channels (axes {axes}, shape {shape})"
+        super().__init__(
+            f"{self.cause}, and a recording is one channel: pass channel=K (0..{n_channels - 1})"
+        )
+
+
+#: Axes of a TIFF series (tifffile's codes) read as the frames of a recording: time, and
+#: the image sequences of files that do not say what their pages are.
+_FRAME_AXES = "TIQ"
+#: What the other axes of more than one plane hold, in a refusal's words.
+_AXIS_WORDS = {"Z": "focal planes", "P": "stage positions", "R": "tiles", "E": "wavelengths"}
+
+
+def _series_axes(tif) -> str:
+    """tifffile's axes of the file's first series, where its ``C`` holds channels only
+    when the file says so: OME metadata, an ImageJ hyperstack shown as composite or
+    colour (Fiji's channels), or tifffile's own record of the axes it was given. An
+    ImageJ stack in grey mode is read with its pages as frames, since tifffile writes
+    ``imwrite(path, stack, imagej=True)`` of a time series, axes unsaid, as channels."""
+    axes = tif.series[0].axes
+    if "C" in axes and tif.is_imagej and not tif.is_ome:
+        mode = (tif.imagej_metadata or {}).get("mode")
+        if mode not in ("composite", "color"):
+            axes = axes.replace("C", "Q")
+    return axes
+
+
+def _one_channel(
+    data: np.ndarray, axes: str, name: str, channel: int | None
+) -> np.ndarray:
+    """``data`` (a TIFF series with tifffile's ``axes``, singleton axes squeezed) as
+    ``([frames,] Y, X)`` or colour ``(..., S)``: channel ``channel`` of a channel axis,
+    other axes of several planes refused by name (focal planes beside frames)."""
+    shape = tuple(int(n) for n in data.shape)
+    # an ImageJ stack that is no hyperstack records its pages as slices (Z), a time
+    # series as often as a z-stack: they are the frames unless frames are named too
+    frame_axes = _FRAME_AXES if any(a in axes for a in _FRAME_AXES) else _FRAME_AXES + "Z"
+    for axis in axes:
+        if axis not in frame_axes + "CYXS":
+            what = _AXIS_WORDS.get(axis, f"planes along its axis {axis}")
+            raise ValueError(
+                f"{name} holds {shape[axes.index(axis)]} {what} (axes {axes}, shape {shape}): "
+                "a recording is (frames, Y, X) of one plane; save the plane to read as its "
+                "own TIFF (in Fiji: Image > Stacks > Tools > Make Substack)"
+            )
+    if "C" not in axes:
+        if channel not in (None, 0):
+            raise ValueError(f"{name} holds one channel (axes {axes}): leave the channel out")
+        return data
+    n_channels = shape[axes.index("C")]
+    if channel is None:
+        raise ChannelsError(name, n_channels, axes, shape)
+    if not 0 <= channel < n_channels:
+        raise ValueError(f"channel {channel}: {name} has channels 0..{n_channels - 1}")
+    return np.take(data, channel, axis=axes.index("C"))
+
+
+def read_recording(path: str | Path, channel: int | None = None) -> Recording:
     """Read a TIFF recording, its pixel size and whether it holds an image or masks.
+
+    Parameters
+    ----------
+    path
+        The TIFF.
+    channel
+        The channel to read of a TIFF of several (an ImageJ hyperstack or OME-TIFF with
+        a channel axis); ``None`` for a file of one channel.
 
     Raises
     ------
     FileNotFoundError
         If ``path`` does not exist.
+    ChannelsError
+        If the file holds several channels and ``channel`` is ``None``.
     ValueError
-        If the file is not a TIFF, is truncated or corrupt (the message names the file).
+        If the file is not a TIFF, is truncated or corrupt, holds several focal planes
+        (or other planes than frames and channels), or has no channel ``channel`` (the
+        message names the file).
     """
     import logging
 
@@ -230,7 +308,7 @@ def read_recording(path: str | Path) -> Recording:
     try:
         with tifffile.TiffFile(path) as tif:
             _check_complete(tif, path)
-            data = tif.asarray()
+            data, axes = tif.asarray(), _series_axes(tif)
             pixel = _pixel_size_um(tif)
             modality = _modality(tif)
             kind = _kind(tif, path)
@@ -243,6 +321,7 @@ def read_recording(path: str | Path) -> Recording:
         ) from err
     finally:
         log.setLevel(level)
+    data = _one_channel(data, axes, path.name, channel)
     name = path.name
     for suffix in _TIFF_SUFFIXES:
         if name.lower().endswith(suffix):
@@ -281,7 +360,9 @@ def as_counts(data: np.ndarray) -> tuple[np.ndarray, CountsMapping | None]:
     return mapping.counts_adu(array), mapping
 
 
-def read_image(path: str | Path, what: str = "image", *, counts: bool = False) -> Recording:
+def read_image(
+    path: str | Path, what: str = "image", *, counts: bool = False, channel: int | None = None
+) -> Recording:
     """Read a recording for the command line: a TIFF (:func:`read_recording`) or a PNG.
 
     A PNG records no pixel size or modality. An RGB(A) image whose colour channels are
@@ -299,6 +380,8 @@ def read_image(path: str | Path, what: str = "image", *, counts: bool = False) -
         Read a normalised image as counts (:func:`as_counts`; the recording's
         ``counts_mapping`` says how): for the recording to fit, not for masks or dark
         frames.
+    channel
+        The channel of a TIFF of several (:func:`read_recording`); a PNG has one.
 
     Raises
     ------
@@ -321,9 +404,11 @@ def read_image(path: str | Path, what: str = "image", *, counts: bool = False) -
             data = np.asarray(iio.imread(path))
         except (OSError, ValueError) as err:
             raise ValueError(f"{what} {path.name} is not a readable PNG: {err}") from err
+        if channel not in (None, 0):
+            raise ValueError(f"{what} {path.name} is a PNG, one channel: leave the channel out")
         recording = Recording(data=data, pixel_size_um=None, name=path.name[: -len(".png")])
     elif lower.endswith(_TIFF_SUFFIXES):
-        recording = read_recording(path)
+        recording = read_recording(path, channel)
     else:
         raise ValueError(
             f"{what} {path.name} is not a TIFF or PNG file (.tif/.tiff/.png): convert it to TIFF"
@@ -383,9 +468,20 @@ def napari_get_reader(path):
 
 
 def _read_layers(path) -> list[tuple]:
-    recording = read_recording(path)
+    """The recording's layer; one per channel of a TIFF of several (napari's way: the
+    channel to fit is then chosen as a layer), named ``"NAME channel K"``."""
+    try:
+        return [_recording_layer(read_recording(path))]
+    except ChannelsError as err:
+        return [
+            _recording_layer(read_recording(path, k), f" channel {k}")
+            for k in range(err.n_channels)
+        ]
+
+
+def _recording_layer(recording: Recording, suffix: str = "") -> tuple:
     meta = {
-        "name": recording.name,
+        "name": recording.name + suffix,
         "metadata": {"pixel_size_um": recording.pixel_size_um, "modality": recording.modality},
         "axis_labels": axis_labels(recording.data.ndim),
     }
@@ -393,11 +489,11 @@ def _read_layers(path) -> list[tuple]:
         meta.update(micrometre_axes(recording.pixel_size_um, recording.data.ndim))
     is_mask = recording.kind in ("labels", "semantic")
     if is_mask and np.issubdtype(recording.data.dtype, np.integer):
-        return [(recording.data, meta, "labels")]
+        return (recording.data, meta, "labels")
     data, mapping = as_counts(recording.data)  # as the Real image dock's *or open* reads it
     if mapping is not None:
         meta["metadata"]["counts_mapping"] = mapping
-    return [(data, meta, "image")]
+    return (data, meta, "image")
 
 
 def _layer_pixel_size_um(meta: dict) -> float:

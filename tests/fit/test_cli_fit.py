@@ -1078,3 +1078,43 @@ def test_a_crop_around_one_cell_asks_for_masks_or_labels(tmp_path, real_data_dir
     line = error[error.index("napari-symbac fit: error: ") :].splitlines()[0]
     assert "no bright region stands 40 times the background's spread above it" in line
     assert line.endswith("instance masks or painted labels (--masks M or --labels L)")
+
+
+def test_a_channel_of_a_hyperstack_is_fitted_as_its_own_file(tmp_path, real_data_dir, capsys):
+    """Found as a user: a brightfield + fluorescence hyperstack (Fiji's composite, axes
+    CYX) was read as 2 frames, and `fit` asked for --frames. It now asks for the
+    channel, and --channel 1 fits the fluorescence as the fluorescence file alone."""
+    folder = real_data_dir / "colicoords" / "01"
+    channels = np.stack([tifffile.imread(folder / f"{c}.tif") for c in ("brightfield",
+                                                                        "fluorescence")])
+    stack = tmp_path / "two_channels.tif"
+    tifffile.imwrite(
+        stack, channels.astype(np.float32), imagej=True, resolution=(1 / 0.08, 1 / 0.08),
+        metadata={"axes": "CYX", "unit": "um", "mode": "composite"},
+    )  # fmt: skip
+    scope = Microscope(pixel_size_um=0.08, modality="fluorescence", wavelength_um=0.53)
+    microscope = save_settings(scope, tmp_path / "microscope.yaml")
+    masks = folder / "binary.tif"
+    error = _refused(capsys, tmp_path / "refused", stack, "--microscope", microscope)
+    assert "two_channels.tif holds 2 channels (axes CYX" in error
+    assert error.rstrip().endswith("a recording is one channel: choose it with --channel K (0..1)")
+    two_masks = tmp_path / "two_masks.tif"  # --channel is the image's: masks are one
+    tifffile.imwrite(
+        two_masks, np.stack([tifffile.imread(folder / "binary.tif")] * 2), imagej=True,
+        metadata={"axes": "CYX", "mode": "composite"},
+    )  # fmt: skip
+    error = _refused(capsys, tmp_path / "refused", stack, "--microscope", microscope,
+                     "--channel", 1, "--masks", two_masks)  # fmt: skip
+    assert error.rstrip().endswith(
+        "two_masks.tif holds 2 channels (axes CYX, shape (2, 57, 61)): save the channel of "
+        "--masks to use as its own TIFF"
+    )
+    fits = {}
+    for name, image, extra in (
+        ("stack", stack, ["--channel", 1]), ("file", folder / "fluorescence.tif", [])
+    ):
+        out = tmp_path / name
+        assert _fit(image, "--microscope", microscope, "--masks", masks, *extra, "--out", out) == 0
+        fits[name] = json.loads((out / "cells.json").read_text())["cells"]
+    assert len(fits["stack"]) == 1
+    assert fits["stack"] == fits["file"]

@@ -360,3 +360,30 @@ def test_a_recording_opened_in_pixels_after_a_simulation_shares_its_units(
     pixel = simulate.pipeline.microscope.pixel_size_um
     np.testing.assert_allclose(synthetic.data_to_world((0, 5, 7)), (0, 5 * pixel, 7 * pixel))
     assert _units_warnings(viewer, notifications) == []
+
+
+def test_a_recording_whose_modality_is_set_later_is_followed_again(
+    make_napari_viewer, real_data_dir
+):
+    """Found as a user: ColiCoords' single-cell crop (57 x 61 px, no modality recorded)
+    was taken for phase contrast without a word (its cell's glow is most of it, so its
+    look does not say), and Simulate stayed at a trench after the modality was set to
+    fluorescence. The dock says the modality is assumed, and Simulate follows the
+    recording again when its modality changes: an agar pad the crop's size."""
+    from napari_symbac._widgets.real_image import RealImageWidget
+
+    viewer = make_napari_viewer()
+    recording = RealImageWidget(viewer)
+    simulate = SimulateWidget(viewer)
+    recording.file.value = real_data_dir / "colicoords" / "01" / "fluorescence.tif"
+    assert recording.result.value == (
+        "fluorescence records no modality, and its look does not settle it (a crop around "
+        "a few cells, or phase contrast): phase is assumed; choose the modality below"
+    )
+    recording.pixel_size.value = 0.08
+    assert simulate.form.geometry.value == "trench"  # a phase image 61 px wide
+    recording.modality.value = "fluorescence"
+    assert recording.result.value == ""  # the user's choice: no longer "assumed"
+    assert simulate.form.geometry.value == "agar_pad"
+    pad = simulate.form.agar_pad
+    assert (pad.field_width_um.value, pad.field_height_um.value) == pytest.approx((4.88, 4.56))

@@ -137,6 +137,7 @@ class RealImageWidget(Container):
         self.image.changed.connect(self._load_layer)
         self.microscope.changed.connect(self._store)
         self.modality.changed.connect(self._show_condenser)
+        self.modality.changed.connect(self._forget_guess)
         self._show_condenser()
         self.paint_button.changed.connect(self.paint)
         self.measure_button.changed.connect(self.measure)
@@ -161,7 +162,7 @@ class RealImageWidget(Container):
         ]
 
     def _open_file(self) -> None:
-        from napari_symbac.io import read_image
+        from napari_symbac.io import ChannelsError, read_image
 
         path = self.file.value
         if not path or str(path) in ("", "."):
@@ -180,8 +181,14 @@ class RealImageWidget(Container):
             # negative-valued TIFF opened as recordings, and failed only at Auto-fit)
             check_recording_frame(data if data.ndim == 2 else data[0], path.name)
         except (ValueError, OSError) as err:
-            self.result.value = f"Cannot open {path.name}: {err}"
-            notify_warning(f"Cannot open {path.name}: {err}")
+            message = f"Cannot open {path.name}: {err}"
+            if isinstance(err, ChannelsError):  # one recording is one channel
+                message = (
+                    f"Cannot open {path.name}: {err.cause}: open it with File > Open and "
+                    "the napari-symbac reader, which adds a layer per channel"
+                )
+            self.result.value = message
+            notify_warning(message)
             return
         # the image's own range: napari's default for 8 bits is 0-255, which shows an
         # 8-bit export of 19 grey levels (the Omnipose colonies) as black
@@ -253,6 +260,14 @@ class RealImageWidget(Container):
         fluorescence, where it is not used."""
         self.microscope.condenser.visible = self.modality.value == "phase"
 
+    def _forget_guess(self, _value=None) -> None:
+        """A modality chosen by the user: the guess said of it is no longer true."""
+        layer = self.image.value
+        if not self._loading and layer is not None and self.result.value.startswith(
+            f"{layer.name} records no modality"
+        ):
+            self.result.value = ""
+
     def _guess_modality(self, layer) -> None:
         """A recording that does not say its modality: fluorescence when it shows bright
         objects on a dark background and nothing darker, phase contrast when it shows
@@ -264,7 +279,13 @@ class RealImageWidget(Container):
         guess = {"bright cells": "fluorescence", "dark cells": "phase"}.get(
             image_polarity(frame)
         )
-        if guess is None:
+        if guess is None:  # found as a user: a crop around one fluorescent cell, whose
+            # glow is most of it, was taken for phase contrast without a word
+            self.result.value = (
+                f"{layer.name} records no modality, and its look does not settle it (a "
+                f"crop around a few cells, or phase contrast): {self.modality.value} is "
+                "assumed; choose the modality below"
+            )
             return
         self.modality.value = guess
         shows = "bright objects on a dark" if guess == "fluorescence" else "dark objects on a light"

@@ -113,6 +113,7 @@ class SimulateWidget(Container):
         if hasattr(self.form, "geometry"):
             self.form.geometry.changed.connect(self._show_geometry_settings)
             self._show_geometry_settings()
+        self._followed: tuple | None = None  # the recording as last followed
         self.recording.changed.connect(self._follow_recording)
         watch_recordings(viewer, self._refresh_recordings)
         self._refresh_recordings()
@@ -124,11 +125,18 @@ class SimulateWidget(Container):
         self._n_frames = 0
 
     def _refresh_recordings(self, _event=None) -> None:
-        """Offer the viewer's recordings; pick the newest when none is chosen."""
+        """Offer the viewer's recordings; pick the newest when none is chosen, and follow
+        the chosen one again when its pixel size or modality changed (found as a user:
+        a crop taken for phase contrast stayed simulated as a trench after its modality
+        was set to fluorescence)."""
         self.recording.reset_choices()
         choices = [c for c in self.recording.choices if c is not None]
         if self.recording.value is None and choices:
             self.recording.value = choices[-1]
+        elif self.recording.value is not None and (
+            _followed_key(self.recording.value) != self._followed
+        ):
+            self._follow_recording(self.recording.value)
 
     def _follow_recording(self, layer=None) -> None:
         """A newly chosen recording sets the geometry as ``napari-symbac fit`` would
@@ -143,6 +151,7 @@ class SimulateWidget(Container):
 
         if layer is None or not hasattr(self.form, "geometry"):
             return
+        self._followed = _followed_key(layer)
         microscope = recording_microscope(layer, self.pipeline.microscope)
         rows, cols = (int(n) for n in layer.data.shape[-2:])
         field = default_geometry(cols, microscope.modality) == "field"
@@ -384,6 +393,12 @@ class SimulateWidget(Container):
     def _remove_preview(self) -> None:
         if PREVIEW_LAYER in self.viewer.layers:
             self.viewer.layers.remove(PREVIEW_LAYER)
+
+
+def _followed_key(layer) -> tuple:
+    """What the form follows of a recording: which layer, its pixel size and modality."""
+    meta = layer.metadata
+    return id(layer), meta.get("pixel_size_um"), meta.get("modality")
 
 
 def _follow_placement(layer, placement: dict[str, tuple]) -> None:
