@@ -263,10 +263,11 @@ class RealImageWidget(Container):
     def _forget_guess(self, _value=None) -> None:
         """A modality chosen by the user: the guess said of it is no longer true."""
         layer = self.image.value
-        if not self._loading and layer is not None and self.result.value.startswith(
-            f"{layer.name} records no modality"
-        ):
-            self.result.value = ""
+        if self._loading or layer is None:
+            return
+        guess = f"{layer.name} records no modality"
+        said = self.result.value.split("<br>")
+        self.result.value = "<br>".join(line for line in said if not line.startswith(guess))
 
     def _guess_modality(self, layer) -> None:
         """A recording that does not say its modality: fluorescence when it shows bright
@@ -281,18 +282,22 @@ class RealImageWidget(Container):
         )
         if guess is None:  # found as a user: a crop around one fluorescent cell, whose
             # glow is most of it, was taken for phase contrast without a word
-            self.result.value = (
+            said = (
                 f"{layer.name} records no modality, and its look does not settle it (a "
                 f"crop around a few cells, or phase contrast): {self.modality.value} is "
                 "assumed; choose the modality below"
             )
-            return
-        self.modality.value = guess
-        shows = "bright objects on a dark" if guess == "fluorescence" else "dark objects on a light"
-        self.result.value = (
-            f"{layer.name} records no modality: {guess}, as it shows {shows} background "
-            "(change it if wrong)"
-        )
+        else:
+            self.modality.value = guess
+            shows = (
+                "bright objects on a dark" if guess == "fluorescence" else "dark objects on a light"
+            )
+            said = (
+                f"{layer.name} records no modality: {guess}, as it shows {shows} background "
+                "(change it if wrong)"
+            )
+        # after what reading said (a normalised image read as counts)
+        self.result.value = "<br>".join(filter(None, (self.result.value, said)))
 
     def _overlays(self, recording) -> list:
         """Layers that follow ``recording``'s placement: labels over its camera pixels (its
