@@ -669,7 +669,7 @@ def _fit_frames_jointly(
     the tracks as a Cell Tracking Challenge result in ``ctc/01_RES/`` (``mask{TTT}.tif``
     with track ids, ``res_track.txt``; CTC frame ``k`` is the ``k``-th fitted frame)."""
     from napari_symbac.fit import fit_series
-    from napari_symbac.fit.report import UNMEASURED_READ_NOISE
+    from napari_symbac.fit.report import UNMEASURED_READ_NOISE, cells_counted
 
     n_frames = stack.shape[0]
     prepared = [
@@ -729,7 +729,7 @@ def _fit_frames_jointly(
         writers.update({f"frame_{index:04d}/{k}": v for k, v in writers_one.items()})
         carried = f" (from frame {frames[k - 1]}'s cells)" if series.carried[k] else ""
         summaries.append(
-            f"frame {index}: fitted {len(result.cells)} cells{carried}; pixel chi2 "
+            f"frame {index}: fitted {cells_counted(len(result.cells))}{carried}; pixel chi2 "
             f"{result.objective_before:.3g} -> {result.objective_after:.3g}"
             + _problems_said(index, problems)
         )
@@ -903,7 +903,7 @@ def run_fit(args: argparse.Namespace) -> int:
         refuse_constant,
         resolve_pixel_size,
     )
-    from napari_symbac.fit.report import write_atomically
+    from napari_symbac.fit.report import cells_counted, write_atomically
     from napari_symbac.settings import (
         PipelineSettings,
         load_microscope,
@@ -986,7 +986,7 @@ def run_fit(args: argparse.Namespace) -> int:
         )
         writers.update(writers_one)
         summaries.append(
-            f"frame {index}: fitted {len(result.cells)} cells; pixel chi2 "
+            f"frame {index}: fitted {cells_counted(len(result.cells))}; pixel chi2 "
             f"{result.objective_before:.3g} -> {result.objective_after:.3g}"
             + _problems_said(index, problems)
         )

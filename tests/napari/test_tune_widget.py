@@ -14,6 +14,7 @@ from napari_symbac._widgets.simulate import (
     SimulateWidget,
 )
 from napari_symbac._widgets.tune import TuneWidget
+from napari_symbac.fit.report import cells_counted
 
 
 @pytest.fixture
@@ -159,7 +160,7 @@ def test_auto_fit_runs_the_scene_fit_on_the_recording(rendered, qtbot, real_data
     assert tune.terms_table.shape[0] == len(result.terms)
     assert "Fitted in" in tune.status.value
     # what the CLI's report says is said here too: 2 iterations stop at the limit
-    assert f"{len(result.cells)} cells fitted" in tune.status.value
+    assert f"{cells_counted(len(result.cells))} fitted" in tune.status.value
     assert "Problem: round 1: the fit stopped at the iteration limit" in tune.status.value
     assert OPEN_PHASE_NOTE not in tune.status.value  # a trench: the linear kernel is right
     assert tune.fit_button.enabled

@@ -788,7 +788,7 @@ class TuneWidget(Container):
         from napari_symbac.fit import ColonyFit
         from napari_symbac.fit.clipped_background import with_clip
         from napari_symbac.fit.fitted_settings import fitted_render
-        from napari_symbac.fit.report import UNMEASURED_READ_NOISE, fit_problems
+        from napari_symbac.fit.report import UNMEASURED_READ_NOISE, cells_counted, fit_problems
 
         result, clipped = outcome.result, outcome.clipped
         self.fit_result = result
@@ -906,7 +906,7 @@ class TuneWidget(Container):
         if outcome.camera_check is not None and outcome.camera_check[1] is not None:
             problems.append(outcome.camera_check[1])  # as in fit's report.txt
         moves = tuple(getattr(result, "moves", ()) or ())
-        lines = [f"{len(result.cells)} cells fitted"] + [simulated] * bool(simulated)
+        lines = [f"{cells_counted(len(result.cells))} fitted"] + [simulated] * bool(simulated)
         lines += [f"Moves: {'; '.join(moves)}"] if moves else []
         lines += [f"Problem: {problem}" for problem in problems]
         lines += [f"Note: {note}" for note in self._fit_notes]

@@ -22,6 +22,7 @@ __all__ = [
     "OPEN_PHASE_NOTE",
     "UNMEASURED_READ_NOISE",
     "camera_text",
+    "cells_counted",
     "cells_records",
     "colony_noise_text",
     "fit_notes",
@@ -49,6 +50,11 @@ COLONY_NOTE = (
     "pixel, with Gaussian noise of the background's pixel noise (docs/fitting.md)"
 )
 
+
+
+def cells_counted(n: int) -> str:
+    """``"1 cell"``, ``"3 cells"``: a count of cells in a sentence."""
+    return f"{n} cell" if n == 1 else f"{n} cells"
 
 def _plain(value: Any) -> Any:
     if isinstance(value, np.generic):
