@@ -35,6 +35,25 @@ def real_data_dir() -> Path:
     return path
 
 
+@pytest.fixture
+def cell_hyperstack(real_data_dir, tmp_path):
+    """ColiCoords' single-cell crop ``01`` as Fiji's composite hyperstack (axes CYX, 80
+    nm pixels, float32): ``(path, channels)``, channel 0 brightfield, 1 fluorescence."""
+    import numpy as np
+    import tifffile
+
+    folder = real_data_dir / "colicoords" / "01"
+    channels = np.stack(
+        [tifffile.imread(folder / f"{c}.tif") for c in ("brightfield", "fluorescence")]
+    ).astype(np.float32)
+    path = tmp_path / "two_channels.tif"
+    tifffile.imwrite(
+        path, channels, imagej=True, resolution=(1 / 0.08, 1 / 0.08),
+        metadata={"axes": "CYX", "unit": "um", "mode": "composite"},
+    )  # fmt: skip
+    return path, channels
+
+
 @pytest.fixture(autouse=True, scope="session")
 def _quiet_tqdm():
     # tqdm's monitor thread has given intermittent segfaults with Qt threads on CI.

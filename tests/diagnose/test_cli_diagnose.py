@@ -240,35 +240,37 @@ def test_no_cells_in_the_diagnosed_window_names_it_and_the_fix(
     assert not out.exists()
 
 
+def _diagnose_refused(tmp_path, capsys, image, microscope_yaml: str) -> str:
+    """``diagnose`` of ``image`` refused at its base fit's start: exit 2, nothing
+    written; returns the error line."""
+    mic = tmp_path / "mic.yaml"
+    mic.write_text(microscope_yaml)
+    out = tmp_path / "out"
+    code = main(["diagnose", str(image), "--microscope", str(mic), "--out", str(out)])
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert code == 2
+    assert not out.exists()
+    return error
+
+
 def test_a_colony_start_names_diagnoses_own_fix(tmp_path, capsys, real_data_dir):
     """The Omnipose colony Sample000033 (touching cells; 0.118 um/px, 1 um per median
     mask width): the automatic start takes them as wide regions and the base fit stops;
     diagnose takes no masks, so the message asks for a window of separate cells, not for
     the masks the fit's own message would ask for."""
-    mic = tmp_path / "mic.yaml"
-    mic.write_text("pixel_size_um: 0.118\nmodality: phase\n")
-    out = tmp_path / "out"
     image = real_data_dir / "omnipose" / "Sample000033.png"
-    code = main(["diagnose", str(image), "--microscope", str(mic), "--out", str(out)])
-    error = capsys.readouterr().err.strip().splitlines()[-1]
-    assert code == 2
+    error = _diagnose_refused(tmp_path, capsys, image, "pixel_size_um: 0.118\nmodality: phase\n")
     assert "cells the automatic start found are wider than any rod-shaped bacterium" in error
     assert error.endswith("pass --region Y0:Y1,X0:X1 for a window of separate cells")
     assert "instance masks" not in error
-    assert not out.exists()
 
 
 def test_a_crop_around_one_cell_asks_diagnose_for_painted_labels(tmp_path, capsys, real_data_dir):
     """ColiCoords' single-cell crop ``01``: diagnose takes no masks, so its words for a
     start that found no cell name the painted labels it does take."""
-    mic = tmp_path / "mic.yaml"
-    mic.write_text("pixel_size_um: 0.08\nmodality: fluorescence\nwavelength_um: 0.53\n")
-    out = tmp_path / "out"
     image = real_data_dir / "colicoords" / "01" / "fluorescence.tif"
-    code = main(["diagnose", str(image), "--microscope", str(mic), "--out", str(out)])
-    error = capsys.readouterr().err.strip().splitlines()[-1]
-    assert code == 2
+    mic = "pixel_size_um: 0.08\nmodality: fluorescence\nwavelength_um: 0.53\n"
+    error = _diagnose_refused(tmp_path, capsys, image, mic)
     assert "no bright region stands 40 times" in error
     assert error.endswith("paint rough cell and background strokes and pass them as --labels L")
     assert "masks" not in error
-    assert not out.exists()

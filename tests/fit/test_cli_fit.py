@@ -1080,18 +1080,14 @@ def test_a_crop_around_one_cell_asks_for_masks_or_labels(tmp_path, real_data_dir
     assert line.endswith("instance masks or painted labels (--masks M or --labels L)")
 
 
-def test_a_channel_of_a_hyperstack_is_fitted_as_its_own_file(tmp_path, real_data_dir, capsys):
+def test_a_channel_of_a_hyperstack_is_fitted_as_its_own_file(
+    tmp_path, real_data_dir, capsys, cell_hyperstack
+):
     """Found as a user: a brightfield + fluorescence hyperstack (Fiji's composite, axes
     CYX) was read as 2 frames, and `fit` asked for --frames. It now asks for the
     channel, and --channel 1 fits the fluorescence as the fluorescence file alone."""
     folder = real_data_dir / "colicoords" / "01"
-    channels = np.stack([tifffile.imread(folder / f"{c}.tif") for c in ("brightfield",
-                                                                        "fluorescence")])
-    stack = tmp_path / "two_channels.tif"
-    tifffile.imwrite(
-        stack, channels.astype(np.float32), imagej=True, resolution=(1 / 0.08, 1 / 0.08),
-        metadata={"axes": "CYX", "unit": "um", "mode": "composite"},
-    )  # fmt: skip
+    stack, _ = cell_hyperstack
     scope = Microscope(pixel_size_um=0.08, modality="fluorescence", wavelength_um=0.53)
     microscope = save_settings(scope, tmp_path / "microscope.yaml")
     masks = folder / "binary.tif"

@@ -492,29 +492,20 @@ def test_a_folder_typed_in_or_open_is_said(make_napari_viewer, tmp_path):
 
 
 def test_a_hyperstack_of_channels_opens_as_a_layer_per_channel(
-    make_napari_viewer, real_data_dir, tmp_path
+    make_napari_viewer, cell_hyperstack
 ):
     """A brightfield + fluorescence hyperstack (Fiji's composite): *or open*, which reads
     one recording, says so and where the channels open; File > Open with this plugin's
     reader adds a layer per channel, each in micrometres, to choose as the recording."""
-    import tifffile
-
-    folder = real_data_dir / "colicoords" / "01"
-    channels = np.stack([tifffile.imread(folder / f"{c}.tif") for c in ("brightfield",
-                                                                        "fluorescence")])
-    path = tmp_path / "cell.tif"
-    tifffile.imwrite(
-        path, channels.astype(np.float32), imagej=True, resolution=(1 / 0.08, 1 / 0.08),
-        metadata={"axes": "CYX", "unit": "um", "mode": "composite"},
-    )  # fmt: skip
+    path, channels = cell_hyperstack
     viewer = make_napari_viewer()
     widget = RealImageWidget(viewer)
     widget.file.value = path
-    assert "Cannot open cell.tif: cell.tif holds 2 channels" in widget.result.value
+    assert "Cannot open two_channels.tif: two_channels.tif holds 2 channels" in widget.result.value
     assert widget.result.value.endswith("the napari-symbac reader, which adds a layer per channel")
     assert len(viewer.layers) == 0
     layers = viewer.open(path, plugin="napari-symbac")
-    assert [layer.name for layer in layers] == ["cell channel 0", "cell channel 1"]
+    assert [layer.name for layer in layers] == ["two_channels channel 0", "two_channels channel 1"]
     widget.image.value = layers[1]
     np.testing.assert_array_equal(layers[1].data, channels[1])
     assert layers[1].scale[-1] == pytest.approx(0.08, rel=1e-4)

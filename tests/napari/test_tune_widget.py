@@ -210,29 +210,35 @@ def test_auto_fit_of_a_phase_colony_says_what_the_linear_kernel_cannot_do(
     assert any(OPEN_PHASE_NOTE in str(n.message) for n in seen)
 
 
-def test_auto_fit_of_a_whole_colony_without_masks_asks_for_them(rendered, qtbot, real_data_dir):
-    """The whole Sample000033 colony (116 touching cells) with no masks: the automatic
-    start takes the colony as a few wide regions, and Auto-fit stops there at once with
-    where to choose the masks (it ran a long fit that ended with a dozen cells)."""
-    from napari_symbac.io import read_image
-
+def _auto_fit_refused(rendered, qtbot, image, pixel_size_um: float, modality: str) -> str:
+    """Auto-fit of ``image`` (no masks, no strokes) on an agar pad: refused at once, the
+    button enabled again; returns the status."""
     viewer, tune = rendered
     _as_agar_pad(tune)
-    colony = read_image(real_data_dir / "omnipose" / "Sample000033.png").data
     real = viewer.add_image(
-        colony.astype(np.float32), name="colony", scale=(0.118, 0.118),
-        metadata={"pixel_size_um": 0.118, "modality": "phase"},
+        np.asarray(image, np.float32), name="recording", scale=(pixel_size_um,) * 2,
+        metadata={"pixel_size_um": pixel_size_um, "modality": modality},
     )  # fmt: skip
     tune.reference.value = real
     assert tune.masks.value is None
     tune.fit_button.native.click()
     qtbot.waitUntil(lambda: tune.fit_worker is None, timeout=120_000)
     assert tune.fit_result is None
-    status = tune.status.value
-    assert status.startswith("Fit failed: ")
+    assert tune.fit_button.enabled
+    assert tune.status.value.startswith("Fit failed: ")
+    return tune.status.value
+
+
+def test_auto_fit_of_a_whole_colony_without_masks_asks_for_them(rendered, qtbot, real_data_dir):
+    """The whole Sample000033 colony (116 touching cells) with no masks: the automatic
+    start takes the colony as a few wide regions, and Auto-fit stops there at once with
+    where to choose the masks (it ran a long fit that ended with a dozen cells)."""
+    from napari_symbac.io import read_image
+
+    colony = read_image(real_data_dir / "omnipose" / "Sample000033.png").data
+    status = _auto_fit_refused(rendered, qtbot, colony, 0.118, "phase")
     assert "wider than any rod-shaped bacterium" in status
     assert status.endswith("choose it as 'cell masks'")
-    assert tune.fit_button.enabled
 
 
 def test_auto_fit_of_a_crop_around_one_cell_names_both_starts(rendered, qtbot, real_data_dir):
@@ -241,22 +247,11 @@ def test_auto_fit_of_a_crop_around_one_cell_names_both_starts(rendered, qtbot, r
     says at once where to give the masks or the strokes that start it."""
     import tifffile
 
-    viewer, tune = rendered
-    _as_agar_pad(tune)
     crop = tifffile.imread(real_data_dir / "colicoords" / "01" / "fluorescence.tif")
-    real = viewer.add_image(
-        crop, name="crop", scale=(0.08, 0.08),
-        metadata={"pixel_size_um": 0.08, "modality": "fluorescence"},
-    )  # fmt: skip
-    tune.reference.value = real
-    tune.fit_button.native.click()
-    qtbot.waitUntil(lambda: tune.fit_worker is None, timeout=120_000)
-    assert tune.fit_result is None
-    status = tune.status.value
+    status = _auto_fit_refused(rendered, qtbot, crop, 0.08, "fluorescence")
     assert status.startswith("Fit failed: the start found no cells in the image: ")
     assert "the brightest stands 21 times" in status
     assert status.endswith("or paint rough cell and media strokes in the Recording step)")
-    assert tune.fit_button.enabled
 
 
 def test_auto_fit_of_a_phase_colony_with_its_masks_fits_the_halo(rendered, qtbot, real_data_dir):
