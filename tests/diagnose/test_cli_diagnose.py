@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -274,3 +275,32 @@ def test_a_crop_around_one_cell_asks_diagnose_for_painted_labels(tmp_path, capsy
     assert "no bright region stands 40 times" in error
     assert error.endswith("paint rough cell and background strokes and pass them as --labels L")
     assert "masks" not in error
+
+
+def test_candidates_no_held_out_check_reached_are_said_so(tmp_path, capsys, real_data_dir):
+    """Found as a user: ColiCoords' single-cell crop ``01`` with strokes accepted four
+    effects, the most a diagnosis accepts, and its plain envelope stain (score evidence
+    above 100) read "not accepted" as if it had been checked and refused."""
+    import tifffile
+
+    strokes = np.zeros((57, 61), np.uint8)
+    strokes[27:31, 15:45] = 1  # along the cell
+    strokes[2:6, 2:20] = strokes[50:54, 40:58] = 2  # two corners of media
+    labels = tmp_path / "strokes.tif"
+    tifffile.imwrite(labels, strokes)
+    mic = tmp_path / "mic.yaml"
+    mic.write_text("pixel_size_um: 0.08\nmodality: fluorescence\nwavelength_um: 0.53\n")
+    out = tmp_path / "out"
+    image = real_data_dir / "colicoords" / "01" / "fluorescence.tif"
+    args = ["diagnose", str(image), "--microscope", str(mic), "--labels", str(labels)]
+    assert main([*args, "--out", str(out)]) == 0
+    effects = json.loads((out / "diagnosis.json").read_text())["effects"]
+    assert sum(e["accepted"] for e in effects) == 4
+    envelope = next(e for e in effects if e["name"] == "envelope_stain")
+    assert envelope["evidence"] > 3
+    assert not envelope["held_out_tested"]
+    assert all(e["held_out_tested"] for e in effects if e["accepted"])
+    report = (out / "report.txt").read_text()
+    assert re.search(r"envelope_stain +evidence +[0-9.]+  not held-out tested", report)
+    assert "(a diagnosis accepts at most 4 effects: " in report
+    assert "envelope_stain" in report.split("(a diagnosis accepts at most 4 effects: ")[1]

@@ -61,6 +61,7 @@ class EffectResult:
             "signature": self.signature,
             "step": self.step,
             "held_out_step": self.held_out_step,
+            "held_out_tested": self.held_out_step > 0,
             "confirmation": None
             if self.confirmation is None
             else {
@@ -93,6 +94,11 @@ class Diagnosis:
         Standardised residuals ``(T, Y, X)`` of the base and final models.
     threshold
         Evidence (``-log10 p``) a score test needs (Bonferroni over the candidates).
+    skipped
+        Candidates not tested (they need a time series or another modality).
+    max_steps
+        The most effects a diagnosis accepts: candidates above ``threshold`` that were
+        never held-out tested when it stopped there are said so in the report.
     """
 
     base_fit: dict[str, Any]
@@ -104,10 +110,20 @@ class Diagnosis:
     final_model: FittedModel = field(repr=False)
     threshold: float = 0.0
     skipped: tuple[str, ...] = ()
+    max_steps: int = 4
 
     @property
     def accepted(self) -> list[EffectResult]:
         return [e for e in self.effects if e.accepted]
+
+    def _untested(self, effect: EffectResult) -> bool:
+        """A candidate above the evidence needed that no held-out check reached (the
+        diagnosis stopped first, or tried others in its step)."""
+        return (
+            not effect.accepted
+            and effect.held_out_step == 0
+            and effect.evidence >= self.threshold
+        )
 
     def as_dict(self) -> dict[str, Any]:
         """The ``diagnosis.json`` document of issue 11."""
@@ -138,6 +154,8 @@ class Diagnosis:
         lines += ["", f"Effects (score-test evidence needed: {self.threshold:.2f}):"]
         for e in self.effects:
             verdict = "ACCEPTED" if e.accepted else "not accepted"
+            if self._untested(e):  # found as a user: said "not accepted" as if tested
+                verdict = "not held-out tested"
             lines.append(f"  {e.name:28s} evidence {e.evidence:8.2f}  {verdict}")
             earlier = 0 < e.held_out_step != e.step  # its own check refused it again first
             if e.accepted or math.isfinite(e.null_threshold_nats):
@@ -154,6 +172,13 @@ class Diagnosis:
                 lines.append(f"      {e.explanation}")
                 short = {k: v for k, v in e.params.items() if not isinstance(v, (list, dict))}
                 lines.append(f"      parameters: {short}")
+        untested = [e.name for e in self.effects if self._untested(e)]
+        if untested and len(self.accepted) >= self.max_steps:
+            lines.append(
+                f"  (a diagnosis accepts at most {self.max_steps} effects: "
+                f"{', '.join(untested)} stand above the evidence needed but were not "
+                "held-out tested after them)"
+            )
         if not self.accepted:
             lines += [
                 "",
@@ -410,7 +435,16 @@ def _diagnose(
         results.values(), key=lambda e: (not e.accepted, e.step if e.accepted else 0, -e.evidence)
     )
     return Diagnosis(
-        base_summary, final_summary, mismatches, ordered, r0, r1, current, threshold, tuple(skipped)
+        base_summary,
+        final_summary,
+        mismatches,
+        ordered,
+        r0,
+        r1,
+        current,
+        threshold,
+        tuple(skipped),
+        max_steps,
     )
 
 
