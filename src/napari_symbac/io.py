@@ -293,11 +293,20 @@ def read_recording(path: str | Path, channel: int | None = None) -> Recording:
         (or other planes than frames and channels), or has no channel ``channel`` (the
         message names the file).
     """
+    path = Path(path)
+    recording, axes = _read_tiff(path)
+    return dataclasses.replace(
+        recording, data=_one_channel(recording.data, axes, path.name, channel)
+    )
+
+
+def _read_tiff(path: Path) -> tuple[Recording, str]:
+    """The TIFF at ``path`` as read (every channel), and its axes (:func:`_series_axes`);
+    the refusals of :func:`read_recording` but those of its channels and planes."""
     import logging
 
     import tifffile
 
-    path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path} does not exist")
     if not path.name.lower().endswith(_TIFF_SUFFIXES):
@@ -321,13 +330,13 @@ def read_recording(path: str | Path, channel: int | None = None) -> Recording:
         ) from err
     finally:
         log.setLevel(level)
-    data = _one_channel(data, axes, path.name, channel)
     name = path.name
     for suffix in _TIFF_SUFFIXES:
         if name.lower().endswith(suffix):
             name = name[: -len(suffix)]
             break
-    return Recording(data=data, pixel_size_um=pixel, name=name, modality=modality, kind=kind)
+    recording = Recording(data=data, pixel_size_um=pixel, name=name, modality=modality, kind=kind)
+    return recording, axes
 
 
 def as_counts(data: np.ndarray) -> tuple[np.ndarray, CountsMapping | None]:
@@ -469,14 +478,20 @@ def napari_get_reader(path):
 
 def _read_layers(path) -> list[tuple]:
     """The recording's layer; one per channel of a TIFF of several (napari's way: the
-    channel to fit is then chosen as a layer), named ``"NAME channel K"``."""
+    channel to fit is then chosen as a layer), named ``"NAME channel K"``. The file is
+    read once."""
+    path = Path(path)
+    recording, axes = _read_tiff(path)
+
+    def channel(k: int | None) -> Recording:
+        return dataclasses.replace(
+            recording, data=_one_channel(recording.data, axes, path.name, k)
+        )
+
     try:
-        return [_recording_layer(read_recording(path))]
+        return [_recording_layer(channel(None))]
     except ChannelsError as err:
-        return [
-            _recording_layer(read_recording(path, k), f" channel {k}")
-            for k in range(err.n_channels)
-        ]
+        return [_recording_layer(channel(k), f" channel {k}") for k in range(err.n_channels)]
 
 
 def _recording_layer(recording: Recording, suffix: str = "") -> tuple:

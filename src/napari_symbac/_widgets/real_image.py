@@ -181,12 +181,13 @@ class RealImageWidget(Container):
             # negative-valued TIFF opened as recordings, and failed only at Auto-fit)
             check_recording_frame(data if data.ndim == 2 else data[0], path.name)
         except (ValueError, OSError) as err:
-            message = f"Cannot open {path.name}: {err}"
-            if isinstance(err, ChannelsError):  # one recording is one channel
-                message = (
-                    f"Cannot open {path.name}: {err.cause}: open it with File > Open and "
-                    "the napari-symbac reader, which adds a layer per channel"
-                )
+            reason = (  # one recording is one channel
+                f"{err.cause}: open it with File > Open and the napari-symbac reader, "
+                "which adds a layer per channel"
+                if isinstance(err, ChannelsError)
+                else err
+            )
+            message = f"Cannot open {path.name}: {reason}"
             self.result.value = message
             notify_warning(message)
             return
