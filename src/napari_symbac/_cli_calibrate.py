@@ -79,15 +79,17 @@ def _settings_notes(notes: tuple[str, ...], mapping: CountsMapping | None) -> li
 
 def _refuse_a_trench(image: np.ndarray, modality: str, path: str) -> None:
     """calibrate lays a field out as an agar pad; a mother-machine trench (a phase image
-    at most :data:`~napari_symbac.fit.preflight.TRENCH_MAX_WIDTH_PX` wide, the fit's own
-    rule) is refused with the commands that match one (found as a user: DeLTA's trench
-    became a 2 x 17 um pad, and 3 of 4 images held no cell)."""
+    at most :data:`~napari_symbac.fit.preflight.TRENCH_MAX_WIDTH_PX` wide and twice as
+    tall, the fit's own rule, :func:`~napari_symbac.fit.preflight.default_geometry`) is
+    refused with the commands that match one (found as a user: DeLTA's trench became a
+    2 x 17 um pad, and 3 of 4 images held no cell)."""
     from napari_symbac.fit.preflight import default_geometry
 
-    if default_geometry(image.shape[-1], modality) == "trench":
+    if default_geometry(image.shape, modality) == "trench":
         name = Path(path).name
         raise ValueError(
-            f"IMAGE {name} is {image.shape[-1]} px wide: a mother-machine trench, which "
+            f"IMAGE {name} is {image.shape[-2]} x {image.shape[-1]} px (rows x columns), "
+            "narrow and tall: a mother-machine trench, which "
             "calibrate does not lay out (it matches fields: agar pads and colonies). Fit the "
             f"trench and export from its settings: `napari-symbac fit {name} --microscope "
             "M.yaml --out FIT`, then `napari-symbac export --config FIT/settings.yaml --out "

@@ -949,7 +949,7 @@ def run_fit(args: argparse.Namespace) -> int:
             print(f"napari-symbac fit: warning: {problem}", file=sys.stderr)
         if args.geometry is None:
             configured = (keys.get("simulation", {}) or {}).get("geometry")
-            args.geometry = default_geometry(stack.shape[-1], microscope.modality, configured)
+            args.geometry = default_geometry(stack.shape, microscope.modality, configured)
         elif args.geometry == "trench" and microscope.modality == "fluorescence":
             raise ValueError(
                 "a fluorescence image shows no trench walls to find (the PDMS is as dark as "

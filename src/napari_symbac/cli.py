@@ -423,7 +423,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                     "another window, --region full the whole frame",
                     file=sys.stderr,
                 )
-        named = args.geometry or default_geometry(stack.shape[-1], microscope.modality)
+        named = args.geometry or default_geometry(stack.shape, microscope.modality)
         geometry = "open" if named == "field" else named  # `fit`'s rule and words
     start = RenderSettings()
     if microscope.modality == "fluorescence":

@@ -288,7 +288,7 @@ def test_calibrate_refuses_a_trench_and_names_fit_and_export(real_data_dir, tmp_
                  "--out", str(out)])  # fmt: skip
     err = capsys.readouterr().err
     assert code == 2
-    assert "is 32 px wide: a mother-machine trench" in err
+    assert "is 256 x 32 px (rows x columns), narrow and tall: a mother-machine trench" in err
     assert "napari-symbac export --config FIT/settings.yaml" in err
     assert not out.exists()
 

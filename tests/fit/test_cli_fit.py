@@ -700,21 +700,24 @@ def test_refuses_a_fluorescence_trench_it_cannot_place(tmp_path, real_data_dir, 
 
 
 @pytest.mark.parametrize(
-    ("configured", "width_px", "modality", "expected"),
+    ("configured", "shape_px", "modality", "expected"),
     [
-        (None, 46, "phase", "trench"),
-        (None, 512, "phase", "field"),
-        (None, 46, "fluorescence", "field"),
-        ("agar_pad", 46, "phase", "field"),
-        ("trench", 512, "phase", "trench"),
-        ("chamber", 512, "phase", "trench"),
-        ("trench", 46, "fluorescence", "field"),
+        (None, (256, 46), "phase", "trench"),
+        (None, (3, 256, 32), "phase", "trench"),
+        (None, (512, 512), "phase", "field"),
+        (None, (57, 61), "phase", "field"),  # a crop around one cell on a pad
+        (None, (91, 46), "phase", "field"),
+        (None, (256, 46), "fluorescence", "field"),
+        ("agar_pad", (256, 46), "phase", "field"),
+        ("trench", (512, 512), "phase", "trench"),
+        ("chamber", (512, 512), "phase", "trench"),
+        ("trench", (256, 46), "fluorescence", "field"),
     ],
 )
-def test_default_geometry(configured, width_px, modality, expected):
+def test_default_geometry(configured, shape_px, modality, expected):
     from napari_symbac.fit.preflight import default_geometry
 
-    assert default_geometry(width_px, modality, configured) == expected
+    assert default_geometry(shape_px, modality, configured) == expected
 
 
 def test_refuses_masks_whose_cells_contradict_the_modality(tmp_path, real_data_dir, capsys):

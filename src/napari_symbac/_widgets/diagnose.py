@@ -232,7 +232,7 @@ class DiagnoseWidget(Container):
         # as the CLI: a narrow phase field is a trench; fluorescence shows no walls
         from napari_symbac.fit.preflight import default_geometry
 
-        named = default_geometry(frame.shape[-1], microscope.modality)
+        named = default_geometry(frame.shape, microscope.modality)
         geometry = "open" if named == "field" else named
         return frame, labels, microscope, render, camera, geometry, region
 

@@ -141,8 +141,8 @@ class SimulateWidget(Container):
     def _follow_recording(self, layer=None) -> None:
         """A newly chosen recording sets the geometry as ``napari-symbac fit`` would
         choose it for that image: a trench of the recording's size when it is a phase
-        image at most :data:`~napari_symbac.fit.preflight.TRENCH_MAX_WIDTH_PX` wide
-        (:meth:`_size_trench`), else an agar pad (found
+        image at most :data:`~napari_symbac.fit.preflight.TRENCH_MAX_WIDTH_PX` wide and
+        twice as tall (:meth:`_size_trench`), else an agar pad (found
         as a user: an open fluorescence field was simulated, and Auto-fitted, as a
         trench), the pad the size of the recording (a 500 px pad beside a 512 px field
         left a strip of the recording uncovered). The form can still be changed after."""
@@ -154,7 +154,7 @@ class SimulateWidget(Container):
         self._followed = _followed_key(layer)
         microscope = recording_microscope(layer, self.pipeline.microscope)
         rows, cols = (int(n) for n in layer.data.shape[-2:])
-        field = default_geometry(cols, microscope.modality) == "field"
+        field = default_geometry((rows, cols), microscope.modality) == "field"
         self.form.geometry.value = "agar_pad" if field else "trench"
         if not field and hasattr(self.form, "trench"):
             self._size_trench(rows, cols, microscope.pixel_size_um)

@@ -20,6 +20,7 @@ __all__ = [
     "CAMERA_PIXEL_UM",
     "PLAUSIBLE_PIXEL_UM",
     "TRENCH_MAX_WIDTH_PX",
+    "TRENCH_MIN_ASPECT",
     "camera_pixel_problem",
     "check_class_labels",
     "check_fit_image",
@@ -247,23 +248,33 @@ def check_instance_masks(masks: np.ndarray, shape: tuple[int, ...], name: str = 
         raise ValueError(f"{name} has no background (0) pixel: the fit needs some background")
 
 
-#: Frames at most this wide (pixels) are taken for a mother-machine trench.
+#: Frames at most this wide (pixels) are taken for a mother-machine trench...
 TRENCH_MAX_WIDTH_PX = 100
+#: ... when they are also at least this many times as tall as wide: a trench image runs
+#: along the trench (the real ones here: 256 x 46 and 256 x 32 px). Found as a user: a
+#: 57 x 61 px crop around one cell on an agar pad was fitted as a trench, walls and all.
+TRENCH_MIN_ASPECT = 2.0
 
 
-def default_geometry(width_px: int, modality: str, configured: str | None = None) -> str:
+def default_geometry(
+    shape_px: tuple[int, ...], modality: str, configured: str | None = None
+) -> str:
     """The fit's geometry, ``trench`` or ``field``, when the user names none.
 
-    ``field`` when the configured simulation is an agar pad, when the image is wider than
-    :data:`TRENCH_MAX_WIDTH_PX` or when it is fluorescence (no walls to find); else
-    ``trench``. A configured trench or chamber keeps ``trench`` for phase. Used alike by
-    ``napari-symbac fit``, ``diagnose`` and the Simulate dock.
+    ``field`` when the configured simulation is an agar pad, when it is fluorescence (no
+    walls to find), or when the frame (the last two axes of ``shape_px``) is wider than
+    :data:`TRENCH_MAX_WIDTH_PX` or less than :data:`TRENCH_MIN_ASPECT` times as tall as
+    wide; else ``trench``. A configured trench or chamber keeps ``trench`` for phase.
+    Used alike by ``napari-symbac fit``, ``diagnose``, ``calibrate`` and the Simulate and
+    Diagnose docks.
     """
     if configured == "agar_pad" or modality == "fluorescence":
         return "field"
     if configured in ("trench", "chamber"):
         return "trench"
-    return "trench" if width_px <= TRENCH_MAX_WIDTH_PX else "field"
+    height_px, width_px = shape_px[-2:]
+    narrow = width_px <= TRENCH_MAX_WIDTH_PX and height_px >= TRENCH_MIN_ASPECT * width_px
+    return "trench" if narrow else "field"
 
 
 #: Pixel sizes (um, in the sample plane) of real bacterial micrographs: 20 nm (super-
