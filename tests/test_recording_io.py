@@ -32,6 +32,41 @@ def test_ome_pixel_size_in_nm(tmp_path):
     assert read_recording(path).pixel_size_um == pytest.approx(0.065)
 
 
+@pytest.mark.parametrize(
+    ("unit", "pixel_size_um"),
+    [("\\u00B5m", 0.08), ("micron", 0.08), ("microns", 0.08), ("nm", 8e-5), ("inch", None)],
+)
+def test_imagej_units_as_files_spell_them(tmp_path, unit, pixel_size_um):
+    """ImageJ's escaped micro sign, Micro-Manager's "micron(s)", nm; an inch (a scanner's
+    default) is no microscope's pixel."""
+    path = tmp_path / "spelt.tif"
+    tifffile.imwrite(
+        path,
+        np.zeros((16, 16), np.uint16),
+        imagej=True,
+        resolution=(1 / 0.08, 1 / 0.08),
+        metadata={"unit": unit},
+    )
+    read = read_recording(path).pixel_size_um
+    assert read == (None if pixel_size_um is None else pytest.approx(pixel_size_um, rel=1e-4))
+
+
+@pytest.mark.parametrize(
+    ("unit", "pixel_size_um"), [("\u03bcm", 0.065), ("\u00b5m", 0.065), ("pixel", None)]
+)
+def test_ome_units_as_files_spell_them(tmp_path, unit, pixel_size_um):
+    """The Greek mu (U+03BC) reads as the micro sign OME's schema names; a unit that is
+    no length gives no pixel size (it was read as um)."""
+    path = tmp_path / "spelt.ome.tif"
+    tifffile.imwrite(
+        path,
+        np.zeros((16, 16), np.uint16),
+        metadata={"PhysicalSizeX": 0.065, "PhysicalSizeXUnit": unit},
+    )
+    read = read_recording(path).pixel_size_um
+    assert read == (None if pixel_size_um is None else pytest.approx(pixel_size_um))
+
+
 def test_plain_tiff_has_no_pixel_size(tmp_path):
     path = tmp_path / "plain.tiff"
     tifffile.imwrite(path, np.zeros((16, 16), np.float32))

@@ -38,7 +38,41 @@ AXIS_LABELS = ("frame", "y", "x")
 
 _TIFF_SUFFIXES = (".tif", ".tiff", ".ome.tif", ".ome.tiff")
 _PNG_SUFFIXES = (".png",)
-_UNIT_TO_UM = {"um": 1.0, "µm": 1.0, "micron": 1.0, "\\u00B5m": 1.0, "nm": 1e-3, "mm": 1e3}
+#: Length units as microscopy files spell them (ImageJ, OME, vendors), in um: the micro
+#: sign (U+00B5), the Greek mu (U+03BC) and ImageJ's escaped micro sign alike.
+_UNIT_TO_UM = {
+    **dict.fromkeys(("um", "µm", "μm", "\\u00b5m", "micron", "microns"), 1.0),
+    **dict.fromkeys(("micrometer", "micrometre", "micrometers", "micrometres"), 1.0),
+    **dict.fromkeys(("nm", "nanometer", "nanometre", "nanometers", "nanometres"), 1e-3),
+    **dict.fromkeys(("mm", "millimeter", "millimetre"), 1e3),
+    **dict.fromkeys(("cm", "centimeter", "centimetre"), 1e4),
+    **dict.fromkeys(("å", "angstrom", "ångström"), 1e-4),
+}
+
+
+def unit_um(unit: str) -> float | None:
+    """Micrometres in one ``unit`` of length as a file spells it, or None for a unit
+    that is no length a microscope image is measured in (``pixel``, ``inch``, unknown).
+
+    Before, an OME unit the reader did not know was read as um, and ImageJ's "microns"
+    or "micrometer" not at all. napari's units (pint's ``nanometer``) read alike.
+    """
+    return _UNIT_TO_UM.get(str(unit).strip().lower())
+
+
+def scale_um(scale: float, unit: object) -> float | None:
+    """A layer's pixel ``scale`` in um: converted from its ``unit`` of length; a scale in
+    napari's default unit, the pixel, is taken for micrometres, as readers that set no
+    units mean it; None for a unit that is no length (seconds).
+
+    Found as a user: an image opened by another reader in nanometres, scale 65, was
+    taken for 65 um pixels.
+    """
+    name = str(unit)
+    if name == "pixel":
+        return float(scale)
+    factor = unit_um(name)
+    return None if factor is None else float(scale) * factor
 
 
 @dataclass(frozen=True)
@@ -131,8 +165,9 @@ def _pixel_size_um(tif) -> float | None:
 
         match = re.search(r'PhysicalSizeX="([0-9.eE+-]+)"', tif.ome_metadata)
         unit = re.search(r'PhysicalSizeXUnit="([^"]+)"', tif.ome_metadata)
-        if match:
-            return float(match.group(1)) * _UNIT_TO_UM.get(unit.group(1) if unit else "um", 1.0)
+        factor = unit_um(unit.group(1)) if unit else 1.0  # OME's default unit is um
+        if match and factor is not None:
+            return float(match.group(1)) * factor
     page = tif.pages[0]
     tag = page.tags.get("XResolution")
     if tag is None:
@@ -141,9 +176,9 @@ def _pixel_size_um(tif) -> float | None:
     if not numerator:
         return None
     pixels_per_unit = numerator / denominator
-    unit = (tif.imagej_metadata or {}).get("unit", "")
-    if tif.is_imagej and unit in _UNIT_TO_UM:
-        return _UNIT_TO_UM[unit] / pixels_per_unit
+    factor = unit_um((tif.imagej_metadata or {}).get("unit", ""))
+    if tif.is_imagej and factor is not None:
+        return factor / pixels_per_unit
     resolution_unit = page.tags.get("ResolutionUnit")
     if resolution_unit is not None and int(resolution_unit.value) == 3:  # centimetre
         return 1e4 / pixels_per_unit
@@ -512,13 +547,14 @@ def _recording_layer(recording: Recording, suffix: str = "") -> tuple:
 
 
 def _layer_pixel_size_um(meta: dict) -> float:
-    """Pixel size of a layer: its ``pixel_size_um`` metadata, else its scale, else 1."""
+    """Pixel size of a layer: its ``pixel_size_um`` metadata, else its scale in um
+    (:func:`scale_um`), else 1."""
     recorded = (meta.get("metadata") or {}).get("pixel_size_um")
     if isinstance(recorded, (int, float)) and recorded > 0:
         return float(recorded)
-    scale = meta.get("scale")
+    scale, units = meta.get("scale"), meta.get("units") or ("pixel",)
     if scale is not None and len(scale) >= 2 and float(scale[-1]) > 0:
-        return float(scale[-1])
+        return scale_um(float(scale[-1]), units[-1]) or 1.0
     return 1.0
 
 

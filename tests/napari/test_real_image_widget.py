@@ -510,3 +510,18 @@ def test_a_hyperstack_of_channels_opens_as_a_layer_per_channel(
     np.testing.assert_array_equal(layers[1].data, channels[1])
     assert layers[1].scale[-1] == pytest.approx(0.08, rel=1e-4)
     assert "Cannot open" not in widget.result.value
+
+
+def test_a_layer_scaled_in_nanometres_by_another_reader_is_read_in_um(
+    make_napari_viewer, real_data_dir
+):
+    """A layer that another reader scaled in nanometres (scale 65, units nm) was taken
+    for 65 um pixels and warned implausible; its unit is now converted."""
+    source = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")
+    widget = _docked(make_napari_viewer)
+    layer = widget.viewer.add_image(source, name="nd2", scale=(65, 65), units=("nm", "nm"))
+    widget.image.value = layer
+    assert widget.pixel_size.value == pytest.approx(0.065)
+    assert widget.warning.value == ""
+    assert tuple(layer.scale) == pytest.approx((0.065, 0.065))
+    assert [str(unit) for unit in layer.units] == ["micrometer", "micrometer"]

@@ -62,6 +62,17 @@ def in_pixel_units(layer: Any) -> bool:
     return all(str(unit) == "pixel" for unit in layer.units[-2:])
 
 
+def scale_pixel_um(layer: Any) -> float | None:
+    """The pixel size, in um, that a layer's own scale gives (:func:`~napari_symbac.io.
+    scale_um`: its unit of length converted, napari's pixel unit taken for um), or None
+    for an unscaled layer or a scale that is no length."""
+    from napari_symbac.io import scale_um
+
+    if float(layer.scale[-1]) == 1 and in_pixel_units(layer):
+        return None
+    return scale_um(float(layer.scale[-1]), layer.units[-1])
+
+
 def check_recording_frame(frame: Any, name: str) -> None:
     """Refuse, as ``napari-symbac fit`` does, a frame the fit cannot use: negative or
     normalised values (:func:`~napari_symbac.fit.preflight.check_fit_image`) or a

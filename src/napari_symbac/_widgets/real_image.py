@@ -20,6 +20,7 @@ from napari_symbac._widgets._recording import (
     in_pixel_units,
     layer_axes,
     pixel_size_problem,
+    scale_pixel_um,
 )
 from napari_symbac.fit import CLASS_VALUES, class_statistics
 from napari_symbac.fit.preflight import camera_pixel_problem
@@ -241,8 +242,8 @@ class RealImageWidget(Container):
         mapping = meta.get("counts_mapping")
         self.result.value = f"{layer.name}: {mapping.note}" if mapping is not None else ""
         pixel = meta.get("pixel_size_um")
-        if not pixel and layer.scale[-1] != 1:  # a layer already scaled to micrometres
-            pixel = float(layer.scale[-1])
+        if not pixel:  # a layer already scaled by its reader
+            pixel = scale_pixel_um(layer)
         self._loading = True
         try:
             if isinstance(meta.get("microscope"), Microscope):
