@@ -73,6 +73,12 @@ def _output_folder(path: str | Path, option: str = "--out", *, staged: bool = Fa
     return check_output_folder(path, option, staged=staged)
 
 
+#: Effects a diagnosis accepts at most unless ``--max-effects`` says otherwise: the
+#: ``max_steps`` of :func:`napari_symbac.diagnose.diagnose` (not imported here, so that
+#: ``--help`` stays fast). Found as a user: on ColiCoords' crop 01 the envelope stain
+#: (evidence 133) was never held-out tested after four effects, with no way to ask.
+DIAGNOSE_MAX_EFFECTS = 4
+
 #: Simulated plus rendered frames above which a run needs ``--yes``.
 LARGE_RUN_FRAMES = 100_000
 #: Frames per second assumed for the estimate in the ``--yes`` message (simulation and
@@ -467,7 +473,13 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     update, bar = _tqdm_progress("diagnose", unit="held-out checks", bound=True)
     with timer.step("diagnose"):
         design = build_design(scenes, microscope, render, camera)
-        result = diagnose(stack, design, rng=np.random.default_rng(args.seed), progress=update)
+        result = diagnose(
+            stack,
+            design,
+            max_steps=args.max_effects,
+            rng=np.random.default_rng(args.seed),
+            progress=update,
+        )
     bar.close()
     remove_earlier_run(earlier)
     out.mkdir(parents=True, exist_ok=True)
@@ -900,8 +912,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--geometry",
         choices=["trench", "field"],
         help="mother-machine trench or open field (default: field for fluorescence, for an "
-        "image wider than 100 px or when the config's simulation geometry is agar_pad; "
-        "else trench)",
+        "image wider than 100 px or less than twice as tall as wide, or when the config's "
+        "simulation geometry is agar_pad; else trench)",
     )
     fit.add_argument(
         "--frames",
@@ -1030,13 +1042,22 @@ def build_parser() -> argparse.ArgumentParser:
         "--geometry",
         choices=("trench", "field", "open"),
         help="mother-machine trench or open field ('open' is the same as 'field'; default: "
-        "field for fluorescence or an image wider than 100 px, else trench)",
+        "field for fluorescence or an image wider than 100 px or less than twice as tall as "
+        "wide, else trench)",
     )
     diag.add_argument(
         "--region",
         metavar="Y0:Y1,X0:X1|full|centre",
         help="the window of each frame to diagnose, in pixels (default, centre: the whole "
         "frame up to 256 x 256 pixels, else its centre window of that many pixels)",
+    )
+    diag.add_argument(
+        "--max-effects",
+        type=_at_least_one,
+        default=DIAGNOSE_MAX_EFFECTS,
+        metavar="N",
+        help="accept at most N effects (default: %(default)s); report.txt names the "
+        "candidates left untested when a diagnosis stops there",
     )
     diag.add_argument("--seed", type=_seed, default=0, help="bootstrap seed (default: 0)")
     diag.add_argument("--out", required=True, help="output folder")

@@ -304,3 +304,10 @@ def test_candidates_no_held_out_check_reached_are_said_so(tmp_path, capsys, real
     assert re.search(r"envelope_stain +evidence +[0-9.]+  not held-out tested", report)
     assert "(a diagnosis accepts at most 4 effects: " in report
     assert "envelope_stain" in report.split("(a diagnosis accepts at most 4 effects: ")[1]
+    assert "--max-effects N" in report
+    # raised, the stain is checked after them (and its held-out gain decides)
+    raised = tmp_path / "raised"
+    assert main([*args, "--max-effects", "6", "--out", str(raised)]) == 0
+    effects = json.loads((raised / "diagnosis.json").read_text())["effects"]
+    assert next(e for e in effects if e["name"] == "envelope_stain")["held_out_tested"]
+    assert "a diagnosis accepts at most" not in (raised / "report.txt").read_text()

@@ -114,6 +114,12 @@ def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
     widget.run_button.clicked.emit()
     qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
     assert widget.report.value == text
+    # the most effects accepted is the dock's choice, as diagnose --max-effects
+    widget.max_effects.value = 1
+    widget.run_button.clicked.emit()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
+    assert widget.result.max_steps == 1
+    assert len(widget.result.accepted) == 1
 
 
 def test_cancel_adds_nothing(diagnose_widget, qtbot):

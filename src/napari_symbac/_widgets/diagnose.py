@@ -128,6 +128,16 @@ class DiagnoseWidget(Container):
             max=2**31 - 1,
             tooltip="Seed of the bootstrap: same seed, same diagnosis.",
         )
+        self.max_effects = SpinBox(
+            name="max_effects",
+            label="at most (effects)",
+            value=4,
+            min=1,
+            max=20,
+            tooltip="Effects a diagnosis accepts at most, as napari-symbac diagnose "
+            "--max-effects; the report names the candidates left untested when it stops "
+            "there.",
+        )
         self.run_button = PushButton(
             name="diagnose",
             text="Diagnose",
@@ -146,6 +156,7 @@ class DiagnoseWidget(Container):
                 self.reference,
                 self.window,
                 self.seed,
+                self.max_effects,
                 self.run_button,
                 self.cancel_button,
                 self.status,
@@ -253,6 +264,7 @@ class DiagnoseWidget(Container):
             return
         cancelled = threading.Event()
         seed, candidates, n_bootstrap = self.seed.value, self.candidates, self.n_bootstrap
+        max_effects = self.max_effects.value
         base_simulation = self._simulation_to_export()
         centre = names_centre(self.window.value)
 
@@ -289,6 +301,7 @@ class DiagnoseWidget(Container):
                 design,
                 candidates=candidates,
                 n_bootstrap=n_bootstrap,
+                max_steps=max_effects,
                 rng=np.random.default_rng(seed),
                 progress=progress,
                 cancel=cancel,

@@ -174,10 +174,12 @@ class Diagnosis:
                 lines.append(f"      parameters: {short}")
         untested = [e.name for e in self.effects if self._untested(e)]
         if untested and len(self.accepted) >= self.max_steps:
+            most = f"{self.max_steps} effect" + ("" if self.max_steps == 1 else "s")
             lines.append(
-                f"  (a diagnosis accepts at most {self.max_steps} effects: "
+                f"  (a diagnosis accepts at most {most}: "
                 f"{', '.join(untested)} stand above the evidence needed but were not "
-                "held-out tested after them)"
+                "held-out tested after them; --max-effects N, or the Diagnose dock's 'at "
+                "most (effects)', raises it)"
             )
         if not self.accepted:
             lines += [
