@@ -233,12 +233,13 @@ def test_backend_choice_renders_on_torch(widget, qtbot):
 )
 def test_a_chosen_recording_sets_the_geometry_as_fit_would(widget, width_px, modality, geometry):
     """Found as a user: an open fluorescence field was simulated, and so Auto-fitted, as a
-    trench until the user found the geometry in the form."""
+    trench until the user found the geometry in the form. (A trench image is also at
+    least twice as tall as wide: the 57 x 61 px crop's case is in the test below.)"""
     import numpy as np
 
     widget.form.geometry.value = "chamber"
     widget.viewer.add_image(
-        np.zeros((64, width_px), np.uint16),
+        np.zeros((128, width_px), np.uint16),
         name="recording",
         metadata={"pixel_size_um": 0.1, "modality": modality},
     )
@@ -246,7 +247,7 @@ def test_a_chosen_recording_sets_the_geometry_as_fit_would(widget, width_px, mod
     assert widget.form.geometry.value == geometry
     if geometry == "agar_pad":  # the pad the recording's size (a 512 px field had 500 px)
         assert widget.form.agar_pad.field_width_um.value == pytest.approx(width_px * 0.1)
-        assert widget.form.agar_pad.field_height_um.value == pytest.approx(64 * 0.1)
+        assert widget.form.agar_pad.field_height_um.value == pytest.approx(128 * 0.1)
         assert widget.pipeline_settings().simulation.agar_pad.field_width_um == pytest.approx(
             width_px * 0.1
         )
