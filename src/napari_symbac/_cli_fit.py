@@ -101,14 +101,16 @@ _FIT_OUTPUTS = frozenset(
 )  # fmt: skip
 
 
-def _polarity_said(polarity: str) -> str:
+def _polarity_said(polarity: str, modality: str = "phase") -> str:
     """What the image shows, for report.txt's modality line (found as a user: "image
     polarity: unclear" for a plain phase trench read as the tool doubting it)."""
     if polarity == "unclear":
-        return (
-            "image polarity: both darker and brighter than its background, as phase "
-            "contrast's halos are"
+        look = (
+            "bright-field cells out of focus are (dark rims, bright centres)"
+            if modality == "brightfield"
+            else "phase contrast's halos are"
         )
+        return f"image polarity: both darker and brighter than its background, as {look}"
     return f"image polarity: {polarity}"
 
 
@@ -531,7 +533,7 @@ def _outputs_one(
     }
     facts = {
         "image": f"{args.image} (frame {index}, {frame.shape[0]} x {frame.shape[1]} px)",
-        "modality": f"{microscope.modality} ({_polarity_said(polarity)})",
+        "modality": f"{microscope.modality} ({_polarity_said(polarity, microscope.modality)})",
         "geometry": args.geometry + (
             f" (closed end: {_closed_end_said(result, options)})" if geometry == "trench" else ""
         ),
@@ -718,10 +720,11 @@ def _fit_frames_jointly(
     lineage = series.lineage
     for k, (index, ready, result) in enumerate(zip(frames, prepared, series.frames, strict=True)):
         if camera is None:
-            measured = [UNMEASURED_READ_NOISE] if series.camera.dark_noise_e == 0 else []
-            ready = dataclasses.replace(
-                ready, camera=series.camera, notes=[*ready.notes, *measured]
-            )
+            # the pooled frames' camera, or, where their photon transfer measured none (a
+            # normalised series: found as a user, a traceback), this frame's own
+            used = series.camera if series.camera is not None else result.camera
+            measured = [UNMEASURED_READ_NOISE] if used.dark_noise_e == 0 else []
+            ready = dataclasses.replace(ready, camera=used, notes=[*ready.notes, *measured])
         writers_one, _, problems = _outputs_one(
             args, stack[index], index, ready, result, microscope, pixel_note, base, keys,
             track_ids=lineage.track_ids[k],

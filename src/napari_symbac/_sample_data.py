@@ -99,8 +99,8 @@ def colicoords_field() -> list[tuple]:
     masks = read_recording(folder / "colicoords_binary.tif")
     axes = micrometre_axes(brightfield.pixel_size_um, 2)
     # the fluorescence first, with its modality: the Recording dock takes the first image
-    # (found as a user: it took the brightfield, which the model does not image, and
-    # called it phase contrast with a Ph3 condenser)
+    # (found as a user: it took the brightfield and called it phase contrast with a Ph3
+    # condenser); the brightfield is marked as such, for a user who chooses it
     return [
         (
             fluorescence.data,
@@ -117,7 +117,15 @@ def colicoords_field() -> list[tuple]:
         ),
         (
             brightfield.data,
-            {"name": "ColiCoords brightfield", **axes, "visible": False},
+            {
+                "name": "ColiCoords brightfield",
+                **axes,
+                "visible": False,
+                "metadata": {
+                    "pixel_size_um": brightfield.pixel_size_um,
+                    "modality": "brightfield",
+                },
+            },
             "image",
         ),
         (masks.data, {"name": "ColiCoords cells", **axes, "opacity": 0.4}, "labels"),

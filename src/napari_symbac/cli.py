@@ -348,7 +348,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     )
     from napari_symbac.diagnose.config import load_microscope_file
     from napari_symbac.diagnose.figures import write_figures
-    from napari_symbac.diagnose.model import build_design
+    from napari_symbac.diagnose.model import build_design, refuse_undiagnosable
     from napari_symbac.diagnose.region import (
         default_region,
         names_centre,
@@ -383,6 +383,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         recording = read_recording(args.image, channel=args.channel)
         mapping = recording.counts_mapping  # a normalised image read as counts, or None
         config = load_microscope_file(args.microscope)
+        refuse_undiagnosable(config.microscope.modality)  # before the base fit
         for note in config.notes:
             print(f"note: {note}", file=sys.stderr)
         microscope, pixel_note = resolve_pixel_size(
@@ -905,7 +906,7 @@ def build_parser() -> argparse.ArgumentParser:
     start.add_argument("--masks", help="instance masks TIFF (0 background, 1..N cells)")
     fit.add_argument(
         "--modality",
-        choices=["phase", "fluorescence"],
+        choices=["phase", "fluorescence", "brightfield"],
         help="default: the TIFF's OME metadata, else the microscope file",
     )
     fit.add_argument(
@@ -1003,7 +1004,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cal.add_argument(
         "--modality",
-        choices=["phase", "fluorescence"],
+        choices=["phase", "fluorescence", "brightfield"],
         help="the recording's contrast (default: the image file's, else the microscope file's)",
     )
     cal.add_argument("--camera", help="Camera YAML/JSON (default: measured from the image)")

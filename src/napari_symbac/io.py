@@ -185,7 +185,7 @@ def _pixel_size_um(tif) -> float | None:
     return None
 
 
-_CONTRAST_METHODS = {"Phase": "phase", "Fluorescence": "fluorescence"}
+_CONTRAST_METHODS = {"Phase": "phase", "Fluorescence": "fluorescence", "Brightfield": "brightfield"}
 
 
 def _modality(tif) -> str | None:

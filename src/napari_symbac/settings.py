@@ -55,7 +55,7 @@ __all__ = [
 
 GrowthModel = Literal["sizer", "adder", "timer"]
 GeometryKind = Literal["trench", "chamber", "agar_pad", "outline"]
-Modality = Literal["phase", "fluorescence"]
+Modality = Literal["phase", "fluorescence", "brightfield"]
 NoiseModel = Literal["camera", "gaussian", "none"]
 ClosedEnd = Literal["square", "round"]
 
@@ -556,7 +556,9 @@ class Microscope:
     condenser
         Phase-contrast condenser, one of :data:`CONDENSERS`.
     modality
-        ``"phase"`` or ``"fluorescence"``.
+        ``"phase"`` (phase contrast), ``"fluorescence"`` or ``"brightfield"``
+        (transmitted light without a phase ring: absorption, and the cells' lens effect
+        out of focus, ``RenderSettings.defocus_contrast_um2``).
     """
 
     pixel_size_um: float = 0.065
@@ -680,6 +682,15 @@ class RenderSettings:
         with ``depth_layers > 0``: the focal plane's distance from the cells'
         mid-plane (the image is the same at ``+z`` and ``-z``: a cell is symmetric
         about its mid-plane and the index-matched PSF about its focus).
+    defocus_contrast_um2
+        Bright field: the weight ``kappa`` (um^2) of the transport-of-intensity term of
+        the kernel, ``h = k + kappa laplacian(k)`` (``k`` the Airy PSF of eq. 14's
+        defocus): a cell's lens effect seen out of focus, a bright centre inside a dark
+        rim or the reverse, by the sign of the focus offset; 0 = in focus (absorption
+        only). For a cell of one material it is ``-z lambda phi / (2 pi n alpha)``, ``z``
+        the focus offset, ``phi`` and ``alpha`` its phase delay and absorbed fraction,
+        so the sign follows the focus; docs/physics.md. Not used in phase contrast or
+        fluorescence.
     noise_model
         ``"camera"`` (EMVA1288, eq. 17), ``"gaussian"`` or ``"none"``.
     gaussian_noise_sd_adu
@@ -754,6 +765,7 @@ class RenderSettings:
     plate_phase_rad: float = 1.5707963267948966
     source_points: int = 24
     focus_offset_um: float = 0.0
+    defocus_contrast_um2: float = 0.0
     noise_model: NoiseModel = "camera"
     gaussian_noise_sd_adu: float = 20.0
     texture_amplitude: float = 0.0
@@ -822,6 +834,12 @@ class RenderSettings:
         _require(
             isinstance(self.focus_offset_um, (int, float)) and math.isfinite(self.focus_offset_um),
             f"RenderSettings.focus_offset_um must be a finite number, got {self.focus_offset_um!r}",
+        )
+        _require(
+            isinstance(self.defocus_contrast_um2, (int, float))
+            and math.isfinite(self.defocus_contrast_um2),
+            "RenderSettings.defocus_contrast_um2 must be a finite number, got "
+            f"{self.defocus_contrast_um2!r}",
         )
         _require(
             isinstance(self.depth_layers, int)

@@ -343,3 +343,18 @@ def test_a_terminated_calibrate_leaves_nothing_behind(colicoords_files, capsys, 
     assert "calibrate: interrupted: run the same calibrate again" in capsys.readouterr().err
     assert not out.exists()
     assert not [p for p in d.iterdir() if p.name.startswith(".out")]  # staging removed
+
+
+def test_calibrate_refuses_bright_field_and_names_fit_and_export(real_data_dir, tmp_path, capsys):
+    """calibrate does not lay out or compare bright field yet: refused before its fit, with
+    the commands that fit and export it."""
+    (tmp_path / "m.yaml").write_text("pixel_size_um: 0.08\nmodality: brightfield\n")
+    image = real_data_dir / "colicoords" / "01" / "brightfield.tif"
+    out = tmp_path / "out"
+    code = main(["calibrate", str(image), "--microscope", str(tmp_path / "m.yaml"),
+                 "--out", str(out)])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2
+    assert not out.exists()
+    assert "it does not yet lay out or compare bright-field ones" in err
+    assert "napari-symbac export --config FIT/settings.yaml" in err

@@ -311,3 +311,13 @@ def test_candidates_no_held_out_check_reached_are_said_so(tmp_path, capsys, real
     effects = json.loads((raised / "diagnosis.json").read_text())["effects"]
     assert next(e for e in effects if e["name"] == "envelope_stain")["held_out_tested"]
     assert "a diagnosis accepts at most" not in (raised / "report.txt").read_text()
+
+
+def test_bright_field_is_refused_before_the_base_fit(tmp_path, capsys, real_data_dir):
+    """Found as a user: diagnose of ColiCoords' bright-field crop. Its base design has no
+    lens term, so it is refused at once, with the commands that fit and export it."""
+    image = real_data_dir / "colicoords" / "01" / "brightfield.tif"
+    mic = "pixel_size_um: 0.08\nmodality: brightfield\nwavelength_um: 0.55\n"
+    error = _diagnose_refused(tmp_path, capsys, image, mic)
+    assert "diagnose models phase contrast and fluorescence, not brightfield" in error
+    assert "export from FIT/settings.yaml" in error

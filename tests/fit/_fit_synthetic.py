@@ -129,3 +129,34 @@ def make_fluorescence_series(n_frames: int = 3, seed: int = 5) -> list[Truth]:
             Truth(cells, scene, model.render(scene, rng), microscope, FLUO_TRUTH, camera)
         )
     return frames
+
+
+#: Bright-field truth: cells that absorb 4 % of the light and are seen 0.3 um out of
+#: focus (the lens term, kappa 0.015 um^2, as fitted on ColiCoords' crop 01).
+BRIGHTFIELD_TRUTH = RenderSettings(
+    cell_intensity=2500.0,
+    media_intensity=2600.0,
+    device_intensity=0.0,
+    defocus_sigma_um=0.1,
+    defocus_contrast_um2=0.015,
+)
+
+
+def make_brightfield_field(seed: int = 4, shape: tuple[int, int] = (96, 96)) -> Truth:
+    """The four cells of :func:`make_fluorescence_field` in bright field, camera noise."""
+    from napari_symbac.scene import Field
+
+    microscope = Microscope(pixel_size_um=0.08, numerical_aperture=1.4, modality="brightfield")
+    cells = make_cells(
+        y_um=[1.8, 2.2, 5.4, 5.6],
+        x_um=[1.6, 5.4, 2.0, 5.8],
+        angle_rad=[0.3, -0.5, 1.2, 0.05],
+        length_um=[2.6, 2.2, 3.0, 2.4],
+        width_um=0.9,
+    )
+    camera = Camera()
+    field = Field(shape[1] * 0.08, shape[0] * 0.08)
+    scene = draw_scene(cells, TrenchGeometry(), microscope, BRIGHTFIELD_TRUTH, field=field)
+    model = ForwardModel(microscope, BRIGHTFIELD_TRUTH, camera)
+    image = model.render(scene, np.random.default_rng(seed))
+    return Truth(cells, scene, image, microscope, BRIGHTFIELD_TRUTH, camera)

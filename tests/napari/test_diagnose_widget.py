@@ -374,3 +374,20 @@ def test_a_full_frame_above_the_cap_is_diagnosed_with_a_warning(ds3_widget, qtbo
     qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
     assert "cancelled" in widget.status.value
     assert [layer.name for layer in viewer.layers] == ["ds3"]
+
+
+def test_a_bright_field_recording_is_refused_with_what_to_do(make_napari_viewer, monkeypatch):
+    """Diagnose has no base model for bright field (no lens term in its design): the dock
+    says so at once, with Auto-fit and Export as the way, and runs nothing."""
+    shown = []
+    monkeypatch.setattr(
+        "napari_symbac._widgets.diagnose.notify_warning", lambda message: shown.append(message)
+    )
+    viewer = make_napari_viewer()
+    viewer.open_sample("napari-symbac", "colicoords")
+    widget = DiagnoseWidget(viewer)
+    widget.reference.value = viewer.layers["ColiCoords brightfield"]
+    widget.run_button.clicked.emit()
+    assert widget.worker is None
+    assert shown[0].startswith("diagnose models phase contrast and fluorescence, not brightfield")
+    assert shown[0].endswith("Auto-fit it in the Tune + fit step and export from the fitted layer")

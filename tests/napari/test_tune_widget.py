@@ -758,3 +758,36 @@ def test_masks_opened_beside_the_recording_become_its_cell_masks(make_napari_vie
     assert tune.masks.value is None
     later = viewer.add_labels(masks, name="masks opened after")
     assert tune.masks.value is later
+
+
+def test_auto_fit_fits_the_sample_brightfield_with_its_lens_term(rendered, qtbot):
+    """The ColiCoords sample's brightfield layer (hidden, marked bright field) chosen as
+    the recording beside a phase-contrast preview: Auto-fit fits its 8 cells (the
+    masks' count) with the lens term, the preview turns bright field, the lens slider
+    shows the term and the phase kernel's sliders are hidden."""
+    viewer, tune = rendered
+    _as_agar_pad(tune)
+    viewer.open_sample("napari-symbac", "colicoords")
+    real = viewer.layers["ColiCoords brightfield"]
+    tune.reference.value = real
+    tune.masks.value = None  # the automatic start
+    tune.fit_button.native.click()
+    qtbot.waitUntil(lambda: tune.fit_worker is None, timeout=300_000)
+    result = tune.fit_result
+    assert result is not None, tune.status.value
+    assert len(result.cells.ids) == 8
+    assert 1.0 < float(np.median(result.cells.width_um)) < 1.25
+    assert tune.modality.value == "brightfield"
+    lens = tune.sliders["defocus_contrast_um2"]
+    assert not lens.native.isHidden()
+    assert lens.value == pytest.approx(result.render.defocus_contrast_um2, abs=1e-3)
+    for name in ("ring_contrast", "psf_offset", "apodisation_sigma_um"):
+        assert tune.sliders[name].native.isHidden(), name
+    # the preview, and so Export, is bright field with the fitted lens term (it stayed
+    # in the phase contrast it was simulated in)
+    assert tune.preview.model.microscope.modality == "brightfield"
+    stored = tune.source.value.metadata[SYMBAC_METADATA_KEY]["settings"]
+    assert stored.microscope.modality == "brightfield"
+    assert stored.render.defocus_contrast_um2 == pytest.approx(
+        result.render.defocus_contrast_um2
+    )

@@ -122,3 +122,35 @@ def test_born_wolf_focal_plane_is_airy_and_defocus_spreads():
     np.testing.assert_allclose(psf3[1], psf3[3], atol=1e-6)  # symmetric about focus
     with pytest.raises(ValueError, match="exceed"):
         born_wolf_psf_3d(radius, PX, z, 0.65, 1.45, 1.33)
+
+
+def test_brightfield_kernels_sum_to_one_and_zero():
+    from napari_symbac.optics.psf import brightfield_kernels
+
+    k, lens = brightfield_kernels(50, 0.08 / 3, 0.55, 1.4, defocus_sigma_um=0.1)
+    assert float(k.sum(dtype=np.float64)) == pytest.approx(1.0, abs=1e-6)
+    assert abs(float(lens.sum(dtype=np.float64))) < 1e-5 * float(np.abs(lens).sum())
+    assert lens[50, 50] < 0  # the Laplacian of a peak
+
+
+def test_defocused_weak_phase_obeys_the_transport_of_intensity_equation():
+    """The equation the bright-field lens term stands on, checked against free
+    propagation: a weak, smooth phase bump (a 1 um wide cell's scale, 0.02 rad) in a
+    medium of index n, propagated z = +-0.2 um by the angular spectrum, changes the
+    intensity by ``-z lambda / (2 pi n) laplacian(phi)`` to within 3 % of its peak."""
+    wavelength, n, px = 0.55, 1.518, 0.02
+    size = 256
+    coords = (np.arange(size) - size / 2) * px
+    yy, xx = np.meshgrid(coords, coords, indexing="ij")
+    phi = 0.02 * np.exp(-(xx**2 + yy**2) / (2 * 0.4**2))
+    fy, fx = np.meshgrid(np.fft.fftfreq(size, px), np.fft.fftfreq(size, px), indexing="ij")
+    kz = np.sqrt(np.maximum((n / wavelength) ** 2 - fx**2 - fy**2, 0.0))
+    laplacian = (
+        np.roll(phi, 1, 0) + np.roll(phi, -1, 0) + np.roll(phi, 1, 1) + np.roll(phi, -1, 1)
+        - 4 * phi
+    ) / px**2  # fmt: skip
+    for z in (0.2, -0.2):
+        field = np.fft.ifft2(np.fft.fft2(np.exp(1j * phi)) * np.exp(2j * np.pi * z * kz))
+        change = np.abs(field) ** 2 - 1
+        predicted = -z * wavelength / (2 * np.pi * n) * laplacian
+        assert np.abs(change - predicted).max() < 0.03 * np.abs(predicted).max()

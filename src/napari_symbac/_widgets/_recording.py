@@ -5,7 +5,7 @@ its pixel size; the layer then carries
 
 * ``pixel_size_um`` (and the layer's scale is set to it, so real and synthetic layers
   share physical coordinates),
-* ``modality`` (``"phase"`` or ``"fluorescence"``),
+* ``modality`` (``"phase"``, ``"fluorescence"`` or ``"brightfield"``),
 * ``microscope``: the :class:`~napari_symbac.settings.Microscope` to simulate with,
 * ``class_statistics`` once the painted classes were measured (eq. 2).
 
@@ -42,10 +42,17 @@ __all__ = [
 
 #: Starting intensities of eq. 3 (ADU above the baseline) per modality when nothing was
 #: measured: phase contrast shows dark cells on bright media, fluorescence bright cells
-#: on a dark background (media and PDMS only autofluoresce).
+#: on a dark background (media and PDMS only autofluoresce), bright field cells barely
+#: darker than the media (seen out of focus, by their lens term).
 _DEFAULT_INTENSITIES = {
     "phase": {"cell_intensity": 1400.0, "media_intensity": 2600.0, "device_intensity": 900.0},
     "fluorescence": {"cell_intensity": 3000.0, "media_intensity": 150.0, "device_intensity": 60.0},
+    # bright field: cells absorb a few % of the light, PDMS a little more
+    "brightfield": {
+        "cell_intensity": 2500.0,
+        "media_intensity": 2600.0,
+        "device_intensity": 2300.0,
+    },
 }
 
 
@@ -200,10 +207,10 @@ def modality_render(
     The class means of the painted recording (eq. 2, baseline subtracted with the
     camera's) start eq. 3's intensities; otherwise the modality's defaults, which have
     the right polarity (fluorescence: bright cells on a dark background). Phase-only
-    kernel terms (phase ring, offset) are switched off for fluorescence.
+    kernel terms (phase ring, offset) are switched off for fluorescence and bright field.
     """
     changes: dict[str, float] = dict(_DEFAULT_INTENSITIES[modality])
-    if modality == "fluorescence":
+    if modality != "phase":
         changes.update(ring_contrast=0.0, psf_offset=0.0)
     if statistics:
         for cls in ("cell", "media", "device"):

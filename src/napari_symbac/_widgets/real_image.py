@@ -294,9 +294,10 @@ class RealImageWidget(Container):
             shows = (
                 "bright objects on a dark" if guess == "fluorescence" else "dark objects on a light"
             )
+            other = "" if guess == "fluorescence" else " (bright field looks so too)"
             said = (
                 f"{layer.name} records no modality: {guess}, as it shows {shows} background "
-                "(change it if wrong)"
+                f"(change it if wrong{other})"
             )
         # after what reading said (a normalised image read as counts)
         self.result.value = "<br>".join(filter(None, (self.result.value, said)))

@@ -65,10 +65,14 @@ SLIDERS: dict[str, tuple[str, float, float]] = {
     "cell_phase_rad": ("cell phase (rad)", 0.0, 3.0),
     "phase_ring_width_scale": ("phase ring width", 0.5, 3.0),
     "plate_transmission": ("phase plate transmission", 0.02, 1.0),
+    # bright field's lens term of cells out of focus (docs/physics.md)
+    "defocus_contrast_um2": ("lens term (um^2)", -0.1, 0.1),
 }
 #: Sliders of one phase model only: the others leave that model's image unchanged.
 COHERENT_ONLY = ("cell_phase_rad", "phase_ring_width_scale", "plate_transmission")
 LINEAR_ONLY = ("ring_contrast", "psf_offset")
+#: Sliders of bright field only; the phase kernel's are hidden there.
+BRIGHTFIELD_ONLY = ("defocus_contrast_um2",)
 
 
 def terms_plot(terms: dict[str, tuple[float, float]], width: int = 240) -> np.ndarray:
@@ -175,7 +179,7 @@ class TuneWidget(Container):
             name="masks", label="cell masks", choices=self._mask_layers, nullable=True
         )
         self.modality = ComboBox(
-            name="modality", label="modality", choices=["phase", "fluorescence"]
+            name="modality", label="modality", choices=["phase", "fluorescence", "brightfield"]
         )
         self.noise_model = ComboBox(
             name="noise_model", label="noise", choices=["camera", "gaussian", "none"]
@@ -200,7 +204,8 @@ class TuneWidget(Container):
         )
         self.modality.tooltip = (
             "phase: dark cells on bright media; fluorescence: bright cells on a dark "
-            "background (switching sets intensities of that polarity)."
+            "background; brightfield: cells that absorb a little, seen out of focus by "
+            "their lens term (switching sets intensities of that polarity)."
         )
         self.noise_model.tooltip = "camera: shot + read noise (eq. 17); gaussian: fixed sd."
         self.match_fourier = CheckBox(name="match_fourier", text="match Fourier spectrum")
@@ -442,12 +447,17 @@ class TuneWidget(Container):
         layer.refresh()
 
     def _show_model_sliders(self, render: Any, modality: str) -> None:
-        """The sliders that act on the phase model in use (fluorescence: the linear ones)."""
+        """The sliders that act on the model in use (fluorescence: the linear phase
+        model's; bright field: its lens term, not the phase kernel's)."""
         coherent = modality == "phase" and render.phase_model == "partially_coherent"
+        brightfield = modality == "brightfield"
         for name in COHERENT_ONLY:
             self.sliders[name].visible = coherent
         for name in LINEAR_ONLY:
-            self.sliders[name].visible = not coherent
+            self.sliders[name].visible = not coherent and not brightfield
+        for name in BRIGHTFIELD_ONLY:
+            self.sliders[name].visible = brightfield
+        self.sliders["apodisation_sigma_um"].visible = not brightfield  # the phase PSF's
         fluorescence = modality == "fluorescence"
         for box in (self.fit_envelope_stain, self.fit_depth):
             box.visible = fluorescence
@@ -800,8 +810,14 @@ class TuneWidget(Container):
                 fit_render, cell_brightness_cv=fitted_render(result).cell_brightness_cv
             )
         fitted = {name: float(getattr(fit_render, name)) for name in self.sliders}
+        # the preview takes the recording's modality with its fitted settings (found as a
+        # user: a bright-field recording fitted beside a phase preview left the preview,
+        # and Export, in phase contrast with the lens term unused)
+        modality = self._fit_microscope.modality if self._fit_microscope else None
         self._loading = True
         try:
+            if modality is not None and modality != self.modality.value:
+                self.modality.value = modality
             for name, value in fitted.items():
                 if np.isfinite(value):
                     _set_slider(self.sliders[name], value)
@@ -822,12 +838,16 @@ class TuneWidget(Container):
                 )
             now = self.preview.render_settings
             drawn = ("upsample", "psf_radius_px", "envelope_stain_fraction", "depth_layers")
-            if any(getattr(render, name) != getattr(now, name) for name in drawn):
-                # the scenes are drawn at that sampling, with that stain: a new preview
-                # draws them anew
+            switched = self.modality.value != self.preview.model.microscope.modality
+            if switched or any(getattr(render, name) != getattr(now, name) for name in drawn):
+                # the scenes are drawn at that sampling, with that stain, for that
+                # modality (a fluorescence stain): a new preview draws them anew
                 meta = self.source.value.metadata[SYMBAC_METADATA_KEY]
                 meta["settings"] = dataclasses.replace(
                     meta["settings"],
+                    microscope=dataclasses.replace(
+                        meta["settings"].microscope, modality=self.modality.value
+                    ),
                     render=render,
                     camera=dataclasses.replace(meta["settings"].camera, **camera),
                 )

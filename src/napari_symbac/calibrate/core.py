@@ -385,7 +385,7 @@ def calibrate(
     microscope: Microscope,
     masks: np.ndarray | None = None,
     labels: np.ndarray | None = None,
-    modality: Literal["phase", "fluorescence"] | None = None,
+    modality: Literal["phase", "fluorescence", "brightfield"] | None = None,
     camera: Camera | None = None,
     cell_width_um: float | None = None,
     crop_px: int | None = None,
@@ -427,8 +427,8 @@ def calibrate(
     Raises
     ------
     ValueError
-        Bad image, masks or labels (the ``fit`` command's refusals), or a modality the
-        image contradicts.
+        Bad image, masks or labels (the ``fit`` command's refusals), a modality the
+        image contradicts, or bright field (not matched yet: fit and export instead).
     """
     from napari_symbac.fit.camera_estimate import censored_pixels
     from napari_symbac.fit.masks import estimate_pixel_size_um
@@ -445,6 +445,13 @@ def calibrate(
         raise ValueError("pass masks or labels, not both")
     if modality is not None and modality != microscope.modality:
         microscope = dataclasses.replace(microscope, modality=modality)
+    if microscope.modality == "brightfield":
+        raise ValueError(
+            "calibrate matches phase-contrast and fluorescence recordings; it does not yet "
+            "lay out or compare bright-field ones. Fit the recording and export from its "
+            "settings: `napari-symbac fit IMAGE --microscope M.yaml --out FIT`, then "
+            "`napari-symbac export --config FIT/settings.yaml --out DATASET`"
+        )
     if labels is not None:
         check_class_labels(np.asarray(labels), frame.shape, "labels")
     if masks is not None:

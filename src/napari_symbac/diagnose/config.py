@@ -57,7 +57,7 @@ def _number(data: dict, key: str, where: str) -> float:
 def parse_microscope(data: object, where: str = "microscope file") -> DiagnoseConfig:
     """Validate the mapping of issue 11 and build the settings.
 
-    Required: ``modality`` ("phase" | "fluorescence"), ``pixel_size_um``, ``NA``,
+    Required: ``modality`` ("phase" | "fluorescence" | "brightfield"), ``pixel_size_um``, ``NA``,
     ``refractive_index``, ``wavelength_um``. Optional: ``condenser``,
     ``trench_width_um``, ``objective`` (e.g. "100x oil": its magnification is read),
     ``magnification``, ``camera`` {``baseline_adu``, ``sensitivity_adu_per_e``,
@@ -85,8 +85,11 @@ def parse_microscope(data: object, where: str = "microscope file") -> DiagnoseCo
         )
     notes = [f"unknown key {k!r} ignored" for k in data if k not in REQUIRED + OPTIONAL]
     modality = data["modality"]
-    if modality not in ("phase", "fluorescence"):
-        raise ValueError(f"{where}: modality must be 'phase' or 'fluorescence', got {modality!r}")
+    if modality not in ("phase", "fluorescence", "brightfield"):
+        raise ValueError(
+            f"{where}: modality must be 'phase', 'fluorescence' or 'brightfield', got "
+            f"{modality!r}"
+        )
     kwargs: dict = {
         "modality": modality,
         "pixel_size_um": _number(data, "pixel_size_um", where),

@@ -39,6 +39,7 @@ if TYPE_CHECKING:
     from napari_symbac.diagnose.effects.base import Effect
 
 __all__ = [
+    "DIAGNOSE_BRIGHTFIELD_FIX",
     "NUISANCE_OPTICS",
     "BaseDesign",
     "FittedModel",
@@ -46,8 +47,28 @@ __all__ = [
     "build_design",
     "deviance",
     "fit_model",
+    "refuse_undiagnosable",
     "variance",
 ]
+
+#: What to do with a bright-field recording instead of diagnosing it.
+DIAGNOSE_BRIGHTFIELD_FIX = (
+    "Fit it (napari-symbac fit IMAGE --microscope M --out FIT, modality brightfield) and "
+    "export from FIT/settings.yaml"
+)
+
+
+def refuse_undiagnosable(modality: str, fix: str = DIAGNOSE_BRIGHTFIELD_FIX) -> None:
+    """Refuse a modality the diagnosis has no base model for: bright field, whose lens
+    term (:attr:`~napari_symbac.fit.engine.SceneModel.lens`) the base design does not
+    carry, so every effect would be judged against a model without it. ``fix`` is what
+    the interface says to do instead."""
+    if modality not in NUISANCE_OPTICS:
+        raise ValueError(
+            f"diagnose models phase contrast and fluorescence, not {modality}: its base "
+            f"design has no lens term of cells out of focus. {fix}"
+        )
+
 
 #: Optics parameters re-fitted (linearised) as nuisance; step of the finite difference.
 NUISANCE_OPTICS: dict[str, dict[str, float]] = {
@@ -234,6 +255,7 @@ def build_design(
     """
     if not scenes:
         raise ValueError("build_design needs at least one scene")
+    refuse_undiagnosable(microscope.modality)
     names = tuple(NUISANCE_OPTICS[microscope.modality] if optics is None else optics)
     model = ForwardModel(microscope, render, camera)
     intensities = np.array(

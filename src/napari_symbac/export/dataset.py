@@ -353,6 +353,27 @@ def load_export_settings(path: str | os.PathLike) -> ExportSettings:
 PAD_SIMULATIONS = 16
 
 
+def default_randomisation(pipeline: PipelineSettings) -> Randomisation:
+    """How the default export of ``pipeline`` varies its images: :class:`Randomisation`'s
+    defaults at the pipeline's defocus (eq. 14, kept: a fitted defocus is the
+    recording's). In bright field the light varies as a whole (exposure 0.8-1.25x) and
+    the cells and media keep their ratio: a cell absorbs a few % of the light, and the
+    default draws of each intensity by +-10-15 % alone would make it absorb up to 15 %
+    more, or shine (found exporting ColiCoords' crop 01: cells 92 ADU darker than the
+    media, drawn up to 1475 ADU darker or brighter)."""
+    defocus = Range(pipeline.render.defocus_sigma_um, pipeline.render.defocus_sigma_um)
+    if pipeline.microscope.modality != "brightfield":
+        return Randomisation(defocus_sigma_um=defocus)
+    fixed = Range(1.0, 1.0)
+    return Randomisation(
+        cell_intensity_scale=fixed,
+        media_intensity_scale=fixed,
+        device_intensity_scale=fixed,
+        defocus_sigma_um=defocus,
+        exposure_scale=Range(0.8, 1.25),
+    )
+
+
 def export_of(pipeline: PipelineSettings, **fields: Any) -> ExportSettings:
     """The default export of ``pipeline`` (``fields`` set the others).
 
@@ -366,8 +387,13 @@ def export_of(pipeline: PipelineSettings, **fields: Any) -> ExportSettings:
     fit of the SyMBac trench, full of cells: a quarter of the images showed one or two
     cells in an empty trench). A pad's images are drawn from its colonies' last doubling
     (:func:`colony_grown_frame`; found exporting after Auto-fit of a 182-cell colony:
-    images of 1, 21, 229 and 81 cells).
+    images of 1, 21, 229 and 81 cells). Its images keep the pipeline's defocus (eq. 14;
+    the default randomisation's absolute 0 threw away the defocus a fit measured: found
+    exporting a bright-field fit of ColiCoords' crop, whose cells then lost their
+    blurred, bright centres).
     """
+    if "randomise" not in fields:
+        fields = {"randomise": default_randomisation(pipeline), **fields}
     simulation = pipeline.simulation
     walled = simulation.geometry in ("trench", "chamber")
     if walled:

@@ -60,15 +60,29 @@ KERNEL_PARAMETERS = frozenset(
 )
 
 
-def solve_intensities(a: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
+def solve_intensities(
+    a: np.ndarray, y: np.ndarray, w: np.ndarray, signed: int = 0, transmitted: bool = False
+) -> np.ndarray:
     """Non-negative weighted least squares ``min sum w (y - a I)^2``, ``I >= 0``, exactly.
 
     Eq. 3 is linear in the three intensities: the normal equations are 3 x 3. The
     unconstrained solution is returned when it is non-negative; otherwise every
     subset of free intensities (the others held at 0) is solved and the feasible
     one of least cost is returned (the exact NNLS solution for 3 unknowns).
-    All-zero columns (no device in an open field) get intensity 0.
+    All-zero columns (no device in an open field) get intensity 0. The last
+    ``signed`` columns take either sign (bright field's lens amplitude,
+    :attr:`SceneModel.lens`). With ``transmitted`` the cells' intensity (column 0) is
+    at most the media's (column 1): in bright field a cell absorbs, it passes no more
+    light than the clear media beside it (its bright centre out of focus is the lens
+    term's); a solution above is replaced by the best on ``I_c = I_m``.
     """
+    if transmitted:
+        best = solve_intensities(a, y, w, signed)
+        if best[0] <= best[1]:
+            return best
+        merged = np.column_stack([a[:, 0] + a[:, 1], a[:, 2:]])
+        sol = solve_intensities(merged, y, w, signed)
+        return np.concatenate([[sol[0]], sol])
     aw = a * w[:, None]
     gram = a.T @ aw
     rhs = aw.T @ y
@@ -83,7 +97,8 @@ def solve_intensities(a: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray
             except np.linalg.LinAlgError:
                 continue
             cost = -float(sol @ rhs[idx])  # sol' G sol - 2 sol' h at sol = G^-1 h
-            if np.all(sol >= 0) and cost < best_cost:
+            nonnegative = [v for j, v in zip(idx, sol) if j < k - signed]
+            if np.all(np.asarray(nonnegative) >= 0) and cost < best_cost:
                 best = np.zeros(k)
                 best[idx] = sol
                 best_cost = cost
@@ -222,6 +237,26 @@ class SceneModel:
         basis = illumination_basis(shape, layout.illumination)
         self._light_basis = basis.reshape(basis.shape[0], shape[0] * shape[1])
 
+    @property
+    def lens(self) -> bool:
+        """Bright field: a fourth design column, the cells' phase through the lens
+        kernel ``laplacian(k)`` (:func:`~napari_symbac.optics.psf.brightfield_kernels`),
+        its amplitude ``kappa I_m`` solved with the intensities, of either sign."""
+        return self.microscope.modality == "brightfield"
+
+    @property
+    def n_amplitudes(self) -> int:
+        """Columns of the design: the three intensities, and bright field's lens."""
+        return 4 if self.lens else 3
+
+    def lens_column(self, forward: ForwardModel, scene: Scene) -> np.ndarray:
+        """``-laplacian(k)`` convolved with the cells' fraction (camera pixels, flat,
+        float64): the lens column of :meth:`design` (its amplitude ``kappa I_m``)."""
+        ring = forward.ring_kernel(scene.pixel_size_um)
+        return -self._convolve(forward, scene, (scene.cells,), kernel=ring)[0].ravel().astype(
+            np.float64
+        )
+
     def light(self, x: np.ndarray) -> np.ndarray | None:
         """The illumination surface ``1 + sum_k c_k P_k`` of ``x`` (flat), ``None`` when off."""
         k = self._light_basis.shape[0]
@@ -309,7 +344,10 @@ class SceneModel:
             stained = self._convolve_layers(forward, scene, self._cells_layers(x, scene, r))
         else:
             stained = convolved[0]
-        a = np.stack([stained.ravel(), (trench - cells).ravel(), (whole - trench).ravel()], axis=1)
+        columns = [stained.ravel(), (trench - cells).ravel(), (whole - trench).ravel()]
+        if self.lens:
+            columns.append(self.lens_column(forward, scene))
+        a = np.stack(columns, axis=1)
         light = self.light(x)
         if light is not None:
             a *= light[:, None]  # the surface multiplies eq. 3: still linear in I
@@ -374,8 +412,10 @@ class SceneModel:
         scene: Scene,
         images: tuple[np.ndarray, ...],
         weights: np.ndarray | None = None,
+        kernel: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Render-resolution images through the forward model's PSF and resample stages.
+        """Render-resolution images through the forward model's PSF (or ``kernel``) and
+        resample stages.
 
         The same transform as :meth:`ForwardModel.components` (trimmed to the PSF
         border, convolved, block-averaged); with ``weights`` the weighted sum of the
@@ -385,7 +425,8 @@ class SceneModel:
         stack = np.stack([np.asarray(image, np.float32) for image in images])
         if trim:
             stack = stack[:, trim:-trim, trim:-trim]
-        kernel = forward.kernel(scene.pixel_size_um)
+        if kernel is None:
+            kernel = forward.kernel(scene.pixel_size_um)
         out = forward._convolve_resample(stack, kernel, scene.upsample, weights)
         return out[None] if weights is not None and out.ndim == 2 else out
 
@@ -444,11 +485,13 @@ class SceneModel:
         weights = np.asarray(intensities, np.float32)
         if self._layers(r):
             stained = self._convolve_layers(forward, scene, self._cells_layers(x, scene, r))
-            rest = self._convolve(forward, scene, (scene.media, scene.device), weights[1:])[0]
+            rest = self._convolve(forward, scene, (scene.media, scene.device), weights[1:3])[0]
             mu = (intensities[0] * stained + rest).ravel()
         else:
             images = (self._cells_image(x, scene, r), scene.media, scene.device)
-            mu = self._convolve(forward, scene, images, weights)[0].ravel().astype(np.float64)
+            mu = self._convolve(forward, scene, images, weights[:3])[0].ravel().astype(np.float64)
+        if self.lens:
+            mu += intensities[3] * self.lens_column(forward, scene)
         light = self.light(x)
         return mu if light is None else mu * light
 
@@ -722,13 +765,22 @@ class SceneModel:
             )
         ]
         patches: dict[tuple[int, int], tuple[int, int, np.ndarray]] = {}
+        weight = contrast
         for i in range(lay.n):
             ks = [k for k in geometric if k == width_k or lay.owner(k) == i]
             if not ks:
                 continue
             for _ in ks:
                 self.tick()
-            row0, col0, batch = self.cell_deltas(x, [moved[k] for k in ks], i, scene, kernel)
+            own = kernel
+            if self.lens:
+                # d mu = I_c' dC conv k - L dC conv laplacian(k): one kernel per cell,
+                # the patch weighed by 1 (the lens amplitude L need not share a sign
+                # with the contrast, which is 0 for a transparent cell)
+                ring = forward.ring_kernel(scene.pixel_size_um)
+                own = (contrast[i] * kernel - intensities[3] * ring).astype(np.float32)
+                weight = np.ones(lay.n)
+            row0, col0, batch = self.cell_deltas(x, [moved[k] for k in ks], i, scene, own)
             for k, patch in zip(ks, batch):
                 patches[i, k] = (row0, col0, patch)
         data, indices, indptr = [], [], [0]
@@ -753,7 +805,7 @@ class SceneModel:
                 # penalty keeps so).
                 col = np.zeros(npx)
                 for i in [owner] if owner >= 0 else range(lay.n):
-                    _add_patch(col, self.shape, *patches[i, k], contrast[i] / h)
+                    _add_patch(col, self.shape, *patches[i, k], weight[i] / h)
                 if light is not None:
                     col *= light
             elif lay.global_names[k - lay.n * pc] in KERNEL_PARAMETERS:

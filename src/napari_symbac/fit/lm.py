@@ -64,7 +64,8 @@ def evaluate(
     """Render ``x``, solve the intensities (weights ``w``, 0 = censored) and the cost."""
     a, scene, r = model.design(x)
     use = w > 0
-    intensities = solve_intensities(a[use], y[use], w[use])
+    lens = model.lens  # bright field: the lens amplitude, and cells that absorb
+    intensities = solve_intensities(a[use], y[use], w[use], signed=int(lens), transmitted=lens)
     res = y - a @ intensities
     chi2 = float(np.sum(w * res * res))
     prior = float(np.sum((x / prior_sd) ** 2))

@@ -151,6 +151,18 @@ def check_modality(
         When the polarity contradicts ``modality``, naming the modality to pass.
     """
     frame = np.asarray(image, np.float64)
+    if modality == "brightfield":
+        # a cell out of focus is a bright centre in a dark rim: brighter or darker than
+        # its surroundings by the side of focus, so only a field with nothing darker than
+        # its background, fluorescence's look, contradicts it
+        polarity = image_polarity(frame)
+        if polarity == "bright cells":
+            raise ValueError(
+                "the image does not look like bright field: it shows bright objects on its "
+                "background and nothing darker, as fluorescence does. Pass --modality "
+                "fluorescence"
+            )
+        return polarity
     if labels is not None:
         polarity = _class_polarity(frame, labels == 1, labels == 2)
         evidence = "the painted cells (1) are {} than the media (2)"

@@ -62,9 +62,24 @@ __all__ = [
 ]
 
 _INTENSITIES = ("cell_intensity", "media_intensity", "device_intensity")
+#: The name of bright field's fourth amplitude, ``kappa I_m`` (ADU um^2), among the
+#: fitted parameters (:attr:`~napari_symbac.fit.engine.SceneModel.lens`).
+LENS_AMPLITUDE = "lens_amplitude_adu_um2"
+
+
+def lens_contrast_um2(intensities: np.ndarray) -> float:
+    """Bright field's ``kappa`` (``RenderSettings.defocus_contrast_um2``, um^2) from the
+    solved amplitudes ``(I_c, I_m, I_d, kappa I_m)``; 0 for an empty media level."""
+    media = float(intensities[1])
+    return float(intensities[3]) / media if media > 0 else 0.0
 #: Fitted optics by default: phase as :data:`~napari_symbac.fit.DEFAULT_FIT`; in
-#: fluorescence the phase ring's parameters do not exist, defocus remains.
-DEFAULT_FIT_OPTICS = {"phase": DEFAULT_FIT, "fluorescence": ("defocus_sigma_um",)}
+#: fluorescence and bright field the phase ring's parameters do not exist, defocus
+#: remains (bright field's lens term is an amplitude, solved with the intensities).
+DEFAULT_FIT_OPTICS = {
+    "phase": DEFAULT_FIT,
+    "fluorescence": ("defocus_sigma_um",),
+    "brightfield": ("defocus_sigma_um",),
+}
 #: Optics of a fluorescence fit that also places the stain: the fraction of it in the
 #: cells' envelope (``napari-symbac fit --envelope-stain``, Auto-fit's check box).
 ENVELOPE_FIT_OPTICS = (*DEFAULT_FIT_OPTICS["fluorescence"], "envelope_stain_fraction")
@@ -158,7 +173,8 @@ class SceneFit:
     parameter_names
         Names of all fitted parameters: ``cell<id>.x_um`` ... per cell (see
         :class:`~napari_symbac.fit.engine.Layout`), the shared ones, then the three
-        intensities (ADU above the baseline).
+        intensities (ADU above the baseline), and in bright field the lens amplitude
+        ``kappa I_m`` (:data:`LENS_AMPLITUDE`, ADU um^2).
     parameters, standard_errors
         Their values and standard errors (same order), the errors from the inverse
         of :attr:`information`.
@@ -667,6 +683,8 @@ def _run_frame(
         Problem.join(blocks, np.array(g0)), problem.lower(n) + 1e-9, problem.upper(n) - 1e-9
     )
     start = problem.evaluate(x0)
+    if modality == "brightfield":
+        start = _narrower_start(problem, start)
     state = start
     warnings: list[str] = []
     log: list[str] = []
@@ -754,6 +772,37 @@ def _run_frame(
     )
 
 
+#: Fractions of the start's width a bright-field start also tries (:func:`_narrower_start`).
+NARROWER_START = (0.6, 0.7, 0.8, 0.9)
+
+
+def _narrower_start(problem: Problem, start: State) -> State:
+    """The start, or the same cells narrower where the likelihood is better.
+
+    A bright-field cell's edge is not where a mask's outline runs (ColiCoords' masks
+    lie ~0.2 um outside the cells) nor where the segmentation's dark ring does: its
+    lens term puts a dark rim around the edge and a bright centre inside, and started
+    wider than the cell the fit widens the cell further to lay its rim on the real
+    rim's outer side (ColiCoords' crop 01 from its mask, 1.52 um: 2.0 um at the
+    defocus bound; started at 0.7 of it, 1.06 um). The shared width is tried at
+    :data:`NARROWER_START` of its start, each one render, before the first step.
+    """
+    n = problem.n_cells(start.x)
+    if n == 0:
+        return start
+    model = problem.model(n)
+    k = model.layout.names(np.arange(1, n + 1)).index("width_um")
+    low, high = problem.lower(n)[k], problem.upper(n)[k]
+    best = start
+    for factor in NARROWER_START:
+        x = start.x.copy()
+        x[k] = float(np.clip(start.x[k] * factor, low, high))
+        trial = problem.evaluate(x)
+        if trial.chi2 + trial.prior < best.chi2 + best.prior:
+            best = trial
+    return best
+
+
 def _better_closed_end(
     problem: Problem, state: State, iterations: int
 ) -> tuple[Problem, State, str]:
@@ -803,6 +852,10 @@ def _frame_result(run: _FrameRun) -> SceneFit:
     cells, curvature, place, r = model.unpack(x)
     intens = state.intensities
     final_render = dataclasses.replace(r, **{k: float(v) for k, v in zip(_INTENSITIES, intens)})
+    if model.lens:  # the lens amplitude kappa I_m, as kappa (um^2)
+        final_render = dataclasses.replace(
+            final_render, defocus_contrast_um2=lens_contrast_um2(intens)
+        )
     mu = state.mu
     mu0 = start.mu
     var_after = problem.w
@@ -956,10 +1009,11 @@ def _uncertainty(
         free,
         upper=problem.upper(n),
     )
-    scales = np.concatenate([model.layout.scales(), np.ones(3)])
+    n_amp = model.n_amplitudes
+    scales = np.concatenate([model.layout.scales(), np.ones(n_amp)])
     jac = (jac_z @ sparse.diags(1.0 / scales)).tocsc()
     info, _ = normal_equations(jac, np.sqrt(problem.w))
-    sd = np.concatenate([problem.prior_sd(n), np.full(3, math.inf)])
+    sd = np.concatenate([problem.prior_sd(n), np.full(n_amp, math.inf)])
     info[np.diag_indices_from(info)] += 1.0 / sd**2
     # An intensity whose component is empty (no device on a pad) is not a parameter.
     keep = np.concatenate([np.ones(state.x.size, bool), np.any(state.a != 0, axis=0)])
@@ -967,7 +1021,8 @@ def _uncertainty(
     info = info[np.ix_(keep, keep)]
     cov = np.linalg.pinv(info, rcond=1e-12, hermitian=True)
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    names = (*model.layout.names(np.arange(1, n + 1)), *_INTENSITIES)
+    amplitudes = (*_INTENSITIES, LENS_AMPLITUDE)[:n_amp]
+    names = (*model.layout.names(np.arange(1, n + 1)), *amplitudes)
     names = tuple(name for name, k in zip(names, keep) if k)
     values = np.concatenate([state.x, state.intensities])[keep]
     return names, values, se, info, jac

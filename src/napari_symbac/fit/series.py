@@ -38,6 +38,7 @@ from napari_symbac.fit.overlap import overlap_terms
 from napari_symbac.fit.placement import TrenchPlacement
 from napari_symbac.fit.scene_fit import (
     _INTENSITIES,
+    LENS_AMPLITUDE,
     SceneFit,
     _baseline_guess,
     _frame_result,
@@ -461,14 +462,15 @@ def _frame_x(z: np.ndarray, own: list[int], t: int, n_shared: int) -> np.ndarray
     return np.concatenate([z[start : start + own[t]], z[z.size - n_shared :]])
 
 
-def _frame_index(own: list[int], t: int, n_shared: int) -> np.ndarray:
-    """Joint positions of frame ``t``'s parameters and then its three intensities."""
+def _frame_index(own: list[int], t: int, n_shared: int, n_amp: int = 3) -> np.ndarray:
+    """Joint positions of frame ``t``'s parameters and then its ``n_amp`` amplitudes
+    (the three intensities, and bright field's lens amplitude)."""
     start, total = sum(own[:t]), sum(own) + n_shared
     return np.concatenate(
         [
             np.arange(start, start + own[t]),
             np.arange(total - n_shared, total),
-            total + 3 * t + np.arange(3),
+            total + n_amp * t + np.arange(n_amp),
         ]
     )
 
@@ -575,7 +577,8 @@ def _joint_refine(
         trial = _evaluate_all(runs, trial_z, own, n_shared)
         return (trial_z, trial), sum(s.cost for s in trial) + tie_cost(trial_z)
 
-    size = sum(own) + n_shared + 3 * len(runs)
+    n_amp = runs[0].problem.model(runs[0].problem.n_cells(runs[0].state.x)).n_amplitudes
+    size = sum(own) + n_shared + n_amp * len(runs)
     lam = 1e-2
     converged = False
     iterations = 0
@@ -613,7 +616,7 @@ def _joint_refine(
             if pen.size:
                 jtj[:m, :m] += pen_jac.T @ pen_jac
                 grad[:m] += pen_jac.T @ pen
-            index = _frame_index(own, t, n_shared)
+            index = _frame_index(own, t, n_shared, n_amp)
             h[np.ix_(index, index)] += jtj
             g[index] += grad
             scales[index[:m]] = sc
@@ -647,14 +650,16 @@ def _joint_uncertainty(
     """
     n_shared = len(names)
     own = [run.state.x.size - n_shared for run in runs]
-    size = sum(own) + n_shared + 3 * len(runs)
+    amplitudes = (*_INTENSITIES, LENS_AMPLITUDE)
+    n_amp = 4 if LENS_AMPLITUDE in fits[0].parameter_names else 3
+    size = sum(own) + n_shared + n_amp * len(runs)
     info = np.zeros((size, size))
     used = np.zeros(size, bool)
     for t, fit in enumerate(fits):
-        index = _frame_index(own, t, n_shared)
+        index = _frame_index(own, t, n_shared, n_amp)
         m = own[t] + n_shared
         where = [
-            index[k] if k < m else index[m + _INTENSITIES.index(name)]
+            index[k] if k < m else index[m + amplitudes.index(name)]
             for k, name in enumerate(fit.parameter_names)
         ]
         info[np.ix_(where, where)] += fit.information

@@ -27,6 +27,7 @@ __all__ = [
     "MAX_START_WIDTH_UM",
     "FaintStartError",
     "WideStartError",
+    "brightfield_instances",
     "cells_from_instances",
     "cut_by_edge",
     "otsu_cells",
@@ -469,7 +470,9 @@ def polarity_of(
 
     From painted labels when they hold both cells (1) and media (2): the sign of the
     difference of the class medians. Otherwise from the modality: phase contrast
-    shows dark cells, fluorescence bright ones.
+    shows dark cells, fluorescence bright ones; bright field dark ones (absorption; the
+    automatic start segments its cells on their contrast either way,
+    :func:`brightfield_instances`).
     """
     if labels is not None:
         cell, media = labels == 1, labels == 2
@@ -477,7 +480,7 @@ def polarity_of(
             return "dark" if np.median(image[cell]) < np.median(image[media]) else "bright"
     if modality == "fluorescence":
         return "bright"
-    if modality == "phase":
+    if modality in ("phase", "brightfield"):
         return "dark"
     raise ValueError(f"unknown modality {modality!r}: paint cells and media to give the polarity")
 
@@ -604,6 +607,23 @@ def start_scene(
     """
     polarity = polarity_of(image, microscope.modality, labels)
     px = microscope.pixel_size_um
+    if microscope.modality == "brightfield" and masks is None and geometry == "open":
+        empty = None if labels is None else np.isin(np.asarray(labels), (2, 3))
+        media = None if labels is None else np.asarray(labels) == 2
+        instances = brightfield_instances(image, px, media, valid)
+        if empty is not None and instances.any():
+            on_empty = ndimage.mean(empty, instances, np.arange(1, int(instances.max()) + 1))
+            dropped = np.flatnonzero(np.asarray(on_empty) > 0.5) + 1
+            instances = _renumber(np.where(np.isin(instances, dropped), 0, instances))
+        if not instances.any():
+            raise ValueError(
+                "the start found no cells in the image: nothing departs from its background "
+                "more than its noise does"
+            )
+        cells, widths = cells_from_instances(instances, px, max_cell_length_um)
+        if refuse_wide:
+            refuse_blobs(widths, px)
+        return cells, widths, None, instances
     if masks is None and labels is None:
         start = otsu_cells(
             image,
@@ -663,6 +683,44 @@ def start_scene(
     if refuse_wide:
         refuse_blobs(widths, px)
     return cells, widths, found, instances
+
+
+def brightfield_instances(
+    image: np.ndarray,
+    pixel_size_um: float,
+    media: np.ndarray | None = None,
+    valid: np.ndarray | None = None,
+) -> np.ndarray:
+    """Instance labels of the cells of a bright-field field, for the start.
+
+    A cell out of focus is a bright centre in a dark rim (or the reverse), and where the
+    two cancel its centre line can sit at the background's level, so neither a dark nor
+    a bright threshold finds it whole. Its departure from the background, ``|I - b|``
+    of the image smoothed by 1 px and smoothed again by 1 px, is thresholded (Otsu)
+    and its holes filled: one region per cell, split where touching cells meet by the
+    watershed :func:`otsu_cells` uses. ``b`` is the median of the painted ``media``
+    when given, else of the (``valid``) image (cells cover a small part of a field).
+    The region reaches past the cell by its rim: :func:`~napari_symbac.fit.scene_fit.
+    fit_scene` tries narrower starts.
+    """
+    from skimage.filters import threshold_otsu
+    from skimage.morphology import remove_small_objects
+    from skimage.segmentation import watershed
+
+    px = pixel_size_um
+    frame = ndimage.gaussian_filter(np.asarray(image, np.float64), 1.0)
+    usable = np.ones(frame.shape, bool) if valid is None else np.asarray(valid, bool)
+    source = media & usable if media is not None and (media & usable).any() else usable
+    departure = ndimage.gaussian_filter(np.abs(frame - float(np.median(frame[source]))), 1.0)
+    if not np.ptp(departure[usable]) > 0:
+        return np.zeros(frame.shape, np.int64)
+    mask = (departure > threshold_otsu(departure[usable])) & usable
+    mask = ndimage.binary_opening(ndimage.binary_fill_holes(mask))
+    mask = remove_small_objects(mask, max_size=max(int(0.4 / px**2), 4))
+    erode_px = max(round(0.1 / px), 1)
+    markers, _ = ndimage.label(ndimage.binary_erosion(mask, iterations=erode_px))
+    distance = ndimage.distance_transform_edt(mask)
+    return np.asarray(watershed(-distance, markers, mask=mask), np.int64)
 
 
 def _renumber(instances: np.ndarray) -> np.ndarray:

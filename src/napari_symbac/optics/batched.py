@@ -408,7 +408,7 @@ class BatchedRenderer:
             planes.insert(0, composed[1:])
             plane_kernels.insert(0, ((1.0, kernel),))
         if model.separate_phase:  # separate phase amplitudes: minus the ring image
-            p_cell, p_device = r.phase_amplitudes()
+            p_cell, p_device = model.ring_amplitudes()
             planes.append((("cells", p_cell), ("device", p_device)))
             plane_kernels.append(((-1.0, model.ring_kernel(px)),))
         valid = ((rows - kernel.shape[0] + 1) // factor, (cols - kernel.shape[1] + 1) // factor)

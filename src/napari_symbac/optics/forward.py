@@ -53,6 +53,7 @@ from napari_symbac.optics.depth import depth_kernels
 from napari_symbac.optics.partial_coherence import annular_phase_image
 from napari_symbac.optics.psf import (
     airy_psf,
+    brightfield_kernels,
     defocus,
     phase_contrast_kernels,
     phase_contrast_psf,
@@ -158,7 +159,8 @@ class ForwardModel:
     Parameters
     ----------
     microscope
-        Objective, wavelength, condenser and modality (``"phase"`` or ``"fluorescence"``).
+        Objective, wavelength, condenser and modality (``"phase"``, ``"fluorescence"``
+        or ``"brightfield"``).
     render
         Upsampling, PSF radius, intensities (eq. 3), apodisation (eq. 11-13),
         defocus (eq. 14), ring contrast, PSF offset and noise model.
@@ -247,6 +249,8 @@ class ForwardModel:
             intensity_params.update(
                 cell_phase_adu=r.phase_amplitudes()[0], device_phase_adu=r.phase_amplitudes()[1]
             )
+        if m.modality == "brightfield":
+            intensity_params["defocus_contrast_um2"] = r.defocus_contrast_um2
         if m.modality == "phase" and r.phase_model == "partially_coherent":
             return (
                 Stage(
@@ -529,12 +533,42 @@ class ForwardModel:
 
     @property
     def separate_phase(self) -> bool:
-        """Whether the ring part is rendered with its own amplitudes (two kernels)."""
-        return self.microscope.modality == "phase" and self.render_settings.phase_separate
+        """Whether the ring part is rendered with its own amplitudes (two kernels): phase
+        contrast with ``*_phase_adu`` set, and always in bright field, whose second
+        kernel is the lens term's ``laplacian(k)`` (:meth:`ring_amplitudes`)."""
+        m = self.microscope
+        return m.modality == "brightfield" or (
+            m.modality == "phase" and self.render_settings.phase_separate
+        )
+
+    def ring_amplitudes(self) -> tuple[float, float]:
+        """``(P_cell, P_device)``, the weights (ADU) of the cells and device through
+        :meth:`ring_kernel`, subtracted from the image: the phase ring's
+        (``RenderSettings.phase_amplitudes``), or in bright field the lens term of the
+        cells' phase, ``kappa I_m`` (``defocus_contrast_um2`` times the media level,
+        the light that falls on the sample; the transport-of-intensity equation of
+        :func:`~napari_symbac.optics.psf.brightfield_kernels`). The PDMS's own lens
+        term is not modelled (0)."""
+        r = self.render_settings
+        if self.microscope.modality == "brightfield":
+            return (r.defocus_contrast_um2 * r.media_intensity, 0.0)
+        return r.phase_amplitudes()
 
     def _kernel_pair(self, px: float) -> tuple[np.ndarray, np.ndarray]:
         key = ("pair", *self._kernel_key(px))
         pair = self._kernels.get(key)
+        if pair is None and self.microscope.modality == "brightfield":
+            m, r = self.microscope, self.render_settings
+            pair = brightfield_kernels(
+                r.psf_radius_px,
+                px,
+                m.wavelength_um,
+                m.numerical_aperture,
+                defocus_sigma_um=r.defocus_sigma_um,
+            )
+            for k in pair:
+                k.setflags(write=False)
+            self._kernels[key] = pair
         if pair is None:
             m, r = self.microscope, self.render_settings
             pair = phase_contrast_kernels(
@@ -556,11 +590,13 @@ class ForwardModel:
         return pair
 
     def ring_kernel(self, pixel_size_um: float | None = None) -> np.ndarray:
-        """The zero-sum ring kernel ``h_ring`` of a model with separate phase amplitudes."""
+        """The zero-sum ring kernel ``h_ring`` of a model with separate phase amplitudes
+        (in bright field ``laplacian(k)``, the lens term's)."""
         if not self.separate_phase:
             raise ValueError(
                 "the ring kernel is separate only with RenderSettings.cell_phase_adu or "
-                "device_phase_adu set (phase modality); use kernel() otherwise"
+                "device_phase_adu set (phase modality) or in bright field; use kernel() "
+                "otherwise"
             )
         m, r = self.microscope, self.render_settings
         px = m.pixel_size_um / r.upsample if pixel_size_um is None else pixel_size_um
@@ -726,7 +762,7 @@ class ForwardModel:
                 + np.float32(r.device_intensity) * comps["device"]
             )
             if self.separate_phase:
-                p_cell, p_device = r.phase_amplitudes()
+                p_cell, p_device = self.ring_amplitudes()
                 image -= np.float32(p_cell) * comps["cells_phase"]
                 image -= np.float32(p_device) * comps["device_phase"]
         elif (plan := self._static_plan(scene)) is not None:
@@ -749,7 +785,7 @@ class ForwardModel:
                 composed += np.float32(r.device_intensity) * scene.device[crop]
                 image = self._convolve_resample(composed[None], kernel, scene.upsample)[0]
             if self.separate_phase:
-                p_cell, p_device = r.phase_amplitudes()
+                p_cell, p_device = self.ring_amplitudes()
                 phase = np.float32(p_cell) * scene.cells[crop]
                 phase += np.float32(p_device) * scene.device[crop]
                 ring = self.ring_kernel(scene.pixel_size_um)
@@ -840,7 +876,7 @@ class ForwardModel:
         image += np.float32(r.device_intensity) * static["device"]
         cell_kernels = [(np.float32(r.cell_intensity - r.media_intensity), kernel)]
         if self.separate_phase:
-            p_cell, p_device = r.phase_amplitudes()
+            p_cell, p_device = self.ring_amplitudes()
             ring_kernel = self.ring_kernel(px)
             ring = self._convolved_static(
                 layers, (("static-ring", *kkey), ring_kernel), trim, u, ("device",)

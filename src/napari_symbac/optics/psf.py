@@ -29,6 +29,7 @@ __all__ = [
     "annulus_transfer_function",
     "apodise",
     "born_wolf_psf_3d",
+    "brightfield_kernels",
     "defocus",
     "gaussian_kernel",
     "jinc",
@@ -121,6 +122,46 @@ def defocus(kernel: np.ndarray, pixel_size_um: float, sigma_um: float) -> np.nda
     if total != 0 and out.sum() != 0:
         out *= total / out.sum()
     return out.astype(np.float32)
+
+
+def brightfield_kernels(
+    radius_px: int,
+    pixel_size_um: float,
+    wavelength_um: float,
+    numerical_aperture: float,
+    *,
+    defocus_sigma_um: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Bright-field kernels ``(k, laplacian(k))`` (float32): ``k`` sums to 1, the second
+    to 0.
+
+    ``k`` is the Airy pattern (eq. 6) blurred by eq. 14's defocus: a sample's absorption
+    is imaged through it, as in fluorescence, under a condenser that fills the
+    objective's aperture. A transparent sample in focus shows no contrast in bright
+    field; out of focus by ``z`` its phase ``phi`` shows as the transport-of-intensity
+    equation gives, ``I(z) = I_0 (1 - z lambda / (2 pi n) laplacian(phi))`` (``n`` the
+    immersion index): a cell, a lens, gathers light into its centre on one side of
+    focus and spreads it to its rim on the other. The image of the cells' phase map is
+    ``laplacian(k)`` convolved with it, weighted by ``I_0 kappa``, ``kappa = z lambda
+    phi / (2 pi n)`` (``RenderSettings.defocus_contrast_um2``, ``phi`` a full-depth
+    column's phase). The discrete Laplacian (5 points, at the render pixel, per um^2)
+    is made to sum to 0 exactly (a part ``k`` times its sum removed: ~1e-5 of it, the
+    kernel's edge), so an empty field keeps its level.
+    """
+    from scipy.ndimage import laplace
+
+    kernel = np.asarray(
+        defocus(
+            airy_psf(radius_px, pixel_size_um, wavelength_um, numerical_aperture),
+            pixel_size_um,
+            defocus_sigma_um,
+        ),
+        np.float64,
+    )
+    kernel /= kernel.sum()
+    curvature = laplace(kernel, mode="constant") / pixel_size_um**2
+    curvature -= curvature.sum() * kernel
+    return kernel.astype(np.float32), curvature.astype(np.float32)
 
 
 def _condenser(condenser: str | Condenser) -> Condenser:
