@@ -70,9 +70,9 @@ def test_real_sample_field_opens(make_napari_viewer):
 
 
 def test_the_real_sample_field_is_taken_as_fluorescence(make_napari_viewer):
-    """Found as a user: the Recording dock took the sample's brightfield image (which the
-    model does not image) and called it phase contrast with a Ph3 condenser; it takes
-    the fluorescence image, as fluorescence, with its pixel size."""
+    """Found as a user: the Recording dock took the sample's brightfield image and called
+    it phase contrast with a Ph3 condenser; it takes the fluorescence image, as
+    fluorescence, with its pixel size. The brightfield, chosen, is bright field."""
     from napari_symbac._widgets.real_image import RealImageWidget
 
     viewer = make_napari_viewer()
@@ -81,6 +81,26 @@ def test_the_real_sample_field_is_taken_as_fluorescence(make_napari_viewer):
     assert dock.image.value is viewer.layers["ColiCoords fluorescence"]
     assert dock.modality.value == "fluorescence"
     assert dock.microscope.value.pixel_size_um == pytest.approx(0.08)
+    dock.image.value = viewer.layers["ColiCoords brightfield"]
+    assert dock.modality.value == "brightfield"
+    assert not dock.microscope.condenser.visible  # a phase-contrast setting
+
+
+def test_the_workflow_shares_the_recording_chosen_first(make_napari_viewer):
+    """Found as a user: choosing the sample's brightfield in the Recording step left
+    Simulate and Auto-fit on its fluorescence (the newest recording when they were
+    made); the later steps take the first step's recording."""
+    from napari_symbac._widgets.workflow import WorkflowWidget
+
+    viewer = make_napari_viewer()
+    flow = WorkflowWidget(viewer)
+    viewer.open_sample("napari-symbac", "colicoords")
+    brightfield = viewer.layers["ColiCoords brightfield"]
+    flow.real_image.image.value = brightfield
+    assert flow.simulate.recording.value is brightfield
+    assert flow.tune.reference.value is brightfield
+    assert flow.diagnose.reference.value is brightfield
+    assert flow.simulate.pipeline_settings().microscope.modality == "brightfield"
 
 
 def test_manifest_has_one_source_for_wheel_and_editable_installs(tmp_path, monkeypatch):

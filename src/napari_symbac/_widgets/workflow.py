@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 from qtpy.QtCore import QEvent, QObject, Qt
 from qtpy.QtWidgets import QFrame, QScrollArea, QStyle, QTabWidget, QWidget
 
+from napari_symbac._widgets._recording import is_recording
 from napari_symbac._widgets.diagnose import DiagnoseWidget
 from napari_symbac._widgets.export import ExportWidget
 from napari_symbac._widgets.real_image import RealImageWidget
@@ -42,7 +43,11 @@ class WorkflowWidget(QTabWidget):
     """Recording -> Simulate -> Tune + fit -> Diagnose -> Export, as tabs of one dock widget.
 
     The five step widgets are the ones napari also offers separately; they share the
-    recording through its layer's metadata, so a tab can be used alone.
+    recording through its layer's metadata, so a tab can be used alone. The recording
+    chosen in the first step becomes the later steps' recording (Simulate's, Tune's
+    real image, Diagnose's) once it has its pixel size: found as a user, choosing the
+    ColiCoords sample's brightfield there left Simulate and Auto-fit on its fluorescence,
+    the newest recording when they were made.
     """
 
     def __init__(self, viewer: napari.viewer.Viewer):
@@ -69,6 +74,18 @@ class WorkflowWidget(QTabWidget):
             index = self.addTab(area, title)
             self.setTabToolTip(index, tip)
         self._fit_widest_step()
+        self.real_image.image.changed.connect(self._share_recording)
+        self.real_image.pixel_size.changed.connect(self._share_recording)
+
+    def _share_recording(self, _value=None) -> None:
+        """The first step's recording chosen in the later steps (see the class notes)."""
+        layer = self.real_image.image.value
+        if layer is None or not is_recording(layer):
+            return
+        for choice in (self.simulate.recording, self.tune.reference, self.diagnose.reference):
+            choice.reset_choices()
+            if layer in choice.choices and choice.value is not layer:
+                choice.value = layer
 
     def _fit_widest_step(self) -> None:
         """Never narrower than the widest step: no sideways scrolling, no cut labels."""
