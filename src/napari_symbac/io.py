@@ -65,8 +65,8 @@ def scale_um(scale: float, unit: object) -> float | None:
     napari's default unit, the pixel, is taken for micrometres, as readers that set no
     units mean it; None for a unit that is no length (seconds).
 
-    Found as a user: an image opened by another reader in nanometres, scale 65, was
-    taken for 65 um pixels.
+    Before, an image another reader opened in nanometres (scale 65) was taken for 65 um
+    pixels.
     """
     name = str(unit)
     if name == "pixel":

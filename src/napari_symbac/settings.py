@@ -683,13 +683,14 @@ class RenderSettings:
         mid-plane (the image is the same at ``+z`` and ``-z``: a cell is symmetric
         about its mid-plane and the index-matched PSF about its focus).
     defocus_contrast_um2
-        Bright field: the weight ``kappa`` (um^2) of the transport-of-intensity term of
-        the kernel, ``h = k + kappa laplacian(k)`` (``k`` the Airy PSF of eq. 14's
-        defocus): a cell's lens effect seen out of focus, a bright centre inside a dark
-        rim or the reverse, by the sign of the focus offset; 0 = in focus (absorption
-        only). For a cell of one material it is ``-z lambda phi / (2 pi n alpha)``, ``z``
-        the focus offset, ``phi`` and ``alpha`` its phase delay and absorbed fraction,
-        so the sign follows the focus; docs/physics.md. Not used in phase contrast or
+        Bright field: ``kappa`` (um^2) of the cells' lens term out of focus, the
+        transport-of-intensity equation's ``kappa = z lambda phi / (2 pi n)`` (``z`` the
+        focal plane's distance from the sample, ``phi`` the phase of a full-depth cell
+        column, ``n`` the immersion index): the image gets ``- kappa I_m`` times the
+        cells' fraction convolved with ``laplacian(k)`` (``k`` the Airy PSF with eq. 14's
+        defocus; :func:`~napari_symbac.optics.psf.brightfield_kernels`). Positive: a
+        bright centre in a dark rim; negative: the reverse; 0 = in focus (absorption
+        only). docs/physics.md, "Bright field". Not used in phase contrast or
         fluorescence.
     noise_model
         ``"camera"`` (EMVA1288, eq. 17), ``"gaussian"`` or ``"none"``.

@@ -321,3 +321,14 @@ def test_bright_field_is_refused_before_the_base_fit(tmp_path, capsys, real_data
     error = _diagnose_refused(tmp_path, capsys, image, mic)
     assert "diagnose models phase contrast and fluorescence, not brightfield" in error
     assert "export from FIT/settings.yaml" in error
+
+
+def test_the_most_effects_the_command_accepts_is_the_diagnosis_default():
+    """``--max-effects``' default (a constant, so that ``--help`` need not import the
+    diagnosis) is :func:`~napari_symbac.diagnose.diagnose`'s own."""
+    import inspect
+
+    from napari_symbac.cli import DIAGNOSE_MAX_EFFECTS
+    from napari_symbac.diagnose import diagnose
+
+    assert inspect.signature(diagnose).parameters["max_steps"].default == DIAGNOSE_MAX_EFFECTS

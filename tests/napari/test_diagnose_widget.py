@@ -115,6 +115,9 @@ def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
     qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
     assert widget.report.value == text
     # the most effects accepted is the dock's choice, as diagnose --max-effects
+    from napari_symbac.cli import DIAGNOSE_MAX_EFFECTS
+
+    assert widget.max_effects.value == DIAGNOSE_MAX_EFFECTS
     widget.max_effects.value = 1
     widget.run_button.clicked.emit()
     qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)

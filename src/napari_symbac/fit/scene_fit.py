@@ -65,13 +65,6 @@ _INTENSITIES = ("cell_intensity", "media_intensity", "device_intensity")
 #: The name of bright field's fourth amplitude, ``kappa I_m`` (ADU um^2), among the
 #: fitted parameters (:attr:`~napari_symbac.fit.engine.SceneModel.lens`).
 LENS_AMPLITUDE = "lens_amplitude_adu_um2"
-
-
-def lens_contrast_um2(intensities: np.ndarray) -> float:
-    """Bright field's ``kappa`` (``RenderSettings.defocus_contrast_um2``, um^2) from the
-    solved amplitudes ``(I_c, I_m, I_d, kappa I_m)``; 0 for an empty media level."""
-    media = float(intensities[1])
-    return float(intensities[3]) / media if media > 0 else 0.0
 #: Fitted optics by default: phase as :data:`~napari_symbac.fit.DEFAULT_FIT`; in
 #: fluorescence and bright field the phase ring's parameters do not exist, defocus
 #: remains (bright field's lens term is an amplitude, solved with the intensities).
@@ -772,6 +765,13 @@ def _run_frame(
     )
 
 
+def lens_contrast_um2(intensities: np.ndarray) -> float:
+    """Bright field's ``kappa`` (``RenderSettings.defocus_contrast_um2``, um^2) from the
+    solved amplitudes ``(I_c, I_m, I_d, kappa I_m)``; 0 for an empty media level."""
+    media = float(intensities[1])
+    return float(intensities[3]) / media if media > 0 else 0.0
+
+
 #: Fractions of the start's width a bright-field start also tries (:func:`_narrower_start`).
 NARROWER_START = (0.6, 0.7, 0.8, 0.9)
 
@@ -798,7 +798,7 @@ def _narrower_start(problem: Problem, start: State) -> State:
         x = start.x.copy()
         x[k] = float(np.clip(start.x[k] * factor, low, high))
         trial = problem.evaluate(x)
-        if trial.chi2 + trial.prior < best.chi2 + best.prior:
+        if trial.cost < best.cost:
             best = trial
     return best
 
