@@ -61,16 +61,25 @@ def _relative_difference(a: np.ndarray, b: np.ndarray) -> float:
 @pytest.mark.parametrize("geometry", ["trench", "field", "trench-plain"])
 @pytest.mark.parametrize(
     ("render", "modality"),
-    [(CLEAN, "phase"), (SEPARATE, "phase"), (CLEAN, "fluorescence")],
-    ids=["phase", "separate-ring", "fluorescence"],
+    [(CLEAN, "phase"), (SEPARATE, "phase"), (CLEAN, "fluorescence"), (CLEAN, "brightfield")],
+    ids=["phase", "separate-ring", "fluorescence", "brightfield"],
 )
 def test_noise_free_batch_equals_cpu_path(geometry, render, modality, device, request):
     """Drawn scenes take the static-layer path (cells alone on the device, the open and
     device layers' image once); "plain" copies of them, which do not carry their open
-    fraction, the composed path (eq. 3 composed on the host, one plane)."""
+    fraction, the composed path (eq. 3 composed on the host, one plane). Bright field's
+    lens term (a second kernel) is drawn alike by every path."""
     if modality == "fluorescence":
         render = dataclasses.replace(
             render, cell_intensity=2000.0, media_intensity=150.0, device_intensity=100.0
+        )
+    if modality == "brightfield":
+        render = dataclasses.replace(
+            render,
+            cell_intensity=2500.0,
+            media_intensity=2600.0,
+            device_intensity=2300.0,
+            defocus_contrast_um2=0.015,
         )
     microscope = Microscope(modality=modality)
     sim_pair = request.getfixturevalue(geometry.partition("-")[0])
