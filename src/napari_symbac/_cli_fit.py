@@ -489,6 +489,7 @@ def _outputs_one(
         camera_text,
         cells_records,
         colony_noise_text,
+        lens_problem,
         model_free_camera_check,
         parameter_table,
         report_problems,
@@ -550,6 +551,7 @@ def _outputs_one(
         result, frame.shape, microscope.pixel_size_um, masks, prepared.colony
     )
     problems += [p] if (p := camera_pixel_problem(microscope)) else []
+    problems += [p] if (p := lens_problem(result.render, microscope)) else []
     if prepared.colony:
         facts["start"] = "instance masks (the cells as given; the optics fitted to them)"
         facts["camera"] = (

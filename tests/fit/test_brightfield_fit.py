@@ -128,3 +128,22 @@ def test_a_bright_field_series_is_fitted_jointly(tmp_path, real_data_dir):
         report = (out / frame / "report.txt").read_text()
         assert "cells fitted: 1\n" in report
         assert "lens_amplitude_adu_um2" in report
+
+
+def test_a_lens_term_no_cell_out_of_focus_gives_is_a_problem():
+    """|kappa| <= 2.1 lambda^2 / (pi NA^2) (two depths of field, a cell's phase at most
+    2.1 rad): 0.103 um^2 at 0.55 um and NA 1.4."""
+    from napari_symbac.fit.report import lens_problem
+    from napari_symbac.settings import Microscope
+
+    microscope = Microscope(
+        pixel_size_um=0.08, numerical_aperture=1.4, wavelength_um=0.55, modality="brightfield"
+    )
+    fitted = dataclasses.replace(BRIGHTFIELD_TRUTH, defocus_contrast_um2=0.015)
+    assert lens_problem(fitted, microscope) is None
+    beyond = dataclasses.replace(BRIGHTFIELD_TRUTH, defocus_contrast_um2=-0.2)
+    problem = lens_problem(beyond, microscope)
+    assert problem.startswith("the lens term, kappa = -0.2 um^2, is beyond")
+    assert "<= 0.103 um^2" in problem
+    phase = dataclasses.replace(microscope, modality="phase")
+    assert lens_problem(beyond, phase) is None

@@ -798,7 +798,12 @@ class TuneWidget(Container):
         from napari_symbac.fit import ColonyFit
         from napari_symbac.fit.clipped_background import with_clip
         from napari_symbac.fit.fitted_settings import fitted_render
-        from napari_symbac.fit.report import UNMEASURED_READ_NOISE, cells_counted, fit_problems
+        from napari_symbac.fit.report import (
+            UNMEASURED_READ_NOISE,
+            cells_counted,
+            fit_problems,
+            lens_problem,
+        )
 
         result, clipped = outcome.result, outcome.clipped
         self.fit_result = result
@@ -925,6 +930,8 @@ class TuneWidget(Container):
             problems += [w for w in series.warnings if w not in problems]
         if outcome.camera_check is not None and outcome.camera_check[1] is not None:
             problems.append(outcome.camera_check[1])  # as in fit's report.txt
+        if lens := lens_problem(result.render, self._fit_microscope):
+            problems.append(lens)
         moves = tuple(getattr(result, "moves", ()) or ())
         lines = [f"{cells_counted(len(result.cells))} fitted"] + [simulated] * bool(simulated)
         lines += [f"Moves: {'; '.join(moves)}"] if moves else []

@@ -192,6 +192,29 @@ def fit_problems(
     return problems
 
 
+def lens_problem(render: Any, microscope: Any) -> str | None:
+    """A sentence when a bright-field fit's lens term lies beyond what a cell out of
+    focus gives, else None.
+
+    ``kappa = z lambda phi / (2 pi n)`` with the focal plane at most two depths of field
+    away (``|z| <= 2 lambda n / NA^2``, as ``focus_offset_um``'s bound) and a cell's phase
+    at most 2.1 rad (``cell_phase_rad``'s) gives ``|kappa| <= 2.1 lambda^2 / (pi NA^2)``
+    (0.10 um^2 at 0.55 um and NA 1.4; ColiCoords' crop fits 0.015). Beyond it the
+    Laplacian stands for something else: another modality, or a wrong pixel size,
+    wavelength or NA (docs/physics.md, "Bright field")."""
+    if getattr(microscope, "modality", None) != "brightfield":
+        return None
+    kappa = float(render.defocus_contrast_um2)
+    bound = 2.1 * microscope.wavelength_um**2 / (math.pi * microscope.numerical_aperture**2)
+    if abs(kappa) <= bound:
+        return None
+    return (
+        f"the lens term, kappa = {kappa:+.3g} um^2, is beyond what a cell out of focus "
+        f"gives (|kappa| <= {bound:.3g} um^2 within two depths of field): check that the "
+        "image is bright field, and the pixel size, wavelength and NA"
+    )
+
+
 #: Ratio of the fit's gain to the model-free gain above which the report warns.
 GAIN_RATIO = 1.5
 #: How a command-line user fixes the camera (``model_free_camera_check``'s ``fix``).
