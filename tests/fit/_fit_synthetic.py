@@ -83,9 +83,16 @@ FLUO_TRUTH = RenderSettings(
 
 def make_fluorescence_field(seed: int = 2, shape: tuple[int, int] = (96, 96)) -> Truth:
     """Four cells on an open 96 x 96 field (80 nm pixels), fluorescence, camera noise."""
+    microscope = Microscope(pixel_size_um=0.08, modality="fluorescence")
+    return _open_field(microscope, FLUO_TRUTH, seed, shape)
+
+
+def _open_field(
+    microscope: Microscope, render: RenderSettings, seed: int, shape: tuple[int, int]
+) -> Truth:
+    """The four cells of the open-field tests (0.9 um wide) rendered with camera noise."""
     from napari_symbac.scene import Field
 
-    microscope = Microscope(pixel_size_um=0.08, modality="fluorescence")
     cells = make_cells(
         y_um=[1.8, 2.2, 5.4, 5.6],
         x_um=[1.6, 5.4, 2.0, 5.8],
@@ -94,11 +101,10 @@ def make_fluorescence_field(seed: int = 2, shape: tuple[int, int] = (96, 96)) ->
         width_um=0.9,
     )
     camera = Camera()
-    field = Field(shape[1] * 0.08, shape[0] * 0.08)
-    scene = draw_scene(cells, TrenchGeometry(), microscope, FLUO_TRUTH, field=field)
-    model = ForwardModel(microscope, FLUO_TRUTH, camera)
-    image = model.render(scene, np.random.default_rng(seed))
-    return Truth(cells, scene, image, microscope, FLUO_TRUTH, camera)
+    field = Field(shape[1] * microscope.pixel_size_um, shape[0] * microscope.pixel_size_um)
+    scene = draw_scene(cells, TrenchGeometry(), microscope, render, field=field)
+    image = ForwardModel(microscope, render, camera).render(scene, np.random.default_rng(seed))
+    return Truth(cells, scene, image, microscope, render, camera)
 
 
 def make_fluorescence_series(n_frames: int = 3, seed: int = 5) -> list[Truth]:
@@ -144,19 +150,5 @@ BRIGHTFIELD_TRUTH = RenderSettings(
 
 def make_brightfield_field(seed: int = 4, shape: tuple[int, int] = (96, 96)) -> Truth:
     """The four cells of :func:`make_fluorescence_field` in bright field, camera noise."""
-    from napari_symbac.scene import Field
-
     microscope = Microscope(pixel_size_um=0.08, numerical_aperture=1.4, modality="brightfield")
-    cells = make_cells(
-        y_um=[1.8, 2.2, 5.4, 5.6],
-        x_um=[1.6, 5.4, 2.0, 5.8],
-        angle_rad=[0.3, -0.5, 1.2, 0.05],
-        length_um=[2.6, 2.2, 3.0, 2.4],
-        width_um=0.9,
-    )
-    camera = Camera()
-    field = Field(shape[1] * 0.08, shape[0] * 0.08)
-    scene = draw_scene(cells, TrenchGeometry(), microscope, BRIGHTFIELD_TRUTH, field=field)
-    model = ForwardModel(microscope, BRIGHTFIELD_TRUTH, camera)
-    image = model.render(scene, np.random.default_rng(seed))
-    return Truth(cells, scene, image, microscope, BRIGHTFIELD_TRUTH, camera)
+    return _open_field(microscope, BRIGHTFIELD_TRUTH, seed, shape)

@@ -557,8 +557,10 @@ class ForwardModel:
     def _kernel_pair(self, px: float) -> tuple[np.ndarray, np.ndarray]:
         key = ("pair", *self._kernel_key(px))
         pair = self._kernels.get(key)
-        if pair is None and self.microscope.modality == "brightfield":
-            m, r = self.microscope, self.render_settings
+        if pair is not None:
+            return pair
+        m, r = self.microscope, self.render_settings
+        if m.modality == "brightfield":
             pair = brightfield_kernels(
                 r.psf_radius_px,
                 px,
@@ -566,11 +568,7 @@ class ForwardModel:
                 m.numerical_aperture,
                 defocus_sigma_um=r.defocus_sigma_um,
             )
-            for k in pair:
-                k.setflags(write=False)
-            self._kernels[key] = pair
-        if pair is None:
-            m, r = self.microscope, self.render_settings
+        else:
             pair = phase_contrast_kernels(
                 r.psf_radius_px,
                 px,
@@ -584,9 +582,9 @@ class ForwardModel:
                 ring_model=r.ring_model,
                 ring_width_scale=r.phase_ring_width_scale,
             )
-            for k in pair:
-                k.setflags(write=False)
-            self._kernels[key] = pair
+        for k in pair:
+            k.setflags(write=False)
+        self._kernels[key] = pair
         return pair
 
     def ring_kernel(self, pixel_size_um: float | None = None) -> np.ndarray:
