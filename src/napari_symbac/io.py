@@ -329,10 +329,13 @@ def read_recording(path: str | Path, channel: int | None = None) -> Recording:
         message names the file).
     """
     path = Path(path)
-    recording, axes = _read_tiff(path)
-    return dataclasses.replace(
-        recording, data=_one_channel(recording.data, axes, path.name, channel)
-    )
+    return _channel_of(*_read_tiff(path), path.name, channel)
+
+
+def _channel_of(recording: Recording, axes: str, name: str, channel: int | None) -> Recording:
+    """``recording`` (as :func:`_read_tiff` read it) with its channel ``channel`` only
+    (:func:`_one_channel`)."""
+    return dataclasses.replace(recording, data=_one_channel(recording.data, axes, name, channel))
 
 
 def _read_tiff(path: Path) -> tuple[Recording, str]:
@@ -517,16 +520,13 @@ def _read_layers(path) -> list[tuple]:
     read once."""
     path = Path(path)
     recording, axes = _read_tiff(path)
-
-    def channel(k: int | None) -> Recording:
-        return dataclasses.replace(
-            recording, data=_one_channel(recording.data, axes, path.name, k)
-        )
-
     try:
-        return [_recording_layer(channel(None))]
+        return [_recording_layer(_channel_of(recording, axes, path.name, None))]
     except ChannelsError as err:
-        return [_recording_layer(channel(k), f" channel {k}") for k in range(err.n_channels)]
+        return [
+            _recording_layer(_channel_of(recording, axes, path.name, k), f" channel {k}")
+            for k in range(err.n_channels)
+        ]
 
 
 def _recording_layer(recording: Recording, suffix: str = "") -> tuple:

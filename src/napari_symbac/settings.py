@@ -74,6 +74,15 @@ def _positive(obj: object, *names: str) -> None:
         )
 
 
+def _finite(obj: object, *names: str) -> None:
+    for name in names:
+        value = getattr(obj, name)
+        _require(
+            isinstance(value, (int, float)) and math.isfinite(value),
+            f"{type(obj).__name__}.{name} must be a finite number, got {value!r}",
+        )
+
+
 def _non_negative(obj: object, *names: str) -> None:
     for name in names:
         value = getattr(obj, name)
@@ -812,10 +821,7 @@ class RenderSettings:
             "RenderSettings.envelope_stain_fraction must be in [0, 1] (the fraction of the "
             f"stain in the cell envelope), got {self.envelope_stain_fraction!r}",
         )
-        _require(
-            isinstance(self.psf_offset, (int, float)) and math.isfinite(self.psf_offset),
-            f"RenderSettings.psf_offset must be a finite number, got {self.psf_offset!r}",
-        )
+        _finite(self, "psf_offset")
         _choice(self, "noise_model", typing.get_args(NoiseModel))
         _choice(self, "ring_model", ("airy", "annulus"))
         _choice(self, "phase_model", ("linear", "partially_coherent"))
@@ -832,16 +838,7 @@ class RenderSettings:
             "RenderSettings.plate_phase_rad must be in (0, pi) (pi/2: positive phase "
             f"contrast), got {self.plate_phase_rad!r}",
         )
-        _require(
-            isinstance(self.focus_offset_um, (int, float)) and math.isfinite(self.focus_offset_um),
-            f"RenderSettings.focus_offset_um must be a finite number, got {self.focus_offset_um!r}",
-        )
-        _require(
-            isinstance(self.defocus_contrast_um2, (int, float))
-            and math.isfinite(self.defocus_contrast_um2),
-            "RenderSettings.defocus_contrast_um2 must be a finite number, got "
-            f"{self.defocus_contrast_um2!r}",
-        )
+        _finite(self, "focus_offset_um", "defocus_contrast_um2")
         _require(
             isinstance(self.depth_layers, int)
             and not isinstance(self.depth_layers, bool)

@@ -765,7 +765,11 @@ class SceneModel:
             )
         ]
         patches: dict[tuple[int, int], tuple[int, int, np.ndarray]] = {}
-        weight = contrast
+        # bright field: d mu = I_c' dC conv k - L dC conv laplacian(k), one kernel per
+        # cell and the patch weighed by 1 (the lens amplitude L need not share a sign
+        # with the contrast, which is 0 for a transparent cell)
+        ring = forward.ring_kernel(scene.pixel_size_um) if self.lens else None
+        weight = np.ones(lay.n) if self.lens else contrast
         for i in range(lay.n):
             ks = [k for k in geometric if k == width_k or lay.owner(k) == i]
             if not ks:
@@ -773,13 +777,8 @@ class SceneModel:
             for _ in ks:
                 self.tick()
             own = kernel
-            if self.lens:
-                # d mu = I_c' dC conv k - L dC conv laplacian(k): one kernel per cell,
-                # the patch weighed by 1 (the lens amplitude L need not share a sign
-                # with the contrast, which is 0 for a transparent cell)
-                ring = forward.ring_kernel(scene.pixel_size_um)
+            if ring is not None:
                 own = (contrast[i] * kernel - intensities[3] * ring).astype(np.float32)
-                weight = np.ones(lay.n)
             row0, col0, batch = self.cell_deltas(x, [moved[k] for k in ks], i, scene, own)
             for k, patch in zip(ks, batch):
                 patches[i, k] = (row0, col0, patch)

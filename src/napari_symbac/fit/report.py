@@ -202,10 +202,15 @@ def lens_problem(render: Any, microscope: Any) -> str | None:
     (0.10 um^2 at 0.55 um and NA 1.4; ColiCoords' crop fits 0.015). Beyond it the
     Laplacian stands for something else: another modality, or a wrong pixel size,
     wavelength or NA (docs/physics.md, "Bright field")."""
+    from napari_symbac.fit.parameters import parameter_bounds
+
     if getattr(microscope, "modality", None) != "brightfield":
         return None
     kappa = float(render.defocus_contrast_um2)
-    bound = 2.1 * microscope.wavelength_um**2 / (math.pi * microscope.numerical_aperture**2)
+    focus_um = parameter_bounds("focus_offset_um", microscope)[1]
+    phase_rad = parameter_bounds("cell_phase_rad", microscope)[1]
+    n = microscope.refractive_index
+    bound = focus_um * microscope.wavelength_um * phase_rad / (2 * math.pi * n)
     if abs(kappa) <= bound:
         return None
     return (

@@ -462,6 +462,13 @@ def _frame_x(z: np.ndarray, own: list[int], t: int, n_shared: int) -> np.ndarray
     return np.concatenate([z[start : start + own[t]], z[z.size - n_shared :]])
 
 
+def _n_amplitudes(runs: list[_FrameRun]) -> int:
+    """Amplitudes each frame solves in closed form: the three intensities, and bright
+    field's lens amplitude (:attr:`~napari_symbac.fit.engine.SceneModel.n_amplitudes`)."""
+    problem = runs[0].problem
+    return problem.model(problem.n_cells(runs[0].state.x)).n_amplitudes
+
+
 def _frame_index(own: list[int], t: int, n_shared: int, n_amp: int = 3) -> np.ndarray:
     """Joint positions of frame ``t``'s parameters and then its ``n_amp`` amplitudes
     (the three intensities, and bright field's lens amplitude)."""
@@ -577,7 +584,7 @@ def _joint_refine(
         trial = _evaluate_all(runs, trial_z, own, n_shared)
         return (trial_z, trial), sum(s.cost for s in trial) + tie_cost(trial_z)
 
-    n_amp = runs[0].problem.model(runs[0].problem.n_cells(runs[0].state.x)).n_amplitudes
+    n_amp = _n_amplitudes(runs)
     size = sum(own) + n_shared + n_amp * len(runs)
     lam = 1e-2
     converged = False
@@ -651,7 +658,7 @@ def _joint_uncertainty(
     n_shared = len(names)
     own = [run.state.x.size - n_shared for run in runs]
     amplitudes = (*_INTENSITIES, LENS_AMPLITUDE)
-    n_amp = 4 if LENS_AMPLITUDE in fits[0].parameter_names else 3
+    n_amp = _n_amplitudes(runs)
     size = sum(own) + n_shared + n_amp * len(runs)
     info = np.zeros((size, size))
     used = np.zeros(size, bool)

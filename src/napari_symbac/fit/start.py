@@ -608,13 +608,10 @@ def start_scene(
     polarity = polarity_of(image, microscope.modality, labels)
     px = microscope.pixel_size_um
     if microscope.modality == "brightfield" and masks is None and geometry == "open":
-        empty = None if labels is None else np.isin(np.asarray(labels), (2, 3))
         media = None if labels is None else np.asarray(labels) == 2
         instances = brightfield_instances(image, px, media, valid)
-        if empty is not None and instances.any():
-            on_empty = ndimage.mean(empty, instances, np.arange(1, int(instances.max()) + 1))
-            dropped = np.flatnonzero(np.asarray(on_empty) > 0.5) + 1
-            instances = _renumber(np.where(np.isin(instances, dropped), 0, instances))
+        if labels is not None:
+            instances = _off_painted_empty(instances, np.asarray(labels))
         if not instances.any():
             raise ValueError(
                 "the start found no cells in the image: nothing departs from its background "
@@ -662,7 +659,6 @@ def start_scene(
     # Painted classes are rough strokes, not outlines: they give the polarity (above)
     # and say where no cell is; the cells themselves come from the image.
     labels = np.asarray(labels)
-    painted_empty = (labels == 2) | (labels == 3)
     cells, widths, _, instances = otsu_cells(
         image,
         microscope,
@@ -674,11 +670,9 @@ def start_scene(
         valid=valid,
         background=labels == 2,
     )
-    on_empty = ndimage.mean(painted_empty, instances, np.arange(1, int(instances.max()) + 1))
-    dropped = np.flatnonzero(np.asarray(on_empty) > 0.5) + 1
-    if dropped.size:
-        instances = np.where(np.isin(instances, dropped), 0, instances)
-        instances = _renumber(instances)
+    kept = _off_painted_empty(instances, labels)
+    if kept is not instances:
+        instances = kept
         cells, widths = cells_from_instances(instances, px, max_cell_length_um)
     if refuse_wide:
         refuse_blobs(widths, px)
@@ -721,6 +715,18 @@ def brightfield_instances(
     markers, _ = ndimage.label(ndimage.binary_erosion(mask, iterations=erode_px))
     distance = ndimage.distance_transform_edt(mask)
     return np.asarray(watershed(-distance, markers, mask=mask), np.int64)
+
+
+def _off_painted_empty(instances: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """``instances`` without the regions lying over half on painted media or device (2, 3:
+    rough strokes say where no cell is), renumbered; ``instances`` itself when none
+    does."""
+    empty = (labels == 2) | (labels == 3)
+    on_empty = ndimage.mean(empty, instances, np.arange(1, int(instances.max()) + 1))
+    dropped = np.flatnonzero(np.asarray(on_empty) > 0.5) + 1
+    if not dropped.size:
+        return instances
+    return _renumber(np.where(np.isin(instances, dropped), 0, instances))
 
 
 def _renumber(instances: np.ndarray) -> np.ndarray:
