@@ -1,13 +1,15 @@
 """Synthetic-to-real segmentation: does a network trained only on calibrated data work?
 
-Run: ``python benchmarks/bench_transfer.py [--data colicoords|omnipose] [--quick]
-[--out DIR]``. Needs torch (CPU is enough; CUDA is used when present).
+Run: ``python benchmarks/bench_transfer.py [--data colicoords|colicoords-brightfield|omnipose]
+[--quick] [--out DIR]``. Needs torch (CPU is enough; CUDA is used when present).
 
 Protocol (fixed; the same for every training set):
 
 * **real test data** with instance masks: the 10 ColiCoords ds1 fluorescence fields
   (512 x 512, 80 nm pixels assumed; binary masks split into connected components), or
   the 3 Omnipose phase-contrast colonies (8-bit, pixel size from the masks' widths);
+  ``colicoords-brightfield``: the same ten fields and masks in bright field (flattened,
+  9-12 % of the pixels clipped at 65535), calibrated as bright field;
 * **calibrated**: :func:`napari_symbac.calibrate.calibrate` given only what a user knows
   (the microscope file and the modality). ColiCoords: the image of field 1 without its
   masks (the fit's own segmentation). Omnipose: the pixel size is not known, so the
@@ -53,6 +55,11 @@ curvature, the overlap depth of the simulated cells; prints a markdown table.
 ``--seeds`` sets the seeds of the calibrated rows (default 0 1; each seed is one
 synthetic training set and one network).
 
+``--baseline-seeds`` sets the seeds of the real-annotation networks (default 0; one
+set of leave-one-image-out folds per seed, named ``(seed N)`` when more than one), so
+that the comparison is of means over seeds on both sides; a second table gives each
+method's mean and s.d. of F1 and width bias over its seeds.
+
 ``--no-baselines`` skips the real-annotation folds and the defaults row (neither
 depends on ``calibrate``; the folds are most of the run's time).
 
@@ -81,10 +88,16 @@ def real_dir() -> Path:
     """``../shared/data/real`` beside the checkout, or ``$NAPARI_SYMBAC_REAL_DATA``."""
     return Path(os.environ.get("NAPARI_SYMBAC_REAL_DATA", ROOT.parent / "shared" / "data" / "real"))
 
-#: GUI defaults of the fluorescence modality switch (``_widgets/_recording.py``).
-FLUORESCENCE_DEFAULTS = {
-    "cell_intensity": 3000.0, "media_intensity": 150.0, "device_intensity": 60.0
+#: GUI defaults of the modality switch (``_widgets/_recording.py``).
+MODALITY_DEFAULTS = {
+    "fluorescence": {"cell_intensity": 3000.0, "media_intensity": 150.0, "device_intensity": 60.0},
+    "brightfield": {
+        "cell_intensity": 2500.0, "media_intensity": 2600.0, "device_intensity": 2300.0
+    },
 }
+#: Wavelength the user's microscope file gives (um): the ColiCoords stain's emission, and
+#: the middle of a halogen lamp's band for bright field and phase contrast.
+WAVELENGTH_UM = {"fluorescence": 0.53, "brightfield": 0.55, "phase": 0.55}
 
 
 @dataclass(frozen=True)
@@ -115,12 +128,16 @@ class RealImage:
     border_annotated: bool = True  # False: no cell cut by the border is annotated
 
 
-def load_colicoords(budget: Budget) -> tuple[list[RealImage], str]:
+def load_colicoords(
+    budget: Budget, modality: str = "fluorescence"
+) -> tuple[list[RealImage], str]:
+    """The ds1 fields in ``modality`` (``"fluorescence"`` or ``"brightfield"``: the same
+    cells, the same masks)."""
     import tifffile
 
     folder = real_dir() / "colicoords" / "test_data" / "ds1"
     images = []
-    for path in sorted((folder / "fluorescence").glob("*.tif"))[: budget.max_fields]:
+    for path in sorted((folder / modality).glob("*.tif"))[: budget.max_fields]:
         image = tifffile.imread(path)
         binary = tifffile.imread(folder / "binary" / f"{path.stem}_Probabilities_filtered.tif")
         masks, _ = ndimage.label(binary > 0)
@@ -129,7 +146,8 @@ def load_colicoords(budget: Budget) -> tuple[list[RealImage], str]:
                 : budget.image_px, : budget.image_px
             ]
         images.append(RealImage(path.stem, image, masks.astype(np.int32), 0.08, False))
-    return images, "fluorescence"
+    return images, modality
+
 
 
 def load_omnipose(budget: Budget) -> tuple[list[RealImage], str]:
@@ -150,6 +168,14 @@ def load_omnipose(budget: Budget) -> tuple[list[RealImage], str]:
             image, masks = image[window], masks[window]
         images.append(RealImage(path.stem, image, masks, estimate_pixel_size_um(masks, 1.0)))
     return images, "phase"
+
+
+#: The real data sets: name -> loader.
+LOADERS = {
+    "colicoords": load_colicoords,
+    "colicoords-brightfield": lambda budget: load_colicoords(budget, "brightfield"),
+    "omnipose": load_omnipose,
+}
 
 
 def normalise(image: np.ndarray) -> np.ndarray:
@@ -188,8 +214,10 @@ def calibrated_settings(
     from napari_symbac.calibrate import calibrate, export_settings
     from napari_symbac.settings import Microscope
 
-    if modality == "fluorescence":  # what the user knows: the microscope and modality
-        microscope = Microscope(pixel_size_um=0.08, wavelength_um=0.53, modality=modality)
+    if modality != "phase":  # what the user knows: the microscope and modality
+        microscope = Microscope(
+            pixel_size_um=0.08, wavelength_um=WAVELENGTH_UM[modality], modality=modality
+        )
         cal = calibrate(
             reference.image,
             masks=reference.masks if with_masks else None,
@@ -217,13 +245,13 @@ def default_settings(reference: RealImage, modality: str, budget: Budget, seed: 
     base = PipelineSettings()
     microscope = Microscope(
         pixel_size_um=reference.pixel_size_um,
-        wavelength_um=0.53 if modality == "fluorescence" else 0.55,
+        wavelength_um=WAVELENGTH_UM[modality],
         modality=modality,
     )
     render = base.render
-    if modality == "fluorescence":
+    if modality != "phase":
         render = dataclasses.replace(
-            render, ring_contrast=0.0, psf_offset=0.0, **FLUORESCENCE_DEFAULTS
+            render, ring_contrast=0.0, psf_offset=0.0, **MODALITY_DEFAULTS[modality]
         )
     else:
         render = RenderSettings()
@@ -448,10 +476,14 @@ def summarise(results: list[dict], pixel_sizes: list[float]) -> dict[str, float]
 
 
 def run(
-    data: str, budget: Budget, out: Path | None, seeds=(0, 1), baselines: bool = True
+    data: str,
+    budget: Budget,
+    out: Path | None,
+    seeds=(0, 1),
+    baselines: bool = True,
+    baseline_seeds=(0,),
 ) -> list[dict]:
-    loader = load_colicoords if data == "colicoords" else load_omnipose
-    images, modality = loader(budget)
+    images, modality = LOADERS[data](budget)
     px = [im.pixel_size_um for im in images]
     rows = []
 
@@ -477,18 +509,21 @@ def run(
     # ColiCoords, calibrated with field 1's masks: judged on the other fields only
     masked_fields = list(range(1, len(images)))
 
-    # real annotations, leave-one-image-out
-    start = time.perf_counter()
-    fold_models = []
-    for k in range(len(images) if baselines else 0):
-        pairs = [(normalise(im.image), targets(im.masks)) for j, im in enumerate(images) if j != k]
-        fold_models.append(train(pairs, budget, seed=0))
-    if baselines:
+    # real annotations, leave-one-image-out; one set of folds per baseline seed
+    for seed in baseline_seeds if baselines else ():
+        start = time.perf_counter()
+        fold_models = []
+        for k in range(len(images)):
+            pairs = [
+                (normalise(im.image), targets(im.masks)) for j, im in enumerate(images) if j != k
+            ]
+            fold_models.append(train(pairs, budget, seed=seed))
+        suffix = f" (seed {seed})" if len(baseline_seeds) > 1 else ""
         for fields, label in ((None, ""), (masked_fields, ", fields 2-10")):
-            if fields is None or data == "colicoords":
+            if fields is None or data.startswith("colicoords"):
                 evaluate(
-                    f"U-Net, real annotations (leave-one-image-out){label}",
-                    lambda k, im: instances_from_probabilities(
+                    f"U-Net, real annotations (leave-one-image-out){label}{suffix}",
+                    lambda k, im, fold_models=fold_models: instances_from_probabilities(
                         predict(fold_models[k], normalise(im.image)), min_area[k]
                     ),
                     time.perf_counter() - start,
@@ -498,7 +533,9 @@ def run(
     pictures = {}
     # ColiCoords: field 1's image (no masks) calibrates every field; Omnipose: the three
     # colonies differ 2.3x in pixels per cell, so each calibrates itself
-    reference_of = [0] * len(images) if data == "colicoords" else list(range(len(images)))
+    reference_of = (
+        [0] * len(images) if data.startswith("colicoords") else list(range(len(images)))
+    )
     calibrations = {}
     for seed in seeds:
         start = time.perf_counter()
@@ -524,7 +561,7 @@ def run(
         )
         if seed == seeds[0]:
             pictures["models"] = models
-    for seed in seeds if data == "colicoords" else ():
+    for seed in seeds if data.startswith("colicoords") else ():
         start = time.perf_counter()
         if "masks" not in calibrations:
             calibrations["masks"] = calibrated_settings(
@@ -735,9 +772,55 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def seed_means(rows: list[dict]) -> list[dict]:
+    """The rows of one method over its seeds (names ending in `` (seed N)``): mean and
+    sample s.d. of F1@0.5 and of the width bias (over the seeds whose network matched a
+    cell), with the number of seeds. Methods with one seed are left out: a mean of one
+    is the row itself."""
+    groups: dict[str, list[dict]] = {}
+    for row in rows:
+        head, sep, _ = row["method"].rpartition(" (seed ")
+        if sep:
+            groups.setdefault(head, []).append(row)
+    out = []
+    for method, members in groups.items():
+        if len(members) < 2:
+            continue
+        f1 = np.array([r["f1"] for r in members])
+        width = np.array([r["width_bias_um"] for r in members])
+        width = width[np.isfinite(width)]  # nan: a network that matched no cell
+        out.append({
+            "method": method,
+            "seeds": len(members),
+            "f1_mean": float(f1.mean()),
+            "f1_sd": float(f1.std(ddof=1)),
+            "width_bias_mean_um": float(width.mean()) if width.size else math.nan,
+            "width_bias_sd_um": float(width.std(ddof=1)) if width.size > 1 else math.nan,
+        })
+    return out
+
+
+def seed_means_table(rows: list[dict]) -> str:
+    """Markdown table of :func:`seed_means`; empty when no method ran more than one seed."""
+    means = seed_means(rows)
+    if not means:
+        return ""
+    lines = [
+        "| training data (mean over seeds) | seeds | F1@0.5 mean (s.d.) "
+        "| width bias mean (s.d., um) |",
+        "|---|---|---|---|",
+    ]
+    for m in means:
+        lines.append(
+            f"| {m['method']} | {m['seeds']} | {m['f1_mean']:.3f} ({m['f1_sd']:.3f}) | "
+            f"{m['width_bias_mean_um']:+.3f} ({m['width_bias_sd_um']:.3f}) |"
+        )
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> list[dict]:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--data", choices=["colicoords", "omnipose"], default="colicoords")
+    parser.add_argument("--data", choices=sorted(LOADERS), default="colicoords")
     parser.add_argument("--quick", action="store_true", help="tiny sizes (the test)")
     parser.add_argument("--steps", type=int, help="training steps per network")
     parser.add_argument("--n-synthetic", type=int, help="synthetic images per training set")
@@ -745,6 +828,10 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument(
         "--seeds", type=int, nargs="+", default=[0, 1],
         help="seeds of the calibrated synthetic training sets and networks (default 0 1)",
+    )
+    parser.add_argument(
+        "--baseline-seeds", type=int, nargs="+", default=[0],
+        help="seeds of the real-annotation networks (default 0; one set of folds each)",
     )
     parser.add_argument(
         "--no-baselines",
@@ -782,9 +869,15 @@ def main(argv: list[str] | None = None) -> list[dict]:
             (args.out / "packing_omnipose.json").write_text(json.dumps(rows, indent=2))
         return rows
     rows = run(
-        args.data, budget, args.out, seeds=tuple(args.seeds), baselines=not args.no_baselines
+        args.data,
+        budget,
+        args.out,
+        seeds=tuple(args.seeds),
+        baselines=not args.no_baselines,
+        baseline_seeds=tuple(args.baseline_seeds),
     )
     print(table(rows))
+    print(seed_means_table(rows))
     print(f"total {time.perf_counter() - start:.0f} s; load average {os.getloadavg()[0]:.1f}")
     return rows
 

@@ -1,6 +1,6 @@
-"""Figures of docs/proof.md: ``napari-symbac calibrate`` on a ColiCoords field and an
-Omnipose colony (real data of ``../shared/data/real``, MIT), report.png copied to
-docs/images and report.txt printed.
+"""Figures of docs/proof.md: ``napari-symbac calibrate`` on a ColiCoords field (in
+fluorescence and in bright field) and an Omnipose colony (real data of
+``../shared/data/real``, MIT), report.png copied to docs/images and report.txt printed.
 
 Run: ``python docs/scripts/make_calibrate_figures.py``.
 """
@@ -48,6 +48,14 @@ def main_figures() -> None:
         tifffile.imread(ds1 / "fluorescence" / "00001.tif"),
         tifffile.imread(ds1 / "binary" / "00001_Probabilities_filtered.tif"),
         "pixel_size_um: 0.08\nwavelength_um: 0.53\nmodality: fluorescence\n",
+        [],
+    )
+    run(
+        "colicoords_brightfield",
+        tifffile.imread(ds1 / "brightfield" / "00001.tif"),
+        tifffile.imread(ds1 / "binary" / "00001_Probabilities_filtered.tif"),
+        "pixel_size_um: 0.08\nwavelength_um: 0.55\nnumerical_aperture: 1.4\n"
+        "modality: brightfield\n",
         [],
     )
     folder = REAL / "omnipose"

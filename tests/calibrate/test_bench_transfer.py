@@ -90,29 +90,60 @@ def test_false_positives_and_their_gallery():
     assert whole is None  # the matched cell is no false positive
 
 
+def test_seed_means_pool_each_method_over_its_seeds():
+    bench = _bench()
+    rows = [
+        {"method": "Otsu + watershed", "f1": 0.6, "width_bias_um": 0.0},
+        {"method": "U-Net, real (seed 0)", "f1": 0.8, "width_bias_um": 0.1},
+        {"method": "U-Net, real (seed 1)", "f1": 0.9, "width_bias_um": 0.3},
+        {"method": "U-Net, synthetic (seed 3)", "f1": 0.7, "width_bias_um": -0.2},
+    ]
+    means = bench.seed_means(rows)
+    assert [m["method"] for m in means] == ["U-Net, real"]  # one seed: no mean
+    assert means[0]["seeds"] == 2
+    assert means[0]["f1_mean"] == pytest.approx(0.85)
+    assert means[0]["f1_sd"] == pytest.approx(0.1 / math.sqrt(2))
+    assert means[0]["width_bias_mean_um"] == pytest.approx(0.2)
+    assert "| U-Net, real | 2 | 0.850 (0.071) | +0.200 (0.141) |" in bench.seed_means_table(rows)
+    assert bench.seed_means_table(rows[:1]) == ""
+    unmatched = [{**r, "width_bias_um": math.nan} for r in rows[1:3]]
+    (mean,) = bench.seed_means(unmatched)  # no cell matched: no width, no warning
+    assert math.isnan(mean["width_bias_mean_um"])
+    assert mean["f1_mean"] == pytest.approx(0.85)
+
+
 @pytest.mark.slow
-def test_quick_run_has_every_row(real_data_dir, tmp_path, monkeypatch):
+@pytest.mark.parametrize(
+    ("data", "baseline_seeds"), [("colicoords", ()), ("colicoords-brightfield", (0, 1))]
+)
+def test_quick_run_has_every_row(real_data_dir, tmp_path, monkeypatch, data, baseline_seeds):
     monkeypatch.setenv("NAPARI_SYMBAC_REAL_DATA", str(real_data_dir))
     bench = _bench()
-    rows = bench.main(["--quick", "--out", str(tmp_path)])
+    seeds_args = ["--baseline-seeds", *map(str, baseline_seeds)] if baseline_seeds else []
+    rows = bench.main(["--quick", "--data", data, "--out", str(tmp_path), *seeds_args])
     methods = [r["method"] for r in rows]
+    real = "U-Net, real annotations (leave-one-image-out)"
+    real_rows = [
+        f"{real}{fields}{f' (seed {seed})' if baseline_seeds else ''}"
+        for seed in baseline_seeds or (0,)
+        for fields in ("", ", fields 2-10")
+    ]
     assert methods == [
         "Otsu + watershed",
-        "U-Net, real annotations (leave-one-image-out)",
-        "U-Net, real annotations (leave-one-image-out), fields 2-10",
+        *real_rows,
         "U-Net, calibrated synthetic only (seed 0)",
         "U-Net, calibrated synthetic only (seed 1)",
         "U-Net, calibrated with field 1's masks, fields 2-10 (seed 0)",
         "U-Net, calibrated with field 1's masks, fields 2-10 (seed 1)",
         "U-Net, tool defaults (modality switched)",
     ]
-    assert "masks grown" in rows[5]["note"]
+    assert "masks grown" in rows[len(real_rows) + 3]["note"]
     for row in rows:
         assert 0 <= row["f1"] <= 1
         assert 0 <= row["pixel_iou"] <= 1
         assert math.isfinite(row["seconds"])
-    assert (tmp_path / "results_colicoords.json").is_file()
-    assert (tmp_path / "transfer_colicoords_prediction.png").is_file()
+    assert (tmp_path / f"results_{data}.json").is_file()
+    assert (tmp_path / f"transfer_{data}_prediction.png").is_file()
     table = bench.table(rows)
     assert table.count("\n") == len(rows) + 1
 

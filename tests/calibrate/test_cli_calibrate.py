@@ -10,6 +10,7 @@ import pytest
 import tifffile
 
 from napari_symbac.cli import main
+from napari_symbac.export.visibility import pixel_noise
 
 
 @pytest.fixture
@@ -345,16 +346,58 @@ def test_a_terminated_calibrate_leaves_nothing_behind(colicoords_files, capsys, 
     assert not [p for p in d.iterdir() if p.name.startswith(".out")]  # staging removed
 
 
-def test_calibrate_refuses_bright_field_and_names_fit_and_export(real_data_dir, tmp_path, capsys):
-    """calibrate does not lay out or compare bright field yet: refused before its fit, with
-    the commands that fit and export it."""
-    (tmp_path / "m.yaml").write_text("pixel_size_um: 0.08\nmodality: brightfield\n")
-    image = real_data_dir / "colicoords" / "01" / "brightfield.tif"
+def _far_background(masks: np.ndarray, image: np.ndarray) -> np.ndarray:
+    """Pixels more than 3 px from every cell, below the 16-bit clip."""
+    from scipy import ndimage
+
+    return ~ndimage.binary_dilation(masks > 0, iterations=3) & (image < 65535)
+
+
+def test_calibrate_matches_a_bright_field_recording(real_data_dir, tmp_path, capsys):
+    """Bright field (ColiCoords ds1 field 1, flattened: its pixel variance falls with the
+    mean; 9 % of it clipped at 65535) with its masks: the dataset's noise is the image's
+    own pixel noise (the fit's residual counted its misfit, 2x on crop 01), its light
+    never passes full scale (the 0.8-1.25 exposure turned every image white), and its
+    masks follow the annotations' outline (0.26 um outside the model cells)."""
+    ds1 = real_data_dir / "colicoords" / "test_data" / "ds1"
+    image = tifffile.imread(ds1 / "brightfield" / "00001.tif")[:192, :256]
+    masks = tifffile.imread(ds1 / "binary" / "00001_Probabilities_filtered.tif")[:192, :256]
+    tifffile.imwrite(tmp_path / "bf.tif", image)
+    tifffile.imwrite(tmp_path / "mask.tif", masks)
+    (tmp_path / "m.yaml").write_text(
+        "pixel_size_um: 0.08\nwavelength_um: 0.55\nnumerical_aperture: 1.4\n"
+        "modality: brightfield\n"
+    )
     out = tmp_path / "out"
-    code = main(["calibrate", str(image), "--microscope", str(tmp_path / "m.yaml"),
-                 "--out", str(out)])  # fmt: skip
-    err = capsys.readouterr().err
-    assert code == 2
-    assert not out.exists()
-    assert "it does not yet lay out or compare bright-field ones" in err
-    assert "napari-symbac export --config FIT/settings.yaml" in err
+    code = main(["calibrate", str(tmp_path / "bf.tif"), "--masks", str(tmp_path / "mask.tif"),
+                 "--microscope", str(tmp_path / "m.yaml"), "--out", str(out),
+                 "--n-items", "3"])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    manifest = json.loads((out / "dataset" / "manifest.json").read_text())
+    pipeline = manifest["settings"]["pipeline"]
+    assert pipeline["microscope"]["modality"] == "brightfield"
+    render = pipeline["render"]
+    assert render["noise_model"] == "gaussian"
+    report = (out / "report.txt").read_text()
+    assert "camera: not measurable from the image" in report
+    assert f"noise Gaussian, {render['gaussian_noise_sd_adu']:.3g} ADU" in report
+    _assert_flags_follow_the_numbers(report, capsys.readouterr().out)
+    # the media lie ~45 ADU below full scale: no brighter exposure than the recording's
+    headroom_adu = 65535 - pipeline["camera"]["baseline_adu"]
+    exposure = manifest["settings"]["randomise"]["exposure_scale"]
+    assert exposure["low"] == 0.8
+    assert 1.0 <= exposure["high"] == pytest.approx(headroom_adu / render["media_intensity"])
+    # the dataset's pixel noise is the recording's (ADU, background away from cells),
+    # within the export's noise draw (noise_scale) and 5 % of sampling
+    real_noise = pixel_noise(image, _far_background(masks, image))
+    drawn = manifest["settings"]["randomise"]["noise_scale"]
+    images = sorted((out / "dataset" / "tiff").glob("*/images/*.tif"))
+    assert len(images) == 3
+    for path in images:
+        synthetic = tifffile.imread(path)
+        assert np.mean(synthetic == 65535) < 0.5
+        labels = tifffile.imread(str(path).replace("images", "labels"))
+        noise = pixel_noise(synthetic, _far_background(labels, synthetic))
+        assert 0.95 * drawn["low"] < noise / real_noise < 1.05 * drawn["high"]
+    assert "mask outline +" in report
+    assert 0.1 < manifest["settings"]["mask_dilation_um"] < 0.4

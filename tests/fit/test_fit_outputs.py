@@ -52,6 +52,12 @@ def test_labels_settle_the_polarity():
 def test_input_checks_name_the_problem():
     with pytest.raises(ValueError, match="negative values"):
         check_fit_image(np.array([[-1.0, 2.0]]))
+    # a flattened image (ColiCoords' bright field: 0.89..1.12) is no camera's counts
+    flattened = np.array([[0.8906, 1.0], [1.0031, 1.124]], np.float32)
+    with pytest.raises(ValueError, match=r"normalised values .*napari_symbac\.io\.as_counts"):
+        check_fit_image(flattened)
+    check_fit_image(flattened.astype(np.float64) * 10000)  # as as_counts reads it: counts
+    check_fit_image(np.array([[3.0, 17.0]]))  # whole numbers stored as floats: counts
     labels = np.ones((4, 4), np.uint8)
     with pytest.raises(ValueError, match="no media class"):
         check_class_labels(labels, (4, 4))

@@ -104,7 +104,7 @@ class Calibration:
     notes
         Plain sentences: where each setting came from, what could not be measured.
     mask_offset_um
-        Fluorescence with masks: how far the masks' outlines lie outside the fitted
+        Fluorescence or bright field with masks: how far the masks' outlines lie outside the fitted
         model cells (median over the crop's matched cells,
         :func:`~napari_symbac.export.outline.outline_offset_px`), the annotation
         convention :func:`export_settings` gives the dataset's masks; ``None``
@@ -150,12 +150,18 @@ def best_crop(masks: np.ndarray, size_px: int) -> tuple[slice, slice]:
     return best
 
 
-def _rough_cells(image: np.ndarray, modality: str) -> np.ndarray:
+def _rough_cells(image: np.ndarray, modality: str, pixel_size_um: float) -> np.ndarray:
     """Regions beyond an Otsu threshold of the smoothed image (cells' polarity from the
-    modality): where to crop when no masks are given."""
+    modality; bright field: the departure from the background either way,
+    :func:`~napari_symbac.fit.start.brightfield_instances`): where to crop when no masks
+    are given."""
     from scipy import ndimage
     from skimage.filters import threshold_otsu
 
+    if modality == "brightfield":
+        from napari_symbac.fit.start import brightfield_instances
+
+        return brightfield_instances(image, pixel_size_um)
     smooth = ndimage.gaussian_filter(image, 1.0)
     threshold = threshold_otsu(smooth)
     cells = smooth > threshold if modality == "fluorescence" else smooth < threshold
@@ -185,7 +191,7 @@ def rough_pad_layout(
     image = np.asarray(image, np.float64)
     if not np.ptp(image) > 0:
         return None
-    regions = _rough_cells(image, "fluorescence")
+    regions = _rough_cells(image, "fluorescence", pixel_size_um)
     area_px = np.bincount(regions.ravel())[1:]
     kept = np.flatnonzero(area_px * pixel_size_um**2 >= 0.5 * cell_area_um2) + 1
     cells = np.isin(regions, kept)
@@ -428,7 +434,7 @@ def calibrate(
     ------
     ValueError
         Bad image, masks or labels (the ``fit`` command's refusals), a modality the
-        image contradicts, or bright field (not matched yet: fit and export instead).
+        image contradicts.
     """
     from napari_symbac.fit.camera_estimate import censored_pixels
     from napari_symbac.fit.masks import estimate_pixel_size_um
@@ -445,13 +451,6 @@ def calibrate(
         raise ValueError("pass masks or labels, not both")
     if modality is not None and modality != microscope.modality:
         microscope = dataclasses.replace(microscope, modality=modality)
-    if microscope.modality == "brightfield":
-        raise ValueError(
-            "calibrate matches phase-contrast and fluorescence recordings; it does not yet "
-            "lay out or compare bright-field ones. Fit the recording and export from its "
-            "settings: `napari-symbac fit IMAGE --microscope M.yaml --out FIT`, then "
-            "`napari-symbac export --config FIT/settings.yaml --out DATASET`"
-        )
     if labels is not None:
         check_class_labels(np.asarray(labels), frame.shape, "labels")
     if masks is not None:
@@ -488,7 +487,7 @@ def calibrate(
         crop = best_crop(masks, crop_px)
     else:
         crop_px = NO_MASKS_CROP_PX if crop_px is None else crop_px
-        rough = _rough_cells(frame, microscope.modality)
+        rough = _rough_cells(frame, microscope.modality, microscope.pixel_size_um)
         crop = best_crop(rough, crop_px)
     crop_image = frame[crop]
     crop_masks = None if masks is None else masks[crop]
@@ -552,7 +551,7 @@ def calibrate(
             mask_len = float(np.median(crop_m.lengths_px)) * microscope.pixel_size_um
             length_scale = float(np.clip(np.median(result.cells.length_um) / mask_len, 0.7, 1.3))
             field_masks = masks
-            if microscope.modality == "fluorescence":
+            if microscope.modality in ("fluorescence", "brightfield"):
                 mask_offset_um, note = _outline_offset_um(
                     crop_masks, result.scene.camera_labels(), microscope.pixel_size_um
                 )
@@ -588,6 +587,20 @@ def calibrate(
             )
         render, note = _with_debris(frame, field_masks, valid, microscope, render)
         notes.append(note)
+    uncounted_noise = None if dense or camera is not None else _uncounted_noise_adu(
+        frame, valid, np.asarray(field_masks) > 0
+    )
+    if uncounted_noise is not None:
+        render = dataclasses.replace(
+            render, noise_model="gaussian", gaussian_noise_sd_adu=uncounted_noise
+        )
+        notes.append(
+            "camera: not measurable from the image (its pixel variance does not grow with "
+            "the mean: not raw counts, e.g. flattened or rescaled); noise Gaussian, "
+            f"{uncounted_noise:.3g} ADU, the image's own pixel noise (differences of "
+            "neighbouring background pixels; the fit's residual would count its misfit "
+            "as noise); pass --camera for a real camera's"
+        )
     settings, more = settings_from_fit(
         measurements,
         microscope,
@@ -604,7 +617,7 @@ def calibrate(
         if clipped is not None:
             settings, note = drawn_clipped(settings, clipped, noise=camera is None)
             more.append(note)
-    if not dense:  # the camera drawn (a clipped background's read noise included)
+    if not dense and uncounted_noise is None:  # the camera drawn (a clipped background's)
         notes.append("camera: " + _camera_note(settings.camera, camera))
     packing, trials = None, []
     if masks is not None:
@@ -630,6 +643,38 @@ def calibrate(
         notes=(*notes, *more),
         mask_offset_um=mask_offset_um,
     )
+
+
+def _uncounted_noise_adu(
+    frame: np.ndarray, valid: np.ndarray, cells: np.ndarray
+) -> float | None:
+    """The pixel noise (ADU) of an image whose noise is no camera's, for the dataset's
+    Gaussian noise; ``None`` when photon transfer measures a camera (raw counts: the
+    variance grows with the mean, a slope at least
+    :data:`~napari_symbac.fit.camera_estimate.MEASURED_SLOPE_SE` standard errors above
+    0, :func:`~napari_symbac.fit.camera_estimate.estimate_camera`; the ColiCoords
+    fluorescence fields give 12-22).
+
+    Found calibrating ColiCoords' bright field (flattened: the variance falls with the
+    mean, or on a 192 x 256 crop rises by 0.2 standard errors): the fit, finding no
+    camera, takes its residual's mean square, misfit included, and the dataset was drawn
+    with twice the recording's pixel noise. Here the noise is that of neighbouring valid
+    background pixels more than 3 px from a cell
+    (:func:`~napari_symbac.export.visibility.pixel_noise`), blind to smooth misfit.
+    """
+    from scipy import ndimage
+
+    from napari_symbac.export.visibility import pixel_noise
+    from napari_symbac.fit.camera_estimate import estimate_camera
+
+    try:
+        estimate_camera(frame, valid=valid)
+        return None
+    except ValueError:
+        pass
+    background = valid & ~ndimage.binary_dilation(cells, iterations=3)
+    noise = pixel_noise(frame, background)
+    return float(noise) if math.isfinite(noise) and noise > 0 else None
 
 
 def _outline_offset_um(
@@ -830,8 +875,10 @@ def export_settings(
     as large as the recording's), from up to 16 simulations (colony places differ), and
     cells the image does not show (contrast-to-noise below 1,
     :mod:`~napari_symbac.export.visibility`) are dropped from the masks: a network must
-    not learn to find cells in the noise. The images keep the fitted defocus (eq. 14;
-    the export's default randomisation sets it to 0).
+    not learn to find cells in the noise. The images are varied as the default export
+    varies them (:func:`~napari_symbac.export.dataset.default_randomisation`): the
+    fitted defocus kept (eq. 14); in bright field the light as a whole, never past the
+    camera's full scale.
 
     With the partially coherent phase model (dense phase colonies) the cells' intensity
     over the media's is their bright-field transmission ``B`` (eq. 3), at most 1
@@ -842,22 +889,21 @@ def export_settings(
     default's darkest draw), and the media level is kept (a per-image normalisation
     removes it). Without any such draw the transfer benchmark's F1 fell (docs/rendering.md).
 
-    Fluorescence with masks: the dataset's masks follow their outline convention, grown
-    by ``calibration.mask_offset_um`` (``mask_dilation_um``; an offset inside the model
-    cell is not applied: masks are never shrunk). The light is not varied between
-    images (``Randomisation.exposure_scale`` stays 1): on the ColiCoords transfer
-    benchmark every range tried lowered the mean F1 of the calibration without masks
-    (docs/proof.md).
+    Fluorescence or bright field with masks: the dataset's masks follow their outline
+    convention, grown by ``calibration.mask_offset_um`` (``mask_dilation_um``; an offset
+    inside the model cell is not applied: masks are never shrunk). In fluorescence the
+    light is not varied between images (``Randomisation.exposure_scale`` stays 1): on
+    the ColiCoords transfer benchmark every range tried lowered the mean F1 of the
+    calibration without masks (docs/proof.md); in bright field it is, as a whole.
     """
-    from napari_symbac.export.dataset import ExportSettings, Randomisation, Range
+    from napari_symbac.export.dataset import ExportSettings, Range, default_randomisation
     from napari_symbac.export.visibility import Visibility
 
     n_frames = calibration.settings.simulation.n_frames
     render = calibration.settings.render
-    defocus = render.defocus_sigma_um
     first = max(0, n_frames - 1 - (n_frames - 1) // 8)
-    # the fitted defocus (eq. 14), not the export's default absolute 0
-    randomise = Randomisation(defocus_sigma_um=Range(defocus, defocus))
+    # the fitted defocus (eq. 14); bright field: the light as a whole, below full scale
+    randomise = default_randomisation(calibration.settings)
     if calibration.settings.microscope.modality == "phase" and (
         render.phase_model == "partially_coherent"
     ):

@@ -353,24 +353,43 @@ def load_export_settings(path: str | os.PathLike) -> ExportSettings:
 PAD_SIMULATIONS = 16
 
 
+#: The light of a bright-field export's images, as a whole (log-uniform factors).
+BRIGHTFIELD_EXPOSURE = (0.8, 1.25)
+
+
+def exposure_headroom(pipeline: PipelineSettings) -> float:
+    """The factor on all the light that brings the media level to the camera's full scale
+    (``2**bit_depth - 1`` minus the baseline, ADU): above it the background clips.
+    ``inf`` for media that give no light."""
+    camera = pipeline.camera
+    full_adu = 2**camera.bit_depth - 1 - camera.baseline_adu
+    media = pipeline.render.media_intensity
+    return full_adu / media if media > 0 else math.inf
+
+
 def default_randomisation(pipeline: PipelineSettings) -> Randomisation:
     """How the default export of ``pipeline`` varies its images: :class:`Randomisation`'s
     defaults at the pipeline's defocus (eq. 14, kept: a fitted defocus is the
-    recording's). In bright field the light varies as a whole (exposure 0.8-1.25x) and
-    the cells and media keep their ratio: a cell absorbs a few % of the light, and the
-    default draws of each intensity by +-10-15 % alone would make it absorb up to 15 %
-    more, or shine (found exporting ColiCoords' crop 01: cells 92 ADU darker than the
-    media, drawn up to 1475 ADU darker or brighter)."""
+    recording's). In bright field the light varies as a whole (exposure
+    :data:`BRIGHTFIELD_EXPOSURE`) and the cells and media keep their ratio: a cell absorbs
+    a few % of the light, and the default draws of each intensity by +-10-15 % alone
+    would make it absorb up to 15 % more, or shine (found exporting ColiCoords' crop 01:
+    cells 92 ADU darker than the media, drawn up to 1475 ADU darker or brighter). The
+    brightest exposure stops at the camera's full scale (:func:`exposure_headroom`, at
+    least 1: the recording's own light): found calibrating ColiCoords' ds1 bright field,
+    whose background lies 45 ADU below 65535, where 1.25x turned every image white."""
     defocus = Range(pipeline.render.defocus_sigma_um, pipeline.render.defocus_sigma_um)
     if pipeline.microscope.modality != "brightfield":
         return Randomisation(defocus_sigma_um=defocus)
     fixed = Range(1.0, 1.0)
+    low, high = BRIGHTFIELD_EXPOSURE
+    high = min(high, max(exposure_headroom(pipeline), 1.0))
     return Randomisation(
         cell_intensity_scale=fixed,
         media_intensity_scale=fixed,
         device_intensity_scale=fixed,
         defocus_sigma_um=defocus,
-        exposure_scale=Range(0.8, 1.25),
+        exposure_scale=Range(min(low, high), high),
     )
 
 

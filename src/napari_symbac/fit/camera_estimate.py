@@ -46,6 +46,9 @@ _HIGH_PASS = np.outer([1.0, -2.0, 1.0], [1.0, -2.0, 1.0]) / 6.0
 _HIGH_PASS_LAG2 = np.outer([1.0, 0.0, -2.0, 0.0, 1.0], [1.0, 0.0, -2.0, 0.0, 1.0]) / 6.0
 #: Ratio of lag-2 to lag-1 high-pass variance beyond which the summary warns.
 _WHITE_TOLERANCE = 0.1
+#: A photon-transfer slope must lie this many standard errors above 0 to measure a camera
+#: (the real recordings of ../shared give 5-63; a flattened bright field 0.2).
+MEASURED_SLOPE_SE = 3.0
 #: Truncation of the robust variance (in robust standard deviations).
 _CLIP_SD = 4.0
 #: Variance of a standard normal truncated to +-4 (corrects the clipped mean square).
@@ -395,6 +398,16 @@ def estimate_camera(
             "settings instead"
         )
     gain_se = math.sqrt(covariance[0, 0])
+    if gain < MEASURED_SLOPE_SE * gain_se:
+        # found calibrating a 192 x 256 crop of ColiCoords' flattened bright field: slope
+        # 0.018 +- 0.091, which put the baseline at the image's level and the cells' light
+        # at a third of it
+        raise ValueError(
+            f"the pixel variance does not grow measurably with the mean (slope {gain:.3g} "
+            f"+- {gain_se:.2g} ADU/e-, under {MEASURED_SLOPE_SE:g} standard errors): the "
+            "image is not raw camera counts (rescaled, denoised or averaged?) or spans too "
+            "few levels; pass the camera settings instead"
+        )
 
     if dark_frames is not None:
         dark = calibrate_camera(dark_frames, gain)

@@ -61,10 +61,11 @@ def check_fit_image(
     Raises
     ------
     ValueError
-        For negative values (the model renders camera counts, baseline included), and
-        for an image whose values all lie within 0..1 (normalised, or a mask): no
-        camera counts, no noise to measure, and a dataset drawn from its fit holds
-        only 0 and 1.
+        For negative values (the model renders camera counts, baseline included), for
+        an image whose values all lie within 0..1 (normalised, or a mask), and for
+        other normalised values (:func:`~napari_symbac.io.as_counts` would map them):
+        no camera counts, no noise to measure, and a dataset drawn from its fit holds
+        only a few grey levels.
     """
     low = float(np.min(image))
     if low < 0:
@@ -82,6 +83,17 @@ def check_fit_image(
             "or a mask, not camera counts (ADU). Pass the raw recording as the camera wrote "
             "it; a normalised image opened by napari-symbac (the commands, or the Real "
             "image dock's 'or open') is read as counts"
+        )
+    from napari_symbac.io import as_counts
+
+    if as_counts(image)[1] is not None:
+        # found as a user: ColiCoords' flattened bright field (0.89..1.12, float) given to
+        # calibrate() as it was: cells and media fitted at 0 ADU, a dataset of 1s
+        raise ValueError(
+            f"{name} holds normalised values ({low:.4g}..{high:.4g}, fractional floating "
+            "point): not camera counts (ADU). Pass the raw recording, or read it as counts "
+            "with napari_symbac.io.as_counts (the commands and the Real image dock's 'or "
+            "open' do)"
         )
 
 
