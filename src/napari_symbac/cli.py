@@ -348,7 +348,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     )
     from napari_symbac.diagnose.config import load_microscope_file
     from napari_symbac.diagnose.figures import write_figures
-    from napari_symbac.diagnose.model import build_design, refuse_undiagnosable
+    from napari_symbac.diagnose.model import build_design
     from napari_symbac.diagnose.region import (
         default_region,
         names_centre,
@@ -383,7 +383,6 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         recording = read_recording(args.image, channel=args.channel)
         mapping = recording.counts_mapping  # a normalised image read as counts, or None
         config = load_microscope_file(args.microscope)
-        refuse_undiagnosable(config.microscope.modality)  # before the base fit
         for note in config.notes:
             print(f"note: {note}", file=sys.stderr)
         microscope, pixel_note = resolve_pixel_size(
@@ -500,7 +499,9 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         if invalid:
             doc["notes"].append(f"settings.yaml simulates the defaults: {invalid}")
         # the intensities refitted with the accepted effects (the optics stay the fit's)
-        final_render, held = refitted_render(render, result.final_model)
+        final_render, held = refitted_render(
+            render, result.final_model, config.microscope.modality
+        )
         if held:
             doc["notes"].append(held)
             print(f"note: {held}", file=sys.stderr)

@@ -313,14 +313,32 @@ def test_candidates_no_held_out_check_reached_are_said_so(tmp_path, capsys, real
     assert "a diagnosis accepts at most" not in (raised / "report.txt").read_text()
 
 
-def test_bright_field_is_refused_before_the_base_fit(tmp_path, capsys, real_data_dir):
-    """Found as a user: diagnose of ColiCoords' bright-field crop. Its base design has no
-    lens term, so it is refused at once, with the commands that fit and export it."""
+def test_bright_field_is_diagnosed_with_its_lens_term(tmp_path, capsys, real_data_dir):
+    """Found as a user: diagnose refused ColiCoords' bright-field crop (its base design
+    had no lens term). The lens amplitude ``kappa I_m`` is now a column of the base
+    design, re-fitted with the intensities; the effects that need a fluorophore or a
+    phase ring are not tested; settings.yaml carries the re-fitted lens term."""
     image = real_data_dir / "colicoords" / "01" / "brightfield.tif"
-    mic = "pixel_size_um: 0.08\nmodality: brightfield\nwavelength_um: 0.55\n"
-    error = _diagnose_refused(tmp_path, capsys, image, mic)
-    assert "diagnose models phase contrast and fluorescence, not brightfield" in error
-    assert "export from FIT/settings.yaml" in error
+    mic = tmp_path / "mic.yaml"
+    mic.write_text(
+        "pixel_size_um: 0.08\nmodality: brightfield\nwavelength_um: 0.55\nNA: 1.4\n"
+        "refractive_index: 1.518\n"
+    )
+    out = tmp_path / "out"
+    code = main(["diagnose", str(image), "--microscope", str(mic), "--out", str(out),
+                 "--max-effects", "1"])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    doc = json.loads((out / "diagnosis.json").read_text())
+    assert len([e for e in doc["effects"] if e["accepted"]]) == 1
+    assert doc["final_fit"]["held_out"] < doc["base_fit"]["held_out"]
+    report = (out / "report.txt").read_text()
+    untested = report.split("not tested (need a time series or another modality): ")[1]
+    for name in ("halo", "photobleaching", "envelope_stain"):
+        assert name in untested.splitlines()[0]
+    settings = load_settings(out / "settings.yaml", PipelineSettings)
+    assert settings.microscope.modality == "brightfield"
+    assert settings.render.defocus_contrast_um2 > 0.005  # a bright centre, as fitted
+    assert settings.render.cell_intensity < settings.render.media_intensity
 
 
 def test_the_most_effects_the_command_accepts_is_the_diagnosis_default():

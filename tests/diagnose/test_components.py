@@ -79,3 +79,24 @@ def test_texture_modes_are_the_media_times_the_mode_through_the_optics(modality)
     assert open_media.sum() > 100
     ratio = geo.texture_components[:, 0][:, open_media] / design.components[1, 0][open_media]
     np.testing.assert_allclose(ratio, basis[:, open_media], atol=0.1)
+
+
+def test_the_bright_field_design_carries_the_lens_term_as_a_column():
+    """Bright field: ``I_c C + I_m M + I_d D - kappa I_m L`` (docs/physics.md), the lens
+    column ``L`` (cells through the lens kernel) after the intensities in ``beta``, its
+    amplitude the base fit's ``kappa I_m``: the design's start is the rendered image."""
+    from napari_symbac.diagnose.model import predict
+
+    microscope, render, camera = base_settings("brightfield")
+    cells, trench, field, shape = _cells("field", np.random.default_rng(3))
+    scene = _draw(cells, trench, field, shape, microscope, render)
+    design = build_design([scene], microscope, render, camera)
+    assert design.n_linear == 4
+    assert design.n_nuisance == 5  # and the defocus
+    assert design.lens_amplitude == render.defocus_contrast_um2 * render.media_intensity
+    clean = ForwardModel(microscope, render, camera).render_clean(scene).astype(np.float64)
+    start = design.start()
+    assert np.abs(predict(design, start, [])[0] - clean).max() < 1e-5 * np.ptp(clean)
+    without = start.copy()
+    without[3] = 0.0  # the cells' bright centres are the lens term's
+    assert np.abs(predict(design, without, [])[0] - clean).max() > 0.3 * np.ptp(clean)

@@ -125,6 +125,18 @@ def test_a_refused_effect_is_asked_its_own_check_first_at_later_steps(monkeypatc
     assert (said["held_out_step"], said["step"]) == (1, 4)
 
 
+@pytest.mark.parametrize(("effect", "seed"), [(None, 31), ("uneven_illumination", 4)])
+def test_bright_field_recordings_are_diagnosed(effect, seed):
+    """Bright field, lens term and all (a field of cells out of focus): a control
+    accepts nothing, an uneven lamp hidden at half a noise s.d. is named, and the lens
+    amplitude is re-fitted where it was drawn."""
+    case = make_case(effect, modality="brightfield", geometry="field", seed=seed)
+    result = diagnose(case.images, case.design, n_bootstrap=10, rng=np.random.default_rng(0))
+    assert [e.name for e in result.accepted] == ([effect] if effect else []), result.report()
+    lens = result.final_model.beta[3]
+    assert lens == pytest.approx(case.design.lens_amplitude, rel=0.1)
+
+
 @pytest.mark.parametrize("seed", [31, 32])
 def test_no_effect_control_accepts_nothing(seed):
     case = make_case(None, modality="fluorescence", fraction_of_sd=0.5, seed=seed)

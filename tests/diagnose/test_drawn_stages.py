@@ -240,7 +240,7 @@ def test_the_settings_carry_the_final_models_intensities():
     )  # fmt: skip
     design = build_design([scene], microscope, off, camera)
     result = diagnose(image[None], design, n_bootstrap=10, rng=np.random.default_rng(2))
-    final, note = refitted_render(off, result.final_model)
+    final, note = refitted_render(off, result.final_model, "phase")
     assert note == ""
     for name in ("cell_intensity", "media_intensity", "device_intensity"):
         assert getattr(final, name) == pytest.approx(getattr(render, name), rel=0.02), name
@@ -249,10 +249,15 @@ def test_the_settings_carry_the_final_models_intensities():
     )
     # an intensity the settings cannot draw is kept at 0, and said
     dark = FittedModel(beta=np.array([-50.0, 2600.0, 900.0, 0.0, 0.0, 0.0]), effects=())
-    held, said = refitted_render(render, dark)
+    held, said = refitted_render(render, dark, "phase")
     assert held.cell_intensity == 0.0
     assert held.media_intensity == 2600.0
     assert said.startswith("the final model's cell_intensity -50 ADU is drawn as 0")
+    assert held.defocus_contrast_um2 == render.defocus_contrast_um2  # no lens in phase
+    # bright field: the fourth coefficient is the lens amplitude kappa I_m
+    lens = FittedModel(beta=np.array([2500.0, 2600.0, 2300.0, 52.0, 0.0]), effects=())
+    bright, _ = refitted_render(render, lens, "brightfield")
+    assert bright.defocus_contrast_um2 == pytest.approx(52.0 / 2600.0)
 
 
 def test_an_open_field_keeps_the_device_intensity_it_cannot_see():
@@ -272,5 +277,5 @@ def test_an_open_field_keeps_the_device_intensity_it_cannot_see():
     result = diagnose(case.images, case.design, n_bootstrap=10, rng=np.random.default_rng(0))
     assert [e.name for e in result.accepted] == ["uneven_illumination"]
     assert result.final_model.beta[2] == case.design.start()[2]
-    _, note = refitted_render(RenderSettings(), result.final_model)
+    _, note = refitted_render(RenderSettings(), result.final_model, "fluorescence")
     assert note == ""

@@ -27,6 +27,11 @@ CASES = [
     ("fixed_pattern_noise", "phase"),
     ("saturation", "phase"),
     ("envelope_stain", "fluorescence"),
+    # bright field: the lens term is a column of the base design, and these act beside it
+    ("background_texture", "brightfield"),
+    ("cell_intensity_variability", "brightfield"),
+    ("cell_curvature", "brightfield"),
+    ("defocus_gradient", "brightfield"),
 ]
 
 

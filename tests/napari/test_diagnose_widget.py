@@ -379,18 +379,24 @@ def test_a_full_frame_above_the_cap_is_diagnosed_with_a_warning(ds3_widget, qtbo
     assert [layer.name for layer in viewer.layers] == ["ds3"]
 
 
-def test_a_bright_field_recording_is_refused_with_what_to_do(make_napari_viewer, monkeypatch):
-    """Diagnose has no base model for bright field (no lens term in its design): the dock
-    says so at once, with Auto-fit and Export as the way, and runs nothing."""
-    shown = []
-    monkeypatch.setattr(
-        "napari_symbac._widgets.diagnose.notify_warning", lambda message: shown.append(message)
-    )
+def test_a_bright_field_recording_is_diagnosed_with_its_lens_term(make_napari_viewer, qtbot):
+    """Bright field (the sample's ColiCoords field, flattened, its pad mottled) was
+    refused (the design had no lens term); now the lens amplitude is re-fitted with the
+    intensities, and the settings Export takes carry it."""
     viewer = make_napari_viewer()
     viewer.open_sample("napari-symbac", "colicoords")
-    widget = DiagnoseWidget(viewer)
+    widget = DiagnoseWidget(viewer, candidates=("background_texture",), n_bootstrap=5)
     widget.reference.value = viewer.layers["ColiCoords brightfield"]
     widget.run_button.clicked.emit()
-    assert widget.worker is None
-    assert shown[0].startswith("diagnose models phase contrast and fluorescence, not brightfield")
-    assert shown[0].endswith("Auto-fit it in the Tune + fit step and export from the fitted layer")
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
+    assert widget.result is not None, widget.status.value
+    assert [e.name for e in widget.result.accepted] == ["background_texture"]
+    residual = viewer.layers[DIAGNOSIS_RESIDUAL_LAYER]
+    settings = residual.metadata[SYMBAC_METADATA_KEY]["settings"]  # what Export takes
+    assert settings.microscope.modality == "brightfield"
+    render = settings.render
+    beta = widget.result.final_model.beta  # the intensities, then kappa I_m
+    assert render.defocus_contrast_um2 == pytest.approx(beta[3] / beta[1])
+    assert render.defocus_contrast_um2 != 0.0
+    assert render.cell_intensity < render.media_intensity  # the cells absorb
+    assert render.texture_amplitude > 0  # the accepted texture, drawn

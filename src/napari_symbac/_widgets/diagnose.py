@@ -48,10 +48,6 @@ WIDE_START_FIX = (
     f"Diagnose starts from its own segmentation (it takes no masks): enter a window of "
     f"separate cells in '{WINDOW_LABEL}'"
 )
-#: The dock's words for a bright-field recording, which diagnose has no base model for.
-DIAGNOSE_DOCK_BRIGHTFIELD_FIX = (
-    "Auto-fit it in the Tune + fit step and export from the fitted layer"
-)
 #: The dock's words for a start that found no bright cell
 #: (:class:`~napari_symbac.fit.start.FaintStartError`): it reads the painted classes.
 FAINT_START_FIX = "paint rough cell and media strokes on the recording in the Recording step"
@@ -205,7 +201,6 @@ class DiagnoseWidget(Container):
         ValueError
             With what to do, when no recording is chosen or the window is not one.
         """
-        from napari_symbac.diagnose.model import refuse_undiagnosable
         from napari_symbac.diagnose.region import MAX_DIAGNOSIS_PIXELS, parse_region
         from napari_symbac.settings import RenderSettings
 
@@ -213,7 +208,6 @@ class DiagnoseWidget(Container):
         if layer is None:
             raise ValueError(no_recording_message(self.viewer, "choose it here"))
         microscope = recording_microscope(layer)
-        refuse_undiagnosable(microscope.modality, DIAGNOSE_DOCK_BRIGHTFIELD_FIX)
         data = np.asarray(layer.data)
         index = int(self.viewer.dims.current_step[0]) if data.ndim == 3 else 0
         frame = data[min(index, len(data) - 1)] if data.ndim == 3 else data
@@ -312,7 +306,7 @@ class DiagnoseWidget(Container):
                 progress=progress,
                 cancel=cancel,
             )
-            final = refitted_render(fit.render, result.final_model)
+            final = refitted_render(fit.render, result.final_model, microscope.modality)
             return fit, result, final, (*exported, layout != tuple(full))
 
         self.worker = Job(

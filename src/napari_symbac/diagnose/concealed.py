@@ -67,6 +67,15 @@ def base_settings(modality: str) -> tuple[Microscope, RenderSettings, Camera]:
             psf_offset=0.05,
             psf_radius_px=40,
         )
+    elif modality == "brightfield":  # cells absorb 4 %, out of focus: a bright centre
+        render = RenderSettings(
+            cell_intensity=2500.0,
+            media_intensity=2600.0,
+            device_intensity=2300.0,
+            defocus_sigma_um=0.15,
+            defocus_contrast_um2=0.015,
+            psf_radius_px=40,
+        )
     else:
         render = RenderSettings(
             cell_intensity=2400.0,
@@ -158,7 +167,8 @@ def make_case(
     effect
         Catalogue name, or ``None``.
     modality, geometry
-        ``"phase"``/``"fluorescence"``; ``"trench"`` (256 x 46) or ``"field"`` (144 x 144, 6 cells).
+        ``"phase"``/``"fluorescence"``/``"brightfield"``; ``"trench"`` (256 x 46) or
+        ``"field"`` (144 x 144, 6 cells).
     fraction_of_sd
         Largest single-pixel change of the noise-free image, in noise s.d.
     masked

@@ -39,7 +39,6 @@ if TYPE_CHECKING:
     from napari_symbac.diagnose.effects.base import Effect
 
 __all__ = [
-    "DIAGNOSE_BRIGHTFIELD_FIX",
     "NUISANCE_OPTICS",
     "BaseDesign",
     "FittedModel",
@@ -47,33 +46,14 @@ __all__ = [
     "build_design",
     "deviance",
     "fit_model",
-    "refuse_undiagnosable",
     "variance",
 ]
-
-#: What to do with a bright-field recording instead of diagnosing it.
-DIAGNOSE_BRIGHTFIELD_FIX = (
-    "Fit it (napari-symbac fit IMAGE --microscope M --out FIT, modality brightfield) and "
-    "export from FIT/settings.yaml"
-)
-
-
-def refuse_undiagnosable(modality: str, fix: str = DIAGNOSE_BRIGHTFIELD_FIX) -> None:
-    """Refuse a modality the diagnosis has no base model for: bright field, whose lens
-    term (:attr:`~napari_symbac.fit.engine.SceneModel.lens`) the base design does not
-    carry, so every effect would be judged against a model without it. ``fix`` is what
-    the interface says to do instead."""
-    if modality not in NUISANCE_OPTICS:
-        raise ValueError(
-            f"diagnose models phase contrast and fluorescence, not {modality}: its base "
-            f"design has no lens term of cells out of focus. {fix}"
-        )
-
 
 #: Optics parameters re-fitted (linearised) as nuisance; step of the finite difference.
 NUISANCE_OPTICS: dict[str, dict[str, float]] = {
     "phase": {"defocus_sigma_um": 0.02, "apodisation_sigma_um": 0.05, "psf_offset": 0.01},
     "fluorescence": {"defocus_sigma_um": 0.02},
+    "brightfield": {"defocus_sigma_um": 0.02},
 }
 
 
@@ -98,7 +78,7 @@ class Geometry:
     pixel_size_um
         Camera pixel size in the sample.
     modality
-        ``"phase"`` or ``"fluorescence"``.
+        ``"phase"``, ``"fluorescence"`` or ``"brightfield"``.
     media_fraction
         ``(T, Y, X)`` media contribution of the base model per unit media intensity,
         scaled to 1 in open media (``None`` when built from labels alone).
@@ -204,6 +184,7 @@ class BaseDesign:
     ----------
     components
         ``(3, T, Y, X)``: convolved cells, media, device at unit intensity (eq. 3, 15).
+        The effects act on these classes' parts (``beta[:3]`` times them).
     optics
         ``(k, T, Y, X)``: derivative of the rendered image with respect to each of
         ``optics_names`` (ADU per unit), at the fitted intensities.
@@ -215,6 +196,14 @@ class BaseDesign:
         The declared camera.
     geometry
         :class:`Geometry` of the scene(s).
+    lens
+        Bright field: ``(T, Y, X)``, minus the cells through the lens kernel
+        (:meth:`~napari_symbac.optics.forward.ForwardModel.ring_kernel`), the column of
+        the cells' lens term out of focus, a linear amplitude ``kappa I_m`` (ADU um^2,
+        docs/physics.md "Bright field") re-fitted with the intensities, after them in
+        ``beta``; ``None`` in phase contrast and fluorescence.
+    lens_amplitude
+        The base fit's ``kappa I_m`` (0 without a lens column).
     """
 
     components: np.ndarray
@@ -223,18 +212,28 @@ class BaseDesign:
     intensities: np.ndarray
     camera: Camera
     geometry: Geometry
+    lens: np.ndarray | None = None
+    lens_amplitude: float = 0.0
+
+    @property
+    def n_linear(self) -> int:
+        """Linear coefficients first in ``beta``: the intensities and the lens amplitude."""
+        return 3 + (self.lens is not None)
 
     @property
     def n_nuisance(self) -> int:
-        return 3 + len(self.optics_names)
+        return self.n_linear + len(self.optics_names)
 
     def columns(self) -> np.ndarray:
         """``(p, T, Y, X)``: all nuisance columns."""
-        return np.concatenate([self.components, self.optics], axis=0)
+        lens = () if self.lens is None else (self.lens[None],)
+        return np.concatenate([self.components, *lens, self.optics], axis=0)
 
     def start(self) -> np.ndarray:
-        """Nuisance coefficients of the base fit (intensities, no optics change)."""
-        return np.concatenate([self.intensities, np.zeros(len(self.optics_names))])
+        """Nuisance coefficients of the base fit (intensities, the lens amplitude, no
+        optics change)."""
+        lens = [self.lens_amplitude] if self.lens is not None else []
+        return np.concatenate([self.intensities, lens, np.zeros(len(self.optics_names))])
 
 
 def build_design(
@@ -255,18 +254,20 @@ def build_design(
     """
     if not scenes:
         raise ValueError("build_design needs at least one scene")
-    refuse_undiagnosable(microscope.modality)
     names = tuple(NUISANCE_OPTICS[microscope.modality] if optics is None else optics)
     model = ForwardModel(microscope, render, camera)
     intensities = np.array(
         [render.cell_intensity, render.media_intensity, render.device_intensity], float
     )
-    comps, derivs, fractions, labels, scene_list = [], [], [], [], []
+    brightfield = microscope.modality == "brightfield"
+    comps, lenses, derivs, fractions, labels, scene_list = [], [], [], [], [], []
     for raw in scenes:
         scene = stain_cells(raw, microscope, render)  # the stain as the settings draw it
         scene_list.append(scene)
         parts = model.components(scene)
         comps.append(np.stack([parts[c] for c in ("cells", "media", "device")]))
+        if brightfield:  # subtracted with weight kappa I_m (ForwardModel.ring_amplitudes)
+            lenses.append(-np.asarray(parts["cells_phase"], np.float64))
         frame_derivs = []
         for name in names:
             step = NUISANCE_OPTICS.get(microscope.modality, {}).get(name, 0.02)
@@ -311,7 +312,16 @@ def build_design(
         if media.size
         else (0, 0.0),
     )
-    return BaseDesign(components, optics_cols, names, intensities, camera, geometry)
+    return BaseDesign(
+        components,
+        optics_cols,
+        names,
+        intensities,
+        camera,
+        geometry,
+        lens=np.stack(lenses) if brightfield else None,
+        lens_amplitude=model.ring_amplitudes()[0] if brightfield else 0.0,
+    )
 
 
 def _texture_components(

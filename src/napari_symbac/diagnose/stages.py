@@ -140,9 +140,13 @@ def stage_for(name: str, parameters: dict[str, Any], *, frame: int = 0) -> Stage
 _INTENSITIES = ("cell_intensity", "media_intensity", "device_intensity")
 
 
-def refitted_render(render: RenderSettings, model: Any) -> tuple[RenderSettings, str]:
+def refitted_render(
+    render: RenderSettings, model: Any, modality: str
+) -> tuple[RenderSettings, str]:
     """The render settings with the intensities of the diagnosis' final model, and a
-    note ("" when none).
+    note ("" when none). In bright field also its lens term: the fourth coefficient is
+    ``kappa I_m`` (:attr:`~napari_symbac.diagnose.model.BaseDesign.lens`), so
+    ``defocus_contrast_um2`` becomes it over the refitted media level.
 
     The diagnosis refits the base model's intensities (eq. 3, the first three of
     ``model.beta``) together with the accepted effects; the settings that draw those
@@ -157,6 +161,8 @@ def refitted_render(render: RenderSettings, model: Any) -> tuple[RenderSettings,
     changes = dict(zip(_INTENSITIES, (float(b) for b in model.beta[:3])))
     held = [f"{name} {value:.4g} ADU" for name, value in changes.items() if value < 0]
     changes = {name: max(value, 0.0) for name, value in changes.items()}
+    if modality == "brightfield" and changes["media_intensity"] > 0:
+        changes["defocus_contrast_um2"] = float(model.beta[3]) / changes["media_intensity"]
     note = (
         f"the final model's {', '.join(held)} is drawn as 0 (the cells are darker than "
         "the model draws them)"

@@ -73,7 +73,7 @@ class Effect:
     signature: ClassVar[str] = ""
     kind: ClassVar[str] = "mean"
     needs_series: ClassVar[bool] = False
-    modalities: ClassVar[tuple[str, ...]] = ("phase", "fluorescence")
+    modalities: ClassVar[tuple[str, ...]] = ("phase", "fluorescence", "brightfield")
     random_field: ClassVar[bool] = False
 
     def __init__(self, geometry: Geometry) -> None:

@@ -23,6 +23,8 @@ class Photobleaching(Effect):
     )
     signature = "frame means of the cell-pixel residual falling with time, background flat"
     needs_series = True
+    # bright field: no fluorophore, and the cells' light is the lamp's, the background's
+    modalities = ("phase", "fluorescence")
 
     def n_params(self) -> int:
         return 1
