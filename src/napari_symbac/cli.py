@@ -281,30 +281,6 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     return run_calibrate(args)
 
 
-def _measured_camera_note(frame, camera) -> str:
-    """What the base fit measured, and what the image's own photon transfer says of it
-    (correlated noise, or an image that is not raw camera counts)."""
-    from napari_symbac.fit.camera_estimate import estimate_camera
-    from napari_symbac.fit.report import UNMEASURED_READ_NOISE
-
-    note = (
-        f"camera measured from the recording: {camera.sensitivity_adu_per_e:.3g} ADU/e-, "
-        f"read noise {camera.dark_noise_e:.3g} e-, baseline {camera.baseline_adu:.4g} ADU"
-    )
-    if camera.dark_noise_e == 0:  # said, as `fit` and Auto-fit say it
-        note += f" ({UNMEASURED_READ_NOISE})"
-    try:
-        estimate = estimate_camera(frame, camera=camera, bit_depth=camera.bit_depth)
-    except ValueError as err:
-        return f"{note}; the image's own photon transfer: {err}"
-    if estimate.neighbour_variance_ratio > 1.1:
-        note += (
-            f"; its noise is correlated between neighbours ({estimate.summary()}): "
-            "camera_noise and the held-out gains assume independent pixels"
-        )
-    return note
-
-
 #: Where ``diagnose`` takes the camera (it has no ``--camera``), for its refusals.
 _DIAGNOSE_CAMERA_HINT = (
     "in the microscope file's camera section (camera: {baseline_adu: ..., "
@@ -366,6 +342,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         refuse_constant,
         resolve_pixel_size,
     )
+    from napari_symbac.fit.report import measured_camera_note
     from napari_symbac.fit.start import WideStartError
     from napari_symbac.io import read_image
     from napari_symbac.settings import (
@@ -460,7 +437,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                 first_fit = fit
             if camera is None:
                 camera = fit.camera
-                measured_note = _measured_camera_note(frame, camera)
+                measured_note = measured_camera_note(frame, camera)
                 if mapping is not None:  # its ADU and e- are the map's, not a camera's
                     measured_note += counts_units_mark(mapping)
                 print(f"note: {measured_note}", file=sys.stderr)

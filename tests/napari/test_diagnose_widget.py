@@ -96,7 +96,7 @@ def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
     assert trench.length_um + trench.shown_top_um == pytest.approx(256 * 0.065, abs=1e-9)
     # the camera is measured from the recording (2.0 ADU/e- on the whole trench, 1.8 on
     # this window), not assumed (2.9 ADU/e- by default)
-    pattern = r"camera measured from the recording \(([0-9.]+) ADU/e-"
+    pattern = r"camera measured from the recording: ([0-9.]+) ADU/e-"
     measured = re.search(pattern, widget.status.value)
     assert measured is not None, widget.status.value
     assert float(measured.group(1)) == pytest.approx(2.0, rel=0.2)
@@ -391,6 +391,10 @@ def test_a_bright_field_recording_is_diagnosed_with_its_lens_term(make_napari_vi
     qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
     assert widget.result is not None, widget.status.value
     assert [e.name for e in widget.result.accepted] == ["background_texture"]
+    # its "camera" is the residual's variance, and the status says why (flattened)
+    assert "the image's own photon transfer: the pixel variance does not grow" in (
+        widget.status.value
+    )
     residual = viewer.layers[DIAGNOSIS_RESIDUAL_LAYER]
     settings = residual.metadata[SYMBAC_METADATA_KEY]["settings"]  # what Export takes
     assert settings.microscope.modality == "brightfield"

@@ -275,6 +275,7 @@ class DiagnoseWidget(Container):
             from napari_symbac.diagnose.stages import refitted_render
             from napari_symbac.fit import fit_scene
             from napari_symbac.fit.fitted_settings import fitted_or_kept
+            from napari_symbac.fit.report import measured_camera_note
 
             try:
                 fit = fit_scene(
@@ -307,7 +308,8 @@ class DiagnoseWidget(Container):
                 cancel=cancel,
             )
             final = refitted_render(fit.render, result.final_model, microscope.modality)
-            return fit, result, final, (*exported, layout != tuple(full))
+            camera_note = measured_camera_note(frame, fit.camera)
+            return fit, result, final, (*exported, layout != tuple(full)), camera_note
 
         self.worker = Job(
             lambda: (yield from blocking_steps(compute, cancelled.is_set)),
@@ -386,7 +388,7 @@ class DiagnoseWidget(Container):
         from napari_symbac.diagnose.stages import updated_settings
         from napari_symbac.settings import PipelineSettings
 
-        fit, result, (final_render, held), (simulation, kept, windowed) = output
+        fit, result, (final_render, held), (simulation, kept, windowed), camera_note = output
         self.result = result
         camera = fit.camera
         base = PipelineSettings(
@@ -450,9 +452,8 @@ class DiagnoseWidget(Container):
             where = "the diagnosed window" if windowed else "the recording"
             simulated = f"the cells and layout fitted, sized as {where}"
         self.status.value = (
-            f"Accepted: {names}{self._window_note}; camera measured from the recording "
-            f"({camera.sensitivity_adu_per_e:.3g} ADU/e-, read noise {camera.dark_noise_e:.3g} "
-            f"e-). Updated settings are in the '{DIAGNOSIS_RESIDUAL_LAYER}' layer, which "
+            f"Accepted: {names}{self._window_note}; {camera_note}. Updated settings are in "
+            f"the '{DIAGNOSIS_RESIDUAL_LAYER}' layer, which "
             f"Export now takes (its 'settings from'): {simulated}"
             + (f"; {drawn_by_export(accepted)}." if accepted else ".")
             + (f" Note: {held}." if held else "")

@@ -111,6 +111,32 @@ UNMEASURED_READ_NOISE = (
 )
 
 
+def measured_camera_note(frame: Any, camera: Any) -> str:
+    """What the base fit of ``diagnose`` (the command and the dock) measured of the camera,
+    and what the image's own photon transfer says of it (correlated noise, or an image
+    that is not raw camera counts, whose "camera" is the residual's variance: found as a
+    user, the dock said "camera measured from the recording (0.001 ADU/e-, read noise
+    3.14e+04 e-)" of ColiCoords' flattened bright field, and no more)."""
+    from napari_symbac.fit.camera_estimate import estimate_camera
+
+    note = (
+        f"camera measured from the recording: {camera.sensitivity_adu_per_e:.3g} ADU/e-, "
+        f"read noise {camera.dark_noise_e:.3g} e-, baseline {camera.baseline_adu:.4g} ADU"
+    )
+    if camera.dark_noise_e == 0:  # said, as `fit` and Auto-fit say it
+        note += f" ({UNMEASURED_READ_NOISE})"
+    try:
+        estimate = estimate_camera(frame, camera=camera, bit_depth=camera.bit_depth)
+    except ValueError as err:
+        return f"{note}; the image's own photon transfer: {err}"
+    if estimate.neighbour_variance_ratio > 1.1:
+        note += (
+            f"; its noise is correlated between neighbours ({estimate.summary()}): "
+            "camera_noise and the held-out gains assume independent pixels"
+        )
+    return note
+
+
 def colony_noise_text(result: Any) -> str:
     """The noise of a colony fit (:class:`~napari_symbac.fit.ColonyFit`) in words: the
     image's measured pixel noise and the noise drawn (at least
