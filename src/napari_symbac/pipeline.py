@@ -166,7 +166,12 @@ def _draw(
         curvature=curvature,
         field=field,
     )
-    scene = add_media_texture(scene, settings.render.texture_amplitude, simulation.settings.seed)
+    scene = add_media_texture(
+        scene,
+        settings.render.texture_amplitude,
+        simulation.settings.seed,
+        settings.render.texture_scale_um,
+    )
     scene = stain_cells(scene, settings.microscope, settings.render)
     scene = apply_cell_brightness(
         scene, settings.render.cell_brightness_cv, simulation.settings.seed

@@ -709,6 +709,11 @@ class RenderSettings:
         Perlin background texture of an agar pad (section 13.2.1): the media image is
         multiplied by ``1 + texture_amplitude * T`` with ``T`` a unit-s.d. Perlin
         texture drawn from the simulation seed (same seed, same texture); 0 = none.
+    texture_scale_um
+        Lattice spacing of the texture's coarser octave (um; two octaves, the finer half
+        as strong), a texture measured on a recording (``calibrate`` in bright field:
+        twice the background's correlation length); 0 = section 13.2.1's random Perlin
+        texture, coarsest octave 0.1-0.5 of the field.
     cell_brightness_cv
         Per-cell brightness variability for fluorescence (section 13.2.2, stochastic
         gene expression): when a simulation is rendered, each cell's image is
@@ -779,6 +784,7 @@ class RenderSettings:
     noise_model: NoiseModel = "camera"
     gaussian_noise_sd_adu: float = 20.0
     texture_amplitude: float = 0.0
+    texture_scale_um: float = 0.0
     cell_brightness_cv: float = 0.0
     envelope_stain_fraction: float = 0.0
     depth_layers: int = 0
@@ -807,6 +813,7 @@ class RenderSettings:
             "ring_contrast",
             "gaussian_noise_sd_adu",
             "texture_amplitude",
+            "texture_scale_um",
             "cell_brightness_cv",
             "debris_density_per_100um2",
             "debris_diameter_cv",

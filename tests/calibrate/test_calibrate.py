@@ -347,3 +347,30 @@ def test_without_masks_the_whole_field_is_fitted_and_measured(real_data_dir):
     assert cal.reference.shape == image.shape
     assert len(inside) == 2  # the window holds two whole cells of the field
     assert len(inside) <= cal.measurements.n_cells <= len(whole) + 1
+
+
+def test_the_background_texture_is_measured_beside_white_noise():
+    """A texture of known rms and correlation length (white noise smoothed by a Gaussian
+    of 2 px: autocovariance exp(-r^2 / 16), 1/e at 4 px) under white noise of 20 ADU,
+    with a trend and a cell cut out: rms, correlation length and noise come back; white
+    noise alone has no texture."""
+    from scipy import ndimage
+
+    from napari_symbac.calibrate.measure import measure_texture
+
+    rng = np.random.default_rng(7)
+    shape = (256, 256)
+    smooth = ndimage.gaussian_filter(rng.standard_normal(shape), 2.0, mode="wrap")
+    texture = 15.0 * smooth / smooth.std()
+    rows = np.arange(shape[0])[:, None]
+    trend = 3000.0 + 2.0 * rows  # the lamp's gradient: not texture
+    image = trend + texture + rng.normal(0.0, 20.0, shape)
+    masks = np.zeros(shape, np.int32)
+    masks[100:112, 80:140] = 1
+    image[masks > 0] -= 400.0
+    measured = measure_texture(image, masks, 0.08)
+    assert measured is not None
+    assert measured.rms_adu == pytest.approx(15.0, rel=0.1)
+    assert measured.correlation_px == pytest.approx(4.0, rel=0.15)
+    assert measured.noise_adu == pytest.approx(20.0, rel=0.1)
+    assert measure_texture(trend + rng.normal(0.0, 20.0, shape), masks, 0.08) is None

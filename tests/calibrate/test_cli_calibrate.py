@@ -380,6 +380,11 @@ def test_calibrate_matches_a_bright_field_recording(real_data_dir, tmp_path, cap
     assert render["noise_model"] == "gaussian"
     report = (out / "report.txt").read_text()
     assert "camera: not measurable from the image" in report
+    # the pad's mottling (14.5 ADU rms, 4 px on the whole field), drawn: networks trained
+    # on a clean pad called it cells
+    assert "background texture: " in report
+    assert 0.3 < render["texture_scale_um"] < 1.5
+    assert 5.0 < render["texture_amplitude"] * render["media_intensity"] < 40.0
     assert f"noise Gaussian, {render['gaussian_noise_sd_adu']:.3g} ADU" in report
     _assert_flags_follow_the_numbers(report, capsys.readouterr().out)
     # the media lie ~45 ADU below full scale: no brighter exposure than the recording's

@@ -213,6 +213,32 @@ def test_same_seed_same_bits_and_texture(pad):
     assert not np.array_equal(other.media, scenes[0].media)
 
 
+def test_a_measured_texture_has_the_scale_it_is_given(pad):
+    """``texture_scale_um`` (calibrate's measured texture): a Perlin texture whose
+    correlation length follows the lattice spacing given, unlike section 13.2.1's
+    (0.1-0.5 of the field), the same for the same seed; a negative scale is refused."""
+    from napari_symbac.calibrate.measure import measure_texture
+
+    plain = draw_frame(pad, _settings(pad), 0)
+    px = plain.pixel_size_um
+    masks = np.zeros(plain.shape, np.int32)
+    masks[:4, :4] = 1  # measure_texture wants a cell: one in a corner
+
+    def correlation(scale_um: float) -> float:
+        textured = add_media_texture(plain, 0.1, 5, scale_um)
+        media = np.where(plain.media == 1, textured.media, 1.0)
+        measured = measure_texture(media, masks, px, gap_um=0.1, trend_um=100 * scale_um)
+        return measured.correlation_px * px
+
+    fine, coarse = correlation(0.4), correlation(0.8)
+    assert 0.2 < fine / 0.4 < 0.6  # about a quarter to half the lattice spacing
+    assert coarse / fine == pytest.approx(2.0, rel=0.2)
+    again = add_media_texture(plain, 0.1, 5, 0.4)
+    np.testing.assert_array_equal(again.media, add_media_texture(plain, 0.1, 5, 0.4).media)
+    with pytest.raises(ValueError, match="texture scale must be zero or positive"):
+        add_media_texture(plain, 0.1, 5, -0.4)
+
+
 @pytest.mark.parametrize("name", ["chamber", "pad", "outline"])
 def test_render_simulation_every_geometry(name, request):
     simulation = request.getfixturevalue(name)

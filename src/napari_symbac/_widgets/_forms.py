@@ -55,6 +55,7 @@ _READABLE = {
     "device_intensity": "device intensity (ADU)",
     "psf_offset": "PSF offset (weight)",
     "texture_amplitude": "agar texture amplitude",
+    "texture_scale_um": "agar texture scale (µm; 0 = random)",
     "cell_brightness_cv": "cell brightness CV",
     "envelope_stain_fraction": "stain in the envelope (fraction, fluorescence)",
     "depth_layers": "depth slabs (eq. 16, fluorescence; 0 = 2-D)",

@@ -41,6 +41,7 @@ from napari_symbac.calibrate.measure import (
     measure_debris,
     measure_field,
     measure_packing,
+    measure_texture,
 )
 from napari_symbac.settings import (
     AgarPadGeometry,
@@ -587,6 +588,9 @@ def calibrate(
             )
         render, note = _with_debris(frame, field_masks, valid, microscope, render)
         notes.append(note)
+    if microscope.modality == "brightfield":
+        render, note = _with_texture(frame, field_masks, valid, microscope, render)
+        notes.append(note)
     uncounted_noise = None if dense or camera is not None else _uncounted_noise_adu(
         frame, valid, np.asarray(field_masks) > 0
     )
@@ -809,6 +813,31 @@ def _with_debris(frame, masks, valid, microscope, render) -> tuple[RenderSetting
         f"(CV {render.debris_diameter_cv:.2f}), median peak "
         f"{np.median(debris.peaks_adu):.0f} ADU above the pad = brightness {brightness:.2f} "
         f"of a cell column (CV {render.debris_brightness_cv:.2f}), extra blur {blur:.2f} um"
+    )
+
+
+def _with_texture(frame, masks, valid, microscope, render) -> tuple[RenderSettings, str]:
+    """Render settings with the background's texture (:func:`measure_texture`) and a note:
+    ``texture_amplitude`` its rms over the media level (eq. 3: the texture multiplies
+    the media), ``texture_scale_um`` twice its correlation length (the lattice spacing
+    of a Perlin texture whose autocovariance falls to ``1/e`` near half of it).
+    Bright field only: there the texture is the pad's own light, while the
+    fluorescence and phase calibrations are left as their benchmarks measured them."""
+    px = microscope.pixel_size_um
+    texture = measure_texture(frame, masks, px, valid=valid)
+    if texture is None or render.media_intensity <= 0:
+        return render, "background texture: none measurable beside the pixel noise"
+    render = dataclasses.replace(
+        render,
+        texture_amplitude=texture.rms_adu / render.media_intensity,
+        texture_scale_um=2.0 * texture.correlation_px * px,
+    )
+    return render, (
+        f"background texture: {texture.rms_adu:.3g} ADU rms beside {texture.noise_adu:.3g} "
+        f"ADU of pixel noise, correlation length {texture.correlation_px:.1f} px "
+        f"({texture.correlation_px * px:.2f} um; away from the cells, trend removed): "
+        f"drawn as a Perlin texture of {render.texture_amplitude:.3g} of the media, "
+        f"lattice {render.texture_scale_um:.2f} um"
     )
 
 

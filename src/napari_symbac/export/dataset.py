@@ -666,6 +666,7 @@ class PipelineSource:
                     ),
                     varied.render.texture_amplitude,
                     simulation.settings.seed,
+                    varied.render.texture_scale_um,
                 )
                 scene = stain_cells(scene, varied.microscope, varied.render)
                 scene = apply_cell_brightness(

@@ -180,31 +180,47 @@ def field_images(
     return open_frac, device
 
 
+#: Octaves of a measured texture (``RenderSettings.texture_scale_um``): the lattice
+#: spacing and half of it, the finer half as strong.
+MEASURED_TEXTURE_OCTAVES = 2
+
+
 @functools.lru_cache(maxsize=4)
-def _texture(seed: int, shape: tuple[int, int]) -> np.ndarray:
-    from napari_symbac.optics.texture import random_perlin_texture
+def _texture(seed: int, shape: tuple[int, int], scale_px: float = 0.0) -> np.ndarray:
+    from napari_symbac.optics.texture import perlin_texture, random_perlin_texture
 
     rng = np.random.default_rng(np.random.SeedSequence([seed, TEXTURE_SEED_KEY]))
-    texture = random_perlin_texture(shape, rng)
+    if scale_px > 0:
+        texture = perlin_texture(
+            shape, rng, scale_px=scale_px, octaves=MEASURED_TEXTURE_OCTAVES, persistence=0.5
+        )
+    else:
+        texture = random_perlin_texture(shape, rng)
     texture.setflags(write=False)
     return texture
 
 
-def add_media_texture(scene: Any, amplitude: float, seed: int) -> Any:
+def add_media_texture(scene: Any, amplitude: float, seed: int, scale_um: float = 0.0) -> Any:
     """Perlin background texture of an agar pad (supplement 13.2.1) on the media image.
 
     The media fraction is multiplied by ``1 + amplitude * T`` (clipped at 0), with
     ``T`` a zero-mean, unit-s.d. :func:`~napari_symbac.optics.random_perlin_texture`
     at render resolution whose random parameters and gradients come from
     ``numpy.random.default_rng(SeedSequence([seed, 2]))``: the same seed gives the
-    same texture, bit for bit, on every frame (the pad does not move). The texture
-    goes through the PSF like the rest of the sample. ``amplitude = 0`` returns
-    ``scene`` itself.
+    same texture, bit for bit, on every frame (the pad does not move). With
+    ``scale_um > 0`` (``RenderSettings.texture_scale_um``, a texture measured on a
+    recording) ``T`` is :func:`~napari_symbac.optics.perlin_texture` of that lattice
+    spacing, :data:`MEASURED_TEXTURE_OCTAVES` octaves, from the same generator. The
+    texture goes through the PSF like the rest of the sample. ``amplitude = 0``
+    returns ``scene`` itself.
     """
     if not (math.isfinite(amplitude) and amplitude >= 0):
         raise ValueError(f"texture amplitude must be zero or positive, got {amplitude!r}")
+    if not (math.isfinite(scale_um) and scale_um >= 0):
+        raise ValueError(f"texture scale must be zero or positive (um), got {scale_um!r}")
     if amplitude == 0:
         return scene
-    texture = _texture(int(seed), tuple(scene.shape))
+    scale_px = scale_um / scene.pixel_size_um if scale_um > 0 else 0.0
+    texture = _texture(int(seed), tuple(scene.shape), float(scale_px))
     gain = np.maximum(np.float32(1.0) + np.float32(amplitude) * texture, np.float32(0.0))
     return scene.replace_media(scene.media * gain)
