@@ -105,8 +105,8 @@ class Calibration:
     notes
         Plain sentences: where each setting came from, what could not be measured.
     mask_offset_um
-        Fluorescence or bright field with masks: how far the masks' outlines lie outside the fitted
-        model cells (median over the crop's matched cells,
+        Fluorescence or bright field with masks: how far the masks' outlines lie
+        outside the fitted model cells (median over the crop's matched cells,
         :func:`~napari_symbac.export.outline.outline_offset_px`), the annotation
         convention :func:`export_settings` gives the dataset's masks; ``None``
         otherwise.
