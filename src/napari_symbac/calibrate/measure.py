@@ -399,9 +399,9 @@ def measure_texture(
     trend (a plane fitted by least squares, then a Gaussian of ``trend_um``, normalised
     to those pixels) taken off, the autocovariance is computed by FFT and normalised by
     the number of pixel pairs at each lag. White pixel noise adds to lag 0 only, so the
-    texture's variance is the
-    mean of the lags (0, 1) and (1, 0), and its correlation length the lag along rows
-    and columns where that mean first falls to ``1/e`` of it (linear between lags).
+    texture's variance is the mean of the lags (0, 1) and (1, 0), and its correlation
+    length the lag along rows and columns where that mean first falls to ``1/e`` of it
+    (linear between lags).
     Found calibrating ColiCoords' bright field: networks trained on a clean synthetic
     pad called the real pad's 0.3-1 um patches cells (docs/proof.md). ``None`` when the
     texture's variance is under 5 % of the pixel noise's, or fewer than 1000 background
