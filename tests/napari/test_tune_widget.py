@@ -770,6 +770,10 @@ def test_auto_fit_fits_the_sample_brightfield_with_its_lens_term(rendered, qtbot
     viewer.open_sample("napari-symbac", "colicoords")
     real = viewer.layers["ColiCoords brightfield"]
     tune.reference.value = real
+    # chosen, the recording's modality is the preview's (before, only Auto-fit switched it)
+    assert tune.modality.value == "brightfield"
+    assert tune.preview.model.microscope.modality == "brightfield"
+    assert tune.sliders["ring_contrast"].native.isHidden()
     tune.masks.value = None  # the automatic start
     tune.fit_button.native.click()
     qtbot.waitUntil(lambda: tune.fit_worker is None, timeout=300_000)
@@ -783,8 +787,7 @@ def test_auto_fit_fits_the_sample_brightfield_with_its_lens_term(rendered, qtbot
     assert lens.value == pytest.approx(result.render.defocus_contrast_um2, abs=1e-3)
     for name in ("ring_contrast", "psf_offset", "apodisation_sigma_um"):
         assert tune.sliders[name].native.isHidden(), name
-    # the preview, and so Export, is bright field with the fitted lens term (it stayed
-    # in the phase contrast it was simulated in)
+    # the preview, and so Export, is bright field with the fitted lens term
     assert tune.preview.model.microscope.modality == "brightfield"
     stored = tune.source.value.metadata[SYMBAC_METADATA_KEY]["settings"]
     assert stored.microscope.modality == "brightfield"

@@ -317,6 +317,7 @@ class TuneWidget(Container):
             widget.changed.connect(self._on_matching)
         self.reference.changed.connect(self._match_noise)
         self.reference.changed.connect(self._choose_masks)
+        self.reference.changed.connect(self._follow_modality)
         self.match_noise.changed.connect(self._match_noise)
         viewer.dims.events.current_step.connect(self._on_step)
         watch_recordings(viewer, self._refresh_choices)
@@ -368,6 +369,22 @@ class TuneWidget(Container):
             self._choose_masks(only=_event.value)
         if self.source.value is not previous:
             self._load_source()
+        self._follow_modality()  # its modality set in the Recording step
+
+    def _follow_modality(self, _value=None) -> None:
+        """The preview takes the chosen recording's modality, as Simulate does (found as
+        a user: a bright-field recording chosen beside a phase-contrast preview stayed
+        compared with phase contrast until Auto-fit); the intensities of its polarity
+        (:meth:`_switch_modality`). Not while a fit runs: it switches the preview itself."""
+        layer = self.reference.value
+        modality = None if layer is None else layer.metadata.get("modality")
+        if (
+            modality in self.modality.choices
+            and modality != self.modality.value
+            and self.preview is not None
+            and self.fit_worker is None
+        ):
+            self.modality.value = modality  # _on_parameter switches the preview
 
     def _choose_masks(self, _value=None, *, only=None) -> None:
         """With no cell masks chosen, choose the newest Labels layer of instance masks of
