@@ -5,7 +5,7 @@ Run under a virtual display (Debian: ``apt-get install xvfb``)::
     xvfb-run -a -s "-screen 0 1366x768x24" python docs/scripts/make_screenshots.py [--napari-only]
 
 Writes ``docs/images/napari-*.png`` (the flow of docs/gui.md on the real SyMBac trench,
-Diagnose included, and a phase colony fitted from its masks, read from ``../shared/data/real`` or
+Diagnose included, a phase colony fitted from its masks and one calibrated, read from ``../shared/data/real`` or
 ``$NAPARI_SYMBAC_REAL_DATA``, in a 1366 x 768 window) and the demo montage
 ``docs/images/demo-preview.png``.
 """
@@ -175,6 +175,38 @@ def colony_flow() -> None:
     viewer.close()
 
 
+def calibrate_flow() -> None:
+    """A phase colony (Omnipose Sample000193, a PNG without pixel size) and its masks
+    calibrated in the Calibrate tab with a 1 um cell width; item 0 of the matched dataset
+    placed beside the recording."""
+    import tifffile
+
+    root = real_data_from_environment() / "omnipose"
+    viewer = napari.Viewer(title="napari-symbac")
+    viewer.window._qt_window.resize(*WINDOW)
+    _, flow = viewer.window.add_plugin_dock_widget(PLUGIN, "SyMBac workflow (all steps)")
+    flow.real_image.file.value = root / "Sample000193.png"
+    dismiss_notifications(viewer)
+    viewer.add_labels(
+        tifffile.imread(root / "Sample000193_cp_masks.tif"), name="Sample000193 masks"
+    )
+    flow.setCurrentIndex(4)
+    flow.calibrate.cell_width_um.value = 1.0
+    flow.calibrate.run_button.native.click()
+    wait_for(lambda: flow.calibrate.worker is None)
+    print(flow.calibrate.status.value)
+    dismiss_notifications(viewer)
+    name = "synthetic (calibrated to Sample000193)"
+    width = viewer.layers["Sample000193"].data.shape[-1]
+    viewer.layers["Sample000193 masks"].visible = False
+    viewer.layers[name].translate = (0, width + 20)
+    viewer.layers[f"{name} masks"].translate = (0, width + 20)
+    viewer.layers[f"{name} masks"].visible = False
+    viewer.reset_view()
+    shot(viewer, "napari-calibrate.png")
+    viewer.close()
+
+
 def demo_montage() -> None:
     import tempfile
 
@@ -196,6 +228,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         action="store_true",
         help="only the napari windows' screenshots, not the demo montage",
     )
+    parser.add_argument(
+        "--calibrate-only",
+        action="store_true",
+        help="only the Calibrate tab's screenshot (napari-calibrate.png)",
+    )
     args = parser.parse_args(argv)
     checked_real_data(
         parser,
@@ -211,8 +248,10 @@ if __name__ == "__main__":
 
     args = parse_args()
     IMAGES.mkdir(parents=True, exist_ok=True)
-    if not args.napari_only:
-        demo_montage()
-    with tempfile.TemporaryDirectory() as tmp:
-        real_trench_flow(Path(tmp))
-    colony_flow()
+    if not args.calibrate_only:
+        if not args.napari_only:
+            demo_montage()
+        with tempfile.TemporaryDirectory() as tmp:
+            real_trench_flow(Path(tmp))
+        colony_flow()
+    calibrate_flow()

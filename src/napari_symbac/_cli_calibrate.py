@@ -237,18 +237,12 @@ def run_calibrate(args: argparse.Namespace) -> int:
         m = calibration.measurements
         px = calibration.settings.microscope.pixel_size_um
         modality_used = calibration.settings.microscope.modality
+        notes = _settings_notes(calibration.notes, recording.counts_mapping)
         text = "\n".join(
             [
                 "napari-symbac calibrate",
                 *_image_lines(args.image, image, recording.counts_mapping),
-                f"modality: {calibration.settings.microscope.modality}",
-                f"pixel size {px:.4g} um ({pixel_note})",
-                f"method: {calibration.method}; pixel chi2 {calibration.fit_chi2[0]:.3g} -> "
-                f"{calibration.fit_chi2[1]:.3g}",
-                f"real field: {m.summary(px, modality_used)}",
-                "",
-                "WHERE THE SETTINGS CAME FROM",
-                *(f"- {n}" for n in _settings_notes(calibration.notes, recording.counts_mapping)),
+                *calibration.report_lines(pixel_note, notes),
                 "",
                 "REAL AGAINST SYNTHETIC (item 0 of the dataset; 1-99 % normalised)",
                 comparison.table(),

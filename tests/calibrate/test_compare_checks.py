@@ -8,6 +8,7 @@ from scipy import ndimage
 
 from napari_symbac.calibrate import compare_images
 from napari_symbac.calibrate.compare import (
+    GUI_WORDS,
     MEDIAN_TOLERANCE,
     SPECTRUM_FACTOR,
     Comparison,
@@ -71,6 +72,12 @@ def test_brighter_and_blurred_cells_are_flagged_with_what_to_do():
     assert "mismatched: cells median" in given
     assert "--masks" not in given
     assert "look at the montage" in given
+    # the dock's advice names its own controls, none of the command's options or files
+    shown = compare_images(real, masks, synthetic, labels, words=GUI_WORDS).verdict()
+    assert "choose the cell masks if you have them" in shown
+    assert "the calibrated layer against the recording" in shown
+    assert "--masks" not in shown
+    assert "report.png" not in shown
 
 
 def test_small_bands_get_the_tolerance_their_sampling_needs():

@@ -318,6 +318,7 @@ SINGLE_STEPS = {
     "Simulate and render": "run_button",
     "Tune optics and noise": "fit_button",
     "Diagnose model mismatch": "run_button",
+    "Calibrate to a recording": "run_button",
     "Export dataset": "export_button",
 }
 

@@ -25,6 +25,7 @@ from napari_symbac._widgets._backend import backend_combo
 from napari_symbac._widgets._forms import message_label
 from napari_symbac._widgets._jobs import Job, blocking_steps
 from napari_symbac._widgets._recording import watch_recordings
+from napari_symbac._widgets.calibrate import CALIBRATION_KEY
 from napari_symbac._widgets.simulate import FITTED_TO_KEY, SYMBAC_METADATA_KEY
 from napari_symbac.export import FORMATS, ExportSettings, export_of
 from napari_symbac.settings import PipelineSettings
@@ -41,7 +42,8 @@ class ExportWidget(Container):
     The settings (your recording's microscope and modality, as simulated, tuned and
     fitted) come from the chosen rendered layer: the newest one unless you pick
     another; a layer Auto-fit has fitted is listed as ``name (fitted to recording)``,
-    its fitted settings being what the export uses. With none, the built-in defaults
+    its fitted settings being what the export uses; a layer Calibrate made writes the
+    recording's matched dataset (single frames). With none, the built-in defaults
     (said in the status line). The settings are saved with the dataset (its manifest),
     and a cancelled export resumes when run again into the same folder. Errors
     (read-only folder, full disk) are shown as a notification and the widget stays
@@ -139,13 +141,14 @@ class ExportWidget(Container):
         ]
 
     def settings(self) -> ExportSettings:
-        """The export settings in the form (validated)."""
+        """The export settings in the form (validated); for a layer Calibrate made, its
+        matched dataset's (:func:`~napari_symbac.calibrate.export_settings`, as the
+        ``calibrate`` command writes it)."""
         layer = self.source.value
-        pipeline = (
-            layer.metadata[SYMBAC_METADATA_KEY]["settings"]
-            if layer is not None
-            else PipelineSettings()
-        )
+        meta = {} if layer is None else layer.metadata[SYMBAC_METADATA_KEY]
+        if meta.get(CALIBRATION_KEY) is not None:
+            return self._calibrated(meta[CALIBRATION_KEY])
+        pipeline = meta["settings"] if layer is not None else PipelineSettings()
         return export_of(
             dataclasses.replace(
                 pipeline,
@@ -153,6 +156,25 @@ class ExportWidget(Container):
             ),
             n_items=self.n_items.value,
             kind=self.kind.value,
+            formats=list(self.formats.value),
+            seed=self.seed.value,
+            val_fraction=self.val_fraction.value,
+        )
+
+    def _calibrated(self, calibration) -> ExportSettings:
+        """The matched dataset of ``calibration``: single frames (the ``calibrate``
+        command's), at the form's size, formats, seed and validation fraction."""
+        from napari_symbac.calibrate import export_settings
+
+        if self.kind.value != "frames":
+            raise ValueError(
+                "a calibrated dataset holds single frames: choose items 'frames' (tracking "
+                "ground truth needs a time series: Simulate one with the recording chosen, "
+                "then Export it)"
+            )
+        return export_settings(
+            calibration,
+            n_items=self.n_items.value,
             formats=list(self.formats.value),
             seed=self.seed.value,
             val_fraction=self.val_fraction.value,

@@ -17,6 +17,7 @@ from qtpy.QtCore import QEvent, QObject, Qt
 from qtpy.QtWidgets import QFrame, QScrollArea, QStyle, QTabWidget, QWidget
 
 from napari_symbac._widgets._recording import is_recording
+from napari_symbac._widgets.calibrate import CalibrateWidget
 from napari_symbac._widgets.diagnose import DiagnoseWidget
 from napari_symbac._widgets.export import ExportWidget
 from napari_symbac._widgets.real_image import RealImageWidget
@@ -27,6 +28,7 @@ if TYPE_CHECKING:
     import napari
 
 __all__ = [
+    "CalibrateDock",
     "DiagnoseDock",
     "ExportDock",
     "RealImageDock",
@@ -36,13 +38,14 @@ __all__ = [
 ]
 
 #: Tab titles, in the order of the workflow.
-TABS = ("1 Recording", "2 Simulate", "3 Tune + fit", "4 Diagnose", "5 Export")
+TABS = ("1 Recording", "2 Simulate", "3 Tune + fit", "4 Diagnose", "5 Calibrate", "6 Export")
 
 
 class WorkflowWidget(QTabWidget):
-    """Recording -> Simulate -> Tune + fit -> Diagnose -> Export, as tabs of one dock widget.
+    """Recording -> Simulate -> Tune + fit -> Diagnose -> Calibrate -> Export, as tabs of one
+    dock widget (Calibrate: from a field's recording straight to its matched dataset).
 
-    The five step widgets are the ones napari also offers separately; they share the
+    The six step widgets are the ones napari also offers separately; they share the
     recording through its layer's metadata, so a tab can be used alone. The recording
     chosen in the first step becomes the later steps' recording (Simulate's, Tune's
     real image, Diagnose's) once it has its pixel size: found as a user, choosing the
@@ -57,6 +60,7 @@ class WorkflowWidget(QTabWidget):
         self.simulate = SimulateWidget(viewer)
         self.tune = TuneWidget(viewer)
         self.diagnose = DiagnoseWidget(viewer)
+        self.calibrate = CalibrateWidget(viewer)
         self.export = ExportWidget(viewer)
         tips = (
             "Open your recording, set its pixel size and microscope, paint and measure classes.",
@@ -64,10 +68,21 @@ class WorkflowWidget(QTabWidget):
             "Tune optics and noise live; Auto-fit the scene to your recording.",
             "Find, name and fit what the model misses in your recording; "
             "the updated settings go to Export.",
-            "Export a training dataset with the tuned settings.",
+            "Fit a field's recording (agar pad, colonies) and make its matched dataset's "
+            "settings in one step, as napari-symbac calibrate.",
+            "Export a training dataset with the tuned, fitted or calibrated settings.",
         )
         for title, tip, widget in zip(
-            TABS, tips, (self.real_image, self.simulate, self.tune, self.diagnose, self.export)
+            TABS,
+            tips,
+            (
+                self.real_image,
+                self.simulate,
+                self.tune,
+                self.diagnose,
+                self.calibrate,
+                self.export,
+            ),
         ):
             area = _scroll_area(widget.native)
             widget.native.installEventFilter(self)
@@ -82,7 +97,12 @@ class WorkflowWidget(QTabWidget):
         layer = self.real_image.image.value
         if layer is None or not is_recording(layer):
             return
-        for choice in (self.simulate.recording, self.tune.reference, self.diagnose.reference):
+        for choice in (
+            self.simulate.recording,
+            self.tune.reference,
+            self.diagnose.reference,
+            self.calibrate.recording,
+        ):
             choice.reset_choices()
             if layer in choice.choices and choice.value is not layer:
                 choice.value = layer
@@ -157,6 +177,10 @@ class TuneDock(_Alone, TuneWidget):
 
 class DiagnoseDock(_Alone, DiagnoseWidget):
     """*Diagnose model mismatch* docked alone (scrolls in its dock)."""
+
+
+class CalibrateDock(_Alone, CalibrateWidget):
+    """*Calibrate to a recording* docked alone (scrolls in its dock)."""
 
 
 class ExportDock(_Alone, ExportWidget):

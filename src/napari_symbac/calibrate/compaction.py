@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -170,6 +171,7 @@ def choose_gravity(
     *,
     candidates: tuple[float, ...] = GRAVITY_CANDIDATES,
     seed: int = 0,
+    cancel: Callable[[], bool] | None = None,
 ) -> tuple[float, list[CompactionTrial]]:
     """Gravity whose simulated colonies are packed as tightly as the recording's.
 
@@ -190,14 +192,22 @@ def choose_gravity(
         Gravities to try, um/min.
     seed
         Seed of the trial simulations.
+    cancel
+        Asked before each trial; ``True`` raises :class:`~napari_symbac.fit.FitCancelled`.
 
     Returns
     -------
     gravity, trials
     """
+    from napari_symbac.fit.parameters import FitCancelled
+
     if not candidates:
         raise ValueError("choose_gravity needs at least one candidate gravity")
-    trials = [trial(settings, g, seed) for g in candidates]
+    trials = []
+    for gravity in candidates:
+        if cancel is not None and cancel():
+            raise FitCancelled("calibration cancelled")
+        trials.append(trial(settings, gravity, seed))
     allowed = [t for t in trials if t.overlap_widths <= MAX_OVERLAP_WIDTHS]
     if not allowed:
         return min(trials, key=lambda t: t.overlap_widths).gravity, trials

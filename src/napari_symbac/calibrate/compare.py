@@ -18,9 +18,12 @@ from napari_symbac.export.visibility import pixel_noise
 from napari_symbac.fit.masks import normalise_percentiles
 
 __all__ = [
+    "CLI_WORDS",
+    "GUI_WORDS",
     "MEDIAN_TOLERANCE",
     "NOISE_FACTOR",
     "SPECTRUM_FACTOR",
+    "AdviceWords",
     "Check",
     "Comparison",
     "band_coefficients",
@@ -45,6 +48,41 @@ NOISE_FACTOR = 1.2
 #: different cells; 1.5 is 3 standard errors of the ratio for m = 50 (a band of a
 #: 128 px image), and the tolerance widens to 3 standard errors for smaller bands.
 SPECTRUM_FACTOR = 1.5
+
+
+@dataclass(frozen=True)
+class AdviceWords:
+    """How the advice of a :class:`Comparison` names what the user can do: the words of
+    the interface the comparison is shown in.
+
+    Attributes
+    ----------
+    masks
+        Giving the cells' masks (``"pass --masks"``).
+    montage
+        The picture of real against synthetic (``"the montage (report.png)"``).
+    camera
+        Giving the real camera.
+    """
+
+    masks: str
+    montage: str
+    camera: str
+
+
+#: ``napari-symbac calibrate``'s words.
+CLI_WORDS = AdviceWords(
+    masks="pass --masks",
+    montage="the montage (report.png)",
+    camera="give the real camera (--camera C.yaml)",
+)
+#: The Calibrate dock's words (it shows item 0 of the dataset as a layer over the recording).
+GUI_WORDS = AdviceWords(
+    masks="choose the cell masks",
+    montage="the calibrated layer against the recording",
+    camera="give the real camera (`napari-symbac calibrate --camera C.yaml`; the dock "
+    "measures it from the recording)",
+)
 
 
 def radial_power(image: np.ndarray, n_bins: int = 16) -> tuple[np.ndarray, np.ndarray]:
@@ -157,6 +195,8 @@ class Comparison:
     masks_given
         Whether the real cells are the user's masks (the advice then does not ask for
         them) or the fit's.
+    words
+        The interface's words in the advice (:data:`CLI_WORDS`, :data:`GUI_WORDS`).
     """
 
     cells: tuple[float, float]
@@ -168,10 +208,13 @@ class Comparison:
     noise_pairs: int = 10_000
     band_coefficients: np.ndarray | None = field(default=None, repr=False)
     masks_given: bool = False
+    words: AdviceWords = CLI_WORDS
 
     def _masks_advice(self, why: str) -> str:
         """``pass --masks ... (why), and `` unless they were given."""
-        return "" if self.masks_given else f"pass --masks if you have them ({why}), and "
+        if self.masks_given:
+            return ""
+        return f"{self.words.masks} if you have them ({why}), and "
 
     def band_factors(self) -> np.ndarray:
         """Each band's tolerated factor: :data:`SPECTRUM_FACTOR`, or 3 standard errors
@@ -194,14 +237,14 @@ class Comparison:
                 "cells median", *self.cells,
                 "the cells' contrast against the background differs: "
                 + self._masks_advice("the cells as annotated")
-                + "look at the montage (report.png) for cells the fit missed or drew too "
+                + f"look at {self.words.montage} for cells the fit missed or drew too "
                 "bright or too dark",
             ),
             _median_check(
                 "background median", *self.background,
                 "the background level differs: "
                 + self._masks_advice("cells are then not counted as background")
-                + "look at the montage for debris or uneven illumination",
+                + f"look at {self.words.montage} for debris or uneven illumination",
             ),
             self._noise_check(),
             self._spectrum_check(),
@@ -213,7 +256,7 @@ class Comparison:
         if not (np.isfinite(real) and np.isfinite(synthetic)) or min(real, synthetic) <= 0:
             advice = "a field with more background between the cells"
             if not self.masks_given:
-                advice = f"pass --masks, or {advice}"
+                advice = f"{self.words.masks}, or {advice}"
             return Check("background noise", False, "not measured (too little background)",
                          advice)
         factor = max(real, synthetic) / min(real, synthetic)
@@ -224,8 +267,8 @@ class Comparison:
             "ratio when few background pixels, the sampling of a robust noise)"
         )
         advice = "" if matched else (
-            "the noise differs: give the real camera (--camera C.yaml) and check the "
-            "pixel size (noise per pixel scales with it)"
+            f"the noise differs: {self.words.camera} and check the pixel size (noise per "
+            "pixel scales with it)"
         )
         return Check("background noise", matched, finding, advice)
 
@@ -249,12 +292,12 @@ class Comparison:
         if (low & high).sum() >= (~low & high).sum() and high.any():
             advice = (
                 "the synthetic image lacks fine detail (too smooth): check the pixel size "
-                "and the camera's noise, and compare the sharpness in the montage"
+                f"and the camera's noise, and compare the sharpness in {self.words.montage}"
             )
         else:
             advice = (
                 "the spread of power over spatial frequencies differs: check the pixel size "
-                "and the cells' size and layout in the montage (report.png)"
+                f"and the cells' size and layout in {self.words.montage}"
             )
         return Check("power spectrum", False, finding, advice)
 
@@ -311,10 +354,12 @@ def compare_images(
     far_px: float = 6.0,
     n_bins: int = 16,
     masks_given: bool = False,
+    words: AdviceWords = CLI_WORDS,
 ) -> Comparison:
     """Compare a real image and a synthetic one (module notes); shapes may differ.
 
-    ``masks_given``: ``real_masks`` are the user's (:attr:`Comparison.masks_given`).
+    ``masks_given``: ``real_masks`` are the user's (:attr:`Comparison.masks_given`);
+    ``words``: the interface's, in the advice (:attr:`Comparison.words`).
     """
     real_n, synth_n = normalise_percentiles(real), normalise_percentiles(synthetic)
     rc, rb, rn, r_pairs = _classes(real_n, np.asarray(real_masks), far_px)
@@ -324,7 +369,8 @@ def compare_images(
     counts = np.minimum(band_coefficients(real.shape, n_bins), band_coefficients(
         synthetic.shape, n_bins))
     return Comparison(
-        (rc, sc), (rb, sb), (rn, sn), f, pr, ps, min(r_pairs, s_pairs), counts, masks_given
+        (rc, sc), (rb, sb), (rn, sn), f, pr, ps, min(r_pairs, s_pairs), counts, masks_given,
+        words,
     )
 
 

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -123,6 +124,24 @@ class Calibration:
     compaction: tuple[CompactionTrial, ...] = ()
     notes: tuple[str, ...] = ()
     mask_offset_um: float | None = None
+
+    def report_lines(self, pixel_note: str, notes: list[str] | None = None) -> list[str]:
+        """The report's account of the calibration (``napari-symbac calibrate``'s
+        report.txt and the Calibrate dock): modality, pixel size (``pixel_note``: where
+        it came from), method and chi-square, the real field, and where each setting
+        came from (``notes``, default :attr:`notes`)."""
+        microscope = self.settings.microscope
+        px = microscope.pixel_size_um
+        return [
+            f"modality: {microscope.modality}",
+            f"pixel size {px:.4g} um ({pixel_note})",
+            f"method: {self.method}; pixel chi2 {self.fit_chi2[0]:.3g} -> "
+            f"{self.fit_chi2[1]:.3g}",
+            f"real field: {self.measurements.summary(px, microscope.modality)}",
+            "",
+            "WHERE THE SETTINGS CAME FROM",
+            *(f"- {n}" for n in (self.notes if notes is None else notes)),
+        ]
 
 
 def best_crop(masks: np.ndarray, size_px: int) -> tuple[slice, slice]:
@@ -366,7 +385,9 @@ def settings_from_fit(
     )
 
 
-def _fit_scene_crop(crop_image, crop_masks, microscope, render, camera, labels, max_iterations):
+def _fit_scene_crop(
+    crop_image, crop_masks, microscope, render, camera, labels, max_iterations, progress, cancel
+):
     from napari_symbac.fit import fit_scene
     from napari_symbac.fit.camera_estimate import censored_pixels
 
@@ -382,6 +403,8 @@ def _fit_scene_crop(crop_image, crop_masks, microscope, render, camera, labels, 
         valid=valid,
         moves=crop_masks is None,
         max_iterations=max_iterations,
+        progress=progress,
+        cancel=cancel,
     )
     return result
 
@@ -398,6 +421,8 @@ def calibrate(
     crop_px: int | None = None,
     max_iterations: int = 8,
     max_evaluations: int = 40,
+    progress: Callable[[int, int], None] | None = None,
+    cancel: Callable[[], bool] | None = None,
 ) -> Calibration:
     """Fit a real recording and turn the fit into matched pipeline settings.
 
@@ -426,6 +451,10 @@ def calibrate(
         :data:`NO_MASKS_CROP_PX` (its cells are all that sizes and layout are measured on).
     max_iterations, max_evaluations
         Budget of the scene fit (per round) and of the partially coherent fit.
+    progress, cancel
+        Passed to the fit (``progress(done, total)`` renders); ``cancel()`` is also
+        asked before each simulated colony of the compaction, and ``True`` raises
+        :class:`~napari_symbac.fit.FitCancelled` (the dock widget's Cancel).
 
     Returns
     -------
@@ -503,7 +532,14 @@ def calibrate(
         noise = pixel_noise(crop_image, background)
         base_camera = Camera(baseline_adu=0.0, bit_depth=bit_depth) if camera is None else camera
         result = colony_optics(
-            crop_image, crop_masks, microscope, base_camera, noise, max_evaluations
+            crop_image,
+            crop_masks,
+            microscope,
+            base_camera,
+            noise,
+            max_evaluations,
+            progress=progress,
+            cancel=cancel,
         )[0]
         # rendered as fitted: the upsampling that samples the image band (1 for pixels
         # finer than lambda / 4 NA); the partially coherent model sums source points, so
@@ -530,7 +566,15 @@ def calibrate(
     else:
         start = RenderSettings(cell_brightness_cv=0.0)
         result = _fit_scene_crop(
-            crop_image, crop_masks, microscope, start, camera, crop_labels, max_iterations
+            crop_image,
+            crop_masks,
+            microscope,
+            start,
+            camera,
+            crop_labels,
+            max_iterations,
+            progress,
+            cancel,
         )
         fitted_camera = dataclasses.replace(
             result.camera or camera or Camera(), bit_depth=bit_depth
@@ -628,7 +672,7 @@ def calibrate(
         packing = measure_packing(field_masks)
         if packing.n_colonies:
             settings, trials, note = _compacted(
-                settings, packing, float(np.median(measurements.lengths_px))
+                settings, packing, float(np.median(measurements.lengths_px)), cancel
             )
             more.append(note)
     if dense:
@@ -701,7 +745,10 @@ def _outline_offset_um(
 
 
 def _compacted(
-    settings: PipelineSettings, packing: ColonyPacking, length_px: float
+    settings: PipelineSettings,
+    packing: ColonyPacking,
+    length_px: float,
+    cancel: Callable[[], bool] | None = None,
 ) -> tuple[PipelineSettings, list[CompactionTrial], str]:
     """Settings whose colonies are packed like the recording's (:func:`choose_gravity`,
     with :data:`PAD_PHYS_ITERS` physics iterations) and whose cells are as long, the
@@ -718,7 +765,7 @@ def _compacted(
     """
     simulation = dataclasses.replace(settings.simulation, phys_iters=PAD_PHYS_ITERS)
     settings = dataclasses.replace(settings, simulation=simulation)
-    gravity, trials = choose_gravity(settings, packing)
+    gravity, trials = choose_gravity(settings, packing, cancel=cancel)
     kept = next(t for t in trials if t.gravity == gravity)
     ratio = float(np.clip(length_px / kept.median_length_px, *_LENGTH_CORRECTION))
     simulation = dataclasses.replace(

@@ -1,0 +1,385 @@
+"""Dock widget: a training dataset matched to a recording, in one step (issue 14).
+
+Runs what ``napari-symbac calibrate`` runs, in a worker: :func:`napari_symbac.calibrate.
+calibrate` on the frame on screen (with the cell masks when chosen), then item 0 of the
+matched dataset (:func:`~napari_symbac.calibrate.export_settings`), compared with the
+recording (:func:`~napari_symbac.calibrate.compare_images`). The item and its masks are
+added as layers; the image layer carries the calibration, so Export offers it under
+"settings from" and writes the matched dataset (the ``calibrate`` command's, at the
+Export tab's size, formats and seed).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from magicgui.widgets import ComboBox, Container, FloatSpinBox, PushButton, TextEdit
+
+from napari_symbac._widgets._forms import fill_height, hide_label, message_label
+from napari_symbac._widgets._jobs import Job, blocking_steps
+from napari_symbac._widgets._recording import (
+    check_recording_frame,
+    in_pixel_units,
+    is_recording,
+    layer_axes,
+    pixel_size_problem,
+    recording_microscope,
+    watch_recordings,
+)
+from napari_symbac._widgets.real_image import class_layer_name
+from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
+
+if TYPE_CHECKING:
+    import napari
+
+__all__ = ["CALIBRATED_TO_KEY", "CALIBRATION_KEY", "CalibrateWidget", "calibrated_layer_name"]
+
+#: Metadata key (under ``metadata["symbac"]``) of the :class:`~napari_symbac.calibrate.
+#: Calibration` a calibrated layer carries: Export writes its matched dataset.
+CALIBRATION_KEY = "calibration"
+#: Metadata key of the recording a layer was calibrated to.
+CALIBRATED_TO_KEY = "calibrated_to"
+#: Where a recording has to be shown to calibrate it.
+STEP = "the 1 Recording tab (or the Real image and classes dock)"
+
+
+def calibrated_layer_name(recording: str) -> str:
+    """The layer of a calibration's dataset item 0."""
+    return f"synthetic (calibrated to {recording})"
+
+
+@dataclasses.dataclass(frozen=True)
+class _Outcome:
+    calibration: Any
+    image: np.ndarray
+    labels: np.ndarray
+    comparison: Any
+    pixel_note: str
+
+
+class CalibrateWidget(Container):
+    """Fit a recording and turn the fit into a matched training dataset's settings.
+
+    Choose the recording (a field: agar pad or colony; a mother-machine trench is
+    fitted with Auto-fit instead) and, when you have them, its cell masks; for a
+    recording whose pixel size is not known, give the cells' width (um) with the masks
+    and the pixel size is measured from them. The result: item 0 of the matched
+    dataset beside the recording, a report of where every setting came from and of
+    real against synthetic, and a layer Export writes the dataset from.
+    """
+
+    def __init__(self, viewer: napari.viewer.Viewer):
+        super().__init__(name="symbac_calibrate")
+        self.viewer = viewer
+        self.recording = ComboBox(
+            name="recording", label="real image", choices=self._images, nullable=True
+        )
+        self.recording.tooltip = (
+            "The recording to match: an agar-pad field or colonies (its frame on screen)."
+        )
+        self.masks = ComboBox(
+            name="masks", label="cell masks", choices=self._mask_layers, nullable=True
+        )
+        self.masks.tooltip = (
+            "Instance masks of the recording (optional): the fit starts from them, and the "
+            "cells' sizes, layout, packing and the masks' outline convention are measured "
+            "on them. Without masks the fit finds the cells."
+        )
+        self.cell_width_um = FloatSpinBox(
+            name="cell_width_um",
+            label="cell width (um; 0: use the pixel size)",
+            value=0.0,
+            min=0.0,
+            max=10.0,
+            step=0.05,
+            tooltip=(
+                "For a recording whose pixel size is not known (a PNG): the cells' width "
+                "(1.0 for E. coli); the pixel size is this over the masks' median width. "
+                "Needs cell masks."
+            ),
+        )
+        self.run_button = PushButton(
+            name="calibrate",
+            text="Calibrate",
+            tooltip="Fit the recording and make the matched dataset's settings.",
+        )
+        self.cancel_button = PushButton(
+            name="cancel", text="Cancel", enabled=False, tooltip="Stop the calibration."
+        )
+        self.status = message_label("status")
+        self.report = TextEdit(name="report", label="report", value="")
+        self.report.read_only = True
+        self.report.native.setMinimumWidth(0)
+        self.report.native.setLineWrapMode(self.report.native.LineWrapMode.NoWrap)
+        self.extend(
+            [
+                self.recording,
+                self.masks,
+                self.cell_width_um,
+                self.run_button,
+                self.cancel_button,
+                self.status,
+                self.report,
+            ]
+        )
+        hide_label(self.report)
+        fill_height(self, self.report)
+        self.worker: Job | None = None
+        self.calibration = None
+        self.run_button.changed.connect(self.run)
+        self.cancel_button.changed.connect(self.cancel)
+        self.recording.changed.connect(self._choose_masks)
+        watch_recordings(viewer, self._refresh_choices)
+        self._refresh_choices()
+
+    # -- choices --------------------------------------------------------------------------
+
+    def _images(self, _widget=None) -> list:
+        """Real grey images (a recording, or one waiting for its pixel size)."""
+        from napari.layers import Image
+
+        return [
+            layer
+            for layer in self.viewer.layers
+            if isinstance(layer, Image)
+            and not layer.rgb
+            and SYMBAC_METADATA_KEY not in layer.metadata
+        ]
+
+    def _mask_layers(self, _widget=None) -> list:
+        from napari.layers import Labels
+
+        return [
+            layer
+            for layer in self.viewer.layers
+            if isinstance(layer, Labels)
+            and SYMBAC_METADATA_KEY not in layer.metadata
+            and not layer.name.endswith(class_layer_name(""))
+        ]
+
+    def _refresh_choices(self, event=None) -> None:
+        self.recording.reset_choices()
+        self.masks.reset_choices()
+        choices = [c for c in self.recording.choices if c is not None]
+        if self.recording.value is None and choices:
+            ready = [c for c in choices if is_recording(c)]
+            self.recording.value = (ready or choices)[-1]
+        if getattr(event, "type", "") == "inserted":  # masks opened after the recording
+            self._choose_masks(only=event.value)
+
+    def _choose_masks(self, _value=None, *, only=None) -> None:
+        """With none chosen, the newest labels layer of the recording's frame size with
+        cells in it (``only``: the layer just added), as Tune's Auto-fit does."""
+        recording = self.recording.value
+        if self.masks.value is not None or recording is None:
+            return
+        shape = tuple(recording.data.shape[-2:])
+        matching = [
+            layer
+            for layer in self._mask_layers()
+            if (only is None or layer is only)
+            and tuple(layer.data.shape[-2:]) == shape
+            and np.asarray(layer.data).any()
+        ]
+        if matching:
+            self.masks.value = matching[-1]
+
+    # -- input ----------------------------------------------------------------------------
+
+    def _frame_of(self, data: np.ndarray) -> np.ndarray:
+        if data.ndim == 3:
+            step = self.viewer.dims.current_step
+            index = int(step[0]) if len(step) >= 3 else 0
+            return data[min(index, len(data) - 1)]
+        return data
+
+    def _input(self) -> tuple:
+        """Frame, masks (or ``None``), microscope, cell width (or ``None``), pixel note.
+
+        Raises
+        ------
+        ValueError
+            With what to do, when something needed is missing or cannot be used.
+        """
+        from napari_symbac.fit.preflight import check_instance_masks, default_geometry
+        from napari_symbac.settings import Microscope
+
+        layer = self.recording.value
+        if layer is None:
+            raise ValueError(f"No recording: open your image in {STEP}, then choose it here")
+        frame = self._frame_of(np.asarray(layer.data))
+        if frame.ndim != 2:
+            raise ValueError(f"{layer.name} must be one 2D frame or a (T, Y, X) series")
+        check_recording_frame(frame, layer.name)
+        masks = None
+        if self.masks.value is not None:
+            masks = self._frame_of(np.asarray(self.masks.value.data))
+            check_instance_masks(masks, frame.shape, f"cell masks '{self.masks.value.name}'")
+        width = self.cell_width_um.value or None
+        if width is not None and masks is None:
+            raise ValueError(
+                "the cell width sets the pixel size from the cells' masks: choose the cell "
+                "masks too (or set the width to 0 to use the recording's pixel size)"
+            )
+        problem = pixel_size_problem(layer.metadata.get("pixel_size_um"))
+        if width is not None:
+            microscope = layer.metadata.get("microscope") or Microscope()
+            microscope = dataclasses.replace(
+                microscope, modality=layer.metadata.get("modality") or microscope.modality
+            )
+            note = f"from the masks' median width and a cell width of {width:g} um"
+        elif problem is not None:
+            raise ValueError(
+                f"{layer.name}: {problem} in {STEP}; or, with cell masks, give the cells' "
+                "width (um) here"
+            )
+        else:
+            microscope = recording_microscope(layer)
+            note = "the recording's"
+        if default_geometry(frame.shape, microscope.modality) == "trench":
+            raise ValueError(
+                f"{layer.name} is {frame.shape[0]} x {frame.shape[1]} px, narrow and tall: a "
+                "mother-machine trench, which Calibrate does not lay out (it matches fields: "
+                "agar pads and colonies). Fit the trench with Auto-fit (3 Tune + fit), then "
+                "Export from the fitted layer"
+            )
+        return frame, masks, microscope, width, note
+
+    # -- run ------------------------------------------------------------------------------
+
+    def run(self) -> None:
+        """Check the input and calibrate in a worker."""
+        if self.worker is not None:
+            return
+        try:
+            frame, masks, microscope, width, pixel_note = self._input()
+        except ValueError as err:
+            self.status.value = f"Not calibrated: {err}"
+            return
+        cancelled = threading.Event()
+
+        def calibrate_and_draw(progress, cancel):
+            from napari_symbac.calibrate import calibrate, compare_images, export_settings
+            from napari_symbac.calibrate.compare import GUI_WORDS
+            from napari_symbac.export.dataset import PipelineSource
+
+            calibration = calibrate(
+                frame,
+                microscope=microscope,
+                masks=masks,
+                cell_width_um=width,
+                progress=progress,
+                cancel=cancel,
+            )
+            item = PipelineSource(export_settings(calibration, n_items=1)).make_unit(0)[0]
+            comparison = compare_images(
+                calibration.reference,
+                calibration.masks,
+                item.image,
+                item.labels,
+                masks_given=masks is not None,
+                words=GUI_WORDS,
+            )
+            return _Outcome(calibration, item.image, item.labels, comparison, pixel_note)
+
+        def work():
+            return (yield from blocking_steps(calibrate_and_draw, cancelled.is_set))
+
+        self.worker = Job(
+            work,
+            total=0,
+            description="SyMBac calibrate",
+            what="Calibrate",
+            on_yield=self._on_progress,
+            on_return=self._on_returned,
+            on_error=self._on_errored,
+            on_abort=self._on_cancelled,
+            on_finish=self._on_finished,
+            owner=self.native,
+            cancelled=cancelled,
+        )
+        self._recording_layer = self.recording.value
+        self.run_button.enabled = False
+        self.cancel_button.enabled = True
+        self.status.value = "Calibrating: fitting the recording..."
+        self.worker.start()
+
+    def cancel(self) -> None:
+        """Stop at the fit's next render or before the next simulated colony."""
+        if self.worker is not None:
+            self.worker.quit()
+            self.status.value = "Cancelling..."
+
+    def _on_progress(self, message) -> None:
+        done, total = message
+        self.status.value = f"Calibrating: fit, {done} of about {total} renders"
+
+    def _on_returned(self, outcome: _Outcome) -> None:
+        calibration = outcome.calibration
+        self.calibration = calibration
+        recording = self._recording_layer
+        name = calibrated_layer_name(recording.name)
+        for old in (name, f"{name} masks"):
+            if old in self.viewer.layers:
+                self.viewer.layers.remove(old)
+        px = calibration.settings.microscope.pixel_size_um
+        axes = {} if in_pixel_units(recording) else layer_axes(px, 2)
+        self.viewer.add_image(
+            outcome.image,
+            name=name,
+            metadata={
+                SYMBAC_METADATA_KEY: {
+                    "settings": calibration.settings,
+                    CALIBRATION_KEY: calibration,
+                    CALIBRATED_TO_KEY: recording.name,
+                }
+            },
+            **axes,
+        )
+        self.viewer.add_labels(
+            np.asarray(outcome.labels),
+            name=f"{name} masks",
+            metadata={SYMBAC_METADATA_KEY: {CALIBRATED_TO_KEY: recording.name}},
+            opacity=0.4,
+            **axes,
+        )
+        comparison = outcome.comparison
+        self.report.value = "\n".join(
+            [
+                f"Calibration of {recording.name}",
+                *calibration.report_lines(outcome.pixel_note),
+                "",
+                "REAL AGAINST SYNTHETIC (item 0 of the dataset; 1-99 % normalised)",
+                comparison.table(),
+            ]
+        )
+        checks = comparison.checks()
+        matched = sum(check.matched for check in checks)
+        self.status.value = (
+            f"{calibration.method}: item 0 matches the recording in {matched} of "
+            f"{len(checks)} comparisons (the report says which, and what to do). Layer "
+            f"'{name}' holds the matched settings: Export writes the dataset from it (its "
+            "'settings from')."
+        )
+
+    def _on_cancelled(self) -> None:
+        self.status.value = "Calibration cancelled: nothing added"
+
+    def _on_errored(self, err: BaseException) -> bool:
+        from napari_symbac.fit import FitCancelled
+
+        if isinstance(err, FitCancelled) or self.worker.cancelled.is_set():
+            self._on_cancelled()
+            return True
+        self.status.value = f"Calibration failed: {err}"
+        return False
+
+    def _on_finished(self) -> None:
+        self.worker = None
+        self.run_button.enabled = True
+        self.cancel_button.enabled = False
+        if self.status.value.startswith(("Calibrating", "Cancelling")):
+            self.status.value = "Calibration stopped"

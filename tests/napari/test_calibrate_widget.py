@@ -1,0 +1,132 @@
+"""The Calibrate dock on a real ColiCoords field: settings, item 0 and report, then Export
+writes the matched dataset; the input it refuses, and Cancel."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import tifffile
+
+pytest.importorskip("napari", reason="the [gui] extra (napari + Qt) is not installed")
+
+from napari_symbac._widgets._recording import layer_axes
+from napari_symbac._widgets.calibrate import (
+    CALIBRATION_KEY,
+    CalibrateWidget,
+    calibrated_layer_name,
+)
+from napari_symbac._widgets.export import ExportWidget
+from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
+
+
+@pytest.fixture
+def field(real_data_dir):
+    """ColiCoords ds1 field 1, fluorescence (MIT): a 256 x 256 px corner and its masks."""
+    ds1 = real_data_dir / "colicoords" / "test_data" / "ds1"
+    image = tifffile.imread(ds1 / "fluorescence" / "00001.tif")[:256, :256]
+    masks = tifffile.imread(ds1 / "binary" / "00001_Probabilities_filtered.tif")[:256, :256]
+    return image, masks
+
+
+def _viewer_with(make_napari_viewer, image, masks=None):
+    """The field as the Recording step leaves it (pixel size, modality, placed in um)."""
+    viewer = make_napari_viewer()
+    axes = layer_axes(0.08, 2)
+    viewer.add_image(
+        image, name="field", metadata={"pixel_size_um": 0.08, "modality": "fluorescence"}, **axes
+    )
+    if masks is not None:
+        viewer.add_labels(masks.astype(np.int32), name="field masks", **axes)
+    widget = CalibrateWidget(viewer)
+    viewer.window.add_dock_widget(widget)
+    return viewer, widget
+
+
+def test_calibrate_then_export_the_matched_dataset(make_napari_viewer, qtbot, tmp_path, field):
+    image, masks = field
+    viewer, widget = _viewer_with(make_napari_viewer, image, masks)
+    # the recording and its masks (of its frame size) are chosen without a click
+    assert widget.recording.value is viewer.layers["field"]
+    assert widget.masks.value is viewer.layers["field masks"]
+    export = ExportWidget(viewer)
+    widget.run_button.native.click()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=180_000)
+    name = calibrated_layer_name("field")
+    assert name in viewer.layers, widget.status.value
+    layer = viewer.layers[name]
+    calibration = layer.metadata[SYMBAC_METADATA_KEY][CALIBRATION_KEY]
+    assert calibration is widget.calibration
+    assert calibration.settings.microscope.modality == "fluorescence"
+    assert calibration.mask_offset_um is not None  # the masks' outline was measured
+    assert viewer.layers[f"{name} masks"].data.max() > 0
+    assert "WHERE THE SETTINGS CAME FROM" in widget.report.value
+    assert "REAL AGAINST SYNTHETIC" in widget.report.value
+    assert "Export writes the dataset from it" in widget.status.value
+    # placed over the recording, in micrometres
+    assert tuple(layer.scale[-2:]) == pytest.approx((0.08, 0.08))
+    # Export takes the new layer, and its dataset is the calibration's: item 0 is the
+    # one shown (same seed, same item, bit for bit), its masks grown as the field's
+    assert export.source.value is layer
+    export.n_items.value = 2
+    export.val_fraction.value = 0.0
+    settings = export.settings()
+    assert settings.mask_dilation_um == pytest.approx(round(calibration.mask_offset_um, 4))
+    from napari_symbac.export.dataset import PipelineSource
+
+    np.testing.assert_array_equal(PipelineSource(settings).make_unit(0)[0].image, layer.data)
+    export.folder.value = tmp_path / "dataset"
+    export.export_button.native.click()
+    qtbot.waitUntil(lambda: export.report is not None, timeout=180_000)
+    qtbot.waitUntil(lambda: export.worker is None, timeout=10_000)
+    assert export.report.complete, export.status.value
+    images = sorted((tmp_path / "dataset" / "tiff" / "train" / "images").glob("*.tif"))
+    assert len(images) == 2
+    np.testing.assert_array_equal(tifffile.imread(images[0]), layer.data)
+    # a calibrated dataset is single frames: a time series is refused, in words
+    export.kind.value = "timeseries"
+    with pytest.raises(ValueError, match="single frames"):
+        export.settings()
+
+
+def test_refusals_name_the_fix(make_napari_viewer, field):
+    viewer, widget = _viewer_with(make_napari_viewer, field[0])
+    assert widget.masks.value is None
+    widget.cell_width_um.value = 1.0  # a width without masks to measure it on
+    widget.run_button.native.click()
+    assert widget.worker is None
+    assert "choose the cell masks too" in widget.status.value
+    # no pixel size and no width: where to enter one
+    viewer.layers["field"].metadata = {"modality": "fluorescence"}
+    widget.cell_width_um.value = 0.0
+    widget.run_button.native.click()
+    assert widget.worker is None
+    assert "no pixel size" in widget.status.value
+    assert "in the 1 Recording tab" in widget.status.value
+    assert "give the cells' width" in widget.status.value
+    # a trench is fitted with Auto-fit, not laid out as a field
+    viewer.add_image(
+        np.full((256, 40), 1000, np.uint16) + np.arange(40, dtype=np.uint16),
+        name="trench",
+        metadata={"pixel_size_um": 0.065, "modality": "phase"},
+    )
+    widget.recording.value = viewer.layers["trench"]
+    widget.run_button.native.click()
+    assert widget.worker is None
+    assert "mother-machine trench" in widget.status.value
+    assert "Auto-fit" in widget.status.value
+    assert calibrated_layer_name("trench") not in viewer.layers
+
+
+def test_cancel_adds_nothing(make_napari_viewer, qtbot, real_data_dir):
+    """Cancelled during the fit of a whole field without masks (a minute or more of fit):
+    the fit stops at its next render and no layer is added."""
+    ds1 = real_data_dir / "colicoords" / "test_data" / "ds1"
+    image = tifffile.imread(ds1 / "fluorescence" / "00002.tif")
+    viewer, widget = _viewer_with(make_napari_viewer, image)
+    widget.run_button.native.click()
+    qtbot.waitUntil(lambda: "renders" in widget.status.value, timeout=120_000)
+    widget.cancel_button.native.click()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
+    assert widget.status.value == "Calibration cancelled: nothing added"
+    assert calibrated_layer_name("field") not in viewer.layers
+    assert widget.run_button.enabled
