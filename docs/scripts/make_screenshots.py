@@ -5,8 +5,9 @@ Run under a virtual display (Debian: ``apt-get install xvfb``)::
     xvfb-run -a -s "-screen 0 1366x768x24" python docs/scripts/make_screenshots.py [--napari-only]
 
 Writes ``docs/images/napari-*.png`` (the flow of docs/gui.md on the real SyMBac trench,
-Diagnose included, a phase colony fitted from its masks and one calibrated, read from ``../shared/data/real`` or
-``$NAPARI_SYMBAC_REAL_DATA``, in a 1366 x 768 window) and the demo montage
+Diagnose included, a phase colony fitted from its masks and one calibrated, read from
+``../shared/data/real`` or ``$NAPARI_SYMBAC_REAL_DATA``, in a 1366 x 768 window) and the
+demo montage
 ``docs/images/demo-preview.png``.
 """
 

@@ -145,9 +145,14 @@ def run_calibrate(args: argparse.Namespace) -> int:
     """Run ``napari-symbac calibrate`` with parsed arguments; returns the exit code."""
     import tifffile
 
-    from napari_symbac.calibrate import calibrate, compare_images, export_settings, montage
+    from napari_symbac.calibrate import (
+        calibrate,
+        compare_with_dataset,
+        export_settings,
+        items_words,
+        montage,
+    )
     from napari_symbac.export import export_dataset
-    from napari_symbac.export.dataset import PipelineSource
     from napari_symbac.fit.preflight import not_integer_masks, resolve_pixel_size
     from napari_symbac.settings import (
         Camera,
@@ -223,12 +228,11 @@ def run_calibrate(args: argparse.Namespace) -> int:
         calibration, n_items=args.n_items, formats=formats, seed=args.seed
     )
     with timer.step("compare"):
-        item = PipelineSource(settings).make_unit(0)[0]
-        real = calibration.reference
-        comparison = compare_images(
-            real, calibration.masks, item.image, item.labels, masks_given=masks is not None
+        comparison, items = compare_with_dataset(
+            calibration, settings, masks_given=masks is not None
         )
-        picture = montage(real, item.image, calibration.masks, item.labels)
+        real = calibration.reference
+        picture = montage(real, items[0].image, calibration.masks, items[0].labels)
     staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.resolve().parent))
     try:
         print("napari-symbac calibrate: exporting", file=sys.stderr, flush=True)
@@ -244,7 +248,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
                 *_image_lines(args.image, image, recording.counts_mapping),
                 *calibration.report_lines(pixel_note, notes),
                 "",
-                "REAL AGAINST SYNTHETIC (item 0 of the dataset; 1-99 % normalised)",
+                f"REAL AGAINST SYNTHETIC (the dataset's {items_words(len(items))}; each 1-99 % "
+                "normalised; report.png shows item 0)",
                 comparison.table(),
                 "",
                 f"dataset: {report.n_items} items in {', '.join(report.formats)} "

@@ -10,9 +10,11 @@ import pytest
 import tifffile
 
 from napari_symbac.calibrate import (
+    COMPARED_ITEMS,
     best_crop,
     calibrate,
     compare_images,
+    compare_with_dataset,
     export_settings,
     instance_masks,
     measure_field,
@@ -374,3 +376,24 @@ def test_the_background_texture_is_measured_beside_white_noise():
     assert measured.correlation_px == pytest.approx(4.0, rel=0.15)
     assert measured.noise_adu == pytest.approx(20.0, rel=0.1)
     assert measure_texture(trend + rng.normal(0.0, 20.0, shape), masks, 0.08) is None
+
+
+def test_the_report_pools_the_first_items_of_the_dataset(fluorescence_calibration):
+    """compare_with_dataset: the first COMPARED_ITEMS items (fewer in a smaller dataset),
+    item 0 first, the same items the export writes."""
+    settings = export_settings(fluorescence_calibration, n_items=10, seed=3)
+    comparison, items = compare_with_dataset(fluorescence_calibration, settings, masks_given=True)
+    assert len(items) == COMPARED_ITEMS
+    first = PipelineSource(settings).make_unit(0)[0]
+    assert np.array_equal(items[0].image, first.image)
+    pooled = compare_images(
+        fluorescence_calibration.reference,
+        fluorescence_calibration.masks,
+        [item.image for item in items],
+        [item.labels for item in items],
+        masks_given=True,
+    )
+    assert (comparison.cells, comparison.background) == (pooled.cells, pooled.background)
+    np.testing.assert_array_equal(comparison.power_synthetic, pooled.power_synthetic)
+    small = export_settings(fluorescence_calibration, n_items=2, seed=3)
+    assert len(compare_with_dataset(fluorescence_calibration, small, masks_given=True)[1]) == 2

@@ -92,3 +92,32 @@ def test_small_bands_get_the_tolerance_their_sampling_needs():
     factors = comparison.band_factors()
     assert factors.min() == pytest.approx(SPECTRUM_FACTOR)  # well-sampled bands
     assert factors[0] > 2 * SPECTRUM_FACTOR  # a band of a few coefficients
+
+
+def test_several_synthetic_images_are_pooled():
+    """The class medians over the pixels of all the synthetic images (each normalised on
+    its own), the median noise and the mean spectrum; one image in a list is that image."""
+    from napari_symbac.fit.masks import normalise_percentiles
+
+    real, masks = _field(0)
+    dim, dim_labels = _field(1, cell_level=600.0)
+    bright, bright_labels = _field(2, cell_level=1400.0)
+    alone = compare_images(real, masks, dim, dim_labels)
+    listed = compare_images(real, masks, [dim], [dim_labels])
+    assert listed.cells == alone.cells
+    assert listed.background == alone.background
+    np.testing.assert_array_equal(listed.power_synthetic, alone.power_synthetic)
+    pooled = compare_images(real, masks, [dim, bright], [dim_labels, bright_labels])
+    cells = np.concatenate(
+        [
+            normalise_percentiles(dim)[dim_labels > 0],
+            normalise_percentiles(bright)[bright_labels > 0],
+        ]
+    )
+    assert pooled.cells[1] == pytest.approx(np.median(cells))
+    one, other = alone.cells[1], compare_images(real, masks, bright, bright_labels).cells[1]
+    assert min(one, other) < pooled.cells[1] < max(one, other)
+    assert pooled.cells[0] == alone.cells[0]  # the real image's own
+    np.testing.assert_allclose(pooled.power_synthetic.sum(), 1.0)
+    with pytest.raises(ValueError, match="as many synthetic images as label images"):
+        compare_images(real, masks, [dim, bright], [dim_labels])

@@ -31,6 +31,7 @@ from napari_symbac._widgets._recording import (
 )
 from napari_symbac._widgets.real_image import class_layer_name
 from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
+from napari_symbac.calibrate import items_words
 
 if TYPE_CHECKING:
     import napari
@@ -57,6 +58,7 @@ class _Outcome:
     image: np.ndarray
     labels: np.ndarray
     comparison: Any
+    n_compared: int
     pixel_note: str
 
 
@@ -262,9 +264,14 @@ class CalibrateWidget(Container):
         cancelled = threading.Event()
 
         def calibrate_and_draw(progress, cancel):
-            from napari_symbac.calibrate import calibrate, compare_images, export_settings
+            from napari_symbac.calibrate import (
+                COMPARED_ITEMS,
+                calibrate,
+                compare_with_dataset,
+                export_settings,
+            )
             from napari_symbac.calibrate.compare import GUI_WORDS
-            from napari_symbac.export.dataset import PipelineSource
+            from napari_symbac.fit import FitCancelled
 
             calibration = calibrate(
                 frame,
@@ -274,16 +281,17 @@ class CalibrateWidget(Container):
                 progress=progress,
                 cancel=cancel,
             )
-            item = PipelineSource(export_settings(calibration, n_items=1)).make_unit(0)[0]
-            comparison = compare_images(
-                calibration.reference,
-                calibration.masks,
-                item.image,
-                item.labels,
+            if cancel():  # before the dataset's first items are simulated
+                raise FitCancelled("calibration cancelled")
+            comparison, items = compare_with_dataset(
+                calibration,
+                export_settings(calibration, n_items=COMPARED_ITEMS),
                 masks_given=masks is not None,
                 words=GUI_WORDS,
             )
-            return _Outcome(calibration, item.image, item.labels, comparison, pixel_note)
+            return _Outcome(
+                calibration, items[0].image, items[0].labels, comparison, len(items), pixel_note
+            )
 
         def work():
             return (yield from blocking_steps(calibrate_and_draw, cancelled.is_set))
@@ -352,15 +360,17 @@ class CalibrateWidget(Container):
                 f"Calibration of {recording.name}",
                 *calibration.report_lines(outcome.pixel_note),
                 "",
-                "REAL AGAINST SYNTHETIC (item 0 of the dataset; 1-99 % normalised)",
+                f"REAL AGAINST SYNTHETIC (the dataset's {items_words(outcome.n_compared)}; "
+                "each 1-99 % normalised; the layer shows item 0)",
                 comparison.table(),
             ]
         )
         checks = comparison.checks()
         matched = sum(check.matched for check in checks)
         self.status.value = (
-            f"{calibration.method}: item 0 matches the recording in {matched} of "
-            f"{len(checks)} comparisons (the report says which, and what to do). Layer "
+            f"{calibration.method}: the recording against the dataset's "
+            f"{items_words(outcome.n_compared)}: {matched} of {len(checks)} comparisons match "
+            "(the report says which, and what to do). Layer "
             f"'{name}' holds the matched settings: Export writes the dataset from it (its "
             "'settings from')."
         )

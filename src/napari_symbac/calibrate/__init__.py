@@ -8,16 +8,21 @@
 * :func:`measure_packing`: how tightly the colonies are packed (cell fraction, seams),
   :func:`cell_curvatures_px`; :func:`choose_gravity`: the compaction that matches it;
 * :func:`compare_images`: real against synthetic (class medians, noise, radially
-  averaged power spectrum) and :func:`montage`, the side-by-side picture.
+  averaged power spectrum), :func:`compare_with_dataset` against the first
+  :data:`COMPARED_ITEMS` items of a matched dataset, and :func:`montage`, the
+  side-by-side picture.
 """
 
 from napari_symbac.calibrate.compaction import CompactionTrial, choose_gravity
 from napari_symbac.calibrate.compare import Comparison, compare_images, montage, radial_power
 from napari_symbac.calibrate.core import (
+    COMPARED_ITEMS,
     Calibration,
     best_crop,
     calibrate,
+    compare_with_dataset,
     export_settings,
+    items_words,
     settings_from_fit,
 )
 from napari_symbac.calibrate.measure import (
@@ -32,6 +37,7 @@ from napari_symbac.calibrate.measure import (
 )
 
 __all__ = [
+    "COMPARED_ITEMS",
     "Calibration",
     "ColonyPacking",
     "CompactionTrial",
@@ -43,8 +49,10 @@ __all__ = [
     "cell_curvatures_px",
     "choose_gravity",
     "compare_images",
+    "compare_with_dataset",
     "export_settings",
     "instance_masks",
+    "items_words",
     "measure_debris",
     "measure_field",
     "measure_packing",

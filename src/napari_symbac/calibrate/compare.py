@@ -122,14 +122,26 @@ def band_coefficients(shape: tuple[int, int], n_bins: int = 16) -> np.ndarray:
 
 
 def _classes(
-    norm: np.ndarray, labels: np.ndarray, far_px: float
+    images: list[np.ndarray], labels: list[np.ndarray], far_px: float
 ) -> tuple[float, float, float, int]:
-    """Cells' and far background's medians, the background noise and its pixel pairs."""
-    cells = labels > 0
-    far = ndimage.distance_transform_edt(~cells) >= far_px
-    noise = pixel_noise(norm, far)
-    pairs = int(np.count_nonzero(far[:, 1:] & far[:, :-1]))
-    return float(np.median(norm[cells])), float(np.median(norm[far])), noise, pairs
+    """Cells' and far background's medians over the pixels of all ``images`` (each
+    normalised on its own), the median of their background noises and the pixel pairs
+    those were measured on in all."""
+    cells, far, noises, pairs = [], [], [], 0
+    for norm, label in zip(images, labels, strict=True):
+        cell = np.asarray(label) > 0
+        background = ndimage.distance_transform_edt(~cell) >= far_px
+        cells.append(norm[cell])
+        far.append(norm[background])
+        noises.append(pixel_noise(norm, background))
+        pairs += int(np.count_nonzero(background[:, 1:] & background[:, :-1]))
+    cell_pixels, far_pixels = np.concatenate(cells), np.concatenate(far)
+    return (
+        float(np.median(cell_pixels)) if cell_pixels.size else float("nan"),
+        float(np.median(far_pixels)) if far_pixels.size else float("nan"),
+        float(np.median(noises)),
+        pairs,
+    )
 
 
 @dataclass(frozen=True)
@@ -348,26 +360,39 @@ class Comparison:
 def compare_images(
     real: np.ndarray,
     real_masks: np.ndarray,
-    synthetic: np.ndarray,
-    synthetic_labels: np.ndarray,
+    synthetic: np.ndarray | list[np.ndarray],
+    synthetic_labels: np.ndarray | list[np.ndarray],
     *,
     far_px: float = 6.0,
     n_bins: int = 16,
     masks_given: bool = False,
     words: AdviceWords = CLI_WORDS,
 ) -> Comparison:
-    """Compare a real image and a synthetic one (module notes); shapes may differ.
+    """Compare a real image and a synthetic one, or several (module notes); shapes may
+    differ.
+
+    Several synthetic images (a list, with a list of their labels) are pooled, each
+    normalised on its own: the class medians over all their pixels, the median of their
+    background noises, the mean of their spectra (each a distribution over the bands).
+    One image of a dataset is one draw of its layout and light: on a sparse field, whether
+    its cells fill the 1st percentile moves its normalised medians by up to 0.4
+    (ColiCoords' bright field: -0.47 to -0.07 over 6 items of one calibration).
 
     ``masks_given``: ``real_masks`` are the user's (:attr:`Comparison.masks_given`);
     ``words``: the interface's, in the advice (:attr:`Comparison.words`).
     """
-    real_n, synth_n = normalise_percentiles(real), normalise_percentiles(synthetic)
-    rc, rb, rn, r_pairs = _classes(real_n, np.asarray(real_masks), far_px)
-    sc, sb, sn, s_pairs = _classes(synth_n, np.asarray(synthetic_labels), far_px)
+    if isinstance(synthetic, np.ndarray) and synthetic.ndim == 2:
+        synthetic, synthetic_labels = [synthetic], [synthetic_labels]
+    if not len(synthetic) or len(synthetic) != len(synthetic_labels):
+        raise ValueError("give as many synthetic images as label images, at least one")
+    real_n = normalise_percentiles(real)
+    synth_n = [normalise_percentiles(image) for image in synthetic]
+    rc, rb, rn, r_pairs = _classes([real_n], [real_masks], far_px)
+    sc, sb, sn, s_pairs = _classes(synth_n, list(synthetic_labels), far_px)
     f, pr = radial_power(real_n, n_bins)
-    _, ps = radial_power(synth_n, n_bins)
-    counts = np.minimum(band_coefficients(real.shape, n_bins), band_coefficients(
-        synthetic.shape, n_bins))
+    ps = np.mean([radial_power(image, n_bins)[1] for image in synth_n], axis=0)
+    synthetic_counts = sum(band_coefficients(image.shape, n_bins) for image in synth_n)
+    counts = np.minimum(band_coefficients(real.shape, n_bins), synthetic_counts)
     return Comparison(
         (rc, sc), (rb, sb), (rn, sn), f, pr, ps, min(r_pairs, s_pairs), counts, masks_given,
         words,

@@ -54,11 +54,14 @@ from napari_symbac.settings import (
 )
 
 __all__ = [
+    "COMPARED_ITEMS",
     "Calibration",
     "best_crop",
     "calibrate",
+    "compare_with_dataset",
     "division_length_um",
     "export_settings",
+    "items_words",
     "rough_pad_layout",
     "settings_from_fit",
 ]
@@ -935,6 +938,52 @@ def _camera_note(used: Camera, given: Camera | None) -> str:
         f"{used.sensitivity_adu_per_e:.3g} ADU/e-, read noise {used.dark_noise_e:.3g} e-, "
         f"{used.bit_depth} bit"
     )
+
+
+#: Items of the matched dataset that :func:`compare_with_dataset` pools (the first ones:
+#: each from its own simulation). A dataset's items differ in layout and light; one item
+#: alone flipped the report between 0 and 3 of 4 comparisons matched (ColiCoords' bright
+#: field, docs/proof.md).
+COMPARED_ITEMS = 4
+
+
+def compare_with_dataset(
+    calibration: Calibration,
+    settings,
+    *,
+    masks_given: bool,
+    words=None,
+    n_items: int = COMPARED_ITEMS,
+):
+    """The recording against the first ``n_items`` items of the dataset of ``settings``
+    (:func:`export_settings`; at most its size), pooled
+    (:func:`~napari_symbac.calibrate.compare_images`), and those items: the report's
+    comparison and its pictures.
+
+    ``words``: the interface's (:data:`~napari_symbac.calibrate.compare.CLI_WORDS` by
+    default). The simulations are cached in the process, so an export that follows does
+    not simulate them again.
+    """
+    from napari_symbac.calibrate.compare import CLI_WORDS, compare_images
+    from napari_symbac.export.dataset import PipelineSource
+
+    source = PipelineSource(settings)
+    items = [source.make_unit(unit)[0] for unit in range(min(n_items, settings.n_items))]
+    comparison = compare_images(
+        calibration.reference,
+        calibration.masks,
+        [item.image for item in items],
+        [item.labels for item in items],
+        masks_given=masks_given,
+        words=CLI_WORDS if words is None else words,
+    )
+    return comparison, items
+
+
+def items_words(count: int) -> str:
+    """The dataset items a comparison pools, in the report's words: ``"item 0"``,
+    ``"items 0-3, pooled"``."""
+    return "item 0" if count == 1 else f"items 0-{count - 1}, pooled"
 
 
 def export_settings(
