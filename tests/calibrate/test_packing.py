@@ -131,6 +131,24 @@ def test_choose_gravity_is_deterministic(colony_settings):
     ]
 
 
+def test_choose_gravity_stops_when_cancelled(colony_settings):
+    """The Calibrate dock's Cancel during the packing search: asked before each trial."""
+    from napari_symbac.fit import FitCancelled
+
+    settings, masks = colony_settings
+    asked = []
+
+    def cancel_at_the_second():
+        asked.append(True)
+        return len(asked) > 1
+
+    with pytest.raises(FitCancelled, match="calibration cancelled"):
+        choose_gravity(
+            settings, measure_packing(masks), candidates=(0.0, 8.0), cancel=cancel_at_the_second
+        )
+    assert len(asked) == 2  # one trial ran, the second was not started
+
+
 def test_bent_cells_read_more_curved_than_straight_ones(colony_settings):
     settings, _ = colony_settings
     bent = dataclasses.replace(
