@@ -1,11 +1,11 @@
 """Dock widget: a training dataset matched to a recording, in one step (issue 14).
 
 Runs what ``napari-symbac calibrate`` runs, in a worker: :func:`napari_symbac.calibrate.
-calibrate` on the frame on screen (with the cell masks when chosen), then item 0 of the
-matched dataset (:func:`~napari_symbac.calibrate.export_settings`), compared with the
-recording (:func:`~napari_symbac.calibrate.compare_images`). The item and its masks are
-added as layers; the image layer carries the calibration, so Export offers it under
-"settings from" and writes the matched dataset (the ``calibrate`` command's, at the
+calibrate` on the frame on screen (with the cell masks when chosen), then the first items
+of the matched dataset (:func:`~napari_symbac.calibrate.export_settings`), compared with
+the recording (:func:`~napari_symbac.calibrate.compare_with_dataset`). Item 0 and its
+masks are added as layers; the image layer carries the calibration, so Export offers it
+under "settings from" and writes the matched dataset (the ``calibrate`` command's, at the
 Export tab's size, formats and seed).
 """
 

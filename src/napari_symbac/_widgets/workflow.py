@@ -48,7 +48,7 @@ class WorkflowWidget(QTabWidget):
     The six step widgets are the ones napari also offers separately; they share the
     recording through its layer's metadata, so a tab can be used alone. The recording
     chosen in the first step becomes the later steps' recording (Simulate's, Tune's
-    real image, Diagnose's) once it has its pixel size: found as a user, choosing the
+    real image, Diagnose's, Calibrate's) once it has its pixel size: found as a user, choosing the
     ColiCoords sample's brightfield there left Simulate and Auto-fit on its fluorescence,
     the newest recording when they were made.
     """
