@@ -103,6 +103,13 @@ def test_refusals_name_the_fix(make_napari_viewer, field):
     assert "no pixel size" in widget.status.value
     assert "in the 1 Recording tab" in widget.status.value
     assert "give the cells' width" in widget.status.value
+    # a modality the image contradicts: where to set the right one (not the command's flag)
+    viewer.layers["field"].metadata = {"pixel_size_um": 0.08, "modality": "phase"}
+    widget.run_button.native.click()
+    assert widget.worker is None
+    assert "does not look like phase" in widget.status.value
+    assert "Set its modality to fluorescence in the 1 Recording tab" in widget.status.value
+    assert "--" not in widget.status.value
     # a trench is fitted with Auto-fit, not laid out as a field
     viewer.add_image(
         np.full((256, 40), 1000, np.uint16) + np.arange(40, dtype=np.uint16),

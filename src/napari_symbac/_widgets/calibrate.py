@@ -32,6 +32,7 @@ from napari_symbac._widgets._recording import (
 from napari_symbac._widgets.real_image import class_layer_name
 from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
 from napari_symbac.calibrate import items_words
+from napari_symbac.fit.preflight import ModalityAdvice
 
 if TYPE_CHECKING:
     import napari
@@ -45,6 +46,11 @@ CALIBRATION_KEY = "calibration"
 CALIBRATED_TO_KEY = "calibrated_to"
 #: Where a recording has to be shown to calibrate it.
 STEP = "the 1 Recording tab (or the Real image and classes dock)"
+#: What to do when the recording's modality contradicts its image, in the dock's words.
+GUI_MODALITY_ADVICE = ModalityAdvice(
+    switch=f"Set its modality to {{other}} in {STEP}",
+    paint="paint its cell and media classes there",
+)
 
 
 def calibrated_layer_name(recording: str) -> str:
@@ -206,7 +212,11 @@ class CalibrateWidget(Container):
         ValueError
             With what to do, when something needed is missing or cannot be used.
         """
-        from napari_symbac.fit.preflight import check_instance_masks, default_geometry
+        from napari_symbac.fit.preflight import (
+            check_instance_masks,
+            check_modality,
+            default_geometry,
+        )
         from napari_symbac.settings import Microscope
 
         layer = self.recording.value
@@ -241,6 +251,8 @@ class CalibrateWidget(Container):
         else:
             microscope = recording_microscope(layer)
             note = "the recording's"
+        # the modality checked here, in this dock's words (calibrate checks it again)
+        check_modality(frame, microscope.modality, masks=masks, advice=GUI_MODALITY_ADVICE)
         if default_geometry(frame.shape, microscope.modality) == "trench":
             raise ValueError(
                 f"{layer.name} is {frame.shape[0]} x {frame.shape[1]} px, narrow and tall: a "

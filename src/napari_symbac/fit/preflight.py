@@ -18,9 +18,11 @@ from napari_symbac.settings import Microscope
 
 __all__ = [
     "CAMERA_PIXEL_UM",
+    "MODALITY_ADVICE",
     "PLAUSIBLE_PIXEL_UM",
     "TRENCH_MAX_WIDTH_PX",
     "TRENCH_MIN_ASPECT",
+    "ModalityAdvice",
     "camera_pixel_problem",
     "check_class_labels",
     "check_fit_image",
@@ -137,12 +139,33 @@ def _class_polarity(image: np.ndarray, cells: np.ndarray, background: np.ndarray
     return "bright cells" if difference > 0 else "dark cells"
 
 
+@dataclasses.dataclass(frozen=True)
+class ModalityAdvice:
+    """What :func:`check_modality` advises, in an interface's words.
+
+    Attributes
+    ----------
+    switch
+        How to give the modality the image looks like (a format string of ``other``).
+    paint
+        How to paint the cell and media classes.
+    """
+
+    switch: str
+    paint: str
+
+
+#: The commands' words.
+MODALITY_ADVICE = ModalityAdvice(switch="Pass --modality {other}", paint="paint --labels")
+
+
 def check_modality(
     image: np.ndarray,
     modality: str,
     *,
     labels: np.ndarray | None = None,
     masks: np.ndarray | None = None,
+    advice: ModalityAdvice = MODALITY_ADVICE,
 ) -> Polarity:
     """Refuse a modality that contradicts the image (e.g. a fluorescence field as phase).
 
@@ -156,6 +179,9 @@ def check_modality(
     -------
     str
         The polarity found.
+
+    ``advice``: what to do, in the interface's words (:data:`MODALITY_ADVICE`, the
+    commands').
 
     Raises
     ------
@@ -171,8 +197,8 @@ def check_modality(
         if polarity == "bright cells":
             raise ValueError(
                 "the image does not look like bright field: it shows bright objects on its "
-                "background and nothing darker, as fluorescence does. Pass --modality "
-                "fluorescence"
+                "background and nothing darker, as fluorescence does. "
+                + advice.switch.format(other="fluorescence")
             )
         return polarity
     if labels is not None:
@@ -197,8 +223,8 @@ def check_modality(
             word = "bright" if polarity == "bright cells" else "dark"
         raise ValueError(
             f"the image does not look like {modality}: {evidence.format(word)}. "
-            f"Pass --modality {other} (or, if it really is {modality}, paint --labels so the "
-            "cells and media settle it)"
+            f"{advice.switch.format(other=other)} (or, if it really is {modality}, "
+            f"{advice.paint} so the cells and media settle it)"
         )
     return polarity
 
