@@ -20,10 +20,18 @@ from magicgui.widgets import (
     Label,
     LineEdit,
     SpinBox,
+    TextEdit,
     Widget,
 )
 
-__all__ = ["SettingsForm", "hide_label", "message_label", "parameter_docs"]
+__all__ = [
+    "SettingsForm",
+    "fill_height",
+    "hide_label",
+    "message_label",
+    "parameter_docs",
+    "report_box",
+]
 
 _UNIT_SUFFIXES = {
     "_um2": "um²",
@@ -104,6 +112,17 @@ def message_label(name: str, label: str | None = None) -> Label:
     # magicgui's labels are Fixed: wrapped, the text then got the width Qt guesses for
     # it (61 of a 471 px row: a word or two a line); it takes the row's width instead
     widget.native.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Preferred)
+    return widget
+
+
+def report_box(name: str = "report") -> TextEdit:
+    """A read-only box for a plain-text report, its lines kept whole (scrolled sideways,
+    never wrapped: its tables stay columns) and never widening the dock. Add it to its
+    container, then :func:`hide_label` and :func:`fill_height` it."""
+    widget = TextEdit(name=name, label=name, value="")
+    widget.read_only = True
+    widget.native.setMinimumWidth(0)
+    widget.native.setLineWrapMode(widget.native.LineWrapMode.NoWrap)
     return widget
 
 

@@ -134,6 +134,53 @@ def recordings(viewer: Any) -> list:
     return [layer for layer in viewer.layers if is_recording(layer)]
 
 
+def real_images(viewer: Any) -> list:
+    """The viewer's grey images that the simulation did not make (a recording, or one
+    still waiting for its pixel size)."""
+    from napari.layers import Image
+
+    from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
+
+    return [
+        layer
+        for layer in viewer.layers
+        if isinstance(layer, Image) and not layer.rgb and SYMBAC_METADATA_KEY not in layer.metadata
+    ]
+
+
+def mask_layers(viewer: Any) -> list:
+    """The viewer's labels layers that can be a recording's cell masks: neither made by
+    the simulation nor painted classes."""
+    from napari.layers import Labels
+
+    from napari_symbac._widgets.real_image import class_layer_name
+    from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
+
+    return [
+        layer
+        for layer in viewer.layers
+        if isinstance(layer, Labels)
+        and SYMBAC_METADATA_KEY not in layer.metadata
+        and not layer.name.endswith(class_layer_name(""))
+    ]
+
+
+def newest_masks(viewer: Any, recording: Any, only: Any = None) -> Any:
+    """The newest of :func:`mask_layers` of ``recording``'s frame size with cells in it
+    (``only``: the one layer to consider, one just added), or ``None``."""
+    import numpy as np
+
+    shape = tuple(recording.data.shape[-2:])
+    matching = [
+        layer
+        for layer in mask_layers(viewer)
+        if (only is None or layer is only)
+        and tuple(layer.data.shape[-2:]) == shape
+        and np.asarray(layer.data).any()
+    ]
+    return matching[-1] if matching else None
+
+
 def no_recording_message(viewer: Any, then: str) -> str:
     """Why no recording can be chosen, and what to do, ending with ``then``.
 

@@ -16,20 +16,22 @@ import threading
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from magicgui.widgets import ComboBox, Container, FloatSpinBox, PushButton, TextEdit
+from magicgui.widgets import ComboBox, Container, FloatSpinBox, PushButton
 
-from napari_symbac._widgets._forms import fill_height, hide_label, message_label
+from napari_symbac._widgets._forms import fill_height, hide_label, message_label, report_box
 from napari_symbac._widgets._jobs import Job, blocking_steps
 from napari_symbac._widgets._recording import (
     check_recording_frame,
     in_pixel_units,
     is_recording,
     layer_axes,
+    mask_layers,
+    newest_masks,
     pixel_size_problem,
+    real_images,
     recording_microscope,
     watch_recordings,
 )
-from napari_symbac._widgets.real_image import class_layer_name
 from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
 from napari_symbac.calibrate import items_words
 from napari_symbac.fit.preflight import ModalityAdvice
@@ -118,10 +120,7 @@ class CalibrateWidget(Container):
             name="cancel", text="Cancel", enabled=False, tooltip="Stop the calibration."
         )
         self.status = message_label("status")
-        self.report = TextEdit(name="report", label="report", value="")
-        self.report.read_only = True
-        self.report.native.setMinimumWidth(0)
-        self.report.native.setLineWrapMode(self.report.native.LineWrapMode.NoWrap)
+        self.report = report_box()
         self.extend(
             [
                 self.recording,
@@ -146,27 +145,10 @@ class CalibrateWidget(Container):
     # -- choices --------------------------------------------------------------------------
 
     def _images(self, _widget=None) -> list:
-        """Real grey images (a recording, or one waiting for its pixel size)."""
-        from napari.layers import Image
-
-        return [
-            layer
-            for layer in self.viewer.layers
-            if isinstance(layer, Image)
-            and not layer.rgb
-            and SYMBAC_METADATA_KEY not in layer.metadata
-        ]
+        return real_images(self.viewer)
 
     def _mask_layers(self, _widget=None) -> list:
-        from napari.layers import Labels
-
-        return [
-            layer
-            for layer in self.viewer.layers
-            if isinstance(layer, Labels)
-            and SYMBAC_METADATA_KEY not in layer.metadata
-            and not layer.name.endswith(class_layer_name(""))
-        ]
+        return mask_layers(self.viewer)
 
     def _refresh_choices(self, event=None) -> None:
         self.recording.reset_choices()
@@ -184,16 +166,9 @@ class CalibrateWidget(Container):
         recording = self.recording.value
         if self.masks.value is not None or recording is None:
             return
-        shape = tuple(recording.data.shape[-2:])
-        matching = [
-            layer
-            for layer in self._mask_layers()
-            if (only is None or layer is only)
-            and tuple(layer.data.shape[-2:]) == shape
-            and np.asarray(layer.data).any()
-        ]
-        if matching:
-            self.masks.value = matching[-1]
+        masks = newest_masks(self.viewer, recording, only)
+        if masks is not None:
+            self.masks.value = masks
 
     # -- input ----------------------------------------------------------------------------
 

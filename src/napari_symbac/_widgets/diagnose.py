@@ -16,9 +16,9 @@ import threading
 from typing import TYPE_CHECKING
 
 import numpy as np
-from magicgui.widgets import ComboBox, Container, LineEdit, PushButton, SpinBox, TextEdit
+from magicgui.widgets import ComboBox, Container, LineEdit, PushButton, SpinBox
 
-from napari_symbac._widgets._forms import fill_height, hide_label, message_label
+from napari_symbac._widgets._forms import fill_height, hide_label, message_label, report_box
 from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
 from napari_symbac._widgets._recording import (
     check_recording_frame,
@@ -147,10 +147,7 @@ class DiagnoseWidget(Container):
             name="cancel", text="Cancel", enabled=False, tooltip="Stop the diagnosis."
         )
         self.status = message_label("status")
-        self.report = TextEdit(name="report", label="report", value="")
-        self.report.read_only = True
-        self.report.native.setMinimumWidth(0)
-        self.report.native.setLineWrapMode(self.report.native.LineWrapMode.NoWrap)
+        self.report = report_box()
         self.extend(
             [
                 self.reference,

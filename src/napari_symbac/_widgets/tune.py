@@ -29,8 +29,11 @@ from napari_symbac._widgets._recording import (
     axis_labels,
     check_recording_frame,
     is_recording,
+    mask_layers,
     modality_render,
+    newest_masks,
     no_recording_message,
+    real_images,
     watch_recordings,
 )
 from napari_symbac._widgets.real_image import class_layer_name
@@ -335,26 +338,10 @@ class TuneWidget(Container):
         ]
 
     def _references(self, _widget=None) -> list:
-        from napari.layers import Image
-
-        return [
-            layer
-            for layer in self.viewer.layers
-            if isinstance(layer, Image)
-            and not layer.rgb
-            and SYMBAC_METADATA_KEY not in layer.metadata
-        ]
+        return real_images(self.viewer)
 
     def _mask_layers(self, _widget=None) -> list:
-        from napari.layers import Labels
-
-        return [
-            layer
-            for layer in self.viewer.layers
-            if isinstance(layer, Labels)
-            and SYMBAC_METADATA_KEY not in layer.metadata
-            and not layer.name.endswith(class_layer_name(""))
-        ]
+        return mask_layers(self.viewer)
 
     def _refresh_choices(self, _event=None) -> None:
         previous = self.source.value
@@ -398,17 +385,10 @@ class TuneWidget(Container):
         reference = self.reference.value
         if self.masks.value is not None or reference is None:
             return
-        shape = tuple(reference.data.shape[-2:])
         self.masks.reset_choices()
-        matching = [
-            layer
-            for layer in self._mask_layers()
-            if (only is None or layer is only)
-            and tuple(layer.data.shape[-2:]) == shape
-            and np.asarray(layer.data).any()
-        ]
-        if matching:
-            self.masks.value = matching[-1]
+        masks = newest_masks(self.viewer, reference, only)
+        if masks is not None:
+            self.masks.value = masks
 
     # -- state ----------------------------------------------------------------------------
 
