@@ -30,7 +30,7 @@ import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
@@ -52,6 +52,11 @@ from napari_symbac.settings import (
     RenderSettings,
     SimulationSettings,
 )
+
+if TYPE_CHECKING:
+    from napari_symbac.calibrate.compare import AdviceWords, Comparison
+    from napari_symbac.export import ExportSettings
+    from napari_symbac.export.item import ExportItem
 
 __all__ = [
     "COMPARED_ITEMS",
@@ -608,7 +613,9 @@ def calibrate(
             field_masks = np.asarray(result.scene.camera_labels(), np.int32)
             if not (field_masks > 0).any():
                 raise ValueError(
-                    "the fit found no cell in the crop: pass --masks or paint --labels"
+                    "the fit found no cell in the crop: give the cells' masks (calibrate "
+                    "--masks; in napari, the Calibrate step's cell masks) or paint cell and "
+                    "media --labels"
                 )
             outside = _clusters_outside(rough, crop, field_masks)
             image_shape = frame.shape
@@ -949,12 +956,12 @@ COMPARED_ITEMS = 4
 
 def compare_with_dataset(
     calibration: Calibration,
-    settings,
+    settings: ExportSettings,
     *,
     masks_given: bool,
-    words=None,
+    words: AdviceWords | None = None,
     n_items: int = COMPARED_ITEMS,
-):
+) -> tuple[Comparison, list[ExportItem]]:
     """The recording against the first ``n_items`` items of the dataset of ``settings``
     (:func:`export_settings`; at most its size), pooled
     (:func:`~napari_symbac.calibrate.compare_images`), and those items: the report's
