@@ -61,6 +61,14 @@ def shot(viewer: napari.Viewer, name: str) -> None:
 WINDOW = (1366, 768)
 
 
+def workflow_window() -> tuple[napari.Viewer, object]:
+    """A napari window of :data:`WINDOW`'s size with the workflow dock, and the dock."""
+    viewer = napari.Viewer(title="napari-symbac")
+    viewer.window._qt_window.resize(*WINDOW)
+    _, flow = viewer.window.add_plugin_dock_widget(PLUGIN, "SyMBac workflow (all steps)")
+    return viewer, flow
+
+
 def real_trench_flow(folder: Path) -> None:
     """The flow of docs/gui.md on the real SyMBac trench, one screenshot per tab."""
     import tifffile
@@ -71,9 +79,7 @@ def real_trench_flow(folder: Path) -> None:
     path = folder / "my_trench.tif"
     tifffile.imwrite(path, source)  # written without a pixel size, as many recordings are
 
-    viewer = napari.Viewer(title="napari-symbac")
-    viewer.window._qt_window.resize(*WINDOW)
-    _, flow = viewer.window.add_plugin_dock_widget(PLUGIN, "SyMBac workflow (all steps)")
+    viewer, flow = workflow_window()
     flow.real_image.file.value = path
     shot(viewer, "napari-recording-no-pixel-size.png")
     dismiss_notifications(viewer)
@@ -142,9 +148,7 @@ def colony_flow() -> None:
     import tifffile
 
     root = real_data_from_environment() / "omnipose"
-    viewer = napari.Viewer(title="napari-symbac")
-    viewer.window._qt_window.resize(*WINDOW)
-    _, flow = viewer.window.add_plugin_dock_widget(PLUGIN, "SyMBac workflow (all steps)")
+    viewer, flow = workflow_window()
     flow.real_image.file.value = root / "Sample000033.png"
     dismiss_notifications(viewer)
     flow.real_image.pixel_size.value = 0.134  # a 1 um cell width (docs/rendering.md)
@@ -183,9 +187,7 @@ def calibrate_flow() -> None:
     import tifffile
 
     root = real_data_from_environment() / "omnipose"
-    viewer = napari.Viewer(title="napari-symbac")
-    viewer.window._qt_window.resize(*WINDOW)
-    _, flow = viewer.window.add_plugin_dock_widget(PLUGIN, "SyMBac workflow (all steps)")
+    viewer, flow = workflow_window()
     flow.real_image.file.value = root / "Sample000193.png"
     dismiss_notifications(viewer)
     viewer.add_labels(

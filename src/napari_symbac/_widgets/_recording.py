@@ -181,6 +181,14 @@ def newest_masks(viewer: Any, recording: Any, only: Any = None) -> Any:
     return matching[-1] if matching else None
 
 
+def shown_frame(viewer: Any, data: Any) -> Any:
+    """The frame of ``data`` on screen: of a ``(T, Y, X)`` layer the viewer's current
+    time step (its last frame beyond), a 2D layer itself (every frame's)."""
+    if data.ndim != 3:
+        return data
+    return data[min(int(viewer.dims.current_step[0]), len(data) - 1)]
+
+
 def no_recording_message(viewer: Any, then: str) -> str:
     """Why no recording can be chosen, and what to do, ending with ``then``.
 

@@ -30,6 +30,7 @@ from napari_symbac._widgets._recording import (
     pixel_size_problem,
     real_images,
     recording_microscope,
+    shown_frame,
     watch_recordings,
 )
 from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
@@ -172,13 +173,6 @@ class CalibrateWidget(Container):
 
     # -- input ----------------------------------------------------------------------------
 
-    def _frame_of(self, data: np.ndarray) -> np.ndarray:
-        if data.ndim == 3:
-            step = self.viewer.dims.current_step
-            index = int(step[0]) if len(step) >= 3 else 0
-            return data[min(index, len(data) - 1)]
-        return data
-
     def _input(self) -> tuple:
         """Frame, masks (or ``None``), microscope, cell width (or ``None``), pixel note.
 
@@ -197,13 +191,13 @@ class CalibrateWidget(Container):
         layer = self.recording.value
         if layer is None:
             raise ValueError(f"No recording: open your image in {STEP}, then choose it here")
-        frame = self._frame_of(np.asarray(layer.data))
+        frame = shown_frame(self.viewer, np.asarray(layer.data))
         if frame.ndim != 2:
             raise ValueError(f"{layer.name} must be one 2D frame or a (T, Y, X) series")
         check_recording_frame(frame, layer.name)
         masks = None
         if self.masks.value is not None:
-            masks = self._frame_of(np.asarray(self.masks.value.data))
+            masks = shown_frame(self.viewer, np.asarray(self.masks.value.data))
             check_instance_masks(masks, frame.shape, f"cell masks '{self.masks.value.name}'")
         width = self.cell_width_um.value or None
         if width is not None and masks is None:

@@ -34,6 +34,7 @@ from napari_symbac._widgets._recording import (
     newest_masks,
     no_recording_message,
     real_images,
+    shown_frame,
     watch_recordings,
 )
 from napari_symbac._widgets.real_image import class_layer_name
@@ -763,7 +764,7 @@ class TuneWidget(Container):
 
     def _frame_of(self, data: np.ndarray, _name: str = "") -> np.ndarray:
         """The frame shown of ``data`` (a 2D layer is every frame's)."""
-        return data[min(self._current_frame(), len(data) - 1)] if data.ndim == 3 else data
+        return shown_frame(self.viewer, data)
 
     def _frames_of(self, data: np.ndarray, name: str) -> np.ndarray:
         """Every frame of layer ``name``'s ``data`` for a joint fit of the real
