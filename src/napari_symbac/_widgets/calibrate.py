@@ -63,11 +63,12 @@ def calibrated_layer_name(recording: str) -> str:
 
 @dataclasses.dataclass(frozen=True)
 class _Outcome:
+    """A calibration, the dataset items compared with the recording (item 0 first) and
+    the comparison, and where the pixel size came from."""
+
     calibration: Any
-    image: np.ndarray
-    labels: np.ndarray
+    items: list
     comparison: Any
-    n_compared: int
     pixel_note: str
 
 
@@ -270,9 +271,7 @@ class CalibrateWidget(Container):
                 masks_given=masks is not None,
                 words=GUI_WORDS,
             )
-            return _Outcome(
-                calibration, items[0].image, items[0].labels, comparison, len(items), pixel_note
-            )
+            return _Outcome(calibration, items, comparison, pixel_note)
 
         def work():
             return (yield from blocking_steps(calibrate_and_draw, cancelled.is_set))
@@ -317,7 +316,7 @@ class CalibrateWidget(Container):
         px = calibration.settings.microscope.pixel_size_um
         axes = {} if in_pixel_units(recording) else layer_axes(px, 2)
         self.viewer.add_image(
-            outcome.image,
+            outcome.items[0].image,
             name=name,
             metadata={
                 SYMBAC_METADATA_KEY: {
@@ -329,7 +328,7 @@ class CalibrateWidget(Container):
             **axes,
         )
         self.viewer.add_labels(
-            np.asarray(outcome.labels),
+            np.asarray(outcome.items[0].labels),
             name=f"{name} masks",
             metadata={SYMBAC_METADATA_KEY: {CALIBRATED_TO_KEY: recording.name}},
             opacity=0.4,
@@ -341,7 +340,7 @@ class CalibrateWidget(Container):
                 f"Calibration of {recording.name}",
                 *calibration.report_lines(outcome.pixel_note),
                 "",
-                f"REAL AGAINST SYNTHETIC (the dataset's {items_words(outcome.n_compared)}; "
+                f"REAL AGAINST SYNTHETIC (the dataset's {items_words(len(outcome.items))}; "
                 "each 1-99 % normalised; the layer shows item 0)",
                 comparison.table(),
             ]
@@ -350,7 +349,7 @@ class CalibrateWidget(Container):
         matched = sum(check.matched for check in checks)
         self.status.value = (
             f"{calibration.method}: the recording against the dataset's "
-            f"{items_words(outcome.n_compared)}: {matched} of {len(checks)} comparisons match "
+            f"{items_words(len(outcome.items))}: {matched} of {len(checks)} comparisons match "
             "(the report says which, and what to do). Layer "
             f"'{name}' holds the matched settings: Export writes the dataset from it (its "
             "'settings from')."
