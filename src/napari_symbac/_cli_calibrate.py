@@ -223,10 +223,14 @@ def run_calibrate(args: argparse.Namespace) -> int:
             modality=modality,
             camera=camera,
             cell_width_um=args.cell_width_um,
+            stage=lambda words: print(
+                f"napari-symbac calibrate: {words}", file=sys.stderr, flush=True
+            ),
         )
     settings = export_settings(
         calibration, n_items=args.n_items, formats=formats, seed=args.seed
     )
+    print("napari-symbac calibrate: comparing real and synthetic", file=sys.stderr, flush=True)
     with timer.step("compare"):
         comparison, items = compare_with_dataset(
             calibration, settings, masks_given=masks is not None

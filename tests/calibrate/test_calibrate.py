@@ -183,6 +183,57 @@ def test_faint_cells_are_dropped_from_the_masks(fluorescence_calibration):
     assert not np.isin(item.labels, list(item.faint_cells)).any()
 
 
+def test_the_masks_faintest_cell_sets_which_cells_the_dataset_marks(real_data_dir):
+    from napari_symbac.export import contrast_to_noise
+
+    ds1 = real_data_dir / "colicoords" / "test_data" / "ds1"
+    image = tifffile.imread(ds1 / "fluorescence" / "00001.tif")
+    masks = instance_masks(tifffile.imread(ds1 / "binary" / "00001_Probabilities_filtered.tif"))
+    microscope = Microscope(pixel_size_um=0.08, wavelength_um=0.53, modality="fluorescence")
+    cal = calibrate(image, masks=masks, microscope=microscope)
+    # the recording's own cells (8, none cut by the border), measured as the export
+    # measures its synthetic ones
+    measured = contrast_to_noise(image, masks)
+    assert len(measured) >= 5
+    assert cal.mask_faintest_cnr == pytest.approx(min(measured.values()))
+    assert cal.mask_faintest_cnr > 1.0  # fainter cells lie in the noise, unmarked
+    assert any(note.startswith("masks' faintest cell: contrast-to-noise") for note in cal.notes)
+    settings = export_settings(cal, n_items=4, seed=3)
+    assert settings.visibility.min_contrast_to_noise == pytest.approx(cal.mask_faintest_cnr)
+    source = PipelineSource(settings)
+    for unit in range(2):
+        item = source.make_unit(unit)[0]
+        kept = set(np.unique(item.labels).tolist()) - {0}
+        assert kept  # a threshold at the bottom of the annotated cells keeps most cells
+        assert all(item.contrast_to_noise[c] >= cal.mask_faintest_cnr for c in kept)
+        assert set(item.faint_cells) == {
+            c for c, v in item.contrast_to_noise.items() if not v >= cal.mask_faintest_cnr
+        }
+        assert not kept & set(item.faint_cells)
+
+
+def test_cells_cut_by_the_border_are_no_sample_of_sizes_and_brightness(
+    colicoords_crop, fluorescence_calibration
+):
+    image, masks = colicoords_crop
+    m = measure_field(image, masks)
+    # the 256 px corner cuts a 10-pixel sliver of a cell at its right edge
+    assert m.n_cells == 3
+    assert m.whole.tolist().count(False) == 1
+    sliver = np.flatnonzero(~m.whole)[0]
+    assert m.brightness_adu[sliver] < 0.2 * np.median(m.brightness_adu[m.whole])
+    whole = np.abs(m.brightness_adu[m.whole])
+    assert m.brightness_cv == pytest.approx(whole.std(ddof=1) / whole.mean())
+    assert m.of_whole_cells(m.widths_px).size == 2
+    cal = fluorescence_calibration
+    assert cal.settings.render.cell_brightness_cv == pytest.approx(m.brightness_cv, rel=0.05)
+    assert any("1 cell(s) cut by the image's border" in note for note in cal.notes)
+    # two whole cells are too few to say which faint cells the annotation leaves out
+    assert cal.mask_faintest_cnr is None
+    assert export_settings(cal, n_items=1).visibility.min_contrast_to_noise == 1.0
+    assert any("too few (< 5)" in note for note in cal.notes)
+
+
 def test_compare_images_sees_a_spectrum_difference(colicoords_crop):
     image, masks = colicoords_crop
     same = compare_images(image, masks, image, masks)
@@ -201,6 +252,7 @@ def test_dense_phase_colony_uses_the_partially_coherent_fit(real_data_dir):
     folder = real_data_dir / "omnipose"
     image = iio.imread(folder / "Sample000033.png")[60:156, 100:196, 0]
     masks = tifffile.imread(folder / "Sample000033_cp_masks.tif")[60:156, 100:196]
+    stages = []
     cal = calibrate(
         image,
         masks=masks,
@@ -208,7 +260,10 @@ def test_dense_phase_colony_uses_the_partially_coherent_fit(real_data_dir):
         cell_width_um=1.0,
         crop_px=96,
         max_evaluations=12,
+        stage=stages.append,
     )
+    # the packing search, which renders nothing, is announced as a stage of its own
+    assert stages == ["choosing the colonies' packing (simulating colonies under gravity)"]
     assert cal.method == "masks + partially coherent fit"
     s = cal.settings
     assert s.render.phase_model == "partially_coherent"
@@ -257,6 +312,10 @@ def test_calibrate_without_masks_measures_the_fitted_crop(colicoords_crop):
     microscope = Microscope(pixel_size_um=0.08, wavelength_um=0.53, modality="fluorescence")
     cal = calibrate(image, microscope=microscope, crop_px=128)
     assert cal.reference.shape == cal.masks.shape == (128, 128)
+    # no annotation, no convention of its own: only cells the noise hides are dropped
+    assert cal.mask_offset_um is None
+    assert cal.mask_faintest_cnr is None
+    assert export_settings(cal, n_items=1).visibility.min_contrast_to_noise == 1.0
     assert cal.measurements.n_cells == len(np.unique(cal.masks)) - 1 >= 1
     # the simulated field is the whole image with its clusters of cells: the crop is
     # chosen for holding the most cells, so its density would overstate the field's

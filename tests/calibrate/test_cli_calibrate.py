@@ -49,7 +49,14 @@ def test_calibrate_writes_a_matched_dataset_and_report(colicoords_files, capsys)
     report = (out / "report.txt").read_text()
     assert "fluorescence" in report
     assert "power spectrum" in report
-    _assert_flags_follow_the_numbers(report, capsys.readouterr().out)
+    printed = capsys.readouterr()
+    _assert_flags_follow_the_numbers(report, printed.out)
+    # a line per stage on stderr (the fit, the comparison, the export)
+    assert [line for line in printed.err.splitlines() if line.startswith("napari-symbac")] == [
+        "napari-symbac calibrate: fitting",
+        "napari-symbac calibrate: comparing real and synthetic",
+        "napari-symbac calibrate: exporting",
+    ]
     assert "pass --masks" not in report  # they were given: the advice does not ask for them
     assert "read as counts" not in report  # camera counts: nothing to mark
     # the masks' outline convention, measured against the fitted cells, goes to the

@@ -49,10 +49,16 @@ def test_calibrate_then_export_the_matched_dataset(make_napari_viewer, qtbot, tm
     assert widget.recording.value is viewer.layers["field"]
     assert widget.masks.value is viewer.layers["field masks"]
     export = ExportWidget(viewer)
+    shown = []  # the status after each progress message (a QLabel signals no change)
+    show = widget._on_progress
+    widget._on_progress = lambda message: (show(message), shown.append(widget.status.value))
     widget.run_button.native.click()
     qtbot.waitUntil(lambda: widget.worker is None, timeout=180_000)
     name = calibrated_layer_name("field")
     assert name in viewer.layers, widget.status.value
+    # the status followed the stages: the fit's renders, then the compared items
+    assert any(s.startswith("Calibrating: fit, ") for s in shown), shown
+    assert "Calibrating: simulating the dataset's first 4 items to compare..." in shown
     layer = viewer.layers[name]
     calibration = layer.metadata[SYMBAC_METADATA_KEY][CALIBRATION_KEY]
     assert calibration is widget.calibration

@@ -255,16 +255,27 @@ class CalibrateWidget(Container):
             from napari_symbac.calibrate.compare import GUI_WORDS
             from napari_symbac.fit import FitCancelled
 
+            renders = [0]
+
+            def fit_progress(done: int, total: int) -> None:
+                renders[0] = done
+                progress(done, total)
+
+            def stage(words: str) -> None:  # a stage that renders nothing: words, no count
+                progress(renders[0], words)
+
             calibration = calibrate(
                 frame,
                 microscope=microscope,
                 masks=masks,
                 cell_width_um=width,
-                progress=progress,
+                progress=fit_progress,
                 cancel=cancel,
+                stage=stage,
             )
             if cancel():  # before the dataset's first items are simulated
                 raise FitCancelled("calibration cancelled")
+            stage(f"simulating the dataset's first {COMPARED_ITEMS} items to compare")
             comparison, items = compare_with_dataset(
                 calibration,
                 export_settings(calibration, n_items=COMPARED_ITEMS),
@@ -302,8 +313,12 @@ class CalibrateWidget(Container):
             self.status.value = "Cancelling..."
 
     def _on_progress(self, message) -> None:
+        """``(done, total)`` renders of the fit, or ``(done, words)`` of a later stage."""
         done, total = message
-        self.status.value = f"Calibrating: fit, {done} of about {total} renders"
+        if isinstance(total, str):
+            self.status.value = f"Calibrating: {total}..."
+        else:
+            self.status.value = f"Calibrating: fit, {done} of about {total} renders"
 
     def _on_returned(self, outcome: _Outcome) -> None:
         calibration = outcome.calibration

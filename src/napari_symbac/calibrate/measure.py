@@ -22,6 +22,7 @@ __all__ = [
     "DebrisMeasurements",
     "FieldMeasurements",
     "TextureMeasurements",
+    "border_ids",
     "cell_curvatures_px",
     "instance_masks",
     "lengths_px",
@@ -41,6 +42,12 @@ def instance_masks(masks: np.ndarray) -> np.ndarray:
         labels, _ = ndimage.label(masks > 0)
         return labels.astype(np.int32)
     return masks.astype(np.int32)
+
+
+def border_ids(labels: np.ndarray) -> np.ndarray:
+    """Ids of the regions of ``labels`` that the image's border cuts."""
+    edge = np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]])
+    return np.unique(edge[edge > 0])
 
 
 def lengths_px(labels: np.ndarray) -> np.ndarray:
@@ -74,6 +81,10 @@ class FieldMeasurements:
         Cells in each cluster (cells closer than ``touch_px`` belong to one cluster).
     cell_area_fraction
         Fraction of the image that is cell.
+    whole
+        Per cell: ``True`` unless the image's border cuts it. A cut cell counts in the
+        layout, but its length, width and brightness are a sliver's, so sizes and the
+        brightness spread are read from the whole cells (:meth:`of_whole_cells`).
     """
 
     shape: tuple[int, int]
@@ -85,16 +96,23 @@ class FieldMeasurements:
     noise_adu: float
     cluster_sizes: np.ndarray = field(repr=False)
     cell_area_fraction: float
+    whole: np.ndarray = field(repr=False)
 
     @property
     def n_cells(self) -> int:
         """Number of cell regions."""
         return int(self.lengths_px.size)
 
+    def of_whole_cells(self, values: np.ndarray) -> np.ndarray:
+        """The entries of a per-cell array (``lengths_px``, ``widths_px``,
+        ``brightness_adu``) that belong to cells the border does not cut; all of them
+        when the border cuts every cell."""
+        return values[self.whole] if self.whole.any() else values
+
     @property
     def brightness_cv(self) -> float:
-        """Coefficient of variation of the cells' brightness above the background."""
-        b = np.abs(self.brightness_adu)
+        """Coefficient of variation of the whole cells' brightness above the background."""
+        b = np.abs(self.of_whole_cells(self.brightness_adu))
         if b.size < 2 or b.mean() <= 0:
             return 0.0
         return float(b.std(ddof=1) / b.mean())
@@ -107,11 +125,12 @@ class FieldMeasurements:
         brightness = (
             f"brightness CV {self.brightness_cv:.2f}; " if modality == "fluorescence" else ""
         )
+        lengths, widths = self.of_whole_cells(self.lengths_px), self.of_whole_cells(self.widths_px)
         return (
-            f"{self.n_cells} cells; length {np.median(self.lengths_px) * px:.2f} um "
-            f"(IQR {np.percentile(self.lengths_px, 25) * px:.2f}-"
-            f"{np.percentile(self.lengths_px, 75) * px:.2f}), width "
-            f"{np.median(self.widths_px) * px:.2f} um; {brightness}"
+            f"{self.n_cells} cells; length {np.median(lengths) * px:.2f} um "
+            f"(IQR {np.percentile(lengths, 25) * px:.2f}-"
+            f"{np.percentile(lengths, 75) * px:.2f}), width "
+            f"{np.median(widths) * px:.2f} um; {brightness}"
             f"{self.cluster_sizes.size} cluster(s), median {np.median(self.cluster_sizes):.0f} "
             f"cell(s), largest {int(self.cluster_sizes.max())}; cells cover "
             f"{100 * self.cell_area_fraction:.1f} % of the image"
@@ -207,6 +226,7 @@ def measure_field(
     )
     sizes = cluster_sizes(relabelled, touch_px)
     inside = ok & cells
+
     return FieldMeasurements(
         shape=(int(image.shape[0]), int(image.shape[1])),
         lengths_px=lengths_px(relabelled),
@@ -217,6 +237,7 @@ def measure_field(
         noise_adu=pixel_noise(image, far),
         cluster_sizes=sizes,
         cell_area_fraction=float(cells.mean()),
+        whole=~np.isin(np.arange(1, len(ids) + 1), border_ids(relabelled)),
     )
 
 
