@@ -130,6 +130,7 @@ def test_quick_run_has_every_row(real_data_dir, tmp_path, monkeypatch, data, bas
     ]
     assert methods == [
         "Otsu + watershed",
+        "Otsu + watershed, fields 2-10",
         *real_rows,
         "U-Net, calibrated synthetic only (seed 0)",
         "U-Net, calibrated synthetic only (seed 1)",
@@ -137,7 +138,7 @@ def test_quick_run_has_every_row(real_data_dir, tmp_path, monkeypatch, data, bas
         "U-Net, calibrated with field 1's masks, fields 2-10 (seed 1)",
         "U-Net, tool defaults (modality switched)",
     ]
-    assert "masks grown" in rows[len(real_rows) + 3]["note"]
+    assert "masks grown" in rows[len(real_rows) + 4]["note"]
     for row in rows:
         assert 0 <= row["f1"] <= 1
         assert 0 <= row["pixel_iou"] <= 1
