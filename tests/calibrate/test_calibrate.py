@@ -148,15 +148,27 @@ def test_same_seed_same_dataset_item(fluorescence_calibration):
     assert not np.array_equal(first.image, other.make_unit(1)[0].image)
 
 
-def test_fluorescence_export_follows_the_masks_outline(fluorescence_calibration):
+def test_fluorescence_export_follows_the_masks_outline(fluorescence_calibration, colicoords_crop):
+    from napari_symbac.export.outline import outline_level
+
     settings = export_settings(fluorescence_calibration, n_items=2, seed=2)
-    # with masks: their outline convention, measured against the fitted cells (the
-    # ColiCoords annotations lie outside the model cells)
+    # with masks: their outline convention, read in the light (the ColiCoords
+    # annotations reach further into the blurred edge than the model cells)
     offset = fluorescence_calibration.mask_offset_um
     assert offset is not None
     assert offset > 0
     assert settings.mask_dilation_um == pytest.approx(offset, abs=1e-4)
-    assert any("mask outline +" in note for note in fluorescence_calibration.notes)
+    assert any(
+        note.startswith("mask outline at ") and "by area the masks lie +" in note
+        for note in fluorescence_calibration.notes
+    )
+    # the dataset's outlines lie at the recording's level of the cells' light
+    image, masks = colicoords_crop
+    real = float(np.median(outline_level(image, instance_masks(masks))))
+    source = PipelineSource(settings)
+    items = [source.make_unit(unit)[0] for unit in range(2)]
+    synthetic = np.concatenate([outline_level(item.image, item.labels) for item in items])
+    assert float(np.median(synthetic)) == pytest.approx(real, abs=0.06)
     plain = dataclasses.replace(settings, mask_dilation_um=0.0)
     grown = PipelineSource(settings).make_unit(0)[0]
     model = PipelineSource(plain).make_unit(0)[0]

@@ -59,9 +59,9 @@ def test_calibrate_writes_a_matched_dataset_and_report(colicoords_files, capsys)
     ]
     assert "pass --masks" not in report  # they were given: the advice does not ask for them
     assert "read as counts" not in report  # camera counts: nothing to mark
-    # the masks' outline convention, measured against the fitted cells, goes to the
-    # dataset: the ColiCoords annotations lie outside the model cells
-    assert "mask outline +" in report
+    # the masks' outline convention, read in the light against the fitted model's,
+    # goes to the dataset: the ColiCoords annotations lie outside the model cells
+    assert "mask outline at " in report
     dilation = manifest["settings"]["mask_dilation_um"]
     assert 0.02 < dilation < 0.4
     assert f"{dilation:.3f}" in report or f"{dilation:+.3f}" in report

@@ -6,10 +6,17 @@ import dataclasses
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from napari_symbac.export import ExportSettings
 from napari_symbac.export.dataset import PipelineSource
-from napari_symbac.export.outline import grow_masks, outline_offset_px
+from napari_symbac.export.outline import (
+    border_ids,
+    grow_masks,
+    level_matched_growth_px,
+    outline_level,
+    outline_offset_px,
+)
 from napari_symbac.settings import PipelineSettings, SimulationSettings
 
 
@@ -34,6 +41,41 @@ def test_offset_of_a_wider_outline_is_the_band_it_adds():
     assert outline_offset_px(user, np.zeros_like(model)).size == 0
     with pytest.raises(ValueError, match="one shape"):
         outline_offset_px(user[:10], model)
+
+
+def _blurred_rods(sigma_px: float = 2.5):
+    """Two bright rods (10 px wide) blurred by a Gaussian, on a level background; the
+    third, cut by the image's border, is no whole cell."""
+    labels = np.zeros((90, 120), np.int32)
+    labels[20:30, 15:55] = 1
+    labels[55:65, 40:95] = 2
+    labels[80:90, 100:120] = 3
+    image = 100.0 + ndimage.gaussian_filter(1000.0 * (labels > 0), sigma_px)
+    return image, labels
+
+
+def test_outline_level_is_the_edge_light_over_the_core_light():
+    image, labels = _blurred_rods()
+    assert border_ids(labels).tolist() == [3]
+    levels = outline_level(image, labels)
+    assert levels.size == 2  # the cut rod is left out
+    # a blurred step: the edge pixels, half a pixel inside it, hold about half the core's
+    # light (a bit more: 0.5 px in), far below 1 and above 0
+    assert np.all((levels > 0.5) & (levels < 0.75))
+    grown = outline_level(image, grow_masks(labels, 2.0))
+    assert np.all(grown < levels)  # an outline further out lies lower in the light
+    assert outline_level(image, np.zeros_like(labels)).size == 0  # no cell
+
+
+def test_the_growth_that_reaches_a_level_is_found_back():
+    image, labels = _blurred_rods()
+    for growth in (1.0, 2.5):
+        level = float(np.median(outline_level(image, grow_masks(labels, growth))))
+        assert level_matched_growth_px(level, image, labels) == pytest.approx(growth, abs=0.3)
+    own = float(np.median(outline_level(image, labels)))
+    assert level_matched_growth_px(own + 0.1, image, labels) == 0.0  # never shrunk
+    assert level_matched_growth_px(0.0, image, labels, max_px=3.0) == 3.0  # out of reach
+    assert level_matched_growth_px(0.3, image, np.zeros_like(labels)) is None
 
 
 def test_grown_masks_keep_cells_apart_and_grow_by_the_distance():

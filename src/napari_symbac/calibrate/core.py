@@ -38,7 +38,6 @@ from napari_symbac.calibrate.compaction import CompactionTrial, choose_gravity, 
 from napari_symbac.calibrate.measure import (
     ColonyPacking,
     FieldMeasurements,
-    border_ids,
     instance_masks,
     measure_debris,
     measure_field,
@@ -115,11 +114,13 @@ class Calibration:
     notes
         Plain sentences: where each setting came from, what could not be measured.
     mask_offset_um
-        Fluorescence or bright field with masks: how far the masks' outlines lie
-        outside the fitted model cells (median over the crop's matched cells,
-        :func:`~napari_symbac.export.outline.outline_offset_px`), the annotation
-        convention :func:`export_settings` gives the dataset's masks; ``None``
-        otherwise.
+        Fluorescence or bright field with masks: how far beyond the fitted model cells
+        the masks' outlines lie, the annotation convention :func:`export_settings` gives
+        the dataset's masks. Fluorescence: the growth that puts the model cells'
+        outline at the same fraction of their light as the masks' outline in the
+        recording (:func:`~napari_symbac.export.outline.level_matched_growth_px`);
+        bright field: by area (median over the crop's matched cells,
+        :func:`~napari_symbac.export.outline.outline_offset_px`). ``None`` otherwise.
     mask_faintest_cnr
         Fluorescence or bright field with masks: the contrast-to-noise ratio of the
         faintest cell the masks mark in the recording
@@ -624,7 +625,11 @@ def calibrate(
             field_masks = masks
             if microscope.modality in ("fluorescence", "brightfield"):
                 mask_offset_um, note = _outline_offset_um(
-                    crop_masks, result.scene.camera_labels(), microscope.pixel_size_um
+                    crop_image,
+                    crop_masks,
+                    result,
+                    microscope,
+                    valid[crop],
                 )
                 notes.append(note)
                 mask_faintest_cnr, note = _faintest_masked_cnr(frame, masks)
@@ -763,21 +768,59 @@ def _uncounted_noise_adu(
 
 
 def _outline_offset_um(
-    masks: np.ndarray, model_labels: np.ndarray, pixel_size_um: float
+    crop_image: np.ndarray,
+    crop_masks: np.ndarray,
+    result,
+    microscope: Microscope,
+    valid: np.ndarray,
 ) -> tuple[float | None, str]:
-    """Median offset of the masks' outlines outside the fitted model cells (um), and a
-    note; ``None`` when no mask matches a model cell."""
-    from napari_symbac.export.outline import outline_offset_px
+    """How far the dataset's masks grow beyond the model cells to follow the masks'
+    outline (um, :attr:`Calibration.mask_offset_um`), and a note; ``None`` when no mask
+    matches a model cell.
 
-    offsets = outline_offset_px(masks, model_labels)
+    Fluorescence: read in the light (:func:`~napari_symbac.export.outline.outline_level`):
+    the masks' outline lies at some fraction of their cells' core brightness, and the
+    model cells are grown until their outline lies at that fraction of the fitted
+    model's image (:func:`~napari_symbac.export.outline.level_matched_growth_px`). A
+    bright-field outline is no fraction of a cell's light (dark and bright rims): there,
+    and when the light gives no level, the geometric offset
+    (:func:`~napari_symbac.export.outline.outline_offset_px`), median over the cells.
+    """
+    from napari_symbac.export.outline import (
+        level_matched_growth_px,
+        outline_level,
+        outline_offset_px,
+    )
+
+    px = microscope.pixel_size_um
+    model_labels = np.asarray(result.scene.camera_labels())
+    offsets = outline_offset_px(crop_masks, model_labels)
     if not offsets.size:
         return None, "mask outline: no mask matches a fitted cell, not measured"
-    offset = float(np.median(offsets)) * pixel_size_um
-    return offset, (
-        f"mask outline {offset:+.3f} um outside the fitted cells (median of {offsets.size} "
-        f"cells, quartiles {np.percentile(offsets, 25) * pixel_size_um:+.3f} to "
-        f"{np.percentile(offsets, 75) * pixel_size_um:+.3f} um): the dataset's masks grow by "
-        "it (ExportSettings.mask_dilation_um)"
+    geometric = float(np.median(offsets)) * px
+    spread = (
+        f"median of {offsets.size} cells, quartiles {np.percentile(offsets, 25) * px:+.3f} "
+        f"to {np.percentile(offsets, 75) * px:+.3f} um"
+    )
+    if microscope.modality == "fluorescence":
+        levels = outline_level(crop_image, crop_masks, valid=valid)
+        model_levels = outline_level(result.synthetic, model_labels)
+        if levels.size and model_levels.size:
+            level = float(np.median(levels))
+            growth = level_matched_growth_px(level, result.synthetic, model_labels)
+            if growth is not None:
+                offset = growth * px
+                return offset, (
+                    f"mask outline at {level:.2f} of the cells' core brightness above the "
+                    f"background (median of {levels.size} cells; the fitted model's outline "
+                    f"at {float(np.median(model_levels)):.2f}): the dataset's masks grow by "
+                    f"{offset:.3f} um, where the model's light falls to that level "
+                    f"(ExportSettings.mask_dilation_um; by area the masks lie {geometric:+.3f} "
+                    f"um outside the fitted cells, {spread})"
+                )
+    return geometric, (
+        f"mask outline {geometric:+.3f} um outside the fitted cells ({spread}): the "
+        "dataset's masks grow by it (ExportSettings.mask_dilation_um)"
     )
 
 
@@ -808,6 +851,7 @@ def _faintest_masked_cnr(frame: np.ndarray, masks: np.ndarray) -> tuple[float | 
     most cells of the matched dataset: ``None`` with fewer than
     :data:`VISIBILITY_MIN_CELLS` cells.
     """
+    from napari_symbac.export.outline import border_ids
     from napari_symbac.export.visibility import contrast_to_noise
 
     cut = set(border_ids(masks).tolist())

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
+from napari_symbac.export.outline import border_ids
 from napari_symbac.export.visibility import pixel_noise
 from napari_symbac.fit.masks import cell_widths_px
 
@@ -22,7 +23,6 @@ __all__ = [
     "DebrisMeasurements",
     "FieldMeasurements",
     "TextureMeasurements",
-    "border_ids",
     "cell_curvatures_px",
     "instance_masks",
     "lengths_px",
@@ -42,12 +42,6 @@ def instance_masks(masks: np.ndarray) -> np.ndarray:
         labels, _ = ndimage.label(masks > 0)
         return labels.astype(np.int32)
     return masks.astype(np.int32)
-
-
-def border_ids(labels: np.ndarray) -> np.ndarray:
-    """Ids of the regions of ``labels`` that the image's border cuts."""
-    edge = np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]])
-    return np.unique(edge[edge > 0])
 
 
 def lengths_px(labels: np.ndarray) -> np.ndarray:
