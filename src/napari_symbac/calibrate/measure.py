@@ -220,7 +220,6 @@ def measure_field(
     )
     sizes = cluster_sizes(relabelled, touch_px)
     inside = ok & cells
-
     return FieldMeasurements(
         shape=(int(image.shape[0]), int(image.shape[1])),
         lengths_px=lengths_px(relabelled),
