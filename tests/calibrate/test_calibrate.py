@@ -224,6 +224,25 @@ def test_the_masks_faintest_cell_sets_which_cells_the_dataset_marks(real_data_di
         assert not kept & set(item.faint_cells)
 
 
+def test_masks_of_bright_cells_only_raise_the_threshold_to_a_cap(real_data_dir):
+    from napari_symbac.calibrate.core import VISIBILITY_MAX_CNR
+
+    ds2 = real_data_dir / "colicoords" / "test_data" / "ds2"
+    image = tifffile.imread(ds2 / "fluorescence" / "00066.tif")
+    masks = tifffile.imread(ds2 / "binary" / "00066_Probabilities_filtered.tif")
+    microscope = Microscope(pixel_size_um=0.08, wavelength_um=0.53, modality="fluorescence")
+    cal = calibrate(image, masks=masks, microscope=microscope)
+    # every marked cell is far above the noise (about 116 and up): that bounds the
+    # annotator's threshold from above, no more, and cells that plain stay marked
+    assert cal.mask_faintest_cnr > 10 * VISIBILITY_MAX_CNR
+    assert any("plain above the noise" in note for note in cal.notes)
+    settings = export_settings(cal, n_items=2, seed=0)
+    assert settings.visibility.min_contrast_to_noise == VISIBILITY_MAX_CNR
+    item = PipelineSource(settings).make_unit(0)[0]
+    assert item.contrast_to_noise
+    assert not item.faint_cells  # every synthetic cell is as plain as the real ones
+
+
 def test_cells_cut_by_the_border_are_no_sample_of_sizes_and_brightness(
     colicoords_crop, fluorescence_calibration
 ):

@@ -129,8 +129,9 @@ class Calibration:
         measures its synthetic cells), the annotation's visibility convention: the masks
         mark every cell (sizes and layout are read from them), so a cell fainter than
         any of them is one the annotator did not mark. :func:`export_settings` drops
-        synthetic cells fainter than it from the dataset's masks. ``None`` otherwise, and
-        when the masks hold fewer than :data:`VISIBILITY_MIN_CELLS` whole cells.
+        synthetic cells fainter than it (at most :data:`VISIBILITY_MAX_CNR`) from the
+        dataset's masks. ``None`` otherwise, and when the masks hold fewer than
+        :data:`VISIBILITY_MIN_CELLS` whole cells.
     """
 
     settings: PipelineSettings
@@ -840,6 +841,12 @@ def _cut_cells_words(measurements: FieldMeasurements) -> str:
 #: Whole cells (with background around them) the masks need before their faintest cell
 #: sets which synthetic cells the dataset marks (:attr:`Calibration.mask_faintest_cnr`).
 VISIBILITY_MIN_CELLS = 5
+#: The most the masks' faintest cell raises the dataset's visibility threshold to
+#: (contrast-to-noise). The faintest marked cell only bounds the annotator's threshold
+#: from above; it says where the threshold lies when it is near the noise (ColiCoords
+#: ds1 field 1: 4.8, with unmarked blobs at 0.2-3), not when every cell is bright (ds2
+#: field 00066: 116, when synthetic cells of 104-115, plain to any eye, were unmarked).
+VISIBILITY_MAX_CNR = 10.0
 
 
 def _faintest_masked_cnr(frame: np.ndarray, masks: np.ndarray) -> tuple[float | None, str]:
@@ -867,11 +874,19 @@ def _faintest_masked_cnr(frame: np.ndarray, masks: np.ndarray) -> tuple[float | 
             "below 1)"
         )
     faintest = float(cnr.min())
-    return faintest, (
+    words = (
         f"masks' faintest cell: contrast-to-noise {faintest:.1f} (of {cnr.size} cells, median "
-        f"{np.median(cnr):.1f}): the dataset's masks leave out synthetic cells fainter than "
-        "it, as the annotation leaves out cells fainter than that "
-        "(ExportSettings.visibility)"
+        f"{np.median(cnr):.1f}): "
+    )
+    if faintest > VISIBILITY_MAX_CNR:
+        return faintest, words + (
+            f"every marked cell is plain above the noise, which says no more than that no "
+            f"fainter cell was there; the dataset's masks leave out synthetic cells below "
+            f"{VISIBILITY_MAX_CNR:g} (ExportSettings.visibility)"
+        )
+    return faintest, words + (
+        "the dataset's masks leave out synthetic cells fainter than it, as the annotation "
+        "leaves out cells fainter than that (ExportSettings.visibility)"
     )
 
 
@@ -1130,14 +1145,15 @@ def export_settings(
     :mod:`~napari_symbac.export.visibility`) are dropped from the masks: a network must
     not learn to find cells in the noise. With masks (fluorescence, bright field) the
     threshold is the contrast-to-noise of their faintest cell
-    (``calibration.mask_faintest_cnr``) when that is higher: the annotation's
-    convention of what counts as a cell. On the ColiCoords transfer benchmark (field
-    1's masks, faintest cell 4.8) this raised the network's mean F1 on fields 2-10 over
-    four seeds from 0.632 to 0.799 (docs/proof.md): trained with faint cells marked, it
-    had called blobs of noise cells. The images are varied as the default export
-    varies them (:func:`~napari_symbac.export.dataset.default_randomisation`): the
-    fitted defocus kept (eq. 14); in bright field the light as a whole, never past the
-    camera's full scale.
+    (``calibration.mask_faintest_cnr``) when that is higher, up to
+    :data:`VISIBILITY_MAX_CNR`: the annotation's convention of what counts as a cell.
+    On the ColiCoords transfer benchmark (field 1's masks, faintest cell 4.8) this raised
+    the network's mean F1 on fields 2-10 over four seeds from 0.632 to 0.799
+    (docs/proof.md): trained with faint cells marked, it had called blobs of noise cells.
+    The images are varied as the default export varies them
+    (:func:`~napari_symbac.export.dataset.default_randomisation`): the fitted defocus
+    kept (eq. 14); in bright field the light as a whole, never past the camera's full
+    scale.
 
     With the partially coherent phase model (dense phase colonies) the cells' intensity
     over the media's is their bright-field transmission ``B`` (eq. 3), at most 1
@@ -1183,7 +1199,9 @@ def export_settings(
         first_frame=first,
         pipeline=calibration.settings,
         visibility=Visibility(
-            min_contrast_to_noise=max(1.0, calibration.mask_faintest_cnr or 1.0),
+            min_contrast_to_noise=float(
+                np.clip(calibration.mask_faintest_cnr or 1.0, 1.0, VISIBILITY_MAX_CNR)
+            ),
             action="drop",
         ),
         randomise=randomise,
