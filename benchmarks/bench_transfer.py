@@ -388,10 +388,10 @@ def instances_from_probabilities(prob: np.ndarray, min_area: int = 10) -> np.nda
 
 def drop_border_objects(labels: np.ndarray) -> np.ndarray:
     """``labels`` without the objects that touch the image border (set to 0)."""
-    labels = np.asarray(labels)
-    edge = np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]])
-    out = labels.copy()
-    out[np.isin(out, np.unique(edge[edge > 0]))] = 0
+    from napari_symbac.export.outline import border_ids
+
+    out = np.array(labels)
+    out[np.isin(out, border_ids(out))] = 0
     return out
 
 
