@@ -187,6 +187,14 @@ def test_cells_records_and_report_say_what_went_wrong():
     ]
     clean = report_text(_result(warnings=(), at_bounds=()), {})
     assert "none: converged, nothing at a bound" in clean
+    # a noise model far wider than the image's (a camera offset taken as 100 ADU)
+    from napari_symbac.settings import Camera
+
+    wide = _result(objective_after=0.22, warnings=(), at_bounds=(), camera=Camera())
+    [said_wide] = [p for p in fit_problems(wide) if "< 0.5" in p]
+    assert "baseline 100 ADU" in said_wide
+    assert "too noisy" in said_wide
+    assert not [p for p in fit_problems(_result(warnings=(), at_bounds=())) if "< 0.5" in p]
     assert "no convergence diagnostics" in report_text(_result(), {})
 
 

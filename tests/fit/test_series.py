@@ -121,3 +121,24 @@ def test_a_frame_grown_dense_starts_from_the_last_frames_cells(real_data_dir):
     with pytest.raises(ValueError, match=r"frame 0 of the series: .* wider than any rod"):
         fit_series(stack[::-1], microscope, RenderSettings(), None, geometry="open",
                    max_iterations=1, irls_rounds=1, joint_iterations=1)  # fmt: skip
+
+
+def test_pooled_camera_finds_the_offset_a_recording_kept(real_data_dir):
+    # ColiCoords ds3 kept its camera offset (every pixel >= 1717 ADU): the joint fit's
+    # camera took the 100 ADU guess and predicted the noise 10x too wide (found as a
+    # user: reduced chi-square 0.22-0.25, the exported dataset 3x too noisy).
+    import tifffile
+
+    from napari_symbac.fit.series import _pooled_camera
+
+    stack = tifffile.imread(real_data_dir / "colicoords/test_data/ds3/flu.tif").astype(float)
+    camera = _pooled_camera(stack)
+    assert 1700 < camera.baseline_adu <= stack.min() + 50
+    # the noise it predicts on the darker half of the field against the frame-to-frame
+    # difference's (cells barely move between these frames)
+    mean = (stack[0] + stack[1]) / 2
+    dark = mean < np.quantile(mean, 0.5)
+    measured = np.var((stack[1] - stack[0])[dark]) / 2
+    gain = camera.sensitivity_adu_per_e
+    predicted = gain * (mean[dark].mean() - camera.baseline_adu) + (gain * camera.dark_noise_e) ** 2
+    assert 0.6 < predicted / measured < 1.5

@@ -36,6 +36,9 @@ __all__ = [
 
 #: Reduced chi-square above which the report says the model misses structure.
 CHI2_MISFIT = 2.0
+#: Reduced chi-square below which the report says the noise model is too wide (a fit's
+#: is 1 +- sqrt(2 / pixels) when the camera is right: 0.5 is far outside for any image).
+CHI2_NOISE_TOO_WIDE = 0.5
 #: Said of every phase-contrast fit of an open field (CLI report, GUI Auto-fit).
 OPEN_PHASE_NOTE = (
     "phase contrast is fitted here with the linear (weak-phase) kernel of eq. 7-14, "
@@ -207,6 +210,22 @@ def fit_problems(
     if worse and not any("worse than its start" in w for w in warnings):
         problems.append(
             f"the fit ended worse than its start (chi-square {before:.3g} -> {after:.3g})"
+        )
+    if math.isfinite(after) and after < CHI2_NOISE_TOO_WIDE:
+        # found as a user: a joint fit of ColiCoords ds3, which kept its camera offset
+        # (1717 ADU and up), took a 100 ADU baseline, 0.22-0.25, and said nothing
+        camera = getattr(result, "camera", None)
+        used = (
+            f" (baseline {camera.baseline_adu:.4g} ADU, {camera.sensitivity_adu_per_e:.3g} "
+            f"ADU/e-, read noise {camera.dark_noise_e:.3g} e-)"
+            if camera is not None
+            else ""
+        )
+        problems.append(
+            f"reduced chi-square {after:.3g} < {CHI2_NOISE_TOO_WIDE:g}: the camera noise "
+            f"the fit used{used} is wider than the image's, so the standard errors are too "
+            "large and a dataset rendered with this camera is too noisy; check the "
+            "camera's baseline (the level of no light) and gain"
         )
     if misfit:
         errors = getattr(result, "standard_errors", None) is not None
