@@ -14,6 +14,7 @@ __all__ = [
     "AXIS_LABELS",
     "NORMALISED_ADU_PER_UNIT",
     "NORMALISED_MAX_RANGE",
+    "SYMBAC_METADATA_KEY",
     "ChannelsError",
     "CountsMapping",
     "Recording",
@@ -35,6 +36,10 @@ NORMALISED_ADU_PER_UNIT = 10_000.0
 #: docks'). napari's own are ``-3, -2, -1``, and its frame slider read "-3" (found as a
 #: user, taken for the frame number).
 AXIS_LABELS = ("frame", "y", "x")
+#: Layer-metadata key under which rendered layers carry their settings (and, when the
+#: layer shows a whole simulation, the simulation): the widgets tell synthetic layers
+#: from recordings by it.
+SYMBAC_METADATA_KEY = "symbac"
 
 _TIFF_SUFFIXES = (".tif", ".tiff", ".ome.tif", ".ome.tiff")
 _PNG_SUFFIXES = (".png",)

@@ -201,6 +201,8 @@ def test_workflow_fits_a_laptop_screen(make_napari_viewer, qtbot):
     )
     qtbot.waitUntil(lambda: dock.width() < widest_form + 80, timeout=10_000)
     assert canvas.width() >= 1366 / 3
+    # every tab's title whole, without the tab bar's scroll arrows
+    assert workflow.tabBar().sizeHint().width() <= workflow.tabBar().width()
     # no step is wider than the dock: labels are not cut, no sideways scrolling
     for index in range(workflow.count()):
         workflow.setCurrentIndex(index)
@@ -349,3 +351,25 @@ def test_each_step_alone_fits_a_laptop_screen(make_napari_viewer, qtbot, name):
     )
     assert area.widget().minimumSizeHint().width() <= area.viewport().width()
     assert not area.horizontalScrollBar().isVisible()
+
+
+def test_samples_name_their_frames_and_are_not_taken_for_recordings(make_napari_viewer):
+    """Found as a user: the samples' frame slider read "-3", and with the three samples
+    open *Real image and classes* chose "synthetic trench" as the real image."""
+    from napari_symbac._widgets.export import ExportWidget
+    from napari_symbac._widgets.real_image import RealImageWidget
+    from napari_symbac._widgets.tune import TuneWidget
+
+    viewer = make_napari_viewer()
+    for sample in ("trench", "agar_pad", "colicoords"):
+        viewer.open_sample("napari-symbac", sample)
+    for name in ("synthetic trench", "synthetic agar pad labels"):
+        assert tuple(viewer.layers[name].axis_labels) == ("frame", "y", "x")
+    assert RealImageWidget(viewer).image.value.name == "ColiCoords fluorescence"
+    # the rendered trench is a layer Tune tunes; the agar pad (its last frames only) is not
+    tune = TuneWidget(viewer)
+    assert [layer.name for layer in tune.source.choices if layer is not None] == [
+        "synthetic trench"
+    ]
+    exportable = [layer.name for layer in ExportWidget(viewer).source.choices if layer]
+    assert exportable == ["synthetic trench", "synthetic agar pad"]

@@ -29,6 +29,7 @@ __all__ = [
     "AXIS_LABELS",
     "axis_labels",
     "check_recording_frame",
+    "followed_layer",
     "in_pixel_units",
     "is_recording",
     "layer_axes",
@@ -217,6 +218,17 @@ def no_recording_message(viewer: Any, then: str) -> str:
             return f"{layer.name} has no pixel size yet: enter it in {step}, then {then}"
         return f"{layer.name}: {problem}; correct it in {step}, then {then}"
     return f"No recording: open your image in {step} and set its pixel size, then {then}"
+
+
+def followed_layer(event: Any, choices: list) -> Any:
+    """The layer a :func:`watch_recordings` event is about when it is one of ``choices``:
+    one just added to the viewer, or one whose metadata was replaced (its pixel size
+    entered); else ``None``. The widgets choose it, so they work on the recording the
+    user opened last (found as a user: Calibrate kept a trench chosen after a colony PNG
+    was opened beside it, and refused the trench)."""
+    kind = getattr(event, "type", "")
+    layer = event.value if kind == "inserted" else event.source if kind == "metadata" else None
+    return next((c for c in choices if c is not None and c is layer), None)
 
 
 def watch_recordings(viewer: Any, refresh: Callable[..., None]) -> None:

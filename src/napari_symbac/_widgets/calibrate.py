@@ -22,6 +22,7 @@ from napari_symbac._widgets._forms import fill_height, hide_label, message_label
 from napari_symbac._widgets._jobs import Job, blocking_steps
 from napari_symbac._widgets._recording import (
     check_recording_frame,
+    followed_layer,
     in_pixel_units,
     is_recording,
     layer_axes,
@@ -156,7 +157,11 @@ class CalibrateWidget(Container):
         self.recording.reset_choices()
         self.masks.reset_choices()
         choices = [c for c in self.recording.choices if c is not None]
-        if self.recording.value is None and choices:
+        followed = followed_layer(event, choices)
+        if followed is not None and followed is not self.recording.value:
+            self.masks.value = None  # chosen for the recording before
+            self.recording.value = followed
+        elif self.recording.value is None and choices:
             ready = [c for c in choices if is_recording(c)]
             self.recording.value = (ready or choices)[-1]
         if getattr(event, "type", "") == "inserted":  # masks opened after the recording

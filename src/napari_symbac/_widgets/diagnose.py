@@ -22,6 +22,7 @@ from napari_symbac._widgets._forms import fill_height, hide_label, message_label
 from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
 from napari_symbac._widgets._recording import (
     check_recording_frame,
+    followed_layer,
     is_recording,
     modality_render,
     no_recording_message,
@@ -177,7 +178,10 @@ class DiagnoseWidget(Container):
     def _refresh_choices(self, _event=None) -> None:
         self.reference.reset_choices()
         choices = [c for c in self.reference.choices if c is not None]
-        if self.reference.value is None and choices:
+        followed = followed_layer(_event, choices)
+        if followed is not None:
+            self.reference.value = followed
+        elif self.reference.value is None and choices:
             self.reference.value = choices[-1]
 
     # -- input ----------------------------------------------------------------------------

@@ -17,6 +17,7 @@ from napari_symbac._widgets._forms import SettingsForm, hide_label, message_labe
 from napari_symbac._widgets._jobs import Job
 from napari_symbac._widgets._recording import (
     axis_labels,
+    followed_layer,
     in_pixel_units,
     layer_axes,
     modality_render,
@@ -24,6 +25,7 @@ from napari_symbac._widgets._recording import (
     recordings,
     watch_recordings,
 )
+from napari_symbac.io import SYMBAC_METADATA_KEY
 from napari_symbac.settings import PipelineSettings, SimulationSettings
 
 if TYPE_CHECKING:
@@ -43,8 +45,6 @@ PREVIEW_LAYER = "simulation preview"
 RESULT_IMAGE_LAYER = "synthetic"
 RESULT_LABELS_LAYER = "synthetic labels"
 RESULT_OPL_LAYER = "synthetic optical path length"
-#: Layer-metadata key under which rendered layers carry their simulation and settings.
-SYMBAC_METADATA_KEY = "symbac"
 #: Key, in a rendered layer's SyMBac metadata, of the name of the recording Auto-fit
 #: fitted the layer's settings to (absent until a fit).
 FITTED_TO_KEY = "fitted_to"
@@ -131,7 +131,10 @@ class SimulateWidget(Container):
         was set to fluorescence)."""
         self.recording.reset_choices()
         choices = [c for c in self.recording.choices if c is not None]
-        if self.recording.value is None and choices:
+        followed = followed_layer(_event, choices)
+        if followed is not None and followed is not self.recording.value:
+            self.recording.value = followed
+        elif self.recording.value is None and choices:
             self.recording.value = choices[-1]
         elif self.recording.value is not None and (
             _followed_key(self.recording.value) != self._followed

@@ -28,6 +28,7 @@ from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
 from napari_symbac._widgets._recording import (
     axis_labels,
     check_recording_frame,
+    followed_layer,
     is_recording,
     mask_layers,
     modality_render,
@@ -325,6 +326,7 @@ class TuneWidget(Container):
         self.match_noise.changed.connect(self._match_noise)
         viewer.dims.events.current_step.connect(self._on_step)
         watch_recordings(viewer, self._refresh_choices)
+        self._choose_reference()  # a dock opened after the recording (found as a user)
         self._load_source()
 
     # -- choices --------------------------------------------------------------------------
@@ -333,10 +335,21 @@ class TuneWidget(Container):
         return [
             layer
             for layer in self.viewer.layers
-            if SYMBAC_METADATA_KEY in layer.metadata
+            if "simulation" in (layer.metadata.get(SYMBAC_METADATA_KEY) or {})
             and layer.data.ndim == 3
             and not hasattr(layer, "selected_label")
         ]
+
+    def _choose_reference(self, event=None) -> None:
+        """The recording opened last (:func:`followed_layer`), else, with none chosen,
+        the newest one whose pixel size is set."""
+        recordings = [c for c in self.reference.choices if c is not None and is_recording(c)]
+        followed = followed_layer(event, recordings)
+        if followed is not None and followed is not self.reference.value:
+            self.masks.value = None  # chosen for the recording before
+            self.reference.value = followed
+        elif self.reference.value is None and recordings:
+            self.reference.value = recordings[-1]
 
     def _references(self, _widget=None) -> list:
         return real_images(self.viewer)
@@ -349,10 +362,7 @@ class TuneWidget(Container):
         self.source.reset_choices()
         self.reference.reset_choices()
         self.masks.reset_choices()
-        if self.reference.value is None:  # your recording, once its pixel size is set
-            recordings = [c for c in self.reference.choices if c is not None and is_recording(c)]
-            if recordings:
-                self.reference.value = recordings[-1]
+        self._choose_reference(_event)
         if getattr(_event, "type", "") == "inserted":  # masks opened after the recording
             self._choose_masks(only=_event.value)
         if self.source.value is not previous:

@@ -108,13 +108,16 @@ class WorkflowWidget(QTabWidget):
                 choice.value = layer
 
     def _fit_widest_step(self) -> None:
-        """Never narrower than the widest step: no sideways scrolling, no cut labels."""
+        """Never narrower than the widest step nor than the row of tabs: no sideways
+        scrolling, no cut labels, every tab's title whole (found as a user: at 1366 x 768
+        the last tab read "6 E" behind scroll arrows)."""
         widest = max(
             self.widget(i).widget().minimumSizeHint().width() for i in range(self.count())
         )
         scrollbar = self.style().pixelMetric(QStyle.PixelMetric.PM_ScrollBarExtent)
-        if self.minimumWidth() != widest + scrollbar + 16:
-            self.setMinimumWidth(widest + scrollbar + 16)
+        width = max(widest + scrollbar + 16, self.tabBar().sizeHint().width() + 4)
+        if self.minimumWidth() != width:
+            self.setMinimumWidth(width)
 
     def eventFilter(self, watched: QObject, event: QEvent) -> bool:
         """Follow a step that grows after a run (fit readouts, tables, reports)."""

@@ -1,0 +1,50 @@
+"""The step widgets follow the recording the user opened last."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("napari", reason="the [gui] extra (napari + Qt) is not installed")
+
+from napari_symbac._widgets._recording import layer_axes
+from napari_symbac._widgets.calibrate import CalibrateWidget
+from napari_symbac._widgets.diagnose import DiagnoseWidget
+from napari_symbac._widgets.simulate import SimulateWidget
+from napari_symbac._widgets.tune import TuneWidget
+
+
+def test_widgets_follow_the_recording_opened_last(make_napari_viewer):
+    """Found as a user: with a trench opened (0.065 um) and then a colony PNG (no pixel
+    size), Calibrate kept the trench chosen and refused it as a trench."""
+    viewer = make_napari_viewer()
+    rng = np.random.default_rng(0)
+    trench = viewer.add_image(
+        rng.uniform(900, 1100, (256, 46)).astype(np.uint16),
+        name="trench",
+        metadata={"pixel_size_um": 0.065, "modality": "phase"},
+        **layer_axes(0.065, 2),
+    )
+    masks = viewer.add_labels(np.zeros((256, 46), np.int32), name="trench masks")
+    masks.data[100:120, 20:26] = 1
+    calibrate, simulate = CalibrateWidget(viewer), SimulateWidget(viewer)
+    diagnose, tune = DiagnoseWidget(viewer), TuneWidget(viewer)
+    calibrate.masks.value = masks
+    for combo in (calibrate.recording, simulate.recording, diagnose.reference, tune.reference):
+        assert combo.value is trench
+    # a PNG without a pixel size: Calibrate (which takes a cell width instead) follows it
+    # at once, without the trench's masks; the others once its pixel size is entered
+    colony = viewer.add_image(rng.uniform(0, 255, (300, 300)).astype(np.uint8), name="colony")
+    assert calibrate.recording.value is colony
+    assert calibrate.masks.value is None
+    for combo in (simulate.recording, diagnose.reference, tune.reference):
+        assert combo.value is trench
+    colony.metadata = {"pixel_size_um": 0.07, "modality": "phase"}
+    for combo in (calibrate.recording, simulate.recording, diagnose.reference, tune.reference):
+        assert combo.value is colony
+    # a layer Simulate makes is no recording: nothing follows it
+    viewer.add_image(
+        np.zeros((2, 256, 46), np.uint16), name="synthetic", metadata={"symbac": {}}
+    )
+    for combo in (calibrate.recording, simulate.recording, diagnose.reference, tune.reference):
+        assert combo.value is colony
