@@ -540,6 +540,31 @@ def test_export_of_a_pipeline_file_takes_n_items(tmp_path, capsys):
     )
 
 
+def test_export_takes_formats_instead_of_the_configs(tmp_path, capsys):
+    """Found as a user: a fit's settings.yaml exports only its default formats, and
+    COCO or Omnipose needed a hand-written export file."""
+    from pycocotools.coco import COCO
+
+    from napari_symbac.settings import PipelineSettings, SimulationSettings, save_settings
+
+    pipeline = PipelineSettings(simulation=SimulationSettings(n_frames=4, seed=2))
+    config = save_settings(pipeline, tmp_path / "settings.yaml")
+    out = tmp_path / "ds"
+    args = ["export", "--config", str(config), "--n-items", "2", "--workers", "1"]
+    assert main([*args, "--out", str(out), "--formats", "coco, omnipose"]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["settings"]["formats"] == ["coco", "omnipose"]
+    assert COCO(str(out / "coco" / "annotations" / "instances_train.json")).getAnnIds()
+    assert not (out / "tiff").exists()
+    capsys.readouterr()
+    refused = tmp_path / "refused"
+    assert main([*args, "--out", str(refused), "--formats", "coco,cellprofiler"]) == 2
+    error = capsys.readouterr().err
+    assert "--formats 'coco,cellprofiler'" in error
+    assert "unknown format(s) cellprofiler; known formats: tiff, png" in error
+    assert not refused.exists()
+
+
 @pytest.mark.parametrize(
     "argv",
     [

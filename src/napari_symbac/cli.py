@@ -232,6 +232,11 @@ def _cmd_export(args: argparse.Namespace) -> int:
     settings = load_export_settings(args.config)
     if args.n_items is not None:
         settings = dataclasses.replace(settings, n_items=args.n_items)
+    if args.formats is not None:  # found as a user: a fit's settings had only its default
+        try:
+            settings = dataclasses.replace(settings, formats=args.formats)
+        except ValueError as err:
+            raise ValueError(f"--formats {args.formats!r}: {err}") from None
     out = _output_folder(args.out)
     backend = _backend(args)
     sim_frames = settings.pipeline.simulation.n_frames
@@ -847,6 +852,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--n-items",
         type=_at_least_one,
         help="images (or time series) to export, instead of the config's n_items",
+    )
+    export.add_argument(
+        "--formats",
+        help="comma-separated formats, instead of the config's: tiff, png, delta, omnipose, "
+        "stardist, coco, ome-zarr; ctc and trackmate for kind: timeseries",
     )
     export.add_argument(
         "--workers",
