@@ -201,6 +201,13 @@ def test_workflow_fits_a_laptop_screen(make_napari_viewer, qtbot):
     )
     qtbot.waitUntil(lambda: dock.width() < widest_form + 80, timeout=10_000)
     assert canvas.width() >= 1366 / 3
+    # the objective terms' three columns fit the table's width, no sideways scrolling
+    workflow.setCurrentIndex(TABS.index("3 Tune + fit"))
+    table = workflow.tune.terms_table.native
+    qtbot.waitUntil(lambda: table.viewport().width() > 0, timeout=10_000)
+    columns = sum(table.columnWidth(c) for c in range(table.columnCount()))
+    assert columns <= table.viewport().width()
+    assert not table.verticalHeader().isVisible()
     # every tab's title whole, without the tab bar's scroll arrows
     assert workflow.tabBar().sizeHint().width() <= workflow.tabBar().width()
     # no step is wider than the dock: labels are not cut, no sideways scrolling

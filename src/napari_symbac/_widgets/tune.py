@@ -273,6 +273,11 @@ class TuneWidget(Container):
         )
         self.terms_table = Table(name="terms", label="objective terms")
         self.terms_table.native.setMinimumWidth(0)  # scrolls inside; never widens the dock
+        # its three columns share the width (found as a user: at 1366 x 768 the "after"
+        # column was cut, behind a sideways scroll bar), no row numbers
+        header = self.terms_table.native.horizontalHeader()
+        header.setSectionResizeMode(header.ResizeMode.Stretch)
+        self.terms_table.native.verticalHeader().setVisible(False)
         self.terms_image = Image(
             name="terms_plot",
             label="before (grey) / after (orange)",
