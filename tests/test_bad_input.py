@@ -168,6 +168,47 @@ def test_export_scheduler_that_does_not_answer(tmp_path, export_config, monkeypa
     assert time.monotonic() - start < 60  # not the 30 s default per attempt, retried
 
 
+def test_export_scheduler_address_where_no_dask_server_listens(
+    tmp_path, export_config, monkeypatch, capsys
+):
+    """Found as a user: an HTTP server at the address (a dashboard's port) held export
+    for over 11 minutes, and an http:// address stalled 20 s before a traceback."""
+    import http.server
+    import threading
+
+    from napari_symbac.export import cluster
+
+    monkeypatch.setattr(cluster, "SCHEDULER_TIMEOUT_S", 2.0)
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), http.server.BaseHTTPRequestHandler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        address = f"tcp://127.0.0.1:{server.server_address[1]}"
+        out = tmp_path / "dataset"
+        start = time.monotonic()
+        code, err = _run(
+            ["export", "--config", str(export_config), "--out", str(out), "--scheduler", address],
+            capsys,
+        )
+        assert code == 2
+        assert f"no dask scheduler answered at {address} within 2 s" in err
+        assert "not its dashboard's" in err
+        assert "Traceback" not in err
+        assert not out.exists()
+        assert time.monotonic() - start < 60
+    finally:
+        server.shutdown()
+    start = time.monotonic()
+    code, err = _run(
+        ["export", "--config", str(export_config), "--out", str(out), "--scheduler",
+         "http://localhost:8786"],
+        capsys,
+    )  # fmt: skip
+    assert code == 2
+    assert "'http://localhost:8786' is not a dask address (unknown scheme 'http'" in err
+    assert time.monotonic() - start < 5
+    assert not out.exists()
+
+
 def test_export_scheduler_address_that_is_not_one(tmp_path, export_config, capsys):
     out = tmp_path / "dataset"
     code, err = _run(

@@ -157,16 +157,61 @@ def connect_scheduler(address: str, timeout_s: float | None = None) -> Any:
     level = quiet.level
     quiet.setLevel(logging.CRITICAL + 1)
     try:
+        _identify_scheduler(address, timeout_s)
         return Client(address, timeout=timeout_s, set_as_default=False)
     except (OSError, TimeoutError, ValueError) as err:
-        raise ExportError(
-            f"no dask scheduler answered at {address} within {timeout_s:g} s ({err}): start "
-            "one there (`dask scheduler` plus `dask worker ADDRESS`), check the address, or "
-            "leave out the scheduler to use local worker processes; nothing was written",
-            None,
-        ) from err
+        raise _no_scheduler(address, timeout_s, err) from err
     finally:
         quiet.setLevel(level)
+
+
+def _no_scheduler(address: str, timeout_s: float, why: object) -> ExportError:
+    return ExportError(
+        f"no dask scheduler answered at {address} within {timeout_s:g} s ({why}): start "
+        "one there (`dask scheduler` plus `dask worker ADDRESS`), check the address (the "
+        "scheduler's port, 8786 by default, not its dashboard's), or leave out the "
+        "scheduler to use local worker processes; nothing was written",
+        None,
+    )
+
+
+def _identify_scheduler(address: str, timeout_s: float) -> None:
+    """Ask ``address`` what it is (dask's ``identity`` call), all within ``timeout_s``.
+
+    A client handshakes without a limit on the answer, so a server that is not dask's
+    held it for good (found as a user: an HTTP server, such as the dashboard's port, hung
+    ``export`` for over 11 minutes; another answered bytes that dask read as a 3 EiB
+    frame, and a traceback followed). Any failure to get a scheduler's identity is an
+    :class:`ExportError` that says what answered.
+    """
+    import asyncio
+    import concurrent.futures
+
+    from distributed.core import rpc
+
+    async def ask() -> object:
+        remote = rpc(address, timeout=timeout_s)
+        try:
+            return await remote.identity()
+        finally:
+            await remote.close_rpc()
+
+    def run() -> object:  # its own event loop, in a thread: a notebook's loop may run here
+        return asyncio.run(asyncio.wait_for(ask(), timeout_s))
+
+    try:
+        with concurrent.futures.ThreadPoolExecutor(1) as pool:
+            identity = pool.submit(run).result()
+    except (OSError, TimeoutError, asyncio.TimeoutError) as err:
+        raise _no_scheduler(address, timeout_s, str(err) or "no answer") from err
+    except Exception as err:  # the bytes of a server that is not dask's
+        raise _no_scheduler(
+            address, timeout_s, f"something answered that is not dask: {type(err).__name__}"
+        ) from err
+    kind = identity.get("type") if isinstance(identity, dict) else None
+    if kind != "Scheduler":
+        answered = f"a dask {kind or 'server'} answered, not a scheduler"
+        raise _no_scheduler(address, timeout_s, answered)
 
 
 def _check_scheduler_address(address: object) -> None:
@@ -176,8 +221,12 @@ def _check_scheduler_address(address: object) -> None:
     example = "such as tcp://10.0.0.5:8786"
     if not isinstance(address, str) or not address.strip():
         raise ValueError(f"the scheduler address must be text {example}, got {address!r}")
+    from distributed.comm.registry import backends
+
     try:
         protocol, location = parse_address(address)
+        if protocol not in backends:  # found as a user: http:// stalled 20 s first
+            raise ValueError(f"unknown scheme {protocol!r}; dask's are {', '.join(backends)}")
         if protocol in ("tcp", "tls"):
             parse_host_port(location)
     except ValueError as err:
