@@ -111,6 +111,31 @@ def test_same_seed_same_bytes(demo_dirs):
     assert any(first[name] != other.get(name) for name in first)
 
 
+def test_render_refuses_fluorescence_with_dark_cells_as_export_does(tmp_path, capsys):
+    """Found as a user: a pipeline set to fluorescence kept phase-contrast intensities;
+    export refused it, render drew dark cells on a bright background and exited 0."""
+    import dataclasses
+
+    from napari_symbac.settings import Microscope, PipelineSettings, save_settings
+
+    assert main(["simulate", "--out", str(tmp_path / "sim"), "--frames", "2", "--seed", "1"]) == 0
+    pipeline = PipelineSettings(microscope=Microscope(modality="fluorescence"))
+    config = save_settings(pipeline, tmp_path / "pipeline.yaml")
+    capsys.readouterr()
+    out = tmp_path / "render"
+    assert main(["render", str(tmp_path / "sim"), "--config", str(config), "--out", str(out)]) == 2
+    error = capsys.readouterr().err
+    assert "fluorescence but its cells are not brighter than the medium" in error
+    assert "Traceback" not in error
+    assert not out.exists()
+    render = dataclasses.replace(pipeline.render, cell_intensity=3000.0, media_intensity=150.0)
+    bright = dataclasses.replace(pipeline, render=render)
+    config = save_settings(bright, tmp_path / "bright.yaml")
+    assert main(["render", str(tmp_path / "sim"), "--config", str(config), "--out", str(out)]) == 0
+    images, labels = (tifffile.imread(out / f"{name}.tif") for name in ("images", "labels"))
+    assert images[labels > 0].mean() > images[labels == 0].mean()
+
+
 def test_bad_config_is_one_clear_line(tmp_path, capsys):
     config = tmp_path / "sim.yaml"
     config.write_text("n_frames: 10\ncell_width_um: 3.0\n")

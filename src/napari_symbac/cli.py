@@ -187,15 +187,20 @@ def _cmd_render(args: argparse.Namespace) -> int:
     import dataclasses
 
     from napari_symbac.export.atomic import write_tiff
+    from napari_symbac.export.dataset import dark_fluorescence
     from napari_symbac.pipeline import render_simulation
     from napari_symbac.sim import load_simulation
 
-    out = _output_folder(args.out)
-    backend = _backend(args)
     timer = StepTimer()
     with timer.step("load"):
+        settings = _load_pipeline(args.config)
+        dark_cells = dark_fluorescence(settings)
+        if dark_cells is not None:  # found as a user: export refused it, render drew it
+            raise ValueError(f"--config {args.config}: {dark_cells}")
         simulation = load_simulation(args.simulation)
-        settings = dataclasses.replace(_load_pipeline(args.config), simulation=simulation.settings)
+        settings = dataclasses.replace(settings, simulation=simulation.settings)
+    out = _output_folder(args.out)
+    backend = _backend(args)
     update, bar = _tqdm_progress("render", len(simulation.frames))
     with timer.step(f"render ({backend})"):
         series = render_simulation(simulation, settings, progress=update, backend=backend)

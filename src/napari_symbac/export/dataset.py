@@ -184,6 +184,23 @@ def apply_params(pipeline: PipelineSettings, params: Mapping[str, Any]) -> Pipel
     )
 
 
+def dark_fluorescence(pipeline: PipelineSettings) -> str | None:
+    """Why a fluorescence pipeline with cells no brighter than the medium (phase-contrast
+    intensities) cannot be drawn, or ``None`` (``export`` and ``render`` refuse it)."""
+    render = pipeline.render
+    if pipeline.microscope.modality != "fluorescence" or (
+        render.cell_intensity > render.media_intensity
+    ):
+        return None
+    return (
+        "the pipeline is fluorescence but its cells are not brighter than the medium "
+        f"(render.cell_intensity={render.cell_intensity:g} <= media_intensity="
+        f"{render.media_intensity:g}, phase-contrast values?): a network trained on it "
+        "would look for dark cells. Set cell_intensity above media_intensity (e.g. "
+        "3000 and 150), or match them to a recording with `napari-symbac calibrate`"
+    )
+
+
 @dataclass(frozen=True)
 class ExportSettings:
     """A dataset to export: how many items, which formats, how they vary.
@@ -304,18 +321,9 @@ class ExportSettings:
                 f"ExportSettings.first_frame={self.first_frame!r} must be in [0, n_frames="
                 f"{n_frames}) of pipeline.simulation"
             )
-        render = self.pipeline.render
-        if (
-            self.pipeline.microscope.modality == "fluorescence"
-            and render.cell_intensity <= render.media_intensity
-        ):
-            _fail(
-                "the pipeline is fluorescence but its cells are not brighter than the medium "
-                f"(render.cell_intensity={render.cell_intensity:g} <= media_intensity="
-                f"{render.media_intensity:g}, phase-contrast values?): a network trained on it "
-                "would look for dark cells. Set cell_intensity above media_intensity (e.g. "
-                "3000 and 150), or match them to a recording with `napari-symbac calibrate`"
-            )
+        dark_cells = dark_fluorescence(self.pipeline)
+        if dark_cells is not None:
+            _fail(dark_cells)
         if self.visibility.action == "drop" and self.kind == "timeseries":
             _fail(
                 "ExportSettings.visibility.action='drop' removes faint cells frame by frame, "
