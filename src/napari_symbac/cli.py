@@ -397,6 +397,15 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                 f"--labels has shape {labels.shape}, the image frames {stack.shape[-2:]}: "
                 "paint one frame of the image's size"
             )
+        others = [] if labels is None else sorted(set(np.unique(labels).tolist()) - {0, 1, 2, 3})
+        if others:  # read over the whole file: a window may hold only ids 1-3 of the cells
+            raise ValueError(
+                f"--labels {Path(args.labels).name} holds values up to {max(others)}, not only "
+                "the classes 0 unpainted, 1 cell, 2 media, 3 device: it looks like an instance "
+                "mask (a number per cell), which diagnose does not take; paint rough classes "
+                "(napari's Real image and classes dock), or make them from the mask: 1 where "
+                "it is above 0, 2 on some of the background"
+            )
         frame_shape = stack.shape[-2:]
         if args.region is None:
             region = default_region(frame_shape)

@@ -350,3 +350,25 @@ def test_the_most_effects_the_command_accepts_is_the_diagnosis_default():
     from napari_symbac.diagnose import diagnose
 
     assert inspect.signature(diagnose).parameters["max_steps"].default == DIAGNOSE_MAX_EFFECTS
+
+
+def test_an_instance_mask_given_as_labels_is_refused_whatever_the_window(
+    tmp_path, capsys, real_data_dir
+):
+    """Found as a user: ColiCoords ds1's instance mask (ids 0-8) passed as --labels with
+    a window holding only cells 1 and 3 ran, cell 3 read as the device class, exit 0."""
+    ds1 = real_data_dir / "colicoords" / "test_data" / "ds1"
+    mic = tmp_path / "mic.yaml"
+    mic.write_text("pixel_size_um: 0.08\nmodality: fluorescence\nwavelength_um: 0.53\n")
+    out = tmp_path / "out"
+    args = [
+        "diagnose", str(ds1 / "fluorescence" / "00001.tif"), "--microscope", str(mic),
+        "--labels", str(ds1 / "binary" / "00001_Probabilities_filtered.tif"),
+        "--region", "95:146,250:420", "--out", str(out),
+    ]  # fmt: skip
+    assert main(args) == 2
+    error = capsys.readouterr().err
+    assert "holds values up to 8" in error
+    assert "it looks like an instance mask" in error
+    assert "Traceback" not in error
+    assert not out.exists()
