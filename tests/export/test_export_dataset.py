@@ -135,6 +135,35 @@ def test_real_frames_round_trip(frames_export):
     assert len(cell_intensities) == len(entries)  # every item draws its own
 
 
+@pytest.mark.parametrize(
+    ("kind", "formats"),
+    [
+        ("frames", ["tiff", "png", "delta", "omnipose", "stardist", "coco", "ome-zarr"]),
+        ("timeseries", ["ctc", "trackmate", "ome-zarr"]),
+    ],
+)
+def test_every_file_written_is_named_in_the_manifest(tmp_path, kind, formats):
+    """docs/export.md: every file of the dataset is named in the manifest (found as a
+    user: the OME-Zarr stores' .zattrs, .zgroup and .zarray were not, so a copy made
+    from the manifest could not be opened)."""
+    settings = _settings(n_items=3 if kind == "frames" else 2, kind=kind, formats=formats)
+    if kind == "timeseries":
+        settings = dataclasses.replace(settings, first_frame=0)
+    out = tmp_path / "ds"
+    assert export_dataset(settings, out, workers=1).complete
+    manifest = json.loads((out / "manifest.json").read_text())
+    named = {"manifest.json"} | {f for files in manifest["files"].values() for f in files}
+    for entry in manifest["items"]:
+        named |= {f for files in entry["files"].values() for f in files}
+    written = {
+        str(path.relative_to(out))
+        for path in out.rglob("*")
+        if path.is_file() and path.parent.name != "manifest_items"
+    }
+    assert written - named == set()
+    assert {f for f in named if not (out / f).is_file()} == set()
+
+
 def test_regenerate_is_bit_identical(frames_export):
     entry = json.loads((frames_export / "manifest_items" / "000003.json").read_text())
     item = regenerate(frames_export, "000003")

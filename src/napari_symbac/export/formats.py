@@ -346,8 +346,14 @@ class OmeZarrWriter(FormatWriter):
                 attrs["image-label"] = {"version": "0.4", "source": {"image": "../../"}}
             write_json(group / ".zattrs", attrs, indent=2)
             write_json(group / ".zgroup", {"zarr_format": 2}, indent=2)
+            written += [
+                relative(out_dir, p)
+                for p in (group / "0" / ".zarray", group / ".zattrs", group / ".zgroup")
+            ]
         write_json(root / "labels" / ".zgroup", {"zarr_format": 2}, indent=2)
         write_json(root / "labels" / ".zattrs", {"labels": ["cells", "semantic"]}, indent=2)
+        # the stores' metadata too: a copy made from the manifest opens (found as a user)
+        written += [relative(out_dir, root / "labels" / name) for name in (".zgroup", ".zattrs")]
         return written
 
 
