@@ -245,3 +245,21 @@ def test_a_kept_camera_offset_becomes_the_fits_baseline(real_data_dir):
     pairs = np.diff(frame, axis=1)[background[:, 1:] & background[:, :-1]]
     measured_sd = 1.4826 * np.median(np.abs(pairs - np.median(pairs))) / np.sqrt(2)
     assert predicted_sd == pytest.approx(measured_sd, rel=0.5)
+
+
+def test_summary_of_a_read_noise_too_small_to_measure():
+    """Found as a user: diagnose's camera line read "dark noise 0 +- nan e-"."""
+    import dataclasses
+    import math
+
+    estimate = estimate_camera(
+        apply_camera_noise(_smooth_signal(), Camera(), np.random.default_rng(3)), camera=Camera()
+    )
+    assert "+- nan" not in estimate.summary()
+    unmeasured = dataclasses.replace(
+        estimate,
+        camera=dataclasses.replace(estimate.camera, dark_noise_e=0.0),
+        dark_noise_se_e=math.nan,
+    )
+    assert "dark noise 0 e- (too small to measure from this image)" in unmeasured.summary()
+    assert "nan" not in unmeasured.summary()

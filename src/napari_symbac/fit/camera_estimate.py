@@ -175,11 +175,16 @@ class CameraEstimate:
     def summary(self) -> str:
         """One line for a report."""
         cam = self.camera
+        dark = (
+            f"{cam.dark_noise_e:.3g} +- {self.dark_noise_se_e:.2g} e-"
+            if math.isfinite(self.dark_noise_se_e)
+            # found as a user: "dark noise 0 +- nan e-" where the intercept sat at or below 0
+            else f"{cam.dark_noise_e:.3g} e- (too small to measure from this image)"
+        )
         text = (
             f"camera ({self.method}, {self.n_points} px): sensitivity "
             f"{cam.sensitivity_adu_per_e:.3g} +- {self.sensitivity_se_adu_per_e:.2g} ADU/e-, "
-            f"baseline {cam.baseline_adu:.1f} ADU ({self.offset_source}), dark noise "
-            f"{cam.dark_noise_e:.3g} +- {self.dark_noise_se_e:.2g} e-"
+            f"baseline {cam.baseline_adu:.1f} ADU ({self.offset_source}), dark noise {dark}"
         )
         if abs(self.neighbour_variance_ratio - 1) > _WHITE_TOLERANCE:
             text += (
