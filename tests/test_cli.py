@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import shlex
 import subprocess
 import sys
@@ -579,6 +580,13 @@ def test_export_takes_formats_instead_of_the_configs(tmp_path, capsys):
     assert main([*args, "--out", str(out), "--formats", "coco, omnipose"]) == 0
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["settings"]["formats"] == ["coco", "omnipose"]
+    assert "asked" not in capsys.readouterr().err  # --workers 1: as asked
+    # --workers 2: when fewer were used (a short export stays in this process), it is said
+    again = tmp_path / "again"
+    assert main([*args[:-2], "--workers", "2", "--out", str(again), "--formats", "tiff"]) == 0
+    said = capsys.readouterr()
+    used = int(re.search(r"with (\d+) worker\(s\)", said.out).group(1))
+    assert ("--workers 2 asked, 1 used" in said.err) == (used == 1)
     assert COCO(str(out / "coco" / "annotations" / "instances_train.json")).getAnnIds()
     assert not (out / "tiff").exists()
     capsys.readouterr()

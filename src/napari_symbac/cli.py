@@ -264,6 +264,13 @@ def _cmd_export(args: argparse.Namespace) -> int:
         )
     bar.close()
     print(report)
+    if args.workers is not None and report.workers < args.workers and not report.cancelled:
+        print(  # found as a user: --workers 2 ran with 1 and only the report's count said it
+            f"napari-symbac export: note: --workers {args.workers} asked, {report.workers} "
+            "used: an export this short finishes in this process before worker processes "
+            "would have started (docs/export.md)",
+            file=sys.stderr,
+        )
     _say_extra_stages(settings.pipeline)
     print(timer.report())
     return 0
