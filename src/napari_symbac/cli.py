@@ -434,6 +434,14 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                 )
         named = args.geometry or default_geometry(stack.shape, microscope.modality)
         geometry = "open" if named == "field" else named  # `fit`'s rule and words
+        if microscope.modality == "phase" and geometry == "open" and stack[0].size > 2 * 96**2:
+            print(  # found as a user: a colony's default window ran past 10 min, unannounced
+                f"note: a phase-contrast field of {stack[0].size:,} pixels takes tens of "
+                "minutes to diagnose on a few cores (a dense colony's 256 x 256 px window: "
+                "over 25 min; 96 x 96 px: under a minute; docs/diagnosis.md); --region "
+                "Y0:Y1,X0:X1 picks a smaller window",
+                file=sys.stderr,
+            )
     start = RenderSettings()
     if microscope.modality == "fluorescence":
         start = RenderSettings(cell_intensity=2000.0, media_intensity=200.0, device_intensity=200.0)

@@ -372,3 +372,16 @@ def test_an_instance_mask_given_as_labels_is_refused_whatever_the_window(
     assert "it looks like an instance mask" in error
     assert "Traceback" not in error
     assert not out.exists()
+
+
+def test_a_large_phase_field_is_announced_as_slow(tmp_path, capsys, real_data_dir):
+    """Found as a user: diagnose of an Omnipose colony's default 256 x 256 px window ran
+    past 10 minutes with nothing said up front; a 96 x 96 px window takes under one."""
+    mic = tmp_path / "mic.yaml"
+    mic.write_text("pixel_size_um: 0.118\nmodality: phase\n")
+    image = real_data_dir / "omnipose" / "Sample000033.png"
+    args = ["diagnose", str(image), "--microscope", str(mic)]
+    main([*args, "--out", str(tmp_path / "whole")])  # refused at its start (touching cells)
+    said = capsys.readouterr().err
+    assert "a phase-contrast field of 65,536 pixels takes tens of minutes" in said
+    assert "--region Y0:Y1,X0:X1 picks a smaller window" in said
