@@ -383,5 +383,5 @@ def test_a_large_phase_field_is_announced_as_slow(tmp_path, capsys, real_data_di
     args = ["diagnose", str(image), "--microscope", str(mic)]
     main([*args, "--out", str(tmp_path / "whole")])  # refused at its start (touching cells)
     said = capsys.readouterr().err
-    assert "a phase-contrast field of 65,536 pixels takes tens of minutes" in said
+    assert "a phase-contrast field of 65,339 pixels takes tens of minutes" in said
     assert "--region Y0:Y1,X0:X1 picks a smaller window" in said
