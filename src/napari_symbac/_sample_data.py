@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from napari_symbac.io import SYMBAC_METADATA_KEY, axis_labels, micrometre_axes
+from napari_symbac.io import SYMBAC_METADATA_KEY, layer_axes
 from napari_symbac.settings import PipelineSettings
 
 __all__ = ["colicoords_field", "synthetic_agar_pad", "synthetic_trench"]
@@ -18,12 +18,6 @@ SAMPLE_SEED = 2024
 #: many of the last ones are rendered.
 AGAR_PAD_FRAMES = 44
 AGAR_PAD_SHOWN = 3
-
-
-def _axes(pixel_size_um: float, ndim: int) -> dict[str, tuple]:
-    """Layer keyword arguments: micrometres, and the axes named as the reader names them
-    (found as a user: the samples' frame slider was labelled "-3")."""
-    return {**micrometre_axes(pixel_size_um, ndim), "axis_labels": axis_labels(ndim)}
 
 
 def synthetic_trench() -> list[tuple]:
@@ -45,7 +39,7 @@ def synthetic_trench() -> list[tuple]:
     )
     simulation = simulate(settings.simulation)
     series = render_simulation(simulation, settings)
-    axes = _axes(settings.microscope.pixel_size_um, 3)
+    axes = layer_axes(settings.microscope.pixel_size_um, 3)
     # a rendered layer as Simulate makes one: Tune tunes it, Export exports its settings
     rendered = {SYMBAC_METADATA_KEY: {"simulation": simulation, "settings": settings}}
     return [
@@ -87,7 +81,7 @@ def synthetic_agar_pad() -> list[tuple]:
         scene = draw_frame(simulation, settings, index)
         images.append(model.render(scene, rng, cache=False))
         labels.append(scene.camera_labels())
-    axes = _axes(settings.microscope.pixel_size_um, 3)
+    axes = layer_axes(settings.microscope.pixel_size_um, 3)
     # its settings for Export; no simulation, as the layer shows only its last frames
     rendered = {SYMBAC_METADATA_KEY: {"settings": settings}}
     return [
@@ -107,7 +101,7 @@ def colicoords_field() -> list[tuple]:
     brightfield = read_recording(folder / "colicoords_brightfield.tif")
     fluorescence = read_recording(folder / "colicoords_fluorescence.tif")
     masks = read_recording(folder / "colicoords_binary.tif")
-    axes = _axes(brightfield.pixel_size_um, 2)
+    axes = layer_axes(brightfield.pixel_size_um, 2)
     # the fluorescence first, with its modality: the Recording dock takes the first image
     # (found as a user: it took the brightfield and called it phase contrast with a Ph3
     # condenser); the brightfield is marked as such, for a user who chooses it

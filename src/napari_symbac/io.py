@@ -20,6 +20,7 @@ __all__ = [
     "Recording",
     "as_counts",
     "grey_channel",
+    "layer_axes",
     "napari_get_reader",
     "read_image",
     "read_recording",
@@ -510,6 +511,13 @@ def axis_labels(ndim: int) -> tuple[str, ...]:
     named by its position."""
     lead = tuple(f"axis {i}" for i in range(max(ndim - len(AXIS_LABELS), 0)))
     return lead + AXIS_LABELS[-min(ndim, len(AXIS_LABELS)) :]
+
+
+def layer_axes(pixel_size_um: float, ndim: int) -> dict[str, tuple]:
+    """Layer keyword arguments that place a ``(..., Y, X)`` layer in micrometres
+    (:func:`micrometre_axes`) with its axes named (:func:`axis_labels`, as the plugin's
+    reader names them)."""
+    return {**micrometre_axes(pixel_size_um, ndim), "axis_labels": axis_labels(ndim)}
 
 
 def napari_get_reader(path):

@@ -22,7 +22,7 @@ from collections.abc import Callable
 from typing import Any
 
 from napari_symbac.fit.preflight import check_pixel_size
-from napari_symbac.io import AXIS_LABELS, axis_labels, micrometre_axes
+from napari_symbac.io import AXIS_LABELS, axis_labels, layer_axes
 from napari_symbac.settings import Microscope, RenderSettings
 
 __all__ = [
@@ -55,13 +55,6 @@ _DEFAULT_INTENSITIES = {
         "device_intensity": 2300.0,
     },
 }
-
-
-def layer_axes(pixel_size_um: float, ndim: int) -> dict[str, tuple]:
-    """Layer keyword arguments that place a ``(..., Y, X)`` layer in micrometres
-    (:func:`~napari_symbac.io.micrometre_axes`) with its axes named
-    (:func:`~napari_symbac.io.axis_labels`, as the plugin's reader names them)."""
-    return {**micrometre_axes(pixel_size_um, ndim), "axis_labels": axis_labels(ndim)}
 
 
 def in_pixel_units(layer: Any) -> bool:

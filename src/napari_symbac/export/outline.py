@@ -25,7 +25,11 @@ from scipy import ndimage
 
 __all__ = [
     "border_ids",
-    "grow_masks", "level_matched_growth_px", "outline_level", "outline_offset_px"]
+    "grow_masks",
+    "level_matched_growth_px",
+    "outline_level",
+    "outline_offset_px",
+]
 
 
 def border_ids(labels: np.ndarray) -> np.ndarray:
