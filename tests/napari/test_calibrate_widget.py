@@ -143,3 +143,46 @@ def test_cancel_adds_nothing(make_napari_viewer, qtbot, real_data_dir):
     assert widget.status.value == "Calibration cancelled: nothing added"
     assert calibrated_layer_name("field") not in viewer.layers
     assert widget.run_button.enabled
+
+
+def test_a_cell_width_enters_the_pixel_size_for_every_layer(
+    make_napari_viewer, qtbot, real_data_dir, notifications
+):
+    """Found as a user: a PNG calibrated with a cell width stayed in pixels (no pixel size
+    entered) beside its calibrated layers in micrometres, and napari warned "Inconsistent
+    units across layers". The pixel size Calibrate derives is entered for the recording:
+    the recording, its masks and the calibrated layers in micrometres, and the Recording
+    form shows it."""
+    from napari_symbac._widgets.workflow import WorkflowWidget
+
+    viewer = make_napari_viewer()
+    dock = WorkflowWidget(viewer)
+    viewer.window.add_dock_widget(dock)
+    colony = real_data_dir / "omnipose" / "Sample000033.png"
+    dock.real_image.file.value = colony
+    recording = viewer.layers["Sample000033"]
+    masks = tifffile.imread(colony.with_name("Sample000033_cp_masks.tif")).astype(np.int32)
+    viewer.add_labels(masks, name="Sample000033 masks")
+    widget = dock.calibrate
+    assert widget.recording.value is recording
+    assert widget.masks.value is viewer.layers["Sample000033 masks"]
+    assert recording.metadata.get("pixel_size_um") is None
+    widget.cell_width_um.value = 1.0
+    widget.run_button.native.click()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=300_000)
+    name = calibrated_layer_name("Sample000033")
+    assert name in viewer.layers, widget.status.value
+    px = widget.calibration.settings.microscope.pixel_size_um
+    assert 0.08 < px < 0.2  # the colony's ~8-10 px wide cells at 1 um
+    assert recording.metadata["pixel_size_um"] == px
+    assert recording.metadata["microscope"].pixel_size_um == px
+    assert f"Pixel size {px:.4g} um (from the cell width) entered" in widget.status.value
+    for layer in (recording, viewer.layers["Sample000033 masks"], viewer.layers[name]):
+        assert tuple(layer.scale[-2:]) == pytest.approx((px, px)), layer.name
+        assert tuple(str(u) for u in layer.units[-2:]) == ("micrometer", "micrometer")
+    assert dock.real_image.pixel_size.value == pytest.approx(px, abs=1e-3)
+    assert dock.real_image.warning.visible is False
+    viewer.screenshot(canvas_only=True)  # napari compares the layers' units as it draws
+    assert not [m for m in notifications if "Inconsistent units" in m], notifications
+    # the later steps follow the recording, now that it has its pixel size
+    assert dock.simulate.recording.value is recording

@@ -34,6 +34,7 @@ from napari_symbac._widgets._recording import (
     shown_frame,
     watch_recordings,
 )
+from napari_symbac._widgets.real_image import enter_pixel_size
 from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
 from napari_symbac.calibrate import items_words
 from napari_symbac.fit.preflight import ModalityAdvice
@@ -71,6 +72,9 @@ class _Outcome:
     items: list
     comparison: Any
     pixel_note: str
+    #: The recording's microscope when its pixel size comes from a cell width and the
+    #: recording has none: the derived pixel size is entered for it; else ``None``.
+    enter_for: Any = None
 
 
 class CalibrateWidget(Container):
@@ -249,6 +253,8 @@ class CalibrateWidget(Container):
             self.status.value = f"Not calibrated: {err}"
             return
         cancelled = threading.Event()
+        has_pixel = pixel_size_problem(self.recording.value.metadata.get("pixel_size_um")) is None
+        enter_for = microscope if width is not None and not has_pixel else None
 
         def calibrate_and_draw(progress, cancel):
             from napari_symbac.calibrate import (
@@ -287,7 +293,7 @@ class CalibrateWidget(Container):
                 masks_given=masks is not None,
                 words=GUI_WORDS,
             )
-            return _Outcome(calibration, items, comparison, pixel_note)
+            return _Outcome(calibration, items, comparison, pixel_note, enter_for)
 
         def work():
             return (yield from blocking_steps(calibrate_and_draw, cancelled.is_set))
@@ -334,6 +340,14 @@ class CalibrateWidget(Container):
             if old in self.viewer.layers:
                 self.viewer.layers.remove(old)
         px = calibration.settings.microscope.pixel_size_um
+        entered = ""
+        if outcome.enter_for is not None:  # a cell width's pixel size, for every layer
+            enter_pixel_size(
+                self.viewer, recording, dataclasses.replace(outcome.enter_for, pixel_size_um=px)
+            )
+            entered = (
+                f" Pixel size {px:.4g} um (from the cell width) entered for '{recording.name}'."
+            )
         axes = {} if in_pixel_units(recording) else layer_axes(px, 2)
         self.viewer.add_image(
             outcome.items[0].image,
@@ -372,7 +386,7 @@ class CalibrateWidget(Container):
             f"{items_words(len(outcome.items))}: {matched} of {len(checks)} comparisons match "
             "(the report says which, and what to do). Layer "
             f"'{name}' holds the matched settings: Export writes the dataset from it (its "
-            "'settings from')."
+            f"'settings from').{entered}"
         )
 
     def _on_cancelled(self) -> None:

@@ -21,6 +21,7 @@ from napari_symbac._widgets._recording import (
     layer_axes,
     pixel_size_problem,
     scale_pixel_um,
+    watch_recordings,
 )
 from napari_symbac.fit import CLASS_VALUES, class_statistics
 from napari_symbac.fit.preflight import camera_pixel_problem
@@ -30,7 +31,7 @@ from napari_symbac.settings import Camera, Microscope
 if TYPE_CHECKING:
     import napari
 
-__all__ = ["CLASS_COLOURS", "RealImageWidget", "class_layer_name"]
+__all__ = ["CLASS_COLOURS", "RealImageWidget", "class_layer_name", "enter_pixel_size"]
 
 #: Colours of the painted classes (RGBA), shared by the layer and the legend.
 CLASS_COLOURS = {"cell": "#ff5a36", "media": "#2e9bff", "device": "#b0b0b0"}
@@ -147,6 +148,7 @@ class RealImageWidget(Container):
         viewer.layers.events.inserted.connect(self._follow_image_in_pixels)
         viewer.layers.events.inserted.connect(self.image.reset_choices)
         viewer.layers.events.removed.connect(self.image.reset_choices)
+        watch_recordings(viewer, self._show_entered)
         self.statistics = None
         self._loading = False
         self._load_layer()
@@ -257,6 +259,26 @@ class RealImageWidget(Container):
             self._loading = False
         self._store()
 
+    def _show_entered(self, event=None) -> None:
+        """Show a pixel size entered elsewhere for the layer shown (Calibrate's, derived
+        from a cell width), so that the form never holds another value than the layer."""
+        layer = self.image.value
+        if self._loading or getattr(event, "type", "") != "metadata" or event.source is not layer:
+            return
+        entered = layer.metadata.get("pixel_size_um")
+        if not entered or float(entered) == float(self.pixel_size.value):
+            return
+        self._loading = True  # shown, not stored again at the form's 4 decimals
+        try:
+            if isinstance(layer.metadata.get("microscope"), Microscope):
+                self.microscope.value = layer.metadata["microscope"]
+            self.pixel_size.value = float(entered)
+        finally:
+            self._loading = False
+        self.warning.value = ""
+        self.warning.visible = False
+        self._warned = None
+
     def _show_condenser(self, _value=None) -> None:
         """The phase condenser (annulus) is a phase-contrast setting: hidden for
         fluorescence, where it is not used."""
@@ -301,33 +323,6 @@ class RealImageWidget(Container):
             )
         # after what reading said (a normalised image read as counts)
         self.result.value = "<br>".join(filter(None, (self.result.value, said)))
-
-    def _overlays(self, recording) -> list:
-        """Layers that follow ``recording``'s placement: labels over its camera pixels (its
-        painted classes, a masks file opened beside it) and the colour original of its
-        grey channel, placed as it is or still in pixels (a masks file records no pixel
-        size). They take its pixel size with it, so they keep overlaying it when the
-        pixel size is entered or corrected, and napari's units agree across the layers
-        (mixed, napari warns and drops them). Another grey image of the same size is left
-        alone: it may come from another microscope."""
-        from napari.layers import Labels
-
-        source = recording.name.removesuffix(" grey")
-        placed = (tuple(recording.scale[-2:]), tuple(recording.units[-2:]))
-
-        def overlays(other) -> bool:
-            return isinstance(other, Labels) or (
-                getattr(other, "rgb", False) and other.name == source
-            )
-
-        return [
-            other
-            for other in self.viewer.layers
-            if other is not recording
-            and overlays(other)
-            and _camera_shape(other) == _camera_shape(recording)
-            and (_in_pixels(other) or (tuple(other.scale[-2:]), tuple(other.units[-2:])) == placed)
-        ]
 
     def _place_over_recording(self, event) -> None:
         """Labels added in pixels over a recording with a pixel size (masks opened from
@@ -443,17 +438,7 @@ class RealImageWidget(Container):
             if self.warning.value != getattr(self, "_warned", None):
                 notify_warning(f"{layer.name}: {slip}")
             self._warned = self.warning.value
-        layer.metadata = {
-            **layer.metadata,
-            "pixel_size_um": pixel,
-            "modality": microscope.modality,
-            "microscope": microscope,
-        }
-        for target in [layer, *self._overlays(layer)]:
-            _place_in_micrometres(target, pixel)
-        _move_simulation(self.viewer, to_micrometres=True)
-        if not any(_is_synthetic(other) for other in self.viewer.layers):
-            self.viewer.reset_view()
+        enter_pixel_size(self.viewer, layer, microscope)
 
     def paint(self) -> None:
         """Add (or select) the class-labels layer for the chosen image, ready to paint."""
@@ -506,6 +491,56 @@ class RealImageWidget(Container):
             f"{name}: mean {stat.mean:.1f}, sd {np.sqrt(stat.variance):.1f} ({stat.n_pixels} px)"
             for name, stat in self.statistics.items()
         )
+
+
+def enter_pixel_size(viewer, layer, microscope: Microscope) -> None:
+    """Give a recording its pixel size: ``microscope`` (whose ``pixel_size_um`` and
+    ``modality`` are the recording's) into its metadata, where every step reads them, and
+    the recording, the layers that overlay it and Simulate's layers into micrometres.
+
+    What entering the pixel size in *Real image and classes* does; Calibrate does it too
+    with the pixel size it derives from a cell width (found as a user: a PNG calibrated
+    that way stayed in pixels beside its synthetic layers in micrometres, and napari
+    warned "Inconsistent units across layers").
+    """
+    pixel = float(microscope.pixel_size_um)
+    layer.metadata = {
+        **layer.metadata,
+        "pixel_size_um": pixel,
+        "modality": microscope.modality,
+        "microscope": microscope,
+    }
+    for target in [layer, *_overlays(viewer, layer)]:
+        _place_in_micrometres(target, pixel)
+    _move_simulation(viewer, to_micrometres=True)
+    if not any(_is_synthetic(other) for other in viewer.layers):
+        viewer.reset_view()
+
+
+def _overlays(viewer, recording) -> list:
+    """Layers that follow ``recording``'s placement: labels over its camera pixels (its
+    painted classes, a masks file opened beside it) and the colour original of its
+    grey channel, placed as it is or still in pixels (a masks file records no pixel
+    size). They take its pixel size with it, so they keep overlaying it when the
+    pixel size is entered or corrected, and napari's units agree across the layers
+    (mixed, napari warns and drops them). Another grey image of the same size is left
+    alone: it may come from another microscope."""
+    from napari.layers import Labels
+
+    source = recording.name.removesuffix(" grey")
+    placed = (tuple(recording.scale[-2:]), tuple(recording.units[-2:]))
+
+    def overlays(other) -> bool:
+        return isinstance(other, Labels) or (getattr(other, "rgb", False) and other.name == source)
+
+    return [
+        other
+        for other in viewer.layers
+        if other is not recording
+        and overlays(other)
+        and _camera_shape(other) == _camera_shape(recording)
+        and (_in_pixels(other) or (tuple(other.scale[-2:]), tuple(other.units[-2:])) == placed)
+    ]
 
 
 def _is_synthetic(layer) -> bool:
