@@ -112,6 +112,41 @@ def test_same_seed_same_bytes(demo_dirs):
     assert any(first[name] != other.get(name) for name in first)
 
 
+def test_demo_again_with_other_settings_is_refused(demo_dirs, capsys):
+    """Found as a user: `demo --seed 3` into the README's seed-0 demo folder replaced
+    its settings, simulation and preview and kept the seed-0 dataset ("0 written, 40
+    already there"), exit 0. The folder is refused, untouched, naming what differs."""
+    folder = demo_dirs / "a"
+    before = _dataset_files(folder)
+    settings = (folder / "settings.yaml").read_text()
+    capsys.readouterr()
+    assert main(["demo", "--out", str(folder), "--frames", "8", "--seed", "7"]) == 2
+    error = capsys.readouterr().err
+    assert "holds a demo made with other settings (simulation.seed: 5 there, 7 here)" in error
+    assert "give another --out" in error
+    assert (folder / "settings.yaml").read_text() == settings
+    assert _dataset_files(folder) == before
+
+
+def test_a_reader_that_stops_reading_ends_the_command_quietly(tmp_path):
+    """Found as a user: `napari-symbac demo | head -3` ended with "error: Broken pipe:
+    the path given; check that the path is right", of a demo that had finished. It ends
+    as a shell's tools do when their reader goes: no message, status 141."""
+    out = tmp_path / "demo"
+    command = ["demo", "--out", str(out), "--frames", "2"]
+    code = f"import sys; from napari_symbac.cli import main; sys.exit(main({command!r}))"
+    process = subprocess.Popen(
+        [sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    process.stdout.close()  # the reader is gone before the report is printed
+    error = process.stderr.read().decode()
+    assert process.wait(timeout=300) == 141, error
+    assert "error" not in error, error
+    assert "Traceback" not in error, error
+    assert (out / "settings.yaml").is_file()
+    assert (out / "preview.png").is_file()
+
+
 def test_render_refuses_fluorescence_with_dark_cells_as_export_does(tmp_path, capsys):
     """Found as a user: a pipeline set to fluorescence kept phase-contrast intensities;
     export refused it, render drew dark cells on a bright background and exited 0."""
@@ -207,6 +242,20 @@ def test_defaults_never_replaces_an_edited_file(tmp_path, capsys):
     assert path.read_text() == edited
     assert main(["defaults", "microscope", "--out", str(path), "--force"]) == 0
     assert "pixel_size_um: 0.065" in path.read_text()
+
+
+@pytest.mark.parametrize(
+    "kind", ["export", "pipeline", "simulation", "microscope", "render", "camera"]
+)
+def test_defaults_again_on_an_untouched_file_is_harmless(tmp_path, kind):
+    """Found as a user: a second `defaults export --out export.yaml` (and pipeline,
+    simulation) called the untouched file "your edits": its empty lists read back from
+    YAML were compared with the defaults' empty tuples."""
+    path = tmp_path / f"{kind}.yaml"
+    assert main(["defaults", kind, "--out", str(path)]) == 0
+    written = path.read_text()
+    assert main(["defaults", kind, "--out", str(path)]) == 0
+    assert path.read_text() == written
 
 
 def test_fit_refusal_from_the_shell_is_a_message_not_a_traceback(tmp_path):

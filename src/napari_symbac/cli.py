@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import difflib
+import os
 import re
 import signal
 import sys
@@ -672,9 +673,21 @@ def _holds(path: str, data: dict) -> bool:
     if not Path(path).exists():
         return True
     try:
-        return read_settings_mapping(path) == data
+        held = read_settings_mapping(path)
     except (ValueError, OSError):
         return False
+    # the file's lists against the defaults' tuples as lists (found as a user: a second
+    # `defaults export --out export.yaml` called the untouched file "your edits")
+    return _as_lists(held) == _as_lists(data)
+
+
+def _as_lists(value: object) -> object:
+    """``value`` with every tuple a list, as YAML reads it back."""
+    if isinstance(value, dict):
+        return {key: _as_lists(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_as_lists(item) for item in value]
+    return value
 
 
 # --------------------------------------------------------------------------------------
@@ -1134,6 +1147,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with _terminate_as_interrupt():
             return args.func(args)
+    except BrokenPipeError as err:
+        if not _stdout_closed():  # another pipe than the reader of the output
+            print(f"napari-symbac {args.command}: error: {_one_line(err)}", file=sys.stderr)
+            return 2
+        return 141  # the reader stopped reading (`| head`), as a shell's tools end: quietly
     except (ValueError, TypeError, OSError, ExportError) as err:
         from napari_symbac.fit.start import FaintStartError, WideStartError
 
@@ -1147,6 +1165,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt as stop:
         print(f"napari-symbac {args.command}: {interrupted_text(args.command)}", file=sys.stderr)
         return 143 if isinstance(stop, Terminated) else 130
+
+
+def _stdout_closed() -> bool:
+    """Whether standard output is a pipe whose reader has gone; if so, it is pointed at
+    the null device so that Python's flush at exit does not fail again. Found as a user:
+    `napari-symbac demo | head -3` ended with "error: Broken pipe: the path given; check
+    that the path is right", of a demo that had finished."""
+    import select
+
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):  # replaced by an object without a file
+        return False
+    if hasattr(select, "poll"):  # a pipe whose reader has gone polls as an error
+        poll = select.poll()
+        poll.register(fd, select.POLLOUT)
+        if not any(events & select.POLLERR for _, events in poll.poll(0)):
+            return False
+    os.dup2(os.open(os.devnull, os.O_WRONLY), fd)
+    return True
 
 
 class Terminated(KeyboardInterrupt):

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from napari_symbac._timing import StepTimer
-from napari_symbac.settings import PipelineSettings, save_settings
+from napari_symbac.settings import PipelineSettings, save_settings, to_dict
 
 __all__ = ["DEMO_FORMATS", "run_demo"]
 
@@ -59,6 +59,7 @@ def run_demo(
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"the demo's output {out} is a file: give the path of a folder")
+    _check_earlier_demo(out, settings)
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     try:
@@ -67,6 +68,39 @@ def run_demo(
         if created:  # a failed first run (full disk, Ctrl-C) leaves nothing behind
             shutil.rmtree(out, ignore_errors=True)
         raise
+
+
+def _check_earlier_demo(out: Path, settings: PipelineSettings) -> None:
+    """Refuse a folder that holds a demo made with other settings.
+
+    Found as a user: `demo --out symbac-demo --seed 3` after the README's seed-0 demo
+    replaced the settings, simulation and preview with seed 3's and kept the seed-0
+    dataset ("0 written, 40 already there"), exit 0.
+
+    Raises
+    ------
+    ValueError
+        Naming the settings that differ and what to do.
+    """
+    import json
+
+    from napari_symbac.export.manifest import settings_differences
+    from napari_symbac.settings import read_settings_mapping, to_dict
+
+    earlier = out / "settings.yaml"
+    if not earlier.is_file():
+        return
+    try:
+        held = read_settings_mapping(earlier)
+    except (OSError, ValueError):
+        held = None
+    wanted = json.loads(json.dumps(to_dict(settings)))  # YAML's lists for the tuples
+    if held != wanted:
+        changed = settings_differences(held, wanted) if isinstance(held, dict) else "unreadable"
+        raise ValueError(
+            f"{out} holds a demo made with other settings ({changed}): give another --out, "
+            "or delete that folder first"
+        )
 
 
 def _run(
@@ -109,7 +143,11 @@ def _run(
         pixel_size_um=settings.microscope.pixel_size_um,
         frame_interval_min=settings.simulation.frame_interval_min,
     )
-    written = timed("write dataset", lambda: write_items(items, out / "dataset", DEMO_FORMATS))
+    header = {"settings": to_dict(settings)}  # a resumed dataset is checked against them
+    written = timed(
+        "write dataset",
+        lambda: write_items(items, out / "dataset", DEMO_FORMATS, header=header),
+    )
     preview = out / "preview.png"
     timed(
         "preview", lambda: iio.imwrite(preview, montage(series.images, series.labels, columns=20))

@@ -42,6 +42,7 @@ __all__ = [
     "finish_manifest",
     "finished_items",
     "read_entries",
+    "settings_differences",
     "write_item",
 ]
 
@@ -154,7 +155,7 @@ def check_dataset_folder(out_dir: str | os.PathLike) -> None:
         )
 
 
-def _differences(old: Any, new: Any, most: int = 3) -> str:
+def settings_differences(old: Any, new: Any, most: int = 3) -> str:
     """The settings that differ between two manifests' records, as "settings.n_items: 4
     there, 3 here" (at most ``most``, then how many more). Found as a user: `export
     --config calibrated/export_settings.yaml --out calibrated/dataset --n-items 3` said
@@ -211,9 +212,11 @@ def check_or_start_manifest(out_dir: Path, header: Mapping[str, Any]) -> dict[st
             # the settings hold the formats and kind too: said once
             same = old.get("settings") == document.get("settings")
             changed = (
-                _differences({k: old.get(k) for k in keys}, {k: document.get(k) for k in keys})
+                settings_differences(
+                    {k: old.get(k) for k in keys}, {k: document.get(k) for k in keys}
+                )
                 if same
-                else _differences(old.get("settings"), document.get("settings"))
+                else settings_differences(old.get("settings"), document.get("settings"))
             )
             raise ExportError(
                 f"{out_dir} already holds an export made with different settings or formats "
