@@ -780,6 +780,40 @@ def test_calibrate_masks_of_the_wrong_shape_named_as_fit_names_them(
     assert "--masks wrong.tif has shape (60, 32) but the image frame has shape (64, 32)" in err
 
 
+@pytest.mark.parametrize("command", ["fit", "calibrate"])
+def test_the_recording_given_as_its_masks_is_refused(tmp_path, fit_inputs, capsys, command):
+    """Found as a user: a fluorescence crop passed as its own --masks was fitted as 929
+    cells for over 5 min (fit) or refused after 100 s for masks that "cover the image"
+    (calibrate). Refused before any fit, naming what masks are."""
+    image, microscope = fit_inputs
+    out = tmp_path / "o"
+    code, err = _run([command, str(image), "--microscope", str(microscope), "--out", str(out),
+                      "--masks", str(image)], capsys)  # fmt: skip
+    assert code == 2
+    assert f"--masks {image.name} does not look like instance masks" in err
+    assert "separate patches" in err
+    assert "fitting frame" not in err  # refused before the fit began
+    assert not out.exists()
+
+
+def test_fit_scene_refuses_an_image_as_masks_and_takes_real_masks(real_data_dir):
+    """The API refuses as the commands do; the real instance masks here (Omnipose's,
+    ColiCoords') pass the check: one patch per id."""
+    from napari_symbac.fit import fit_scene
+    from napari_symbac.fit.preflight import refuse_image_as_masks
+    from napari_symbac.settings import Microscope, RenderSettings
+
+    image = tifffile.imread(real_data_dir / "colicoords/test_data/ds1/fluorescence/00001.tif")
+    crop = image[100:210, 100:360]
+    with pytest.raises(ValueError, match="does not look like instance masks"):
+        fit_scene(crop, Microscope(pixel_size_um=0.08, modality="fluorescence"),
+                  RenderSettings(), masks=crop)  # fmt: skip
+    for path in sorted((real_data_dir / "omnipose").glob("*_cp_masks.tif")):
+        refuse_image_as_masks(tifffile.imread(path), path.name)
+    masks = real_data_dir / "colicoords/test_data/ds1/binary/00001_Probabilities_filtered.tif"
+    refuse_image_as_masks(tifffile.imread(masks), masks.name)
+
+
 @pytest.mark.parametrize("command", ["calibrate", "diagnose"])
 def test_a_constant_image_names_the_file(tmp_path, fit_inputs, capsys, command):
     """Found as a user: diagnose said "real_image is constant", an internal name."""

@@ -356,6 +356,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from napari_symbac.fit.fitted_settings import fitted_or_kept
     from napari_symbac.fit.preflight import (
         check_fit_image,
+        check_modality,
         default_geometry,
         refuse_constant,
         resolve_pixel_size,
@@ -380,9 +381,11 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         config = load_microscope_file(args.microscope)
         for note in config.notes:
             print(f"note: {note}", file=sys.stderr)
+        # the modality as fit takes it: the flag, the file's own, the microscope file's
+        modality = args.modality or recording.modality or config.microscope.modality
         microscope, pixel_note = resolve_pixel_size(
             recording.pixel_size_um,
-            config.microscope,
+            dataclasses.replace(config.microscope, modality=modality),
             microscope_gives_it=microscope_sets_pixel_size(args.microscope),
         )
         if "disagrees" in pixel_note:
@@ -433,6 +436,9 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                     "another window, --region full the whole frame",
                     file=sys.stderr,
                 )
+        for frame in stack:  # what fit refuses, diagnose refuses too (found as a user: a
+            # fluorescence field diagnosed as phase ended in advice about wide cells)
+            check_modality(frame, microscope.modality, labels=labels)
         named = args.geometry or default_geometry(stack.shape, microscope.modality)
         geometry = "open" if named == "field" else named  # `fit`'s rule and words
         if microscope.modality == "phase" and geometry == "open" and stack[0].size > 2 * 96**2:
@@ -1068,6 +1074,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--microscope",
         required=True,
         help=MICROSCOPE_HELP,
+    )
+    diag.add_argument(
+        "--modality",
+        choices=["phase", "fluorescence", "brightfield"],
+        help="default: the TIFF's OME metadata, else the microscope file (as fit)",
     )
     diag.add_argument(
         "--geometry",

@@ -266,6 +266,30 @@ def test_a_colony_start_names_diagnoses_own_fix(tmp_path, capsys, real_data_dir)
     assert "instance masks" not in error
 
 
+def test_a_fluorescence_field_diagnosed_as_phase_is_refused_as_fit_refuses_it(
+    tmp_path, capsys, real_data_dir
+):
+    """Found as a user: a fluorescence crop diagnosed with a microscope file that names
+    no modality (phase) ran on to advice about cells wider than any rod; `fit` says the
+    image does not look like phase. diagnose now says so too, with --modality, which it
+    takes as fit does."""
+    image = real_data_dir / "colicoords" / "test_data" / "ds1" / "fluorescence" / "00001.tif"
+    error = _diagnose_refused(tmp_path, capsys, image, "pixel_size_um: 0.08\n")
+    assert "the image does not look like phase" in error
+    assert "Pass --modality fluorescence" in error
+    # --modality overrides the file: a window around one cell, phase in the file, passes
+    # the modality check as fluorescence and meets the fluorescence start's own refusal
+    mic = tmp_path / "mic.yaml"
+    args = ["diagnose", str(image), "--microscope", str(mic), "--region", "290:360,230:280",
+            "--out", str(tmp_path / "window")]  # fmt: skip
+    assert main(args) == 2
+    assert "the image does not look like phase" in capsys.readouterr().err
+    assert main([*args, "--modality", "fluorescence"]) == 2
+    error = capsys.readouterr().err
+    assert "does not look like" not in error
+    assert "no bright region stands 40 times" in error
+
+
 def test_a_crop_around_one_cell_asks_diagnose_for_painted_labels(tmp_path, capsys, real_data_dir):
     """ColiCoords' single-cell crop ``01``: diagnose takes no masks, so its words for a
     start that found no cell name the painted labels it does take."""

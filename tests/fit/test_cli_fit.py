@@ -688,6 +688,21 @@ def test_refuses_a_fluorescence_field_fitted_as_phase(tmp_path, real_data_dir, c
     assert "--modality fluorescence" in error
 
 
+def test_a_bright_field_image_refused_as_fluorescence_is_told_of_brightfield(
+    tmp_path, real_data_dir, capsys
+):
+    """Found as a user: ColiCoords' bright field fitted as fluorescence was refused with
+    "Pass --modality phase" only; bright field is a modality of its own."""
+    image = tmp_path / "bf.tif"
+    field = tifffile.imread(real_data_dir / "colicoords/test_data/ds1/brightfield/00001.tif")
+    tifffile.imwrite(image, field[80:240, 60:320])
+    microscope = save_settings(Microscope(pixel_size_um=0.08), tmp_path / "microscope.yaml")
+    error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope,
+                     "--modality", "fluorescence")  # fmt: skip
+    assert "does not look like fluorescence" in error
+    assert "Pass --modality phase, or brightfield for bright field" in error
+
+
 def test_refuses_a_fluorescence_trench_it_cannot_place(tmp_path, real_data_dir, capsys):
     """Found as a user: the Python API's words (``trench=TrenchPlacement(...)``) reached
     the command line; the CLI now says which flag to pass."""

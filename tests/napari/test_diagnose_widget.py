@@ -175,6 +175,27 @@ def test_a_normalised_recording_is_refused_as_the_fit_refuses_it(
     assert [layer.name for layer in viewer.layers] == ["delta"]
 
 
+def test_a_modality_the_image_contradicts_is_refused_as_the_fit_refuses_it(
+    make_napari_viewer, monkeypatch, real_data_dir
+):
+    """ColiCoords' fluorescence field marked phase: refused before any fit, naming the
+    modality to set and where (found as a user through the CLI, which ran on to advice
+    about wide cells)."""
+    import tifffile
+
+    monkeypatch.setattr("napari_symbac._widgets.diagnose.notify_warning", lambda message: None)
+    viewer = make_napari_viewer()
+    path = real_data_dir / "colicoords" / "test_data" / "ds1" / "fluorescence" / "00001.tif"
+    metadata = {"pixel_size_um": 0.08, "modality": "phase"}
+    viewer.add_image(tifffile.imread(path), name="field", metadata=metadata)
+    widget = DiagnoseWidget(viewer)
+    widget.run_button.clicked.emit()
+    assert widget.worker is None
+    assert "the image does not look like phase" in widget.status.value
+    assert "Set its modality to fluorescence in the 1 Recording tab" in widget.status.value
+    assert [layer.name for layer in viewer.layers] == ["field"]
+
+
 def test_error_in_the_worker_is_a_notification(diagnose_widget, qtbot, monkeypatch):
     shown = []
     monkeypatch.setattr(

@@ -21,12 +21,14 @@ import dataclasses
 from collections.abc import Callable
 from typing import Any
 
-from napari_symbac.fit.preflight import check_pixel_size
+from napari_symbac.fit.preflight import ModalityAdvice, check_pixel_size
 from napari_symbac.io import AXIS_LABELS, axis_labels, layer_axes
 from napari_symbac.settings import Microscope, RenderSettings
 
 __all__ = [
     "AXIS_LABELS",
+    "GUI_MODALITY_ADVICE",
+    "RECORDING_STEP",
     "axis_labels",
     "check_recording_frame",
     "followed_layer",
@@ -55,6 +57,16 @@ _DEFAULT_INTENSITIES = {
         "device_intensity": 2300.0,
     },
 }
+
+
+#: Where a recording is opened and its pixel size and modality entered, in the docks' words.
+RECORDING_STEP = "the 1 Recording tab (or the Real image and classes dock)"
+#: What to do when the recording's modality contradicts its image, in the docks' words
+#: (:func:`~napari_symbac.fit.preflight.check_modality`; the commands name --modality).
+GUI_MODALITY_ADVICE = ModalityAdvice(
+    switch=f"Set its modality to {{other}} in {RECORDING_STEP}",
+    paint="paint its cell and media classes there",
+)
 
 
 def in_pixel_units(layer: Any) -> bool:
@@ -195,7 +207,7 @@ def no_recording_message(viewer: Any, then: str) -> str:
 
     from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
 
-    step = "the 1 Recording tab (or the Real image and classes dock)"
+    step = RECORDING_STEP
     waiting = [
         layer
         for layer in viewer.layers

@@ -21,6 +21,8 @@ from magicgui.widgets import ComboBox, Container, FloatSpinBox, PushButton
 from napari_symbac._widgets._forms import fill_height, hide_label, message_label, report_box
 from napari_symbac._widgets._jobs import Job, blocking_steps
 from napari_symbac._widgets._recording import (
+    GUI_MODALITY_ADVICE,
+    RECORDING_STEP,
     check_recording_frame,
     followed_layer,
     in_pixel_units,
@@ -37,7 +39,6 @@ from napari_symbac._widgets._recording import (
 from napari_symbac._widgets.real_image import enter_pixel_size
 from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
 from napari_symbac.calibrate import items_words
-from napari_symbac.fit.preflight import ModalityAdvice
 
 if TYPE_CHECKING:
     import napari
@@ -49,13 +50,6 @@ __all__ = ["CALIBRATED_TO_KEY", "CALIBRATION_KEY", "CalibrateWidget", "calibrate
 CALIBRATION_KEY = "calibration"
 #: Metadata key of the recording a layer was calibrated to.
 CALIBRATED_TO_KEY = "calibrated_to"
-#: Where a recording has to be shown to calibrate it.
-STEP = "the 1 Recording tab (or the Real image and classes dock)"
-#: What to do when the recording's modality contradicts its image, in the dock's words.
-GUI_MODALITY_ADVICE = ModalityAdvice(
-    switch=f"Set its modality to {{other}} in {STEP}",
-    paint="paint its cell and media classes there",
-)
 
 
 def calibrated_layer_name(recording: str) -> str:
@@ -200,7 +194,9 @@ class CalibrateWidget(Container):
 
         layer = self.recording.value
         if layer is None:
-            raise ValueError(f"No recording: open your image in {STEP}, then choose it here")
+            raise ValueError(
+                f"No recording: open your image in {RECORDING_STEP}, then choose it here"
+            )
         frame = shown_frame(self.viewer, np.asarray(layer.data))
         if frame.ndim != 2:
             raise ValueError(f"{layer.name} must be one 2D frame or a (T, Y, X) series")
@@ -224,8 +220,8 @@ class CalibrateWidget(Container):
             note = f"from the masks' median width and a cell width of {width:g} um"
         elif problem is not None:
             raise ValueError(
-                f"{layer.name}: {problem} in {STEP}; or, with cell masks, give the cells' "
-                "width (um) here"
+                f"{layer.name}: {problem} in {RECORDING_STEP}; or, with cell masks, give the "
+                "cells' width (um) here"
             )
         else:
             microscope = recording_microscope(layer)

@@ -21,6 +21,7 @@ from magicgui.widgets import ComboBox, Container, LineEdit, PushButton, SpinBox
 from napari_symbac._widgets._forms import fill_height, hide_label, message_label, report_box
 from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
 from napari_symbac._widgets._recording import (
+    GUI_MODALITY_ADVICE,
     check_recording_frame,
     followed_layer,
     is_recording,
@@ -203,6 +204,7 @@ class DiagnoseWidget(Container):
             With what to do, when no recording is chosen or the window is not one.
         """
         from napari_symbac.diagnose.region import MAX_DIAGNOSIS_PIXELS, parse_region
+        from napari_symbac.fit.preflight import check_modality
         from napari_symbac.settings import RenderSettings
 
         layer = self.reference.value
@@ -235,6 +237,8 @@ class DiagnoseWidget(Container):
             labels = labels[y0:y1, x0:x1]
             if not labels.any():
                 labels = None
+        # what the fit refuses (as the CLI): a modality the image contradicts
+        check_modality(frame, microscope.modality, labels=labels, advice=GUI_MODALITY_ADVICE)
         means = layer.metadata.get("class_means_adu")
         if means or microscope.modality == "fluorescence":
             render = modality_render(RenderSettings(), microscope.modality, means)

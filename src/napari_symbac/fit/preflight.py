@@ -32,6 +32,7 @@ __all__ = [
     "default_geometry",
     "image_polarity",
     "refuse_constant",
+    "refuse_image_as_masks",
     "resolve_pixel_size",
 ]
 
@@ -217,14 +218,16 @@ def check_modality(
         )
     expected = "bright cells" if modality == "fluorescence" else "dark cells"
     if polarity not in ("unclear", expected):
-        other = "phase" if modality == "fluorescence" else "fluorescence"
+        switch = advice.switch.format(other="fluorescence")
+        if modality == "fluorescence":  # dark cells: phase contrast or bright field
+            switch = advice.switch.format(other="phase") + ", or brightfield for bright field"
         word = "brighter" if polarity == "bright cells" else "darker"
         if labels is None and masks is None:
             word = "bright" if polarity == "bright cells" else "dark"
         raise ValueError(
             f"the image does not look like {modality}: {evidence.format(word)}. "
-            f"{advice.switch.format(other=other)} (or, if it really is {modality}, "
-            f"{advice.paint} so the cells and media settle it)"
+            f"{switch} (or, if it really is {modality}, {advice.paint} so the cells and "
+            "media settle it)"
         )
     return polarity
 
@@ -294,8 +297,45 @@ def check_instance_masks(masks: np.ndarray, shape: tuple[int, ...], name: str = 
         raise ValueError(f"{name} has negative ids: cell ids must be >= 1, background 0")
     if not (masks > 0).any():
         raise ValueError(f"{name} holds no cell (all 0): pass masks with cells in them")
+    refuse_image_as_masks(masks, name)  # before "no background": what an image lacks too
     if (masks > 0).all():
         raise ValueError(f"{name} has no background (0) pixel: the fit needs some background")
+
+
+#: Patches of one value per id above which "masks" are taken for an image: a segmenter's
+#: masks hold one patch per cell (the real ones here: exactly one), an intensity image's
+#: values are scattered (ColiCoords' fluorescence crop: 30 patches per value, the SyMBac
+#: trench 3.2).
+MAX_PATCHES_PER_ID = 2.0
+
+
+def refuse_image_as_masks(masks: np.ndarray, name: str = "masks") -> None:
+    """Refuse an intensity image given as instance masks (found as a user: a
+    fluorescence crop passed to ``fit --masks`` was fitted as 929 cells for over 5 min;
+    ``calibrate`` said after 100 s that "the masks cover the image").
+
+    A binary mask (ids 0 and 1, its connected regions the cells) is taken as it is.
+
+    Raises
+    ------
+    ValueError
+        When the ids form more than :data:`MAX_PATCHES_PER_ID` separate patches each (and
+        more than 10 patches in all).
+    """
+    from skimage import measure
+
+    ids = np.unique(masks)
+    n_ids = int(np.count_nonzero(ids))
+    if n_ids <= 1:
+        return
+    n_patches = int(measure.label(masks, background=0, connectivity=2).max())
+    if n_patches > max(MAX_PATCHES_PER_ID * n_ids, 10):
+        raise ValueError(
+            f"{name} does not look like instance masks: its {n_ids} values lie in "
+            f"{n_patches} separate patches (a cell's id fills one patch), as an image's grey "
+            "levels do. Give the masks file (0 background, each cell its own id 1..N, e.g. "
+            "a segmenter's label image), not the recording"
+        )
 
 
 #: Frames at most this wide (pixels) are taken for a mother-machine trench...

@@ -47,6 +47,7 @@ from napari_symbac.fit.noise import expected_level, variance
 from napari_symbac.fit.objectives import objective_terms
 from napari_symbac.fit.parameters import DEFAULT_FIT, _Budget, _variance, parameter_bounds
 from napari_symbac.fit.placement import TrenchPlacement
+from napari_symbac.fit.preflight import refuse_image_as_masks
 from napari_symbac.fit.problem import Problem
 from napari_symbac.fit.start import _pixel_noise, otsu_cells, polarity_of, start_scene
 from napari_symbac.scene import Scene
@@ -457,6 +458,8 @@ def fit_scene(
     -------
     SceneFit
     """
+    if masks is not None:  # an image given as masks: refused before minutes of fit
+        refuse_image_as_masks(np.asarray(masks))
     return _frame_result(
         _run_frame(
             real_image,
