@@ -156,3 +156,31 @@ def test_a_start_wider_than_any_rod_is_refused_unless_cells_are_given(real_data_
         start_scene(crop, microscope, geometry="open", labels=strokes)
     _, widths, _, _ = start_scene(crop, microscope, geometry="open", refuse_wide=False)
     assert np.mean(widths > MAX_START_WIDTH_UM) >= 0.25
+
+
+@pytest.mark.slow
+def test_bright_field_cells_turn_past_horizontal_and_round_cells_report_as_drawn(
+    real_data_dir,
+):
+    """ColiCoords ds2 bright field 00066 (MIT), 384 x 384 px with its masks. Found as a
+    user: cells the moves added were turned to the angle's bound (+-1.6 rad then) and
+    reported "at a bound"; a length fitted below the cell's width was reported as such
+    (0.928 um +- 4e-11) while cells.json gave the width it is drawn at. Now the angles
+    wrap (no angle at a bound, all in [-pi/2, pi/2)), and the parameters hold the
+    lengths as drawn, a round cell's with no standard error and named at its bound."""
+    ds2 = real_data_dir / "colicoords" / "test_data" / "ds2"
+    window = np.s_[128:512, 128:512]
+    image = tifffile.imread(ds2 / "brightfield" / "00066.tif")[window]
+    masks = tifffile.imread(ds2 / "binary" / "00066_Probabilities_filtered.tif")[window]
+    microscope = Microscope(pixel_size_um=0.08, modality="brightfield", wavelength_um=0.65)
+    fit = fit_scene(image, microscope, RenderSettings(), geometry="open", masks=masks)
+    assert not [name for name in fit.at_bounds if name.endswith("angle_rad")], fit.at_bounds
+    angles = np.asarray(fit.cells.angle_rad)
+    assert np.all((angles >= -np.pi / 2) & (angles < np.pi / 2))
+    names = list(fit.parameter_names)
+    for k, cell_id in enumerate(fit.cells.ids):
+        i = names.index(f"cell{int(cell_id)}.length_um")
+        assert fit.parameters[i] == pytest.approx(fit.cells.length_um[k])
+        round_cell = fit.cells.length_um[k] <= fit.cells.width_um[k]
+        assert np.isnan(fit.standard_errors[i]) == round_cell
+        assert (f"cell{int(cell_id)}.length_um" in fit.at_bounds) == round_cell

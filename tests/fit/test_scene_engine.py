@@ -400,3 +400,62 @@ def test_a_cell_that_changes_no_pixel_is_pruned_after_the_last_round(truth):
     assert problem.n_cells(pruned.x) == 3
     assert log == [f"removed cell at ({parked[0]:.2f}, {parked[1]:.2f}) um"]
     np.testing.assert_array_equal(problem.blocks(pruned.x)[0], blocks)
+
+
+def test_a_rod_turned_by_pi_and_bent_the_other_way_is_drawn_the_same():
+    """Layout.wrap_angles brings every angle into [-pi/2, pi/2) and flips the curvature
+    with each half turn; the scene drawn from the wrapped parameters is the same."""
+    from napari_symbac.fit.placement import draw_fitted
+    from napari_symbac.settings import Microscope
+    from napari_symbac.sim import FrameCells
+
+    layout = Layout(n=3, fit_curvature=True, per_cell_width=False, trench=False,
+                    fit_top=False, optics=())  # fmt: skip
+    x = np.zeros(layout.size)
+    blocks = x[: 3 * layout.per_cell].reshape(3, layout.per_cell)
+    blocks[:] = [[2.0, 2.0, 1.7, 2.5, 0.3], [4.5, 3.0, -2.9, 3.0, -0.2], [3.0, 5.0, 0.4, 2.0, 0.1]]
+    wrapped = layout.wrap_angles(x.copy())
+    angles = wrapped[2 : 3 * layout.per_cell : layout.per_cell]
+    assert np.all((angles >= -np.pi / 2) & (angles < np.pi / 2))
+    np.testing.assert_allclose(angles, [1.7 - np.pi, -2.9 + np.pi, 0.4])
+    bends = wrapped[4 : 3 * layout.per_cell : layout.per_cell]
+    np.testing.assert_allclose(bends, [-0.3, 0.2, 0.1])
+    microscope = Microscope(pixel_size_um=0.065)
+
+    def drawn(v):
+        b = v[: 3 * layout.per_cell].reshape(3, layout.per_cell)
+        cells = FrameCells(np.arange(1, 4), b[:, 0], b[:, 1], b[:, 2], b[:, 3], np.full(3, 1.0))
+        curvature = {i + 1: (float(b[i, 4]), 1.0, 0.0) for i in range(3)}
+        scene = draw_fitted(cells, None, (110, 110), microscope, RenderSettings(), 1.2, curvature)
+        return np.asarray(scene.cells)
+
+    np.testing.assert_array_equal(drawn(wrapped), drawn(x))
+
+
+def test_horizontal_cells_are_fitted_across_the_angle_wrap():
+    """Found as a user: ordinary horizontal rods were reported "at a bound" at 1.6 rad (the
+    angle's bound then); a cell just past horizontal could not reach its angle. Cells at
+    +-(pi/2 - 0.05) and pi/2 + 0.05 are fitted to their angles (modulo pi), none at a
+    bound."""
+    from _fit_synthetic import FLUO_TRUTH, make_cells
+
+    from napari_symbac.optics import ForwardModel
+    from napari_symbac.scene import Field, draw_scene
+    from napari_symbac.settings import Microscope, TrenchGeometry
+
+    microscope = Microscope(pixel_size_um=0.08, modality="fluorescence")
+    truth = make_cells(y_um=[1.6, 4.0, 6.4], x_um=[3.8, 3.8, 3.8],
+                       angle_rad=[np.pi / 2 - 0.05, -np.pi / 2 + 0.05, np.pi / 2 + 0.05],
+                       length_um=[3.0, 2.6, 2.8], width_um=0.9)  # fmt: skip
+    scene = draw_scene(truth, TrenchGeometry(), microscope, FLUO_TRUTH, field=Field(7.68, 7.68))
+    image = ForwardModel(microscope, FLUO_TRUTH, Camera()).render(
+        scene, np.random.default_rng(3)
+    )
+    fit = fit_scene(image, microscope, RenderSettings(defocus_sigma_um=0.0), None,
+                    geometry="open")  # fmt: skip
+    assert len(fit.cells) == 3
+    assert not [name for name in fit.at_bounds if name.endswith("angle_rad")], fit.at_bounds
+    got = np.asarray(fit.cells.angle_rad)[np.argsort(fit.cells.y_um)]
+    assert np.all((got >= -np.pi / 2) & (got < np.pi / 2))
+    turn = (got - np.asarray(truth.angle_rad) + np.pi / 2) % np.pi - np.pi / 2
+    np.testing.assert_allclose(turn, 0.0, atol=0.03)

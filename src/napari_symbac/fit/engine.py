@@ -187,6 +187,20 @@ class Layout:
         """Index of the cell that parameter ``k`` belongs to, -1 for a shared one."""
         return k // self.per_cell if k < self.n * self.per_cell else -1
 
+    def wrap_angles(self, x: np.ndarray) -> np.ndarray:
+        """Each cell's angle into ``[-pi/2, pi/2)`` in place, its curvature's sign
+        flipped with each half turn: a rod turned by pi and bent the other way is the same
+        rod, drawn identically (tested). The angle's bounds are then no limit of the
+        fit (found as a user: horizontal cells were reported "at a bound" at 1.6 rad)."""
+        if self.n == 0:
+            return x
+        block = x[: self.n * self.per_cell].reshape(self.n, self.per_cell)
+        turns = np.floor((block[:, 2] + np.pi / 2) / np.pi)
+        block[:, 2] -= turns * np.pi
+        if self.fit_curvature:
+            block[:, 4] *= 1.0 - 2.0 * (turns % 2)
+        return x
+
     def with_cells(self, n: int) -> Layout:
         return dataclasses.replace(self, n=n)
 

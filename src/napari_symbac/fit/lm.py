@@ -131,6 +131,7 @@ def levenberg_marquardt(
     def trial_from(start: State, delta: np.ndarray) -> tuple[State, float]:
         trial_x = start.x.copy()
         trial_x[idx] = np.clip(start.x[idx] + delta[:m] * scales[idx], lower[idx], upper[idx])
+        model.layout.wrap_angles(trial_x)  # the same rods: the angles stay in [-pi/2, pi/2)
         trial = evaluate(model, trial_x, y, w, prior_sd)
         return trial, trial.cost
 

@@ -593,8 +593,11 @@ def _run_frame(
         illumination=illumination_order,
     )
     width_um, height_um = shape[1] * px, shape[0] * px
-    cell_lower = [-2.0, -3.0, -1.6, 0.3] + [-0.5] * fit_curvature + [-1.0] * (width_sd_um > 0)
-    cell_upper = [width_um + 2, height_um + 3, 1.6, 12.0]
+    # angles are wrapped into [-pi/2, pi/2) after each step (Layout.wrap_angles): +-pi
+    # only bounds one step
+    cell_lower = [-2.0, -3.0, -math.pi, 0.3] + [-0.5] * fit_curvature
+    cell_lower += [-1.0] * (width_sd_um > 0)
+    cell_upper = [width_um + 2, height_um + 3, math.pi, 12.0]
     cell_upper += [0.5] * fit_curvature + [1.0] * (width_sd_um > 0)
     cell_sd = [math.inf] * 4 + [curvature_sd_um] * fit_curvature
     cell_sd += [width_sd_um] * (width_sd_um > 0)
@@ -884,6 +887,13 @@ def _frame_result(run: _FrameRun) -> SceneFit:
     )
     if at_bounds:
         warnings.append(f"at a bound: {', '.join(at_bounds)}")
+    values, se, round_cells = _round_cells(model.layout, names, values, se, cells.length_um)
+    if round_cells:
+        warnings.append(
+            f"at a bound: {', '.join(round_cells)} no longer than wide, at the cell's width "
+            "(a round cell, or one cut by the image's edge: its length is not measured)"
+        )
+        at_bounds = (*at_bounds, *(name for name in round_cells if name not in at_bounds))
     if chi_after > chi_before:
         warnings.append(
             f"the fit is worse than its start (reduced chi-square {chi_after:.3g} > "
@@ -988,6 +998,36 @@ def _baseline_guess(real: np.ndarray, valid: np.ndarray) -> float:
     """Camera offset of an unknown camera: 100 ADU, or the 0.1 % quantile when lower."""
     low = float(np.quantile(real[valid], 0.001))
     return float(min(Camera().baseline_adu, max(low, 0.0)))
+
+
+def _round_cells(
+    layout: Layout,
+    names: tuple[str, ...],
+    values: np.ndarray,
+    se: np.ndarray,
+    drawn_length_um: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Lengths fitted below their cell's width, given as drawn.
+
+    A cell is drawn at least as long as it is wide (a capsule's caps), so a length
+    parameter below the width changes nothing in the image: its value is not measured
+    (found as a user: report.txt gave ``cell7.length_um: 0.928 +- 4e-11`` for a round
+    cell and cells.json 1.172 um, the width). Such a length is reported as drawn, with an
+    unknown (NaN) standard error, and named.
+
+    Returns
+    -------
+    values, se, names
+        Copies with those lengths replaced, and their parameter names.
+    """
+    values, se = np.array(values, float), np.array(se, float)
+    names_found = []
+    for k, drawn in enumerate(np.asarray(drawn_length_um, float)):
+        i = k * layout.per_cell + layout.cell_names.index("length_um")
+        if values[i] < drawn:
+            values[i], se[i] = drawn, math.nan
+            names_found.append(names[i])
+    return values, se, names_found
 
 
 def _uncertainty(
