@@ -370,6 +370,22 @@ def _model_options(args, modality: str) -> dict[str, Any]:
     return options
 
 
+def _trench_as_field(named: str, shape: tuple[int, ...], microscope) -> str | None:
+    """A phase or bright-field frame shaped like a trench but fitted as a field, said
+    (found as a user: DeLTA's 256 x 32 px trench with --geometry field ended with 2 rods
+    laid along its walls, exit 0, and no word of the geometry)."""
+    from napari_symbac.fit.preflight import default_geometry
+
+    if named != "field" or default_geometry(shape, microscope.modality) != "trench":
+        return None
+    return (
+        f"the image is {shape[0]} x {shape[1]} px, narrow and tall as a mother-machine "
+        "trench, and was fitted as an open field (--geometry field): its walls and PDMS "
+        "are taken for cells and media there; leave --geometry out (or pass --geometry "
+        "trench) to fit the trench"
+    )
+
+
 def _prepare_one(args, frame, labels, masks, microscope, base, keys):
     """Check one frame and its labels/masks; choose its camera and fit options."""
     from napari_symbac.fit import fit_scene
@@ -552,6 +568,7 @@ def _outputs_one(
     )
     problems += [p] if (p := camera_pixel_problem(microscope)) else []
     problems += [p] if (p := lens_problem(result.render, microscope)) else []
+    problems += [p] if (p := _trench_as_field(args.geometry, frame.shape, microscope)) else []
     if prepared.colony:
         facts["start"] = "instance masks (the cells as given; the optics fitted to them)"
         facts["camera"] = (

@@ -449,6 +449,16 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                 "Y0:Y1,X0:X1 picks a smaller window",
                 file=sys.stderr,
             )
+        elif stack.size > 256**2:  # found as a user: 4 frames of 512 x 512 px, 9 min for
+            # 2 of 11 checks, nothing said
+            print(
+                f"note: diagnosing {stack.size:,} pixels ({len(stack)} x {stack.shape[1]} x "
+                f"{stack.shape[2]}) takes long: its time grows faster than its pixels (a "
+                "256 x 256 px fluorescence window: about 3 min on 2 cores; the whole 512 x "
+                "512 px field: over 12 min; docs/diagnosis.md); --region Y0:Y1,X0:X1 picks a "
+                "smaller window",
+                file=sys.stderr,
+            )
     start = RenderSettings()
     if microscope.modality == "fluorescence":
         start = RenderSettings(cell_intensity=2000.0, media_intensity=200.0, device_intensity=200.0)

@@ -391,6 +391,39 @@ def test_a_normalised_trench_is_read_as_counts_and_exports_phase_contrast(
     assert np.median(cells) < np.percentile(rest, 90) - 1000
 
 
+def test_a_trench_fitted_as_a_field_is_said(tmp_path, real_data_dir, capsys):
+    """Found as a user: DeLTA's trench with --geometry field ended with 2 rods laid along
+    its walls, exit 0, and nothing said of the geometry; the problem names it and the
+    fix. The same trench fitted as a trench has no such problem."""
+    microscope = save_settings(Microscope(pixel_size_um=0.065), tmp_path / "microscope.yaml")
+    image = real_data_dir / "ecoli_delta_phase_normalised.tiff"
+    said = "narrow and tall as a mother-machine trench, and was fitted as an open field"
+    for geometry, expected in (("field", True), ("trench", False)):
+        out = tmp_path / geometry
+        args = ("--microscope", microscope, "--out", out, "--max-iterations", 2)
+        assert _fit(image, *args, "--geometry", geometry) == 0
+        report = (out / "report.txt").read_text()
+        assert (said in report) == expected
+        assert (said in capsys.readouterr().err) == expected
+    assert "leave --geometry out (or pass --geometry trench)" in (
+        tmp_path / "field" / "report.txt"
+    ).read_text()
+
+
+def test_a_phase_trench_fitted_as_fluorescence_names_the_modality(
+    tmp_path, real_data_dir, capsys
+):
+    """Found as a user: DeLTA's phase trench with --modality fluorescence (its look does
+    not settle the modality) was refused for finding no cells with only masks or labels
+    as the way out; the refusal names dark cells, phase contrast and bright field."""
+    microscope = save_settings(Microscope(pixel_size_um=0.065), tmp_path / "microscope.yaml")
+    image = real_data_dir / "ecoli_delta_phase_normalised.tiff"
+    error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope,
+                     "--modality", "fluorescence")  # fmt: skip
+    assert "the start found no cells" in error
+    assert "cells darker than their background, as phase contrast and bright field" in error
+
+
 def test_a_normalised_series_marks_its_camera_as_a_single_frame_does(
     tmp_path, real_data_dir, capsys
 ):

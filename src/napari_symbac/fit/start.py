@@ -349,8 +349,10 @@ def otsu_cells(
             raise FaintStartError(
                 "the start found no cells in the image: no bright region stands "
                 f"{DETECT_SNR:g} times the background's spread above it (the brightest "
-                f"stands {stand:.0f} times: a faint field, or a crop around a few cells "
-                "whose glow is most of the image, which then is no background)"
+                f"stands {stand:.0f} times: a faint field, a crop around a few cells "
+                "whose glow is most of the image, which then is no background, or cells "
+                "darker than their background, as phase contrast and bright field show "
+                "them: not fluorescence)"
             )
         cells, widths = cells_from_instances(instances, px, max_cell_length_um)
         return cells, widths, (trench if geometry == "trench" else None), instances
