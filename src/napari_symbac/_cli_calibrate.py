@@ -236,7 +236,10 @@ def run_calibrate(args: argparse.Namespace) -> int:
             calibration, settings, masks_given=masks is not None
         )
         real = calibration.reference
-        picture = montage(real, items[0].image, calibration.masks, items[0].labels)
+        fitted = masks is None  # the outlines are then the fit's cells
+        picture = montage(
+            real, items[0].image, calibration.masks, items[0].labels, real_masks_fitted=fitted
+        )
     staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.resolve().parent))
     try:
         print("napari-symbac calibrate: exporting", file=sys.stderr, flush=True)

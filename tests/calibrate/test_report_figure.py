@@ -73,3 +73,19 @@ def test_a_trench_is_drawn_in_one_row_tall_enough_to_read():
     assert 256 * scale <= picture.shape[0] < 2 * 256 * scale
     assert picture.shape[1] >= 4 * 46 * scale
     assert _grey_bars(picture, int(0.95 * 256 * scale)) >= 4
+
+
+def test_the_real_outlines_are_titled_as_the_fitted_cells_when_no_masks_were_given():
+    """Found as a user: calibrate without --masks titled its panel "real image with its
+    masks outlined", of the fit's cells. The title differs; the pictures do not."""
+    rng = np.random.default_rng(1)
+    real, synthetic = rng.random((64, 64)), rng.random((64, 64))
+    masks = np.zeros((64, 64), np.int32)
+    masks[20:40, 10:30] = 1
+    given = montage(real, synthetic, masks, masks)
+    fitted = montage(real, synthetic, masks, masks, real_masks_fitted=True)
+    assert given.shape == fitted.shape
+    differ = np.flatnonzero((given != fitted).any(axis=(1, 2)))
+    assert differ.size  # the lower row's title
+    green = np.flatnonzero((fitted == (0, 255, 0)).all(axis=-1).any(axis=1))
+    assert differ.max() < green.min()  # only above the outlined panels: the title

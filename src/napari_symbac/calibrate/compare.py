@@ -411,12 +411,16 @@ def montage(
     synthetic: np.ndarray,
     real_masks: np.ndarray | None = None,
     synthetic_labels: np.ndarray | None = None,
+    *,
+    real_masks_fitted: bool = False,
 ) -> np.ndarray:
     """8-bit RGB figure: real | synthetic side by side, each titled and at its own
     0.5-99.5 percentiles with a grey colour bar (ADU), under a heading; when masks are
     given a second row shows each with its mask outlines in green (a trench's four
-    panels stand in one row). Shapes are cropped to the smaller; small images are
-    enlarged by whole pixels (nearest neighbour).
+    panels stand in one row), the real image's titled as the fit's cells when
+    ``real_masks_fitted`` (no masks were given: found as a user, the panel said "its
+    masks"). Shapes are cropped to the smaller; small images are enlarged by whole
+    pixels (nearest neighbour).
     """
     from napari_symbac.figure_layout import (
         ColourBar,
@@ -446,8 +450,10 @@ def montage(
             overlay = shown.copy()
             overlay[_outline(np.asarray(labels)[:h, :w])] = (0, 255, 0)
             overlay = upscale(overlay, scale)
-            mask_word = "masks" if what.startswith("real") else "labels"
-            title = f"{what} with its {mask_word} outlined (green)"
+            mask_word = "its masks" if what.startswith("real") else "its labels"
+            if what.startswith("real") and real_masks_fitted:
+                mask_word = "the fitted cells"
+            title = f"{what} with {mask_word} outlined (green)"
             outlined.append((title, map_body(overlay, bar)))
     items = plain + outlined
     columns = len(items) if h >= 2 * w else 2  # a trench: all panels in one row

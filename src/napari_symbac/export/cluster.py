@@ -206,7 +206,12 @@ def _identify_scheduler(address: str, timeout_s: float) -> None:
         raise _no_scheduler(address, timeout_s, str(err) or "no answer") from err
     except Exception as err:  # the bytes of a server that is not dask's
         raise _no_scheduler(
-            address, timeout_s, f"something answered that is not dask: {type(err).__name__}"
+            address,
+            timeout_s,
+            # the reply read as dask's protocol fails as it may: a frame length of EiB is a
+            # MemoryError (found as a user: "not dask: MemoryError" read as our memory)
+            "something answered that is not a dask scheduler, its reply unreadable as "
+            f"dask's protocol: {type(err).__name__}",
         ) from err
     kind = identity.get("type") if isinstance(identity, dict) else None
     if kind != "Scheduler":
