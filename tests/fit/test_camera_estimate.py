@@ -263,3 +263,13 @@ def test_summary_of_a_read_noise_too_small_to_measure():
     )
     assert "dark noise 0 e- (too small to measure from this image)" in unmeasured.summary()
     assert "nan" not in unmeasured.summary()
+
+
+def test_a_mask_read_as_an_image_is_refused_in_words(real_data_dir):
+    """Found as a user: a mask fitted as an image ended with "SVD did not converge in
+    Linear Least Squares" in report.txt (noise-free flat levels: zero variance bins)."""
+    mask = tifffile.imread(
+        real_data_dir / "colicoords/test_data/ds1/binary/00001_Probabilities_filtered.tif"
+    )[90:220, 60:320]
+    with pytest.raises(ValueError, match="the pixels hold no noise at some grey levels"):
+        estimate_camera(mask.astype(float))

@@ -235,6 +235,13 @@ def _line_fit(
     Returns ``(K, c)``, their covariance (scaled by the reduced chi-square when that
     exceeds 1) and the mask of the bins kept.
     """
+    if not np.all(np.isfinite(y) & (se > 0)):
+        # found as a user: a mask fitted as an image said "SVD did not converge in Linear
+        # Least Squares" in report.txt
+        raise ValueError(
+            "the pixels hold no noise at some grey levels: flat regions of one value, as "
+            "a mask or a rendered or processed image has, not a camera's counts"
+        )
     kept = np.ones(x.size, bool)
     for _ in range(5):
         design = np.column_stack([x[kept], np.ones(kept.sum())]) / se[kept, None]
