@@ -193,3 +193,22 @@ def test_illumination_is_confirmed_only_where_the_pixels_far_from_cells_show_it(
     crowded = UnevenIllumination(geometry).confirm(theta, noise, valid, lit)
     assert not crowded.confirmed
     assert crowded.reason.startswith("illumination cannot be confirmed: only 0 of 192 tiles")
+
+
+def test_illumination_that_varies_more_than_twofold_across_the_window_is_refused():
+    """Found as a user: cells cut at a 256 px window's lower edge were taken for light
+    varying 210 % (peak to peak) across ColiCoords ds2 00066's window, confirmed far from
+    the cells, and drawn into the dataset. A lamp varies by tens of % across a field of
+    view; more than twofold across a window is refused with the reason."""
+    labels = _trench_labels(256, 30)
+    geometry = geometry_from_labels(labels, (labels > 0).astype(float), 0.065, "phase")
+    effect = UnevenIllumination(geometry)
+    valid = np.ones(labels.shape, bool)
+    noise = np.random.default_rng(1).normal(0.0, 30.0, labels.shape)
+    base = np.where(geometry.distance_px < 0, 2000.0, 1000.0)
+    gentle, steep = [0.0, 0.30, 0.0, 0.0, 0.0], [0.0, 0.45, 0.0, 0.0, 0.0]  # 1.9, 2.6-fold
+    for theta, confirmed in ((gentle, True), (steep, False)):
+        lit = base * effect.mean(np.array(theta), np.ones(labels.shape), None, geometry)
+        check = effect.confirm(np.array(theta), noise, valid, lit)
+        assert check.confirmed == confirmed, check.reason
+    assert check.reason.startswith("illumination refused: the fitted light varies 2.6-fold")

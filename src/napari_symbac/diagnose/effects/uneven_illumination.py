@@ -27,6 +27,11 @@ MIN_VISIBLE = 0.5
 #: The far pixels' own surface may differ from the fitted one, beyond their noise, by
 #: less than this fraction (rms) of the fitted surface's change there.
 MAX_DISAGREEMENT = 0.5
+#: The darkest place of a diagnosed window gets at least this fraction of the brightest
+#: place's light: a window is tens of um of a field of view of hundreds, over which a
+#: lamp or condenser varies by tens of % (found as a user: ColiCoords ds2 00066's
+#: fluorescence window was given a 210 % swing by cells cut at its lower edge).
+MIN_LIGHT_RATIO = 0.5
 
 TERMS = ("x", "y", "x^2", "y^2", "xy")
 
@@ -135,6 +140,16 @@ class UnevenIllumination(Effect):
                 False,
                 "illumination refused: the fitted surface darkens part of the field to "
                 "zero or below, which no light does",
+                numbers,
+            )
+        if gain.min() < MIN_LIGHT_RATIO * gain.max():
+            return Confirmation(
+                False,
+                f"illumination refused: the fitted light varies "
+                f"{gain.max() / gain.min():.1f}-fold across the {rows} x {cols} px window, "
+                "more than a lamp or condenser does across a field of view: the surface "
+                "takes up misfit (cells cut at the window's edge, a missing cell) rather "
+                "than the light",
                 numbers,
             )
         if judged < MIN_TILES:
