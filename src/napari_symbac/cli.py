@@ -684,6 +684,8 @@ def _holds(path: str, data: dict) -> bool:
     """Whether ``path`` is missing or already holds the settings ``data`` (so that writing
     them there loses nothing; found as a user: re-running the README's `defaults
     microscope --out microscope.yaml` replaced the pixel size entered in it)."""
+    import json
+
     from napari_symbac.settings import read_settings_mapping
 
     if not Path(path).exists():
@@ -692,18 +694,9 @@ def _holds(path: str, data: dict) -> bool:
         held = read_settings_mapping(path)
     except (ValueError, OSError):
         return False
-    # the file's lists against the defaults' tuples as lists (found as a user: a second
-    # `defaults export --out export.yaml` called the untouched file "your edits")
-    return _as_lists(held) == _as_lists(data)
-
-
-def _as_lists(value: object) -> object:
-    """``value`` with every tuple a list, as YAML reads it back."""
-    if isinstance(value, dict):
-        return {key: _as_lists(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_as_lists(item) for item in value]
-    return value
+    # the defaults' tuples as the file's lists (found as a user: a second `defaults
+    # export --out export.yaml` called the untouched file "your edits")
+    return held == json.loads(json.dumps(data))
 
 
 # --------------------------------------------------------------------------------------

@@ -85,7 +85,7 @@ def _check_earlier_demo(out: Path, settings: PipelineSettings) -> None:
     import json
 
     from napari_symbac.export.manifest import settings_differences
-    from napari_symbac.settings import read_settings_mapping, to_dict
+    from napari_symbac.settings import read_settings_mapping
 
     earlier = out / "settings.yaml"
     if not earlier.is_file():
