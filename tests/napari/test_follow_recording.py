@@ -48,3 +48,37 @@ def test_widgets_follow_the_recording_opened_last(make_napari_viewer):
     )
     for combo in (calibrate.recording, simulate.recording, diagnose.reference, tune.reference):
         assert combo.value is colony
+
+
+def test_a_running_step_keeps_its_recording(make_napari_viewer, qtbot, real_data_dir):
+    """Found as a user: a ColiCoords field opened while Calibrate ran on another became
+    Calibrate's recording, above the status and report of the first. A running step
+    keeps its recording; once it has finished, it follows the newest again."""
+    import tifffile
+
+    viewer = make_napari_viewer()
+    ds1 = real_data_dir / "colicoords" / "test_data" / "ds1"
+    axes = layer_axes(0.08, 2)
+    first = viewer.add_image(
+        tifffile.imread(ds1 / "fluorescence" / "00001.tif")[:256, :256], name="first",
+        metadata={"pixel_size_um": 0.08, "modality": "fluorescence"}, **axes,
+    )  # fmt: skip
+    masks = tifffile.imread(ds1 / "binary" / "00001_Probabilities_filtered.tif")[:256, :256]
+    viewer.add_labels(masks.astype(np.int32), name="first masks", **axes)
+    calibrate = CalibrateWidget(viewer)
+    assert calibrate.recording.value is first
+    calibrate.run_button.native.click()
+    assert calibrate.worker is not None
+    second = viewer.add_image(
+        tifffile.imread(ds1 / "fluorescence" / "00002.tif")[:256, :256], name="second",
+        metadata={"pixel_size_um": 0.08, "modality": "fluorescence"}, **axes,
+    )  # fmt: skip
+    assert calibrate.recording.value is first
+    qtbot.waitUntil(lambda: calibrate.worker is None, timeout=180_000)
+    assert "synthetic (calibrated to first)" in viewer.layers, calibrate.status.value
+    assert calibrate.recording.value is first  # what the report beside it is about
+    third = viewer.add_image(
+        np.asarray(second.data), name="third",
+        metadata={"pixel_size_um": 0.08, "modality": "fluorescence"}, **axes,
+    )  # fmt: skip
+    assert calibrate.recording.value is third

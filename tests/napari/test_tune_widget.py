@@ -221,12 +221,38 @@ def _auto_fit_refused(rendered, qtbot, image, pixel_size_um: float, modality: st
     )  # fmt: skip
     tune.reference.value = real
     assert tune.masks.value is None
+    from napari.utils.notifications import notification_manager
+
+    seen = []
+    notification_manager.notification_ready.connect(seen.append)
     tune.fit_button.native.click()
     qtbot.waitUntil(lambda: tune.fit_worker is None, timeout=120_000)
     assert tune.fit_result is None
     assert tune.fit_button.enabled
-    assert tune.status.value.startswith("Fit failed: ")
+    # a refusal with what to give, as a warning: not "Auto-fit failed", an error
+    assert tune.status.value.startswith("Not fitted: ")
+    assert not any("Auto-fit failed" in str(n.message) for n in seen)
+    assert any(str(n.message) == tune.status.value for n in seen)
     return tune.status.value
+
+
+def test_auto_fit_refuses_a_modality_the_image_contradicts(rendered, qtbot, real_data_dir):
+    """ColiCoords' fluorescence field marked phase: refused before any fit, as `napari-
+    symbac fit` refuses it, with the modality to set and where (found as a user: a trench
+    set to fluorescence ran, then ended in an "Auto-fit failed" error)."""
+    import tifffile
+
+    viewer, tune = rendered
+    path = real_data_dir / "colicoords" / "test_data" / "ds1" / "fluorescence" / "00001.tif"
+    real = viewer.add_image(
+        tifffile.imread(path)[:256, :256], name="recording", scale=(0.08, 0.08),
+        metadata={"pixel_size_um": 0.08, "modality": "phase"},
+    )  # fmt: skip
+    tune.reference.value = real
+    tune.fit_button.native.click()
+    assert tune.fit_worker is None
+    assert "the image does not look like phase" in tune.status.value
+    assert "Set its modality to fluorescence in the 1 Recording tab" in tune.status.value
 
 
 def test_auto_fit_of_a_whole_colony_without_masks_asks_for_them(rendered, qtbot, real_data_dir):
@@ -249,7 +275,7 @@ def test_auto_fit_of_a_crop_around_one_cell_names_both_starts(rendered, qtbot, r
 
     crop = tifffile.imread(real_data_dir / "colicoords" / "01" / "fluorescence.tif")
     status = _auto_fit_refused(rendered, qtbot, crop, 0.08, "fluorescence")
-    assert status.startswith("Fit failed: the start found no cells in the image: ")
+    assert status.startswith("Not fitted: the start found no cells in the image: ")
     assert "the brightest stands 21 times" in status
     assert status.endswith("or paint rough cell and media strokes in the Recording step)")
 

@@ -225,12 +225,16 @@ def no_recording_message(viewer: Any, then: str) -> str:
     return f"No recording: open your image in {step} and set its pixel size, then {then}"
 
 
-def followed_layer(event: Any, choices: list) -> Any:
+def followed_layer(event: Any, choices: list, busy: bool = False) -> Any:
     """The layer a :func:`watch_recordings` event is about when it is one of ``choices``:
     one just added to the viewer, or one whose metadata was replaced (its pixel size
     entered); else ``None``. The widgets choose it, so they work on the recording the
     user opened last (found as a user: Calibrate kept a trench chosen after a colony PNG
-    was opened beside it, and refused the trench)."""
+    was opened beside it, and refused the trench). ``None`` while the widget's job runs
+    (``busy``): a running step keeps its recording in the dock (found as a user: a
+    field opened during Calibrate became its recording above the report of another)."""
+    if busy:
+        return None
     kind = getattr(event, "type", "")
     layer = event.value if kind == "inserted" else event.source if kind == "metadata" else None
     return next((c for c in choices if c is not None and c is layer), None)

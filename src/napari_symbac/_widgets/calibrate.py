@@ -155,7 +155,7 @@ class CalibrateWidget(Container):
         self.recording.reset_choices()
         self.masks.reset_choices()
         choices = [c for c in self.recording.choices if c is not None]
-        followed = followed_layer(event, choices)
+        followed = followed_layer(event, choices, busy=self.worker is not None)
         if followed is not None and followed is not self.recording.value:
             self.masks.value = None  # chosen for the recording before
             self.recording.value = followed

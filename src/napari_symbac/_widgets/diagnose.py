@@ -179,7 +179,7 @@ class DiagnoseWidget(Container):
     def _refresh_choices(self, _event=None) -> None:
         self.reference.reset_choices()
         choices = [c for c in self.reference.choices if c is not None]
-        followed = followed_layer(_event, choices)
+        followed = followed_layer(_event, choices, busy=self.worker is not None)
         if followed is not None:
             self.reference.value = followed
         elif self.reference.value is None and choices:

@@ -113,13 +113,13 @@ class SimulateWidget(Container):
         if hasattr(self.form, "geometry"):
             self.form.geometry.changed.connect(self._show_geometry_settings)
             self._show_geometry_settings()
+        self.worker: Job | None = None  # before the recordings are followed
         self._followed: tuple | None = None  # the recording as last followed
         self.recording.changed.connect(self._follow_recording)
         watch_recordings(viewer, self._refresh_recordings)
         self._refresh_recordings()
         self.run_button.changed.connect(self.run)
         self.cancel_button.changed.connect(self.cancel)
-        self.worker: Job | None = None
         self.simulation = None
         self.series = None
         self._n_frames = 0
@@ -131,7 +131,7 @@ class SimulateWidget(Container):
         was set to fluorescence)."""
         self.recording.reset_choices()
         choices = [c for c in self.recording.choices if c is not None]
-        followed = followed_layer(_event, choices)
+        followed = followed_layer(_event, choices, busy=self.worker is not None)
         if followed is not None and followed is not self.recording.value:
             self.recording.value = followed
         elif self.recording.value is None and choices:

@@ -26,6 +26,7 @@ from magicgui.widgets import (
 from napari_symbac._widgets._forms import message_label
 from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
 from napari_symbac._widgets._recording import (
+    GUI_MODALITY_ADVICE,
     axis_labels,
     check_recording_frame,
     followed_layer,
@@ -349,7 +350,7 @@ class TuneWidget(Container):
         """The recording opened last (:func:`followed_layer`), else, with none chosen,
         the newest one whose pixel size is set."""
         recordings = [c for c in self.reference.choices if c is not None and is_recording(c)]
-        followed = followed_layer(event, recordings)
+        followed = followed_layer(event, recordings, busy=self.fit_worker is not None)
         if followed is not None and followed is not self.reference.value:
             self.masks.value = None  # chosen for the recording before
             self.reference.value = followed
@@ -744,7 +745,7 @@ class TuneWidget(Container):
                 f"'all frames jointly' fits a time-lapse, but the real image '{reference.name}' "
                 "is a single frame: untick it to fit this frame"
             )
-        from napari_symbac.fit.preflight import check_instance_masks
+        from napari_symbac.fit.preflight import check_instance_masks, check_modality
 
         pick = self._frames_of if all_frames else self._frame_of
         real = real if all_frames else self._frame_of(real)  # a time-lapse: checked above
@@ -768,6 +769,11 @@ class TuneWidget(Container):
             masks = pick(np.asarray(layer.data), f"cell masks '{layer.name}'")
             for frame in masks if all_frames else [masks]:
                 check_instance_masks(frame, real.shape[-2:], f"cell masks '{layer.name}'")
+        # what `napari-symbac fit` refuses: a modality the image contradicts (the first
+        # frame of a time-lapse speaks for it)
+        first = (lambda a: None if a is None else a[0]) if all_frames else (lambda a: a)
+        check_modality(first(real), microscope.modality, labels=first(labels),
+                       masks=first(masks), advice=GUI_MODALITY_ADVICE)  # fmt: skip
         # In fluorescence the device is as dark as the media: no wall to place, so the
         # cells are fitted as in an open field.
         walled = settings.simulation.geometry in ("trench", "chamber")
@@ -988,14 +994,22 @@ class TuneWidget(Container):
         if isinstance(err, FitCancelled):
             self.status.value = "Fit cancelled: parameters unchanged"
             return True
+        if isinstance(err, (WideStartError, FaintStartError)):
+            # the start's refusal, with what to give: the status line and a warning, not
+            # an error (found as a user: "Auto-fit failed" of a trench set to fluorescence)
+            self.status.value = f"Not fitted: {err}"
+            if isinstance(err, WideStartError):
+                self.status.value += (
+                    "; open the masks as a Labels layer and choose it as 'cell masks'"
+                )
+            else:
+                self.status.value += (
+                    " (open the masks as a Labels layer and choose it as 'cell masks', or "
+                    "paint rough cell and media strokes in the Recording step)"
+                )
+            notify_warning(self.status.value)
+            return True
         self.status.value = f"Fit failed: {err}"
-        if isinstance(err, WideStartError):
-            self.status.value += "; open the masks as a Labels layer and choose it as 'cell masks'"
-        elif isinstance(err, FaintStartError):
-            self.status.value += (
-                " (open the masks as a Labels layer and choose it as 'cell masks', or paint "
-                "rough cell and media strokes in the Recording step)"
-            )
         return False
 
     def _on_fit_finished(self) -> None:
