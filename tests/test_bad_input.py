@@ -852,6 +852,27 @@ def test_fit_scene_refuses_an_image_as_masks_and_takes_real_masks(real_data_dir)
     refuse_image_as_masks(tifffile.imread(masks), masks.name)
 
 
+def test_masks_are_told_from_recordings(real_data_dir):
+    """looks_like_masks, which keeps a masks file opened as an image out of the docks'
+    recordings: every masks file here is masks, every recording (8 and 16 bit, with the
+    background-subtraction zeros of ColiCoords' fluorescence) is not."""
+    from napari_symbac.fit.preflight import looks_like_masks
+    from napari_symbac.io import read_image
+
+    masks = [*(real_data_dir / "omnipose").glob("*_cp_masks.tif"),
+             *(real_data_dir / "colicoords" / "test_data").glob("*/binary*")]  # fmt: skip
+    for path in masks:
+        paths = sorted(path.glob("*.tif")) if path.is_dir() else [path]
+        assert all(looks_like_masks(tifffile.imread(p)) for p in paths), path
+    recordings = [*(real_data_dir / "omnipose").glob("Sample*[0-9].png"),
+                  *(real_data_dir / "colicoords" / "test_data").glob("*/fluorescence/*.tif"),
+                  *(real_data_dir / "colicoords" / "test_data").glob("*/brightfield/*.tif"),
+                  real_data_dir / "ecoli_100x_oil_exponential.tiff"]  # fmt: skip
+    assert len(recordings) > 10
+    for path in recordings:
+        assert not looks_like_masks(read_image(path).data), path
+
+
 @pytest.mark.parametrize("command", ["calibrate", "diagnose"])
 def test_a_constant_image_names_the_file(tmp_path, fit_inputs, capsys, command):
     """Found as a user: diagnose said "real_image is constant", an internal name."""

@@ -82,3 +82,26 @@ def test_a_running_step_keeps_its_recording(make_napari_viewer, qtbot, real_data
         metadata={"pixel_size_um": 0.08, "modality": "fluorescence"}, **axes,
     )  # fmt: skip
     assert calibrate.recording.value is third
+
+
+def test_masks_opened_as_an_image_are_masks_not_a_recording(make_napari_viewer, real_data_dir):
+    """Found as a user: Sample000033's masks TIFF opened with napari's own reader (an
+    image layer) became Calibrate's recording, with no masks chosen. An image that holds
+    masks (integers, a background of 0, one patch per id) is offered as cell masks and
+    never as a recording; the colony PNG stays the recording."""
+    import tifffile
+
+    from napari_symbac.io import read_image
+
+    viewer = make_napari_viewer()
+    folder = real_data_dir / "omnipose"
+    colony = viewer.add_image(read_image(folder / "Sample000033.png").data, name="colony")
+    calibrate, tune = CalibrateWidget(viewer), TuneWidget(viewer)
+    assert calibrate.recording.value is colony
+    masks = viewer.add_image(tifffile.imread(folder / "Sample000033_cp_masks.tif"), name="m")
+    assert masks.__class__.__name__ == "Image"
+    assert calibrate.recording.value is colony
+    assert masks not in calibrate.recording.choices
+    assert calibrate.masks.value is masks
+    assert masks in tune.masks.choices
+    assert masks not in tune.reference.choices

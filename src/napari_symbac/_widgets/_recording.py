@@ -21,7 +21,7 @@ import dataclasses
 from collections.abc import Callable
 from typing import Any
 
-from napari_symbac.fit.preflight import ModalityAdvice, check_pixel_size
+from napari_symbac.fit.preflight import ModalityAdvice, check_pixel_size, looks_like_masks
 from napari_symbac.io import AXIS_LABELS, axis_labels, layer_axes
 from napari_symbac.settings import Microscope, RenderSettings
 
@@ -132,6 +132,7 @@ def is_recording(layer: Any) -> bool:
         and not layer.rgb
         and SYMBAC_METADATA_KEY not in layer.metadata
         and pixel_size_problem(layer.metadata.get("pixel_size_um")) is None
+        and not looks_like_masks(layer.data)
     )
 
 
@@ -150,14 +151,19 @@ def real_images(viewer: Any) -> list:
     return [
         layer
         for layer in viewer.layers
-        if isinstance(layer, Image) and not layer.rgb and SYMBAC_METADATA_KEY not in layer.metadata
+        if isinstance(layer, Image)
+        and not layer.rgb
+        and SYMBAC_METADATA_KEY not in layer.metadata
+        and not looks_like_masks(layer.data)
     ]
 
 
 def mask_layers(viewer: Any) -> list:
-    """The viewer's labels layers that can be a recording's cell masks: neither made by
-    the simulation nor painted classes."""
-    from napari.layers import Labels
+    """The viewer's layers that can be a recording's cell masks: labels layers, and
+    images that hold masks (a masks TIFF opened with napari's own reader,
+    :func:`~napari_symbac.fit.preflight.looks_like_masks`); neither made by the
+    simulation nor painted classes."""
+    from napari.layers import Image, Labels
 
     from napari_symbac._widgets.real_image import class_layer_name
     from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
@@ -165,7 +171,10 @@ def mask_layers(viewer: Any) -> list:
     return [
         layer
         for layer in viewer.layers
-        if isinstance(layer, Labels)
+        if (
+            isinstance(layer, Labels)
+            or (isinstance(layer, Image) and not layer.rgb and looks_like_masks(layer.data))
+        )
         and SYMBAC_METADATA_KEY not in layer.metadata
         and not layer.name.endswith(class_layer_name(""))
     ]

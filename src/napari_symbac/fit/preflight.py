@@ -31,6 +31,7 @@ __all__ = [
     "check_pixel_size",
     "default_geometry",
     "image_polarity",
+    "looks_like_masks",
     "refuse_constant",
     "refuse_image_as_masks",
     "resolve_pixel_size",
@@ -322,13 +323,9 @@ def refuse_image_as_masks(masks: np.ndarray, name: str = "masks") -> None:
         When the ids form more than :data:`MAX_PATCHES_PER_ID` separate patches each (and
         more than 10 patches in all).
     """
-    from skimage import measure
-
-    ids = np.unique(masks)
-    n_ids = int(np.count_nonzero(ids))
+    n_ids, n_patches = _ids_and_patches(masks)
     if n_ids <= 1:
         return
-    n_patches = int(measure.label(masks, background=0, connectivity=2).max())
     if n_patches > max(MAX_PATCHES_PER_ID * n_ids, 10):
         raise ValueError(
             f"{name} does not look like instance masks: its {n_ids} values lie in "
@@ -336,6 +333,34 @@ def refuse_image_as_masks(masks: np.ndarray, name: str = "masks") -> None:
             "levels do. Give the masks file (0 background, each cell its own id 1..N, e.g. "
             "a segmenter's label image), not the recording"
         )
+
+
+def _ids_and_patches(masks: np.ndarray) -> tuple[int, int]:
+    """The non-zero values of ``masks`` and the connected patches of one value they form."""
+    from skimage import measure
+
+    n_ids = int(np.count_nonzero(np.unique(masks)))
+    return n_ids, int(measure.label(masks, background=0, connectivity=2).max())
+
+
+def looks_like_masks(image: np.ndarray) -> bool:
+    """Whether an image (its first frame) holds instance masks or a binary mask rather
+    than a recording: integer values, a background of 0 (5 % of it or more) and each
+    value one patch (:data:`MAX_PATCHES_PER_ID` at most), or one value only. A
+    recording's grey levels are scattered over the frame (the 8-bit Omnipose colonies:
+    thousands of patches for their 19-256 levels). Found as a user: a masks TIFF opened
+    with napari's own reader became an image, and Calibrate took it for the recording."""
+    frame = np.asarray(image[(0,) * (image.ndim - 2)] if image.ndim > 2 else image)
+    if frame.ndim != 2 or not np.issubdtype(frame.dtype, np.integer):
+        return False
+    background = np.count_nonzero(frame == 0)
+    if not 0.05 * frame.size <= background < frame.size:
+        return False
+    values = np.unique(frame)
+    if values.size - 1 > frame.size // 20:  # more levels than a frame holds cells
+        return False
+    n_ids, n_patches = _ids_and_patches(frame)
+    return n_ids == 1 or n_patches <= MAX_PATCHES_PER_ID * n_ids
 
 
 #: Frames at most this wide (pixels) are taken for a mother-machine trench...
