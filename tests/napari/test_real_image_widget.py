@@ -276,6 +276,21 @@ def test_a_grey_png_saved_as_colour_is_used_by_its_grey_channel(
     assert "colour grey" not in viewer.layers
 
 
+def test_a_deleted_grey_channel_is_said(make_napari_viewer, real_data_dir, notifications):
+    """Found as a user: after deleting ``Sample000033 grey`` the dock fell back to the
+    RGBA original, called it "a colour image" and still named the deleted layer as its
+    grey channel. It says the grey channel was removed and how to get it back."""
+    viewer = make_napari_viewer()
+    widget = RealImageWidget(viewer)
+    viewer.open(real_data_dir / "omnipose" / "Sample000033.png")
+    assert widget.image.value is viewer.layers["Sample000033 grey"]
+    viewer.layers.remove("Sample000033 grey")
+    assert widget.image.value is viewer.layers["Sample000033"]
+    assert not any("is a colour image" in message for message in notifications)
+    assert "grey channel, the layer 'Sample000033 grey', was removed" in widget.warning.value
+    assert "its grey channel is the layer" not in widget.result.value
+
+
 def test_or_open_takes_a_grey_png_as_the_fit_command_does(make_napari_viewer, real_data_dir):
     """Found as a user: *or open* took only TIFFs ("Sample000033.png is not a TIFF
     file"), while `napari-symbac fit` reads the same PNG; it opens as its grey channel,

@@ -380,6 +380,8 @@ class RealImageWidget(Container):
 
     def _use_grey_channel(self, layer) -> None:
         """A colour layer cannot be fitted: choose its grey-channel layer, or say why."""
+        from napari_symbac.io import grey_channel
+
         name = f"{layer.name} grey"
         if name in self.viewer.layers:
             self.image.value = self.viewer.layers[name]  # its own words first, then ours
@@ -393,6 +395,14 @@ class RealImageWidget(Container):
             f"{layer.name} is a colour image {tuple(layer.data.shape)}: open one grey "
             "channel (the camera's raw frame) to match and fit"
         )
+        if grey_channel(layer.data) is not None:  # its grey layer was deleted (found as a
+            # user: the dock called it a colour image and named the deleted layer; made
+            # again here, a viewer closing would make it for ever)
+            message = (
+                f"{layer.name} is a grey image saved as colour, and its grey channel, the "
+                f"layer '{name}', was removed: open the file again to use it"
+            )
+            self.result.value = ""
         self.warning.value = f"<b style='color:#ffb000'>&#9888; {message}</b>"
         self.warning.visible = True
         notify_warning(message)
