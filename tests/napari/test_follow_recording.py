@@ -105,3 +105,7 @@ def test_masks_opened_as_an_image_are_masks_not_a_recording(make_napari_viewer, 
     assert calibrate.masks.value is masks
     assert masks in tune.masks.choices
     assert masks not in tune.reference.choices
+    # the answer is kept per data array: new data in the layer is looked at again
+    masks.data = np.asarray(colony.data)
+    calibrate.recording.reset_choices()
+    assert masks in calibrate.recording.choices

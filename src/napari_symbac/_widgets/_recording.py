@@ -18,6 +18,7 @@ offer a recording the moment its pixel size is entered.
 from __future__ import annotations
 
 import dataclasses
+import weakref
 from collections.abc import Callable
 from typing import Any
 
@@ -32,6 +33,7 @@ __all__ = [
     "axis_labels",
     "check_recording_frame",
     "followed_layer",
+    "holds_masks",
     "in_pixel_units",
     "is_recording",
     "layer_axes",
@@ -67,6 +69,24 @@ GUI_MODALITY_ADVICE = ModalityAdvice(
     switch=f"Set its modality to {{other}} in {RECORDING_STEP}",
     paint="paint its cell and media classes there",
 )
+
+
+#: Each image layer's data and whether it holds masks: the docks ask on every layer
+#: event, several times each, and on a 2048 x 2048 px recording the answer takes ~0.1 s
+#: (14 asks, 1.6 s, when its pixel size was entered in the workflow dock).
+_HOLDS_MASKS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def holds_masks(layer: Any) -> bool:
+    """Whether an image layer holds masks, not a recording
+    (:func:`~napari_symbac.fit.preflight.looks_like_masks`), worked out once per data
+    array the layer holds."""
+    data = layer.data
+    seen = _HOLDS_MASKS.get(layer)
+    if seen is None or seen[0] is not data:
+        seen = (data, looks_like_masks(data))
+        _HOLDS_MASKS[layer] = seen
+    return seen[1]
 
 
 def in_pixel_units(layer: Any) -> bool:
@@ -132,7 +152,7 @@ def is_recording(layer: Any) -> bool:
         and not layer.rgb
         and SYMBAC_METADATA_KEY not in layer.metadata
         and pixel_size_problem(layer.metadata.get("pixel_size_um")) is None
-        and not looks_like_masks(layer.data)
+        and not holds_masks(layer)
     )
 
 
@@ -154,7 +174,7 @@ def real_images(viewer: Any) -> list:
         if isinstance(layer, Image)
         and not layer.rgb
         and SYMBAC_METADATA_KEY not in layer.metadata
-        and not looks_like_masks(layer.data)
+        and not holds_masks(layer)
     ]
 
 
@@ -173,7 +193,7 @@ def mask_layers(viewer: Any) -> list:
         for layer in viewer.layers
         if (
             isinstance(layer, Labels)
-            or (isinstance(layer, Image) and not layer.rgb and looks_like_masks(layer.data))
+            or (isinstance(layer, Image) and not layer.rgb and holds_masks(layer))
         )
         and SYMBAC_METADATA_KEY not in layer.metadata
         and not layer.name.endswith(class_layer_name(""))

@@ -771,7 +771,9 @@ class TuneWidget(Container):
                 check_instance_masks(frame, real.shape[-2:], f"cell masks '{layer.name}'")
         # what `napari-symbac fit` refuses: a modality the image contradicts (the first
         # frame of a time-lapse speaks for it)
-        first = (lambda a: None if a is None else a[0]) if all_frames else (lambda a: a)
+        def first(stack: np.ndarray | None) -> np.ndarray | None:
+            return stack[0] if all_frames and stack is not None else stack
+
         check_modality(first(real), microscope.modality, labels=first(labels),
                        masks=first(masks), advice=GUI_MODALITY_ADVICE)  # fmt: skip
         # In fluorescence the device is as dark as the media: no wall to place, so the
