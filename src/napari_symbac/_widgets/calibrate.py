@@ -178,7 +178,9 @@ class CalibrateWidget(Container):
     # -- input ----------------------------------------------------------------------------
 
     def _input(self) -> tuple:
-        """Frame, masks (or ``None``), microscope, cell width (or ``None``), pixel note.
+        """Frame, masks (or ``None``), microscope, cell width (or ``None``), pixel note,
+        and the microscope to enter for a recording without a pixel size whose cell width
+        gives it (``None`` otherwise).
 
         Raises
         ------
@@ -235,7 +237,8 @@ class CalibrateWidget(Container):
                 "agar pads and colonies). Fit the trench with Auto-fit (3 Tune + fit), then "
                 "Export from the fitted layer"
             )
-        return frame, masks, microscope, width, note
+        enter_for = microscope if width is not None and problem is not None else None
+        return frame, masks, microscope, width, note, enter_for
 
     # -- run ------------------------------------------------------------------------------
 
@@ -244,13 +247,11 @@ class CalibrateWidget(Container):
         if self.worker is not None:
             return
         try:
-            frame, masks, microscope, width, pixel_note = self._input()
+            frame, masks, microscope, width, pixel_note, enter_for = self._input()
         except ValueError as err:
             self.status.value = f"Not calibrated: {err}"
             return
         cancelled = threading.Event()
-        has_pixel = pixel_size_problem(self.recording.value.metadata.get("pixel_size_um")) is None
-        enter_for = microscope if width is not None and not has_pixel else None
 
         def calibrate_and_draw(progress, cancel):
             from napari_symbac.calibrate import (
