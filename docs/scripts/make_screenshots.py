@@ -200,10 +200,11 @@ def calibrate_flow() -> None:
     print(flow.calibrate.status.value)
     dismiss_notifications(viewer)
     name = "synthetic (calibrated to Sample000193)"
-    width = viewer.layers["Sample000193"].data.shape[-1]
+    recording = viewer.layers["Sample000193"]  # in um: the pixel size the width gave
+    beside = (recording.data.shape[-1] + 20) * float(recording.scale[-1])
     viewer.layers["Sample000193 masks"].visible = False
-    viewer.layers[name].translate = (0, width + 20)
-    viewer.layers[f"{name} masks"].translate = (0, width + 20)
+    viewer.layers[name].translate = (0, beside)
+    viewer.layers[f"{name} masks"].translate = (0, beside)
     viewer.layers[f"{name} masks"].visible = False
     viewer.reset_view()
     shot(viewer, "napari-calibrate.png")
