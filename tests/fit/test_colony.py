@@ -84,10 +84,22 @@ def test_fit_colony_refuses_fluorescence_and_masks_of_another_shape(colony_masks
     fluorescence = dataclasses.replace(MICROSCOPE, modality="fluorescence")
     with pytest.raises(ValueError, match="fluorescence"):
         fit_colony(image, fluorescence, colony_masks)
-    with pytest.raises(ValueError, match="do not match the image"):
+    with pytest.raises(ValueError, match="but the image frame has shape"):
         fit_colony(image[:50], MICROSCOPE, colony_masks)
-    with pytest.raises(ValueError, match="cells and background"):
+    with pytest.raises(ValueError, match="holds no cell"):
         fit_colony(image, MICROSCOPE, np.zeros_like(colony_masks))
+    with pytest.raises(ValueError, match="no background"):
+        fit_colony(image, MICROSCOPE, np.ones_like(colony_masks))
+    with pytest.raises(ValueError, match="integer cell ids"):
+        fit_colony(image, MICROSCOPE, colony_masks.astype(np.float32))
+
+
+def test_fit_colony_refuses_a_recording_given_as_masks(colony_masks):
+    """Found as a user of the API: the recording passed as its own masks was fitted (the
+    CLI and fit_scene refused it, fit_colony did not)."""
+    grey_levels = np.random.default_rng(0).integers(0, 40, colony_masks.shape, dtype=np.uint16)
+    with pytest.raises(ValueError, match="does not look like instance masks"):
+        fit_colony(grey_levels.astype(float), MICROSCOPE, grey_levels)
 
 
 def test_resample_render_keeps_the_optics_and_the_kernel_reach_in_um():

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
+from napari_symbac.fit.preflight import check_instance_masks
 from napari_symbac.settings import Camera, Microscope, RenderSettings
 from napari_symbac.sim.cells import FrameCells
 
@@ -265,7 +266,8 @@ def fit_colony(
     Raises
     ------
     ValueError
-        Not phase contrast, masks of another shape, or masks without background.
+        Not phase contrast, or masks that are not instance masks of the image (another
+        shape, not integer ids, no cell or no background, or an image's grey levels).
     """
     real, masks, camera, noise = checked_colony_frame(image, microscope, masks, camera)
     result, scene, start = colony_optics(
@@ -305,7 +307,8 @@ def checked_colony_frame(
     Raises
     ------
     ValueError
-        Not phase contrast, masks of another shape, or masks without background.
+        Not phase contrast, or masks that are not instance masks of the image (another
+        shape, not integer ids, no cell or no background, or an image's grey levels).
     """
     from napari_symbac.export.visibility import pixel_noise
 
@@ -316,14 +319,11 @@ def checked_colony_frame(
         )
     frame = np.asarray(image)
     masks = np.asarray(masks)
-    if masks.dtype == bool or masks.max(initial=0) <= 1:  # binary: a cell per region
+    check_instance_masks(masks, frame.shape)
+    if masks.dtype == bool or masks.max() <= 1:  # binary: a cell per region
         masks = ndimage.label(masks > 0)[0]
     masks = masks.astype(np.int64)
-    if masks.shape != frame.shape:
-        raise ValueError(f"masks of shape {masks.shape} do not match the image {frame.shape}")
     background = masks == 0
-    if not background.any() or background.all():
-        raise ValueError("the masks must hold cells and background")
     bit_depth = 8 if frame.dtype == np.uint8 else 16
     camera = Camera(baseline_adu=0.0, bit_depth=bit_depth) if camera is None else camera
     real = frame.astype(np.float64)
