@@ -10,6 +10,7 @@ real input.
 from __future__ import annotations
 
 import errno
+import json
 import os
 import re
 import signal
@@ -82,6 +83,48 @@ def test_export_to_folder_of_another_export(tmp_path, export_config, capsys):
     assert "already holds an export made with different settings" in err
     assert "export to a new folder" in err
     assert _files(out) == before
+
+
+def test_the_advice_to_resume_with_the_exports_own_settings_can_be_followed(
+    tmp_path, export_config, capsys
+):
+    """Found as a user: "to resume it use its own settings (manifest.json records them)",
+    and `export --config DIR/manifest.json` refused the manifest's other fields. The
+    advice now gives the command; the manifest is read as the settings it records."""
+    import shlex
+
+    out = tmp_path / "dataset"
+    code, err = _run(["export", "--config", str(export_config), "--out", str(out)], capsys)
+    assert code == 0, err
+    other = tmp_path / "other.yaml"
+    other.write_text(export_config.read_text().replace("n_items: 2", "n_items: 3"))
+    code, err = _run(["export", "--config", str(other), "--out", str(out)], capsys)
+    assert code == 2
+    command = err.split("`napari-symbac ")[1].split("`")[0]
+    assert command == f"export --config {out / 'manifest.json'} --out {out}"
+    before = _files(out)
+    code, err = _run(shlex.split(command), capsys)
+    assert code == 0, err
+    assert _files(out) == before
+    assert json.loads((out / "manifest.json").read_text())["status"] == "complete"
+
+
+def test_an_export_whose_validation_split_rounds_to_nothing_says_so(tmp_path, capsys):
+    """Found as a user: 2 items at val_fraction 0.1 wrote no val folders and no
+    instances_val.json, without a word, and the docs' COCO loader failed on it."""
+    config = tmp_path / "export.yaml"
+    save_settings(ExportSettings(n_items=2, formats=["coco"], pipeline=TINY), config)
+    code, err = _run(["export", "--config", str(config), "--out", str(tmp_path / "d")], capsys)
+    assert code == 0
+    assert "no validation items: val_fraction 0.1 of 2 item(s) rounds to 0" in err
+    assert not (tmp_path / "d" / "coco" / "annotations" / "instances_val.json").exists()
+    code, err = _run(
+        ["export", "--config", str(config), "--out", str(tmp_path / "e"), "--n-items", "10"],
+        capsys,
+    )
+    assert code == 0
+    assert "no validation items" not in err
+    assert (tmp_path / "e" / "coco" / "annotations" / "instances_val.json").is_file()
 
 
 def test_export_to_a_folder_of_other_files(tmp_path, export_config, capsys):

@@ -13,7 +13,6 @@ import dataclasses
 import os
 import shutil
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -153,6 +152,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         montage,
     )
     from napari_symbac.export import export_dataset
+    from napari_symbac.export.atomic import staging_folder
     from napari_symbac.fit.preflight import not_integer_masks, resolve_pixel_size
     from napari_symbac.settings import (
         Camera,
@@ -183,7 +183,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
         raise ValueError(
             f"--formats {', '.join(tracking)}: tracking ground truth needs a time series, and "
             "calibrate writes single frames; run it with frame formats (e.g. --formats "
-            f"tiff), then set kind: timeseries and formats: [{', '.join(tracking)}] in the "
+            f"tiff), then set kind: timeseries, formats: [{', '.join(tracking)}] and "
+            f"visibility: action: flag (a track keeps its faint frames) in the "
             f"{out / 'export_settings.yaml'} it writes and run `napari-symbac export "
             "--config` on that file"
         )
@@ -240,7 +241,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         picture = montage(
             real, items[0].image, calibration.masks, items[0].labels, real_masks_fitted=fitted
         )
-    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.resolve().parent))
+    staging = staging_folder(out)
     try:
         print("napari-symbac calibrate: exporting", file=sys.stderr, flush=True)
         with timer.step("export"):

@@ -18,7 +18,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy import ndimage
 
 from napari_symbac._timing import StepTimer, progress_bar
 from napari_symbac.io import CountsMapping
@@ -391,6 +390,7 @@ def _prepare_one(args, frame, labels, masks, microscope, base, keys):
     from napari_symbac.fit import fit_scene
     from napari_symbac.fit.camera_estimate import censored_pixels
     from napari_symbac.fit.preflight import (
+        as_instance_ids,
         check_class_labels,
         check_instance_masks,
         check_modality,
@@ -403,9 +403,12 @@ def _prepare_one(args, frame, labels, masks, microscope, base, keys):
     notes = []
     if masks is not None:
         check_instance_masks(masks, frame.shape, f"--masks {Path(args.masks).name}")
-        if set(np.unique(masks).tolist()) <= {0, 1}:  # a binary mask: one id per component
-            masks, n_cells = ndimage.label(masks > 0)
-            notes.append(f"--masks held only 0/1: its {n_cells} connected regions are the cells")
+        masks, n_regions = as_instance_ids(masks)
+        if n_regions is not None:  # a binary mask: one id per component
+            notes.append(
+                f"--masks held one value only (a binary mask): its {n_regions} connected "
+                "regions are the cells"
+            )
     polarity = check_modality(frame, microscope.modality, labels=labels, masks=masks)
 
     accepted = set(inspect.signature(fit_scene).parameters)

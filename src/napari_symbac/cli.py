@@ -234,6 +234,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
     import dataclasses
 
     from napari_symbac.export import export_dataset, load_export_settings
+    from napari_symbac.export.dataset import no_validation_note
 
     settings = load_export_settings(args.config)
     if args.n_items is not None:
@@ -273,6 +274,8 @@ def _cmd_export(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     _say_extra_stages(settings.pipeline)
+    if note := no_validation_note(settings):
+        print(f"napari-symbac export: note: {note}", file=sys.stderr)
     print(timer.report())
     return 0
 

@@ -69,6 +69,30 @@ def test_calibrate_writes_a_matched_dataset_and_report(colicoords_files, capsys)
     assert picture.ndim == 3
     assert picture.shape[1] > 2 * 192
     assert not [p for p in d.iterdir() if p.name.startswith(".out")]  # staging removed
+    _follow_the_tracking_advice(out, d, capsys)
+
+
+def _follow_the_tracking_advice(out, d, capsys):
+    """calibrate's advice for tracking formats, followed as it reads (found as a user:
+    it named kind and formats but not visibility.action, and export then refused the
+    settings for dropping faint cells from their tracks)."""
+    import yaml
+
+    code = main(["calibrate", str(d / "flu.tif"), "--microscope", str(d / "m80.yaml"),
+                 "--modality", "fluorescence", "--out", str(d / "x"), "--formats", "ctc"])
+    advice = capsys.readouterr().err
+    assert code == 2
+    for words in ("kind: timeseries", "formats: [ctc]", "visibility: action: flag"):
+        assert words in advice
+    settings = yaml.safe_load((out / "export_settings.yaml").read_text())
+    settings.update(kind="timeseries", formats=["ctc"], n_items=2)
+    settings["visibility"]["action"] = "flag"
+    (d / "tracks.yaml").write_text(yaml.safe_dump(settings))
+    code = main(["export", "--config", str(d / "tracks.yaml"), "--out", str(d / "tracks")])
+    assert code == 0, capsys.readouterr().err
+    manifest = json.loads((d / "tracks" / "manifest.json").read_text())
+    assert manifest["status"] == "complete"
+    assert (d / "tracks" / "ctc").is_dir()
 
 
 def test_calibrate_says_a_normalised_field_was_read_as_counts(colicoords_files, capsys):

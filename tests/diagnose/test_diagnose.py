@@ -196,6 +196,32 @@ def test_same_seed_same_diagnosis():
     assert json.dumps(one.as_dict()) == json.dumps(two.as_dict())
 
 
+def test_bad_input_is_refused_in_words():
+    """Found as an API user: one NaN pixel gave a diagnosis of NaNs, ``rng=0`` failed
+    with "'int' object has no attribute 'standard_normal'", one scene for build_design
+    with "'Scene' object is not iterable"."""
+    from napari_symbac.diagnose import build_design
+
+    case = make_case("stray_light", fraction_of_sd=0.6, seed=5)
+    holed = np.array(case.images, np.float64)
+    holed[0, 5, 5] = np.nan
+    with pytest.raises(ValueError, match="1 NaN or infinite pixels"):
+        diagnose(holed, case.design)
+    with pytest.raises(ValueError, match="negative values"):
+        diagnose(case.images.astype(np.float64) - 1e5, case.design)
+    with pytest.raises(TypeError, match=r"pass numpy.random.default_rng\(0\)"):
+        diagnose(case.images, case.design, rng=0)
+    with pytest.raises(TypeError, match=r"diagnose\(design=...\) needs BaseDesign"):
+        diagnose(case.images, None)
+    microscope, render, camera = base_settings("phase")
+    cells, trench, field, shape = _cells("trench", np.random.default_rng(0))
+    scene = _draw(cells, trench, field, shape, microscope, render)
+    with pytest.raises(TypeError, match=r"a list: pass \[scene\]"):
+        build_design(scene, microscope, render, camera)
+    with pytest.raises(TypeError, match=r"build_design\(camera=...\) needs Camera"):
+        build_design([scene], microscope, render, None)
+
+
 def test_accepted_effects_become_settings_and_stages(tmp_path):
     accepted = [
         ("uneven_illumination", {"coefficients": [0.0, 0.1, 0.0, 0.0, 0.0]}),

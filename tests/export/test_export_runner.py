@@ -320,27 +320,35 @@ def test_dask_worker_error_reaches_caller(tmp_path):
 
 
 def test_local_cluster_on_loopback_and_user_scheduler(tmp_path, reference):
-    """The default cluster binds 127.0.0.1 with separate processes; a scheduler address works."""
-    from distributed import Client
+    """The default cluster binds 127.0.0.1 with separate processes; a scheduler address
+    works with no dask client of the user's in this process (found as a user: `export
+    --scheduler` failed with dask's "No clients found" against a real scheduler; this
+    test's own client, the default one, had hidden it) and leaves none set as default."""
+    from distributed import Client, default_client
 
     from napari_symbac.export.cluster import local_cluster
 
     cloudpickle.register_pickle_by_value(_export_synthetic)
     try:
-        with local_cluster(2) as cluster, Client(cluster) as client:
-            assert cluster.scheduler_address.startswith("tcp://127.0.0.1:")
-            workers = client.scheduler_info()["workers"]
-            assert len(workers) == 2
-            assert all(address.startswith("tcp://127.0.0.1:") for address in workers)
-            pids = set(client.run(os.getpid).values())
-            assert len(pids) == 2
-            # without dask's MALLOC_TRIM_THRESHOLD_ (1.6x slower items, cluster.py)
-            trim = client.run(lambda: os.environ.get("MALLOC_TRIM_THRESHOLD_"))
-            assert set(trim.values()) == {None}
-            assert os.getpid() not in pids
+        with local_cluster(2) as cluster:
+            with Client(cluster, set_as_default=False) as client:
+                assert cluster.scheduler_address.startswith("tcp://127.0.0.1:")
+                workers = client.scheduler_info()["workers"]
+                assert len(workers) == 2
+                assert all(address.startswith("tcp://127.0.0.1:") for address in workers)
+                pids = set(client.run(os.getpid).values())
+                assert len(pids) == 2
+                # without dask's MALLOC_TRIM_THRESHOLD_ (1.6x slower items, cluster.py)
+                trim = client.run(lambda: os.environ.get("MALLOC_TRIM_THRESHOLD_"))
+                assert set(trim.values()) == {None}
+                assert os.getpid() not in pids
+            with pytest.raises(ValueError, match="No clients found"):
+                default_client()  # as in a user's `napari-symbac export --scheduler`
             report = run_export(
                 SyntheticSource(12), tmp_path, FORMATS, scheduler=cluster.scheduler_address
             )
+            with pytest.raises(ValueError, match="No clients found"):
+                default_client()  # the export's client was not left as the default
     finally:
         cloudpickle.unregister_pickle_by_value(_export_synthetic)
     assert report.complete
@@ -378,3 +386,31 @@ def test_local_cluster_is_quiet_beside_a_running_dask_dashboard():
     finally:
         taken.close()
     assert not [w for w in caught if "already in use" in str(w.message)]
+
+
+def test_staging_folders_of_killed_runs_are_removed(tmp_path):
+    """Found as a user: `kill -9` of calibrate left `.OUT.partial-*` (43 files, 6.7 MB)
+    beside --out, and the next run ignored it. The next run of a command that stages
+    (fit, calibrate) removes those of processes no longer running, and only those."""
+    from napari_symbac.export.atomic import staging_folder
+    from napari_symbac.fit.report import write_atomically
+
+    ended = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                           capture_output=True, text=True, check=True)
+    dead_pid = int(ended.stdout)
+    out = tmp_path / "out"
+    killed = tmp_path / f".out.partial-{dead_pid}-k1ll3d"
+    (killed / "dataset").mkdir(parents=True)
+    (killed / "dataset" / "item.tif").write_bytes(b"half")
+    running = staging_folder(out)  # this process's own, still in use
+    another = tmp_path / f".other.partial-{dead_pid}-k1ll3d"  # another output's
+    another.mkdir()
+    written = write_atomically(out, {"report.txt": lambda p: p.write_text("ok")})
+    assert [p.name for p in written] == ["report.txt"]
+    assert not killed.exists()
+    assert running.is_dir()
+    assert running.name.startswith(f".out.partial-{os.getpid()}-")
+    assert another.is_dir()
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        [running.name, another.name, "out"]
+    )

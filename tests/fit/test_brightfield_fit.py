@@ -147,3 +147,40 @@ def test_a_lens_term_no_cell_out_of_focus_gives_is_a_problem():
     assert "<= 0.103 um^2" in problem
     phase = dataclasses.replace(microscope, modality="phase")
     assert lens_problem(beyond, phase) is None
+
+
+def test_a_camera_that_cannot_be_measured_is_said_once_in_each_interface(
+    tmp_path, real_data_dir
+):
+    """Found as an API user: ColiCoords ds1's bright field near clipping (64567-65535
+    ADU) came back with a "camera" of 0.001 ADU/e- and 48629 e- read noise, and no
+    word: the noise is then a constant fitted to the residual. The Python result says
+    so; the CLI's report says it once, in its own terms (--camera)."""
+    from scipy import ndimage
+
+    from napari_symbac.fit.scene_fit import UNMEASURED_CAMERA
+    from napari_symbac.settings import Microscope, RenderSettings
+
+    folder = real_data_dir / "colicoords" / "test_data" / "ds1"
+    crop = (slice(90, 200), slice(60, 320))
+    image = tifffile.imread(folder / "brightfield" / "00001.tif")[crop]
+    binary = tifffile.imread(folder / "binary" / "00001_Probabilities_filtered.tif")[crop]
+    masks = ndimage.label(binary > 0)[0]
+    microscope = Microscope(pixel_size_um=0.08, modality="brightfield")
+    fit = fit_scene(image, microscope, RenderSettings(), geometry="open", masks=masks)
+    said = [w for w in fit.warnings if w.startswith(UNMEASURED_CAMERA)]
+    assert len(said) == 1
+    assert "camera=Camera(" in said[0]
+    assert len(fit.cells) == 4
+
+    tifffile.imwrite(tmp_path / "bf.tif", image)
+    tifffile.imwrite(tmp_path / "masks.tif", masks.astype(np.uint16))
+    code, out = _cli_fit(
+        tmp_path / "cli", tmp_path / "bf.tif", "--masks", str(tmp_path / "masks.tif"),
+        "--geometry", "field",
+    )
+    report = (out / "report.txt").read_text()
+    assert code == 0
+    assert UNMEASURED_CAMERA not in report
+    assert "camera=Camera(" not in report
+    assert "--camera" in report

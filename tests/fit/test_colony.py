@@ -80,7 +80,7 @@ def test_fit_colony_recovers_the_optics_of_a_rendered_colony(colony_masks):
 
 
 def test_fit_colony_refuses_fluorescence_and_masks_of_another_shape(colony_masks):
-    image = np.full(colony_masks.shape, 50.0)
+    image = np.random.default_rng(1).normal(500.0, 20.0, colony_masks.shape)
     fluorescence = dataclasses.replace(MICROSCOPE, modality="fluorescence")
     with pytest.raises(ValueError, match="fluorescence"):
         fit_colony(image, fluorescence, colony_masks)
@@ -92,6 +92,27 @@ def test_fit_colony_refuses_fluorescence_and_masks_of_another_shape(colony_masks
         fit_colony(image, MICROSCOPE, np.ones_like(colony_masks))
     with pytest.raises(ValueError, match="integer cell ids"):
         fit_colony(image, MICROSCOPE, colony_masks.astype(np.float32))
+    with pytest.raises(TypeError, match="needs the colony's instance masks"):
+        fit_colony(image, MICROSCOPE, None)
+    with pytest.raises(TypeError, match=r"fit_colony\(microscope=...\) needs Microscope"):
+        fit_colony(image, None, colony_masks)
+
+
+def test_fit_colony_refuses_images_the_model_cannot_make(colony_masks):
+    """Found as an API user: NaN pixels and a shifted image were reported as a negative
+    or NaN cell intensity of RenderSettings; an RGBA image and a stack as masks of
+    another shape."""
+    image = np.random.default_rng(1).normal(500.0, 20.0, colony_masks.shape)
+    holes = image.copy()
+    holes[4:9, 4:9] = np.nan
+    with pytest.raises(ValueError, match="25 NaN or infinite pixels"):
+        fit_colony(holes, MICROSCOPE, colony_masks)
+    with pytest.raises(ValueError, match="negative values"):
+        fit_colony(image - 600, MICROSCOPE, colony_masks)
+    with pytest.raises(ValueError, match="RGB"):
+        fit_colony(np.stack([image] * 4, axis=-1), MICROSCOPE, colony_masks)
+    with pytest.raises(ValueError, match="stack of 2 frames"):
+        fit_colony(np.stack([image, image]), MICROSCOPE, colony_masks)
 
 
 def test_fit_colony_refuses_a_recording_given_as_masks(colony_masks):

@@ -71,6 +71,28 @@ def test_input_checks_name_the_problem():
         check_instance_masks(np.ones((4, 4), np.uint16), (4, 4))
 
 
+def test_a_binary_mask_of_any_value_is_split_into_its_cells(real_data_dir):
+    """Found as a user: ColiCoords' masks saved 0/255 (ImageJ's binary) were one cell of
+    id 255 over 8 separate regions; calibrate then said after its fit that the cells
+    were not brighter than the background. 0/1, boolean and 0/255 now give the same
+    cells, and instance masks stay as they are."""
+    from napari_symbac.calibrate.measure import instance_masks
+    from napari_symbac.fit.preflight import as_instance_ids
+
+    folder = real_data_dir / "colicoords" / "test_data" / "ds1" / "binary"
+    masks = tifffile.imread(folder / "00001_Probabilities_filtered.tif")
+    n_cells = np.count_nonzero(np.unique(masks))
+    assert n_cells > 2
+    for binary in (masks > 0, (masks > 0).astype(np.uint8), (masks > 0) * np.uint8(255)):
+        ids, n_regions = as_instance_ids(binary)
+        assert n_regions == n_cells
+        np.testing.assert_array_equal(ids > 0, masks > 0)
+        assert np.count_nonzero(np.unique(instance_masks(binary))) == n_cells
+    same, n_regions = as_instance_ids(masks)
+    assert n_regions is None
+    assert same is masks
+
+
 def test_instance_masks_given_as_class_labels_are_said_in_one_short_line():
     """Found as a user: `fit colony.png --labels colony_cp_masks.tif` listed all 113 cell
     numbers of the masks in the refusal."""

@@ -119,3 +119,17 @@ def test_distance_profile_and_class_medians_on_a_known_image():
     assert medians["background"] == pytest.approx(1.0)  # the 99th percentile: the line is < 1 %
     with pytest.raises(ValueError, match="far_px"):
         class_medians(image, labels, far_px=100)
+
+
+def test_fit_scene_sends_a_dense_colony_with_masks_to_fit_colony(colony):
+    """Found as an API user: fit_scene given an Omnipose crop's masks removed 43 of its
+    45 cells and ended worse than its start; fit_colony keeps them (the CLI and
+    calibrate already chose it)."""
+    from napari_symbac.fit import fit_scene
+
+    image, labels = colony
+    crop = (slice(200, 328), slice(200, 328))
+    microscope = Microscope(pixel_size_um=0.077, wavelength_um=0.55)
+    with pytest.raises(ValueError, match=r"dense phase-contrast colony.*fit_colony"):
+        fit_scene(image[crop], microscope, RenderSettings(upsample=1), geometry="open",
+                  masks=labels[crop])

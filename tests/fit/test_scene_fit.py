@@ -170,3 +170,50 @@ def test_scene_fit_recovers_curvature(curved):
     assert fit.objective_after == pytest.approx(1.0, abs=0.1)
     bent = fit.curvature()  # draw_scene's mapping: id -> (a, b, c), b = 1, c = 0
     assert bent[int(fit.cells.ids[order[2]])] == (fit.curvature_um[order[2]], 1.0, 0.0)
+
+
+def _noisy_frame() -> np.ndarray:
+    return np.random.default_rng(3).normal(1000.0, 30.0, (64, 48))
+
+
+def test_fit_scene_refuses_arguments_of_the_wrong_kind_in_words():
+    """Found as an API user: None or swapped settings failed deep inside with
+    "'NoneType' object has no attribute 'modality'" and the like."""
+    image, microscope, render = _noisy_frame(), Microscope(pixel_size_um=0.065), RenderSettings()
+    with pytest.raises(TypeError, match=r"fit_scene\(microscope=...\) needs Microscope"):
+        fit_scene(image, None, render)
+    with pytest.raises(TypeError, match=r"needs Microscope, got RenderSettings.*order"):
+        fit_scene(image, render, microscope)
+    with pytest.raises(TypeError, match=r"fit_scene\(trench=...\) needs TrenchPlacement"):
+        fit_scene(image, microscope, render, trench="round")
+    with pytest.raises(TypeError, match=r"got dict: pass Camera\(\*\*that_dict\)"):
+        fit_scene(image, microscope, render, camera={"baseline_adu": 100})
+
+
+def test_fit_scene_refuses_images_no_camera_wrote():
+    """Found as an API user: a shifted image (negative values) and DeLTA's normalised
+    trench were fitted without a word (gain 1.5e-6 ADU/e-, cell intensity 0), though
+    the CLI refused both."""
+    microscope, render = Microscope(pixel_size_um=0.065), RenderSettings()
+    with pytest.raises(ValueError, match=r"negative values.*camera=Camera\(baseline_adu"):
+        fit_scene(_noisy_frame() - 5000, microscope, render)
+    with pytest.raises(ValueError, match=r"within 0\.\.1 only.*napari_symbac\.io\.as_counts"):
+        fit_scene(_noisy_frame() / 2000, microscope, render)
+    with pytest.raises(ValueError, match=r"normalised values.*napari_symbac\.io\.as_counts"):
+        fit_scene(_noisy_frame() / 200, microscope, render)
+
+
+def test_fit_scene_refuses_masks_that_are_not_instance_masks():
+    """Found as an API user: a float mask of 1.5 was fitted as one cell; negative ids
+    and empty masks were reported as "the start found no cells"."""
+    image, microscope, render = _noisy_frame(), Microscope(pixel_size_um=0.065), RenderSettings()
+    masks = np.zeros(image.shape, np.int64)
+    masks[20:30, 10:20] = 1
+    with pytest.raises(ValueError, match="integer cell ids"):
+        fit_scene(image, microscope, render, masks=masks * 1.5)
+    with pytest.raises(ValueError, match="negative ids"):
+        fit_scene(image, microscope, render, masks=-masks)
+    with pytest.raises(ValueError, match="holds no cell"):
+        fit_scene(image, microscope, render, masks=np.zeros_like(masks))
+    with pytest.raises(ValueError, match="but the image frame has shape"):
+        fit_scene(image, microscope, render, masks=masks[:-1])

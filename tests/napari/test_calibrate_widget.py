@@ -145,14 +145,16 @@ def test_cancel_adds_nothing(make_napari_viewer, qtbot, real_data_dir):
     assert widget.run_button.enabled
 
 
+@pytest.mark.parametrize("masks_as", ["labels", "image"])
 def test_a_cell_width_enters_the_pixel_size_for_every_layer(
-    make_napari_viewer, qtbot, real_data_dir, notifications
+    make_napari_viewer, qtbot, real_data_dir, notifications, masks_as
 ):
     """Found as a user: a PNG calibrated with a cell width stayed in pixels (no pixel size
     entered) beside its calibrated layers in micrometres, and napari warned "Inconsistent
     units across layers". The pixel size Calibrate derives is entered for the recording:
     the recording, its masks and the calibrated layers in micrometres, and the Recording
-    form shows it."""
+    form shows it. The masks too when napari's own reader opened them as an image (found
+    as a user: they stayed in pixels and the recording shrank to a corner)."""
     from napari_symbac._widgets.workflow import WorkflowWidget
 
     viewer = make_napari_viewer()
@@ -162,7 +164,8 @@ def test_a_cell_width_enters_the_pixel_size_for_every_layer(
     dock.real_image.file.value = colony
     recording = viewer.layers["Sample000033"]
     masks = tifffile.imread(colony.with_name("Sample000033_cp_masks.tif")).astype(np.int32)
-    viewer.add_labels(masks, name="Sample000033 masks")
+    add = viewer.add_labels if masks_as == "labels" else viewer.add_image
+    add(masks, name="Sample000033 masks")
     widget = dock.calibrate
     assert widget.recording.value is recording
     assert widget.masks.value is viewer.layers["Sample000033 masks"]

@@ -76,6 +76,14 @@ def test_real_recording_to_matched_dataset(make_napari_viewer, qtbot, tmp_path, 
     fit = flow.tune.fit_result
     assert fit is not None, flow.tune.status.value
     assert fit.objective_after < fit.objective_before
+    # its layers are outputs, never a recording (found as a user: Calibrate chose "auto-fit
+    # residual" as its recording, the newest image, and refused its negative values)
+    fitted_layers = {"auto-fit synthetic", "auto-fit residual"}
+    assert fitted_layers <= {layer.name for layer in viewer.layers}
+    for combo in (flow.calibrate.recording, flow.tune.reference, flow.simulate.recording):
+        combo.reset_choices()
+        assert not fitted_layers & {c.name for c in combo.choices if c is not None}
+    assert flow.calibrate.recording.value is real
 
     # 4 export with the tuned settings (the newest rendered layer, chosen for you)
     flow.export.n_items.value = 4

@@ -36,6 +36,18 @@ def test_field_of_view_shape(cells_factory):
     assert scene.labels.dtype == np.uint32
 
 
+def test_settings_of_the_wrong_kind_are_named(cells_factory):
+    """Found as an API user: ``draw_scene(cells, trench, microscope, None)`` failed with
+    "'NoneType' object has no attribute 'upsample'"."""
+    cells = cells_factory([3.0])
+    with pytest.raises(TypeError, match=r"draw_scene\(render=...\) needs RenderSettings"):
+        draw_scene(cells, TRENCH, MIC, None)
+    with pytest.raises(TypeError, match=r"needs Microscope, got RenderSettings"):
+        draw_scene(cells, TRENCH, RS, MIC)
+    with pytest.raises(TypeError, match=r"draw_scene\(trench=...\) needs TrenchGeometry"):
+        draw_scene(cells, {"width_um": 1.5}, MIC, RS)
+
+
 def test_materials_partition_depth(cells_factory):
     scene = draw_scene(cells_factory([3.0, 7.0]), TRENCH, MIC, RS)
     total = scene.cells + scene.media + scene.device

@@ -141,16 +141,34 @@ def pixel_size_problem(pixel_size_um: float | None) -> str | None:
     return None
 
 
+#: Metadata key of the layers a step shows its results in without settings of their own
+#: (Auto-fit's synthetic and residual, Diagnose's residual after and effect maps).
+OUTPUT_KEY = "napari_symbac_output"
+
+
+def output_metadata(step: str) -> dict:
+    """Metadata that marks a layer as ``step``'s output (:func:`made_here`)."""
+    return {OUTPUT_KEY: step}
+
+
+def made_here(layer: Any) -> bool:
+    """Whether the plugin made ``layer`` (a simulation, a calibrated or fitted image, a
+    residual, an effect map): never a recording nor a recording's masks. Found as a
+    user: after Auto-fit, Calibrate chose "auto-fit residual" as its recording and
+    refused it for its negative values."""
+    from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
+
+    return SYMBAC_METADATA_KEY in layer.metadata or OUTPUT_KEY in layer.metadata
+
+
 def is_recording(layer: Any) -> bool:
     """A real image layer (not made by the simulation) with a usable pixel size."""
     from napari.layers import Image
 
-    from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
-
     return (
         isinstance(layer, Image)
         and not layer.rgb
-        and SYMBAC_METADATA_KEY not in layer.metadata
+        and not made_here(layer)
         and pixel_size_problem(layer.metadata.get("pixel_size_um")) is None
         and not holds_masks(layer)
     )
@@ -166,14 +184,12 @@ def real_images(viewer: Any) -> list:
     still waiting for its pixel size)."""
     from napari.layers import Image
 
-    from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
-
     return [
         layer
         for layer in viewer.layers
         if isinstance(layer, Image)
         and not layer.rgb
-        and SYMBAC_METADATA_KEY not in layer.metadata
+        and not made_here(layer)
         and not holds_masks(layer)
     ]
 
@@ -186,7 +202,6 @@ def mask_layers(viewer: Any) -> list:
     from napari.layers import Image, Labels
 
     from napari_symbac._widgets.real_image import class_layer_name
-    from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
 
     return [
         layer
@@ -195,7 +210,7 @@ def mask_layers(viewer: Any) -> list:
             isinstance(layer, Labels)
             or (isinstance(layer, Image) and not layer.rgb and holds_masks(layer))
         )
-        and SYMBAC_METADATA_KEY not in layer.metadata
+        and not made_here(layer)
         and not layer.name.endswith(class_layer_name(""))
     ]
 
@@ -234,15 +249,13 @@ def no_recording_message(viewer: Any, then: str) -> str:
     """
     from napari.layers import Image
 
-    from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
-
     step = RECORDING_STEP
     waiting = [
         layer
         for layer in viewer.layers
         if isinstance(layer, Image)
         and not layer.rgb
-        and SYMBAC_METADATA_KEY not in layer.metadata
+        and not made_here(layer)
         and not is_recording(layer)
     ]
     if waiting:

@@ -27,6 +27,7 @@ from napari_symbac._widgets._recording import (
     is_recording,
     modality_render,
     no_recording_message,
+    output_metadata,
     recording_microscope,
     watch_recordings,
 )
@@ -431,6 +432,7 @@ class DiagnoseWidget(Container):
             colormap="PiYG",
             contrast_limits=(-limit, limit),
             visible=False,
+            metadata=output_metadata("Diagnose"),
             **kwargs,
         )
         for effect in result.accepted:
@@ -444,6 +446,7 @@ class DiagnoseWidget(Container):
                 colormap="PiYG",
                 contrast_limits=(-span, span),
                 visible=False,
+                metadata=output_metadata("Diagnose"),
                 **kwargs,
             )
         from napari_symbac.diagnose.stages import drawn_by_export

@@ -28,6 +28,7 @@ from napari_symbac._widgets._recording import watch_recordings
 from napari_symbac._widgets.calibrate import CALIBRATION_KEY
 from napari_symbac._widgets.simulate import FITTED_TO_KEY, SYMBAC_METADATA_KEY
 from napari_symbac.export import FORMATS, ExportSettings, export_of
+from napari_symbac.export.dataset import no_validation_note
 from napari_symbac.settings import PipelineSettings
 
 if TYPE_CHECKING:
@@ -115,6 +116,7 @@ class ExportWidget(Container):
         self.worker: Job | None = None
         self.report = None
         self._origin = ""
+        self._split_note: str | None = None
         self._refresh_source()
 
     def _refresh_source(self, event=None) -> None:
@@ -243,6 +245,7 @@ class ExportWidget(Container):
         self.export_button.enabled = False
         self.cancel_button.enabled = True
         self._origin = origin
+        self._split_note = no_validation_note(settings)
         self.status.value = (
             f"Exporting {settings.n_images} images to {folder} (settings: {origin})..."
         )
@@ -263,6 +266,8 @@ class ExportWidget(Container):
         # which settings stays said (found as a user: with no rendered layer the dataset
         # was the defaults' trench, said only while exporting)
         self.status.value = f"{report} (settings: {self._origin})"
+        if self._split_note and report.complete:
+            self.status.value += f"<br>Note: {self._split_note}"
 
     def _on_errored(self, err: BaseException) -> None:
         self.status.value = f"Export failed: {err}"

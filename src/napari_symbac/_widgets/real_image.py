@@ -156,13 +156,10 @@ class RealImageWidget(Container):
     def _image_layers(self, _widget=None) -> list:
         from napari.layers import Image
 
-        from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
+        from napari_symbac._widgets._recording import made_here
 
-        return [
-            layer
-            for layer in self.viewer.layers
-            if isinstance(layer, Image) and SYMBAC_METADATA_KEY not in layer.metadata
-        ]
+        layers = self.viewer.layers
+        return [layer for layer in layers if isinstance(layer, Image) and not made_here(layer)]
 
     def _open_file(self) -> None:
         from napari_symbac.io import ChannelsError, read_image
@@ -531,17 +528,24 @@ def _overlays(viewer, recording) -> list:
     """Layers that follow ``recording``'s placement: labels over its camera pixels (its
     painted classes, a masks file opened beside it) and the colour original of its
     grey channel, placed as it is or still in pixels (a masks file records no pixel
-    size). They take its pixel size with it, so they keep overlaying it when the
-    pixel size is entered or corrected, and napari's units agree across the layers
-    (mixed, napari warns and drops them). Another grey image of the same size is left
-    alone: it may come from another microscope."""
-    from napari.layers import Labels
+    size; one opened with napari's own reader is an image that holds masks). They take
+    its pixel size with it, so they keep overlaying it when the pixel size is entered
+    or corrected, and napari's units agree across the layers (mixed, napari warns and
+    drops them; found as a user: such a masks image stayed in pixels when Calibrate
+    entered a cell width's pixel size, and the recording shrank to a corner of the
+    canvas). Another grey image of the same size is left alone: it may come from
+    another microscope."""
+    from napari.layers import Image, Labels
+
+    from napari_symbac._widgets._recording import holds_masks
 
     source = recording.name.removesuffix(" grey")
     placed = (tuple(recording.scale[-2:]), tuple(recording.units[-2:]))
 
     def overlays(other) -> bool:
-        return isinstance(other, Labels) or (getattr(other, "rgb", False) and other.name == source)
+        if getattr(other, "rgb", False):
+            return other.name == source
+        return isinstance(other, Labels) or (isinstance(other, Image) and holds_masks(other))
 
     return [
         other

@@ -35,6 +35,7 @@ from napari_symbac._widgets._recording import (
     modality_render,
     newest_masks,
     no_recording_message,
+    output_metadata,
     real_images,
     shown_frame,
     watch_recordings,
@@ -985,7 +986,10 @@ class TuneWidget(Container):
         ):
             if name in self.viewer.layers:
                 self.viewer.layers.remove(name)
-            self.viewer.add_image(np.asarray(data), name=name, **kwargs, **extra)
+            self.viewer.add_image(
+                np.asarray(data), name=name, metadata=output_metadata("Auto-fit"), **kwargs,
+                **extra,
+            )
         # the fitted image in the real image's grey levels: compare them by eye
         self.viewer.layers[FIT_SYNTHETIC_LAYER].contrast_limits = reference.contrast_limits
 

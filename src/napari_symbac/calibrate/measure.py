@@ -34,14 +34,13 @@ __all__ = [
 
 
 def instance_masks(masks: np.ndarray) -> np.ndarray:
-    """Instance ids of ``masks``: a 0/1 (or boolean) mask is split into its connected
-    regions, an instance mask is kept (ids need not be consecutive).
+    """Instance ids of ``masks``: a binary mask (0/1, boolean, 0/255) is split into its
+    connected regions, an instance mask is kept (ids need not be consecutive;
+    :func:`~napari_symbac.fit.preflight.as_instance_ids`).
     """
-    masks = np.asarray(masks)
-    if masks.dtype == bool or set(np.unique(masks).tolist()) <= {0, 1}:
-        labels, _ = ndimage.label(masks > 0)
-        return labels.astype(np.int32)
-    return masks.astype(np.int32)
+    from napari_symbac.fit.preflight import as_instance_ids
+
+    return as_instance_ids(masks)[0].astype(np.int32)
 
 
 def lengths_px(labels: np.ndarray) -> np.ndarray:

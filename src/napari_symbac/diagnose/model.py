@@ -31,8 +31,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from scipy import ndimage, special
 
+from napari_symbac.arguments import require_argument
 from napari_symbac.optics.forward import ForwardModel, block_average
 from napari_symbac.pipeline import stain_cells
+from napari_symbac.scene import Scene
 from napari_symbac.settings import Camera, Microscope, RenderSettings
 
 if TYPE_CHECKING:
@@ -251,7 +253,26 @@ def build_design(
     linearisation (central differences of two renders each). The scenes are drawn
     as the pipeline draws them (part of a fluorescence stain in the cells' envelope
     when ``render`` says so: :func:`~napari_symbac.pipeline.stain_cells`).
+
+    Parameters
+    ----------
+    scenes
+        One fitted scene per frame (``[fit.scene]`` for one frame).
+    microscope, render, camera
+        The forward model the scenes were fitted with (``fit.render``, ``fit.camera``).
+    optics
+        Optics parameters linearised as nuisances.
+
+    Raises
+    ------
+    TypeError
+        One scene instead of a list, or settings of the wrong kind.
     """
+    if isinstance(scenes, Scene):
+        raise TypeError("build_design takes one scene per frame, a list: pass [scene]")
+    require_argument(microscope, Microscope, "build_design(microscope=...)")
+    require_argument(render, RenderSettings, "build_design(render=...)")
+    require_argument(camera, Camera, "build_design(camera=...)")
     if not scenes:
         raise ValueError("build_design needs at least one scene")
     names = tuple(NUISANCE_OPTICS[microscope.modality] if optics is None else optics)

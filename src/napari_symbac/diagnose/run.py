@@ -11,11 +11,14 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from napari_symbac.arguments import require_argument
 from napari_symbac.diagnose.effects import CATALOGUE
 from napari_symbac.diagnose.effects.base import Confirmation, Effect
 from napari_symbac.diagnose.model import BaseDesign, FittedModel, build_design
 from napari_symbac.diagnose.selection import ModelSpec, cross_fitted_deviance, held_out, rank
 from napari_symbac.diagnose.statistics import Mismatch, discrepancy_statistics
+from napari_symbac.fit.inputs import as_image_stack
+from napari_symbac.fit.preflight import API_CAMERA_HINT, check_fit_image
 from napari_symbac.settings import Camera, Microscope, RenderSettings
 
 __all__ = ["Diagnosis", "EffectResult", "diagnose", "diagnose_scenes"]
@@ -242,9 +245,21 @@ def diagnose(
         Effects accepted at most; candidates fitted per step.
     rng
         Generator of the bootstrap (same seed, same result).
+    valid
+        Pixels to use (False: censored); default all.
     progress
         Called with ``(held-out checks done, the most there can be)`` after each check,
         and with ``(done, done)`` when the diagnosis ends (it usually ends sooner).
+    cancel
+        ``cancel()`` returning True stops the diagnosis (raises ``InterruptedError``).
+
+    Raises
+    ------
+    TypeError
+        ``design`` or ``rng`` of the wrong kind.
+    ValueError
+        Images the model cannot produce (NaN, RGB, negative or normalised values) or
+        not of the fitted scenes' shape, or an unknown effect.
 
     Notes
     -----
@@ -283,9 +298,10 @@ def _diagnose(
     cancel: Callable[[], bool] | None,
 ) -> Diagnosis:
     """The body of :func:`diagnose` (BLAS threads already limited)."""
-    y = np.asarray(images, np.float64)
-    if y.ndim == 2:
-        y = y[None]
+    require_argument(design, BaseDesign, "diagnose(design=...)")
+    require_argument(rng, np.random.Generator, "diagnose(rng=...)", optional=True)
+    y = as_image_stack(images, name="images")  # found as an API user: a NaN pixel gave NaNs
+    check_fit_image(y, "images", camera_hint=API_CAMERA_HINT)
     if y.shape != design.geometry.shape:
         raise ValueError(
             f"the image has shape {y.shape} but the fitted scenes {design.geometry.shape}: "

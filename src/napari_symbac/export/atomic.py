@@ -34,6 +34,7 @@ __all__ = [
     "explain_os_error",
     "remove_earlier_run",
     "remove_stale_temporaries",
+    "staging_folder",
     "tiff_metadata",
     "visible_entries",
     "write_bytes",
@@ -278,6 +279,44 @@ def remove_stale_temporaries(folder: str | os.PathLike) -> int:
                 _unlink_quietly(Path(root) / name)
                 removed += 1
     return removed
+
+
+_STAGING_RE = re.compile(r"^\.(?P<name>.+)\.partial-(?P<pid>\d+)-[A-Za-z0-9_]+$")
+
+
+def staging_folder(out: str | os.PathLike) -> Path:
+    """A new hidden folder beside ``out`` (``.OUT.partial-PID-RANDOM``) in which a
+    command makes its outputs before moving them into ``out``.
+
+    Staging folders of ``out`` that a process no longer running left behind (killed:
+    found as a user, ``kill -9`` of ``calibrate`` left 43 files, 6.7 MB, which the next
+    run ignored) are removed first; those of a running process are left alone.
+    """
+    out = Path(out).resolve()
+    parent = out.parent
+    parent.mkdir(parents=True, exist_ok=True)
+    for entry in parent.iterdir():
+        match = _STAGING_RE.match(entry.name)
+        if match and match["name"] == out.name and not _running(int(match["pid"])):
+            import shutil
+
+            shutil.rmtree(entry, ignore_errors=True)
+    import tempfile
+
+    return Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-{os.getpid()}-", dir=parent))
+
+
+def _running(pid: int) -> bool:
+    """Whether a process ``pid`` runs (one of another user's counts as running)."""
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True
+    return True
 
 
 def check_output_folder(

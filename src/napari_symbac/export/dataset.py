@@ -349,10 +349,19 @@ def load_export_settings(path: str | os.PathLike) -> ExportSettings:
 
     Missing fields take their defaults; ``save_settings(export_settings, path)`` of
     :mod:`napari_symbac.settings` writes such a file. A :class:`PipelineSettings` file
-    (the settings.yaml ``fit`` writes) is read as the pipeline of the default export.
+    (the settings.yaml ``fit`` writes) is read as the pipeline of the default export,
+    an export's ``manifest.json`` as the settings it records (found as a user: the
+    advice "to resume it use its own settings (manifest.json records them)" could not
+    be followed, the manifest's other fields were refused as unknown).
     """
-    from napari_symbac.settings import load_settings_or_pipeline
+    from napari_symbac.settings import from_dict, load_settings_or_pipeline, read_settings_mapping
 
+    data = read_settings_mapping(path)
+    if isinstance(data, dict) and isinstance(data.get("settings"), dict) and "items" in data:
+        try:
+            return from_dict(ExportSettings, data["settings"])
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"{path}: the export settings it records: {err}") from None
     loaded = load_settings_or_pipeline(path, ExportSettings)
     return loaded if isinstance(loaded, ExportSettings) else export_of(loaded)
 
@@ -489,6 +498,19 @@ def _val_units(seed: int, n_units: int, val_fraction: float) -> frozenset[int]:
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(2,)))
     n_val = round(val_fraction * n_units)
     return frozenset(int(u) for u in rng.permutation(n_units)[:n_val])
+
+
+def no_validation_note(settings: ExportSettings) -> str | None:
+    """Said when ``val_fraction`` asks for validation items and the count rounds to none
+    (found as a user: 2 items at 0.1 wrote no ``val/`` folders and no
+    ``instances_val.json``, without a word, and the docs' COCO loader failed on it)."""
+    if settings.val_fraction <= 0 or round(settings.val_fraction * settings.n_items) > 0:
+        return None
+    return (
+        f"no validation items: val_fraction {settings.val_fraction:g} of "
+        f"{settings.n_items} item(s) rounds to 0, so every item is in train (no val "
+        "folders, no instances_val.json); export more items or a larger val_fraction"
+    )
 
 
 def split_of(settings: ExportSettings, unit: int) -> str:

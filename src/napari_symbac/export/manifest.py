@@ -220,8 +220,9 @@ def check_or_start_manifest(out_dir: Path, header: Mapping[str, Any]) -> dict[st
             )
             raise ExportError(
                 f"{out_dir} already holds an export made with different settings or formats "
-                f"({changed}); to resume it use its own settings (manifest.json records "
-                "them), or export to a new folder",
+                f"({changed}); to resume it use its own settings, which its manifest "
+                f"records (`napari-symbac export --config {path} --out {out_dir}`), or "
+                "export to a new folder",
                 path,
             )
         if old.get("render_backend", "scipy") != document.get("render_backend", "scipy"):

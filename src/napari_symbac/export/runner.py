@@ -254,7 +254,7 @@ def _start_cluster_while_working(
     def start() -> None:
         try:
             started["cluster"] = local_cluster(workers)
-            started["client"] = Client(started["cluster"])
+            started["client"] = Client(started["cluster"], set_as_default=False)
         except BaseException as err:  # re-raised in the calling thread
             started["error"] = err
         finally:
@@ -298,7 +298,7 @@ def _run_dask(
         from distributed import Client
 
         cluster = local_cluster(workers)
-        client = Client(cluster)
+        client = Client(cluster, set_as_default=False)
     elif client is None:
         units = deque(pending)
 
@@ -342,7 +342,9 @@ def _run_dask(
             for i, batch in enumerate(_chunks(pending, batch_size))
         ]
         try:
-            for future in as_completed(futures):
+            # the export's own client, not dask's default: found as a user, a scheduler's
+            # address failed with dask's "No clients found" (as_completed asked the default)
+            for future in as_completed(futures, loop=client.loop):
                 entries = future.result()
                 on_entries(entries)
                 if _is_cancelled(cancel):

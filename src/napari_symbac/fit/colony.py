@@ -23,7 +23,14 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
-from napari_symbac.fit.preflight import check_instance_masks
+from napari_symbac.arguments import require_argument
+from napari_symbac.fit.inputs import as_single_image
+from napari_symbac.fit.preflight import (
+    API_CAMERA_HINT,
+    as_instance_ids,
+    check_fit_image,
+    check_instance_masks,
+)
 from napari_symbac.settings import Camera, Microscope, RenderSettings
 from napari_symbac.sim.cells import FrameCells
 
@@ -265,9 +272,13 @@ def fit_colony(
 
     Raises
     ------
+    TypeError
+        No masks, or a microscope or camera of the wrong kind.
     ValueError
-        Not phase contrast, or masks that are not instance masks of the image (another
-        shape, not integer ids, no cell or no background, or an image's grey levels).
+        Not phase contrast, an image the model cannot produce (NaN, RGB, a stack,
+        negative or normalised values), or masks that are not instance masks of it
+        (another shape, not integer ids, no cell or no background, an image's grey
+        levels).
     """
     real, masks, camera, noise = checked_colony_frame(image, microscope, masks, camera)
     result, scene, start = colony_optics(
@@ -306,27 +317,36 @@ def checked_colony_frame(
 
     Raises
     ------
+    TypeError
+        No masks, or a microscope or camera of the wrong kind.
     ValueError
-        Not phase contrast, or masks that are not instance masks of the image (another
-        shape, not integer ids, no cell or no background, or an image's grey levels).
+        Not phase contrast, an image the model cannot produce (NaN, RGB, a stack,
+        negative or normalised values), or masks that are not instance masks of it
+        (another shape, not integer ids, no cell or no background, an image's grey
+        levels).
     """
     from napari_symbac.export.visibility import pixel_noise
 
+    require_argument(microscope, Microscope, "fit_colony(microscope=...)")
+    require_argument(camera, Camera, "fit_colony(camera=...)", optional=True)
+    if masks is None:
+        raise TypeError(
+            "fit_colony needs the colony's instance masks (0 background, one id per cell; "
+            "e.g. from Omnipose or Cellpose): without them fit the image with fit_scene"
+        )
     if microscope.modality != "phase":
         raise ValueError(
             "fit_colony fits the partially coherent phase-contrast model: the microscope's "
             f"modality is {microscope.modality!r} (use fit_scene for fluorescence)"
         )
-    frame = np.asarray(image)
+    bit_depth = 8 if np.asarray(image).dtype == np.uint8 else 16
+    real = as_single_image(image)
+    check_fit_image(real, camera_hint=API_CAMERA_HINT)
     masks = np.asarray(masks)
-    check_instance_masks(masks, frame.shape)
-    if masks.dtype == bool or masks.max() <= 1:  # binary: a cell per region
-        masks = ndimage.label(masks > 0)[0]
-    masks = masks.astype(np.int64)
+    check_instance_masks(masks, real.shape)
+    masks = as_instance_ids(masks)[0].astype(np.int64)  # binary: a cell per region
     background = masks == 0
-    bit_depth = 8 if frame.dtype == np.uint8 else 16
     camera = Camera(baseline_adu=0.0, bit_depth=bit_depth) if camera is None else camera
-    real = frame.astype(np.float64)
     noise = pixel_noise(real, background)
     return real, masks, camera, noise if math.isfinite(noise) else 1.0
 

@@ -17,12 +17,14 @@ from scipy import ndimage
 from napari_symbac.settings import Microscope
 
 __all__ = [
+    "API_CAMERA_HINT",
     "CAMERA_PIXEL_UM",
     "MODALITY_ADVICE",
     "PLAUSIBLE_PIXEL_UM",
     "TRENCH_MAX_WIDTH_PX",
     "TRENCH_MIN_ASPECT",
     "ModalityAdvice",
+    "as_instance_ids",
     "camera_pixel_problem",
     "check_class_labels",
     "check_fit_image",
@@ -45,6 +47,10 @@ _NEAR, _FAR = 5.0, 10.0
 _HIGH_PASS = np.outer([1.0, -2.0, 1.0], [1.0, -2.0, 1.0]) / 6.0
 #: Pixels of the ring around cells used to compare cells with their surroundings.
 _RING_PX = 3
+
+
+#: Where the Python functions' message on a shifted image sends the camera baseline.
+API_CAMERA_HINT = "in camera=Camera(baseline_adu=...)"
 
 
 def check_fit_image(
@@ -86,7 +92,8 @@ def check_fit_image(
             f"{name} holds values within 0..1 only (maximum {high:.4g}): a normalised image "
             "or a mask, not camera counts (ADU). Pass the raw recording as the camera wrote "
             "it; a normalised image opened by napari-symbac (the commands, or the Real "
-            "image dock's 'or open') is read as counts"
+            "image dock's 'or open') is read as counts, in Python by "
+            "napari_symbac.io.as_counts"
         )
     from napari_symbac.io import as_counts
 
@@ -308,6 +315,18 @@ def check_instance_masks(masks: np.ndarray, shape: tuple[int, ...], name: str = 
 #: values are scattered (ColiCoords' fluorescence crop: 30 patches per value, the SyMBac
 #: trench 3.2).
 MAX_PATCHES_PER_ID = 2.0
+
+
+def as_instance_ids(masks: np.ndarray) -> tuple[np.ndarray, int | None]:
+    """Instance ids of ``masks``: a binary mask (one non-zero value: 0/1, boolean, or
+    0/255 as ImageJ saves one) split into its connected regions, with their count;
+    instance masks as they are, and ``None``. Found as a user: a 0/255 mask was taken
+    for one cell of id 255 spanning 8 separate regions."""
+    masks = np.asarray(masks)
+    if np.count_nonzero(np.unique(masks)) <= 1:
+        labels, n_regions = ndimage.label(masks != 0)
+        return labels, int(n_regions)
+    return masks, None
 
 
 def refuse_image_as_masks(masks: np.ndarray, name: str = "masks") -> None:

@@ -9,7 +9,6 @@ from __future__ import annotations
 import math
 import os
 import shutil
-import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -173,9 +172,16 @@ def fit_problems(
     """What did not converge, what sits at a bound, and a fit worse than its start.
 
     ``residual_hint`` says where the user sees the residual (the CLI's file, the
-    GUI's layer) when the model misses structure.
+    GUI's layer) when the model misses structure. The engine's warning of a camera it
+    could not measure is left out: the CLI and the docks check the camera themselves
+    (:func:`model_free_camera_check`) and say what to do in their own terms.
     """
-    warnings = [str(w) for w in getattr(result, "warnings", ()) or ()]
+    from napari_symbac.fit.scene_fit import UNMEASURED_CAMERA
+
+    warnings = [
+        str(w) for w in getattr(result, "warnings", ()) or ()
+        if not str(w).startswith(UNMEASURED_CAMERA)
+    ]
     before, after = result.objective_before, result.objective_after
     misfit = math.isfinite(after) and after > CHI2_MISFIT
     # the engine's own misfit warning is said once, below, with where to look
@@ -387,17 +393,15 @@ def write_atomically(
     list of Path
         The files written, in ``out``.
     """
+    from napari_symbac.export.atomic import remove_earlier_run, staging_folder
+
     out = Path(out)
-    parent = out.resolve().parent
-    parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=parent))
+    staging = staging_folder(out)
     try:
         for name, write in writers.items():
             target = staging / name
             target.parent.mkdir(parents=True, exist_ok=True)
             write(target)
-        from napari_symbac.export.atomic import remove_earlier_run
-
         remove_earlier_run(list(replaced))
         out.mkdir(exist_ok=True)
         written = []

@@ -37,7 +37,9 @@ from typing import Literal
 import numpy as np
 from scipy import sparse
 
+from napari_symbac.arguments import require_argument
 from napari_symbac.fit.camera_estimate import censored_pixels, estimate_camera
+from napari_symbac.fit.colony import is_dense_colony
 from napari_symbac.fit.engine import CURVATURE_B, CURVATURE_C, Layout
 from napari_symbac.fit.illumination import illumination_stage, illumination_terms
 from napari_symbac.fit.inputs import as_label_stack, as_single_image
@@ -47,7 +49,7 @@ from napari_symbac.fit.noise import expected_level, variance
 from napari_symbac.fit.objectives import objective_terms
 from napari_symbac.fit.parameters import DEFAULT_FIT, _Budget, _variance, parameter_bounds
 from napari_symbac.fit.placement import TrenchPlacement
-from napari_symbac.fit.preflight import refuse_image_as_masks
+from napari_symbac.fit.preflight import API_CAMERA_HINT, check_fit_image, check_instance_masks
 from napari_symbac.fit.problem import Problem
 from napari_symbac.fit.start import _pixel_noise, otsu_cells, polarity_of, start_scene
 from napari_symbac.scene import Scene
@@ -457,9 +459,17 @@ def fit_scene(
     Returns
     -------
     SceneFit
+
+    Raises
+    ------
+    TypeError
+        ``microscope``, ``render``, ``camera`` or ``trench`` of the wrong kind.
+    ValueError
+        An image the model cannot produce (NaN, RGB, a stack, negative or normalised
+        values: :func:`~napari_symbac.fit.preflight.check_fit_image`), masks that are
+        not instance masks of it, or a dense phase-contrast colony's masks (fitted by
+        :func:`~napari_symbac.fit.fit_colony`).
     """
-    if masks is not None:  # an image given as masks: refused before minutes of fit
-        refuse_image_as_masks(np.asarray(masks))
     return _frame_result(
         _run_frame(
             real_image,
@@ -485,6 +495,22 @@ def fit_scene(
             cancel=cancel,
         )
     )
+
+
+#: The gain of a camera whose noise could not be measured (:func:`_camera_from_model`):
+#: a placeholder that leaves the read noise all of a constant variance.
+UNMEASURED_GAIN_ADU_PER_E = 1e-3
+#: How :attr:`SceneFit.warnings` starts to say so (the CLI and the docks say it their
+#: own way, from the image's photon transfer: they leave this warning out).
+UNMEASURED_CAMERA = "the camera could not be measured from the image"
+#: Said when fit_scene is given the masks of a dense phase-contrast colony (found as an
+#: API user: 43 of an Omnipose crop's 45 masked cells removed, the fit worse than its start).
+DENSE_COLONY_MASKS = (
+    "these masks hold a dense phase-contrast colony (touching cells): fit_scene's linear "
+    "kernel cannot make its halo and bright seams and would remove most of the cells; "
+    "fit it with napari_symbac.fit.fit_colony(image, microscope, masks), as "
+    "`napari-symbac fit --masks` and calibrate do"
+)
 
 
 def _run_frame(
@@ -517,9 +543,21 @@ def _run_frame(
     ``start_cells`` (a series fit's previous frame, moved by the drift) replace the
     automatic start's cells; the trench is still found from the image.
     """
+    require_argument(microscope, Microscope, "fit_scene(microscope=...)")
+    require_argument(render, RenderSettings, "fit_scene(render=...)")
+    require_argument(camera, Camera, "fit_scene(camera=...)", optional=True)
+    require_argument(
+        trench, (TrenchPlacement, TrenchGeometry), "fit_scene(trench=...)", optional=True
+    )
     real = as_single_image(real_image, name="real_image")
+    check_fit_image(real, "real_image", camera_hint=API_CAMERA_HINT)
     if geometry not in ("trench", "open"):
         raise ValueError(f"geometry must be 'trench' or 'open', got {geometry!r}")
+    if masks is not None:  # refused before minutes of fit (an image given as masks, ...)
+        masks = np.asarray(masks)
+        check_instance_masks(masks, real.shape)
+        if geometry == "open" and is_dense_colony(masks, microscope.modality):
+            raise ValueError(DENSE_COLONY_MASKS)
     if labels is not None:
         labels = as_label_stack(labels, (1, *real.shape))[0]
     if not (math.isfinite(width_sd_um) and width_sd_um >= 0):
@@ -739,6 +777,18 @@ def _run_frame(
                     f"the residual is spatially correlated (dispersion {phi:.3g}): the moves "
                     "demanded that much more evidence"
                 )
+    if estimate and measured is None and (
+        camera_used.sensitivity_adu_per_e == UNMEASURED_GAIN_ADU_PER_E
+    ):  # found as an API user: ColiCoords' bright field near clipping, a "camera" of
+        # 0.001 ADU/e- and 48629 e- read noise, without a word
+        sd_adu = camera_used.sensitivity_adu_per_e * camera_used.dark_noise_e
+        warnings.append(
+            f"{UNMEASURED_CAMERA}: its levels span too little for photon transfer, or it "
+            "is not raw counts. The noise is taken as constant, "
+            f"{sd_adu:.3g} ADU s.d., from the residual, which takes up structure the model "
+            "lacks, so a reduced chi-square near 1 says little; pass camera=Camera(...) "
+            "when it matters"
+        )
     if moves:
         state, pruned = prune_cells(problem.without_history(), state)
         if pruned:  # the rest settles without them
@@ -978,14 +1028,14 @@ def _camera_from_model(
     Photon transfer of :func:`~napari_symbac.fit.camera_estimate.estimate_camera`
     with ``model_mean`` (baseline kept from ``camera``). When the model's levels span
     too little for a slope, the variance is taken as constant, the residual's mean
-    square: the gain is then not identifiable and is set to 1e-3 ADU/e-, so that
-    the read noise carries all of it.
+    square: the gain is then not identifiable and is set to
+    :data:`UNMEASURED_GAIN_ADU_PER_E`, so that the read noise carries all of it.
     """
     try:
         return estimate_camera(real, valid=valid, model_mean=model_adu, camera=camera).camera
     except ValueError:
         residual = (real - model_adu)[valid]
-        gain = 1e-3
+        gain = UNMEASURED_GAIN_ADU_PER_E
         floor = max(float(np.mean(residual**2)), 1 / 12)
         return dataclasses.replace(
             camera,

@@ -19,6 +19,7 @@ from scipy import ndimage
 
 from napari_symbac.fit.bright_start import DETECT_SNR, bright_instances, brightest_contrast
 from napari_symbac.fit.placement import TrenchPlacement
+from napari_symbac.fit.preflight import as_instance_ids
 from napari_symbac.settings import Microscope
 from napari_symbac.sim import FrameCells
 
@@ -651,10 +652,7 @@ def start_scene(
         masks = np.asarray(masks)
         if masks.shape != image.shape:
             raise ValueError(f"masks of shape {masks.shape} do not match the image {image.shape}")
-        if masks.dtype == bool or masks.max() <= 1:
-            instances = ndimage.label(masks > 0)[0]
-        else:
-            instances = masks.astype(np.int64)
+        instances = as_instance_ids(masks)[0].astype(np.int64)
         # an instance mask keeps its cells as they are: no rods split off long regions
         cells, widths = cells_from_instances(instances, px, max_cell_length_um=math.inf)
         return cells, widths, found, instances

@@ -19,6 +19,7 @@ from typing import Any, Protocol
 import numpy as np
 from numba import njit
 
+from napari_symbac.arguments import require_argument
 from napari_symbac.scene._field import Field, field_images
 from napari_symbac.scene._raster import media_fraction, rasterise_cells
 from napari_symbac.settings import Microscope, RenderSettings, TrenchGeometry
@@ -636,6 +637,10 @@ def draw_scene(
     -------
     Scene
     """
+    require_argument(microscope, Microscope, "draw_scene(microscope=...)")
+    require_argument(render, RenderSettings, "draw_scene(render=...)")
+    if field is None:
+        require_argument(trench, TrenchGeometry, "draw_scene(trench=...)")
     ids = np.asarray(getattr(cells, "ids", None))
     if ids.ndim != 1:
         raise ValueError(f"cells.ids must be a 1-D array, got shape {ids.shape}")
