@@ -52,10 +52,20 @@ def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
     )
     export = ExportWidget(viewer)
     assert export.source.value is simulated
+    said = []  # the status line after each progress message (a Label emits no signal)
+    shown = widget._on_progress
+    widget._on_progress = lambda message: (shown(message), said.append(widget.status.value))
     widget.run_button.clicked.emit()
     assert not widget.run_button.enabled
     qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
     assert widget.run_button.enabled
+    # the scene fit counts its renders (found as a user: minutes of "Fitting the
+    # scene..." with no count), then the held-out checks are counted
+    counted = [s for s in said if re.match(r"Fitting the scene: \d+ of at most \d+ renders", s)]
+    assert counted, said
+    assert said.index(counted[-1]) < max(
+        i for i, s in enumerate(said) if s.startswith("Diagnosing: ")
+    )
     assert not widget.cancel_button.enabled
     assert widget.result is not None, widget.status.value
     assert "the centre 96 x 46 px of the 256 x 46 frame" in widget.status.value
@@ -351,6 +361,13 @@ def test_the_window_chosen_is_the_one_diagnosed(ds3_widget, qtbot):
         assert name.data.shape == (96, 64)  # the window, over it on the canvas
         assert tuple(name.translate) == pytest.approx((96 * 0.08, 48 * 0.08))
         assert tuple(name.scale) == (0.08, 0.08)
+    # Export, which takes the diagnosis' settings, says its images are the window's
+    from napari_symbac._widgets.export import ExportWidget
+
+    export = ExportWidget(viewer)
+    assert export.source.value is viewer.layers[DIAGNOSIS_RESIDUAL_LAYER]
+    label = export.source.native.currentText()
+    assert label.endswith("(images of the diagnosed window, 96 x 64 px)")
 
 
 @pytest.mark.parametrize(

@@ -291,6 +291,20 @@ def test_a_deleted_grey_channel_is_said(make_napari_viewer, real_data_dir, notif
     assert "its grey channel is the layer" not in widget.result.value
 
 
+def test_two_channels_of_one_name_are_told_apart_by_their_folder(
+    make_napari_viewer, real_data_dir
+):
+    """Found as a user: ColiCoords' fluorescence/00002.tif and brightfield/00002.tif
+    opened with *or open* became "00002" and "00002 [1]"."""
+    viewer = make_napari_viewer()
+    widget = RealImageWidget(viewer)
+    ds1 = real_data_dir / "colicoords" / "test_data" / "ds1"
+    widget.file.value = ds1 / "fluorescence" / "00002.tif"
+    widget.file.value = ds1 / "brightfield" / "00002.tif"
+    assert [layer.name for layer in viewer.layers] == ["00002", "00002 (brightfield)"]
+    assert widget.image.value is viewer.layers["00002 (brightfield)"]
+
+
 def test_or_open_takes_a_grey_png_as_the_fit_command_does(make_napari_viewer, real_data_dir):
     """Found as a user: *or open* took only TIFFs ("Sample000033.png is not a TIFF
     file"), while `napari-symbac fit` reads the same PNG; it opens as its grey channel,
@@ -433,7 +447,7 @@ def test_or_open_shows_the_file_of_the_recording_chosen(
     widget.image.value = brightfield
     assert widget.file.line_edit.value == str(fields / "brightfield" / "00066.tif")
     # shown, not opened again: one layer per file
-    assert [layer.name for layer in viewer.layers] == ["00066", "drawn", "00066 [1]"]
+    assert [layer.name for layer in viewer.layers] == ["00066", "drawn", "00066 (brightfield)"]
     # a grey PNG saved as colour, opened with File > Open: its grey channel's file is it
     png = real_data_dir / "omnipose" / "Sample000033.png"
     widget.image.value = viewer.open(png)[0]

@@ -253,17 +253,19 @@ def test_a_chosen_recording_sets_the_geometry_as_fit_would(widget, width_px, mod
         )
 
 
-def test_a_fluorescence_field_is_laid_out_as_its_cells(widget, qtbot, real_data_dir):
+@pytest.mark.parametrize("modality", ["fluorescence", "brightfield"])
+def test_a_field_is_laid_out_as_its_cells(widget, qtbot, real_data_dir, modality):
     """Found as a user: a ColiCoords field of eight cells was simulated as one founder on
-    an empty 41 um pad until Auto-fit; the pad now has a colony per cluster of cells."""
+    an empty 41 um pad until Auto-fit (in bright field too, after fluorescence was laid
+    out); the pad now has a colony per cluster of cells."""
     import tifffile
 
     image = tifffile.imread(
-        real_data_dir / "colicoords" / "test_data" / "ds1" / "fluorescence" / "00001.tif"
+        real_data_dir / "colicoords" / "test_data" / "ds1" / modality / "00001.tif"
     )
     widget.viewer.add_image(
         image, name="field 1", scale=(0.08, 0.08),
-        metadata={"pixel_size_um": 0.08, "modality": "fluorescence"},
+        metadata={"pixel_size_um": 0.08, "modality": modality},
     )  # fmt: skip
     assert widget.form.geometry.value == "agar_pad"
     settings = widget.pipeline_settings().simulation

@@ -330,6 +330,12 @@ def test_auto_fit_of_a_phase_colony_with_its_masks_fits_the_halo(rendered, qtbot
     assert tune.sliders["apodisation_sigma_um"].value == pytest.approx(
         result.render.apodisation_sigma_um, abs=0.01
     )  # beyond the slider's first range (3 um): widened, not refused
+    # the 8-bit colony's intensities (tens of ADU) sit inside their sliders' ranges, not
+    # at the left end of 0-20000 ADU where the slider could not move them
+    cell = tune.sliders["cell_intensity"]
+    assert 0 < result.render.cell_intensity < 256
+    assert cell.value == pytest.approx(result.render.cell_intensity, rel=0.01)
+    assert cell.max == pytest.approx(4 * cell.value, rel=0.01)
     layer = tune.source.value
     frame = tune._current_frame()
     before = layer.data[frame].astype(float).copy()

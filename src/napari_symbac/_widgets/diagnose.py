@@ -37,7 +37,11 @@ from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
 if TYPE_CHECKING:
     import napari
 
-__all__ = ["DIAGNOSIS_RESIDUAL_LAYER", "DiagnoseWidget", "effect_layer_name"]
+__all__ = ["DIAGNOSIS_RESIDUAL_LAYER", "WINDOW_KEY", "DiagnoseWidget", "effect_layer_name"]
+
+#: Metadata of the diagnosis' layer: the diagnosed window's ``(rows, columns)`` when
+#: smaller than the recording (its settings draw frames of that size), else ``None``.
+WINDOW_KEY = "diagnosed_window_px"
 
 #: The layer of the base fit's standardised residual; it carries the updated settings.
 DIAGNOSIS_RESIDUAL_LAYER = "diagnosis residual"
@@ -291,7 +295,8 @@ class DiagnoseWidget(Container):
                     camera,
                     labels=labels,
                     geometry=geometry,
-                    progress=lambda done, total: progress(0, 1),
+                    # a negative total marks the scene fit's renders (_on_progress)
+                    progress=lambda done, total: progress(done, -total),
                     cancel=cancel,
                 )
             except ValueError as err:
@@ -386,9 +391,18 @@ class DiagnoseWidget(Container):
         return PipelineSettings().simulation
 
     def _on_progress(self, message) -> None:
+        """The scene fit's renders (a negative total), then the held-out checks, each with
+        the window (found as a user: minutes of "Fitting the scene..." with no count on a
+        ColiCoords field, and the window's note gone once the checks were counted)."""
         done, total = message
-        if total > 1:
-            self.status.value = f"Diagnosing: {done} of at most {total} held-out checks"
+        if total < 0:
+            self.status.value = (
+                f"Fitting the scene: {done} of at most {-total} renders" + self._window_note
+            )
+        elif total > 1:
+            self.status.value = (
+                f"Diagnosing: {done} of at most {total} held-out checks" + self._window_note
+            )
 
     def _on_returned(self, output) -> None:
         from napari_symbac.diagnose.stages import updated_settings
@@ -422,6 +436,8 @@ class DiagnoseWidget(Container):
                     "settings": settings,
                     "extra_stages": extra,
                     "diagnosis": result.as_dict(),
+                    # Export names it: its images are the window's size
+                    WINDOW_KEY: tuple(result.residual_before[0].shape) if windowed else None,
                 }
             },
             **kwargs,

@@ -279,6 +279,15 @@ class ExportWidget(Container):
 
 
 def _source_label(layer) -> str:
-    """``layer``'s name, and the recording it was fitted to once Auto-fit has fitted it."""
-    fitted = layer.metadata[SYMBAC_METADATA_KEY].get(FITTED_TO_KEY)
-    return layer.name if fitted is None else f"{layer.name} (fitted to {fitted})"
+    """``layer``'s name, and the recording it was fitted to once Auto-fit has fitted it,
+    or the window a diagnosis was made of (found as a user: after a diagnosis of a
+    128 x 128 px window, chosen for speed, Export wrote 128 x 128 px images of a
+    512 x 512 px recording, said only in the Diagnose tab)."""
+    from napari_symbac._widgets.diagnose import WINDOW_KEY
+
+    meta = layer.metadata[SYMBAC_METADATA_KEY]
+    if (fitted := meta.get(FITTED_TO_KEY)) is not None:
+        return f"{layer.name} (fitted to {fitted})"
+    if (window := meta.get(WINDOW_KEY)) is not None:
+        return f"{layer.name} (images of the diagnosed window, {window[0]} x {window[1]} px)"
+    return layer.name

@@ -202,9 +202,14 @@ class RealImageWidget(Container):
             _follow_pixels(self.viewer)  # before napari draws the image (and checks units)
         # its file recorded, so that *or open* shows it when the layer is chosen (napari's
         # File > Open records it as the layer's source, which only napari's readers set)
+        name = recording.name
+        if name in self.viewer.layers and path.parent.name:
+            # found as a user: ColiCoords' fluorescence/00002.tif and brightfield/00002.tif
+            # became "00002" and "00002 [1]", which neither names
+            name = f"{name} ({path.parent.name})"
         layer = self.viewer.add_image(
             recording.data,
-            name=recording.name,
+            name=name,
             metadata={
                 "pixel_size_um": recording.pixel_size_um,
                 "modality": recording.modality,

@@ -26,7 +26,7 @@ from napari_symbac._widgets._recording import (
     watch_recordings,
 )
 from napari_symbac.io import SYMBAC_METADATA_KEY
-from napari_symbac.settings import PipelineSettings, SimulationSettings
+from napari_symbac.settings import Microscope, PipelineSettings, SimulationSettings
 
 if TYPE_CHECKING:
     import napari
@@ -169,20 +169,23 @@ class SimulateWidget(Container):
             pad.edge_margin_um.value = round(margin, 3)
             pad.field_width_um.value = width_um
             pad.field_height_um.value = height_um
-            if microscope.modality == "fluorescence":
-                self._lay_out_as(layer, microscope.pixel_size_um)
+            if microscope.modality in ("fluorescence", "brightfield"):
+                self._lay_out_as(layer, microscope)
 
-    def _lay_out_as(self, layer, pixel_um: float) -> None:
-        """The pad's colonies as the recording's clusters of bright cells, before any fit
+    def _lay_out_as(self, layer, microscope: Microscope) -> None:
+        """The pad's colonies as the recording's clusters of cells, before any fit
         (:func:`~napari_symbac.calibrate.core.rough_pad_layout` of its first frame; found
         as a user: a ColiCoords field of eight cells was simulated as one founder on an
-        empty pad). Said in the status; Auto-fit lays it out from the fitted cells."""
+        empty pad, in fluorescence and then in bright field). Said in the status;
+        Auto-fit lays it out from the fitted cells."""
         from napari_symbac.calibrate.core import rough_pad_layout
 
         frame = np.asarray(layer.data[(0,) * (layer.data.ndim - 2)], np.float64)
         settings = self.form.value
         cell_area_um2 = settings.cell_width_um * 0.75 * settings.cell_max_length_um
-        layout = rough_pad_layout(frame, pixel_um, cell_area_um2)
+        layout = rough_pad_layout(
+            frame, microscope.pixel_size_um, cell_area_um2, microscope.modality
+        )
         if layout is None:  # no cell to see: the defaults' colony
             return
         fields, note = layout

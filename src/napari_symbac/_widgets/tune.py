@@ -1145,9 +1145,18 @@ def _format(value: float) -> str:
     return f"{value:.4g}" if np.isfinite(value) else "NaN"
 
 
+#: Sliders in ADU whose range follows the value set (:func:`_set_slider`).
+INTENSITY_SLIDERS = ("cell_intensity", "media_intensity", "device_intensity")
+
+
 def _set_slider(slider: FloatSlider, value: float) -> None:
     """Set ``slider`` to ``value``, widening its range (with room) when it lies outside:
-    the slider rounds its limits, so a limit set to exactly ``value`` can reject it."""
+    the slider rounds its limits, so a limit set to exactly ``value`` can reject it.
+    An intensity far below its slider's range narrows the range to 4 x the value (found
+    as a user: an 8-bit colony's 7.93 ADU sat at the left end of 0-20000 ADU, where
+    the slider could not move it)."""
+    if slider.name in INTENSITY_SLIDERS and 0 < 4 * value < slider.max:
+        slider.max = 4 * value
     room = 0.25 * abs(value) + 1e-3
     if value > slider.max:
         slider.max = value + room

@@ -217,23 +217,29 @@ _CLUSTER_REACH_UM = 0.5
 
 
 def rough_pad_layout(
-    image: np.ndarray, pixel_size_um: float, cell_area_um2: float
+    image: np.ndarray,
+    pixel_size_um: float,
+    cell_area_um2: float,
+    modality: str = "fluorescence",
 ) -> tuple[dict, str] | None:
-    """A fluorescence field's agar pad laid out before any fit (Simulate's start):
-    :func:`pad_layout` with one colony per cluster of the image's bright regions
-    (:func:`_rough_cells`; regions of at least half a cell of ``cell_area_um2``,
-    joined within :data:`_CLUSTER_REACH_UM`), each of the clusters' mean area in cells.
-    Found as a user: a ColiCoords field of eight scattered cells was simulated as one
-    founder on an empty 41 um pad until Auto-fit laid it out. Fluorescence only: in
-    phase contrast the background far from a colony is darker than its halo, and an
-    Otsu threshold takes it for cells (1 colony of thousands of cells on the Omnipose
-    images). ``None`` for an image without a bright region of a cell's size."""
+    """A fluorescence or bright-field field's agar pad laid out before any fit
+    (Simulate's start): :func:`pad_layout` with one colony per cluster of the image's
+    cell regions (:func:`_rough_cells`; regions of at least half a cell of
+    ``cell_area_um2``, joined within :data:`_CLUSTER_REACH_UM`), each of the clusters'
+    mean area in cells. Found as a user: a ColiCoords field of eight scattered cells was
+    simulated as one founder on an empty 41 um pad until Auto-fit laid it out (and, in
+    bright field, until this took bright field too). Not phase contrast: there the
+    background far from a colony is darker than its halo, and an Otsu threshold takes
+    it for cells (1 colony of thousands of cells on the Omnipose images). ``None`` for
+    an image without a cell region of a cell's size."""
     from scipy import ndimage
 
+    if modality not in ("fluorescence", "brightfield"):
+        raise ValueError(f"rough_pad_layout takes fluorescence or bright field, not {modality}")
     image = np.asarray(image, np.float64)
     if not np.ptp(image) > 0:
         return None
-    regions = _rough_cells(image, "fluorescence", pixel_size_um)
+    regions = _rough_cells(image, modality, pixel_size_um)
     area_px = np.bincount(regions.ravel())[1:]
     kept = np.flatnonzero(area_px * pixel_size_um**2 >= 0.5 * cell_area_um2) + 1
     cells = np.isin(regions, kept)
