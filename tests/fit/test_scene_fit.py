@@ -217,3 +217,20 @@ def test_fit_scene_refuses_masks_that_are_not_instance_masks():
         fit_scene(image, microscope, render, masks=np.zeros_like(masks))
     with pytest.raises(ValueError, match="but the image frame has shape"):
         fit_scene(image, microscope, render, masks=masks[:-1])
+
+
+def test_the_command_lines_word_field_is_an_open_geometry():
+    """Found as an API user: `fit --geometry field` but fit_scene(geometry="open"); the
+    CLI's word was refused from Python."""
+    image = _noisy_frame()
+    masks = np.zeros(image.shape, np.int64)
+    masks[20:30, 10:20] = 1
+    microscope = Microscope(pixel_size_um=0.065, modality="fluorescence")
+    image[masks > 0] += 500
+    kwargs = {"masks": masks, "max_iterations": 2, "irls_rounds": 1, "moves": False}
+    field = fit_scene(image, microscope, RenderSettings(), geometry="field", **kwargs)
+    open_ = fit_scene(image, microscope, RenderSettings(), geometry="open", **kwargs)
+    assert field.trench is None
+    np.testing.assert_array_equal(field.synthetic, open_.synthetic)
+    with pytest.raises(ValueError, match=r"'trench' or 'open' \('field'\), got 'pad'"):
+        fit_scene(image, microscope, RenderSettings(), geometry="pad")

@@ -754,6 +754,18 @@ def regenerate(manifest_dir: str | os.PathLike, name: str) -> ExportItem:
     """Make item ``name`` of an exported dataset again, from its ``manifest.json``.
 
     With the same package version the result is bit for bit the exported item.
+
+    Parameters
+    ----------
+    manifest_dir
+        The dataset's folder (the one holding ``manifest.json``).
+    name
+        The item's name, as its files are named (e.g. ``"000004"``).
+
+    Raises
+    ------
+    KeyError
+        If the dataset has no item of that name.
     """
     import json
 

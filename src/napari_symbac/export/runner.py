@@ -598,6 +598,11 @@ def write_items(
         Format names, e.g. ``("tiff", "ctc")``.
     header
         Extra manifest fields, typically ``{"settings": to_dict(pipeline_settings)}``.
+    coco_segmentation
+        ``"polygon"`` or ``"rle"`` outlines in the COCO format.
+    progress, cancel
+        ``progress(done, total)`` after each item; ``cancel()`` returning True (or an
+        event that is set) stops after the item in progress: run again to resume.
     """
     header = {"kind": "items", "settings": None, **(header or {})}
     return run_export(

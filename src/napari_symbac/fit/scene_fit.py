@@ -361,7 +361,7 @@ def fit_scene(
     render: RenderSettings,
     camera: Camera | None = None,
     *,
-    geometry: Literal["trench", "open"] = "trench",
+    geometry: Literal["trench", "open", "field"] = "trench",
     labels: np.ndarray | None = None,
     masks: np.ndarray | None = None,
     trench: TrenchPlacement | TrenchGeometry | None = None,
@@ -401,7 +401,8 @@ def fit_scene(
         guessed (100 ADU, or the image's 0.1 % quantile when lower, e.g. 0 for a
         background-subtracted image).
     geometry
-        ``"trench"`` (mother machine) or ``"open"`` (agar pad: no device).
+        ``"trench"`` (mother machine) or ``"open"`` (an open field, an agar pad: no
+        device; ``"field"``, the command line's word, is taken for it too).
     labels
         Painted classes (1 cell, 2 media, 3 device, 0 unpainted): rough strokes that
         give the polarity and rule out painted media/device in the start
@@ -519,7 +520,7 @@ def _run_frame(
     render: RenderSettings,
     camera: Camera | None = None,
     *,
-    geometry: Literal["trench", "open"] = "trench",
+    geometry: Literal["trench", "open", "field"] = "trench",
     labels: np.ndarray | None = None,
     masks: np.ndarray | None = None,
     trench: TrenchPlacement | TrenchGeometry | None = None,
@@ -551,8 +552,9 @@ def _run_frame(
     )
     real = as_single_image(real_image, name="real_image")
     check_fit_image(real, "real_image", camera_hint=API_CAMERA_HINT)
+    geometry = "open" if geometry == "field" else geometry  # `fit --geometry field`'s word
     if geometry not in ("trench", "open"):
-        raise ValueError(f"geometry must be 'trench' or 'open', got {geometry!r}")
+        raise ValueError(f"geometry must be 'trench' or 'open' ('field'), got {geometry!r}")
     if masks is not None:  # refused before minutes of fit (an image given as masks, ...)
         masks = np.asarray(masks)
         check_instance_masks(masks, real.shape)

@@ -186,7 +186,7 @@ def fit_series(
     render: RenderSettings,
     camera: Camera | None = None,
     *,
-    geometry: Literal["trench", "open"] = "trench",
+    geometry: Literal["trench", "open", "field"] = "trench",
     labels: np.ndarray | None = None,
     masks: np.ndarray | None = None,
     valid: np.ndarray | None = None,
@@ -249,6 +249,7 @@ def fit_series(
     -------
     SeriesFit
     """
+    geometry = "open" if geometry == "field" else geometry  # `fit --geometry field`'s word
     stack = np.asarray(frames)
     if stack.ndim != 3 or stack.shape[0] < 2:
         raise ValueError(

@@ -170,6 +170,11 @@ def load_simulation(directory: str | os.PathLike) -> Simulation:
     """Read a simulation written by :func:`save_simulation` (any format version up to
     :data:`FORMAT_VERSION`; settings fields added since take their defaults).
 
+    Parameters
+    ----------
+    directory
+        The folder ``napari-symbac simulate --out`` (or :func:`save_simulation`) wrote.
+
     Raises
     ------
     FileNotFoundError
