@@ -127,6 +127,23 @@ def test_an_export_whose_validation_split_rounds_to_nothing_says_so(tmp_path, ca
     assert (tmp_path / "e" / "coco" / "annotations" / "instances_val.json").is_file()
 
 
+def test_a_pipeline_file_exports_a_tracking_dataset_with_kind(tmp_path, capsys):
+    """Found as a user: from a fit's settings.yaml (a pipeline file, no kind) there was no
+    way to a tracking dataset: ctc was refused for kind frames, and kind: added to the
+    file was an unknown field. `--kind timeseries` sets it."""
+    config = tmp_path / "settings.yaml"
+    save_settings(TINY, config)
+    out = tmp_path / "tracks"
+    argv = ["export", "--config", str(config), "--out", str(out), "--n-items", "1"]
+    code, err = _run([*argv, "--formats", "ctc"], capsys)
+    assert code == 2
+    assert "`napari-symbac export --kind timeseries`" in err
+    code, err = _run([*argv, "--formats", "ctc", "--kind", "timeseries"], capsys)
+    assert code == 0, err
+    assert json.loads((out / "manifest.json").read_text())["settings"]["kind"] == "timeseries"
+    assert list(out.rglob("man_track.txt"))
+
+
 def test_export_to_a_folder_of_other_files(tmp_path, export_config, capsys):
     """Found as a user: ``export --out`` a folder of their own files wrote the dataset's
     folders among them."""
@@ -933,15 +950,17 @@ def test_a_constant_image_names_the_file(tmp_path, fit_inputs, capsys, command):
     assert not out.exists()
 
 
-@pytest.mark.parametrize("command", ["render", "fit", "calibrate", "diagnose"])
+@pytest.mark.parametrize("command", ["simulate", "render", "fit", "calibrate", "diagnose"])
 def test_ctrl_c_of_a_command_that_starts_over_promises_no_resume(command):
-    """Found as a user: Ctrl-C of any command said "an export resumes when run again"."""
+    """Found as a user: Ctrl-C of any command (simulate and demo until this round) said
+    "an export resumes when run again"."""
     from napari_symbac.cli import interrupted_text
 
     text = interrupted_text(command)
     assert f"run the same {command} again (it starts over" in text
     assert "finished files are kept" not in text
     assert "resumes when run again" in interrupted_text("export")
+    assert "run the same demo again" in interrupted_text("demo")
 
 
 @pytest.mark.parametrize("command", FIT_COMMANDS)

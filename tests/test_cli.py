@@ -197,6 +197,9 @@ def test_simulate_then_render(tmp_path, capsys):
     # rendered again into the same folder: the earlier files are replaced, and it says so
     assert main(["render", str(tmp_path / "sim"), "--out", str(tmp_path / "render")]) == 0
     assert "replaced the images.tif, labels.tif, semantic.tif" in capsys.readouterr().err
+    # simulated again into the same folder: said as render says it (found as a user)
+    assert main(["simulate", "--out", str(tmp_path / "sim"), "--frames", "3", "--seed", "1"]) == 0
+    assert f"replaced the simulation that {tmp_path / 'sim'} held" in capsys.readouterr().err
 
 
 def test_simulate_takes_the_simulation_of_a_pipeline_file(tmp_path, capsys):

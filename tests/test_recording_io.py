@@ -319,3 +319,26 @@ def test_the_reader_opens_a_layer_per_channel(tmp_path):
         assert kind == "image"
         np.testing.assert_array_equal(array, data[k])
         assert meta["scale"] == pytest.approx((0.08, 0.08), rel=1e-4)
+
+
+@pytest.mark.parametrize(
+    ("shapes", "advice"),
+    [
+        (((200, 200), (180, 220)), "save each image as its own TIFF"),
+        (((20, 20), (20, 20)), "save them as one stack"),
+    ],
+)
+def test_a_tiff_of_several_separate_images_is_refused(tmp_path, shapes, advice):
+    """Found as a user: a TIFF of pages of 200 x 200 and 180 x 220 px was read as its
+    first page, and `fit --frames 0-1` said it had 1 frame. Images written one after
+    another are tifffile's separate series: refused, not cut to the first."""
+    path = tmp_path / "pages.tif"
+    with tifffile.TiffWriter(path) as tif:
+        for k, shape in enumerate(shapes):
+            tif.write(np.full(shape, 5 + k, np.uint16))
+    with pytest.raises(ValueError, match="holds 2 separate images") as refused:
+        read_recording(path)
+    assert advice in str(refused.value)
+    assert str(path) in str(refused.value)
+    tifffile.imwrite(tmp_path / "stack.tif", np.zeros((2, 20, 20), np.uint16))
+    assert read_recording(tmp_path / "stack.tif").data.shape == (2, 20, 20)

@@ -93,6 +93,11 @@ def test_settings_are_frozen():
         ),
         (lambda: Camera(sensitivity_adu_per_e=0), r"sensitivity_adu_per_e must be a positive"),
         (
+            lambda: Camera(baseline_adu=70000),
+            r"baseline_adu=70000 is not below the camera's full scale \(65535 ADU",
+        ),
+        (lambda: Camera(baseline_adu=300, bit_depth=8), r"\(255 ADU at bit_depth 8\)"),
+        (
             lambda: PipelineSettings(render=RenderSettings(apodisation_sigma_um=0.05)),
             r"below the diffraction bound of eq\. 13",
         ),

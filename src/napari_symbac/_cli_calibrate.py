@@ -151,12 +151,12 @@ def run_calibrate(args: argparse.Namespace) -> int:
         items_words,
         montage,
     )
+    from napari_symbac.diagnose.config import load_microscope_file
     from napari_symbac.export import export_dataset
     from napari_symbac.export.atomic import staging_folder
     from napari_symbac.fit.preflight import not_integer_masks, resolve_pixel_size
     from napari_symbac.settings import (
         Camera,
-        load_microscope,
         load_settings,
         microscope_sets_pixel_size,
         save_settings,
@@ -199,8 +199,11 @@ def run_calibrate(args: argparse.Namespace) -> int:
         if masks is not None and not np.issubdtype(masks.dtype, np.integer):
             raise ValueError(not_integer_masks("--masks", masks.dtype))
         _check_inputs(args, image, masks, labels)
-        microscope = load_microscope(args.microscope)
-        camera = None if args.camera is None else load_settings(args.camera, Camera)
+        # the camera section the help names (found as a user: refused as an unknown field)
+        microscope_file = load_microscope_file(args.microscope)
+        microscope, camera = microscope_file.microscope, microscope_file.camera
+        if args.camera is not None:
+            camera = load_settings(args.camera, Camera)
         microscope, pixel_note = resolve_pixel_size(
             recording.pixel_size_um,
             microscope,

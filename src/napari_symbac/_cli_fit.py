@@ -245,6 +245,8 @@ def _camera_for(
         if dark.shape[-2:] != frame.shape:  # only their statistics are used: any region
             note += f"; {dark.shape[-2]} x {dark.shape[-1]} px frames, another region"
         return estimate.camera, note + ")"
+    if getattr(args, "microscope_camera", None) is not None:
+        return args.microscope_camera, f"from the camera section of --microscope {args.microscope}"
     if config_has_camera:
         return base_camera, f"from --config {args.config}"
     if engine_estimates:
@@ -782,10 +784,7 @@ def _fit_frames_jointly(
         "lineage": _lineage_record(lineage, frames),
     }
     if np.any(np.diff(frames) != 1):
-        table["lineage"]["note"] = (
-            "the frames are not consecutive: the links assume one growth and drift per "
-            "step between the frames given"
-        )
+        table["lineage"]["note"] = GAPPED_FRAMES_NOTE
     writers["series.json"] = lambda p: p.write_text(json.dumps(table, indent=2))
     writers.update(_ctc_result(series, frames, microscope.pixel_size_um))
     summaries += [
@@ -793,6 +792,10 @@ def _fit_frames_jointly(
         for name, (value, se) in series.shared().items()
     ]
     summaries.append(_tracks_line(lineage, frames))
+    # found as a user: the joint fit's "stopped at the iteration limit" and the gapped
+    # frames' note were only inside series.json (a gap linked a division's daughters wrong)
+    summaries += [f"PROBLEM (joint fit): {warning}" for warning in series.warnings]
+    summaries += [f"NOTE (tracks): {GAPPED_FRAMES_NOTE}"] * ("note" in table["lineage"])
     return writers, summaries
 
 
@@ -876,7 +879,16 @@ def _fit_colony_frames(
         f"shared {name}: {value:.4g} +- {se:.2g}" for name, (value, se) in series.shared().items()
     ]
     summaries.append(_tracks_line(lineage, frames))
+    summaries += [f"PROBLEM (joint fit): {warning}" for warning in series.warnings]
     return writers, summaries
+
+
+#: Said of a series fitted from frames that are not consecutive (series.json and stdout).
+GAPPED_FRAMES_NOTE = (
+    "the frames are not consecutive: the links assume one growth and drift per step "
+    "between the frames given, so a division or a cell that left between them can be "
+    "linked wrong; fit consecutive frames (e.g. --frames 0-3) to track cells"
+)
 
 
 def _lineage_record(lineage, frames: list[int]) -> dict:
@@ -920,6 +932,7 @@ def _ctc_result(series, frames: list[int], pixel_size_um: float) -> dict:
 
 def run_fit(args: argparse.Namespace) -> int:
     """Run ``napari-symbac fit`` with parsed arguments; returns the exit code."""
+    from napari_symbac.diagnose.config import load_microscope_file
     from napari_symbac.export.atomic import earlier_run
     from napari_symbac.fit.preflight import (
         camera_pixel_problem,
@@ -931,7 +944,6 @@ def run_fit(args: argparse.Namespace) -> int:
     from napari_symbac.fit.report import cells_counted, write_atomically
     from napari_symbac.settings import (
         PipelineSettings,
-        load_microscope,
         load_settings,
         microscope_sets_pixel_size,
     )
@@ -959,7 +971,10 @@ def run_fit(args: argparse.Namespace) -> int:
             args.config, PipelineSettings
         )
         keys = _explicit_keys(args.config)  # after load_settings: its refusals name the file
-        microscope = load_microscope(args.microscope)
+        # found as a user: the camera section the help names was refused here ("unknown
+        # field(s) camera in Microscope") while diagnose read it
+        microscope_file = load_microscope_file(args.microscope)
+        microscope, args.microscope_camera = microscope_file.microscope, microscope_file.camera
         modality = args.modality or recording.modality or microscope.modality
         if modality != microscope.modality:
             microscope = dataclasses.replace(microscope, modality=modality)

@@ -142,6 +142,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     _confirm_large_run(n_frames, f"simulating {n_frames:,} frames", args.yes)
     # simulate() saves to save_dir itself, atomically, once the run is complete.
     settings = dataclasses.replace(settings, **overrides, save_dir=str(out))
+    replaced = (out / "simulation.json").is_file()
     timer = StepTimer()
     update, bar = _tqdm_progress("simulate", settings.n_frames)
     with timer.step("simulate and save"):
@@ -151,6 +152,12 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         f"wrote simulation of {_count(settings.n_frames, 'frame')}, "
         f"{_count(len(simulation.lineage), 'cell')} to {out}"
     )
+    if replaced:  # said as render says it (found as a user: replaced without a word)
+        print(
+            f"napari-symbac simulate: note: replaced the simulation that {out} held "
+            "(simulate to another --out to keep both)",
+            file=sys.stderr,
+        )
     print(timer.report())
     return 0
 
@@ -239,11 +246,14 @@ def _cmd_export(args: argparse.Namespace) -> int:
     settings = load_export_settings(args.config)
     if args.n_items is not None:
         settings = dataclasses.replace(settings, n_items=args.n_items)
-    if args.formats is not None:  # found as a user: a fit's settings had only its default
-        try:
-            settings = dataclasses.replace(settings, formats=args.formats)
+    given = {"formats": args.formats, "kind": args.kind}  # set together: ctc needs both
+    given = {key: value for key, value in given.items() if value is not None}
+    if given:  # found as a user: a fit's settings had only its default formats, and no
+        try:  # way to a tracking dataset (kind has no place in a pipeline file)
+            settings = dataclasses.replace(settings, **given)
         except ValueError as err:
-            raise ValueError(f"--formats {args.formats!r}: {err}") from None
+            named = " ".join(f"--{key} {value!r}" for key, value in given.items())
+            raise ValueError(f"{named}: {err}") from None
     out = _output_folder(args.out)
     backend = _backend(args)
     sim_frames = settings.pipeline.simulation.n_frames
@@ -910,7 +920,13 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument(
         "--formats",
         help="comma-separated formats, instead of the config's: tiff, png, delta, omnipose, "
-        "stardist, coco, ome-zarr; ctc and trackmate for kind: timeseries",
+        "stardist, coco, ome-zarr; ctc and trackmate for --kind timeseries",
+    )
+    export.add_argument(
+        "--kind",
+        choices=("frames", "timeseries"),
+        help="independent frames, or whole simulated time series with their tracks, "
+        "instead of the config's kind (a pipeline file such as fit's settings.yaml: frames)",
     )
     export.add_argument(
         "--workers",
@@ -1180,7 +1196,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"napari-symbac {args.command}: error: {text}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as stop:
-        print(f"napari-symbac {args.command}: {interrupted_text(args.command)}", file=sys.stderr)
+        # on a terminal a progress bar holds the line: the message starts a new one (found
+        # as a user: "...48.13image/s]napari-symbac export: interrupted")
+        start = "\n" if sys.stderr.isatty() else ""
+        print(
+            f"{start}napari-symbac {args.command}: {interrupted_text(args.command)}",
+            file=sys.stderr,
+        )
         return 143 if isinstance(stop, Terminated) else 130
 
 
@@ -1229,13 +1251,16 @@ def _terminate_as_interrupt() -> Iterator[None]:
 
 
 #: Commands that do not resume a run that stopped: they start over when run again.
-_STARTS_OVER = ("render", "fit", "calibrate", "diagnose")
+_STARTS_OVER = ("simulate", "render", "fit", "calibrate", "diagnose")
 
 
 def interrupted_text(command: str) -> str:
-    """What ``command`` leaves when stopped with Ctrl-C, and what to do then."""
+    """What ``command`` leaves when stopped with Ctrl-C, and what to do then (found as a
+    user: simulate and demo said an export's words)."""
     if command in _STARTS_OVER:
         return f"interrupted: run the same {command} again (it starts over; only an export resumes)"
+    if command == "demo":
+        return "interrupted: run the same demo again (its dataset resumes where it stopped)"
     return "interrupted; finished files are kept (an export resumes when run again)"
 
 

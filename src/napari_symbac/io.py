@@ -361,6 +361,7 @@ def _read_tiff(path: Path) -> tuple[Recording, str]:
     try:
         with tifffile.TiffFile(path) as tif:
             _check_complete(tif, path)
+            _refuse_images_of_several_sizes(tif, path)
             data, axes = tif.asarray(), _series_axes(tif)
             pixel = _pixel_size_um(tif)
             modality = _modality(tif)
@@ -381,6 +382,31 @@ def _read_tiff(path: Path) -> tuple[Recording, str]:
             break
     recording = Recording(data=data, pixel_size_um=pixel, name=name, modality=modality, kind=kind)
     return recording, axes
+
+
+def _refuse_images_of_several_sizes(tif, path: Path) -> None:
+    """Refuse a TIFF of several images (tifffile's series: pages of different sizes, or
+    stacks written one after another), of which only the first would be read: found as
+    a user, pages of 200 x 200 and 180 x 220 px were read as one frame without a word.
+    Reduced-resolution pages (thumbnails, a pyramid's levels) are not images of their
+    own."""
+    shapes = [
+        tuple(series.shape)
+        for series in tif.series
+        if not getattr(series.pages[0], "is_reduced", False)
+    ]
+    if len(shapes) > 1:
+        sizes = ", ".join(" x ".join(map(str, shape)) for shape in shapes[:4])
+        same = len(set(shapes)) == 1
+        raise ValueError(
+            f"{path} holds {len(shapes)} separate images ({sizes}{', ...' * (len(shapes) > 4)})"
+            " and only the first would be read: a recording is one image or one stack of "
+            + (
+                "frames; save them as one stack (e.g. tifffile.imwrite(path, np.stack(frames)))"
+                if same
+                else "frames of one size; save each image as its own TIFF"
+            )
+        )
 
 
 def as_counts(data: np.ndarray) -> tuple[np.ndarray, CountsMapping | None]:

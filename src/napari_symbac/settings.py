@@ -914,6 +914,12 @@ class Camera:
             isinstance(self.bit_depth, int) and 1 <= self.bit_depth <= 16,
             f"Camera.bit_depth must be an integer in 1..16, got {self.bit_depth!r}",
         )
+        _require(  # found as a user: 70000 ADU rendered every pixel 65535, without a word
+            self.baseline_adu < self.max_adu,
+            f"Camera.baseline_adu={self.baseline_adu!r} is not below the camera's full scale "
+            f"({self.max_adu} ADU at bit_depth {self.bit_depth}): every pixel would be "
+            "clipped white; give the camera's dark level (its offset, e.g. 100 ADU)",
+        )
 
     @property
     def max_adu(self) -> int:

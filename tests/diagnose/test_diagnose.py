@@ -288,6 +288,9 @@ def test_microscope_file_checks():
         parse_microscope(bad)
     with pytest.raises(ValueError, match="modality"):
         parse_microscope({**good, "modality": "darkfield"})
+    # found as a user: a misspelled camera key was ignored with a note, exit 0
+    with pytest.raises(ValueError, match=r"unknown camera key\(s\) 'baseline'; the camera takes"):
+        parse_microscope({**good, "camera": {"baseline": 100}})
 
 
 def test_microscope_file_of_defaults_microscope_is_read():

@@ -212,3 +212,21 @@ def test_illumination_that_varies_more_than_twofold_across_the_window_is_refused
         check = effect.confirm(np.array(theta), noise, valid, lit)
         assert check.confirmed == confirmed, check.reason
     assert check.reason.startswith("illumination refused: the fitted light varies 2.6-fold")
+
+
+def test_cells_brightening_with_time_are_no_bleaching():
+    """Found as a user: a synthetic trench series, flat in time, was "bleached" at
+    -0.0033 per frame and accepted. The concealed bleaching series played backwards (the
+    cells brightening) fits a rate of 0, forwards its true rate."""
+    from napari_symbac.diagnose.effects.photobleaching import Photobleaching
+
+    case = make_case("photobleaching", modality="fluorescence", fraction_of_sd=0.8, seed=11)
+    rates = []
+    for images in (case.images, case.images[::-1]):
+        y = images.astype(float) - case.design.camera.baseline_adu
+        effect = Photobleaching(case.design.geometry)
+        spec = ModelSpec().with_effect(effect, y)
+        fitted = spec.fit(case.design, y, np.ones(y.shape, bool))
+        rates.append(_params(effect, fitted, spec, case.design)["rate_per_frame"])
+    assert rates[0] == pytest.approx(case.true_magnitude, rel=0.35)
+    assert rates[1] == 0.0

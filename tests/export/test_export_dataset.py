@@ -53,6 +53,16 @@ def test_settings_validation_messages():
         ExportSettings(val_fraction=1.0)
     with pytest.raises(ValueError, match="first_frame"):
         ExportSettings(first_frame=60)
+    # found as a user: a time series (which holds every frame) shortened below the
+    # default export's first_frame was refused for it; one of 1 frame had no tracks
+    short = PipelineSettings(simulation=SimulationSettings(n_frames=20))
+    series = ExportSettings(pipeline=short, kind="timeseries", first_frame=23, n_items=1)
+    assert series.n_images == 20
+    with pytest.raises(ValueError, match="first_frame=23 must be in"):
+        ExportSettings(pipeline=short, kind="frames", first_frame=23)
+    single = PipelineSettings(simulation=SimulationSettings(n_frames=1))
+    with pytest.raises(ValueError, match=r"needs pipeline\.simulation\.n_frames >= 2"):
+        ExportSettings(pipeline=single, kind="timeseries", n_items=1)
     with pytest.raises(ValueError, match="must not exceed"):
         Range(2.0, 1.0)
     assert ExportSettings(formats="tiff, coco").formats == ["tiff", "coco"]

@@ -250,6 +250,25 @@ def test_tiff_pixel_size_wins_and_the_disagreement_is_said(tmp_path, truth, inpu
     assert "from the TIFF" in (out / "report.txt").read_text()
 
 
+def test_a_series_of_frames_with_gaps_says_so_beside_its_tracks(tmp_path, truth, inputs, capsys):
+    """Found as a user: frames 0 and 3 of a trench were linked wrongly across a division
+    (a daughter "born" of no mother mid-trench); the note on gapped frames and the joint
+    fit's warnings were only inside series.json. They are printed with the tracks."""
+    _, labels, microscope = inputs
+    image = tmp_path / "series.tif"
+    tifffile.imwrite(image, np.stack([truth.image, truth.image[:, ::-1], truth.image]))
+    out = tmp_path / "fit"
+    capsys.readouterr()
+    assert _fit(image, "--microscope", microscope, "--labels", labels, "--out", out,
+                "--frames", "0,2", "--max-iterations", 3) == 0  # fmt: skip
+    printed = capsys.readouterr().out
+    series = json.loads((out / "series.json").read_text())
+    assert "frames are not consecutive" in series["lineage"]["note"]
+    assert f"NOTE (tracks): {series['lineage']['note']}" in printed
+    for warning in series["warnings"]:
+        assert f"PROBLEM (joint fit): {warning}" in printed
+
+
 def test_frames_of_a_series_are_fitted_jointly_each_into_its_folder(
     tmp_path, truth, inputs, capsys
 ):
@@ -1165,3 +1184,21 @@ def test_a_channel_of_a_hyperstack_is_fitted_as_its_own_file(
         fits[name] = json.loads((out / "cells.json").read_text())["cells"]
     assert len(fits["stack"]) == 1
     assert fits["stack"] == fits["file"]
+
+
+def test_the_microscope_files_camera_section_is_the_camera(tmp_path, truth, inputs, capsys):
+    """Found as a user: the camera section `--microscope`'s help names was refused by fit
+    and calibrate ("unknown field(s) camera in Microscope") while diagnose read it."""
+    import yaml
+
+    image, labels, microscope = inputs
+    with_camera = yaml.safe_load(microscope.read_text())
+    with_camera["camera"] = {"baseline_adu": 100, "sensitivity_adu_per_e": 2.5, "dark_noise_e": 6}
+    path = tmp_path / "with_camera.yaml"
+    path.write_text(yaml.safe_dump(with_camera))
+    out = tmp_path / "fit"
+    assert _fit(image, "--microscope", path, "--labels", labels, "--out", out,
+                "--max-iterations", 2) == 0, capsys.readouterr().err  # fmt: skip
+    report = (out / "report.txt").read_text()
+    assert _fact(report, "camera") == f"from the camera section of --microscope {path}"
+    assert "2.5 ADU/e-" in _fact(report, "camera used")

@@ -121,7 +121,12 @@ def _with_extras(
         cam = data["camera"]
         if not isinstance(cam, dict):
             raise ValueError(f"{where}: camera must be a mapping with {', '.join(CAMERA_KEYS)}")
-        notes += [f"unknown camera key {k!r} ignored" for k in cam if k not in CAMERA_KEYS]
+        unknown = [k for k in cam if k not in CAMERA_KEYS]
+        if unknown:  # found as a user: `baseline:` was ignored with a note, exit 0
+            raise ValueError(
+                f"{where}: unknown camera key(s) {', '.join(map(repr, unknown))}; the camera "
+                f"takes {', '.join(CAMERA_KEYS)}"
+            )
         camera = Camera(**{k: _number(cam, k, f"{where} camera") for k in CAMERA_KEYS if k in cam})
     else:
         notes.append(

@@ -294,7 +294,8 @@ class ExportSettings:
         if tracking and self.kind != "timeseries":
             _fail(
                 f"format(s) {', '.join(tracking)} hold tracking ground truth: set "
-                "ExportSettings.kind to 'timeseries'"
+                "ExportSettings.kind to 'timeseries' (`napari-symbac export --kind "
+                "timeseries`)"
             )
         object.__setattr__(self, "formats", formats)
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
@@ -316,10 +317,20 @@ class ExportSettings:
                 f"ExportSettings.n_simulations must be an integer >= 1, got {self.n_simulations!r}"
             )
         n_frames = self.pipeline.simulation.n_frames
-        if not isinstance(self.first_frame, int) or not 0 <= self.first_frame < n_frames:
+        if not isinstance(self.first_frame, int) or self.first_frame < 0:
+            _fail(f"ExportSettings.first_frame must be an integer >= 0, got {self.first_frame!r}")
+        # a time series holds every frame: first_frame is the frames kind's (found as a
+        # user: a series shortened below the default's first_frame was refused for it)
+        if self.kind == "frames" and self.first_frame >= n_frames:
             _fail(
                 f"ExportSettings.first_frame={self.first_frame!r} must be in [0, n_frames="
                 f"{n_frames}) of pipeline.simulation"
+            )
+        if self.kind == "timeseries" and n_frames < 2:
+            _fail(  # found as a user: 1 frame wrote empty tracks and 0 DeLTA samples
+                f"ExportSettings.kind='timeseries' needs pipeline.simulation.n_frames >= 2 "
+                f"to track cells, got {n_frames}: simulate more frames, or export "
+                "kind='frames'"
             )
         dark_cells = dark_fluorescence(self.pipeline)
         if dark_cells is not None:

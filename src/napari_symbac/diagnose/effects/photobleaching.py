@@ -29,6 +29,12 @@ class Photobleaching(Effect):
     def n_params(self) -> int:
         return 1
 
+    def clip(self, theta: np.ndarray) -> np.ndarray:
+        """Fading only: a rate below 0 (cells brightening with time) is no bleaching
+        (found as a user: a synthetic trench series, flat in time, was "bleached" at
+        -0.0033 per frame, 5 ADU over four frames, and accepted)."""
+        return np.maximum(theta, 0.0)
+
     def mean(self, theta, mu, parts, geo):
         factor = np.exp(-theta[0] * geo.t) - 1.0
         return mu + factor[:, None, None] * parts[0]
