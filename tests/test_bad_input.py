@@ -26,6 +26,7 @@ import tifffile
 from napari_symbac.cli import LARGE_RUN_FRAMES, main
 from napari_symbac.export import ExportSettings, series_items, write_items
 from napari_symbac.settings import (
+    Microscope,
     PipelineSettings,
     SimulationSettings,
     TrenchGeometry,
@@ -142,6 +143,33 @@ def test_a_pipeline_file_exports_a_tracking_dataset_with_kind(tmp_path, capsys):
     assert code == 0, err
     assert json.loads((out / "manifest.json").read_text())["settings"]["kind"] == "timeseries"
     assert list(out.rglob("man_track.txt"))
+
+
+def test_a_pixel_size_in_nm_is_named_and_leaves_no_export_behind(tmp_path, capsys):
+    """Found as a user: `pixel_size_um: 65` (nm for um) gave "the field of view is
+    smaller than one camera pixel (65.0 um)", naming neither file nor field, and export
+    left a manifest.json that refused the corrected rerun as another export."""
+    import dataclasses
+
+    from napari_symbac.export import export_dataset
+
+    wrong = dataclasses.replace(TINY, microscope=Microscope(pixel_size_um=65.0))
+    config = tmp_path / "export.yaml"
+    save_settings(ExportSettings(n_items=2, formats=["tiff"], pipeline=wrong), config)
+    out = tmp_path / "dataset"
+    code, err = _run(["export", "--config", str(config), "--out", str(out)], capsys)
+    assert code == 2
+    assert f"pixel size 65 um (microscope.pixel_size_um of settings file {config})" in err
+    assert not out.exists()
+    # from Python (no such check before it): the first image fails, nothing is left
+    with pytest.raises(ValueError, match="smaller than one camera pixel"):
+        export_dataset(ExportSettings(n_items=2, pipeline=wrong), out, workers=1)
+    assert not out.exists()
+    out.mkdir()  # a folder of the user's, empty: kept, and empty again
+    with pytest.raises(ValueError, match="smaller than one camera pixel"):
+        export_dataset(ExportSettings(n_items=2, pipeline=wrong), out, workers=1)
+    assert out.is_dir()
+    assert not list(out.iterdir())
 
 
 def test_export_to_a_folder_of_other_files(tmp_path, export_config, capsys):

@@ -501,6 +501,30 @@ def test_a_microscope_file_as_config_is_refused_in_one_line(tmp_path, capsys, co
     assert not out.exists()
 
 
+def test_simulate_and_render_take_the_pipeline_of_an_export_file(tmp_path, capsys):
+    """Found as a user: simulate's help and the README say calibrate's settings are
+    reused, and simulate and render refused its export_settings.yaml as export
+    settings. Its pipeline: section is their settings."""
+    from napari_symbac.export import ExportSettings
+    from napari_symbac.settings import Microscope, PipelineSettings, SimulationSettings
+    from napari_symbac.settings import save_settings as save
+
+    pipeline = PipelineSettings(
+        simulation=SimulationSettings(n_frames=3, seed=4), microscope=Microscope(pixel_size_um=0.1)
+    )
+    config = save(ExportSettings(n_items=2, pipeline=pipeline), tmp_path / "export_settings.yaml")
+    assert main(["simulate", "--config", str(config), "--out", str(tmp_path / "sim")]) == 0
+    assert main(["render", str(tmp_path / "sim"), "--config", str(config),
+                 "--out", str(tmp_path / "r")]) == 0  # fmt: skip
+    images = tifffile.imread(tmp_path / "r" / "images.tif")
+    assert images.shape[0] == 3  # the export's pipeline's simulation
+    with tifffile.TiffFile(tmp_path / "r" / "images.tif") as tif:
+        assert tif.imagej_metadata is not None
+    default = tmp_path / "d"
+    assert main(["render", str(tmp_path / "sim"), "--out", str(default)]) == 0
+    assert tifffile.imread(default / "images.tif").shape[1] > images.shape[1]  # 0.065 um px
+
+
 @pytest.mark.parametrize(
     ("argv", "held", "wanted"),
     [
@@ -510,8 +534,6 @@ def test_a_microscope_file_as_config_is_refused_in_one_line(tmp_path, capsys, co
         (["diagnose", "IMAGE", "--microscope", "PIPE"], "is a pipeline file", "microscope"),
         (["calibrate", "IMAGE", "--microscope", "EXPORT"], "holds export settings", "microscope"),
         (["export", "--config", "SIM"], "holds simulation settings", "export"),
-        (["simulate", "--config", "EXPORT"], "holds export settings", "simulation"),
-        (["render", "SIMDIR", "--config", "EXPORT"], "holds export settings", "pipeline"),
         (["fit", "IMAGE", "--microscope", "MIC", "--camera", "MIC"], "holds microscope", "camera"),
         (["fit", "IMAGE", "--microscope", "MIC", "--camera", "PIPE"], "is a pipeline", "camera"),
     ],
@@ -521,7 +543,7 @@ def test_a_settings_file_of_another_kind_is_refused_in_one_line(
 ):
     """Found as a user: `fit --microscope settings.yaml` (the pipeline file fit itself
     writes), `diagnose --microscope sim.yaml`, `calibrate --microscope export.yaml`,
-    `simulate`/`render --config export.yaml`, `fit --camera microscope.yaml` listed every
+    `fit --camera microscope.yaml` listed every
     field of the file as unknown (26 for a simulation file), and `export --config
     sim.yaml` did too, since `seed` is a field of both kinds. Now one line names the
     file, its kind and the kind wanted."""

@@ -122,7 +122,22 @@ def _local_workers(workers: int | None) -> int | None:
 def _load_pipeline(config: str | None):
     from napari_symbac.settings import PipelineSettings, load_settings
 
-    return PipelineSettings() if config is None else load_settings(config, PipelineSettings)
+    if config is None:
+        return PipelineSettings()
+    settings = load_settings(config, PipelineSettings)
+    _check_config_pixel_size(settings, config)
+    return settings
+
+
+def _check_config_pixel_size(pipeline, config: str) -> None:
+    """A settings file's pixel size no bacterial micrograph has, refused naming the file
+    and the field (found as a user: 65, nm for um, gave "the field of view is smaller
+    than one camera pixel (65.0 um)" from render and export)."""
+    from napari_symbac.fit.preflight import check_pixel_size
+
+    check_pixel_size(
+        pipeline.microscope.pixel_size_um, f"microscope.pixel_size_um of settings file {config}"
+    )
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
@@ -244,6 +259,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
     from napari_symbac.export.dataset import no_validation_note
 
     settings = load_export_settings(args.config)
+    _check_config_pixel_size(settings.pipeline, args.config)
     if args.n_items is not None:
         settings = dataclasses.replace(settings, n_items=args.n_items)
     given = {"formats": args.formats, "kind": args.kind}  # set together: ctc needs both
@@ -1158,8 +1174,13 @@ def build_parser() -> argparse.ArgumentParser:
         description="Print (or write with --out) the default settings of one kind as YAML, "
         "to edit and pass to --config.",
     )
-    defaults.add_argument(
-        "kind", choices=["pipeline", "simulation", "microscope", "render", "camera", "export"]
+    defaults.add_argument(  # found as a user: nothing said which kind goes where
+        "kind",
+        choices=["pipeline", "simulation", "microscope", "render", "camera", "export"],
+        help="pipeline: every section, for render/fit --config (and simulate, "
+        "export); simulation: simulate --config; microscope: --microscope of fit, "
+        "calibrate, diagnose; camera: fit/calibrate --camera; export: export --config; "
+        "render: the render: section of a pipeline file, to copy into one",
     )
     defaults.add_argument("--out", help="write to this .yaml/.json file instead of printing")
     defaults.add_argument(

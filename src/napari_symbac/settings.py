@@ -1103,6 +1103,7 @@ def load_settings(path: str | Path, cls: type[T]) -> T:
     """
     data = read_settings_mapping(path)
     if cls is PipelineSettings:
+        data = _pipeline_of_export(data)
         _refuse_a_section_file(data, path)
     else:  # `fit --camera microscope.yaml` listed the microscope's fields as unknown
         refuse_another_kind(data, path, cls)
@@ -1210,6 +1211,15 @@ def _kind_name(cls: type) -> str:
     return cls.__name__.removesuffix("Settings").lower()
 
 
+def _pipeline_of_export(data: Any) -> Any:
+    """The ``pipeline`` section of an export settings mapping (the export_settings.yaml
+    that ``calibrate`` writes), else ``data`` as it is. Found as a user: simulate's help
+    and the README say calibrate's settings are reused, and simulate and render refused
+    its file as export settings."""
+    exported = isinstance(data, dict) and isinstance(data.get("pipeline"), dict)
+    return data["pipeline"] if exported and set(data) <= dict(_settings_kinds())["export"] else data
+
+
 def _is_pipeline_mapping(data: Any) -> bool:
     """Whether a settings file holds :class:`PipelineSettings`: a mapping of its sections
     only (what ``fit`` and ``calibrate`` write as settings.yaml)."""
@@ -1219,9 +1229,9 @@ def _is_pipeline_mapping(data: Any) -> bool:
 
 def load_simulation_settings(path: str | Path) -> SimulationSettings:
     """Read :class:`SimulationSettings` from their own file, or from the ``simulation``
-    section of a :class:`PipelineSettings` file (so that one file simulates, renders and
-    exports alike)."""
-    data = read_settings_mapping(path)
+    section of a :class:`PipelineSettings` file or of an export file's pipeline (so that
+    one file simulates, renders and exports alike)."""
+    data = _pipeline_of_export(read_settings_mapping(path))
     with _naming_the_file(path):
         if _is_pipeline_mapping(data) and "simulation" in data:
             return from_dict(SimulationSettings, data["simulation"] or {}, _where="simulation")

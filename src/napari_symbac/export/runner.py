@@ -30,6 +30,7 @@ from napari_symbac.export.cluster import (
 from napari_symbac.export.formats import FormatWriter, get_writer
 from napari_symbac.export.item import ExportItem
 from napari_symbac.export.manifest import (
+    ITEMS_DIR,
     check_or_start_manifest,
     finish_manifest,
     finished_items,
@@ -437,6 +438,8 @@ def run_export(
     n_workers = check_workers(workers)
     # connect before writing anything: a wrong address leaves no folder behind
     client = None if scheduler is None else connect_scheduler(scheduler)
+    existed = out.exists()
+    new = not existed or not any(out.iterdir())
     try:
         return _run_export(
             source, out, formats, writers, options, n_workers, client, progress, cancel,
@@ -446,9 +449,34 @@ def run_export(
         if err.errno is None:  # not the disk's: nothing was written to resume
             raise
         raise ExportError(f"{err}: {EXPORT_RESUMES}", err.path, err.errno) from err
+    except Exception:
+        if new:
+            _remove_unfinished_start(out, keep_folder=existed)
+        raise
     finally:
         if client is not None:
             close_quietly(client, None)
+
+
+def _remove_unfinished_start(out: Path, keep_folder: bool) -> None:
+    """Remove what an export that failed before finishing any item wrote into a new or
+    empty ``out`` (its manifest; the folder too unless it was there before): found as a
+    user, settings whose first image could not be drawn (a pixel size of 65 um) left a
+    manifest.json, and the corrected rerun was refused as "another export". An export
+    with a finished item keeps it, to resume."""
+    import shutil
+
+    items = out / ITEMS_DIR
+    if items.is_dir() and any(items.iterdir()):
+        return
+    if not keep_folder:
+        shutil.rmtree(out, ignore_errors=True)
+        return
+    for entry in out.iterdir():
+        if entry.is_dir():
+            shutil.rmtree(entry, ignore_errors=True)
+        else:
+            entry.unlink(missing_ok=True)
 
 
 def _run_export(
