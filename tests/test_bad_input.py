@@ -890,6 +890,11 @@ def test_calibrate_cell_width_below_zero_names_the_option(tmp_path, fit_inputs, 
     assert code == 2
     assert "--cell-width-um must be positive, got -1.0" in err
     assert "cell_width_um" not in err
+    # found as a user: 1000 (nm) went on to "cells not brighter than the background"
+    code, err = _run(["calibrate", str(image), "--microscope", str(microscope),
+                      "--out", str(tmp_path / "o"), "--cell-width-um", "1000"], capsys)  # fmt: skip
+    assert code == 2
+    assert "--cell-width-um 1000 is outside 0.2-5 um" in err
 
 
 def test_calibrate_masks_of_the_wrong_shape_named_as_fit_names_them(

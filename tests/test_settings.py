@@ -59,6 +59,20 @@ def test_an_empty_value_says_to_give_one_or_leave_the_line_out(tmp_path):
     assert load_settings(path, Microscope) == Microscope()
 
 
+def test_a_number_yaml_reads_as_text_is_taken(tmp_path):
+    """Found as a user: ``pixel_size_um: 65e-3`` (YAML 1.1 reads an exponent without a
+    dot as text) was refused as "must be a number, got '65e-3'"; a value with its unit
+    is refused with how to write it."""
+    from napari_symbac.settings import Microscope, load_settings
+
+    path = tmp_path / "microscope.yaml"
+    path.write_text("pixel_size_um: 65e-3\n")
+    assert load_settings(path, Microscope).pixel_size_um == pytest.approx(0.065)
+    path.write_text("pixel_size_um: 0.065 um\n")
+    with pytest.raises(ValueError, match=r"got '0.065 um': write a plain number \(0.065"):
+        load_settings(path, Microscope)
+
+
 def test_settings_are_frozen():
     with pytest.raises(dataclasses.FrozenInstanceError):
         Microscope().numerical_aperture = 2.0  # type: ignore[misc]
@@ -97,6 +111,7 @@ def test_settings_are_frozen():
             r"baseline_adu=70000 is not below the camera's full scale \(65535 ADU",
         ),
         (lambda: Camera(baseline_adu=300, bit_depth=8), r"\(255 ADU at bit_depth 8\)"),
+        (lambda: Microscope(wavelength_um=0.00065), r"wavelength_um=0.00065 is below the ultra"),
         (
             lambda: PipelineSettings(render=RenderSettings(apodisation_sigma_um=0.05)),
             r"below the diffraction bound of eq\. 13",

@@ -102,6 +102,10 @@ def _write_png(path: Path, rgb: np.ndarray) -> None:
     iio.imwrite(path, rgb)
 
 
+#: Widths (um) --cell-width-um takes: rods are 0.4-2 um wide (B. megaterium ~1.5).
+CELL_WIDTH_RANGE_UM = (0.2, 5.0)
+
+
 def _check_cell_width(cell_width_um: float | None, masks: str | None) -> None:
     """``--cell-width-um``: a positive width, and masks to measure it on."""
     if cell_width_um is None:
@@ -110,6 +114,12 @@ def _check_cell_width(cell_width_um: float | None, masks: str | None) -> None:
         raise ValueError(
             f"--cell-width-um must be positive, got {cell_width_um}: give the cells' width "
             "in um (e.g. 1.0 for E. coli), or leave it out to use the microscope's pixel size"
+        )
+    if not CELL_WIDTH_RANGE_UM[0] <= cell_width_um <= CELL_WIDTH_RANGE_UM[1]:
+        low, high = CELL_WIDTH_RANGE_UM  # found as a user: 1000 (nm) met a misleading error
+        raise ValueError(
+            f"--cell-width-um {cell_width_um:g} is outside {low:g}-{high:g} um, no bacterium's "
+            "width: give it in um (e.g. 1.0 for E. coli, not 1000 nm)"
         )
     if masks is None:
         raise ValueError(

@@ -20,6 +20,7 @@ import contextlib
 import dataclasses
 import json
 import math
+import re
 import types
 import typing
 from collections.abc import Iterator
@@ -600,6 +601,11 @@ class Microscope:
             f"Microscope.wavelength_um={self.wavelength_um} looks like nanometres: give it "
             f"in micrometres (e.g. 0.65)",
         )
+        _require(  # found as a user: 0.00065 (mm for um) was fitted
+            self.wavelength_um >= 0.2,
+            f"Microscope.wavelength_um={self.wavelength_um} is below the ultraviolet (0.2 um): "
+            "give the light's wavelength in micrometres (e.g. 0.65 for 650 nm)",
+        )
 
     @property
     def condenser_rings(self) -> Condenser:
@@ -1050,14 +1056,25 @@ def _convert(tp: Any, value: Any, where: str) -> Any:
             raise ValueError(f"{where} must be an integer, got {value!r}")
         return int(value)
     if tp is float:
+        if isinstance(value, str) and _YAML_EXPONENT.fullmatch(value.strip()):
+            # YAML 1.1 reads 65e-3 (no dot) as text: found as a user, "must be a number,
+            # got '65e-3'"; the number it spells is taken
+            return float(value)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ValueError(f"{where} must be a number, got {value!r}")
+            raise ValueError(
+                f"{where} must be a number, got {value!r}: write a plain number (0.065 or "
+                "6.5e-2), without units or quotes"
+            )
         return float(value)
     if tp is str:
         if not isinstance(value, str):
             raise ValueError(f"{where} must be text, got {value!r}")
         return value
     return value
+
+
+#: A number in exponent notation without a dot (``65e-3``), which YAML 1.1 reads as text.
+_YAML_EXPONENT = re.compile(r"[-+]?\d+[eE][-+]?\d+")
 
 
 def from_dict(cls: type[T], data: dict[str, Any], *, _where: str | None = None) -> T:
