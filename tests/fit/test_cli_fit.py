@@ -267,6 +267,12 @@ def test_a_series_of_frames_with_gaps_says_so_beside_its_tracks(tmp_path, truth,
     assert f"NOTE (tracks): {series['lineage']['note']}" in printed
     for warning in series["warnings"]:
         assert f"PROBLEM (joint fit): {warning}" in printed
+    # each frame's report names the shared optics' joint value and error (found as a
+    # user: its PARAMETERS' error for them matched nothing in series.json)
+    report = (out / "frame_0002" / "report.txt").read_text()
+    assert series["shared"]
+    for name, shared in series["shared"].items():
+        assert f"{name} is shared by the frames and fitted jointly: {shared['value']:.4g}" in report
 
 
 def test_frames_of_a_series_are_fitted_jointly_each_into_its_folder(

@@ -144,7 +144,10 @@ class LineageRecord:
         First frame in which the cell is present.
     end_frame
         Last frame in which the cell is present (a dividing cell's daughters appear
-        in ``end_frame + 1``); ``n_frames - 1`` for cells still alive at the end.
+        in ``end_frame + 1``); ``n_frames - 1`` for cells still alive at the end. A
+        daughter that left the trench (or field) in the frame of its birth is in no
+        frame: ``end_frame = birth_frame - 1``, fate ``"exited"`` (its sister is then
+        its mother's only daughter in the exported tracks).
     fate
         ``"divided"``, ``"lysed"``, ``"exited"`` (left the trench / field) or ``"alive"``.
     curvature
