@@ -894,8 +894,10 @@ def build_parser() -> argparse.ArgumentParser:
         "settings.yaml of fit or calibrate); default: built-in",
     )
     simulate.add_argument("--out", help="output folder (default: save_dir of the config)")
-    simulate.add_argument("--frames", type=_at_least_one, help="override n_frames")
-    simulate.add_argument("--seed", type=_seed, help="override the seed")
+    simulate.add_argument(
+        "--frames", type=_at_least_one, help="frames to simulate (default: the config's n_frames)"
+    )
+    simulate.add_argument("--seed", type=_seed, help="random seed (default: the config's seed)")
     simulate.add_argument("--yes", action="store_true", help=_YES_HELP)
     simulate.set_defaults(func=_cmd_simulate)
 
@@ -993,7 +995,8 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument(
         "--frames",
         help="frames of a series to fit, e.g. 0, 0,2,5 or 0-3 (several: fitted jointly, "
-        "optics shared, cells linked into tracks)",
+        "optics shared, cells linked into tracks; consecutive frames track best); "
+        "required for a series, not for a single image",
     )
     fit.add_argument("--channel", type=_whole_number(0), help=CHANNEL_HELP)
     fit.add_argument(
@@ -1005,7 +1008,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--dark", help="dark frames TIFF: baseline and read noise from them, gain from the image"
     )
     fit.add_argument(
-        "--max-iterations", type=int, help="iterations per round of the fit (fewer: faster)"
+        "--max-iterations",
+        type=int,
+        help="Levenberg-Marquardt iterations per round of the fit (default: 25; fewer: "
+        "faster)",
     )
     fit.add_argument(
         "--cell-brightness",
@@ -1066,7 +1072,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cal.add_argument(
         "--frame", type=int, help="the frame of a (T, Y, X) series to calibrate on (and of "
-        "its masks or labels when they are a series too)"
+        "its masks or labels when they are a series too); required for a series"
     )
     cal.add_argument("--channel", type=_whole_number(0), help=CHANNEL_HELP)
     cal.add_argument("--microscope", required=True, help=MICROSCOPE_HELP)
