@@ -891,7 +891,8 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument(
         "--config",
         help="SimulationSettings YAML/JSON, or a pipeline file (its simulation section: the "
-        "settings.yaml of fit or calibrate); default: built-in",
+        "settings.yaml of fit or diagnose), or an export file (its pipeline's: the "
+        "export_settings.yaml of calibrate); default: built-in",
     )
     simulate.add_argument("--out", help="output folder (default: save_dir of the config)")
     simulate.add_argument(
