@@ -357,6 +357,7 @@ def test_the_window_chosen_is_the_one_diagnosed(ds3_widget, qtbot):
     assert "in the chosen 96 x 64 px of the 512 x 512 frame, rows 96:192 and columns 48:112" in (
         widget.status.value
     )
+    assert " (frame 1 of 4)" in widget.status.value  # which frame of the time-lapse
     for name in [n for n in viewer.layers if n.name.startswith("diagnosis ")]:
         assert name.data.shape == (96, 64)  # the window, over it on the canvas
         assert tuple(name.translate) == pytest.approx((96 * 0.08, 48 * 0.08))

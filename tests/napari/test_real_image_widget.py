@@ -397,6 +397,28 @@ def test_masks_and_the_colour_original_are_placed_over_the_recording(
     assert tuple(other.scale) == (1.0, 1.0)
 
 
+def test_a_masks_file_napari_opens_as_an_image_is_placed_and_never_the_recording(
+    make_napari_viewer, real_data_dir
+):
+    """Found as a user: ColiCoords ds3's binary.tif opened with napari's own reader (an
+    image) after the pixel size was entered stayed in pixels, 12.5x the recording; with
+    the recording removed it became the recording ("no pixel size")."""
+    viewer = make_napari_viewer()
+    widget = RealImageWidget(viewer)
+    ds3 = real_data_dir / "colicoords" / "test_data" / "ds3"
+    widget.file.value = ds3 / "flu.tif"
+    recording = widget.image.value
+    widget.pixel_size.value = 0.08
+    masks = viewer.open(ds3 / "binary.tif", plugin="napari")[0]
+    assert tuple(masks.scale[-2:]) == pytest.approx((0.08, 0.08))
+    assert [str(unit) for unit in masks.units[-2:]] == ["micrometer", "micrometer"]
+    assert viewer.layers.extent.units is not None  # one unit over all layers
+    viewer.layers.remove(recording)
+    widget.image.reset_choices()
+    assert masks not in widget.image.choices
+    assert widget.image.value is not masks
+
+
 def _open_refused_colour_png(widget, tmp_path) -> None:
     """Open a 32 x 32 colour PNG with *or open*: refused, said in the dock."""
     import imageio.v3 as iio

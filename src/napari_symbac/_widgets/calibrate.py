@@ -326,7 +326,7 @@ class CalibrateWidget(Container):
         if isinstance(total, str):
             self.status.value = f"Calibrating: {total}..."
         else:
-            self.status.value = f"Calibrating: fit, {done} of about {total} renders"
+            self.status.value = f"Calibrating: fit, {done} renders (at most {total})"
 
     def _on_returned(self, outcome: _Outcome) -> None:
         calibration = outcome.calibration

@@ -87,6 +87,17 @@ def no_cells_in_window(
     )
 
 
+def _frame_words(layer, viewer) -> str:
+    """`` (frame N of T)`` for a time-lapse, which frame is diagnosed; ``""`` for one
+    image (found as a user: a diagnosis of frame 10 of 30 never said which frame, and its
+    2D layers lie over every frame)."""
+    data = layer.data
+    if data.ndim != 3:
+        return ""
+    index = min(int(viewer.dims.current_step[0]), len(data) - 1)
+    return f" (frame {index} of {len(data)})"
+
+
 def effect_layer_name(name: str) -> str:
     """The layer of an accepted effect's map."""
     return f"diagnosis effect: {name}"
@@ -340,7 +351,8 @@ class DiagnoseWidget(Container):
         self._region = region
         self.run_button.enabled = False
         self.cancel_button.enabled = True
-        self._window_note = self._window_note_of(region, full, centre)
+        self._window_note = _frame_words(self.reference.value, self.viewer)
+        self._window_note += self._window_note_of(region, full, centre)
         self.status.value = "Fitting the scene..." + self._window_note
         self.worker.start()
 

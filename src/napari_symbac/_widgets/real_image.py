@@ -156,10 +156,15 @@ class RealImageWidget(Container):
     def _image_layers(self, _widget=None) -> list:
         from napari.layers import Image
 
-        from napari_symbac._widgets._recording import made_here
+        from napari_symbac._widgets._recording import holds_masks, made_here
 
-        layers = self.viewer.layers
-        return [layer for layer in layers if isinstance(layer, Image) and not made_here(layer)]
+        # never a masks image (found as a user: with the recording removed, napari's
+        # masks image became the recording, "no pixel size")
+        return [
+            layer
+            for layer in self.viewer.layers
+            if isinstance(layer, Image) and not made_here(layer) and not holds_masks(layer)
+        ]
 
     def _open_file(self) -> None:
         from napari_symbac.io import ChannelsError, read_image
@@ -328,13 +333,20 @@ class RealImageWidget(Container):
 
     def _place_over_recording(self, event) -> None:
         """Labels added in pixels over a recording with a pixel size (masks opened from
-        their file, which records none) are placed in its micrometres. (napari's canvas
-        draws a new layer before any plugin hears of it, so it warns once that the
-        layers' units differ; from then on they agree.)"""
-        from napari.layers import Labels
+        their file, which records none), and images that hold masks (napari's own reader
+        opens a masks TIFF as an image: found as a user, it stayed in pixels, 12.5x the
+        recording), are placed in its micrometres. (napari's canvas draws a new layer
+        before any plugin hears of it, so it warns once that the layers' units differ;
+        from then on they agree.)"""
+        from napari.layers import Image, Labels
+
+        from napari_symbac._widgets._recording import holds_masks
 
         layer = event.value
-        if not isinstance(layer, Labels) or not _in_pixels(layer):
+        masks = isinstance(layer, Labels) or (
+            isinstance(layer, Image) and not layer.rgb and holds_masks(layer)
+        )
+        if not masks or not _in_pixels(layer):
             return
         for other in self.viewer.layers:
             pixel = other.metadata.get("pixel_size_um")
