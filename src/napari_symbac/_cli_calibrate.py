@@ -193,10 +193,11 @@ def run_calibrate(args: argparse.Namespace) -> int:
         raise ValueError(
             f"--formats {', '.join(tracking)}: tracking ground truth needs a time series, and "
             "calibrate writes single frames; run it with frame formats (e.g. --formats "
-            f"tiff), then set kind: timeseries, formats: [{', '.join(tracking)}] and "
-            f"visibility: action: flag (a track keeps its faint frames) in the "
-            f"{out / 'export_settings.yaml'} it writes and run `napari-symbac export "
-            "--config` on that file"
+            f"tiff), then in the {out / 'export_settings.yaml'} it writes set kind: "
+            f"timeseries, formats: [{', '.join(tracking)}], visibility: action: flag (a "
+            "track keeps its faint frames) and pipeline: simulation: n_frames to the "
+            "frames of each series (a field of lone cells is simulated 1 frame; e.g. 20), "
+            "and run `napari-symbac export --config` on that file"
         )
     _check_cell_width(args.cell_width_um, args.masks)
     with timer.step("load"):

@@ -82,16 +82,19 @@ def _follow_the_tracking_advice(out, d, capsys):
                  "--modality", "fluorescence", "--out", str(d / "x"), "--formats", "ctc"])
     advice = capsys.readouterr().err
     assert code == 2
-    for words in ("kind: timeseries", "formats: [ctc]", "visibility: action: flag"):
+    for words in ("kind: timeseries", "formats: [ctc]", "visibility: action: flag",
+                  "pipeline: simulation: n_frames"):  # fmt: skip
         assert words in advice
     settings = yaml.safe_load((out / "export_settings.yaml").read_text())
     settings.update(kind="timeseries", formats=["ctc"], n_items=2)
     settings["visibility"]["action"] = "flag"
+    settings["pipeline"]["simulation"]["n_frames"] = 4
     (d / "tracks.yaml").write_text(yaml.safe_dump(settings))
     code = main(["export", "--config", str(d / "tracks.yaml"), "--out", str(d / "tracks")])
     assert code == 0, capsys.readouterr().err
     manifest = json.loads((d / "tracks" / "manifest.json").read_text())
     assert manifest["status"] == "complete"
+    assert len(manifest["items"]) == 2 * 4  # two series of 4 frames
     assert (d / "tracks" / "ctc").is_dir()
 
 

@@ -164,5 +164,5 @@ def load_microscope_file(path: str | Path) -> DiagnoseConfig:
     except ValueError as err:
         unknown = str(err).startswith("unknown field")
         keys = f"; and for diagnose {', '.join(DIAGNOSE_KEYS)}" if unknown else ""
-        raise ValueError(f"microscope file {path}: {err}{keys}") from None
+        raise ValueError(f"settings file {path}: {err}{keys}") from None
     return _with_extras(microscope, extras, str(path), [])
