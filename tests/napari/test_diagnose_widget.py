@@ -408,7 +408,7 @@ def test_a_full_frame_above_the_cap_is_diagnosed_with_a_warning(ds3_widget, qtbo
     widget.run_button.clicked.emit()
     assert widget.worker is not None
     assert widget.status.value == (
-        "Fitting the scene... (262,144 pixels, more than the 65,536 of 'centre': a "
+        "Fitting the scene... (frame 1 of 4) (262,144 pixels, more than the 65,536 of 'centre': a "
         "diagnosis's time and memory grow faster than its pixels, so this one may take "
         "long and much memory; Cancel stops it)"
     )

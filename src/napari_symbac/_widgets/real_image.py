@@ -163,7 +163,9 @@ class RealImageWidget(Container):
         return [
             layer
             for layer in self.viewer.layers
-            if isinstance(layer, Image) and not made_here(layer) and not holds_masks(layer)
+            if isinstance(layer, Image)
+            and not made_here(layer)
+            and (layer.rgb or not holds_masks(layer))  # a colour image is said as such
         ]
 
     def _open_file(self) -> None:
