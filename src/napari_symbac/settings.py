@@ -1268,18 +1268,14 @@ def load_settings_or_pipeline(path: str | Path, cls: type[T]) -> T | PipelineSet
 
 
 def load_microscope(path: str | Path) -> Microscope:
-    """Read a :class:`Microscope` file: its own field names (``numerical_aperture``, ...,
-    some or all), or the microscope file of ``napari-symbac diagnose`` (``NA``,
-    ``objective``, ...; :func:`napari_symbac.diagnose.config.parse_microscope`), so that
-    one file serves every command."""
-    data = read_settings_mapping(path)
-    if isinstance(data, dict) and "NA" in data:
-        from napari_symbac.diagnose.config import parse_microscope
+    """Read the :class:`Microscope` of a microscope file: its own field names
+    (``numerical_aperture``, ..., some or all), or the spelling of ``napari-symbac
+    diagnose`` (``NA``, ``objective``, ...), beside an optional camera section; the
+    reader every command uses (:func:`napari_symbac.diagnose.config.load_microscope_file`,
+    which also gives the camera), so that one file serves every command."""
+    from napari_symbac.diagnose.config import load_microscope_file
 
-        return parse_microscope(data, str(path)).microscope
-    refuse_another_kind(data, path, Microscope)
-    with _naming_the_file(path):
-        return from_dict(Microscope, data)
+    return load_microscope_file(path).microscope
 
 
 def microscope_sets_pixel_size(path: str | Path) -> bool:

@@ -35,6 +35,7 @@ __all__ = [
     "followed_layer",
     "holds_masks",
     "in_pixel_units",
+    "is_real_image",
     "is_recording",
     "layer_axes",
     "modality_render",
@@ -161,17 +162,22 @@ def made_here(layer: Any) -> bool:
     return SYMBAC_METADATA_KEY in layer.metadata or OUTPUT_KEY in layer.metadata
 
 
-def is_recording(layer: Any) -> bool:
-    """A real image layer (not made by the simulation) with a usable pixel size."""
+def is_real_image(layer: Any) -> bool:
+    """A grey image layer the plugin did not make and that holds no masks: a recording,
+    or one still waiting for its pixel size."""
     from napari.layers import Image
 
     return (
         isinstance(layer, Image)
         and not layer.rgb
         and not made_here(layer)
-        and pixel_size_problem(layer.metadata.get("pixel_size_um")) is None
         and not holds_masks(layer)
     )
+
+
+def is_recording(layer: Any) -> bool:
+    """A real image layer (:func:`is_real_image`) with a usable pixel size."""
+    return is_real_image(layer) and pixel_size_problem(layer.metadata.get("pixel_size_um")) is None
 
 
 def recordings(viewer: Any) -> list:
@@ -182,16 +188,7 @@ def recordings(viewer: Any) -> list:
 def real_images(viewer: Any) -> list:
     """The viewer's grey images that the simulation did not make (a recording, or one
     still waiting for its pixel size)."""
-    from napari.layers import Image
-
-    return [
-        layer
-        for layer in viewer.layers
-        if isinstance(layer, Image)
-        and not layer.rgb
-        and not made_here(layer)
-        and not holds_masks(layer)
-    ]
+    return [layer for layer in viewer.layers if is_real_image(layer)]
 
 
 def mask_layers(viewer: Any) -> list:
@@ -247,17 +244,8 @@ def no_recording_message(viewer: Any, then: str) -> str:
     classes": the image was open, and the workflow dock names that step *1 Recording*.
     An image that waits for its pixel size is now named, with the step to enter it in.
     """
-    from napari.layers import Image
-
     step = RECORDING_STEP
-    waiting = [
-        layer
-        for layer in viewer.layers
-        if isinstance(layer, Image)
-        and not layer.rgb
-        and not made_here(layer)
-        and not is_recording(layer)
-    ]
+    waiting = [layer for layer in real_images(viewer) if not is_recording(layer)]
     if waiting:
         layer = waiting[-1]
         problem = pixel_size_problem(layer.metadata.get("pixel_size_um")) or ""

@@ -143,7 +143,8 @@ DIAGNOSE_KEYS = ("camera", "trench_width_um", "frame_interval_s")
 
 
 def load_microscope_file(path: str | Path) -> DiagnoseConfig:
-    """Read a JSON or YAML microscope file of ``napari-symbac diagnose``.
+    """Read a JSON or YAML microscope file (``--microscope`` of fit, calibrate and
+    diagnose) and its camera section.
 
     Either :class:`~napari_symbac.settings.Microscope` fields as ``fit`` reads them (any
     may be left out and takes its default; an unknown key is named) plus the keys of
@@ -163,6 +164,6 @@ def load_microscope_file(path: str | Path) -> DiagnoseConfig:
         microscope = from_dict(Microscope, {k: v for k, v in data.items() if k not in extras})
     except ValueError as err:
         unknown = str(err).startswith("unknown field")
-        keys = f"; and for diagnose {', '.join(DIAGNOSE_KEYS)}" if unknown else ""
+        keys = f"; beside them the file may hold {', '.join(DIAGNOSE_KEYS)}" if unknown else ""
         raise ValueError(f"settings file {path}: {err}{keys}") from None
     return _with_extras(microscope, extras, str(path), [])

@@ -14,6 +14,8 @@ import errno
 import json
 import os
 import re
+import shutil
+import tempfile
 import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
@@ -298,11 +300,7 @@ def staging_folder(out: str | os.PathLike) -> Path:
     for entry in parent.iterdir():
         match = _STAGING_RE.match(entry.name)
         if match and match["name"] == out.name and not _running(int(match["pid"])):
-            import shutil
-
             shutil.rmtree(entry, ignore_errors=True)
-    import tempfile
-
     return Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-{os.getpid()}-", dir=parent))
 
 
@@ -395,8 +393,6 @@ def a_few(names: list[str]) -> str:
 
 def remove_earlier_run(entries: list[Path]) -> None:
     """Remove what :func:`earlier_run` found (files and folders)."""
-    import shutil
-
     for entry in entries:
         if entry.is_dir() and not entry.is_symlink():
             shutil.rmtree(entry)
@@ -415,8 +411,6 @@ def _check_writable(out: Path, folder: Path, option: str) -> None:
     """Refuse ``out`` when ``folder`` (``out`` or its parent) cannot be created or written:
     a file in the way, or no permission (probed with a temporary file, so that a read-only
     disk is found whoever runs the command)."""
-    import tempfile
-
     existing = _nearest_existing(folder)
     if not existing.is_dir():
         raise ValueError(

@@ -365,12 +365,12 @@ def load_export_settings(path: str | os.PathLike) -> ExportSettings:
     advice "to resume it use its own settings (manifest.json records them)" could not
     be followed, the manifest's other fields were refused as unknown).
     """
-    from napari_symbac.settings import from_dict, load_settings_or_pipeline, read_settings_mapping
+    from napari_symbac.settings import load_settings_or_pipeline, read_settings_mapping
 
     data = read_settings_mapping(path)
     if isinstance(data, dict) and isinstance(data.get("settings"), dict) and "items" in data:
         try:
-            return from_dict(ExportSettings, data["settings"])
+            return export_settings_from_dict(data["settings"])
         except (TypeError, ValueError) as err:
             raise ValueError(f"{path}: the export settings it records: {err}") from None
     loaded = load_settings_or_pipeline(path, ExportSettings)

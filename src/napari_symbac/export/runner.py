@@ -8,6 +8,7 @@ a local cluster and a remote scheduler all write the same bytes.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import threading
@@ -19,7 +20,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
-from napari_symbac.export.atomic import EXPORT_RESUMES, ExportError, remove_stale_temporaries
+from napari_symbac.export.atomic import (
+    EXPORT_RESUMES,
+    ExportError,
+    remove_earlier_run,
+    remove_stale_temporaries,
+)
 from napari_symbac.export.cluster import (
     check_workers,
     close_quietly,
@@ -464,19 +470,13 @@ def _remove_unfinished_start(out: Path, keep_folder: bool) -> None:
     user, settings whose first image could not be drawn (a pixel size of 65 um) left a
     manifest.json, and the corrected rerun was refused as "another export". An export
     with a finished item keeps it, to resume."""
-    import shutil
-
     items = out / ITEMS_DIR
-    if items.is_dir() and any(items.iterdir()):
+    if not out.is_dir() or (items.is_dir() and any(items.iterdir())):
         return
-    if not keep_folder:
-        shutil.rmtree(out, ignore_errors=True)
-        return
-    for entry in out.iterdir():
-        if entry.is_dir():
-            shutil.rmtree(entry, ignore_errors=True)
-        else:
-            entry.unlink(missing_ok=True)
+    with contextlib.suppress(OSError):  # the export's own error is the one to say
+        remove_earlier_run(list(out.iterdir()))
+        if not keep_folder:
+            out.rmdir()
 
 
 def _run_export(
