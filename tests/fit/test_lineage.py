@@ -263,6 +263,54 @@ def test_bad_link_settings_and_inputs_are_refused():
         link_cells([FrameCells.empty()] * 2, trench=[PLACEMENT])
 
 
+def test_track_masks_and_napari_tracks_keep_each_track_through_gaps_and_divisions():
+    """Track 1 is missed in frame 1 (a gap) and seen again in frame 2; track 2 divides
+    into 3 and 4 after frame 0; cell id 9 of frame 2 is not a tracked cell. The masks
+    keep a track's id across its gap, and the Tracks rows are the centroids, with the
+    division as napari's graph."""
+    from napari_symbac.fit.lineage import Lineage
+
+    lineage = Lineage(
+        track_ids=(np.array([1, 2]), np.array([3, 4]), np.array([1, 3, 4])),
+        tracks=np.array([[1, 0, 2, 0], [2, 0, 0, 0], [3, 1, 2, 2], [4, 1, 2, 2]]),
+        growth_per_frame=1.1,
+        drift_um=np.zeros((2, 2)),
+        gaps=((1, 1),),
+    )
+    frames = np.zeros((3, 20, 30), np.int64)
+    frames[0, 2:6, 2:10] = 11  # track 1
+    frames[0, 10:14, 2:20] = 12  # track 2
+    frames[1, 10:14, 2:10] = 5  # track 3
+    frames[1, 10:14, 12:20] = 6  # track 4
+    frames[2, 3:7, 3:11] = 7  # track 1 again
+    frames[2, 10:14, 2:11] = 8  # track 3
+    frames[2, 10:14, 13:21] = 2  # track 4
+    frames[2, 16:18, 0:4] = 9  # not tracked
+    ids = [np.array([11, 12]), np.array([5, 6]), np.array([7, 8, 2])]
+    masks = lineage.track_masks(list(frames), ids)
+    assert masks.dtype == np.uint32
+    assert masks.shape == frames.shape
+    assert [masks[0, 3, 3], masks[2, 4, 4], masks[2, 11, 15]] == [1, 1, 4]
+    assert masks[2, 17, 1] == 0
+    assert set(np.unique(masks[1])) == {0, 3, 4}
+    data, graph = lineage.napari_tracks(masks)
+    assert graph == {3: [2], 4: [2]}
+    assert data[:, :2].tolist() == [[1, 0], [1, 2], [2, 0], [3, 1], [3, 2], [4, 1], [4, 2]]
+    np.testing.assert_allclose(data[0, 2:], [3.5, 5.5])  # rows 2-5, columns 2-9
+    np.testing.assert_allclose(data[1, 2:], [4.5, 6.5])
+    # napari takes them as they are (the layer's own checks of ids, times and graph)
+    from napari.layers import Tracks
+
+    layer = Tracks(data, graph=graph)
+    assert layer.graph == graph
+    with pytest.raises(ValueError, match="frame 1 has 2 tracked cells but 1 ids"):
+        lineage.track_masks(list(frames), [ids[0], ids[1][:1], ids[2]])
+    with pytest.raises(ValueError, match="3 frames but 2 masks"):
+        lineage.track_masks(list(frames[:2]), ids[:2])
+    with pytest.raises(ValueError, match=r"masks must be \(T, Y, X\) with T = 3"):
+        lineage.napari_tracks(masks[0])
+
+
 @pytest.fixture(scope="module")
 def trench_series():
     """Frames 11-14 of a simulated trench, rendered and fitted jointly: cells 6 and 7

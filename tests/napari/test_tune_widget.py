@@ -347,7 +347,11 @@ def test_auto_fit_of_all_frames_fits_a_trench_time_lapse_jointly(rendered, qtbot
     """The real trench as a 2-frame time-lapse (the second frame 2 px further down the
     trench): 'all frames jointly' runs the series fit (optics and camera shared), the
     layers hold both frames and the sliders the shown frame's intensities."""
-    from napari_symbac._widgets.tune import FIT_SYNTHETIC_LAYER
+    from napari_symbac._widgets.tune import (
+        FIT_SYNTHETIC_LAYER,
+        FIT_TRACK_MASKS_LAYER,
+        FIT_TRACKS_LAYER,
+    )
     from napari_symbac.fit import SeriesFit
 
     viewer, tune = rendered
@@ -377,6 +381,22 @@ def test_auto_fit_of_all_frames_fits_a_trench_time_lapse_jointly(rendered, qtbot
     assert tune.sliders["media_intensity"].value == pytest.approx(shown.render.media_intensity)
     assert tune.preview.model.camera == series.camera  # measured once from both frames
     assert tune.fit_button.enabled
+    # the tracks to see the links by: a Tracks layer and the cells labelled by track
+    # id, placed over the recording (found as a user: only counts were given)
+    masks = viewer.layers[FIT_TRACK_MASKS_LAYER]
+    tracks = viewer.layers[FIT_TRACKS_LAYER]
+    assert f"layers '{FIT_TRACKS_LAYER}' and '{FIT_TRACK_MASKS_LAYER}'" in tune.status.value
+    assert masks.data.shape == stack.shape
+    assert tuple(tracks.scale) == tuple(masks.scale) == (1.0, 0.065, 0.065)
+    assert set(np.unique(tracks.data[:, 0])) == set(np.unique(masks.data)) - {0}
+    assert set(np.unique(masks.data)) - {0} <= set(series.lineage.tracks[:, 0].tolist())
+    assert len(np.unique(masks.data[0])) - 1 >= 3  # the real trench's cells, each tracked
+    # a fit of one frame afterwards: the joint fit's tracks are gone, not left stale
+    tune.fit_all_frames.value = False
+    tune.fit_button.native.click()
+    qtbot.waitUntil(lambda: tune.fit_worker is None, timeout=600_000)
+    assert FIT_TRACKS_LAYER not in viewer.layers
+    assert FIT_TRACK_MASKS_LAYER not in viewer.layers
 
 
 def test_auto_fit_of_all_frames_fits_a_colony_time_lapse_jointly(rendered, qtbot, real_data_dir):
@@ -389,7 +409,12 @@ def test_auto_fit_of_all_frames_fits_a_colony_time_lapse_jointly(rendered, qtbot
     import imageio.v3 as iio
     import tifffile
 
-    from napari_symbac._widgets.tune import FIT_RESIDUAL_LAYER, FIT_SYNTHETIC_LAYER
+    from napari_symbac._widgets.tune import (
+        FIT_RESIDUAL_LAYER,
+        FIT_SYNTHETIC_LAYER,
+        FIT_TRACK_MASKS_LAYER,
+        FIT_TRACKS_LAYER,
+    )
     from napari_symbac.fit import ColonySeriesFit
 
     viewer, tune = rendered
@@ -433,6 +458,12 @@ def test_auto_fit_of_all_frames_fits_a_colony_time_lapse_jointly(rendered, qtbot
     common = set(ids[0]) & set(ids[1])
     assert len(common) >= 5
     assert sum(ids[0][k] == ids[1][k] for k in common) >= 5
+    # ... and are seen as such: a Tracks layer whose tracks span both frames
+    tracks = viewer.layers[FIT_TRACKS_LAYER]
+    assert tuple(tracks.scale) == scale
+    both = [k for k in np.unique(tracks.data[:, 0]) if (tracks.data[:, 0] == k).sum() == 2]
+    assert len(both) >= 5
+    assert viewer.layers[FIT_TRACK_MASKS_LAYER].data.shape == real.data.shape
     # masks of one frame, or of another number of frames: refused, with the fix
     for data, message in (
         (masks[0], "holds one frame but the real time-lapse has 2: give every frame its own"),

@@ -47,11 +47,23 @@ if TYPE_CHECKING:
     import napari
     from napari_symbac.settings import Microscope
 
-__all__ = ["FIT_RESIDUAL_LAYER", "FIT_SYNTHETIC_LAYER", "SLIDERS", "TuneWidget", "terms_plot"]
+__all__ = [
+    "FIT_RESIDUAL_LAYER",
+    "FIT_SYNTHETIC_LAYER",
+    "FIT_TRACKS_LAYER",
+    "FIT_TRACK_MASKS_LAYER",
+    "SLIDERS",
+    "TuneWidget",
+    "terms_plot",
+]
 
 #: Layers the auto-fit adds: the fitted scene rendered, and real minus it.
 FIT_SYNTHETIC_LAYER = "auto-fit synthetic"
 FIT_RESIDUAL_LAYER = "auto-fit residual"
+#: ... and after a joint fit of a time-lapse, the cells' tracks (a Tracks layer) and
+#: every frame's fitted cells labelled by track id (a Labels layer).
+FIT_TRACKS_LAYER = "auto-fit tracks"
+FIT_TRACK_MASKS_LAYER = "auto-fit track masks"
 
 #: Largest relative difference in size between the real image and the rendered frames
 #: that matching pads or crops away (the rendered trench has a margin of a pixel or two).
@@ -1001,6 +1013,33 @@ class TuneWidget(Container):
             )
         # the fitted image in the real image's grey levels: compare them by eye
         self.viewer.layers[FIT_SYNTHETIC_LAYER].contrast_limits = reference.contrast_limits
+        self._show_tracks(series, kwargs)
+
+    def _show_tracks(self, series, placement: dict) -> None:
+        """A joint fit's tracks as a Tracks layer over the recording, and every frame's
+        fitted cells labelled by track id (hidden at first); a fit of one frame removes
+        those of an earlier joint fit. Found as a user: after a joint fit the dock gave
+        only counts ("22 tracks, 10 divisions"), nothing to see the links by."""
+        for name in (FIT_TRACKS_LAYER, FIT_TRACK_MASKS_LAYER):
+            if name in self.viewer.layers:
+                self.viewer.layers.remove(name)
+        if series is None or series.lineage is None:
+            return
+        lineage = series.lineage
+        masks = lineage.track_masks(
+            [frame.scene.camera_labels() for frame in series.frames],
+            [frame.cells.ids for frame in series.frames],
+        )
+        metadata = output_metadata("Auto-fit")
+        self.viewer.add_labels(
+            masks, name=FIT_TRACK_MASKS_LAYER, metadata=metadata, visible=False, **placement
+        )
+        data, graph = lineage.napari_tracks(masks)
+        if len(data):
+            self.viewer.add_tracks(
+                data, graph=graph, name=FIT_TRACKS_LAYER, metadata=metadata,
+                tail_length=len(series.frames), **placement,
+            )  # fmt: skip
 
     def _on_fit_errored(self, err: BaseException) -> bool:
         from napari_symbac.fit import FitCancelled
@@ -1197,7 +1236,10 @@ def _series_status(series, shown: int) -> str:
     tracks = (
         ""
         if lineage is None
-        else (f"; {len(lineage.tracks)} tracks, {len(lineage.divisions())} division(s)")
+        else (
+            f"; {len(lineage.tracks)} tracks, {len(lineage.divisions())} division(s) "
+            f"(layers '{FIT_TRACKS_LAYER}' and '{FIT_TRACK_MASKS_LAYER}')"
+        )
     )
     n_frames = len(series.frames)
     return (

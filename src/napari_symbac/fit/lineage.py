@@ -280,6 +280,91 @@ class Lineage:
         lookup[cell_ids] = ctc[t]
         return lookup[np.asarray(labels, np.int64)]
 
+    def track_masks(
+        self, labels: Sequence[np.ndarray], cell_ids: Sequence[np.ndarray]
+    ) -> np.ndarray:
+        """Every frame's instance mask relabelled from cell ids to track ids.
+
+        Unlike :meth:`track_mask` (the CTC's labels), a track keeps its own id across
+        a gap, so that a viewer colours a cell alike in every frame it is seen.
+
+        Parameters
+        ----------
+        labels
+            One mask per frame holding that frame's cell ids (e.g.
+            ``SceneFit.scene.camera_labels()``), all of one shape.
+        cell_ids
+            Per frame the ids of the tracked cells (``SceneFit.cells.ids``), in the
+            order of :attr:`track_ids`.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(T, Y, X)`` uint32, 0 outside the cells; a label in ``labels`` that is not
+            among the frame's tracked cells is 0 too.
+        """
+        if len(labels) != len(self.track_ids) or len(cell_ids) != len(self.track_ids):
+            raise ValueError(
+                f"the lineage has {len(self.track_ids)} frames but {len(labels)} masks and "
+                f"{len(cell_ids)} id lists were given"
+            )
+        out = []
+        for t, (mask, ids) in enumerate(zip(labels, cell_ids)):
+            ids = np.asarray(ids, np.int64)
+            if ids.shape != self.track_ids[t].shape:
+                raise ValueError(
+                    f"frame {t} has {self.track_ids[t].size} tracked cells but {ids.size} ids"
+                )
+            mask = np.asarray(mask, np.int64)
+            lookup = np.zeros(int(max(mask.max(initial=0), ids.max(initial=0))) + 1, np.uint32)
+            lookup[ids] = self.track_ids[t]
+            out.append(lookup[mask])
+        return np.stack(out)
+
+    def napari_tracks(self, masks: np.ndarray) -> tuple[np.ndarray, dict[int, list[int]]]:
+        """The tracks as napari's Tracks layer takes them.
+
+        Parameters
+        ----------
+        masks
+            ``(T, Y, X)`` track-id masks (:meth:`track_masks`).
+
+        Returns
+        -------
+        data, graph
+            ``(N, 4)`` float64 rows ``track id, frame, row, column`` (pixels): the centroid
+            of each track's pixels in every frame where it has any (a cell hidden by the
+            frame's edge in one frame has no row there), sorted by track and frame; and
+            ``{daughter track: [mother track]}`` of every division whose tracks both have
+            rows.
+        """
+        from scipy import ndimage
+
+        masks = np.asarray(masks)
+        if masks.ndim != 3 or len(masks) != len(self.track_ids):
+            raise ValueError(
+                f"masks must be (T, Y, X) with T = {len(self.track_ids)} frames, "
+                f"not of shape {masks.shape}"
+            )
+        rows = []
+        for t, frame in enumerate(masks):
+            tracks = np.unique(frame)
+            tracks = tracks[tracks > 0]
+            if tracks.size == 0:
+                continue
+            centres = np.asarray(ndimage.center_of_mass(np.ones(frame.shape), frame, tracks))
+            rows.append(np.column_stack([tracks, np.full(tracks.size, t), centres]))
+        data = np.concatenate(rows) if rows else np.zeros((0, 4))
+        data = data[np.lexsort((data[:, 1], data[:, 0]))].astype(np.float64)
+        present = set(data[:, 0].astype(np.int64).tolist())
+        graph = {
+            int(daughter): [int(mother)]
+            for mother, daughters in self.divisions().items()
+            for daughter in daughters
+            if mother in present and daughter in present
+        }
+        return data, graph
+
 
 def _axis(angle_rad: np.ndarray) -> np.ndarray:
     """Unit vectors ``(x, y)`` of the long axes (0 rad = along +y, the trench axis)."""
