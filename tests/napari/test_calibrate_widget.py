@@ -102,7 +102,8 @@ def test_refusals_name_the_fix(make_napari_viewer, field):
     assert widget.worker is None
     assert "choose the cell masks too" in widget.status.value
     # no pixel size and no width: where to enter one
-    viewer.layers["field"].metadata = {"modality": "fluorescence"}
+    # (as the plugin's reader opens a TIFF that records none)
+    viewer.layers["field"].metadata = {"modality": "fluorescence", "pixel_size_um": None}
     widget.cell_width_um.value = 0.0
     widget.run_button.native.click()
     assert widget.worker is None

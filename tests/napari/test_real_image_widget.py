@@ -291,6 +291,46 @@ def test_a_deleted_grey_channel_is_said(make_napari_viewer, real_data_dir, notif
     assert "its grey channel is the layer" not in widget.result.value
 
 
+def test_a_colour_png_opened_before_the_dock_gets_its_grey_channel(
+    make_napari_viewer, real_data_dir, notifications
+):
+    """Found as a user: File > Open of an Omnipose PNG, then the dock: it said the grey
+    channel "was removed", a layer that was never made. It is made when the dock opens;
+    a grey channel removed later is said in the dock, not as a notification (napari
+    removes the layers one by one when the viewer closes)."""
+    viewer = make_napari_viewer()
+    viewer.open(real_data_dir / "omnipose" / "Sample000033.png")
+    widget = RealImageWidget(viewer)
+    grey = viewer.layers["Sample000033 grey"]
+    assert widget.image.value is grey
+    assert "was removed" not in widget.warning.value
+    viewer.layers.remove(grey)
+    assert "was removed" in widget.warning.value
+    assert not any("was removed" in message for message in notifications)
+
+
+def test_a_layer_another_reader_scaled_is_a_recording_to_every_dock(
+    make_napari_viewer, real_data_dir
+):
+    """Found as a user: the trench opened by napari's own reader and scaled to 0.065 um
+    (as readers of microscope formats scale their layers) was "no pixel size yet" to
+    Diagnose and Simulate. Every dock now takes the scale a reader set (Auto-fit's
+    refusal of an image without one: test_tune_widget.py)."""
+    from napari_symbac._widgets._recording import is_recording, recording_microscope
+    from napari_symbac._widgets.diagnose import DiagnoseWidget
+
+    viewer = make_napari_viewer()
+    diagnose = DiagnoseWidget(viewer)
+    layer = viewer.open(real_data_dir / "ecoli_100x_oil_exponential.tiff", plugin="napari")[0]
+    assert not is_recording(layer)  # the builtin reader sets no scale
+    layer.scale = (0.065, 0.065)
+    layer.units = ("um", "um")
+    assert is_recording(layer)
+    assert recording_microscope(layer).pixel_size_um == pytest.approx(0.065)
+    diagnose.reference.reset_choices()
+    assert layer in diagnose.reference.choices
+
+
 def test_two_channels_of_one_name_are_told_apart_by_their_folder(
     make_napari_viewer, real_data_dir
 ):
@@ -499,7 +539,7 @@ def test_what_the_fit_refuses_is_not_opened_and_a_missing_file_is_said(
         assert f"Cannot open {name}" in widget.result.value
         assert words in widget.result.value
         assert words in shown[-1]
-    assert "--camera` (the docks take no camera file)" in widget.result.value
+    assert "in the Recording step's camera (camera: given)" in widget.result.value
     assert len(viewer.layers) == 0
     widget.file.value = tmp_path / "no_such.tif"
     assert widget.result.value == f"No such file: {tmp_path / 'no_such.tif'}"

@@ -382,7 +382,8 @@ def test_a_recording_whose_modality_is_set_later_is_followed_again(
     recording.file.value = real_data_dir / "colicoords" / "01" / "fluorescence.tif"
     assert recording.result.value == (
         "fluorescence records no modality, and its look does not settle it (a crop around "
-        "a few cells, or phase contrast): phase is assumed; choose the modality below"
+        "a few cells, or phase contrast): phase is assumed; choose the modality in the "
+        "microscope form"
     )
     recording.pixel_size.value = 0.08
     pad = simulate.form.agar_pad

@@ -864,3 +864,69 @@ def test_auto_fit_fits_the_sample_brightfield_with_its_lens_term(rendered, qtbot
     assert stored.render.defocus_contrast_um2 == pytest.approx(
         result.render.defocus_contrast_um2
     )
+
+
+def test_a_camera_given_in_the_recording_step_is_the_fits(rendered, qtbot, real_data_dir):
+    """Found as a user: Auto-fit's advice for a camera it could not check was
+    `napari-symbac fit --camera`, which the GUI had no way to follow. The Recording step
+    now takes the camera (its data sheet); Auto-fit fits with it, as `fit --camera`
+    does, and says so; one the settings refuse is warned and the camera measured."""
+    from napari_symbac._widgets.real_image import GIVEN_CAMERA, MEASURED_CAMERA, RealImageWidget
+    from napari_symbac.settings import Camera
+
+    viewer, tune = rendered
+    real = _real_trench(viewer, real_data_dir)
+    recording = RealImageWidget(viewer)
+    recording.image.value = real
+    assert recording.camera_source.value == MEASURED_CAMERA
+    assert recording.camera.native.isHidden()
+    recording.camera_source.value = GIVEN_CAMERA
+    assert not recording.camera.native.isHidden()
+    given = Camera(baseline_adu=500.0, sensitivity_adu_per_e=1.5, dark_noise_e=3.0)
+    recording.camera.value = given
+    assert real.metadata["camera"] == given
+    # a camera the settings refuse: said, and the camera measured until it is fixed
+    recording.camera.bit_depth.value = 8  # a 500 ADU offset is above 8 bits' 255
+    assert "camera: " in recording.warning.value
+    assert "not below the camera's full scale" in recording.warning.value
+    assert real.metadata["camera"] is None
+    recording.camera.bit_depth.value = 16
+    assert real.metadata["camera"] == given
+    assert "camera: " not in recording.warning.value
+    tune.reference.value = real
+    tune.fit_iterations.value = 1
+    tune.fit_button.native.click()
+    qtbot.waitUntil(lambda: tune.fit_worker is None, timeout=300_000)
+    result = tune.fit_result
+    assert result is not None, tune.status.value
+    assert result.camera == given
+    assert tune.preview.model.camera == given
+    assert "Camera given in the Recording step: 1.5 ADU/e-, read noise 3 e-" in tune.status.value
+    assert "Camera, model-free" not in tune.status.value  # as `fit --camera`: not checked
+    # each recording shows its own camera when chosen
+    other = viewer.add_image(
+        real.data[:128], name="other", scale=(0.065, 0.065), metadata={"pixel_size_um": 0.065}
+    )
+    recording.image.value = other
+    assert recording.camera_source.value == MEASURED_CAMERA
+    assert other.metadata["camera"] is None
+    recording.image.value = real
+    assert recording.camera_source.value == GIVEN_CAMERA
+    assert recording.camera.value == given
+    recording.camera_source.value = MEASURED_CAMERA
+    assert real.metadata["camera"] is None
+
+
+def test_auto_fit_refuses_a_real_image_without_a_pixel_size(rendered, real_data_dir):
+    """Found as a user: an image with no pixel size (opened by napari's own reader) was
+    fitted at the simulation's 0.065 um without a word; it is refused with where to
+    enter it, and nothing runs."""
+    viewer, tune = rendered
+    trench = _real_trench(viewer, real_data_dir).data
+    unscaled = viewer.add_image(trench, name="unscaled")
+    tune.reference.value = unscaled
+    tune.fit_button.native.click()
+    assert tune.fit_worker is None
+    assert tune.status.value.startswith("unscaled: no pixel size")
+    assert tune.status.value.endswith("then fit it")
+    assert tune.fit_result is None

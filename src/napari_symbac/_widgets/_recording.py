@@ -7,7 +7,10 @@ its pixel size; the layer then carries
   share physical coordinates),
 * ``modality`` (``"phase"``, ``"fluorescence"`` or ``"brightfield"``),
 * ``microscope``: the :class:`~napari_symbac.settings.Microscope` to simulate with,
-* ``class_statistics`` once the painted classes were measured (eq. 2).
+* ``class_statistics`` once the painted classes were measured (eq. 2),
+* ``camera``: the :class:`~napari_symbac.settings.Camera` the user gave (its data sheet
+  or a photon-transfer measurement), absent or ``None`` when the fits measure it from
+  the recording (:func:`given_camera`).
 
 Simulate, Tune, Auto-fit and Export read these from the layer; no hidden state joins
 the widgets. The metadata is replaced, never edited in place, so that the layer emits
@@ -24,7 +27,7 @@ from typing import Any
 
 from napari_symbac.fit.preflight import ModalityAdvice, check_pixel_size, looks_like_masks
 from napari_symbac.io import AXIS_LABELS, axis_labels, layer_axes
-from napari_symbac.settings import Microscope, RenderSettings
+from napari_symbac.settings import Camera, Microscope, RenderSettings
 
 __all__ = [
     "AXIS_LABELS",
@@ -33,11 +36,13 @@ __all__ = [
     "axis_labels",
     "check_recording_frame",
     "followed_layer",
+    "given_camera",
     "holds_masks",
     "in_pixel_units",
     "is_real_image",
     "is_recording",
     "layer_axes",
+    "layer_pixel_size_um",
     "modality_render",
     "pixel_size_problem",
     "recording_microscope",
@@ -123,8 +128,7 @@ def check_recording_frame(frame: Any, name: str) -> None:
 
     frame = np.asarray(frame)
     refuse_constant(frame, name, what="")
-    check_fit_image(frame, name, camera_hint="with `napari-symbac fit --camera` (the docks "
-                    "take no camera file)")  # fmt: skip
+    check_fit_image(frame, name, camera_hint="in the Recording step's camera (camera: given)")
 
 
 def pixel_size_problem(pixel_size_um: float | None) -> str | None:
@@ -145,6 +149,17 @@ def pixel_size_problem(pixel_size_um: float | None) -> str | None:
 #: Metadata key of the layers a step shows its results in without settings of their own
 #: (Auto-fit's synthetic and residual, Diagnose's residual after and effect maps).
 OUTPUT_KEY = "napari_symbac_output"
+
+#: Layer metadata key of the camera given in the Recording step (:func:`given_camera`).
+CAMERA_KEY = "camera"
+
+
+def given_camera(layer: Any) -> Camera | None:
+    """The camera the user gave for recording ``layer`` in the Recording step, or
+    ``None``: Auto-fit, Diagnose and Calibrate then measure it from the recording, as
+    ``napari-symbac fit`` does without ``--camera``."""
+    camera = None if layer is None else layer.metadata.get(CAMERA_KEY)
+    return camera if isinstance(camera, Camera) else None
 
 
 def output_metadata(step: str) -> dict:
@@ -175,9 +190,22 @@ def is_real_image(layer: Any) -> bool:
     )
 
 
+def layer_pixel_size_um(layer: Any) -> float | None:
+    """A recording's pixel size in um, or ``None``: the one entered in the Recording
+    step or read from the file by this plugin's reader (``None`` there: none, or an
+    implausible one entered); for a layer neither has seen, the one its reader set as
+    the layer's scale (:func:`scale_pixel_um`). Found as a user: a TIFF opened by
+    napari's own reader and scaled to 0.065 um was "no pixel size yet" to Diagnose and
+    Simulate, and Auto-fit fitted an image without one at the simulation's."""
+    if "pixel_size_um" in layer.metadata:
+        pixel = layer.metadata["pixel_size_um"]
+        return float(pixel) if pixel else None
+    return scale_pixel_um(layer)
+
+
 def is_recording(layer: Any) -> bool:
     """A real image layer (:func:`is_real_image`) with a usable pixel size."""
-    return is_real_image(layer) and pixel_size_problem(layer.metadata.get("pixel_size_um")) is None
+    return is_real_image(layer) and pixel_size_problem(layer_pixel_size_um(layer)) is None
 
 
 def recordings(viewer: Any) -> list:
@@ -248,7 +276,7 @@ def no_recording_message(viewer: Any, then: str) -> str:
     waiting = [layer for layer in real_images(viewer) if not is_recording(layer)]
     if waiting:
         layer = waiting[-1]
-        problem = pixel_size_problem(layer.metadata.get("pixel_size_um")) or ""
+        problem = pixel_size_problem(layer_pixel_size_um(layer)) or ""
         if problem.startswith("no pixel size"):
             return f"{layer.name} has no pixel size yet: enter it in {step}, then {then}"
         return f"{layer.name}: {problem}; correct it in {step}, then {then}"
@@ -300,7 +328,7 @@ def recording_microscope(layer: Any, base: Microscope | None = None) -> Microsco
     microscope = meta.get("microscope") or base or Microscope()
     return dataclasses.replace(
         microscope,
-        pixel_size_um=float(meta["pixel_size_um"]),
+        pixel_size_um=float(layer_pixel_size_um(layer)),
         modality=meta.get("modality") or microscope.modality,
     )
 

@@ -25,9 +25,11 @@ from napari_symbac._widgets._recording import (
     RECORDING_STEP,
     check_recording_frame,
     followed_layer,
+    given_camera,
     in_pixel_units,
     is_recording,
     layer_axes,
+    layer_pixel_size_um,
     mask_layers,
     newest_masks,
     pixel_size_problem,
@@ -213,7 +215,7 @@ class CalibrateWidget(Container):
                 "the cell width sets the pixel size from the cells' masks: choose the cell "
                 "masks too (or set the width to 0 to use the recording's pixel size)"
             )
-        problem = pixel_size_problem(layer.metadata.get("pixel_size_um"))
+        problem = pixel_size_problem(layer_pixel_size_um(layer))
         if width is not None:
             microscope = layer.metadata.get("microscope") or Microscope()
             microscope = dataclasses.replace(
@@ -251,6 +253,7 @@ class CalibrateWidget(Container):
         except ValueError as err:
             self.status.value = f"Not calibrated: {err}"
             return
+        camera = given_camera(self.recording.value)  # None: measured from the frame
         cancelled = threading.Event()
 
         def calibrate_and_draw(progress, cancel):
@@ -275,6 +278,7 @@ class CalibrateWidget(Container):
             calibration = calibrate(
                 frame,
                 microscope=microscope,
+                camera=camera,
                 masks=masks,
                 cell_width_um=width,
                 progress=fit_progress,

@@ -24,6 +24,7 @@ from napari_symbac._widgets._recording import (
     GUI_MODALITY_ADVICE,
     check_recording_frame,
     followed_layer,
+    given_camera,
     is_recording,
     modality_render,
     no_recording_message,
@@ -206,9 +207,10 @@ class DiagnoseWidget(Container):
     def _input(self) -> tuple:
         """Frame, classes (or ``None``), microscope, start render, camera, geometry, region.
 
-        The camera is ``None``: the base fit measures it from the recording (gain and read
-        noise, as Auto-fit and ``napari-symbac fit`` do), so that the diagnosis does not
-        report the difference from an assumed camera as a finding. ``region`` (rows
+        The camera is the one given in the Recording step, else ``None``: the base fit
+        measures it from the recording (gain and read noise, as Auto-fit and
+        ``napari-symbac fit`` do), so that the diagnosis does not report the difference
+        from an assumed camera as a finding. ``region`` (rows
         ``y0:y1``, columns ``x0:x1``) is the *window* field's, read by the CLI's parser
         (:func:`~napari_symbac.diagnose.region.parse_region`): by default a frame larger
         than :data:`~napari_symbac.diagnose.region.MAX_DIAGNOSIS_PIXELS` is diagnosed on
@@ -260,7 +262,7 @@ class DiagnoseWidget(Container):
             render = modality_render(RenderSettings(), microscope.modality, means)
         else:  # the CLI's start (``napari-symbac diagnose``)
             render = RenderSettings()
-        camera = None  # measured by the base fit
+        camera = given_camera(layer)  # None: measured by the base fit
         # as the CLI: a narrow phase field is a trench; fluorescence shows no walls
         from napari_symbac.fit.preflight import default_geometry
 
@@ -296,7 +298,7 @@ class DiagnoseWidget(Container):
             from napari_symbac.diagnose.stages import refitted_render
             from napari_symbac.fit import fit_scene
             from napari_symbac.fit.fitted_settings import fitted_or_kept
-            from napari_symbac.fit.report import measured_camera_note
+            from napari_symbac.fit.report import camera_text, measured_camera_note
 
             try:
                 fit = fit_scene(
@@ -330,7 +332,11 @@ class DiagnoseWidget(Container):
                 cancel=cancel,
             )
             final = refitted_render(fit.render, result.final_model, microscope.modality)
-            camera_note = measured_camera_note(frame, fit.camera)
+            camera_note = (
+                measured_camera_note(frame, fit.camera)
+                if camera is None
+                else f"camera given in the Recording step: {camera_text(camera)}"
+            )
             return fit, result, final, (*exported, layout != tuple(full)), camera_note
 
         self.worker = Job(

@@ -15,6 +15,7 @@ from magicgui.widgets import ComboBox, Container, FileEdit, Label, PushButton
 from napari_symbac._widgets._forms import SettingsForm, hide_label, message_label
 from napari_symbac._widgets._jobs import notify_warning
 from napari_symbac._widgets._recording import (
+    CAMERA_KEY,
     axis_labels,
     check_recording_frame,
     in_pixel_units,
@@ -31,7 +32,18 @@ from napari_symbac.settings import Camera, Microscope
 if TYPE_CHECKING:
     import napari
 
-__all__ = ["CLASS_COLOURS", "RealImageWidget", "class_layer_name", "enter_pixel_size"]
+__all__ = [
+    "CAMERA_SOURCES",
+    "CLASS_COLOURS",
+    "RealImageWidget",
+    "class_layer_name",
+    "enter_pixel_size",
+]
+
+#: How the fits know the recording's camera (the Recording step's *camera* choice).
+MEASURED_CAMERA = "measured from the recording"
+GIVEN_CAMERA = "given (data sheet)"
+CAMERA_SOURCES = (MEASURED_CAMERA, GIVEN_CAMERA)
 
 #: Colours of the painted classes (RGBA), shared by the layer and the legend.
 CLASS_COLOURS = {"cell": "#ff5a36", "media": "#2e9bff", "device": "#b0b0b0"}
@@ -66,6 +78,10 @@ class RealImageWidget(Container):
       coordinates.
     * **microscope**: pixel size, objective, wavelength, condenser and modality; the
       other widgets simulate, tune, fit and export with it.
+    * **camera**: measured from the recording (the default: Auto-fit, Diagnose and
+      Calibrate measure gain and read noise by photon transfer), or given: offset, gain,
+      read noise and bit depth from the camera's data sheet or a photon-transfer
+      measurement, as ``napari-symbac fit --camera``.
     * **Paint classes**: adds a labels layer with the classes cell (1), media (2) and
       device (3), in fixed colours, in paint mode with the cell class selected.
     * **Measure**: mean and variance of each painted class (eq. 2), stored with the
@@ -102,6 +118,19 @@ class RealImageWidget(Container):
         self.microscope.pixel_size_um.native.setKeyboardTracking(False)
         self.pixel_size = self.microscope.pixel_size_um
         self.modality = self.microscope.modality
+        self.camera_source = ComboBox(
+            name="camera_source",
+            label="camera",
+            choices=list(CAMERA_SOURCES),
+            value=MEASURED_CAMERA,
+            tooltip=(
+                "How the fits know the camera: measured from the recording (photon "
+                "transfer of its pixels), or given from the camera's data sheet or a "
+                "photon-transfer measurement (as napari-symbac fit --camera)."
+            ),
+        )
+        self.camera = SettingsForm(Camera, name="camera", title="camera (given)")
+        self.camera.visible = False
         self.warning = message_label("warning", label="")
         self.warning.visible = False
         self.paint_button = PushButton(
@@ -126,6 +155,8 @@ class RealImageWidget(Container):
                 self.file,
                 self.warning,
                 self.microscope,
+                self.camera_source,
+                self.camera,
                 self.paint_button,
                 self.legend,
                 self.measure_button,
@@ -133,11 +164,15 @@ class RealImageWidget(Container):
             ]
         )
         hide_label(self.microscope)
+        hide_label(self.camera)
         hide_label(self.warning)
         hide_label(self.result)  # no row that reads just "result"
         self.file.changed.connect(self._open_file)
         self.image.changed.connect(self._load_layer)
         self.microscope.changed.connect(self._store)
+        self.camera_source.changed.connect(self._show_camera)
+        self.camera_source.changed.connect(self._store)
+        self.camera.changed.connect(self._store)
         self.modality.changed.connect(self._show_condenser)
         self.modality.changed.connect(self._forget_guess)
         self._show_condenser()
@@ -151,6 +186,8 @@ class RealImageWidget(Container):
         watch_recordings(viewer, self._show_entered)
         self.statistics = None
         self._loading = False
+        for layer in list(viewer.layers):
+            self._add_grey_of(layer)
         self._load_layer()
 
     def _image_layers(self, _widget=None) -> list:
@@ -264,8 +301,13 @@ class RealImageWidget(Container):
             elif not isinstance(meta.get("microscope"), Microscope):
                 self._guess_modality(layer)
             self.pixel_size.value = pixel or 0.0
+            camera = meta.get(CAMERA_KEY)
+            if isinstance(camera, Camera):
+                self.camera.value = camera
+            self.camera_source.value = GIVEN_CAMERA if camera else MEASURED_CAMERA
         finally:
             self._loading = False
+        self._show_camera()
         self._store()
 
     def _show_entered(self, event=None) -> None:
@@ -287,6 +329,19 @@ class RealImageWidget(Container):
         self.warning.value = ""
         self.warning.visible = False
         self._warned = None
+
+    def _show_camera(self, _value=None) -> None:
+        """The camera's form is shown when the camera is given."""
+        self.camera.visible = self.camera_source.value == GIVEN_CAMERA
+
+    def _given_camera(self) -> tuple[Camera | None, str | None]:
+        """The camera given in the form (``None`` when measured), or the problem with it."""
+        if self.camera_source.value != GIVEN_CAMERA:
+            return None, None
+        try:
+            return self.camera.value, None
+        except ValueError as err:
+            return None, f"camera: {err} (the fits measure it from the recording until then)"
 
     def _show_condenser(self, _value=None) -> None:
         """The phase condenser (annulus) is a phase-contrast setting: hidden for
@@ -318,7 +373,7 @@ class RealImageWidget(Container):
             said = (
                 f"{layer.name} records no modality, and its look does not settle it (a "
                 f"crop around a few cells, or phase contrast): {self.modality.value} is "
-                "assumed; choose the modality below"
+                "assumed; choose the modality in the microscope form"
             )
         else:
             self.modality.value = guess
@@ -371,7 +426,12 @@ class RealImageWidget(Container):
         """A grey image saved as colour (equal red, green and blue: the Omnipose and
         Cellpose datasets' PNGs, which napari opens as RGBA) gets its grey channel as a
         layer ``"<name> grey"`` when it is added to the viewer; every step uses that."""
-        layer = event.value
+        self._add_grey_of(event.value)
+
+    def _add_grey_of(self, layer) -> None:
+        """:meth:`_add_grey_channel` of ``layer``; also run on the layers open before
+        the dock (found as a user: a PNG opened with File > Open before the dock was
+        said to have had its grey channel "removed", which was never made)."""
         if not getattr(layer, "rgb", False) or f"{layer.name} grey" in self.viewer.layers:
             return
         from napari_symbac.io import grey_channel
@@ -411,9 +471,10 @@ class RealImageWidget(Container):
             f"{layer.name} is a colour image {tuple(layer.data.shape)}: open one grey "
             "channel (the camera's raw frame) to match and fit"
         )
-        if grey_channel(layer.data) is not None:  # its grey layer was deleted (found as a
-            # user: the dock called it a colour image and named the deleted layer; made
-            # again here, a viewer closing would make it for ever)
+        removed = grey_channel(layer.data) is not None
+        if removed:  # its grey layer was deleted (found as a user: the dock called it a
+            # colour image and named the deleted layer; made again here, a viewer closing
+            # would make it for ever)
             message = (
                 f"{layer.name} is a grey image saved as colour, and its grey channel, the "
                 f"layer '{name}', was removed: open the file again to use it"
@@ -421,7 +482,8 @@ class RealImageWidget(Container):
             self.result.value = ""
         self.warning.value = f"<b style='color:#ffb000'>&#9888; {message}</b>"
         self.warning.visible = True
-        notify_warning(message)
+        if not removed:  # a removed grey layer is said in the dock only: napari removes
+            notify_warning(message)  # it first when the viewer closes
 
     def _store(self, _value=None) -> None:
         """Remember the form with the layer, or show why it cannot be used."""
@@ -454,6 +516,8 @@ class RealImageWidget(Container):
         # used all the same, as `fit` warns and fits (found as a user: 0.65 um at the
         # form's 100x, a 10x slip, was taken in silence, where `fit` says it)
         slip = camera_pixel_problem(microscope, where="the microscope form below")
+        camera, camera_problem = self._given_camera()
+        slip = "; ".join(filter(None, (slip, camera_problem))) or None
         if slip is None:
             self.warning.value = ""
             self.warning.visible = False
@@ -465,6 +529,9 @@ class RealImageWidget(Container):
                 notify_warning(f"{layer.name}: {slip}")
             self._warned = self.warning.value
         enter_pixel_size(self.viewer, layer, microscope)
+        # after the pixel size: a metadata event before it would show the old one
+        if CAMERA_KEY not in layer.metadata or layer.metadata[CAMERA_KEY] != camera:
+            layer.metadata = {**layer.metadata, CAMERA_KEY: camera}
 
     def paint(self) -> None:
         """Add (or select) the class-labels layer for the chosen image, ready to paint."""

@@ -20,6 +20,7 @@ from napari_symbac._widgets._recording import (
     followed_layer,
     in_pixel_units,
     layer_axes,
+    layer_pixel_size_um,
     modality_render,
     recording_microscope,
     recordings,
@@ -403,8 +404,7 @@ class SimulateWidget(Container):
 
 def _followed_key(layer) -> tuple:
     """What the form follows of a recording: which layer, its pixel size and modality."""
-    meta = layer.metadata
-    return id(layer), meta.get("pixel_size_um"), meta.get("modality")
+    return id(layer), layer_pixel_size_um(layer), layer.metadata.get("modality")
 
 
 def _follow_placement(layer, placement: dict[str, tuple]) -> None:

@@ -27,16 +27,21 @@ from napari_symbac._widgets._forms import message_label
 from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
 from napari_symbac._widgets._recording import (
     GUI_MODALITY_ADVICE,
+    RECORDING_STEP,
     axis_labels,
     check_recording_frame,
     followed_layer,
+    given_camera,
     is_recording,
+    layer_pixel_size_um,
     mask_layers,
     modality_render,
     newest_masks,
     no_recording_message,
     output_metadata,
+    pixel_size_problem,
     real_images,
+    recording_microscope,
     shown_frame,
     watch_recordings,
 )
@@ -328,6 +333,7 @@ class TuneWidget(Container):
         self.fit_worker: Job | None = None
         self._fit_notes: list[str] = []  # what the running fit cannot do (fit_notes)
         self._fit_microscope: Microscope | None = None  # the recording's, of the last fit
+        self._camera_given = False  # the last fit's camera came from the Recording step
         self.fit_result = None
         self._modality = None
         self._polarity_changed = False
@@ -640,6 +646,7 @@ class TuneWidget(Container):
             return
         real, labels, masks, microscope, render, camera, geometry = job_input
         self._fit_microscope = microscope  # the recording's: it sizes the fitted scene
+        self._camera_given = camera is not None
         from napari_symbac.fit.colony import is_dense_colony
         from napari_symbac.fit.report import fit_notes
 
@@ -706,7 +713,9 @@ class TuneWidget(Container):
             frame = real[min(shown, len(real) - 1)] if all_frames else real
             shown_fit = _shown_fit(result, shown)
             clipped = _clipped_background(shown_fit, frame, microscope)
-            return _FitOutcome(result, shown, clipped, _camera_check(shown_fit, frame, advice))
+            # a measured camera is checked model-free, as `fit` does without --camera
+            check = _camera_check(shown_fit, frame, advice) if camera is None else None
+            return _FitOutcome(result, shown, clipped, check)
 
         self.fit_worker = Job(
             work,
@@ -745,13 +754,11 @@ class TuneWidget(Container):
                 no_recording_message(self.viewer, "choose it as the real image here")
             )
         settings = self.source.value.metadata[SYMBAC_METADATA_KEY]["settings"]
-        microscope = self.preview.model.microscope
-        pixel = reference.metadata.get("pixel_size_um")
-        if pixel:
-            microscope = dataclasses.replace(microscope, pixel_size_um=float(pixel))
-        modality = reference.metadata.get("modality") or microscope.modality
-        if modality != microscope.modality:
-            microscope = dataclasses.replace(microscope, modality=modality)
+        problem = pixel_size_problem(layer_pixel_size_um(reference))
+        if problem is not None:  # never the simulation's pixel size (found as a user: an
+            # image without one was fitted at the preview's 0.065 um)
+            raise ValueError(f"{reference.name}: {problem} in {RECORDING_STEP}, then fit it")
+        microscope = recording_microscope(reference, self.preview.model.microscope)
         real = np.asarray(reference.data)
         if all_frames and (real.ndim != 3 or len(real) < 2):
             raise ValueError(
@@ -793,10 +800,11 @@ class TuneWidget(Container):
         # cells are fitted as in an open field.
         walled = settings.simulation.geometry in ("trench", "chamber")
         geometry = "trench" if walled and microscope.modality == "phase" else "open"
-        # The GUI takes no camera from the user: the fit measures it from the recording
-        # (``camera=None``: photon transfer, then its residual), as the CLI does without
-        # --camera, and the fitted camera then renders the preview and the export.
-        return real, labels, masks, microscope, self.preview.render_settings, None, geometry
+        # The camera given in the Recording step, as `fit --camera`; without one the fit
+        # measures it from the recording (photon transfer, then its residual), and the
+        # fitted camera then renders the preview and the export.
+        camera = given_camera(reference)
+        return real, labels, masks, microscope, self.preview.render_settings, camera, geometry
 
     def _frame_of(self, data: np.ndarray, _name: str = "") -> np.ndarray:
         """The frame shown of ``data`` (a 2D layer is every frame's)."""
@@ -949,12 +957,14 @@ class TuneWidget(Container):
             )
         elif fit_camera is not None:
             cam = fit_camera
+            how = "given in the Recording step"
+            how = how if self._camera_given else "measured from the recording"
             self.status.value += (
-                f"<br>Camera measured from the recording: {cam.sensitivity_adu_per_e:.3g} "
-                f"ADU/e-, read noise {cam.dark_noise_e:.3g} e-, baseline "
-                f"{cam.baseline_adu:.4g} ADU (used by the preview and Export)"
+                f"<br>Camera {how}: {cam.sensitivity_adu_per_e:.3g} ADU/e-, read noise "
+                f"{cam.dark_noise_e:.3g} e-, baseline {cam.baseline_adu:.4g} ADU (used by "
+                "the preview and Export)"
             )
-            if cam.dark_noise_e == 0:
+            if cam.dark_noise_e == 0 and not self._camera_given:
                 self.status.value += f"<br>Note: {UNMEASURED_READ_NOISE}"
         if outcome.camera_check is not None:
             self.status.value += f"<br>Camera, model-free: {outcome.camera_check[0]}"
@@ -1132,10 +1142,10 @@ class _FitOutcome:
     camera_check: tuple[str, str | None] | None
 
 
-#: How a GUI user fixes a camera the recording cannot check (Auto-fit takes none).
+#: How a GUI user fixes a camera the recording cannot check.
 GUI_CAMERA_FIX = (
-    "Auto-fit measures the camera from the recording and takes none: fit with "
-    "`napari-symbac fit --camera CAMERA.yaml` to give it"
+    "give the camera in the Recording step (camera: given), from its data sheet or a "
+    "photon-transfer measurement"
 )
 
 
