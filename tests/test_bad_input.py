@@ -473,7 +473,7 @@ def test_render_disk_full_leaves_no_partial_file(
     assert code == 2
     assert "disk is full" in err
     assert str(out / "images.tif") in err
-    assert _files(out) == []
+    assert not out.exists()  # nor an empty --out it made (found as a user)
     # render starts over: no export's resume advice (found as a user)
     assert "finished items" not in err
     assert err.rstrip().endswith("then run it again")
@@ -496,6 +496,10 @@ def test_demo_disk_full_leaves_no_folder(tmp_path, monkeypatch, capsys):
     assert "disk is full" in err
     assert "dataset" in err
     assert not out.exists()
+    # said as it is (found as a user: "the export keeps its finished items and
+    # completes the rest" of a folder that was removed)
+    assert "completes the rest" not in err
+    assert f"the demo's folder {out} was removed; run the demo again" in err
 
 
 @pytest.mark.parametrize("command", ["demo", "simulate"])
@@ -1070,3 +1074,167 @@ def test_export_to_folder_of_another_export_names_what_differs(tmp_path, export_
     assert code == 2
     assert "different settings or formats (n_items: 2 there, 3 here); to resume" in err
     assert _files(out) == before
+
+
+def test_a_dxf_outline_without_ezdxf_is_one_line_naming_the_extra(tmp_path, capsys, monkeypatch):
+    """Found as a user: simulating a DXF outline without the [dxf] extra ended in a
+    traceback. ezdxf made unimportable (the fault injected)."""
+    from napari_symbac.settings import OutlineGeometry
+
+    monkeypatch.setitem(sys.modules, "ezdxf", None)
+    config = tmp_path / "outline.yaml"
+    outline = OutlineGeometry(dxf_path=str(tmp_path / "walls.dxf"))
+    simulation = SimulationSettings(n_frames=2, geometry="outline", outline=outline)
+    save_settings(PipelineSettings(simulation=simulation), config)
+    code, err = _run(["simulate", "--config", str(config), "--out", str(tmp_path / "sim")], capsys)
+    assert code == 2
+    assert "error: reading a DXF device outline needs ezdxf: pip install" in err
+    assert "napari-symbac[dxf]" in err
+
+
+def test_running_out_of_memory_and_a_full_disk_are_said_with_what_to_do(
+    tmp_path, capsys, monkeypatch
+):
+    """Found as a user: a fit of a huge image ended in numpy's _ArrayMemoryError
+    traceback, and a full disk was "check that the path is right". Both faults
+    injected into `defaults`, the lightest command."""
+    import napari_symbac.cli as cli
+
+    def out_of_memory(_args):
+        raise MemoryError("Unable to allocate 1.07 GiB for an array")
+
+    def disk_full(_args):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(tmp_path / "x.tif"))
+
+    for fault, words in (
+        (out_of_memory, "error: out of memory (Unable to allocate 1.07 GiB for an array): "),
+        (disk_full, f"error: the disk is full writing {tmp_path / 'x.tif'}: free some space"),
+    ):
+        monkeypatch.setattr(cli, "_cmd_defaults", fault)
+        code, err = _run(["defaults", "microscope"], capsys)
+        assert code == 2
+        assert words in err
+    assert "a crop of the image" in cli.OUT_OF_MEMORY_ADVICE
+
+
+def test_an_image_larger_than_a_fit_takes_is_refused_before_it_starts():
+    """Found as a user: a 12000 x 12000 frame ran out of memory in the fit's start (a
+    traceback), a 6000 x 6000 one grew to 3.7 GB without a word."""
+    from napari_symbac.fit.preflight import MAX_FIT_PIXELS, check_fit_image
+
+    side = int(MAX_FIT_PIXELS**0.5)
+    check_fit_image(np.ones((side, side), np.uint8) * 100)  # the largest taken
+    with pytest.raises(ValueError, match=r"big is 4097 x 4096 px \(17 Mpx\), more than a fit"):
+        check_fit_image(np.ones((side + 1, side), np.uint8), "big")
+
+
+def test_calibrate_of_a_huge_dataset_needs_yes_before_the_fit(tmp_path, capsys, real_data_dir):
+    """Found as a user: `calibrate --n-items 1000000` fitted, then started days of
+    export without a word; it is refused up front as export's is, and leaves nothing."""
+    out = tmp_path / "calibrated"
+    microscope = tmp_path / "microscope.yaml"
+    save_settings(Microscope(), microscope)
+    code, err = _run(
+        [
+            "calibrate", str(real_data_dir / "omnipose" / "Sample000033.png"),
+            "--microscope", str(microscope),
+            "--masks", str(real_data_dir / "omnipose" / "Sample000033_cp_masks.tif"),
+            "--cell-width-um", "1", "--n-items", str(LARGE_RUN_FRAMES + 1), "--out", str(out),
+        ],
+        capsys,
+    )  # fmt: skip
+    assert code == 2
+    assert f"a dataset of {LARGE_RUN_FRAMES + 1:,} items is roughly" in err
+    assert "add --yes to start it anyway" in err
+    assert not out.exists()
+
+
+def test_a_scene_too_large_to_draw_names_its_size_and_settings():
+    """Found as a user: a 100000 um trench said "render image of (4615522, 238) pixels
+    is too large: reduce upsample or size", naming no setting."""
+    from napari_symbac.scene import draw_scene
+    from napari_symbac.settings import RenderSettings
+    from napari_symbac.sim import FrameCells
+
+    with pytest.raises(ValueError, match=r"^the trench \(100000 x 1\.4 um\) is drawn as ") as no:
+        draw_scene(FrameCells.empty(), TrenchGeometry(length_um=100_000.0), Microscope(),
+                   RenderSettings())  # fmt: skip
+    assert "make it smaller, or lower upsample or psf_radius_px" in str(no.value)
+
+
+def test_a_setting_given_twice_in_a_file_is_refused(tmp_path, capsys):
+    """Found as a user: `pixel_size_um: 0.065` and, further down, `pixel_size_um: 0.65`
+    were read as 0.65 without a word (YAML keeps the last key), and the fit then said
+    "cells 9 um wide". A key given twice in one mapping is refused, in YAML and JSON."""
+    from napari_symbac.settings import load_settings
+
+    twice = tmp_path / "microscope.yaml"
+    twice.write_text("pixel_size_um: 0.065\nnumerical_aperture: 1.45\npixel_size_um: 0.65\n")
+    with pytest.raises(ValueError, match="found 'pixel_size_um' a second time: give each"):
+        load_settings(twice, Microscope)
+    nested = tmp_path / "render.json"
+    nested.write_text('{"simulation": {"n_frames": 3, "n_frames": 4}}')
+    with pytest.raises(ValueError, match="found 'n_frames' a second time in one object"):
+        load_settings(nested, PipelineSettings)
+    once = tmp_path / "once.yaml"
+    once.write_text("pixel_size_um: 0.065\nnumerical_aperture: 1.45\n")
+    assert load_settings(once, Microscope).pixel_size_um == 0.065
+    code, err = _run(["simulate", "--config", str(twice), "--out", str(tmp_path / "s")], capsys)
+    assert code == 2
+    assert "a second time" in err
+
+
+def test_masks_of_another_number_of_frames_say_so(tmp_path, capsys, real_data_dir):
+    """Found as a user: 3 frames of masks with `--frames 0-3` of a 4-frame image were
+    "--masks has shape (3, 256, 46) but the image frame has shape (256, 46)"."""
+    trench = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")
+    image = tmp_path / "four.tif"
+    tifffile.imwrite(image, np.stack([trench] * 4))
+    masks = tmp_path / "three_masks.tif"
+    one = np.zeros(trench.shape, np.uint16)
+    one[40:80, 15:30] = 1
+    tifffile.imwrite(masks, np.stack([one] * 3))
+    microscope = tmp_path / "microscope.yaml"
+    save_settings(Microscope(pixel_size_um=0.065), microscope)
+    code, err = _run(
+        ["fit", str(image), "--microscope", str(microscope), "--masks", str(masks),
+         "--frames", "0-3", "--out", str(tmp_path / "fitted")],
+        capsys,
+    )  # fmt: skip
+    assert code == 2
+    assert "--masks three_masks.tif holds 3 frames of the image's size, but not one" in err
+    assert not (tmp_path / "fitted").exists()
+
+
+def test_a_bad_range_of_the_randomisation_is_named():
+    """Found as a user: `noise_scale: {low: 2, high: 1}` said only "Range low=2.0 must
+    not exceed high=1.0", not which of the seven ranges."""
+    from napari_symbac.export.dataset import Randomisation
+
+    with pytest.raises(ValueError, match=r"^Randomisation\.noise_scale: Range low=2 must not"):
+        Randomisation(noise_scale={"low": 2, "high": 1})
+    with pytest.raises(ValueError, match=r"^Randomisation\.exposure_scale: .*'hi'"):
+        Randomisation(exposure_scale={"low": 1, "hi": 2})
+
+
+def test_a_diagnosis_window_too_small_and_a_settings_file_that_is_a_folder_are_named(
+    tmp_path, capsys, real_data_dir
+):
+    """Found as a user: `diagnose --region 0:4,0:4` said "real_image of shape (4, 4) is
+    too small" (an inner name), and `defaults microscope --out X.yaml` of a folder asked
+    for --force, which then failed with "Is a directory"."""
+    microscope = tmp_path / "microscope.yaml"
+    save_settings(Microscope(pixel_size_um=0.065), microscope)
+    code, err = _run(
+        ["diagnose", str(real_data_dir / "ecoli_100x_oil_exponential.tiff"), "--microscope",
+         str(microscope), "--region", "0:4,0:4", "--out", str(tmp_path / "diagnosed")],
+        capsys,
+    )  # fmt: skip
+    assert code == 2
+    assert "--region '0:4,0:4' is 4 x 4 px: a window needs at least 8 x 8 px" in err
+    folder = tmp_path / "X.yaml"
+    folder.mkdir()
+    for force in ([], ["--force"]):
+        code, err = _run(["defaults", "microscope", "--out", str(folder), *force], capsys)
+        assert code == 2
+        assert f"--out {folder} is a folder: give a file name (e.g. microscope.yaml)" in err

@@ -200,6 +200,15 @@ def test_simulate_then_render(tmp_path, capsys):
     # simulated again into the same folder: said as render says it (found as a user)
     assert main(["simulate", "--out", str(tmp_path / "sim"), "--frames", "3", "--seed", "1"]) == 0
     assert f"replaced the simulation that {tmp_path / 'sim'} held" in capsys.readouterr().err
+    # ... and what it held beside it, renders of the earlier simulation, is named as
+    # removed (found as a user: images.tif, labels.tif and semantic.tif went unsaid)
+    assert main(["render", str(tmp_path / "sim"), "--out", str(tmp_path / "sim")]) == 0
+    capsys.readouterr()
+    assert main(["simulate", "--out", str(tmp_path / "sim"), "--frames", "2", "--seed", "1"]) == 0
+    assert (
+        "held, and removed what it held beside it (images.tif, labels.tif, semantic.tif)"
+        in capsys.readouterr().err
+    )
 
 
 def test_simulate_takes_the_simulation_of_a_pipeline_file(tmp_path, capsys):

@@ -99,6 +99,25 @@ def test_bad_files_are_named(tmp_path):
         read_recording(text)
 
 
+def test_a_file_is_read_by_what_it_holds_not_only_by_its_name(tmp_path):
+    """Found as a user: a TIFF saved without an extension was "not a TIFF or PNG file",
+    and a PNG named .tif "not a readable TIFF ... convert it to TIFF". Their first bytes
+    say what they are: both are read (read_image), and read_recording, a TIFF reader,
+    names the PNG as one."""
+    frame = np.arange(64, dtype=np.uint16).reshape(8, 8) + 100
+    bare = tmp_path / "frame_without_extension"
+    tifffile.imwrite(bare, frame, imagej=True, resolution=(10, 10), metadata={"unit": "um"})
+    recording = read_image(bare)
+    np.testing.assert_array_equal(recording.data, frame)
+    assert recording.pixel_size_um == pytest.approx(0.1)
+    png = tmp_path / "frame.tif"
+    iio.imwrite(png, frame.astype(np.uint8), extension=".png")
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    np.testing.assert_array_equal(read_image(png).data, frame.astype(np.uint8))
+    with pytest.raises(ValueError, match=r"frame\.tif is a PNG file, not a TIFF: name it \.png"):
+        read_recording(png)
+
+
 @pytest.mark.parametrize(
     ("method", "modality"), [("Phase", "phase"), ("Fluorescence", "fluorescence")]
 )
@@ -291,6 +310,17 @@ def test_a_grey_imagej_stack_is_frames_though_tifffile_calls_them_channels(tmp_p
     tifffile.imwrite(written, series, imagej=True)
     assert tifffile.TiffFile(written).series[0].axes == "CYX"
     np.testing.assert_array_equal(read_recording(written).data, series)
+    # ... but they may be channels (found as a user: a 2-channel ImageJ TIFF was read as
+    # 2 frames without a word, and channel 1 was refused, "holds one channel"): said,
+    # and a channel is read when asked for
+    data_cyx = _hyperstack(tmp_path / "CYX.tif", "CYX", (3, 16, 16), mode="grayscale")
+    recording = read_recording(tmp_path / "CYX.tif")
+    assert "its 3 planes, ImageJ channels in grey mode" in recording.note
+    assert "choose one (--channel K, K in 0..2)" in recording.note
+    np.testing.assert_array_equal(read_recording(tmp_path / "CYX.tif", 1).data, data_cyx[1])
+    assert read_recording(tmp_path / "CYX.tif", 1).note is None
+    with pytest.raises(ValueError, match=r"channel 3: CYX\.tif has channels 0\.\.2"):
+        read_recording(tmp_path / "CYX.tif", 3)
 
 
 def test_focal_planes_beside_frames_are_refused_by_name(tmp_path):

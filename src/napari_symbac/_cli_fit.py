@@ -86,9 +86,9 @@ def _explicit_keys(config: str | None) -> dict[str, Any]:
     """The raw mapping of a config file, to know which settings the user actually gave."""
     if config is None:
         return {}
-    import yaml
+    from napari_symbac.settings import read_settings_mapping
 
-    data = yaml.safe_load(Path(config).read_text(encoding="utf-8")) or {}
+    data = read_settings_mapping(config)
     return data if isinstance(data, dict) else {}
 
 

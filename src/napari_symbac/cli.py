@@ -10,6 +10,7 @@ import contextlib
 import difflib
 import os
 import re
+import shutil
 import signal
 import sys
 import threading
@@ -158,6 +159,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     # simulate() saves to save_dir itself, atomically, once the run is complete.
     settings = dataclasses.replace(settings, **overrides, save_dir=str(out))
     replaced = (out / "simulation.json").is_file()
+    before = sorted(p.name for p in out.iterdir()) if out.is_dir() else []
     timer = StepTimer()
     update, bar = _tqdm_progress("simulate", settings.n_frames)
     with timer.step("simulate and save"):
@@ -167,10 +169,13 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         f"wrote simulation of {_count(settings.n_frames, 'frame')}, "
         f"{_count(len(simulation.lineage), 'cell')} to {out}"
     )
-    if replaced:  # said as render says it (found as a user: replaced without a word)
+    if replaced:  # said as render says it (found as a user: replaced without a word,
+        # and the earlier simulation's renders removed with it unsaid)
+        gone = [name for name in before if not (out / name).exists()]
+        removed = f", and removed what it held beside it ({', '.join(gone)})" if gone else ""
         print(
-            f"napari-symbac simulate: note: replaced the simulation that {out} held "
-            "(simulate to another --out to keep both)",
+            f"napari-symbac simulate: note: replaced the simulation that {out} "
+            f"held{removed} (simulate to another --out to keep both)",
             file=sys.stderr,
         )
     print(timer.report())
@@ -235,11 +240,17 @@ def _cmd_render(args: argparse.Namespace) -> int:
     }
     arrays = {"images": series.images, "labels": series.labels, "semantic": series.semantic}
     replaced = [f"{name}.tif" for name in arrays if (out / f"{name}.tif").exists()]
+    created = not out.exists()
     with timer.step("write"):
         # each file atomically: a full disk leaves no partial file, and names the path
-        for name, array in arrays.items():
-            kind = "image" if name == "images" else name
-            write_tiff(out / f"{name}.tif", array, kind=kind, **calibration)
+        try:
+            for name, array in arrays.items():
+                kind = "image" if name == "images" else name
+                write_tiff(out / f"{name}.tif", array, kind=kind, **calibration)
+        except BaseException:
+            if created:  # found as a user: a full disk left an empty --out, or images
+                shutil.rmtree(out, ignore_errors=True)  # without their labels
+            raise
     print(f"wrote images.tif, labels.tif, semantic.tif {series.images.shape} to {out}")
     _say_extra_stages(settings)
     if replaced:
@@ -324,6 +335,9 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     from napari_symbac._cli_calibrate import run_calibrate
 
+    # its items at least, before the fit (found as a user: --n-items 1000000 fitted, then
+    # started days of export without a word)
+    _confirm_large_run(args.n_items, f"a dataset of {args.n_items:,} items", args.yes)
     _output_folder(args.out, staged=True)  # before the fit, not after it
     return run_calibrate(args)
 
@@ -696,6 +710,11 @@ def _cmd_defaults(args: argparse.Namespace) -> int:
         }
         default = classes[args.kind]()
     if args.out:
+        if Path(args.out).is_dir():  # found as a user: "exists and is not the default
+            # settings (your edits?) ... add --force", and --force then "Is a directory"
+            raise ValueError(
+                f"--out {args.out} is a folder: give a file name (e.g. {args.kind}.yaml)"
+            )
         if not args.force and not _holds(args.out, settings_module.to_dict(default)):
             raise ValueError(
                 f"{args.out} exists and is not the default {args.kind} settings (your "
@@ -1096,6 +1115,7 @@ def build_parser() -> argparse.ArgumentParser:
         "(for recordings whose pixel size is not known)",
     )
     cal.add_argument("--n-items", type=_at_least_one, default=100, help="images (default 100)")
+    cal.add_argument("--yes", action="store_true", help=_YES_HELP)
     cal.add_argument(
         "--formats",
         default="tiff",
@@ -1199,6 +1219,13 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: What to do when a command runs out of memory.
+OUT_OF_MEMORY_ADVICE = (
+    "this machine cannot hold what was asked for; ask for less at once: a crop of the "
+    "image, fewer frames, a smaller field or fewer workers"
+)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``napari-symbac`` command."""
     from napari_symbac.export.atomic import ExportError
@@ -1222,6 +1249,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         elif isinstance(err, FaintStartError):  # ... and the labels
             text += " (--masks M or --labels L)"
         print(f"napari-symbac {args.command}: error: {text}", file=sys.stderr)
+        return 2
+    except ImportError as err:  # an optional dependency, with how to install it (found as
+        # a user: a DXF outline without ezdxf ended in a traceback)
+        print(f"napari-symbac {args.command}: error: {_one_line(err)}", file=sys.stderr)
+        return 2
+    except MemoryError as err:
+        print(
+            f"napari-symbac {args.command}: error: out of memory ({_one_line(err)}): "
+            f"{OUT_OF_MEMORY_ADVICE}",
+            file=sys.stderr,
+        )
         return 2
     except KeyboardInterrupt as stop:
         # on a terminal a progress bar holds the line: the message starts a new one (found
@@ -1293,8 +1331,15 @@ def interrupted_text(command: str) -> str:
 
 
 def _one_line(err: BaseException) -> str:
-    """The error's message on one line; a bare OSError gets its path and a fix."""
+    """The error's message on one line; a bare OSError gets its path and a fix (a full
+    disk says so)."""
+    import errno
+
     text = str(err)
+    if isinstance(err, OSError) and err.errno == errno.ENOSPC:  # found as a user: a full
+        # disk was "check that the path is right"
+        where = f" writing {err.filename}" if err.filename else ""
+        return f"the disk is full{where}: free some space or give --out on another disk"
     if isinstance(err, OSError) and err.strerror and text.startswith("[Errno"):
         where = err.filename or "the path given"
         text = (

@@ -62,11 +62,23 @@ def run_demo(
     _check_earlier_demo(out, settings)
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
+    from napari_symbac.export.atomic import EXPORT_RESUMES, ExportError
+
     try:
         return _run(out, settings, n_frames, seed, progress_factory)
-    except BaseException:
-        if created:  # a failed first run (full disk, Ctrl-C) leaves nothing behind
-            shutil.rmtree(out, ignore_errors=True)
+    except BaseException as err:
+        if not created:
+            raise
+        shutil.rmtree(out, ignore_errors=True)  # a failed first run (full disk, Ctrl-C)
+        if isinstance(err, ExportError):  # leaves nothing behind, and says so (found as
+            # a user: a full disk's message still said the export would resume)
+            cause = str(err).replace(f": {EXPORT_RESUMES}", "")
+            raise ExportError(
+                f"{cause}: the demo's folder {out} was removed; run the demo again once "
+                "that is fixed",
+                err.path,
+                err.errno,
+            ) from err
         raise
 
 

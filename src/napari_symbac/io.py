@@ -149,6 +149,9 @@ class Recording:
     counts_mapping
         How ``data`` was mapped to counts when it was a normalised image read as counts
         (:func:`as_counts`), else ``None``.
+    planes_note
+        How the planes of an ImageJ stack that may hold frames or channels were read
+        (:func:`_series_axes`), else ``None``.
     """
 
     data: np.ndarray
@@ -157,12 +160,14 @@ class Recording:
     modality: str | None = None
     kind: str = "image"
     counts_mapping: CountsMapping | None = None
+    planes_note: str | None = None
 
     @property
     def note(self) -> str | None:
-        """What reading did to the values, in words, if anything (``counts_mapping``'s
-        note)."""
-        return None if self.counts_mapping is None else self.counts_mapping.note
+        """What reading did, in words, if anything: the planes read as frames
+        (``planes_note``) and the values mapped to counts (``counts_mapping``'s note)."""
+        counts = None if self.counts_mapping is None else self.counts_mapping.note
+        return "; ".join(note for note in (self.planes_note, counts) if note) or None
 
 
 def _pixel_size_um(tif) -> float | None:
@@ -268,17 +273,24 @@ _FRAME_AXES = "TIQ"
 _AXIS_WORDS = {"Z": "focal planes", "P": "stage positions", "R": "tiles", "E": "wavelengths"}
 
 
+#: The axis letter of :func:`_series_axes` for an ImageJ stack's channels in grey mode:
+#: frames, unless a channel is asked for.
+_FRAMES_OR_CHANNELS = "c"
+
+
 def _series_axes(tif) -> str:
     """tifffile's axes of the file's first series, where its ``C`` holds channels only
     when the file says so: OME metadata, an ImageJ hyperstack shown as composite or
-    colour (Fiji's channels), or tifffile's own record of the axes it was given. An
-    ImageJ stack in grey mode is read with its pages as frames, since tifffile writes
-    ``imwrite(path, stack, imagej=True)`` of a time series, axes unsaid, as channels."""
+    colour (Fiji's channels), or tifffile's own record of the axes it was given. The
+    channels of an ImageJ stack in grey mode are :data:`_FRAMES_OR_CHANNELS`: read as
+    frames, since tifffile writes ``imwrite(path, stack, imagej=True)`` of a time series,
+    axes unsaid, as channels, and as channels when one is asked for (found as a user: a
+    2-channel ImageJ TIFF was read as 2 frames, and ``--channel 1`` was refused)."""
     axes = tif.series[0].axes
     if "C" in axes and tif.is_imagej and not tif.is_ome:
         mode = (tif.imagej_metadata or {}).get("mode")
         if mode not in ("composite", "color"):
-            axes = axes.replace("C", "Q")
+            axes = axes.replace("C", _FRAMES_OR_CHANNELS)
     return axes
 
 
@@ -340,8 +352,36 @@ def read_recording(path: str | Path, channel: int | None = None) -> Recording:
 
 def _channel_of(recording: Recording, axes: str, name: str, channel: int | None) -> Recording:
     """``recording`` (as :func:`_read_tiff` read it) with its channel ``channel`` only
-    (:func:`_one_channel`)."""
-    return dataclasses.replace(recording, data=_one_channel(recording.data, axes, name, channel))
+    (:func:`_one_channel`); an ImageJ stack's planes that may be frames or channels
+    (:data:`_FRAMES_OR_CHANNELS`) are frames without ``channel``, said in its note."""
+    note = None
+    if _FRAMES_OR_CHANNELS in axes:
+        n_planes = int(np.shape(recording.data)[axes.index(_FRAMES_OR_CHANNELS)])
+        axes = axes.replace(_FRAMES_OR_CHANNELS, "Q" if channel is None else "C")
+        if channel is None and n_planes > 1:
+            note = (
+                f"its {n_planes} planes, ImageJ channels in grey mode (as tifffile writes a "
+                "stack whose axes were not given), are read as frames; if they are "
+                f"channels, choose one (--channel K, K in 0..{n_planes - 1})"
+            )
+    data = _one_channel(recording.data, axes, name, channel)
+    return dataclasses.replace(recording, data=data, planes_note=note)
+
+
+def _file_kind(path: Path) -> str | None:
+    """``"tiff"`` or ``"png"`` from a file's first bytes (its signature), else ``None``.
+    Found as a user: a TIFF saved without an extension was "not a TIFF or PNG file", a
+    PNG named ``.tif`` "not a readable TIFF ... convert it to TIFF"."""
+    try:
+        with open(path, "rb") as file:
+            head = file.read(8)
+    except OSError:
+        return None
+    if head[:4] in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+"):  # TIFF, BigTIFF
+        return "tiff"
+    if head == b"\x89PNG\r\n\x1a\n":
+        return "png"
+    return None
 
 
 def _read_tiff(path: Path) -> tuple[Recording, str]:
@@ -353,7 +393,10 @@ def _read_tiff(path: Path) -> tuple[Recording, str]:
 
     if not path.is_file():
         raise FileNotFoundError(f"{path} does not exist")
-    if not path.name.lower().endswith(_TIFF_SUFFIXES):
+    signature = _file_kind(path)
+    if signature == "png":
+        raise ValueError(f"{path.name} is a PNG file, not a TIFF: name it .png")
+    if signature is None and not path.name.lower().endswith(_TIFF_SUFFIXES):
         raise ValueError(f"{path.name} is not a TIFF file (.tif/.tiff)")
     log = logging.getLogger("tifffile")
     level = log.level
@@ -476,7 +519,8 @@ def read_image(
     if not path.is_file():
         raise ValueError(f"{what} {path} does not exist")
     lower = path.name.lower()
-    if lower.endswith(_PNG_SUFFIXES):
+    kind = _file_kind(path) or ("png" if lower.endswith(_PNG_SUFFIXES) else None)
+    if kind == "png":
         import imageio.v3 as iio
 
         try:
@@ -485,12 +529,13 @@ def read_image(
             raise ValueError(f"{what} {path.name} is not a readable PNG: {err}") from err
         if channel not in (None, 0):
             raise ValueError(f"{what} {path.name} is a PNG, one channel: leave the channel out")
-        recording = Recording(data=data, pixel_size_um=None, name=path.name[: -len(".png")])
-    elif lower.endswith(_TIFF_SUFFIXES):
+        recording = Recording(data=data, pixel_size_um=None, name=path.stem)
+    elif kind == "tiff" or lower.endswith(_TIFF_SUFFIXES):
         recording = read_recording(path, channel)
     else:
         raise ValueError(
-            f"{what} {path.name} is not a TIFF or PNG file (.tif/.tiff/.png): convert it to TIFF"
+            f"{what} {path.name} is not a TIFF or PNG file (neither its name nor its first "
+            "bytes say so): convert it to TIFF"
         )
     data = recording.data
     if data.ndim == 3 and data.shape[-1] in (3, 4) and min(data.shape[:2]) > 4:

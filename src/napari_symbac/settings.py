@@ -1286,6 +1286,34 @@ def microscope_sets_pixel_size(path: str | Path) -> bool:
     return isinstance(data, dict) and ("pixel_size_um" in data or "NA" in data)
 
 
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """YAML's safe loader, refusing a key given twice in one mapping (YAML allows it
+    and keeps the last: found as a user, ``pixel_size_um: 0.065`` then ``0.65`` further
+    down was read as 0.65 without a word)."""
+
+    def construct_mapping(self, node, deep=False):
+        seen: set = set()
+        for key_node, _value in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            if key in seen:
+                raise yaml.constructor.ConstructorError(
+                    "while reading a mapping", node.start_mark,
+                    f"found {key!r} a second time: give each setting once",
+                    key_node.start_mark,
+                )  # fmt: skip
+            seen.add(key)
+        return super().construct_mapping(node, deep=deep)
+
+
+def _unique_json_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """A JSON object, refusing a key given twice (as :class:`_UniqueKeyLoader`)."""
+    keys = [key for key, _ in pairs]
+    twice = sorted({key for key in keys if keys.count(key) > 1})
+    if twice:
+        raise ValueError(f"found {twice[0]!r} a second time in one object: give each setting once")
+    return dict(pairs)
+
+
 def read_settings_mapping(path: str | Path) -> Any:
     """The parsed contents of a YAML/JSON settings file (refused when empty, a folder,
     missing, binary or not valid YAML/JSON, with a message that names the file)."""
@@ -1302,8 +1330,11 @@ def read_settings_mapping(path: str | Path) -> Any:
             "an image): give the path of the .yaml/.json settings file"
         ) from None
     try:
-        data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as err:
+        if path.suffix.lower() == ".json":
+            data = json.loads(text, object_pairs_hook=_unique_json_keys)
+        else:
+            data = yaml.load(text, Loader=_UniqueKeyLoader)  # safe: a SafeLoader
+    except (json.JSONDecodeError, yaml.YAMLError, ValueError) as err:
         raise ValueError(f"{path} is not valid YAML/JSON: {err}") from err
     if data is None:
         raise ValueError(

@@ -616,3 +616,16 @@ def test_a_layer_scaled_in_nanometres_by_another_reader_is_read_in_um(
     assert widget.warning.value == ""
     assert tuple(layer.scale) == pytest.approx((0.065, 0.065))
     assert [str(unit) for unit in layer.units] == ["micrometer", "micrometer"]
+
+
+def test_or_open_refuses_a_tiff_of_nan(make_napari_viewer, tmp_path):
+    """Found as a user: *or open* took an all-NaN float TIFF as a recording (its check
+    says it refuses what `fit` refuses); it is refused, named, and nothing is added."""
+    viewer = make_napari_viewer()
+    widget = RealImageWidget(viewer)
+    tifffile.imwrite(tmp_path / "nan.tif", np.full((32, 32), np.nan, np.float32))
+    widget.file.value = tmp_path / "nan.tif"
+    assert "Cannot open nan.tif: nan.tif contains 1024 NaN or infinite pixels" in (
+        widget.result.value
+    )
+    assert len(viewer.layers) == 0

@@ -26,6 +26,9 @@ __all__ = [
 #: The most pixels per frame a diagnosis looks at unless told otherwise (256 x 256).
 MAX_DIAGNOSIS_PIXELS = 256 * 256
 
+#: The smallest side of a window, in pixels (the fit's smallest image).
+MIN_REGION_PX = 8
+
 #: Rows ``y0:y1`` and columns ``x0:x1`` of a frame, half-open, in pixels.
 Region = tuple[int, int, int, int]
 
@@ -110,6 +113,12 @@ def parse_region(
     if not (0 <= y0 < y1 <= rows and 0 <= x0 < x1 <= cols):
         raise ValueError(
             f"{name} {text!r} is empty or outside the {rows} x {cols} frame: {forms}"
+        )
+    if min(y1 - y0, x1 - x0) < MIN_REGION_PX:  # found as a user: "real_image of shape
+        # (4, 4) is too small", named by the fit's inner word
+        raise ValueError(
+            f"{name} {text!r} is {y1 - y0} x {x1 - x0} px: a window needs at least "
+            f"{MIN_REGION_PX} x {MIN_REGION_PX} px (a few cells' worth is best): {forms}"
         )
     return (y0, y1, x0, x1)
 

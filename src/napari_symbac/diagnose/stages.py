@@ -19,8 +19,6 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from napari_symbac.diagnose.effects import (
     camera_noise,
     defocus_gradient,
@@ -33,7 +31,12 @@ from napari_symbac.diagnose.effects import (
     uneven_illumination,
 )
 from napari_symbac.optics.forward import Stage
-from napari_symbac.settings import ExtraStage, PipelineSettings, RenderSettings
+from napari_symbac.settings import (
+    ExtraStage,
+    PipelineSettings,
+    RenderSettings,
+    read_settings_mapping,
+)
 
 __all__ = [
     "DRAWN",
@@ -205,7 +208,7 @@ def updated_settings(
 
 def load_extra_stages(path: str | Path, *, frame: int = 0) -> list[Stage]:
     """Stages from an ``extra_stages.yaml`` written by ``napari-symbac diagnose``."""
-    data = yaml.safe_load(Path(path).read_text(encoding="utf-8")) or {}
+    data = read_settings_mapping(path)
     specs = data.get("extra_stages", []) if isinstance(data, dict) else None
     if not isinstance(specs, list):
         raise ValueError(f"{path} must hold 'extra_stages: [{{name, parameters}}, ...]'")

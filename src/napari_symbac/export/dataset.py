@@ -126,12 +126,15 @@ class Randomisation:
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
-            if isinstance(value, Mapping):
-                value = Range(**value)
-                object.__setattr__(self, f.name, value)
-            elif isinstance(value, (list, tuple)) and len(value) == 2:
-                value = Range(*value)
-                object.__setattr__(self, f.name, value)
+            try:  # the field named (found as a user: "Range low=2.0 must not exceed
+                # high=1.0" left the user to find which range)
+                if isinstance(value, Mapping):
+                    value = Range(**value)
+                elif isinstance(value, (list, tuple)) and len(value) == 2:
+                    value = Range(*value)
+            except (TypeError, ValueError) as err:
+                _fail(f"Randomisation.{f.name}: {err}")
+            object.__setattr__(self, f.name, value)
             if not isinstance(value, Range):
                 _fail(f"Randomisation.{f.name} must be a range {{low, high}}, got {value!r}")
             if value.low < 0:

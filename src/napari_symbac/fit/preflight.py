@@ -19,6 +19,7 @@ from napari_symbac.settings import Microscope
 __all__ = [
     "API_CAMERA_HINT",
     "CAMERA_PIXEL_UM",
+    "MAX_FIT_PIXELS",
     "MODALITY_ADVICE",
     "PLAUSIBLE_PIXEL_UM",
     "TRENCH_MAX_WIDTH_PX",
@@ -53,10 +54,14 @@ _RING_PX = 3
 API_CAMERA_HINT = "in camera=Camera(baseline_adu=...)"
 
 
+#: The most pixels per frame a fit takes (4096 x 4096; :func:`check_fit_image`).
+MAX_FIT_PIXELS = 4096 * 4096
+
+
 def check_fit_image(
     image: np.ndarray, name: str = "image", *, camera_hint: str = "with --camera"
 ) -> None:
-    """Refuse images the forward model cannot produce.
+    """Refuse images the forward model cannot produce, or a fit cannot hold.
 
     Parameters
     ----------
@@ -75,8 +80,27 @@ def check_fit_image(
         an image whose values all lie within 0..1 (normalised, or a mask), and for
         other normalised values (:func:`~napari_symbac.io.as_counts` would map them):
         no camera counts, no noise to measure, and a dataset drawn from its fit holds
-        only a few grey levels.
+        only a few grey levels; for NaN or infinite pixels; and for a frame of more
+        than :data:`MAX_FIT_PIXELS`.
     """
+    shape = np.shape(image)
+    if len(shape) >= 2 and shape[-2] * shape[-1] > MAX_FIT_PIXELS:
+        # found as a user: a 12000 x 12000 frame ran out of memory with a traceback in
+        # the start's segmentation, a 6000 x 6000 one held 3.7 GB after a minute
+        rows, cols = shape[-2:]
+        raise ValueError(
+            f"{name} is {rows} x {cols} px ({rows * cols / 1e6:.0f} Mpx), more than a fit "
+            f"takes ({MAX_FIT_PIXELS / 1e6:.1f} Mpx, 4096 x 4096): fit a crop of it (time "
+            "and memory grow with the pixels: a 512 x 512 field of 100 cells took 142 s "
+            "on a 2-core machine, docs/fitting.md)"
+        )
+    if np.issubdtype(np.asarray(image).dtype, np.floating):
+        bad = int(np.size(image) - np.count_nonzero(np.isfinite(image)))
+        if bad:  # found as a user: an all-NaN TIFF opened in the docks as a recording
+            raise ValueError(
+                f"{name} contains {bad} NaN or infinite pixels; replace them (e.g. "
+                "numpy.nan_to_num) or crop them away"
+            )
     low = float(np.min(image))
     if low < 0:
         raise ValueError(
@@ -251,9 +275,22 @@ def refuse_constant(frame: np.ndarray, name: str, *, what: str = "IMAGE ") -> No
         )
 
 
+def _refuse_frames_of_another_count(array: np.ndarray, shape: tuple[int, ...], name: str) -> None:
+    """Frames of the image's size, but not one per frame fitted: said so (found as a
+    user: masks of 3 frames with ``--frames 0-3`` were "shape (3, 512, 512) but the image
+    frame has shape (512, 512)")."""
+    if array.ndim == 3 and tuple(array.shape[1:]) == tuple(shape):
+        raise ValueError(
+            f"{name} holds {array.shape[0]} frames of the image's size, but not one for "
+            "each frame of the image: give one per frame of the image (its frame k for "
+            "the image's frame k), or one 2D frame for all"
+        )
+
+
 def check_class_labels(labels: np.ndarray, shape: tuple[int, ...], name: str = "labels") -> None:
     """Painted class labels: the image's shape, classes 0-3, with cells and media painted."""
     if labels.shape != shape:
+        _refuse_frames_of_another_count(labels, shape, name)
         raise ValueError(
             f"{name} has shape {labels.shape} but the image frame has shape {shape}: paint "
             "the labels on the same image (or crop both alike)"
@@ -295,6 +332,7 @@ def not_integer_masks(name: str, dtype: object) -> str:
 def check_instance_masks(masks: np.ndarray, shape: tuple[int, ...], name: str = "masks") -> None:
     """Instance masks: the image's shape, integer ids, background 0 and some cells."""
     if masks.shape != shape:
+        _refuse_frames_of_another_count(masks, shape, name)
         raise ValueError(
             f"{name} has shape {masks.shape} but the image frame has shape {shape}: give the "
             "masks of this image (or crop both alike)"

@@ -33,6 +33,8 @@ __all__ = [
 ]
 
 _MAX_ID = np.iinfo(np.uint32).max
+#: The most render pixels (upsampled, PSF border included) a scene is drawn in.
+MAX_RENDER_PIXELS = 64_000_000
 
 
 class FrameCellsLike(Protocol):
@@ -697,8 +699,20 @@ def draw_scene(
     if rows < 1 or cols < 1:
         raise ValueError(f"the field of view is smaller than one camera pixel ({cam_px} um)")
     shape = (rows * u + 2 * border, cols * u + 2 * border)
-    if shape[0] * shape[1] > 64e6:
-        raise ValueError(f"render image of {shape} pixels is too large: reduce upsample or size")
+    if shape[0] * shape[1] > MAX_RENDER_PIXELS:
+        # found as a user: a 100000 um trench or a 6500 um pad said only "reduce upsample
+        # or size", naming no setting
+        what = (
+            f"the trench ({trench.length_um:g} x {trench.width_um:g} um)"
+            if field is None
+            else f"the field ({field.width_um:g} x {field.height_um:g} um)"
+        )
+        raise ValueError(
+            f"{what} is drawn as {shape[0]:,} x {shape[1]:,} render pixels ({rows:,} x "
+            f"{cols:,} camera pixels of {cam_px:g} um, x upsample {u}, plus a PSF border of "
+            f"{border} px each side), more than {MAX_RENDER_PIXELS / 1e6:.0f} M: make it "
+            "smaller, or lower upsample or psf_radius_px"
+        )
     # Physical coordinates of render-pixel centres, origin at the top-left of the field of view.
     yc = (np.arange(shape[0]) - border + 0.5) * px
     xc = (np.arange(shape[1]) - border + 0.5) * px
