@@ -1238,3 +1238,31 @@ def test_a_diagnosis_window_too_small_and_a_settings_file_that_is_a_folder_are_n
         code, err = _run(["defaults", "microscope", "--out", str(folder), *force], capsys)
         assert code == 2
         assert f"--out {folder} is a folder: give a file name (e.g. microscope.yaml)" in err
+
+
+def test_fit_refuses_a_camera_that_cannot_have_recorded_the_image(
+    tmp_path, capsys, real_data_dir
+):
+    """Found as a user (the docks, then here): an 8-bit camera for the 16-bit trench
+    failed with "every pixel of the image is clipped", naming no camera; an offset of
+    3000 ADU, above most of its pixels, fitted to a reduced chi-square of 1e5."""
+    from napari_symbac.settings import Camera
+
+    microscope = tmp_path / "microscope.yaml"
+    save_settings(Microscope(pixel_size_um=0.065), microscope)
+    for name, camera, words in (
+        ("eight_bit.yaml", Camera(baseline_adu=100.0, bit_depth=8),
+         "the recording reaches 7507 ADU, above this camera's full scale (255 ADU"),
+        ("offset.yaml", Camera(baseline_adu=3000.0),
+         "its offset 3000 ADU lies above 8"),
+    ):  # fmt: skip
+        save_settings(camera, tmp_path / name)
+        out = tmp_path / name.removesuffix(".yaml")
+        code, err = _run(
+            ["fit", str(real_data_dir / "ecoli_100x_oil_exponential.tiff"), "--microscope",
+             str(microscope), "--camera", str(tmp_path / name), "--out", str(out)],
+            capsys,
+        )  # fmt: skip
+        assert code == 2
+        assert f"--camera {tmp_path / name}: {words}" in err
+        assert not out.exists()

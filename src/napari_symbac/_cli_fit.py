@@ -223,7 +223,12 @@ def _camera_for(
 
     bit_depth = 8 if frame.dtype == np.uint8 else 16
     if args.camera is not None:
+        from napari_symbac.fit.preflight import camera_recording_problem
+
         camera = load_settings(args.camera, Camera)
+        problem = camera_recording_problem(camera, frame)
+        if problem is not None:
+            raise ValueError(f"--camera {args.camera}: {problem}")
         return camera, f"from --camera {args.camera}"
     if args.dark is not None:
         dark = _read_stack(args.dark, "--dark")

@@ -190,3 +190,20 @@ def test_a_cell_width_enters_the_pixel_size_for_every_layer(
     assert not [m for m in notifications if "Inconsistent units" in m], notifications
     # the later steps follow the recording, now that it has its pixel size
     assert dock.simulate.recording.value is recording
+
+
+def test_calibrate_uses_the_camera_given_in_the_recording_step(make_napari_viewer, qtbot, field):
+    """The camera given in the Recording step (layer metadata ``camera``) is the one
+    calibrate uses, and the status says which camera the matched settings hold (found as
+    a user: only the report said it)."""
+    from napari_symbac.settings import Camera
+
+    image, masks = field
+    viewer, widget = _viewer_with(make_napari_viewer, image, masks)
+    given = Camera(baseline_adu=0.0, sensitivity_adu_per_e=1.0, dark_noise_e=2.0)
+    layer = viewer.layers["field"]
+    layer.metadata = {**layer.metadata, "camera": given}
+    widget.run_button.native.click()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=180_000)
+    assert "with the camera given in the Recording step" in widget.status.value
+    assert "camera: given: baseline 0.0 ADU, sensitivity 1 ADU/e-" in widget.report.value

@@ -871,6 +871,8 @@ def test_a_camera_given_in_the_recording_step_is_the_fits(rendered, qtbot, real_
     `napari-symbac fit --camera`, which the GUI had no way to follow. The Recording step
     now takes the camera (its data sheet); Auto-fit fits with it, as `fit --camera`
     does, and says so; one the settings refuse is warned and the camera measured."""
+    import dataclasses
+
     from napari_symbac._widgets.real_image import GIVEN_CAMERA, MEASURED_CAMERA, RealImageWidget
     from napari_symbac.settings import Camera
 
@@ -885,14 +887,24 @@ def test_a_camera_given_in_the_recording_step_is_the_fits(rendered, qtbot, real_
     given = Camera(baseline_adu=500.0, sensitivity_adu_per_e=1.5, dark_noise_e=3.0)
     recording.camera.value = given
     assert real.metadata["camera"] == given
-    # a camera the settings refuse: said, and the camera measured until it is fixed
-    recording.camera.bit_depth.value = 8  # a 500 ADU offset is above 8 bits' 255
-    assert "camera: " in recording.warning.value
-    assert "not below the camera's full scale" in recording.warning.value
-    assert real.metadata["camera"] is None
-    recording.camera.bit_depth.value = 16
-    assert real.metadata["camera"] == given
-    assert "camera: " not in recording.warning.value
+    # a camera the settings refuse, or one that cannot have recorded the trench (591-7507
+    # ADU): said under the camera's form, and the camera measured until it is fixed
+    # (found as a user: an 8-bit camera failed Auto-fit with "every pixel is clipped",
+    # an offset of 3000 ADU fitted to chi-square 1e5, both without a word)
+    for field, value, words in (
+        ("bit_depth", 8, "not below the camera's full scale"),  # 500 ADU > 8 bits' 255
+        ("baseline_adu", 3000.0, "its offset 3000 ADU lies above 81% of the recording"),
+    ):
+        getattr(recording.camera, field).value = value
+        assert words in recording.camera_warning.value
+        assert not recording.camera_warning.native.isHidden()
+        assert real.metadata["camera"] is None
+        recording.camera.value = given
+        assert real.metadata["camera"] == given
+        assert recording.camera_warning.value == ""
+    recording.camera.value = dataclasses.replace(given, baseline_adu=10.0, bit_depth=8)
+    assert "reaches 7507 ADU, above this camera's full scale" in recording.camera_warning.value
+    recording.camera.value = given
     tune.reference.value = real
     tune.fit_iterations.value = 1
     tune.fit_button.native.click()
@@ -903,13 +915,25 @@ def test_a_camera_given_in_the_recording_step_is_the_fits(rendered, qtbot, real_
     assert tune.preview.model.camera == given
     assert "Camera given in the Recording step: 1.5 ADU/e-, read noise 3 e-" in tune.status.value
     assert "Camera, model-free" not in tune.status.value  # as `fit --camera`: not checked
-    # each recording shows its own camera when chosen
+    # each recording shows its own camera when chosen, never the form's last one
     other = viewer.add_image(
         real.data[:128], name="other", scale=(0.065, 0.065), metadata={"pixel_size_um": 0.065}
     )
     recording.image.value = other
     assert recording.camera_source.value == MEASURED_CAMERA
     assert other.metadata["camera"] is None
+    assert recording.camera.value == Camera()
+    # a camera given before the pixel size is entered is kept (found as a user: lost)
+    bare = viewer.add_image(real.data[:100], name="bare")
+    recording.image.value = bare
+    recording.camera_source.value = GIVEN_CAMERA
+    recording.camera.value = given
+    assert bare.metadata["camera"] == given
+    recording.image.value = other
+    recording.image.value = bare
+    assert recording.camera_source.value == GIVEN_CAMERA
+    recording.pixel_size.value = 0.065
+    assert bare.metadata["camera"] == given
     recording.image.value = real
     assert recording.camera_source.value == GIVEN_CAMERA
     assert recording.camera.value == given

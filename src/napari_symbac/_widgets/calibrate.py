@@ -138,6 +138,7 @@ class CalibrateWidget(Container):
         hide_label(self.report)
         fill_height(self, self.report)
         self.worker: Job | None = None
+        self._camera_words = "the camera measured from the recording"  # of the last run
         self.calibration = None
         self.run_button.changed.connect(self.run)
         self.cancel_button.changed.connect(self.cancel)
@@ -254,6 +255,10 @@ class CalibrateWidget(Container):
             self.status.value = f"Not calibrated: {err}"
             return
         camera = given_camera(self.recording.value)  # None: measured from the frame
+        self._camera_words = (
+            "the camera given in the Recording step" if camera else "the camera measured from "
+            "the recording"
+        )
         cancelled = threading.Event()
 
         def calibrate_and_draw(progress, cancel):
@@ -386,8 +391,8 @@ class CalibrateWidget(Container):
             f"{calibration.method}: the recording against the dataset's "
             f"{items_words(len(outcome.items))}: {matched} of {len(checks)} comparisons match "
             "(the report says which, and what to do). Layer "
-            f"'{name}' holds the matched settings: Export writes the dataset from it (its "
-            f"'settings from').{entered}"
+            f"'{name}' holds the matched settings, with {self._camera_words}: Export "
+            f"writes the dataset from it (its 'settings from').{entered}"
         )
 
     def _on_cancelled(self) -> None:

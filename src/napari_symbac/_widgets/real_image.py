@@ -133,6 +133,9 @@ class RealImageWidget(Container):
         self.camera.visible = False
         self.warning = message_label("warning", label="")
         self.warning.visible = False
+        self.camera_warning = message_label("camera_warning", label="")
+        self.camera_warning.visible = False
+        self._warned: dict[str, str] = {}  # each warning label's last notified text
         self.paint_button = PushButton(
             name="paint",
             text="Paint classes",
@@ -157,6 +160,7 @@ class RealImageWidget(Container):
                 self.microscope,
                 self.camera_source,
                 self.camera,
+                self.camera_warning,
                 self.paint_button,
                 self.legend,
                 self.measure_button,
@@ -166,6 +170,7 @@ class RealImageWidget(Container):
         hide_label(self.microscope)
         hide_label(self.camera)
         hide_label(self.warning)
+        hide_label(self.camera_warning)
         hide_label(self.result)  # no row that reads just "result"
         self.file.changed.connect(self._open_file)
         self.image.changed.connect(self._load_layer)
@@ -301,10 +306,12 @@ class RealImageWidget(Container):
             elif not isinstance(meta.get("microscope"), Microscope):
                 self._guess_modality(layer)
             self.pixel_size.value = pixel or 0.0
+            # each recording its own camera, never the form's last one (found as a user:
+            # another recording's 1700 ADU offset was stored for the trench)
             camera = meta.get(CAMERA_KEY)
-            if isinstance(camera, Camera):
-                self.camera.value = camera
-            self.camera_source.value = GIVEN_CAMERA if camera else MEASURED_CAMERA
+            given = isinstance(camera, Camera)
+            self.camera.value = camera if given else Camera()
+            self.camera_source.value = GIVEN_CAMERA if given else MEASURED_CAMERA
         finally:
             self._loading = False
         self._show_camera()
@@ -326,22 +333,29 @@ class RealImageWidget(Container):
             self.pixel_size.value = float(entered)
         finally:
             self._loading = False
-        self.warning.value = ""
-        self.warning.visible = False
-        self._warned = None
+        self._warn(self.warning, layer, None)
 
     def _show_camera(self, _value=None) -> None:
         """The camera's form is shown when the camera is given."""
         self.camera.visible = self.camera_source.value == GIVEN_CAMERA
 
-    def _given_camera(self) -> tuple[Camera | None, str | None]:
-        """The camera given in the form (``None`` when measured), or the problem with it."""
+    def _given_camera(self, layer) -> tuple[Camera | None, str | None]:
+        """The camera given in the form for ``layer`` (``None`` when measured), or the
+        problem with it: settings it refuses, or a camera that cannot have recorded the
+        layer (:func:`~napari_symbac.fit.preflight.camera_recording_problem`)."""
+        from napari_symbac.fit.preflight import camera_recording_problem
+
         if self.camera_source.value != GIVEN_CAMERA:
             return None, None
+        until = "(the fits measure it from the recording until then)"
         try:
-            return self.camera.value, None
+            camera = self.camera.value
         except ValueError as err:
-            return None, f"camera: {err} (the fits measure it from the recording until then)"
+            return None, f"camera: {err} {until}"
+        problem = camera_recording_problem(camera, np.asarray(layer.data))
+        if problem is not None:
+            return None, f"camera: {problem} {until}"
+        return camera, None
 
     def _show_condenser(self, _value=None) -> None:
         """The phase condenser (annulus) is a phase-contrast setting: hidden for
@@ -492,6 +506,7 @@ class RealImageWidget(Container):
         layer = self.image.value
         if layer is None:
             return
+        camera = self._store_camera(layer)
         pixel = float(self.pixel_size.value)
         problem = pixel_size_problem(pixel)
         if problem is None:
@@ -500,38 +515,47 @@ class RealImageWidget(Container):
             except ValueError as err:
                 problem = str(err)
         if problem is not None:
-            self.warning.value = f"<b style='color:#ffb000'>&#9888; {layer.name}: {problem}</b>"
-            self.warning.visible = True
-            if self.warning.value != getattr(self, "_warned", None):
-                notify_warning(f"{layer.name}: {problem}")
-            self._warned = self.warning.value
-            # the modality is kept all the same: chosen again before the pixel size is
-            # entered, the recording keeps the user's choice instead of a new guess
+            self._warn(self.warning, layer, problem)
+            # the modality (and the camera) kept all the same: chosen again before the
+            # pixel size is entered, the recording keeps the user's choice instead of a
+            # new guess (found as a user: a camera given first was lost)
             layer.metadata = {
                 **layer.metadata,
                 "pixel_size_um": None,
                 "modality": self.modality.value,
+                CAMERA_KEY: camera,
             }
             return
         # used all the same, as `fit` warns and fits (found as a user: 0.65 um at the
         # form's 100x, a 10x slip, was taken in silence, where `fit` says it)
         slip = camera_pixel_problem(microscope, where="the microscope form below")
-        camera, camera_problem = self._given_camera()
-        slip = "; ".join(filter(None, (slip, camera_problem))) or None
-        if slip is None:
-            self.warning.value = ""
-            self.warning.visible = False
-            self._warned = None
-        else:
-            self.warning.value = f"<b style='color:#ffb000'>&#9888; {layer.name}: {slip}</b>"
-            self.warning.visible = True
-            if self.warning.value != getattr(self, "_warned", None):
-                notify_warning(f"{layer.name}: {slip}")
-            self._warned = self.warning.value
+        self._warn(self.warning, layer, slip)
         enter_pixel_size(self.viewer, layer, microscope)
         # after the pixel size: a metadata event before it would show the old one
         if CAMERA_KEY not in layer.metadata or layer.metadata[CAMERA_KEY] != camera:
             layer.metadata = {**layer.metadata, CAMERA_KEY: camera}
+
+    def _store_camera(self, layer) -> Camera | None:
+        """The camera to store with ``layer`` (:meth:`_given_camera`), its problem shown
+        under the camera's form (found as a user: shown at the top of the step, far from
+        the form, and cut short in the notification)."""
+        camera, problem = self._given_camera(layer)
+        self._warn(self.camera_warning, layer, problem)
+        return camera
+
+    def _warn(self, label, layer, problem: str | None) -> None:
+        """Show ``problem`` of ``layer`` in ``label`` (and once as a notification), or
+        clear the label when there is none."""
+        if problem is None:
+            label.value = ""
+            label.visible = False
+            self._warned.pop(label.name, None)
+            return
+        label.value = f"<b style='color:#ffb000'>&#9888; {layer.name}: {problem}</b>"
+        label.visible = True
+        if label.value != self._warned.get(label.name):
+            notify_warning(f"{layer.name}: {problem}")
+        self._warned[label.name] = label.value
 
     def paint(self) -> None:
         """Add (or select) the class-labels layer for the chosen image, ready to paint."""

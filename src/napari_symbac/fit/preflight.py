@@ -14,10 +14,11 @@ from typing import Literal
 import numpy as np
 from scipy import ndimage
 
-from napari_symbac.settings import Microscope
+from napari_symbac.settings import Camera, Microscope
 
 __all__ = [
     "API_CAMERA_HINT",
+    "BELOW_OFFSET_FRACTION",
     "CAMERA_PIXEL_UM",
     "MAX_FIT_PIXELS",
     "MODALITY_ADVICE",
@@ -27,6 +28,7 @@ __all__ = [
     "ModalityAdvice",
     "as_instance_ids",
     "camera_pixel_problem",
+    "camera_recording_problem",
     "check_class_labels",
     "check_fit_image",
     "check_instance_masks",
@@ -459,6 +461,44 @@ PLAUSIBLE_PIXEL_UM = (0.02, 1.0)
 #: binning doubles them): the pixel size times the magnification falls here when the
 #: microscope file describes the objective the image was taken with.
 CAMERA_PIXEL_UM = (1.0, 40.0)
+
+
+#: The most pixels a camera's offset may lie above (:func:`camera_recording_problem`).
+BELOW_OFFSET_FRACTION = 0.05
+
+
+def camera_recording_problem(camera: Camera, image: np.ndarray) -> str | None:
+    """Why a given ``camera`` cannot have recorded ``image``, or ``None``.
+
+    Found as a user: a camera of 8 bits given for a 16-bit trench (591-7507 ADU) made
+    Auto-fit fail with "every pixel of the image is clipped", naming no camera; an
+    offset of 3000 ADU (above the trench's median) fitted to a reduced chi-square of
+    1e5 without a word. A camera's full scale holds all of its pixels, and its offset
+    lies below nearly all of them: only its read noise dips under it, so more than
+    :data:`BELOW_OFFSET_FRACTION` of the pixels 3 read-noise SDs (and 3 ADU) under the
+    offset is no camera's.
+    """
+    values = np.asarray(image, np.float64)
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        return None
+    high = float(values.max())
+    if high > camera.max_adu:
+        return (
+            f"the recording reaches {high:.6g} ADU, above this camera's full scale "
+            f"({camera.max_adu} ADU at bit_depth {camera.bit_depth}): give its bit depth "
+            f"({16 if high < 2**16 else 'more'} bits?)"
+        )
+    margin = 3 * camera.dark_noise_e * camera.sensitivity_adu_per_e + 3
+    below = float(np.mean(values < camera.baseline_adu - margin))
+    if below > BELOW_OFFSET_FRACTION:
+        return (
+            f"its offset {camera.baseline_adu:g} ADU lies above {below:.0%} of the "
+            f"recording's pixels (whose 1st percentile is {np.percentile(values, 1):.6g} "
+            "ADU): a camera's offset lies below nearly all of them; give its dark level "
+            "(the mean of a frame taken with the shutter closed)"
+        )
+    return None
 
 
 def camera_pixel_problem(microscope: Microscope, where: str = "the microscope file") -> str | None:
