@@ -352,7 +352,8 @@ class RealImageWidget(Container):
             camera = self.camera.value
         except ValueError as err:
             return None, f"camera: {err} {until}"
-        problem = camera_recording_problem(camera, np.asarray(layer.data))
+        first = np.asarray(layer.data[(0,) * (layer.ndim - 2)])  # a time-lapse's first frame
+        problem = camera_recording_problem(camera, first)
         if problem is not None:
             return None, f"camera: {problem} {until}"
         return camera, None

@@ -487,7 +487,7 @@ def camera_recording_problem(camera: Camera, image: np.ndarray) -> str | None:
         return (
             f"the recording reaches {high:.6g} ADU, above this camera's full scale "
             f"({camera.max_adu} ADU at bit_depth {camera.bit_depth}): give its bit depth "
-            f"({16 if high < 2**16 else 'more'} bits?)"
+            f"(at least {math.ceil(math.log2(high + 1))} bits to hold the recording)"
         )
     margin = 3 * camera.dark_noise_e * camera.sensitivity_adu_per_e + 3
     below = float(np.mean(values < camera.baseline_adu - margin))
