@@ -44,6 +44,31 @@ def test_run_to_completion_adds_aligned_layers(widget, qtbot):
     assert widget.viewer.dims.current_step[0] == 0
 
 
+def test_a_simulated_time_series_shows_its_ground_truth_tracks(widget, qtbot):
+    """The simulation's lineage as a Tracks layer over its frames (as Auto-fit shows a
+    fitted time-lapse's): a row per cell and frame at its label's centroid, and each
+    division in the graph."""
+    from napari_symbac._widgets.simulate import RESULT_TRACKS_LAYER
+
+    widget.form.n_frames.value = 16
+    widget.run_button.native.click()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
+    viewer = widget.viewer
+    labels = viewer.layers[RESULT_LABELS_LAYER]
+    tracks = viewer.layers[RESULT_TRACKS_LAYER]
+    assert f"the layer '{RESULT_TRACKS_LAYER}'" in widget.status.value
+    assert tuple(tracks.scale) == tuple(labels.scale)
+    for track, t, row, col in tracks.data[:: max(1, len(tracks.data) // 40)]:
+        region = np.argwhere(labels.data[int(t)] == int(track))
+        assert len(region), (track, t)
+        np.testing.assert_allclose(region.mean(axis=0), (row, col))
+    lineage = widget.simulation.lineage
+    divided = {c: r.parent_id for c, r in lineage.items() if r.parent_id}
+    assert tracks.graph  # 16 frames of 3 min: cells divided
+    for daughter, (mother,) in tracks.graph.items():
+        assert divided[daughter] == mother
+
+
 def test_cancel_midway_leaves_no_half_state(widget, qtbot):
     widget.form.n_frames.value = 2000
     widget.run_button.native.click()

@@ -22,6 +22,7 @@ from napari_symbac._widgets._recording import (
     layer_axes,
     layer_pixel_size_um,
     modality_render,
+    output_metadata,
     recording_microscope,
     recordings,
     watch_recordings,
@@ -38,6 +39,7 @@ __all__ = [
     "RESULT_IMAGE_LAYER",
     "RESULT_LABELS_LAYER",
     "RESULT_OPL_LAYER",
+    "RESULT_TRACKS_LAYER",
     "SYMBAC_METADATA_KEY",
     "SimulateWidget",
 ]
@@ -45,6 +47,8 @@ __all__ = [
 PREVIEW_LAYER = "simulation preview"
 RESULT_IMAGE_LAYER = "synthetic"
 RESULT_LABELS_LAYER = "synthetic labels"
+#: The simulation's ground-truth tracks (a Tracks layer, hidden at first).
+RESULT_TRACKS_LAYER = "synthetic tracks"
 RESULT_OPL_LAYER = "synthetic optical path length"
 #: Key, in a rendered layer's SyMBac metadata, of the name of the recording Auto-fit
 #: fitted the layer's settings to (absent until a fit).
@@ -346,11 +350,34 @@ class SimulateWidget(Container):
                 self.viewer.add_image(data, name=name, metadata=metadata, **axes)
             else:
                 self.viewer.add_labels(data, name=name, metadata=metadata, **axes)
+        self._show_tracks(axes)
         if opl is not None:
             self._show_opl(opl, metadata)
         self.viewer.dims.set_current_step(0, 0)  # from its first frame (napari: the middle)
         n_cells = len(self.simulation.lineage)
         self.status.value = f"Done: {len(self.simulation.frames)} frames, {n_cells} cells"
+        if RESULT_TRACKS_LAYER in self.viewer.layers:
+            self.status.value += f" (their tracks: the layer '{RESULT_TRACKS_LAYER}')"
+
+    def _show_tracks(self, placement: dict) -> None:
+        """The simulation's ground-truth tracks over its frames: a Tracks layer of each
+        cell's centroid, frame by frame, with its divisions (the labels keep each cell's
+        id over its life, its lineage names each daughter's mother), as Auto-fit shows a
+        fitted time-lapse's."""
+        from napari_symbac.track_points import napari_tracks
+
+        if RESULT_TRACKS_LAYER in self.viewer.layers:
+            self.viewer.layers.remove(RESULT_TRACKS_LAYER)
+        if len(self.simulation.frames) < 2:
+            return
+        parents = {cell: record.parent_id for cell, record in self.simulation.lineage.items()}
+        data, graph = napari_tracks(self.series.labels, parents)
+        if len(data):
+            self.viewer.add_tracks(
+                data, graph=graph, name=RESULT_TRACKS_LAYER,
+                metadata=output_metadata("Simulate"), visible=False,
+                tail_length=min(10, len(self.simulation.frames)), **placement,
+            )  # fmt: skip
 
     def _show_opl(self, opl: np.ndarray, metadata: dict) -> None:
         """Show the render-resolution OPL aligned with the camera-resolution layers."""

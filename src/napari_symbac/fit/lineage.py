@@ -322,23 +322,10 @@ class Lineage:
         return np.stack(out)
 
     def napari_tracks(self, masks: np.ndarray) -> tuple[np.ndarray, dict[int, list[int]]]:
-        """The tracks as napari's Tracks layer takes them.
-
-        Parameters
-        ----------
-        masks
-            ``(T, Y, X)`` track-id masks (:meth:`track_masks`).
-
-        Returns
-        -------
-        data, graph
-            ``(N, 4)`` float64 rows ``track id, frame, row, column`` (pixels): the centroid
-            of each track's pixels in every frame where it has any (a cell hidden by the
-            frame's edge in one frame has no row there), sorted by track and frame; and
-            ``{daughter track: [mother track]}`` of every division whose tracks both have
-            rows.
-        """
-        from scipy import ndimage
+        """The tracks as napari's Tracks layer takes them
+        (:func:`~napari_symbac.track_points.napari_tracks`) from the ``(T, Y, X)``
+        track-id ``masks`` of :meth:`track_masks`."""
+        from napari_symbac.track_points import napari_tracks
 
         masks = np.asarray(masks)
         if masks.ndim != 3 or len(masks) != len(self.track_ids):
@@ -346,24 +333,8 @@ class Lineage:
                 f"masks must be (T, Y, X) with T = {len(self.track_ids)} frames, "
                 f"not of shape {masks.shape}"
             )
-        rows = []
-        for t, frame in enumerate(masks):
-            tracks = np.unique(frame)
-            tracks = tracks[tracks > 0]
-            if tracks.size == 0:
-                continue
-            centres = np.asarray(ndimage.center_of_mass(np.ones(frame.shape), frame, tracks))
-            rows.append(np.column_stack([tracks, np.full(tracks.size, t), centres]))
-        data = np.concatenate(rows) if rows else np.zeros((0, 4))
-        data = data[np.lexsort((data[:, 1], data[:, 0]))].astype(np.float64)
-        present = set(data[:, 0].astype(np.int64).tolist())
-        graph = {
-            int(daughter): [int(mother)]
-            for mother, daughters in self.divisions().items()
-            for daughter in daughters
-            if mother in present and daughter in present
-        }
-        return data, graph
+        parents = {d: m for m, daughters in self.divisions().items() for d in daughters}
+        return napari_tracks(masks, parents)
 
 
 def _axis(angle_rad: np.ndarray) -> np.ndarray:
