@@ -342,6 +342,13 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     return run_calibrate(args)
 
 
+#: What a poor base fit of a phase-contrast field means when it is a dense colony.
+DIAGNOSE_COLONY_NOTE = (
+    "a dense phase-contrast colony needs its instance masks, which diagnose does not take: "
+    "fit it with `napari-symbac fit IMAGE --masks MASKS` and diagnose a window of "
+    "separate cells"
+)
+
 #: Where ``diagnose`` takes the camera (it has no ``--camera``), for its refusals.
 _DIAGNOSE_CAMERA_HINT = (
     "in the microscope file's camera section (camera: {baseline_adu: ..., "
@@ -360,15 +367,27 @@ def _diagnose_writes(name: str) -> bool:
     return name in _DIAGNOSE_OUTPUTS or re.fullmatch(r"effect_\w+\.png", name) is not None
 
 
-def _diagnose_report(report: str, mapping: CountsMapping | None) -> str:
-    """diagnose's report.txt; for a normalised image read as counts
+def _diagnose_report(report: str, mapping: CountsMapping | None, out: Path) -> str:
+    """diagnose's report.txt: the diagnosis, what to do next with its settings (found as
+    a user: only the terminal said it), and for a normalised image read as counts
     (:class:`~napari_symbac.io.CountsMapping`), what its values are first and a note that
     every ADU and e- of the report is of that map, as ``fit``'s report says."""
+    next_steps = (
+        "\n\nNEXT\n"
+        f"- {out / 'settings.yaml'} holds the fitted settings with the accepted effects: "
+        f"`napari-symbac export --config {out / 'settings.yaml'} --out DATASET` draws a "
+        "training dataset with them (`napari-symbac render SIMULATION --config ...` one "
+        "simulation)\n"
+        "- residuals.png shows where the model still differs (after: what the effects left)"
+    )
     if mapping is None:
-        return report + "\n"
+        return report + next_steps + "\n"
     from napari_symbac._cli_fit import counts_units_note
 
-    return f"image values: {mapping.note}\n\n{report}\n\nNOTES\n- {counts_units_note(mapping)}\n"
+    return (
+        f"image values: {mapping.note}\n\n{report}{next_steps}\n\nNOTES\n"
+        f"- {counts_units_note(mapping)}\n"
+    )
 
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
@@ -577,7 +596,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             doc["notes"].append(held)
             print(f"note: {held}", file=sys.stderr)
         (out / "diagnosis.json").write_text(json.dumps(doc, indent=2, default=float))
-        (out / "report.txt").write_text(_diagnose_report(result.report(), mapping))
+        (out / "report.txt").write_text(_diagnose_report(result.report(), mapping, out))
         figures = write_figures(result, stack, out, name=Path(args.image).name)
         base = PipelineSettings(simulation, microscope, final_render, camera)
         accepted = [(e.name, e.params) for e in result.accepted]
@@ -585,6 +604,12 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         save_settings(settings, out / "settings.yaml")
         stages_text = yaml.safe_dump({"extra_stages": extra}, sort_keys=False)
         (out / "extra_stages.yaml").write_text(stages_text)
+    for caution in result.cautions():  # said where it is seen, not only in report.txt
+        if caution.startswith("the base fit") and microscope.modality == "phase" and (
+            geometry == "open" and labels is None
+        ):
+            caution += f"; {DIAGNOSE_COLONY_NOTE}"
+        print(f"napari-symbac diagnose: warning: {caution}", file=sys.stderr)
     accepted_names = [e.name for e in result.accepted]
     names = ", ".join(accepted_names) or "nothing significant"
     print(
@@ -658,6 +683,10 @@ DIAGNOSE_WIDE_START_FIX = (
 DIAGNOSE_FAINT_START_FIX = "paint rough cell and background strokes and pass them as --labels L"
 
 
+#: The side of a diagnosis window under which "no cells" may mean too little background.
+SMALL_WINDOW_PX = 64
+
+
 def _no_cells_advice(
     err: Exception,
     k: int,
@@ -680,6 +709,13 @@ def _no_cells_advice(
     faint = isinstance(err, FaintStartError)  # its fix is worded here: no masks
     if window:
         fix = f"pass --region Y0:Y1,X0:X1 for a window with cells{every}, or --region full"
+        if min(y1 - y0, x1 - x0) < SMALL_WINDOW_PX:  # found as a user: a 40 x 40 px
+            # window around one cell was "no cells", a 64 x 64 one worked
+            fix = (
+                f"the {y1 - y0} x {x1 - x0} px window may be too small for the start to "
+                f"tell the cells from the background (give one of at least {SMALL_WINDOW_PX}"
+                f" x {SMALL_WINDOW_PX} px around them); or {fix}"
+            )
     else:
         fix = DIAGNOSE_FAINT_START_FIX if faint else "give an image with cells in it"
     if n_frames > 1:

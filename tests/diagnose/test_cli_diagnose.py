@@ -428,3 +428,44 @@ def test_a_large_diagnosis_of_any_modality_is_announced_as_slow(tmp_path, capsys
     assert "--region Y0:Y1,X0:X1 picks a smaller window" in said
     assert main([*args, "--region", "0:100,0:100"]) == 2  # 20,000 pixels: nothing said
     assert "takes long" not in capsys.readouterr().err
+
+
+def test_a_diagnosis_on_a_poor_base_fit_is_cautioned(tmp_path, capsys, real_data_dir):
+    """Found as a user: a window of the dense Omnipose colony, diagnosed without its
+    masks, fitted 2 cells for ~20 (reduced chi-square ~300) and accepted effects such as
+    fixed-pattern noise from the cells the fit missed, without a word. report.txt and the
+    terminal now caution that the base fit, not physics, may be the misfit, name the
+    colony's way (fit --masks), and report.txt says what to do next."""
+    mic = tmp_path / "mic.yaml"
+    mic.write_text("pixel_size_um: 0.07\nmodality: phase\n")
+    out = tmp_path / "omni"
+    code = main(
+        ["diagnose", str(real_data_dir / "omnipose" / "Sample000193.png"), "--microscope",
+         str(mic), "--region", "234:330,234:330", "--out", str(out)]
+    )  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 0
+    report = (out / "report.txt").read_text()
+    base = json.loads((out / "diagnosis.json").read_text())["base_fit"]["value"]
+    assert base > 50
+    assert f"CAUTION: the base fit leaves a reduced chi-square of {base:.3g}" in report
+    assert "napari-symbac diagnose: warning: the base fit leaves a reduced chi-square" in err
+    assert "fit it with `napari-symbac fit IMAGE --masks MASKS`" in err
+    assert f"`napari-symbac export --config {out / 'settings.yaml'} --out DATASET`" in report
+
+
+def test_a_small_window_without_cells_found_says_it_may_be_too_small(
+    tmp_path, capsys, real_data_dir
+):
+    """Found as a user: a 40 x 40 px window around one ColiCoords cell was "the start
+    found no cells ... pass --region for a window with cells"; a 64 x 64 one worked."""
+    mic = tmp_path / "mic.yaml"
+    mic.write_text("pixel_size_um: 0.08\nmodality: fluorescence\nwavelength_um: 0.52\n")
+    image = real_data_dir / "colicoords" / "test_data" / "ds1" / "fluorescence" / "00001.tif"
+    out = tmp_path / "small"
+    code = main(["diagnose", str(image), "--microscope", str(mic), "--region",
+                 "130:170,60:100", "--out", str(out)])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "the 40 x 40 px window may be too small for the start to tell the cells" in err
+    assert not out.exists()

@@ -500,6 +500,10 @@ class DiagnoseWidget(Container):
             + (f"; {drawn_by_export(accepted)}." if accepted else ".")
             + (f" Note: {held}." if held else "")
         )
+        cautions = result.cautions()  # as the command warns (found as a user: unsaid)
+        if cautions:
+            self.status.value += "".join(f"<br>Caution: {c}" for c in cautions)
+            notify_warning("Diagnose: " + "; ".join(cautions))
 
     def _on_cancelled(self) -> None:
         self.status.value = "Diagnosis cancelled: nothing added"

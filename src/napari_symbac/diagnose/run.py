@@ -79,6 +79,14 @@ def _finite(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
 
 
+#: Reduced chi-square of a base fit above which its scene, not missing physics, is the
+#: likely misfit (:meth:`Diagnosis.cautions`; the real trench's is 15.5, a dense colony
+#: fitted without masks 301).
+POOR_BASE_FIT_CHI2 = 50.0
+#: Final reduced chi-square below which the noise model overstates the image's noise.
+OVERSTATED_NOISE_CHI2 = 0.8
+
+
 @dataclass
 class Diagnosis:
     """Outcome of :func:`diagnose`.
@@ -119,6 +127,37 @@ class Diagnosis:
     def accepted(self) -> list[EffectResult]:
         return [e for e in self.effects if e.accepted]
 
+    def explained_fraction(self) -> float | None:
+        """The share of the base fit's excess reduced chi-square (above 1, noise alone)
+        that the accepted effects explain; ``None`` when the base fit has no excess."""
+        before, after = self.base_fit["value"], self.final_fit["value"]
+        if not before > 1:
+            return None
+        return (before - after) / (before - 1)
+
+    def cautions(self) -> list[str]:
+        """Why the findings may not be physics, in words (found as a user: a dense
+        colony whose base fit placed 2 cells for ~20, reduced chi-square 301, got four
+        effects, "fixed pattern noise" among them, without a word; a bright field whose
+        camera the image could not measure got effects of 0.04 % at chi-square 0.53)."""
+        said = []
+        base, final = self.base_fit["value"], self.final_fit["value"]
+        if base > POOR_BASE_FIT_CHI2:
+            said.append(
+                f"the base fit leaves a reduced chi-square of {base:.3g} (1 is noise alone, "
+                f"above {POOR_BASE_FIT_CHI2:g} the scene itself is wrong: cells missed, "
+                "merged or misplaced; see residuals.png): effects found on top of it may "
+                "stand in for what the fit missed, so check the fit before trusting them"
+            )
+        if self.accepted and final < OVERSTATED_NOISE_CHI2:
+            said.append(
+                f"the final reduced chi-square is {final:.3g}, below 1: the noise model "
+                "overstates this image's noise (a camera the image could not measure), so "
+                "the held-out checks are miscalibrated and effects too small to matter can "
+                "pass them; give the camera (the microscope file's camera section)"
+            )
+        return said
+
     def _untested(self, effect: EffectResult) -> bool:
         """A candidate above the evidence needed that no held-out check reached (the
         diagnosis stopped first, or tried others in its step)."""
@@ -149,6 +188,7 @@ class Diagnosis:
             "Diagnosis of the mismatch between the fitted model and the recording",
             f"base fit: reduced chi-square {self.base_fit['value']:.4f}, held-out deviance "
             f"{self.base_fit['held_out']:.5f} per pixel",
+            *(f"CAUTION: {caution}" for caution in self.cautions()),
             "",
             "Most significant discrepancy statistics (-log10 p; > 2 is unusual for noise):",
         ]
@@ -198,6 +238,13 @@ class Diagnosis:
             f"final fit: reduced chi-square {self.final_fit['value']:.4f}, held-out deviance "
             f"{self.final_fit['held_out']:.5f} per pixel",
         ]
+        explained = self.explained_fraction()
+        if self.accepted and explained is not None:  # found as a user: only deviances
+            lines.append(  # said, not how much of the misfit is left
+                f"the accepted effects explain {explained:.0%} of the base fit's misfit "
+                f"beyond noise (reduced chi-square {self.base_fit['value']:.3g} -> "
+                f"{self.final_fit['value']:.3g}); the rest is in residuals.png (after)"
+            )
         return "\n".join(lines)
 
 
