@@ -34,7 +34,8 @@ if TYPE_CHECKING:
 
 __all__ = ["REVEALING", "write_figures"]
 
-#: The discrepancy statistic shown with each accepted effect (a key of ``Mismatch.where``).
+#: The discrepancy statistic shown with each accepted effect (a key of ``Mismatch.where``;
+#: ``None``: no profile shows what revealed it).
 REVEALING = {
     "uneven_illumination": "along the field (rows)",
     "defocus_gradient": "along the field (rows)",
@@ -44,8 +45,11 @@ REVEALING = {
     "camera_noise": "intensity level",
     "fixed_pattern_noise": "across the field (columns)",
     "background_texture": "across the field (columns)",
-    "cell_intensity_variability": "distance to the nearest cell edge",
-    "saturation": "intensity level",
+    # revealed by their own score tests (per-cell mean residuals; a spike of pixels at
+    # the clip level), which no base-fit profile shows (found as a user: the ring profile
+    # and the photon-transfer bins were shown for them as if they had revealed them)
+    "cell_intensity_variability": None,
+    "saturation": None,
     "photobleaching": "along the field (rows)",
     "stage_drift": "distance to the nearest cell edge",
 }
@@ -164,17 +168,26 @@ def write_figures(
             what_map = "model mean" if kind == "mean" else "model noise s.d."
             effect_bar = ColourBar("diverging", -peak, peak, "ADU")
             body = map_body(upscale(diverging(emap, peak), factor), effect_bar)
-            items.append((f"change of the {what_map} it makes (ADU){frames}", body))
+            # the change when it is added, the model refitted with it (found as a user: a
+            # stray light of -196 ADU shown mostly red, +138 ADU, as the intensities moved)
+            title = f"change of the {what_map} when added, model refitted (ADU){frames}"
+            items.append((title, body))
         key = REVEALING.get(effect.name, "")
-        stat = next((m for m in result.mismatches if m.where.startswith(key) and m.profile), None)
+        stat = None
+        if key is not None:
+            stat = next(
+                (m for m in result.mismatches if m.where.startswith(key) and m.profile), None
+            )
         if stat is not None:
             items.append(_profile_panel(stat))
         if not items:
             continue
         heading = f"Accepted effect {k}: {effect.name}" + (f" ({name})" if name else "")
         note = (
-            f"{effect.explanation} Evidence {effect.evidence:.1f} (-log10 p); held-out "
-            f"deviance {effect.held_out_before:.4g} -> {effect.held_out_after:.4g} per pixel."
+            f"{effect.explanation} Evidence {effect.evidence:.1f} (-log10 p"
+            + ("" if stat is not None else "; its own score test, which no profile shows")
+            + f"); held-out deviance {effect.held_out_before:.4g} -> "
+            f"{effect.held_out_after:.4g} per pixel."
         )
         file = f"effect_{effect.name}.png"
         grid = titled_grid(items, len(items) if columns == 3 else 1)
