@@ -669,16 +669,18 @@ def _overlays(viewer, recording) -> list:
 
 
 def _is_synthetic(layer) -> bool:
-    from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
+    from napari_symbac._widgets.simulate import DRAWN_PIXEL_KEY, SYMBAC_METADATA_KEY
 
-    return SYMBAC_METADATA_KEY in layer.metadata
+    return SYMBAC_METADATA_KEY in layer.metadata or DRAWN_PIXEL_KEY in layer.metadata
 
 
 def _drawn_pixel_um(layer) -> float | None:
     """The pixel size a layer of Simulate's was drawn at, or ``None`` for other layers
     (Diagnose's and Tune's are placed over the recording, not by their own pixels)."""
-    from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
+    from napari_symbac._widgets.simulate import DRAWN_PIXEL_KEY, SYMBAC_METADATA_KEY
 
+    if DRAWN_PIXEL_KEY in layer.metadata:  # Simulate's tracks
+        return float(layer.metadata[DRAWN_PIXEL_KEY])
     meta = layer.metadata.get(SYMBAC_METADATA_KEY) or {}
     settings = meta.get("settings") if "simulation" in meta else None
     microscope = getattr(settings, "microscope", None)

@@ -34,6 +34,7 @@ if TYPE_CHECKING:
     import napari
 
 __all__ = [
+    "DRAWN_PIXEL_KEY",
     "FITTED_TO_KEY",
     "PREVIEW_LAYER",
     "RESULT_IMAGE_LAYER",
@@ -49,6 +50,9 @@ RESULT_IMAGE_LAYER = "synthetic"
 RESULT_LABELS_LAYER = "synthetic labels"
 #: The simulation's ground-truth tracks (a Tracks layer, hidden at first).
 RESULT_TRACKS_LAYER = "synthetic tracks"
+#: Metadata key of a layer of Simulate's that holds no settings (its tracks): the pixel
+#: size it was drawn at, so that it moves between pixels and micrometres with the others.
+DRAWN_PIXEL_KEY = "drawn_pixel_um"
 RESULT_OPL_LAYER = "synthetic optical path length"
 #: Key, in a rendered layer's SyMBac metadata, of the name of the recording Auto-fit
 #: fitted the layer's settings to (absent until a fit).
@@ -374,8 +378,9 @@ class SimulateWidget(Container):
         data, graph = napari_tracks(self.series.labels, parents)
         if len(data):
             self.viewer.add_tracks(
-                data, graph=graph, name=RESULT_TRACKS_LAYER,
-                metadata=output_metadata("Simulate"), visible=False,
+                data, graph=graph, name=RESULT_TRACKS_LAYER, visible=False,
+                metadata={**output_metadata("Simulate"),
+                          DRAWN_PIXEL_KEY: self.pipeline.microscope.pixel_size_um},
                 tail_length=min(10, len(self.simulation.frames)), **placement,
             )  # fmt: skip
 
@@ -448,5 +453,7 @@ def _shown_in_pixels(viewer: napari.viewer.Viewer) -> bool:
     return any(
         in_pixel_units(layer)
         for layer in viewer.layers
-        if SYMBAC_METADATA_KEY not in layer.metadata and layer.name != PREVIEW_LAYER
+        if SYMBAC_METADATA_KEY not in layer.metadata
+        and DRAWN_PIXEL_KEY not in layer.metadata
+        and layer.name != PREVIEW_LAYER
     )
