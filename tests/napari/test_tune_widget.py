@@ -119,6 +119,16 @@ def _as_agar_pad(tune) -> None:
     metadata["settings"] = dataclasses.replace(settings, simulation=simulation)
 
 
+def _auto_fit(tune, qtbot, real, *, iterations: int):
+    """Auto-fit of ``real`` with ``iterations``, clicked as a user does; its result."""
+    tune.reference.value = real
+    tune.fit_iterations.value = iterations
+    tune.fit_button.native.click()
+    qtbot.waitUntil(lambda: tune.fit_worker is None, timeout=300_000)
+    assert tune.fit_result is not None, tune.status.value
+    return tune.fit_result
+
+
 def test_auto_fit_runs_the_scene_fit_on_the_recording(rendered, qtbot, real_data_dir):
     from napari_symbac._widgets.export import ExportWidget
     from napari_symbac._widgets.tune import FIT_RESIDUAL_LAYER, FIT_SYNTHETIC_LAYER
@@ -128,12 +138,7 @@ def test_auto_fit_runs_the_scene_fit_on_the_recording(rendered, qtbot, real_data
     export = ExportWidget(viewer)
     assert export.source.current_choice == RESULT_IMAGE_LAYER
     real = _real_trench(viewer, real_data_dir)
-    tune.reference.value = real
-    tune.fit_iterations.value = 2
-    tune.fit_button.native.click()
-    qtbot.waitUntil(lambda: tune.fit_worker is None, timeout=300_000)
-    result = tune.fit_result
-    assert result is not None, tune.status.value
+    result = _auto_fit(tune, qtbot, real, iterations=2)
     assert result.objective_after < result.objective_before
     assert len(result.cells) >= 3  # the trench holds several cells
     # the fit's intensities went to the sliders and into the rendered layer's settings
@@ -905,12 +910,7 @@ def test_a_camera_given_in_the_recording_step_is_the_fits(rendered, qtbot, real_
     recording.camera.value = dataclasses.replace(given, baseline_adu=10.0, bit_depth=8)
     assert "reaches 7507 ADU, above this camera's full scale" in recording.camera_warning.value
     recording.camera.value = given
-    tune.reference.value = real
-    tune.fit_iterations.value = 1
-    tune.fit_button.native.click()
-    qtbot.waitUntil(lambda: tune.fit_worker is None, timeout=300_000)
-    result = tune.fit_result
-    assert result is not None, tune.status.value
+    result = _auto_fit(tune, qtbot, real, iterations=1)
     assert result.camera == given
     assert tune.preview.model.camera == given
     assert "Camera given in the Recording step: 1.5 ADU/e-, read noise 3 e-" in tune.status.value
