@@ -469,3 +469,4 @@ def test_a_small_window_without_cells_found_says_it_may_be_too_small(
     assert code == 2
     assert "the 40 x 40 px window may be too small for the start to tell the cells" in err
     assert not out.exists()
+

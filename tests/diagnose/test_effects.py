@@ -230,3 +230,15 @@ def test_cells_brightening_with_time_are_no_bleaching():
         rates.append(_params(effect, fitted, spec, case.design)["rate_per_frame"])
     assert rates[0] == pytest.approx(case.true_magnitude, rel=0.35)
     assert rates[1] == 0.0
+
+
+def test_a_ring_or_haze_found_is_said_by_its_sign():
+    """Found as a user: report.txt gave "halo ... amplitude_adu: -173" and left the sign
+    to decode; an accepted halo or stray light is now said in words, as the fit found it."""
+    from napari_symbac.diagnose.effects import CATALOGUE
+
+    halo, stray = CATALOGUE["halo"], CATALOGUE["stray_light"]
+    assert halo.finding({"amplitude_adu": -173.0}).startswith("a weaker halo than the model's")
+    assert halo.finding({"amplitude_adu": 50.0}).startswith("a stronger halo")
+    assert "(-196 ADU at the pattern's peak)" in stray.finding({"amplitude_adu": -196.0})
+    assert stray.finding({"amplitude_adu": -196.0}).startswith("the cells darken")

@@ -213,6 +213,10 @@ class Diagnosis:
                 lines.append(f"      {said}{e.confirmation.reason}")
             if e.accepted:
                 lines.append(f"      {e.explanation}")
+                finding = getattr(CATALOGUE.get(e.name), "finding", None)
+                said = finding(e.params) if finding is not None else ""
+                if said:
+                    lines.append(f"      here: {said}")
                 short = {k: v for k, v in e.params.items() if not isinstance(v, (list, dict))}
                 lines.append(f"      parameters: {short}")
         untested = [e.name for e in self.effects if self._untested(e)]

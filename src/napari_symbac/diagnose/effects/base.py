@@ -161,6 +161,16 @@ class CellPatternEffect(Effect):
     """
 
     pattern: ClassVar[Callable[[np.ndarray, float], np.ndarray]]
+    #: What a positive and a negative amplitude mean, in words (the report says which
+    #: the fit found; found as a user: "halo -173 ADU" left the sign to decode).
+    sign_words: ClassVar[tuple[str, str]] = ("", "")
+
+    @classmethod
+    def finding(cls, parameters: dict) -> str:
+        """The fitted amplitude in words: :attr:`sign_words` by its sign, and its size."""
+        amplitude = float(parameters["amplitude_adu"])
+        words = cls.sign_words[0] if amplitude > 0 else cls.sign_words[1]
+        return f"{words} ({amplitude:+.3g} ADU at the pattern's peak)" if words else ""
 
     def __init__(self, geometry: Geometry) -> None:
         super().__init__(geometry)

@@ -38,6 +38,10 @@ class Halo(CellPatternEffect):
     )
     signature = "mean residual against signed distance to the nearest cell edge (ring at 0-4 px)"
     modalities = ("phase",)
+    sign_words = (
+        "a stronger halo than the model's: brighter just outside the cells, darker rims",
+        "a weaker halo than the model's: dimmer just outside the cells, lighter rims",
+    )
 
     pattern = staticmethod(halo_ring)
 

@@ -34,6 +34,10 @@ class StrayLight(CellPatternEffect):
         "(or darker) than empty ones."
     )
     signature = "residual against distance to the nearest cell, long tail beyond 1 um"
+    sign_words = (
+        "a haze brightening the microns around the cells",
+        "the cells darken the microns around them (less light there than modelled)",
+    )
 
     pattern = staticmethod(haze)
 
