@@ -452,6 +452,11 @@ def test_a_diagnosis_on_a_poor_base_fit_is_cautioned(tmp_path, capsys, real_data
     assert "napari-symbac diagnose: warning: the base fit leaves a reduced chi-square" in err
     assert "fit it with `napari-symbac fit IMAGE --masks MASKS`" in err
     assert f"`napari-symbac export --config {out / 'settings.yaml'} --out DATASET`" in report
+    # and where the final model misses most, as residuals.png shows it
+    where = re.search(r"largest remaining misfit: row (\d+), column (\d+) of the diag", report)
+    assert where is not None
+    assert 0 <= int(where[1]) < 96
+    assert 0 <= int(where[2]) < 96
 
 
 def test_a_small_window_without_cells_found_says_it_may_be_too_small(
