@@ -110,6 +110,8 @@ class Diagnosis:
     max_steps
         The most effects a diagnosis accepts: candidates above ``threshold`` that were
         never held-out tested when it stopped there are said so in the report.
+    valid
+        ``(T, Y, X)``: the pixels the final fit is judged on (not clipped, not masked).
     """
 
     base_fit: dict[str, Any]
@@ -122,6 +124,7 @@ class Diagnosis:
     threshold: float = 0.0
     skipped: tuple[str, ...] = ()
     max_steps: int = 4
+    valid: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def accepted(self) -> list[EffectResult]:
@@ -258,7 +261,11 @@ class Diagnosis:
         the first frame's residual smoothed as residuals.png shows it (2 px)."""
         from scipy import ndimage
 
-        smooth = ndimage.gaussian_filter(np.asarray(self.residual_after[0], float), 2.0)
+        residual = np.asarray(self.residual_after[0], float)
+        fitted = np.isfinite(residual)  # clipped (censored) pixels are no misfit
+        if self.valid is not None:
+            fitted &= np.asarray(self.valid[0], bool)
+        smooth = ndimage.gaussian_filter(np.where(fitted, residual, 0.0), 2.0)
         row, col = np.unravel_index(int(np.argmax(np.abs(smooth))), smooth.shape)
         value = float(smooth[row, col])
         side = "brighter" if value > 0 else "darker"
@@ -531,6 +538,7 @@ def _diagnose(
         threshold,
         tuple(skipped),
         max_steps,
+        valid_final,
     )
 
 
