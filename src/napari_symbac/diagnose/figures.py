@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy import ndimage
 
+from napari_symbac.diagnose.run import RESIDUAL_SMOOTHING_PX
 from napari_symbac.figure_layout import (
     ColourBar,
     diverging,
@@ -121,7 +122,7 @@ def write_figures(
     factor = map_scale(frame.shape)
     # tall maps (a trench) side by side, wide ones (a field) one below the other
     columns = 3 if rows * 2 >= cols else 1
-    sigma = 2.0
+    sigma = RESIDUAL_SMOOTHING_PX
     limit = 4.0 / (2 * np.sqrt(np.pi) * sigma)  # s.d. of a Gaussian-smoothed white field
     before = ndimage.gaussian_filter(result.residual_before[0], sigma)
     after = ndimage.gaussian_filter(result.residual_after[0], sigma)

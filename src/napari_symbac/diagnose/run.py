@@ -85,6 +85,8 @@ def _finite(value: float) -> float | None:
 POOR_BASE_FIT_CHI2 = 50.0
 #: Final reduced chi-square below which the noise model overstates the image's noise.
 OVERSTATED_NOISE_CHI2 = 0.8
+#: Gaussian sigma (px) of the residual maps as residuals.png and the report show them.
+RESIDUAL_SMOOTHING_PX = 2.0
 
 
 @dataclass
@@ -258,21 +260,21 @@ class Diagnosis:
     def _largest_misfit(self) -> str:
         """Where the final model misses most (found as a user: the report never pointed at
         the top cell that residuals.png showed unchanged after the effects): the peak of
-        the first frame's residual smoothed as residuals.png shows it (2 px)."""
+        the first frame's residual smoothed as residuals.png shows it."""
         from scipy import ndimage
 
         residual = np.asarray(self.residual_after[0], float)
         fitted = np.isfinite(residual)  # clipped (censored) pixels are no misfit
         if self.valid is not None:
             fitted &= np.asarray(self.valid[0], bool)
-        smooth = ndimage.gaussian_filter(np.where(fitted, residual, 0.0), 2.0)
+        smooth = ndimage.gaussian_filter(np.where(fitted, residual, 0.0), RESIDUAL_SMOOTHING_PX)
         row, col = np.unravel_index(int(np.argmax(np.abs(smooth))), smooth.shape)
         value = float(smooth[row, col])
         side = "brighter" if value > 0 else "darker"
         return (
             f"largest remaining misfit: row {row}, column {col} of the diagnosed window "
             f"(frame 0), the image {side} than the model there ({value:+.2g} s.d. smoothed "
-            "over 2 px)"
+            f"over {RESIDUAL_SMOOTHING_PX:g} px)"
         )
 
 

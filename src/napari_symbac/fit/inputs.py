@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from napari_symbac.fit.preflight import refuse_non_finite
+
 __all__ = ["CLASS_NAMES", "CLASS_VALUES", "as_image_stack", "as_label_stack", "as_single_image"]
 
 #: Values of the painted classes in a single labels layer.
@@ -50,12 +52,7 @@ def as_image_stack(image: np.ndarray, *, name: str = "image") -> np.ndarray:
     if min(array.shape[1:]) < 8:
         raise ValueError(f"{name} of shape {array.shape[1:]} is too small: need at least 8 x 8")
     array = array.astype(np.float64)
-    finite = np.isfinite(array)
-    if not finite.all():
-        raise ValueError(
-            f"{name} contains {int((~finite).sum())} NaN or infinite pixels; replace them "
-            "(e.g. numpy.nan_to_num) or crop them away"
-        )
+    refuse_non_finite(array, name)
     if array.max() == array.min():
         raise ValueError(f"{name} is constant (every pixel is {array.flat[0]:g}): nothing to fit")
     return array

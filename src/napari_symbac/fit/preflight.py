@@ -39,6 +39,7 @@ __all__ = [
     "looks_like_masks",
     "refuse_constant",
     "refuse_image_as_masks",
+    "refuse_non_finite",
     "resolve_pixel_size",
 ]
 
@@ -54,6 +55,16 @@ _RING_PX = 3
 
 #: Where the Python functions' message on a shifted image sends the camera baseline.
 API_CAMERA_HINT = "in camera=Camera(baseline_adu=...)"
+
+
+def refuse_non_finite(image: np.ndarray, name: str) -> None:
+    """Refuse an image with NaN or infinite pixels, naming how many and the fix."""
+    bad = int(np.size(image) - np.count_nonzero(np.isfinite(image)))
+    if bad:
+        raise ValueError(
+            f"{name} contains {bad} NaN or infinite pixels; replace them (e.g. "
+            "numpy.nan_to_num) or crop them away"
+        )
 
 
 #: The most pixels per frame a fit takes (4096 x 4096; :func:`check_fit_image`).
@@ -97,12 +108,8 @@ def check_fit_image(
             "on a 2-core machine, docs/fitting.md)"
         )
     if np.issubdtype(np.asarray(image).dtype, np.floating):
-        bad = int(np.size(image) - np.count_nonzero(np.isfinite(image)))
-        if bad:  # found as a user: an all-NaN TIFF opened in the docks as a recording
-            raise ValueError(
-                f"{name} contains {bad} NaN or infinite pixels; replace them (e.g. "
-                "numpy.nan_to_num) or crop them away"
-            )
+        # found as a user: an all-NaN TIFF opened in the docks as a recording
+        refuse_non_finite(image, name)
     low = float(np.min(image))
     if low < 0:
         raise ValueError(
