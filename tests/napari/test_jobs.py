@@ -107,3 +107,83 @@ def test_a_quit_that_the_generator_outruns_still_reports_the_cancel(qtbot):
     release.set()
     qtbot.waitUntil(lambda: "finish" in calls, timeout=30_000)
     assert calls == ["abort", "finish"]
+
+
+def test_a_job_whose_panel_is_closed_is_cancelled(qtbot):
+    """Found as a user: napari's close button unparents the step and deletes its dock;
+    the step lives on, and its job ran to the end and added its layers. The job is now
+    cancelled as its Cancel button would (the abort callback runs, no result), and the
+    user is told why."""
+    import threading
+
+    from napari.utils.notifications import notification_manager
+    from qtpy.QtWidgets import QWidget
+
+    dock = QWidget()
+    step = QWidget(dock)
+    calls: list[str] = []
+    seen = []
+    notification_manager.notification_ready.connect(seen.append)
+    running = threading.Event()
+
+    def work():
+        for index in range(1, 100_000):
+            running.set()
+            yield index, index
+            threading.Event().wait(0.01)
+        return "finished without being cancelled"
+
+    job = Job(
+        work,
+        total=0,
+        description="test",
+        what="Simulation",
+        on_return=lambda result: calls.append("return"),
+        on_abort=lambda: calls.append("abort"),
+        on_finish=lambda: calls.append("finish"),
+        owner=step,
+    )
+    job.start()
+    assert running.wait(30)
+    step.setParent(None)  # what napari's remove_dock_widget does, then deletes the dock
+    dock.deleteLater()
+    qtbot.waitUntil(lambda: "finish" in calls, timeout=30_000)
+    assert job.cancelled.is_set()
+    assert calls == ["abort", "finish"]
+    assert any("Simulation cancelled: its panel was closed" in str(n.message) for n in seen)
+
+
+def test_a_finished_job_forgets_its_panel(qtbot):
+    """A job that ended holds no connection to its dock: closing the dock later
+    notifies nothing and keeps no finished job (and its result) alive."""
+    from napari.utils.notifications import notification_manager
+    from qtpy.QtWidgets import QWidget
+
+    dock = QWidget()
+    step = QWidget(dock)
+    finished: list[bool] = []
+    seen = []
+    notification_manager.notification_ready.connect(seen.append)
+
+    def work():
+        yield 1, None
+        return "done"
+
+    job = Job(work, total=1, description="test", what="Simulation", owner=step,
+              on_finish=lambda: finished.append(True))  # fmt: skip
+    job.start()
+    qtbot.waitUntil(lambda: bool(finished), timeout=30_000)
+    assert job._holders == []
+    step.setParent(None)
+    dock.deleteLater()
+    qtbot.waitUntil(lambda: not _is_alive(dock), timeout=10_000)
+    assert not job.cancelled.is_set()
+    assert not any("panel was closed" in str(n.message) for n in seen)
+
+
+def _is_alive(widget) -> bool:
+    try:
+        widget.objectName()
+    except RuntimeError:  # its C++ object was deleted
+        return False
+    return True

@@ -420,3 +420,23 @@ def test_a_recording_whose_modality_is_set_later_is_followed_again(
     assert simulate.form.geometry.value == "agar_pad"
     assert simulate.status.value.startswith("fluorescence: ")  # laid out as its cells
     assert (pad.field_width_um.value, pad.field_height_um.value) == pytest.approx((4.88, 4.56))
+
+
+def test_closing_the_dock_during_a_run_cancels_it(make_napari_viewer, qtbot):
+    """Found as a user: napari's close button on the dock left the simulation running;
+    when it ended it added its layers to the viewer. Closing the panel now cancels the
+    run as its Cancel button does: the preview goes, no result is added."""
+    viewer = make_napari_viewer()
+    widget = SimulateWidget(viewer)
+    dock = viewer.window.add_dock_widget(widget)
+    widget.form.n_frames.value = 2000
+    widget.run_button.native.click()
+    qtbot.waitUntil(lambda: PREVIEW_LAYER in viewer.layers, timeout=60_000)
+    job = widget.worker
+    dock.destroyOnClose()  # the dock's close button
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=60_000)
+    assert job.cancelled.is_set()
+    assert PREVIEW_LAYER not in viewer.layers
+    assert RESULT_IMAGE_LAYER not in viewer.layers
+    assert widget.simulation is None
+    assert widget.status.value.startswith("Cancelled")

@@ -13,18 +13,28 @@ Why not ``thread_worker(progress=...)`` directly:
   a value and reported.
 * Every error reaches the user as a napari notification (message and what to do), the
   widget gets its buttons back, and nothing is re-raised.
-* When the widget is closed (the viewer closed mid-run), the worker is asked to quit and
-  its remaining events are dropped.
+* When the widget is closed (the viewer closed mid-run) or its panel is (napari's close
+  button on the dock: the step survives, unparented, while napari deletes the dock), the
+  worker is asked to quit; a closed viewer's remaining events are dropped, a closed
+  panel's job ends as its Cancel button ends it (no layers added, a preview removed).
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import threading
 from collections.abc import Callable, Generator
 from typing import Any
 
-__all__ = ["Job", "blocking_steps", "describe_error", "notify_error", "notify_warning"]
+__all__ = [
+    "Job",
+    "blocking_steps",
+    "describe_error",
+    "notify_error",
+    "notify_info",
+    "notify_warning",
+]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -39,6 +49,13 @@ def notify_error(message: str) -> None:
     from napari.utils.notifications import show_error
 
     show_error(message)
+
+
+def notify_info(message: str) -> None:
+    """Show ``message`` as a napari information notification (never raises)."""
+    from napari.utils.notifications import show_info
+
+    show_info(message)
 
 
 def notify_warning(message: str) -> None:
@@ -76,8 +93,9 @@ class Job:
         (after it was shown as a notification unless ``on_error`` returns ``True``); a
         cancel; and always, last.
     owner
-        The widget's Qt object; when it is destroyed the worker is told to quit and no
-        callback runs any more.
+        The widget's Qt object; when it or one of the widgets holding it when the job
+        starts (its dock) is destroyed, the worker is told to quit and no callback runs
+        any more.
 
     Attributes
     ----------
@@ -133,12 +151,39 @@ class Job:
         self.worker.errored.connect(lambda err: self._post("error", err))
         self.worker.aborted.connect(lambda: self._post("abort", None))
         self.worker.finished.connect(lambda: self._post("finish", None))
+        self._owner = owner
+        self._holders: list[Any] = []  # the owner's ancestors while the job runs
         if owner is not None:
             owner.destroyed.connect(self._on_owner_destroyed)
 
     def start(self) -> None:
         """Start the worker thread."""
+        self._watch_holders()
         self.worker.start()
+
+    def _watch_holders(self) -> None:
+        """Quit when a widget holding the owner is destroyed. Found as a user: napari's
+        close button on a dock unparents the step and deletes the dock, the step itself
+        lives on, and its job ran to the end and added its layers, for a removed
+        recording too."""
+        holder = self._owner.parentWidget() if self._owner is not None else None
+        while holder is not None:
+            holder.destroyed.connect(self._on_holder_destroyed)
+            self._holders.append(holder)
+            holder = holder.parentWidget()
+
+    def _forget_holders(self) -> None:
+        for holder in self._holders:  # (a deleted holder cannot be disconnected)
+            with contextlib.suppress(RuntimeError, TypeError):
+                holder.destroyed.disconnect(self._on_holder_destroyed)
+        self._holders.clear()
+
+    def _on_holder_destroyed(self, _obj=None) -> None:
+        self._holders.clear()  # being deleted: nothing to disconnect
+        if self.done or self._closed or self.cancelled.is_set():
+            return
+        self.quit()  # as the Cancel button: the step tidies up (a preview removed)
+        notify_info(f"{self._what} cancelled: its panel was closed")
 
     def quit(self) -> None:
         """Ask the worker to stop at its next yield (and blocking work to cancel)."""
@@ -202,6 +247,7 @@ class Job:
             self._report(payload)
         elif kind == "finish":
             self.done = True
+            self._forget_holders()
             self._close_progress()
             if callback is not None:
                 callback()
