@@ -66,3 +66,19 @@ def notifications():
     notification_manager.notification_ready.connect(record)
     yield seen
     notification_manager.notification_ready.disconnect(record)
+
+
+@pytest.fixture
+def tracks_in_mask_colours():
+    """Assert that every track is drawn in its cell's label colour (found as a user:
+    unrelated colours, nothing told which line belonged to which mask), and that the
+    tracks are not all one colour."""
+    import numpy as np
+
+    def check(tracks, labels) -> None:
+        ids = tracks.data[:, 0].astype(int)
+        expected = np.asarray(labels.colormap.map(ids))[:, :3]
+        np.testing.assert_allclose(np.asarray(tracks.track_colors)[:, :3], expected, atol=1e-6)
+        assert len({tuple(np.round(c, 3)) for c in expected}) > 1
+
+    return check

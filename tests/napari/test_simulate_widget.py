@@ -44,7 +44,9 @@ def test_run_to_completion_adds_aligned_layers(widget, qtbot):
     assert widget.viewer.dims.current_step[0] == 0
 
 
-def test_a_simulated_time_series_shows_its_ground_truth_tracks(widget, qtbot):
+def test_a_simulated_time_series_shows_its_ground_truth_tracks(
+    widget, qtbot, tracks_in_mask_colours
+):
     """The simulation's lineage as a Tracks layer over its frames (as Auto-fit shows a
     fitted time-lapse's): a row per cell and frame at its label's centroid, and each
     division in the graph."""
@@ -58,6 +60,7 @@ def test_a_simulated_time_series_shows_its_ground_truth_tracks(widget, qtbot):
     tracks = viewer.layers[RESULT_TRACKS_LAYER]
     assert f"the layer '{RESULT_TRACKS_LAYER}'" in widget.status.value
     assert tuple(tracks.scale) == tuple(labels.scale)
+    tracks_in_mask_colours(tracks, labels)
     for track, t, row, col in tracks.data[:: max(1, len(tracks.data) // 40)]:
         region = np.argwhere(labels.data[int(t)] == int(track))
         assert len(region), (track, t)

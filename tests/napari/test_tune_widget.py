@@ -348,7 +348,9 @@ def test_auto_fit_of_a_phase_colony_with_its_masks_fits_the_halo(rendered, qtbot
     assert np.abs(layer.data[frame].astype(float) - before).max() > 1
 
 
-def test_auto_fit_of_all_frames_fits_a_trench_time_lapse_jointly(rendered, qtbot, real_data_dir):
+def test_auto_fit_of_all_frames_fits_a_trench_time_lapse_jointly(
+    rendered, qtbot, real_data_dir, tracks_in_mask_colours
+):
     """The real trench as a 2-frame time-lapse (the second frame 2 px further down the
     trench): 'all frames jointly' runs the series fit (optics and camera shared), the
     layers hold both frames and the sliders the shown frame's intensities."""
@@ -396,6 +398,7 @@ def test_auto_fit_of_all_frames_fits_a_trench_time_lapse_jointly(rendered, qtbot
     assert set(np.unique(tracks.data[:, 0])) == set(np.unique(masks.data)) - {0}
     assert set(np.unique(masks.data)) - {0} <= set(series.lineage.tracks[:, 0].tolist())
     assert len(np.unique(masks.data[0])) - 1 >= 3  # the real trench's cells, each tracked
+    tracks_in_mask_colours(tracks, masks)
     # a fit of one frame afterwards: the joint fit's tracks are gone, not left stale
     tune.fit_all_frames.value = False
     tune.fit_button.native.click()
@@ -954,3 +957,4 @@ def test_auto_fit_refuses_a_real_image_without_a_pixel_size(rendered, real_data_
     assert tune.status.value.startswith("unscaled: no pixel size")
     assert tune.status.value.endswith("then fit it")
     assert tune.fit_result is None
+

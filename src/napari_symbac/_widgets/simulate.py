@@ -366,23 +366,22 @@ class SimulateWidget(Container):
     def _show_tracks(self, placement: dict) -> None:
         """The simulation's ground-truth tracks over its frames: a Tracks layer of each
         cell's centroid, frame by frame, with its divisions (the labels keep each cell's
-        id over its life, its lineage names each daughter's mother), as Auto-fit shows a
-        fitted time-lapse's."""
+        id over its life, its lineage names each daughter's mother), each track in its
+        cell's label colour, as Auto-fit shows a fitted time-lapse's."""
+        from napari_symbac._widgets._tracks import replace_tracks
         from napari_symbac.track_points import napari_tracks
 
-        if RESULT_TRACKS_LAYER in self.viewer.layers:
-            self.viewer.layers.remove(RESULT_TRACKS_LAYER)
-        if len(self.simulation.frames) < 2:
-            return
-        parents = {cell: record.parent_id for cell, record in self.simulation.lineage.items()}
-        data, graph = napari_tracks(self.series.labels, parents)
-        if len(data):
-            self.viewer.add_tracks(
-                data, graph=graph, name=RESULT_TRACKS_LAYER, visible=False,
-                metadata={**output_metadata("Simulate"),
-                          DRAWN_PIXEL_KEY: self.pipeline.microscope.pixel_size_um},
-                tail_length=min(10, len(self.simulation.frames)), **placement,
-            )  # fmt: skip
+        data, graph = np.zeros((0, 4)), {}
+        if len(self.simulation.frames) >= 2:
+            parents = {cell: record.parent_id for cell, record in self.simulation.lineage.items()}
+            data, graph = napari_tracks(self.series.labels, parents)
+        replace_tracks(
+            self.viewer, RESULT_TRACKS_LAYER, data, graph,
+            self.viewer.layers[RESULT_LABELS_LAYER], visible=False,
+            metadata={**output_metadata("Simulate"),
+                      DRAWN_PIXEL_KEY: self.pipeline.microscope.pixel_size_um},
+            tail_length=min(10, len(self.simulation.frames)), **placement,
+        )  # fmt: skip
 
     def _show_opl(self, opl: np.ndarray, metadata: dict) -> None:
         """Show the render-resolution OPL aligned with the camera-resolution layers."""

@@ -1030,6 +1030,8 @@ class TuneWidget(Container):
         fitted cells labelled by track id (hidden at first); a fit of one frame removes
         those of an earlier joint fit. Found as a user: after a joint fit the dock gave
         only counts ("22 tracks, 10 divisions"), nothing to see the links by."""
+        from napari_symbac._widgets._tracks import replace_tracks
+
         for name in (FIT_TRACKS_LAYER, FIT_TRACK_MASKS_LAYER):
             if name in self.viewer.layers:
                 self.viewer.layers.remove(name)
@@ -1041,15 +1043,14 @@ class TuneWidget(Container):
             [frame.cells.ids for frame in series.frames],
         )
         metadata = output_metadata("Auto-fit")
-        self.viewer.add_labels(
+        labels = self.viewer.add_labels(
             masks, name=FIT_TRACK_MASKS_LAYER, metadata=metadata, visible=False, **placement
         )
         data, graph = lineage.napari_tracks(masks)
-        if len(data):
-            self.viewer.add_tracks(
-                data, graph=graph, name=FIT_TRACKS_LAYER, metadata=metadata,
-                tail_length=len(series.frames), **placement,
-            )  # fmt: skip
+        replace_tracks(
+            self.viewer, FIT_TRACKS_LAYER, data, graph, labels, metadata=metadata,
+            tail_length=len(series.frames), **placement,
+        )  # fmt: skip
 
     def _on_fit_errored(self, err: BaseException) -> bool:
         from napari_symbac.fit import FitCancelled
