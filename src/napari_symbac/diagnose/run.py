@@ -209,7 +209,8 @@ class Diagnosis:
             if e.accepted or math.isfinite(e.null_threshold_nats):
                 lines.append(
                     f"      held-out gain {e.held_out_gain_nats:.1f} nats "
-                    f"(noise alone would give < {e.null_threshold_nats:.1f}); "
+                    f"(needed: > {e.null_threshold_nats:.1f}, a gain noise alone rarely "
+                    "reaches); "
                     f"deviance {e.held_out_before:.5f} -> {e.held_out_after:.5f}"
                     + (f" (step {e.held_out_step})" if earlier else "")
                 )
