@@ -107,15 +107,17 @@ class SimulateWidget(Container):
             text="Cancel", name="cancel", enabled=False, tooltip="Stop; nothing is kept."
         )
         self.status = message_label("status")
+        # Run, Cancel and the status above the form's ~30 rows: found as a user at 1366 x
+        # 768, the Run button lay below them, out of sight until scrolled to
         self.extend(
             [
                 self.recording,
-                self.form,
-                self.show_opl,
                 self.backend,
+                self.show_opl,
                 self.run_button,
                 self.cancel_button,
                 self.status,
+                self.form,
             ]
         )
         hide_label(self.form)

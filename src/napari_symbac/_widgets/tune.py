@@ -305,6 +305,8 @@ class TuneWidget(Container):
                 "chi-square after every fit step (log scale, grey line at 1)"
             ),
         )
+        # Auto-fit, its options and its result above the sliders' ~15 rows: found as a
+        # user at 1366 x 768, the button lay below them, out of sight until scrolled to
         self.extend(
             [
                 self.source,
@@ -312,10 +314,6 @@ class TuneWidget(Container):
                 self.masks,
                 self.modality,
                 self.noise_model,
-                *self.sliders.values(),
-                self.match_fourier,
-                self.match_histogram,
-                self.match_noise,
                 self.fit_iterations,
                 self.fit_all_frames,
                 self.fit_envelope_stain,
@@ -325,9 +323,14 @@ class TuneWidget(Container):
                 self.status,
                 self.terms_table,
                 self.terms_image,
+                *self.sliders.values(),
+                self.match_fourier,
+                self.match_histogram,
+                self.match_noise,
             ]
         )
         self.terms_image.visible = False
+        self.terms_table.visible = False  # an empty table until a fit fills it
         self.fit_button.changed.connect(self.auto_fit)
         self.cancel_fit_button.changed.connect(self.cancel_fit)
         self.fit_worker: Job | None = None
@@ -928,6 +931,7 @@ class TuneWidget(Container):
             "before": [_format(before) for before, _ in result.terms.values()],
             "after": [_format(after) for _, after in result.terms.values()],
         }
+        self.terms_table.visible = True
         plot = np.concatenate([terms_plot(result.terms), convergence_plot(result.history)])
         self.terms_image.value = plot
         # magicgui's image takes what the layout leaves it (18 px under a long status):
