@@ -786,3 +786,31 @@ def test_render_of_one_frame_writes_three_files_of_one_shape(tmp_path, capsys):
         shapes.add(read_recording(path).data.shape)
     assert len(shapes) == 1
     assert len(shapes.pop()) == 2
+
+
+def test_export_says_what_the_workers_option_did(tmp_path, capsys, monkeypatch):
+    """Found as a user: `--workers 5` beside `--scheduler` was ignored unsaid and then
+    "finishes in this process" was printed though the scheduler had done the work; and
+    `--workers 8` capped to the cores printed the same note though those cores were used."""
+    from napari_symbac.export.cluster import local_cluster
+    from napari_symbac.settings import PipelineSettings, SimulationSettings, save_settings
+
+    pipeline = PipelineSettings(simulation=SimulationSettings(n_frames=4, seed=2))
+    config = save_settings(pipeline, tmp_path / "settings.yaml")
+    args = ["export", "--config", str(config), "--n-items", "3", "--formats", "tiff"]
+    with local_cluster(1) as cluster:
+        address = cluster.scheduler_address
+        assert main([*args, "--out", str(tmp_path / "a"), "--scheduler", address,
+                     "--workers", "5"]) == 0  # fmt: skip
+    said = capsys.readouterr()
+    assert "--workers 5 is not used with --scheduler" in said.err
+    assert f"dask worker {address}" in said.err
+    assert "asked" not in said.err
+    assert "capped" not in said.err
+    monkeypatch.setattr("os.cpu_count", lambda: 2)
+    monkeypatch.setenv("NAPARI_SYMBAC_CLUSTER_START_S", "0")  # the workers always start
+    assert main([*args, "--out", str(tmp_path / "b"), "--workers", "8"]) == 0
+    said = capsys.readouterr()
+    assert "--workers 8 capped to 2" in said.err
+    assert "with 2 worker(s)" in said.out
+    assert "asked" not in said.err  # the capped count was used: no "1 used" note

@@ -290,20 +290,30 @@ def _cmd_export(args: argparse.Namespace) -> int:
     _confirm_large_run(
         n_simulated + settings.n_images, f"exporting {settings.n_images:,} images", args.yes
     )
+    workers = None
+    if args.scheduler is not None and args.workers is not None:
+        print(  # found as a user: --workers 5 beside --scheduler was ignored unsaid
+            f"napari-symbac export: note: --workers {args.workers} is not used with "
+            "--scheduler: the scheduler's workers do the work (start more with `dask "
+            f"worker {args.scheduler}`)",
+            file=sys.stderr,
+        )
+    elif args.scheduler is None:
+        workers = _local_workers(args.workers)
     timer = StepTimer()
     update, bar = _tqdm_progress("export", settings.n_images, "images")
     with timer.step("export"):
         report = export_dataset(
             settings,
             out,
-            workers=_local_workers(args.workers),
+            workers=workers,
             scheduler=args.scheduler,
             progress=update,
             backend=backend,
         )
     bar.close()
     print(report)
-    if args.workers is not None and report.workers < args.workers and not report.cancelled:
+    if workers is not None and report.workers < workers and not report.cancelled:
         print(  # found as a user: --workers 2 ran with 1 and only the report's count said it
             f"napari-symbac export: note: --workers {args.workers} asked, {report.workers} "
             "used: an export this short finishes in this process before worker processes "

@@ -51,12 +51,17 @@ def test_calibrate_writes_a_matched_dataset_and_report(colicoords_files, capsys)
     assert "power spectrum" in report
     printed = capsys.readouterr()
     _assert_flags_follow_the_numbers(report, printed.out)
-    # a line per stage on stderr (the fit, the comparison, the export)
-    assert [line for line in printed.err.splitlines() if line.startswith("napari-symbac")] == [
+    # a line per stage on stderr (the fit, the comparison, the export), and the export's
+    # progress (found as a user: piped, 188 s of a 500-item export passed without a line)
+    lines = printed.err.splitlines()
+    assert [line for line in lines if line.startswith("napari-symbac calibrate")] == [
         "napari-symbac calibrate: fitting",
         "napari-symbac calibrate: comparing real and synthetic",
         "napari-symbac calibrate: exporting",
     ]
+    exported = [line for line in lines if line.startswith("napari-symbac export: ")]
+    assert exported[-1] == "napari-symbac export: 3 of 3 images"
+    assert lines.index(exported[0]) > lines.index("napari-symbac calibrate: exporting")
     assert "pass --masks" not in report  # they were given: the advice does not ask for them
     assert "read as counts" not in report  # camera counts: nothing to mark
     # the masks' outline convention, read in the light against the fitted model's,

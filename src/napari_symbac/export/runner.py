@@ -146,19 +146,22 @@ def run_units(
     options: dict[str, Any],
     skip: Sequence[str] = (),
     fft_threads: int | None = None,
+    stop: str | None = None,
 ) -> list[dict[str, Any]]:
     """Make and write the items of ``units``, skipping the names in ``skip``.
 
     This is the function that runs on a dask worker; it returns the manifest entries
     written (entries of skipped items are not returned). ``fft_threads`` sets the
     default thread count of :mod:`scipy.fft` meanwhile (1 on dask workers: one worker
-    process per core, no oversubscription).
+    process per core, no oversubscription). ``stop`` names a :class:`distributed.Event`
+    checked before each unit: once it is set (the export was cancelled or interrupted)
+    the task returns what it has written.
     """
     if fft_threads is not None:
         from scipy import fft
 
         with fft.set_workers(fft_threads):
-            return run_units(source, units, out_dir, formats, options, skip)
+            return run_units(source, units, out_dir, formats, options, skip, stop=stop)
     out = Path(out_dir)
     writers = _writers(formats, options)
     skip = set(skip)
@@ -166,12 +169,20 @@ def run_units(
     for unit in units:
         if all(name in skip for name in source.unit_names(unit)):
             continue
+        if stop is not None and _stop_is_set(stop):
+            break
         for item in source.make_unit(unit):
             if item.name not in skip:
                 entries.append(write_item(out, item, writers))
             for writer in writers:
                 writer.remember(item)
     return entries
+
+
+def _stop_is_set(name: str) -> bool:
+    from distributed import Event
+
+    return Event(name).is_set()  # the worker's own client
 
 
 def _chunks(units: list[int], size: int) -> list[list[int]]:
@@ -320,18 +331,24 @@ def _run_dask(
             return _is_cancelled(cancel) and bool(units), 1
         cluster, client = _start_cluster_while_working(workers, units, write_unit, cancel)
         pending = list(units)
-    from distributed import as_completed  # imported once workers are wanted (~1 s)
+    from distributed import Event, as_completed  # imported once workers are wanted (~1 s)
 
     cancelled = _is_cancelled(cancel)
+    where = "the local worker processes" if cluster is not None else (
+        f"the dask scheduler at {client.scheduler.address}"
+    )
     try:
         n_workers = len(client.scheduler_info().get("workers", {})) or workers
         if cancelled or not pending:
             return cancelled, n_workers
         if batch_size is None:
-            batch_size = max(1, min(32, len(pending) // (4 * n_workers)))
+            batch_size = max(1, min(MAX_BATCH_UNITS, len(pending) // (8 * n_workers)))
         token = uuid.uuid4().hex[:8]
-        # the source carries what this process has already computed (a simulation)
-        source_future = client.scatter(source, broadcast=True, hash=False)
+        try:  # the source carries what this process has already computed (a simulation)
+            source_future = client.scatter(source, broadcast=True, hash=False)
+        except Exception as err:  # no worker, or workers that cannot unpickle it
+            raise _cluster_failure(err, where, out_dir) from err
+        stop = Event(f"symbac-export-stop-{token}", client=client)
         futures = [
             client.submit(
                 run_units,
@@ -342,26 +359,104 @@ def _run_dask(
                 options,
                 skip_of(batch),
                 1,
+                stop.name,
                 key=f"symbac-export-{token}-{i}",
                 pure=False,
                 retries=0,
             )
             for i, batch in enumerate(_chunks(pending, batch_size))
         ]
+        lost = _lost_task_errors()
         try:
             # the export's own client, not dask's default: found as a user, a scheduler's
             # address failed with dask's "No clients found" (as_completed asked the default)
             for future in as_completed(futures, loop=client.loop):
-                entries = future.result()
+                try:
+                    entries = future.result()
+                except lost as err:
+                    raise _cluster_failure(err, where, out_dir) from err
                 on_entries(entries)
                 if _is_cancelled(cancel):
                     cancelled = True
                     break
         finally:
-            client.cancel(futures)
+            _stop_tasks(client, futures, stop)
     finally:
         close_quietly(client, cluster)
     return cancelled, n_workers
+
+
+#: Units per dask task at most: the progress moves once a task ends (found as a user:
+#: with 32, "1 of 200" was shown 13 s in, with ~50 items on disk).
+MAX_BATCH_UNITS = 8
+
+#: Seconds an interrupted or cancelled export waits for the tasks running on the
+#: workers to end (each stops before its next unit).
+STOP_WAIT_S = 60.0
+
+
+def _lost_task_errors() -> tuple[type[BaseException], ...]:
+    """The errors of a task that the cluster lost (not raised by the task itself)."""
+    from concurrent.futures import CancelledError
+
+    from distributed import KilledWorker
+    from distributed.comm.core import CommClosedError
+
+    return CancelledError, KilledWorker, CommClosedError
+
+
+def _stop_tasks(client: Any, futures: list[Any], stop: Any) -> None:
+    """Stop the export's tasks and wait for those running to end.
+
+    Found as a user: after Ctrl-C, a scheduler's workers went on writing items for
+    seconds after the command had said "interrupted" (a folder deleted then came back,
+    and the rerun was refused). The workers stop before their next unit once ``stop``
+    is set; this waits for them (a second Ctrl-C leaves at once), then cancels what is
+    left.
+    """
+    try:
+        if any(not future.done() for future in futures):
+            stop.set()
+            deadline = time.monotonic() + STOP_WAIT_S
+            # polled: dask's wait() asks the default client, and the export's is not one
+            while any(not f.done() for f in futures) and time.monotonic() < deadline:
+                time.sleep(0.05)
+    except (KeyboardInterrupt, Exception):  # a second Ctrl-C, a lost cluster: leave
+        pass
+    finally:
+        with contextlib.suppress(Exception):
+            client.cancel(futures)
+
+
+def _cluster_failure(err: BaseException, where: str, out_dir: Path) -> ExportError:
+    """What went wrong with ``where`` (not with an item), and what to do, as one line.
+
+    Found as a user: a worker restarted (out of memory, killed), a scheduler that went
+    away, a scheduler without workers and workers without napari-symbac each ended the
+    export with dask's traceback or its raw text ("No valid workers found").
+    """
+    import napari_symbac
+
+    text = str(err) or type(err).__name__
+    kept = f"run the same command again: {EXPORT_RESUMES}"
+    if "No valid workers" in text:
+        return ExportError(
+            f"{where} has no worker to run the export on: start some (`dask worker "
+            f"ADDRESS`, on machines that see {out_dir} at the same path); {kept}",
+            out_dir,
+        )
+    if "napari_symbac" in text and ("ImportError" in text or "ModuleNotFound" in text):
+        return ExportError(
+            f"the workers of {where} cannot import napari_symbac ({text}): install "
+            f"napari-symbac {napari_symbac.__version__}, as here, in the workers' "
+            f"environment; {kept}",
+            out_dir,
+        )
+    return ExportError(
+        f"{where} lost the export's tasks ({type(err).__name__}: {text}): a worker died or "
+        "was restarted (out of memory, killed) or the scheduler went away; " + kept,
+        out_dir,
+    )
 
 
 def check_out_dir(out_dir: str | os.PathLike) -> Path:
@@ -452,7 +547,9 @@ def run_export(
             batch_size, overlap_start, start,
         )
     except ExportError as err:
-        if err.errno is None:  # not the disk's: nothing was written to resume
+        if err.errno is None:  # not the disk's (a cluster's, a setting's): say it as it is
+            if new:
+                _remove_unfinished_start(out, keep_folder=existed)
             raise
         raise ExportError(f"{err}: {EXPORT_RESUMES}", err.path, err.errno) from err
     except Exception:
@@ -503,10 +600,12 @@ def _run_export(
     n_skipped = len(done)
     pending = [u for u, names in names_of.items() if not all(n in done for n in names)]
     state = {"done": n_skipped, "written": 0}
+    reported: set[str] = set()  # the items that this run's workers say they wrote
     if progress is not None:
         progress(state["done"], total)
 
     def on_entries(entries: list[dict[str, Any]]) -> None:
+        reported.update(entry["name"] for entry in entries)
         state["written"] += len(entries)
         state["done"] += len(entries)
         if progress is not None:
@@ -543,7 +642,18 @@ def _run_export(
     entries = read_entries(out, all_names)
     if not cancelled:
         if len(entries) != total:
-            missing = sorted(set(all_names) - {e["name"] for e in entries})[:5]
+            missing = sorted(set(all_names) - {e["name"] for e in entries})
+            unseen = [name for name in missing if name in reported]
+            if unseen:  # found as a user: "run it again" then failed the same way forever
+                raise ExportError(
+                    f"the workers wrote {len(unseen)} item(s) (e.g. "
+                    f"{', '.join(unseen[:5])}) that this machine does not see in {out}: "
+                    "the workers must see the output folder at the same path as this "
+                    "machine (a shared file system mounted at the same place); give such a "
+                    "path as the output folder",
+                    out,
+                )
+            missing = missing[:5]
             raise ExportError(
                 f"export to {out} finished with {total - len(entries)} item(s) missing "
                 f"(e.g. {', '.join(missing)}): run it again to complete them",
