@@ -440,3 +440,33 @@ def test_calibrate_matches_a_bright_field_recording(real_data_dir, tmp_path, cap
         assert 0.95 * drawn["low"] < noise / real_noise < 1.05 * drawn["high"]
     assert "mask outline +" in report
     assert 0.1 < manifest["settings"]["mask_dilation_um"] < 0.4
+
+
+def _refused(argv: list[str], out, capsys) -> str:
+    """The one-line error of a calibrate refused with exit 2, nothing written."""
+    code = main(argv)
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert "Traceback" not in err
+    assert not out.exists()
+    return err.strip().splitlines()[-1]
+
+
+def test_calibrate_refuses_a_colony_given_as_a_cell_background_mask(
+    real_data_dir, tmp_path, capsys
+):
+    """Found as a user: Omnipose's colony Sample000193 with its masks as 0/1 was one cell
+    8.88 um long, the pixel size 0.020 um from its width, exit 0."""
+    omnipose = real_data_dir / "omnipose"
+    masks = tifffile.imread(omnipose / "Sample000193_cp_masks.tif")
+    tifffile.imwrite(tmp_path / "bin193.tif", (masks > 0).astype(np.uint8))
+    (tmp_path / "m.yaml").write_text("modality: phase\n")
+    out = tmp_path / "out"
+    error = _refused(
+        ["calibrate", str(omnipose / "Sample000193.png"), "--microscope",
+         str(tmp_path / "m.yaml"), "--masks", str(tmp_path / "bin193.tif"),
+         "--cell-width-um", "1.0", "--out", str(out), "--n-items", "8"],
+        out, capsys,
+    )  # fmt: skip
+    assert "--masks bin193.tif holds one value, a cell/background mask" in error
+    assert "Give instance masks, each cell its own number (e.g. Omnipose" in error

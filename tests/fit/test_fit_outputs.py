@@ -93,6 +93,32 @@ def test_a_binary_mask_of_any_value_is_split_into_its_cells(real_data_dir):
     assert same is masks
 
 
+def test_a_binary_mask_of_touching_cells_is_refused(real_data_dir):
+    """Found as a user: Omnipose's colony Sample000193 as a 0/1 mask was calibrated as one
+    cell 8.9 um long (its connected region). Each real colony as 0/1 is refused (its
+    region covers 2.3-4.5 times its width x length), every real mask of separate cells
+    (ColiCoords' fields and single cell, as 0/1 too) and every instance mask passes."""
+    real = real_data_dir
+    colonies = sorted((real / "omnipose").glob("*_cp_masks.tif"))
+    separate = [
+        *sorted((real / "colicoords" / "test_data").glob("ds*/binary/*.tif")),
+        real / "colicoords" / "test_data" / "ds3" / "binary.tif",
+        real / "colicoords" / "01" / "binary.tif",
+    ]
+    assert len(colonies) == 3
+    assert len(separate) == 14
+    for path in [*colonies, *separate]:
+        masks = tifffile.imread(path)
+        masks = masks[0] if masks.ndim == 3 else masks
+        check_instance_masks(masks, masks.shape)
+        binary = (masks > 0).astype(np.uint8)
+        if path in colonies:
+            with pytest.raises(ValueError, match=r"cell/background mask.*Give instance masks"):
+                check_instance_masks(binary, masks.shape, "--masks bin.tif")
+        else:
+            check_instance_masks(binary, masks.shape)
+
+
 def test_instance_masks_given_as_class_labels_are_said_in_one_short_line():
     """Found as a user: `fit colony.png --labels colony_cp_masks.tif` listed all 113 cell
     numbers of the masks in the refusal."""
