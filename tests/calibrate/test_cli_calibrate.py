@@ -470,3 +470,19 @@ def test_calibrate_refuses_a_colony_given_as_a_cell_background_mask(
     )  # fmt: skip
     assert "--masks bin193.tif holds one value, a cell/background mask" in error
     assert "Give instance masks, each cell its own number (e.g. Omnipose" in error
+
+
+def test_calibrate_refuses_bright_field_as_phase_before_the_fit(real_data_dir, tmp_path, capsys):
+    """Found as a user: ColiCoords' bright field as phase failed after a 16-112 s fit with
+    "the image is flat between its percentiles: nothing to normalise"."""
+    ds1 = real_data_dir / "colicoords" / "test_data" / "ds1"
+    (tmp_path / "m.yaml").write_text("pixel_size_um: 0.08\nmodality: phase\n")
+    out = tmp_path / "out"
+    for masks in ([], ["--masks", str(ds1 / "binary" / "00001_Probabilities_filtered.tif")]):
+        error = _refused(
+            ["calibrate", str(ds1 / "brightfield" / "00001.tif"), "--microscope",
+             str(tmp_path / "m.yaml"), *masks, "--out", str(out)],
+            out, capsys,
+        )  # fmt: skip
+        assert "does not look like phase: " in error
+        assert error.endswith("Pass --modality brightfield")

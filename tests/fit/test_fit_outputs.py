@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from types import SimpleNamespace
 
+import imageio.v3 as iio
 import numpy as np
 import pytest
 import tifffile
@@ -36,6 +37,22 @@ def test_polarity_of_real_images(real_data_dir):
         check_modality(fluorescence, "phase")
     with pytest.raises(ValueError, match="--modality phase"):
         check_modality(brightfield, "fluorescence")
+
+
+def test_bright_field_given_as_phase_is_named(real_data_dir):
+    """Found as a user: ColiCoords' bright field calibrated as phase passed the check
+    (its masked cells are darker than their ring, as phase's are) and failed after the
+    fit, "the image is flat between its percentiles". It shows no phase halo: nothing
+    brighter than its background, whose masks do not change that."""
+    root = real_data_dir / "colicoords" / "test_data" / "ds1"
+    brightfield = tifffile.imread(root / "brightfield" / "00001.tif")
+    masks = tifffile.imread(root / "binary" / "00001_Probabilities_filtered.tif")
+    for given in (None, masks):
+        with pytest.raises(ValueError, match=r"not look like phase: .*--modality brightfield"):
+            check_modality(brightfield, "phase", masks=given)
+    for colony in ("Sample000033", "Sample000193", "Sample000252"):  # phase, halos: passes
+        image = np.asarray(iio.imread(real_data_dir / "omnipose" / f"{colony}.png"))
+        check_modality(image if image.ndim == 2 else image[..., 0], "phase")
 
 
 def test_labels_settle_the_polarity():

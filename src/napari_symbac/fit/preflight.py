@@ -214,7 +214,9 @@ def check_modality(
     """Refuse a modality that contradicts the image (e.g. a fluorescence field as phase).
 
     Phase contrast and bright field show cells darker than the media right around them,
-    fluorescence brighter. With painted ``labels`` the cells (1) are compared with the
+    fluorescence brighter; phase contrast also shows bright halos, so an image with dark
+    objects and nothing brighter than its background (:func:`image_polarity`) is bright
+    field, not phase. With painted ``labels`` the cells (1) are compared with the
     media (2); with instance ``masks`` with a ring of 3 pixels around the cells; with
     neither, the histogram's tails decide (:func:`image_polarity`) and an unclear image
     passes.
@@ -245,6 +247,14 @@ def check_modality(
                 + advice.switch.format(other="fluorescence")
             )
         return polarity
+    if modality == "phase" and image_polarity(frame) == "dark cells":
+        # found as a user: ColiCoords' bright field as phase passed (its masked cells
+        # are darker than their ring) and failed after the fit with a saturated dataset
+        raise ValueError(
+            "the image does not look like phase: it shows dark objects on its background "
+            "and nothing brighter, no phase halo, as bright field does. "
+            + advice.switch.format(other="brightfield")
+        )
     if labels is not None:
         polarity = _class_polarity(frame, labels == 1, labels == 2)
         evidence = "the painted cells (1) are {} than the media (2)"
