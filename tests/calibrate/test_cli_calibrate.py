@@ -486,3 +486,21 @@ def test_calibrate_refuses_bright_field_as_phase_before_the_fit(real_data_dir, t
         )  # fmt: skip
         assert "does not look like phase: " in error
         assert error.endswith("Pass --modality brightfield")
+
+
+def test_calibrate_refuses_cells_wider_than_a_rod(colicoords_files, capsys):
+    """Found as a user: pixel_size_um 0.8 for ColiCoords' 0.08 um calibrated cells 29.8 um
+    long and 15.2 um wide, the fit at its bounds, exit 0."""
+    d = colicoords_files
+    (d / "m800.yaml").write_text("pixel_size_um: 0.8\nmodality: fluorescence\n")
+    out = d / "out"
+    error = _refused(
+        ["calibrate", str(d / "flu.tif"), "--masks", str(d / "mask.tif"), "--microscope",
+         str(d / "m800.yaml"), "--out", str(out)],
+        out, capsys,
+    )  # fmt: skip
+    assert "the masks' cells are " in error
+    assert "wider than any rod-shaped bacterium (over 3 um)" in error
+    assert "pixel size 0.8 um from --microscope" in error
+    assert "Check pixel_size_um" in error
+    assert "--cell-width-um" in error
