@@ -238,6 +238,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
             modality=modality,
             camera=camera,
             cell_width_um=args.cell_width_um,
+            pixel_note=pixel_note,
             stage=lambda words: print(
                 f"napari-symbac calibrate: {words}", file=sys.stderr, flush=True
             ),

@@ -445,3 +445,67 @@ def test_calibrate_matches_a_bright_field_recording(real_data_dir, tmp_path, cap
         assert 0.95 * drawn["low"] < noise / real_noise < 1.05 * drawn["high"]
     assert "mask outline +" in report
     assert 0.1 < manifest["settings"]["mask_dilation_um"] < 0.4
+
+
+def _refused(argv: list[str], out, capsys) -> str:
+    """The one-line error of a calibrate refused with exit 2, nothing written."""
+    code = main(argv)
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert "Traceback" not in err
+    assert not out.exists()
+    return err.strip().splitlines()[-1]
+
+
+def test_calibrate_refuses_a_colony_given_as_a_cell_background_mask(
+    real_data_dir, tmp_path, capsys
+):
+    """Found as a user: Omnipose's colony Sample000193 with its masks as 0/1 was one cell
+    8.88 um long, the pixel size 0.020 um from its width, exit 0."""
+    omnipose = real_data_dir / "omnipose"
+    masks = tifffile.imread(omnipose / "Sample000193_cp_masks.tif")
+    tifffile.imwrite(tmp_path / "bin193.tif", (masks > 0).astype(np.uint8))
+    (tmp_path / "m.yaml").write_text("modality: phase\n")
+    out = tmp_path / "out"
+    error = _refused(
+        ["calibrate", str(omnipose / "Sample000193.png"), "--microscope",
+         str(tmp_path / "m.yaml"), "--masks", str(tmp_path / "bin193.tif"),
+         "--cell-width-um", "1.0", "--out", str(out), "--n-items", "8"],
+        out, capsys,
+    )  # fmt: skip
+    assert "--masks bin193.tif holds one value, a cell/background mask" in error
+    assert "Give instance masks, each cell its own number (e.g. Omnipose" in error
+
+
+def test_calibrate_refuses_bright_field_as_phase_before_the_fit(real_data_dir, tmp_path, capsys):
+    """Found as a user: ColiCoords' bright field as phase failed after a 16-112 s fit with
+    "the image is flat between its percentiles: nothing to normalise"."""
+    ds1 = real_data_dir / "colicoords" / "test_data" / "ds1"
+    (tmp_path / "m.yaml").write_text("pixel_size_um: 0.08\nmodality: phase\n")
+    out = tmp_path / "out"
+    for masks in ([], ["--masks", str(ds1 / "binary" / "00001_Probabilities_filtered.tif")]):
+        error = _refused(
+            ["calibrate", str(ds1 / "brightfield" / "00001.tif"), "--microscope",
+             str(tmp_path / "m.yaml"), *masks, "--out", str(out)],
+            out, capsys,
+        )  # fmt: skip
+        assert "does not look like phase: " in error
+        assert error.endswith("Pass --modality brightfield")
+
+
+def test_calibrate_refuses_cells_wider_than_a_rod(colicoords_files, capsys):
+    """Found as a user: pixel_size_um 0.8 for ColiCoords' 0.08 um calibrated cells 29.8 um
+    long and 15.2 um wide, the fit at its bounds, exit 0."""
+    d = colicoords_files
+    (d / "m800.yaml").write_text("pixel_size_um: 0.8\nmodality: fluorescence\n")
+    out = d / "out"
+    error = _refused(
+        ["calibrate", str(d / "flu.tif"), "--masks", str(d / "mask.tif"), "--microscope",
+         str(d / "m800.yaml"), "--out", str(out)],
+        out, capsys,
+    )  # fmt: skip
+    assert "the masks' cells are " in error
+    assert "wider than any rod-shaped bacterium (over 3 um)" in error
+    assert "pixel size 0.8 um from --microscope" in error
+    assert "Check pixel_size_um" in error
+    assert "--cell-width-um" in error

@@ -121,3 +121,16 @@ def test_several_synthetic_images_are_pooled():
     np.testing.assert_allclose(pooled.power_synthetic.sum(), 1.0)
     with pytest.raises(ValueError, match="as many synthetic images as label images"):
         compare_images(real, masks, [dim, bright], [dim_labels])
+
+
+def test_a_saturated_synthetic_image_is_said_as_such():
+    """Found as a user: bright field calibrated as phase drew items saturated at 65535,
+    and the comparison said "the image is flat between its percentiles"."""
+    real, masks = _field(0)
+    synthetic, labels = _field(1)
+    saturated = np.full(synthetic.shape, 65535, np.uint16)
+    with pytest.raises(ValueError, match=r"synthetic item 1 is one grey level \(65535 ADU, "
+                       r"the top of uint16: saturated\).*check the modality"):
+        compare_images(real, masks, [synthetic, saturated], [labels, labels])
+    with pytest.raises(ValueError, match=r"the recording is one grey level .*more cells"):
+        compare_images(np.full(real.shape, 7.0), masks, synthetic, labels)

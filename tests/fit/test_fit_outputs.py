@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from types import SimpleNamespace
 
+import imageio.v3 as iio
 import numpy as np
 import pytest
 import tifffile
@@ -36,6 +37,22 @@ def test_polarity_of_real_images(real_data_dir):
         check_modality(fluorescence, "phase")
     with pytest.raises(ValueError, match="--modality phase"):
         check_modality(brightfield, "fluorescence")
+
+
+def test_bright_field_given_as_phase_is_named(real_data_dir):
+    """Found as a user: ColiCoords' bright field calibrated as phase passed the check
+    (its masked cells are darker than their ring, as phase's are) and failed after the
+    fit, "the image is flat between its percentiles". It shows no phase halo: nothing
+    brighter than its background, whose masks do not change that."""
+    root = real_data_dir / "colicoords" / "test_data" / "ds1"
+    brightfield = tifffile.imread(root / "brightfield" / "00001.tif")
+    masks = tifffile.imread(root / "binary" / "00001_Probabilities_filtered.tif")
+    for given in (None, masks):
+        with pytest.raises(ValueError, match=r"not look like phase: .*--modality brightfield"):
+            check_modality(brightfield, "phase", masks=given)
+    for colony in ("Sample000033", "Sample000193", "Sample000252"):  # phase, halos: passes
+        image = np.asarray(iio.imread(real_data_dir / "omnipose" / f"{colony}.png"))
+        check_modality(image if image.ndim == 2 else image[..., 0], "phase")
 
 
 def test_labels_settle_the_polarity():
@@ -91,6 +108,32 @@ def test_a_binary_mask_of_any_value_is_split_into_its_cells(real_data_dir):
     same, n_regions = as_instance_ids(masks)
     assert n_regions is None
     assert same is masks
+
+
+def test_a_binary_mask_of_touching_cells_is_refused(real_data_dir):
+    """Found as a user: Omnipose's colony Sample000193 as a 0/1 mask was calibrated as one
+    cell 8.9 um long (its connected region). Each real colony as 0/1 is refused (its
+    region covers 2.3-4.5 times its width x length), every real mask of separate cells
+    (ColiCoords' fields and single cell, as 0/1 too) and every instance mask passes."""
+    real = real_data_dir
+    colonies = sorted((real / "omnipose").glob("*_cp_masks.tif"))
+    separate = [
+        *sorted((real / "colicoords" / "test_data").glob("ds*/binary/*.tif")),
+        real / "colicoords" / "test_data" / "ds3" / "binary.tif",
+        real / "colicoords" / "01" / "binary.tif",
+    ]
+    assert len(colonies) == 3
+    assert len(separate) == 14
+    for path in [*colonies, *separate]:
+        masks = tifffile.imread(path)
+        masks = masks[0] if masks.ndim == 3 else masks
+        check_instance_masks(masks, masks.shape)
+        binary = (masks > 0).astype(np.uint8)
+        if path in colonies:
+            with pytest.raises(ValueError, match=r"cell/background mask.*Give instance masks"):
+                check_instance_masks(binary, masks.shape, "--masks bin.tif")
+        else:
+            check_instance_masks(binary, masks.shape)
 
 
 def test_instance_masks_given_as_class_labels_are_said_in_one_short_line():

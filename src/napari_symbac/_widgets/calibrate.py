@@ -286,6 +286,7 @@ class CalibrateWidget(Container):
                 camera=camera,
                 masks=masks,
                 cell_width_um=width,
+                pixel_note=f"pixel size {microscope.pixel_size_um:.4g} um, {pixel_note}",
                 progress=fit_progress,
                 cancel=cancel,
                 stage=stage,

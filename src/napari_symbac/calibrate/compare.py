@@ -357,6 +357,27 @@ class Comparison:
         return "\n".join(lines)
 
 
+def _normalised(image: np.ndarray, what: str, meaning: str) -> np.ndarray:
+    """``image`` at its 1-99 percentiles (:func:`~napari_symbac.fit.masks.normalise_percentiles`).
+
+    Raises
+    ------
+    ValueError
+        When one grey level holds 98 % of its pixels (nothing to normalise by), naming
+        ``what`` it is, the level (and the saturation when it is its type's top) and
+        ``meaning``: why that happens and the fix.
+    """
+    low, high = np.percentile(image, [1.0, 99.0])
+    if high > low:
+        return normalise_percentiles(image)
+    top = np.issubdtype(image.dtype, np.integer) and high == np.iinfo(image.dtype).max
+    level = f"{high:g} ADU" + (f", the top of {image.dtype}: saturated" if top else "")
+    raise ValueError(
+        f"{what} is one grey level ({level}) over 98 % of its pixels, nothing to compare "
+        f"the two by: {meaning}"
+    )
+
+
 def compare_images(
     real: np.ndarray,
     real_masks: np.ndarray,
@@ -385,8 +406,21 @@ def compare_images(
         synthetic, synthetic_labels = [synthetic], [synthetic_labels]
     if not len(synthetic) or len(synthetic) != len(synthetic_labels):
         raise ValueError("give as many synthetic images as label images, at least one")
-    real_n = normalise_percentiles(real)
-    synth_n = [normalise_percentiles(image) for image in synthetic]
+    real_n = _normalised(
+        real,
+        "the recording",
+        "its cells and their contrast cover under 2 % of it: give a field, or a crop, "
+        "with more cells",
+    )
+    synth_n = [
+        _normalised(
+            image,
+            f"synthetic item {k}",
+            "the fitted settings do not reproduce the recording: check the modality "
+            "(bright field given as phase saturates) and the pixel size",
+        )
+        for k, image in enumerate(synthetic)
+    ]
     rc, rb, rn, r_pairs = _classes([real_n], [real_masks], far_px)
     sc, sb, sn, s_pairs = _classes(synth_n, list(synthetic_labels), far_px)
     f, pr = radial_power(real_n, n_bins)

@@ -454,6 +454,7 @@ def calibrate(
     progress: Callable[[int, int], None] | None = None,
     cancel: Callable[[], bool] | None = None,
     stage: Callable[[str], None] | None = None,
+    pixel_note: str | None = None,
 ) -> Calibration:
     """Fit a real recording and turn the fit into matched pipeline settings.
 
@@ -490,6 +491,11 @@ def calibrate(
         Called with a few words when a long stage after the fit begins (the packing
         search of dense colonies, which simulates colonies and renders nothing), so that
         a status line does not keep showing the fit's last render count.
+    pixel_note
+        A sentence saying the pixel size and where it came from (e.g.
+        :func:`~napari_symbac.fit.preflight.resolve_pixel_size`'s), said when the cells
+        (the masks', or without them the fit's) are wider than any rod
+        (:func:`_refuse_wide_cells`); default: ``microscope``'s.
 
     Returns
     -------
@@ -499,7 +505,7 @@ def calibrate(
     ------
     ValueError
         Bad image, masks or labels (the ``fit`` command's refusals), a modality the
-        image contradicts.
+        image contradicts, cells wider than any rod at the pixel size given.
     """
     from napari_symbac.fit.camera_estimate import censored_pixels
     from napari_symbac.fit.masks import estimate_pixel_size_um
@@ -523,6 +529,8 @@ def calibrate(
         masks = instance_masks(masks)
     check_modality(frame, microscope.modality, labels=labels, masks=masks)
     notes = []
+    if pixel_note is None:
+        pixel_note = f"pixel size {microscope.pixel_size_um:.4g} um from microscope"
     if cell_width_um is not None:
         if masks is None:
             raise ValueError(
@@ -533,6 +541,11 @@ def calibrate(
         notes.append(
             f"pixel size {px:.4f} um = cell width {cell_width_um} um / median mask width"
         )
+    elif masks is not None:
+        from napari_symbac.fit.masks import cell_widths_px
+
+        widths_um = cell_widths_px(masks) * microscope.pixel_size_um
+        _refuse_wide_cells(widths_um, "the masks' cells", pixel_note)
     bit_depth = 8 if frame.dtype == np.uint8 else 16
     mask_offset_um = mask_faintest_cnr = None
     layout = None  # the simulated field: that of the measurements
@@ -624,6 +637,8 @@ def calibrate(
             f"media {render.media_intensity:.0f} ADU; defocus {render.defocus_sigma_um:.2f} um"
         )
         notes.extend(f"fit warning: {w}" for w in result.warnings)
+        if masks is None:
+            _refuse_wide_cells(result.cells.width_um, "the fit's cells", pixel_note)
         width_fit = float(np.median(result.cells.width_um)) if len(result.cells) else None
         length_scale = 1.0
         if masks is not None and len(result.cells):
@@ -741,6 +756,31 @@ def calibrate(
         notes=(*notes, *more),
         mask_offset_um=mask_offset_um,
         mask_faintest_cnr=mask_faintest_cnr,
+    )
+
+
+def _refuse_wide_cells(widths_um: np.ndarray, whose: str, pixel_note: str) -> None:
+    """Refuse cells wider than any rod (:func:`~napari_symbac.fit.start.too_wide`, the
+    automatic start's rule): the pixel size is too large. Found as a user: 0.8 um for
+    ColiCoords' 0.08 um made cells 15 um wide, fitted at their bounds, exit 0.
+
+    Raises
+    ------
+    ValueError
+        Naming the widths, the pixel size and where it came from (``pixel_note``, a
+        sentence), and the fix.
+    """
+    from napari_symbac.fit.start import MAX_START_WIDTH_UM, too_wide
+
+    if not too_wide(widths_um):
+        return
+    raise ValueError(
+        f"{whose} are {float(np.median(widths_um)):.1f} um wide (median), wider than any "
+        f"rod-shaped bacterium (over {MAX_START_WIDTH_UM:g} um): the pixel size is too "
+        f"large ({pixel_note}). Check pixel_size_um (um in "
+        "the sample: the camera pixel / magnification, 6.5 um / 100x = 0.065), or set it "
+        "from the masks with the cells' width (calibrate --cell-width-um; in napari, the "
+        "Calibrate step's cell width)"
     )
 
 

@@ -21,6 +21,7 @@ __all__ = [
     "BELOW_OFFSET_FRACTION",
     "CAMERA_PIXEL_UM",
     "MAX_FIT_PIXELS",
+    "MAX_ROD_FILL",
     "MODALITY_ADVICE",
     "PLAUSIBLE_PIXEL_UM",
     "TRENCH_MAX_WIDTH_PX",
@@ -39,6 +40,7 @@ __all__ = [
     "looks_like_masks",
     "refuse_constant",
     "refuse_image_as_masks",
+    "refuse_merged_cells",
     "refuse_non_finite",
     "resolve_pixel_size",
 ]
@@ -212,7 +214,9 @@ def check_modality(
     """Refuse a modality that contradicts the image (e.g. a fluorescence field as phase).
 
     Phase contrast and bright field show cells darker than the media right around them,
-    fluorescence brighter. With painted ``labels`` the cells (1) are compared with the
+    fluorescence brighter; phase contrast also shows bright halos, so an image with dark
+    objects and nothing brighter than its background (:func:`image_polarity`) is bright
+    field, not phase. With painted ``labels`` the cells (1) are compared with the
     media (2); with instance ``masks`` with a ring of 3 pixels around the cells; with
     neither, the histogram's tails decide (:func:`image_polarity`) and an unclear image
     passes.
@@ -243,6 +247,14 @@ def check_modality(
                 + advice.switch.format(other="fluorescence")
             )
         return polarity
+    if modality == "phase" and image_polarity(frame) == "dark cells":
+        # found as a user: ColiCoords' bright field as phase passed (its masked cells
+        # are darker than their ring) and failed after the fit with a saturated dataset
+        raise ValueError(
+            "the image does not look like phase: it shows dark objects on its background "
+            "and nothing brighter, no phase halo, as bright field does. "
+            + advice.switch.format(other="brightfield")
+        )
     if labels is not None:
         polarity = _class_polarity(frame, labels == 1, labels == 2)
         evidence = "the painted cells (1) are {} than the media (2)"
@@ -339,7 +351,8 @@ def not_integer_masks(name: str, dtype: object) -> str:
 
 
 def check_instance_masks(masks: np.ndarray, shape: tuple[int, ...], name: str = "masks") -> None:
-    """Instance masks: the image's shape, integer ids, background 0 and some cells."""
+    """Instance masks: the image's shape, integer ids, background 0 and some cells; a
+    0/1 mask's regions each one cell (:func:`refuse_merged_cells`)."""
     if masks.shape != shape:
         _refuse_frames_of_another_count(masks, shape, name)
         raise ValueError(
@@ -355,6 +368,7 @@ def check_instance_masks(masks: np.ndarray, shape: tuple[int, ...], name: str = 
     refuse_image_as_masks(masks, name)  # before "no background": what an image lacks too
     if (masks > 0).all():
         raise ValueError(f"{name} has no background (0) pixel: the fit needs some background")
+    refuse_merged_cells(masks, name)
 
 
 #: Patches of one value per id above which "masks" are taken for an image: a segmenter's
@@ -362,6 +376,55 @@ def check_instance_masks(masks: np.ndarray, shape: tuple[int, ...], name: str = 
 #: values are scattered (ColiCoords' fluorescence crop: 30 patches per value, the SyMBac
 #: trench 3.2).
 MAX_PATCHES_PER_ID = 2.0
+
+
+#: The most area a binary mask's region may cover per pixel of its width x length box:
+#: a rod lies inside that box (the real cells here fill 0.84-0.90 of it, ColiCoords'
+#: binary masks; a curved filament of Omnipose's 1.02), the touching cells of a
+#: colony merged into one region branch beyond it (the Omnipose colonies as 0/1
+#: masks: 2.32, 4.47 and 2.47).
+MAX_ROD_FILL = 1.5
+#: Regions narrower than this (pixels) are specks whose width the pixel grid cannot
+#: measure (a 2 x 2 block reads 1 px wide), not checked by :func:`refuse_merged_cells`.
+_MIN_CHECKED_WIDTH_PX = 3.0
+
+
+def refuse_merged_cells(masks: np.ndarray, name: str = "masks") -> None:
+    """Refuse a binary mask whose touching cells are merged into one region.
+
+    A binary mask (one non-zero value) is split into its connected regions, one cell
+    each (:func:`as_instance_ids`); a semantic cell/background mask of a colony then
+    gives one region of many cells (found as a user: Omnipose's colony as 0/1 was
+    calibrated as one cell 8.9 um long, the pixel size 0.02 um from its width). Such
+    a region is no rod: its area exceeds :data:`MAX_ROD_FILL` times its width (twice
+    its largest inscribed radius, less a pixel) times its length (largest Feret
+    diameter, plus a pixel). Instance masks are taken as they are.
+
+    Raises
+    ------
+    ValueError
+        When a region at least 3 px wide of a binary mask is no rod, naming the fix:
+        instance masks.
+    """
+    from skimage.measure import regionprops
+
+    from napari_symbac.fit.masks import cell_widths_px
+
+    regions, n_regions = as_instance_ids(masks)
+    if n_regions is None:
+        return
+    widths = cell_widths_px(regions)
+    for region, width in zip(regionprops(regions), widths, strict=True):
+        length = region.feret_diameter_max + 1.0
+        fill = region.area / (width * length)
+        if width >= _MIN_CHECKED_WIDTH_PX and fill > MAX_ROD_FILL:
+            raise ValueError(
+                f"{name} holds one value, a cell/background mask, and a connected region "
+                f"of it ({int(region.area)} px) is no rod: it covers {fill:.1f} times its "
+                f"width x length ({width:.0f} x {length:.0f} px), as touching cells merged "
+                "into one region do. Give instance masks, each cell its own number (e.g. "
+                "Omnipose or Cellpose output)"
+            )
 
 
 def as_instance_ids(masks: np.ndarray) -> tuple[np.ndarray, int | None]:

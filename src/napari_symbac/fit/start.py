@@ -35,6 +35,7 @@ __all__ = [
     "polarity_of",
     "refuse_blobs",
     "start_scene",
+    "too_wide",
 ]
 
 
@@ -528,6 +529,14 @@ class FaintStartError(ValueError):
         super().__init__(f"{cause}; give the cells' instance masks or painted labels")
 
 
+def too_wide(widths_um: np.ndarray) -> bool:
+    """Whether cells of these widths (um) are wider than any rod: at least
+    :data:`MAX_BLOB_SHARE` of them wider than :data:`MAX_START_WIDTH_UM` (the rule of
+    :func:`refuse_blobs`, and of calibrate's cells from masks or a fit)."""
+    widths_um = np.asarray(widths_um, np.float64)
+    return bool(widths_um.size) and float(np.mean(widths_um > MAX_START_WIDTH_UM)) >= MAX_BLOB_SHARE
+
+
 def refuse_blobs(widths_um: np.ndarray, pixel_size_um: float) -> None:
     """Refuse an automatic start whose cells are wider than any rod.
 
@@ -542,9 +551,9 @@ def refuse_blobs(widths_um: np.ndarray, pixel_size_um: float) -> None:
         :data:`MAX_START_WIDTH_UM`; the message names both causes.
     """
     widths_um = np.asarray(widths_um, np.float64)
-    wide = widths_um > MAX_START_WIDTH_UM
-    if widths_um.size == 0 or wide.mean() < MAX_BLOB_SHARE:
+    if not too_wide(widths_um):
         return
+    wide = widths_um > MAX_START_WIDTH_UM
     raise WideStartError(
         f"{int(wide.sum())} of the {widths_um.size} cells the automatic start found are "
         f"wider than any rod-shaped bacterium (over {MAX_START_WIDTH_UM:g} um; median "
