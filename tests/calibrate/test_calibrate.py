@@ -413,6 +413,45 @@ def test_calibrate_measures_the_debris_and_exports_blobs_outside_the_masks(
     assert measure_debris(plain.image, plain.labels, 0.08).n_blobs < synthetic.n_blobs
 
 
+def _unlabelled_blobs(image, labels, above_adu=150.0, min_px=20):
+    """(area px, peak ADU) of each region of the 1 px-smoothed image more than
+    ``above_adu`` over the background median, of at least ``min_px``, that no label
+    comes within 2 px of."""
+    from scipy import ndimage
+
+    smooth = ndimage.gaussian_filter(np.asarray(image, float), 1.0)
+    above = smooth - np.median(smooth[labels == 0])
+    regions, n = ndimage.label(above > above_adu)
+    near = ndimage.binary_dilation(labels > 0, iterations=2)
+    found = []
+    for k in range(1, n + 1):
+        region = regions == k
+        if region.sum() >= min_px and not (region & near).any():
+            found.append((int(region.sum()), float(above[region].max())))
+    return found
+
+
+def test_exported_unlabelled_blobs_are_no_larger_or_brighter_than_the_fields(
+    fluorescence_calibration, colicoords_crop
+):
+    """The debris drawn from the field's blobs stays as small and dim as they are: the
+    field's crop shows 2 unlabelled blobs (26-36 px, 263-292 ADU above the pad); with
+    every particle drawn at the median brightness whatever its diameter, items held
+    2-10 each, up to 144 px and 414 ADU (a larger particle was brighter as well)."""
+    from scipy import ndimage
+
+    image, masks = colicoords_crop
+    real = _unlabelled_blobs(image, ndimage.label(masks > 0)[0])
+    assert real
+    largest, brightest = max(a for a, _ in real), max(p for _, p in real)
+    source = PipelineSource(export_settings(fluorescence_calibration, n_items=4, seed=3))
+    for unit in range(4):
+        item = source.make_unit(unit)[0]
+        for area, peak in _unlabelled_blobs(item.image, item.labels):
+            assert area <= 2 * largest, (unit, area, peak)
+            assert peak <= 1.25 * brightest, (unit, area, peak)
+
+
 def test_exported_images_keep_the_fitted_defocus(fluorescence_calibration):
     settings = export_settings(fluorescence_calibration, n_items=2, seed=0)
     defocus = fluorescence_calibration.settings.render.defocus_sigma_um
