@@ -121,7 +121,11 @@ def apply_cell_brightness(scene: Scene, cv: float, seed: int) -> Scene:
     """Multiply each cell of ``scene`` by its gain of :func:`cell_brightness_gains`.
 
     ``cv = 0`` returns ``scene`` itself (no copy, bit-identical rendering). A pixel
-    takes the gain of the cell its label names (the thickest cell there).
+    takes the gain of the cell its label names (the thickest cell there). A gain
+    ``g < 1`` gives the ``1 - g`` share of the cell's material back to the medium, so a
+    dim cell fades towards the medium around it and never below it (eq. 3: it adds
+    ``g (I_c - I_m)``; with the share left out a cell of gain near 0 imaged as a rod
+    darker than the background, in fluorescence).
     """
     if cv == 0 or scene.cell_ids.size == 0:
         if not (np.isfinite(cv) and cv >= 0):
@@ -135,7 +139,12 @@ def apply_cell_brightness(scene: Scene, cv: float, seed: int) -> Scene:
     labels = scene.labels.astype(np.int64)
     index = np.clip(np.searchsorted(lut_ids, labels), 0, lut_ids.size - 1)
     per_pixel = np.where(lut_ids[index] == labels, lut_gain[index], np.float32(1.0))
-    return scene.replace_cells(scene.cells * per_pixel.astype(np.float32))
+    per_pixel = per_pixel.astype(np.float32)
+    cells = np.asarray(scene.cells, np.float32)
+    lost = cells * np.maximum(np.float32(1.0) - per_pixel, np.float32(0.0))
+    return scene.replace_cells(cells * per_pixel).replace_media(
+        np.asarray(scene.media, np.float32) + lost
+    )
 
 
 def stain_cells(scene: Scene, microscope: Microscope, render: RenderSettings) -> Scene:

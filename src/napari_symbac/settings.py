@@ -758,9 +758,11 @@ class RenderSettings:
         Median diameter of a particle (a disk) and the coefficient of variation of its
         log-normal distribution.
     debris_brightness, debris_brightness_cv
-        Median peak of a particle, as a fraction of a full-depth cell column (the
-        particle adds ``b (I_c - I_m)`` at its centre, eq. 3), and the CV of its
-        log-normal distribution.
+        Median peak of a particle of the median diameter, as a fraction of a
+        full-depth cell column (the particle adds ``b (I_c - I_m)`` at its centre,
+        eq. 3), and the CV of its log-normal distribution; a particle of diameter ``d``
+        has ``b (debris_diameter_um / d)^2`` (the same light whatever its size,
+        :func:`~napari_symbac.scene.add_debris`).
     debris_defocus_sigma_um
         Extra Gaussian blur of each particle (eq. 14): its distance from the focal
         plane, on top of the image's ``defocus_sigma_um``.

@@ -243,6 +243,36 @@ def test_masks_of_bright_cells_only_raise_the_threshold_to_a_cap(real_data_dir):
     assert not item.faint_cells  # every synthetic cell is as plain as the real ones
 
 
+def test_a_field_of_few_cells_draws_its_mean_cell_and_a_bounded_spread(real_data_dir):
+    """ColiCoords ds3 frame 2: 4 masked cells 388-5213 ADU above the background, CV 1.21;
+    the crop fitted holds the two dimmest. Drawn at the crop's brightness with a gamma
+    of CV 1.21, items kept 1 of 4 cells (the others fainter than the noise) and their
+    cells were 100-1000 ADU above the background."""
+    ds3 = real_data_dir / "colicoords" / "test_data" / "ds3"
+    image = tifffile.imread(ds3 / "flu.tif")[2]
+    masks = tifffile.imread(ds3 / "binary.tif")[2]
+    microscope = Microscope(pixel_size_um=0.08, wavelength_um=0.53, modality="fluorescence")
+    cal = calibrate(image, masks=masks, microscope=microscope)
+    real = cal.measurements.brightness_adu
+    assert real.size == 4
+    assert cal.measurements.brightness_cv > 1.1
+    render = cal.settings.render
+    assert render.cell_brightness_cv == 1.0  # bounded, and said with its few cells
+    assert any("4 whole cells); drawn as 1.00" in note for note in cal.notes)
+    assert any(note.startswith("cell brightness: the field's 4") for note in cal.notes)
+    source = PipelineSource(export_settings(cal, n_items=4, seed=0))
+    medians, kept = [], []
+    for unit in range(4):
+        item = source.make_unit(unit)[0]
+        background = np.median(item.image[item.labels == 0])
+        cells = [c for c in np.unique(item.labels) if c]
+        kept.append(len(cells))
+        medians += [np.median(item.image[item.labels == c]) - background for c in cells]
+    assert min(kept) >= 3
+    # the synthetic cells are as bright as the field's, not as its two dimmest
+    assert 0.5 < np.median(medians) / np.median(real) < 2.0
+
+
 def test_cells_cut_by_the_border_are_no_sample_of_sizes_and_brightness(
     colicoords_crop, fluorescence_calibration
 ):
@@ -411,6 +441,45 @@ def test_calibrate_measures_the_debris_and_exports_blobs_outside_the_masks(
     plain = PipelineSource(export_settings(clean, n_items=2, seed=3)).make_unit(0)[0]
     np.testing.assert_array_equal(plain.labels, item.labels)
     assert measure_debris(plain.image, plain.labels, 0.08).n_blobs < synthetic.n_blobs
+
+
+def _unlabelled_blobs(image, labels, above_adu=150.0, min_px=20):
+    """(area px, peak ADU) of each region of the 1 px-smoothed image more than
+    ``above_adu`` over the background median, of at least ``min_px``, that no label
+    comes within 2 px of."""
+    from scipy import ndimage
+
+    smooth = ndimage.gaussian_filter(np.asarray(image, float), 1.0)
+    above = smooth - np.median(smooth[labels == 0])
+    regions, n = ndimage.label(above > above_adu)
+    near = ndimage.binary_dilation(labels > 0, iterations=2)
+    found = []
+    for k in range(1, n + 1):
+        region = regions == k
+        if region.sum() >= min_px and not (region & near).any():
+            found.append((int(region.sum()), float(above[region].max())))
+    return found
+
+
+def test_exported_unlabelled_blobs_are_no_larger_or_brighter_than_the_fields(
+    fluorescence_calibration, colicoords_crop
+):
+    """The debris drawn from the field's blobs stays as small and dim as they are: the
+    field's crop shows 2 unlabelled blobs (26-36 px, 263-292 ADU above the pad); with
+    every particle drawn at the median brightness whatever its diameter, items held
+    2-10 each, up to 144 px and 414 ADU (a larger particle was brighter as well)."""
+    from scipy import ndimage
+
+    image, masks = colicoords_crop
+    real = _unlabelled_blobs(image, ndimage.label(masks > 0)[0])
+    assert real
+    largest, brightest = max(a for a, _ in real), max(p for _, p in real)
+    source = PipelineSource(export_settings(fluorescence_calibration, n_items=4, seed=3))
+    for unit in range(4):
+        item = source.make_unit(unit)[0]
+        for area, peak in _unlabelled_blobs(item.image, item.labels):
+            assert area <= 2 * largest, (unit, area, peak)
+            assert peak <= 1.25 * brightest, (unit, area, peak)
 
 
 def test_exported_images_keep_the_fitted_defocus(fluorescence_calibration):

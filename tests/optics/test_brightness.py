@@ -206,3 +206,26 @@ def test_camera_masks_equal_reference(cells_factory):
             brighter = scene.replace_cells(scene.cells * 2)
             np.testing.assert_array_equal(brighter.camera_labels(), ref_labels)
             np.testing.assert_array_equal(brighter.semantic_mask(), ref_semantic)
+
+
+def test_a_dim_cell_fades_to_the_medium_never_below_it(grid_scene):
+    """A gain ``g < 1`` gives the cell's ``1 - g`` share back to the medium: over a bright
+    medium a cell of gain near 0 is as bright as the medium, not a dark rod (ColiCoords
+    ds3: two unlabelled rods darker than the background in a calibrated item)."""
+    model = ForwardModel(FLUO, dataclasses.replace(DARK, media_intensity=300.0), Camera())
+    scene = apply_cell_brightness(grid_scene, 1.5, 11)
+    ids = scene.cell_ids
+    gains = cell_brightness_gains(ids, 1.5, 11)
+    assert gains.min() < 0.05  # some cells nearly unstained
+    labels = scene.camera_labels()
+    means = _cell_means(model.render_clean(scene, cache=False), labels, ids)
+    # the same field with every cell's place filled by medium
+    empty = grid_scene.replace_cells(np.zeros_like(grid_scene.cells)).replace_media(
+        grid_scene.cells + grid_scene.media
+    )
+    medium = _cell_means(model.render_clean(empty, cache=False), labels, ids)
+    assert (means > medium - 1.0).all()
+    # a dimmed cell's brightness above the medium is its gain's share of a full one's
+    dim = gains <= 1.0
+    ratio = (means - medium)[dim] / gains[dim]
+    np.testing.assert_allclose(ratio, np.median(ratio), rtol=0.05)

@@ -151,3 +151,35 @@ def test_export_with_debris_series_static_labels_unchanged_default_untouched():
     assert np.unravel_index(first.argmax(), first.shape) == np.unravel_index(
         last.argmax(), last.shape
     )
+
+
+def test_a_larger_particle_spreads_the_same_light(pad):
+    """A particle of diameter ``d`` carries ``b (d_m / d)^2``: its material sums to that of
+    a median one whatever its size (ColiCoords' field 3: blobs of 0.2-1.1 um all 80-180
+    ADU above the pad; drawn at ``b`` each, 1-1.2 um particles came out as bright as the
+    cells, unlabelled and cell-sized)."""
+    settings = _fluorescence(
+        pad,
+        debris_density_per_100um2=1.0,
+        debris_diameter_um=0.4,
+        debris_diameter_cv=0.6,
+        debris_brightness=0.2,
+        debris_brightness_cv=0.0,
+        debris_defocus_sigma_um=0.0,
+    )
+    scene = draw_frame(pad, settings, 0)
+    plain = draw_frame(pad, _fluorescence(pad), 0)
+    moved = np.asarray(scene.cells - plain.cells, np.float64)
+    blobs, n = ndimage.label(moved > 0)
+    assert n >= 5
+    index = np.arange(1, n + 1)
+    areas = ndimage.sum(np.ones_like(moved), blobs, index)
+    light = ndimage.sum(moved, blobs, index) * scene.pixel_size_um**2
+    edge = np.unique(np.concatenate([blobs[[0, -1]].ravel(), blobs[:, [0, -1]].ravel()]))
+    whole = ~np.isin(index, edge)  # not cut by the field's edge
+    assert areas[whole].max() > 4 * areas[whole].min()  # sizes differ ...
+    # ... the light does not (each disk's edge is area-weighted: within a few per cent);
+    # two particles that overlap make one blob of twice the light
+    ratio = light[whole] / (0.2 * np.pi * 0.2**2)
+    assert (np.round(ratio) >= 1).all()
+    np.testing.assert_allclose(ratio, np.round(ratio), atol=0.1)

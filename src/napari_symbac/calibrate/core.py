@@ -681,9 +681,13 @@ def calibrate(
             "density would overstate the field's"
         )
     if microscope.modality == "fluorescence":
-        cv = measurements.brightness_cv
-        render = dataclasses.replace(render, cell_brightness_cv=float(min(cv, 2.0)))
-        notes.append(f"per-cell brightness CV {cv:.2f} (masks' medians above background)")
+        if masks is not None:
+            render, note = _with_field_brightness(
+                render, measurements, measure_field(crop_image, crop_masks, valid=valid[crop])
+            )
+            notes.append(note)
+        render, note = _with_brightness_cv(measurements, render)
+        notes.append(note)
         if render.cell_intensity <= render.media_intensity:
             raise ValueError(
                 "the fitted fluorescent cells are not brighter than the background: check "
@@ -1011,6 +1015,63 @@ PHASE_TRANSMISSION_SCALE = (0.77, 1.0)
 
 #: Bounds of the division-length correction of :func:`_compacted`.
 _LENGTH_CORRECTION = (0.7, 1.3)
+
+
+#: Largest per-cell brightness CV a calibration draws: the gains are gamma
+#: (:func:`~napari_symbac.pipeline.cell_brightness_gains`), and one of CV above 1 piles
+#: its cells up at zero brightness, while a field's masked cells are visible.
+MAX_BRIGHTNESS_CV = 1.0
+
+
+def _with_field_brightness(render, field, crop) -> tuple[RenderSettings, str]:
+    """Render settings whose cell contrast ``I_c - I_m`` is the field's mean cell, and a
+    note.
+
+    The per-cell gains have mean 1 (:func:`~napari_symbac.pipeline.cell_brightness_gains`),
+    so the fitted contrast, which holds the crop's cells only, is scaled by the mean
+    brightness above the background of the field's whole cells over that of the crop's
+    (ColiCoords ds3 frame 2: the crop held the two dimmest of four cells, 388 and 418
+    ADU against a mean of 1885, and every synthetic cell came out 4-5 times too dim).
+    """
+    whole, part = field.of_whole_cells(field.brightness_adu), crop.of_whole_cells(
+        crop.brightness_adu
+    )
+    if not (whole.size and part.size and part.mean() > 0 and whole.mean() > 0):
+        return render, "cell brightness: the fit's (no whole cell to compare the crop's with)"
+    scale = float(whole.mean() / part.mean())
+    contrast = render.cell_intensity - render.media_intensity
+    render = dataclasses.replace(render, cell_intensity=render.media_intensity + scale * contrast)
+    return render, (
+        f"cell brightness: the field's {whole.size} whole cells are on average x{scale:.2f} "
+        f"as bright above the background as the crop's {part.size} ({whole.mean():.0f} "
+        f"against {part.mean():.0f} ADU): cell intensity {render.cell_intensity:.0f} ADU, "
+        "the field's mean cell (the gains of the per-cell brightness CV have mean 1)"
+    )
+
+
+def _with_brightness_cv(measurements, render) -> tuple[RenderSettings, str]:
+    """Render settings with the field's per-cell brightness CV and a note.
+
+    The CV of the whole cells' medians above the background, at most
+    :data:`MAX_BRIGHTNESS_CV`; the note gives the cells it comes from and its standard
+    error ``cv sqrt((1 + 2 cv^2) / 2n)`` (ColiCoords ds3 frame 2: 1.21 from 4 cells of
+    388-5213 ADU, drawn as a gamma of shape 0.68 most items lost 1-3 of their 4 cells
+    as fainter than the noise, and some were darker than the background).
+    """
+    cv = measurements.brightness_cv
+    n = int(measurements.of_whole_cells(measurements.brightness_adu).size)
+    drawn = float(min(cv, MAX_BRIGHTNESS_CV))
+    se = cv * math.sqrt((1 + 2 * cv * cv) / (2 * max(n, 1)))
+    note = (
+        f"per-cell brightness CV {cv:.2f} +- {se:.2f} (masks' medians above background, "
+        f"{n} whole cells)"
+    )
+    if drawn < cv:
+        note += (
+            f"; drawn as {drawn:.2f}, the most a gamma of per-cell gains may have without "
+            "piling its cells up at zero brightness"
+        )
+    return dataclasses.replace(render, cell_brightness_cv=drawn), note
 
 
 #: Fewest blobs outside the masks for the debris to be rendered.
