@@ -49,6 +49,8 @@ def test_calibrate_writes_a_matched_dataset_and_report(colicoords_files, capsys)
     report = (out / "report.txt").read_text()
     assert "fluorescence" in report
     assert "power spectrum" in report
+    # the pixel size said once (was "pixel size 0.08 um (pixel size 0.08 um from ...)")
+    assert "\npixel size 0.08 um from --microscope (the image file records none)\n" in report
     printed = capsys.readouterr()
     _assert_flags_follow_the_numbers(report, printed.out)
     # a line per stage on stderr (the fit, the comparison, the export), and the export's

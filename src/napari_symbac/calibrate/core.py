@@ -154,9 +154,12 @@ class Calibration:
         came from (``notes``, default :attr:`notes`)."""
         microscope = self.settings.microscope
         px = microscope.pixel_size_um
+        # a note that says the size itself is the line (found as a user: "pixel size
+        # 0.8 um (pixel size 0.8 um from --microscope ...)")
+        said = pixel_note.startswith("pixel size ")
         return [
             f"modality: {microscope.modality}",
-            f"pixel size {px:.4g} um ({pixel_note})",
+            pixel_note if said else f"pixel size {px:.4g} um ({pixel_note})",
             f"method: {self.method}; pixel chi2 {self.fit_chi2[0]:.3g} -> "
             f"{self.fit_chi2[1]:.3g}",
             f"real field: {self.measurements.summary(px, microscope.modality)}",
