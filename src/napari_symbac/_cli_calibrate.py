@@ -76,12 +76,13 @@ def _settings_notes(notes: tuple[str, ...], mapping: CountsMapping | None) -> li
     return [*marked, counts_units_note(mapping)]
 
 
-def _refuse_a_trench(image: np.ndarray, modality: str, path: str) -> None:
+def _refuse_a_trench(image: np.ndarray, modality: str, path: str, microscope: str) -> None:
     """calibrate lays a field out as an agar pad; a mother-machine trench (a phase image
     at most :data:`~napari_symbac.fit.preflight.TRENCH_MAX_WIDTH_PX` wide and twice as
     tall, the fit's own rule, :func:`~napari_symbac.fit.preflight.default_geometry`) is
     refused with the commands that match one (found as a user: DeLTA's trench became a
-    2 x 17 um pad, and 3 of 4 images held no cell)."""
+    2 x 17 um pad, and 3 of 4 images held no cell). The commands name the user's own
+    ``microscope`` file (they named a placeholder, M.yaml)."""
     from napari_symbac.fit.preflight import default_geometry
 
     if default_geometry(image.shape, modality) == "trench":
@@ -90,8 +91,8 @@ def _refuse_a_trench(image: np.ndarray, modality: str, path: str) -> None:
             f"IMAGE {name} is {image.shape[-2]} x {image.shape[-1]} px (rows x columns), "
             "narrow and tall: a mother-machine trench, which "
             "calibrate does not lay out (it matches fields: agar pads and colonies). Fit the "
-            f"trench and export from its settings: `napari-symbac fit {name} --microscope "
-            "M.yaml --out FIT`, then `napari-symbac export --config FIT/settings.yaml --out "
+            f"trench and export from its settings: `napari-symbac fit {path} --microscope "
+            f"{microscope} --out FIT`, then `napari-symbac export --config FIT/settings.yaml --out "
             "DATASET`"
         )
 
@@ -225,7 +226,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
             "cell width (W um: 1.0 for E. coli)",
         )
         modality = args.modality or recording.modality or microscope.modality
-        _refuse_a_trench(image, modality, args.image)
+        _refuse_a_trench(image, modality, args.image, args.microscope)
         if args.cell_width_um is not None:
             pixel_note = f"from the masks' median width and --cell-width-um {args.cell_width_um}"
     print("napari-symbac calibrate: fitting", file=sys.stderr, flush=True)

@@ -332,6 +332,8 @@ def test_calibrate_refuses_a_trench_and_names_fit_and_export(real_data_dir, tmp_
     assert code == 2
     assert "is 256 x 32 px (rows x columns), narrow and tall: a mother-machine trench" in err
     assert "napari-symbac export --config FIT/settings.yaml" in err
+    # the user's own files in the command to copy (was a placeholder, M.yaml)
+    assert f"`napari-symbac fit {image} --microscope {tmp_path / 'm.yaml'} --out FIT`" in err
     assert not out.exists()
 
 
