@@ -176,9 +176,16 @@ def run_calibrate(args: argparse.Namespace) -> int:
     timer = StepTimer()
     out = Path(args.out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        earlier = out.is_dir() and (out / "export_settings.yaml").is_file()
         raise ValueError(
             f"--out {out} exists and is not an empty folder: give a new folder (calibrate "
             "writes a whole dataset and will not mix it with other files)"
+            + (  # found as a user: the same command run twice was refused without a word why
+                "; it holds an earlier calibration (export_settings.yaml): delete that "
+                "folder to calibrate again into it"
+                if earlier
+                else ""
+            )
         )
     from napari_symbac.export.formats import FORMATS
 

@@ -76,6 +76,11 @@ def test_calibrate_writes_a_matched_dataset_and_report(colicoords_files, capsys)
     assert picture.ndim == 3
     assert picture.shape[1] > 2 * 192
     assert not [p for p in d.iterdir() if p.name.startswith(".out")]  # staging removed
+    # the same command again: refused, saying why (found as a user: no word of the
+    # earlier calibration there)
+    assert main(["calibrate", str(d / "flu.tif"), "--masks", str(d / "mask.tif"),
+                 "--microscope", str(d / "m80.yaml"), "--out", str(out)]) == 2  # fmt: skip
+    assert "it holds an earlier calibration" in capsys.readouterr().err
     _follow_the_tracking_advice(out, d, capsys)
 
 
