@@ -165,3 +165,37 @@ def test_backend_choice_renders_on_torch(widget, qtbot, tmp_path):
     images = sorted((tmp_path / "dataset" / "tiff" / "train" / "images").glob("*.tif"))
     assert len(images) == 2
     assert all(tifffile.imread(path).std() > 0 for path in images)
+
+
+def test_export_on_a_dask_scheduler(widget, qtbot, tmp_path):
+    """Found as a user: the CLI's --scheduler had no place in the dock. The dataset is
+    written by the scheduler's workers, the same bytes as in this process; a scheduler
+    that does not answer is an error in the status line, the widget usable after it."""
+    from napari_symbac.export.cluster import local_cluster
+
+    widget.n_items.value = 4
+    widget.val_fraction.value = 0.0
+    widget.folder.value = tmp_path / "here"
+    widget.export_button.native.click()
+    qtbot.waitUntil(lambda: widget.worker is None and widget.report is not None, timeout=120_000)
+    here = widget.report
+    assert here.workers == 1
+    with local_cluster(1) as cluster:
+        widget.scheduler.value = cluster.scheduler_address
+        widget.folder.value = tmp_path / "cluster"
+        widget.export_button.native.click()
+        assert f"on the dask scheduler at {cluster.scheduler_address}" in widget.status.value
+        qtbot.waitUntil(
+            lambda: widget.worker is None and widget.report is not here, timeout=120_000
+        )
+    assert widget.report.complete
+    for path in sorted((tmp_path / "here" / "tiff").rglob("*.tif")):
+        twin = tmp_path / "cluster" / path.relative_to(tmp_path / "here")
+        assert twin.read_bytes() == path.read_bytes()
+    widget.scheduler.value = "nohost"
+    widget.folder.value = tmp_path / "refused"
+    widget.export_button.native.click()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=60_000)
+    assert widget.status.value.startswith("Export failed")
+    assert "'nohost' is not a dask address" in widget.status.value
+    assert widget.export_button.enabled

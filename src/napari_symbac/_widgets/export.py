@@ -16,6 +16,7 @@ from magicgui.widgets import (
     Container,
     FileEdit,
     FloatSpinBox,
+    LineEdit,
     PushButton,
     Select,
     SpinBox,
@@ -75,6 +76,9 @@ class ExportWidget(Container):
             name="val_fraction", label="validation fraction", value=0.1, min=0, max=0.9, step=0.05
         )
         self.workers = SpinBox(name="workers", label="worker processes", value=1, min=1, max=256)
+        # found as a user: the CLI's --scheduler had no place in the dock, so a lab that
+        # outgrew one machine could not export from napari on its cluster
+        self.scheduler = LineEdit(name="scheduler", label="dask scheduler", value="")
         self.backend = backend_combo()
         self.folder = FileEdit(name="folder", label="output folder", mode="d")
         self.export_button = PushButton(name="export", text="Export")
@@ -89,6 +93,7 @@ class ExportWidget(Container):
                 self.seed,
                 self.val_fraction,
                 self.workers,
+                self.scheduler,
                 self.backend,
                 self.folder,
                 self.export_button,
@@ -104,7 +109,11 @@ class ExportWidget(Container):
             self.n_items: "Items to export, each with freshly drawn parameters.",
             self.seed: "Seed of every random draw: same seed, same dataset bit for bit.",
             self.val_fraction: "Fraction of items put in the validation split.",
-            self.workers: "Worker processes (1: in this process).",
+            self.workers: "Worker processes (1: in this process); not used with a dask "
+            "scheduler.",
+            self.scheduler: "Address of your dask scheduler (tcp://host:8786), whose workers "
+            "write the dataset (they must see the output folder at the same path); empty: "
+            "worker processes on this machine.",
             self.folder: "Output folder; an unfinished export there is resumed.",
             self.export_button: "Write the dataset in the background.",
             self.cancel_button: "Stop after the items in progress; Export again resumes.",
@@ -207,6 +216,7 @@ class ExportWidget(Container):
             self.status.value = f"Not exported: {err}"
             return
         workers = self.workers.value
+        scheduler = self.scheduler.value.strip() or None
         backend = self.backend.value
         origin = (
             f"'{self.source.current_choice}'"
@@ -221,7 +231,8 @@ class ExportWidget(Container):
                     lambda progress, cancel: export_dataset(
                         settings,
                         folder,
-                        workers=workers,
+                        workers=None if scheduler else workers,
+                        scheduler=scheduler,
                         progress=progress,
                         cancel=cancel,
                         backend=backend,
@@ -246,8 +257,9 @@ class ExportWidget(Container):
         self.cancel_button.enabled = True
         self._origin = origin
         self._split_note = no_validation_note(settings)
+        where = f" on the dask scheduler at {scheduler}" if scheduler else ""
         self.status.value = (
-            f"Exporting {settings.n_images} images to {folder} (settings: {origin})..."
+            f"Exporting {settings.n_images} images to {folder}{where} (settings: {origin})..."
         )
         self.worker.start()
 
