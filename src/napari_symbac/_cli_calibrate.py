@@ -165,7 +165,11 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from napari_symbac.diagnose.config import load_microscope_file
     from napari_symbac.export import export_dataset
     from napari_symbac.export.atomic import staging_folder
-    from napari_symbac.fit.preflight import not_integer_masks, resolve_pixel_size
+    from napari_symbac.fit.preflight import (
+        bright_field_as_phase,
+        not_integer_masks,
+        resolve_pixel_size,
+    )
     from napari_symbac.settings import (
         Camera,
         load_settings,
@@ -236,6 +240,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
         _refuse_a_trench(image, modality, args.image, args.microscope)
         if args.cell_width_um is not None:
             pixel_note = f"from the masks' median width and --cell-width-um {args.cell_width_um}"
+    if (note := bright_field_as_phase(image, modality)) is not None:  # before the fit
+        print(f"napari-symbac calibrate: note: {note}", file=sys.stderr, flush=True)
     print("napari-symbac calibrate: fitting", file=sys.stderr, flush=True)
     with timer.step("fit"):
         calibration = calibrate(

@@ -486,20 +486,28 @@ def test_calibrate_refuses_a_colony_given_as_a_cell_background_mask(
     assert "Give instance masks, each cell its own number (e.g. Omnipose" in error
 
 
-def test_calibrate_refuses_bright_field_as_phase_before_the_fit(real_data_dir, tmp_path, capsys):
+def test_calibrate_of_bright_field_as_phase_names_the_modality(real_data_dir, tmp_path, capsys):
     """Found as a user: ColiCoords' bright field as phase failed after a 16-112 s fit with
-    "the image is flat between its percentiles: nothing to normalise"."""
+    "the image is flat between its percentiles: nothing to normalise". A note before the
+    fit says it looks like bright field; the fit's saturated dataset is refused naming the
+    modality (not a refusal up front: a sparse phase field with faint halos looks alike)."""
     ds1 = real_data_dir / "colicoords" / "test_data" / "ds1"
     (tmp_path / "m.yaml").write_text("pixel_size_um: 0.08\nmodality: phase\n")
     out = tmp_path / "out"
-    for masks in ([], ["--masks", str(ds1 / "binary" / "00001_Probabilities_filtered.tif")]):
-        error = _refused(
-            ["calibrate", str(ds1 / "brightfield" / "00001.tif"), "--microscope",
-             str(tmp_path / "m.yaml"), *masks, "--out", str(out)],
-            out, capsys,
-        )  # fmt: skip
-        assert "does not look like phase: " in error
-        assert error.endswith("Pass --modality brightfield")
+    masks = ["--masks", str(ds1 / "binary" / "00001_Probabilities_filtered.tif")]
+    image, microscope = ds1 / "brightfield" / "00001.tif", tmp_path / "m.yaml"
+    code = main(["calibrate", str(image), "--microscope", str(microscope), *masks,
+                 "--out", str(out), "--n-items", "2"])  # fmt: skip
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert not out.exists()
+    note = "napari-symbac calibrate: note: the image shows dark objects and nothing brighter"
+    said = [i for i, line in enumerate(lines) if line.startswith(note)]
+    assert said
+    assert said[0] < lines.index("napari-symbac calibrate: fitting")
+    assert "pass --modality brightfield" in lines[said[0]]
+    assert "saturated" in lines[-1]
+    assert "check the modality (bright field given as phase saturates)" in lines[-1]
 
 
 def test_calibrate_refuses_cells_wider_than_a_rod(colicoords_files, capsys):
