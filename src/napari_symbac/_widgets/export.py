@@ -217,6 +217,14 @@ class ExportWidget(Container):
             return
         workers = self.workers.value
         scheduler = self.scheduler.value.strip() or None
+        if scheduler is not None:  # as the folder: a malformed address before any work
+            from napari_symbac.export.cluster import check_scheduler_address
+
+            try:
+                check_scheduler_address(scheduler)
+            except ValueError as err:
+                self.status.value = f"Not exported: {err}"
+                return
         backend = self.backend.value
         origin = (
             f"'{self.source.current_choice}'"

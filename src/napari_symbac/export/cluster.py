@@ -20,6 +20,7 @@ from napari_symbac.export.atomic import ExportError
 
 __all__ = [
     "SCHEDULER_TIMEOUT_S",
+    "check_scheduler_address",
     "check_workers",
     "close_quietly",
     "connect_scheduler",
@@ -152,7 +153,7 @@ def connect_scheduler(address: str, timeout_s: float | None = None) -> Any:
     from distributed import Client
 
     timeout_s = SCHEDULER_TIMEOUT_S if timeout_s is None else timeout_s
-    _check_scheduler_address(address)
+    check_scheduler_address(address)
     quiet = logging.getLogger("distributed")
     level = quiet.level
     quiet.setLevel(logging.CRITICAL + 1)
@@ -219,8 +220,15 @@ def _identify_scheduler(address: str, timeout_s: float) -> None:
         raise _no_scheduler(address, timeout_s, answered)
 
 
-def _check_scheduler_address(address: object) -> None:
-    """Refuse an address dask cannot parse, before a client is built for it."""
+def check_scheduler_address(address: object) -> None:
+    """Refuse an address dask cannot parse, before a client is built for it (and, in the
+    Export dock, before its job starts).
+
+    Raises
+    ------
+    ValueError
+        Naming the address, what is wrong with it and an example.
+    """
     from distributed.comm.addressing import parse_address, parse_host_port
 
     example = "such as tcp://10.0.0.5:8786"
