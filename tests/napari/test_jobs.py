@@ -92,15 +92,7 @@ def test_a_quit_that_the_generator_outruns_still_reports_the_cancel(qtbot):
         release.wait(30)  # a blocking step, cancelled meanwhile: it returns, no yield
         return "result of a cancelled step"
 
-    job = Job(
-        work,
-        total=0,
-        description="test",
-        what="Test",
-        on_return=lambda result: calls.append("return"),
-        on_abort=lambda: calls.append("abort"),
-        on_finish=lambda: calls.append("finish"),
-    )
+    job = _job_calling_back(work, "Test", calls)
     job.start()
     assert inside.wait(30)
     job.quit()
@@ -133,16 +125,7 @@ def test_a_job_whose_panel_is_closed_is_cancelled(qtbot):
             threading.Event().wait(0.01)
         return "finished without being cancelled"
 
-    job = Job(
-        work,
-        total=0,
-        description="test",
-        what="Simulation",
-        on_return=lambda result: calls.append("return"),
-        on_abort=lambda: calls.append("abort"),
-        on_finish=lambda: calls.append("finish"),
-        owner=step,
-    )
+    job = _job_calling_back(work, "Simulation", calls, owner=step)
     job.start()
     assert running.wait(30)
     step.setParent(None)  # what napari's remove_dock_widget does, then deletes the dock
@@ -187,3 +170,17 @@ def _is_alive(widget) -> bool:
     except RuntimeError:  # its C++ object was deleted
         return False
     return True
+
+
+def _job_calling_back(work, what: str, calls: list[str], **kwargs) -> Job:
+    """A Job of ``work`` whose return, abort and finish are appended to ``calls``."""
+    return Job(
+        work,
+        total=0,
+        description="test",
+        what=what,
+        on_return=lambda result: calls.append("return"),
+        on_abort=lambda: calls.append("abort"),
+        on_finish=lambda: calls.append("finish"),
+        **kwargs,
+    )
