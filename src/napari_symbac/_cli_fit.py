@@ -474,13 +474,12 @@ def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, ke
     """Check, fit and prepare the outputs of one frame: returns (writers, result,
     problems) as :func:`_outputs_one`."""
     from napari_symbac.fit import fit_colony, fit_scene
-    from napari_symbac.fit.preflight import bright_field_as_phase
+    from napari_symbac.fit.preflight import BRIGHT_FIELD_NOTE
     from napari_symbac.fit.report import OPEN_PHASE_NOTE
 
     prepared = _prepare_one(args, frame, labels, masks, microscope, base, keys)
-    said_first = (OPEN_PHASE_NOTE, bright_field_as_phase(frame, microscope.modality))
     for note in prepared.notes:  # before a fit that may take minutes, not after
-        if note in said_first:
+        if note in (OPEN_PHASE_NOTE, BRIGHT_FIELD_NOTE):
             print(f"napari-symbac fit: note: {note}", file=stages.stream, flush=True)
     what = "colony from its masks, partially coherent phase model, " * prepared.colony
     stages.stage(f"fitting frame {index} ({what}{frame.shape[0]} x {frame.shape[1]} px)")

@@ -17,6 +17,7 @@ from scipy import ndimage
 
 from napari_symbac.cli import main
 from napari_symbac.fit import scene_classes
+from napari_symbac.fit.preflight import BRIGHT_FIELD_NOTE
 from napari_symbac.settings import (
     Camera,
     Microscope,
@@ -612,6 +613,8 @@ def test_a_phase_field_of_separate_cells_keeps_the_scene_fit(tmp_path, capsys):
     err = capsys.readouterr().err
     note = err.index("napari-symbac fit: note: phase contrast is fitted here with the linear")
     assert note < err.index("fitting frame 0")
+    # its faint halos read as bright field's: said as a note, first, not a refusal
+    assert err.index(f"napari-symbac fit: note: {BRIGHT_FIELD_NOTE}") < err.index("fitting frame 0")
 
 
 @pytest.mark.slow

@@ -19,6 +19,7 @@ from napari_symbac.settings import Camera, Microscope
 __all__ = [
     "API_CAMERA_HINT",
     "BELOW_OFFSET_FRACTION",
+    "BRIGHT_FIELD_NOTE",
     "CAMERA_PIXEL_UM",
     "MAX_FIT_PIXELS",
     "MAX_ROD_FILL",
@@ -344,11 +345,16 @@ def bright_field_as_phase(frame: np.ndarray, modality: str) -> str | None:
     """
     if modality != "phase" or image_polarity(frame) != "dark cells":
         return None
-    return (
-        "the image shows dark objects and nothing brighter than its background, no phase "
-        "halo: if it is bright field, pass --modality brightfield (phase contrast fitted to "
-        "a bright-field image saturates its synthetic images)"
-    )
+    return BRIGHT_FIELD_NOTE
+
+
+#: What :func:`bright_field_as_phase` says (a constant: the fit says it first, before a
+#: fit that may take minutes, and finds it among its notes by it).
+BRIGHT_FIELD_NOTE = (
+    "the image shows dark objects and nothing brighter than its background, no phase "
+    "halo: if it is bright field, pass --modality brightfield (phase contrast fitted to "
+    "a bright-field image saturates its synthetic images)"
+)
 
 
 def not_integer_masks(name: str, dtype: object) -> str:
