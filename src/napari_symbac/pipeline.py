@@ -95,30 +95,45 @@ def _curvature(simulation: Simulation) -> dict[int, tuple[float, float, float]] 
     return curvature or None
 
 
-def cell_brightness_gains(cell_ids: np.ndarray, cv: float, seed: int) -> np.ndarray:
+def cell_brightness_gains(
+    cell_ids: np.ndarray, cv: float, seed: int, max_gain: float = 0.0
+) -> np.ndarray:
     """Per-cell brightness gains (section 13.2.2): gamma, mean 1, coefficient of variation ``cv``.
 
     Each cell's gain comes from its own generator, seeded from ``[seed, 3, cell id]``,
     so it depends only on the seed and the id: a cell keeps its gain in every frame
     (like its expression level over a cell cycle), whatever other cells are present.
+    With ``max_gain > 0`` the gamma is truncated there (a cell's generator draws again
+    until its gain is at most ``max_gain``): the brightest cells stay within the
+    recording's range (ColiCoords ds1 field 5, CV 0.99 from 4 cells: untruncated,
+    exported cells were up to 2.4x the brightest real one). A gain the first draw
+    keeps is the same as without the bound.
     """
     if not (np.isfinite(cv) and cv >= 0):
         raise ValueError(f"cv must be zero or positive, got {cv!r}")
+    if not (max_gain == 0 or (np.isfinite(max_gain) and max_gain >= 1)):
+        raise ValueError(
+            f"max_gain must be 0 (no bound) or at least 1 (the mean gain), got {max_gain!r}"
+        )
     ids = np.asarray(cell_ids, np.int64).ravel()
     if cv == 0:
         return np.ones(ids.size)
     shape = 1.0 / cv**2
-    return np.array(
-        [
-            np.random.default_rng([int(seed), 3, int(cell_id)]).gamma(shape, 1.0 / shape)
-            for cell_id in ids
-        ],
-        np.float64,
-    )
+    bound = max_gain if max_gain > 0 else np.inf
+
+    def gain(cell_id: int) -> float:
+        rng = np.random.default_rng([int(seed), 3, cell_id])
+        value = rng.gamma(shape, 1.0 / shape)
+        while value > bound:  # a gamma's median is below its mean: kept with p > 1/2
+            value = rng.gamma(shape, 1.0 / shape)
+        return value
+
+    return np.array([gain(int(cell_id)) for cell_id in ids], np.float64)
 
 
-def apply_cell_brightness(scene: Scene, cv: float, seed: int) -> Scene:
-    """Multiply each cell of ``scene`` by its gain of :func:`cell_brightness_gains`.
+def apply_cell_brightness(scene: Scene, cv: float, seed: int, max_gain: float = 0.0) -> Scene:
+    """Multiply each cell of ``scene`` by its gain of :func:`cell_brightness_gains`
+    (at most ``max_gain`` when it is positive).
 
     ``cv = 0`` returns ``scene`` itself (no copy, bit-identical rendering). A pixel
     takes the gain of the cell its label names (the thickest cell there). A gain
@@ -133,7 +148,8 @@ def apply_cell_brightness(scene: Scene, cv: float, seed: int) -> Scene:
         return scene
     ids = np.asarray(scene.cell_ids, np.int64)
     lut_ids = np.concatenate([[0], ids])
-    lut_gain = np.concatenate([[1.0], cell_brightness_gains(ids, cv, seed)]).astype(np.float32)
+    gains = cell_brightness_gains(ids, cv, seed, max_gain)
+    lut_gain = np.concatenate([[1.0], gains]).astype(np.float32)
     order = np.argsort(lut_ids)
     lut_ids, lut_gain = lut_ids[order], lut_gain[order]
     labels = scene.labels.astype(np.int64)
@@ -183,7 +199,10 @@ def _draw(
     )
     scene = stain_cells(scene, settings.microscope, settings.render)
     scene = apply_cell_brightness(
-        scene, settings.render.cell_brightness_cv, simulation.settings.seed
+        scene,
+        settings.render.cell_brightness_cv,
+        simulation.settings.seed,
+        settings.render.cell_brightness_max_gain,
     )
     return add_debris(scene, settings.render, debris_rng(simulation.settings.seed))
 

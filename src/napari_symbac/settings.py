@@ -728,6 +728,11 @@ class RenderSettings:
         simulation seed, so a cell keeps its brightness in every frame and the same
         seed gives the same gains; 0 = every cell alike (in phase contrast it varies
         ``I_c`` per cell).
+    cell_brightness_max_gain
+        The largest per-cell gain, as a multiple of the mean cell (at least 1): the
+        gamma of ``cell_brightness_cv`` truncated there, so that no cell is brighter
+        than the recording's brightest (``calibrate`` sets it from the masks' whole
+        cells; a CV measured on a few cells has a long tail); 0 (default) = no bound.
     envelope_stain_fraction
         Fluorescence: the fraction of each cell's stain that sits in its envelope
         (a membrane dye, a periplasmic or surface label) instead of filling its
@@ -794,6 +799,7 @@ class RenderSettings:
     texture_amplitude: float = 0.0
     texture_scale_um: float = 0.0
     cell_brightness_cv: float = 0.0
+    cell_brightness_max_gain: float = 0.0
     envelope_stain_fraction: float = 0.0
     depth_layers: int = 0
     debris_density_per_100um2: float = 0.0
@@ -854,6 +860,13 @@ class RenderSettings:
             f"contrast), got {self.plate_phase_rad!r}",
         )
         _finite(self, "focus_offset_um", "defocus_contrast_um2")
+        max_gain = self.cell_brightness_max_gain
+        _require(
+            isinstance(max_gain, (int, float))
+            and (max_gain == 0 or (math.isfinite(max_gain) and max_gain >= 1)),
+            "RenderSettings.cell_brightness_max_gain must be 0 (no bound) or at least 1 "
+            f"(a multiple of the mean cell), got {max_gain!r}",
+        )
         _require(
             isinstance(self.depth_layers, int)
             and not isinstance(self.depth_layers, bool)

@@ -273,6 +273,31 @@ def test_a_field_of_few_cells_draws_its_mean_cell_and_a_bounded_spread(real_data
     assert 0.5 < np.median(medians) / np.median(real) < 2.0
 
 
+def test_no_exported_cell_is_brighter_than_the_fields_brightest(real_data_dir):
+    """ColiCoords ds1 field 5: 4 whole cells, 284-2689 ADU above the background (CV
+    0.99). The gamma of that CV has a long tail: items held cells of 6078-6618 ADU, 2.4x
+    the brightest real one, in 3 of 4 items; the gains are now bounded by it."""
+    ds1 = real_data_dir / "colicoords" / "test_data" / "ds1"
+    image = tifffile.imread(ds1 / "fluorescence" / "00005.tif")
+    masks = tifffile.imread(ds1 / "binary" / "00005_Probabilities_filtered.tif")
+    microscope = Microscope(pixel_size_um=0.08, wavelength_um=0.53, modality="fluorescence")
+    cal = calibrate(image, masks=masks, microscope=microscope)
+    real = cal.measurements.of_whole_cells(cal.measurements.brightness_adu)
+    render = cal.settings.render
+    assert render.cell_brightness_cv > 0.9
+    assert render.cell_brightness_max_gain == pytest.approx(real.max() / real.mean())
+    assert any("no cell brighter than x2.43 the mean cell" in note for note in cal.notes)
+    source = PipelineSource(export_settings(cal, n_items=4, seed=0))
+    medians = []
+    for unit in range(4):
+        item = source.make_unit(unit)[0]
+        background = np.median(item.image[item.labels == 0])
+        cells = [c for c in np.unique(item.labels) if c]
+        medians += [np.median(item.image[item.labels == c]) - background for c in cells]
+    assert max(medians) < 1.1 * real.max()
+    assert max(medians) > 0.5 * real.max()  # the bright cells are still drawn
+
+
 def test_cells_cut_by_the_border_are_no_sample_of_sizes_and_brightness(
     colicoords_crop, fluorescence_calibration
 ):

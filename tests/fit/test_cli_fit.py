@@ -672,6 +672,10 @@ def test_real_colicoords_fluorescence_field_with_masks(tmp_path, real_data_dir):
         np.std(intensities, ddof=1) / np.mean(intensities)
     )
     assert render.cell_brightness_cv > 0.1
+    # none brighter than the brightest fitted cell (a few cells' spread has a long tail)
+    assert render.cell_brightness_max_gain == pytest.approx(
+        intensities.max() / intensities.mean()
+    )
     # and with the background's clip: 0 ADU, as in the recording
     stages = load_settings(out / "settings.yaml", PipelineSettings).extra_stages
     assert [(s.name, s.parameters["clip_level_adu"]) for s in stages] == [("saturation", 0.0)]

@@ -82,6 +82,49 @@ def test_gains_have_mean_one_and_the_cv():
         cell_brightness_gains([1], -0.1, 7)
 
 
+def test_max_gain_truncates_the_gamma_and_keeps_the_gains_below_it():
+    ids = np.arange(1, 5001)
+    free = cell_brightness_gains(ids, 0.99, 7)
+    bounded = cell_brightness_gains(ids, 0.99, 7, max_gain=1.6)
+    assert free.max() > 3.0  # the tail the bound cuts
+    assert bounded.max() <= 1.6
+    below = free <= 1.6
+    np.testing.assert_array_equal(bounded[below], free[below])
+    assert np.all(bounded[~below] != free[~below])
+    np.testing.assert_array_equal(bounded, cell_brightness_gains(ids, 0.99, 7, 1.6))
+    for bad in (0.5, -1.0, np.nan, np.inf):
+        with pytest.raises(ValueError, match="max_gain must be 0"):
+            cell_brightness_gains(ids[:2], 0.5, 7, bad)
+        with pytest.raises(ValueError, match="cell_brightness_max_gain must be 0"):
+            RenderSettings(cell_brightness_max_gain=bad)
+
+
+def test_every_drawn_cell_keeps_within_the_max_gain(small_sim):
+    simulation, settings = small_sim
+    bounded = dataclasses.replace(
+        settings,
+        microscope=FLUO,
+        render=dataclasses.replace(
+            settings.render, cell_brightness_cv=1.0, cell_brightness_max_gain=1.2
+        ),
+    )
+    free = dataclasses.replace(
+        bounded, render=dataclasses.replace(bounded.render, cell_brightness_max_gain=0.0)
+    )
+    plain = dataclasses.replace(bounded, render=settings.render)
+    ratios = {}
+    for index in range(len(simulation.frames)):
+        scenes = [draw_frame(simulation, s, index) for s in (bounded, free, plain)]
+        for cell_id in scenes[2].cell_ids:
+            inside = (scenes[2].labels == cell_id) & (scenes[2].cells > 0.05)
+            if inside.any():
+                base = scenes[2].cells[inside][0]
+                ratios[int(cell_id)] = [float(s.cells[inside][0] / base) for s in scenes[:2]]
+    got = np.array(list(ratios.values()))
+    assert got[:, 0].max() <= 1.2 + 1e-6
+    assert got[:, 1].max() > 1.2  # without the bound some cell is brighter
+
+
 def test_a_cell_keeps_its_gain_whatever_the_other_cells():
     all_ids = cell_brightness_gains([3, 8, 12], 0.3, 5)
     alone = cell_brightness_gains([8], 0.3, 5)

@@ -65,6 +65,7 @@ _READABLE = {
     "texture_amplitude": "agar texture amplitude",
     "texture_scale_um": "agar texture scale (µm; 0 = random)",
     "cell_brightness_cv": "cell brightness CV",
+    "cell_brightness_max_gain": "brightest cell (× mean cell; 0 = unbounded)",
     "envelope_stain_fraction": "stain in the envelope (fraction, fluorescence)",
     "depth_layers": "depth slabs (eq. 16, fluorescence; 0 = 2-D)",
     "debris_density_per_100um2": "debris particles per 100 µm²",

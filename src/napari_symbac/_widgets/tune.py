@@ -858,8 +858,11 @@ class TuneWidget(Container):
         result = _shown_fit(result, outcome.shown)  # it sets the sliders (optics are shared)
         fit_render, fit_camera = (result.render, result.camera) if clipped is None else clipped[:2]
         if not isinstance(result, ColonyFit):  # the cells' own brightness spread
+            spread = fitted_render(result)
             fit_render = dataclasses.replace(
-                fit_render, cell_brightness_cv=fitted_render(result).cell_brightness_cv
+                fit_render,
+                cell_brightness_cv=spread.cell_brightness_cv,
+                cell_brightness_max_gain=spread.cell_brightness_max_gain,
             )
         fitted = {name: float(getattr(fit_render, name)) for name in self.sliders}
         # the preview takes the recording's modality with its fitted settings (found as a

@@ -714,7 +714,10 @@ class PipelineSource:
                 )
                 scene = stain_cells(scene, varied.microscope, varied.render)
                 scene = apply_cell_brightness(
-                    scene, varied.render.cell_brightness_cv, simulation.settings.seed
+                    scene,
+                    varied.render.cell_brightness_cv,
+                    simulation.settings.seed,
+                    varied.render.cell_brightness_max_gain,
                 )
                 yield add_debris(scene, varied.render, np.random.default_rng(debris_seed))
 

@@ -22,7 +22,9 @@ def fitted_render(result: Any) -> RenderSettings:
     """``result.render`` with the spread of the fitted cells' own intensities as
     ``cell_brightness_cv`` (section 13.2.2: cells differ in fluorophore content), when the
     fit gave each cell its own intensity (fluorescence by default) and has at least
-    :data:`MIN_CELLS_FOR_SPREAD` cells; else as it is. (Found as a user: the fit measured
+    :data:`MIN_CELLS_FOR_SPREAD` cells, the gains bounded by the brightest fitted cell
+    (``cell_brightness_max_gain``: a spread measured on a few cells has a long tail);
+    else as it is. (Found as a user: the fit measured
     each cell's brightness, CV 0.43 on ColiCoords field 1, and its settings.yaml drew every
     cell alike; ``calibrate`` measures 0.47 from the masks.)
     """
@@ -32,8 +34,14 @@ def fitted_render(result: Any) -> RenderSettings:
         return result.render
     values = dict(zip(names, np.asarray(result.parameters, np.float64)))
     gains = 1.0 + np.array([values[key] for key in keys])
-    cv = float(np.std(gains, ddof=1) / np.mean(gains)) if np.mean(gains) > 0 else 0.0
-    return dataclasses.replace(result.render, cell_brightness_cv=min(max(cv, 0.0), 2.0))
+    if np.mean(gains) <= 0:
+        return dataclasses.replace(result.render, cell_brightness_cv=0.0)
+    cv = float(np.std(gains, ddof=1) / np.mean(gains))
+    return dataclasses.replace(
+        result.render,
+        cell_brightness_cv=min(max(cv, 0.0), 2.0),
+        cell_brightness_max_gain=max(float(gains.max() / gains.mean()), 1.0),
+    )
 
 
 def fitted_simulation(
