@@ -80,6 +80,25 @@ def test_a_pixel_size_slip_is_said_before_the_fit_and_refused_at_the_start(
     assert captured.out == ""
 
 
+def test_a_pixel_size_slip_with_masks_is_refused_at_the_start(tmp_path, truth, inputs, capsys):
+    """The same slip with the cells' masks: the masks' cells, ~10x too wide, were fitted
+    at their bounds (calibrate refused them; fit did not)."""
+    image = inputs[0]
+    masks = tmp_path / "masks.tif"
+    tifffile.imwrite(masks, truth.scene.camera_labels().astype(np.uint16))
+    slip = dataclasses.replace(truth.microscope, pixel_size_um=10 * truth.microscope.pixel_size_um)
+    microscope = save_settings(slip, tmp_path / "slip.yaml")
+    out = tmp_path / "fit"
+    assert _fit(image, "--masks", masks, "--microscope", microscope, "--out", out) == 2
+    captured = capsys.readouterr()
+    error = captured.err[captured.err.index("napari-symbac fit: error: ") :].splitlines()[0]
+    assert "the masks' cells are " in error
+    assert "wider than any rod-shaped bacterium" in error
+    assert f"(pixel size {slip.pixel_size_um:g} um)" in error
+    assert "Check pixel_size_um" in error
+    assert not out.exists()
+
+
 def test_every_problem_of_the_report_is_said_and_counted(tmp_path, truth, inputs, capsys):
     """A magnification that makes a 650 um camera pixel (the pixel size itself right)
     is said before the fit and listed in report.txt with the iteration limit's problems;

@@ -770,27 +770,16 @@ def calibrate(
 
 
 def _refuse_wide_cells(widths_um: np.ndarray, whose: str, pixel_note: str) -> None:
-    """Refuse cells wider than any rod (:func:`~napari_symbac.fit.start.too_wide`, the
-    automatic start's rule): the pixel size is too large. Found as a user: 0.8 um for
-    ColiCoords' 0.08 um made cells 15 um wide, fitted at their bounds, exit 0.
+    """:func:`~napari_symbac.fit.start.refuse_wide_cells` with calibrate's other way:
+    the pixel size from the masks' widths."""
+    from napari_symbac.fit.start import refuse_wide_cells
 
-    Raises
-    ------
-    ValueError
-        Naming the widths, the pixel size and where it came from (``pixel_note``, a
-        sentence), and the fix.
-    """
-    from napari_symbac.fit.start import MAX_START_WIDTH_UM, too_wide
-
-    if not too_wide(widths_um):
-        return
-    raise ValueError(
-        f"{whose} are {float(np.median(widths_um)):.1f} um wide (median), wider than any "
-        f"rod-shaped bacterium (over {MAX_START_WIDTH_UM:g} um): the pixel size is too "
-        f"large ({pixel_note}). Check pixel_size_um (um in "
-        "the sample: the camera pixel / magnification, 6.5 um / 100x = 0.065), or set it "
-        "from the masks with the cells' width (calibrate --cell-width-um; in napari, the "
-        "Calibrate step's cell width)"
+    refuse_wide_cells(
+        widths_um,
+        whose,
+        pixel_note,
+        ", or set it from the masks with the cells' width (calibrate --cell-width-um; in "
+        "napari, the Calibrate step's cell width)",
     )
 
 

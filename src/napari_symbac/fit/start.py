@@ -34,6 +34,7 @@ __all__ = [
     "otsu_cells",
     "polarity_of",
     "refuse_blobs",
+    "refuse_wide_cells",
     "start_scene",
     "too_wide",
 ]
@@ -562,6 +563,28 @@ def refuse_blobs(widths_um: np.ndarray, pixel_size_um: float) -> None:
     )
 
 
+def refuse_wide_cells(widths_um: np.ndarray, whose: str, pixel_note: str, fix: str = "") -> None:
+    """Refuse given cells (masks', or a fit's) wider than any rod (:func:`too_wide`, the
+    automatic start's rule): the pixel size is too large. Found as a user: 0.8 um for
+    ColiCoords' 0.08 um made cells 15 um wide, fitted at their bounds, exit 0.
+
+    Raises
+    ------
+    ValueError
+        Naming ``whose`` cells, their median width, the pixel size and where it came
+        from (``pixel_note``), and the fix (``fix``: the caller's other way, if any).
+    """
+    widths_um = np.asarray(widths_um, np.float64)
+    if not too_wide(widths_um):
+        return
+    raise ValueError(
+        f"{whose} are {float(np.median(widths_um)):.1f} um wide (median), wider than any "
+        f"rod-shaped bacterium (over {MAX_START_WIDTH_UM:g} um): the pixel size is too "
+        f"large ({pixel_note}). Check pixel_size_um (um in the sample: the camera pixel / "
+        f"magnification, 6.5 um / 100x = 0.065){fix}"
+    )
+
+
 def start_scene(
     image: np.ndarray,
     microscope: Microscope,
@@ -599,9 +622,10 @@ def start_scene(
     depth_um, valid, max_cell_length_um
         As in :func:`otsu_cells`.
     refuse_wide
-        Refuse a start without ``masks`` whose cells are wider than any rod
-        (:func:`refuse_blobs`); ``False`` where the caller starts from other cells
-        (a series fit's previous frame) and takes only the trench from here.
+        Refuse a start whose cells are wider than any rod (without ``masks``:
+        :func:`refuse_blobs`; with them: :func:`refuse_wide_cells`, the pixel size is too
+        large); ``False`` where the caller starts from other cells (a series fit's
+        previous frame) and takes only the trench from here.
 
     Returns
     -------
@@ -613,6 +637,9 @@ def start_scene(
     WideStartError
         Without ``masks``, when the cells found are wider than any rod
         (:func:`refuse_blobs`) and ``refuse_wide``.
+    ValueError
+        With ``masks``, when their cells are wider than any rod
+        (:func:`refuse_wide_cells`) and ``refuse_wide``.
     FaintStartError
         Without ``masks``, when no bright cell stands out of the background
         (fluorescence).
@@ -664,6 +691,8 @@ def start_scene(
         instances = as_instance_ids(masks)[0].astype(np.int64)
         # an instance mask keeps its cells as they are: no rods split off long regions
         cells, widths = cells_from_instances(instances, px, max_cell_length_um=math.inf)
+        if refuse_wide:
+            refuse_wide_cells(widths, "the masks' cells", f"pixel size {px:g} um")
         return cells, widths, found, instances
     # Painted classes are rough strokes, not outlines: they give the polarity (above)
     # and say where no cell is; the cells themselves come from the image.
