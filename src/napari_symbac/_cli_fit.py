@@ -509,7 +509,7 @@ def _outputs_one(
     cells.json)."""
     import tifffile
 
-    from napari_symbac.fit.camera_estimate import censored_pixels
+    from napari_symbac.fit.camera_estimate import censored_pixels, read_noise_unmeasured
     from napari_symbac.fit.clipped_background import clipped_background, drawn_clipped
     from napari_symbac.fit.figure import before_after_figure
     from napari_symbac.fit.fitted_settings import fitted_render, fitted_simulation
@@ -592,7 +592,7 @@ def _outputs_one(
         )
         del facts["camera used"]
     elif camera is None:  # the engine estimated it: check it model-free
-        if camera_used.dark_noise_e == 0:
+        if read_noise_unmeasured(camera_used):
             notes.append(UNMEASURED_READ_NOISE)
         check, problem = model_free_camera_check(frame, camera_used, CLI_CAMERA_FIX)
         facts["camera (model-free)"] = check
@@ -705,6 +705,7 @@ def _fit_frames_jointly(
     the tracks as a Cell Tracking Challenge result in ``ctc/01_RES/`` (``mask{TTT}.tif``
     with track ids, ``res_track.txt``; CTC frame ``k`` is the ``k``-th fitted frame)."""
     from napari_symbac.fit import fit_series
+    from napari_symbac.fit.camera_estimate import read_noise_unmeasured
     from napari_symbac.fit.report import UNMEASURED_READ_NOISE, cells_counted
 
     n_frames = stack.shape[0]
@@ -757,7 +758,7 @@ def _fit_frames_jointly(
             # the pooled frames' camera, or, where their photon transfer measured none (a
             # normalised series: found as a user, a traceback), this frame's own
             used = series.camera if series.camera is not None else result.camera
-            measured = [UNMEASURED_READ_NOISE] if used.dark_noise_e == 0 else []
+            measured = [UNMEASURED_READ_NOISE] if read_noise_unmeasured(used) else []
             ready = dataclasses.replace(ready, camera=used, notes=[*ready.notes, *measured])
         # found as a user: the shared optics' line read "defocus_sigma_um: 0.354 +- 0.00302"
         # here, an SE series.json holds nowhere; the joint fit's are named with its problems

@@ -271,6 +271,14 @@ def test_a_field_of_few_cells_draws_its_mean_cell_and_a_bounded_spread(real_data
     assert min(kept) >= 3
     # the synthetic cells are as bright as the field's, not as its two dimmest
     assert 0.5 < np.median(medians) / np.median(real) < 2.0
+    # the camera, 19.2 ADU/e- with no read noise resolved, is drawn with 0.5 e-: the
+    # background holds every level, as the recording's (in steps of 19.2 ADU before)
+    assert cal.settings.camera.dark_noise_e == 0.5
+    assert any("0.5 e- when the image holds levels between" in note for note in cal.notes)
+    background = item.image[item.labels == 0]
+    low, high = np.percentile(background, (25, 75))
+    middle = background[(background >= low) & (background <= high)]
+    assert np.unique(middle).size / (high - low + 1) > 0.5
 
 
 def test_no_exported_cell_is_brighter_than_the_fields_brightest(real_data_dir):

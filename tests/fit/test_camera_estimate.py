@@ -2,12 +2,19 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import tifffile
 from scipy import ndimage
 
-from napari_symbac.fit.camera_estimate import censored_pixels, estimate_camera
+from napari_symbac.fit.camera_estimate import (
+    MIN_UNRESOLVED_DARK_NOISE_E,
+    censored_pixels,
+    estimate_camera,
+    with_unresolved_dark_noise,
+)
 from napari_symbac.optics import ForwardModel
 from napari_symbac.optics.camera import apply_camera_noise
 from napari_symbac.settings import Camera
@@ -245,6 +252,41 @@ def test_a_kept_camera_offset_becomes_the_fits_baseline(real_data_dir):
     pairs = np.diff(frame, axis=1)[background[:, 1:] & background[:, :-1]]
     measured_sd = 1.4826 * np.median(np.abs(pairs - np.median(pairs))) / np.sqrt(2)
     assert predicted_sd == pytest.approx(measured_sd, rel=0.5)
+    # its read noise, not resolved, is not 0 either: the image holds every level
+    assert fit.camera.dark_noise_e == MIN_UNRESOLVED_DARK_NOISE_E
+
+
+def _levels_used(image: np.ndarray) -> float:
+    """The share of the ADU levels in the middle half of an image's values it holds."""
+    low, high = np.percentile(image, (25, 75))
+    inside = image[(image >= low) & (image <= high)]
+    return np.unique(inside).size / (high - low + 1)
+
+
+def test_an_unresolved_read_noise_is_drawn_at_half_an_electron():
+    """Found as a user: ColiCoords ds3 measured as 19.2 ADU/e- with 0 e- read noise was
+    drawn in steps of 19.2 ADU (7 % of the levels of a background holding all of them)."""
+    signal = _smooth_signal(low=20.0, high=400.0)
+    noiseless = Camera(baseline_adu=100.0, sensitivity_adu_per_e=19.2, dark_noise_e=0.0)
+    # a camera with sub-electron read noise: its image holds the levels between electrons
+    recording = apply_camera_noise(
+        signal, dataclasses.replace(noiseless, dark_noise_e=0.3), np.random.default_rng(5)
+    )
+    assert _levels_used(recording) > 0.9
+    drawn = with_unresolved_dark_noise(noiseless, recording)
+    assert drawn.dark_noise_e == MIN_UNRESOLVED_DARK_NOISE_E
+    assert _levels_used(apply_camera_noise(signal, noiseless, np.random.default_rng(6))) < 0.1
+    assert _levels_used(apply_camera_noise(signal, drawn, np.random.default_rng(6))) > 0.9
+    # a photon-counting camera's image, on the electrons' steps, keeps its read noise
+    counting = apply_camera_noise(signal, noiseless, np.random.default_rng(7))
+    assert with_unresolved_dark_noise(noiseless, counting) is noiseless
+    # a measured read noise is kept
+    measured = dataclasses.replace(noiseless, dark_noise_e=0.8)
+    assert with_unresolved_dark_noise(measured, recording) is measured
+    summary = dataclasses.replace(
+        estimate_camera(recording, camera=noiseless), camera=drawn
+    ).summary()
+    assert "dark noise 0.5 e- (too small to measure from this image; the image holds" in summary
 
 
 def test_summary_of_a_read_noise_too_small_to_measure():

@@ -108,8 +108,10 @@ def parameter_table(result: Any) -> list[dict[str, Any]]:
 #: Said when a camera measured from the image came out with no read noise.
 UNMEASURED_READ_NOISE = (
     "the read noise is too small to measure from this image (the noise variance at the "
-    "baseline is at or below zero after the shot noise): 0 e- is used; give the camera "
-    "(or dark frames) when it matters, e.g. for dim fluorescence"
+    "baseline is at or below zero after the shot noise): 0 e- is used, or 0.5 e- when the "
+    "image holds levels between whole electrons (a camera without read noise would step "
+    "by its sensitivity); give the camera (or dark frames) when it matters, e.g. for dim "
+    "fluorescence"
 )
 
 
@@ -119,13 +121,13 @@ def measured_camera_note(frame: Any, camera: Any) -> str:
     that is not raw camera counts, whose "camera" is the residual's variance: found as a
     user, the dock said "camera measured from the recording (0.001 ADU/e-, read noise
     3.14e+04 e-)" of ColiCoords' flattened bright field, and no more)."""
-    from napari_symbac.fit.camera_estimate import estimate_camera
+    from napari_symbac.fit.camera_estimate import estimate_camera, read_noise_unmeasured
 
     note = (
         f"camera measured from the recording: {camera.sensitivity_adu_per_e:.3g} ADU/e-, "
         f"read noise {camera.dark_noise_e:.3g} e-, baseline {camera.baseline_adu:.4g} ADU"
     )
-    if camera.dark_noise_e == 0:  # said, as `fit` and Auto-fit say it
+    if read_noise_unmeasured(camera):  # said, as `fit` and Auto-fit say it
         note += f" ({UNMEASURED_READ_NOISE})"
     try:
         estimate = estimate_camera(frame, camera=camera, bit_depth=camera.bit_depth)

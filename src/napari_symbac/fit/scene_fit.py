@@ -38,7 +38,11 @@ import numpy as np
 from scipy import sparse
 
 from napari_symbac.arguments import require_argument
-from napari_symbac.fit.camera_estimate import censored_pixels, estimate_camera
+from napari_symbac.fit.camera_estimate import (
+    censored_pixels,
+    estimate_camera,
+    with_unresolved_dark_noise,
+)
 from napari_symbac.fit.colony import is_dense_colony
 from napari_symbac.fit.engine import CURVATURE_B, CURVATURE_C, Layout
 from napari_symbac.fit.illumination import illumination_stage, illumination_terms
@@ -1019,6 +1023,7 @@ def _measured_camera(real: np.ndarray, valid: np.ndarray, camera: Camera) -> Cam
         measured = dataclasses.replace(
             measured, baseline_adu=baseline, dark_noise_e=math.sqrt(read_variance) / gain
         )
+        measured = with_unresolved_dark_noise(measured, real, valid)
     return measured
 
 
