@@ -448,8 +448,15 @@ def _prepare_one(args, frame, labels, masks, microscope, base, keys):
     if "illumination_order" in options and not colony:
         notes.append(
             f"an illumination surface of degree {options['illumination_order']} is fitted "
-            "(parameters illumination.*); settings.yaml holds none: render and export draw "
-            "flat illumination"
+            "(parameters illumination.*); settings.yaml draws it (extra stage "
+            "uneven_illumination), so render and export images have the recording's light"
+        )
+    if options.get("per_cell_brightness") and microscope.modality != "fluorescence":
+        notes.append(
+            f"--cell-brightness per-cell in {microscope.modality}: each cell's intensity is "
+            "fitted, but settings.yaml draws the cells alike (a cell's level there is its "
+            "optical path, which differs little between cells; the fitted cells' own "
+            "intensities take up the fit's misfit)"
         )
     if masks is not None:
         if "masks" not in accepted:
@@ -512,7 +519,11 @@ def _outputs_one(
     from napari_symbac.fit.camera_estimate import censored_pixels, read_noise_unmeasured
     from napari_symbac.fit.clipped_background import clipped_background, drawn_clipped
     from napari_symbac.fit.figure import before_after_figure
-    from napari_symbac.fit.fitted_settings import fitted_render, fitted_simulation
+    from napari_symbac.fit.fitted_settings import (
+        fitted_render,
+        fitted_simulation,
+        with_illumination,
+    )
     from napari_symbac.fit.preflight import camera_pixel_problem
     from napari_symbac.fit.report import (
         CLI_CAMERA_FIX,
@@ -533,7 +544,7 @@ def _outputs_one(
     censor_note, polarity = prepared.censor_note, prepared.polarity
     geometry = _GEOMETRIES[args.geometry]
     camera_used = getattr(result, "camera", None) or camera or base.camera
-    render = result.render if prepared.colony else fitted_render(result)  # cells' spread
+    render = result.render if prepared.colony else fitted_render(result, microscope.modality)
     settings = dataclasses.replace(base, microscope=microscope, render=render, camera=camera_used)
     given = keys.get("simulation") or {}
     keep = {*given, *(f"agar_pad.{k}" for k in (given.get("agar_pad") or {}))}
@@ -544,6 +555,10 @@ def _outputs_one(
         settings = dataclasses.replace(settings, simulation=simulation)
     except ValueError as err:
         notes.append(f"simulation settings kept from the config: {err}")
+    if getattr(result, "illumination_order", 0):  # drawn as fitted (before any clip)
+        settings = dataclasses.replace(
+            settings, extra_stages=with_illumination(settings.extra_stages, result)
+        )
     if microscope.modality == "fluorescence" and not prepared.colony:
         clipped = clipped_background(
             frame, result.scene.camera_labels() > 0, censored_pixels(frame, camera)

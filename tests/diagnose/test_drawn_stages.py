@@ -64,6 +64,16 @@ def test_settings_carry_the_drawn_effects_and_refuse_others(tmp_path):
         with pytest.raises(ValueError, match=words) as err:
             load_settings(path, PipelineSettings)
         assert str(path) in str(err.value)  # the file that holds it is named
+    # the scene fit's surface of any degree (fit --illumination-order), checked alike
+    surface = ExtraStage("uneven_illumination", {"coefficients": [0.1, 0.0], "order": 1})
+    assert PipelineSettings(extra_stages=(surface,)).extra_stages == (surface,)
+    for parameters, words in (
+        ({"coefficients": [0.1, 0.0, 0.2], "order": 1}, "order 1 needs 2 coefficients"),
+        ({"coefficients": [0.1, 0.0], "order": 9}, "illumination_order must be an integer"),
+        ({"coefficients": [0.1, 0.0]}, "coefficients must be 5 numbers"),
+    ):
+        with pytest.raises(ValueError, match=words):
+            ExtraStage("uneven_illumination", parameters)
 
 
 def test_render_draws_the_extra_stages_on_any_frame_size():

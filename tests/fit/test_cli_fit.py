@@ -956,7 +956,29 @@ def test_model_options_reach_the_fit(tmp_path, inputs, capsys):
     assert len(widths) == len(table["cells"])  # a width per cell, not one shared
     text = json.dumps(table) + (out / "report.txt").read_text()
     assert "illumination." in text
-    assert "settings.yaml holds none" in (out / "report.txt").read_text()
+    report = (out / "report.txt").read_text()
+    # the surface is drawn by render and export as fitted (it was left out: the fit's
+    # intensities, found under it, drew the real trench's media 2x too light)
+    assert "settings.yaml draws it (extra stage uneven_illumination)" in report
+    settings = load_settings(out / "settings.yaml", PipelineSettings)
+    [stage] = settings.extra_stages
+    assert stage.name == "uneven_illumination"
+    assert stage.parameters["order"] == 2
+    fitted = {p["name"]: p["value"] for p in table["parameters"]}
+    terms = ("x", "y", "x^2", "y^2", "xy")
+    assert stage.parameters["coefficients"] == pytest.approx(
+        [fitted[f"illumination.{t}"] for t in terms]
+    )
+    from napari_symbac.diagnose.stages import drawn_stages
+    from napari_symbac.fit.illumination import illumination_basis
+
+    ones = np.ones((40, 30), np.float32)
+    basis = illumination_basis(ones.shape, 2)
+    surface = 1 + np.tensordot(stage.parameters["coefficients"], basis, 1)
+    np.testing.assert_allclose(drawn_stages(settings)[0].apply(ones, None), surface, rtol=1e-6)
+    # a phase-contrast cell's fitted intensity is misfit, not its optical path: not drawn
+    assert "--cell-brightness per-cell in phase: each cell's intensity is fitted" in report
+    assert settings.render.cell_brightness_cv == 0.0
 
 
 @pytest.mark.parametrize(

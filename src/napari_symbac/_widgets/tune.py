@@ -858,8 +858,11 @@ class TuneWidget(Container):
         series = _series_of(result)
         result = _shown_fit(result, outcome.shown)  # it sets the sliders (optics are shared)
         fit_render, fit_camera = (result.render, result.camera) if clipped is None else clipped[:2]
+        fit_microscope = self._fit_microscope
         if not isinstance(result, ColonyFit):  # the cells' own brightness spread
-            spread = fitted_render(result)
+            spread = fitted_render(
+                result, fit_microscope.modality if fit_microscope else self.modality.value
+            )
             fit_render = dataclasses.replace(
                 fit_render,
                 cell_brightness_cv=spread.cell_brightness_cv,

@@ -95,7 +95,8 @@ def check_drawn_stage(name: str, parameters: dict[str, Any]) -> None:
         )
     try:
         stage_for(name, parameters)
-        if name == "uneven_illumination" and len(parameters["coefficients"]) != 5:
+        five = name == "uneven_illumination" and "order" not in parameters
+        if five and len(parameters["coefficients"]) != 5:
             raise ValueError("coefficients must be 5 numbers (x, y, x^2, y^2, xy)")
     except (KeyError, TypeError, ValueError) as err:
         reason = f"it lacks {err}" if isinstance(err, KeyError) else str(err)

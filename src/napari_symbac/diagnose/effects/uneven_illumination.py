@@ -225,7 +225,14 @@ class UnevenIllumination(Effect):
 
 
 def stage(parameters: dict) -> Stage:
-    """Forward-model stage multiplying the clean image by the fitted surface."""
+    """Forward-model stage multiplying the clean image by the fitted surface: the
+    diagnosis' (5 ``coefficients``), or with an ``order`` the scene fit's surface of
+    that degree (:func:`~napari_symbac.fit.illumination.illumination_stage`, which
+    ``napari-symbac fit --illumination-order`` writes into its settings.yaml)."""
+    if "order" in parameters:
+        from napari_symbac.fit.illumination import illumination_stage
+
+        return illumination_stage(parameters["coefficients"], int(parameters["order"]))
     coeffs = np.asarray(parameters["coefficients"], float)
 
     def apply(image: np.ndarray, scene: object) -> np.ndarray:
