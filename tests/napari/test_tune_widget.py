@@ -654,6 +654,35 @@ def test_fluorescence_gives_bright_cells_on_dark(rendered):
     assert settings.render.cell_intensity > settings.render.media_intensity
 
 
+@pytest.mark.parametrize("modality", ["phase", "fluorescence", "brightfield"])
+def test_the_sliders_shown_are_those_that_change_the_image(rendered, modality):
+    """Found as a user: in fluorescence ring contrast, PSF offset and apodisation (the
+    phase kernel's) and the gaussian noise sd (with camera noise) moved and the image
+    stayed the same. Each slider shown changes the frame; each one hidden leaves it as
+    it was, with camera noise and with gaussian noise."""
+    viewer, tune = rendered
+    layer = viewer.layers[RESULT_IMAGE_LAYER]
+    tune.modality.value = modality
+    for noise in ("camera", "gaussian"):
+        tune.noise_model.value = noise
+        frame = tune._current_frame()
+        for name, slider in tune.sliders.items():
+            before = layer.data[frame].copy()
+            start = slider.value
+            step = 0.2 * (slider.max - slider.min)
+            slider.value = start + step if start + step <= slider.max else start - step
+            changed = not np.array_equal(layer.data[frame], before)
+            assert tune.status.value == "", (name, tune.status.value)
+            assert changed != slider.native.isHidden(), (modality, noise, name, changed)
+            slider.value = start
+        shown = {name for name, slider in tune.sliders.items() if not slider.native.isHidden()}
+        assert ("gaussian_noise_sd_adu" in shown) == (noise == "gaussian")
+        assert "device_intensity" in shown  # the trench's walls glow in fluorescence too
+        phase_kernel = {"ring_contrast", "psf_offset", "apodisation_sigma_um"}
+        assert (phase_kernel <= shown) == (modality == "phase")
+        assert not phase_kernel & shown or modality == "phase"
+
+
 def test_matching_accepts_a_real_image_a_few_rows_off(rendered):
     """Defect 6: 258 rendered vs 256 real rows refused with 'crop the real image'."""
     viewer, tune = rendered

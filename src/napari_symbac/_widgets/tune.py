@@ -92,11 +92,16 @@ SLIDERS: dict[str, tuple[str, float, float]] = {
     # bright field's lens term of cells out of focus (docs/physics.md)
     "defocus_contrast_um2": ("lens term (um^2)", -0.1, 0.1),
 }
-#: Sliders of one phase model only: the others leave that model's image unchanged.
+#: Sliders of one phase model only: the other model, fluorescence (an Airy PSF) and
+#: bright field leave the image unchanged.
 COHERENT_ONLY = ("cell_phase_rad", "phase_ring_width_scale", "plate_transmission")
 LINEAR_ONLY = ("ring_contrast", "psf_offset")
+#: The phase-contrast PSF's, of both phase models; unused by fluorescence and bright field.
+PHASE_ONLY = ("apodisation_sigma_um",)
 #: Sliders of bright field only; the phase kernel's are hidden there.
 BRIGHTFIELD_ONLY = ("defocus_contrast_um2",)
+#: Sliders of the gaussian noise model only; camera noise and none leave the image unchanged.
+GAUSSIAN_NOISE_ONLY = ("gaussian_noise_sd_adu",)
 
 
 def terms_plot(terms: dict[str, tuple[float, float]], width: int = 240) -> np.ndarray:
@@ -483,17 +488,21 @@ class TuneWidget(Container):
         layer.refresh()
 
     def _show_model_sliders(self, render: Any, modality: str) -> None:
-        """The sliders that act on the model in use (fluorescence: the linear phase
-        model's; bright field: its lens term, not the phase kernel's)."""
-        coherent = modality == "phase" and render.phase_model == "partially_coherent"
-        brightfield = modality == "brightfield"
-        for name in COHERENT_ONLY:
-            self.sliders[name].visible = coherent
-        for name in LINEAR_ONLY:
-            self.sliders[name].visible = not coherent and not brightfield
-        for name in BRIGHTFIELD_ONLY:
-            self.sliders[name].visible = brightfield
-        self.sliders["apodisation_sigma_um"].visible = not brightfield  # the phase PSF's
+        """Only the sliders that change the image of the model in use: the phase kernel's
+        in phase contrast (of its phase model), bright field's lens term, the gaussian
+        noise sd with gaussian noise. Found as a user: in fluorescence ring contrast (and
+        PSF offset, apodisation) moved and the image stayed the same."""
+        phase = modality == "phase"
+        coherent = phase and render.phase_model == "partially_coherent"
+        shown = {
+            **dict.fromkeys(COHERENT_ONLY, coherent),
+            **dict.fromkeys(LINEAR_ONLY, phase and not coherent),
+            **dict.fromkeys(PHASE_ONLY, phase),
+            **dict.fromkeys(BRIGHTFIELD_ONLY, modality == "brightfield"),
+            **dict.fromkeys(GAUSSIAN_NOISE_ONLY, render.noise_model == "gaussian"),
+        }
+        for name, visible in shown.items():
+            self.sliders[name].visible = visible
         fluorescence = modality == "fluorescence"
         for box in (self.fit_envelope_stain, self.fit_depth):
             box.visible = fluorescence
@@ -581,6 +590,7 @@ class TuneWidget(Container):
             self.status.value = f"Not applied: {err}"
             return
         self.status.value = ""
+        self._show_model_sliders(self.preview.render_settings, self.modality.value)
         self._store_settings()
         if self._polarity_changed:  # new grey levels: show them
             self._polarity_changed = False
