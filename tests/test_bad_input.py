@@ -24,7 +24,13 @@ import pytest
 import tifffile
 
 from napari_symbac.cli import LARGE_RUN_FRAMES, main
-from napari_symbac.export import ExportSettings, series_items, write_items
+from napari_symbac.export import (
+    ExportError,
+    ExportSettings,
+    check_export_folder,
+    series_items,
+    write_items,
+)
 from napari_symbac.settings import (
     Microscope,
     PipelineSettings,
@@ -83,6 +89,22 @@ def test_export_to_folder_of_another_export(tmp_path, export_config, capsys):
     assert code == 2
     assert "already holds an export made with different settings" in err
     assert "export to a new folder" in err
+    assert _files(out) == before
+
+
+def test_the_folder_of_another_export_is_refused_by_a_check_that_writes_nothing(tmp_path):
+    """The check the Export dock makes before its job (found as a user: the refusal came
+    only from the job): the same message as the export's own, nothing written; a missing
+    folder passes and stays missing."""
+    out = tmp_path / "dataset"
+    settings = ExportSettings(n_items=2, formats=["tiff"], pipeline=TINY, val_fraction=0)
+    check_export_folder(settings, out)
+    assert not out.exists()
+    image = np.full((1, 8, 8), 100, np.uint16)
+    write_items(series_items(image, np.zeros((1, 8, 8), np.uint32)), out, ["tiff"])
+    before = _files(out)
+    with pytest.raises(ExportError, match="already holds an export made with different"):
+        check_export_folder(settings, out)
     assert _files(out) == before
 
 

@@ -120,6 +120,41 @@ def test_a_folder_of_other_files_is_refused_before_the_export(widget, tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["notes.txt"]
 
 
+def test_a_folder_of_another_export_is_refused_before_the_export(widget, qtbot, tmp_path):
+    """Found as a user: a folder holding an export made with other settings was refused
+    only by the job, as an error notification. Now at once on the status line, the
+    export left as it was; the same settings (a resume) still run there."""
+    import json
+
+    folder = tmp_path / "dataset"
+    widget.n_items.value = 1
+    widget.val_fraction.value = 0.0
+    widget.folder.value = folder
+    widget.export_button.native.click()
+    qtbot.waitUntil(lambda: widget.worker is None and widget.report is not None, timeout=120_000)
+    first = widget.report
+    assert first.complete
+    before = {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+    widget.seed.value = 1
+    widget.export_button.native.click()
+    assert widget.worker is None
+    assert widget.status.value.startswith(
+        f"Not exported: {folder} already holds an export made with different settings"
+    )
+    assert "; seed: 0 there, 1 here)" in widget.status.value
+    assert "export to a new folder" in widget.status.value
+    assert widget.export_button.enabled
+    assert {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()} == before
+    # the same settings: the finished export is resumed (nothing left to write)
+    widget.seed.value = 0
+    widget.export_button.native.click()
+    assert widget.worker is not None
+    qtbot.waitUntil(lambda: widget.worker is None and widget.report is not first, timeout=120_000)
+    assert widget.report.complete
+    assert widget.report.n_skipped == 1
+    assert json.loads((folder / "manifest.json").read_text())["status"] == "complete"
+
+
 def test_export_error_is_reported_and_the_widget_stays_usable(
     widget, qtbot, tmp_path, monkeypatch
 ):

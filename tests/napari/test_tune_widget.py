@@ -164,6 +164,14 @@ def test_auto_fit_runs_the_scene_fit_on_the_recording(rendered, qtbot, real_data
     assert FIT_RESIDUAL_LAYER in viewer.layers
     assert tune.terms_table.shape[0] == len(result.terms)
     assert "Fitted in" in tune.status.value
+    # the convergence plot's caption says the status line's objective and the curve's ends
+    objective = f"{result.objective_before:.4g} -> {result.objective_after:.4g}"
+    assert f"objective {objective}" in tune.status.value
+    caption = tune.convergence_caption.value
+    assert not tune.convergence_caption.native.isHidden()
+    assert f"start {result.objective_before:.4g} (grey square)" in caption
+    assert f"end {result.objective_after:.4g} (orange square)" in caption
+    assert f"{result.history[-1]:.4g} at the last" in caption
     # what the CLI's report says is said here too: 2 iterations stop at the limit
     assert f"{cells_counted(len(result.cells))} fitted" in tune.status.value
     assert "Problem: round 1: the fit stopped at the iteration limit" in tune.status.value
@@ -527,6 +535,42 @@ def test_auto_fit_with_nan_terms_reports_them(rendered, qtbot, real_data_dir, mo
     assert tune.fit_button.enabled
 
 
+def test_the_convergence_plot_says_its_numbers_and_a_rise_is_not_a_worse_fit():
+    """Found as a user: after Auto-fit of ColiCoords ds1 00002 (objective 4.415 ->
+    2.497) a bare line, no axes or numbers, that rose: read as a fit that got worse.
+    The plot marks the status line's objective at the start and the end; the caption
+    says the axes, the line's first and last values and why it may rise."""
+    from napari_symbac._widgets.tune import (
+        AFTER_COLOUR,
+        BEFORE_COLOUR,
+        CURVE_COLOUR,
+        convergence_caption,
+        convergence_plot,
+    )
+
+    history = [3.0, 2.0, 6.0, 2.6]  # a rise where the round's weights were re-estimated
+    plot = convergence_plot(history, 4.415, 2.497)
+    assert (plot == CURVE_COLOUR).all(axis=-1).any()
+
+    def rows(colour, columns):
+        return np.flatnonzero((plot[:, columns] == colour).all(axis=-1).any(axis=1))
+
+    start, end = rows(BEFORE_COLOUR, slice(0, 5)), rows(AFTER_COLOUR, slice(-5, None))
+    assert start.size
+    assert end.size
+    assert end.mean() > start.mean()  # the end's objective lower than the start's
+    caption = convergence_caption(history, 4.415, 2.497)
+    assert "start 4.415 (grey square) -> end 2.497 (orange square)" in caption
+    assert "each of the fit's 4 accepted steps (x, in order), 3 at the first, 2.6 at the last" in (
+        caption
+    )
+    assert "y: log scale, 2 to 6" in caption
+    assert "where the line rises, the weights or the cells changed, not the fit got worse" in (
+        caption
+    )
+    assert "No fit step was recorded" in convergence_caption([], 4.415, 2.497)
+
+
 def test_auto_fit_error_is_a_notification_not_a_traceback(rendered, qtbot, real_data_dir):
     """Defect 9: expected errors (no media strokes) go to the status line and a
     notification, and are not re-raised (pytest-qt fails a test on any exception
@@ -652,6 +696,35 @@ def test_fluorescence_gives_bright_cells_on_dark(rendered):
     settings = viewer.layers[RESULT_IMAGE_LAYER].metadata[SYMBAC_METADATA_KEY]["settings"]
     assert settings.microscope.modality == "fluorescence"
     assert settings.render.cell_intensity > settings.render.media_intensity
+
+
+@pytest.mark.parametrize("modality", ["phase", "fluorescence", "brightfield"])
+def test_the_sliders_shown_are_those_that_change_the_image(rendered, modality):
+    """Found as a user: in fluorescence ring contrast, PSF offset and apodisation (the
+    phase kernel's) and the gaussian noise sd (with camera noise) moved and the image
+    stayed the same. Each slider shown changes the frame; each one hidden leaves it as
+    it was, with camera noise and with gaussian noise."""
+    viewer, tune = rendered
+    layer = viewer.layers[RESULT_IMAGE_LAYER]
+    tune.modality.value = modality
+    for noise in ("camera", "gaussian"):
+        tune.noise_model.value = noise
+        frame = tune._current_frame()
+        for name, slider in tune.sliders.items():
+            before = layer.data[frame].copy()
+            start = slider.value
+            step = 0.2 * (slider.max - slider.min)
+            slider.value = start + step if start + step <= slider.max else start - step
+            changed = not np.array_equal(layer.data[frame], before)
+            assert tune.status.value == "", (name, tune.status.value)
+            assert changed != slider.native.isHidden(), (modality, noise, name, changed)
+            slider.value = start
+        shown = {name for name, slider in tune.sliders.items() if not slider.native.isHidden()}
+        assert ("gaussian_noise_sd_adu" in shown) == (noise == "gaussian")
+        assert "device_intensity" in shown  # the trench's walls glow in fluorescence too
+        phase_kernel = {"ring_contrast", "psf_offset", "apodisation_sigma_um"}
+        assert (phase_kernel <= shown) == (modality == "phase")
+        assert not phase_kernel & shown or modality == "phase"
 
 
 def test_matching_accepts_a_real_image_a_few_rows_off(rendered):

@@ -206,12 +206,16 @@ class ExportWidget(Container):
         except ValueError as err:
             self.status.value = f"Invalid settings: {err}"
             return
+        from napari_symbac.export import check_export_folder
         from napari_symbac.export.atomic import check_output_folder
-        from napari_symbac.export.manifest import check_dataset_folder
 
-        try:  # as the CLI: a folder that cannot be written is refused before any work
+        backend = self.backend.value
+        # as the CLI: a folder that cannot be written is refused before any work, and so
+        # is one holding another export (found as a user: an error notification from
+        # the job); the same export's folder is resumed
+        try:
             check_output_folder(folder, "the output folder")
-            check_dataset_folder(folder)
+            check_export_folder(settings, folder, backend)
         except (ValueError, RuntimeError) as err:  # ExportError is a RuntimeError
             self.status.value = f"Not exported: {err}"
             return
@@ -225,7 +229,6 @@ class ExportWidget(Container):
             except ValueError as err:
                 self.status.value = f"Not exported: {err}"
                 return
-        backend = self.backend.value
         origin = (
             f"'{self.source.current_choice}'"
             if self.source.value is not None

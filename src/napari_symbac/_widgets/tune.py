@@ -59,6 +59,8 @@ __all__ = [
     "FIT_TRACK_MASKS_LAYER",
     "SLIDERS",
     "TuneWidget",
+    "convergence_caption",
+    "convergence_plot",
     "terms_plot",
 ]
 
@@ -92,11 +94,23 @@ SLIDERS: dict[str, tuple[str, float, float]] = {
     # bright field's lens term of cells out of focus (docs/physics.md)
     "defocus_contrast_um2": ("lens term (um^2)", -0.1, 0.1),
 }
-#: Sliders of one phase model only: the others leave that model's image unchanged.
+#: Sliders of one phase model only: the other model, fluorescence (an Airy PSF) and
+#: bright field leave the image unchanged.
 COHERENT_ONLY = ("cell_phase_rad", "phase_ring_width_scale", "plate_transmission")
 LINEAR_ONLY = ("ring_contrast", "psf_offset")
+#: The phase-contrast PSF's, of both phase models; unused by fluorescence and bright field.
+PHASE_ONLY = ("apodisation_sigma_um",)
 #: Sliders of bright field only; the phase kernel's are hidden there.
 BRIGHTFIELD_ONLY = ("defocus_contrast_um2",)
+#: Sliders of the gaussian noise model only; camera noise and none leave the image unchanged.
+GAUSSIAN_NOISE_ONLY = ("gaussian_noise_sd_adu",)
+
+
+#: Colours of the values before and after the fit (:func:`terms_plot`, the squares of
+#: :func:`convergence_plot`) and of the convergence curve.
+BEFORE_COLOUR = (150, 150, 150)
+AFTER_COLOUR = (255, 150, 40)
+CURVE_COLOUR = (240, 240, 240)
 
 
 def terms_plot(terms: dict[str, tuple[float, float]], width: int = 240) -> np.ndarray:
@@ -113,7 +127,7 @@ def terms_plot(terms: dict[str, tuple[float, float]], width: int = 240) -> np.nd
         top = gap + row * (2 * bar + gap)
         finite = [abs(v) for v in (before, after) if np.isfinite(v)]
         scale = max(finite, default=0.0) or 1.0
-        for offset, value, colour in ((0, before, (150, 150, 150)), (bar, after, (255, 150, 40))):
+        for offset, value, colour in ((0, before, BEFORE_COLOUR), (bar, after, AFTER_COLOUR)):
             rows = slice(top + offset, top + offset + bar - 1)
             if not np.isfinite(value):
                 image[rows, 1 : width - 1 : 4] = (220, 40, 40)
@@ -123,34 +137,91 @@ def terms_plot(terms: dict[str, tuple[float, float]], width: int = 240) -> np.nd
     return image
 
 
-def convergence_plot(history: Sequence[float], width: int = 240, height: int = 70) -> np.ndarray:
-    """A small RGB line plot of the fit's reduced chi-square per accepted step.
+def convergence_plot(
+    history: Sequence[float],
+    objective_before: float,
+    objective_after: float,
+    width: int = 240,
+    height: int = 70,
+) -> np.ndarray:
+    """A small RGB line plot of the fit's reduced chi-square per accepted step, beside
+    the objective at the start and at the end (the status line's).
 
-    Log scale from the lowest to the highest value; white line on the dark
-    background of :func:`terms_plot`, a grey line at reduced chi-square 1 when it is
-    within the range. Non-finite values are left out.
+    Log scale from the lowest to the highest value; a white line on the dark background
+    of :func:`terms_plot`, the start's objective a grey square at the left edge and the
+    end's an orange one at the right edge (its colours), a grey line at reduced chi-square 1 when it
+    is within the range. Non-finite values are left out. :func:`convergence_caption`
+    says the numbers.
     """
     image = np.full((height, width, 3), 40, np.uint8)
-    values = np.asarray([v for v in history if np.isfinite(v) and v > 0], float)
-    if values.size == 0:
+    values = _positive(history)
+    ends = _positive([objective_before, objective_after])
+    if values.size + ends.size == 0:
         return image
     logs = np.log10(values)
-    low, high = float(logs.min()), float(logs.max())
+    everything = np.log10(np.concatenate([values, ends]))
+    low, high = float(everything.min()), float(everything.max())
     span = max(high - low, 1e-6)
 
     def row_of(value: float) -> int:
-        return round((height - 3) * (1 - (value - low) / span)) + 1
+        return round((height - 4) * (1 - (value - low) / span)) + 2
 
     if low <= 0.0 <= high:
         image[row_of(0.0), 1 : width - 1] = (110, 110, 110)
-    xs = np.linspace(1, width - 2, max(values.size, 2)).round().astype(int)
-    ys = [row_of(v) for v in (logs if logs.size > 1 else np.repeat(logs, 2))]
-    for (x0, y0), (x1, y1) in zip(zip(xs, ys), zip(xs[1:], ys[1:])):
-        steps = max(abs(x1 - x0), abs(y1 - y0), 1)
-        rr = np.linspace(y0, y1, steps + 1).round().astype(int)
-        cc = np.linspace(x0, x1, steps + 1).round().astype(int)
-        image[rr, cc] = (240, 240, 240)
+    if values.size:
+        xs = np.linspace(6, width - 7, max(values.size, 2)).round().astype(int)
+        ys = [row_of(v) for v in (logs if logs.size > 1 else np.repeat(logs, 2))]
+        for (x0, y0), (x1, y1) in zip(zip(xs, ys), zip(xs[1:], ys[1:])):
+            steps = max(abs(x1 - x0), abs(y1 - y0), 1)
+            rr = np.linspace(y0, y1, steps + 1).round().astype(int)
+            cc = np.linspace(x0, x1, steps + 1).round().astype(int)
+            image[rr, cc] = CURVE_COLOUR
+    for value, column, colour in (
+        (objective_before, 2, BEFORE_COLOUR),
+        (objective_after, width - 3, AFTER_COLOUR),
+    ):
+        if np.isfinite(value) and value > 0:
+            row = row_of(float(np.log10(value)))
+            image[row - 1 : row + 2, column - 1 : column + 2] = colour
     return image
+
+
+def convergence_caption(
+    history: Sequence[float], objective_before: float, objective_after: float
+) -> str:
+    """What :func:`convergence_plot` shows, in words and numbers: its axes, the curve's
+    first and last values, and the objective at the start and the end.
+
+    The curve is not the objective: each step's reduced chi-square is weighed with the
+    noise model of its reweighting round, re-estimated between rounds, and the moves
+    add and remove cells, so it may rise where the objective (the pixel term, weighed
+    with the fitted noise model at the start and at the end) fell (found as a user:
+    ColiCoords ds1 00002, objective 4.415 -> 2.497 and a curve that rose).
+    """
+    values = _positive(history)
+    objective = (
+        f"Objective (pixel term, weighed with the fitted noise model): start "
+        f"{_format(objective_before)} (grey square) -> end {_format(objective_after)} "
+        "(orange square)."
+    )
+    if values.size == 0:
+        return f"{objective} No fit step was recorded."
+    everything = _positive([*values, objective_before, objective_after])
+    steps = "step" if values.size == 1 else "steps"
+    return (
+        f"{objective} White line: reduced chi-square after each of the fit's "
+        f"{values.size} accepted {steps} (x, in order), {_format(values[0])} at the first, "
+        f"{_format(values[-1])} at the last; y: log scale, {_format(everything.min())} to "
+        f"{_format(everything.max())}, a grey line at 1. Each step is weighed with its "
+        "round's noise model, re-estimated between rounds, and cells are added and removed "
+        "between them: where the line rises, the weights or the cells changed, not the fit "
+        "got worse."
+    )
+
+
+def _positive(values: Sequence[float]) -> np.ndarray:
+    """The finite positive ``values`` (a log scale's)."""
+    return np.asarray([v for v in values if np.isfinite(v) and v > 0], float)
 
 
 def _fit_to_shape(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -302,9 +373,13 @@ class TuneWidget(Container):
             label="before (grey) / after (orange)",
             tooltip=(
                 "Objective terms before and after the fit; below them the reduced "
-                "chi-square after every fit step (log scale, grey line at 1)"
+                "chi-square after every fit step, between the objective at the start "
+                "(grey) and at the end (orange): the caption below says the numbers"
             ),
         )
+        # found as a user: a bare line, no axes or numbers, that rose while the
+        # objective fell, read as a fit that got worse
+        self.convergence_caption = message_label("convergence")
         # Auto-fit, its options and its result above the sliders' ~15 rows: found as a
         # user at 1366 x 768, the button lay below them, out of sight until scrolled to
         self.extend(
@@ -323,6 +398,7 @@ class TuneWidget(Container):
                 self.status,
                 self.terms_table,
                 self.terms_image,
+                self.convergence_caption,
                 *self.sliders.values(),
                 self.match_fourier,
                 self.match_histogram,
@@ -331,6 +407,7 @@ class TuneWidget(Container):
         )
         self.terms_image.visible = False
         self.terms_table.visible = False  # an empty table until a fit fills it
+        self.convergence_caption.visible = False
         self.fit_button.changed.connect(self.auto_fit)
         self.cancel_fit_button.changed.connect(self.cancel_fit)
         self.fit_worker: Job | None = None
@@ -483,17 +560,21 @@ class TuneWidget(Container):
         layer.refresh()
 
     def _show_model_sliders(self, render: Any, modality: str) -> None:
-        """The sliders that act on the model in use (fluorescence: the linear phase
-        model's; bright field: its lens term, not the phase kernel's)."""
-        coherent = modality == "phase" and render.phase_model == "partially_coherent"
-        brightfield = modality == "brightfield"
-        for name in COHERENT_ONLY:
-            self.sliders[name].visible = coherent
-        for name in LINEAR_ONLY:
-            self.sliders[name].visible = not coherent and not brightfield
-        for name in BRIGHTFIELD_ONLY:
-            self.sliders[name].visible = brightfield
-        self.sliders["apodisation_sigma_um"].visible = not brightfield  # the phase PSF's
+        """Only the sliders that change the image of the model in use: the phase kernel's
+        in phase contrast (of its phase model), bright field's lens term, the gaussian
+        noise sd with gaussian noise. Found as a user: in fluorescence ring contrast (and
+        PSF offset, apodisation) moved and the image stayed the same."""
+        phase = modality == "phase"
+        coherent = phase and render.phase_model == "partially_coherent"
+        shown = {
+            **dict.fromkeys(COHERENT_ONLY, coherent),
+            **dict.fromkeys(LINEAR_ONLY, phase and not coherent),
+            **dict.fromkeys(PHASE_ONLY, phase),
+            **dict.fromkeys(BRIGHTFIELD_ONLY, modality == "brightfield"),
+            **dict.fromkeys(GAUSSIAN_NOISE_ONLY, render.noise_model == "gaussian"),
+        }
+        for name, visible in shown.items():
+            self.sliders[name].visible = visible
         fluorescence = modality == "fluorescence"
         for box in (self.fit_envelope_stain, self.fit_depth):
             box.visible = fluorescence
@@ -581,6 +662,7 @@ class TuneWidget(Container):
             self.status.value = f"Not applied: {err}"
             return
         self.status.value = ""
+        self._show_model_sliders(self.preview.render_settings, self.modality.value)
         self._store_settings()
         if self._polarity_changed:  # new grey levels: show them
             self._polarity_changed = False
@@ -939,12 +1021,17 @@ class TuneWidget(Container):
             "after": [_format(after) for _, after in result.terms.values()],
         }
         self.terms_table.visible = True
-        plot = np.concatenate([terms_plot(result.terms), convergence_plot(result.history)])
+        before, after = result.objective_before, result.objective_after
+        plot = np.concatenate(
+            [terms_plot(result.terms), convergence_plot(result.history, before, after)]
+        )
         self.terms_image.value = plot
         # magicgui's image takes what the layout leaves it (18 px under a long status):
         # ask for the plot's own height
         self.terms_image.native.setMinimumHeight(plot.shape[0])
         self.terms_image.visible = True
+        self.convergence_caption.value = convergence_caption(result.history, before, after)
+        self.convergence_caption.visible = True
         objective = f"{_format(result.objective_before)} -> {_format(result.objective_after)}"
         if series is None:
             # which frame of a time-lapse (found as a user: a fit of frame 15 of 30 never

@@ -33,11 +33,14 @@ from napari_symbac.export.dataset import (
 )
 from napari_symbac.export.formats import FORMATS, FormatWriter, get_writer
 from napari_symbac.export.item import ExportItem, instance_dtype, semantic_from_labels
+from napari_symbac.export.manifest import check_manifest
 from napari_symbac.export.runner import (
     Cancel,
     ExportReport,
     ItemSource,
     Progress,
+    check_out_dir,
+    manifest_header,
     run_export,
     write_items,
 )
@@ -55,6 +58,7 @@ __all__ = [
     "Randomisation",
     "Range",
     "Visibility",
+    "check_export_folder",
     "contrast_to_noise",
     "export_dataset",
     "export_of",
@@ -126,6 +130,27 @@ def export_dataset(
         scheduler=scheduler,
         progress=progress,
         cancel=cancel,
+    )
+
+
+def check_export_folder(
+    settings: ExportSettings, out_dir: str | os.PathLike, backend: str = "scipy"
+) -> None:
+    """Refuse, before any work and writing nothing, a folder :func:`export_dataset`
+    would refuse: a file, a folder of other files, or one holding another export (made
+    with other settings, another backend or another version). The folder of the same
+    export (a resume) passes.
+
+    Raises
+    ------
+    ExportError
+        Naming the folder, what differs and the fix.
+    ValueError
+        If ``backend`` is unknown or cannot render ``settings``.
+    """
+    check_manifest(
+        check_out_dir(out_dir),
+        manifest_header(PipelineSource(settings, backend), settings.formats),
     )
 
 

@@ -38,6 +38,7 @@ from napari_symbac.export.item import ExportItem, item_objects
 __all__ = [
     "ITEMS_DIR",
     "MANIFEST",
+    "check_manifest",
     "check_or_start_manifest",
     "finish_manifest",
     "finished_items",
@@ -135,7 +136,7 @@ def read_entries(out_dir: Path, names: Iterable[str] | None = None) -> list[dict
 def check_dataset_folder(out_dir: str | os.PathLike) -> None:
     """Refuse a folder that holds other files and no :data:`MANIFEST`: the dataset's
     folders would be written among the user's files. A missing or empty folder, or one
-    holding an export (resumed or refused by :func:`check_or_start_manifest`), passes;
+    holding an export (resumed or refused by :func:`check_manifest`), passes;
     hidden files (``.DS_Store``, a lock) are no objection.
 
     Raises
@@ -178,18 +179,8 @@ def settings_differences(old: Any, new: Any, most: int = 3) -> str:
     return "; ".join(lines[:most]) + more
 
 
-def check_or_start_manifest(out_dir: Path, header: Mapping[str, Any]) -> dict[str, Any]:
-    """Start ``manifest.json`` in ``out_dir``, or check that it describes the same export.
-
-    Raises
-    ------
-    ExportError
-        If the folder holds an export made with other settings or another version of
-        napari-symbac (items would not match), holds other files and no manifest, or
-        cannot be written.
-    """
-    out_dir = Path(out_dir)
-    path = out_dir / MANIFEST
+def _document(header: Mapping[str, Any]) -> dict[str, Any]:
+    """The manifest an export with ``header`` starts, in plain JSON types (to compare)."""
     document = {
         "manifest_version": MANIFEST_VERSION,
         "generator": "napari-symbac",
@@ -197,7 +188,31 @@ def check_or_start_manifest(out_dir: Path, header: Mapping[str, Any]) -> dict[st
         **header,
         "status": "incomplete",
     }
-    document = json.loads(json.dumps(document))  # plain JSON types, for comparison
+    return json.loads(json.dumps(document))
+
+
+def check_manifest(out_dir: str | os.PathLike, header: Mapping[str, Any]) -> dict[str, Any] | None:
+    """Check, writing nothing, that an export with ``header`` may be written into
+    ``out_dir``: the folder is missing or empty, or holds the same export (a resume).
+
+    Returns
+    -------
+    dict or None
+        The folder's manifest when it holds the same export, else ``None``.
+
+    Raises
+    ------
+    ExportError
+        If the folder holds an export made with other settings, another render backend
+        or another version of napari-symbac (items would not match), or holds other
+        files and no manifest; the message names the difference and the fix.
+    """
+    return _check_against(Path(out_dir), _document(header))
+
+
+def _check_against(out_dir: Path, document: Mapping[str, Any]) -> dict[str, Any] | None:
+    """:func:`check_manifest` of the manifest ``document`` an export would start."""
+    path = out_dir / MANIFEST
     check_dataset_folder(out_dir)
     if path.is_file():
         try:
@@ -241,8 +256,24 @@ def check_or_start_manifest(out_dir: Path, header: Mapping[str, Any]) -> dict[st
                 "a new folder (or install the version that made it to resume)",
                 path,
             )
-        if old.get("status") == "complete":
-            return old
+        return old
+    return None
+
+
+def check_or_start_manifest(out_dir: Path, header: Mapping[str, Any]) -> dict[str, Any]:
+    """Start ``manifest.json`` in ``out_dir``, or check that it describes the same export.
+
+    Raises
+    ------
+    ExportError
+        As :func:`check_manifest`, or if the folder cannot be written.
+    """
+    out_dir = Path(out_dir)
+    path = out_dir / MANIFEST
+    document = _document(header)
+    old = _check_against(out_dir, document)
+    if old is not None and old.get("status") == "complete":
+        return old
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as err:

@@ -47,6 +47,7 @@ from napari_symbac.export.manifest import (
 __all__ = [
     "ExportReport",
     "ItemSource",
+    "manifest_header",
     "run_export",
     "write_items",
 ]
@@ -467,6 +468,11 @@ def _cluster_failure(err: BaseException, where: str, out_dir: Path) -> ExportErr
     )
 
 
+def manifest_header(source: ItemSource, formats: Sequence[str]) -> dict[str, Any]:
+    """The header of the manifest that an export of ``source`` in ``formats`` writes."""
+    return {**source.header(), "formats": list(formats)}
+
+
 def check_out_dir(out_dir: str | os.PathLike) -> Path:
     """``out_dir`` as an absolute path, refusing a path that exists and is not a folder.
 
@@ -598,7 +604,7 @@ def _run_export(
     overlap_start: bool,
     start: float,
 ) -> ExportReport:
-    check_or_start_manifest(out, {**source.header(), "formats": list(formats)})
+    check_or_start_manifest(out, manifest_header(source, formats))
     remove_stale_temporaries(out)
 
     names_of = {unit: source.unit_names(unit) for unit in range(source.n_units)}
