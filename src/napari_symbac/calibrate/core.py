@@ -579,6 +579,7 @@ def calibrate(
     from napari_symbac.fit.colony import colony_optics, is_dense_colony
 
     dense = is_dense_colony(crop_masks, microscope.modality)
+    crop_m = None  # the crop's masks, measured once
     if dense:
         from napari_symbac.export.visibility import pixel_noise
 
@@ -688,9 +689,9 @@ def calibrate(
         )
     if microscope.modality == "fluorescence":
         if masks is not None:
-            render, note = _with_field_brightness(
-                render, measurements, measure_field(crop_image, crop_masks, valid=valid[crop])
-            )
+            if crop_m is None:
+                crop_m = measure_field(crop_image, crop_masks, valid=valid[crop])
+            render, note = _with_field_brightness(render, measurements, crop_m)
             notes.append(note)
         render, note = _with_brightness_cv(measurements, render)
         notes.append(note)
