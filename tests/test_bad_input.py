@@ -167,6 +167,32 @@ def test_a_pipeline_file_exports_a_tracking_dataset_with_kind(tmp_path, capsys):
     assert list(out.rglob("man_track.txt"))
 
 
+def test_a_one_frame_pipeline_exports_a_time_series_with_n_frames(tmp_path, capsys):
+    """Found as a user: a field fit's settings.yaml holds 1 frame (its cells as
+    recorded), and `export --kind timeseries` was refused with "simulate more frames",
+    which no option of export could do."""
+    import dataclasses
+
+    config = tmp_path / "settings.yaml"
+    one = dataclasses.replace(TINY, simulation=SimulationSettings(n_frames=1))
+    save_settings(one, config)
+    argv = ["export", "--config", str(config), "--n-items", "1", "--kind", "timeseries"]
+    code, err = _run([*argv, "--out", str(tmp_path / "refused")], capsys)
+    assert code == 2
+    assert "needs pipeline.simulation.n_frames >= 2" in err
+    assert "napari-symbac export --n-frames N" in err
+    assert not (tmp_path / "refused").exists()
+    out = tmp_path / "tracks"
+    code, err = _run([*argv, "--formats", "ctc", "--n-frames", "3", "--out", str(out)], capsys)
+    assert code == 0, err
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["settings"]["pipeline"]["simulation"]["n_frames"] == 3
+    assert len(list(out.rglob("01/t*.tif"))) == 3  # the series' three frames
+    code, err = _run([*argv, "--n-frames", "0", "--out", str(tmp_path / "z")], capsys)
+    assert code == 2
+    assert "--n-frames" in err
+
+
 def test_a_pixel_size_in_nm_is_named_and_leaves_no_export_behind(tmp_path, capsys):
     """Found as a user: `pixel_size_um: 65` (nm for um) gave "the field of view is
     smaller than one camera pixel (65.0 um)", naming neither file nor field, and export

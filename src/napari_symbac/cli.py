@@ -273,6 +273,15 @@ def _cmd_export(args: argparse.Namespace) -> int:
     _check_config_pixel_size(settings.pipeline, args.config)
     if args.n_items is not None:
         settings = dataclasses.replace(settings, n_items=args.n_items)
+    if args.n_frames is not None:  # found as a user: a field fit's settings.yaml holds 1
+        pipeline = settings.pipeline  # frame (its cells as recorded), no time series
+        simulation = dataclasses.replace(pipeline.simulation, n_frames=args.n_frames)
+        try:
+            settings = dataclasses.replace(
+                settings, pipeline=dataclasses.replace(pipeline, simulation=simulation)
+            )
+        except ValueError as err:
+            raise ValueError(f"--n-frames {args.n_frames}: {err}") from None
     given = {"formats": args.formats, "kind": args.kind}  # set together: ctc needs both
     given = {key: value for key, value in given.items() if value is not None}
     if given:  # found as a user: a fit's settings had only its default formats, and no
@@ -1000,6 +1009,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--n-items",
         type=_at_least_one,
         help="images (or time series) to export, instead of the config's n_items",
+    )
+    export.add_argument(
+        "--n-frames",
+        type=_at_least_one,
+        help="frames each simulation runs, instead of the config's simulation.n_frames (a "
+        "time series holds them all; a field fit's settings.yaml holds 1)",
     )
     export.add_argument(
         "--formats",

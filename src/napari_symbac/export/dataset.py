@@ -332,8 +332,8 @@ class ExportSettings:
         if self.kind == "timeseries" and n_frames < 2:
             _fail(  # found as a user: 1 frame wrote empty tracks and 0 DeLTA samples
                 f"ExportSettings.kind='timeseries' needs pipeline.simulation.n_frames >= 2 "
-                f"to track cells, got {n_frames}: simulate more frames, or export "
-                "kind='frames'"
+                f"to track cells, got {n_frames}: simulate more frames (napari-symbac "
+                "export --n-frames N), or export kind='frames'"
             )
         dark_cells = dark_fluorescence(self.pipeline)
         if dark_cells is not None:
