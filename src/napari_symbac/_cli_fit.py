@@ -816,6 +816,11 @@ def _fit_frames_jointly(
         "counts_mapping": counts_record(args.counts_mapping),
         "warnings": list(series.warnings),
         "started_from_previous_frame": dict(zip(map(str, frames), series.carried)),
+        # with the previous frame where they overlap, registered (null for the first)
+        "correlation_with_previous_frame": {
+            str(f): (round(c, 4) if np.isfinite(c) else None)
+            for f, c in zip(frames, series.frame_correlation, strict=True)
+        },
         "lineage": _lineage_record(lineage, frames),
     }
     if np.any(np.diff(frames) != 1):
@@ -933,7 +938,12 @@ def _lineage_record(lineage, frames: list[int]) -> dict:
         "tracks": lineage.table(frames),
         "track_ids": {str(f): ids.tolist() for f, ids in zip(frames, lineage.track_ids)},
         "growth_per_frame": lineage.growth_per_frame,
-        "drift_um": lineage.drift_um.tolist(),
+        # null between frames that share no cell: nothing measured the field's shift
+        "drift_um": [
+            shift if t >= len(lineage.link_costs) or np.isfinite(lineage.link_costs[t]).any()
+            else None
+            for t, shift in enumerate(lineage.drift_um.tolist())
+        ],
         "ctc": "ctc/01_RES: mask{TTT}.tif (track ids) and res_track.txt (L B E P); "
         "CTC frame k is the k-th of 'frames'",
     }

@@ -320,6 +320,10 @@ def test_frames_of_a_series_are_fitted_jointly_each_into_its_folder(
     assert "read as counts" not in (out / "frame_0000" / "report.txt").read_text()
     assert series["started_from_previous_frame"]["0"] is False  # frame 1: either start
     assert isinstance(series["started_from_previous_frame"]["1"], bool)
+    correlation = series["correlation_with_previous_frame"]
+    assert correlation["0"] is None
+    assert 0.6 <= correlation["1"] <= 1.0  # a trench mirrored: the same field
+    assert all(shift is not None for shift in series["lineage"]["drift_um"])  # linked
     # the second frame is the first mirrored left-right: the same three cells, same rows
     lineage = series["lineage"]
     assert lineage["tracks"] == [

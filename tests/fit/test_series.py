@@ -86,6 +86,25 @@ def test_each_drifting_cell_keeps_one_track(series):
     np.testing.assert_allclose(fit.lineage.drift_um, [[0.25, 0.15]] * 2, atol=0.05)
 
 
+def test_a_jump_to_another_field_is_said(series):
+    """Found as a user: ColiCoords ds3's four unrelated fields fitted as a series gave
+    no track across frames, zero drift and no word why. The frames of a drifting field
+    correlate where they overlap, registered; another field does not, and is said."""
+    truth, fit = series
+    assert all(c > 0.6 for c in fit.frame_correlation[1:])
+    assert not any("different fields" in w for w in fit.warnings)
+    frame = truth[0]
+    stack = np.stack([frame.image, frame.image.T])  # its transpose: another field
+    jumped = fit_series(stack, frame.microscope, RenderSettings(defocus_sigma_um=0.0), None,
+                        geometry="open", max_iterations=1, irls_rounds=1,
+                        joint_iterations=1)  # fmt: skip
+    assert np.isnan(jumped.frame_correlation[0])
+    assert jumped.frame_correlation[1] < 0.6
+    [said] = [w for w in jumped.warnings if "different fields" in w]
+    assert said.startswith(f"frames 0 and 1 correlate {jumped.frame_correlation[1]:.2f}")
+    assert jumped.carried == (False, False)
+
+
 def _tracks_of_first(fit, truth):
     """The track of each of frame 0's true cells."""
     frame = fit.frames[0]

@@ -92,6 +92,11 @@ class SeriesFit:
     carried
         Per frame: whether the fit that was kept started from the previous frame's
         cells (``carry_cells``); False for the first frame.
+    frame_correlation
+        Per frame: the correlation of its overlap with the previous frame, once
+        registered (:func:`_registered_correlation`; NaN for the first frame); below
+        :data:`CARRY_MIN_CORRELATION` the two are taken for different fields (a warning
+        says so).
     """
 
     frames: tuple[SceneFit, ...]
@@ -108,6 +113,7 @@ class SeriesFit:
     warnings: tuple[str, ...] = ()
     lineage: Lineage | None = field(default=None, repr=False)
     carried: tuple[bool, ...] = ()
+    frame_correlation: tuple[float, ...] = ()
 
     @property
     def track_ids(self) -> tuple[np.ndarray, ...]:
@@ -325,6 +331,17 @@ def fit_series(
         n_frames, len(names)
     )
     warnings: list[str] = []
+    correlation = [math.nan] + [
+        _registered_correlation(stack[t - 1], stack[t])[1] for t in range(1, n_frames)
+    ]
+    warnings += [  # found as a user: 0 tracks linked on ColiCoords ds3, and no word why
+        f"frames {t - 1} and {t} correlate {correlation[t]:.2f} where they overlap, once "
+        f"registered (below {CARRY_MIN_CORRELATION}): they look like different fields (a "
+        f"stage jump?), so frame {t}'s cells were fitted from its own start and need not "
+        f"continue frame {t - 1}'s tracks"
+        for t in range(1, n_frames)
+        if correlation[t] < CARRY_MIN_CORRELATION
+    ]
     cost_before = sum(run.state.cost for run in runs)
     iterations = 0
     px = microscope.pixel_size_um
@@ -362,6 +379,7 @@ def fit_series(
         warnings=tuple(warnings),
         lineage=lineage,
         carried=tuple(carried_from),
+        frame_correlation=tuple(correlation),
     )
 
 
@@ -370,6 +388,21 @@ def fit_series(
 #: the frames of a drifting fluorescent colony, 0.15-0.48 between the four unrelated
 #: fields of ColiCoords ds3 (docs/fitting.md).
 CARRY_MIN_CORRELATION = 0.6
+
+
+def _registered_correlation(before: np.ndarray, after: np.ndarray) -> tuple[np.ndarray, float]:
+    """The shift (px) that registers ``after`` onto ``before`` (phase correlation, to a
+    tenth of a pixel: minus the stage's drift) and the correlation of their overlap so
+    registered; NaN when the overlap is under 100 px or flat."""
+    a, b = before.astype(np.float64), after.astype(np.float64)
+    shift_px = phase_cross_correlation(a, b, upsample_factor=10, normalization=None)[0]
+    dy, dx = (round(float(v)) for v in shift_px)
+    rows, cols = a.shape
+    overlap_a = a[max(dy, 0) : rows + min(dy, 0), max(dx, 0) : cols + min(dx, 0)]
+    overlap_b = b[max(-dy, 0) : rows + min(-dy, 0), max(-dx, 0) : cols + min(-dx, 0)]
+    if overlap_a.size < 100 or overlap_a.std() == 0 or overlap_b.std() == 0:
+        return shift_px, math.nan
+    return shift_px, float(np.corrcoef(overlap_a.ravel(), overlap_b.ravel())[0, 1])
 
 
 def _carried_cells(
@@ -383,17 +416,10 @@ def _carried_cells(
     :data:`CARRY_MIN_CORRELATION`: two different fields, whose cells the previous
     frame does not know.
     """
-    a, b = before.astype(np.float64), after.astype(np.float64)
-    # the shift that registers ``after`` onto ``before``: minus the drift
-    shift_px = phase_cross_correlation(a, b, upsample_factor=10, normalization=None)[0]
-    dy, dx = (round(float(v)) for v in shift_px)
-    rows, cols = a.shape
-    overlap_a = a[max(dy, 0) : rows + min(dy, 0), max(dx, 0) : cols + min(dx, 0)]
-    overlap_b = b[max(-dy, 0) : rows + min(-dy, 0), max(-dx, 0) : cols + min(-dx, 0)]
-    if overlap_a.size < 100 or overlap_a.std() == 0 or overlap_b.std() == 0:
+    shift_px, correlation = _registered_correlation(before, after)
+    if not correlation >= CARRY_MIN_CORRELATION:
         return None
-    if np.corrcoef(overlap_a.ravel(), overlap_b.ravel())[0, 1] < CARRY_MIN_CORRELATION:
-        return None
+    rows, cols = before.shape
     problem, x = previous.problem, previous.state.x
     cells = problem.model(problem.n_cells(x)).unpack(x)[0]
     dy_um, dx_um = -shift_px[0] * pixel_um, -shift_px[1] * pixel_um
