@@ -494,8 +494,8 @@ def test_ctrl_c_during_multi_worker_export(tmp_path):
     progress = re.compile(r"napari-symbac export: \d+ of 300 images")
     lines = [line for line in lines if not progress.fullmatch(line)]
     assert lines == [
-        "napari-symbac export: interrupted; finished files are kept (an export resumes "
-        "when run again)"
+        "napari-symbac export: interrupted; the items finished so far are kept (an export "
+        "resumes when run again)"
     ]
     done = finished()
     assert 4 <= done < 300
@@ -1043,7 +1043,7 @@ def test_ctrl_c_of_a_command_that_starts_over_promises_no_resume(command):
 
     text = interrupted_text(command)
     assert f"run the same {command} again (it starts over" in text
-    assert "finished files are kept" not in text
+    assert "the items finished so far are kept" not in text
     assert "resumes when run again" in interrupted_text("export")
     assert "run the same demo again" in interrupted_text("demo")
 

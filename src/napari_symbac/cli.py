@@ -1388,7 +1388,7 @@ def interrupted_text(command: str) -> str:
         return f"interrupted: run the same {command} again (it starts over; only an export resumes)"
     if command == "demo":
         return "interrupted: run the same demo again (its dataset resumes where it stopped)"
-    return "interrupted; finished files are kept (an export resumes when run again)"
+    return "interrupted; the items finished so far are kept (an export resumes when run again)"
 
 
 def _one_line(err: BaseException) -> str:
