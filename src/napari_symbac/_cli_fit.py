@@ -532,6 +532,7 @@ def _outputs_one(
         cells_records,
         colony_noise_text,
         lens_problem,
+        mask_labels,
         model_free_camera_check,
         parameter_table,
         report_problems,
@@ -568,6 +569,9 @@ def _outputs_one(
             notes.append(sentence)
 
     records = cells_records(result)
+    if masks is not None and not prepared.colony:  # which of the user's masks each is
+        for record, label in zip(records, mask_labels(result, masks), strict=True):
+            record["mask_label"] = label
     if track_ids is not None:
         for record, track in zip(records, np.asarray(track_ids).tolist(), strict=True):
             record["track"] = int(track)

@@ -669,6 +669,11 @@ def test_real_colicoords_fluorescence_field_with_masks(tmp_path, real_data_dir):
     inside = {int(masks[r, c]) for r, c in zip(rows, cols, strict=True)
               if 0 <= r < masks.shape[0] and 0 <= c < masks.shape[1]}  # fmt: skip
     assert set(np.unique(masks[masks > 0]).tolist()) <= inside
+    # and each fitted cell names the label of the masks it lies on: every label is named
+    assert {c["mask_label"] for c in cells} - {None} == set(np.unique(masks[masks > 0]).tolist())
+    for cell, r, c in zip(cells, rows, cols, strict=True):
+        if cell["mask_label"] is not None and masks[r, c]:
+            assert masks[r, c] == cell["mask_label"]
     # a count that differs from the masks' is said plainly in report.txt
     if len(cells) != n_masks:
         assert f"the fit ended with {len(cells)} cells from the {n_masks} of --masks" in report

@@ -518,19 +518,3 @@ def test_cells_cut_by_the_edge_of_a_drifting_real_colony_are_not_divisions(real_
     with pytest.raises(ValueError, match="one flag per cell"):
         link_cells(cells, image_size_um=size_um, cut_by_edge=flags[:2])
 
-
-def test_series_json_leaves_the_drift_empty_between_frames_that_share_no_cell():
-    """Found as a user: ColiCoords ds3's unrelated fields, no cell linked across them,
-    gave ``drift_um`` [0, 0] for every pair, read as a measured still stage."""
-    from napari_symbac._cli_fit import _lineage_record
-    from napari_symbac.fit.lineage import Lineage
-
-    lineage = Lineage(
-        track_ids=(np.array([1]), np.array([1]), np.array([2])),
-        tracks=np.array([[1, 0, 1, 0], [2, 2, 2, 0]]),
-        growth_per_frame=1.0,
-        drift_um=np.array([[0.3, -0.1], [0.0, 0.0]]),
-        link_costs=(np.array([0.5]), np.array([np.nan])),
-    )
-    record = _lineage_record(lineage, [4, 5, 6])
-    assert record["drift_um"] == [[0.3, -0.1], None]

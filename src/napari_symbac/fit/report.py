@@ -26,6 +26,7 @@ __all__ = [
     "colony_noise_text",
     "fit_notes",
     "fit_problems",
+    "mask_labels",
     "model_free_camera_check",
     "parameter_table",
     "report_problems",
@@ -88,6 +89,26 @@ def cells_records(result: Any) -> list[dict[str, Any]]:
                 record[key] = _plain(column[index])
         records.append(record)
     return records
+
+
+def mask_labels(result: Any, masks: np.ndarray) -> list[int | None]:
+    """Per fitted cell (in :func:`cells_records` order), the label of ``masks`` that
+    covers most of its camera pixels (a 0/1 mask's connected regions numbered as
+    ``scipy.ndimage.label`` numbers them), or None where no mask covers it (a cell the
+    fit added). Found as a user: the fit's ids (1..N) named no label of the masks given,
+    after the moves had split one of them."""
+    from napari_symbac.fit.preflight import as_instance_ids
+
+    instances = np.asarray(as_instance_ids(masks)[0])
+    labels = np.asarray(result.scene.camera_labels())
+    ids = list(result.cells_table().get("ids", []))
+    if labels.shape != instances.shape:
+        return [None] * len(ids)
+    found: list[int | None] = []
+    for cell_id in ids:
+        under = instances[(labels == cell_id) & (instances > 0)]
+        found.append(int(np.bincount(under).argmax()) if under.size else None)
+    return found
 
 
 def parameter_table(result: Any) -> list[dict[str, Any]]:
