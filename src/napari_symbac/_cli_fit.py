@@ -516,7 +516,7 @@ def _outputs_one(
     cells.json)."""
     import tifffile
 
-    from napari_symbac.fit.camera_estimate import censored_pixels, read_noise_unmeasured
+    from napari_symbac.fit.camera_estimate import censored_pixels
     from napari_symbac.fit.clipped_background import clipped_background, drawn_clipped
     from napari_symbac.fit.figure import before_after_figure
     from napari_symbac.fit.fitted_settings import (
@@ -527,7 +527,6 @@ def _outputs_one(
     from napari_symbac.fit.preflight import camera_pixel_problem
     from napari_symbac.fit.report import (
         CLI_CAMERA_FIX,
-        UNMEASURED_READ_NOISE,
         camera_text,
         cells_records,
         colony_noise_text,
@@ -535,6 +534,7 @@ def _outputs_one(
         mask_labels,
         model_free_camera_check,
         parameter_table,
+        read_noise_note,
         report_problems,
         report_text,
     )
@@ -611,8 +611,8 @@ def _outputs_one(
         )
         del facts["camera used"]
     elif camera is None:  # the engine estimated it: check it model-free
-        if read_noise_unmeasured(camera_used):
-            notes.append(UNMEASURED_READ_NOISE)
+        if said := read_noise_note(camera_used):
+            notes.append(said)
         check, problem = model_free_camera_check(frame, camera_used, CLI_CAMERA_FIX)
         facts["camera (model-free)"] = check
         if problem and check.startswith("not available") and masks is None and (
@@ -724,8 +724,7 @@ def _fit_frames_jointly(
     the tracks as a Cell Tracking Challenge result in ``ctc/01_RES/`` (``mask{TTT}.tif``
     with track ids, ``res_track.txt``; CTC frame ``k`` is the ``k``-th fitted frame)."""
     from napari_symbac.fit import fit_series
-    from napari_symbac.fit.camera_estimate import read_noise_unmeasured
-    from napari_symbac.fit.report import UNMEASURED_READ_NOISE, cells_counted
+    from napari_symbac.fit.report import cells_counted, read_noise_note
 
     n_frames = stack.shape[0]
     prepared = [
@@ -777,7 +776,7 @@ def _fit_frames_jointly(
             # the pooled frames' camera, or, where their photon transfer measured none (a
             # normalised series: found as a user, a traceback), this frame's own
             used = series.camera if series.camera is not None else result.camera
-            measured = [UNMEASURED_READ_NOISE] if read_noise_unmeasured(used) else []
+            measured = [said] if (said := read_noise_note(used)) else []
             ready = dataclasses.replace(ready, camera=used, notes=[*ready.notes, *measured])
         # found as a user: the shared optics' line read "defocus_sigma_um: 0.354 +- 0.00302"
         # here, an SE series.json holds nowhere; the joint fit's are named with its problems

@@ -274,7 +274,8 @@ def test_a_field_of_few_cells_draws_its_mean_cell_and_a_bounded_spread(real_data
     # the camera, 19.2 ADU/e- with no read noise resolved, is drawn with 0.5 e-: the
     # background holds every level, as the recording's (in steps of 19.2 ADU before)
     assert cal.settings.camera.dark_noise_e == 0.5
-    assert any("0.5 e- when the image holds levels between" in note for note in cal.notes)
+    assert any("holds levels between whole electrons, so it is not 0: 0.5 e- is used" in n
+               for n in cal.notes)
     background = item.image[item.labels == 0]
     low, high = np.percentile(background, (25, 75))
     middle = background[(background >= low) & (background <= high)]

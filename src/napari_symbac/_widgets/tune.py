@@ -925,14 +925,13 @@ class TuneWidget(Container):
 
     def _on_fit_returned(self, outcome: _FitOutcome) -> None:
         from napari_symbac.fit import ColonyFit
-        from napari_symbac.fit.camera_estimate import read_noise_unmeasured
         from napari_symbac.fit.clipped_background import with_clip
         from napari_symbac.fit.fitted_settings import fitted_render
         from napari_symbac.fit.report import (
-            UNMEASURED_READ_NOISE,
             cells_counted,
             fit_problems,
             lens_problem,
+            read_noise_note,
         )
 
         result, clipped = outcome.result, outcome.clipped
@@ -1062,8 +1061,9 @@ class TuneWidget(Container):
                 f"{cam.dark_noise_e:.3g} e-, baseline {cam.baseline_adu:.4g} ADU (used by "
                 "the preview and Export)"
             )
-            if read_noise_unmeasured(cam) and not self._camera_given:
-                self.status.value += f"<br>Note: {UNMEASURED_READ_NOISE}"
+            said = None if self._camera_given else read_noise_note(cam)
+            if said:
+                self.status.value += f"<br>Note: {said}"
         if outcome.camera_check is not None:
             self.status.value += f"<br>Camera, model-free: {outcome.camera_check[0]}"
         if clipped is not None:

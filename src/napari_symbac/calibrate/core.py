@@ -1189,15 +1189,14 @@ def _cv(values: np.ndarray) -> float:
 
 
 def _camera_note(used: Camera, given: Camera | None) -> str:
-    from napari_symbac.fit.camera_estimate import read_noise_unmeasured
-    from napari_symbac.fit.report import UNMEASURED_READ_NOISE
+    from napari_symbac.fit.report import read_noise_note
 
     source = "given" if given is not None else "measured from the image"
-    unmeasured = given is None and read_noise_unmeasured(used)
+    said = None if given is not None else read_noise_note(used)
     return (
         f"{source}: baseline {used.baseline_adu:.1f} ADU, sensitivity "
         f"{used.sensitivity_adu_per_e:.3g} ADU/e-, read noise {used.dark_noise_e:.3g} e-"
-        + (f" ({UNMEASURED_READ_NOISE})" if unmeasured else "")
+        + (f" ({said})" if said else "")
         + f", {used.bit_depth} bit"
     )
 

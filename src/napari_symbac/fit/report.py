@@ -20,6 +20,7 @@ __all__ = [
     "COLONY_NOTE",
     "OPEN_PHASE_NOTE",
     "UNMEASURED_READ_NOISE",
+    "UNRESOLVED_READ_NOISE",
     "camera_text",
     "cells_counted",
     "cells_records",
@@ -29,6 +30,7 @@ __all__ = [
     "mask_labels",
     "model_free_camera_check",
     "parameter_table",
+    "read_noise_note",
     "report_problems",
     "report_text",
     "write_atomically",
@@ -129,11 +131,29 @@ def parameter_table(result: Any) -> list[dict[str, Any]]:
 #: Said when a camera measured from the image came out with no read noise.
 UNMEASURED_READ_NOISE = (
     "the read noise is too small to measure from this image (the noise variance at the "
-    "baseline is at or below zero after the shot noise): 0 e- is used, or 0.5 e- when the "
-    "image holds levels between whole electrons (a camera without read noise would step "
-    "by its sensitivity); give the camera (or dark frames) when it matters, e.g. for dim "
-    "fluorescence"
+    "baseline is at or below zero after the shot noise): 0 e- is used; give the camera "
+    "(or dark frames) when it matters, e.g. for dim fluorescence"
 )
+#: Said when it came out with the read noise of an image whose levels lie between whole
+#: electrons (:func:`~napari_symbac.fit.camera_estimate.with_unresolved_dark_noise`).
+UNRESOLVED_READ_NOISE = (
+    "the read noise is too small to measure from this image (the noise variance at the "
+    "baseline is at or below zero after the shot noise), but the image holds levels "
+    "between whole electrons, so it is not 0: 0.5 e- is used (with none, synthetic pixels "
+    "would step by the sensitivity); give the camera (or dark frames) when it matters"
+)
+
+
+def read_noise_note(camera: Any) -> str | None:
+    """What to say of a measured camera's read noise: :data:`UNMEASURED_READ_NOISE` for 0,
+    :data:`UNRESOLVED_READ_NOISE` for the unresolved one, else None (measured)."""
+    from napari_symbac.fit.camera_estimate import MIN_UNRESOLVED_DARK_NOISE_E
+
+    if camera.dark_noise_e == 0:
+        return UNMEASURED_READ_NOISE
+    if camera.dark_noise_e == MIN_UNRESOLVED_DARK_NOISE_E:
+        return UNRESOLVED_READ_NOISE
+    return None
 
 
 def measured_camera_note(frame: Any, camera: Any) -> str:
@@ -142,14 +162,14 @@ def measured_camera_note(frame: Any, camera: Any) -> str:
     that is not raw camera counts, whose "camera" is the residual's variance: found as a
     user, the dock said "camera measured from the recording (0.001 ADU/e-, read noise
     3.14e+04 e-)" of ColiCoords' flattened bright field, and no more)."""
-    from napari_symbac.fit.camera_estimate import estimate_camera, read_noise_unmeasured
+    from napari_symbac.fit.camera_estimate import estimate_camera
 
     note = (
         f"camera measured from the recording: {camera.sensitivity_adu_per_e:.3g} ADU/e-, "
         f"read noise {camera.dark_noise_e:.3g} e-, baseline {camera.baseline_adu:.4g} ADU"
     )
-    if read_noise_unmeasured(camera):  # said, as `fit` and Auto-fit say it
-        note += f" ({UNMEASURED_READ_NOISE})"
+    if said := read_noise_note(camera):  # said, as `fit` and Auto-fit say it
+        note += f" ({said})"
     try:
         estimate = estimate_camera(frame, camera=camera, bit_depth=camera.bit_depth)
     except ValueError as err:
