@@ -569,6 +569,11 @@ def test_the_convergence_plot_says_its_numbers_and_a_rise_is_not_a_worse_fit():
         caption
     )
     assert "No fit step was recorded" in convergence_caption([], 4.415, 2.497)
+    # the line at 1 is said where it is drawn, within the range, and only there
+    assert "grey line at 1" not in caption
+    assert "y: log scale, 0.8 to 6, a grey line at 1" in convergence_caption(
+        [3.0, 0.8], 6.0, 0.9
+    )
 
 
 def test_auto_fit_error_is_a_notification_not_a_traceback(rendered, qtbot, real_data_dir):
@@ -725,6 +730,39 @@ def test_the_sliders_shown_are_those_that_change_the_image(rendered, modality):
         phase_kernel = {"ring_contrast", "psf_offset", "apodisation_sigma_um"}
         assert (phase_kernel <= shown) == (modality == "phase")
         assert not phase_kernel & shown or modality == "phase"
+
+
+def test_no_slider_before_a_render_and_no_device_on_an_agar_pad(make_napari_viewer, qtbot):
+    """Found as a user: before any simulation Tune showed twelve sliders at 0.00 (the
+    phase ring's among them, beside a fluorescence recording), and on an agar pad the
+    device intensity slider moved nothing."""
+    viewer = make_napari_viewer()
+    simulate, tune = SimulateWidget(viewer), TuneWidget(viewer)
+    viewer.window.add_dock_widget(simulate)
+    viewer.window.add_dock_widget(tune)
+    assert all(slider.native.isHidden() for slider in tune.sliders.values())
+    simulate.form.geometry.value = "agar_pad"
+    simulate.form.agar_pad.field_width_um.value = 12.0
+    simulate.form.agar_pad.field_height_um.value = 10.0
+    simulate.form.n_frames.value = 3
+    simulate.run_button.native.click()
+    qtbot.waitUntil(lambda: RESULT_LABELS_LAYER in viewer.layers, timeout=120_000)
+    qtbot.waitUntil(lambda: simulate.worker is None, timeout=10_000)
+    layer = viewer.layers[RESULT_IMAGE_LAYER]
+    assert tune.source.value is layer
+    shown = {name for name, slider in tune.sliders.items() if not slider.native.isHidden()}
+    assert {"cell_intensity", "media_intensity", "defocus_sigma_um"} <= shown
+    assert "device_intensity" not in shown
+    frame = tune._current_frame()
+    device = tune.sliders["device_intensity"]
+    step = 0.2 * (device.max - device.min)
+    device.value = device.value + step  # the frame is now the preview's render
+    before = layer.data[frame].copy()
+    device.value = device.value + step
+    np.testing.assert_array_equal(layer.data[frame], before)  # nothing to show
+    media = tune.sliders["media_intensity"]
+    media.value = media.value + 0.2 * (media.max - media.min)
+    assert not np.array_equal(layer.data[frame], before)  # as a shown slider does
 
 
 def test_matching_accepts_a_real_image_a_few_rows_off(rendered):

@@ -208,11 +208,13 @@ def convergence_caption(
         return f"{objective} No fit step was recorded."
     everything = _positive([*values, objective_before, objective_after])
     steps = "step" if values.size == 1 else "steps"
+    # the plot draws the line at 1 only within its range (found as a user: said, not drawn)
+    one = ", a grey line at 1" if everything.min() <= 1.0 <= everything.max() else ""
     return (
         f"{objective} White line: reduced chi-square after each of the fit's "
         f"{values.size} accepted {steps} (x, in order), {_format(values[0])} at the first, "
         f"{_format(values[-1])} at the last; y: log scale, {_format(everything.min())} to "
-        f"{_format(everything.max())}, a grey line at 1. Each step is weighed with its "
+        f"{_format(everything.max())}{one}. Each step is weighed with its "
         "round's noise model, re-estimated between rounds, and cells are added and removed "
         "between them: where the line rises, the weights or the cells changed, not the fit "
         "got worse."
@@ -516,6 +518,10 @@ class TuneWidget(Container):
         if layer is None:
             self.preview = None
             self.status.value = "Render a simulation first (Simulate and render)"
+            # nothing to tune: no slider (found as a user: twelve sliders at 0.00, the
+            # phase ring's among them, beside a fluorescence recording)
+            for slider in self.sliders.values():
+                slider.visible = False
             return
         simulation = layer.metadata[SYMBAC_METADATA_KEY]["simulation"]
         settings = layer.metadata[SYMBAC_METADATA_KEY]["settings"]
@@ -534,6 +540,7 @@ class TuneWidget(Container):
         try:
             for name, slider in self.sliders.items():
                 _set_slider(slider, getattr(settings.render, name))
+                slider.visible = True  # then those of another model hidden
             self._show_model_sliders(settings.render, settings.microscope.modality)
             self.sliders["apodisation_sigma_um"].min = round(
                 settings.microscope.min_apodisation_sigma_um, 3
@@ -562,11 +569,17 @@ class TuneWidget(Container):
     def _show_model_sliders(self, render: Any, modality: str) -> None:
         """Only the sliders that change the image of the model in use: the phase kernel's
         in phase contrast (of its phase model), bright field's lens term, the gaussian
-        noise sd with gaussian noise. Found as a user: in fluorescence ring contrast (and
-        PSF offset, apodisation) moved and the image stayed the same."""
+        noise sd with gaussian noise, the device's intensity where the simulation has a
+        device (not an agar pad). Found as a user: in fluorescence ring contrast (and PSF
+        offset, apodisation) moved and the image stayed the same."""
         phase = modality == "phase"
         coherent = phase and render.phase_model == "partially_coherent"
+        layer = self.source.value
+        pad = layer is not None and (
+            layer.metadata[SYMBAC_METADATA_KEY]["simulation"].settings.geometry == "agar_pad"
+        )
         shown = {
+            "device_intensity": not pad,  # an agar pad has no device (found as a user)
             **dict.fromkeys(COHERENT_ONLY, coherent),
             **dict.fromkeys(LINEAR_ONLY, phase and not coherent),
             **dict.fromkeys(PHASE_ONLY, phase),
