@@ -7,7 +7,11 @@ import re
 import numpy as np
 import pytest
 
-from napari_symbac._widgets.diagnose import DIAGNOSIS_RESIDUAL_LAYER, DiagnoseWidget
+from napari_symbac._widgets.diagnose import (
+    DIAGNOSIS_RESIDUAL_LAYER,
+    FAINT_START_FIX,
+    DiagnoseWidget,
+)
 from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
 
 CANDIDATES = ("uneven_illumination", "camera_noise")
@@ -289,6 +293,9 @@ def test_diagnose_says_the_centre_window_holds_no_cells(make_napari_viewer, qtbo
     where = "the centre 256 x 256 px of the 300 x 300 frame, rows 22:278 and columns 22:278"
     assert where in status
     assert "enter one with cells in 'window (rows, columns)'" in status  # the dock's own
+    # and, as the window may hold a cell too faint for the start (found as a user: one
+    # standing 25 times the background's spread, an error notification), the strokes
+    assert status.endswith(f"; {FAINT_START_FIX}")
     assert "--region" not in status
     assert DIAGNOSIS_RESIDUAL_LAYER not in viewer.layers
 

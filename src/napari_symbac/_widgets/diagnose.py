@@ -315,7 +315,12 @@ class DiagnoseWidget(Container):
             except ValueError as err:
                 if "no cells" not in str(err) or region == (0, full[0], 0, full[1]):
                     raise
-                raise ValueError(no_cells_in_window(err, region, full, centre)) from err
+                from napari_symbac.fit.start import FaintStartError
+
+                said = no_cells_in_window(err, region, full, centre)
+                if isinstance(err, FaintStartError):  # a faint cell may be there: its fix
+                    raise FaintStartError(said) from err  # too (found as a user: an error)
+                raise ValueError(said) from err
             if cancel():
                 raise InterruptedError("diagnosis cancelled")
             layout = simulated_shape(region, full, fit.trench is not None)
