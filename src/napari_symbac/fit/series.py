@@ -272,6 +272,10 @@ def fit_series(
     shared_camera = camera if camera is not None else _pooled_camera(stack)
     runs: list[_FrameRun] = []
     carried_from: list[bool] = []
+    # each pair registered once: for carrying cells across it and for the warning
+    registered = [(np.zeros(2), math.nan)] + [
+        _registered_correlation(stack[t - 1], stack[t]) for t in range(1, n_frames)
+    ]
     steps = _SeriesProgress(progress)
     for t in range(n_frames):
         frame_run = functools.partial(
@@ -304,7 +308,9 @@ def fit_series(
                 closed_end = run.problem.placement.closed_end  # one trench: one end
             carried = False
             if carry:
-                moved = _carried_cells(runs[-1], stack[t - 1], stack[t], microscope.pixel_size_um)
+                moved = _carried_cells(
+                    runs[-1], registered[t], stack[t].shape, microscope.pixel_size_um
+                )
                 if moved is not None and len(moved.ids):
                     other = frame_run(start_cells=moved, progress=steps.run(n_frames - t))
                     carried = run is None or _lower_bic(other, run)
@@ -331,9 +337,7 @@ def fit_series(
         n_frames, len(names)
     )
     warnings: list[str] = []
-    correlation = [math.nan] + [
-        _registered_correlation(stack[t - 1], stack[t])[1] for t in range(1, n_frames)
-    ]
+    correlation = [float(c) for _, c in registered]
     warnings += [  # found as a user: 0 tracks linked on ColiCoords ds3, and no word why
         f"frames {t - 1} and {t} correlate {correlation[t]:.2f} where they overlap, once "
         f"registered (below {CARRY_MIN_CORRELATION}): they look like different fields (a "
@@ -406,9 +410,13 @@ def _registered_correlation(before: np.ndarray, after: np.ndarray) -> tuple[np.n
 
 
 def _carried_cells(
-    previous: _FrameRun, before: np.ndarray, after: np.ndarray, pixel_um: float
+    previous: _FrameRun,
+    registration: tuple[np.ndarray, float],
+    shape: tuple[int, int],
+    pixel_um: float,
 ) -> FrameCells | None:
-    """The previous frame's fitted cells moved by the drift from ``before`` to ``after``.
+    """The previous frame's fitted cells moved by the drift between the two frames
+    (of ``shape``), given by their ``registration`` (:func:`_registered_correlation`).
 
     The drift is the phase correlation of the two frames (to a tenth of a pixel);
     cells the move takes wholly off the image (centre beyond half a length) are
@@ -416,10 +424,10 @@ def _carried_cells(
     :data:`CARRY_MIN_CORRELATION`: two different fields, whose cells the previous
     frame does not know.
     """
-    shift_px, correlation = _registered_correlation(before, after)
+    shift_px, correlation = registration
     if not correlation >= CARRY_MIN_CORRELATION:
         return None
-    rows, cols = before.shape
+    rows, cols = shape
     problem, x = previous.problem, previous.state.x
     cells = problem.model(problem.n_cells(x)).unpack(x)[0]
     dy_um, dx_um = -shift_px[0] * pixel_um, -shift_px[1] * pixel_um
