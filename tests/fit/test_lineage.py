@@ -252,6 +252,28 @@ def test_a_cell_missed_in_one_frame_keeps_its_track(where, tmp_path):
         assert validate_sequence(str(tmp_path / "01_RES"), threads=1)["Valid"] == 1
 
 
+def test_no_track_crosses_into_another_field():
+    """Found as a user: a series of unrelated fields (a stage jump) was linked wherever
+    cells happened to lie close. Frames named unrelated start new tracks: no link, no
+    division and no link over a gap reaches across them."""
+    cells = FrameCells(
+        ids=[1, 2], x_um=[2.0, 5.0], y_um=[3.0, 3.0], angle_rad=[0.0, 0.0],
+        length_um=[2.5, 2.5], width_um=[0.9, 0.9],
+    )  # fmt: skip
+    linked = link_cells([cells] * 3, image_size_um=(8.0, 8.0))
+    assert linked.tracks.tolist() == [[1, 0, 2, 0], [2, 0, 2, 0]]
+    jumped = link_cells([cells] * 3, image_size_um=(8.0, 8.0), unrelated_frames=[2])
+    assert [ids.tolist() for ids in jumped.track_ids] == [[1, 2], [1, 2], [3, 4]]
+    assert jumped.tracks.tolist() == [[1, 0, 1, 0], [2, 0, 1, 0], [3, 2, 2, 0], [4, 2, 2, 0]]
+    # a missing frame between two fields is no gap to close either
+    over_gap = link_cells([cells, FrameCells.empty(), cells], image_size_um=(8.0, 8.0),
+                          unrelated_frames=[1])  # fmt: skip
+    assert over_gap.gaps == ()
+    assert [ids.tolist() for ids in over_gap.track_ids] == [[1, 2], [], [3, 4]]
+    with pytest.raises(ValueError, match=r"unrelated_frames must name frames 1\.\.2"):
+        link_cells([cells] * 3, unrelated_frames=[0])
+
+
 def test_bad_link_settings_and_inputs_are_refused():
     with pytest.raises(ValueError, match="gate_um must be a positive number"):
         LinkSettings(gate_um=0.0)

@@ -21,6 +21,8 @@ from napari_symbac.settings import Camera, Microscope, RenderSettings, TrenchGeo
 from napari_symbac.sim import FrameCells
 
 START = RenderSettings(apodisation_sigma_um=1.0, defocus_sigma_um=0.05, psf_offset=0.0)
+#: The fixture's progress calls, ``(done, total)``.
+PROGRESS: list[tuple[int, int]] = []
 
 
 def _to_image_coordinates(cells: FrameCells, margin_um: float) -> FrameCells:
@@ -36,6 +38,7 @@ def _to_image_coordinates(cells: FrameCells, margin_um: float) -> FrameCells:
 
 @pytest.fixture(scope="module")
 def scene_fit(truth) -> SceneFit:
+    PROGRESS.clear()
     return fit_scene(
         truth.image,
         truth.microscope,
@@ -44,7 +47,16 @@ def scene_fit(truth) -> SceneFit:
         labels=scene_classes(truth.scene),
         irls_rounds=2,
         max_iterations=15,
+        progress=lambda done, total: PROGRESS.append((done, total)),
     )
+
+
+def test_progress_ends_at_the_renders_done(scene_fit):
+    """Found as a user: the Tune dock's Auto-fit ended on "8748 renders (at most 8748)"
+    and then said "Fitted in 3117 renders": the last call reported the bound as done."""
+    assert PROGRESS[-1] == (scene_fit.n_evaluations, scene_fit.n_evaluations)
+    assert all(0 <= done <= total for done, total in PROGRESS)
+    assert PROGRESS[-2][1] > scene_fit.n_evaluations  # the bound, well above
 
 
 def test_fit_scene_draws_with_draw_scene(truth):

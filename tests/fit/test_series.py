@@ -103,6 +103,9 @@ def test_a_jump_to_another_field_is_said(series):
     [said] = [w for w in jumped.warnings if "different fields" in w]
     assert said.startswith(f"frames 0 and 1 correlate {jumped.frame_correlation[1]:.2f}")
     assert jumped.carried == (False, False)
+    # and no track goes on into the other field
+    assert not set(jumped.track_ids[0].tolist()) & set(jumped.track_ids[1].tolist())
+    assert all(parent == 0 for _, first, _, parent in jumped.lineage.tracks if first == 1)
 
 
 def _tracks_of_first(fit, truth):

@@ -323,7 +323,6 @@ def fit_colony_series(
         progress=optics_progress,
         cancel=cancel,
     )
-    done = max_evaluations
     frames = [_Frame.of(i, microscope, m, optics.camera) for i, m in zip(images, all_masks)]
     joint, objective = _joint_optics(
         frames, microscope, optics.camera, optics, joint_evaluations, tick
@@ -334,7 +333,7 @@ def fit_colony_series(
         tick()
         tick()
     if progress is not None:
-        progress(total, total)  # the joint fit may converge within its budget
+        progress(done, done)  # the fits may converge well within their bound
     height, width = images[0].shape
     pixel_um = microscope.pixel_size_um
     lineage = link_cells(

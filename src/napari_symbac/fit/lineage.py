@@ -692,6 +692,21 @@ def _link_pair(
     return _Step(pred, cost, match, split, float(total), float(total + free_ends))
 
 
+def _no_links(
+    before: FrameCells,
+    after: FrameCells,
+    growth: float,
+    size_um: tuple[float, float],
+    s: LinkSettings,
+) -> _Step:
+    """The step between two frames of different fields: every cell of ``before`` ends,
+    every cell of ``after`` starts a track."""
+    pred = _predict(before, growth, None, np.zeros(2), size_um, s.exit_margin_um)
+    cost = np.full((len(before), len(after)), np.inf)
+    total = s.unlinked_cost * (len(before) + len(after))
+    return _Step(pred, cost, np.full(len(before), -1), {}, total, total)
+
+
 def _placements(trench, t: int) -> tuple[TrenchPlacement, TrenchPlacement] | None:
     if trench is None or trench[t] is None or trench[t + 1] is None:
         return None
@@ -705,6 +720,7 @@ def link_cells(
     trench: Sequence[TrenchPlacement | None] | None = None,
     image_size_um: tuple[float, float] | None = None,
     cut_by_edge: Sequence[np.ndarray] | None = None,
+    unrelated_frames: Sequence[int] = (),
     passes: int = 3,
 ) -> Lineage:
     """Give the cells of consecutive frames track ids and a lineage.
@@ -755,6 +771,12 @@ def link_cells(
         cut = [np.asarray(c, bool) for c in cut_by_edge]
         if len(cut) != len(frames) or any(c.shape != (len(f),) for c, f in zip(cut, frames)):
             raise ValueError("cut_by_edge needs one flag per cell of every frame")
+    unrelated = {int(t) for t in unrelated_frames}
+    if any(not 0 < t < len(frames) for t in unrelated):
+        raise ValueError(
+            f"unrelated_frames must name frames 1..{len(frames) - 1} (the first frame "
+            f"follows none), got {sorted(unrelated)}"
+        )
     size = image_size_um if image_size_um is not None else (math.inf, math.inf)
     is_trench = trench is not None and any(p is not None for p in trench)
     growth = s.growth_per_frame if s.growth_per_frame is not None else 1.0
@@ -766,6 +788,9 @@ def link_cells(
         for t in range(len(frames) - 1):
             pair = _placements(trench, t)
             pair_cut = (cut[t], cut[t + 1])
+            if t + 1 in unrelated:
+                steps.append(_no_links(frames[t], frames[t + 1], growth, size, s))
+                continue
             if trench is None and round_ == 0:
                 # the field's shift: the candidate whose links cost least (ends all
                 # priced alike: a shift must not win by pushing cells out of view)
@@ -799,6 +824,7 @@ def link_cells(
         if s.growth_per_frame is None and ratios:
             growth = float(np.clip(np.median(ratios), 0.5, 2.0))
     gaps = _close_gaps(frames, steps, growth, drift, trench, size, s, cut) if s.close_gaps else []
+    gaps = [g for g in gaps if not {g.t, g.t + 1} & unrelated]
     return _lineage(frames, steps, growth, drift, gaps)
 
 

@@ -656,7 +656,7 @@ def fit_parameters(
 
     terms_table = {k: (terms_before[k], terms_after[k]) for k in terms_after}
     if progress is not None:
-        progress(budget.total, budget.total)
+        progress(budget.done, budget.done)  # the fit may end well within its bound
     objective_before = total_objective(terms_before, weights)
     objective_after = total_objective(terms_after, weights)
     return FitResult(

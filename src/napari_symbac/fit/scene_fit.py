@@ -961,7 +961,7 @@ def _frame_result(run: _FrameRun) -> SceneFit:
             "so the standard errors are too small"
         )
     if progress is not None:
-        progress(budget.total, budget.total)
+        progress(budget.done, budget.done)  # the fit may end well within its bound
     return SceneFit(
         cells=cells,
         initial_cells=init_cells,

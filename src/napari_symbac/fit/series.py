@@ -338,13 +338,13 @@ def fit_series(
     )
     warnings: list[str] = []
     correlation = [float(c) for _, c in registered]
+    unrelated = [t for t in range(1, n_frames) if correlation[t] < CARRY_MIN_CORRELATION]
     warnings += [  # found as a user: 0 tracks linked on ColiCoords ds3, and no word why
         f"frames {t - 1} and {t} correlate {correlation[t]:.2f} where they overlap, once "
         f"registered (below {CARRY_MIN_CORRELATION}): they look like different fields (a "
-        f"stage jump?), so frame {t}'s cells were fitted from its own start and need not "
-        f"continue frame {t - 1}'s tracks"
-        for t in range(1, n_frames)
-        if correlation[t] < CARRY_MIN_CORRELATION
+        f"stage jump?), so frame {t}'s cells were fitted from its own start and start "
+        f"new tracks (none continues frame {t - 1}'s)"
+        for t in unrelated
     ]
     cost_before = sum(run.state.cost for run in runs)
     iterations = 0
@@ -352,7 +352,7 @@ def fit_series(
     size_um = (stack.shape[1] * px, stack.shape[2] * px)
     ties = None
     if growth_prior_sd_um > 0:
-        early = _link(alone, linking, geometry, size_um)
+        early = _link(alone, linking, geometry, size_um, unrelated)
         ties = _GrowthTies.from_lineage(early, alone, growth_prior_sd_um)
     if names or ties is not None:
         states, iterations, converged = _joint_refine(
@@ -367,7 +367,7 @@ def fit_series(
     joint = tuple(_frame_result(run) for run in runs)
     cost_after = sum(run.state.cost for run in runs)
     values, se = _joint_uncertainty(joint, runs, names)
-    lineage = _link(joint, linking, geometry, size_um)
+    lineage = _link(joint, linking, geometry, size_um, unrelated)
     return SeriesFit(
         frames=joint,
         frame_by_frame=alone,
@@ -467,13 +467,16 @@ def _link(
     linking: LinkSettings | None,
     geometry: str,
     size_um: tuple[float, float],
+    unrelated: list[int],
 ) -> Lineage:
-    """The fitted cells of the frames linked into tracks (trench placements in a trench)."""
+    """The fitted cells of the frames linked into tracks (trench placements in a
+    trench); no track crosses into a frame of ``unrelated`` (another field)."""
     return link_cells(
         [fit.cells for fit in fits],
         linking,
         trench=[fit.trench for fit in fits] if geometry == "trench" else None,
         image_size_um=size_um,
+        unrelated_frames=unrelated,
     )
 
 
