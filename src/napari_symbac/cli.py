@@ -22,6 +22,8 @@ from napari_symbac import __version__
 from napari_symbac._timing import StepTimer, progress_bar
 
 if TYPE_CHECKING:
+    import numpy as np
+
     from napari_symbac.io import CountsMapping
 
 __all__ = ["interrupted_text", "main"]
@@ -363,9 +365,9 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 #: What a poor base fit of a phase-contrast field means when it is a dense colony.
 DIAGNOSE_COLONY_NOTE = (
-    "a dense phase-contrast colony needs its instance masks, which diagnose does not take: "
-    "fit it with `napari-symbac fit IMAGE --masks MASKS` and diagnose a window of "
-    "separate cells"
+    "a dense phase-contrast colony's halo and bright seams are drawn by the colony fit "
+    "(`napari-symbac fit IMAGE --masks MASKS`, the partially coherent model), not by "
+    "diagnose's scene of separate rods: diagnose a window of separate cells"
 )
 
 #: Where ``diagnose`` takes the camera (it has no ``--camera``), for its refusals.
@@ -379,6 +381,31 @@ _DIAGNOSE_CAMERA_HINT = (
 _DIAGNOSE_OUTPUTS = frozenset(
     {"diagnosis.json", "report.txt", "residuals.png", "settings.yaml", "extra_stages.yaml"}
 )
+
+
+def _diagnose_masks(path: str, stack_shape: tuple[int, ...]) -> np.ndarray:
+    """``diagnose --masks``: instance ids ``(T, Y, X)``, one frame of them for each frame
+    of the recording (a single frame's masks stand for every frame), checked as `fit`
+    checks them (the image's shape, integer ids, some cells and some background; a
+    binary mask's regions are the cells)."""
+    import numpy as np
+
+    from napari_symbac._cli_fit import read_recording
+    from napari_symbac.fit.preflight import as_instance_ids, check_instance_masks
+
+    name = f"--masks {Path(path).name}"
+    masks = np.asarray(read_recording(path, "--masks", counts=False).data)
+    n_frames, shape = stack_shape[0], tuple(stack_shape[1:])
+    if masks.ndim == 3 and masks.shape[0] == n_frames and masks.shape[1:] == shape:
+        frames = list(masks)
+    else:
+        check_instance_masks(masks, shape, name)  # says which shape it should have
+        frames = [masks] * n_frames
+    out = []
+    for frame in frames:
+        check_instance_masks(frame, shape, name)
+        out.append(as_instance_ids(frame)[0])
+    return np.stack(out)
 
 
 def _diagnose_writes(name: str) -> bool:
@@ -434,6 +461,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from napari_symbac.diagnose.stages import drawn_by_export, refitted_render, updated_settings
     from napari_symbac.export.atomic import earlier_run, remove_earlier_run
     from napari_symbac.fit import fit_scene
+    from napari_symbac.fit.colony import is_dense_colony
     from napari_symbac.fit.fitted_settings import fitted_or_kept
     from napari_symbac.fit.preflight import (
         check_fit_image,
@@ -499,6 +527,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                 "it is above 0, 2 on some of the background"
             )
         frame_shape = stack.shape[-2:]
+        masks = None if args.masks is None else _diagnose_masks(args.masks, stack.shape)
         if args.region is None:
             region = default_region(frame_shape)
         else:
@@ -507,6 +536,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         if region != (0, frame_shape[0], 0, frame_shape[1]):
             stack = stack[:, y0:y1, x0:x1]
             labels = None if labels is None else labels[y0:y1, x0:x1]
+            masks = None if masks is None else masks[:, y0:y1, x0:x1]
             if args.region is None or names_centre(args.region):
                 # the centre window's place is the program's choice: say where it is
                 print(
@@ -517,9 +547,23 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                     "another window, --region full the whole frame",
                     file=sys.stderr,
                 )
-        for frame in stack:  # what fit refuses, diagnose refuses too (found as a user: a
-            # fluorescence field diagnosed as phase ended in advice about wide cells)
-            check_modality(frame, microscope.modality, labels=labels)
+        for k, frame in enumerate(stack):  # what fit refuses, diagnose refuses too (found
+            # as a user: a fluorescence field diagnosed as phase ended in advice about
+            # wide cells)
+            frame_masks = None if masks is None else masks[k]
+            if frame_masks is not None and not frame_masks.any():
+                raise ValueError(
+                    f"--masks {Path(args.masks).name} hold no cell in "
+                    f"{'frame ' + str(k) + ', ' if len(stack) > 1 else ''}rows {y0}:{y1}, "
+                    f"columns {x0}:{x1} (the window diagnosed): pass --region Y0:Y1,X0:X1 "
+                    "for a window with cells, or --region full"
+                )
+            if is_dense_colony(frame_masks, microscope.modality):
+                raise ValueError(
+                    f"--masks {Path(args.masks).name} hold a dense colony of touching cells "
+                    f"in the window diagnosed: {DIAGNOSE_COLONY_NOTE}"
+                )
+            check_modality(frame, microscope.modality, labels=labels, masks=frame_masks)
         named = args.geometry or default_geometry(stack.shape, microscope.modality)
         geometry = "open" if named == "field" else named  # `fit`'s rule and words
         if microscope.modality == "phase" and geometry == "open" and stack[0].size > 2 * 96**2:
@@ -546,6 +590,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     # named as the diagnose command's (piped, it said "napari-symbac fit: 1 of 1 frames")
     update, bar = _tqdm_progress("diagnose", unit="frames fitted")
     scenes = []
+    n_cells: list[int] = []
     camera = config.camera
     first_fit = None
     with timer.step("base fit"):
@@ -556,7 +601,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             # and the diagnosis use that camera.
             try:
                 fit = fit_scene(
-                    frame, microscope, render, camera, labels=labels, geometry=geometry
+                    frame, microscope, render, camera, labels=labels, geometry=geometry,
+                    masks=None if masks is None else masks[k],
                 )
             except WideStartError as err:
                 raise ValueError(f"{err.cause}; {DIAGNOSE_WIDE_START_FIX}") from err
@@ -574,6 +620,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                     measured_note += counts_units_mark(mapping)
                 print(f"note: {measured_note}", file=sys.stderr)
             scenes.append(fit.scene)
+            n_cells.append(len(fit.cells))
             render = fit.render
             update(k + 1, len(stack))
     bar.close()
@@ -600,6 +647,11 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         doc["camera"] = dataclasses.asdict(camera)
         doc["counts_mapping"] = counts_record(mapping)
         doc["region"] = {"rows": [y0, y1], "columns": [x0, x1]}
+        doc["start"] = {  # what the base fit started from, and the cells it ended with
+            "from": "instance masks" if masks is not None else
+            "painted labels" if labels is not None else "automatic segmentation",
+            "cells_per_frame": n_cells,
+        }  # fmt: skip
         layout = simulated_shape(region, frame_shape, first_fit.trench is not None)
         # the simulation `fit` would write, so that an export matches the recording
         simulation, invalid = fitted_or_kept(
@@ -625,7 +677,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         (out / "extra_stages.yaml").write_text(stages_text)
     for caution in result.cautions():  # said where it is seen, not only in report.txt
         if caution.startswith("the base fit") and microscope.modality == "phase" and (
-            geometry == "open" and labels is None
+            geometry == "open" and labels is None and masks is None
         ):
             caution += f"; {DIAGNOSE_COLONY_NOTE}"
         print(f"napari-symbac diagnose: warning: {caution}", file=sys.stderr)
@@ -689,17 +741,20 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-#: What diagnose, which starts from its own segmentation (no masks), asks of a start
-#: wider than any rod (:class:`~napari_symbac.fit.start.WideStartError`).
+#: What diagnose asks of an automatic start wider than any rod
+#: (:class:`~napari_symbac.fit.start.WideStartError`).
 DIAGNOSE_WIDE_START_FIX = (
-    "diagnose starts from its own segmentation (it takes no masks): pass --region "
-    "Y0:Y1,X0:X1 for a window of separate cells"
+    "pass the cells' instance masks as --masks M, or --region Y0:Y1,X0:X1 for a window of "
+    "separate cells"
 )
 
 
 #: What diagnose asks when its automatic start found no bright cell
-#: (:class:`~napari_symbac.fit.start.FaintStartError`): it takes painted labels.
-DIAGNOSE_FAINT_START_FIX = "paint rough cell and background strokes and pass them as --labels L"
+#: (:class:`~napari_symbac.fit.start.FaintStartError`).
+DIAGNOSE_FAINT_START_FIX = (
+    "pass the cells' instance masks as --masks M, or paint rough cell and background "
+    "strokes and pass them as --labels L"
+)
 
 
 #: The side of a diagnosis window under which "no cells" may mean too little background.
@@ -725,7 +780,7 @@ def _no_cells_advice(
     if window:
         where += f", rows {y0}:{y1}, columns {x0}:{x1}"
     every = " in every frame" if n_frames > 1 else ""
-    faint = isinstance(err, FaintStartError)  # its fix is worded here: no masks
+    faint = isinstance(err, FaintStartError)  # its fix is worded here
     if window:
         fix = f"pass --region Y0:Y1,X0:X1 for a window with cells{every}, or --region full"
         if min(y1 - y0, x1 - x0) < SMALL_WINDOW_PX:  # found as a user: a 40 x 40 px
@@ -1195,7 +1250,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     diag.add_argument("image", help="recording (TIFF or PNG), one frame or a (T, Y, X) series")
     diag.add_argument("--channel", type=_whole_number(0), help=CHANNEL_HELP)
-    diag.add_argument("--labels", help="painted class labels TIFF (1 cell, 2 media, 3 device)")
+    diag_start = diag.add_mutually_exclusive_group()
+    diag_start.add_argument(
+        "--labels", help="painted class labels TIFF (1 cell, 2 media, 3 device)"
+    )
+    diag_start.add_argument(
+        "--masks",
+        help="instance masks TIFF (0 background, 1..N cells; one frame, or one per frame of a "
+        "series): the base fit starts from these cells, as `fit --masks` does (cells too "
+        "faint or too crowded for the automatic start)",
+    )
     diag.add_argument(
         "--microscope",
         required=True,

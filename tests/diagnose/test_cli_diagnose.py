@@ -257,13 +257,14 @@ def _diagnose_refused(tmp_path, capsys, image, microscope_yaml: str) -> str:
 def test_a_colony_start_names_diagnoses_own_fix(tmp_path, capsys, real_data_dir):
     """The Omnipose colony Sample000033 (touching cells; 0.118 um/px, 1 um per median
     mask width): the automatic start takes them as wide regions and the base fit stops;
-    diagnose takes no masks, so the message asks for a window of separate cells, not for
-    the masks the fit's own message would ask for."""
+    the message names diagnose's own ways out, --masks and a window of separate cells."""
     image = real_data_dir / "omnipose" / "Sample000033.png"
     error = _diagnose_refused(tmp_path, capsys, image, "pixel_size_um: 0.118\nmodality: phase\n")
     assert "cells the automatic start found are wider than any rod-shaped bacterium" in error
-    assert error.endswith("pass --region Y0:Y1,X0:X1 for a window of separate cells")
-    assert "instance masks" not in error
+    assert error.endswith(
+        "pass the cells' instance masks as --masks M, or --region Y0:Y1,X0:X1 for a window "
+        "of separate cells"
+    )
 
 
 def test_a_fluorescence_field_diagnosed_as_phase_is_refused_as_fit_refuses_it(
@@ -290,15 +291,70 @@ def test_a_fluorescence_field_diagnosed_as_phase_is_refused_as_fit_refuses_it(
     assert "no bright region stands 40 times" in error
 
 
-def test_a_crop_around_one_cell_asks_diagnose_for_painted_labels(tmp_path, capsys, real_data_dir):
-    """ColiCoords' single-cell crop ``01``: diagnose takes no masks, so its words for a
-    start that found no cell name the painted labels it does take."""
-    image = real_data_dir / "colicoords" / "01" / "fluorescence.tif"
+def test_a_crop_around_one_cell_is_diagnosed_from_its_masks(tmp_path, capsys, real_data_dir):
+    """ColiCoords' single-cell crop ``01``: the automatic start finds no cell (its glow is
+    most of the crop) and says to pass the masks or painted strokes. Found as a user:
+    diagnose took no masks, so a lab's own masks could not start it as they start `fit`;
+    with --masks the base fit starts from the crop's binary mask (one cell)."""
+    folder = real_data_dir / "colicoords" / "01"
     mic = "pixel_size_um: 0.08\nmodality: fluorescence\nwavelength_um: 0.53\n"
-    error = _diagnose_refused(tmp_path, capsys, image, mic)
+    error = _diagnose_refused(tmp_path, capsys, folder / "fluorescence.tif", mic)
     assert "no bright region stands 40 times" in error
-    assert error.endswith("paint rough cell and background strokes and pass them as --labels L")
-    assert "masks" not in error
+    assert error.endswith(
+        "pass the cells' instance masks as --masks M, or paint rough cell and background "
+        "strokes and pass them as --labels L"
+    )
+    out = tmp_path / "masked"
+    args = ["diagnose", str(folder / "fluorescence.tif"), "--masks", str(folder / "binary.tif"),
+            "--microscope", str(tmp_path / "mic.yaml"), "--max-effects", "1",
+            "--out", str(out)]  # fmt: skip
+    assert main(args) == 0, capsys.readouterr().err
+    doc = json.loads((out / "diagnosis.json").read_text())
+    assert doc["start"] == {"from": "instance masks", "cells_per_frame": [1]}
+    assert sum(e["accepted"] for e in doc["effects"]) == 1
+    assert (out / "residuals.png").stat().st_size > 0
+
+
+def test_diagnose_masks_that_do_not_fit_the_window_are_refused(tmp_path, capsys, real_data_dir):
+    """--masks of another image's shape, or with no cell in the window diagnosed: one
+    line that says what to pass, exit 2, nothing written."""
+    import tifffile
+
+    folder = real_data_dir / "colicoords" / "01"
+    mic = tmp_path / "mic.yaml"
+    mic.write_text("pixel_size_um: 0.08\nmodality: fluorescence\nwavelength_um: 0.53\n")
+    small = tmp_path / "small.tif"
+    tifffile.imwrite(small, np.ones((20, 20), np.uint8))
+    base = ["diagnose", str(folder / "fluorescence.tif"), "--microscope", str(mic)]
+    out = tmp_path / "out"
+    assert main([*base, "--masks", str(small), "--out", str(out)]) == 2
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "--masks small.tif has shape (20, 20) but the image frame has shape (57, 61)" in error
+    assert main([*base, "--masks", str(folder / "binary.tif"), "--region", "0:12,0:12",
+                 "--out", str(out)]) == 2  # fmt: skip
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "--masks binary.tif hold no cell in rows 0:12, columns 0:12" in error
+    assert "pass --region Y0:Y1,X0:X1 for a window with cells" in error
+    assert not out.exists()
+
+
+def test_diagnose_masks_of_a_dense_colony_name_the_colony_fit(tmp_path, capsys, real_data_dir):
+    """The Omnipose colony Sample000193 with its masks: diagnose's base fit draws
+    separate rods, which cannot make a colony's halo and seams (the engine refused in
+    the words of its Python API); the command names the colony fit, exit 2."""
+    folder = real_data_dir / "omnipose"
+    mic = tmp_path / "mic.yaml"
+    mic.write_text("pixel_size_um: 0.07\nmodality: phase\n")
+    out = tmp_path / "out"
+    code = main(["diagnose", str(folder / "Sample000193.png"), "--masks",
+                 str(folder / "Sample000193_cp_masks.tif"), "--microscope", str(mic),
+                 "--region", "234:330,234:330", "--out", str(out)])  # fmt: skip
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert code == 2
+    assert "--masks Sample000193_cp_masks.tif hold a dense colony of touching cells" in error
+    assert "the colony fit (`napari-symbac fit IMAGE --masks MASKS`" in error
+    assert "fit_colony" not in error
+    assert not out.exists()
 
 
 def test_candidates_no_held_out_check_reached_are_said_so(tmp_path, capsys, real_data_dir):
@@ -450,7 +506,7 @@ def test_a_diagnosis_on_a_poor_base_fit_is_cautioned(tmp_path, capsys, real_data
     assert base > 50
     assert f"CAUTION: the base fit leaves a reduced chi-square of {base:.3g}" in report
     assert "napari-symbac diagnose: warning: the base fit leaves a reduced chi-square" in err
-    assert "fit it with `napari-symbac fit IMAGE --masks MASKS`" in err
+    assert "the colony fit (`napari-symbac fit IMAGE --masks MASKS`" in err
     assert f"`napari-symbac export --config {out / 'settings.yaml'} --out DATASET`" in report
     # and where the final model misses most, as residuals.png shows it
     where = re.search(r"largest remaining misfit: row (\d+), column (\d+) of the diag", report)

@@ -10,6 +10,7 @@ import pytest
 from napari_symbac._widgets.diagnose import (
     DIAGNOSIS_RESIDUAL_LAYER,
     FAINT_START_FIX,
+    WIDE_START_FIX,
     DiagnoseWidget,
 )
 from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
@@ -300,12 +301,12 @@ def test_diagnose_says_the_centre_window_holds_no_cells(make_napari_viewer, qtbo
     assert DIAGNOSIS_RESIDUAL_LAYER not in viewer.layers
 
 
-def test_diagnose_of_a_colony_asks_for_a_window_not_for_masks(
+def test_diagnose_of_a_colony_names_the_docks_own_fixes(
     make_napari_viewer, qtbot, real_data_dir
 ):
     """The Omnipose colony Sample000033 (touching cells, 0.118 um/px): the automatic
-    start takes them as wide regions; the dock, which takes no masks, says so with its
-    own fix (its window field), not the fit's (masks)."""
+    start takes them as wide regions; the dock says so with its own fixes (its cell
+    masks and window fields), not the CLI's flags."""
     from napari_symbac.io import read_image
 
     viewer = make_napari_viewer()
@@ -321,10 +322,57 @@ def test_diagnose_of_a_colony_asks_for_a_window_not_for_masks(
     status = widget.status.value
     assert status.startswith("Diagnosis failed: ")
     assert "wider than any rod-shaped bacterium" in status
-    assert status.endswith("enter a window of separate cells in 'window (rows, columns)'")
-    assert "instance masks" not in status
+    assert status.endswith(f"; {WIDE_START_FIX}")
+    assert "'cell masks'" in status
+    assert "enter a window of separate cells in 'window (rows, columns)'" in status
+    assert "--masks" not in status
     assert widget.run_button.enabled
     assert DIAGNOSIS_RESIDUAL_LAYER not in viewer.layers
+    # with the colony's masks: Diagnose's separate rods cannot draw it, Auto-fit can
+    import tifffile
+
+    masks = tifffile.imread(real_data_dir / "omnipose" / "Sample000033_cp_masks.tif")
+    viewer.add_labels(masks.astype(np.int32), name="masks", scale=(0.118, 0.118))
+    assert widget.masks.value is viewer.layers["masks"]
+    widget.run_button.clicked.emit()
+    assert widget.worker is None
+    assert widget.status.value.startswith(
+        "'cell masks' masks hold a dense colony of touching cells in the window"
+    )
+    assert "Tune's Auto-fit" in widget.status.value
+
+
+def test_diagnose_starts_from_the_cell_masks_opened(make_napari_viewer, qtbot, real_data_dir):
+    """ColiCoords' single-cell crop ``01``: the automatic start finds no cell (its glow
+    is most of the crop). Found as a user: the dock took no masks, so the lab's own mask
+    could not start it; the binary mask opened as a Labels layer is chosen in *cell
+    masks* and the base fit starts from its cell. A mask that holds no cell in the
+    window is refused in one line."""
+    import tifffile
+
+    folder = real_data_dir / "colicoords" / "01"
+    viewer = make_napari_viewer()
+    viewer.add_image(
+        tifffile.imread(folder / "fluorescence.tif"),
+        name="crop",
+        scale=(0.08, 0.08),
+        metadata={"pixel_size_um": 0.08, "modality": "fluorescence"},
+    )
+    widget = DiagnoseWidget(viewer, candidates=CANDIDATES, n_bootstrap=5)
+    assert widget.masks.value is None
+    masks = viewer.add_labels(tifffile.imread(folder / "binary.tif").astype(np.uint8),
+                              name="binary", scale=(0.08, 0.08))  # fmt: skip
+    assert widget.masks.value is masks  # opened after the recording: chosen
+    widget.window.value = "0:10,0:10"
+    widget.run_button.clicked.emit()
+    assert widget.status.value.startswith("'cell masks' binary hold no cell in rows 0:10")
+    assert widget.worker is None
+    widget.window.value = "centre"
+    widget.run_button.clicked.emit()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
+    assert widget.result is not None, widget.status.value
+    assert widget.status.value.startswith("Accepted: "), widget.status.value
+    assert DIAGNOSIS_RESIDUAL_LAYER in viewer.layers
 
 
 @pytest.fixture

@@ -26,7 +26,9 @@ from napari_symbac._widgets._recording import (
     followed_layer,
     given_camera,
     is_recording,
+    mask_layers,
     modality_render,
+    newest_masks,
     no_recording_message,
     output_metadata,
     recording_microscope,
@@ -50,15 +52,20 @@ DIAGNOSIS_RESIDUAL_LAYER = "diagnosis residual"
 DIAGNOSIS_AFTER_LAYER = "diagnosis residual after"
 #: The label of the dock's field of the window diagnosed.
 WINDOW_LABEL = "window (rows, columns)"
-#: What the dock, which starts from its own segmentation (no masks), asks of a start
-#: wider than any rod (:class:`~napari_symbac.fit.start.WideStartError`).
+#: The label of the dock's field of the cells' instance masks.
+MASKS_LABEL = "cell masks"
+#: What the dock asks of a start wider than any rod
+#: (:class:`~napari_symbac.fit.start.WideStartError`).
 WIDE_START_FIX = (
-    f"Diagnose starts from its own segmentation (it takes no masks): enter a window of "
-    f"separate cells in '{WINDOW_LABEL}'"
+    f"open the cells' instance masks (a Labels layer) and choose them in '{MASKS_LABEL}', "
+    f"or enter a window of separate cells in '{WINDOW_LABEL}'"
 )
 #: The dock's words for a start that found no bright cell
-#: (:class:`~napari_symbac.fit.start.FaintStartError`): it reads the painted classes.
-FAINT_START_FIX = "paint rough cell and media strokes on the recording in the Recording step"
+#: (:class:`~napari_symbac.fit.start.FaintStartError`).
+FAINT_START_FIX = (
+    f"choose the cells' instance masks in '{MASKS_LABEL}', or paint rough cell and media "
+    "strokes on the recording in the Recording step"
+)
 
 
 def window_words(
@@ -131,6 +138,15 @@ class DiagnoseWidget(Container):
             name="reference", label="real image", choices=self._recordings, nullable=True
         )
         self.reference.tooltip = "The recording to diagnose (its pixel size must be set)."
+        self.masks = ComboBox(
+            name="masks", label=MASKS_LABEL, choices=self._mask_layers, nullable=True
+        )
+        self.masks.tooltip = (
+            "Instance masks of the real image (a Labels layer, 0 background, one number per "
+            "cell, e.g. from Cellpose or Omnipose): the base fit starts from these cells, as "
+            "napari-symbac diagnose --masks. Empty: painted classes or the fit's own "
+            "segmentation."
+        )
         self.window = LineEdit(name="window", label=WINDOW_LABEL, value="centre")
         self.window.tooltip = (
             "The part of the frame to diagnose, in camera pixels: centre (the whole frame "
@@ -170,6 +186,7 @@ class DiagnoseWidget(Container):
         self.extend(
             [
                 self.reference,
+                self.masks,
                 self.window,
                 self.seed,
                 self.max_effects,
@@ -187,25 +204,46 @@ class DiagnoseWidget(Container):
         self.result = None
         self.run_button.changed.connect(self.run)
         self.cancel_button.changed.connect(self.cancel)
+        self.reference.changed.connect(self._choose_masks)
         watch_recordings(viewer, self._refresh_choices)
         self._refresh_choices()
 
     def _recordings(self, _widget=None) -> list:
         return [layer for layer in self.viewer.layers if is_recording(layer)]
 
+    def _mask_layers(self, _widget=None) -> list:
+        return mask_layers(self.viewer)
+
     def _refresh_choices(self, _event=None) -> None:
         self.reference.reset_choices()
+        self.masks.reset_choices()
         choices = [c for c in self.reference.choices if c is not None]
         followed = followed_layer(_event, choices, busy=self.worker is not None)
-        if followed is not None:
+        if followed is not None and followed is not self.reference.value:
+            self.masks.value = None  # chosen for the recording before
             self.reference.value = followed
         elif self.reference.value is None and choices:
             self.reference.value = choices[-1]
+        if getattr(_event, "type", "") == "inserted":  # masks opened after the recording
+            self._choose_masks(only=_event.value)
+
+    def _choose_masks(self, _value=None, *, only=None) -> None:
+        """With no cell masks chosen, the newest layer of instance masks of the recording's
+        frame size (cells in it), as Tune's Auto-fit chooses them (``only``: the layer
+        just added, the one to consider)."""
+        reference = self.reference.value
+        if self.masks.value is not None or reference is None:
+            return
+        self.masks.reset_choices()
+        masks = newest_masks(self.viewer, reference, only)
+        if masks is not None:
+            self.masks.value = masks
 
     # -- input ----------------------------------------------------------------------------
 
     def _input(self) -> tuple:
-        """Frame, classes (or ``None``), microscope, start render, camera, geometry, region.
+        """Frame, classes (or ``None``), cell masks (or ``None``), microscope, start
+        render, camera, geometry, region.
 
         The camera is the one given in the Recording step, else ``None``: the base fit
         measures it from the recording (gain and read noise, as Auto-fit and
@@ -255,8 +293,11 @@ class DiagnoseWidget(Container):
             labels = labels[y0:y1, x0:x1]
             if not labels.any():
                 labels = None
+        masks = self._window_masks(index, data.shape[-2:], region, microscope.modality)
         # what the fit refuses (as the CLI): a modality the image contradicts
-        check_modality(frame, microscope.modality, labels=labels, advice=GUI_MODALITY_ADVICE)
+        check_modality(
+            frame, microscope.modality, labels=labels, masks=masks, advice=GUI_MODALITY_ADVICE
+        )
         means = layer.metadata.get("class_means_adu")
         if means or microscope.modality == "fluorescence":
             render = modality_render(RenderSettings(), microscope.modality, means)
@@ -268,7 +309,41 @@ class DiagnoseWidget(Container):
 
         named = default_geometry(frame.shape, microscope.modality)
         geometry = "open" if named == "field" else named
-        return frame, labels, microscope, render, camera, geometry, region
+        return frame, labels, masks, microscope, render, camera, geometry, region
+
+    def _window_masks(
+        self, index: int, shape: tuple, region: tuple, modality: str
+    ) -> np.ndarray | None:
+        """The chosen cell masks' instance ids in the window (frame ``index`` of masks
+        given per frame), checked as the CLI checks ``--masks``; ``None`` when none
+        are chosen."""
+        from napari_symbac.fit.colony import is_dense_colony
+        from napari_symbac.fit.preflight import as_instance_ids, check_instance_masks
+
+        layer = self.masks.value
+        if layer is None:
+            return None
+        masks = np.asarray(layer.data)
+        if masks.ndim == 3:
+            masks = masks[min(index, len(masks) - 1)]
+        name = f"'{MASKS_LABEL}' {layer.name}"
+        check_instance_masks(masks, tuple(shape), name)
+        y0, y1, x0, x1 = region
+        masks = as_instance_ids(masks)[0][y0:y1, x0:x1]
+        if not masks.any():
+            raise ValueError(
+                f"{name} hold no cell in rows {y0}:{y1}, columns {x0}:{x1} (the window "
+                f"diagnosed): enter a window with cells in '{WINDOW_LABEL}', or choose no "
+                "cell masks"
+            )
+        if is_dense_colony(masks, modality):
+            raise ValueError(
+                f"{name} hold a dense colony of touching cells in the window: its halo and "
+                "bright seams are drawn by Tune's Auto-fit from the masks (the partially "
+                "coherent model), not by Diagnose's scene of separate rods; enter a window "
+                f"of separate cells in '{WINDOW_LABEL}'"
+            )
+        return masks
 
     # -- run ------------------------------------------------------------------------------
 
@@ -279,7 +354,7 @@ class DiagnoseWidget(Container):
         if self.worker is not None:
             return
         try:
-            frame, labels, microscope, render, camera, geometry, region = self._input()
+            frame, labels, masks, microscope, render, camera, geometry, region = self._input()
             full = np.asarray(self.reference.value.data).shape[-2:]
         except ValueError as err:
             self.status.value = str(err)
@@ -307,6 +382,7 @@ class DiagnoseWidget(Container):
                     render,
                     camera,
                     labels=labels,
+                    masks=masks,
                     geometry=geometry,
                     # a negative total marks the scene fit's renders (_on_progress)
                     progress=lambda done, total: progress(done, -total),
@@ -521,7 +597,7 @@ class DiagnoseWidget(Container):
             self._on_cancelled()
             return True
         fix = {WideStartError: WIDE_START_FIX, FaintStartError: FAINT_START_FIX}.get(type(err))
-        if fix is not None:  # the engine's fix (masks) is not this dock's
+        if fix is not None:  # the engine's words (--masks) are the CLI's, not this dock's
             self.status.value = f"Diagnosis failed: {err.cause}; {fix}"
             notify_warning(self.status.value)
             return True
