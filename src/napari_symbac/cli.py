@@ -413,11 +413,28 @@ def _diagnose_writes(name: str) -> bool:
     return name in _DIAGNOSE_OUTPUTS or re.fullmatch(r"effect_\w+\.png", name) is not None
 
 
-def _diagnose_report(report: str, mapping: CountsMapping | None, out: Path) -> str:
-    """diagnose's report.txt: the diagnosis, what to do next with its settings (found as
-    a user: only the terminal said it), and for a normalised image read as counts
+def _diagnose_report(
+    report: str,
+    mapping: CountsMapping | None,
+    out: Path,
+    context: list[str],
+    problems: list[str],
+) -> str:
+    """diagnose's report.txt: what was diagnosed (``context``: the window, pixel size,
+    camera and the base fit's cells) and the base fit's ``problems`` (found as a user:
+    none of them was in the report, which named the window only on the terminal), the
+    diagnosis, what to do next with its settings (found as a user: only the terminal
+    said it), and for a normalised image read as counts
     (:class:`~napari_symbac.io.CountsMapping`), what its values are first and a note that
     every ADU and e- of the report is of that map, as ``fit``'s report says."""
+    head = "".join(f"{line}\n" for line in context)
+    if problems:
+        head += (
+            "\nBASE FIT PROBLEMS (as `napari-symbac fit` reports them; the findings below "
+            "stand on this fit, so check these first)\n"
+            + "".join(f"- {p}\n" for p in problems)
+        )
+    report = f"{head}\n{report}"
     next_steps = (
         "\n\nNEXT\n"
         f"- {out / 'settings.yaml'} holds the fitted settings with the accepted effects: "
@@ -464,13 +481,14 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from napari_symbac.fit.colony import is_dense_colony
     from napari_symbac.fit.fitted_settings import fitted_or_kept
     from napari_symbac.fit.preflight import (
+        camera_pixel_problem,
         check_fit_image,
         check_modality,
         default_geometry,
         refuse_constant,
         resolve_pixel_size,
     )
-    from napari_symbac.fit.report import measured_camera_note
+    from napari_symbac.fit.report import base_fit_problems, camera_text, measured_camera_note
     from napari_symbac.fit.start import WideStartError
     from napari_symbac.io import read_image
     from napari_symbac.settings import (
@@ -499,6 +517,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         )
         if "disagrees" in pixel_note:
             print(f"note: {pixel_note}", file=sys.stderr)
+        if slip := camera_pixel_problem(microscope):  # before the fit, as fit says it
+            print(f"napari-symbac diagnose: warning: {slip}", file=sys.stderr)
         image = np.asarray(recording.data)
         if image.ndim not in (2, 3):
             raise ValueError(
@@ -591,6 +611,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     update, bar = _tqdm_progress("diagnose", unit="frames fitted")
     scenes = []
     n_cells: list[int] = []
+    problems: list[str] = [p] if (p := camera_pixel_problem(microscope)) else []
     camera = config.camera
     first_fit = None
     with timer.step("base fit"):
@@ -621,6 +642,10 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                 print(f"note: {measured_note}", file=sys.stderr)
             scenes.append(fit.scene)
             n_cells.append(len(fit.cells))
+            of = f"frame {k}: " if len(stack) > 1 else ""
+            problems += [
+                of + p for p in base_fit_problems(fit, microscope, "see residuals.png")
+            ]
             render = fit.render
             update(k + 1, len(stack))
     bar.close()
@@ -652,6 +677,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             "painted labels" if labels is not None else "automatic segmentation",
             "cells_per_frame": n_cells,
         }  # fmt: skip
+        doc["base_fit_problems"] = problems
         layout = simulated_shape(region, frame_shape, first_fit.trench is not None)
         # the simulation `fit` would write, so that an export matches the recording
         simulation, invalid = fitted_or_kept(
@@ -667,7 +693,20 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             doc["notes"].append(held)
             print(f"note: {held}", file=sys.stderr)
         (out / "diagnosis.json").write_text(json.dumps(doc, indent=2, default=float))
-        (out / "report.txt").write_text(_diagnose_report(result.report(), mapping, out))
+        start = doc["start"]["from"] + (f" ({Path(args.masks).name})" if masks is not None else "")
+        context = [
+            f"recording: {Path(args.image).name}, rows {y0}:{y1}, columns {x0}:{x1} of the "
+            f"{frame_shape[0]} x {frame_shape[1]} px frame"
+            + (f", {len(stack)} frames" if len(stack) > 1 else ""),
+            f"{pixel_note}; modality: {microscope.modality}",
+            f"camera: {camera_text(camera)}"
+            + (" (measured from the recording)" if config.camera is None else ""),
+            f"base fit: started from {start}; cells fitted per frame: "
+            f"{', '.join(map(str, n_cells))}",
+        ]
+        (out / "report.txt").write_text(
+            _diagnose_report(result.report(), mapping, out, context, problems)
+        )
         figures = write_figures(result, stack, out, name=Path(args.image).name)
         base = PipelineSettings(simulation, microscope, final_render, camera)
         accepted = [(e.name, e.params) for e in result.accepted]
@@ -675,6 +714,9 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         save_settings(settings, out / "settings.yaml")
         stages_text = yaml.safe_dump({"extra_stages": extra}, sort_keys=False)
         (out / "extra_stages.yaml").write_text(stages_text)
+    for problem in problems:  # as fit says them (found as a user: 0.8 um for 0.08 um,
+        # cells 2.5 um wide drawn at 0 ADU, exit 0 without a word)
+        print(f"napari-symbac diagnose: warning: base fit: {problem}", file=sys.stderr)
     for caution in result.cautions():  # said where it is seen, not only in report.txt
         if caution.startswith("the base fit") and microscope.modality == "phase" and (
             geometry == "open" and labels is None and masks is None

@@ -88,7 +88,18 @@ def test_diagnose_command_writes_the_issue_outputs(tmp_path, capsys):
     doc = json.loads((out / "diagnosis.json").read_text())
     assert doc["region"] == {"rows": [0, 96], "columns": [0, 46]}
     assert doc["counts_mapping"] is None  # camera counts: nothing to mark
-    assert "read as counts" not in (out / "report.txt").read_text()
+    report = (out / "report.txt").read_text()
+    assert "read as counts" not in report
+    # what was diagnosed, first (found as a user: the window only on the terminal)
+    assert report.startswith(
+        "recording: trench.tif, rows 0:96, columns 0:46 of the 256 x 46 px frame\n"
+        "pixel size 0.065 um from --microscope (the image file records none); modality: phase\n"
+        "camera: sensitivity 2.9 ADU/e-, baseline 100.0 ADU, dark noise 8 e-, 16 bits\n"
+        "base fit: started from automatic segmentation; cells fitted per frame: "
+    )
+    assert doc["start"]["from"] == "automatic segmentation"
+    assert "BASE FIT PROBLEMS" not in report
+    assert doc["base_fit_problems"] == []
     assert set(doc) >= {"base_fit", "mismatches", "effects", "final_fit"}
     assert {"metric", "value", "held_out"} <= set(doc["base_fit"])
     for effect in doc["effects"]:
@@ -104,6 +115,34 @@ def test_diagnose_command_writes_the_issue_outputs(tmp_path, capsys):
 
 
 @pytest.mark.slow
+def test_a_pixel_size_slip_is_said_as_fit_says_it(tmp_path, capsys, real_data_dir):
+    """Found as a user: the real trench at 0.13 um/px (a 2x slip) was diagnosed with exit
+    0 and cells 1.81 um wide in settings.yaml, and ColiCoords at 0.8 um/px (10x) drew its
+    cells at 0 ADU, without a word; `fit` says both. The base fit's problems are now
+    warnings and a section of report.txt; the 10x slip's camera pixel is said first."""
+    image = real_data_dir / "ecoli_100x_oil_exponential.tiff"
+    mic = tmp_path / "mic.yaml"
+    mic.write_text("pixel_size_um: 0.13\nmodality: phase\n")
+    out = tmp_path / "out"
+    args = ["diagnose", str(image), "--microscope", str(mic), "--max-effects", "1"]
+    assert main([*args, "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    width = "the cells' median width, 1.81 um, is unusual for bacteria (0.4-1.6 um)"
+    assert f"napari-symbac diagnose: warning: base fit: {width}" in err
+    report = (out / "report.txt").read_text()
+    section = report.split("BASE FIT PROBLEMS")[1].split("Diagnosis of the mismatch")[0]
+    assert width in section
+    assert "misses structure" not in section  # diagnose is there for that
+    doc = json.loads((out / "diagnosis.json").read_text())
+    assert any(width in p for p in doc["base_fit_problems"])
+    mic.write_text("pixel_size_um: 0.65\nmodality: phase\n")
+    assert main([*args, "--out", str(tmp_path / "ten")]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    slip = "napari-symbac diagnose: warning: pixel size 0.65 um at 100x magnification is a 65"
+    assert any(line.startswith(slip) for line in lines[:-1])  # before the start's refusal
+    assert lines[-1].startswith("napari-symbac diagnose: error: ")
+
+
 def test_diagnose_measures_the_camera_and_reads_a_png(tmp_path, capsys):
     """A grey PNG and the microscope file of `napari-symbac defaults microscope`, no
     camera: the camera is measured from the recording (the recording's 2.9 ADU/e- here),

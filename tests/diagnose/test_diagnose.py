@@ -189,6 +189,33 @@ def test_a_check_of_an_absent_effect_draws_every_replicate():
     assert not check.passed
 
 
+def test_a_gain_of_rounding_noise_is_not_accepted(monkeypatch):
+    """Found as a user: per-cell brightness on a fit of one cell changed the held-out
+    deviance by 6e-9 nats, its bootstrap null by nothing, and was accepted with "gain
+    0.0 nats (needed: > 0.0)". The gains of that case are injected into the real check:
+    it needs MIN_GAIN_NATS, and says so as its threshold (never a negative one)."""
+    from napari_symbac.diagnose import selection
+    from napari_symbac.diagnose.effects import CATALOGUE
+
+    case = make_case(None, modality="fluorescence", fraction_of_sd=0.5, seed=31)
+    y = np.asarray(case.images, np.float64)
+    y = (y[None] if y.ndim == 2 else y) - case.design.camera.baseline_adu
+    valid = np.ones(y.shape, bool)
+    spec = selection.ModelSpec()
+    current = spec.fit(case.design, y, valid)
+    gains = iter([6.2e-9])  # the data's; every bootstrap replicate's is 0
+
+    def injected(*args, **kwargs):
+        return 1.0, 1.0, next(gains, 0.0)
+
+    monkeypatch.setattr(selection, "_gain", injected)
+    effect = CATALOGUE["cell_intensity_variability"](case.design.geometry)
+    check = selection.held_out(effect, case.design, y, spec, current, valid,
+                               np.random.default_rng(0), n_bootstrap=8)  # fmt: skip
+    assert not check.passed
+    assert check.threshold_nats == selection.MIN_GAIN_NATS
+
+
 def test_same_seed_same_diagnosis():
     case = make_case("stray_light", fraction_of_sd=0.6, seed=5)
     one = diagnose(case.images, case.design, n_bootstrap=10, rng=np.random.default_rng(3))

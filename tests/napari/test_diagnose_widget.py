@@ -90,6 +90,7 @@ def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
     accepted = [effect.name for effect in widget.result.accepted]
     assert accepted, widget.status.value  # the real trench's misfit names some effect
     assert drawn_by_export(accepted) in widget.status.value
+    assert "unusual for bacteria" not in widget.status.value  # the right pixel size
     text = widget.report.value
     assert text.startswith("Diagnosis of the mismatch")
     for name in CANDIDATES:
@@ -340,6 +341,27 @@ def test_diagnose_of_a_colony_names_the_docks_own_fixes(
         "'cell masks' masks hold a dense colony of touching cells in the window"
     )
     assert "Tune's Auto-fit" in widget.status.value
+
+
+def test_a_pixel_size_slip_is_cautioned_in_the_status(make_napari_viewer, qtbot, real_data_dir):
+    """Found as a user (the command, and the dock alike): the real trench at 0.13 um/px,
+    twice its pixel size, was diagnosed without a word of its cells 1.81 um wide, which
+    Auto-fit and `fit` say. The base fit's problems lead the dock's cautions."""
+    import tifffile
+
+    viewer = make_napari_viewer()
+    viewer.add_image(
+        tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff"),
+        name="real",
+        scale=(0.13, 0.13),
+        metadata={"pixel_size_um": 0.13, "modality": "phase"},
+    )
+    widget = DiagnoseWidget(viewer, candidates=CANDIDATES, n_bootstrap=5)
+    widget.run_button.clicked.emit()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
+    assert widget.result is not None, widget.status.value
+    assert "<br>Caution: base fit: the cells' median width, 1.8" in widget.status.value
+    assert "is unusual for bacteria (0.4-1.6 um): check the pixel size" in widget.status.value
 
 
 def test_diagnose_starts_from_the_cell_masks_opened(make_napari_viewer, qtbot, real_data_dir):

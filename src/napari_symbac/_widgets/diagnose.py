@@ -581,7 +581,13 @@ class DiagnoseWidget(Container):
             + (f"; {drawn_by_export(accepted)}." if accepted else ".")
             + (f" Note: {held}." if held else "")
         )
-        cautions = result.cautions()  # as the command warns (found as a user: unsaid)
+        from napari_symbac.fit.report import base_fit_problems
+
+        # as the command warns (found as a user: unsaid), the base fit's problems first
+        cautions = [
+            f"base fit: {p}"
+            for p in base_fit_problems(fit, self._microscope, f"see '{DIAGNOSIS_RESIDUAL_LAYER}'")
+        ] + list(result.cautions())
         if cautions:
             self.status.value += "".join(f"<br>Caution: {c}" for c in cautions)
             notify_warning("Diagnose: " + "; ".join(cautions))

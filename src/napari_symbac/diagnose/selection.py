@@ -200,6 +200,11 @@ class HeldOut:
     replicates: int = 0  # bootstrap replicates drawn (fewer than asked: decided early)
 
 
+#: The least held-out gain (nats) an effect needs whatever its null: AIC's price of one
+#: parameter. Found as a user: per-cell brightness on a fit of one cell (absorbed by the
+#: cell intensity) changed the deviance by 6e-9 nats, its null's spread was ~0, and it
+#: was accepted with a "gain" of 0.0 nats; the real recordings' gains are 4-5000.
+MIN_GAIN_NATS = 1.0
 #: Bootstrap replicates drawn before a held-out check may be decided early.
 MIN_REPLICATES = 5
 #: An early decision needs the gain this many times as far above the null mean as the
@@ -289,8 +294,10 @@ def held_out(
         null.append(_gain(design, sim, valid, current, sim_alt)[2])
     null_arr = np.asarray(null) if null else np.zeros(1)
     mean, sdev = float(null_arr.mean()), float(null_arr.std(ddof=1)) if len(null_arr) > 1 else 0.0
-    threshold = mean + z_alpha * max(sdev, 1e-9)
-    passed = gain > max(threshold, 0.0)
+    # a null whose gains lie below 0 asks for no less than MIN_GAIN_NATS (found as a
+    # user: "needed: > -5.5" read as if a worse held-out fit would pass)
+    threshold = max(mean + z_alpha * max(sdev, 1e-9), MIN_GAIN_NATS)
+    passed = gain > threshold
     return HeldOut(before, after, gain, mean, sdev, threshold, passed, len(null))
 
 

@@ -286,6 +286,19 @@ def fit_problems(
     return problems
 
 
+def base_fit_problems(result: Any, microscope: Any, residual_hint: str) -> list[str]:
+    """What :func:`fit_problems` and :func:`lens_problem` say of a diagnosis' base fit,
+    less its misfit (the diagnosis is there to explain it: a reduced chi-square above
+    :data:`CHI2_MISFIT`, a spatially correlated residual). Found as a user: a trench
+    diagnosed at twice its pixel size fitted cells 1.81 um wide, which `fit` says and
+    `diagnose` did not."""
+    problems = [
+        p.removeprefix("warning: ") for p in fit_problems(result, residual_hint)
+        if "misses structure" not in p and "spatially correlated" not in p
+    ]  # fmt: skip
+    return problems + ([p] if (p := lens_problem(result.render, microscope)) else [])
+
+
 def lens_problem(render: Any, microscope: Any) -> str | None:
     """A sentence when a bright-field fit's lens term lies beyond what a cell out of
     focus gives, else None.
