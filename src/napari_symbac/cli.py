@@ -396,16 +396,12 @@ def _diagnose_masks(path: str, stack_shape: tuple[int, ...]) -> np.ndarray:
     name = f"--masks {Path(path).name}"
     masks = np.asarray(read_recording(path, "--masks", counts=False).data)
     n_frames, shape = stack_shape[0], tuple(stack_shape[1:])
-    if masks.ndim == 3 and masks.shape[0] == n_frames and masks.shape[1:] == shape:
-        frames = list(masks)
-    else:
-        check_instance_masks(masks, shape, name)  # says which shape it should have
-        frames = [masks] * n_frames
+    per_frame = masks.ndim == 3 and masks.shape[0] == n_frames and masks.shape[1:] == shape
     out = []
-    for frame in frames:
-        check_instance_masks(frame, shape, name)
+    for frame in masks if per_frame else [masks]:
+        check_instance_masks(frame, shape, name)  # says which shape it should have
         out.append(as_instance_ids(frame)[0])
-    return np.stack(out)
+    return np.stack(out) if per_frame else np.repeat(out[0][None], n_frames, axis=0)
 
 
 def _diagnose_writes(name: str) -> bool:
@@ -611,7 +607,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     update, bar = _tqdm_progress("diagnose", unit="frames fitted")
     scenes = []
     n_cells: list[int] = []
-    problems: list[str] = [p] if (p := camera_pixel_problem(microscope)) else []
+    problems: list[str] = [slip] if slip else []
     camera = config.camera
     first_fit = None
     with timer.step("base fit"):
@@ -714,8 +710,9 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         save_settings(settings, out / "settings.yaml")
         stages_text = yaml.safe_dump({"extra_stages": extra}, sort_keys=False)
         (out / "extra_stages.yaml").write_text(stages_text)
-    for problem in problems:  # as fit says them (found as a user: 0.8 um for 0.08 um,
-        # cells 2.5 um wide drawn at 0 ADU, exit 0 without a word)
+    for problem in problems[1 if slip else 0 :]:  # as fit says them (found as a user: 0.8
+        # um for 0.08 um, cells 2.5 um wide drawn at 0 ADU, exit 0 without a word); the
+        # camera pixel's slip was said before the fit
         print(f"napari-symbac diagnose: warning: base fit: {problem}", file=sys.stderr)
     for caution in result.cautions():  # said where it is seen, not only in report.txt
         if caution.startswith("the base fit") and microscope.modality == "phase" and (
