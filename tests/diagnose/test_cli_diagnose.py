@@ -167,6 +167,25 @@ def test_diagnose_measures_the_camera_and_reads_a_png(tmp_path, capsys):
     # camera_noise may refine the measured gain; what the diagnosis ends with is near it
     final = measured * accepted.get("camera_noise", {}).get("gain_ratio", 1.0)
     assert final == pytest.approx(2.9, rel=0.1)
+    assert "8-bit" not in err  # 16-bit counts: a camera's
+
+
+def test_an_8_bit_export_is_said_not_to_be_a_cameras_counts(tmp_path, capsys, real_data_dir):
+    """Found as a user: the real trench saved as an 8-bit grey PNG was "measured" at
+    0.0689 ADU/e-, read noise 15.9 e-, as if a camera's; the note now says what such a
+    gain is of."""
+    import imageio.v3 as iio
+
+    real = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff").astype(float)
+    scaled = np.rint(255 * (real - real.min()) / np.ptp(real)).astype(np.uint8)
+    image = tmp_path / "trench8.png"
+    iio.imwrite(image, scaled)
+    mic = tmp_path / "mic.yaml"
+    mic.write_text("pixel_size_um: 0.065\nmodality: phase\n")
+    args = ["diagnose", str(image), "--microscope", str(mic), "--max-effects", "1"]
+    assert main([*args, "--out", str(tmp_path / "out")]) == 0
+    (note,) = [line for line in capsys.readouterr().err.splitlines() if "camera measured" in line]
+    assert "an 8-bit image is mostly a display export scaled from the camera's counts" in note
 
 
 def test_diagnose_refuses_what_fit_refuses(tmp_path, capsys):

@@ -170,6 +170,13 @@ def measured_camera_note(frame: Any, camera: Any) -> str:
     )
     if said := read_noise_note(camera):  # said, as `fit` and Auto-fit say it
         note += f" ({said})"
+    if np.asarray(frame).dtype == np.uint8:  # found as a user: an 8-bit PNG of the trench
+        # was "measured" at 0.0689 ADU/e-, read noise 15.9 e-, with no word
+        note += (
+            "; an 8-bit image is mostly a display export scaled from the camera's counts, "
+            "whose gain and read noise are of that scaling, not the camera's: give the raw "
+            "recording, or the camera"
+        )
     try:
         estimate = estimate_camera(frame, camera=camera, bit_depth=camera.bit_depth)
     except ValueError as err:
