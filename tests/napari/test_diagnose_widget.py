@@ -343,20 +343,26 @@ def test_diagnose_of_a_colony_names_the_docks_own_fixes(
     assert "Tune's Auto-fit" in widget.status.value
 
 
+def _dock_beside(viewer, path, pixel_um: float, modality: str):
+    """The viewer with the recording at ``path`` (its pixel size entered) and a Diagnose
+    dock of the test's candidates."""
+    import tifffile
+
+    viewer.add_image(
+        tifffile.imread(path),
+        name=path.stem,
+        scale=(pixel_um, pixel_um),
+        metadata={"pixel_size_um": pixel_um, "modality": modality},
+    )
+    return viewer, DiagnoseWidget(viewer, candidates=CANDIDATES, n_bootstrap=5)
+
+
 def test_a_pixel_size_slip_is_cautioned_in_the_status(make_napari_viewer, qtbot, real_data_dir):
     """Found as a user (the command, and the dock alike): the real trench at 0.13 um/px,
     twice its pixel size, was diagnosed without a word of its cells 1.81 um wide, which
     Auto-fit and `fit` say. The base fit's problems lead the dock's cautions."""
-    import tifffile
-
-    viewer = make_napari_viewer()
-    viewer.add_image(
-        tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff"),
-        name="real",
-        scale=(0.13, 0.13),
-        metadata={"pixel_size_um": 0.13, "modality": "phase"},
-    )
-    widget = DiagnoseWidget(viewer, candidates=CANDIDATES, n_bootstrap=5)
+    image = real_data_dir / "ecoli_100x_oil_exponential.tiff"
+    _viewer, widget = _dock_beside(make_napari_viewer(), image, 0.13, "phase")
     widget.run_button.clicked.emit()
     qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
     assert widget.result is not None, widget.status.value
@@ -373,14 +379,8 @@ def test_diagnose_starts_from_the_cell_masks_opened(make_napari_viewer, qtbot, r
     import tifffile
 
     folder = real_data_dir / "colicoords" / "01"
-    viewer = make_napari_viewer()
-    viewer.add_image(
-        tifffile.imread(folder / "fluorescence.tif"),
-        name="crop",
-        scale=(0.08, 0.08),
-        metadata={"pixel_size_um": 0.08, "modality": "fluorescence"},
-    )
-    widget = DiagnoseWidget(viewer, candidates=CANDIDATES, n_bootstrap=5)
+    image = folder / "fluorescence.tif"
+    viewer, widget = _dock_beside(make_napari_viewer(), image, 0.08, "fluorescence")
     assert widget.masks.value is None
     masks = viewer.add_labels(tifffile.imread(folder / "binary.tif").astype(np.uint8),
                               name="binary", scale=(0.08, 0.08))  # fmt: skip

@@ -256,6 +256,18 @@ def newest_masks(viewer: Any, recording: Any, only: Any = None) -> Any:
     return matching[-1] if matching else None
 
 
+def choose_masks(box: Any, viewer: Any, recording: Any, only: Any = None) -> None:
+    """With no cell masks chosen in the combo ``box``, choose :func:`newest_masks` of
+    ``recording`` (``only``: the layer just added, the one to consider), as Tune's
+    Auto-fit and Diagnose do."""
+    if box.value is not None or recording is None:
+        return
+    box.reset_choices()
+    masks = newest_masks(viewer, recording, only)
+    if masks is not None:
+        box.value = masks
+
+
 def shown_frame(viewer: Any, data: Any) -> Any:
     """The frame of ``data`` on screen: of a ``(T, Y, X)`` layer the viewer's current
     time step (its last frame beyond), a 2D layer itself (every frame's)."""

@@ -23,12 +23,12 @@ from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
 from napari_symbac._widgets._recording import (
     GUI_MODALITY_ADVICE,
     check_recording_frame,
+    choose_masks,
     followed_layer,
     given_camera,
     is_recording,
     mask_layers,
     modality_render,
-    newest_masks,
     no_recording_message,
     output_metadata,
     recording_microscope,
@@ -231,13 +231,7 @@ class DiagnoseWidget(Container):
         """With no cell masks chosen, the newest layer of instance masks of the recording's
         frame size (cells in it), as Tune's Auto-fit chooses them (``only``: the layer
         just added, the one to consider)."""
-        reference = self.reference.value
-        if self.masks.value is not None or reference is None:
-            return
-        self.masks.reset_choices()
-        masks = newest_masks(self.viewer, reference, only)
-        if masks is not None:
-            self.masks.value = masks
+        choose_masks(self.masks, self.viewer, self.reference.value, only)
 
     # -- input ----------------------------------------------------------------------------
 

@@ -30,13 +30,13 @@ from napari_symbac._widgets._recording import (
     RECORDING_STEP,
     axis_labels,
     check_recording_frame,
+    choose_masks,
     followed_layer,
     given_camera,
     is_recording,
     layer_pixel_size_um,
     mask_layers,
     modality_render,
-    newest_masks,
     no_recording_message,
     output_metadata,
     pixel_size_problem,
@@ -500,13 +500,7 @@ class TuneWidget(Container):
         222, 45 of its 182 cells), and the report advised `napari-symbac fit --masks`.
         Choosing *cell masks* "-----" by hand keeps it so until another real image is
         chosen or masks are added (``only``: the layer just added, the one to consider)."""
-        reference = self.reference.value
-        if self.masks.value is not None or reference is None:
-            return
-        self.masks.reset_choices()
-        masks = newest_masks(self.viewer, reference, only)
-        if masks is not None:
-            self.masks.value = masks
+        choose_masks(self.masks, self.viewer, self.reference.value, only)
 
     # -- state ----------------------------------------------------------------------------
 
