@@ -390,11 +390,11 @@ def _diagnose_masks(path: str, stack_shape: tuple[int, ...]) -> np.ndarray:
     binary mask's regions are the cells)."""
     import numpy as np
 
-    from napari_symbac._cli_fit import read_recording
+    from napari_symbac._cli_fit import _read_stack
     from napari_symbac.fit.preflight import as_instance_ids, check_instance_masks
 
     name = f"--masks {Path(path).name}"
-    masks = np.asarray(read_recording(path, "--masks", counts=False).data)
+    masks = _read_stack(path, "--masks")  # as `fit --masks` reads them
     n_frames, shape = stack_shape[0], tuple(stack_shape[1:])
     per_frame = masks.ndim == 3 and masks.shape[0] == n_frames and masks.shape[1:] == shape
     out = []
