@@ -218,10 +218,14 @@ def _camera_for(
     engine_estimates: bool,
 ):
     """The camera to pass to the fit and a sentence saying where it came from."""
-    from napari_symbac.fit.camera_estimate import censored_pixels, estimate_camera
+    from napari_symbac.fit.camera_estimate import (
+        censored_pixels,
+        estimate_camera,
+        image_bit_depth,
+    )
     from napari_symbac.settings import Camera, load_settings
 
-    bit_depth = 8 if frame.dtype == np.uint8 else 16
+    bit_depth = image_bit_depth(frame)
     if args.camera is not None:
         from napari_symbac.fit.preflight import camera_recording_problem
 

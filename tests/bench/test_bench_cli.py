@@ -60,7 +60,9 @@ def test_table_shows_rates_skips_and_symbac_ratios():
     spread = Spread(0.01, 0.005, 0.02)
     rows = [
         RowResult("frames", "per_s", "frames/s", spread, Spread(2, 1, 3), spread, Spread(8, 7, 9)),
-        RowResult("slider", "ms", "", None, None, None, None, "skipped: no napari", "no GUI"),
+        RowResult(
+            "slider", "ms", "", None, None, None, None, "skipped: no napari", "SyMBac has none"
+        ),
     ]
     machine = {
         "napari_symbac": "0", "cores": 2, "memory_gib": 1, "processor": "x", "python": "3",
@@ -71,7 +73,7 @@ def test_table_shows_rates_skips_and_symbac_ratios():
     # a cost of 10 ms per frame (5-20 ms) is 100 frames/s (50-200)
     assert "| frames | frames/s | 100 (50.0-200) | 2.00x (1.00-3.00) | 100 (50.0-200) |" in text
     assert "| 8.00x (7.00-9.00) |" in text
-    assert "| slider | ms | skipped: no napari |  | no GUI |  |" in text
+    assert "| slider | ms | skipped: no napari |  | SyMBac has none |  |" in text
 
 
 def test_bench_refuses_an_interpreter_without_symbac(tmp_path, capsys):

@@ -186,6 +186,11 @@ def test_an_8_bit_export_is_said_not_to_be_a_cameras_counts(tmp_path, capsys, re
     assert main([*args, "--out", str(tmp_path / "out")]) == 0
     (note,) = [line for line in capsys.readouterr().err.splitlines() if "camera measured" in line]
     assert "an 8-bit image is mostly a display export scaled from the camera's counts" in note
+    # its levels end at 255: so do those of the camera measured from it (was 16 bits)
+    doc = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
+    assert doc["camera"]["bit_depth"] == 8
+    settings = load_settings(tmp_path / "out" / "settings.yaml", PipelineSettings)
+    assert settings.camera.bit_depth == 8
 
 
 def test_diagnose_refuses_what_fit_refuses(tmp_path, capsys):

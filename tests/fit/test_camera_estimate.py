@@ -13,6 +13,7 @@ from napari_symbac.fit.camera_estimate import (
     MIN_UNRESOLVED_DARK_NOISE_E,
     censored_pixels,
     estimate_camera,
+    image_bit_depth,
     with_unresolved_dark_noise,
 )
 from napari_symbac.optics import ForwardModel
@@ -315,3 +316,21 @@ def test_a_mask_read_as_an_image_is_refused_in_words(real_data_dir):
     )[90:220, 60:320]
     with pytest.raises(ValueError, match="the pixels hold no noise at some grey levels"):
         estimate_camera(mask.astype(float))
+
+
+def test_a_camera_measured_from_an_8_bit_image_has_8_bits(real_data_dir):
+    """Found as a user: the trench saved as an 8-bit PNG was fitted and diagnosed with a
+    measured camera of 16 bits, so a dataset matched to it ran past 255 ADU."""
+    from napari_symbac.fit import fit_scene
+    from napari_symbac.fit.series import _pooled_camera
+    from napari_symbac.settings import Microscope, RenderSettings
+
+    real = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff").astype(float)
+    scaled = np.rint(255 * (real - real.min()) / np.ptp(real)).astype(np.uint8)
+    assert image_bit_depth(scaled) == 8
+    assert image_bit_depth(real) == 16
+    microscope = Microscope(pixel_size_um=0.065, modality="phase")
+    fit = fit_scene(scaled, microscope, RenderSettings(), None, max_iterations=1,
+                    irls_rounds=1, moves=False)  # fmt: skip
+    assert fit.camera.bit_depth == 8
+    assert _pooled_camera(np.stack([scaled, scaled[::-1]])).bit_depth == 8

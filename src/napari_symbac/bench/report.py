@@ -53,7 +53,8 @@ def markdown(result: BenchResult) -> str:
         f"{m['memory_gib']} GiB, {m['processor']}, Python {m['python']}, numpy {m['numpy']}, "
         f"scipy {m['scipy']}; load average {_load(m)}; {m['date_utc']} UTC",
         "",
-        "| measurement | unit | napari-symbac | x FFT floor | SyMBac 0.5.2 | SyMBac / ours |",
+        "| measurement | unit | napari-symbac | our cost / FFT floor | SyMBac 0.5.2 "
+        "| SyMBac's cost / ours |",
         "|---|---|---|---|---|---|",
     ]
     for row in result.rows:
@@ -65,11 +66,12 @@ def markdown(result: BenchResult) -> str:
         )
     lines += [
         "",
-        "Median (range) over the rounds. x FFT floor: our cost / one plain FFT convolution "
-        "of the same render-resolution frame with the PSF kernel (irfft2(rfft2(frame) * K), "
-        "float32, fast transform lengths, the kernel's spectrum K precomputed, one thread), "
-        "timed in the same round. SyMBac / ours: SyMBac's cost / ours in the same "
-        "round (above 1: napari-symbac is faster or smaller); rounds alternate which tool "
+        "Median (range) over the rounds. Our cost / FFT floor: our cost / one plain FFT "
+        "convolution of the same render-resolution frame with the PSF kernel "
+        "(irfft2(rfft2(frame) * K), float32, fast transform lengths, the kernel's spectrum K "
+        "precomputed, one thread), "
+        "timed in the same round (above 1: slower than that floor). SyMBac's cost / ours: in the "
+        "same round (above 1: napari-symbac is faster or smaller); rounds alternate which tool "
         "runs first.",
     ]
     return "\n".join(lines)

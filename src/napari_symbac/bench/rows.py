@@ -17,21 +17,21 @@ from napari_symbac.bench.registry import ROWS, Row
 
 __all__ = ["ROWS"]
 
-_NO_FIELDS = "no open fields"
+_NO_FIELDS = "SyMBac has no open fields"
 ROWS[:] = [
     Row("simulation, trench 15 um ({trench_frames} frames)", "sim_trench", "frame_s", "per_s",
         "frames/s", symbac_key="sim_s_per_frame"),
     *(
         Row(f"simulation, colony at {{colony_cells[{i}]}} cells, per cell-frame", "sim_colony",
-            f"cell_frame_s_{i}", "ms", fft_key=None, symbac_note="no colony simulator")
+            f"cell_frame_s_{i}", "ms", fft_key=None, symbac_note="SyMBac has no colony simulator")
         for i in range(3)
     ),
     Row("simulation, colony cost per cell-frame, {colony_cells[2]} / {colony_cells[0]} cells",
-        "sim_colony", "ratio", "ratio", fft_key=None, symbac_note="no colony simulator"),
+        "sim_colony", "ratio", "ratio", fft_key=None, symbac_note="SyMBac has no colony simulator"),
     Row("per-frame path, trench 256 x 46 (draw + cold render + masks)", "render_trench",
         "frame_s", "ms", symbac_key="render_s_per_frame"),
     Row("cached re-render (intensity change), trench", "render_trench", "cached_s", "ms",
-        symbac_note="no cache"),
+        symbac_note="SyMBac has no cache"),
     Row("draw + masks, field 1024 x 1024 (360 cells)", "field_draw_1024", "draw_masks_s", "ms",
         symbac_note=_NO_FIELDS),
     Row("draw + masks, field 2048 x 2048 (1440 cells)", "field_draw_2048", "draw_masks_s", "ms",
@@ -47,19 +47,19 @@ ROWS[:] = [
     Row("torch:cpu (1 thread) frames/s / scipy frames/s, trench", "batch_cpu_trench", "vs_scipy",
         "ratio", fft_key=None),
     Row("slider -> layer latency (intensity), trench", "slider", "slider_s", "ms",
-        symbac_note="no GUI", needs="gui"),
+        symbac_note="not measured (SyMBac's GUI is notebook widgets)", needs="gui"),
     Row("fit, trench 256 x 46 (fit_scene)", "fit_trench", "fit_s", "s",
-        symbac_note="not run (its optimiser takes minutes)"),
+        symbac_note="not measured (its optimiser takes minutes)"),
     Row("fit, field 256 x 256 fluorescence ({fit_field_cells} cells, fit_scene)", "fit_field",
-        "fit_s", "s", symbac_note="no open-field fit"),
+        "fit_s", "s", symbac_note="SyMBac has no open-field fit"),
     Row("export, 1 worker ({export_images} images, overall)", "export_1", "image_s", "per_s",
         "images/s", symbac_key="export_overall_s_per_image"),
     Row("export, 1 worker, steady (after the first image)", "export_1", "steady_image_s",
         "per_s", "images/s", symbac_key="export_s_per_image"),
-    Row("export, 2 workers ({export_images} images, overall)", "export_2", "image_s", "per_s",
-        "images/s", symbac_key="export_overall_s_per_image"),
+    Row("export, 2 workers ({export_images} images, overall, cluster start-up included)",
+        "export_2", "image_s", "per_s", "images/s", symbac_key="export_overall_s_per_image"),
     Row("peak memory, export 1 worker (process)", "export_1", "peak_mib", "MiB", fft_key=None,
         symbac_key="peak_mib"),
     Row("peak memory, export 2 workers (largest worker process)", "export_2", "peak_worker_mib",
-        "MiB", fft_key=None, symbac_note="one process"),
+        "MiB", fft_key=None, symbac_note="SyMBac runs one process"),
 ]  # fmt: skip

@@ -186,7 +186,7 @@ def _aggregate(row: Row, rounds: list[dict[str, Any]], config: BenchConfig) -> R
     if row.symbac_key is None:
         symbac_note = row.symbac_note
     elif config.symbac_python is None:
-        symbac_note = "no --symbac-python"
+        symbac_note = "not measured (no --symbac-python)"
     else:
         symbac_note = symbac_errors[0] if symbac_errors and not theirs else ""
     note = "; ".join(dict.fromkeys(notes))

@@ -510,7 +510,7 @@ def calibrate(
         Bad image, masks or labels (the ``fit`` command's refusals), a modality the
         image contradicts, cells wider than any rod at the pixel size given.
     """
-    from napari_symbac.fit.camera_estimate import censored_pixels
+    from napari_symbac.fit.camera_estimate import censored_pixels, image_bit_depth
     from napari_symbac.fit.masks import estimate_pixel_size_um
     from napari_symbac.fit.preflight import (
         bright_field_as_phase,
@@ -552,7 +552,7 @@ def calibrate(
 
         widths_um = cell_widths_px(masks) * microscope.pixel_size_um
         _refuse_wide_cells(widths_um, "the masks' cells", pixel_note)
-    bit_depth = 8 if frame.dtype == np.uint8 else 16
+    bit_depth = image_bit_depth(frame)
     mask_offset_um = mask_faintest_cnr = None
     layout = None  # the simulated field: that of the measurements
     valid = ~censored_pixels(frame, camera)

@@ -96,6 +96,15 @@ def _is_spike(values: np.ndarray, counts: np.ndarray, index: int) -> bool:
     return others.size == 0 or counts[index] > SPIKE_RATIO * np.median(others)
 
 
+def image_bit_depth(image: np.ndarray) -> int:
+    """The digitiser's bits a camera measured from ``image`` is recorded with.
+
+    8 for an 8-bit image (a PNG or an 8-bit TIFF: its levels end at 255, and a dataset
+    matched to it must clip there too), else 16, the largest a :class:`Camera` holds.
+    """
+    return 8 if np.asarray(image).dtype == np.uint8 else 16
+
+
 def censored_pixels(image: np.ndarray, camera: Camera | None = None) -> np.ndarray:
     """Pixels whose value is clipped, to leave out of a likelihood.
 

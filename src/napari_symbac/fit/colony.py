@@ -24,6 +24,7 @@ import numpy as np
 from scipy import ndimage
 
 from napari_symbac.arguments import require_argument
+from napari_symbac.fit.camera_estimate import image_bit_depth
 from napari_symbac.fit.inputs import as_single_image
 from napari_symbac.fit.preflight import (
     API_CAMERA_HINT,
@@ -339,7 +340,7 @@ def checked_colony_frame(
             "fit_colony fits the partially coherent phase-contrast model: the microscope's "
             f"modality is {microscope.modality!r} (use fit_scene for fluorescence)"
         )
-    bit_depth = 8 if np.asarray(image).dtype == np.uint8 else 16
+    bit_depth = image_bit_depth(image)
     real = as_single_image(image)
     check_fit_image(real, camera_hint=API_CAMERA_HINT)
     masks = np.asarray(masks)

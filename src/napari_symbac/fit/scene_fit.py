@@ -41,6 +41,7 @@ from napari_symbac.arguments import require_argument
 from napari_symbac.fit.camera_estimate import (
     censored_pixels,
     estimate_camera,
+    image_bit_depth,
     with_unresolved_dark_noise,
 )
 from napari_symbac.fit.colony import is_dense_colony
@@ -556,6 +557,7 @@ def _run_frame(
     )
     real = as_single_image(real_image, name="real_image")
     check_fit_image(real, "real_image", camera_hint=API_CAMERA_HINT)
+    bit_depth = image_bit_depth(real_image)  # of a camera measured from the image
     geometry = "open" if geometry == "field" else geometry  # `fit --geometry field`'s word
     if geometry not in ("trench", "open"):
         raise ValueError(f"geometry must be 'trench' or 'open' ('field'), got {geometry!r}")
@@ -588,7 +590,8 @@ def _run_frame(
     for name in fit_optics:
         parameter_bounds(name, microscope)
     if valid is None:
-        valid = ~censored_pixels(real, camera)
+        digitiser = camera if camera is not None else Camera(bit_depth=bit_depth)
+        valid = ~censored_pixels(real, digitiser)
         if not valid.any():
             raise ValueError("every pixel of the image is clipped: no pixel is left to fit")
     else:
@@ -680,13 +683,14 @@ def _run_frame(
     flat_valid = valid.ravel()
     measured = None
     if camera is None:
-        measured = _measured_camera(real, valid, Camera(baseline_adu=baseline))
+        guess = Camera(baseline_adu=baseline, bit_depth=bit_depth)
+        measured = _measured_camera(real, valid, guess)
         unclipped = ~censored_pixels(real) & np.isfinite(real)
         if measured is None and np.any(unclipped & ~valid):
             # A sparse valid mask (a held-out checkerboard) leaves no whole 3 x 3
             # neighbourhood for photon transfer; the pixels left out of the
             # likelihood carry the same camera noise.
-            measured = _measured_camera(real, unclipped, Camera(baseline_adu=baseline))
+            measured = _measured_camera(real, unclipped, guess)
         if measured is not None:
             baseline = measured.baseline_adu
             y = (real - baseline).ravel().astype(np.float64)
@@ -695,7 +699,7 @@ def _run_frame(
         else:
             noise = _pixel_noise(real, valid) or float(np.std(real[valid])) or 1.0
             w = flat_valid / noise**2
-            camera_used = Camera(baseline_adu=baseline)
+            camera_used = guess
     else:
         w = flat_valid / _variance(expected_level(y, valid), render, camera)
         camera_used = camera

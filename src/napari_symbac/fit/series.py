@@ -30,7 +30,7 @@ from typing import Literal
 import numpy as np
 from skimage.registration import phase_cross_correlation
 
-from napari_symbac.fit.camera_estimate import censored_pixels
+from napari_symbac.fit.camera_estimate import censored_pixels, image_bit_depth
 from napari_symbac.fit.lineage import Lineage, LinkSettings, link_cells
 from napari_symbac.fit.lm import State, damped_step, evaluate, normal_equations
 from napari_symbac.fit.moves import dispersion
@@ -150,7 +150,8 @@ def _pooled_camera(stack: np.ndarray) -> Camera | None:
     jointly with the 100 ADU guess, reduced chi-square 0.22-0.25, and their exported
     dataset was 3x too noisy, where one frame alone measured 1757 ADU)."""
     valid = ~censored_pixels(stack)
-    return _measured_camera(stack, valid, Camera(baseline_adu=_baseline_guess(stack, valid)))
+    guess = Camera(baseline_adu=_baseline_guess(stack, valid), bit_depth=image_bit_depth(stack))
+    return _measured_camera(stack, valid, guess)
 
 
 class _SeriesProgress:
