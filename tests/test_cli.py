@@ -45,6 +45,18 @@ def test_every_command_has_help(command, capsys):
         build_parser().parse_args(shlex.split(example)[1:])  # exits 2 on a usage error
 
 
+@pytest.mark.parametrize("command", ["fit", "diagnose"])
+def test_fit_and_diagnose_take_the_same_geometry_words(command):
+    """Found as a user: `diagnose --geometry open` ran, `fit --geometry open` was a usage
+    error; both now take 'open' (the Python API's word) as 'field', and nothing else."""
+    parser = build_parser()
+    base = [command, "image.tif", "--microscope", "m.yaml", "--out", "out"]
+    assert parser.parse_args([*base, "--geometry", "open"]).geometry == "field"
+    assert parser.parse_args([*base, "--geometry", "trench"]).geometry == "trench"
+    with pytest.raises(SystemExit):
+        parser.parse_args([*base, "--geometry", "pad"])
+
+
 def test_console_script_is_installed():
     result = subprocess.run(
         [Path(sys.executable).with_name("napari-symbac"), "--version"],

@@ -64,6 +64,11 @@ _at_least_one = _whole_number(1)
 _seed = _whole_number(0)
 
 
+def _geometry_word(text: str) -> str:
+    """``--geometry``'s value: ``open`` (the Python API's word) is ``field``."""
+    return "field" if text == "open" else text
+
+
 def _count(n: int, noun: str) -> str:
     """``n`` and ``noun``, plural unless ``n`` is 1 ("1 cell", "5 frames")."""
     return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
@@ -1162,8 +1167,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     fit.add_argument(
         "--geometry",
+        type=_geometry_word,
         choices=["trench", "field"],
-        help="mother-machine trench or open field (default: field for fluorescence, for an "
+        help="mother-machine trench or open field ('open' is the same as 'field'; default: "
+        "field for fluorescence, for an "
         "image wider than 100 px or less than twice as tall as wide, or when the config's "
         "simulation geometry is agar_pad; else trench)",
     )
@@ -1311,7 +1318,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     diag.add_argument(
         "--geometry",
-        choices=("trench", "field", "open"),
+        type=_geometry_word,
+        choices=("trench", "field"),
         help="mother-machine trench or open field ('open' is the same as 'field'; default: "
         "field for fluorescence or an image wider than 100 px or less than twice as tall as "
         "wide, else trench)",
