@@ -193,6 +193,29 @@ def test_a_one_frame_pipeline_exports_a_time_series_with_n_frames(tmp_path, caps
     assert "--n-frames" in err
 
 
+def test_n_frames_shortens_the_default_export_whatever_its_kind(tmp_path, capsys):
+    """Found as a user: `export --kind timeseries --n-frames 10` of the default pipeline
+    (50 frames) was refused: "first_frame=16 must be in [0, n_frames=10)", a field the
+    time series does not use, set for the 50 frames and checked before the kind."""
+    config = tmp_path / "settings.yaml"
+    save_settings(PipelineSettings(), config)  # a trench, 50 frames: images from frame 16
+    argv = ["export", "--config", str(config), "--n-items", "1", "--n-frames", "4"]
+    for kind in ("timeseries", "frames"):
+        out = tmp_path / kind
+        code, err = _run([*argv, "--kind", kind, "--out", str(out)], capsys)
+        assert code == 0, err
+        settings = json.loads((out / "manifest.json").read_text())["settings"]
+        assert settings["pipeline"]["simulation"]["n_frames"] == 4
+        assert settings["first_frame"] == 2  # the filled trench, at most half the run
+    export_file = tmp_path / "export.yaml"  # a first_frame the user chose is kept: refused
+    export_file.write_text("first_frame: 30\n")
+    code, err = _run(["export", "--config", str(export_file), "--n-frames", "10",
+                      "--out", str(tmp_path / "refused")], capsys)  # fmt: skip
+    assert code == 2
+    assert "--n-frames 10: ExportSettings.first_frame=30 must be in [0, n_frames=10)" in err
+    assert not (tmp_path / "refused").exists()
+
+
 def test_a_pixel_size_in_nm_is_named_and_leaves_no_export_behind(tmp_path, capsys):
     """Found as a user: `pixel_size_um: 65` (nm for um) gave "the field of view is
     smaller than one camera pixel (65.0 um)", naming neither file nor field, and export
@@ -913,7 +936,7 @@ def test_fit_negative_values_still_point_to_camera_option():
     from napari_symbac.fit.preflight import check_fit_image
 
     with pytest.raises(ValueError, match="give that constant as baseline_adu with --camera"):
-        check_fit_image(np.array([[-1.0, 2.0]]), "frame.tif")
+        check_fit_image(np.kron([[-1.0, 2.0]], np.ones((8, 8))), "frame.tif")
 
 
 @pytest.mark.parametrize("option", ["--microscope", "--config"])

@@ -57,6 +57,28 @@ def test_fit_and_diagnose_take_the_same_geometry_words(command):
         parser.parse_args([*base, "--geometry", "pad"])
 
 
+@pytest.mark.parametrize("command", ["fit", "diagnose", "calibrate"])
+def test_a_pixel_size_the_files_disagree_on_is_settled_by_the_flag(command, tmp_path, capsys):
+    """Found as a user: the TIFF's pixel size always won over --microscope, so a TIFF
+    saved with a 1 um scale (none set) was fitted at 1 um per pixel; the three commands
+    that fit a recording now refuse the disagreement and take --pixel-size-um."""
+    image = tmp_path / "scaled.tif"
+    pixels = np.random.default_rng(0).poisson(500, (64, 32)).astype(np.uint16)
+    tifffile.imwrite(image, pixels, imagej=True, resolution=(1.0, 1.0), metadata={"unit": "um"})
+    mic = tmp_path / "mic.yaml"
+    mic.write_text("pixel_size_um: 0.065\nmodality: phase\n")
+    base = [command, str(image), "--microscope", str(mic), "--out", str(tmp_path / "o")]
+    assert main(base) == 2
+    assert capsys.readouterr().err.splitlines()[-1] == (
+        f"napari-symbac {command}: error: the image file records a pixel size of 1 um (1 um "
+        "per pixel is often a scale that was never set) and --microscope 0.065 um: say which "
+        "is right with --pixel-size-um 0.065 (or 1), or correct the file that is wrong"
+    )
+    assert main([*base, "--pixel-size-um", "6.5"]) == 2  # a camera pixel: refused too
+    assert "pixel size 6.5 um (from --pixel-size-um) is outside" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
 def test_console_script_is_installed():
     result = subprocess.run(
         [Path(sys.executable).with_name("napari-symbac"), "--version"],

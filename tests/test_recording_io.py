@@ -297,6 +297,22 @@ def test_a_channel_of_a_hyperstack_is_read_by_its_number(tmp_path):
         read_recording(one, 1)
 
 
+def test_a_colour_image_gives_the_channel_asked_for(tmp_path):
+    """Found as a user: ``--channel 1`` of an RGB TIFF was refused ("holds one channel
+    (axes YXS): leave the channel out"), and the refusal of a colour image without it
+    did not name the flag."""
+    rgb = np.random.default_rng(0).integers(0, 255, (32, 24, 3)).astype(np.uint8)
+    tif, png = tmp_path / "rgb.tif", tmp_path / "rgb.png"
+    tifffile.imwrite(tif, rgb, photometric="rgb")
+    iio.imwrite(png, rgb)
+    for path in (tif, png):
+        np.testing.assert_array_equal(read_image(path, "IMAGE", channel=1).data, rgb[..., 1])
+        with pytest.raises(ValueError, match="pick one with --channel K"):
+            read_image(path, "IMAGE")
+        with pytest.raises(ValueError, match=r"channel 3: .*colour image of channels 0\.\.2"):
+            read_image(path, "IMAGE", channel=3)
+
+
 def test_a_grey_imagej_stack_is_frames_though_tifffile_calls_them_channels(tmp_path):
     """`tifffile.imwrite(path, series, imagej=True)`, axes unsaid, records a (T, Y, X)
     series as channels in grey mode: read as the frames it was written as (Fiji shows

@@ -227,19 +227,24 @@ def run_calibrate(args: argparse.Namespace) -> int:
         microscope, camera = microscope_file.microscope, microscope_file.camera
         if args.camera is not None:
             camera = load_settings(args.camera, Camera)
-        microscope, pixel_note = resolve_pixel_size(
-            recording.pixel_size_um,
-            microscope,
-            # --cell-width-um sets it from the masks
-            microscope_gives_it=args.cell_width_um is not None
-            or microscope_sets_pixel_size(args.microscope),
-            other_way="or, with --masks, --cell-width-um W sets it from the masks' median "
-            "cell width (W um: 1.0 for E. coli)",
-        )
+        if args.cell_width_um is not None:  # calibrate sets it from the masks
+            pixel_note = f"from the masks' median width and --cell-width-um {args.cell_width_um}"
+        else:
+            microscope, pixel_note = resolve_pixel_size(
+                recording.pixel_size_um,
+                microscope,
+                microscope_gives_it=microscope_sets_pixel_size(args.microscope),
+                flag_pixel_um=args.pixel_size_um,
+                other_way="or, with --masks, --cell-width-um W sets it from the masks' "
+                "median cell width (W um: 1.0 for E. coli)",
+            )
         modality = args.modality or recording.modality or microscope.modality
         _refuse_a_trench(image, modality, args.image, args.microscope)
-        if args.cell_width_um is not None:
-            pixel_note = f"from the masks' median width and --cell-width-um {args.cell_width_um}"
+    file_notes = list(microscope_file.notes)  # found as a user: unknown keys ignored unsaid
+    if microscope_file.frame_interval_s is not None:
+        file_notes.append("frame_interval_s is not used: calibrate exports single frames")
+    for note in file_notes:
+        print(f"napari-symbac calibrate: note: {note}", file=sys.stderr, flush=True)
     if (note := bright_field_as_phase(image, modality)) is not None:  # before the fit
         print(f"napari-symbac calibrate: note: {note}", file=sys.stderr, flush=True)
     print("napari-symbac calibrate: fitting", file=sys.stderr, flush=True)

@@ -520,6 +520,7 @@ def _outputs_one(
     cells.json)."""
     import tifffile
 
+    from napari_symbac.export.atomic import tiff_metadata
     from napari_symbac.fit.camera_estimate import censored_pixels
     from napari_symbac.fit.clipped_background import clipped_background, drawn_clipped
     from napari_symbac.fit.figure import before_after_figure
@@ -642,10 +643,13 @@ def _outputs_one(
 
         iio.imwrite(path, figure)
 
+    residual = np.asarray(result.residual, np.float32)  # at the recording's scale (found
+    # as a user: Fiji and napari opened it in pixels)
+    scaled = tiff_metadata(residual, pixel_size_um=microscope.pixel_size_um)
     writers = {
         "settings.yaml": lambda p: save_settings(settings, p),
         "cells.json": lambda p: p.write_text(json.dumps(table, indent=2, default=float)),
-        "residual.tif": lambda p: tifffile.imwrite(p, np.asarray(result.residual, np.float32)),
+        "residual.tif": lambda p: tifffile.imwrite(p, residual, **scaled),
         "before_after.png": write_png,
         "report.txt": lambda p: p.write_text(report),
     }
@@ -1027,6 +1031,8 @@ def run_fit(args: argparse.Namespace) -> int:
         # field(s) camera in Microscope") while diagnose read it
         microscope_file = load_microscope_file(args.microscope)
         microscope, args.microscope_camera = microscope_file.microscope, microscope_file.camera
+        if "frame_interval_min" not in (keys.get("simulation") or {}):  # the config's wins
+            base = dataclasses.replace(base, simulation=microscope_file.timed(base.simulation))
         modality = args.modality or recording.modality or microscope.modality
         if modality != microscope.modality:
             microscope = dataclasses.replace(microscope, modality=modality)
@@ -1034,9 +1040,10 @@ def run_fit(args: argparse.Namespace) -> int:
             recording.pixel_size_um,
             microscope,
             microscope_gives_it=microscope_sets_pixel_size(args.microscope),
+            flag_pixel_um=args.pixel_size_um,
         )
-        if "disagrees" in pixel_note:
-            print(f"napari-symbac fit: note: {pixel_note}", file=sys.stderr)
+        for note in microscope_file.notes:  # found as a user: unknown keys ignored unsaid
+            print(f"napari-symbac fit: note: {note}", file=sys.stderr)
         if problem := camera_pixel_problem(microscope):  # before the fit, not after it
             print(f"napari-symbac fit: warning: {problem}", file=sys.stderr)
         if args.geometry is None:

@@ -274,29 +274,28 @@ def _cmd_export(args: argparse.Namespace) -> int:
     import dataclasses
 
     from napari_symbac.export import export_dataset, load_export_settings
-    from napari_symbac.export.dataset import no_validation_note
+    from napari_symbac.export.dataset import default_first_frame, no_validation_note
 
     settings = load_export_settings(args.config)
     _check_config_pixel_size(settings.pipeline, args.config)
-    if args.n_items is not None:
-        settings = dataclasses.replace(settings, n_items=args.n_items)
-    if args.n_frames is not None:  # found as a user: a field fit's settings.yaml holds 1
-        pipeline = settings.pipeline  # frame (its cells as recorded), no time series
-        simulation = dataclasses.replace(pipeline.simulation, n_frames=args.n_frames)
-        try:
-            settings = dataclasses.replace(
-                settings, pipeline=dataclasses.replace(pipeline, simulation=simulation)
-            )
-        except ValueError as err:
-            raise ValueError(f"--n-frames {args.n_frames}: {err}") from None
-    given = {"formats": args.formats, "kind": args.kind}  # set together: ctc needs both
-    given = {key: value for key, value in given.items() if value is not None}
-    if given:  # found as a user: a fit's settings had only its default formats, and no
-        try:  # way to a tracking dataset (kind has no place in a pipeline file)
-            settings = dataclasses.replace(settings, **given)
-        except ValueError as err:
-            named = " ".join(f"--{key} {value!r}" for key, value in given.items())
-            raise ValueError(f"{named}: {err}") from None
+    flags = {"n-items": args.n_items, "n-frames": args.n_frames}
+    flags |= {"formats": args.formats, "kind": args.kind}  # set together: ctc needs both
+    flags = {flag: value for flag, value in flags.items() if value is not None}
+    fields = {key.replace("-", "_"): value for key, value in flags.items()}
+    try:  # all at once (found as a user: --kind timeseries --n-frames 10 was refused for
+        # first_frame, checked against the shorter run before the kind was set)
+        if (n_frames := fields.pop("n_frames", None)) is not None:  # found as a user: a
+            pipeline = settings.pipeline  # field fit's settings.yaml holds 1 frame
+            simulation = dataclasses.replace(pipeline.simulation, n_frames=n_frames)
+            fields["pipeline"] = dataclasses.replace(pipeline, simulation=simulation)
+            if settings.first_frame == default_first_frame(pipeline.simulation):  # not
+                # the file's own: drawn from the run as it now is (found as a user:
+                # --n-frames 10 refused for the first_frame 16 of the default 50 frames)
+                fields["first_frame"] = default_first_frame(simulation)
+        settings = dataclasses.replace(settings, **fields)
+    except ValueError as err:
+        named = " ".join(f"--{flag} {value!r}" for flag, value in flags.items())
+        raise ValueError(f"{named}: {err}") from None
     out = _output_folder(args.out)
     backend = _backend(args)
     sim_frames = settings.pipeline.simulation.n_frames
@@ -466,7 +465,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         counts_units_mark,
         read_recording,
     )
-    from napari_symbac.diagnose.config import load_microscope_file
+    from napari_symbac.diagnose.config import NO_CAMERA_NOTE, load_microscope_file
     from napari_symbac.diagnose.figures import write_figures
     from napari_symbac.diagnose.model import build_design
     from napari_symbac.diagnose.region import (
@@ -483,6 +482,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from napari_symbac.fit.fitted_settings import fitted_or_kept
     from napari_symbac.fit.preflight import (
         camera_pixel_problem,
+        check_class_labels,
         check_fit_image,
         check_modality,
         default_geometry,
@@ -507,17 +507,14 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         recording = read_recording(args.image, channel=args.channel)
         mapping = recording.counts_mapping  # a normalised image read as counts, or None
         config = load_microscope_file(args.microscope)
-        for note in config.notes:
-            print(f"note: {note}", file=sys.stderr)
         # the modality as fit takes it: the flag, the file's own, the microscope file's
         modality = args.modality or recording.modality or config.microscope.modality
         microscope, pixel_note = resolve_pixel_size(
             recording.pixel_size_um,
             dataclasses.replace(config.microscope, modality=modality),
             microscope_gives_it=microscope_sets_pixel_size(args.microscope),
+            flag_pixel_um=args.pixel_size_um,
         )
-        if "disagrees" in pixel_note:
-            print(f"note: {pixel_note}", file=sys.stderr)
         if slip := camera_pixel_problem(microscope):  # before the fit, as fit says it
             print(f"napari-symbac diagnose: warning: {slip}", file=sys.stderr)
         image = np.asarray(recording.data)
@@ -531,22 +528,10 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             check_fit_image(frame, name, camera_hint=_DIAGNOSE_CAMERA_HINT)
             refuse_constant(frame, name)
         labels = None
-        if args.labels is not None:
+        if args.labels is not None:  # fit's checks, over the whole file: a window may
+            # hold only ids 1-3 of an instance mask's cells
             labels = np.asarray(read_image(args.labels, "--labels").data)
-        if labels is not None and labels.shape != stack.shape[-2:]:
-            raise ValueError(
-                f"--labels has shape {labels.shape}, the image frames {stack.shape[-2:]}: "
-                "paint one frame of the image's size"
-            )
-        others = [] if labels is None else sorted(set(np.unique(labels).tolist()) - {0, 1, 2, 3})
-        if others:  # read over the whole file: a window may hold only ids 1-3 of the cells
-            raise ValueError(
-                f"--labels {Path(args.labels).name} holds values up to {max(others)}, not only "
-                "the classes 0 unpainted, 1 cell, 2 media, 3 device: it looks like an instance "
-                "mask (a number per cell), which diagnose does not take; paint rough classes "
-                "(napari's Real image and classes dock), or make them from the mask: 1 where "
-                "it is above 0, 2 on some of the background"
-            )
+            check_class_labels(labels, stack.shape[-2:], f"--labels {Path(args.labels).name}")
         frame_shape = stack.shape[-2:]
         masks = None if args.masks is None else _diagnose_masks(args.masks, stack.shape)
         if args.region is None:
@@ -605,6 +590,10 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                 "smaller window",
                 file=sys.stderr,
             )
+        file_notes = [*config.notes, *[NO_CAMERA_NOTE] * (config.camera is None)]
+        for note in file_notes:  # once the inputs are taken (found as a user: "no camera
+            # given" said before refusals that had nothing to do with the camera)
+            print(f"note: {note}", file=sys.stderr)
     start = RenderSettings()
     if microscope.modality == "fluorescence":
         start = RenderSettings(cell_intensity=2000.0, media_intensity=200.0, device_intensity=200.0)
@@ -667,7 +656,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     with timer.step("write"):
         doc = result.as_dict()
-        doc["notes"] = [*config.notes, pixel_note]
+        doc["notes"] = [*file_notes, pixel_note]
         if config.camera is None:
             doc["notes"].append(measured_note)
         doc["camera"] = dataclasses.asdict(camera)
@@ -682,7 +671,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         layout = simulated_shape(region, frame_shape, first_fit.trench is not None)
         # the simulation `fit` would write, so that an export matches the recording
         simulation, invalid = fitted_or_kept(
-            SimulationSettings(), first_fit, layout, microscope.pixel_size_um
+            config.timed(SimulationSettings()), first_fit, layout, microscope.pixel_size_um
         )
         if invalid:
             doc["notes"].append(f"settings.yaml simulates the defaults: {invalid}")
@@ -923,6 +912,13 @@ MICROSCOPE_HELP = (
 )
 
 
+PIXEL_SIZE_HELP = (
+    "the recording's pixel size in um in the sample (the camera pixel divided by the "
+    "magnification): wins over the image file's metadata and the microscope file's "
+    "pixel_size_um, and settles them when they disagree"
+)
+
+
 class _HelpFormatter(argparse.HelpFormatter):
     """argparse's help, with an ``examples:`` epilog kept line by line (argparse would
     run its commands together into one paragraph)."""
@@ -1156,6 +1152,7 @@ def build_parser() -> argparse.ArgumentParser:
         "frame or a (T, Y, X) series",
     )
     fit.add_argument("--microscope", required=True, help=MICROSCOPE_HELP)
+    fit.add_argument("--pixel-size-um", type=float, help=PIXEL_SIZE_HELP)
     fit.add_argument("--out", required=True, help="output folder")
     start = fit.add_mutually_exclusive_group()
     start.add_argument("--labels", help="painted class labels TIFF (1 cell, 2 media, 3 device)")
@@ -1270,7 +1267,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="the recording's contrast (default: the image file's, else the microscope file's)",
     )
     cal.add_argument("--camera", help="Camera YAML/JSON (default: measured from the image)")
-    cal.add_argument(
+    cal_scale = cal.add_mutually_exclusive_group()
+    cal_scale.add_argument("--pixel-size-um", type=float, help=PIXEL_SIZE_HELP)
+    cal_scale.add_argument(
         "--cell-width-um",
         type=float,
         help="known cell width: the pixel size becomes it over the masks' median width "
@@ -1306,11 +1305,8 @@ def build_parser() -> argparse.ArgumentParser:
         "series): the base fit starts from these cells, as `fit --masks` does (cells too "
         "faint or too crowded for the automatic start)",
     )
-    diag.add_argument(
-        "--microscope",
-        required=True,
-        help=MICROSCOPE_HELP,
-    )
+    diag.add_argument("--microscope", required=True, help=MICROSCOPE_HELP)
+    diag.add_argument("--pixel-size-um", type=float, help=PIXEL_SIZE_HELP)
     diag.add_argument(
         "--modality",
         choices=["phase", "fluorescence", "brightfield"],
@@ -1507,9 +1503,11 @@ def _one_line(err: BaseException) -> str:
     disk says so)."""
     import errno
 
+    from napari_symbac.export.atomic import is_short_write
+
     text = str(err)
-    if isinstance(err, OSError) and err.errno == errno.ENOSPC:  # found as a user: a full
-        # disk was "check that the path is right"
+    if isinstance(err, OSError) and (err.errno == errno.ENOSPC or is_short_write(err)):
+        # found as a user: a full disk was "check that the path is right"
         where = f" writing {err.filename}" if err.filename else ""
         return f"the disk is full{where}: free some space or give --out on another disk"
     if isinstance(err, OSError) and err.strerror and text.startswith("[Errno"):

@@ -312,6 +312,14 @@ def _one_channel(
                 "a recording is (frames, Y, X) of one plane; save the plane to read as its "
                 "own TIFF (in Fiji: Image > Stacks > Tools > Make Substack)"
             )
+    if "C" not in axes and "S" in axes and channel is not None:  # colour samples (RGB):
+        # the one asked for (found as a user: --channel 1 of an RGB TIFF was refused)
+        n_samples = shape[axes.index("S")]
+        if not 0 <= channel < n_samples:
+            raise ValueError(
+                f"channel {channel}: {name} is a colour image of channels 0..{n_samples - 1}"
+            )
+        return np.take(data, channel, axis=axes.index("S"))
     if "C" not in axes:
         if channel not in (None, 0):
             raise ValueError(f"{name} holds one channel (axes {axes}): leave the channel out")
@@ -527,7 +535,14 @@ def read_image(
             data = np.asarray(iio.imread(path))
         except (OSError, ValueError) as err:
             raise ValueError(f"{what} {path.name} is not a readable PNG: {err}") from err
-        if channel not in (None, 0):
+        if channel is not None and data.ndim == 3 and data.shape[-1] in (3, 4):
+            if not 0 <= channel < data.shape[-1]:  # a colour PNG: the channel asked for
+                raise ValueError(
+                    f"channel {channel}: {what} {path.name} is a colour image of channels "
+                    f"0..{data.shape[-1] - 1}"
+                )
+            data = data[..., channel]
+        elif channel not in (None, 0):
             raise ValueError(f"{what} {path.name} is a PNG, one channel: leave the channel out")
         recording = Recording(data=data, pixel_size_um=None, name=path.stem)
     elif kind == "tiff" or lower.endswith(_TIFF_SUFFIXES):
@@ -541,9 +556,11 @@ def read_image(
     if data.ndim == 3 and data.shape[-1] in (3, 4) and min(data.shape[:2]) > 4:
         grey = grey_channel(data)
         if grey is None:
+            pick = ", or pick one with --channel K (0 red, 1 green, 2 blue)"
+            pick = "" if what == "recording" else pick  # the Real image dock has no flag
             raise ValueError(
                 f"{what} {path.name} is a colour image {data.shape}: save one grey channel "
-                "(the camera's raw frame)"
+                f"(the camera's raw frame){pick}"
             )
         recording = dataclasses.replace(recording, data=np.ascontiguousarray(grey))
     if counts:

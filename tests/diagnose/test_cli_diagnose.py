@@ -210,6 +210,34 @@ def test_diagnose_refuses_what_fit_refuses(tmp_path, capsys):
     assert not out.exists()
 
 
+def test_refusals_name_the_file_as_fit_does_and_come_alone(tmp_path, capsys):
+    """Found as a user: a 5 x 5 image was refused as `real_image` (the Python API's name),
+    float --labels were called an instance mask that diagnose "does not take" (it takes
+    --masks), and "note: no camera given" came before each refusal."""
+    mic = tmp_path / "mic.yaml"
+    mic.write_text("pixel_size_um: 0.065\nmodality: phase\n")  # no camera: measured
+    tiny = tmp_path / "tiny.tif"
+    tifffile.imwrite(tiny, np.random.default_rng(0).integers(90, 110, (5, 5)).astype(np.uint16))
+    out = str(tmp_path / "o")
+    assert main(["diagnose", str(tiny), "--microscope", str(mic), "--out", out]) == 2
+    err = capsys.readouterr().err
+    assert err.splitlines() == [
+        "napari-symbac diagnose: error: tiny.tif of shape (5, 5) is too small to fit: it "
+        "needs at least 8 x 8 px (a whole cell and some background around it)"
+    ]
+    image = tmp_path / "image.tif"
+    tifffile.imwrite(image, np.random.default_rng(1).poisson(500, (64, 32)).astype(np.uint16))
+    labels = tmp_path / "labels.tif"
+    tifffile.imwrite(labels, np.full((64, 32), 1.5, np.float32))
+    args = ["diagnose", str(image), "--microscope", str(mic), "--labels", str(labels)]
+    assert main([*args, "--out", out]) == 2
+    err = capsys.readouterr().err
+    assert err.splitlines() == [
+        "napari-symbac diagnose: error: --labels labels.tif must hold integer classes 0-3, "
+        "got dtype float32"
+    ]
+
+
 def test_a_normalised_trench_is_diagnosed_in_the_units_it_was_read_in(
     tmp_path, capsys, real_data_dir
 ):
@@ -512,8 +540,8 @@ def test_an_instance_mask_given_as_labels_is_refused_whatever_the_window(
     ]  # fmt: skip
     assert main(args) == 2
     error = capsys.readouterr().err
-    assert "holds values up to 8" in error
-    assert "it looks like an instance mask" in error
+    assert "holds classes [4, 5, 6, 7, 8]" in error
+    assert "an instance mask goes to --masks instead" in error
     assert "Traceback" not in error
     assert not out.exists()
 

@@ -18,6 +18,7 @@ from scipy import ndimage
 from napari_symbac.cli import main
 from napari_symbac.fit import scene_classes
 from napari_symbac.fit.preflight import BRIGHT_FIELD_NOTE
+from napari_symbac.io import read_recording
 from napari_symbac.settings import (
     Camera,
     Microscope,
@@ -166,6 +167,8 @@ def test_fit_writes_settings_cells_residual_figure_and_report(tmp_path, truth, i
     residual = tifffile.imread(out / "residual.tif")
     assert residual.shape == truth.image.shape
     assert residual.dtype == np.float32
+    scaled = read_recording(out / "residual.tif")  # at the recording's scale, as Fiji reads it
+    assert scaled.pixel_size_um == pytest.approx(truth.microscope.pixel_size_um, rel=1e-6)
     assert abs(float(residual.mean())) < 0.1 * float(residual.std())
 
     figure = iio.imread(out / "before_after.png")
@@ -254,20 +257,53 @@ def test_config_camera_is_honoured(tmp_path, inputs):
     assert _fact((out / "report.txt").read_text(), "camera") == f"from --config {config}"
 
 
-def test_tiff_pixel_size_wins_and_the_disagreement_is_said(tmp_path, truth, inputs, capsys):
+def test_the_microscope_file_s_frame_interval_times_the_settings(
+    tmp_path, truth, inputs, capsys
+):
+    """Found as a user: ``frame_interval_s`` of the microscope file was read and ignored
+    (settings.yaml drew its series 3 min apart), and ``trench_width_um`` was read and
+    used by nothing, both unsaid."""
+    image, labels, _ = inputs
+    microscope = tmp_path / "timed.yaml"
+    fields = yaml.safe_load(save_settings(truth.microscope, tmp_path / "m.yaml").read_text())
+    microscope.write_text(yaml.safe_dump(
+        {**fields, "frame_interval_s": 120, "trench_width_um": 1.4}
+    ))  # fmt: skip
+    args = [image, "--microscope", microscope, "--labels", labels, "--max-iterations", 1]
+    assert _fit(*args, "--out", tmp_path / "timed") == 0
+    err = capsys.readouterr().err
+    assert "fit: note: trench_width_um is not used: the trench's width is fitted" in err
+    settings = load_settings(tmp_path / "timed" / "settings.yaml", PipelineSettings)
+    assert settings.simulation.frame_interval_min == 2.0
+    config = tmp_path / "config.yaml"  # the config's own interval wins
+    config.write_text("simulation: {frame_interval_min: 5.0}\n")
+    assert _fit(*args, "--config", config, "--out", tmp_path / "configured") == 0
+    settings = load_settings(tmp_path / "configured" / "settings.yaml", PipelineSettings)
+    assert settings.simulation.frame_interval_min == 5.0
+
+
+def test_a_tiff_disagreeing_with_the_microscope_is_settled_by_the_flag(
+    tmp_path, truth, inputs, capsys
+):
     _, labels, _ = inputs
     image = tmp_path / "real.tif"
     tifffile.imwrite(image, truth.image, imagej=True, resolution=(1 / 0.07, 1 / 0.07),
                      metadata={"unit": "um"})  # fmt: skip
     microscope = save_settings(truth.microscope, tmp_path / "microscope.yaml")  # 0.065 um
     out = tmp_path / "fit"
-    assert _fit(image, "--microscope", microscope, "--labels", labels, "--out", out,
-                "--max-iterations", 3) == 0  # fmt: skip
-    assert "disagrees with the 0.065 um of --microscope" in capsys.readouterr().err
+    args = [image, "--microscope", microscope, "--labels", labels, "--out", out]
+    assert _fit(*args, "--max-iterations", 3) == 2
+    assert capsys.readouterr().err.splitlines()[-1:] == [
+        "napari-symbac fit: error: the image file records a pixel size of 0.07 um and "
+        "--microscope 0.065 um: say which is right with --pixel-size-um 0.065 (or 0.07), or "
+        "correct the file that is wrong"
+    ]
+    assert not out.exists()
+    assert _fit(*args, "--max-iterations", 3, "--pixel-size-um", 0.07) == 0
     assert load_settings(out / "settings.yaml", PipelineSettings).microscope.pixel_size_um == (
         pytest.approx(0.07, rel=1e-6)
     )
-    assert "from the TIFF" in (out / "report.txt").read_text()
+    assert "pixel size 0.07 um from --pixel-size-um" in (out / "report.txt").read_text()
 
 
 def test_a_series_of_frames_with_gaps_says_so_beside_its_tracks(tmp_path, truth, inputs, capsys):
@@ -1211,6 +1247,18 @@ def test_a_crop_around_one_cell_asks_for_masks_or_labels(tmp_path, real_data_dir
     line = error[error.index("napari-symbac fit: error: ") :].splitlines()[0]
     assert "no bright region stands 40 times the background's spread above it" in line
     assert line.endswith("instance masks or painted labels (--masks M or --labels L)")
+
+
+def test_a_phase_trench_given_as_fluorescence_is_told_the_modality(
+    tmp_path, real_data_dir, capsys
+):
+    """Found as a user: SyMBac's phase trench with --modality fluorescence was told its
+    cells were "not fluorescence", and not what to set instead."""
+    microscope = save_settings(Microscope(pixel_size_um=0.065), tmp_path / "microscope.yaml")
+    image = real_data_dir / "ecoli_100x_oil_exponential.tiff"
+    error = _refused(capsys, tmp_path / "fit", image, "--microscope", microscope,
+                     "--modality", "fluorescence")  # fmt: skip
+    assert "not fluorescence, set the modality to phase or brightfield" in error
 
 
 def test_a_channel_of_a_hyperstack_is_fitted_as_its_own_file(

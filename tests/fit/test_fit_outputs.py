@@ -71,14 +71,19 @@ def test_labels_settle_the_polarity():
 
 
 def test_input_checks_name_the_problem():
+    def image(values) -> np.ndarray:  # each value an 8 x 8 px block: the least fitted
+        return np.kron(np.array(values), np.ones((8, 8), np.array(values).dtype))
+
     with pytest.raises(ValueError, match="negative values"):
-        check_fit_image(np.array([[-1.0, 2.0]]))
+        check_fit_image(image([[-1.0, 2.0]]))
+    with pytest.raises(ValueError, match=r"shape \(8, 7\) is too small to fit"):
+        check_fit_image(image([[3.0, 17.0]])[:, :7])
     # a flattened image (ColiCoords' bright field: 0.89..1.12) is no camera's counts
-    flattened = np.array([[0.8906, 1.0], [1.0031, 1.124]], np.float32)
+    flattened = image(np.array([[0.8906, 1.0], [1.0031, 1.124]], np.float32))
     with pytest.raises(ValueError, match=r"normalised values .*napari_symbac\.io\.as_counts"):
         check_fit_image(flattened)
     check_fit_image(flattened.astype(np.float64) * 10000)  # as as_counts reads it: counts
-    check_fit_image(np.array([[3.0, 17.0]]))  # whole numbers stored as floats: counts
+    check_fit_image(image([[3.0, 17.0]]))  # whole numbers stored as floats: counts
     labels = np.ones((4, 4), np.uint8)
     with pytest.raises(ValueError, match="no media class"):
         check_class_labels(labels, (4, 4))
@@ -152,17 +157,33 @@ def test_instance_masks_given_as_class_labels_are_said_in_one_short_line():
     assert "--masks" in message
 
 
-def test_pixel_size_from_the_tiff_wins():
+def test_the_pixel_size_comes_from_the_flag_or_files_that_agree():
     microscope = Microscope(pixel_size_um=0.065)
     same, note = resolve_pixel_size(0.0651, microscope)
     assert same is microscope
     assert "agree" in note
-    used, note = resolve_pixel_size(0.08, microscope)
-    assert used.pixel_size_um == 0.08
-    assert "disagrees" in note
     kept, note = resolve_pixel_size(None, microscope)
     assert kept is microscope
     assert "records none" in note
+    tiffs, note = resolve_pixel_size(0.08, microscope, microscope_gives_it=False)
+    assert (tiffs.pixel_size_um, note) == (0.08, "pixel size 0.08 um from the TIFF")
+    flagged, note = resolve_pixel_size(0.08, microscope, flag_pixel_um=0.1)
+    assert (flagged.pixel_size_um, note) == (0.1, "pixel size 0.1 um from --pixel-size-um")
+
+
+@pytest.mark.parametrize(
+    ("file_um", "unset"), [(0.13, False), (1.0, True)]
+)  # fmt: skip
+def test_files_that_disagree_on_the_pixel_size_are_refused_naming_the_flag(file_um, unset):
+    """Found as a user: the TIFF's value won over the microscope file's, so a TIFF saved
+    with a 1 um scale (none set) fitted no cells, and one of 2 x 2 binning metadata on an
+    unbinned image fitted cells of half their width, with exit 0."""
+    with pytest.raises(ValueError, match="records a pixel size") as refused:
+        resolve_pixel_size(file_um, Microscope(pixel_size_um=0.065))
+    message = str(refused.value)
+    assert f"records a pixel size of {file_um:g} um" in message
+    assert f"--pixel-size-um 0.065 (or {file_um:g})" in message
+    assert ("a scale that was never set" in message) == unset
 
 
 @pytest.mark.parametrize(

@@ -1,7 +1,8 @@
-"""The microscope file of ``napari-symbac diagnose`` (issue 11's keys)."""
+"""The microscope file of ``fit``, ``calibrate`` and ``diagnose`` (issue 11's keys)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from dataclasses import dataclass
@@ -10,12 +11,13 @@ from pathlib import Path
 from napari_symbac.settings import (
     Camera,
     Microscope,
+    SimulationSettings,
     from_dict,
     read_settings_mapping,
     refuse_another_kind,
 )
 
-__all__ = ["DiagnoseConfig", "load_microscope_file", "parse_microscope"]
+__all__ = ["NO_CAMERA_NOTE", "DiagnoseConfig", "load_microscope_file", "parse_microscope"]
 
 REQUIRED = ("modality", "pixel_size_um", "NA", "refractive_index", "wavelength_um")
 OPTIONAL = (
@@ -30,6 +32,11 @@ OPTIONAL = (
 #: defaults microscope`` writes) for the keys this file names otherwise.
 ALIASES = {"numerical_aperture": "NA"}
 CAMERA_KEYS = ("baseline_adu", "sensitivity_adu_per_e", "dark_noise_e")
+#: What ``diagnose`` says of a microscope file without a camera.
+NO_CAMERA_NOTE = (
+    "no camera given: its gain and read noise are measured from the recording (add "
+    "camera: {baseline_adu, sensitivity_adu_per_e, dark_noise_e} to give it)"
+)
 
 
 @dataclass(frozen=True)
@@ -45,6 +52,14 @@ class DiagnoseConfig:
     trench_width_um: float | None = None
     frame_interval_s: float | None = None
     notes: tuple[str, ...] = ()
+
+    def timed(self, simulation: SimulationSettings) -> SimulationSettings:
+        """``simulation`` at the recording's ``frame_interval_s``, when the file gives one
+        (found as a user: it was read and ignored, and a fit's settings.yaml drew its time
+        series 3 min apart whatever the recording's interval)."""
+        if self.frame_interval_s is None:
+            return simulation
+        return dataclasses.replace(simulation, frame_interval_min=self.frame_interval_s / 60)
 
 
 def _number(data: dict, key: str, where: str) -> float:
@@ -128,12 +143,9 @@ def _with_extras(
                 f"takes {', '.join(CAMERA_KEYS)}"
             )
         camera = Camera(**{k: _number(cam, k, f"{where} camera") for k in CAMERA_KEYS if k in cam})
-    else:
-        notes.append(
-            "no camera given: its gain and read noise are measured from the recording "
-            "(add camera: {baseline_adu, sensitivity_adu_per_e, dark_noise_e} to give it)"
-        )
     width = _number(data, "trench_width_um", where) if "trench_width_um" in data else None
+    if width is not None:  # found as a user: read, and used by no command
+        notes.append("trench_width_um is not used: the trench's width is fitted from the image")
     interval = _number(data, "frame_interval_s", where) if "frame_interval_s" in data else None
     return DiagnoseConfig(microscope, camera, width, interval, tuple(notes))
 

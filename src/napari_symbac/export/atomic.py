@@ -84,11 +84,12 @@ def explain_os_error(err: OSError, path: str | os.PathLike | None = None) -> Exp
     """
     where = str(path if path is not None else (err.filename or "the output folder"))
     again = "then run it again"
-    if err.errno in (errno.ENOSPC, errno.EDQUOT):
+    if err.errno in (errno.ENOSPC, errno.EDQUOT) or is_short_write(err):
         message = (
             f"the disk is full (no space left on device) while writing {where}: free some "
             f"space on that disk or choose an output folder on another disk, {again}"
         )
+        return ExportError(message, where, errno.ENOSPC if err.errno is None else err.errno)
     elif err.errno in (errno.EACCES, errno.EPERM) or isinstance(err, PermissionError):
         message = (
             f"permission denied while writing {where}: choose an output folder you can "
@@ -102,6 +103,14 @@ def explain_os_error(err: OSError, path: str | os.PathLike | None = None) -> Exp
     else:
         message = f"could not write {where}: {err.strerror or err}; fix the cause, {again}"
     return ExportError(message, where, err.errno)
+
+
+def is_short_write(err: OSError) -> bool:
+    """Whether ``err`` is numpy's short write ("11776 requested and 7824 written", no
+    errno), which on a local disk means it is full (found as a user: a full disk during
+    a TIFF export said "could not write ...: 11776 requested and 7824 written")."""
+    short = re.fullmatch(r"\d+ requested and \d+ written", str(err))
+    return err.errno is None and short is not None
 
 
 def atomic_path(path: Path) -> Path:

@@ -446,14 +446,22 @@ def export_of(pipeline: PipelineSettings, **fields: Any) -> ExportSettings:
         fields = {"randomise": default_randomisation(pipeline), **fields}
     simulation = pipeline.simulation
     walled = simulation.geometry in ("trench", "chamber")
-    if walled:
-        fields = {"first_frame": trench_filled_frame(simulation), **fields}
-    elif simulation.geometry == "agar_pad":
-        fields = {"first_frame": colony_grown_frame(simulation), **fields}
+    fields = {"first_frame": default_first_frame(simulation), **fields}
     settings = ExportSettings(pipeline=pipeline, **fields)
     if "n_simulations" in fields or walled:
         return settings
     return dataclasses.replace(settings, n_simulations=min(settings.n_items, PAD_SIMULATIONS))
+
+
+def default_first_frame(simulation: SimulationSettings) -> int:
+    """The first frame the default export of ``simulation`` draws images from: the
+    trench filled (:func:`trench_filled_frame`), the pad's colonies in their last
+    doubling (:func:`colony_grown_frame`), else 0."""
+    if simulation.geometry in ("trench", "chamber"):
+        return trench_filled_frame(simulation)
+    if simulation.geometry == "agar_pad":
+        return colony_grown_frame(simulation)
+    return 0
 
 
 def trench_filled_frame(simulation: SimulationSettings) -> int:

@@ -98,7 +98,7 @@ def check_fit_image(
         other normalised values (:func:`~napari_symbac.io.as_counts` would map them):
         no camera counts, no noise to measure, and a dataset drawn from its fit holds
         only a few grey levels; for NaN or infinite pixels; and for a frame of more
-        than :data:`MAX_FIT_PIXELS`.
+        than :data:`MAX_FIT_PIXELS` or fewer than 8 pixels a side.
     """
     shape = np.shape(image)
     if len(shape) >= 2 and shape[-2] * shape[-1] > MAX_FIT_PIXELS:
@@ -110,6 +110,11 @@ def check_fit_image(
             f"takes ({MAX_FIT_PIXELS / 1e6:.1f} Mpx, 4096 x 4096): fit a crop of it (time "
             "and memory grow with the pixels: a 512 x 512 field of 100 cells took 142 s "
             "on a 2-core machine, docs/fitting.md)"
+        )
+    if len(shape) >= 2 and min(shape[-2:]) < 8:  # what fit_scene and the camera take
+        raise ValueError(
+            f"{name} of shape {tuple(shape[-2:])} is too small to fit: it needs at least "
+            "8 x 8 px (a whole cell and some background around it)"
         )
     if np.issubdtype(np.asarray(image).dtype, np.floating):
         # found as a user: an all-NaN TIFF opened in the docks as a recording
@@ -633,32 +638,44 @@ def resolve_pixel_size(
     microscope: Microscope,
     *,
     microscope_gives_it: bool = True,
+    flag_pixel_um: float | None = None,
     tolerance: float = 0.01,
     other_way: str = "",
 ) -> tuple[Microscope, str]:
-    """The TIFF's own pixel size wins over the microscope file; say when they disagree.
+    """The pixel size to fit at: ``--pixel-size-um``, else the TIFF's and the microscope
+    file's when they agree, else whichever of them gives one.
 
     ``microscope_gives_it``: whether the microscope file sets the pixel size
     (:func:`~napari_symbac.settings.microscope_sets_pixel_size`); when neither it nor
     the image does, the pixel size is refused, not taken from :class:`Microscope`'s
     default (found as a user: a PNG and a microscope file without ``pixel_size_um``
-    were calibrated at 0.065 um, "from --microscope", cells 0.5 um wide). ``other_way``:
-    another way the command has to set it, said in that refusal.
+    were calibrated at 0.065 um, "from --microscope", cells 0.5 um wide).
+    ``flag_pixel_um``: the command line's ``--pixel-size-um``, which wins over both.
+    ``other_way``: another way the command has to set it, said in that refusal.
 
     Returns
     -------
     microscope, note
         The microscope with the pixel size used, and a sentence saying where the pixel
-        size came from (and the disagreement, if any).
+        size came from.
 
     Raises
     ------
     ValueError
-        The pixel size used is implausible (:func:`check_pixel_size`), or neither the
-        image nor the microscope file gives one.
+        The pixel size used is implausible (:func:`check_pixel_size`); neither the
+        image nor the microscope file gives one; or the two disagree by more than
+        ``tolerance`` (found as a user: the TIFF's value was taken over the microscope
+        file's, and a wrong one, such as a 1 um scale some software writes when none was
+        set, gave a fit of no cells or wrong sizes with exit 0), which
+        ``flag_pixel_um`` settles.
     """
     given = microscope.pixel_size_um
-    if file_pixel_um is None or not math.isfinite(file_pixel_um) or file_pixel_um <= 0:
+    recorded = file_pixel_um is not None and math.isfinite(file_pixel_um) and file_pixel_um > 0
+    if flag_pixel_um is not None:
+        check_pixel_size(flag_pixel_um, "from --pixel-size-um")
+        microscope = _with_pixel_size(microscope, flag_pixel_um, "--pixel-size-um")
+        return microscope, f"pixel size {flag_pixel_um:.4g} um from --pixel-size-um"
+    if not recorded:
         if not microscope_gives_it:
             raise ValueError(
                 "neither the image nor --microscope gives the pixel size: add "
@@ -670,18 +687,27 @@ def resolve_pixel_size(
         return microscope, (
             f"pixel size {given:.4g} um from --microscope (the image file records none)"
         )
-    check_pixel_size(file_pixel_um, "recorded in the image file")
-    if abs(file_pixel_um - given) <= tolerance * given:
+    check_pixel_size(file_pixel_um, "recorded in the image file; --pixel-size-um overrides it")
+    if microscope_gives_it and abs(file_pixel_um - given) > tolerance * given:
+        unset = " (1 um per pixel is often a scale that was never set)" * (
+            file_pixel_um == 1.0
+        )
+        raise ValueError(
+            f"the image file records a pixel size of {file_pixel_um:.4g} um{unset} and "
+            f"--microscope {given:.4g} um: say which is right with --pixel-size-um "
+            f"{given:.4g} (or {file_pixel_um:.4g}), or correct the file that is wrong"
+        )
+    if microscope_gives_it:
         return microscope, f"pixel size {file_pixel_um:.4g} um (TIFF and --microscope agree)"
+    microscope = _with_pixel_size(microscope, file_pixel_um, "the TIFF's metadata")
+    return microscope, f"pixel size {file_pixel_um:.4g} um from the TIFF"
+
+
+def _with_pixel_size(microscope: Microscope, pixel_um: float, source: str) -> Microscope:
     try:
-        microscope = dataclasses.replace(microscope, pixel_size_um=float(file_pixel_um))
+        return dataclasses.replace(microscope, pixel_size_um=float(pixel_um))
     except ValueError as err:
         raise ValueError(
-            f"the TIFF's pixel size {file_pixel_um:.4g} um does not suit the microscope "
-            f"({err}); fix the TIFF's metadata or the microscope file"
+            f"the pixel size {pixel_um:.4g} um does not suit the microscope ({err}); fix "
+            f"{source} or the microscope file"
         ) from err
-    return microscope, (
-        f"pixel size {file_pixel_um:.4g} um from the TIFF, which disagrees with the "
-        f"{given:.4g} um of --microscope: the TIFF's value is used (edit the microscope "
-        "file, or the TIFF's metadata, whichever is wrong)"
-    )

@@ -349,13 +349,15 @@ def otsu_cells(
             # found as a user: a crop around one cell (ColiCoords' 01) said "no region
             # of 6 pixels or more" of a cell 40 x 17 px; its glow is most of the crop
             stand = brightest_contrast(-image, px, **known)
+            # found as a user: a phase trench given as fluorescence was told its cells
+            # were "not fluorescence", and not what to set instead
             raise FaintStartError(
                 "the start found no cells in the image: no bright region stands "
                 f"{DETECT_SNR:g} times the background's spread above it (the brightest "
                 f"stands {stand:.0f} times: a faint field, a crop around a few cells "
                 "whose glow is most of the image, which then is no background, or cells "
                 "darker than their background, as phase contrast and bright field show "
-                "them: not fluorescence)"
+                "them: not fluorescence, set the modality to phase or brightfield)"
             )
         cells, widths = cells_from_instances(instances, px, max_cell_length_um)
         return cells, widths, (trench if geometry == "trench" else None), instances
