@@ -284,17 +284,22 @@ def _camera_for(
 def _cell_problems(
     result, shape: tuple[int, int], pixel_um: float, masks, colony: bool = False
 ) -> list[str]:
-    """Cells outside the image, and a count that differs from the masks given (a
-    colony's cells are its masks: those too small to measure are said instead)."""
+    """Cells wholly outside the image, and a count that differs from the masks given (a
+    colony's cells are its masks: those too small to measure are said instead). A cell
+    centred outside but drawn into the image is cut by its edge, as cells leave a
+    trench's open end: no problem (found as a user: a routine trench fit listed one)."""
     problems = []
     cells = result.cells
+    scene = getattr(result, "scene", None)
+    drawn = set() if scene is None else set(np.unique(scene.camera_labels()).tolist())
     height_um, width_um = shape[0] * pixel_um, shape[1] * pixel_um
     for cell_id, x, y in zip(cells.ids, cells.x_um, cells.y_um, strict=True):
-        if not (0 <= x <= width_um and 0 <= y <= height_um):
+        inside = 0 <= x <= width_um and 0 <= y <= height_um
+        if not inside and int(cell_id) not in drawn:
             problems.append(
-                f"cell {int(cell_id)} has its centre outside the image (x {x:.2f} um, "
-                f"y {y:.2f} um; the image is {width_um:.2f} x {height_um:.2f} um): a cell "
-                "cut by the edge, or a spurious one; check the figure"
+                f"cell {int(cell_id)} lies outside the image (centre x {x:.2f} um, "
+                f"y {y:.2f} um; the image is {width_um:.2f} x {height_um:.2f} um, and no "
+                "pixel of it is drawn): a spurious cell; check the figure"
             )
     if masks is not None:
         n_masks = int(np.count_nonzero(np.unique(masks)))

@@ -319,3 +319,25 @@ def test_atomic_write_leaves_nothing_on_failure(tmp_path):
     written = write_atomically(out, writers)
     assert sorted(p.relative_to(out).as_posix() for p in written) == ["a.txt", "d/b.txt"]
     assert (out / "d" / "b.txt").read_text() == "b"
+
+
+def test_a_cell_cut_by_the_image_edge_is_no_problem_one_wholly_outside_is():
+    """Found as a user: a routine fit of SyMBac's trench listed "cell 4 has its centre
+    outside the image" for a cell leaving the trench's open end, drawn into the image."""
+    from _fit_synthetic import TRUTH, make_cells
+
+    from napari_symbac._cli_fit import _cell_problems
+    from napari_symbac.scene import Field, draw_scene
+    from napari_symbac.settings import TrenchGeometry
+
+    microscope, shape = Microscope(pixel_size_um=0.08), (64, 48)
+    height_um, width_um = shape[0] * 0.08, shape[1] * 0.08
+    cells = make_cells(y_um=[2.0, height_um + 0.4, height_um + 4.0], x_um=[1.9, 1.9, 1.9],
+                       angle_rad=[0.0, 0.0, 0.0], length_um=[2.3, 2.2, 2.2])  # fmt: skip
+    field = Field(width_um, height_um)
+    scene = draw_scene(cells, TrenchGeometry(), microscope, TRUTH, field=field)
+    assert set(np.unique(scene.camera_labels())) == {0, 1, 2}  # the cut cell is drawn
+    fitted = SimpleNamespace(cells=cells, scene=scene)
+    problems = _cell_problems(fitted, shape, microscope.pixel_size_um, None)
+    assert len(problems) == 1
+    assert problems[0].startswith("cell 3 lies outside the image")

@@ -783,9 +783,12 @@ def _run_frame(
             log += moved
             history.append(state.chi2 / max(problem.n_valid, 1))
             if phi > 1.5:
-                warnings.append(
-                    f"the residual is spatially correlated (dispersion {phi:.3g}): the moves "
-                    "demanded that much more evidence"
+                warnings.append(  # found as a user: "(dispersion 191): the moves
+                    # demanded that much more evidence" said nothing a user could act on
+                    f"the residual is spatially correlated (neighbouring pixels err "
+                    f"together: over 4 x 4 px its mean varies {phi:.3g} times as much as "
+                    "noise alone gives): cells were added, removed, split or merged only "
+                    "on that much stronger evidence"
                 )
     if estimate and measured is None and (
         camera_used.sensitivity_adu_per_e == UNMEASURED_GAIN_ADU_PER_E
