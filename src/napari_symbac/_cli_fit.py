@@ -205,8 +205,10 @@ class _Stages:
             print(f"napari-symbac fit: {text}", file=self.stream, flush=True)
 
     def bar(self, desc: str) -> tuple[Callable[[int, int], None], Callable[[], None]]:
-        # piped: a line every few seconds, so that a long fit is not silent in a log
-        update, handle = progress_bar(desc, None, "steps", self.stream)
+        # piped: a line every few seconds, so that a long fit is not silent in a log; the
+        # total is the engine's upper bound (found as a user: "1 of 7614 steps", then
+        # "2521 of 2521 steps")
+        update, handle = progress_bar(desc, None, "steps", self.stream, bound=True)
         return update, handle.close
 
 

@@ -975,7 +975,7 @@ def test_progress_is_a_bar_on_a_terminal_and_lines_when_piped():
         update(3, 10)
         close()
     assert piped.getvalue() == (
-        "napari-symbac fit: fitting frame 0\nnapari-symbac fit frame 0: 3 of 10 steps\n"
+        "napari-symbac fit: fitting frame 0\nnapari-symbac fit frame 0: 3 of at most 10 steps\n"
     )
     assert "fit frame 0" in terminal.getvalue()
     assert "3/10" in terminal.getvalue()  # the tqdm bar
