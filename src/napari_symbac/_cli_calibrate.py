@@ -166,7 +166,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from napari_symbac.export import export_dataset
     from napari_symbac.export.atomic import staging_folder
     from napari_symbac.fit.preflight import (
-        bright_field_as_phase,
+        modality_doubt,
         not_integer_masks,
         resolve_pixel_size,
     )
@@ -245,7 +245,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         file_notes.append("frame_interval_s is not used: calibrate exports single frames")
     for note in file_notes:
         print(f"napari-symbac calibrate: note: {note}", file=sys.stderr, flush=True)
-    if (note := bright_field_as_phase(image, modality)) is not None:  # before the fit
+    if (note := modality_doubt(image, modality)) is not None:  # before the fit
         print(f"napari-symbac calibrate: note: {note}", file=sys.stderr, flush=True)
     print("napari-symbac calibrate: fitting", file=sys.stderr, flush=True)
     with timer.step("fit"):

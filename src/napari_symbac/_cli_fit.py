@@ -409,10 +409,10 @@ def _prepare_one(args, frame, labels, masks, microscope, base, keys):
     from napari_symbac.fit.camera_estimate import censored_pixels
     from napari_symbac.fit.preflight import (
         as_instance_ids,
-        bright_field_as_phase,
         check_class_labels,
         check_instance_masks,
         check_modality,
+        modality_doubt,
     )
     from napari_symbac.fit.report import fit_notes
 
@@ -429,7 +429,7 @@ def _prepare_one(args, frame, labels, masks, microscope, base, keys):
                 "regions are the cells"
             )
     polarity = check_modality(frame, microscope.modality, labels=labels, masks=masks)
-    if (note := bright_field_as_phase(frame, microscope.modality)) is not None:
+    if (note := modality_doubt(frame, microscope.modality)) is not None:
         notes.append(note)
 
     accepted = set(inspect.signature(fit_scene).parameters)
@@ -492,12 +492,12 @@ def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, ke
     """Check, fit and prepare the outputs of one frame: returns (writers, result,
     problems) as :func:`_outputs_one`."""
     from napari_symbac.fit import fit_colony, fit_scene
-    from napari_symbac.fit.preflight import BRIGHT_FIELD_NOTE
+    from napari_symbac.fit.preflight import BRIGHT_FIELD_NOTE, PHASE_NOTE
     from napari_symbac.fit.report import OPEN_PHASE_NOTE
 
     prepared = _prepare_one(args, frame, labels, masks, microscope, base, keys)
     for note in prepared.notes:  # before a fit that may take minutes, not after
-        if note in (OPEN_PHASE_NOTE, BRIGHT_FIELD_NOTE):
+        if note in (OPEN_PHASE_NOTE, BRIGHT_FIELD_NOTE, PHASE_NOTE):
             print(f"napari-symbac fit: note: {note}", file=stages.stream, flush=True)
     what = "colony from its masks, partially coherent phase model, " * prepared.colony
     stages.stage(f"fitting frame {index} ({what}{frame.shape[0]} x {frame.shape[1]} px)")

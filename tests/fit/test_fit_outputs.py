@@ -13,12 +13,12 @@ import tifffile
 from napari_symbac.figure_layout import panel_scale
 from napari_symbac.fit.figure import before_after_figure
 from napari_symbac.fit.preflight import (
-    bright_field_as_phase,
     check_class_labels,
     check_fit_image,
     check_instance_masks,
     check_modality,
     image_polarity,
+    modality_doubt,
     resolve_pixel_size,
 )
 from napari_symbac.fit.report import cells_records, fit_problems, report_text, write_atomically
@@ -48,15 +48,32 @@ def test_bright_field_given_as_phase_is_noted(real_data_dir):
     reads the same, so it is not refused), and the real phase colonies get none."""
     root = real_data_dir / "colicoords" / "test_data" / "ds1"
     brightfield = tifffile.imread(root / "brightfield" / "00001.tif")
-    note = bright_field_as_phase(brightfield, "phase")
+    note = modality_doubt(brightfield, "phase")
     assert note is not None
     assert "if it is bright field, pass --modality brightfield" in note
-    assert bright_field_as_phase(brightfield, "brightfield") is None
+    assert modality_doubt(brightfield, "brightfield") is None
     for colony in ("Sample000033", "Sample000193", "Sample000252"):  # phase, halos
         image = np.asarray(iio.imread(real_data_dir / "omnipose" / f"{colony}.png"))
-        assert bright_field_as_phase(image if image.ndim == 2 else image[..., 0], "phase") is None
+        assert modality_doubt(image if image.ndim == 2 else image[..., 0], "phase") is None
     trench = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")
-    assert bright_field_as_phase(trench, "phase") is None
+    assert modality_doubt(trench, "phase") is None
+
+
+def test_phase_contrast_given_as_bright_field_is_noted(real_data_dir):
+    """Found as a user: SyMBac's phase trench fitted as bright field ended with exit 0
+    and no word; its bright halos beside dark cells are phase contrast's look, which
+    ColiCoords' bright-field fields (2 noise SDs above their median at most) lack."""
+    trench = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")
+    assert "if it is phase contrast, pass --modality phase" in modality_doubt(
+        trench, "brightfield"
+    )
+    for colony in ("Sample000033", "Sample000193", "Sample000252"):
+        image = np.asarray(iio.imread(real_data_dir / "omnipose" / f"{colony}.png"))
+        grey = image if image.ndim == 2 else image[..., 0]
+        assert modality_doubt(grey, "brightfield") is not None
+    for field in ("00001", "00002", "00003", "00004"):
+        root = real_data_dir / "colicoords" / "test_data" / "ds1" / "brightfield"
+        assert modality_doubt(tifffile.imread(root / f"{field}.tif"), "brightfield") is None
 
 
 def test_labels_settle_the_polarity():

@@ -513,11 +513,11 @@ def calibrate(
     from napari_symbac.fit.camera_estimate import censored_pixels, image_bit_depth
     from napari_symbac.fit.masks import estimate_pixel_size_um
     from napari_symbac.fit.preflight import (
-        bright_field_as_phase,
         check_class_labels,
         check_fit_image,
         check_instance_masks,
         check_modality,
+        modality_doubt,
     )
 
     frame = np.asarray(image)
@@ -533,7 +533,7 @@ def calibrate(
         masks = instance_masks(masks)
     check_modality(frame, microscope.modality, labels=labels, masks=masks)
     notes = []
-    if (note := bright_field_as_phase(frame, microscope.modality)) is not None:
+    if (note := modality_doubt(frame, microscope.modality)) is not None:
         notes.append(note)
     if pixel_note is None:
         pixel_note = f"pixel size {microscope.pixel_size_um:.4g} um from microscope"

@@ -24,12 +24,12 @@ __all__ = [
     "MAX_FIT_PIXELS",
     "MAX_ROD_FILL",
     "MODALITY_ADVICE",
+    "PHASE_NOTE",
     "PLAUSIBLE_PIXEL_UM",
     "TRENCH_MAX_WIDTH_PX",
     "TRENCH_MIN_ASPECT",
     "ModalityAdvice",
     "as_instance_ids",
-    "bright_field_as_phase",
     "camera_pixel_problem",
     "camera_recording_problem",
     "check_class_labels",
@@ -40,6 +40,7 @@ __all__ = [
     "default_geometry",
     "image_polarity",
     "looks_like_masks",
+    "modality_doubt",
     "refuse_constant",
     "refuse_image_as_masks",
     "refuse_merged_cells",
@@ -167,17 +168,24 @@ def image_polarity(image: np.ndarray) -> Polarity:
     median and 13-300 above; their bright-field fields 16-29 below and 2 above; phase
     contrast (SyMBac trench, Omnipose colonies) 13-73 below and 24-94 above.
     """
-    frame = np.asarray(image, np.float64)
-    sd = _noise_sd(frame)
-    low, median, high = np.percentile(frame, [0.5, 50.0, 99.5])
-    if not sd > 0:
+    below, above = _tails(np.asarray(image, np.float64))
+    if not (math.isfinite(below) and math.isfinite(above)):
         return "unclear"
-    below, above = (median - low) / sd, (high - median) / sd
     if below < _NEAR and above > _FAR:
         return "bright cells"
     if above < _NEAR and below > _FAR:
         return "dark cells"
     return "unclear"
+
+
+def _tails(frame: np.ndarray) -> tuple[float, float]:
+    """How far the image's 0.5th and 99.5th percentiles lie below and above its median,
+    in noise SDs (:func:`image_polarity`); ``nan`` for an image without noise."""
+    sd = _noise_sd(frame)
+    if not sd > 0:
+        return math.nan, math.nan
+    low, median, high = np.percentile(frame, [0.5, 50.0, 99.5])
+    return (median - low) / sd, (high - median) / sd
 
 
 def _class_polarity(image: np.ndarray, cells: np.ndarray, background: np.ndarray) -> Polarity:
@@ -337,28 +345,41 @@ def check_class_labels(labels: np.ndarray, shape: tuple[int, ...], name: str = "
         raise ValueError(f"{name} has no cell class (1): paint at least one cell as 1")
 
 
-def bright_field_as_phase(frame: np.ndarray, modality: str) -> str | None:
-    """A note when an image given as phase contrast looks like bright field, else ``None``.
+def modality_doubt(frame: np.ndarray, modality: str) -> str | None:
+    """A note when the image looks like another transmitted-light modality than the one
+    given, else ``None``: :data:`BRIGHT_FIELD_NOTE` or :data:`PHASE_NOTE`.
 
     Phase contrast shows bright halos beside its dark cells, bright field dark objects
     and nothing brighter than its background (:func:`image_polarity`: ColiCoords' bright
-    field reaches 2 noise SDs above its median at most, the real phase images here
+    field fields reach 2 noise SDs above their median at most, the real phase images here
     24-737). Found as a user: ColiCoords' bright field calibrated as phase failed after
-    its fit with a saturated dataset. Only a note, not a refusal: a phase image of a few
+    its fit with a saturated dataset, and SyMBac's phase trench fitted as bright field
+    ended with exit 0 and no word. Only a note, not a refusal: a phase image of a few
     cells with faint halos (the project's own sparse renders with the linear kernel)
-    reads the same.
+    reads as bright field, and a bright-field crop around a cell out of focus (ColiCoords'
+    ``01``: 35 SDs above) shows a bright centre as phase shows a halo.
     """
-    if modality != "phase" or image_polarity(frame) != "dark cells":
-        return None
-    return BRIGHT_FIELD_NOTE
+    if modality == "phase" and image_polarity(frame) == "dark cells":
+        return BRIGHT_FIELD_NOTE
+    if modality == "brightfield" and image_polarity(frame) == "unclear":
+        below, above = _tails(np.asarray(frame, np.float64))
+        if below > _FAR and above > _FAR:
+            return PHASE_NOTE
+    return None
 
 
-#: What :func:`bright_field_as_phase` says (a constant: the fit says it first, before a
-#: fit that may take minutes, and finds it among its notes by it).
+#: What :func:`modality_doubt` says of phase contrast that looks like bright field (a
+#: constant: the fit says it first, before a fit that may take minutes, and finds it
+#: among its notes by it).
 BRIGHT_FIELD_NOTE = (
     "the image shows dark objects and nothing brighter than its background, no phase "
     "halo: if it is bright field, pass --modality brightfield (phase contrast fitted to "
     "a bright-field image saturates its synthetic images)"
+)
+#: What :func:`modality_doubt` says of bright field that looks like phase contrast.
+PHASE_NOTE = (
+    "the image shows bright objects beside its dark ones, as phase contrast's halos are "
+    "(or bright-field cells out of focus): if it is phase contrast, pass --modality phase"
 )
 
 
