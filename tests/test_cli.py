@@ -79,6 +79,31 @@ def test_a_pixel_size_the_files_disagree_on_is_settled_by_the_flag(command, tmp_
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize("command", ["fit", "diagnose", "calibrate"])
+def test_without_a_microscope_file_the_pixel_size_is_asked_for(command, tmp_path, capsys):
+    """Found as a user: --pixel-size-um given, and still "the following arguments are
+    required: --microscope". The file is optional: without it the default optics, said
+    in a note, and a pixel size from the image or --pixel-size-um."""
+    image = tmp_path / "bare.tif"
+    tifffile.imwrite(image, np.random.default_rng(0).poisson(500, (64, 32)).astype(np.uint16))
+    assert main([command, str(image), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "neither the image nor --microscope gives the pixel size: pass --pixel-size-um" in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_fit_without_a_microscope_file_says_which_optics_it_took(tmp_path, real_data_dir, capsys):
+    image = tmp_path / "trench.tif"
+    trench = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")[:96]
+    tifffile.imwrite(image, trench)
+    out = tmp_path / "fit"
+    args = ["fit", str(image), "--pixel-size-um", "0.065", "--max-iterations", "1"]
+    assert main([*args, "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "note: no --microscope: the default optics (NA 1.45, wavelength 0.65 um" in err
+    assert "pixel size 0.065 um from --pixel-size-um" in (out / "report.txt").read_text()
+
+
 def test_console_script_is_installed():
     result = subprocess.run(
         [Path(sys.executable).with_name("napari-symbac"), "--version"],

@@ -76,7 +76,9 @@ def _settings_notes(notes: tuple[str, ...], mapping: CountsMapping | None) -> li
     return [*marked, counts_units_note(mapping)]
 
 
-def _refuse_a_trench(image: np.ndarray, modality: str, path: str, microscope: str) -> None:
+def _refuse_a_trench(
+    image: np.ndarray, modality: str, path: str, microscope: str | None
+) -> None:
     """calibrate lays a field out as an agar pad; a mother-machine trench (a phase image
     at most :data:`~napari_symbac.fit.preflight.TRENCH_MAX_WIDTH_PX` wide and twice as
     tall, the fit's own rule, :func:`~napari_symbac.fit.preflight.default_geometry`) is
@@ -87,13 +89,13 @@ def _refuse_a_trench(image: np.ndarray, modality: str, path: str, microscope: st
 
     if default_geometry(image.shape, modality) == "trench":
         name = Path(path).name
+        given = "" if microscope is None else f" --microscope {microscope}"
         raise ValueError(
             f"IMAGE {name} is {image.shape[-2]} x {image.shape[-1]} px (rows x columns), "
             "narrow and tall: a mother-machine trench, which "
             "calibrate does not lay out (it matches fields: agar pads and colonies). Fit the "
-            f"trench and export from its settings: `napari-symbac fit {path} --microscope "
-            f"{microscope} --out FIT`, then `napari-symbac export --config FIT/settings.yaml --out "
-            "DATASET`"
+            f"trench and export from its settings: `napari-symbac fit {path}{given} --out "
+            "FIT`, then `napari-symbac export --config FIT/settings.yaml --out DATASET`"
         )
 
 
@@ -310,7 +312,9 @@ def run_calibrate(args: argparse.Namespace) -> int:
             os.replace(entry, out / entry.name)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
-    print(f"{calibration.method}: {m.summary(px, modality_used)}")
+    # the masks' measurement, said as such (found as a user: "scene fit: 8 cells; ...
+    # width 1.52 um" read as the fit's width, which the dataset draws at 1.32 um)
+    print(f"{calibration.method}; masks.tif measures {m.summary(px, modality_used)}")
     print(f"real against synthetic: {comparison.verdict()} (report.txt says per quantity)")
     print(f"wrote dataset/ ({report.n_items} items, {', '.join(settings.formats)}), report.txt, "
           f"report.png, export_settings.yaml, masks.tif to {out}")

@@ -528,8 +528,7 @@ def _outputs_one(
     import tifffile
 
     from napari_symbac.export.atomic import tiff_metadata
-    from napari_symbac.fit.camera_estimate import censored_pixels
-    from napari_symbac.fit.clipped_background import clipped_background, drawn_clipped
+    from napari_symbac.fit.clipped_background import drawn_clipped, fitted_clip
     from napari_symbac.fit.figure import before_after_figure
     from napari_symbac.fit.fitted_settings import (
         fitted_render,
@@ -572,10 +571,8 @@ def _outputs_one(
         settings = dataclasses.replace(
             settings, extra_stages=with_illumination(settings.extra_stages, result)
         )
-    if microscope.modality == "fluorescence" and not prepared.colony:
-        clipped = clipped_background(
-            frame, result.scene.camera_labels() > 0, censored_pixels(frame, camera)
-        )
+    if not prepared.colony:
+        clipped = fitted_clip(frame, result.scene, camera, microscope.modality)
         if clipped is not None:  # settings.yaml draws the recording's clipped background
             settings, sentence = drawn_clipped(settings, clipped, noise=camera is None)
             notes.append(sentence)

@@ -478,6 +478,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from napari_symbac.diagnose.stages import drawn_by_export, refitted_render, updated_settings
     from napari_symbac.export.atomic import earlier_run, remove_earlier_run
     from napari_symbac.fit import fit_scene
+    from napari_symbac.fit.clipped_background import drawn_clipped, fitted_clip
     from napari_symbac.fit.colony import is_dense_colony
     from napari_symbac.fit.fitted_settings import fitted_or_kept
     from napari_symbac.fit.preflight import (
@@ -682,6 +683,13 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         if held:
             doc["notes"].append(held)
             print(f"note: {held}", file=sys.stderr)
+        base = PipelineSettings(simulation, microscope, final_render, camera)
+        accepted = [(e.name, e.params) for e in result.accepted]
+        settings, extra = updated_settings(base, accepted)
+        clipped = fitted_clip(stack[0], first_fit.scene, camera, microscope.modality)
+        if clipped is not None:  # the recording's clipped background, as fit draws it
+            settings, sentence = drawn_clipped(settings, clipped, noise=config.camera is None)
+            doc["notes"].append(f"settings.yaml: {sentence}")
         (out / "diagnosis.json").write_text(json.dumps(doc, indent=2, default=float))
         start = doc["start"]["from"] + (f" ({Path(args.masks).name})" if masks is not None else "")
         context = [
@@ -698,9 +706,6 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             _diagnose_report(result.report(), mapping, out, context, problems)
         )
         figures = write_figures(result, stack, out, name=Path(args.image).name)
-        base = PipelineSettings(simulation, microscope, final_render, camera)
-        accepted = [(e.name, e.params) for e in result.accepted]
-        settings, extra = updated_settings(base, accepted)
         save_settings(settings, out / "settings.yaml")
         stages_text = yaml.safe_dump({"extra_stages": extra}, sort_keys=False)
         (out / "extra_stages.yaml").write_text(stages_text)
@@ -908,7 +913,9 @@ MICROSCOPE_HELP = (
     "microscope YAML/JSON: modality, pixel_size_um, numerical_aperture, refractive_index, "
     "wavelength_um, condenser, and optionally a camera section (baseline_adu, "
     "sensitivity_adu_per_e, dark_noise_e; without it the camera is measured from the "
-    "image); write one to edit with `napari-symbac defaults microscope --out M.yaml`"
+    "image); write one to edit with `napari-symbac defaults microscope --out M.yaml` "
+    "(without it: the default optics, a note says which, and the pixel size from the "
+    "image or --pixel-size-um)"
 )
 
 
@@ -1151,7 +1158,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="real image (TIFF or PNG; a colour PNG of equal channels is read as grey): one "
         "frame or a (T, Y, X) series",
     )
-    fit.add_argument("--microscope", required=True, help=MICROSCOPE_HELP)
+    fit.add_argument("--microscope", help=MICROSCOPE_HELP)
     fit.add_argument("--pixel-size-um", type=float, help=PIXEL_SIZE_HELP)
     fit.add_argument("--out", required=True, help="output folder")
     start = fit.add_mutually_exclusive_group()
@@ -1254,7 +1261,7 @@ def build_parser() -> argparse.ArgumentParser:
         "its masks or labels when they are a series too); required for a series"
     )
     cal.add_argument("--channel", type=_whole_number(0), help=CHANNEL_HELP)
-    cal.add_argument("--microscope", required=True, help=MICROSCOPE_HELP)
+    cal.add_argument("--microscope", help=MICROSCOPE_HELP)
     cal.add_argument("--out", required=True, help="output folder (new or empty)")
     cal_start = cal.add_mutually_exclusive_group()
     cal_start.add_argument("--masks", help="instance masks TIFF (0 background, 1..N cells)")
@@ -1305,7 +1312,7 @@ def build_parser() -> argparse.ArgumentParser:
         "series): the base fit starts from these cells, as `fit --masks` does (cells too "
         "faint or too crowded for the automatic start)",
     )
-    diag.add_argument("--microscope", required=True, help=MICROSCOPE_HELP)
+    diag.add_argument("--microscope", help=MICROSCOPE_HELP)
     diag.add_argument("--pixel-size-um", type=float, help=PIXEL_SIZE_HELP)
     diag.add_argument(
         "--modality",

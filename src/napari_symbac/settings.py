@@ -1293,10 +1293,12 @@ def load_microscope(path: str | Path) -> Microscope:
     return load_microscope_file(path).microscope
 
 
-def microscope_sets_pixel_size(path: str | Path) -> bool:
+def microscope_sets_pixel_size(path: str | Path | None) -> bool:
     """Whether the microscope file at ``path`` gives a pixel size (``pixel_size_um``; the
     spelling of ``napari-symbac diagnose``, with ``NA``, requires it), rather than leaving
-    :class:`Microscope`'s default of 0.065 um."""
+    :class:`Microscope`'s default of 0.065 um; ``False`` without a file."""
+    if path is None:
+        return False
     data = read_settings_mapping(path)
     return isinstance(data, dict) and ("pixel_size_um" in data or "NA" in data)
 

@@ -338,6 +338,14 @@ def test_compare_images_sees_a_spectrum_difference(colicoords_crop):
     other = compare_images(image, masks, noisy, masks)
     assert other.spectrum_log_ratio > 0.3
     assert other.noise[1] > 2 * other.noise[0]
+    (noise,) = [c for c in other.checks() if c.quantity == "background noise"]
+    assert "give the real camera (--camera C.yaml)" in noise.advice
+    # the least noise a dataset draws (an 8-bit colony's is under one grey level): said,
+    # not a camera asked for (found as a user: no PNG has one to give)
+    floored = compare_images(image, masks, noisy, masks, sub_level_noise=True)
+    (noise,) = [c for c in floored.checks() if c.quantity == "background noise"]
+    assert noise.advice.startswith("the recording's noise is under one grey level")
+    assert "--camera" not in noise.advice
     f, p = radial_power(image)
     assert f.size == p.size
     assert p.sum() == pytest.approx(1.0)

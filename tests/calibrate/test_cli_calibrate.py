@@ -258,9 +258,12 @@ def test_calibrate_from_painted_labels(colicoords_files, capsys):
         ["calibrate", str(d / "flu.tif"), "--labels", str(d / "labels.tif"), "--microscope",
          str(d / "m80.yaml"), "--modality", "fluorescence", "--out", str(out), "--n-items", "2"]
     )
-    assert code == 0, capsys.readouterr().err
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
     report = (out / "report.txt").read_text()
     assert "no masks: sizes from the fit's cells on the crop" in report
+    # what was measured, said as a measurement of masks.tif, not as the fit's sizes
+    assert "; masks.tif measures " in printed.out
     fitted = tifffile.imread(out / "masks.tif")
     assert len(np.unique(fitted)) - 1 >= 1  # the fit's own cells were measured
     # the simulated field is the whole image, with the image's clusters, not the crop's

@@ -297,6 +297,14 @@ def test_diagnose_says_when_the_noise_is_correlated(tmp_path, capsys, real_data_
     assert "its noise is correlated between neighbours" in err
     notes = json.loads((out / "diagnosis.json").read_text())["notes"]
     assert any("correlated between neighbours" in note for note in notes)
+    # its background, clipped at 0 by background subtraction, drawn as fit draws it
+    # (found as a user: settings.yaml kept the unclipped level, its export had 2.5 % of
+    # pixels at 0 against the recording's 19.5 %)
+    assert any(n.startswith("settings.yaml: background clipped at 0 ADU") for n in notes)
+    settings = load_settings(out / "settings.yaml", PipelineSettings)
+    assert [s.name for s in settings.extra_stages].count("saturation") == 1
+    real = tifffile.imread(image).astype(float)
+    assert settings.render.media_intensity < np.median(real[real > 0])
 
 
 @pytest.mark.parametrize(("n_frames", "region"), [(1, None), (2, None), (1, " Centre")])

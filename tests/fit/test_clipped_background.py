@@ -68,3 +68,18 @@ def test_a_given_camera_keeps_its_read_noise():
     assert settings.camera == camera
     assert settings.render.media_intensity == pytest.approx(clipped.mean_adu - 1.0)
     assert "read noise" not in sentence
+
+
+def test_the_clip_at_zero_replaces_a_low_clip_and_keeps_a_saturated_top():
+    """diagnose may accept a camera saturated at its top beside the background clipped at
+    0: the settings draw both (the clip at 0 once)."""
+    from napari_symbac.fit.clipped_background import ClippedBackground, with_clip
+    from napari_symbac.settings import ExtraStage
+
+    top = ExtraStage("saturation", {"clip_level_adu": 4095.0, "high": True})
+    low = ExtraStage("saturation", {"clip_level_adu": 3.0, "high": False})
+    stages = with_clip([top, low], ClippedBackground(0.0, 0.2, 20.0, 9.0))
+    assert [dict(s.parameters) for s in stages] == [
+        {"clip_level_adu": 4095.0, "high": True},
+        {"clip_level_adu": 0.0, "high": False},
+    ]

@@ -192,6 +192,31 @@ def test_a_cell_width_enters_the_pixel_size_for_every_layer(
     assert dock.simulate.recording.value is recording
 
 
+def test_a_cell_width_that_contradicts_the_entered_pixel_size_is_refused(
+    make_napari_viewer, real_data_dir
+):
+    """Found as a user: 0.065 um entered for an Omnipose colony, then a cell width of
+    1 um: Calibrate ran at the 0.134 um the width gave and drew its layers at twice the
+    recording's scale, without a word. Now the pair is refused, naming both fixes."""
+    import imageio.v3 as iio
+
+    colony = real_data_dir / "omnipose" / "Sample000033.png"
+    image = np.asarray(iio.imread(colony))
+    masks = tifffile.imread(colony.with_name("Sample000033_cp_masks.tif"))
+    viewer, widget = _viewer_with(make_napari_viewer, image[..., 0], masks)
+    viewer.layers["field"].metadata = {"pixel_size_um": 0.065, "modality": "phase"}
+    widget.masks.value = viewer.layers["field masks"]
+    widget.cell_width_um.value = 1.0
+    widget.run_button.native.click()
+    assert widget.worker is None
+    status = widget.status.value
+    assert "field has a pixel size of 0.065 um, and a cell width of 1 um makes it 0.1" in status
+    assert "set the cell width to 0 to calibrate at 0.065 um" in status
+    assert "enter 0.1336 um in the 1 Recording tab" in status
+    assert status.endswith("if the cells are 1 um wide")
+    assert calibrated_layer_name("field") not in viewer.layers
+
+
 def test_calibrate_uses_the_camera_given_in_the_recording_step(make_napari_viewer, qtbot, field):
     """The camera given in the Recording step (layer metadata ``camera``) is the one
     calibrate uses, and the status says which camera the matched settings hold (found as

@@ -187,6 +187,56 @@ def test_retyping_the_pixel_size_warns_only_when_it_is_entered(
     assert layer.metadata["pixel_size_um"] == pytest.approx(0.08)
 
 
+def test_the_view_follows_a_pixel_size_entered_after_simulate(
+    make_napari_viewer, qtbot, tmp_path, real_data_dir
+):
+    """Found as a user: the trench opened without a pixel size, Simulate run, then 0.065
+    entered: every layer moved into micrometres (15 times smaller) and the view stayed,
+    a speck in a corner of a black canvas. Now the view is reset as the layers move."""
+    from napari_symbac._widgets.simulate import RESULT_IMAGE_LAYER, SimulateWidget
+
+    bare = tmp_path / "bare.tif"
+    tifffile.imwrite(bare, tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff"))
+    viewer = make_napari_viewer()
+    real_image, simulate = RealImageWidget(viewer), SimulateWidget(viewer)
+    viewer.window.add_dock_widget(real_image)
+    real_image.file.value = bare
+    simulate.form.n_frames.value = 4
+    simulate.run_button.native.click()
+    qtbot.waitUntil(lambda: RESULT_IMAGE_LAYER in viewer.layers, timeout=120_000)
+    qtbot.waitUntil(lambda: simulate.worker is None, timeout=10_000)
+    in_pixels = viewer.camera.zoom
+    real_image.pixel_size.value = 0.065
+    entered = viewer.camera.zoom
+    assert entered > 5 * in_pixels  # zoomed in on the layers now 15 times smaller
+    viewer.reset_view()
+    assert viewer.camera.zoom == pytest.approx(entered)
+
+
+def test_an_image_opened_beside_the_recording_is_shown_and_asked_its_pixel_size(
+    make_napari_viewer, tmp_path, real_data_dir, notifications
+):
+    """Found as a user: with the trench chosen (0.065 um), DeLTA's trench opened with the
+    plugin's reader got no "no pixel size" prompt: the dock stayed on the trench and the
+    new layer sat in pixels beside the layers in micrometres."""
+    bare = tmp_path / "bare.tif"
+    tifffile.imwrite(bare, tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff"))
+    viewer = make_napari_viewer()
+    widget = RealImageWidget(viewer)
+    viewer.window.add_dock_widget(widget)
+    widget.file.value = bare
+    widget.pixel_size.value = 0.065
+    assert widget.warning.value == ""
+    (second,) = viewer.open(
+        real_data_dir / "ecoli_delta_phase_normalised.tiff", plugin="napari-symbac"
+    )
+    assert widget.image.value is second
+    assert widget.pixel_size.value == 0
+    assert "no pixel size" in widget.warning.value
+    viewer.add_image(np.zeros((8, 8, 4), np.uint8), name="mask", metadata={"symbac": {}})
+    assert widget.image.value is second  # a layer the plugin made is no recording
+
+
 def test_measured_means_are_kept_with_the_layer(make_napari_viewer):
     rng = np.random.default_rng(3)
     image = rng.normal(1100, 10, (40, 30))

@@ -54,6 +54,12 @@ CALIBRATION_KEY = "calibration"
 CALIBRATED_TO_KEY = "calibrated_to"
 
 
+#: How far the pixel size a cell width gives from the masks may lie from the
+#: recording's own before Calibrate refuses the pair (a species' width is known to
+#: about 10 %).
+CELL_WIDTH_TOLERANCE = 0.15
+
+
 def calibrated_layer_name(recording: str) -> str:
     """The layer of a calibration's dataset item 0."""
     return f"synthetic (calibrated to {recording})"
@@ -217,6 +223,20 @@ class CalibrateWidget(Container):
                 "masks too (or set the width to 0 to use the recording's pixel size)"
             )
         problem = pixel_size_problem(layer_pixel_size_um(layer))
+        if width is not None and problem is None:  # both: they must agree (found as a
+            # user: 0.065 um entered, a width of 1 um gave 0.134 um, and the calibrated
+            # layers were drawn at twice the recording's scale without a word)
+            from napari_symbac.fit.masks import estimate_pixel_size_um
+
+            given, measured = layer_pixel_size_um(layer), estimate_pixel_size_um(masks, width)
+            if abs(measured / given - 1) > CELL_WIDTH_TOLERANCE:
+                raise ValueError(
+                    f"{layer.name} has a pixel size of {given:.4g} um, and a cell width of "
+                    f"{width:g} um makes it {measured:.4g} um from the masks: set the cell "
+                    f"width to 0 to calibrate at {given:.4g} um, or enter {measured:.4g} um "
+                    f"in {RECORDING_STEP} if the cells are {width:g} um wide"
+                )
+            width = None  # they agree: the recording's
         if width is not None:
             microscope = layer.metadata.get("microscope") or Microscope()
             microscope = dataclasses.replace(

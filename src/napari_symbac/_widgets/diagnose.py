@@ -366,6 +366,7 @@ class DiagnoseWidget(Container):
             from napari_symbac.diagnose.run import diagnose
             from napari_symbac.diagnose.stages import refitted_render
             from napari_symbac.fit import fit_scene
+            from napari_symbac.fit.clipped_background import fitted_clip
             from napari_symbac.fit.fitted_settings import fitted_or_kept
             from napari_symbac.fit.report import camera_text, measured_camera_note
 
@@ -412,7 +413,10 @@ class DiagnoseWidget(Container):
                 if camera is None
                 else f"camera given in the Recording step: {camera_text(camera)}"
             )
-            return fit, result, final, (*exported, layout != tuple(full)), camera_note
+            # the recording's clipped background, as fit and the command draw it
+            clipped = fitted_clip(frame, fit.scene, fit.camera, microscope.modality)
+            exported = (*exported, layout != tuple(full))
+            return fit, result, final, exported, camera_note, (clipped, camera is None)
 
         self.worker = Job(
             lambda: (yield from blocking_steps(compute, cancelled.is_set)),
@@ -499,9 +503,11 @@ class DiagnoseWidget(Container):
 
     def _on_returned(self, output) -> None:
         from napari_symbac.diagnose.stages import updated_settings
+        from napari_symbac.fit.clipped_background import drawn_clipped
         from napari_symbac.settings import PipelineSettings
 
-        fit, result, (final_render, held), (simulation, kept, windowed), camera_note = output
+        fit, result, (final_render, held), exported, camera_note, (clipped, noise) = output
+        simulation, kept, windowed = exported
         self.result = result
         camera = fit.camera
         base = PipelineSettings(
@@ -511,6 +517,8 @@ class DiagnoseWidget(Container):
             camera=camera,
         )
         settings, extra = updated_settings(base, [(e.name, e.params) for e in result.accepted])
+        if clipped is not None:  # the recording's background clipped at 0, as drawn
+            settings, _ = drawn_clipped(settings, clipped, noise=noise)
         layer = self._layer
         scale = tuple(layer.scale[-2:])
         y0, _, x0, _ = self._region  # the layers sit over the window diagnosed

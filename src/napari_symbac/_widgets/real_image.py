@@ -187,6 +187,7 @@ class RealImageWidget(Container):
         viewer.layers.events.inserted.connect(self._place_over_recording)
         viewer.layers.events.inserted.connect(self._follow_image_in_pixels)
         viewer.layers.events.inserted.connect(self.image.reset_choices)
+        viewer.layers.events.inserted.connect(self._follow_opened)
         viewer.layers.events.removed.connect(self.image.reset_choices)
         watch_recordings(viewer, self._show_entered)
         self.statistics = None
@@ -437,6 +438,19 @@ class RealImageWidget(Container):
         if isinstance(layer, Image) and not _is_synthetic(layer) and in_pixel_units(layer):
             _follow_pixels(self.viewer)
 
+    def _follow_opened(self, event) -> None:
+        """An image the user opens (File > Open, drag and drop) without a pixel size
+        becomes the one this dock shows, where its pixel size is asked for (found as a
+        user: a second TIFF opened beside the trench got no "no pixel size" prompt and
+        sat in pixels beside the layers in micrometres). One that has its pixel size
+        leaves the dock's choice as it is (a sample of two channels: the first one
+        chosen). A colour image is followed through its grey channel, added before it."""
+        layer = event.value
+        if getattr(layer, "rgb", False) or layer not in self.image.choices:
+            return
+        if not (layer.metadata.get("pixel_size_um") or scale_pixel_um(layer)):
+            self.image.value = layer
+
     def _add_grey_channel(self, event) -> None:
         """A grey image saved as colour (equal red, green and blue: the Omnipose and
         Cellpose datasets' PNGs, which napari opens as RGBA) gets its grey channel as a
@@ -622,6 +636,7 @@ def enter_pixel_size(viewer, layer, microscope: Microscope) -> None:
     warned "Inconsistent units across layers").
     """
     pixel = float(microscope.pixel_size_um)
+    was_in_pixels = _in_pixels(layer)
     layer.metadata = {
         **layer.metadata,
         "pixel_size_um": pixel,
@@ -631,7 +646,10 @@ def enter_pixel_size(viewer, layer, microscope: Microscope) -> None:
     for target in [layer, *_overlays(viewer, layer)]:
         _place_in_micrometres(target, pixel)
     _move_simulation(viewer, to_micrometres=True)
-    if not any(_is_synthetic(other) for other in viewer.layers):
+    # from pixels into micrometres everything shrinks some 15 times: the view follows
+    # (found as a user: after Simulate, entering the pixel size left a speck in a corner
+    # of a black canvas); a corrected pixel size moves little, and the view stays
+    if was_in_pixels or not any(_is_synthetic(other) for other in viewer.layers):
         viewer.reset_view()
 
 

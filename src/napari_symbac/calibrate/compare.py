@@ -221,6 +221,7 @@ class Comparison:
     band_coefficients: np.ndarray | None = field(default=None, repr=False)
     masks_given: bool = False
     words: AdviceWords = CLI_WORDS
+    sub_level_noise: bool = False
 
     def _masks_advice(self, why: str) -> str:
         """``pass --masks ... (why), and `` unless they were given."""
@@ -282,6 +283,16 @@ class Comparison:
             f"the noise differs: {self.words.camera} and check the pixel size (noise per "
             "pixel scales with it)"
         )
+        if not matched and self.sub_level_noise and synthetic > real:  # found as a user:
+            # an 8-bit colony was told to give a camera that no PNG has
+            from napari_symbac.fit.colony import MIN_NOISE_ADU
+
+            advice = (
+                "the recording's noise is under one grey level (quantised, as in an 8-bit "
+                "export), where a noise drawn and then rounded reads higher than it was "
+                f"drawn; the dataset draws at least {MIN_NOISE_ADU:g} ADU so that its "
+                "images are not flat; no camera given would change that"
+            )
         return Check("background noise", matched, finding, advice)
 
     def _spectrum_check(self) -> Check:
@@ -388,6 +399,7 @@ def compare_images(
     n_bins: int = 16,
     masks_given: bool = False,
     words: AdviceWords = CLI_WORDS,
+    sub_level_noise: bool = False,
 ) -> Comparison:
     """Compare a real image and a synthetic one, or several (module notes); shapes may
     differ.
@@ -400,7 +412,10 @@ def compare_images(
     (ColiCoords' bright field: -0.47 to -0.07 over 6 items of one calibration).
 
     ``masks_given``: ``real_masks`` are the user's (:attr:`Comparison.masks_given`);
-    ``words``: the interface's, in the advice (:attr:`Comparison.words`).
+    ``words``: the interface's, in the advice (:attr:`Comparison.words`);
+    ``sub_level_noise``: the synthetic images draw a Gaussian noise under one grey level
+    (at least :data:`~napari_symbac.fit.colony.MIN_NOISE_ADU`), which the advice then
+    names instead of a camera.
     """
     if isinstance(synthetic, np.ndarray) and synthetic.ndim == 2:
         synthetic, synthetic_labels = [synthetic], [synthetic_labels]
@@ -429,7 +444,7 @@ def compare_images(
     counts = np.minimum(band_coefficients(real.shape, n_bins), synthetic_counts)
     return Comparison(
         (rc, sc), (rb, sb), (rn, sn), f, pr, ps, min(r_pairs, s_pairs), counts, masks_given,
-        words,
+        words, sub_level_noise,
     )
 
 

@@ -1230,6 +1230,7 @@ def compare_with_dataset(
 
     source = PipelineSource(settings)
     items = [source.make_unit(unit)[0] for unit in range(min(n_items, settings.n_items))]
+    render = settings.pipeline.render
     comparison = compare_images(
         calibration.reference,
         calibration.masks,
@@ -1237,6 +1238,7 @@ def compare_with_dataset(
         [item.labels for item in items],
         masks_given=masks_given,
         words=CLI_WORDS if words is None else words,
+        sub_level_noise=render.noise_model == "gaussian" and render.gaussian_noise_sd_adu < 1,
     )
     return comparison, items
 

@@ -17,7 +17,13 @@ from napari_symbac.settings import (
     refuse_another_kind,
 )
 
-__all__ = ["NO_CAMERA_NOTE", "DiagnoseConfig", "load_microscope_file", "parse_microscope"]
+__all__ = [
+    "DEFAULT_OPTICS_NOTE",
+    "NO_CAMERA_NOTE",
+    "DiagnoseConfig",
+    "load_microscope_file",
+    "parse_microscope",
+]
 
 REQUIRED = ("modality", "pixel_size_um", "NA", "refractive_index", "wavelength_um")
 OPTIONAL = (
@@ -154,14 +160,31 @@ def _with_extras(
 DIAGNOSE_KEYS = ("camera", "trench_width_um", "frame_interval_s")
 
 
-def load_microscope_file(path: str | Path) -> DiagnoseConfig:
+#: What fit, calibrate and diagnose say when no microscope file is given.
+DEFAULT_OPTICS_NOTE = (
+    "no --microscope: the default optics (NA {na:g}, wavelength {wavelength:g} um, "
+    "refractive index {n:g}, condenser {condenser}); give yours in a file, which "
+    "`napari-symbac defaults microscope --out M.yaml` writes to edit"
+)
+
+
+def load_microscope_file(path: str | Path | None) -> DiagnoseConfig:
     """Read a JSON or YAML microscope file (``--microscope`` of fit, calibrate and
-    diagnose) and its camera section.
+    diagnose) and its camera section; without one (``None``), :class:`Microscope`'s
+    defaults, no camera and a note that says so (found as a user: a pixel size given
+    with ``--pixel-size-um`` still needed a file written first).
 
     Either :class:`~napari_symbac.settings.Microscope` fields as ``fit`` reads them (any
     may be left out and takes its default; an unknown key is named) plus the keys of
     :data:`DIAGNOSE_KEYS`, or diagnose's own spelling (``NA``, ...; :func:`parse_microscope`).
     """
+    if path is None:
+        scope = Microscope()
+        note = DEFAULT_OPTICS_NOTE.format(
+            na=scope.numerical_aperture, wavelength=scope.wavelength_um,
+            n=scope.refractive_index, condenser=scope.condenser,
+        )  # fmt: skip
+        return DiagnoseConfig(scope, None, notes=(note,))
     data = read_settings_mapping(path)
     if isinstance(data, dict) and "NA" in data:
         return parse_microscope(data, str(path))

@@ -38,6 +38,7 @@ __all__ = [
     "clipped_background",
     "clipped_render",
     "drawn_clipped",
+    "fitted_clip",
     "with_clip",
 ]
 
@@ -165,9 +166,30 @@ def clip_stage(clipped: ClippedBackground) -> ExtraStage:
 
 
 def with_clip(stages: Iterable[ExtraStage], clipped: ClippedBackground) -> tuple[ExtraStage, ...]:
-    """``stages`` with :func:`clip_stage` of ``clipped`` in place of any ``saturation``
-    stage they had (last, so that it clips the recorded values)."""
-    return (*(s for s in stages if s.name != "saturation"), clip_stage(clipped))
+    """``stages`` with :func:`clip_stage` of ``clipped`` in place of any low
+    ``saturation`` stage they had (last, so that it clips the recorded values); a clip
+    at the top (a saturated camera, which diagnose may accept) is kept."""
+
+    def low_clip(stage: ExtraStage) -> bool:
+        return stage.name == "saturation" and not bool(stage.parameters.get("high", True))
+
+    return (*(s for s in stages if not low_clip(s)), clip_stage(clipped))
+
+
+def fitted_clip(
+    frame: np.ndarray, scene, camera: Camera | None, modality: str
+) -> ClippedBackground | None:
+    """:func:`clipped_background` of a fluorescence ``frame`` around the cells of its
+    fitted ``scene`` (``None`` in other modalities): what ``fit``, ``diagnose`` and the
+    Diagnose dock draw their settings' background with (found as a user: diagnose's
+    settings.yaml kept the fit's unclipped media level, and its export had 2.5 % of
+    pixels at 0 against the recording's 19.5 %, median 45 against 28 ADU)."""
+    from napari_symbac.fit.camera_estimate import censored_pixels
+
+    if modality != "fluorescence":
+        return None
+    cells = scene.camera_labels() > 0
+    return clipped_background(frame, cells, censored_pixels(frame, camera))
 
 
 def drawn_clipped(

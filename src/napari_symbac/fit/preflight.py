@@ -699,10 +699,10 @@ def resolve_pixel_size(
     if not recorded:
         if not microscope_gives_it:
             raise ValueError(
-                "neither the image nor --microscope gives the pixel size: add "
-                "pixel_size_um to the microscope file, in um in the sample (the camera "
-                "pixel divided by the magnification: 6.5 um / 100x = 0.065)"
-                + (f"; {other_way}" if other_way else "")
+                "neither the image nor --microscope gives the pixel size: pass "
+                "--pixel-size-um P or add pixel_size_um to the microscope file, in um in "
+                "the sample (the camera pixel divided by the magnification: 6.5 um / 100x "
+                "= 0.065)" + (f"; {other_way}" if other_way else "")
             )
         check_pixel_size(given, "from --microscope; the image file records none")
         return microscope, (

@@ -188,8 +188,10 @@ def measured_camera_note(frame: Any, camera: Any) -> str:
             "; its noise is correlated between neighbours (lag-2 / lag-1 variance "
             f"{estimate.neighbour_variance_ratio:.2f}, 1 for white noise), so a gain measured "
             "from one image is biased by about that factor, and camera_noise and the "
-            "held-out gains assume independent pixels: give the camera or dark frames"
-        )
+            "held-out gains assume independent pixels: give the camera (a camera "
+            "section in the microscope file, or the Recording step's camera), e.g. the "
+            "one `napari-symbac fit IMAGE --dark DARK.tif` writes to its settings.yaml"
+        )  # found as a user: "or dark frames", which diagnose does not take
     return note
 
 
