@@ -1155,7 +1155,14 @@ def test_a_camera_the_image_cannot_check_is_a_problem(real_data_dir):
     check, problem = model_free_camera_check(grey.astype(np.float64), fitted, CLI_CAMERA_FIX)
     assert check.startswith("not available (the pixel variance does not grow with the mean")
     assert problem is not None
-    assert problem.startswith("the fit's camera (0.001 ADU/e-, read noise 1.36e+03 e-) cannot be")
+    # the placeholder gain said as the constant noise it draws (found as a user: "0.001
+    # ADU/e-, read noise 2.77e+04 e-" read as a camera)
+    assert problem.startswith("the fit's camera (no gain, a constant noise of 1.36 ADU s.d.)")
+    from napari_symbac.fit.report import camera_text
+
+    assert camera_text(fitted) == (
+        "no gain measurable: a constant noise of 1.36 ADU s.d., baseline 4.0 ADU, 16 bits"
+    )
     assert "a chi-square near 1 does not mean the model explains the image" in problem
 
 

@@ -823,7 +823,7 @@ def test_a_camera_the_recording_cannot_check_is_an_auto_fit_problem(real_data_di
     text, problem = _camera_check(Fitted(), grey, GUI_CAMERA_FIX)
     assert text.startswith("not available (")
     assert problem is not None
-    assert problem.startswith("the fit's camera (0.001 ADU/e-")
+    assert problem.startswith("the fit's camera (no gain, a constant noise of 1.36 ADU s.d.)")
     assert problem.endswith(GUI_CAMERA_FIX)
     assert "--dark" not in problem  # no CLI option is offered where none can be passed
     assert _camera_check(ColonyFit.__new__(ColonyFit), grey, GUI_CAMERA_FIX) is None

@@ -939,6 +939,7 @@ class TuneWidget(Container):
             fit_problems,
             lens_problem,
             read_noise_note,
+            unmeasured_noise_adu,
         )
 
         result, clipped = outcome.result, outcome.clipped
@@ -1063,9 +1064,15 @@ class TuneWidget(Container):
             cam = fit_camera
             how = "given in the Recording step"
             how = how if self._camera_given else "measured from the recording"
+            words = (
+                f"{cam.sensitivity_adu_per_e:.3g} ADU/e-, read noise {cam.dark_noise_e:.3g} e-"
+            )
+            if (sd := unmeasured_noise_adu(cam)) is not None:  # found as a user: "0.001
+                # ADU/e-, read noise 2.77e+04 e-" of a bright-field Auto-fit
+                how = "not measurable from the recording"
+                words = f"a constant noise of {sd:.3g} ADU s.d."
             self.status.value += (
-                f"<br>Camera {how}: {cam.sensitivity_adu_per_e:.3g} ADU/e-, read noise "
-                f"{cam.dark_noise_e:.3g} e-, baseline {cam.baseline_adu:.4g} ADU (used by "
+                f"<br>Camera {how}: {words}, baseline {cam.baseline_adu:.4g} ADU (used by "
                 "the preview and Export)"
             )
             said = None if self._camera_given else read_noise_note(cam)

@@ -69,8 +69,26 @@ def _plain(value: Any) -> Any:
     return value
 
 
+def unmeasured_noise_adu(camera: Any) -> float | None:
+    """The constant noise (ADU s.d.) of a camera whose gain could not be measured (the
+    fit's placeholder gain, :data:`~napari_symbac.fit.scene_fit.UNMEASURED_GAIN_ADU_PER_E`,
+    with the read noise carrying all of it), else ``None``."""
+    from napari_symbac.fit.scene_fit import UNMEASURED_GAIN_ADU_PER_E
+
+    if camera.sensitivity_adu_per_e != UNMEASURED_GAIN_ADU_PER_E:
+        return None
+    return camera.sensitivity_adu_per_e * camera.dark_noise_e
+
+
 def camera_text(camera: Any) -> str:
-    """A camera in words with units."""
+    """A camera in words with units; one whose gain could not be measured as the constant
+    noise it draws (found as a user: "sensitivity 0.001 ADU/e-, dark noise 2.77e+04 e-"
+    of a bright-field fit read as a camera)."""
+    if (sd := unmeasured_noise_adu(camera)) is not None:
+        return (
+            f"no gain measurable: a constant noise of {sd:.3g} ADU s.d., baseline "
+            f"{camera.baseline_adu:.1f} ADU, {camera.bit_depth} bits"
+        )
     return (
         f"sensitivity {camera.sensitivity_adu_per_e:.3g} ADU/e-, baseline "
         f"{camera.baseline_adu:.1f} ADU, dark noise {camera.dark_noise_e:.3g} e-, "
@@ -168,6 +186,12 @@ def measured_camera_note(frame: Any, camera: Any) -> str:
         f"camera measured from the recording: {camera.sensitivity_adu_per_e:.3g} ADU/e-, "
         f"read noise {camera.dark_noise_e:.3g} e-, baseline {camera.baseline_adu:.4g} ADU"
     )
+    if (sd := unmeasured_noise_adu(camera)) is not None:
+        note = (
+            "camera not measurable from the recording (its levels span too little, or it "
+            f"is not raw counts): a constant noise of {sd:.3g} ADU s.d., baseline "
+            f"{camera.baseline_adu:.4g} ADU"
+        )
     if said := read_noise_note(camera):  # said, as `fit` and Auto-fit say it
         note += f" ({said})"
     if np.asarray(frame).dtype == np.uint8:  # found as a user: an 8-bit PNG of the trench
@@ -366,9 +390,12 @@ def model_free_camera_check(
         # found as a user: an 8-bit phase colony fitted without masks placed 8 cells beside
         # its 116, with a camera of 0.001 ADU/e- and 1360 e- read noise that took up the
         # misfit, and PROBLEMS said nothing of it (reduced chi-square near 1)
+        gain, noise = fitted.sensitivity_adu_per_e, fitted.dark_noise_e
+        words = f"{gain:.3g} ADU/e-, read noise {noise:.3g} e-"
+        if (sd := unmeasured_noise_adu(fitted)) is not None:
+            words = f"no gain, a constant noise of {sd:.3g} ADU s.d."
         return f"not available ({err})", (
-            f"the fit's camera ({fitted.sensitivity_adu_per_e:.3g} ADU/e-, read noise "
-            f"{fitted.dark_noise_e:.3g} e-) cannot be checked against the image's own "
+            f"the fit's camera ({words}) cannot be checked against the image's own "
             f"photon transfer ({err}); fitted to the residual, a camera takes up structure "
             "the model lacks, so a chi-square near 1 does not mean the model explains the "
             f"image: check the figure, and {fix}"
