@@ -695,9 +695,13 @@ class TuneWidget(Container):
         self._polarity_changed = True
 
     def _on_matching(self, _value: Any = None) -> None:
-        if self.preview is None:
-            return
+        """Match the preview to the real image (its spectrum, its histogram), and say so
+        (found as a user: ticking either box left the status line blank)."""
         matching = self.match_fourier.value or self.match_histogram.value
+        if self.preview is None:
+            if matching:
+                self.status.value = "Not applied: nothing rendered to match; run Simulate first"
+            return
         if not matching and self.preview.reference is None:
             return  # nothing to match, nothing matched before
         try:
@@ -711,6 +715,14 @@ class TuneWidget(Container):
             self._show(self._current_frame())
         except ValueError as err:
             self.status.value = f"Not applied: {err}"
+            return
+        what = [name for name, on in (("Fourier spectrum", self.match_fourier.value),
+                                      ("histogram", self.match_histogram.value)) if on]
+        self.status.value = (
+            f"Preview matched to the {' and '.join(what)} of '{self.reference.value.name}'"
+            if what and self.reference.value is not None
+            else "Preview no longer matched to the real image"
+        )
 
     # -- auto-fit -------------------------------------------------------------------------
 
