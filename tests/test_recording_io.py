@@ -313,6 +313,22 @@ def test_a_colour_image_gives_the_channel_asked_for(tmp_path):
             read_image(path, "IMAGE", channel=3)
 
 
+def test_the_frame_interval_is_read_from_imagej_and_ome_metadata(tmp_path):
+    """The time between frames a file records (ImageJ's finterval in its tunit, OME's
+    TimeIncrement): a fit's settings draw the recording's frame interval from it."""
+    stack = np.random.default_rng(0).integers(0, 1000, (3, 16, 16)).astype(np.uint16)
+    paths = {name: tmp_path / f"{name}.tif" for name in ("sec", "min", "ome", "none")}
+    tifffile.imwrite(paths["sec"], stack, imagej=True, metadata={"finterval": 30.0})
+    tifffile.imwrite(paths["min"], stack, imagej=True,
+                     metadata={"finterval": 2.0, "tunit": "min"})  # fmt: skip
+    tifffile.imwrite(paths["ome"], stack, ome=True,
+                     metadata={"axes": "TYX", "TimeIncrement": 90.0,
+                               "TimeIncrementUnit": "s"})  # fmt: skip
+    tifffile.imwrite(paths["none"], stack)
+    intervals = {name: read_recording(path).frame_interval_s for name, path in paths.items()}
+    assert intervals == {"sec": 30.0, "min": 120.0, "ome": 90.0, "none": None}
+
+
 def test_a_grey_imagej_stack_is_frames_though_tifffile_calls_them_channels(tmp_path):
     """`tifffile.imwrite(path, series, imagej=True)`, axes unsaid, records a (T, Y, X)
     series as channels in grey mode: read as the frames it was written as (Fiji shows

@@ -1036,7 +1036,8 @@ def run_fit(args: argparse.Namespace) -> int:
         microscope_file = load_microscope_file(args.microscope)
         microscope, args.microscope_camera = microscope_file.microscope, microscope_file.camera
         if "frame_interval_min" not in (keys.get("simulation") or {}):  # the config's wins
-            base = dataclasses.replace(base, simulation=microscope_file.timed(base.simulation))
+            timed = microscope_file.timed(base.simulation, recording.frame_interval_s)
+            base = dataclasses.replace(base, simulation=timed)
         modality = args.modality or recording.modality or microscope.modality
         if modality != microscope.modality:
             microscope = dataclasses.replace(microscope, modality=modality)

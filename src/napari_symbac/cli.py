@@ -672,7 +672,10 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         layout = simulated_shape(region, frame_shape, first_fit.trench is not None)
         # the simulation `fit` would write, so that an export matches the recording
         simulation, invalid = fitted_or_kept(
-            config.timed(SimulationSettings()), first_fit, layout, microscope.pixel_size_um
+            config.timed(SimulationSettings(), recording.frame_interval_s),
+            first_fit,
+            layout,
+            microscope.pixel_size_um,
         )
         if invalid:
             doc["notes"].append(f"settings.yaml simulates the defaults: {invalid}")

@@ -152,6 +152,9 @@ class Recording:
     planes_note
         How the planes of an ImageJ stack that may hold frames or channels were read
         (:func:`_series_axes`), else ``None``.
+    frame_interval_s
+        Time between frames from the file's ImageJ (``finterval``, in its ``tunit``) or
+        OME (``TimeIncrement``) metadata, or ``None`` if absent.
     """
 
     data: np.ndarray
@@ -161,6 +164,7 @@ class Recording:
     kind: str = "image"
     counts_mapping: CountsMapping | None = None
     planes_note: str | None = None
+    frame_interval_s: float | None = None
 
     @property
     def note(self) -> str | None:
@@ -193,6 +197,29 @@ def _pixel_size_um(tif) -> float | None:
     resolution_unit = page.tags.get("ResolutionUnit")
     if resolution_unit is not None and int(resolution_unit.value) == 3:  # centimetre
         return 1e4 / pixels_per_unit
+    return None
+
+
+#: Seconds per unit of time, as ImageJ (``tunit``) and OME (``TimeIncrementUnit``) spell it.
+_SECONDS = {"s": 1.0, "sec": 1.0, "second": 1.0, "seconds": 1.0, "ms": 1e-3, "min": 60.0,
+            "minute": 60.0, "minutes": 60.0, "h": 3600.0, "hr": 3600.0, "hour": 3600.0,
+            "hours": 3600.0}  # fmt: skip
+
+
+def _frame_interval_s(tif) -> float | None:
+    """The time between frames the file records (ImageJ ``finterval`` in ``tunit``,
+    seconds when unsaid; OME ``TimeIncrement``), or ``None``."""
+    if tif.is_ome and tif.ome_metadata:
+        match = re.search(r'TimeIncrement="([0-9.eE+-]+)"', tif.ome_metadata)
+        unit = re.search(r'TimeIncrementUnit="([^"]+)"', tif.ome_metadata)
+        factor = _SECONDS.get(unit.group(1).lower() if unit else "s")
+        if match and factor is not None and float(match.group(1)) > 0:
+            return float(match.group(1)) * factor
+    meta = tif.imagej_metadata or {}
+    interval = meta.get("finterval")
+    factor = _SECONDS.get(str(meta.get("tunit", "sec")).lower())
+    if isinstance(interval, (int, float)) and interval > 0 and factor is not None:
+        return float(interval) * factor
     return None
 
 
@@ -415,6 +442,7 @@ def _read_tiff(path: Path) -> tuple[Recording, str]:
             _refuse_images_of_several_sizes(tif, path)
             data, axes = tif.asarray(), _series_axes(tif)
             pixel = _pixel_size_um(tif)
+            interval = _frame_interval_s(tif)
             modality = _modality(tif)
             kind = _kind(tif, path)
     except (tifffile.TiffFileError, ValueError, EOFError, struct.error, IndexError) as err:
@@ -431,7 +459,10 @@ def _read_tiff(path: Path) -> tuple[Recording, str]:
         if name.lower().endswith(suffix):
             name = name[: -len(suffix)]
             break
-    recording = Recording(data=data, pixel_size_um=pixel, name=name, modality=modality, kind=kind)
+    recording = Recording(
+        data=data, pixel_size_um=pixel, name=name, modality=modality, kind=kind,
+        frame_interval_s=interval,
+    )  # fmt: skip
     return recording, axes
 
 

@@ -257,7 +257,7 @@ def test_config_camera_is_honoured(tmp_path, inputs):
     assert _fact((out / "report.txt").read_text(), "camera") == f"from --config {config}"
 
 
-def test_the_microscope_file_s_frame_interval_times_the_settings(
+def test_the_recording_s_frame_interval_times_the_settings(
     tmp_path, truth, inputs, capsys
 ):
     """Found as a user: ``frame_interval_s`` of the microscope file was read and ignored
@@ -280,6 +280,13 @@ def test_the_microscope_file_s_frame_interval_times_the_settings(
     assert _fit(*args, "--config", config, "--out", tmp_path / "configured") == 0
     settings = load_settings(tmp_path / "configured" / "settings.yaml", PipelineSettings)
     assert settings.simulation.frame_interval_min == 5.0
+    # without either, the image file's own (ImageJ's finterval: 45 s)
+    timed = tmp_path / "timed.tif"
+    tifffile.imwrite(timed, truth.image, imagej=True, metadata={"finterval": 45.0})
+    assert _fit(timed, "--microscope", tmp_path / "m.yaml", "--labels", labels,
+                "--max-iterations", 1, "--out", tmp_path / "from_tiff") == 0  # fmt: skip
+    settings = load_settings(tmp_path / "from_tiff" / "settings.yaml", PipelineSettings)
+    assert settings.simulation.frame_interval_min == 0.75
 
 
 def test_a_tiff_disagreeing_with_the_microscope_is_settled_by_the_flag(

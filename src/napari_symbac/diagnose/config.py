@@ -59,13 +59,19 @@ class DiagnoseConfig:
     frame_interval_s: float | None = None
     notes: tuple[str, ...] = ()
 
-    def timed(self, simulation: SimulationSettings) -> SimulationSettings:
-        """``simulation`` at the recording's ``frame_interval_s``, when the file gives one
-        (found as a user: it was read and ignored, and a fit's settings.yaml drew its time
-        series 3 min apart whatever the recording's interval)."""
-        if self.frame_interval_s is None:
+    def timed(
+        self, simulation: SimulationSettings, recorded_s: float | None = None
+    ) -> SimulationSettings:
+        """``simulation`` at the recording's frame interval: this file's
+        ``frame_interval_s``, else ``recorded_s`` (the image file's own,
+        :attr:`~napari_symbac.io.Recording.frame_interval_s`), else as it is. Found as a
+        user: ``frame_interval_s`` was read and ignored, and a fit's settings.yaml drew its
+        time series 3 min apart whatever the recording's interval (its cells then grow
+        three times as much per frame as a 1-min recording's)."""
+        interval_s = self.frame_interval_s if self.frame_interval_s is not None else recorded_s
+        if interval_s is None:
             return simulation
-        return dataclasses.replace(simulation, frame_interval_min=self.frame_interval_s / 60)
+        return dataclasses.replace(simulation, frame_interval_min=interval_s / 60)
 
 
 def _number(data: dict, key: str, where: str) -> float:
