@@ -233,6 +233,7 @@ def test_an_image_opened_beside_the_recording_is_shown_and_asked_its_pixel_size(
     assert widget.image.value is second
     assert widget.pixel_size.value == 0
     assert "no pixel size" in widget.warning.value
+    assert "normalised values (-0.02847..1.007, not camera counts)" in widget.result.value
     viewer.add_image(np.zeros((8, 8, 4), np.uint8), name="mask", metadata={"symbac": {}})
     assert widget.image.value is second  # a layer the plugin made is no recording
 
