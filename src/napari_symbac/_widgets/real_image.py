@@ -20,6 +20,7 @@ from napari_symbac._widgets._recording import (
     check_recording_frame,
     in_pixel_units,
     layer_axes,
+    layer_pixel_size_um,
     pixel_size_problem,
     scale_pixel_um,
     watch_recordings,
@@ -448,7 +449,7 @@ class RealImageWidget(Container):
         layer = event.value
         if getattr(layer, "rgb", False) or layer not in self.image.choices:
             return
-        if not (layer.metadata.get("pixel_size_um") or scale_pixel_um(layer)):
+        if layer_pixel_size_um(layer) is None:
             self.image.value = layer
 
     def _add_grey_channel(self, event) -> None:

@@ -361,8 +361,8 @@ def modality_doubt(frame: np.ndarray, modality: str) -> str | None:
     """
     if modality == "phase" and image_polarity(frame) == "dark cells":
         return BRIGHT_FIELD_NOTE
-    if modality == "brightfield" and image_polarity(frame) == "unclear":
-        below, above = _tails(np.asarray(frame, np.float64))
+    if modality == "brightfield":  # both tails far: neither polarity, image_polarity's
+        below, above = _tails(np.asarray(frame, np.float64))  # "unclear" (nan: no noise)
         if below > _FAR and above > _FAR:
             return PHASE_NOTE
     return None

@@ -182,14 +182,16 @@ def measured_camera_note(frame: Any, camera: Any) -> str:
     3.14e+04 e-)" of ColiCoords' flattened bright field, and no more)."""
     from napari_symbac.fit.camera_estimate import estimate_camera
 
-    note = (
-        f"camera measured from the recording: {camera.sensitivity_adu_per_e:.3g} ADU/e-, "
-        f"read noise {camera.dark_noise_e:.3g} e-, baseline {camera.baseline_adu:.4g} ADU"
-    )
     if (sd := unmeasured_noise_adu(camera)) is not None:
         note = (
             "camera not measurable from the recording (its levels span too little, or it "
             f"is not raw counts): a constant noise of {sd:.3g} ADU s.d., baseline "
+            f"{camera.baseline_adu:.4g} ADU"
+        )
+    else:
+        note = (
+            f"camera measured from the recording: {camera.sensitivity_adu_per_e:.3g} "
+            f"ADU/e-, read noise {camera.dark_noise_e:.3g} e-, baseline "
             f"{camera.baseline_adu:.4g} ADU"
         )
     if said := read_noise_note(camera):  # said, as `fit` and Auto-fit say it
