@@ -932,6 +932,27 @@ def test_diagnose_microscope_file_of_microscope_fields_with_a_camera(tmp_path):
     assert config.trench_width_um == 1.4
 
 
+def test_without_a_microscope_file_the_note_names_the_condenser_for_phase_only():
+    """Found as a user: a fluorescence fit without --microscope was told of a Ph3
+    condenser, which a fluorescence image never passes through."""
+    from napari_symbac.diagnose.config import load_microscope_file
+
+    defaulted = load_microscope_file(None)
+    (phase,) = defaulted.notes_for("phase")
+    (fluorescence,) = defaulted.notes_for("fluorescence")
+    assert "default optics (NA 1.45" in phase
+    assert "condenser Ph3" in phase
+    assert "default optics (NA 1.45" in fluorescence
+    assert "condenser" not in fluorescence
+
+def test_a_microscope_file_given_adds_no_default_optics_note(tmp_path):
+    from napari_symbac.diagnose.config import load_microscope_file
+
+    path = tmp_path / "m.yaml"
+    path.write_text("pixel_size_um: 0.08\n")
+    assert load_microscope_file(path).notes_for("phase") == ()
+
+
 def test_fit_negative_values_still_point_to_camera_option():
     from napari_symbac.fit.preflight import check_fit_image
 

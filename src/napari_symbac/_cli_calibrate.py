@@ -242,7 +242,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
             )
         modality = args.modality or recording.modality or microscope.modality
         _refuse_a_trench(image, modality, args.image, args.microscope)
-    file_notes = list(microscope_file.notes)  # found as a user: unknown keys ignored unsaid
+    # found as a user: unknown keys ignored unsaid
+    file_notes = list(microscope_file.notes_for(modality))
     if microscope_file.frame_interval_s is not None:
         file_notes.append("frame_interval_s is not used: calibrate exports single frames")
     for note in file_notes:

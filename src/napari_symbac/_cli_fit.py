@@ -1047,7 +1047,8 @@ def run_fit(args: argparse.Namespace) -> int:
             microscope_gives_it=microscope_sets_pixel_size(args.microscope),
             flag_pixel_um=args.pixel_size_um,
         )
-        for note in microscope_file.notes:  # found as a user: unknown keys ignored unsaid
+        # found as a user: unknown keys ignored unsaid
+        for note in microscope_file.notes_for(microscope.modality):
             print(f"napari-symbac fit: note: {note}", file=sys.stderr)
         if problem := camera_pixel_problem(microscope):  # before the fit, not after it
             print(f"napari-symbac fit: warning: {problem}", file=sys.stderr)

@@ -591,7 +591,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                 "smaller window",
                 file=sys.stderr,
             )
-        file_notes = [*config.notes, *[NO_CAMERA_NOTE] * (config.camera is None)]
+        file_notes = [*config.notes_for(modality), *[NO_CAMERA_NOTE] * (config.camera is None)]
         for note in file_notes:  # once the inputs are taken (found as a user: "no camera
             # given" said before refusals that had nothing to do with the camera)
             print(f"note: {note}", file=sys.stderr)

@@ -58,6 +58,22 @@ class DiagnoseConfig:
     trench_width_um: float | None = None
     frame_interval_s: float | None = None
     notes: tuple[str, ...] = ()
+    #: No file was given: :class:`Microscope`'s defaults stand in for it.
+    defaulted: bool = False
+
+    def notes_for(self, modality: str) -> tuple[str, ...]:
+        """:attr:`notes`, and when :attr:`defaulted` a note naming the default optics
+        that image a recording of ``modality`` (the condenser only for phase contrast:
+        found as a user, a fluorescence fit was told of a Ph3 condenser)."""
+        if not self.defaulted:
+            return self.notes
+        scope = self.microscope
+        condenser = f", condenser {scope.condenser}" if modality == "phase" else ""
+        note = DEFAULT_OPTICS_NOTE.format(
+            na=scope.numerical_aperture, wavelength=scope.wavelength_um,
+            n=scope.refractive_index, condenser=condenser,
+        )  # fmt: skip
+        return (*self.notes, note)
 
     def timed(
         self, simulation: SimulationSettings, recorded_s: float | None = None
@@ -169,7 +185,7 @@ DIAGNOSE_KEYS = ("camera", "trench_width_um", "frame_interval_s")
 #: What fit, calibrate and diagnose say when no microscope file is given.
 DEFAULT_OPTICS_NOTE = (
     "no --microscope: the default optics (NA {na:g}, wavelength {wavelength:g} um, "
-    "refractive index {n:g}, condenser {condenser}); give yours in a file, which "
+    "refractive index {n:g}{condenser}); give yours in a file, which "
     "`napari-symbac defaults microscope --out M.yaml` writes to edit"
 )
 
@@ -177,20 +193,16 @@ DEFAULT_OPTICS_NOTE = (
 def load_microscope_file(path: str | Path | None) -> DiagnoseConfig:
     """Read a JSON or YAML microscope file (``--microscope`` of fit, calibrate and
     diagnose) and its camera section; without one (``None``), :class:`Microscope`'s
-    defaults, no camera and a note that says so (found as a user: a pixel size given
-    with ``--pixel-size-um`` still needed a file written first).
+    defaults, no camera and :attr:`DiagnoseConfig.defaulted` (its notes then say so;
+    found as a user: a pixel size given with ``--pixel-size-um`` still needed a file
+    written first).
 
     Either :class:`~napari_symbac.settings.Microscope` fields as ``fit`` reads them (any
     may be left out and takes its default; an unknown key is named) plus the keys of
     :data:`DIAGNOSE_KEYS`, or diagnose's own spelling (``NA``, ...; :func:`parse_microscope`).
     """
     if path is None:
-        scope = Microscope()
-        note = DEFAULT_OPTICS_NOTE.format(
-            na=scope.numerical_aperture, wavelength=scope.wavelength_um,
-            n=scope.refractive_index, condenser=scope.condenser,
-        )  # fmt: skip
-        return DiagnoseConfig(scope, None, notes=(note,))
+        return DiagnoseConfig(Microscope(), None, defaulted=True)
     data = read_settings_mapping(path)
     if isinstance(data, dict) and "NA" in data:
         return parse_microscope(data, str(path))
