@@ -150,6 +150,35 @@ def test_an_export_whose_validation_split_rounds_to_nothing_says_so(tmp_path, ca
     assert (tmp_path / "e" / "coco" / "annotations" / "instances_val.json").is_file()
 
 
+def test_the_no_validation_note_names_coco_only_when_it_is_written():
+    """Found as a user: a time series in ctc and trackmate was told of "no
+    instances_val.json", a COCO file it was never going to write."""
+    from napari_symbac.export.dataset import no_validation_note
+
+    tracks = ExportSettings(n_items=2, kind="timeseries", formats=["ctc", "trackmate"],
+                            pipeline=TINY)  # fmt: skip
+    assert "(no val folders); export more items" in no_validation_note(tracks)
+    coco = ExportSettings(n_items=2, formats=["tiff", "coco"], pipeline=TINY)
+    assert "(no val folders, no instances_val.json)" in no_validation_note(coco)
+
+
+def test_an_export_shortened_below_a_full_trench_says_so(tmp_path, capsys):
+    """Found as a user: --n-frames 10 drew every image from frames 5-9 of a 16 um trench,
+    2 cells each, while the file's first_frame was 23; nothing said."""
+    from napari_symbac.export import export_of
+
+    config = tmp_path / "export.yaml"  # as `napari-symbac defaults export` writes it
+    save_settings(export_of(PipelineSettings(), n_items=1, formats=["tiff"]), config)
+    argv = ["export", "--config", str(config), "--n-items", "1"]
+    code, err = _run([*argv, "--out", str(tmp_path / "short"), "--n-frames", "10"], capsys)
+    assert code == 0, err
+    assert "--n-frames 10: a run of 10 frames does not fill the 16 um trench" in err
+    assert "images are drawn from frames 5-9" in err
+    code, err = _run([*argv, "--out", str(tmp_path / "long"), "--n-frames", "50"], capsys)
+    assert code == 0, err
+    assert "does not fill" not in err
+
+
 def test_a_pipeline_file_exports_a_tracking_dataset_with_kind(tmp_path, capsys):
     """Found as a user: from a fit's settings.yaml (a pipeline file, no kind) there was no
     way to a tracking dataset: ctc was refused for kind frames, and kind: added to the

@@ -8,6 +8,7 @@ import pytest
 import tifffile
 
 from napari_symbac.io import axis_labels, napari_get_reader, read_image, read_recording
+from napari_symbac.settings import Camera
 
 
 def test_imagej_pixel_size(tmp_path):
@@ -202,6 +203,33 @@ def test_an_unshifted_normalised_image_says_no_shift():
     assert mapping.shift == 0.0
     assert mapping.formula == "(value) x 10000 ADU"
     np.testing.assert_allclose(mapping.values(counts), normalised, atol=1e-7)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.uint32, np.int64])
+def test_an_image_beyond_16_bits_is_read_divided_into_them(dtype):
+    """Found as a user: a sum projection (maximum 150140) was fitted with a 16-bit camera
+    and its dataset clipped at 65535 over a fifth of its pixels, unsaid. It is divided
+    by the smallest whole number that brings it within 50000 ADU, and said."""
+    from napari_symbac.fit.preflight import check_fit_image
+    from napari_symbac.io import as_counts
+
+    image = (np.arange(64).reshape(8, 8) * 2383 + 20).astype(dtype)  # 20..150149
+    counts, mapping = as_counts(image)
+    assert mapping.adu_per_unit == pytest.approx(1 / 4)  # 150149 / 4 = 37537 <= 50000
+    assert mapping.formula == "value / 4 ADU"
+    assert mapping.note.startswith("values up to 150149, beyond the 16 bits (65535)")
+    np.testing.assert_allclose(counts, image / 4.0)
+    np.testing.assert_allclose(mapping.values(counts), image)
+    check_fit_image(counts, "divided")  # what the fit takes
+    with pytest.raises(ValueError, match="values up to 150149, beyond the 16 bits"):
+        check_fit_image(image, "sum.tif")  # read without the map (napari's own reader)
+    # a camera of the file's values, in the units read: baseline and gain divided too
+    camera = mapping.camera(Camera(baseline_adu=400.0, sensitivity_adu_per_e=2.0))
+    assert camera.baseline_adu == 100.0
+    assert camera.sensitivity_adu_per_e == 0.5
+    # within 16 bits, or with negative values (the fit refuses those as such): as it is
+    assert as_counts(np.full((4, 4), 65535, dtype))[1] is None
+    assert as_counts(image.astype(np.float64) - 1000)[1] is None
 
 
 def test_the_delta_trench_read_as_counts_maps_back_to_its_values(real_data_dir):

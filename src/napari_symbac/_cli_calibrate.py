@@ -157,6 +157,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     """Run ``napari-symbac calibrate`` with parsed arguments; returns the exit code."""
     import tifffile
 
+    from napari_symbac._cli_fit import in_read_units
     from napari_symbac.calibrate import (
         calibrate,
         compare_with_dataset,
@@ -229,6 +230,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
         microscope, camera = microscope_file.microscope, microscope_file.camera
         if args.camera is not None:
             camera = load_settings(args.camera, Camera)
+        if camera is not None:  # an image beyond 16 bits was read divided: its camera too
+            camera = in_read_units(camera, recording.counts_mapping)
         if args.cell_width_um is not None:  # calibrate sets it from the masks
             pixel_note = f"from the masks' median width and --cell-width-um {args.cell_width_um}"
         else:

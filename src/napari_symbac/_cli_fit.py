@@ -179,6 +179,14 @@ def read_recording(
     return recording
 
 
+def in_read_units(camera, mapping: CountsMapping | None):
+    """The camera that wrote an image beyond 16 bits (``--camera``, a microscope file's)
+    in the units the image was read in, divided as it was
+    (:meth:`~napari_symbac.io.CountsMapping.camera`); else as it is (a normalised
+    image's divisor is unknown: its camera is measured)."""
+    return mapping.camera(camera) if mapping is not None and mapping.divides else camera
+
+
 def _read_stack(path: str, what: str) -> np.ndarray:
     return np.asarray(read_recording(path, what, counts=False).data)
 
@@ -231,13 +239,17 @@ def _camera_for(
     if args.camera is not None:
         from napari_symbac.fit.preflight import camera_recording_problem
 
-        camera = load_settings(args.camera, Camera)
+        given = load_settings(args.camera, Camera)
+        camera = in_read_units(given, getattr(args, "counts_mapping", None))
         problem = camera_recording_problem(camera, frame)
         if problem is not None:
             raise ValueError(f"--camera {args.camera}: {problem}")
         return camera, f"from --camera {args.camera}"
     if args.dark is not None:
         dark = _read_stack(args.dark, "--dark")
+        mapping = getattr(args, "counts_mapping", None)
+        if mapping is not None and mapping.divides:  # divided as the image was
+            dark = mapping.counts_adu(dark)
         name = Path(args.dark).name
         if dark.ndim not in (2, 3):
             raise ValueError(
@@ -257,8 +269,9 @@ def _camera_for(
             note += f"; {dark.shape[-2]} x {dark.shape[-1]} px frames, another region"
         return estimate.camera, note + ")"
     if getattr(args, "microscope_camera", None) is not None:
-        return args.microscope_camera, f"from the camera section of --microscope {args.microscope}"
-    if config_has_camera:
+        camera = in_read_units(args.microscope_camera, getattr(args, "counts_mapping", None))
+        return camera, f"from the camera section of --microscope {args.microscope}"
+    if config_has_camera:  # napari-symbac's own settings: in the units it read
         return base_camera, f"from --config {args.config}"
     if engine_estimates:
         return None, (
@@ -686,14 +699,14 @@ def _problems_said(index: int, problems: list[str]) -> str:
 def counts_units_mark(mapping: CountsMapping) -> str:
     """Appended to a line that quotes ADU when the image was read as counts: its ADU are
     the map's, not a camera's."""
-    return f" [normalised image read as counts, {mapping.formula}: not a real camera's units]"
+    return f" [{mapping.what}, {mapping.formula}: not a real camera's units]"
 
 
 def counts_units_note(mapping: CountsMapping, where: str = "this report") -> str:
     """A note of ``where`` (a report, a file) when the image was read as counts: every
     ADU and e- in it is the map's."""
     return (
-        f"every ADU and e- in {where} is of the normalised image read as counts, "
+        f"every ADU and e- in {where} is of the {mapping.what}, "
         f"{mapping.formula}: not of a real camera (its gain, baseline and noise in those "
         "units)"
     )
@@ -775,7 +788,7 @@ def _fit_frames_jointly(
         try:
             series = fit_series(
                 stack[frames], microscope, _start_render(args, base.render), camera,
-                progress=update,
+                progress=update, frame_numbers=frames,
                 **options, **per_frame,
             )
         finally:

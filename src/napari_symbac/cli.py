@@ -274,7 +274,11 @@ def _cmd_export(args: argparse.Namespace) -> int:
     import dataclasses
 
     from napari_symbac.export import export_dataset, load_export_settings
-    from napari_symbac.export.dataset import default_first_frame, no_validation_note
+    from napari_symbac.export.dataset import (
+        default_first_frame,
+        no_validation_note,
+        short_run_note,
+    )
 
     settings = load_export_settings(args.config)
     _check_config_pixel_size(settings.pipeline, args.config)
@@ -296,6 +300,9 @@ def _cmd_export(args: argparse.Namespace) -> int:
     except ValueError as err:
         named = " ".join(f"--{flag} {value!r}" for flag, value in flags.items())
         raise ValueError(f"{named}: {err}") from None
+    short = n_frames is not None and settings.kind == "frames"
+    if short and (note := short_run_note(settings.pipeline.simulation, settings.first_frame)):
+        print(f"napari-symbac export: note: --n-frames {n_frames}: {note}", file=sys.stderr)
     out = _output_folder(args.out)
     backend = _backend(args)
     sim_frames = settings.pipeline.simulation.n_frames
@@ -463,6 +470,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from napari_symbac._cli_fit import (
         counts_record,
         counts_units_mark,
+        in_read_units,
         read_recording,
     )
     from napari_symbac.diagnose.config import NO_CAMERA_NOTE, load_microscope_file
@@ -490,7 +498,13 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         refuse_constant,
         resolve_pixel_size,
     )
-    from napari_symbac.fit.report import base_fit_problems, camera_text, measured_camera_note
+    from napari_symbac.fit.report import (
+        CORRELATED_NOISE_RATIO,
+        base_fit_problems,
+        camera_text,
+        measured_camera_note,
+        neighbour_variance_ratio,
+    )
     from napari_symbac.fit.start import WideStartError
     from napari_symbac.io import read_image
     from napari_symbac.settings import (
@@ -603,7 +617,9 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     scenes = []
     n_cells: list[int] = []
     problems: list[str] = [slip] if slip else []
-    camera = config.camera
+    # the microscope file's camera, divided as an image beyond 16 bits was
+    camera = None if config.camera is None else in_read_units(config.camera, mapping)
+    noise_ratio = 1.0  # of a measured camera: its noise's lag-2 / lag-1 variance ratio
     first_fit = None
     with timer.step("base fit"):
         render = start
@@ -628,6 +644,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             if camera is None:
                 camera = fit.camera
                 measured_note = measured_camera_note(frame, camera)
+                with contextlib.suppress(ValueError):  # said in the note
+                    noise_ratio = neighbour_variance_ratio(frame, camera)
                 if mapping is not None:  # its ADU and e- are the map's, not a camera's
                     measured_note += counts_units_mark(mapping)
                 print(f"note: {measured_note}", file=sys.stderr)
@@ -721,6 +739,15 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             geometry == "open" and labels is None and masks is None
         ):
             caution += f"; {DIAGNOSE_COLONY_NOTE}"
+        if caution.startswith("the base fit") and noise_ratio > CORRELATED_NOISE_RATIO:
+            # found as a user: DeLTA's resampled trench, 7 cells for 7 seen, was told
+            # of cells missed while the camera note said its noise was correlated
+            caution += (
+                "; here the noise is correlated between neighbours (lag ratio "
+                f"{noise_ratio:.3g}: a resampled or filtered image, not raw camera counts), "
+                "which alone raises the chi-square far above 1: if the fitted cells are "
+                "the cells seen (residuals.png), that, not the scene, is the likely cause"
+            )
         print(f"napari-symbac diagnose: warning: {caution}", file=sys.stderr)
     accepted_names = [e.name for e in result.accepted]
     names = ", ".join(accepted_names) or "nothing significant"

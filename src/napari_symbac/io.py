@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 import struct
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 __all__ = [
     "AXIS_LABELS",
+    "CAMERA_MAX_ADU",
     "NORMALISED_ADU_PER_UNIT",
     "NORMALISED_MAX_RANGE",
     "SYMBAC_METADATA_KEY",
@@ -32,6 +35,11 @@ __all__ = [
 NORMALISED_MAX_RANGE = 16.0
 #: ADU per unit of a normalised image read as counts (:func:`as_counts`).
 NORMALISED_ADU_PER_UNIT = 10_000.0
+#: The largest count a synthetic camera writes (16 bits, :class:`~napari_symbac.settings.
+#: Camera`): an image beyond it is read divided down (:func:`as_counts`).
+CAMERA_MAX_ADU = 65_535
+#: The value an image beyond 16 bits is divided to at most, leaving its noise room.
+SCALED_MAX_ADU = 50_000.0
 
 #: Names of a layer's ``(frame, Y, X)`` axes, for napari (the reader's layers and the
 #: docks'). napari's own are ``-3, -2, -1``, and its frame slider read "-3" (found as a
@@ -83,8 +91,8 @@ def scale_um(scale: float, unit: object) -> float | None:
 
 @dataclass(frozen=True)
 class CountsMapping:
-    """How a normalised image was read as counts (:func:`as_counts`):
-    ``counts_adu = (value + shift) * adu_per_unit``.
+    """How a normalised image, or one beyond 16 bits, was read as counts
+    (:func:`as_counts`): ``counts_adu = (value + shift) * adu_per_unit``.
 
     Attributes
     ----------
@@ -92,7 +100,8 @@ class CountsMapping:
         Added to every normalised value first: minus the image's minimum when it has
         negative values, else 0.
     adu_per_unit
-        ADU per unit of the shifted values (:data:`NORMALISED_ADU_PER_UNIT`).
+        ADU per unit of the shifted values (:data:`NORMALISED_ADU_PER_UNIT`; below 1,
+        ``1 / n``, for an image beyond 16 bits).
     value_min, value_max
         The span of the image's normalised (finite) values, before the map.
     """
@@ -110,15 +119,47 @@ class CountsMapping:
         """Counts (ADU) back to the normalised values they were read from (float64)."""
         return np.asarray(counts_adu, np.float64) / self.adu_per_unit - self.shift
 
+    def camera(self, camera: Any) -> Any:
+        """A :class:`~napari_symbac.settings.Camera` of the file's values (a data sheet,
+        ``--camera``) in the units the image was read in: its baseline mapped as a
+        value, its gain scaled; the read noise, in electrons, is the same."""
+        return dataclasses.replace(
+            camera,
+            baseline_adu=float(self.counts_adu(camera.baseline_adu)),
+            sensitivity_adu_per_e=camera.sensitivity_adu_per_e * self.adu_per_unit,
+        )
+
+    @property
+    def divides(self) -> bool:
+        """Whether the map divides an image beyond 16 bits (else it scales a normalised
+        one up)."""
+        return self.adu_per_unit < 1
+
     @property
     def formula(self) -> str:
-        """The map in words: ``(value + 0.02847) x 10000 ADU`` (``(value) x ...`` unshifted)."""
+        """The map in words: ``(value + 0.02847) x 10000 ADU`` (``(value) x ...``
+        unshifted), ``value / 3 ADU`` for an image beyond 16 bits."""
+        if self.divides and not self.shift:
+            return f"value / {1 / self.adu_per_unit:g} ADU"
         shifted = f" + {self.shift:.4g}" if self.shift else ""
         return f"(value{shifted}) x {self.adu_per_unit:g} ADU"
 
     @property
+    def what(self) -> str:
+        """The image the map read, in a few words."""
+        if self.divides:
+            return "image beyond 16 bits read divided"
+        return "normalised image read as counts"
+
+    @property
     def note(self) -> str:
         """What reading did, for a user: the values' span, the map, and what is in ADU."""
+        if self.divides:
+            return (
+                f"values up to {self.value_max:.6g}, beyond the 16 bits ({CAMERA_MAX_ADU}) "
+                f"of a synthetic camera: read as {self.formula}, a linear map that keeps "
+                "the noise the fit measures; intensities and datasets are in those units"
+            )
         return (
             f"normalised values ({self.value_min:.4g}..{self.value_max:.4g}, not camera "
             f"counts): read as {self.formula}, so that the fit can measure their noise; "
@@ -492,8 +533,14 @@ def _refuse_images_of_several_sizes(tif, path: Path) -> None:
 
 
 def as_counts(data: np.ndarray) -> tuple[np.ndarray, CountsMapping | None]:
-    """A normalised image as counts the model can render, and how it was mapped; other
-    images as they are, and ``None``.
+    """A normalised image, or one beyond 16 bits, as counts the model can render, and
+    how it was mapped; other images as they are, and ``None``.
+
+    An image of non-negative values above :data:`CAMERA_MAX_ADU` (a sum projection, a
+    32-bit camera, a rescaled float) is divided by the smallest whole number that brings
+    it within :data:`SCALED_MAX_ADU`: a synthetic camera writes 16 bits, and read as it
+    was it gave a dataset clipped at 65535 over a fifth of its pixels, unsaid (found as
+    a user).
 
     A normalised image (floating point, fractional values spanning at most
     :data:`NORMALISED_MAX_RANGE`) has no camera counts: its noise and intensities are
@@ -504,10 +551,22 @@ def as_counts(data: np.ndarray) -> tuple[np.ndarray, CountsMapping | None]:
     line from which the fit measures the camera.
     """
     array = np.asarray(data)
-    if not np.issubdtype(array.dtype, np.floating) or array.size == 0:
+    numeric = np.issubdtype(array.dtype, np.floating) or np.issubdtype(array.dtype, np.integer)
+    if not numeric or array.size == 0:
         return data, None
     finite = array[np.isfinite(array)]
-    if finite.size == 0 or np.ptp(finite) > NORMALISED_MAX_RANGE:
+    if finite.size == 0:
+        return data, None
+    if finite.max() > CAMERA_MAX_ADU and finite.min() >= 0:
+        divisor = math.ceil(float(finite.max()) / SCALED_MAX_ADU)
+        scaled = CountsMapping(
+            shift=0.0,
+            adu_per_unit=1.0 / divisor,
+            value_min=float(finite.min()),
+            value_max=float(finite.max()),
+        )
+        return scaled.counts_adu(array), scaled
+    if not np.issubdtype(array.dtype, np.floating) or np.ptp(finite) > NORMALISED_MAX_RANGE:
         return data, None
     if np.all(finite == np.round(finite)):
         return data, None  # whole numbers: counts (or a mask) stored as floats

@@ -1109,7 +1109,13 @@ def from_dict(cls: type[T], data: dict[str, Any], *, _where: str | None = None) 
             f"{', '.join(sorted(names))}"
         )
     kwargs = {key: _convert(hints[key], value, f"{where}.{key}") for key, value in data.items()}
-    return cls(**kwargs)
+    try:
+        return cls(**kwargs)
+    except ValueError as err:  # a nested value's own check, named by where it sits (found
+        # as a user: "Range low=2.0 must not exceed high=1.0" from a file of six ranges)
+        if _where is None or str(err).startswith(f"{cls.__name__}."):
+            raise
+        raise ValueError(f"{where}: {err}") from None
 
 
 def save_settings(settings: Any, path: str | Path) -> Path:

@@ -254,6 +254,11 @@ def test_a_normalised_trench_is_diagnosed_in_the_units_it_was_read_in(
     (camera_note,) = [line for line in err.splitlines() if "camera measured from" in line]
     assert camera_note.endswith(f"[normalised image read as counts, {read_as}: not a real "
                                 "camera's units]")  # fmt: skip
+    # found as a user: its chi-square was blamed on the scene alone (cells missed), while
+    # the note above says its noise is correlated: the caution names that too
+    (caution,) = [line for line in err.splitlines() if "reduced chi-square of" in line]
+    assert "above 50 the scene itself is wrong" in caution
+    assert "here the noise is correlated between neighbours (lag ratio 4" in caution
     report = (out / "report.txt").read_text()
     assert report.startswith(
         f"image values: normalised values (-0.02847..1.007, not camera counts): read as {read_as}"

@@ -25,6 +25,7 @@ from napari_symbac.settings import (
     PipelineSettings,
     SimulationSettings,
     TrenchGeometry,
+    from_dict,
     save_settings,
     to_dict,
 )
@@ -65,6 +66,10 @@ def test_settings_validation_messages():
         ExportSettings(pipeline=single, kind="timeseries", n_items=1)
     with pytest.raises(ValueError, match="must not exceed"):
         Range(2.0, 1.0)
+    # from a file, named by where it sits (found as a user: "Range low=2.0 must not
+    # exceed high=1.0" from a file of six ranges)
+    with pytest.raises(ValueError, match=r"^ExportSettings\.randomise\.noise_scale: Range low"):
+        from_dict(ExportSettings, {"randomise": {"noise_scale": {"low": 2, "high": 1}}})
     assert ExportSettings(formats="tiff, coco").formats == ["tiff", "coco"]
 
 

@@ -483,6 +483,41 @@ def test_a_normalised_trench_is_read_as_counts_and_exports_phase_contrast(
     assert np.median(cells) < np.percentile(rest, 90) - 1000
 
 
+def test_a_trench_beyond_16_bits_is_fitted_divided_and_its_dataset_is_not_clipped(
+    tmp_path, real_data_dir, capsys
+):
+    """Found as a user: the trench times 20 (float32, maximum 150140, as a sum
+    projection) was fitted with a 16-bit camera and exported with 20 % of its pixels at
+    65535, exit 0, nothing said. It is read divided into 16 bits, said, and a camera
+    given for the file's values is divided with it."""
+    from napari_symbac.export import export_of
+    from napari_symbac.export.dataset import PipelineSource
+
+    trench = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")[:128]
+    image = tmp_path / "sum20.tif"
+    tifffile.imwrite(image, trench.astype(np.float32) * 20)
+    microscope = save_settings(Microscope(pixel_size_um=0.065), tmp_path / "microscope.yaml")
+    camera = save_settings(
+        Camera(baseline_adu=2000.0, sensitivity_adu_per_e=40.0, dark_noise_e=2.0),
+        tmp_path / "camera.yaml",
+    )
+    out = tmp_path / "fit"
+    args = ("--microscope", microscope, "--max-iterations", 2, "--out", out)
+    assert _fit(image, *args, "--camera", camera) == 0
+    said = capsys.readouterr().err
+    assert "beyond the 16 bits (65535) of a synthetic camera: read as value / 4 ADU" in said
+    report = (out / "report.txt").read_text()
+    assert _fact(report, "camera used").startswith(
+        "sensitivity 10 ADU/e-, baseline 500.0 ADU, dark noise 2 e-"
+    )
+    assert "[image beyond 16 bits read divided, value / 4 ADU" in _fact(report, "camera used")
+    settings = load_settings(out / "settings.yaml", PipelineSettings)
+    item = PipelineSource(export_of(settings, n_items=1)).make_unit(0)[0]
+    assert item.image.max() < 65535
+    assert np.mean(item.image >= 50_000) == 0  # within the divided range, with room
+    assert len(np.unique(item.labels)) >= 2
+
+
 def test_a_trench_fitted_as_a_field_is_said(tmp_path, real_data_dir, capsys):
     """Found as a user: DeLTA's trench with --geometry field ended with 2 rods laid along
     its walls, exit 0, and nothing said of the geometry; the problem names it and the
@@ -925,12 +960,13 @@ def test_refuses_a_series_with_a_frame_without_cells(tmp_path, truth, capsys):
         np.random.default_rng(3),
     )
     image = tmp_path / "series.tif"
-    tifffile.imwrite(image, np.stack([truth.image, blank]))
+    tifffile.imwrite(image, np.stack([truth.image, truth.image, blank]))
     microscope = save_settings(truth.microscope, tmp_path / "microscope.yaml")
     error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope,
-                     "--frames", "0-1", "--max-iterations", "2")  # fmt: skip
-    assert "frame 1 of the series: the start found no cells" in error
-    assert "fit the frames before and after frame 1 as separate series" in error
+                     "--frames", "1-2", "--max-iterations", "2")  # fmt: skip
+    # the recording's frame number (found as a user: named by its place in --frames)
+    assert "frame 2 of the series: the start found no cells" in error
+    assert "fit the frames before and after frame 2 as separate series" in error
 
 
 def test_refuses_a_colour_image(tmp_path, truth, inputs, capsys):

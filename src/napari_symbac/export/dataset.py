@@ -464,8 +464,9 @@ def default_first_frame(simulation: SimulationSettings) -> int:
     return 0
 
 
-def trench_filled_frame(simulation: SimulationSettings) -> int:
-    """The frame by which the founders' descendants fill the trench, at most half the run.
+def trench_filled_frame(simulation: SimulationSettings, *, uncapped: bool = False) -> int:
+    """The frame by which the founders' descendants fill the trench, at most half the run
+    (``uncapped``: however long the run).
 
     A full trench holds ``length / mean length`` cells; the mean length of an
     asynchronous population dividing at ``L`` is ``L ln 2`` (the adder's ``L`` is twice
@@ -483,7 +484,26 @@ def trench_filled_frame(simulation: SimulationSettings) -> int:
     capacity = simulation.trench.length_um / (division_um * math.log(2))
     doublings = math.log2(max(1.0, capacity / simulation.n_founders))
     frame = math.ceil(doublings * doubling_min / simulation.frame_interval_min)
-    return min(frame, simulation.n_frames // 2)
+    return frame if uncapped else min(frame, simulation.n_frames // 2)
+
+
+def short_run_note(simulation: SimulationSettings, first_frame: int) -> str | None:
+    """What to say when the frames an export draws from, ``[first_frame, n_frames)``,
+    start before the trench is full because the run is too short to fill it (found as
+    a user: ``--n-frames 10`` drew frames 5-9 of a 16 um trench, 2 cells each, unsaid);
+    ``None`` when they start full or the geometry has no trench."""
+    if simulation.geometry not in ("trench", "chamber"):
+        return None
+    filled = trench_filled_frame(simulation, uncapped=True)
+    if first_frame >= filled:
+        return None
+    return (
+        f"a run of {simulation.n_frames} frames does not fill the "
+        f"{simulation.trench.length_um:g} um trench (its cells fill it by about frame "
+        f"{filled}): images are drawn from frames {first_frame}-{simulation.n_frames - 1}, "
+        f"with fewer cells than a full trench; --n-frames {2 * filled} or more draws "
+        "them from full trenches"
+    )
 
 
 def colony_grown_frame(simulation: SimulationSettings) -> int:
@@ -528,10 +548,11 @@ def no_validation_note(settings: ExportSettings) -> str | None:
     ``instances_val.json``, without a word, and the docs' COCO loader failed on it)."""
     if settings.val_fraction <= 0 or round(settings.val_fraction * settings.n_items) > 0:
         return None
+    coco = ", no instances_val.json" if "coco" in settings.formats else ""
     return (
         f"no validation items: val_fraction {settings.val_fraction:g} of "
         f"{settings.n_items} item(s) rounds to 0, so every item is in train (no val "
-        "folders, no instances_val.json); export more items or a larger val_fraction"
+        f"folders{coco}); export more items or a larger val_fraction"
     )
 
 

@@ -98,7 +98,8 @@ def check_fit_image(
         an image whose values all lie within 0..1 (normalised, or a mask), and for
         other normalised values (:func:`~napari_symbac.io.as_counts` would map them):
         no camera counts, no noise to measure, and a dataset drawn from its fit holds
-        only a few grey levels; for NaN or infinite pixels; and for a frame of more
+        only a few grey levels; for values beyond 16 bits (``as_counts`` divides
+        them); for NaN or infinite pixels; and for a frame of more
         than :data:`MAX_FIT_PIXELS` or fewer than 8 pixels a side.
     """
     shape = np.shape(image)
@@ -140,7 +141,17 @@ def check_fit_image(
         )
     from napari_symbac.io import as_counts
 
-    if as_counts(image)[1] is not None:
+    mapping = as_counts(image)[1]
+    if mapping is not None and mapping.divides:
+        # found as a user: a sum projection (maximum 150140) fitted with a 16-bit
+        # camera, its dataset clipped at 65535 over a fifth of its pixels, unsaid
+        raise ValueError(
+            f"{name} has values up to {high:.6g}, beyond the 16 bits (65535) of the "
+            "synthetic camera the fit matches to it: read it with napari_symbac.io."
+            "as_counts, which divides it into 16 bits (the commands and the Real image "
+            "dock's 'or open' do)"
+        )
+    if mapping is not None:
         # found as a user: ColiCoords' flattened bright field (0.89..1.12, float) given to
         # calibrate() as it was: cells and media fitted at 0 ADU, a dataset of 1s
         raise ValueError(

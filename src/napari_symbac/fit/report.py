@@ -174,14 +174,33 @@ def read_noise_note(camera: Any) -> str | None:
     return None
 
 
+#: Lag-2 / lag-1 variance ratio of an image's noise above which it is said to be
+#: correlated between neighbours (1 for white noise).
+CORRELATED_NOISE_RATIO = 1.1
+
+
+def neighbour_variance_ratio(frame: Any, camera: Any) -> float:
+    """The lag-2 / lag-1 variance ratio of ``frame``'s noise (1 for white noise; a
+    resampled or filtered image's is larger), from its photon transfer
+    (:func:`~napari_symbac.fit.camera_estimate.estimate_camera`).
+
+    Raises
+    ------
+    ValueError
+        When the image's photon transfer cannot be measured.
+    """
+    from napari_symbac.fit.camera_estimate import estimate_camera
+
+    estimate = estimate_camera(frame, camera=camera, bit_depth=camera.bit_depth)
+    return float(estimate.neighbour_variance_ratio)
+
+
 def measured_camera_note(frame: Any, camera: Any) -> str:
     """What the base fit of ``diagnose`` (the command and the dock) measured of the camera,
     and what the image's own photon transfer says of it (correlated noise, or an image
     that is not raw camera counts, whose "camera" is the residual's variance: found as a
     user, the dock said "camera measured from the recording (0.001 ADU/e-, read noise
     3.14e+04 e-)" of ColiCoords' flattened bright field, and no more)."""
-    from napari_symbac.fit.camera_estimate import estimate_camera
-
     if (sd := unmeasured_noise_adu(camera)) is not None:
         note = (
             "camera not measurable from the recording (its levels span too little, or it "
@@ -204,15 +223,15 @@ def measured_camera_note(frame: Any, camera: Any) -> str:
             "recording, or the camera"
         )
     try:
-        estimate = estimate_camera(frame, camera=camera, bit_depth=camera.bit_depth)
+        ratio = neighbour_variance_ratio(frame, camera)
     except ValueError as err:
         return f"{note}; the image's own photon transfer: {err}"
-    if estimate.neighbour_variance_ratio > 1.1:
+    if ratio > CORRELATED_NOISE_RATIO:
         # the ratio alone: the estimate's whole summary repeated the read noise's note
         # (found as a user: a note of 750 characters, parentheses three deep)
         note += (
             "; its noise is correlated between neighbours (lag-2 / lag-1 variance "
-            f"{estimate.neighbour_variance_ratio:.2f}, 1 for white noise), so a gain measured "
+            f"{ratio:.2f}, 1 for white noise), so a gain measured "
             "from one image is biased by about that factor, and camera_noise and the "
             "held-out gains assume independent pixels: give the camera (a camera "
             "section in the microscope file, or the Recording step's camera), e.g. the "

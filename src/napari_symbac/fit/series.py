@@ -23,7 +23,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -206,6 +206,7 @@ def fit_series(
     carry_cells: bool = True,
     progress: Callable[[int, int], None] | None = None,
     cancel: Callable[[], bool] | None = None,
+    frame_numbers: Sequence[int] | None = None,
     **frame_options,
 ) -> SeriesFit:
     """Fit a ``(T, Y, X)`` series with optics (and camera) shared by all frames.
@@ -248,6 +249,9 @@ def fit_series(
         (:class:`_SeriesProgress`).
     cancel
         As :func:`~napari_symbac.fit.fit_scene`, per frame fit.
+    frame_numbers
+        The frames' numbers in the recording, for the messages and warnings (found as
+        a user: ``--frames 1-2`` warned of "frames 0 and 1"); default ``0..T-1``.
     **frame_options
         Passed to each frame's :func:`~napari_symbac.fit.fit_scene` (``irls_rounds``,
         ``max_iterations``, ``moves``, ``per_cell_brightness``, ...).
@@ -270,6 +274,9 @@ def fit_series(
             f"growth_prior_sd_um must be zero (off) or positive, got {growth_prior_sd_um!r}"
         )
     n_frames = stack.shape[0]
+    number = list(range(n_frames)) if frame_numbers is None else [int(k) for k in frame_numbers]
+    if len(number) != n_frames:
+        raise ValueError(f"frame_numbers names {len(number)} frames, the series has {n_frames}")
     shared_camera = camera if camera is not None else _pooled_camera(stack)
     runs: list[_FrameRun] = []
     carried_from: list[bool] = []
@@ -321,11 +328,11 @@ def fit_series(
         except ValueError as err:
             advice = (
                 ". A series fit needs cells in every frame: fit the frames before and "
-                f"after frame {t} as separate series"
+                f"after frame {number[t]} as separate series"
                 if "no cells" in str(err)
                 else ""
             )
-            raise ValueError(f"frame {t} of the series: {err}{advice}") from err
+            raise ValueError(f"frame {number[t]} of the series: {err}{advice}") from err
         runs.append(run)
         carried_from.append(carried)
     alone = tuple(_frame_result(run) for run in runs)
@@ -341,10 +348,10 @@ def fit_series(
     correlation = [float(c) for _, c in registered]
     unrelated = [t for t in range(1, n_frames) if correlation[t] < CARRY_MIN_CORRELATION]
     warnings += [  # found as a user: 0 tracks linked on ColiCoords ds3, and no word why
-        f"frames {t - 1} and {t} correlate {correlation[t]:.2f} where they overlap, once "
-        f"registered (below {CARRY_MIN_CORRELATION}): they look like different fields (a "
-        f"stage jump?), so frame {t}'s cells were fitted from its own start and start "
-        f"new tracks (none continues frame {t - 1}'s)"
+        f"frames {number[t - 1]} and {number[t]} correlate {correlation[t]:.2f} where they "
+        f"overlap, once registered (below {CARRY_MIN_CORRELATION}): they look like "
+        f"different fields (a stage jump?), so frame {number[t]}'s cells were fitted from "
+        f"its own start and start new tracks (none continues frame {number[t - 1]}'s)"
         for t in unrelated
     ]
     cost_before = sum(run.state.cost for run in runs)
