@@ -209,3 +209,18 @@ def test_gaussian_noise_model_fits_the_noise_sd(truth):
     )
     # Camera noise at ~2000 ADU: sqrt(2.9 * 2000 + (2.9 * 8)^2) ~ 80 ADU.
     assert 50 < result.render.gaussian_noise_sd_adu < 110
+
+
+def test_progress_never_passes_its_bound_when_the_fit_does(truth):
+    """Found as a user: a colony fit's bar read "40 of at most 40 steps", then "47 of at
+    most 47": the optimiser's line searches pass the bound by a few renders, which the
+    bar does not count."""
+    calls = []
+    result = fit_parameters(
+        truth.image, scene_classes(truth.scene), truth.scene, truth.microscope, START,
+        truth.camera, terms=("pixel",), max_evaluations=8,
+        progress=lambda done, total: calls.append((done, total)),
+    )  # fmt: skip
+    assert result.n_evaluations > 8  # the case: Powell's last line search went on
+    assert all(done <= total <= 8 for done, total in calls)
+    assert calls[-1] == (8, 8)

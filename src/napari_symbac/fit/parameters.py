@@ -655,8 +655,11 @@ def fit_parameters(
         errors = {}
 
     terms_table = {k: (terms_before[k], terms_after[k]) for k in terms_after}
-    if progress is not None:
-        progress(budget.done, budget.done)  # the fit may end well within its bound
+    if progress is not None:  # the fit may end well within its bound; Powell's line
+        # searches may pass it by a few renders, which the bar does not count (found as
+        # a user: "40 of at most 40 steps", then "47 of at most 47")
+        ended = min(budget.done, budget.total)
+        progress(ended, ended)
     objective_before = total_objective(terms_before, weights)
     objective_after = total_objective(terms_after, weights)
     return FitResult(
