@@ -598,3 +598,18 @@ def test_the_report_pools_the_first_items_of_the_dataset(fluorescence_calibratio
     np.testing.assert_array_equal(comparison.power_synthetic, pooled.power_synthetic)
     small = export_settings(fluorescence_calibration, n_items=2, seed=3)
     assert len(compare_with_dataset(fluorescence_calibration, small, masks_given=True)[1]) == 2
+
+
+def test_the_division_length_is_read_from_the_median_not_lengthened_by_filaments():
+    """Found as a user: Omnipose's Sample000252 (median 4.19 um, mean 5.30 um: a few
+    long cells) gave a dataset of cells dividing at 7.64 um, their medians 5.1-5.9 um.
+    A steady population dividing at 4 um (lengths 1 / L^2 on 2-4 um) with 5 % filaments
+    of 15 um still reads 4 um, where mean / ln 2 reads 4.84."""
+    from napari_symbac.calibrate.core import division_length_um
+
+    quantiles = (np.arange(200) + 0.5) / 200
+    steady = 4.0 / (2.0 - quantiles)  # the inverse of F(L) = 2 - L_d / L
+    assert division_length_um(steady)[0] == pytest.approx(4.0, rel=0.01)
+    with_filaments = np.concatenate([steady, np.full(10, 15.0)])
+    assert division_length_um(with_filaments)[0] == pytest.approx(4.0, rel=0.05)
+    assert np.mean(with_filaments) / np.log(2) > 4.8  # what the mean would have said

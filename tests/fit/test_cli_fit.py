@@ -760,11 +760,11 @@ def test_real_colicoords_fluorescence_field_with_masks(tmp_path, real_data_dir):
     assert simulation.geometry == "agar_pad"
     widths = [c["width_um"] for c in json.loads((out / "cells.json").read_text())["cells"]]
     assert simulation.cell_width_um == pytest.approx(float(np.median(widths)))
-    # and dividing at the length that makes the fitted lengths a population's mean (it
+    # and dividing at the length that makes the fitted lengths' median a population's (it
     # kept the default 3.5 um where the real trench's cells are 4.6-5.3 um long)
     lengths = [c["length_um"] for c in cells]
     assert simulation.cell_max_length_um == pytest.approx(
-        max(np.mean(lengths) / np.log(2), 1.3 * simulation.cell_width_um)
+        max(1.5 * np.median(lengths), 1.3 * simulation.cell_width_um)
     )
     # on a pad of the recording's size
     pad = simulation.agar_pad

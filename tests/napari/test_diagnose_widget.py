@@ -454,7 +454,7 @@ def test_the_window_chosen_is_the_one_diagnosed(ds3_widget, qtbot):
         ("middle", "window 'middle' is not of the form Y0:Y1,X0:X1"),
         ("", "window '' is not of the form Y0:Y1,X0:X1"),
         ("96:192", "window '96:192' is not of the form Y0:Y1,X0:X1"),
-        ("0:600,0:64", "window '0:600,0:64' reaches outside the 512 x 512 frame (rows 0:512"),
+        ("0:600,0:64", "window '0:600,0:64' is not all inside the 512 x 512 frame (rows 0:512"),
         ("192:96,0:64", "window '192:96,0:64' is empty (each end after its start)"),
     ],
 )

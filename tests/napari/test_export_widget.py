@@ -48,6 +48,38 @@ def test_no_folder_is_reported(widget):
     assert widget.worker is None
 
 
+def test_refusals_are_said_in_the_docks_words(widget, tmp_path):
+    """Found as a user: "set ExportSettings.kind to 'timeseries' (`napari-symbac export
+    --kind timeseries`)" and "napari-symbac export --n-frames N" in the Export dock,
+    whose fields are "items" and which has no frames."""
+    import dataclasses
+
+    from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
+    from napari_symbac.settings import PipelineSettings, SimulationSettings
+
+    widget.folder.value = tmp_path / "dataset"
+    widget.formats.value = ["tiff", "ctc"]
+    widget.export_button.native.click()
+    assert widget.status.value == (
+        "Invalid settings: ctc hold tracking ground truth: choose items 'timeseries'"
+    )
+    one_frame = dataclasses.replace(
+        PipelineSettings(), simulation=SimulationSettings(n_frames=1, geometry="agar_pad")
+    )
+    widget.viewer.add_image(np.zeros((32, 32), np.uint16), name="fitted field",
+                            metadata={SYMBAC_METADATA_KEY: {"settings": one_frame}})  # fmt: skip
+    widget.source.reset_choices()
+    widget.source.value = widget.viewer.layers["fitted field"]
+    widget.kind.value = "timeseries"
+    widget.export_button.native.click()
+    status = widget.status.value
+    assert "a time series needs a simulation of at least 2 frames" in status
+    assert "is 1 frame" in status
+    assert "napari-symbac" not in status
+    assert widget.worker is None
+    assert not (tmp_path / "dataset").exists()
+
+
 def test_cancel_then_resume(widget, qtbot, tmp_path):
     widget.n_items.value = 40
     widget.folder.value = tmp_path / "big"

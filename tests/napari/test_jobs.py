@@ -136,6 +136,45 @@ def test_a_job_whose_panel_is_closed_is_cancelled(qtbot):
     assert any("Simulation cancelled: its panel was closed" in str(n.message) for n in seen)
 
 
+def test_a_job_whose_viewer_closed_around_it_reports_no_deleted_widget(qtbot):
+    """Found as a user: closing the viewer while Diagnose ran said "Diagnose cancelled:
+    its panel was closed", then "ERROR: Diagnose (showing its result) failed
+    (RuntimeError): wrapped C/C++ object of type QLabel has been deleted": the cancel
+    reached a status label the closing viewer had deleted. Only the cancel is said."""
+    import threading
+
+    from napari.utils.notifications import notification_manager
+    from qtpy.QtWidgets import QLabel, QWidget
+
+    dock = QWidget()
+    step = QWidget(dock)
+    status = QLabel(step)
+    finished: list[bool] = []
+    seen = []
+    notification_manager.notification_ready.connect(seen.append)
+    running = threading.Event()
+
+    def work():
+        for index in range(1, 100_000):
+            running.set()
+            yield index, index
+            threading.Event().wait(0.01)
+
+    job = Job(work, total=0, description="test", what="Diagnose", owner=step,
+              on_abort=lambda: status.setText("cancelled"),
+              on_finish=lambda: finished.append(True))  # fmt: skip
+    job.start()
+    assert running.wait(30)
+    step.setParent(None)
+    status.deleteLater()  # the viewer's widgets go first
+    dock.deleteLater()
+    qtbot.waitUntil(lambda: bool(finished), timeout=30_000)
+    assert not _is_alive(status)
+    said = [str(n.message) for n in seen]
+    assert any("Diagnose cancelled: its panel was closed" in m for m in said)
+    assert not any("showing its result" in m for m in said), said
+
+
 def test_a_finished_job_forgets_its_panel(qtbot):
     """A job that ended holds no connection to its dock: closing the dock later
     notifies nothing and keeps no finished job (and its result) alive."""

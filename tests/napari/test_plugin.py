@@ -412,3 +412,42 @@ def test_samples_name_their_frames_and_are_not_taken_for_recordings(make_napari_
     ]
     exportable = [layer.name for layer in ExportWidget(viewer).source.choices if layer]
     assert exportable == ["synthetic trench", "synthetic agar pad"]
+
+
+@pytest.mark.parametrize(
+    "name", ["Real image and classes", "Tune optics and noise", "SyMBac workflow (all steps)"]
+)
+def test_a_closed_panel_lets_go_of_the_viewer(make_napari_viewer, qtbot, tmp_path, name):
+    """Found as a user: a panel closed with its x button stayed connected to the viewer's
+    layer events; opened again, every recording opened without a pixel size was warned
+    of twice. Closing the panel lets go of every connection its steps made."""
+    import tifffile
+    from qtpy.QtCore import QCoreApplication, QEvent
+
+    viewer = make_napari_viewer(show=True)
+    events = viewer.layers.events
+    widget = None
+
+    def ours(callbacks) -> int:  # napari's own link to a docked magicgui's reset_choices
+        # is napari's to undo, not the step's
+        return sum(1 for c in callbacks if not (
+            isinstance(c, tuple) and c[1] == "reset_choices" and c[0]() is widget))  # fmt: skip
+
+    def counts() -> tuple[int, int, int]:
+        return (ours(events.inserted.callbacks), ours(events.removed.callbacks),
+                len(viewer.dims.events.current_step.callbacks))  # fmt: skip
+
+    before = counts()
+    dock, widget = viewer.window.add_plugin_dock_widget("napari-symbac", name)
+    qtbot.waitUntil(lambda: widget.isVisible() if hasattr(widget, "isVisible")
+                    else widget.native.isVisible(), timeout=10_000)  # fmt: skip
+    image = tmp_path / "bare.tif"
+    tifffile.imwrite(image, np.random.default_rng(0).poisson(500, (64, 32)).astype(np.uint16))
+    layer = viewer.open(image)[0]  # a layer's own events are let go too
+    added = len(layer.events.metadata.callbacks)
+    assert counts()[0] > before[0]
+    viewer.window.remove_dock_widget(dock)
+    QCoreApplication.sendPostedEvents(None, QEvent.Type.DeferredDelete)
+    qtbot.waitUntil(lambda: counts()[:2] == before[:2], timeout=10_000)
+    assert counts()[2] == before[2]
+    assert len(layer.events.metadata.callbacks) < added

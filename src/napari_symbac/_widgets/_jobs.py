@@ -133,6 +133,7 @@ class Job:
         self._queue: list[tuple[str, Any]] = []
         self._busy = False
         self._closed = False
+        self._panel_gone = False  # a widget holding the owner was destroyed
         self._outcome = False  # a return, an error or an abort was delivered
         self.done = False
         self.cancelled = threading.Event() if cancelled is None else cancelled
@@ -180,6 +181,7 @@ class Job:
 
     def _on_holder_destroyed(self, _obj=None) -> None:
         self._holders.clear()  # being deleted: nothing to disconnect
+        self._panel_gone = True
         if self.done or self._closed or self.cancelled.is_set():
             return
         self.quit()  # as the Cancel button: the step tidies up (a preview removed)
@@ -219,6 +221,12 @@ class Job:
                 kind, payload = self._queue.pop(0)
                 try:
                     self._handle(kind, payload)
+                except RuntimeError as err:
+                    if not (self._panel_gone and _deleted_widget(err)):
+                        notify_error(describe_error(err, f"{self._what} (showing its result)"))
+                    # else: the viewer closed around the step, its labels deleted before
+                    # the cancel arrived (found as a user: "Diagnose cancelled: its
+                    # panel was closed", then an ERROR naming a deleted QLabel)
                 except Exception as err:  # a bug in a callback: report, keep the widget
                     notify_error(describe_error(err, f"{self._what} (showing its result)"))
         finally:
@@ -280,3 +288,10 @@ def blocking_steps(run, cancelled):
                 continue
             yield done, (done, total)
         return future.result()
+
+
+def _deleted_widget(err: RuntimeError) -> bool:
+    """Whether ``err`` is Qt's for a widget whose C++ object was deleted (PyQt's and
+    PySide's wording)."""
+    text = str(err)
+    return "has been deleted" in text or "already deleted" in text

@@ -23,11 +23,14 @@ from __future__ import annotations
 import dataclasses
 import weakref
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from napari_symbac.fit.preflight import ModalityAdvice, check_pixel_size, looks_like_masks
 from napari_symbac.io import AXIS_LABELS, axis_labels, layer_axes
 from napari_symbac.settings import Camera, Microscope, RenderSettings
+
+if TYPE_CHECKING:
+    from napari_symbac._widgets._links import ViewerLinks
 
 __all__ = [
     "AXIS_LABELS",
@@ -310,19 +313,20 @@ def followed_layer(event: Any, choices: list, busy: bool = False) -> Any:
     return next((c for c in choices if c is not None and c is layer), None)
 
 
-def watch_recordings(viewer: Any, refresh: Callable[..., None]) -> None:
+def watch_recordings(viewer: Any, refresh: Callable[..., None], links: ViewerLinks) -> None:
     """Call ``refresh`` whenever the viewer's recordings may have changed.
 
     That is when a layer is added or removed, and when an image layer's metadata is
     replaced (its pixel size entered or cleared in *Real image and classes*): without
     the latter a recording opened without a pixel size would stay missing from the
-    other widgets' lists until some layer happened to be added.
+    other widgets' lists until some layer happened to be added. Connected through the
+    step's ``links``, which its closed panel lets go.
     """
     from napari.layers import Image
 
     def watch(layer: Any) -> None:
         if isinstance(layer, Image):
-            layer.events.metadata.connect(refresh)
+            links.connect(layer.events.metadata, refresh)
 
     def inserted(event: Any) -> None:
         watch(event.value)
@@ -330,8 +334,8 @@ def watch_recordings(viewer: Any, refresh: Callable[..., None]) -> None:
 
     for layer in viewer.layers:
         watch(layer)
-    viewer.layers.events.inserted.connect(inserted)
-    viewer.layers.events.removed.connect(refresh)
+    links.connect(viewer.layers.events.inserted, inserted)
+    links.connect(viewer.layers.events.removed, refresh)
 
 
 def recording_microscope(layer: Any, base: Microscope | None = None) -> Microscope:

@@ -20,6 +20,7 @@ from magicgui.widgets import ComboBox, Container, LineEdit, PushButton, SpinBox
 
 from napari_symbac._widgets._forms import fill_height, hide_label, message_label, report_box
 from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
+from napari_symbac._widgets._links import ViewerLinks
 from napari_symbac._widgets._recording import (
     GUI_MODALITY_ADVICE,
     check_recording_frame,
@@ -205,7 +206,8 @@ class DiagnoseWidget(Container):
         self.run_button.changed.connect(self.run)
         self.cancel_button.changed.connect(self.cancel)
         self.reference.changed.connect(self._choose_masks)
-        watch_recordings(viewer, self._refresh_choices)
+        self._links = ViewerLinks(self.native)
+        watch_recordings(viewer, self._refresh_choices, self._links)
         self._refresh_choices()
 
     def _recordings(self, _widget=None) -> list:

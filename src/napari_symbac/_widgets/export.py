@@ -25,6 +25,7 @@ from magicgui.widgets import (
 from napari_symbac._widgets._backend import backend_combo
 from napari_symbac._widgets._forms import message_label
 from napari_symbac._widgets._jobs import Job, blocking_steps
+from napari_symbac._widgets._links import ViewerLinks
 from napari_symbac._widgets._recording import watch_recordings
 from napari_symbac._widgets.calibrate import CALIBRATION_KEY
 from napari_symbac._widgets.simulate import FITTED_TO_KEY, SYMBAC_METADATA_KEY
@@ -121,7 +122,8 @@ class ExportWidget(Container):
         for widget, tip in tips.items():
             widget.tooltip = tip
         # layers added or removed, and a layer's settings fitted (its metadata)
-        watch_recordings(viewer, self._refresh_source)
+        self._links = ViewerLinks(self.native)
+        watch_recordings(viewer, self._refresh_source, self._links)
         self.worker: Job | None = None
         self.report = None
         self._origin = ""
@@ -155,11 +157,30 @@ class ExportWidget(Container):
         """The export settings in the form (validated); for a layer Calibrate made, its
         matched dataset's (:func:`~napari_symbac.calibrate.export_settings`, as the
         ``calibrate`` command writes it)."""
+        from napari_symbac.export.formats import FORMATS
+
         layer = self.source.value
         meta = {} if layer is None else layer.metadata[SYMBAC_METADATA_KEY]
         if meta.get(CALIBRATION_KEY) is not None:
             return self._calibrated(meta[CALIBRATION_KEY])
         pipeline = meta["settings"] if layer is not None else PipelineSettings()
+        # said in the dock's words (found as a user: "set ExportSettings.kind to
+        # 'timeseries' (`napari-symbac export --kind timeseries`)", "napari-symbac export
+        # --n-frames N", neither of which the dock has)
+        tracking = [f for f in self.formats.value if FORMATS[f].timeseries_only]
+        if tracking and self.kind.value != "timeseries":
+            raise ValueError(
+                f"{', '.join(tracking)} hold tracking ground truth: choose items "
+                "'timeseries'"
+            )
+        n_frames = pipeline.simulation.n_frames
+        if self.kind.value == "timeseries" and n_frames < 2:
+            raise ValueError(
+                f"a time series needs a simulation of at least 2 frames to track cells; "
+                f"'{self.source.current_choice}' is {n_frames} frame (a field that "
+                "Auto-fit fitted is one): Simulate it with more frames (Simulate step, "
+                "with the fitted settings) and export that layer, or choose items 'frames'"
+            )
         return export_of(
             dataclasses.replace(
                 pipeline,

@@ -14,6 +14,7 @@ from magicgui.widgets import ComboBox, Container, FileEdit, Label, PushButton
 
 from napari_symbac._widgets._forms import SettingsForm, hide_label, message_label
 from napari_symbac._widgets._jobs import notify_warning
+from napari_symbac._widgets._links import ViewerLinks
 from napari_symbac._widgets._recording import (
     CAMERA_KEY,
     axis_labels,
@@ -184,13 +185,18 @@ class RealImageWidget(Container):
         self._show_condenser()
         self.paint_button.changed.connect(self.paint)
         self.measure_button.changed.connect(self.measure)
-        viewer.layers.events.inserted.connect(self._add_grey_channel)
-        viewer.layers.events.inserted.connect(self._place_over_recording)
-        viewer.layers.events.inserted.connect(self._follow_image_in_pixels)
-        viewer.layers.events.inserted.connect(self.image.reset_choices)
-        viewer.layers.events.inserted.connect(self._follow_opened)
-        viewer.layers.events.removed.connect(self.image.reset_choices)
-        watch_recordings(viewer, self._show_entered)
+        self._links = ViewerLinks(self.native)
+        layers = viewer.layers.events
+        for follow in (
+            self._add_grey_channel,
+            self._place_over_recording,
+            self._follow_image_in_pixels,
+            self.image.reset_choices,
+            self._follow_opened,
+        ):
+            self._links.connect(layers.inserted, follow)
+        self._links.connect(layers.removed, self.image.reset_choices)
+        watch_recordings(viewer, self._show_entered, self._links)
         self.statistics = None
         self._loading = False
         for layer in list(viewer.layers):

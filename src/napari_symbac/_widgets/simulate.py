@@ -15,6 +15,7 @@ from magicgui.widgets import CheckBox, ComboBox, Container, PushButton
 from napari_symbac._widgets._backend import backend_combo
 from napari_symbac._widgets._forms import SettingsForm, hide_label, message_label
 from napari_symbac._widgets._jobs import Job
+from napari_symbac._widgets._links import ViewerLinks
 from napari_symbac._widgets._recording import (
     axis_labels,
     followed_layer,
@@ -127,7 +128,8 @@ class SimulateWidget(Container):
         self.worker: Job | None = None  # before the recordings are followed
         self._followed: tuple | None = None  # the recording as last followed
         self.recording.changed.connect(self._follow_recording)
-        watch_recordings(viewer, self._refresh_recordings)
+        self._links = ViewerLinks(self.native)
+        watch_recordings(viewer, self._refresh_recordings, self._links)
         self._refresh_recordings()
         self.run_button.changed.connect(self.run)
         self.cancel_button.changed.connect(self.cancel)

@@ -25,6 +25,7 @@ from magicgui.widgets import (
 
 from napari_symbac._widgets._forms import message_label
 from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
+from napari_symbac._widgets._links import ViewerLinks
 from napari_symbac._widgets._recording import (
     GUI_MODALITY_ADVICE,
     RECORDING_STEP,
@@ -431,8 +432,9 @@ class TuneWidget(Container):
         self.reference.changed.connect(self._choose_masks)
         self.reference.changed.connect(self._follow_modality)
         self.match_noise.changed.connect(self._match_noise)
-        viewer.dims.events.current_step.connect(self._on_step)
-        watch_recordings(viewer, self._refresh_choices)
+        self._links = ViewerLinks(self.native)
+        self._links.connect(viewer.dims.events.current_step, self._on_step)
+        watch_recordings(viewer, self._refresh_choices, self._links)
         self._choose_reference()  # a dock opened after the recording (found as a user)
         self._load_source()
 

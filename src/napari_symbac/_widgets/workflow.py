@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 from qtpy.QtCore import QEvent, QObject, Qt
 from qtpy.QtWidgets import QFrame, QScrollArea, QStyle, QTabWidget, QWidget
 
+from napari_symbac._widgets._links import release_with_dock
 from napari_symbac._widgets._recording import is_recording
 from napari_symbac._widgets.calibrate import CalibrateWidget
 from napari_symbac._widgets.diagnose import DiagnoseWidget
@@ -72,25 +73,28 @@ class WorkflowWidget(QTabWidget):
             "settings in one step, as napari-symbac calibrate.",
             "Export a training dataset with the tuned, fitted or calibrated settings.",
         )
-        for title, tip, widget in zip(
-            TABS,
-            tips,
-            (
-                self.real_image,
-                self.simulate,
-                self.tune,
-                self.diagnose,
-                self.calibrate,
-                self.export,
-            ),
-        ):
+        for title, tip, widget in zip(TABS, tips, self._steps):
             area = _scroll_area(widget.native)
             widget.native.installEventFilter(self)
             index = self.addTab(area, title)
             self.setTabToolTip(index, tip)
         self._fit_widest_step()
+        # the steps in tabs never shown are let go with the workflow's own dock
+        release_with_dock(self, self._release_steps)
         self.real_image.image.changed.connect(self._share_recording)
         self.real_image.pixel_size.changed.connect(self._share_recording)
+
+    def _release_steps(self) -> None:
+        """Every step lets go of the viewer: the panel was closed (:mod:`._links`)."""
+        for step in self._steps:
+            step._links.release()
+
+    @property
+    def _steps(self) -> tuple:
+        return (
+            self.real_image, self.simulate, self.tune, self.diagnose, self.calibrate,
+            self.export,
+        )  # fmt: skip
 
     def _share_recording(self, _value=None) -> None:
         """The first step's recording chosen in the later steps (see the class notes)."""

@@ -112,10 +112,10 @@ def parse_region(
         ) from None
     if not (y0 < y1 and x0 < x1):
         raise ValueError(f"{name} {text!r} is empty (each end after its start): {forms}")
-    if not (0 <= y0 and y1 <= rows and 0 <= x0 and x1 <= cols):  # found as a user:
+    if not (y0 >= 0 and y1 <= rows and x0 >= 0 and x1 <= cols):  # found as a user:
         # 0:300,0:46 of a 256 x 46 frame was "empty or outside" it, and is neither
         raise ValueError(
-            f"{name} {text!r} reaches outside the {rows} x {cols} frame (rows 0:{rows}, "
+            f"{name} {text!r} is not all inside the {rows} x {cols} frame (rows 0:{rows}, "
             f"columns 0:{cols}): {forms}"
         )
     if min(y1 - y0, x1 - x0) < MIN_REGION_PX:  # found as a user: "real_image of shape

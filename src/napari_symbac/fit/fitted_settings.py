@@ -85,9 +85,9 @@ def fitted_simulation(
       founder to the clusters' mean size (a field of scattered cells gives scattered
       cells, not one colony of the defaults' size).
     - Fitted cells: their median width, and the sizer division length (and its
-      variance) that makes the fitted lengths the mean of an asynchronous exponential
-      population (``calibrate.core.division_length_um``, as ``calibrate``), at least
-      1.3 widths.
+      variance) that makes the fitted lengths' median that of an asynchronous
+      exponential population (``calibrate.core.division_length_um``, as
+      ``calibrate``), at least 1.3 widths.
 
     Parameters
     ----------
