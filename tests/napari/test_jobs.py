@@ -117,15 +117,7 @@ def test_a_job_whose_panel_is_closed_is_cancelled(qtbot):
     seen = []
     notification_manager.notification_ready.connect(seen.append)
     running = threading.Event()
-
-    def work():
-        for index in range(1, 100_000):
-            running.set()
-            yield index, index
-            threading.Event().wait(0.01)
-        return "finished without being cancelled"
-
-    job = _job_calling_back(work, "Simulation", calls, owner=step)
+    job = _job_calling_back(_endless_work(running), "Simulation", calls, owner=step)
     job.start()
     assert running.wait(30)
     step.setParent(None)  # what napari's remove_dock_widget does, then deletes the dock
@@ -153,14 +145,7 @@ def test_a_job_whose_viewer_closed_around_it_reports_no_deleted_widget(qtbot):
     seen = []
     notification_manager.notification_ready.connect(seen.append)
     running = threading.Event()
-
-    def work():
-        for index in range(1, 100_000):
-            running.set()
-            yield index, index
-            threading.Event().wait(0.01)
-
-    job = Job(work, total=0, description="test", what="Diagnose", owner=step,
+    job = Job(_endless_work(running), total=0, description="test", what="Diagnose", owner=step,
               on_abort=lambda: status.setText("cancelled"),
               on_finish=lambda: finished.append(True))  # fmt: skip
     job.start()
@@ -209,6 +194,20 @@ def _is_alive(widget) -> bool:
     except RuntimeError:  # its C++ object was deleted
         return False
     return True
+
+
+def _endless_work(running):
+    """A job's work that yields until it is cancelled, setting ``running`` at each step."""
+    import threading
+
+    def work():
+        for index in range(1, 100_000):
+            running.set()
+            yield index, index
+            threading.Event().wait(0.01)
+        return "finished without being cancelled"
+
+    return work
 
 
 def _job_calling_back(work, what: str, calls: list[str], **kwargs) -> Job:
