@@ -37,9 +37,6 @@ class ViewerLinks:
                 emitter.disconnect(callback)
         self._pairs.clear()
 
-    def __len__(self) -> int:
-        return len(self._pairs)
-
 
 class _DockWatch(QObject):
     """Waits for ``widget`` to be shown in a dock, then calls ``release`` when that

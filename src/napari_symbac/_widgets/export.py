@@ -178,8 +178,8 @@ class ExportWidget(Container):
             raise ValueError(
                 f"a time series needs a simulation of at least 2 frames to track cells; "
                 f"'{self.source.current_choice}' is {n_frames} frame (a field that "
-                "Auto-fit fitted is one): Simulate it with more frames (Simulate step, "
-                "with the fitted settings) and export that layer, or choose items 'frames'"
+                "Auto-fit fitted is one): simulate more frames in the Simulate step and "
+                "export that layer, or choose items 'frames'"
             )
         return export_of(
             dataclasses.replace(
