@@ -194,7 +194,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
                 else ""
             )
         )
-    from napari_symbac.export.formats import FORMATS
+    from napari_symbac.export.formats import FORMATS, tracking_formats
 
     formats = [f.strip().lower() for f in args.formats.split(",") if f.strip()]
     unknown = [f for f in formats if f not in FORMATS]
@@ -203,7 +203,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
             f"--formats {args.formats!r}: unknown format(s) {', '.join(unknown) or '(none)'}; "
             f"known formats: {', '.join(FORMATS)}"
         )
-    tracking = [f for f in formats if FORMATS[f].timeseries_only]
+    tracking = tracking_formats(formats)
     if tracking:  # refused before the fit, in calibrate's words (not ExportSettings.kind's)
         raise ValueError(
             f"--formats {', '.join(tracking)}: tracking ground truth needs a time series, and "

@@ -236,18 +236,17 @@ def _camera_for(
     from napari_symbac.settings import Camera, load_settings
 
     bit_depth = image_bit_depth(frame)
+    mapping = getattr(args, "counts_mapping", None)  # how the image was read
     if args.camera is not None:
         from napari_symbac.fit.preflight import camera_recording_problem
 
-        given = load_settings(args.camera, Camera)
-        camera = in_read_units(given, getattr(args, "counts_mapping", None))
+        camera = in_read_units(load_settings(args.camera, Camera), mapping)
         problem = camera_recording_problem(camera, frame)
         if problem is not None:
             raise ValueError(f"--camera {args.camera}: {problem}")
         return camera, f"from --camera {args.camera}"
     if args.dark is not None:
         dark = _read_stack(args.dark, "--dark")
-        mapping = getattr(args, "counts_mapping", None)
         if mapping is not None and mapping.divides:  # divided as the image was
             dark = mapping.counts_adu(dark)
         name = Path(args.dark).name
@@ -269,7 +268,7 @@ def _camera_for(
             note += f"; {dark.shape[-2]} x {dark.shape[-1]} px frames, another region"
         return estimate.camera, note + ")"
     if getattr(args, "microscope_camera", None) is not None:
-        camera = in_read_units(args.microscope_camera, getattr(args, "counts_mapping", None))
+        camera = in_read_units(args.microscope_camera, mapping)
         return camera, f"from the camera section of --microscope {args.microscope}"
     if config_has_camera:  # napari-symbac's own settings: in the units it read
         return base_camera, f"from --config {args.config}"

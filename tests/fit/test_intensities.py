@@ -85,3 +85,51 @@ def test_real_trench_classes_are_ordered(real_data_dir):
     labels[40:240, 12:14] = CLASS_VALUES["media"]  # bright band along the trench wall
     stats = class_statistics(image, labels)
     assert stats["device"].mean < stats["cell"].mean < stats["media"].mean
+
+
+@pytest.mark.parametrize("name", ["Sample000252", "Sample000193"])
+def test_rough_class_means_of_a_phase_colony_match_its_masks(real_data_dir, name):
+    """A phase field nobody painted: its background is the recording's away from the
+    cells (a single threshold took the halo for it: 201 against 140 on Sample000252),
+    and its cells darker than that."""
+    from scipy.ndimage import binary_dilation
+
+    from napari_symbac.fit.intensities import rough_class_means
+    from napari_symbac.io import read_image
+
+    folder = real_data_dir / "omnipose"
+    image = np.asarray(read_image(folder / f"{name}.png").data, np.float64)
+    masks = tifffile.imread(folder / f"{name}_cp_masks.tif")
+    far = ~binary_dilation(masks > 0, iterations=8)
+    rough = rough_class_means(image, "phase", field=True)
+    assert abs(rough["media"] - image[far].mean()) < 0.05 * image[far].mean()
+    assert rough["cell"] < 0.8 * rough["media"]
+
+
+def test_rough_class_means_of_a_fluorescence_field_and_a_trench(real_data_dir):
+    from napari_symbac.fit.intensities import rough_class_means
+
+    field = tifffile.imread(
+        real_data_dir / "colicoords" / "test_data" / "ds1" / "fluorescence" / "00001.tif"
+    ).astype(np.float64)
+    mask = tifffile.imread(
+        real_data_dir / "colicoords/test_data/ds1/binary/00001_Probabilities_filtered.tif"
+    ) > 0
+    rough = rough_class_means(field, "fluorescence", field=True)
+    assert rough["cell"] > 5 * rough["media"]  # bright cells on a dark background
+    assert abs(rough["media"] - np.median(field[~mask])) < 0.2 * np.median(field[~mask])
+    trench = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")
+    assert trench.ndim == 2
+    rough = rough_class_means(trench.astype(np.float64), "phase", field=False)
+    assert rough["cell"] < 0.5 * rough["media"]  # dark cells and PDMS, bright media
+
+
+def test_rough_class_means_of_bright_field_and_flat_images():
+    from napari_symbac.fit.intensities import rough_class_means
+
+    image = np.full((32, 32), 500.0)
+    assert rough_class_means(image, "phase", field=True) == {"media": 500.0}
+    image[8:12, 8:20] = 480.0
+    assert rough_class_means(image, "brightfield", field=True) == {"media": 500.0}
+    with pytest.raises(ValueError, match="no finite pixel"):
+        rough_class_means(np.full((8, 8), np.nan), "phase", field=True)

@@ -680,3 +680,28 @@ def test_or_open_refuses_a_tiff_of_nan(make_napari_viewer, tmp_path):
         widget.result.value
     )
     assert len(viewer.layers) == 0
+
+
+def test_an_8_bit_recordings_classes_are_measured_above_its_own_offset(
+    make_napari_viewer, real_data_dir
+):
+    """Found as a user: the class means of an 8-bit colony (cells about 80, background
+    140 on a 0-255 scale) were taken above the built-in camera's 100 ADU offset: the
+    cells' mean came out 0 ADU, and Simulate drew them black."""
+    viewer = make_napari_viewer()
+    widget = RealImageWidget(viewer)
+    widget.file.value = real_data_dir / "omnipose" / "Sample000252.png"
+    layer = widget.image.value
+    widget.pixel_size.value = 0.05734
+    masks = tifffile.imread(real_data_dir / "omnipose" / "Sample000252_cp_masks.tif")
+    widget.paint_button.native.click()
+    classes = viewer.layers[class_layer_name(layer.name)]
+    cells = masks > 0
+    classes.data = np.where(cells, CLASS_VALUES["cell"], CLASS_VALUES["media"]).astype(np.uint8)
+    widget.measure_button.native.click()
+    means = layer.metadata["class_means_adu"]
+    data = np.asarray(layer.data, np.float64)
+    offset = data[cells].mean() - means["cell"]
+    assert 0 <= offset <= np.quantile(data, 0.001) + 1e-9  # the fit's offset guess, not 100
+    assert means["media"] - means["cell"] == pytest.approx(data[~cells].mean() - data[cells].mean())
+    assert means["cell"] > 0.5 * data[cells].mean()

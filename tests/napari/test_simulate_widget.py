@@ -443,3 +443,39 @@ def test_closing_the_dock_during_a_run_cancels_it(make_napari_viewer, qtbot):
     assert RESULT_IMAGE_LAYER not in viewer.layers
     assert widget.simulation is None
     assert widget.status.value.startswith("Cancelled")
+
+
+def test_an_unpainted_8_bit_recording_is_simulated_on_its_own_scale(widget, qtbot, real_data_dir):
+    """Found as a user: Simulate on an 8-bit colony with no painted classes (Omnipose's
+    Sample000252, 54-241 from its 1st to 99th percentile) rendered at 2488-2909 ADU with
+    the built-in camera and intensities. Its camera is now measured from it (8 bits) and
+    its intensities start from a rough split of its cells and background."""
+    from napari_symbac.io import read_image
+
+    data = np.asarray(read_image(real_data_dir / "omnipose" / "Sample000252.png").data)
+    assert data.dtype == np.uint8
+    widget.viewer.add_image(
+        data, name="colony", scale=(0.05734, 0.05734),
+        metadata={"pixel_size_um": 0.05734, "modality": "phase"},
+    )  # fmt: skip
+    settings = widget.pipeline_settings()
+    assert settings.camera.bit_depth == 8
+    assert settings.render.cell_intensity < settings.render.media_intensity < 255
+    _simulate(widget, qtbot, n_frames=3)
+    synthetic = widget.viewer.layers[RESULT_IMAGE_LAYER].data[-1].astype(np.float64)
+    # the pad's background is the recording's (median 137; before: 2700)
+    assert abs(np.median(synthetic) - np.median(data)) < 0.1 * np.median(data)
+    assert synthetic.max() <= 255
+    assert "camera measured from it" in widget.status.value
+    assert "a rough split of it into cells and background" in widget.status.value
+
+
+def test_a_class_not_measured_is_scaled_as_the_measured_media():
+    from napari_symbac._widgets._recording import modality_render
+    from napari_symbac.settings import RenderSettings
+
+    default = modality_render(RenderSettings(), "phase")
+    render = modality_render(RenderSettings(), "phase", {"cell": 40.0, "media": 130.0})
+    assert (render.cell_intensity, render.media_intensity) == (40.0, 130.0)
+    scale = 130.0 / default.media_intensity
+    assert render.device_intensity == pytest.approx(default.device_intensity * scale)

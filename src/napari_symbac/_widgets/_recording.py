@@ -38,6 +38,7 @@ __all__ = [
     "RECORDING_STEP",
     "axis_labels",
     "check_recording_frame",
+    "first_frame",
     "followed_layer",
     "given_camera",
     "holds_masks",
@@ -48,6 +49,8 @@ __all__ = [
     "layer_pixel_size_um",
     "modality_render",
     "pixel_size_problem",
+    "recording_camera",
+    "recording_class_means",
     "recording_microscope",
     "recordings",
     "watch_recordings",
@@ -354,8 +357,9 @@ def modality_render(
 ) -> RenderSettings:
     """``render`` with intensities for ``modality``: measured class means when given.
 
-    The class means of the painted recording (eq. 2, baseline subtracted with the
-    camera's) start eq. 3's intensities; otherwise the modality's defaults, which have
+    The class means of the recording (eq. 2, baseline subtracted with the camera's:
+    :func:`recording_class_means`) start eq. 3's intensities, a class not among them its
+    default scaled as the measured media is; otherwise the modality's defaults, which have
     the right polarity (fluorescence: bright cells on a dark background). Phase-only
     kernel terms (phase ring, offset) are switched off for fluorescence and bright field.
     """
@@ -363,7 +367,64 @@ def modality_render(
     if modality != "phase":
         changes.update(ring_contrast=0.0, psf_offset=0.0)
     if statistics:
+        # a class not measured: its default in proportion to the measured media (an
+        # 8-bit recording's tens of ADU were drawn beside PDMS at 900 ADU)
+        scale = None
+        if "media" in statistics:
+            scale = max(float(statistics["media"]), 0.0) / changes["media_intensity"]
         for cls in ("cell", "media", "device"):
+            key = f"{cls}_intensity"
             if cls in statistics:
-                changes[f"{cls}_intensity"] = max(float(statistics[cls]), 0.0)
+                changes[key] = max(float(statistics[cls]), 0.0)
+            elif scale is not None:
+                changes[key] = changes[key] * scale
     return dataclasses.replace(render, **changes)
+
+
+def first_frame(layer: Any) -> Any:
+    """A recording layer's first frame (its only one for a single image), as an array."""
+    import numpy as np
+
+    return np.asarray(layer.data[(0,) * (layer.data.ndim - 2)])
+
+
+def recording_camera(layer: Any) -> tuple[Camera, str]:
+    """The camera of recording ``layer`` and where it comes from: the one given in the
+    Recording step, else measured from its first frame as ``napari-symbac fit`` measures
+    it without ``--camera`` (:func:`~napari_symbac.fit.scene_fit.recording_camera`: an
+    8-bit recording gets an 8-bit camera and its own offset and noise).
+
+    Raises
+    ------
+    ValueError
+        For a frame the fit refuses (:func:`check_recording_frame`), in its words.
+    """
+    from napari_symbac.fit.scene_fit import recording_camera as measured_camera
+
+    given = given_camera(layer)
+    if given is not None:
+        return given, "given in the Recording step"
+    frame = first_frame(layer)
+    check_recording_frame(frame, layer.name)
+    return measured_camera(frame), "measured from it"
+
+
+def recording_class_means(
+    layer: Any, modality: str, baseline_adu: float
+) -> tuple[dict[str, float], str]:
+    """The class means (ADU above the camera's ``baseline_adu``) that start eq. 3's
+    intensities for recording ``layer``, and where they come from: its painted classes
+    measured in the Recording step, else a rough split of its first frame into cells and
+    background (:func:`~napari_symbac.fit.intensities.rough_class_means`)."""
+    from napari_symbac.fit.intensities import rough_class_means
+
+    painted = layer.metadata.get("class_means_adu")
+    if painted:
+        return dict(painted), "its painted classes"
+    from napari_symbac.fit.preflight import default_geometry
+
+    frame = first_frame(layer)
+    field = default_geometry(frame.shape, modality) == "field"
+    rough = rough_class_means(frame, modality, field=field)
+    means = {cls: mean - baseline_adu for cls, mean in rough.items()}
+    return means, "a rough split of it into cells and background"

@@ -157,7 +157,7 @@ class ExportWidget(Container):
         """The export settings in the form (validated); for a layer Calibrate made, its
         matched dataset's (:func:`~napari_symbac.calibrate.export_settings`, as the
         ``calibrate`` command writes it)."""
-        from napari_symbac.export.formats import FORMATS
+        from napari_symbac.export.formats import tracking_formats
 
         layer = self.source.value
         meta = {} if layer is None else layer.metadata[SYMBAC_METADATA_KEY]
@@ -167,7 +167,7 @@ class ExportWidget(Container):
         # said in the dock's words (found as a user: "set ExportSettings.kind to
         # 'timeseries' (`napari-symbac export --kind timeseries`)", "napari-symbac export
         # --n-frames N", neither of which the dock has)
-        tracking = [f for f in self.formats.value if FORMATS[f].timeseries_only]
+        tracking = tracking_formats(self.formats.value)
         if tracking and self.kind.value != "timeseries":
             raise ValueError(
                 f"{', '.join(tracking)} hold tracking ground truth: choose items "

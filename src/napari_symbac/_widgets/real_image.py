@@ -23,6 +23,7 @@ from napari_symbac._widgets._recording import (
     layer_axes,
     layer_pixel_size_um,
     pixel_size_problem,
+    recording_camera,
     scale_pixel_um,
     watch_recordings,
 )
@@ -619,7 +620,10 @@ class RealImageWidget(Container):
             self.result.value = str(err)
             notify_warning(str(err))
             return
-        baseline = Camera().baseline_adu
+        try:  # above the recording's own offset (an 8-bit one's is below 100 ADU)
+            baseline = recording_camera(layer)[0].baseline_adu
+        except ValueError:  # a frame the fits refuse: they say why when run
+            baseline = Camera().baseline_adu
         layer.metadata = {
             **layer.metadata,
             "class_means_adu": {

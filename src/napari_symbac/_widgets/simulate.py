@@ -18,12 +18,15 @@ from napari_symbac._widgets._jobs import Job
 from napari_symbac._widgets._links import ViewerLinks
 from napari_symbac._widgets._recording import (
     axis_labels,
+    first_frame,
     followed_layer,
     in_pixel_units,
     layer_axes,
     layer_pixel_size_um,
     modality_render,
     output_metadata,
+    recording_camera,
+    recording_class_means,
     recording_microscope,
     recordings,
     watch_recordings,
@@ -126,6 +129,7 @@ class SimulateWidget(Container):
             self.form.geometry.changed.connect(self._show_geometry_settings)
             self._show_geometry_settings()
         self.worker: Job | None = None  # before the recordings are followed
+        self._source = ""  # where the running simulation's camera and intensities come from
         self._followed: tuple | None = None  # the recording as last followed
         self.recording.changed.connect(self._follow_recording)
         self._links = ViewerLinks(self.native)
@@ -193,7 +197,7 @@ class SimulateWidget(Container):
         Auto-fit lays it out from the fitted cells."""
         from napari_symbac.calibrate.core import rough_pad_layout
 
-        frame = np.asarray(layer.data[(0,) * (layer.data.ndim - 2)], np.float64)
+        frame = first_frame(layer).astype(np.float64)
         settings = self.form.value
         cell_area_um2 = settings.cell_width_um * 0.75 * settings.cell_max_length_um
         layout = rough_pad_layout(
@@ -232,15 +236,38 @@ class SimulateWidget(Container):
         ValueError
             If the form's settings are invalid.
         """
+        return self._settings_and_source()[0]
+
+    def _settings_and_source(self) -> tuple[PipelineSettings, str]:
+        """:meth:`pipeline_settings`, and where the chosen recording's camera and
+        intensities come from, in words ("" without a recording).
+
+        The recording's camera (given, else measured from it, as ``napari-symbac fit``
+        does) and its class means above that camera's offset (painted, else a rough
+        split of cells and background): found as a user, an 8-bit colony (54-241) was
+        simulated at 2488-2909 ADU with the built-in camera and intensities. A recording
+        the fit refuses (a constant image, normalised values opened by napari's own
+        reader) keeps the built-in camera, and the built-in intensities unless painted,
+        said with the reason.
+        """
         pipeline = dataclasses.replace(self.pipeline, simulation=self.form.value)
         layer = self.recording.value
         if layer is None:
-            return pipeline
+            return pipeline, ""
         microscope = recording_microscope(layer, pipeline.microscope)
-        render = modality_render(
-            pipeline.render, microscope.modality, layer.metadata.get("class_means_adu")
-        )
-        return dataclasses.replace(pipeline, microscope=microscope, render=render)
+        modality = microscope.modality
+        refused = ""
+        try:
+            camera, camera_from = recording_camera(layer)
+        except ValueError as err:
+            camera, camera_from, refused = pipeline.camera, "built in", f" ({err})"
+        means, means_from = None, "the built-in defaults"
+        if not refused or layer.metadata.get("class_means_adu"):
+            means, means_from = recording_class_means(layer, modality, camera.baseline_adu)
+        render = modality_render(pipeline.render, modality, means)
+        source = f"camera {camera_from}, intensities from {means_from}{refused}"
+        chosen = {"microscope": microscope, "render": render, "camera": camera}
+        return dataclasses.replace(pipeline, **chosen), source
 
     def _show_geometry_settings(self, _value=None) -> None:
         """Show only the sub-form of the chosen geometry (the trench also sizes a chamber)."""
@@ -261,10 +288,12 @@ class SimulateWidget(Container):
         if self.worker is not None:
             return
         try:
-            pipeline = self.pipeline_settings()
+            pipeline, source = self._settings_and_source()
         except ValueError as err:
             self.status.value = f"Invalid settings: {err}"
             return
+        recording = self.recording.value
+        self._source = f"{recording.name}: {source}" if source else ""
         sim_settings = pipeline.simulation
         n_frames = sim_settings.n_frames
         self._n_frames = n_frames
@@ -366,6 +395,8 @@ class SimulateWidget(Container):
         self.status.value = f"Done: {len(self.simulation.frames)} frames, {n_cells} cells"
         if RESULT_TRACKS_LAYER in self.viewer.layers:
             self.status.value += f" (their tracks: the layer '{RESULT_TRACKS_LAYER}')"
+        if self._source:
+            self.status.value += f"<br>{self._source}"
 
     def _show_tracks(self, placement: dict) -> None:
         """The simulation's ground-truth tracks over its frames: a Tracks layer of each

@@ -30,7 +30,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from napari_symbac.export.formats import FORMATS
+from napari_symbac.export.formats import FORMATS, tracking_formats
 from napari_symbac.export.item import ExportItem
 from napari_symbac.export.visibility import (
     Visibility,
@@ -293,7 +293,7 @@ class ExportSettings:
             )
         if len(set(formats)) != len(formats):
             _fail(f"ExportSettings.formats lists a format twice: {formats}")
-        tracking = [f for f in formats if FORMATS[f].timeseries_only]  # type: ignore[attr-defined]
+        tracking = tracking_formats(formats)
         if tracking and self.kind != "timeseries":
             _fail(
                 f"format(s) {', '.join(tracking)} hold tracking ground truth: set "

@@ -11,7 +11,7 @@ each format.
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +38,7 @@ __all__ = [
     "get_writer",
     "rle_decode",
     "rle_encode",
+    "tracking_formats",
 ]
 
 # --------------------------------------------------------------------------------------
@@ -372,6 +373,13 @@ FORMATS: dict[str, Callable[..., FormatWriter]] = {
         OmeZarrWriter,
     )
 }
+
+
+def tracking_formats(formats: Iterable[str]) -> list[str]:
+    """The formats among ``formats`` that hold tracking ground truth and so need a time
+    series (``timeseries_only``), in their order; unknown names are left out."""
+    known = [f for f in formats if f in FORMATS]
+    return [f for f in known if FORMATS[f].timeseries_only]  # type: ignore[attr-defined]
 
 
 def get_writer(name: str, **options: Any) -> FormatWriter:

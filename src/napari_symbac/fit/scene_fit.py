@@ -67,6 +67,7 @@ __all__ = [
     "before_after_montage",
     "fit_scene",
     "otsu_cells",
+    "recording_camera",
 ]
 
 _INTENSITIES = ("cell_intensity", "media_intensity", "device_intensity")
@@ -1032,6 +1033,22 @@ def _measured_camera(real: np.ndarray, valid: np.ndarray, camera: Camera) -> Cam
         )
         measured = with_unresolved_dark_noise(measured, real, valid)
     return measured
+
+
+def recording_camera(image: np.ndarray) -> Camera:
+    """The camera ``napari-symbac fit`` starts from for ``image`` when none is given.
+
+    Its digitiser's bits (:func:`~napari_symbac.fit.camera_estimate.image_bit_depth`),
+    the offset guessed from its darkest pixels and the gain and read noise from photon
+    transfer on the image alone (:func:`_measured_camera`); the guess alone when the image
+    spans too few levels for that. Clipped and non-finite pixels are left out.
+    """
+    real = np.asarray(image, np.float64)
+    valid = np.isfinite(real) & ~censored_pixels(image)
+    if not valid.any():
+        return Camera(bit_depth=image_bit_depth(image))
+    guess = Camera(baseline_adu=_baseline_guess(real, valid), bit_depth=image_bit_depth(image))
+    return _measured_camera(real, valid, guess) or guess
 
 
 def _camera_from_model(
