@@ -503,7 +503,6 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         base_fit_problems,
         camera_text,
         measured_camera_note,
-        neighbour_variance_ratio,
     )
     from napari_symbac.fit.start import WideStartError
     from napari_symbac.io import read_image
@@ -643,9 +642,9 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                 first_fit = fit
             if camera is None:
                 camera = fit.camera
-                measured_note = measured_camera_note(frame, camera)
-                with contextlib.suppress(ValueError):  # said in the note
-                    noise_ratio = neighbour_variance_ratio(frame, camera)
+                measured_note, ratio = measured_camera_note(frame, camera)
+                if ratio is not None:  # else said in the note
+                    noise_ratio = ratio
                 if mapping is not None:  # its ADU and e- are the map's, not a camera's
                     measured_note += counts_units_mark(mapping)
                 print(f"note: {measured_note}", file=sys.stderr)

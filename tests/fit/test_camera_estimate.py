@@ -174,6 +174,32 @@ def test_correlated_noise_is_detected_and_said():
     assert np.isnan(model.neighbour_variance_ratio)
 
 
+def test_the_measured_camera_note_says_correlated_noise_in_the_askers_words():
+    """diagnose's note on a measured camera returns the neighbour ratio it measured (the
+    command measured it a second time for its chi-square caution), and tells the dock's
+    user of the Recording step, not of `napari-symbac fit --dark` (found as a user)."""
+    from napari_symbac._widgets._recording import GUI_CAMERA_FIX
+    from napari_symbac.fit.report import measured_camera_note
+
+    signal = _smooth_signal()
+    white = apply_camera_noise(signal, Camera(), np.random.default_rng(11)).astype(float)
+    noise = white - signal - 100.0
+    shared = ndimage.correlate1d(noise, [0.3, 1.0, 0.3], axis=1) / np.sqrt(1.18)
+    correlated = shared + signal + 100.0
+    camera = estimate_camera(correlated, camera=Camera()).camera
+    note, ratio = measured_camera_note(correlated, camera)
+    assert ratio == estimate_camera(correlated, camera=camera).neighbour_variance_ratio > 2
+    assert "correlated between neighbours" in note
+    assert note.endswith("`napari-symbac fit IMAGE --dark DARK.tif` writes to its settings.yaml")
+    dock_note, _ = measured_camera_note(correlated, camera, give_camera=GUI_CAMERA_FIX)
+    assert dock_note.endswith(GUI_CAMERA_FIX)
+    assert "--dark" not in dock_note
+    flat = np.full((32, 32), 500.0)
+    note, ratio = measured_camera_note(flat, Camera())
+    assert ratio is None
+    assert "the image's own photon transfer" in note
+
+
 def test_same_input_same_estimate():
     image = apply_camera_noise(_smooth_signal(), Camera(), np.random.default_rng(6))
     assert estimate_camera(image) == estimate_camera(image)

@@ -454,7 +454,7 @@ def test_an_unpainted_8_bit_recording_is_simulated_on_its_own_scale(widget, qtbo
 
     data = np.asarray(read_image(real_data_dir / "omnipose" / "Sample000252.png").data)
     assert data.dtype == np.uint8
-    widget.viewer.add_image(
+    recording = widget.viewer.add_image(
         data, name="colony", scale=(0.05734, 0.05734),
         metadata={"pixel_size_um": 0.05734, "modality": "phase"},
     )  # fmt: skip
@@ -466,6 +466,9 @@ def test_an_unpainted_8_bit_recording_is_simulated_on_its_own_scale(widget, qtbo
     # the pad's background is the recording's (median 137; before: 2700)
     assert abs(np.median(synthetic) - np.median(data)) < 0.1 * np.median(data)
     assert synthetic.max() <= 255
+    # shown like for like: the recording's grey levels (its own range showed it white)
+    shown = widget.viewer.layers[RESULT_IMAGE_LAYER].contrast_limits
+    assert tuple(shown) == tuple(recording.contrast_limits)
     assert "camera measured from it" in widget.status.value
     assert "a rough split of it into cells and background" in widget.status.value
 

@@ -813,7 +813,8 @@ def test_a_camera_the_recording_cannot_check_is_an_auto_fit_problem(real_data_di
     Auto-fit said nothing; the same check runs in its worker now, with the GUI's advice."""
     import imageio.v3 as iio
 
-    from napari_symbac._widgets.tune import GUI_CAMERA_FIX, _camera_check
+    from napari_symbac._widgets._recording import GUI_CAMERA_FIX
+    from napari_symbac._widgets.tune import _camera_check
     from napari_symbac.fit import ColonyFit
     from napari_symbac.settings import Camera
 

@@ -34,6 +34,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "AXIS_LABELS",
+    "GUI_CAMERA_FIX",
     "GUI_MODALITY_ADVICE",
     "RECORDING_STEP",
     "axis_labels",
@@ -80,6 +81,11 @@ RECORDING_STEP = "the 1 Recording tab (or the Real image and classes dock)"
 GUI_MODALITY_ADVICE = ModalityAdvice(
     switch=f"Set its modality to {{other}} in {RECORDING_STEP}",
     paint="paint its cell and media classes there",
+)
+#: How a GUI user gives a camera the fits would otherwise measure, or cannot check.
+GUI_CAMERA_FIX = (
+    "give the camera in the Recording step (camera: given), from its data sheet or a "
+    "photon-transfer measurement"
 )
 
 

@@ -22,6 +22,7 @@ from napari_symbac._widgets._forms import fill_height, hide_label, message_label
 from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
 from napari_symbac._widgets._links import ViewerLinks
 from napari_symbac._widgets._recording import (
+    GUI_CAMERA_FIX,
     GUI_MODALITY_ADVICE,
     check_recording_frame,
     choose_masks,
@@ -411,7 +412,7 @@ class DiagnoseWidget(Container):
             )
             final = refitted_render(fit.render, result.final_model, microscope.modality)
             camera_note = (
-                measured_camera_note(frame, fit.camera)
+                measured_camera_note(frame, fit.camera, give_camera=GUI_CAMERA_FIX)[0]
                 if camera is None
                 else f"camera given in the Recording step: {camera_text(camera)}"
             )

@@ -130,6 +130,7 @@ class SimulateWidget(Container):
             self._show_geometry_settings()
         self.worker: Job | None = None  # before the recordings are followed
         self._source = ""  # where the running simulation's camera and intensities come from
+        self._scale_of = None  # the recording whose camera it renders with
         self._followed: tuple | None = None  # the recording as last followed
         self.recording.changed.connect(self._follow_recording)
         self._links = ViewerLinks(self.native)
@@ -238,9 +239,10 @@ class SimulateWidget(Container):
         """
         return self._settings_and_source()[0]
 
-    def _settings_and_source(self) -> tuple[PipelineSettings, str]:
-        """:meth:`pipeline_settings`, and where the chosen recording's camera and
-        intensities come from, in words ("" without a recording).
+    def _settings_and_source(self) -> tuple[PipelineSettings, str, bool]:
+        """:meth:`pipeline_settings`, where the chosen recording's camera and intensities
+        come from, in words ("" without a recording), and whether the render is on the
+        recording's scale (its camera used).
 
         The recording's camera (given, else measured from it, as ``napari-symbac fit``
         does) and its class means above that camera's offset (painted, else a rough
@@ -253,7 +255,7 @@ class SimulateWidget(Container):
         pipeline = dataclasses.replace(self.pipeline, simulation=self.form.value)
         layer = self.recording.value
         if layer is None:
-            return pipeline, ""
+            return pipeline, "", False
         microscope = recording_microscope(layer, pipeline.microscope)
         modality = microscope.modality
         refused = ""
@@ -267,7 +269,7 @@ class SimulateWidget(Container):
         render = modality_render(pipeline.render, modality, means)
         source = f"camera {camera_from}, intensities from {means_from}{refused}"
         chosen = {"microscope": microscope, "render": render, "camera": camera}
-        return dataclasses.replace(pipeline, **chosen), source
+        return dataclasses.replace(pipeline, **chosen), source, not refused
 
     def _show_geometry_settings(self, _value=None) -> None:
         """Show only the sub-form of the chosen geometry (the trench also sizes a chamber)."""
@@ -288,12 +290,13 @@ class SimulateWidget(Container):
         if self.worker is not None:
             return
         try:
-            pipeline, source = self._settings_and_source()
+            pipeline, source, on_its_scale = self._settings_and_source()
         except ValueError as err:
             self.status.value = f"Invalid settings: {err}"
             return
         recording = self.recording.value
         self._source = f"{recording.name}: {source}" if source else ""
+        self._scale_of = recording if on_its_scale else None
         sim_settings = pipeline.simulation
         n_frames = sim_settings.n_frames
         self._n_frames = n_frames
@@ -397,6 +400,11 @@ class SimulateWidget(Container):
             self.status.value += f" (their tracks: the layer '{RESULT_TRACKS_LAYER}')"
         if self._source:
             self.status.value += f"<br>{self._source}"
+        shown_like = self._scale_of
+        if shown_like is not None and shown_like in self.viewer.layers:
+            # on the recording's scale: shown with its grey levels, like for like (each
+            # layer's own range showed the synthetic pad white beside a grey one)
+            self.viewer.layers[RESULT_IMAGE_LAYER].contrast_limits = shown_like.contrast_limits
 
     def _show_tracks(self, placement: dict) -> None:
         """The simulation's ground-truth tracks over its frames: a Tracks layer of each

@@ -27,6 +27,7 @@ from napari_symbac._widgets._forms import message_label
 from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
 from napari_symbac._widgets._links import ViewerLinks
 from napari_symbac._widgets._recording import (
+    GUI_CAMERA_FIX,
     GUI_MODALITY_ADVICE,
     RECORDING_STEP,
     axis_labels,
@@ -1267,13 +1268,6 @@ class _FitOutcome:
     shown: int
     clipped: tuple | None
     camera_check: tuple[str, str | None] | None
-
-
-#: How a GUI user fixes a camera the recording cannot check.
-GUI_CAMERA_FIX = (
-    "give the camera in the Recording step (camera: given), from its data sheet or a "
-    "photon-transfer measurement"
-)
 
 
 def _camera_check(result, frame: np.ndarray, advice: str) -> tuple[str, str | None] | None:

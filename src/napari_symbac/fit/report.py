@@ -195,12 +195,26 @@ def neighbour_variance_ratio(frame: Any, camera: Any) -> float:
     return float(estimate.neighbour_variance_ratio)
 
 
-def measured_camera_note(frame: Any, camera: Any) -> str:
+#: How ``napari-symbac diagnose`` tells of a camera to give instead of one measured.
+CLI_CAMERA_GIVEN = (
+    "give the camera (a camera section in the microscope file), e.g. the one "
+    "`napari-symbac fit IMAGE --dark DARK.tif` writes to its settings.yaml"
+)
+
+
+def measured_camera_note(
+    frame: Any, camera: Any, *, give_camera: str = CLI_CAMERA_GIVEN
+) -> tuple[str, float | None]:
     """What the base fit of ``diagnose`` (the command and the dock) measured of the camera,
     and what the image's own photon transfer says of it (correlated noise, or an image
     that is not raw camera counts, whose "camera" is the residual's variance: found as a
     user, the dock said "camera measured from the recording (0.001 ADU/e-, read noise
-    3.14e+04 e-)" of ColiCoords' flattened bright field, and no more)."""
+    3.14e+04 e-)" of ColiCoords' flattened bright field, and no more).
+
+    Returns the note, and the noise's neighbour variance ratio
+    (:func:`neighbour_variance_ratio`; ``None`` when the image's photon transfer cannot
+    be measured), which the chi-square's caution uses too. ``give_camera`` is how the
+    user gives a camera, in the command's or the dock's words."""
     if (sd := unmeasured_noise_adu(camera)) is not None:
         note = (
             "camera not measurable from the recording (its levels span too little, or it "
@@ -225,7 +239,7 @@ def measured_camera_note(frame: Any, camera: Any) -> str:
     try:
         ratio = neighbour_variance_ratio(frame, camera)
     except ValueError as err:
-        return f"{note}; the image's own photon transfer: {err}"
+        return f"{note}; the image's own photon transfer: {err}", None
     if ratio > CORRELATED_NOISE_RATIO:
         # the ratio alone: the estimate's whole summary repeated the read noise's note
         # (found as a user: a note of 750 characters, parentheses three deep)
@@ -233,11 +247,9 @@ def measured_camera_note(frame: Any, camera: Any) -> str:
             "; its noise is correlated between neighbours (lag-2 / lag-1 variance "
             f"{ratio:.2f}, 1 for white noise), so a gain measured "
             "from one image is biased by about that factor, and camera_noise and the "
-            "held-out gains assume independent pixels: give the camera (a camera "
-            "section in the microscope file, or the Recording step's camera), e.g. the "
-            "one `napari-symbac fit IMAGE --dark DARK.tif` writes to its settings.yaml"
+            f"held-out gains assume independent pixels: {give_camera}"
         )  # found as a user: "or dark frames", which diagnose does not take
-    return note
+    return note, ratio
 
 
 def colony_noise_text(result: Any) -> str:
