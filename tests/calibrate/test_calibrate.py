@@ -90,6 +90,34 @@ def test_a_field_is_laid_out_as_its_clusters_before_any_fit(real_data_dir):
     assert rough_pad_layout(np.full((64, 64), 100.0), 0.08, cell_area_um2) is None
 
 
+@pytest.mark.parametrize("name", ["Sample000252", "Sample000193"])
+def test_a_phase_colony_is_laid_out_as_one_colony_of_its_area(real_data_dir, name):
+    """Found as a user: Simulate drew Omnipose's phase colonies as one founder grown to
+    a few cells (phase was left out: one Otsu threshold took the background, darker than
+    the halo, for cells). Each is one colony (its masks' cells within 0.5 um make one
+    cluster of at least a cell) of about its masks' area in cells."""
+    from scipy import ndimage
+
+    from napari_symbac.calibrate.core import rough_pad_layout
+    from napari_symbac.io import read_image
+    from napari_symbac.settings import SimulationSettings
+
+    pixel_um, cell_area_um2 = 0.05734, 1.0 * 0.75 * 3.5
+    folder = real_data_dir / "omnipose"
+    image = np.asarray(read_image(folder / f"{name}.png").data, np.float64)
+    masks = tifffile.imread(folder / f"{name}_cp_masks.tif") > 0
+    clusters = ndimage.label(ndimage.binary_dilation(masks, iterations=9))[0]
+    in_cells = np.bincount(clusters[masks])[1:] * pixel_um**2 / cell_area_um2
+    assert (in_cells >= 1).sum() == 1  # (252: and a sliver of a cell cut by the edge)
+    fields, note = rough_pad_layout(image, pixel_um, cell_area_um2, "phase")
+    assert fields["agar_pad"].n_colonies == 1
+    assert "1 colony" in note
+    area_cells = masks.sum() * pixel_um**2 / cell_area_um2  # 145 and 121 cells' area
+    found = float(note.split("to ~")[1].split(" cells")[0])
+    assert 0.6 * area_cells <= found <= 1.2 * area_cells, (found, area_cells)
+    SimulationSettings(**fields)
+
+
 def test_best_crop_holds_whole_cells():
     masks = np.zeros((100, 100), np.int32)
     masks[70:80, 70:80] = 1

@@ -187,15 +187,15 @@ class SimulateWidget(Container):
             pad.edge_margin_um.value = round(margin, 3)
             pad.field_width_um.value = width_um
             pad.field_height_um.value = height_um
-            if microscope.modality in ("fluorescence", "brightfield"):
-                self._lay_out_as(layer, microscope)
+            self._lay_out_as(layer, microscope)
 
     def _lay_out_as(self, layer, microscope: Microscope) -> None:
         """The pad's colonies as the recording's clusters of cells, before any fit
         (:func:`~napari_symbac.calibrate.core.rough_pad_layout` of its first frame; found
         as a user: a ColiCoords field of eight cells was simulated as one founder on an
-        empty pad, in fluorescence and then in bright field). Said in the status;
-        Auto-fit lays it out from the fitted cells."""
+        empty pad, in fluorescence and then in bright field, and a phase colony of 77
+        cells as one founder grown 60 frames to 7 cells). Said in the status; Auto-fit
+        lays it out from the fitted cells."""
         from napari_symbac.calibrate.core import rough_pad_layout
 
         frame = first_frame(layer).astype(np.float64)

@@ -219,40 +219,83 @@ def _rough_cells(image: np.ndarray, modality: str, pixel_size_um: float) -> np.n
 _CLUSTER_REACH_UM = 0.5
 
 
+def _rough_phase_interiors(image: np.ndarray) -> np.ndarray:
+    """Regions of a phase-contrast field's cell interiors: the darkest of three Otsu
+    classes of the smoothed image (the brightest is the halo, the middle the background
+    far from the cells; one threshold took the background for cells: one colony of
+    thousands of cells on the Omnipose images)."""
+    from scipy import ndimage
+    from skimage.filters import threshold_multiotsu
+
+    smooth = ndimage.gaussian_filter(image, 1.0)
+    darkest = smooth <= threshold_multiotsu(smooth, 3)[0]
+    labels, _ = ndimage.label(ndimage.binary_opening(darkest, iterations=2))
+    return labels
+
+
+#: The least area, in cells, of a phase field's region of cell interiors that counts:
+#: interiors are about 40 % of the cells' area (Omnipose's Sample000252 and 193: the
+#: darkest class holds 41 % and 40 % of their masks' pixels).
+_PHASE_INTERIOR_MIN_CELLS = 0.25
+#: Distance (um) within which a phase field's cell interiors are one colony: those of
+#: touching cells lie a cell's edges and the seam between them apart (at 0.5 um,
+#: Sample000193's one colony was three).
+_PHASE_CLUSTER_REACH_UM = 1.0
+
+
 def rough_pad_layout(
     image: np.ndarray,
     pixel_size_um: float,
     cell_area_um2: float,
     modality: str = "fluorescence",
 ) -> tuple[dict, str] | None:
-    """A fluorescence or bright-field field's agar pad laid out before any fit
-    (Simulate's start): :func:`pad_layout` with one colony per cluster of the image's
-    cell regions (:func:`_rough_cells`; regions of at least half a cell of
-    ``cell_area_um2``, joined within :data:`_CLUSTER_REACH_UM`), each of the clusters'
-    mean area in cells. Found as a user: a ColiCoords field of eight scattered cells was
-    simulated as one founder on an empty 41 um pad until Auto-fit laid it out (and, in
-    bright field, until this took bright field too). Not phase contrast: there the
-    background far from a colony is darker than its halo, and an Otsu threshold takes
-    it for cells (1 colony of thousands of cells on the Omnipose images). ``None`` for
-    an image without a cell region of a cell's size."""
+    """A field's agar pad laid out before any fit (Simulate's start): :func:`pad_layout`
+    with one colony per cluster of the image's cell regions (joined within
+    :data:`_CLUSTER_REACH_UM`, in phase contrast :data:`_PHASE_CLUSTER_REACH_UM`), each
+    of the clusters' mean area in cells of ``cell_area_um2``. Found as a user: a
+    ColiCoords field of eight scattered cells was simulated as one founder on an empty
+    41 um pad until Auto-fit laid it out (and, in bright field, until this took bright
+    field too), and so was a phase colony of 77 cells (Omnipose's Sample000252).
+
+    The cell regions are, in fluorescence and bright field, :func:`_rough_cells` of at
+    least half a cell, a cluster's area that of its regions; in phase contrast the cell
+    interiors (:func:`_rough_phase_interiors`) of at least
+    :data:`_PHASE_INTERIOR_MIN_CELLS` cell, a cluster's area that of its outline with
+    the seams and edges between the interiors (the cluster closed and filled), of at
+    least a cell (smaller ones are debris). ``None`` for an image without such a region.
+    """
     from scipy import ndimage
 
-    if modality not in ("fluorescence", "brightfield"):
-        raise ValueError(f"rough_pad_layout takes fluorescence or bright field, not {modality}")
+    if modality not in ("fluorescence", "brightfield", "phase"):
+        raise ValueError(
+            f"rough_pad_layout takes fluorescence, bright field or phase, not {modality}"
+        )
     image = np.asarray(image, np.float64)
     if not np.ptp(image) > 0:
         return None
-    regions = _rough_cells(image, modality, pixel_size_um)
+    phase = modality == "phase"
+    regions = _rough_phase_interiors(image) if phase else _rough_cells(
+        image, modality, pixel_size_um
+    )
+    least = _PHASE_INTERIOR_MIN_CELLS if phase else 0.5
     area_px = np.bincount(regions.ravel())[1:]
-    kept = np.flatnonzero(area_px * pixel_size_um**2 >= 0.5 * cell_area_um2) + 1
+    kept = np.flatnonzero(area_px * pixel_size_um**2 >= least * cell_area_um2) + 1
     cells = np.isin(regions, kept)
-    reach = max(1, round(_CLUSTER_REACH_UM / pixel_size_um))
+    reach_um = _PHASE_CLUSTER_REACH_UM if phase else _CLUSTER_REACH_UM
+    reach = max(1, round(reach_um / pixel_size_um))
     clusters, n_clusters = ndimage.label(ndimage.binary_dilation(cells, iterations=reach))
     if n_clusters == 0:
         return None
-    in_cells = np.bincount(clusters[cells], minlength=n_clusters + 1)[1:]
+    if phase:  # each cluster's outline, its dilation taken back; a colony holds a cell
+        outline = ndimage.binary_erosion(ndimage.binary_fill_holes(clusters > 0), iterations=reach)
+        in_cells = np.bincount(clusters[outline], minlength=n_clusters + 1)[1:]
+        in_cells = in_cells[in_cells * pixel_size_um**2 >= cell_area_um2]
+    else:
+        in_cells = np.bincount(clusters[cells], minlength=n_clusters + 1)[1:]
+    if in_cells.size == 0:
+        return None
     per_colony = float(in_cells.mean()) * pixel_size_um**2 / cell_area_um2
-    return pad_layout(image.shape[-2:], pixel_size_um, n_clusters, max(per_colony, 1.0))
+    return pad_layout(image.shape[-2:], pixel_size_um, in_cells.size, max(per_colony, 1.0))
 
 
 def _clusters_outside(
