@@ -200,6 +200,35 @@ def test_the_measured_camera_note_says_correlated_noise_in_the_askers_words():
     assert "the image's own photon transfer" in note
 
 
+def test_the_camera_of_a_recording_fit_starts_from(real_data_dir):
+    """The camera Simulate and the fit take from a recording without one given: an
+    8-bit colony's is 8 bits at its own offset; a flattened bright field (ColiCoords,
+    ~65000 ADU, a tenth clipped) has no photon-transfer line, and draws its own pixel
+    noise (found as a user: the built-in gain drew 158 ADU s.d. against its 28)."""
+    from napari_symbac.fit.report import unmeasured_noise_adu
+    from napari_symbac.fit.scene_fit import recording_camera
+    from napari_symbac.io import read_image
+
+    colony = np.asarray(read_image(real_data_dir / "omnipose" / "Sample000252.png").data)
+    camera = recording_camera(colony)
+    assert camera.bit_depth == 8
+    assert 0 <= camera.baseline_adu <= np.quantile(colony, 0.001)
+    field = tifffile.imread(
+        real_data_dir / "colicoords" / "test_data" / "ds1" / "brightfield" / "00001.tif"
+    )
+    camera = recording_camera(field)
+    noise_adu = unmeasured_noise_adu(camera)
+    assert noise_adu is not None
+    background = np.full((64, 64), float(np.median(field)) - camera.baseline_adu)
+    drawn = apply_camera_noise(background, camera, np.random.default_rng(0)).astype(float)
+    masks = tifffile.imread(
+        real_data_dir / "colicoords/test_data/ds1/binary/00001_Probabilities_filtered.tif"
+    )
+    background_px = (masks == 0) & (field < field.max())
+    real_sd = float(field[background_px].std())  # 27.9 ADU
+    assert 0.5 * real_sd < drawn.std() < 1.5 * real_sd
+
+
 def test_same_input_same_estimate():
     image = apply_camera_noise(_smooth_signal(), Camera(), np.random.default_rng(6))
     assert estimate_camera(image) == estimate_camera(image)

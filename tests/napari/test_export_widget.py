@@ -175,6 +175,8 @@ def test_a_folder_of_another_export_is_refused_before_the_export(widget, qtbot, 
     )
     assert "; seed: 0 there, 1 here)" in widget.status.value
     assert "export to a new folder" in widget.status.value
+    assert "choose the settings it was made with" in widget.status.value
+    assert "napari-symbac export" not in widget.status.value  # the dock's words
     assert widget.export_button.enabled
     assert {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()} == before
     # the same settings: the finished export is resumed (nothing left to write)

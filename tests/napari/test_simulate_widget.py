@@ -400,7 +400,8 @@ def test_a_recording_whose_modality_is_set_later_is_followed_again(
     was taken for phase contrast without a word (its cell's glow is most of it, so its
     look does not say), and Simulate stayed at a trench after the modality was set to
     fluorescence. The dock says the modality is assumed, and Simulate follows the
-    recording again when its modality changes: the pad laid out as its bright cells.
+    recording again when its modality changes: the pad laid out as its bright cells, no
+    longer as dark ones.
     (A crop this square is a pad, not a trench, in either modality.)"""
     from napari_symbac._widgets.real_image import RealImageWidget
 
@@ -417,11 +418,12 @@ def test_a_recording_whose_modality_is_set_later_is_followed_again(
     pad = simulate.form.agar_pad
     assert simulate.form.geometry.value == "agar_pad"  # 57 x 61 px: no trench image
     assert (pad.field_width_um.value, pad.field_height_um.value) == pytest.approx((4.88, 4.56))
-    assert not simulate.status.value.startswith("fluorescence: ")
+    as_phase = simulate.status.value  # laid out as dark cells
     recording.modality.value = "fluorescence"
     assert recording.result.value == ""  # the user's choice: no longer "assumed"
     assert simulate.form.geometry.value == "agar_pad"
-    assert simulate.status.value.startswith("fluorescence: ")  # laid out as its cells
+    assert simulate.status.value != as_phase
+    assert simulate.status.value.startswith("fluorescence: layout")  # as its bright cells
     assert (pad.field_width_um.value, pad.field_height_um.value) == pytest.approx((4.88, 4.56))
 
 

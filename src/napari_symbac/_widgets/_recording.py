@@ -410,9 +410,14 @@ def recording_camera(layer: Any) -> tuple[Camera, str]:
     given = given_camera(layer)
     if given is not None:
         return given, "given in the Recording step"
+    from napari_symbac.fit.report import unmeasured_noise_adu
+
     frame = first_frame(layer)
     check_recording_frame(frame, layer.name)
-    return measured_camera(frame), "measured from it"
+    camera = measured_camera(frame)
+    if (sd := unmeasured_noise_adu(camera)) is not None:
+        return camera, f"without a gain measurable from it: its pixel noise, {sd:.3g} ADU s.d."
+    return camera, "measured from it"
 
 
 def recording_class_means(

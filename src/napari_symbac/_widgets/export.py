@@ -236,7 +236,7 @@ class ExportWidget(Container):
         # the job); the same export's folder is resumed
         try:
             check_output_folder(folder, "the output folder")
-            check_export_folder(settings, folder, backend)
+            check_export_folder(settings, folder, backend, in_dock=True)
         except (ValueError, RuntimeError) as err:  # ExportError is a RuntimeError
             self.status.value = f"Not exported: {err}"
             return

@@ -134,12 +134,16 @@ def export_dataset(
 
 
 def check_export_folder(
-    settings: ExportSettings, out_dir: str | os.PathLike, backend: str = "scipy"
+    settings: ExportSettings,
+    out_dir: str | os.PathLike,
+    backend: str = "scipy",
+    *,
+    in_dock: bool = False,
 ) -> None:
     """Refuse, before any work and writing nothing, a folder :func:`export_dataset`
     would refuse: a file, a folder of other files, or one holding another export (made
     with other settings, another backend or another version). The folder of the same
-    export (a resume) passes.
+    export (a resume) passes. ``in_dock``: the fixes in the Export dock's words.
 
     Raises
     ------
@@ -151,6 +155,7 @@ def check_export_folder(
     check_manifest(
         check_out_dir(out_dir),
         manifest_header(PipelineSource(settings, backend), settings.formats),
+        in_dock=in_dock,
     )
 
 

@@ -191,9 +191,12 @@ def _document(header: Mapping[str, Any]) -> dict[str, Any]:
     return json.loads(json.dumps(document))
 
 
-def check_manifest(out_dir: str | os.PathLike, header: Mapping[str, Any]) -> dict[str, Any] | None:
+def check_manifest(
+    out_dir: str | os.PathLike, header: Mapping[str, Any], *, in_dock: bool = False
+) -> dict[str, Any] | None:
     """Check, writing nothing, that an export with ``header`` may be written into
     ``out_dir``: the folder is missing or empty, or holds the same export (a resume).
+    ``in_dock``: the fixes are said in the Export dock's words, not the command's.
 
     Returns
     -------
@@ -207,10 +210,12 @@ def check_manifest(out_dir: str | os.PathLike, header: Mapping[str, Any]) -> dic
         or another version of napari-symbac (items would not match), or holds other
         files and no manifest; the message names the difference and the fix.
     """
-    return _check_against(Path(out_dir), _document(header))
+    return _check_against(Path(out_dir), _document(header), in_dock=in_dock)
 
 
-def _check_against(out_dir: Path, document: Mapping[str, Any]) -> dict[str, Any] | None:
+def _check_against(
+    out_dir: Path, document: Mapping[str, Any], *, in_dock: bool = False
+) -> dict[str, Any] | None:
     """:func:`check_manifest` of the manifest ``document`` an export would start."""
     path = out_dir / MANIFEST
     check_dataset_folder(out_dir)
@@ -233,18 +238,23 @@ def _check_against(out_dir: Path, document: Mapping[str, Any]) -> dict[str, Any]
                 if same
                 else settings_differences(old.get("settings"), document.get("settings"))
             )
+            resume = (
+                "choose the settings it was made with (its manifest.json records them)"
+                if in_dock
+                else "use its own settings, which its manifest records "
+                f"(`napari-symbac export --config {path} --out {out_dir}`)"
+            )  # found as a user: the dock named the command, and fields it does not show
             raise ExportError(
                 f"{out_dir} already holds an export made with different settings or formats "
-                f"({changed}); to resume it use its own settings, which its manifest "
-                f"records (`napari-symbac export --config {path} --out {out_dir}`), or "
-                "export to a new folder",
+                f"({changed}); to resume it {resume}, or export to a new folder",
                 path,
             )
         if old.get("render_backend", "scipy") != document.get("render_backend", "scipy"):
+            option = "'render on'" if in_dock else "--backend"
             raise ExportError(
                 f"{out_dir} was rendered with the {old.get('render_backend', 'scipy')} backend, "
                 f"this run uses {document.get('render_backend', 'scipy')} (another noise "
-                "stream): resume it with --backend as recorded in manifest.json, or export "
+                f"stream): resume it with {option} as recorded in manifest.json, or export "
                 "to a new folder",
                 path,
             )

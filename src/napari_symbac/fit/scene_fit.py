@@ -1040,15 +1040,25 @@ def recording_camera(image: np.ndarray) -> Camera:
 
     Its digitiser's bits (:func:`~napari_symbac.fit.camera_estimate.image_bit_depth`),
     the offset guessed from its darkest pixels and the gain and read noise from photon
-    transfer on the image alone (:func:`_measured_camera`); the guess alone when the image
-    spans too few levels for that. Clipped and non-finite pixels are left out.
+    transfer on the image alone (:func:`_measured_camera`). When the image spans too few
+    levels for that (a flattened image), the fit's placeholder: a constant noise, the
+    image's own pixel noise, carried by the read noise at
+    :data:`UNMEASURED_GAIN_ADU_PER_E` (found as a user: the built-in gain at ColiCoords'
+    flattened bright field, ~65000 ADU, drew noise of 158 ADU s.d. against its 28).
+    Clipped and non-finite pixels are left out.
     """
     real = np.asarray(image, np.float64)
     valid = np.isfinite(real) & ~censored_pixels(image)
     if not valid.any():
         return Camera(bit_depth=image_bit_depth(image))
     guess = Camera(baseline_adu=_baseline_guess(real, valid), bit_depth=image_bit_depth(image))
-    return _measured_camera(real, valid, guess) or guess
+    measured = _measured_camera(real, valid, guess)
+    if measured is not None:
+        return measured
+    noise = _pixel_noise(real, valid)
+    gain = UNMEASURED_GAIN_ADU_PER_E
+    read_e = math.sqrt(max(noise**2 - 1 / 12, 0.0)) / gain
+    return dataclasses.replace(guess, sensitivity_adu_per_e=gain, dark_noise_e=read_e)
 
 
 def _camera_from_model(
