@@ -25,7 +25,12 @@ import weakref
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from napari_symbac.fit.preflight import ModalityAdvice, check_pixel_size, looks_like_masks
+from napari_symbac.fit.preflight import (
+    ModalityAdvice,
+    check_pixel_size,
+    default_geometry,
+    looks_like_masks,
+)
 from napari_symbac.io import AXIS_LABELS, axis_labels, layer_axes
 from napari_symbac.settings import Camera, Microscope, RenderSettings
 
@@ -405,13 +410,12 @@ def recording_camera(layer: Any) -> tuple[Camera, str]:
     ValueError
         For a frame the fit refuses (:func:`check_recording_frame`), in its words.
     """
+    from napari_symbac.fit.report import unmeasured_noise_adu
     from napari_symbac.fit.scene_fit import recording_camera as measured_camera
 
     given = given_camera(layer)
     if given is not None:
         return given, "given in the Recording step"
-    from napari_symbac.fit.report import unmeasured_noise_adu
-
     frame = first_frame(layer)
     check_recording_frame(frame, layer.name)
     camera = measured_camera(frame)
@@ -432,8 +436,6 @@ def recording_class_means(
     painted = layer.metadata.get("class_means_adu")
     if painted:
         return dict(painted), "its painted classes"
-    from napari_symbac.fit.preflight import default_geometry
-
     frame = first_frame(layer)
     field = default_geometry(frame.shape, modality) == "field"
     rough = rough_class_means(frame, modality, field=field)

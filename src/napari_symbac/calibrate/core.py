@@ -274,10 +274,10 @@ def rough_pad_layout(
     if not np.ptp(image) > 0:
         return None
     phase = modality == "phase"
-    regions = _rough_phase_interiors(image) if phase else _rough_cells(
-        image, modality, pixel_size_um
-    )
-    least = _PHASE_INTERIOR_MIN_CELLS if phase else 0.5
+    if phase:
+        regions, least = _rough_phase_interiors(image), _PHASE_INTERIOR_MIN_CELLS
+    else:
+        regions, least = _rough_cells(image, modality, pixel_size_um), 0.5
     area_px = np.bincount(regions.ravel())[1:]
     kept = np.flatnonzero(area_px * pixel_size_um**2 >= least * cell_area_um2) + 1
     cells = np.isin(regions, kept)
