@@ -19,6 +19,7 @@ from napari_symbac._widgets._recording import (
     CAMERA_KEY,
     axis_labels,
     check_recording_frame,
+    first_frame,
     in_pixel_units,
     layer_axes,
     layer_pixel_size_um,
@@ -361,7 +362,7 @@ class RealImageWidget(Container):
             camera = self.camera.value
         except ValueError as err:
             return None, f"camera: {err} {until}"
-        first = np.asarray(layer.data[(0,) * (layer.ndim - 2)])  # a time-lapse's first frame
+        first = first_frame(layer)  # a time-lapse's first frame
         problem = camera_recording_problem(camera, first)
         if problem is not None:
             return None, f"camera: {problem} {until}"
@@ -388,7 +389,7 @@ class RealImageWidget(Container):
         check); an unclear image keeps the form's choice. Said in the dock, to change."""
         from napari_symbac.fit.preflight import image_polarity
 
-        frame = np.asarray(layer.data[(0,) * (layer.ndim - 2)], np.float64)
+        frame = first_frame(layer).astype(np.float64)
         guess = {"bright cells": "fluorescence", "dark cells": "phase"}.get(
             image_polarity(frame)
         )

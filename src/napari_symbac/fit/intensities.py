@@ -106,7 +106,7 @@ def rough_class_means(image: np.ndarray, modality: str, *, field: bool) -> dict[
     if modality == "brightfield" or levels.size < 4:
         return {"media": median}
     if modality == "fluorescence":
-        bright = (smooth > threshold_otsu(levels)) & finite
+        bright = (smooth > threshold_otsu(smooth[finite])) & finite
         cells, background = bright, ~bright & finite
         media = float(np.median(values[background])) if background.any() else median
     elif field:
