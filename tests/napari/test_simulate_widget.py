@@ -462,7 +462,7 @@ def test_an_unpainted_8_bit_recording_is_simulated_on_its_own_scale(widget, qtbo
     )  # fmt: skip
     settings = widget.pipeline_settings()
     assert settings.camera.bit_depth == 8
-    assert settings.render.cell_intensity < settings.render.media_intensity < 255
+    assert settings.render.media_intensity < 255
     _simulate(widget, qtbot, n_frames=3)
     synthetic = widget.viewer.layers[RESULT_IMAGE_LAYER].data[-1].astype(np.float64)
     # the pad's background is the recording's (median 137; before: 2700)
@@ -473,6 +473,43 @@ def test_an_unpainted_8_bit_recording_is_simulated_on_its_own_scale(widget, qtbo
     assert tuple(shown) == tuple(recording.contrast_limits)
     assert "camera measured from it" in widget.status.value
     assert "a rough split of it into cells and background" in widget.status.value
+
+
+def test_a_phase_pad_is_drawn_with_the_halo_of_the_recording(widget, qtbot, real_data_dir):
+    """Found as a user: Simulate drew Omnipose's Sample000252 colony through the linear
+    kernel as dark rods on a flat grey, its background 0.95 of the 1-99 % range against
+    the recording's 0.44 (issue 16's table). A phase pad is now drawn through the
+    partially coherent model at the colony fit's start: the halo around the colony is
+    brighter than the pad far from it, as in the recording's own medians (measured with
+    its masks)."""
+    from napari_symbac.fit.masks import class_medians
+    from napari_symbac.io import read_image
+
+    folder = real_data_dir / "omnipose"
+    data = np.asarray(read_image(folder / "Sample000252.png").data)
+    masks = np.asarray(read_image(folder / "Sample000252_cp_masks.tif").data)
+    pixel_um = 0.05734  # its cells 1 um wide
+    widget.viewer.add_image(
+        data, name="colony", scale=(pixel_um, pixel_um),
+        metadata={"pixel_size_um": pixel_um, "modality": "phase"},
+    )  # fmt: skip
+    render = widget.pipeline_settings().render
+    assert render.phase_model == "partially_coherent"
+    assert render.cell_intensity == render.media_intensity  # transparent: phase contrast
+    _simulate(widget, qtbot, n_frames=30)  # ~10 cells
+    synthetic = widget.viewer.layers[RESULT_IMAGE_LAYER].data[-1]
+    labels = widget.viewer.layers[RESULT_LABELS_LAYER].data[-1]
+    far_px = 2.0 / pixel_um
+    drawn = class_medians(synthetic, labels, far_px)
+    real = class_medians(data, masks, far_px)
+    assert real["halo"] - real["background"] > 0.25  # 0.49
+    # the colony's halo above the pad (0.70; through the linear kernel -0.05)
+    assert drawn["halo"] - drawn["background"] > 0.25
+    assert drawn["cells"] < drawn["background"]
+    assert "the cells drawn by their phase" in widget.status.value
+    # a phase trench keeps the linear kernel of the supplement
+    widget.form.geometry.value = "trench"
+    assert widget.pipeline_settings().render.phase_model == "linear"
 
 
 def test_a_class_not_measured_is_scaled_as_the_measured_media():

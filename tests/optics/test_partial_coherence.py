@@ -172,6 +172,50 @@ def test_focus_offset_moves_light_into_the_cells_of_a_phase_colony_and_is_fitted
     assert result.objective_after < result.objective_before
 
 
+def test_pupils_kept_inside_their_edge_give_the_image_of_the_whole_pupils():
+    """The pupils are computed and applied only within 10 edge widths of their rim, and
+    kept for the next frame: the image is that of every frequency through the whole
+    soft pupil (the sum of the module's equation), and bit for bit the same when the
+    kept pupils are used again, after other optics too."""
+    from napari_symbac.optics.partial_coherence import _plate_pupil
+    from napari_symbac.settings import CONDENSERS
+
+    rng = np.random.default_rng(3)
+    n = 96
+    transmission = 0.8 + 0.2 * rng.random((n, n))
+    phase = 0.7 * _gaussian_blob(n, 6.0) + 0.3 * rng.random((n, n))
+    args = (transmission, phase, PX, 0.55, 1.45, "Ph3", 0.2, math.pi / 2, 0.8)
+    image = annular_phase_image(*args, n_source_points=8, focus_offset_um=0.3)
+    # the sum written out over the whole frequency plane
+    cutoff = 1.45 / 0.55
+    fy = np.fft.fftfreq(n, PX)[:, None] / cutoff
+    fx = np.fft.fftfreq(n, PX)[None, :] / cutoff
+    softness = 1.0 / (2 * math.pi * 0.8 * cutoff)
+    ring = CONDENSERS["Ph3"]
+    centre = 0.5 * (ring.outer_fraction + ring.inner_fraction)
+    half = 0.5 * (ring.outer_fraction - ring.inner_fraction)
+    q = math.sqrt(0.2) * complex(0.0, -1.0)
+    spectrum = np.fft.fft2(np.sqrt(transmission) * np.exp(1j * phase))
+    total, empty = np.zeros((n, n)), 0.0
+    for radius in (centre - 0.5 * half, centre + 0.5 * half):
+        for angle in np.arange(4) * (math.pi / 2):
+            u = np.hypot(fx + radius * math.cos(angle), fy + radius * math.sin(angle))
+            pupil = _plate_pupil(u, q, centre - half, centre + half, softness)
+            k = u * cutoff
+            n_over_lambda = 1.518 / 0.55
+            kz = np.sqrt(np.maximum(n_over_lambda**2 - k**2, 0.0))
+            pupil = pupil * np.exp(2j * math.pi * 0.3 * (kz - n_over_lambda))
+            total += np.abs(np.fft.ifft2(spectrum * pupil)) ** 2
+            empty += abs(_plate_pupil(np.array(radius), q, centre - half, centre + half,
+                                      softness)) ** 2  # fmt: skip
+    np.testing.assert_allclose(image, total / empty, rtol=0, atol=1e-12)
+    again = annular_phase_image(*args, n_source_points=8, focus_offset_um=0.3)
+    annular_phase_image(*args[:-1], 1.2, n_source_points=8)  # other optics between
+    last = annular_phase_image(*args, n_source_points=8, focus_offset_um=0.3)
+    assert np.array_equal(image, again)
+    assert np.array_equal(image, last)
+
+
 def test_partially_coherent_empty_scene_renders_the_media_level():
     microscope = Microscope(pixel_size_um=PX, wavelength_um=0.55)
     render = RenderSettings(

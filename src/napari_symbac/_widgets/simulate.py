@@ -80,7 +80,10 @@ class SimulateWidget(Container):
     def __init__(self, viewer: napari.viewer.Viewer, settings: PipelineSettings | None = None):
         super().__init__(name="symbac_simulate", labels=True)
         self.viewer = viewer
-        self.pipeline = settings or PipelineSettings()
+        #: the settings each run starts from (the recording, the form and the geometry's
+        #: optics change them); ``pipeline`` holds the last run's
+        self.given = settings or PipelineSettings()
+        self.pipeline = self.given
         self.recording = ComboBox(
             name="recording",
             label="your recording",
@@ -93,7 +96,7 @@ class SimulateWidget(Container):
         )
         self.form = SettingsForm(
             SimulationSettings,
-            self.pipeline.simulation,
+            self.given.simulation,
             name="settings",
             label="simulation",
             title="simulation",
@@ -173,7 +176,7 @@ class SimulateWidget(Container):
         if layer is None or not hasattr(self.form, "geometry"):
             return
         self._followed = _followed_key(layer)
-        microscope = recording_microscope(layer, self.pipeline.microscope)
+        microscope = recording_microscope(layer, self.given.microscope)
         rows, cols = (int(n) for n in layer.data.shape[-2:])
         field = default_geometry((rows, cols), microscope.modality) == "field"
         self.form.geometry.value = "agar_pad" if field else "trench"
@@ -252,10 +255,10 @@ class SimulateWidget(Container):
         reader) keeps the built-in camera, and the built-in intensities unless painted,
         said with the reason.
         """
-        pipeline = dataclasses.replace(self.pipeline, simulation=self.form.value)
+        pipeline = dataclasses.replace(self.given, simulation=self.form.value)
         layer = self.recording.value
         if layer is None:
-            return pipeline, "", False
+            return _halo_on_pads(pipeline), "", False
         microscope = recording_microscope(layer, pipeline.microscope)
         modality = microscope.modality
         refused = ""
@@ -269,7 +272,10 @@ class SimulateWidget(Container):
         render = modality_render(pipeline.render, modality, means)
         source = f"camera {camera_from}, intensities from {means_from}{refused}"
         chosen = {"microscope": microscope, "render": render, "camera": camera}
-        return dataclasses.replace(pipeline, **chosen), source, not refused
+        pipeline = _halo_on_pads(dataclasses.replace(pipeline, **chosen))
+        if pipeline.render.phase_model == "partially_coherent":
+            source += "; the cells drawn by their phase (the colony fit's starting optics)"
+        return pipeline, source, not refused
 
     def _show_geometry_settings(self, _value=None) -> None:
         """Show only the sub-form of the chosen geometry (the trench also sizes a chamber)."""
@@ -474,6 +480,22 @@ class SimulateWidget(Container):
     def _remove_preview(self) -> None:
         if PREVIEW_LAYER in self.viewer.layers:
             self.viewer.layers.remove(PREVIEW_LAYER)
+
+
+def _halo_on_pads(pipeline: PipelineSettings) -> PipelineSettings:
+    """``pipeline`` with an agar pad in phase contrast drawn through the partially
+    coherent model at the colony fit's start
+    (:func:`~napari_symbac.fit.colony.colony_phase_render`): found as a user, the linear
+    kernel drew a real colony's pad as dark rods on a flat grey (normalised background
+    0.95 against the recording's 0.44, Omnipose's Sample000252), without the halo around
+    the colony and the bright seams between its cells. A trench keeps the linear kernel
+    of the supplement (eq. 7-15)."""
+    from napari_symbac.fit.colony import colony_phase_render
+
+    if pipeline.microscope.modality != "phase" or pipeline.simulation.geometry != "agar_pad":
+        return pipeline
+    render = colony_phase_render(pipeline.render, pipeline.microscope)
+    return dataclasses.replace(pipeline, render=render)
 
 
 def _followed_key(layer) -> tuple:

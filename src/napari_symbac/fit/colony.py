@@ -36,12 +36,14 @@ from napari_symbac.settings import Camera, Microscope, RenderSettings
 from napari_symbac.sim.cells import FrameCells
 
 __all__ = [
+    "COLONY_START_OPTICS",
     "MIN_NOISE_ADU",
     "MIN_TOUCHING_CELLS",
     "ColonyFit",
     "band_upsample",
     "checked_colony_frame",
     "colony_optics",
+    "colony_phase_render",
     "colony_result",
     "colony_start",
     "fit_colony",
@@ -59,6 +61,15 @@ MIN_TOUCHING_CELLS = 5
 #: flat, noiseless training images (Sample000033: background s.d. 0.33 over levels
 #: 7-9). 0.5 ADU, quantised, scatters the pixels by ~0.58 ADU.
 MIN_NOISE_ADU = 0.5
+#: The partially coherent optics a colony fit starts from (:func:`colony_phase_render`):
+#: a cell column's phase, the plate's transmission, the apodisation and the points of
+#: the condenser annulus summed.
+COLONY_START_OPTICS = {
+    "cell_phase_rad": 0.6,
+    "plate_transmission": 0.2,
+    "apodisation_sigma_um": 2.0,
+    "source_points": 12,
+}
 
 
 def touching_cells(masks: np.ndarray) -> int:
@@ -148,22 +159,36 @@ def colony_start(
     every intensity ``level_adu`` (the image's median)."""
     from napari_symbac.scene import scene_from_masks
 
+    render = colony_phase_render(
+        RenderSettings(
+            media_intensity=level_adu,
+            noise_model="gaussian",
+            gaussian_noise_sd_adu=max(noise_adu, MIN_NOISE_ADU),
+        ),
+        microscope,
+    )
+    return render, scene_from_masks(masks, microscope, render)
+
+
+def colony_phase_render(render: RenderSettings, microscope: Microscope) -> RenderSettings:
+    """``render`` on the partially coherent phase model at the start of the colony fit
+    (:data:`COLONY_START_OPTICS`; the fitted colonies of docs/rendering.md: phase
+    0.46-0.63 rad, apodisation 1.8-4 um, ring width 0.69-0.88), sampled at
+    :func:`band_upsample` with a PSF reaching 3 um (the colony's halo). Every
+    intensity is the media's, ``render.media_intensity``: in this model the
+    intensities are the bright-field transmission ``B = I_k / I_media`` (docs/
+    physics.md) and a cell on a pad is transparent; its contrast is its phase."""
     upsample = band_upsample(microscope)
-    render = RenderSettings(
+    level = render.media_intensity
+    return dataclasses.replace(
+        render,
+        **COLONY_START_OPTICS,
         upsample=upsample,
         psf_radius_px=max(8, round(3.0 * upsample / microscope.pixel_size_um)),
         phase_model="partially_coherent",
-        cell_intensity=level_adu,
-        media_intensity=level_adu,
-        device_intensity=level_adu,
-        cell_phase_rad=0.6,
-        plate_transmission=0.2,
-        apodisation_sigma_um=2.0,
-        noise_model="gaussian",
-        gaussian_noise_sd_adu=max(noise_adu, MIN_NOISE_ADU),
-        source_points=12,
+        cell_intensity=level,
+        device_intensity=level,
     )
-    return render, scene_from_masks(masks, microscope, render)
 
 
 @dataclass(frozen=True)

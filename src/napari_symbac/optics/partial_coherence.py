@@ -29,14 +29,18 @@ the transfer function of :func:`~napari_symbac.optics.psf.annulus_transfer_funct
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
-from scipy import special
+from scipy import fft, special
 
 from napari_symbac.settings import CONDENSERS, Condenser
 
 __all__ = ["annular_phase_image"]
+
+#: Softness widths beyond the pupil's edge at which its soft edge is taken as 0.
+_EDGE_REACH = 10.0
 
 
 def _soft_inside(u: np.ndarray, edge: float, softness: float) -> np.ndarray:
@@ -132,9 +136,58 @@ def annular_phase_image(
     cond = condenser if isinstance(condenser, Condenser) else CONDENSERS.get(condenser)
     if cond is None:
         raise ValueError(f"unknown condenser {condenser!r}; choose one of {', '.join(CONDENSERS)}")
-    cutoff = numerical_aperture / wavelength_um
-    fy = np.fft.fftfreq(b.shape[0], pixel_size_um)[:, None] / cutoff
-    fx = np.fft.fftfreq(b.shape[1], pixel_size_um)[None, :] / cutoff
+    # transforms of a length with large prime factors are slow (971 rows: 3 times a
+    # 972's): extended mirror-wise to the next fast lengths, the extension cut off after
+    rows, cols = b.shape
+    shape = (fft.next_fast_len(rows), fft.next_fast_len(cols))
+    extend = ((0, shape[0] - rows), (0, shape[1] - cols))
+    sample = np.pad(np.sqrt(b) * np.exp(1j * phi), extend, mode="symmetric")
+    spectrum = fft.fft2(sample).ravel()
+    pupils, empty = _source_pupils(
+        shape,
+        pixel_size_um,
+        numerical_aperture / wavelength_um,
+        cond,
+        plate_transmission,
+        plate_phase_rad,
+        apodisation_sigma_um,
+        ring_width_scale,
+        n_source_points,
+        focus_offset_um,
+        refractive_index / wavelength_um,
+    )
+    image = np.zeros(shape)
+    for inside, pupil in pupils:
+        passed = np.zeros_like(spectrum)
+        passed[inside] = spectrum[inside] * pupil
+        image += np.abs(fft.ifft2(passed.reshape(shape), overwrite_x=True)) ** 2
+    return image[:rows, :cols] / empty
+
+
+@functools.lru_cache(maxsize=1)
+def _source_pupils(
+    shape: tuple[int, int],
+    pixel_size_um: float,
+    cutoff: float,
+    cond: Condenser,
+    plate_transmission: float,
+    plate_phase_rad: float,
+    apodisation_sigma_um: float,
+    ring_width_scale: float,
+    n_source_points: int,
+    focus_offset_um: float,
+    n_over_lambda: float,
+) -> tuple[tuple[tuple[np.ndarray, np.ndarray], ...], float]:
+    """Each source point's pupil times plate, ``P(s + f) Q(s + f)``, where it is not 0,
+    and the empty field's intensity (the sum of the direct light's ``|P Q|^2``).
+
+    The pupil is 0 beyond its soft edge (to ``erfc(10 / sqrt 2) ~ 1e-23``): kept only
+    inside, a tenth to a fifth of the frequencies, as flat indices and values. The last
+    optics are kept: every frame of a series is rendered through the same pupils (for a
+    frame of 971 x 1096, 12 source points: 31 MB, and 0.6 s a frame becomes 0.35 s).
+    """
+    fy = np.fft.fftfreq(shape[0], pixel_size_um)[:, None] / cutoff
+    fx = np.fft.fftfreq(shape[1], pixel_size_um)[None, :] / cutoff
     softness = 1.0 / (2 * math.pi * apodisation_sigma_um * cutoff)  # pupil units
     centre = 0.5 * (cond.outer_fraction + cond.inner_fraction)
     half = 0.5 * (cond.outer_fraction - cond.inner_fraction)
@@ -142,23 +195,23 @@ def annular_phase_image(
     q = math.sqrt(plate_transmission) * complex(
         math.cos(plate_phase_rad), -math.sin(plate_phase_rad)
     )
-    spectrum = np.fft.fft2(np.sqrt(b) * np.exp(1j * phi))
+    reach = 1.0 + _EDGE_REACH * softness
     n_angles = n_source_points // 2
-    radii = (centre - 0.5 * half, centre + 0.5 * half)
-    image = np.zeros(b.shape)
+    pupils = []
     empty = 0.0
-    for radius in radii:
+    for radius in (centre - 0.5 * half, centre + 0.5 * half):
         for angle in np.arange(n_angles) * (2 * math.pi / n_angles):
-            u = np.hypot(fx + radius * math.cos(angle), fy + radius * math.sin(angle))
+            u = np.hypot(fx + radius * math.cos(angle), fy + radius * math.sin(angle)).ravel()
+            inside = np.flatnonzero(u < reach).astype(np.int32)
+            u = u[inside]
             pupil = _plate_pupil(u, q, ring_in, ring_out, softness)
             if focus_offset_um:
-                pupil = pupil * _defocus_phase(
-                    u * cutoff, focus_offset_um, refractive_index / wavelength_um
-                )
-            image += np.abs(np.fft.ifft2(spectrum * pupil)) ** 2
+                pupil = pupil * _defocus_phase(u * cutoff, focus_offset_um, n_over_lambda)
+            inside.flags.writeable = pupil.flags.writeable = False
+            pupils.append((inside, pupil))
             # the direct light of this source point (f = 0) meets the plate at u = radius
             empty += abs(_plate_pupil(np.array(radius), q, ring_in, ring_out, softness)) ** 2
-    return image / empty
+    return tuple(pupils), empty
 
 
 def _defocus_phase(k: np.ndarray, z_um: float, n_over_lambda: float) -> np.ndarray:
