@@ -37,6 +37,9 @@ def test_run_to_completion_adds_aligned_layers(widget, qtbot):
     assert images.shape[0] == 6
     assert PREVIEW_LAYER not in widget.viewer.layers
     assert widget.status.value.startswith("Done: 6 frames")
+    # the last frame's cells, as its labels hold them (not the lineage's)
+    n_last = np.count_nonzero(np.unique(labels[-1]))
+    assert f", {n_last} cells in the last (" in widget.status.value
     assert widget.run_button.enabled
     # the frame slider is named "frame" and starts at frame 0 (found as a user: it read
     # "-3", napari's default name of that axis, taken for the frame number)

@@ -400,8 +400,13 @@ class SimulateWidget(Container):
         if opl is not None:
             self._show_opl(opl, metadata)
         self.viewer.dims.set_current_step(0, 0)  # from its first frame (napari: the middle)
-        n_cells = len(self.simulation.lineage)
-        self.status.value = f"Done: {len(self.simulation.frames)} frames, {n_cells} cells"
+        # the last frame's cells, to compare with the recording's (found as a user: "361
+        # cells", the lineage's, read as the colony's 181)
+        frames = self.simulation.frames
+        self.status.value = (
+            f"Done: {len(frames)} frames, {len(frames[-1].ids)} cells in the last "
+            f"({len(self.simulation.lineage)} over the lineage)"
+        )
         if RESULT_TRACKS_LAYER in self.viewer.layers:
             self.status.value += f" (their tracks: the layer '{RESULT_TRACKS_LAYER}')"
         if self._source:
