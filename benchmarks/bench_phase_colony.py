@@ -51,8 +51,10 @@ def measure(data_dir: str, rounds: int) -> dict[str, float]:
     image = np.asarray(read_image(Path(data_dir) / "omnipose" / "Sample000252.png").data)
     microscope = Microscope(pixel_size_um=PIXEL_UM, modality="phase")
     base = PipelineSettings(microscope=microscope)
-    cell_area_um2 = base.simulation.cell_width_um * 0.75 * base.simulation.cell_max_length_um
-    fields, _ = rough_pad_layout(image.astype(float), PIXEL_UM, cell_area_um2, "phase")
+    cells = base.simulation
+    fields, _ = rough_pad_layout(
+        image.astype(float), PIXEL_UM, cells.cell_width_um, cells.cell_max_length_um, "phase"
+    )
     simulation_settings = dataclasses.replace(base.simulation, **fields)
     simulator = Simulator(simulation_settings, np.random.default_rng(simulation_settings.seed))
     for _ in simulator.iter_frames():

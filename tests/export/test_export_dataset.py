@@ -380,7 +380,8 @@ def test_the_default_export_of_a_fitted_colony_draws_grown_colonies():
     from napari_symbac.export import export_of
     from napari_symbac.sim import simulate
 
-    fields, _ = pad_layout((400, 400), 0.07, n_colonies=1, cells_per_colony=100)
+    cells = {"division_length_um": 3.5, "width_um": 1.0}  # the defaults'
+    fields, _ = pad_layout((400, 400), 0.07, n_colonies=1, cells_per_colony=100, **cells)
     simulation = SimulationSettings(**fields, seed=1)
     counts = np.array([len(f.ids) for f in simulate(simulation).frames])
     first = export_of(PipelineSettings(simulation=simulation)).first_frame

@@ -510,6 +510,9 @@ def test_a_phase_pad_is_drawn_with_the_halo_of_the_recording(widget, qtbot, real
     assert drawn["halo"] - drawn["background"] > 0.25
     assert drawn["cells"] < drawn["background"]
     assert "the cells drawn by their phase" in widget.status.value
+    # shown at its last frame, to compare with the recording (not its founder)
+    assert widget.viewer.dims.current_step[0] == 29
+    assert "shown to compare with colony" in widget.status.value
     # a phase trench keeps the linear kernel of the supplement
     widget.form.geometry.value = "trench"
     assert widget.pipeline_settings().render.phase_model == "linear"

@@ -340,6 +340,9 @@ def test_auto_fit_of_a_phase_colony_with_its_masks_fits_the_halo(rendered, qtbot
     assert not phase.native.isHidden()
     assert tune.sliders["ring_contrast"].native.isHidden()
     assert tune.sliders["psf_offset"].native.isHidden()
+    # the cell intensity says what it is in this model (a transmission: equal to the
+    # media's for transparent cells; found as a user, read as a mistake)
+    assert "bright-field transmission" in tune.sliders["cell_intensity"].tooltip
     assert tune.sliders["apodisation_sigma_um"].value == pytest.approx(
         result.render.apodisation_sigma_um, abs=0.01
     )  # beyond the slider's first range (3 um): widened, not refused
@@ -730,6 +733,8 @@ def test_the_sliders_shown_are_those_that_change_the_image(rendered, modality):
         phase_kernel = {"ring_contrast", "psf_offset", "apodisation_sigma_um"}
         assert (phase_kernel <= shown) == (modality == "phase")
         assert not phase_kernel & shown or modality == "phase"
+        # the linear kernel's cell intensity is eq. 3's, said so (not the coherent's tip)
+        assert "transmission" not in tune.sliders["cell_intensity"].tooltip
 
 
 def test_no_slider_before_a_render_and_no_device_on_an_agar_pad(make_napari_viewer, qtbot):

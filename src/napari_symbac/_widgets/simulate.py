@@ -133,6 +133,7 @@ class SimulateWidget(Container):
             self._show_geometry_settings()
         self.worker: Job | None = None  # before the recordings are followed
         self._source = ""  # where the running simulation's camera and intensities come from
+        self._compared_with = ""  # the name of the recording it was chosen beside
         self._scale_of = None  # the recording whose camera it renders with
         self._followed: tuple | None = None  # the recording as last followed
         self.recording.changed.connect(self._follow_recording)
@@ -203,9 +204,12 @@ class SimulateWidget(Container):
 
         frame = first_frame(layer).astype(np.float64)
         settings = self.form.value
-        cell_area_um2 = settings.cell_width_um * 0.75 * settings.cell_max_length_um
         layout = rough_pad_layout(
-            frame, microscope.pixel_size_um, cell_area_um2, microscope.modality
+            frame,
+            microscope.pixel_size_um,
+            settings.cell_width_um,
+            settings.cell_max_length_um,
+            microscope.modality,
         )
         if layout is None:  # no cell to see: the defaults' colony
             return
@@ -302,6 +306,7 @@ class SimulateWidget(Container):
             return
         recording = self.recording.value
         self._source = f"{recording.name}: {source}" if source else ""
+        self._compared_with = recording.name if recording is not None else ""
         self._scale_of = recording if on_its_scale else None
         sim_settings = pipeline.simulation
         n_frames = sim_settings.n_frames
@@ -399,7 +404,6 @@ class SimulateWidget(Container):
         self._show_tracks(axes)
         if opl is not None:
             self._show_opl(opl, metadata)
-        self.viewer.dims.set_current_step(0, 0)  # from its first frame (napari: the middle)
         # the last frame's cells, to compare with the recording's (found as a user: "361
         # cells", the lineage's, read as the colony's 181)
         frames = self.simulation.frames
@@ -407,6 +411,13 @@ class SimulateWidget(Container):
             f"Done: {len(frames)} frames, {len(frames[-1].ids)} cells in the last "
             f"({len(self.simulation.lineage)} over the lineage)"
         )
+        # napari shows a new stack's middle frame: without a recording its first, with one
+        # its last, grown as the recording was laid out (found as a user: Sample000252's
+        # colony was shown as the first frame's founder beside the recording's 77 cells)
+        compared = self._compared_with
+        self.viewer.dims.set_current_step(0, len(frames) - 1 if compared else 0)
+        if compared:
+            self.status.value += f", shown to compare with {compared}"
         if RESULT_TRACKS_LAYER in self.viewer.layers:
             self.status.value += f" (their tracks: the layer '{RESULT_TRACKS_LAYER}')"
         if self._source:

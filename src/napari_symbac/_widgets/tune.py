@@ -102,6 +102,14 @@ COHERENT_ONLY = ("cell_phase_rad", "phase_ring_width_scale", "plate_transmission
 LINEAR_ONLY = ("ring_contrast", "psf_offset")
 #: The phase-contrast PSF's, of both phase models; unused by fluorescence and bright field.
 PHASE_ONLY = ("apodisation_sigma_um",)
+#: The cell intensity's tooltip in the partially coherent phase model, where a cell's
+#: intensity is its bright-field transmission ``B = I_c / I_m`` (docs/physics.md).
+COHERENT_CELL_TIP = (
+    "In this phase model the cells are dark by their phase (cell phase), not by their "
+    "intensity: cell intensity / media intensity is their bright-field transmission B, "
+    "1 (equal intensities) for transparent cells as in real phase contrast; lower it "
+    "only for cells that absorb."
+)
 #: Sliders of bright field only; the phase kernel's are hidden there.
 BRIGHTFIELD_ONLY = ("defocus_contrast_um2",)
 #: Sliders of the gaussian noise model only; camera noise and none leave the image unchanged.
@@ -290,9 +298,9 @@ class TuneWidget(Container):
         from napari_symbac._widgets._forms import parameter_docs
         from napari_symbac.settings import RenderSettings
 
-        docs = parameter_docs(RenderSettings)
+        self._docs = parameter_docs(RenderSettings)
         for name, slider in self.sliders.items():
-            slider.tooltip = docs.get(name, slider.label)
+            slider.tooltip = self._docs.get(name, slider.label)
         self.source.tooltip = "The rendered layer to tune (made by Simulate and render)."
         self.reference.tooltip = "The real recording to compare with, match to and fit to."
         self.masks.tooltip = (
@@ -585,6 +593,10 @@ class TuneWidget(Container):
         }
         for name, visible in shown.items():
             self.sliders[name].visible = visible
+        # found as a user: cell intensity equal to the media's, read as a mistake
+        self.sliders["cell_intensity"].tooltip = (
+            COHERENT_CELL_TIP if coherent else self._docs.get("cell_intensity", "cell intensity")
+        )
         fluorescence = modality == "fluorescence"
         for box in (self.fit_envelope_stain, self.fit_depth):
             box.visible = fluorescence

@@ -80,6 +80,9 @@ NO_MASKS_CROP_PX = 512
 #: Doubling time and frame interval of the simulated colonies (minutes).
 _DOUBLING_MIN = 25.0
 _FRAME_MIN = 3.0
+#: Median of a sizer founder's length over its division length (drawn in 0.5-0.9,
+#: ``sim.simulator``).
+_FOUNDER_MEDIAN_FRACTION = 0.7
 #: Physics iterations per frame of calibrated agar pads (the default 15 leaves deeper
 #: overlaps in a colony compacted by gravity).
 PAD_PHYS_ITERS = 30
@@ -233,6 +236,33 @@ def _rough_phase_interiors(image: np.ndarray) -> np.ndarray:
     return labels
 
 
+def _phase_colonies_px(image: np.ndarray, seeds: np.ndarray, reach_px: int) -> np.ndarray:
+    """Areas (px) of a phase field's colonies that hold a seed (cell interiors of a
+    cluster of at least a cell): the cells' dark class and the bright class of the
+    halo and the seams between them, joined within ``reach_px`` and filled, less the
+    halo around them (the bright regions that reach the colony's edge). Found as a
+    user: Omnipose's Sample000033, whose cells are lighter inside the colony than at its
+    rim, was laid out as three colonies of 16 cells (its darkest class is the rim) for
+    one of 116; its masks' area is 171.5 cells, this region's 171.7 (Sample000193:
+    205 against 204, Sample000252: 150 against 145)."""
+    from scipy import ndimage
+    from skimage.filters import threshold_multiotsu
+
+    smooth = ndimage.gaussian_filter(image, 1.0)
+    dark, bright = threshold_multiotsu(smooth, 3)
+    marked = ndimage.binary_opening((smooth <= dark) | (smooth > bright), iterations=2)
+    joined = ndimage.binary_dilation(marked, iterations=reach_px)
+    region = ndimage.binary_erosion(
+        ndimage.binary_fill_holes(joined), iterations=reach_px, border_value=1
+    )
+    lights, _ = ndimage.label(ndimage.binary_opening(smooth > bright, iterations=1) & region)
+    rim = region & ~ndimage.binary_erosion(region)
+    halo = np.isin(lights, np.unique(lights[rim & (lights > 0)]))
+    colonies, _ = ndimage.label(ndimage.binary_opening(region & ~halo, iterations=2))
+    seeded = np.unique(colonies[seeds & (colonies > 0)])
+    return np.bincount(colonies.ravel())[seeded]
+
+
 #: The least area, in cells, of a phase field's region of cell interiors that counts:
 #: interiors are about 40 % of the cells' area (Omnipose's Sample000252 and 193: the
 #: darkest class holds 41 % and 40 % of their masks' pixels).
@@ -246,13 +276,15 @@ _PHASE_CLUSTER_REACH_UM = 1.0
 def rough_pad_layout(
     image: np.ndarray,
     pixel_size_um: float,
-    cell_area_um2: float,
+    cell_width_um: float,
+    division_length_um: float,
     modality: str = "fluorescence",
 ) -> tuple[dict, str] | None:
     """A field's agar pad laid out before any fit (Simulate's start): :func:`pad_layout`
     with one colony per cluster of the image's cell regions (joined within
     :data:`_CLUSTER_REACH_UM`, in phase contrast :data:`_PHASE_CLUSTER_REACH_UM`), each
-    of the clusters' mean area in cells of ``cell_area_um2``. Found as a user: a
+    of the clusters' mean area in cells (``cell_width_um`` times 0.75
+    ``division_length_um``, a sizer cell's median size). Found as a user: a
     ColiCoords field of eight scattered cells was simulated as one founder on an empty
     41 um pad until Auto-fit laid it out (and, in bright field, until this took bright
     field too), and so was a phase colony of 77 cells (Omnipose's Sample000252).
@@ -260,9 +292,10 @@ def rough_pad_layout(
     The cell regions are, in fluorescence and bright field, :func:`_rough_cells` of at
     least half a cell, a cluster's area that of its regions; in phase contrast the cell
     interiors (:func:`_rough_phase_interiors`) of at least
-    :data:`_PHASE_INTERIOR_MIN_CELLS` cell, a cluster's area that of its outline with
-    the seams and edges between the interiors (the cluster closed and filled), of at
-    least a cell (smaller ones are debris). ``None`` for an image without such a region.
+    :data:`_PHASE_INTERIOR_MIN_CELLS` cell, clusters whose outline (closed and filled)
+    holds at least a cell (smaller ones are debris), each cluster's colony that of
+    :func:`_phase_colonies_px` (one colony however many clusters of interiors it
+    holds). ``None`` for an image without such a region.
     """
     from scipy import ndimage
 
@@ -273,6 +306,7 @@ def rough_pad_layout(
     image = np.asarray(image, np.float64)
     if not np.ptp(image) > 0:
         return None
+    cell_area_um2 = cell_width_um * 0.75 * division_length_um
     phase = modality == "phase"
     if phase:
         regions, least = _rough_phase_interiors(image), _PHASE_INTERIOR_MIN_CELLS
@@ -289,13 +323,21 @@ def rough_pad_layout(
     if phase:  # each cluster's outline, its dilation taken back; a colony holds a cell
         outline = ndimage.binary_erosion(ndimage.binary_fill_holes(clusters > 0), iterations=reach)
         in_cells = np.bincount(clusters[outline], minlength=n_clusters + 1)[1:]
-        in_cells = in_cells[in_cells * pixel_size_um**2 >= cell_area_um2]
+        seeds = np.isin(clusters, np.flatnonzero(in_cells * pixel_size_um**2 >= cell_area_um2) + 1)
+        in_cells = _phase_colonies_px(image, seeds & cells, reach)
     else:
         in_cells = np.bincount(clusters[cells], minlength=n_clusters + 1)[1:]
     if in_cells.size == 0:
         return None
     per_colony = float(in_cells.mean()) * pixel_size_um**2 / cell_area_um2
-    return pad_layout(image.shape[-2:], pixel_size_um, in_cells.size, max(per_colony, 1.0))
+    return pad_layout(
+        image.shape[-2:],
+        pixel_size_um,
+        in_cells.size,
+        max(per_colony, 1.0),
+        division_length_um=division_length_um,
+        width_um=cell_width_um,
+    )
 
 
 def _clusters_outside(
@@ -342,10 +384,26 @@ def division_length_um(lengths_um: np.ndarray) -> tuple[float, float]:
     return division, float(np.clip(spread, 0.01, (0.25 * division) ** 2))
 
 
-def _frames_for(cluster_cells: float) -> int:
-    """Frames of growth for one founder to become ``cluster_cells`` cells."""
-    generations = math.log2(max(cluster_cells, 1.0))
-    return math.ceil(generations * _DOUBLING_MIN / _FRAME_MIN)
+def _frames_for(cluster_cells: float, division_length_um: float, width_um: float) -> int:
+    """Frames of growth for one founder to become ``cluster_cells`` cells, on average.
+
+    A cell grows exponentially with doubling time :data:`_DOUBLING_MIN`, but a sizer's
+    daughters share the mother's length and a cap's worth more (``L + w / 3``: volume
+    kept, Algorithm 1), so a generation takes ``g = log2(2 L / (L + w / 3))`` doublings
+    (0.87 for 3.5 x 1 um cells); the founder starts at 0.5-0.9 of its division length
+    (:data:`_FOUNDER_MEDIAN_FRACTION` the median), ``log2(1 / 0.7)`` doublings from its
+    first division; and from then on the mean count of a colony grown from one newborn
+    cell is ``2^n / (2 ln 2)`` after ``n`` generations, not ``2^n`` (the Bellman-Harris
+    branching process with near-equal lifetimes: the count is a staircase, its steps
+    spread by the cells' noise). Found as a user: colonies laid out as ~123 cells grew
+    to 181-255.
+    """
+    L, w = float(division_length_um), float(width_um)
+    generation = _DOUBLING_MIN * math.log2(2.0 * L / (L + w / 3.0))
+    first = _DOUBLING_MIN * math.log2(1.0 / _FOUNDER_MEDIAN_FRACTION)
+    cells = max(cluster_cells, 1.0) * 2.0 * math.log(2.0)  # the staircase's mean
+    minutes = first + generation * (math.log2(cells) - 1.0)
+    return max(0, round(minutes / _FRAME_MIN))
 
 
 def pad_edge_margin_um(width_um: float, height_um: float, margin_um: float = 3.0) -> float:
@@ -355,12 +413,19 @@ def pad_edge_margin_um(width_um: float, height_um: float, margin_um: float = 3.0
 
 
 def pad_layout(
-    shape_px: tuple[int, int], pixel_size_um: float, n_colonies: int, cells_per_colony: float
+    shape_px: tuple[int, int],
+    pixel_size_um: float,
+    n_colonies: int,
+    cells_per_colony: float,
+    *,
+    division_length_um: float,
+    width_um: float,
 ) -> tuple[dict, str]:
     """The simulation of an agar pad laid out as an image: the image's size, one colony
     per cluster of its cells, each grown from one founder (sizer, doubling
     :data:`_DOUBLING_MIN` min, frames of :data:`_FRAME_MIN` min) to the clusters' mean
-    size.
+    size, on average, for cells that divide at ``division_length_um`` and are
+    ``width_um`` wide (:func:`_frames_for`).
 
     Returns
     -------
@@ -370,7 +435,7 @@ def pad_layout(
     """
     height_um, field_um = shape_px[0] * pixel_size_um, shape_px[1] * pixel_size_um
     n_colonies = int(max(1, n_colonies))
-    growth = _frames_for(cells_per_colony)
+    growth = _frames_for(cells_per_colony, division_length_um, width_um)
     separation = float(min(10.0, 0.5 * math.sqrt(height_um * field_um / n_colonies)))
     pad = AgarPadGeometry(
         field_width_um=field_um,
@@ -448,7 +513,9 @@ def settings_from_fit(
     )
     shape, n_colonies = layout or (m.shape, m.cluster_sizes.size)
     per_colony = float(np.mean(m.cluster_sizes)) if m.cluster_sizes.size else 1.0
-    fields, note = pad_layout(shape, px, n_colonies, per_colony)
+    fields, note = pad_layout(
+        shape, px, n_colonies, per_colony, division_length_um=division, width_um=width
+    )
     notes.append(note)
     simulation = SimulationSettings(
         **fields,

@@ -104,10 +104,6 @@ def fitted_simulation(
     # the fitted 1.15 um trench was checked against the defaults' 1 um cells before the
     # fitted 0.79 um cells replaced them, and the whole fit was dropped)
     changes: dict[str, Any] = {}
-    if result.trench is not None:
-        changes["trench"] = result.trench_geometry(image_shape, pixel_size_um)
-    elif len(result.cells):
-        changes.update(_pad_as_fitted(simulation, result, image_shape, pixel_size_um, keep))
     if len(result.cells):
         from napari_symbac.calibrate.core import division_length_um
 
@@ -119,6 +115,16 @@ def fitted_simulation(
             "max_length_var_um2": variance,
         }
         changes.update({k: v for k, v in sizes.items() if k not in keep})
+    if result.trench is not None:
+        changes["trench"] = result.trench_geometry(image_shape, pixel_size_um)
+    elif len(result.cells):
+        grown = {  # the cells the pad's colonies grow (not a whole settings: see above)
+            "division_length_um": changes.get("cell_max_length_um", simulation.cell_max_length_um),
+            "width_um": changes.get("cell_width_um", simulation.cell_width_um),
+        }
+        changes.update(
+            _pad_as_fitted(simulation, result, image_shape, pixel_size_um, keep, **grown)
+        )
     return dataclasses.replace(simulation, **changes)
 
 
@@ -140,13 +146,25 @@ def _pad_as_fitted(
     image_shape: tuple[int, int],
     pixel_size_um: float,
     keep: Collection[str],
+    *,
+    division_length_um: float,
+    width_um: float,
 ) -> dict[str, Any]:
-    """The fields that lay ``simulation`` out as an agar pad like the fitted field's cells."""
+    """The fields that lay ``simulation`` out as an agar pad like the fitted field's cells
+    (colonies of cells of ``division_length_um`` and ``width_um`` grown to the clusters'
+    size)."""
     from napari_symbac.calibrate.core import pad_layout
     from napari_symbac.calibrate.measure import cluster_sizes
 
     sizes = cluster_sizes(result.scene.camera_labels())
-    fields, _note = pad_layout(image_shape, pixel_size_um, sizes.size, float(np.mean(sizes)))
+    fields, _note = pad_layout(
+        image_shape,
+        pixel_size_um,
+        sizes.size,
+        float(np.mean(sizes)),
+        division_length_um=division_length_um,
+        width_um=width_um,
+    )
     mine = {k.removeprefix("agar_pad.") for k in keep if k.startswith("agar_pad.")}
     if mine:
         kept = {k: getattr(simulation.agar_pad, k) for k in mine}
