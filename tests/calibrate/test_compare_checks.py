@@ -44,7 +44,7 @@ def test_two_draws_of_the_same_field_match_in_every_comparison():
         table
     )
     assert f"tolerance +-{MEDIAN_TOLERANCE:g}" in table
-    assert "issue 16" in table  # why that tolerance
+    assert "sampling noise" in table  # why that tolerance (said without project jargon)
 
 
 def test_brighter_and_blurred_cells_are_flagged_with_what_to_do():

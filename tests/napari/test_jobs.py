@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 pytest.importorskip("napari", reason="the [gui] extra (napari + Qt) is not installed")
@@ -222,3 +223,35 @@ def _job_calling_back(work, what: str, calls: list[str], **kwargs) -> Job:
         on_finish=lambda: calls.append("finish"),
         **kwargs,
     )
+
+
+def test_closing_the_viewer_stops_a_blocking_step_that_reports_nothing(make_napari_viewer, qtbot):
+    """Found as a user: the viewer closed while Diagnose ran a held-out check; napari's
+    close quit the worker (its task manager quits every worker of the window), but the
+    blocking step only heard the Cancel button's event: it ran on for 101 s at full CPU
+    and the process ended in a segmentation fault. The close now reaches the step."""
+    import threading
+
+    from napari_symbac._widgets._jobs import blocking_steps
+
+    viewer = make_napari_viewer()
+    viewer.add_image(np.zeros((8, 8)))  # a layer: napari's close path with its checks
+    asked = threading.Event()
+    started, stopped = threading.Event(), threading.Event()
+
+    def run(progress, cancel):  # reports nothing until it is cancelled
+        started.set()
+        while not cancel():
+            asked.wait(0.01)
+        stopped.set()
+        return "stopped"
+
+    finished: list[bool] = []
+    job = Job(lambda: (yield from blocking_steps(run, asked.is_set)), total=0,
+              description="test", what="Diagnose", cancelled=asked,
+              on_finish=lambda: finished.append(True))  # fmt: skip
+    job.start()
+    assert started.wait(30)
+    viewer.close()
+    assert stopped.wait(30), "the blocking step ran on after the viewer closed"
+    assert job.cancelled.is_set()

@@ -527,3 +527,31 @@ def test_a_class_not_measured_is_scaled_as_the_measured_media():
     assert (render.cell_intensity, render.media_intensity) == (40.0, 130.0)
     scale = 130.0 / default.media_intensity
     assert render.device_intensity == pytest.approx(default.device_intensity * scale)
+
+
+def test_a_recording_at_a_pixel_size_no_camera_has_is_warned_about_while_it_runs(widget, qtbot):
+    """Found as a user: a pixel size 10x too large (0.75 um at 100x), warned about in the
+    Recording step, was simulated for minutes (cells 1.3 px wide on a 423 um pad) with
+    "Rendered frame 20 of 94" and no word of it. The warning stays in the status."""
+    rng = np.random.default_rng(0)
+    widget.viewer.add_image(
+        rng.normal(500.0, 20.0, (64, 64)).astype(np.uint16), name="slip",
+        metadata={"pixel_size_um": 0.65, "modality": "fluorescence"},
+    )  # fmt: skip
+    said = []  # the status after each progress message (a Label has no changed signal)
+    shown = widget._on_yielded
+
+    def seen(message):
+        shown(message)
+        said.append(widget.status.value)
+
+    widget._on_yielded = seen
+    widget.form.n_frames.value = 2
+    widget.run_button.native.click()
+    warning = "Warning: pixel size 0.65 um at 100x magnification is a 65 um camera pixel"
+    assert widget.status.value.startswith("Simulating...")
+    assert warning in widget.status.value
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
+    assert any("Rendered frame" in line and warning in line for line in said), said
+    assert widget.status.value.startswith("Done:")
+    assert warning in widget.status.value

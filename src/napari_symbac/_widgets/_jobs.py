@@ -28,6 +28,7 @@ from collections.abc import Callable, Generator
 from typing import Any
 
 __all__ = [
+    "HEARTBEAT",
     "Job",
     "blocking_steps",
     "describe_error",
@@ -151,6 +152,13 @@ class Job:
         self.worker.returned.connect(lambda result: self._post("return", result))
         self.worker.errored.connect(lambda err: self._post("error", err))
         self.worker.aborted.connect(lambda: self._post("abort", None))
+        # in the worker's thread: napari's own close (its task manager quits every worker
+        # of the window) stops a blocking step too, not only the next yield (found as a
+        # user: the viewer closed during Diagnose, which ran on for 101 s at full CPU and
+        # ended in a segmentation fault at exit)
+        from qtpy.QtCore import Qt
+
+        self.worker.aborted.connect(self.cancelled.set, Qt.ConnectionType.DirectConnection)
         self.worker.finished.connect(lambda: self._post("finish", None))
         self._owner = owner
         self._holders: list[Any] = []  # the owner's ancestors while the job runs
@@ -207,7 +215,7 @@ class Job:
     # -- event queue ----------------------------------------------------------------------
 
     def _post(self, kind: str, payload: Any) -> None:
-        if self._closed:
+        if self._closed or (kind == "yield" and payload is HEARTBEAT):
             return
         if kind == "yield" and self._queue and self._queue[-1][0] == "yield":
             self._queue[-1] = (kind, payload)  # only the newest progress matters
@@ -222,11 +230,14 @@ class Job:
                 try:
                     self._handle(kind, payload)
                 except RuntimeError as err:
-                    if not (self._panel_gone and _deleted_widget(err)):
+                    gone = self._panel_gone or self.cancelled.is_set()
+                    if not (gone and _deleted_widget(err)):
                         notify_error(describe_error(err, f"{self._what} (showing its result)"))
-                    # else: the viewer closed around the step, its labels deleted before
-                    # the cancel arrived (found as a user: "Diagnose cancelled: its
-                    # panel was closed", then an ERROR naming a deleted QLabel)
+                    # else: the viewer closed around the step (its panel, or napari's
+                    # close quitting the worker), its widgets deleted before the cancel
+                    # arrived (found as a user: "Diagnose cancelled: its panel was
+                    # closed", then an ERROR naming a deleted QLabel; and a Simulation's
+                    # deleted QPushButton after the viewer closed mid-run)
                 except Exception as err:  # a bug in a callback: report, keep the widget
                     notify_error(describe_error(err, f"{self._what} (showing its result)"))
         finally:
@@ -269,8 +280,17 @@ class Job:
             notify_error(describe_error(err, self._what))
 
 
+#: Yielded by :func:`blocking_steps` while its thread reports nothing: each yield is where
+#: the worker sees a quit (napari's when the window closes), which the :class:`Job`
+#: passes on to the blocking step; the Job shows nothing for it.
+HEARTBEAT = object()
+#: Seconds between heartbeats of a blocking step that reports nothing.
+HEARTBEAT_S = 0.1
+
+
 def blocking_steps(run, cancelled):
-    """Run ``run(progress, cancel)`` in a thread; yield ``(done, (done, total))`` updates.
+    """Run ``run(progress, cancel)`` in a thread; yield ``(done, (done, total))`` updates,
+    and :data:`HEARTBEAT` every :data:`HEARTBEAT_S` without one.
 
     A generator for :class:`~napari_symbac._widgets._jobs.Job`; returns ``run``'s result
     and raises its exception.
@@ -283,8 +303,9 @@ def blocking_steps(run, cancelled):
         future = pool.submit(run, lambda done, total: updates.put((done, total)), cancelled)
         while not future.done() or not updates.empty():
             try:
-                done, total = updates.get(timeout=0.05)
+                done, total = updates.get(timeout=HEARTBEAT_S)
             except queue.Empty:
+                yield HEARTBEAT
                 continue
             yield done, (done, total)
         return future.result()

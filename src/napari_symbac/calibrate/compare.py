@@ -182,8 +182,8 @@ def _median_check(quantity: str, real: float, synthetic: float, advice: str) -> 
     matched = bool(abs(difference) <= MEDIAN_TOLERANCE)
     finding = (
         f"synthetic {synthetic:.3f} against real {real:.3f} (difference {difference:+.3f}; "
-        f"tolerance +-{MEDIAN_TOLERANCE:g} in 1-99 % normalised units, the project's goal "
-        "for phase colonies, issue 16, far above a median's sampling noise)"
+        f"tolerance +-{MEDIAN_TOLERANCE:g} in 1-99 % normalised units, far above a "
+        "median's sampling noise: a larger difference is the model's, not chance)"
     )
     return Check(quantity, matched, finding, "" if matched else advice)
 
