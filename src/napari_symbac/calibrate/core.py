@@ -80,9 +80,6 @@ NO_MASKS_CROP_PX = 512
 #: Doubling time and frame interval of the simulated colonies (minutes).
 _DOUBLING_MIN = 25.0
 _FRAME_MIN = 3.0
-#: Median of a sizer founder's length over its division length (drawn in 0.5-0.9,
-#: ``sim.simulator``).
-_FOUNDER_MEDIAN_FRACTION = 0.7
 #: Physics iterations per frame of calibrated agar pads (the default 15 leaves deeper
 #: overlaps in a colony compacted by gravity).
 PAD_PHYS_ITERS = 30
@@ -222,21 +219,31 @@ def _rough_cells(image: np.ndarray, modality: str, pixel_size_um: float) -> np.n
 _CLUSTER_REACH_UM = 0.5
 
 
-def _rough_phase_interiors(image: np.ndarray) -> np.ndarray:
-    """Regions of a phase-contrast field's cell interiors: the darkest of three Otsu
-    classes of the smoothed image (the brightest is the halo, the middle the background
-    far from the cells; one threshold took the background for cells: one colony of
-    thousands of cells on the Omnipose images)."""
+def _phase_classes(image: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """A phase-contrast field smoothed, and the two thresholds of its three Otsu
+    classes: the darkest the cells' interiors, the brightest the halo and the seams
+    between cells, the middle the background far from the cells (one threshold took the
+    background for cells: one colony of thousands of cells on the Omnipose images)."""
     from scipy import ndimage
     from skimage.filters import threshold_multiotsu
 
     smooth = ndimage.gaussian_filter(image, 1.0)
-    darkest = smooth <= threshold_multiotsu(smooth, 3)[0]
-    labels, _ = ndimage.label(ndimage.binary_opening(darkest, iterations=2))
+    dark, bright = threshold_multiotsu(smooth, 3)
+    return smooth, float(dark), float(bright)
+
+
+def _rough_phase_interiors(smooth: np.ndarray, dark: float) -> np.ndarray:
+    """Regions of a phase-contrast field's cell interiors: its darkest class
+    (:func:`_phase_classes`)."""
+    from scipy import ndimage
+
+    labels, _ = ndimage.label(ndimage.binary_opening(smooth <= dark, iterations=2))
     return labels
 
 
-def _phase_colonies_px(image: np.ndarray, seeds: np.ndarray, reach_px: int) -> np.ndarray:
+def _phase_colonies_px(
+    smooth: np.ndarray, dark: float, bright: float, seeds: np.ndarray, reach_px: int
+) -> np.ndarray:
     """Areas (px) of a phase field's colonies that hold a seed (cell interiors of a
     cluster of at least a cell): the cells' dark class and the bright class of the
     halo and the seams between them, joined within ``reach_px`` and filled, less the
@@ -244,12 +251,10 @@ def _phase_colonies_px(image: np.ndarray, seeds: np.ndarray, reach_px: int) -> n
     user: Omnipose's Sample000033, whose cells are lighter inside the colony than at its
     rim, was laid out as three colonies of 16 cells (its darkest class is the rim) for
     one of 116; its masks' area is 171.5 cells, this region's 171.7 (Sample000193:
-    205 against 204, Sample000252: 150 against 145)."""
+    205 against 204, Sample000252: 150 against 145). ``smooth``, ``dark`` and
+    ``bright``: :func:`_phase_classes`."""
     from scipy import ndimage
-    from skimage.filters import threshold_multiotsu
 
-    smooth = ndimage.gaussian_filter(image, 1.0)
-    dark, bright = threshold_multiotsu(smooth, 3)
     marked = ndimage.binary_opening((smooth <= dark) | (smooth > bright), iterations=2)
     joined = ndimage.binary_dilation(marked, iterations=reach_px)
     region = ndimage.binary_erosion(
@@ -309,7 +314,8 @@ def rough_pad_layout(
     cell_area_um2 = cell_width_um * 0.75 * division_length_um
     phase = modality == "phase"
     if phase:
-        regions, least = _rough_phase_interiors(image), _PHASE_INTERIOR_MIN_CELLS
+        classes = _phase_classes(image)
+        regions, least = _rough_phase_interiors(*classes[:2]), _PHASE_INTERIOR_MIN_CELLS
     else:
         regions, least = _rough_cells(image, modality, pixel_size_um), 0.5
     area_px = np.bincount(regions.ravel())[1:]
@@ -324,7 +330,7 @@ def rough_pad_layout(
         outline = ndimage.binary_erosion(ndimage.binary_fill_holes(clusters > 0), iterations=reach)
         in_cells = np.bincount(clusters[outline], minlength=n_clusters + 1)[1:]
         seeds = np.isin(clusters, np.flatnonzero(in_cells * pixel_size_um**2 >= cell_area_um2) + 1)
-        in_cells = _phase_colonies_px(image, seeds & cells, reach)
+        in_cells = _phase_colonies_px(*classes, seeds & cells, reach)
     else:
         in_cells = np.bincount(clusters[cells], minlength=n_clusters + 1)[1:]
     if in_cells.size == 0:
@@ -390,17 +396,20 @@ def _frames_for(cluster_cells: float, division_length_um: float, width_um: float
     A cell grows exponentially with doubling time :data:`_DOUBLING_MIN`, but a sizer's
     daughters share the mother's length and a cap's worth more (``L + w / 3``: volume
     kept, Algorithm 1), so a generation takes ``g = log2(2 L / (L + w / 3))`` doublings
-    (0.87 for 3.5 x 1 um cells); the founder starts at 0.5-0.9 of its division length
-    (:data:`_FOUNDER_MEDIAN_FRACTION` the median), ``log2(1 / 0.7)`` doublings from its
-    first division; and from then on the mean count of a colony grown from one newborn
-    cell is ``2^n / (2 ln 2)`` after ``n`` generations, not ``2^n`` (the Bellman-Harris
-    branching process with near-equal lifetimes: the count is a staircase, its steps
-    spread by the cells' noise). Found as a user: colonies laid out as ~123 cells grew
-    to 181-255.
+    (0.87 for 3.5 x 1 um cells); the founder starts at a uniform fraction of its
+    division length (``sim.simulator.FOUNDER_LENGTH_FRACTION``, 0.5-0.9: the median 0.7,
+    ``log2(1 / 0.7)`` doublings from its first division); and from then on the mean
+    count of a colony grown from one newborn cell is ``2^n / (2 ln 2)`` after ``n``
+    generations, not ``2^n`` (the Bellman-Harris branching process with near-equal
+    lifetimes: the count is a staircase, its steps spread by the cells' noise). Found
+    as a user: colonies laid out as ~123 cells grew to 181-255.
     """
+    from napari_symbac.sim.simulator import FOUNDER_LENGTH_FRACTION
+
     L, w = float(division_length_um), float(width_um)
     generation = _DOUBLING_MIN * math.log2(2.0 * L / (L + w / 3.0))
-    first = _DOUBLING_MIN * math.log2(1.0 / _FOUNDER_MEDIAN_FRACTION)
+    founder_median = sum(FOUNDER_LENGTH_FRACTION) / 2  # of a uniform draw
+    first = _DOUBLING_MIN * math.log2(1.0 / founder_median)
     cells = max(cluster_cells, 1.0) * 2.0 * math.log(2.0)  # the staircase's mean
     minutes = first + generation * (math.log2(cells) - 1.0)
     return max(0, round(minutes / _FRAME_MIN))

@@ -62,6 +62,10 @@ GROUP_GAP_UM = 0.05
 GRAVITY_COMPRESSION = 0.1
 #: Constraint-solver iterations within one physics iteration.
 SOLVER_ITERATIONS = 20
+#: A founder's length at the start, as a fraction of its division length (sizer) or of
+#: ``cell_max_length_um`` (else): drawn uniformly in this range, so that founders are
+#: not all newborn.
+FOUNDER_LENGTH_FRACTION = (0.5, 0.9)
 
 
 class _Cell:
@@ -216,9 +220,9 @@ class Simulator:
         width = self._draw_width()
         target = self._draw_target()
         if s.growth_model == "sizer":
-            length = target * self.rng.uniform(0.5, 0.9)
+            length = target * self.rng.uniform(*FOUNDER_LENGTH_FRACTION)
         else:
-            length = s.cell_max_length_um * self.rng.uniform(0.5, 0.9)
+            length = s.cell_max_length_um * self.rng.uniform(*FOUNDER_LENGTH_FRACTION)
         length = max(length, 1.05 * width)
         cell = _Cell(self._new_record(0, 0), length, width, width, target)
         if s.growth_model == "timer":
