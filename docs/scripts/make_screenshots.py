@@ -100,7 +100,6 @@ def real_trench_flow(folder: Path) -> None:
     flow.simulate.run_button.native.click()
     wait_for(lambda: flow.simulate.worker is None and flow.simulate.series is not None)
     viewer.dims.set_current_step(0, 99)
-    viewer.layers["synthetic labels"].contour = 1
     labels.visible = False
     # real and synthetic side by side, in micrometres
     viewer.layers["synthetic"].translate = (0, 0, 4.0)

@@ -323,4 +323,6 @@ def run_calibrate(args: argparse.Namespace) -> int:
     print(f"wrote dataset/ ({report.n_items} items, {', '.join(settings.formats)}), report.txt, "
           f"report.png, export_settings.yaml, masks.tif to {out}")
     print(timer.report())
+    for caution in calibration.cautions:  # last, where a user reads first
+        print(f"napari-symbac calibrate: warning: {caution}", file=sys.stderr, flush=True)
     return 0

@@ -529,3 +529,36 @@ def test_calibrate_refuses_cells_wider_than_a_rod(colicoords_files, capsys):
     assert "pixel size 0.8 um from --microscope" in error
     assert "Check pixel_size_um" in error
     assert "--cell-width-um" in error
+
+
+def test_calibrate_warns_of_cells_no_bacterium_is_as_wide(colicoords_files, capsys):
+    """Found as a user: Omnipose's Sample000193 calibrated at 0.134 um/px (its 1 um cells
+    are 0.0745 um/px) exported cells 1.80 um wide unsaid, where Auto-fit on the same image
+    warned. Here ColiCoords' cells at 1.5 times their pixel size: exported, and warned in
+    report.txt and last on stderr; at their own pixel size, no warning."""
+    d = colicoords_files
+    (d / "m120.yaml").write_text("pixel_size_um: 0.12\nmodality: fluorescence\n")
+    out = d / "out"
+    code = main(
+        ["calibrate", str(d / "flu.tif"), "--masks", str(d / "mask.tif"), "--microscope",
+         str(d / "m120.yaml"), "--out", str(out), "--n-items", "1"]
+    )  # fmt: skip
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    warning = printed.err.strip().splitlines()[-1]
+    assert warning.startswith("napari-symbac calibrate: warning: the dataset's cells are ")
+    assert "unusual for bacteria (0.4-1.6 um): check the pixel size" in warning
+    assert "--cell-width-um" in warning
+    report = (out / "report.txt").read_text()
+    assert "\nWARNINGS\n- the dataset's cells are " in report
+    width = float(warning.split("cells are ")[1].split(" um")[0])
+    assert width > 1.6
+    code = main(
+        ["calibrate", str(d / "flu.tif"), "--masks", str(d / "mask.tif"), "--microscope",
+         str(d / "m80.yaml"), "--modality", "fluorescence", "--out", str(d / "own"),
+         "--n-items", "1"]
+    )  # fmt: skip
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    assert "warning" not in printed.err
+    assert "WARNINGS" not in (d / "own" / "report.txt").read_text()

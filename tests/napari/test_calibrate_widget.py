@@ -28,13 +28,12 @@ def field(real_data_dir):
     return image, masks
 
 
-def _viewer_with(make_napari_viewer, image, masks=None):
+def _viewer_with(make_napari_viewer, image, masks=None, pixel_um=0.08):
     """The field as the Recording step leaves it (pixel size, modality, placed in um)."""
     viewer = make_napari_viewer()
-    axes = layer_axes(0.08, 2)
-    viewer.add_image(
-        image, name="field", metadata={"pixel_size_um": 0.08, "modality": "fluorescence"}, **axes
-    )
+    axes = layer_axes(pixel_um, 2)
+    metadata = {"pixel_size_um": pixel_um, "modality": "fluorescence"}
+    viewer.add_image(image, name="field", metadata=metadata, **axes)
     if masks is not None:
         viewer.add_labels(masks.astype(np.int32), name="field masks", **axes)
     widget = CalibrateWidget(viewer)
@@ -67,6 +66,8 @@ def test_calibrate_then_export_the_matched_dataset(make_napari_viewer, qtbot, tm
     assert viewer.layers[f"{name} masks"].data.max() > 0
     assert "WHERE THE SETTINGS CAME FROM" in widget.report.value
     assert "REAL AGAINST SYNTHETIC" in widget.report.value
+    assert "WARNINGS" not in widget.report.value  # 1 um cells at their pixel size
+    assert widget.status.value.startswith(calibration.method)
     assert "Export writes the dataset from it" in widget.status.value
     # placed over the recording, in micrometres
     assert tuple(layer.scale[-2:]) == pytest.approx((0.08, 0.08))
@@ -92,6 +93,24 @@ def test_calibrate_then_export_the_matched_dataset(make_napari_viewer, qtbot, tm
     export.kind.value = "timeseries"
     with pytest.raises(ValueError, match="single frames"):
         export.settings()
+
+
+def test_cells_no_bacterium_is_as_wide_are_warned(
+    make_napari_viewer, qtbot, field, notifications
+):
+    """Found as a user: a colony calibrated at 1.8 times its pixel size exported cells
+    1.80 um wide without a word (Auto-fit warned). Here the field at 1.5 times its own:
+    the dataset is made, and the status and a notification say to check the pixel size."""
+    image, masks = field
+    viewer, widget = _viewer_with(make_napari_viewer, image, masks, pixel_um=0.12)
+    widget.run_button.native.click()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=180_000)
+    assert calibrated_layer_name("field") in viewer.layers, widget.status.value
+    assert widget.status.value.startswith("Warning: the dataset's cells are ")
+    assert "check the pixel size" in widget.status.value
+    assert "Export writes the dataset from it" in widget.status.value
+    assert any(m.startswith("Calibrate: Warning: the dataset's cells") for m in notifications)
+    assert "\nWARNINGS\n" in widget.report.value
 
 
 def test_refusals_name_the_fix(make_napari_viewer, field):

@@ -211,6 +211,14 @@ def test_the_view_follows_a_pixel_size_entered_after_simulate(
     assert entered > 5 * in_pixels  # zoomed in on the layers now 15 times smaller
     viewer.reset_view()
     assert viewer.camera.zoom == pytest.approx(entered)
+    # a 10x slip corrected after Simulate: the view follows too (found as a user:
+    # 0.65 then 0.065 left the layers a speck at the top left); a refinement does not
+    real_image.pixel_size.value = 0.65
+    assert viewer.camera.zoom == pytest.approx(entered / 10, rel=0.05)
+    real_image.pixel_size.value = 0.065
+    assert viewer.camera.zoom == pytest.approx(entered)
+    real_image.pixel_size.value = 0.07
+    assert viewer.camera.zoom == pytest.approx(entered)
 
 
 def test_an_image_opened_beside_the_recording_is_shown_and_asked_its_pixel_size(
@@ -233,6 +241,10 @@ def test_an_image_opened_beside_the_recording_is_shown_and_asked_its_pixel_size(
     assert widget.image.value is second
     assert widget.pixel_size.value == 0
     assert "no pixel size" in widget.warning.value
+    # the view fits the new image, in pixels some 15 times the trench in micrometres
+    # (found as a user: a few of its pixels filled the canvas)
+    low, high = second.extent.world[:, -2:]
+    np.testing.assert_allclose(viewer.camera.center[-2:], (low + high) / 2, atol=1)
     assert "normalised values (-0.02847..1.007, not camera counts)" in widget.result.value
     viewer.add_image(np.zeros((8, 8, 4), np.uint8), name="mask", metadata={"symbac": {}})
     assert widget.image.value is second  # a layer the plugin made is no recording

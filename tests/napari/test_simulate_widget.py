@@ -60,6 +60,7 @@ def test_a_simulated_time_series_shows_its_ground_truth_tracks(
     qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
     viewer = widget.viewer
     labels = viewer.layers[RESULT_LABELS_LAYER]
+    assert labels.contour == 1  # outlines: the synthetic image stays visible under them
     tracks = viewer.layers[RESULT_TRACKS_LAYER]
     assert f"the layer '{RESULT_TRACKS_LAYER}'" in widget.status.value
     assert tuple(tracks.scale) == tuple(labels.scale)
@@ -204,6 +205,25 @@ def test_a_trench_recording_sizes_the_trench(widget, qtbot):
     sized = widget.form.value.trench
     assert sized.top_margin_um == 1.2
     assert sized.length_um + sized.shown_top_um == pytest.approx(256 * 0.065, abs=1e-3)
+
+
+def test_a_corrected_pixel_size_sizes_the_trench_as_if_typed_first(widget):
+    """Found as a user: the trench's pixel size typed as 0.65 (a 10x slip), then
+    corrected to 0.065, left Simulate a trench 2.99 um wide with no walls (the whole
+    frame), where 0.065 typed first gives the 1.4 um trench between 0.795 um walls."""
+    recording = widget.viewer.add_image(
+        np.full((256, 46), 1000, np.uint16),
+        name="trench",
+        metadata={"pixel_size_um": 0.065, "modality": "phase"},
+    )
+    assert widget.recording.value is recording
+    direct = widget.form.value.trench
+    for pixel_um in (0.65, 0.065):
+        recording.metadata = {**recording.metadata, "pixel_size_um": pixel_um}
+        widget._refresh_recordings()
+    assert widget.form.value.trench == direct
+    assert direct.width_um == pytest.approx(1.4)
+    assert 2 * direct.margin_um + direct.width_um == pytest.approx(46 * 0.065, abs=1e-3)
 
 
 def test_closing_the_viewer_during_a_run_is_clean(make_napari_viewer, qtbot):

@@ -19,7 +19,7 @@ import numpy as np
 from magicgui.widgets import ComboBox, Container, FloatSpinBox, PushButton
 
 from napari_symbac._widgets._forms import fill_height, hide_label, message_label, report_box
-from napari_symbac._widgets._jobs import Job, blocking_steps
+from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
 from napari_symbac._widgets._links import ViewerLinks
 from napari_symbac._widgets._recording import (
     GUI_MODALITY_ADVICE,
@@ -417,6 +417,10 @@ class CalibrateWidget(Container):
             f"'{name}' holds the matched settings, with {self._camera_words}: Export "
             f"writes the dataset from it (its 'settings from').{entered}"
         )
+        if calibration.cautions:  # found as a user: 1.8 um wide cells exported unsaid
+            warning = "Warning: " + "; ".join(calibration.cautions)
+            self.status.value = f"{warning}\n{self.status.value}"
+            notify_warning(f"Calibrate: {warning}")
 
     def _on_cancelled(self) -> None:
         self.status.value = "Calibration cancelled: nothing added"

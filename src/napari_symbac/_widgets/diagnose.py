@@ -580,9 +580,9 @@ class DiagnoseWidget(Container):
             where = "the diagnosed window" if windowed else "the recording"
             simulated = f"the cells and layout fitted, sized as {where}"
         self.status.value = (
-            f"Accepted: {names}{self._window_note}; {camera_note}. Updated settings are in "
-            f"the '{DIAGNOSIS_RESIDUAL_LAYER}' layer, which "
-            f"Export now takes (its 'settings from'): {simulated}"
+            f"Accepted: {names}{self._window_note}; {camera_note}. Export now takes the "
+            f"updated settings (its 'settings from' names the '{DIAGNOSIS_RESIDUAL_LAYER}' "
+            f"layer, which carries them): {simulated}"
             + (f"; {drawn_by_export(accepted)}." if accepted else ".")
             + (f" Note: {held}." if held else "")
         )

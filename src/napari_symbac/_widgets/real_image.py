@@ -459,6 +459,10 @@ class RealImageWidget(Container):
             return
         if layer_pixel_size_um(layer) is None:
             self.image.value = layer
+            # in pixels it dwarfs the layers in micrometres: the view fits it (found as
+            # a user: a second PNG opened after a calibrated one showed as a few grey
+            # pixels filling the canvas)
+            self.viewer.reset_view()
 
     def _add_grey_channel(self, event) -> None:
         """A grey image saved as colour (equal red, green and blue: the Omnipose and
@@ -649,6 +653,7 @@ def enter_pixel_size(viewer, layer, microscope: Microscope) -> None:
     """
     pixel = float(microscope.pixel_size_um)
     was_in_pixels = _in_pixels(layer)
+    shown_um = float(layer.scale[-1])
     layer.metadata = {
         **layer.metadata,
         "pixel_size_um": pixel,
@@ -660,8 +665,10 @@ def enter_pixel_size(viewer, layer, microscope: Microscope) -> None:
     _move_simulation(viewer, to_micrometres=True)
     # from pixels into micrometres everything shrinks some 15 times: the view follows
     # (found as a user: after Simulate, entering the pixel size left a speck in a corner
-    # of a black canvas); a corrected pixel size moves little, and the view stays
-    if was_in_pixels or not any(_is_synthetic(other) for other in viewer.layers):
+    # of a black canvas), as it does when a slip is corrected (0.65 -> 0.065 um, found
+    # as a user); a pixel size refined by less than 2x moves little, and the view stays
+    rescaled = max(shown_um, pixel) / min(shown_um, pixel) > 2
+    if was_in_pixels or rescaled or not any(_is_synthetic(o) for o in viewer.layers):
         viewer.reset_view()
 
 

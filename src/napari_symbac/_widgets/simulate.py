@@ -228,11 +228,14 @@ class SimulateWidget(Container):
         the recording (``cols`` pixels of ``pixel_um``; the margins shrink for a narrow
         one, then the trench), the trench as long as it less the top margin (a fitted
         ``top_margin_um``, else the sides'; found as a user: the default trench was drawn
-        46 px wide beside a 32 px wide recording)."""
-        trench = self.form.trench
+        46 px wide beside a 32 px wide recording). The width and margins start from the
+        dock's own settings, not the form's last sizing (found as a user: a pixel size
+        typed 10 times too large and then corrected left a trench 3 um wide without
+        walls, the whole frame)."""
+        trench, own = self.form.trench, self.given.simulation.trench
         width_um, height_um = cols * pixel_um, rows * pixel_um
-        room = max((width_um - trench.width_um.value) / 2, 0.0)
-        margin = round(min(trench.margin_um.value, room), 3)
+        room = max((width_um - own.width_um) / 2, 0.0)
+        margin = round(min(own.margin_um, room), 3)
         top = trench.value.top_margin_um  # a fitted closed end's place, kept
         trench.margin_um.value = margin
         trench.width_um.value = round(width_um - 2 * margin, 3)
@@ -409,7 +412,10 @@ class SimulateWidget(Container):
             if kind == "image":
                 self.viewer.add_image(data, name=name, metadata=metadata, **axes)
             else:
-                self.viewer.add_labels(data, name=name, metadata=metadata, **axes)
+                labels = self.viewer.add_labels(data, name=name, metadata=metadata, **axes)
+                # outlines: filled, the labels hid the image (found as a user: Tune's
+                # sliders changed the synthetic cells under solid colours, unseen)
+                labels.contour = 1
         self._show_tracks(axes)
         if opl is not None:
             self._show_opl(opl, metadata)

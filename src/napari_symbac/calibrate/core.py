@@ -132,6 +132,9 @@ class Calibration:
         synthetic cells fainter than it (at most :data:`VISIBILITY_MAX_CNR`) from the
         dataset's masks. ``None`` otherwise, and when the masks hold fewer than
         :data:`VISIBILITY_MIN_CELLS` whole cells.
+    cautions
+        What to check before training on the dataset, in plain sentences (cells of a
+        width no bacterium has: the pixel size); empty when nothing is doubtful.
     """
 
     settings: PipelineSettings
@@ -146,6 +149,7 @@ class Calibration:
     notes: tuple[str, ...] = ()
     mask_offset_um: float | None = None
     mask_faintest_cnr: float | None = None
+    cautions: tuple[str, ...] = ()
 
     def report_lines(self, pixel_note: str, notes: list[str] | None = None) -> list[str]:
         """The report's account of the calibration (``napari-symbac calibrate``'s
@@ -163,6 +167,7 @@ class Calibration:
             f"method: {self.method}; pixel chi2 {self.fit_chi2[0]:.3g} -> "
             f"{self.fit_chi2[1]:.3g}",
             f"real field: {self.measurements.summary(px, microscope.modality)}",
+            *(["", "WARNINGS", *(f"- {c}" for c in self.cautions)] if self.cautions else []),
             "",
             "WHERE THE SETTINGS CAME FROM",
             *(f"- {n}" for n in (self.notes if notes is None else notes)),
@@ -890,6 +895,28 @@ def calibrate(
         notes=(*notes, *more),
         mask_offset_um=mask_offset_um,
         mask_faintest_cnr=mask_faintest_cnr,
+        cautions=_width_cautions(settings.simulation.cell_width_um, pixel_note),
+    )
+
+
+def _width_cautions(width_um: float, pixel_note: str) -> tuple[str, ...]:
+    """A warning when the dataset's cells are wider or narrower than bacteria
+    (:data:`~napari_symbac.fit.report.BACTERIAL_WIDTH_UM`, the fit's report's rule).
+
+    Found as a user: Omnipose's Sample000193 calibrated at 0.134 um/px (its cells are 1 um
+    at 0.0745) exported cells 1.80 um wide without a word, where Auto-fit on the same
+    image warned; cells wider than any rod are refused before (:func:`_refuse_wide_cells`).
+    """
+    from napari_symbac.fit.report import BACTERIAL_WIDTH_UM
+
+    low, high = BACTERIAL_WIDTH_UM
+    if low <= width_um <= high:
+        return ()
+    return (
+        f"the dataset's cells are {width_um:.2f} um wide, unusual for bacteria ({low:g}-"
+        f"{high:g} um): check the pixel size ({pixel_note}); with masks, calibrate "
+        "--cell-width-um (in napari, the Calibrate step's cell width) sets it from the "
+        "cells' width",
     )
 
 
