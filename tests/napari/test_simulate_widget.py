@@ -337,6 +337,22 @@ def _units_warnings(viewer, notifications: list[str]) -> list[str]:
     return [message for message in notifications if "Inconsistent units" in message]
 
 
+def test_an_image_waiting_for_its_pixel_size_is_said_not_used(widget, qtbot):
+    """Found as a user: a TIFF opened without a pixel size was not offered as the
+    recording ("-----"), the run used the built-in settings, and nothing said either."""
+    widget.viewer.add_image(np.full((256, 46), 1000, np.uint16), name="my trench")
+    assert widget.recording.value is None
+    said = (
+        "Built-in settings: my trench is offered as your recording once its pixel size is "
+        "entered (step 1, Recording)"
+    )
+    assert widget.status.value == said
+    _simulate(widget, qtbot)
+    assert widget.status.value.startswith("Done: 3 frames, ")
+    assert widget.status.value.endswith(f"<br>{said}")
+    assert "shown to compare with" not in widget.status.value
+
+
 def _simulate(widget, qtbot, n_frames: int = 3, show_opl: bool = False) -> None:
     widget.form.n_frames.value = n_frames
     widget.show_opl.value = show_opl

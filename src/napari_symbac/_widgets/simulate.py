@@ -25,6 +25,7 @@ from napari_symbac._widgets._recording import (
     layer_pixel_size_um,
     modality_render,
     output_metadata,
+    real_images,
     recording_camera,
     recording_class_means,
     recording_microscope,
@@ -160,10 +161,27 @@ class SimulateWidget(Container):
             self.recording.value = followed
         elif self.recording.value is None and choices:
             self.recording.value = choices[-1]
+        elif self.recording.value is None and self.worker is None and self._waiting_note():
+            self.status.value = self._waiting_note()
         elif self.recording.value is not None and (
             _followed_key(self.recording.value) != self._followed
         ):
             self._follow_recording(self.recording.value)
+
+    def _waiting_note(self) -> str:
+        """Without a chosen recording: the built-in settings, and which images wait for
+        their pixel size to be offered (found as a user: a TIFF without one was not
+        offered, the run used the built-in settings, and nothing said either)."""
+        if self.recording.value is not None:
+            return ""
+        waiting = [layer.name for layer in real_images(self.viewer)]
+        if not waiting:
+            return ""
+        return (
+            f"Built-in settings: {', '.join(waiting)} "
+            f"{'is' if len(waiting) == 1 else 'are'} offered as your recording once "
+            "its pixel size is entered (step 1, Recording)"
+        )
 
     def _follow_recording(self, layer=None) -> None:
         """A newly chosen recording sets the geometry as ``napari-symbac fit`` would
@@ -310,7 +328,7 @@ class SimulateWidget(Container):
             self.status.value = f"Invalid settings: {err}"
             return
         recording = self.recording.value
-        self._source = f"{recording.name}: {source}" if source else ""
+        self._source = f"{recording.name}: {source}" if source else self._waiting_note()
         # found as a user: a 10x pixel size, warned in the Recording step, ran here for
         # minutes with no word (cells 1.3 px wide on a 423 um pad): said while it runs
         slip = recording is not None and camera_pixel_problem(
