@@ -462,7 +462,8 @@ def pad_layout(
         f"layout: agar pad {field_um:.1f} x {height_um:.1f} um (the image), {n_colonies} "
         f"{'colony' if n_colonies == 1 else 'colonies'} of one founder each grown {growth} "
         f"frames of {_FRAME_MIN:g} min (doubling {_DOUBLING_MIN:g} min) to "
-        f"~{cells_per_colony:.0f} cells, as the image's clusters"
+        f"~{cells_per_colony:.0f} cells, as the image's clusters (on average: a colony "
+        "of one founder varies by about a fifth from seed to seed)"
     )
     fields = {
         "n_frames": growth + 1,
