@@ -250,6 +250,27 @@ def test_an_image_opened_beside_the_recording_is_shown_and_asked_its_pixel_size(
     assert widget.image.value is second  # a layer the plugin made is no recording
 
 
+def test_a_removed_recording_leaves_its_successors_problem_in_the_dock(
+    make_napari_viewer, notifications
+):
+    """Found as a user: closing the viewer removed the recording, the dock chose an image
+    without a pixel size, and a 'no pixel size' notification came as the window closed.
+    Its warning is shown in the dock, not notified again."""
+    viewer = make_napari_viewer()
+    widget = RealImageWidget(viewer)
+    waiting = viewer.add_image(np.full((40, 30), 900.0), name="waiting")
+    assert sum("waiting: no pixel size" in m for m in notifications) == 1
+    recording = viewer.add_image(
+        np.full((40, 30), 1000.0), name="recording", metadata={"pixel_size_um": 0.065}
+    )
+    widget.image.value = recording
+    assert widget.warning.value == ""
+    viewer.layers.remove(recording)
+    assert widget.image.value is waiting
+    assert "no pixel size" in widget.warning.value
+    assert sum("waiting: no pixel size" in m for m in notifications) == 1
+
+
 def test_measured_means_are_kept_with_the_layer(make_napari_viewer):
     rng = np.random.default_rng(3)
     image = rng.normal(1100, 10, (40, 30))

@@ -140,6 +140,7 @@ class RealImageWidget(Container):
         self.camera_warning = message_label("camera_warning", label="")
         self.camera_warning.visible = False
         self._warned: dict[str, str] = {}  # each warning label's last notified text
+        self._quiet = False  # warnings shown in the dock only (a layer removed)
         self.paint_button = PushButton(
             name="paint",
             text="Paint classes",
@@ -197,7 +198,7 @@ class RealImageWidget(Container):
             self._follow_opened,
         ):
             self._links.connect(layers.inserted, follow)
-        self._links.connect(layers.removed, self.image.reset_choices)
+        self._links.connect(layers.removed, self._after_removal)
         watch_recordings(viewer, self._show_entered, self._links)
         self.statistics = None
         self._loading = False
@@ -571,6 +572,17 @@ class RealImageWidget(Container):
         self._warn(self.camera_warning, layer, problem)
         return camera
 
+    def _after_removal(self, _event=None) -> None:
+        """Offer the remaining images; one chosen in place of a removed recording says
+        its problem in the dock only (found as a user: closing the viewer removed the
+        recording, chose an image without a pixel size, and a 'no pixel size'
+        notification came as the window closed)."""
+        self._quiet = True
+        try:
+            self.image.reset_choices()
+        finally:
+            self._quiet = False
+
     def _warn(self, label, layer, problem: str | None) -> None:
         """Show ``problem`` of ``layer`` in ``label`` (and once as a notification), or
         clear the label when there is none."""
@@ -581,7 +593,7 @@ class RealImageWidget(Container):
             return
         label.value = f"<b style='color:#ffb000'>&#9888; {layer.name}: {problem}</b>"
         label.visible = True
-        if label.value != self._warned.get(label.name):
+        if label.value != self._warned.get(label.name) and not self._quiet:
             notify_warning(f"{layer.name}: {problem}")
         self._warned[label.name] = label.value
 
