@@ -161,8 +161,9 @@ class SimulateWidget(Container):
             self.recording.value = followed
         elif self.recording.value is None and choices:
             self.recording.value = choices[-1]
-        elif self.recording.value is None and self.worker is None and self._waiting_note():
-            self.status.value = self._waiting_note()
+        elif self.recording.value is None and self.worker is None:
+            if note := self._waiting_note():
+                self.status.value = note
         elif self.recording.value is not None and (
             _followed_key(self.recording.value) != self._followed
         ):
