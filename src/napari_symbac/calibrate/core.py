@@ -902,22 +902,21 @@ def calibrate(
 
 def _width_cautions(width_um: float, pixel_note: str) -> tuple[str, ...]:
     """A warning when the dataset's cells are wider or narrower than bacteria
-    (:data:`~napari_symbac.fit.report.BACTERIAL_WIDTH_UM`, the fit's report's rule).
+    (:func:`~napari_symbac.fit.report.unusual_width_words`, the fit's report's rule).
 
     Found as a user: Omnipose's Sample000193 calibrated at 0.134 um/px (its cells are 1 um
     at 0.0745) exported cells 1.80 um wide without a word, where Auto-fit on the same
     image warned; cells wider than any rod are refused before (:func:`_refuse_wide_cells`).
     """
-    from napari_symbac.fit.report import BACTERIAL_WIDTH_UM
+    from napari_symbac.fit.report import unusual_width_words
 
-    low, high = BACTERIAL_WIDTH_UM
-    if low <= width_um <= high:
+    unusual = unusual_width_words(width_um)
+    if unusual is None:
         return ()
     return (
-        f"the dataset's cells are {width_um:.2f} um wide, unusual for bacteria ({low:g}-"
-        f"{high:g} um): check the pixel size ({pixel_note}); with masks, calibrate "
-        "--cell-width-um (in napari, the Calibrate step's cell width) sets it from the "
-        "cells' width",
+        f"the dataset's cells are {width_um:.2f} um wide, {unusual} ({pixel_note}); with "
+        "masks, calibrate --cell-width-um (in napari, the Calibrate step's cell width) "
+        "sets it from the cells' width",
     )
 
 

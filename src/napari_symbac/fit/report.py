@@ -278,6 +278,16 @@ def fit_notes(modality: str, geometry: str, colony: bool = False) -> list[str]:
 BACTERIAL_WIDTH_UM = (0.4, 1.6)
 
 
+def unusual_width_words(width_um: float) -> str | None:
+    """``"unusual for bacteria (0.4-1.6 um): check the pixel size"`` when ``width_um`` is
+    outside :data:`BACTERIAL_WIDTH_UM`, else ``None`` (the fit's report and
+    ``calibrate``'s warning say it of their cells)."""
+    low, high = BACTERIAL_WIDTH_UM
+    if low <= width_um <= high:
+        return None
+    return f"unusual for bacteria ({low:g}-{high:g} um): check the pixel size"
+
+
 def fit_problems(
     result: Any,
     residual_hint: str = "see residual.tif; `napari-symbac diagnose` looks for it",
@@ -316,14 +326,13 @@ def fit_problems(
             "darker than its kernel draws them; a limit, not a measurement)"
         )
     widths = np.asarray(getattr(getattr(result, "cells", None), "width_um", ()), float)
-    if widths.size and not BACTERIAL_WIDTH_UM[0] <= np.median(widths) <= BACTERIAL_WIDTH_UM[1]:
+    unusual = unusual_width_words(float(np.median(widths))) if widths.size else None
+    if unusual:
         # found as a user: 0.13 um/px for a 0.065 um/px trench fitted 1.8 um wide, 9-10 um
         # long cells at the chi-square of the right pixel size, and nothing said it
-        low, high = BACTERIAL_WIDTH_UM
         problems.append(
-            f"the cells' median width, {np.median(widths):.2f} um, is unusual for bacteria "
-            f"({low:g}-{high:g} um): check the pixel size (the fit measures widths in pixels "
-            "and converts them with it)"
+            f"the cells' median width, {np.median(widths):.2f} um, is {unusual} (the fit "
+            "measures widths in pixels and converts them with it)"
         )
     worse = math.isfinite(before) and math.isfinite(after) and after > before
     if worse and not any("worse than its start" in w for w in warnings):
