@@ -264,6 +264,26 @@ def test_workflow_fits_a_laptop_screen(make_napari_viewer, qtbot):
         and not area.horizontalScrollBar().isVisible(),
         timeout=10_000,
     )
+    # found as a user: Auto-fit's status wrapped to 25 lines in the right two thirds of the
+    # dock, beside a row label that read just "status"; each step's status now takes the
+    # tab's whole width
+    steps = {
+        "2 Simulate": workflow.simulate,
+        "3 Tune + fit": workflow.tune,
+        "4 Diagnose": workflow.diagnose,
+        "5 Calibrate": workflow.calibrate,
+        "6 Export": workflow.export,
+    }
+    for tab, step in steps.items():
+        index = TABS.index(tab)
+        workflow.setCurrentIndex(index)
+        area = workflow.widget(index)
+        step.status.value = "Done: " + "a status of many words " * 20
+        qtbot.waitUntil(
+            lambda step=step, area=area: step.status.native.width()
+            >= 0.9 * area.viewport().width(),
+            timeout=10_000,
+        )
     # every field of every step has a label with words and a tooltip
     for step in (workflow.real_image, workflow.simulate, workflow.tune, workflow.export):
         for widget in _leaves(step):

@@ -693,6 +693,38 @@ def test_auto_fit_fits_a_fluorescence_recording(rendered, qtbot, monkeypatch):
     assert threading.main_thread() not in threads
 
 
+def test_auto_fit_of_a_recording_longer_than_the_simulation(rendered, qtbot):
+    """Found as a user: a 4-frame recording fitted at frame 2 beside a 2-frame simulation
+    fitted, then lost the result to "IndexError: frame 2 is outside 0..1"; a slider moved
+    there failed alike. The frame shown is fitted, the preview shows its last frame."""
+    from pathlib import Path
+
+    import tifffile
+
+    import napari_symbac
+
+    viewer, tune = rendered
+    path = Path(napari_symbac.__file__).parent / "sample_data" / "colicoords_fluorescence.tif"
+    crop = tifffile.imread(path).astype(np.float32)[:128, :128]
+    movie = np.stack([np.roll(crop, 2 * t, axis=1) for t in range(5)])
+    real = viewer.add_image(
+        movie, name="movie", scale=(1, 0.08, 0.08),
+        metadata={"pixel_size_um": 0.08, "modality": "fluorescence"},
+    )  # fmt: skip
+    assert tune.preview.n_frames == 3
+    viewer.dims.set_current_step(0, 4)
+    tune.sliders["cell_intensity"].value = tune.sliders["cell_intensity"].value + 100
+    assert "Not applied" not in tune.status.value
+    result = _auto_fit(tune, qtbot, real, iterations=2)
+    assert "Fitted frame 4 (of 5)" in tune.status.value
+    assert result.synthetic.shape == crop.shape
+    shifted = np.roll(crop, 8, axis=1)  # frame 4's cells, not frame 0's
+    fitted = viewer.layers["auto-fit synthetic"].data
+    assert np.corrcoef(fitted.ravel(), shifted.ravel())[0, 1] > np.corrcoef(
+        fitted.ravel(), crop.ravel()
+    )[0, 1]
+
+
 def test_fluorescence_gives_bright_cells_on_dark(rendered):
     """Defect 5: switching to fluorescence kept phase intensities (dark cells)."""
     viewer, tune = rendered

@@ -143,6 +143,7 @@ class CalibrateWidget(Container):
             ]
         )
         hide_label(self.report)
+        hide_label(self.status)
         fill_height(self, self.report)
         self.worker: Job | None = None
         self._camera_words = "the camera measured from the recording"  # of the last run

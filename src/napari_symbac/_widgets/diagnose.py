@@ -201,6 +201,7 @@ class DiagnoseWidget(Container):
         # the report takes the dock's width and spare height (it starts "Diagnosis of
         # the mismatch": no row label needed)
         hide_label(self.report)
+        hide_label(self.status)
         fill_height(self, self.report)
         self.worker: Job | None = None
         self.result = None

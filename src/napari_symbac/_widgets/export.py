@@ -23,7 +23,7 @@ from magicgui.widgets import (
 )
 
 from napari_symbac._widgets._backend import backend_combo
-from napari_symbac._widgets._forms import message_label
+from napari_symbac._widgets._forms import hide_label, message_label
 from napari_symbac._widgets._jobs import Job, blocking_steps
 from napari_symbac._widgets._links import ViewerLinks
 from napari_symbac._widgets._recording import watch_recordings
@@ -102,6 +102,7 @@ class ExportWidget(Container):
                 self.status,
             ]
         )
+        hide_label(self.status)  # its words take the dock's whole width
         self.export_button.changed.connect(self.export)
         self.cancel_button.changed.connect(self.cancel)
         tips = {

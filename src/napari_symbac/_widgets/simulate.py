@@ -130,6 +130,7 @@ class SimulateWidget(Container):
             ]
         )
         hide_label(self.form)
+        hide_label(self.status)
         if hasattr(self.form, "geometry"):
             self.form.geometry.changed.connect(self._show_geometry_settings)
             self._show_geometry_settings()

@@ -23,7 +23,7 @@ from magicgui.widgets import (
     Table,
 )
 
-from napari_symbac._widgets._forms import message_label
+from napari_symbac._widgets._forms import hide_label, message_label
 from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
 from napari_symbac._widgets._links import ViewerLinks
 from napari_symbac._widgets._recording import (
@@ -417,6 +417,7 @@ class TuneWidget(Container):
                 self.match_noise,
             ]
         )
+        hide_label(self.status)  # its words take the dock's whole width
         self.terms_image.visible = False
         self.terms_table.visible = False  # an empty table until a fit fills it
         self.convergence_caption.visible = False
@@ -561,6 +562,12 @@ class TuneWidget(Container):
     def _current_frame(self) -> int:
         return int(self.viewer.dims.current_step[0]) if self.viewer.dims.ndim >= 3 else 0
 
+    def _preview_frame(self) -> int:
+        """The rendered frame shown: the current one, or the last the preview has when
+        the slider stands beyond it (found as a user: a recording of 4 frames at frame 2
+        beside a 2-frame simulation; Auto-fit's result was lost to an IndexError)."""
+        return min(self._current_frame(), self.preview.n_frames - 1)
+
     def _show(self, index: int) -> None:
         layer = self.source.value
         image = self.preview.frame(index)
@@ -679,7 +686,7 @@ class TuneWidget(Container):
         try:
             self.preview.update(**changes)
             self._stale = set(range(self.preview.n_frames))
-            self._show(self._current_frame())
+            self._show(self._preview_frame())
         except ValueError as err:
             self.status.value = f"Not applied: {err}"
             return
@@ -727,7 +734,7 @@ class TuneWidget(Container):
                 histogram=self.match_histogram.value,
             )
             self._stale = set(range(self.preview.n_frames))
-            self._show(self._current_frame())
+            self._show(self._preview_frame())
         except ValueError as err:
             self.status.value = f"Not applied: {err}"
             return
@@ -1030,7 +1037,7 @@ class TuneWidget(Container):
             else:
                 self.preview.update(**dataclasses.asdict(render), **camera)
             self._stale = set(range(self.preview.n_frames))
-            self._show(self._current_frame())
+            self._show(self._preview_frame())
             self._store_settings()
             if clipped is not None:  # Export clips the recorded values as the recording
                 meta = self.source.value.metadata[SYMBAC_METADATA_KEY]
@@ -1258,8 +1265,8 @@ class TuneWidget(Container):
         self.status.value = f"Noise matched: Gaussian, sd {sd:.1f} ADU"
 
     def _on_step(self, _event=None) -> None:
-        if self.preview is not None and self._current_frame() in self._stale:
-            self._show(self._current_frame())
+        if self.preview is not None and self._preview_frame() in self._stale:
+            self._show(self._preview_frame())
 
 
 @dataclasses.dataclass(frozen=True)
