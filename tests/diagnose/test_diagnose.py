@@ -378,3 +378,25 @@ def test_blas_runs_single_threaded_inside_the_diagnosis():
         )
     assert [e.name for e in threaded.accepted] == [e.name for e in limited.accepted]
     assert threaded.base_fit["held_out"] == pytest.approx(limited.base_fit["held_out"], rel=1e-9)
+
+
+def test_cautions_point_where_the_interface_shows_the_residual():
+    """Found as a user: the Diagnose dock's caution said "see residuals.png", a file of
+    the command's output folder; the dock names its residual layer."""
+    from napari_symbac.diagnose.run import Diagnosis
+
+    empty = np.zeros((1, 4, 4))
+    result = Diagnosis(
+        base_fit={"metric": "reduced chi-square", "value": 301.0, "held_out": 0.0},
+        final_fit={"metric": "reduced chi-square", "value": 301.0, "held_out": 0.0},
+        mismatches=[],
+        effects=[],
+        residual_before=empty,
+        residual_after=empty,
+        final_model=None,
+    )
+    (said,) = result.cautions()
+    assert "misplaced; see residuals.png)" in said
+    (said,) = result.cautions("see the layer 'diagnosis residual'", "give the camera")
+    assert "misplaced; see the layer 'diagnosis residual')" in said
+    assert "residuals.png" not in said

@@ -153,6 +153,22 @@ def test_cancel_adds_nothing(diagnose_widget, qtbot):
     assert not widget.cancel_button.enabled
 
 
+def test_removing_the_recording_during_a_run_cancels_it(diagnose_widget, qtbot):
+    """Found as a user: with its recording removed mid-run, Diagnose ran on for 112 s and
+    added its layers without a word. It stops, says why and adds nothing."""
+    viewer, widget, _ = diagnose_widget
+    widget.run_button.clicked.emit()
+    job = widget.worker
+    viewer.layers.remove("real")
+    assert job.cancelled.is_set()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
+    assert widget.status.value == (
+        "Diagnosis cancelled (its layer 'real' was removed): nothing added"
+    )
+    assert DIAGNOSIS_RESIDUAL_LAYER not in viewer.layers
+    assert widget.run_button.enabled
+
+
 def test_no_recording_is_a_notification(make_napari_viewer, qtbot, monkeypatch):
     shown = []
     monkeypatch.setattr(

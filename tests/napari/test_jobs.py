@@ -51,9 +51,10 @@ def test_fast_yields_never_recurse(qtbot):
     assert finished == [True]
 
 
-def test_runtime_error_in_the_worker_is_reported_and_finishes(qtbot):
+def test_runtime_error_in_the_worker_is_reported_and_finishes(qtbot, caplog):
     """superqt swallows a RuntimeError from a generator worker (no errored, no
-    finished); the runner reports it and always finishes."""
+    finished); the runner reports it and always finishes. Its traceback is logged, where
+    the message says (found as a user: "the log has the details", and no log had)."""
     from napari.utils.notifications import notification_manager
 
     errors, finished, seen = [], [], []
@@ -75,6 +76,12 @@ def test_runtime_error_in_the_worker_is_reported_and_finishes(qtbot):
     qtbot.waitUntil(lambda: bool(finished), timeout=60_000)
     assert [str(e) for e in errors] == ["disk full"]
     assert any("Export failed (RuntimeError): disk full" in str(n.message) for n in seen)
+    assert any("terminal napari was started from" in str(n.message) for n in seen)
+    (record,) = [r for r in caplog.records if r.name == "napari_symbac"]
+    assert record.levelname == "ERROR"
+    assert record.getMessage() == "Export failed"
+    assert "disk full" in caplog.text
+    assert "in work\n    raise RuntimeError" in caplog.text
 
 
 def test_a_quit_that_the_generator_outruns_still_reports_the_cancel(qtbot):

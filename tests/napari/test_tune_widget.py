@@ -725,6 +725,32 @@ def test_auto_fit_of_a_recording_longer_than_the_simulation(rendered, qtbot):
     )[0, 1]
 
 
+@pytest.mark.parametrize("removed", ["recording", "rendered layer"])
+def test_removing_a_layer_the_fit_needs_cancels_it(rendered, qtbot, real_data_dir, removed):
+    """Found as a user: the recording (or the rendered layer) removed during Auto-fit,
+    the fit ran a minute more and ended in "AttributeError: 'NoneType' object has no
+    attribute 'data'". It stops at once and says why; nothing is added or changed."""
+    from napari_symbac._widgets.tune import FIT_SYNTHETIC_LAYER
+
+    viewer, tune = rendered
+    real = _real_trench(viewer, real_data_dir)
+    tune.reference.value = real
+    sliders = {name: slider.value for name, slider in tune.sliders.items()}
+    tune.fit_button.native.click()
+    job = tune.fit_worker
+    layer = real if removed == "recording" else tune.source.value
+    viewer.layers.remove(layer)
+    assert job.cancelled.is_set()
+    qtbot.waitUntil(lambda: tune.fit_worker is None, timeout=120_000)
+    assert tune.status.value == (
+        f"Fit cancelled (its layer '{layer.name}' was removed): parameters unchanged"
+    )
+    assert FIT_SYNTHETIC_LAYER not in viewer.layers
+    assert tune.fit_result is None
+    assert {name: slider.value for name, slider in tune.sliders.items()} == sliders
+    assert tune.fit_button.enabled
+
+
 def test_fluorescence_gives_bright_cells_on_dark(rendered):
     """Defect 5: switching to fluorescence kept phase intensities (dark cells)."""
     viewer, tune = rendered

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import logging
 import threading
 from collections.abc import Callable, Generator
 from typing import Any
@@ -35,6 +36,7 @@ __all__ = [
     "notify_error",
     "notify_info",
     "notify_warning",
+    "removed_words",
 ]
 
 
@@ -72,9 +74,29 @@ def describe_error(err: BaseException, what: str) -> str:
     if isinstance(err, ValueError):
         return f"{what} failed: {text}"
     return (
-        f"{what} failed ({type(err).__name__}): {text}. Check the settings and the folder, "
-        "then run it again; the log has the details."
+        f"{what} failed ({type(err).__name__}): {text}. Check the settings, then run it "
+        "again; its traceback is printed in the terminal napari was started from."
     )
+
+
+def removed_words(job: Job | None) -> str:
+    """`` (its layer 'NAME' was removed)`` when ``job`` stopped for that
+    (:meth:`Job.stop_if_removed`), else nothing: for a step's "cancelled" status."""
+    if job is None or job.removed is None:
+        return ""
+    return f" (its layer '{job.removed}' was removed)"
+
+
+def report_error(err: BaseException, what: str) -> None:
+    """Notify ``what`` failed (:func:`describe_error`); an unexpected error (not a
+    ``ValueError``, whose message names the fix) also logs its traceback, to stderr
+    unless the application configured logging (found as a user: the message promised
+    "the log has the details" and none was written anywhere)."""
+    if not isinstance(err, ValueError):
+        logging.getLogger("napari_symbac").error(
+            "%s failed", what, exc_info=(type(err), err, err.__traceback__)
+        )
+    notify_error(describe_error(err, what))
 
 
 class Job:
@@ -162,6 +184,9 @@ class Job:
         self.worker.finished.connect(lambda: self._post("finish", None))
         self._owner = owner
         self._holders: list[Any] = []  # the owner's ancestors while the job runs
+        self._needed: list[Any] = []  # layers whose removal cancels the job
+        self._layer_list: Any = None
+        self.removed: str | None = None  # the name of the needed layer removed
         if owner is not None:
             owner.destroyed.connect(self._on_owner_destroyed)
 
@@ -195,6 +220,33 @@ class Job:
         self.quit()  # as the Cancel button: the step tidies up (a preview removed)
         notify_info(f"{self._what} cancelled: its panel was closed")
 
+    def stop_if_removed(self, layer_list: Any, layers: Any) -> None:
+        """Quit, as the Cancel button does, when one of ``layers`` (those the job reads
+        or shows its result over) is removed from ``layer_list`` while it runs; its name
+        is then :attr:`removed`. Found as a user: a recording removed during Auto-fit
+        ended, a minute later, in "AttributeError: 'NoneType' object has no attribute
+        'data'"; Diagnose ran on for 112 s and added its layers without a word."""
+        self._needed = [layer for layer in layers if layer is not None]
+        self._layer_list = layer_list
+        layer_list.events.removed.connect(self._on_layer_removed)
+
+    def _on_layer_removed(self, event: Any) -> None:
+        layer = getattr(event, "value", None)
+        if not any(layer is needed for needed in self._needed):
+            return
+        if self.done or self._closed or self.cancelled.is_set():
+            return
+        self.removed = layer.name
+        self.quit()
+        notify_info(f"{self._what} cancelled: its layer '{layer.name}' was removed")
+
+    def _forget_layers(self) -> None:
+        if self._layer_list is not None:
+            with contextlib.suppress(Exception):
+                self._layer_list.events.removed.disconnect(self._on_layer_removed)
+        self._layer_list = None
+        self._needed = []
+
     def quit(self) -> None:
         """Ask the worker to stop at its next yield (and blocking work to cancel)."""
         self.cancelled.set()
@@ -202,6 +254,7 @@ class Job:
 
     def _on_owner_destroyed(self, _obj=None) -> None:
         self._closed = True
+        self._forget_layers()
         self._queue.clear()
         self.cancelled.set()
         self.worker.quit()
@@ -232,18 +285,20 @@ class Job:
                 except RuntimeError as err:
                     gone = self._panel_gone or self.cancelled.is_set()
                     if not (gone and _deleted_widget(err)):
-                        notify_error(describe_error(err, f"{self._what} (showing its result)"))
+                        report_error(err, f"{self._what} (showing its result)")
                     # else: the viewer closed around the step (its panel, or napari's
                     # close quitting the worker), its widgets deleted before the cancel
                     # arrived (found as a user: "Diagnose cancelled: its panel was
                     # closed", then an ERROR naming a deleted QLabel; and a Simulation's
                     # deleted QPushButton after the viewer closed mid-run)
                 except Exception as err:  # a bug in a callback: report, keep the widget
-                    notify_error(describe_error(err, f"{self._what} (showing its result)"))
+                    report_error(err, f"{self._what} (showing its result)")
         finally:
             self._busy = False
 
     def _handle(self, kind: str, payload: Any) -> None:
+        if kind == "return" and self.removed is not None and not isinstance(payload, _Failure):
+            kind = "abort"  # a result that came back as its layer was removed: not shown
         callback = self._callbacks[kind]
         if kind in ("return", "error", "abort"):
             self._outcome = True
@@ -267,6 +322,7 @@ class Job:
         elif kind == "finish":
             self.done = True
             self._forget_holders()
+            self._forget_layers()
             self._close_progress()
             if callback is not None:
                 callback()
@@ -277,7 +333,7 @@ class Job:
         callback = self._callbacks["error"]
         handled = callback(err) if callback is not None else None
         if not handled:
-            notify_error(describe_error(err, self._what))
+            report_error(err, self._what)
 
 
 #: Yielded by :func:`blocking_steps` while its thread reports nothing: each yield is where

@@ -19,7 +19,7 @@ import numpy as np
 from magicgui.widgets import ComboBox, Container, FloatSpinBox, PushButton
 
 from napari_symbac._widgets._forms import fill_height, hide_label, message_label, report_box
-from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
+from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning, removed_words
 from napari_symbac._widgets._links import ViewerLinks
 from napari_symbac._widgets._recording import (
     GUI_MODALITY_ADVICE,
@@ -341,6 +341,7 @@ class CalibrateWidget(Container):
             owner=self.native,
             cancelled=cancelled,
         )
+        self.worker.stop_if_removed(self.viewer.layers, (self.recording.value,))
         self._recording_layer = self.recording.value
         self.run_button.enabled = False
         self.cancel_button.enabled = True
@@ -424,7 +425,7 @@ class CalibrateWidget(Container):
             notify_warning(f"Calibrate: {warning}")
 
     def _on_cancelled(self) -> None:
-        self.status.value = "Calibration cancelled: nothing added"
+        self.status.value = f"Calibration cancelled{removed_words(self.worker)}: nothing added"
 
     def _on_errored(self, err: BaseException) -> bool:
         from napari_symbac.fit import FitCancelled

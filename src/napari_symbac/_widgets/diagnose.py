@@ -19,7 +19,7 @@ import numpy as np
 from magicgui.widgets import ComboBox, Container, LineEdit, PushButton, SpinBox
 
 from napari_symbac._widgets._forms import fill_height, hide_label, message_label, report_box
-from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
+from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning, removed_words
 from napari_symbac._widgets._links import ViewerLinks
 from napari_symbac._widgets._recording import (
     GUI_CAMERA_FIX,
@@ -435,6 +435,7 @@ class DiagnoseWidget(Container):
             on_finish=self._on_finished,
             owner=self.native,
         )
+        self.worker.stop_if_removed(self.viewer.layers, (self.reference.value,))
         self._layer = self.reference.value
         self._microscope = microscope
         self._region = region
@@ -593,13 +594,13 @@ class DiagnoseWidget(Container):
         cautions = [
             f"base fit: {p}"
             for p in base_fit_problems(fit, self._microscope, f"see '{DIAGNOSIS_RESIDUAL_LAYER}'")
-        ] + list(result.cautions())
+        ] + result.cautions(f"see the layer '{DIAGNOSIS_RESIDUAL_LAYER}'", GUI_CAMERA_FIX)
         if cautions:
             self.status.value += "".join(f"<br>Caution: {c}" for c in cautions)
             notify_warning("Diagnose: " + "; ".join(cautions))
 
     def _on_cancelled(self) -> None:
-        self.status.value = "Diagnosis cancelled: nothing added"
+        self.status.value = f"Diagnosis cancelled{removed_words(self.worker)}: nothing added"
 
     def _on_errored(self, err: BaseException) -> bool:
         from napari_symbac.fit import FitCancelled

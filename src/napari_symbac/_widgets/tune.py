@@ -24,7 +24,7 @@ from magicgui.widgets import (
 )
 
 from napari_symbac._widgets._forms import hide_label, message_label
-from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning
+from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning, removed_words
 from napari_symbac._widgets._links import ViewerLinks
 from napari_symbac._widgets._recording import (
     GUI_CAMERA_FIX,
@@ -852,8 +852,12 @@ class TuneWidget(Container):
             on_yield=self._on_fit_progress,
             on_return=self._on_fit_returned,
             on_error=self._on_fit_errored,
+            on_abort=self._on_fit_cancelled,
             on_finish=self._on_fit_finished,
             owner=self.native,
+        )
+        self.fit_worker.stop_if_removed(
+            self.viewer.layers, (self.reference.value, self.source.value)
         )
         self.fit_button.enabled = False
         self.cancel_fit_button.enabled = True
@@ -1203,7 +1207,7 @@ class TuneWidget(Container):
         from napari_symbac.fit.start import FaintStartError, WideStartError
 
         if isinstance(err, FitCancelled):
-            self.status.value = "Fit cancelled: parameters unchanged"
+            self._on_fit_cancelled()
             return True
         if isinstance(err, (WideStartError, FaintStartError)):
             # the start's refusal, with what to give: the status line and a warning, not
@@ -1222,6 +1226,10 @@ class TuneWidget(Container):
             return True
         self.status.value = f"Fit failed: {err}"
         return False
+
+    def _on_fit_cancelled(self) -> None:
+        words = removed_words(self.fit_worker)
+        self.status.value = f"Fit cancelled{words}: parameters unchanged"
 
     def _on_fit_finished(self) -> None:
         self.fit_worker = None

@@ -140,18 +140,24 @@ class Diagnosis:
             return None
         return (before - after) / (before - 1)
 
-    def cautions(self) -> list[str]:
+    def cautions(
+        self,
+        residual_hint: str = "see residuals.png",
+        camera_fix: str = "give the camera (the microscope file's camera section)",
+    ) -> list[str]:
         """Why the findings may not be physics, in words (found as a user: a dense
         colony whose base fit placed 2 cells for ~20, reduced chi-square 301, got four
         effects, "fixed pattern noise" among them, without a word; a bright field whose
-        camera the image could not measure got effects of 0.04 % at chi-square 0.53)."""
+        camera the image could not measure got effects of 0.04 % at chi-square 0.53).
+        ``residual_hint`` and ``camera_fix`` say where the residual is and how to give
+        the camera, in the interface's words (the command's by default)."""
         said = []
         base, final = self.base_fit["value"], self.final_fit["value"]
         if base > POOR_BASE_FIT_CHI2:
             said.append(
                 f"the base fit leaves a reduced chi-square of {base:.3g} (1 is noise alone, "
                 f"above {POOR_BASE_FIT_CHI2:g} the scene itself is wrong: cells missed, "
-                "merged or misplaced; see residuals.png): effects found on top of it may "
+                f"merged or misplaced; {residual_hint}): effects found on top of it may "
                 "stand in for what the fit missed, so check the fit before trusting them"
             )
         if self.accepted and final < OVERSTATED_NOISE_CHI2:
@@ -159,7 +165,7 @@ class Diagnosis:
                 f"the final reduced chi-square is {final:.3g}, below 1: the noise model "
                 "overstates this image's noise (a camera the image could not measure), so "
                 "the held-out checks are miscalibrated and effects too small to matter can "
-                "pass them; give the camera (the microscope file's camera section)"
+                f"pass them; {camera_fix}"
             )
         return said
 
