@@ -934,6 +934,8 @@ def test_diagnose_names_an_unknown_microscope_key(tmp_path, fit_inputs, capsys):
     assert code == 2
     assert "unknown field(s) pxel_size_um in Microscope" in err
     assert "pixel_size_um" in err.split("valid fields are:")[1]
+    # found as a user: the name meant was not singled out of the valid ones
+    assert "(did you mean pxel_size_um -> pixel_size_um?)" in err
 
 
 def test_diagnose_checks_the_image_before_the_microscope_file(tmp_path, capsys):

@@ -244,7 +244,11 @@ def test_bad_config_is_one_clear_line(tmp_path, capsys):
 def test_simulate_then_render(tmp_path, capsys):
     assert main(["simulate", "--out", str(tmp_path / "sim"), "--frames", "4", "--seed", "1"]) == 0
     assert main(["render", str(tmp_path / "sim"), "--out", str(tmp_path / "render")]) == 0
-    assert "replaced" not in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "replaced" not in err
+    # found as a user: a fitted field's simulation rendered as the built-in microscope,
+    # unsaid
+    assert "note: no --config: the built-in microscope renders it (phase, 0.065 um/px)" in err
     images = tifffile.imread(tmp_path / "render" / "images.tif")
     labels = tifffile.imread(tmp_path / "render" / "labels.tif")
     assert images.shape == labels.shape

@@ -236,6 +236,15 @@ def _cmd_render(args: argparse.Namespace) -> int:
         settings = dataclasses.replace(settings, simulation=simulation.settings)
     out = _output_folder(args.out)
     backend = _backend(args)
+    if args.config is None:  # found as a user: a simulation of a fitted fluorescence
+        # field rendered as the built-in phase contrast at 0.065 um/px, unsaid
+        mic = settings.microscope
+        print(
+            "napari-symbac render: note: no --config: the built-in microscope renders it "
+            f"({mic.modality}, {mic.pixel_size_um:g} um/px); pass the settings.yaml of "
+            "your fit or calibrate (--config) to render it as your recording",
+            file=sys.stderr,
+        )
     update, bar = _tqdm_progress("render", len(simulation.frames))
     with timer.step(f"render ({backend})"):
         series = render_simulation(simulation, settings, progress=update, backend=backend)
@@ -1225,8 +1234,9 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument(
         "--max-iterations",
         type=int,
-        help="Levenberg-Marquardt iterations per round of the fit (default: 25; fewer: "
-        "faster)",
+        help="Levenberg-Marquardt iterations per round of the fit (default: 25; fewer "
+        "end the rounds sooner, but the moves that add, remove, split and merge cells "
+        "take most of a field's time: 2 against 25 saved 13 %% on a ColiCoords field)",
     )
     fit.add_argument(
         "--cell-brightness",

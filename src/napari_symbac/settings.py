@@ -1104,8 +1104,14 @@ def from_dict(cls: type[T], data: dict[str, Any], *, _where: str | None = None) 
     names = {f.name for f in dataclasses.fields(cls) if f.init}
     unknown = sorted(set(data) - names)
     if unknown:
+        import difflib
+
+        # found as a user: cell_intensty got the 35 valid names, none singled out
+        close = {key: difflib.get_close_matches(str(key), names, n=1) for key in unknown}
+        meant = [f"{key} -> {match[0]}" for key, match in close.items() if match]
+        said = f" (did you mean {', '.join(meant)}?)" if meant else ""
         raise ValueError(
-            f"unknown field(s) {', '.join(unknown)} in {where}; valid fields are: "
+            f"unknown field(s) {', '.join(unknown)} in {where}{said}; valid fields are: "
             f"{', '.join(sorted(names))}"
         )
     kwargs = {key: _convert(hints[key], value, f"{where}.{key}") for key, value in data.items()}

@@ -137,3 +137,16 @@ def test_a_crop_around_one_cell_is_refused_without_strokes_and_started_with_them
     assert len(cells.x_um) == 1
     overlap = ((instances > 0) & mask).sum() / ((instances > 0) | mask).sum()
     assert overlap > 0.6
+    # found as a user: the cell painted inside its mask and the media wherever 15 px off
+    # it (the cell's glow reaches there) stood 30 background s.d. and was refused; a
+    # region over painted cell is a cell from 5 s.d. (the cells painted nowhere: refused)
+    painted = np.zeros(image.shape, np.uint8)
+    painted[ndimage.binary_erosion(mask, iterations=3)] = 1
+    painted[~ndimage.binary_dilation(mask, iterations=15)] = 2
+    cells, _, _, instances = start_scene(image, mic, geometry="open", labels=painted)
+    assert len(cells.x_um) == 1
+    overlap = ((instances > 0) & mask).sum() / ((instances > 0) | mask).sum()
+    assert overlap > 0.6
+    media_only = np.where(painted == 2, 2, 0).astype(np.uint8)
+    with pytest.raises(FaintStartError, match="no bright region stands 40 times"):
+        start_scene(image, mic, geometry="open", labels=media_only)

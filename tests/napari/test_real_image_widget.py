@@ -488,6 +488,16 @@ def test_a_recording_without_a_modality_gets_one_from_what_it_shows(
     # the user's choice, made before any pixel size, is kept when the layer is chosen again
     brightfield = widget.image.value
     widget.modality.value = "fluorescence"
+    # ... and one the image contradicts is warned of at once (found as a user: phase
+    # chosen for a fluorescence field was said only by Auto-fit, after Simulate)
+    assert (
+        "Modality doubt: 00066 (brightfield): the image does not look like fluorescence"
+        in widget.result.value
+    )
+    assert "Set its modality to phase in the 1 Recording tab" in widget.result.value
+    widget.modality.value = "phase"
+    assert "Modality doubt" not in widget.result.value
+    widget.modality.value = "fluorescence"
     widget.image.value = fluorescence
     widget.image.value = brightfield
     assert widget.modality.value == "fluorescence"
@@ -522,18 +532,27 @@ def test_masks_and_the_colour_original_are_placed_over_the_recording(
 
 
 def test_a_masks_file_napari_opens_as_an_image_is_placed_and_never_the_recording(
-    make_napari_viewer, real_data_dir
+    make_napari_viewer, qtbot, real_data_dir
 ):
     """Found as a user: ColiCoords ds3's binary.tif opened with napari's own reader (an
     image) after the pixel size was entered stayed in pixels, 12.5x the recording; with
-    the recording removed it became the recording ("no pixel size")."""
+    the recording removed it became the recording ("no pixel size"). And it lay as an
+    opaque grey image over the recording, hiding it: it becomes a Labels layer, as this
+    plugin's reader makes it."""
+    from napari.layers import Labels
+
     viewer = make_napari_viewer()
     widget = RealImageWidget(viewer)
     ds3 = real_data_dir / "colicoords" / "test_data" / "ds3"
     widget.file.value = ds3 / "flu.tif"
     recording = widget.image.value
     widget.pixel_size.value = 0.08
-    masks = viewer.open(ds3 / "binary.tif", plugin="napari")[0]
+    opened = viewer.open(ds3 / "binary.tif", plugin="napari")[0]
+    name = opened.name
+    qtbot.waitUntil(lambda: isinstance(viewer.layers[name], Labels), timeout=10_000)
+    masks = viewer.layers[name]
+    np.testing.assert_array_equal(masks.data, np.asarray(opened.data))
+    assert list(viewer.layers) == [recording, masks]
     assert tuple(masks.scale[-2:]) == pytest.approx((0.08, 0.08))
     assert [str(unit) for unit in masks.units[-2:]] == ["micrometer", "micrometer"]
     assert viewer.layers.extent.units is not None  # one unit over all layers

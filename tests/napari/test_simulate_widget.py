@@ -353,6 +353,36 @@ def test_an_image_waiting_for_its_pixel_size_is_said_not_used(widget, qtbot):
     assert "shown to compare with" not in widget.status.value
 
 
+def test_a_pixel_size_typed_in_nm_is_said_where_the_recording_is_missed(
+    make_napari_viewer, real_data_dir
+):
+    """Found as a user: 65 typed for 65 nm was warned of in the Recording step, then
+    Simulate said the image is offered "once its pixel size is entered" and Auto-fit
+    that it "has no pixel size yet", while the field showed 65."""
+    from napari_symbac._widgets._recording import no_recording_message
+    from napari_symbac._widgets.real_image import RealImageWidget
+
+    viewer = make_napari_viewer()
+    recording = RealImageWidget(viewer)
+    simulate = SimulateWidget(viewer)
+    recording.file.value = real_data_dir / "ecoli_100x_oil_exponential.tiff"
+    recording.pixel_size.value = 65
+    assert simulate.recording.value is None
+    nm = "(in nm? 65 nm is 0.065 um)"
+    assert simulate.status.value.startswith(
+        "Built-in settings: ecoli_100x_oil_exponential is not offered as your recording: "
+        "pixel size 65 um (entered) is outside 0.02-1 um"
+    )
+    assert nm in simulate.status.value
+    assert simulate.status.value.endswith("correct it in step 1, Recording")
+    told = no_recording_message(viewer, "fit it")
+    assert told.startswith("ecoli_100x_oil_exponential: pixel size 65 um (entered)")
+    assert nm in told
+    recording.pixel_size.value = 0.065  # corrected: the recording, nothing to say
+    assert simulate.recording.value is not None
+    assert simulate.status.value == ""
+
+
 def _simulate(widget, qtbot, n_frames: int = 3, show_opl: bool = False) -> None:
     widget.form.n_frames.value = n_frames
     widget.show_opl.value = show_opl

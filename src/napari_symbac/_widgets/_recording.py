@@ -41,6 +41,7 @@ __all__ = [
     "AXIS_LABELS",
     "GUI_CAMERA_FIX",
     "GUI_MODALITY_ADVICE",
+    "PIXEL_PROBLEM_KEY",
     "RECORDING_STEP",
     "axis_labels",
     "check_recording_frame",
@@ -59,6 +60,7 @@ __all__ = [
     "recording_class_means",
     "recording_microscope",
     "recordings",
+    "waiting_problem",
     "watch_recordings",
 ]
 
@@ -166,6 +168,11 @@ def pixel_size_problem(pixel_size_um: float | None) -> str | None:
 #: Metadata key of the layers a step shows its results in without settings of their own
 #: (Auto-fit's synthetic and residual, Diagnose's residual after and effect maps).
 OUTPUT_KEY = "napari_symbac_output"
+
+#: Layer metadata key of why the pixel size entered for a recording was refused (found
+#: as a user: 65 typed for 0.065 um was warned of in the Recording step, and the other
+#: steps then said "no pixel size yet" while the field showed 65).
+PIXEL_PROBLEM_KEY = "pixel_size_problem"
 
 #: Layer metadata key of the camera given in the Recording step (:func:`given_camera`).
 CAMERA_KEY = "camera"
@@ -305,11 +312,18 @@ def no_recording_message(viewer: Any, then: str) -> str:
     waiting = [layer for layer in real_images(viewer) if not is_recording(layer)]
     if waiting:
         layer = waiting[-1]
-        problem = pixel_size_problem(layer_pixel_size_um(layer)) or ""
+        problem = waiting_problem(layer)
         if problem.startswith("no pixel size"):
             return f"{layer.name} has no pixel size yet: enter it in {step}, then {then}"
         return f"{layer.name}: {problem}; correct it in {step}, then {then}"
     return f"No recording: open your image in {step} and set its pixel size, then {then}"
+
+
+def waiting_problem(layer: Any) -> str:
+    """Why image ``layer`` is not yet a recording: the pixel size entered and refused
+    (:data:`PIXEL_PROBLEM_KEY`), else none given; ``""`` for a recording."""
+    refused = layer.metadata.get(PIXEL_PROBLEM_KEY)
+    return refused or pixel_size_problem(layer_pixel_size_um(layer)) or ""
 
 
 def followed_layer(event: Any, choices: list, busy: bool = False) -> Any:

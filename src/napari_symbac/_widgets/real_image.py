@@ -17,6 +17,8 @@ from napari_symbac._widgets._jobs import notify_warning
 from napari_symbac._widgets._links import ViewerLinks
 from napari_symbac._widgets._recording import (
     CAMERA_KEY,
+    GUI_MODALITY_ADVICE,
+    PIXEL_PROBLEM_KEY,
     axis_labels,
     check_recording_frame,
     first_frame,
@@ -45,6 +47,8 @@ __all__ = [
 ]
 
 #: How the fits know the recording's camera (the Recording step's *camera* choice).
+#: The start of the dock's warning that the image contradicts the modality chosen.
+MODALITY_DOUBT = "Modality doubt:"
 MEASURED_CAMERA = "measured from the recording"
 GIVEN_CAMERA = "given (data sheet)"
 CAMERA_SOURCES = (MEASURED_CAMERA, GIVEN_CAMERA)
@@ -375,13 +379,24 @@ class RealImageWidget(Container):
         self.microscope.condenser.visible = self.modality.value == "phase"
 
     def _forget_guess(self, _value=None) -> None:
-        """A modality chosen by the user: the guess said of it is no longer true."""
+        """A modality chosen by the user: the guess said of it is no longer true, and a
+        modality the image contradicts is warned of at once, in the fit's words (found
+        as a user: phase chosen for a fluorescence field was said only by Auto-fit,
+        after Simulate had grown a colony of 480 cells for the field's 7)."""
+        from napari_symbac.fit.preflight import check_modality
+
         layer = self.image.value
         if self._loading or layer is None:
             return
-        guess = f"{layer.name} records no modality"
-        said = self.result.value.split("<br>")
-        self.result.value = "<br>".join(line for line in said if not line.startswith(guess))
+        stale = (f"{layer.name} records no modality", MODALITY_DOUBT)
+        said = [line for line in self.result.value.split("<br>") if not line.startswith(stale)]
+        try:
+            frame = first_frame(layer).astype(np.float64)
+            check_modality(frame, self.modality.value, advice=GUI_MODALITY_ADVICE)
+        except ValueError as err:
+            said.append(f"{MODALITY_DOUBT} {layer.name}: {err}")
+            notify_warning(said[-1])
+        self.result.value = "<br>".join(filter(None, said))
 
     def _guess_modality(self, layer) -> None:
         """A recording that does not say its modality: fluorescence when it shows bright
@@ -435,6 +450,10 @@ class RealImageWidget(Container):
             pixel = other.metadata.get("pixel_size_um")
             if other is not layer and pixel and _camera_shape(other) == _camera_shape(layer):
                 _place_in_micrometres(layer, float(pixel))
+                if isinstance(layer, Image):  # once napari has drawn it (after its event)
+                    from qtpy.QtCore import QTimer
+
+                    QTimer.singleShot(0, lambda: _masks_as_labels(self.viewer, layer))
                 return
 
     def _follow_image_in_pixels(self, event) -> None:
@@ -553,6 +572,8 @@ class RealImageWidget(Container):
                 "pixel_size_um": None,
                 "modality": self.modality.value,
                 CAMERA_KEY: camera,
+                # what the other steps say of it (a value typed and refused, not none)
+                PIXEL_PROBLEM_KEY: None if pixel == 0 else problem,
             }
             return
         # used all the same, as `fit` warns and fits (found as a user: 0.65 um at the
@@ -653,6 +674,32 @@ class RealImageWidget(Container):
         )
 
 
+def _masks_as_labels(viewer, layer) -> None:
+    """An image layer that holds masks, over a recording, made a Labels layer in its
+    place: found as a user, a masks TIFF opened with napari's own reader (File > Open
+    offers it as well as this plugin's) lay as an opaque grey image over the recording,
+    hiding it, while this plugin's reader gives a Labels layer."""
+    from napari.layers import Labels
+
+    if layer not in viewer.layers:
+        return
+    index = list(viewer.layers).index(layer)
+    data = np.asarray(layer.data)
+    if data.dtype.kind not in "iu":
+        data = data.astype(np.int32)
+    labels = Labels(
+        data,
+        name=layer.name,
+        scale=layer.scale,
+        units=layer.units,
+        translate=layer.translate,
+        axis_labels=layer.axis_labels,
+        metadata=dict(layer.metadata),
+    )
+    viewer.layers.remove(layer)
+    viewer.layers.insert(index, labels)
+
+
 def enter_pixel_size(viewer, layer, microscope: Microscope) -> None:
     """Give a recording its pixel size: ``microscope`` (whose ``pixel_size_um`` and
     ``modality`` are the recording's) into its metadata, where every step reads them, and
@@ -667,7 +714,7 @@ def enter_pixel_size(viewer, layer, microscope: Microscope) -> None:
     was_in_pixels = _in_pixels(layer)
     shown_um = float(layer.scale[-1])
     layer.metadata = {
-        **layer.metadata,
+        **{key: value for key, value in layer.metadata.items() if key != PIXEL_PROBLEM_KEY},
         "pixel_size_um": pixel,
         "modality": microscope.modality,
         "microscope": microscope,

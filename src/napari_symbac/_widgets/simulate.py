@@ -17,6 +17,7 @@ from napari_symbac._widgets._forms import SettingsForm, hide_label, message_labe
 from napari_symbac._widgets._jobs import Job
 from napari_symbac._widgets._links import ViewerLinks
 from napari_symbac._widgets._recording import (
+    PIXEL_PROBLEM_KEY,
     axis_labels,
     first_frame,
     followed_layer,
@@ -60,6 +61,8 @@ RESULT_TRACKS_LAYER = "synthetic tracks"
 #: size it was drawn at, so that it moves between pixels and micrometres with the others.
 DRAWN_PIXEL_KEY = "drawn_pixel_um"
 RESULT_OPL_LAYER = "synthetic optical path length"
+#: How the status starts while no recording is chosen and an image waits to be one.
+WAITING_WORDS = "Built-in settings:"
 #: Key, in a rendered layer's SyMBac metadata, of the name of the recording Auto-fit
 #: fitted the layer's settings to (absent until a fit).
 FITTED_TO_KEY = "fitted_to"
@@ -169,6 +172,8 @@ class SimulateWidget(Container):
             _followed_key(self.recording.value) != self._followed
         ):
             self._follow_recording(self.recording.value)
+        if self.recording.value is not None and self.status.value.startswith(WAITING_WORDS):
+            self.status.value = ""  # the image waited for is the recording now
 
     def _waiting_note(self) -> str:
         """Without a chosen recording: the built-in settings, and which images wait for
@@ -176,11 +181,19 @@ class SimulateWidget(Container):
         offered, the run used the built-in settings, and nothing said either)."""
         if self.recording.value is not None:
             return ""
-        waiting = [layer.name for layer in real_images(self.viewer)]
+        images = real_images(self.viewer)
+        refused = [layer for layer in images if layer.metadata.get(PIXEL_PROBLEM_KEY)]
+        if refused:  # found as a user: 65 typed, "once its pixel size is entered" said
+            layer = refused[-1]
+            return (
+                f"{WAITING_WORDS} {layer.name} is not offered as your recording: "
+                f"{layer.metadata[PIXEL_PROBLEM_KEY]}; correct it in step 1, Recording"
+            )
+        waiting = [layer.name for layer in images]
         if not waiting:
             return ""
         return (
-            f"Built-in settings: {', '.join(waiting)} "
+            f"{WAITING_WORDS} {', '.join(waiting)} "
             f"{'is' if len(waiting) == 1 else 'are'} offered as your recording once "
             "its pixel size is entered (step 1, Recording)"
         )

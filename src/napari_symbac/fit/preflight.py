@@ -658,10 +658,13 @@ def check_pixel_size(pixel_size_um: float, source: str) -> None:
     """
     low, high = PLAUSIBLE_PIXEL_UM
     if not low <= pixel_size_um <= high:
+        # found as a user: 65 typed for 65 nm
+        nm = pixel_size_um / 1000
+        said = f" (in nm? {pixel_size_um:g} nm is {nm:g} um)" if low <= nm <= high else ""
         raise ValueError(
             f"pixel size {pixel_size_um:g} um ({source}) is outside {low:g}-{high:g} um, "
-            "implausible for a bacterial micrograph: give it in um in the sample, i.e. the "
-            "camera pixel divided by the magnification (6.5 um / 100x = 0.065 um)"
+            f"implausible for a bacterial micrograph{said}: give it in um in the sample, "
+            "i.e. the camera pixel divided by the magnification (6.5 um / 100x = 0.065 um)"
         )
 
 

@@ -17,7 +17,12 @@ from typing import Literal
 import numpy as np
 from scipy import ndimage
 
-from napari_symbac.fit.bright_start import DETECT_SNR, bright_instances, brightest_contrast
+from napari_symbac.fit.bright_start import (
+    DETECT_SNR,
+    PAINTED_SNR,
+    bright_instances,
+    brightest_contrast,
+)
 from napari_symbac.fit.placement import TrenchPlacement
 from napari_symbac.fit.preflight import as_instance_ids
 from napari_symbac.settings import Microscope
@@ -247,6 +252,7 @@ def otsu_cells(
     trench: TrenchPlacement | None = None,
     valid: np.ndarray | None = None,
     background: np.ndarray | None = None,
+    painted_cells: np.ndarray | None = None,
 ) -> tuple[FrameCells, np.ndarray, TrenchPlacement | None, np.ndarray]:
     """Plain segmentation: Otsu threshold, watershed, region moments.
 
@@ -254,7 +260,8 @@ def otsu_cells(
     ``"bright"``: cells brighter than their background (fluorescence), which differ
     in brightness, so each is cut at half its own peak instead of at one Otsu
     threshold (:func:`~napari_symbac.fit.bright_start.bright_instances`; measured
-    against the ``background`` pixels, painted media, when given). Pixels
+    against the ``background`` pixels, painted media, when given; a region over
+    ``painted_cells`` is a cell at a lower contrast). Pixels
     outside ``valid`` (clipped) are left out of the thresholds. In a trench, unless
     ``trench`` gives its placement, the trench is found first from the column
     profile (90th percentile of each column, longest run above 30 % of its range)
@@ -344,16 +351,18 @@ def otsu_cells(
     if polarity == "bright":
         # Fluorescent cells differ in brightness: one threshold per cell, not Otsu's.
         known = {"valid": valid, "region": region, "background": background}
-        instances = bright_instances(-image, px, **known)
+        instances = bright_instances(-image, px, painted_cells=painted_cells, **known)
         if not instances.any():
             # found as a user: a crop around one cell (ColiCoords' 01) said "no region
             # of 6 pixels or more" of a cell 40 x 17 px; its glow is most of the crop
             stand = brightest_contrast(-image, px, **known)
+            painted = painted_cells is not None and bool(np.any(painted_cells))
+            needed = PAINTED_SNR if painted else DETECT_SNR
             # found as a user: a phase trench given as fluorescence was told its cells
             # were "not fluorescence", and not what to set instead
             raise FaintStartError(
                 "the start found no cells in the image: no bright region stands "
-                f"{DETECT_SNR:g} times the background's spread above it (the brightest "
+                f"{needed:g} times the background's spread above it (the brightest "
                 f"stands {stand:.0f} times: a faint field, a crop around a few cells "
                 "whose glow is most of the image, which then is no background, or cells "
                 "darker than their background, as phase contrast and bright field show "
@@ -709,6 +718,7 @@ def start_scene(
         trench=found,
         valid=valid,
         background=labels == 2,
+        painted_cells=labels == 1,
     )
     kept = _off_painted_empty(instances, labels)
     if kept is not instances:
