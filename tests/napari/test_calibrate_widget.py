@@ -251,3 +251,26 @@ def test_calibrate_uses_the_camera_given_in_the_recording_step(make_napari_viewe
     qtbot.waitUntil(lambda: widget.worker is None, timeout=180_000)
     assert "with the camera given in the Recording step" in widget.status.value
     assert "camera: given: baseline 0.0 ADU, sensitivity 1 ADU/e-" in widget.report.value
+
+
+def test_a_camera_the_recording_cannot_measure_is_said_so(make_napari_viewer, qtbot):
+    """Found as a user: on ColiCoords' flattened bright-field crop the status said the
+    matched settings hold "the camera measured from the recording" while the report said
+    it could not be measured. The status says what the settings hold."""
+    from pathlib import Path
+
+    import napari_symbac
+
+    folder = Path(napari_symbac.__file__).parent / "sample_data"
+    image = tifffile.imread(folder / "colicoords_brightfield.tif")
+    masks = tifffile.imread(folder / "colicoords_binary.tif")
+    viewer, widget = _viewer_with(make_napari_viewer, image, masks)
+    layer = viewer.layers["field"]
+    layer.metadata = {**layer.metadata, "modality": "brightfield"}
+    widget.run_button.native.click()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=180_000)
+    assert "not measurable" in widget.report.value, widget.status.value
+    assert "with its own pixel noise (the camera not measurable from the recording)" in (
+        widget.status.value
+    )
+    assert "camera measured from the recording" not in widget.status.value

@@ -412,11 +412,18 @@ class CalibrateWidget(Container):
         )
         checks = comparison.checks()
         matched = sum(check.matched for check in checks)
+        from napari_symbac.fit.report import unmeasured_noise_adu
+
+        camera_words = self._camera_words
+        if unmeasured_noise_adu(calibration.settings.camera) is not None:
+            # found as a user: "the camera measured from the recording" beside a report
+            # that said it could not be (ColiCoords' flattened bright-field crop)
+            camera_words = "its own pixel noise (the camera not measurable from the recording)"
         self.status.value = (
             f"{calibration.method}: the recording against the dataset's "
             f"{items_words(len(outcome.items))}: {matched} of {len(checks)} comparisons match "
             "(the report says which, and what to do). Layer "
-            f"'{name}' holds the matched settings, with {self._camera_words}: Export "
+            f"'{name}' holds the matched settings, with {camera_words}: Export "
             f"writes the dataset from it (its 'settings from').{entered}"
         )
         if calibration.cautions:  # found as a user: 1.8 um wide cells exported unsaid
