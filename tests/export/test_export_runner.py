@@ -22,7 +22,7 @@ from _export_synthetic import SyntheticSource, tree_digest
 
 from napari_symbac.export import ExportError, run_export
 from napari_symbac.export.atomic import EXPORT_RESUMES, write_tiff
-from napari_symbac.export.manifest import ITEMS_DIR
+from napari_symbac.export.manifest import ITEMS_DIR, UNFINISHED
 
 FORMATS = ("tiff", "omnipose", "stardist", "coco")
 HERE = Path(__file__).resolve().parent
@@ -86,12 +86,15 @@ def test_fault_then_resume_completes_identically(tmp_path, reference):
         run_export(source, out, FORMATS, workers=1)
     assert _n_entries(out) == 7
     assert json.loads((out / "manifest.json").read_text())["status"] == "incomplete"
+    # found as a user: only the manifest's status said the folder is not the dataset
+    assert "This export is unfinished" in (out / UNFINISHED).read_text()
     assert not _images_without_masks(out)
     flag.unlink()
     report = run_export(source, out, FORMATS, workers=1)
     assert report.complete
     assert report.n_skipped == 7
     assert report.n_written == 5
+    assert not (out / UNFINISHED).exists()
     assert tree_digest(out) == reference
 
 
