@@ -327,7 +327,8 @@ def _cell_problems(
         elif len(cells) != n_masks:
             problems.append(
                 f"the fit ended with {len(cells)} cells from the {n_masks} of --masks (its "
-                "moves added or removed cells): check the figure"
+                "moves added or removed cells): check the figure, or pass --keep-cells to "
+                "fit the masks' cells only"
             )
     return problems
 
@@ -456,6 +457,8 @@ def _prepare_one(args, frame, labels, masks, microscope, base, keys):
         options["closed_end"] = base.simulation.trench.closed_end  # else the fit chooses
     if args.max_iterations is not None:
         options["max_iterations"] = args.max_iterations
+    if getattr(args, "keep_cells", False):  # found as a user: no way to keep the masks'
+        options["moves"] = False  # cell set (ds2 00066: 6 masked cells fitted as 10)
     model_options = _model_options(args, microscope.modality)
     options.update(model_options)
     from napari_symbac.fit.colony import is_dense_colony
@@ -468,6 +471,8 @@ def _prepare_one(args, frame, labels, masks, microscope, base, keys):
             "--config's render settings belong to the scene fit: the colony fit starts "
             "from its own optics and does not use them"
         )
+    if colony and "moves" in options:
+        notes.append("--keep-cells: a colony's cells are its masks' already (no moves)")
     if "illumination_order" in options and not colony:
         notes.append(
             f"an illumination surface of degree {options['illumination_order']} is fitted "

@@ -1245,6 +1245,13 @@ def build_parser() -> argparse.ArgumentParser:
         "fluorescence, shared in phase contrast)",
     )
     fit.add_argument(
+        "--keep-cells",
+        action="store_true",
+        help="fit the cells the start gives (your --masks' cells, as annotated) and no "
+        "others: no cell added, removed, split or merged (default: the fit's moves do so "
+        "where the residual and the BIC ask for it)",
+    )
+    fit.add_argument(
         "--width-sd-um",
         type=float,
         default=0.0,

@@ -906,6 +906,36 @@ def test_default_geometry(configured, shape_px, modality, expected):
     assert default_geometry(shape_px, modality, configured) == expected
 
 
+def test_keep_cells_fits_the_masks_cells_and_no_others(tmp_path, real_data_dir):
+    """Found as a user: `fit --masks` added cells the masks leave out (ds2 00066: 6
+    masked cells fitted as 10), with no way to keep the annotated set. Of ColiCoords ds1
+    field 1's crop with one cell's mask erased, the moves add it back; --keep-cells
+    fits the masks' three."""
+    root = real_data_dir / "colicoords" / "test_data" / "ds1"
+    flu = tifffile.imread(root / "fluorescence" / "00001.tif")[90:200, 60:320]
+    masks = tifffile.imread(root / "binary" / "00001_Probabilities_filtered.tif")[90:200, 60:320]
+    regions, n = ndimage.label(masks > 0)
+    assert n == 4
+    masks = np.where(regions == 4, 0, regions).astype(np.uint16)
+    image, mask_file = tmp_path / "flu.tif", tmp_path / "masks.tif"
+    tifffile.imwrite(image, flu)
+    tifffile.imwrite(mask_file, masks)
+    microscope = save_settings(Microscope(pixel_size_um=0.08), tmp_path / "microscope.yaml")
+    counts = {}
+    for keep in (False, True):
+        out = tmp_path / f"fit-{keep}"
+        extra = ["--keep-cells"] if keep else []
+        assert _fit(image, "--microscope", microscope, "--modality", "fluorescence",
+                    "--masks", mask_file, "--out", out, "--max-iterations", 3,
+                    *extra) == 0  # fmt: skip
+        cells = json.loads((out / "cells.json").read_text())["cells"]
+        counts[keep] = len(cells)
+        report = (out / "report.txt").read_text()
+        said = "cells from the 3 of --masks" in report
+        assert said == (len(cells) != 3)
+    assert counts == {False: 4, True: 3}
+
+
 def test_refuses_masks_whose_cells_contradict_the_modality(tmp_path, real_data_dir, capsys):
     root = real_data_dir / "colicoords" / "test_data" / "ds1"
     microscope = save_settings(Microscope(pixel_size_um=0.08), tmp_path / "microscope.yaml")
