@@ -46,9 +46,9 @@ __all__ = [
     "enter_pixel_size",
 ]
 
-#: How the fits know the recording's camera (the Recording step's *camera* choice).
 #: The start of the dock's warning that the image contradicts the modality chosen.
 MODALITY_DOUBT = "Modality doubt:"
+#: How the fits know the recording's camera (the Recording step's *camera* choice).
 MEASURED_CAMERA = "measured from the recording"
 GIVEN_CAMERA = "given (data sheet)"
 CAMERA_SOURCES = (MEASURED_CAMERA, GIVEN_CAMERA)
