@@ -778,6 +778,8 @@ def _fit_frames_jointly(
         note = "measured once from the pooled frames by photon transfer (fit_series)"
         prepared = [dataclasses.replace(p, camera_note=note) for p in prepared]
     options = {k: v for k, v in first.options.items() if k not in ("labels", "masks", "valid")}
+    if args.max_iterations is not None:  # the joint refinement's as well as each frame's
+        options["joint_iterations"] = args.max_iterations
     per_frame = {
         key: np.stack([p.options[key] for p in prepared]) if first.options.get(key) is not None
         else None
@@ -847,6 +849,7 @@ def _fit_frames_jointly(
         "camera": None if series.camera is None else dataclasses.asdict(series.camera),
         "counts_mapping": counts_record(args.counts_mapping),
         "warnings": list(series.warnings),
+        "joint_iterations": series.iterations,  # at most --max-iterations when given
         "started_from_previous_frame": dict(zip(map(str, frames), series.carried)),
         # with the previous frame where they overlap, registered (null for the first)
         "correlation_with_previous_frame": {

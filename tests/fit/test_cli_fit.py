@@ -359,6 +359,8 @@ def test_frames_of_a_series_are_fitted_jointly_each_into_its_folder(
     assert settings == (out / "frame_0000" / "settings.yaml").read_bytes()
     series = json.loads((out / "series.json").read_text())
     assert series["frames"] == [0, 1]
+    # --max-iterations bounds the joint refinement too (found as a user: its limit was 15)
+    assert 1 <= series["joint_iterations"] <= 3
     assert series["counts_mapping"] is None  # counts, not a normalised image
     assert "read as counts" not in (out / "frame_0000" / "report.txt").read_text()
     assert series["started_from_previous_frame"]["0"] is False  # frame 1: either start

@@ -394,6 +394,10 @@ def test_auto_fit_of_all_frames_fits_a_trench_time_lapse_jointly(
     series = tune.fit_result
     assert isinstance(series, SeriesFit), tune.status.value
     assert "Fitted 2 frames jointly" in tune.status.value
+    # 'fit iterations' bounds the joint refinement too (found as a user: "stopped at the
+    # iteration limit (15)" whatever the field said)
+    assert series.iterations <= 2
+    assert "iteration limit (15)" not in tune.status.value
     assert viewer.layers[FIT_SYNTHETIC_LAYER].data.shape == stack.shape
     shown = series.frames[tune._current_frame()]
     assert tune.sliders["media_intensity"].value == pytest.approx(shown.render.media_intensity)

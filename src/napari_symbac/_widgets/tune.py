@@ -332,7 +332,8 @@ class TuneWidget(Container):
             value=25,
             min=1,
             max=500,
-            tooltip="Gauss-Newton iterations per reweighting round of the scene fit.",
+            tooltip="Gauss-Newton iterations per reweighting round of the scene fit (and of "
+            "the joint refinement of a time-lapse).",
         )
         self.fit_all_frames = CheckBox(
             name="fit_all_frames",
@@ -812,6 +813,9 @@ class TuneWidget(Container):
             if colony:
                 fit_one = fit_colony_series if all_frames else fit_colony
                 return fit_one(real, microscope, masks, progress=progress, cancel=cancel)
+            if all_frames:  # the joint refinement's too (found as a user: "stopped at
+                # the iteration limit (15)" whatever 'fit iterations' said)
+                options["joint_iterations"] = iterations
             return (fit_series if all_frames else fit_scene)(
                 real,
                 microscope,
