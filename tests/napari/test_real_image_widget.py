@@ -757,3 +757,26 @@ def test_an_8_bit_recordings_classes_are_measured_above_its_own_offset(
     assert 0 <= offset <= np.quantile(data, 0.001) + 1e-9  # the fit's offset guess, not 100
     assert means["media"] - means["cell"] == pytest.approx(data[~cells].mean() - data[cells].mean())
     assert means["cell"] > 0.5 * data[cells].mean()
+
+
+def test_a_normalised_image_opened_by_napari_is_said_unfittable_as_it_is_chosen(
+    make_napari_viewer, real_data_dir
+):
+    """Found as a user: DeLTA's normalised trench opened with napari's own reader (values
+    -0.03-1.01) showed only the pixel size and modality notes; Simulate drew it with the
+    built-in camera, thousands of ADU, and only Auto-fit refused it. The dock says at
+    once what the steps will refuse, and what to open instead."""
+    from napari_symbac._widgets.real_image import RECORDING_DOUBT
+
+    viewer = make_napari_viewer()
+    widget = RealImageWidget(viewer)
+    path = real_data_dir / "ecoli_delta_phase_normalised.tiff"
+    (layer,) = viewer.open(path, plugin="napari")
+    widget.image.value = layer
+    assert widget.result.value.startswith(f"{RECORDING_DOUBT} {layer.name} has negative values")
+    assert "a normalised image opened by napari-symbac" in widget.result.value
+    # read by this plugin (as counts): nothing to doubt
+    viewer.layers.remove(layer)
+    widget.file.value = path
+    assert RECORDING_DOUBT not in widget.result.value
+    assert "read as" in widget.result.value

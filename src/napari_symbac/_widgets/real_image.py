@@ -46,6 +46,8 @@ __all__ = [
     "enter_pixel_size",
 ]
 
+#: The start of the dock's warning that the steps will refuse the image as it is.
+RECORDING_DOUBT = "Cannot be fitted as it is:"
 #: The start of the dock's warning that the image contradicts the modality chosen.
 MODALITY_DOUBT = "Modality doubt:"
 #: How the fits know the recording's camera (the Recording step's *camera* choice).
@@ -309,6 +311,13 @@ class RealImageWidget(Container):
         # read as counts says so (the reader's, or *or open*'s: io.as_counts)
         mapping = meta.get("counts_mapping")
         self.result.value = f"{layer.name}: {mapping.note}" if mapping is not None else ""
+        if mapping is None:  # what the steps will refuse, said as it is chosen (found as a
+            # user: DeLTA's normalised trench opened by napari's reader was simulated with
+            # the built-in camera, thousands of ADU against its 0-1, before Auto-fit said)
+            try:
+                check_recording_frame(first_frame(layer), layer.name)
+            except ValueError as err:
+                self.result.value = f"{RECORDING_DOUBT} {err}"
         pixel = meta.get("pixel_size_um")
         if not pixel:  # a layer already scaled by its reader
             pixel = scale_pixel_um(layer)
@@ -603,6 +612,11 @@ class RealImageWidget(Container):
             self.image.reset_choices()
         finally:
             self._quiet = False
+        if self.image.value is None:  # none left: nor its file and words (found as a
+            # user: the removed recording's path stayed in *or open*, and choosing that
+            # file again opened nothing, the field's value unchanged)
+            self._show_source(None)
+            self.result.value = ""
 
     def _warn(self, label, layer, problem: str | None) -> None:
         """Show ``problem`` of ``layer`` in ``label`` (and once as a notification), or
