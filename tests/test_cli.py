@@ -726,13 +726,26 @@ def test_export_takes_formats_instead_of_the_configs(tmp_path, capsys):
     assert main([*args, "--out", str(out), "--formats", "coco, omnipose"]) == 0
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["settings"]["formats"] == ["coco", "omnipose"]
-    assert "asked" not in capsys.readouterr().err  # --workers 1: as asked
+    assert "allowed" not in capsys.readouterr().err  # --workers 1: as asked
     # --workers 2: when fewer were used (a short export stays in this process), it is said
     again = tmp_path / "again"
     assert main([*args[:-2], "--workers", "2", "--out", str(again), "--formats", "tiff"]) == 0
     said = capsys.readouterr()
     used = int(re.search(r"with (\d+) worker\(s\)", said.out).group(1))
-    assert ("--workers 2 asked, 1 used" in said.err) == (used == 1)
+    assert ("2 workers allowed (--workers 2), 1 used" in said.err) == (used == 1)
+    # more than the cores: the cap and the count used agree (found as a user: "capped
+    # to 2", then "--workers 1000 asked, 1 used")
+    import os
+
+    many = os.cpu_count() + 6
+    third = tmp_path / "third"
+    assert main([*args[:-2], "--workers", str(many), "--out", str(third), "--formats", "tiff"]) == 0
+    said = capsys.readouterr()
+    used = int(re.search(r"with (\d+) worker\(s\)", said.out).group(1))
+    assert f"--workers {many} capped to {os.cpu_count()}" in said.err
+    if used < os.cpu_count():
+        assert f"{os.cpu_count()} workers allowed (--workers {many}), {used} used" in said.err
+    assert f"--workers {many} asked" not in said.err
     assert COCO(str(out / "coco" / "annotations" / "instances_train.json")).getAnnIds()
     assert not (out / "tiff").exists()
     capsys.readouterr()

@@ -346,9 +346,9 @@ def _cmd_export(args: argparse.Namespace) -> int:
     print(report)
     if workers is not None and report.workers < workers and not report.cancelled:
         print(  # found as a user: --workers 2 ran with 1 and only the report's count said it
-            f"napari-symbac export: note: --workers {args.workers} asked, {report.workers} "
-            "used: an export this short finishes in this process before worker processes "
-            "would have started (docs/export.md)",
+            f"napari-symbac export: note: {workers} workers allowed (--workers "
+            f"{args.workers}), {report.workers} used: an export this short finishes in "
+            "this process before worker processes would have started (docs/export.md)",
             file=sys.stderr,
         )
     _say_extra_stages(settings.pipeline)

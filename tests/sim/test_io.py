@@ -60,7 +60,7 @@ def test_newer_format_is_refused_with_advice(sim, tmp_path):
 
 @pytest.mark.parametrize(
     "damage",
-    ["truncate_frames", "drop_lineage", "bad_json", "bad_offsets", "bad_settings"],
+    ["truncate_frames", "drop_lineage", "bad_json", "bad_offsets", "bad_settings", "garbage"],
 )
 def test_corrupt_simulation_gives_clear_error(sim, tmp_path, damage):
     out = save_simulation(sim, tmp_path / "run")
@@ -80,8 +80,12 @@ def test_corrupt_simulation_gives_clear_error(sim, tmp_path, damage):
         meta = json.loads((out / "simulation.json").read_text())
         meta["settings"]["cell_width_um"] = -1
         (out / "simulation.json").write_text(json.dumps(meta))
-    with pytest.raises(ValueError, match="not a readable saved simulation"):
+    elif damage == "garbage":  # bytes numpy reads as neither zip nor array
+        (out / "frames.npz").write_bytes(b"\x00not an array file" * 64)
+    with pytest.raises(ValueError, match="not a readable saved simulation") as caught:
         load_simulation(out)
+    # numpy's advice to load unsafely is not passed on (found as a user)
+    assert "allow_pickle" not in str(caught.value)
 
 
 def test_missing_simulation(tmp_path):

@@ -230,7 +230,10 @@ def load_simulation(directory: str | os.PathLike) -> Simulation:
             folder, f"{Path(err.filename).name if err.filename else 'a file'} is missing"
         ) from err
     except (OSError, KeyError, ValueError, zipfile.BadZipFile, EOFError) as err:
-        raise _corrupt(folder, f"an array file is damaged ({err})") from err
+        # numpy's own words for bytes it cannot read as arrays advise unsafe loading
+        # (found as a user: "load it unsafely using allow_pickle=" of a damaged file)
+        said = "not arrays of numbers" if "allow_pickle" in str(err) else str(err)
+        raise _corrupt(folder, f"an array file is damaged ({said})") from err
 
     n_frames = settings.n_frames
     total = columns["ids"].size
