@@ -80,6 +80,26 @@ def test_refusals_are_said_in_the_docks_words(widget, tmp_path):
     assert not (tmp_path / "dataset").exists()
 
 
+def test_frames_per_series_sets_the_length_of_each_series(widget, qtbot, tmp_path):
+    """Found as a user: a series was as long as the source layer's simulation (60 frames
+    beside a 6-frame recording); only the CLI's --n-frames could change it."""
+    import json
+
+    widget.kind.value = "timeseries"
+    widget.formats.value = ["tiff", "ctc"]
+    widget.n_items.value = 1
+    widget.val_fraction.value = 0.0
+    widget.n_frames.value = 5
+    widget.folder.value = tmp_path / "series"
+    widget.export_button.native.click()
+    qtbot.waitUntil(lambda: widget.worker is None and widget.report is not None, timeout=120_000)
+    assert widget.report.complete, widget.status.value
+    manifest = json.loads((tmp_path / "series" / "manifest.json").read_text())
+    assert manifest["settings"]["pipeline"]["simulation"]["n_frames"] == 5
+    assert len(list((tmp_path / "series" / "tiff" / "train" / "images").glob("s0000_*.tif"))) == 5
+    assert len(list((tmp_path / "series" / "ctc" / "train" / "01").glob("t*.tif"))) == 5
+
+
 def test_cancel_then_resume(widget, qtbot, tmp_path):
     widget.n_items.value = 40
     widget.folder.value = tmp_path / "big"

@@ -72,6 +72,11 @@ class ExportWidget(Container):
         )
         self.kind = ComboBox(name="kind", label="items", choices=["frames", "timeseries"])
         self.n_items = SpinBox(name="n_items", label="number of items", value=100, min=1, max=10**7)
+        # found as a user: a series as long as the source layer's simulation (60 frames
+        # beside a 6-frame recording), only the CLI's --n-frames could change it
+        self.n_frames = SpinBox(
+            name="n_frames", label="frames per series", value=0, min=0, max=10**5
+        )
         self.seed = SpinBox(name="seed", label="seed", value=0, min=0, max=2**31 - 1)
         self.val_fraction = FloatSpinBox(
             name="val_fraction", label="validation fraction", value=0.1, min=0, max=0.9, step=0.05
@@ -91,6 +96,7 @@ class ExportWidget(Container):
                 self.formats,
                 self.kind,
                 self.n_items,
+                self.n_frames,
                 self.seed,
                 self.val_fraction,
                 self.workers,
@@ -109,6 +115,8 @@ class ExportWidget(Container):
             self.formats: "Dataset formats to write (several at once share the images).",
             self.kind: "frames: single images; timeseries: stacks with lineage.",
             self.n_items: "Items to export, each with freshly drawn parameters.",
+            self.n_frames: "Frames simulated for each item (timeseries: the length of each "
+            "series); 0: as many as the chosen layer's simulation.",
             self.seed: "Seed of every random draw: same seed, same dataset bit for bit.",
             self.val_fraction: "Fraction of items put in the validation split.",
             self.workers: "Worker processes (1: in this process); not used with a dask "
@@ -174,6 +182,9 @@ class ExportWidget(Container):
                 f"{', '.join(tracking)} hold tracking ground truth: choose items "
                 "'timeseries'"
             )
+        if self.n_frames.value > 0:  # the run as the form asks (the CLI's --n-frames)
+            simulation = dataclasses.replace(pipeline.simulation, n_frames=self.n_frames.value)
+            pipeline = dataclasses.replace(pipeline, simulation=simulation)
         n_frames = pipeline.simulation.n_frames
         if self.kind.value == "timeseries" and n_frames < 2:
             raise ValueError(
@@ -204,6 +215,11 @@ class ExportWidget(Container):
                 "a calibrated dataset holds single frames: choose items 'frames' (tracking "
                 "ground truth needs a time series: Simulate one with the recording chosen, "
                 "then Export it)"
+            )
+        if self.n_frames.value > 0:
+            raise ValueError(
+                "a calibrated dataset's frames come from a run laid out to grow to the "
+                "recording's size: set 'frames per series' to 0"
             )
         return export_settings(
             calibration,
