@@ -57,6 +57,9 @@ def test_calibrate_then_export_the_matched_dataset(make_napari_viewer, qtbot, tm
     assert name in viewer.layers, widget.status.value
     # the status followed the stages: the fit's renders, then the compared items
     assert any(s.startswith("Calibrating: fit, ") for s in shown), shown
+    # its bound said as one (found as a user: "472 renders (at most 45684)" read as hours)
+    assert all("at most" not in s for s in shown), shown
+    assert any("renders so far (a converging fit ends far below its bound" in s for s in shown)
     assert "Calibrating: simulating the dataset's first 4 items to compare..." in shown
     layer = viewer.layers[name]
     calibration = layer.metadata[SYMBAC_METADATA_KEY][CALIBRATION_KEY]

@@ -799,6 +799,15 @@ def test_the_sliders_shown_are_those_that_change_the_image(rendered, modality):
         assert "transmission" not in tune.sliders["cell_intensity"].tooltip
 
 
+def test_fit_progress_says_its_bound_is_one(make_napari_viewer):
+    """Found as a user: "Fitting: 472 renders (at most 45684)" was read as hours to go."""
+    tune = TuneWidget(make_napari_viewer())
+    tune._on_fit_progress((472, 45684))
+    assert tune.status.value == (
+        "Fitting: 472 renders so far (a converging fit ends far below its bound of 45684)"
+    )
+
+
 def test_no_slider_before_a_render_and_no_device_on_an_agar_pad(make_napari_viewer, qtbot):
     """Found as a user: before any simulation Tune showed twelve sliders at 0.00 (the
     phase ring's among them, beside a fluorescence recording), and on an agar pad the

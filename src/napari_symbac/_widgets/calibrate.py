@@ -360,7 +360,10 @@ class CalibrateWidget(Container):
         if isinstance(total, str):
             self.status.value = f"Calibrating: {total}..."
         else:
-            self.status.value = f"Calibrating: fit, {done} renders (at most {total})"
+            self.status.value = (
+                f"Calibrating: fit, {done} renders so far (a converging fit ends far below "
+                f"its bound of {total})"
+            )
 
     def _on_returned(self, outcome: _Outcome) -> None:
         calibration = outcome.calibration

@@ -970,7 +970,11 @@ class TuneWidget(Container):
         done, total = message
         # the total is a bound that a converging fit stays far below (found as a user: "365
         # of about 80168 renders" for a joint fit that ended at ~760)
-        self.status.value = f"Fitting: {done} renders (at most {total})"
+        # found as a user: "472 renders (at most 45684)" read as hours still to go
+        self.status.value = (
+            f"Fitting: {done} renders so far (a converging fit ends far below its bound "
+            f"of {total})"
+        )
 
     def _on_fit_returned(self, outcome: _FitOutcome) -> None:
         from napari_symbac.fit import ColonyFit
