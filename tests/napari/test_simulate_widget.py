@@ -383,6 +383,22 @@ def test_a_pixel_size_typed_in_nm_is_said_where_the_recording_is_missed(
     assert simulate.status.value == ""
 
 
+def test_a_time_lapse_recording_keeps_its_frame_shown(widget, qtbot):
+    """Found as a user: with a 4-frame recording at frame 2, Simulate moved the shared
+    slider to its own last frame, and Auto-fit then fitted another frame of the recording
+    than the one the user had looked at."""
+    movie = np.full((4, 64, 46), 1000, np.uint16)
+    movie[:, 20:40, 15:30] = 400  # something dark to look at
+    widget.viewer.add_image(
+        movie, name="movie", scale=(1, 0.065, 0.065),
+        metadata={"pixel_size_um": 0.065, "modality": "phase"},
+    )  # fmt: skip
+    assert widget.recording.value is widget.viewer.layers["movie"]
+    widget.viewer.dims.set_current_step(0, 2)
+    _simulate(widget, qtbot, n_frames=6)
+    assert widget.viewer.dims.current_step[0] == 2
+
+
 def _simulate(widget, qtbot, n_frames: int = 3, show_opl: bool = False) -> None:
     widget.form.n_frames.value = n_frames
     widget.show_opl.value = show_opl

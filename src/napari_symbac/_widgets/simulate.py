@@ -463,7 +463,12 @@ class SimulateWidget(Container):
         # its last, grown as the recording was laid out (found as a user: Sample000252's
         # colony was shown as the first frame's founder beside the recording's 77 cells)
         compared = self._compared_with
-        self.viewer.dims.set_current_step(0, len(frames) - 1 if compared else 0)
+        recording = self.recording.value
+        if recording is None or np.ndim(recording.data) < 3:
+            self.viewer.dims.set_current_step(0, len(frames) - 1 if compared else 0)
+        # else the frame of the time-lapse the user looks at stays (found as a user: the
+        # slider moved to the simulation's last frame, and Auto-fit fitted another frame
+        # of the recording than the one it had shown)
         if compared:
             self.status.value += f", shown to compare with {compared}"
         if RESULT_TRACKS_LAYER in self.viewer.layers:
