@@ -805,6 +805,9 @@ class TuneWidget(Container):
         if masks is not None and labels is not None:
             self._fit_notes.append("the cell masks were used; the painted classes were not")
         iterations = self.fit_iterations.value
+        if all_frames:  # the joint refinement's too (found as a user: "stopped at the
+            # iteration limit (15)" whatever 'fit iterations' said)
+            options["joint_iterations"] = iterations
         cancelled = threading.Event()
 
         def fit(progress, cancel):
@@ -813,9 +816,6 @@ class TuneWidget(Container):
             if colony:
                 fit_one = fit_colony_series if all_frames else fit_colony
                 return fit_one(real, microscope, masks, progress=progress, cancel=cancel)
-            if all_frames:  # the joint refinement's too (found as a user: "stopped at
-                # the iteration limit (15)" whatever 'fit iterations' said)
-                options["joint_iterations"] = iterations
             return (fit_series if all_frames else fit_scene)(
                 real,
                 microscope,
