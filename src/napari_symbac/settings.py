@@ -608,11 +608,6 @@ class Microscope:
         )
 
     @property
-    def condenser_rings(self) -> Condenser:
-        """The annulus dimensions of :attr:`condenser`."""
-        return CONDENSERS[self.condenser]
-
-    @property
     def min_apodisation_sigma_um(self) -> float:
         """Lower bound of the apodisation sigma, eq. 13: ``0.9 lambda n / (2 NA)``."""
         return 0.9 * self.wavelength_um * self.refractive_index / (2 * self.numerical_aperture)

@@ -72,8 +72,6 @@ class Row:
         (``None``: SyMBac has no such step).
     symbac_note
         Shown instead of a SyMBac figure when ``symbac_key`` is ``None``.
-    needs
-        ``"gui"``: the benchmark needs napari (skipped with a note when it is missing).
     """
 
     label: str
@@ -84,7 +82,6 @@ class Row:
     fft_key: str | None = "fft_s"
     symbac_key: str | None = None
     symbac_note: str = "-"
-    needs: Literal["gui"] | None = None
 
 
 #: The rows of the table, in order (filled by :mod:`napari_symbac.bench.cases`).

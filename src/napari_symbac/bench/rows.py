@@ -47,7 +47,7 @@ ROWS[:] = [
     Row("torch:cpu (1 thread) frames/s / scipy frames/s, trench", "batch_cpu_trench", "vs_scipy",
         "ratio", fft_key=None),
     Row("slider -> layer latency (intensity), trench", "slider", "slider_s", "ms",
-        symbac_note="not measured (SyMBac's GUI is notebook widgets)", needs="gui"),
+        symbac_note="not measured (SyMBac's GUI is notebook widgets)"),
     Row("fit, trench 256 x 46 (fit_scene)", "fit_trench", "fit_s", "s",
         symbac_note="not measured (its optimiser takes minutes)"),
     Row("fit, field 256 x 256 fluorescence ({fit_field_cells} cells, fit_scene)", "fit_field",

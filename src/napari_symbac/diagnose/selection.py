@@ -129,7 +129,6 @@ class ScoreTest:
     statistic: float
     dof: int
     evidence: float
-    detectable_sd: float = float("nan")
 
 
 def score_test(

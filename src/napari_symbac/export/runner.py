@@ -113,11 +113,6 @@ class ExportReport:
         """Whether every item of the dataset is on disk."""
         return not self.cancelled and self.n_written + self.n_skipped == self.n_items
 
-    @property
-    def items_per_s(self) -> float:
-        """Items written per second by this run."""
-        return self.n_written / self.seconds if self.seconds > 0 else math.nan
-
     def __str__(self) -> str:
         state = "complete" if self.complete else "CANCELLED - run again to resume"
         return (

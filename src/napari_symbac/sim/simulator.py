@@ -459,11 +459,6 @@ class Simulator:
         return _frame_cells(self._cells, pos[inside], body_angle[inside])
 
     @property
-    def frames_done(self) -> int:
-        """Number of frames simulated so far."""
-        return len(self._frames)
-
-    @property
     def done(self) -> bool:
         """Whether all ``settings.n_frames`` frames have been simulated."""
         return len(self._frames) >= self.settings.n_frames
