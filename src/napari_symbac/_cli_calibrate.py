@@ -157,7 +157,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     """Run ``napari-symbac calibrate`` with parsed arguments; returns the exit code."""
     import tifffile
 
-    from napari_symbac._cli_fit import in_read_units
+    from napari_symbac._cli_fit import check_stain_flags, in_read_units
     from napari_symbac.calibrate import (
         calibrate,
         compare_with_dataset,
@@ -253,6 +253,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         print(f"napari-symbac calibrate: note: {note}", file=sys.stderr, flush=True)
     if (note := modality_doubt(image, modality)) is not None:  # before the fit
         print(f"napari-symbac calibrate: note: {note}", file=sys.stderr, flush=True)
+    check_stain_flags(args, modality)  # before the fit
     print("napari-symbac calibrate: fitting", file=sys.stderr, flush=True)
     with timer.step("fit"):
         calibration = calibrate(
@@ -263,6 +264,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
             modality=modality,
             camera=camera,
             cell_width_um=args.cell_width_um,
+            envelope_stain=args.envelope_stain,
+            depth_layers=args.depth_layers,
             pixel_note=pixel_note,
             stage=lambda words: print(
                 f"napari-symbac calibrate: {words}", file=sys.stderr, flush=True

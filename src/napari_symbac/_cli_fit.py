@@ -348,36 +348,39 @@ class _Prepared:
     colony: bool = False  # a phase colony fitted from its masks (fit_colony)
 
 
+def check_stain_flags(args, modality: str) -> None:
+    """``--envelope-stain`` and ``--depth-layers`` (of ``fit`` and ``calibrate``) refused,
+    the flag named, for a recording that is not fluorescence, and slabs out of range."""
+    from napari_symbac.settings import MAX_DEPTH_LAYERS
+
+    envelope, layers = getattr(args, "envelope_stain", False), getattr(args, "depth_layers", 0)
+    for flag, asked, what in (
+        ("--envelope-stain", envelope, "fits where a fluorescence stain sits in the cells"),
+        ("--depth-layers", layers, "images a fluorescence stain slab by slab"),
+    ):
+        if asked and modality != "fluorescence":
+            raise ValueError(f"{flag} {what}; this image is {modality}: leave {flag} out")
+    if not 0 <= layers <= MAX_DEPTH_LAYERS:
+        raise ValueError(
+            f"--depth-layers {layers} is not a number of slabs: pass 1-{MAX_DEPTH_LAYERS} "
+            "(5 fit ColiCoords ds2 as well as 15), or 0 for the 2-D projection"
+        )
+
+
 def _model_options(args, modality: str) -> dict[str, Any]:
     """The scene model's optional terms asked for on the command line (fit_scene's
     ``per_cell_brightness``, ``width_sd_um``, ``illumination_order``, the envelope's
     fraction of the stain and the depth-resolved image's focal plane among the fitted
     optics), checked."""
     options: dict[str, Any] = {}
+    check_stain_flags(args, modality)
     if getattr(args, "envelope_stain", False):
-        if modality != "fluorescence":
-            raise ValueError(
-                "--envelope-stain fits where a fluorescence stain sits in the cells; this "
-                f"image is {modality}: leave --envelope-stain out"
-            )
         from napari_symbac.fit.scene_fit import ENVELOPE_FIT_OPTICS
 
         options["fit_optics"] = ENVELOPE_FIT_OPTICS
-    layers = getattr(args, "depth_layers", 0)
-    if layers:
+    if getattr(args, "depth_layers", 0):
         from napari_symbac.fit.scene_fit import depth_fit_optics
-        from napari_symbac.settings import MAX_DEPTH_LAYERS
 
-        if modality != "fluorescence":
-            raise ValueError(
-                "--depth-layers images a fluorescence stain slab by slab; this image is "
-                f"{modality}: leave --depth-layers out"
-            )
-        if not 0 < layers <= MAX_DEPTH_LAYERS:
-            raise ValueError(
-                f"--depth-layers {layers} is not a number of slabs: pass 1-{MAX_DEPTH_LAYERS} "
-                "(5 fit ColiCoords ds2 as well as 15), or 0 for the 2-D projection"
-            )
         options["fit_optics"] = depth_fit_optics(options.get("fit_optics"))
     if args.cell_brightness is not None:
         options["per_cell_brightness"] = args.cell_brightness == "per-cell"

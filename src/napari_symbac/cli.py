@@ -1032,6 +1032,31 @@ _EXAMPLES = {
 }
 
 
+def _add_stain_options(parser: argparse.ArgumentParser, drawn_by: str, config: bool) -> None:
+    """``--envelope-stain`` and ``--depth-layers`` of ``fit`` and ``calibrate``: where a
+    fluorescence stain sits in the cells, fitted, and drawn by ``drawn_by`` (``config``:
+    the command's ``--config`` may give the starts)."""
+    unless = " unless --config gives one" if config else ""
+    parser.add_argument(
+        "--envelope-stain",
+        action="store_true",
+        help="fluorescence: fit, with the cells and optics, the fraction of the stain in the "
+        "cell envelope (a membrane dye: cells brighter at the rim than on the centre line; "
+        f"starts at 0.5{unless}); {drawn_by} draws it "
+        "(render.envelope_stain_fraction)",
+    )
+    parser.add_argument(
+        "--depth-layers",
+        type=int,
+        default=0,
+        metavar="N",
+        help="fluorescence: image the cells' stain in N slabs through the depth, each "
+        "through the PSF defocused by its distance from the focal plane (eq. 16; 5 is "
+        "enough), and fit the focal plane's distance from the cells' mid-plane (starts at "
+        f"0.2 um{unless}); 0 (default): the 2-D projection through one PSF",
+    )
+
+
 def _add_command(sub, name: str, **kwargs) -> argparse.ArgumentParser:
     """The subcommand ``name``, its help ending with its examples."""
     return sub.add_parser(name, epilog=_EXAMPLES[name], formatter_class=_HelpFormatter, **kwargs)
@@ -1266,24 +1291,7 @@ def build_parser() -> argparse.ArgumentParser:
         "degree, fitted with the scene (vignetting; on a trench it also takes up the PDMS "
         "level beyond the kernel's reach, docs/fitting.md); single frames only",
     )
-    fit.add_argument(
-        "--envelope-stain",
-        action="store_true",
-        help="fluorescence: fit, with the cells and optics, the fraction of the stain in the "
-        "cell envelope (a membrane dye: cells brighter at the rim than on the centre line; "
-        "starts at 0.5 unless --config gives one); settings.yaml draws it "
-        "(render.envelope_stain_fraction)",
-    )
-    fit.add_argument(
-        "--depth-layers",
-        type=int,
-        default=0,
-        metavar="N",
-        help="fluorescence: image the cells' stain in N slabs through the depth, each "
-        "through the PSF defocused by its distance from the focal plane (eq. 16; 5 is "
-        "enough), and fit the focal plane's distance from the cells' mid-plane (starts at "
-        "0.2 um unless --config gives one); 0 (default): the 2-D projection through one PSF",
-    )
+    _add_stain_options(fit, "settings.yaml", config=True)
     fit.set_defaults(func=_cmd_fit)
 
     cal = _add_command(
@@ -1337,6 +1345,7 @@ def build_parser() -> argparse.ArgumentParser:
         "ome-zarr (default tiff)",
     )
     cal.add_argument("--seed", type=_seed, default=0, help="dataset seed (default 0)")
+    _add_stain_options(cal, "the dataset", config=False)
     cal.set_defaults(func=_cmd_calibrate)
 
     diag = _add_command(

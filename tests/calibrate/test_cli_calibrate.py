@@ -8,6 +8,7 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 import tifffile
+import yaml
 
 from napari_symbac.cli import main
 from napari_symbac.export.visibility import pixel_noise
@@ -562,3 +563,48 @@ def test_calibrate_warns_of_cells_no_bacterium_is_as_wide(colicoords_files, caps
     assert code == 0, printed.err
     assert "warning" not in printed.err
     assert "WARNINGS" not in (d / "own" / "report.txt").read_text()
+
+
+def test_calibrate_fits_and_draws_a_stain_in_the_envelope(real_data_dir, tmp_path, capsys):
+    """A membrane-stained field (ColiCoords ds2, two cells of 00074) calibrated with
+    ``--envelope-stain``: the fit puts the stain in the envelope, the cells come out an
+    E. coli's width (volume-stained they are ~1.5 um), and the dataset draws it."""
+    ds2 = real_data_dir / "colicoords" / "test_data" / "ds2"
+    image = tmp_path / "flu.tif"
+    tifffile.imwrite(image, tifffile.imread(ds2 / "fluorescence" / "00074.tif")[60:220, 352:512])
+    (tmp_path / "m80.yaml").write_text("pixel_size_um: 0.08\nwavelength_um: 0.53\n")
+    out = tmp_path / "out"
+    code = main(
+        ["calibrate", str(image), "--microscope", str(tmp_path / "m80.yaml"), "--modality",
+         "fluorescence", "--envelope-stain", "--out", str(out), "--n-items", "1"]
+    )  # fmt: skip
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    report = (out / "report.txt").read_text()
+    fraction = float(report.split("stain in the envelope ")[1].split(" of it")[0])
+    assert fraction > 0.8, report
+    width = float(report.split("cells: width ")[1].split(" um")[0])
+    assert 0.9 < width < 1.25, report
+    settings = yaml.safe_load((out / "export_settings.yaml").read_text())
+    assert settings["pipeline"]["render"]["envelope_stain_fraction"] == pytest.approx(
+        fraction, abs=0.005
+    )
+
+
+@pytest.mark.parametrize(
+    ("flags", "said"),
+    [(["--envelope-stain"], "leave --envelope-stain out"),
+     (["--depth-layers", "5"], "leave --depth-layers out")],
+)  # fmt: skip
+def test_calibrate_refuses_a_stain_model_in_bright_field(
+    real_data_dir, tmp_path, capsys, flags, said
+):
+    ds1 = real_data_dir / "colicoords" / "test_data" / "ds1"
+    (tmp_path / "m80.yaml").write_text("pixel_size_um: 0.08\n")
+    out = tmp_path / "out"
+    line = _refused(
+        ["calibrate", str(ds1 / "brightfield" / "00001.tif"), "--microscope",
+         str(tmp_path / "m80.yaml"), "--modality", "brightfield", "--out", str(out), *flags],
+        out, capsys,
+    )  # fmt: skip
+    assert said in line

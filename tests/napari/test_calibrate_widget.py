@@ -153,6 +153,37 @@ def test_refusals_name_the_fix(make_napari_viewer, field):
     assert calibrated_layer_name("trench") not in viewer.layers
 
 
+def test_a_stain_in_the_envelope_is_fitted_and_drawn(make_napari_viewer, qtbot, real_data_dir):
+    """A membrane-stained field (ColiCoords ds2, two cells of 00074) with 'stain in the
+    cell envelope' ticked: the calibration puts the stain in the envelope, at an E. coli's
+    width, and the dataset's settings draw it; in bright field the box is refused, named."""
+    ds2 = real_data_dir / "colicoords" / "test_data" / "ds2"
+    image = tifffile.imread(ds2 / "fluorescence" / "00074.tif")[60:220, 352:512]
+    viewer, widget = _viewer_with(make_napari_viewer, image)
+    widget.envelope_stain.value = True
+    widget.run_button.native.click()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=180_000)
+    assert calibrated_layer_name("field") in viewer.layers, widget.status.value
+    render = widget.calibration.settings.render
+    assert render.envelope_stain_fraction > 0.8
+    assert "stain in the envelope" in widget.report.value
+    assert 0.9 < widget.calibration.settings.simulation.cell_width_um < 1.25
+    ds1 = real_data_dir / "colicoords" / "test_data" / "ds1"
+    viewer.add_image(
+        tifffile.imread(ds1 / "brightfield" / "00001.tif")[:256, :256],
+        name="bright field",
+        metadata={"pixel_size_um": 0.08, "modality": "brightfield"},
+        **layer_axes(0.08, 2),
+    )
+    widget.recording.value = viewer.layers["bright field"]
+    widget.run_button.native.click()
+    assert widget.worker is None
+    assert widget.status.value == (
+        "Not calibrated: 'stain in the cell envelope (membrane dye)' is fitted in "
+        "fluorescence; bright field is brightfield: untick it"
+    )
+
+
 def test_cancel_adds_nothing(make_napari_viewer, qtbot, real_data_dir):
     """Cancelled during the fit of a whole field without masks (a minute or more of fit):
     the fit stops at its next render and no layer is added."""

@@ -16,7 +16,7 @@ import threading
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from magicgui.widgets import ComboBox, Container, FloatSpinBox, PushButton
+from magicgui.widgets import CheckBox, ComboBox, Container, FloatSpinBox, PushButton
 
 from napari_symbac._widgets._forms import fill_height, hide_label, message_label, report_box
 from napari_symbac._widgets._jobs import Job, blocking_steps, notify_warning, removed_words
@@ -121,6 +121,26 @@ class CalibrateWidget(Container):
                 "Needs cell masks."
             ),
         )
+        self.envelope_stain = CheckBox(
+            name="envelope_stain",
+            text="stain in the cell envelope (membrane dye)",
+            tooltip=(
+                "Fluorescence: fit the fraction of the stain in the cell envelope (cells "
+                "brighter at the rim than on the centre line), as napari-symbac calibrate "
+                "--envelope-stain; the dataset draws it. A membrane-stained field calibrated "
+                "without it gets volume-stained cells, about 1.5 times too wide."
+            ),
+        )
+        self.depth = CheckBox(
+            name="depth",
+            text="image the cells in depth (eq. 16)",
+            tooltip=(
+                "Fluorescence: image the stain in slabs through the cells, each through the "
+                "PSF defocused by its distance from the focal plane, which is fitted, as "
+                "napari-symbac calibrate --depth-layers 5; the fit takes 2-5 times as long. "
+                "The dataset draws it."
+            ),
+        )
         self.run_button = PushButton(
             name="calibrate",
             text="Calibrate",
@@ -136,6 +156,8 @@ class CalibrateWidget(Container):
                 self.recording,
                 self.masks,
                 self.cell_width_um,
+                self.envelope_stain,
+                self.depth,
                 self.run_button,
                 self.cancel_button,
                 self.status,
@@ -256,6 +278,12 @@ class CalibrateWidget(Container):
             note = "the recording's"
         # the modality checked here, in this dock's words (calibrate checks it again)
         check_modality(frame, microscope.modality, masks=masks, advice=GUI_MODALITY_ADVICE)
+        ticked = [box.text for box in (self.envelope_stain, self.depth) if box.value]
+        if ticked and microscope.modality != "fluorescence":
+            raise ValueError(
+                f"'{ticked[0]}' is fitted in fluorescence; {layer.name} is "
+                f"{microscope.modality}: untick it"
+            )
         if default_geometry(frame.shape, microscope.modality) == "trench":
             raise ValueError(
                 f"{layer.name} is {frame.shape[0]} x {frame.shape[1]} px, narrow and tall: a "
@@ -278,6 +306,10 @@ class CalibrateWidget(Container):
             self.status.value = f"Not calibrated: {err}"
             return
         camera = given_camera(self.recording.value)  # None: measured from the frame
+        from napari_symbac.fit.scene_fit import DEPTH_FIT_LAYERS
+
+        envelope_stain = self.envelope_stain.value  # read here, in the GUI thread
+        depth_layers = DEPTH_FIT_LAYERS if self.depth.value else 0
         self._camera_words = (
             "the camera given in the Recording step" if camera else "the camera measured from "
             "the recording"
@@ -309,6 +341,8 @@ class CalibrateWidget(Container):
                 camera=camera,
                 masks=masks,
                 cell_width_um=width,
+                envelope_stain=envelope_stain,
+                depth_layers=depth_layers,
                 pixel_note=f"pixel size {microscope.pixel_size_um:.4g} um, {pixel_note}",
                 progress=fit_progress,
                 cancel=cancel,

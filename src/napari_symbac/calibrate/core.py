@@ -174,6 +174,57 @@ class Calibration:
         ]
 
 
+def _stain_model(
+    modality: str, envelope_stain: bool, depth_layers: int
+) -> tuple[tuple[str, ...] | None, RenderSettings]:
+    """The optics the scene fit fits and the render it starts from, for a stain in the
+    envelope and / or a depth-resolved image (both fluorescence only, as ``fit``'s
+    ``--envelope-stain`` and ``--depth-layers``)."""
+    from napari_symbac.fit.scene_fit import (
+        ENVELOPE_FIT_OPTICS,
+        depth_fit_optics,
+        depth_start,
+        envelope_stain_start,
+    )
+    from napari_symbac.settings import MAX_DEPTH_LAYERS
+
+    start = RenderSettings(cell_brightness_cv=0.0)
+    asked = [
+        words
+        for words, on in (("a stain in the envelope", envelope_stain), ("depth", depth_layers))
+        if on
+    ]
+    if asked and modality != "fluorescence":
+        raise ValueError(
+            f"{' and '.join(asked)} is fitted in fluorescence; this recording is {modality}: "
+            "calibrate it without"
+        )
+    if not 0 <= depth_layers <= MAX_DEPTH_LAYERS:
+        raise ValueError(
+            f"depth_layers={depth_layers} is not a number of slabs: pass 1-{MAX_DEPTH_LAYERS} "
+            "(5 fit ColiCoords ds2 as well as 15), or 0 for the 2-D projection"
+        )
+    fit_optics = None
+    if envelope_stain:
+        fit_optics, start = ENVELOPE_FIT_OPTICS, envelope_stain_start(start)
+    if depth_layers:
+        fit_optics, start = depth_fit_optics(fit_optics), depth_start(start, depth_layers)
+    return fit_optics, start
+
+
+def _stain_words(render: RenderSettings, envelope_stain: bool) -> str:
+    """The fitted stain model, for the scene fit's note ('' when neither was asked)."""
+    words = ""
+    if envelope_stain:
+        words += f"; stain in the envelope {render.envelope_stain_fraction:.2f} of it"
+    if render.depth_layers:
+        words += (
+            f"; imaged in {render.depth_layers} slabs, focal plane "
+            f"{render.focus_offset_um:+.2f} um from the cells' mid-plane"
+        )
+    return words
+
+
 def best_crop(masks: np.ndarray, size_px: int) -> tuple[slice, slice]:
     """The ``size_px`` square window holding the most whole cells (fewest cut by its edge).
 
@@ -548,7 +599,16 @@ def settings_from_fit(
 
 
 def _fit_scene_crop(
-    crop_image, crop_masks, microscope, render, camera, labels, max_iterations, progress, cancel
+    crop_image,
+    crop_masks,
+    microscope,
+    render,
+    camera,
+    labels,
+    max_iterations,
+    progress,
+    cancel,
+    fit_optics=None,
 ):
     from napari_symbac.fit import fit_scene
     from napari_symbac.fit.camera_estimate import censored_pixels
@@ -564,6 +624,7 @@ def _fit_scene_crop(
         labels=labels,
         valid=valid,
         moves=crop_masks is None,
+        fit_optics=fit_optics,
         max_iterations=max_iterations,
         progress=progress,
         cancel=cancel,
@@ -583,6 +644,8 @@ def calibrate(
     crop_px: int | None = None,
     max_iterations: int = 8,
     max_evaluations: int = 40,
+    envelope_stain: bool = False,
+    depth_layers: int = 0,
     progress: Callable[[int, int], None] | None = None,
     cancel: Callable[[], bool] | None = None,
     stage: Callable[[str], None] | None = None,
@@ -615,6 +678,13 @@ def calibrate(
         :data:`NO_MASKS_CROP_PX` (its cells are all that sizes and layout are measured on).
     max_iterations, max_evaluations
         Budget of the scene fit (per round) and of the partially coherent fit.
+    envelope_stain
+        Fluorescence: fit the fraction of the stain in the cell envelope as well (a
+        membrane dye; ``napari-symbac fit --envelope-stain``), so that the dataset draws
+        it (``render.envelope_stain_fraction``).
+    depth_layers
+        Fluorescence: image the stain in this many slabs through the cells and fit the
+        focal plane (eq. 16; ``fit --depth-layers``); 0: the 2-D projection.
     progress, cancel
         Passed to the fit (``progress(done, total)`` renders); ``cancel()`` is also
         asked before each simulated colony of the compaction, and ``True`` raises
@@ -661,6 +731,7 @@ def calibrate(
         check_instance_masks(np.asarray(masks), frame.shape, "masks")
         masks = instance_masks(masks)
     check_modality(frame, microscope.modality, labels=labels, masks=masks)
+    fit_optics, start = _stain_model(microscope.modality, envelope_stain, depth_layers)
     notes = []
     if (note := modality_doubt(frame, microscope.modality)) is not None:
         notes.append(note)
@@ -748,7 +819,6 @@ def calibrate(
         width_fit, length_scale = None, 1.0
         field_masks = masks
     else:
-        start = RenderSettings(cell_brightness_cv=0.0)
         result = _fit_scene_crop(
             crop_image,
             crop_masks,
@@ -759,6 +829,7 @@ def calibrate(
             max_iterations,
             progress,
             cancel,
+            fit_optics,
         )
         fitted_camera = dataclasses.replace(
             result.camera or camera or Camera(), bit_depth=bit_depth
@@ -771,6 +842,7 @@ def calibrate(
             f"{crop[0].start}-{crop[0].stop}, columns {crop[1].start}-{crop[1].stop}): "
             f"{len(result.cells)} cells; intensities cell {render.cell_intensity:.0f}, "
             f"media {render.media_intensity:.0f} ADU; defocus {render.defocus_sigma_um:.2f} um"
+            + _stain_words(render, envelope_stain)
         )
         notes.extend(f"fit warning: {w}" for w in result.warnings)
         if masks is None:
