@@ -103,24 +103,32 @@ def test_the_workflow_shares_the_recording_chosen_first(make_napari_viewer):
     assert flow.simulate.pipeline_settings().microscope.modality == "brightfield"
 
 
-def test_manifest_has_one_source_for_wheel_and_editable_installs(tmp_path, monkeypatch):
-    """napari.yaml at the repository root is the manifest; the package's copy is a link
-    to it (found by editable installs), and the wheel carries its content."""
+def test_the_sdist_builds_a_wheel_that_carries_the_manifest(tmp_path, monkeypatch):
+    """Found as a user: the package's napari.yaml was a link to a root file the sdist left
+    out, so a wheel built from the sdist (``python -m build``, conda-forge, ``pip install``
+    of the sdist) failed, and a checkout without links (Windows) shipped the link's text.
+    The manifest is one plain file in the package: the sdist, and the wheel built from it,
+    carry it and npe2 loads it."""
+    import tarfile
     import zipfile
     from pathlib import Path
 
-    from hatchling.build import build_wheel
+    from hatchling.build import build_sdist, build_wheel
     from npe2 import PluginManifest
 
     root = Path(__file__).resolve().parents[2]
-    manifest = root / "napari.yaml"
-    packaged = root / "src" / "napari_symbac" / "napari.yaml"
-    assert packaged.resolve() == manifest.resolve()
+    manifest = root / "src" / "napari_symbac" / "napari.yaml"
+    assert not manifest.is_symlink()
     PluginManifest.from_file(manifest).validate_imports()
-
     monkeypatch.chdir(root)
-    wheel = tmp_path / build_wheel(str(tmp_path))
-    with zipfile.ZipFile(wheel) as archive:
+    sdist = tmp_path / build_sdist(str(tmp_path))
+    with tarfile.open(sdist) as archive:
+        assert not [m.name for m in archive.getmembers() if m.issym() or m.islnk()]
+        archive.extractall(tmp_path / "unpacked", filter="data")
+    (unpacked,) = (tmp_path / "unpacked").iterdir()
+    monkeypatch.chdir(unpacked)
+    wheel = tmp_path / build_wheel(str(tmp_path / "wheel"))
+    with zipfile.ZipFile(tmp_path / "wheel" / wheel.name) as archive:
         shipped = archive.read("napari_symbac/napari.yaml")
     assert shipped == manifest.read_bytes()
     copy = tmp_path / "napari.yaml"
