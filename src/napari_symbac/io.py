@@ -27,7 +27,6 @@ __all__ = [
     "napari_get_reader",
     "read_image",
     "read_recording",
-    "write_dataset",
 ]
 
 #: A floating-point image of fractional values spanning at most this much holds
@@ -735,51 +734,3 @@ def _recording_layer(recording: Recording, suffix: str = "") -> tuple:
     if mapping is not None:
         meta["metadata"]["counts_mapping"] = mapping
     return (data, meta, "image")
-
-
-def _layer_pixel_size_um(meta: dict) -> float:
-    """Pixel size of a layer: its ``pixel_size_um`` metadata, else its scale in um
-    (:func:`scale_um`), else 1."""
-    recorded = (meta.get("metadata") or {}).get("pixel_size_um")
-    if isinstance(recorded, (int, float)) and recorded > 0:
-        return float(recorded)
-    scale, units = meta.get("scale"), meta.get("units") or ("pixel",)
-    if scale is not None and len(scale) >= 2 and float(scale[-1]) > 0:
-        return scale_um(float(scale[-1]), units[-1]) or 1.0
-    return 1.0
-
-
-def write_dataset(path: str, layer_data: list[tuple]) -> list[str]:
-    """npe2 writer: one image layer and its labels layer as a training-dataset folder.
-
-    Writes the plain-TIFF and Omnipose/Cellpose layouts (see ``docs/export.md``);
-    a ``(T, Y, X)`` image gives one image/mask pair per frame. The pixel size (the
-    image layer's ``pixel_size_um`` metadata, or its scale) goes into every TIFF.
-    """
-    from napari_symbac.export import series_items, write_items
-
-    by_kind = {kind: (data, meta) for data, meta, kind in layer_data}
-    if set(by_kind) != {"image", "labels"}:
-        raise ValueError(
-            "the dataset writer takes one image layer and one labels layer; select both "
-            f"(got {', '.join(sorted(by_kind)) or 'nothing'})"
-        )
-    (image, image_meta), (labels, _labels_meta) = by_kind["image"], by_kind["labels"]
-    image, labels = np.asarray(image), np.asarray(labels)
-    if image.ndim == 2:
-        image, labels = image[None], labels[None]
-    if image.shape != labels.shape:
-        raise ValueError(
-            f"the image {image.shape} and labels {labels.shape} layers must have the same shape"
-        )
-    if not np.issubdtype(image.dtype, np.integer):
-        raise ValueError(
-            f"the image layer is {image.dtype}; datasets hold camera counts (uint16): "
-            "write a rendered synthetic layer"
-        )
-    items = series_items(
-        image, labels.astype(np.uint32), pixel_size_um=_layer_pixel_size_um(image_meta)
-    )
-    report = write_items(items, path, ("tiff", "omnipose"))
-    root = Path(path)
-    return [str(p) for p in sorted(root.rglob("*")) if p.is_file()] if report.complete else []

@@ -325,26 +325,6 @@ def test_delta_frames_kind_has_no_tracking(tmp_path):
     assert len(os.listdir(tmp_path / "delta" / "train" / "wei")) == 2
 
 
-def test_napari_writer_keeps_pixel_size_and_labels(tmp_path):
-    from napari_symbac.io import napari_get_reader, write_dataset
-
-    image = np.full((2, 16, 12), 900, np.uint16)
-    labels = np.zeros((2, 16, 12), np.uint32)
-    labels[:, 4:9, 3:8] = 7
-    layers = [
-        (image, {"scale": (1.0, 0.11, 0.11), "metadata": {}}, "image"),
-        (labels, {"scale": (1.0, 0.11, 0.11)}, "labels"),
-    ]
-    written = write_dataset(str(tmp_path / "ds"), layers)
-    mask = next(p for p in written if p.endswith("_masks.tif"))
-    [(data, meta, kind)] = napari_get_reader(mask)(mask)
-    assert kind == "labels"
-    assert meta["scale"] == pytest.approx((0.11, 0.11))
-    np.testing.assert_array_equal(data, labels[0])
-    with pytest.raises(ValueError, match="one image layer and one labels layer"):
-        write_dataset(str(tmp_path / "other"), layers[:1])
-
-
 def test_render_command_writes_calibrated_tiffs(tmp_path):
     from napari_symbac.cli import main
     from napari_symbac.io import napari_get_reader, read_recording

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -39,23 +40,6 @@ def test_widget_docks_and_sample_opens(make_napari_viewer):
         trench_media[20:, centre - 3 : centre + 4] = True  # below the closed-end margin
         trench_media &= mask == 0
         assert frame[mask > 0].mean() < frame[trench_media].mean()
-
-
-def test_save_layers_as_dataset_through_napari(make_napari_viewer, tmp_path):
-    import tifffile
-
-    viewer = make_napari_viewer()
-    viewer.open_sample("napari-symbac", "trench")
-    viewer.layers.selection = set(viewer.layers)
-    written = viewer.layers.save(str(tmp_path / "ds"), selected=True, plugin="napari-symbac")
-    assert written
-    images = sorted((tmp_path / "ds" / "tiff" / "train" / "images").glob("*.tif"))
-    masks = sorted((tmp_path / "ds" / "omnipose" / "train").glob("*_masks.tif"))
-    n_frames = viewer.layers["synthetic trench"].data.shape[0]
-    assert len(images) == len(masks) == n_frames
-    np.testing.assert_array_equal(
-        tifffile.imread(masks[0]), viewer.layers["synthetic trench labels"].data[0]
-    )
 
 
 def test_real_sample_field_opens(make_napari_viewer):
@@ -134,6 +118,27 @@ def test_the_sdist_builds_a_wheel_that_carries_the_manifest(tmp_path, monkeypatc
     copy = tmp_path / "napari.yaml"
     copy.write_bytes(shipped)
     PluginManifest.from_file(copy).validate_imports()
+
+
+def test_napari_saves_an_image_and_labels_as_napari_does(make_napari_viewer, tmp_path):
+    """Found as a user: the plugin's dataset writer (no file extension) came before
+    napari's own folder writer, so with the plugin installed ``viewer.layers.save(folder)``
+    of an image and a labels layer wrote a training dataset (a float image: nothing), and
+    its refusals reached the user as napari's "no writer found". The plugin contributes no
+    writer (datasets come from Export): napari's save stays napari's."""
+    import tifffile
+    from npe2 import PluginManifest
+
+    assert not PluginManifest.from_distribution("napari-symbac").contributions.writers
+    viewer = make_napari_viewer()
+    image = np.linspace(0, 1, 16 * 12, dtype=np.float32).reshape(16, 12)
+    labels = np.zeros((16, 12), np.int32)
+    labels[4:9, 3:8] = 7
+    viewer.add_image(image, name="image")
+    viewer.add_labels(labels, name="labels")
+    written = viewer.layers.save(str(tmp_path / "saved"))
+    assert sorted(Path(p).name for p in written) == ["image.tif", "labels.tif"]
+    np.testing.assert_array_equal(tifffile.imread(tmp_path / "saved" / "labels.tif"), labels)
 
 
 def test_plugin_opens_the_whole_workflow_first():
