@@ -385,15 +385,33 @@ def test_a_grey_imagej_stack_is_frames_though_tifffile_calls_them_channels(tmp_p
 
 def test_focal_planes_beside_frames_are_refused_by_name(tmp_path):
     """A time-lapse of z-stacks: its focal planes are refused, not fitted as frames. An
-    ImageJ stack that is no hyperstack names its pages slices (Z): they stay frames."""
+    ImageJ stack that is no hyperstack (as Fiji saves a stack of images) names its pages
+    slices (Z): they stay frames. A z-stack that OME metadata, an ImageJ hyperstack or
+    tifffile's own record names so is refused too (found as a user: an OME z-stack was
+    read as a time-lapse, which Auto-fit would track through focus)."""
     path = tmp_path / "zstacks.tif"
     _hyperstack(path, "TZCYX", (3, 5, 2, 16, 16))
     with pytest.raises(ValueError, match=r"holds 5 focal planes \(axes TZCYX") as caught:
         read_recording(path, 0)
     assert "Make Substack" in str(caught.value)
     plain = tmp_path / "plain_stack.tif"
-    data = _hyperstack(plain, "ZYX", (5, 16, 16))
-    np.testing.assert_array_equal(read_recording(plain).data, data)
+    data = np.arange(5 * 16 * 16, dtype=np.uint16).reshape(5, 16, 16)
+    tifffile.imwrite(
+        plain, data, description="ImageJ=1.54f\nimages=5\nslices=5\nunit=micron\n",
+        metadata=None, resolution=(1 / 0.08, 1 / 0.08),
+    )  # fmt: skip
+    recording = read_recording(plain)
+    np.testing.assert_array_equal(recording.data, data)
+    assert recording.pixel_size_um == pytest.approx(0.08, rel=1e-4)
+    ome, hyperstack, shaped = (tmp_path / f"{kind}_z.tif" for kind in ("ome", "ij", "shaped"))
+    tifffile.imwrite(ome, data, ome=True, metadata={"axes": "ZYX"})
+    _hyperstack(hyperstack, "ZYX", (5, 16, 16))
+    tifffile.imwrite(shaped, data, metadata={"axes": "ZYX"})
+    for path in (ome, hyperstack, shaped):
+        with pytest.raises(ValueError, match=r"holds 5 focal planes \(axes ZYX"):
+            read_recording(path)
+        with pytest.raises(ValueError, match="focal planes"):
+            napari_get_reader(str(path))(str(path))
 
 
 def test_the_reader_opens_a_layer_per_channel(tmp_path):

@@ -354,7 +354,14 @@ def _series_axes(tif) -> str:
     axes unsaid, as channels, and as channels when one is asked for (found as a user: a
     2-channel ImageJ TIFF was read as 2 frames, and ``--channel 1`` was refused)."""
     axes = tif.series[0].axes
-    if "C" in axes and tif.is_imagej and not tif.is_ome:
+    plain_imagej = tif.is_imagej and not tif.is_ome
+    if "Z" in axes and plain_imagej and not (tif.imagej_metadata or {}).get("hyperstack"):
+        # an ImageJ stack that is no hyperstack records its pages as slices (Z), a time
+        # series as often as a z-stack: they are the frames unless frames are named too;
+        # a Z that OME, a hyperstack or tifffile's own record names is focal planes
+        # (found as a user: an OME z-stack was read as a time-lapse)
+        axes = axes if any(a in axes for a in _FRAME_AXES) else axes.replace("Z", "Q")
+    if "C" in axes and plain_imagej:
         mode = (tif.imagej_metadata or {}).get("mode")
         if mode not in ("composite", "color"):
             axes = axes.replace("C", _FRAMES_OR_CHANNELS)
@@ -368,11 +375,8 @@ def _one_channel(
     ``([frames,] Y, X)`` or colour ``(..., S)``: channel ``channel`` of a channel axis,
     other axes of several planes refused by name (focal planes beside frames)."""
     shape = tuple(int(n) for n in data.shape)
-    # an ImageJ stack that is no hyperstack records its pages as slices (Z), a time
-    # series as often as a z-stack: they are the frames unless frames are named too
-    frame_axes = _FRAME_AXES if any(a in axes for a in _FRAME_AXES) else _FRAME_AXES + "Z"
     for axis in axes:
-        if axis not in frame_axes + "CYXS":
+        if axis not in _FRAME_AXES + "CYXS":
             what = _AXIS_WORDS.get(axis, f"planes along its axis {axis}")
             raise ValueError(
                 f"{name} holds {shape[axes.index(axis)]} {what} (axes {axes}, shape {shape}): "
