@@ -155,8 +155,6 @@ def _check_inputs(
 
 def run_calibrate(args: argparse.Namespace) -> int:
     """Run ``napari-symbac calibrate`` with parsed arguments; returns the exit code."""
-    import tifffile
-
     from napari_symbac._cli_fit import check_stain_flags, in_read_units
     from napari_symbac.calibrate import (
         calibrate,
@@ -167,7 +165,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     )
     from napari_symbac.diagnose.config import load_microscope_file
     from napari_symbac.export import export_dataset
-    from napari_symbac.export.atomic import staging_folder
+    from napari_symbac.export.atomic import staging_folder, write_tiff
     from napari_symbac.fit.preflight import (
         modality_doubt,
         not_integer_masks,
@@ -313,7 +311,13 @@ def run_calibrate(args: argparse.Namespace) -> int:
         (staging / "report.txt").write_text(text + "\n", encoding="utf-8")
         _write_png(staging / "report.png", picture)
         save_settings(settings, staging / "export_settings.yaml")
-        tifffile.imwrite(staging / "masks.tif", calibration.masks.astype(np.uint16))
+        masks = calibration.masks
+        write_tiff(  # with the pixel size calibrated at (found as a user: none recorded)
+            staging / "masks.tif",
+            masks.astype(np.uint16 if masks.max() <= np.iinfo(np.uint16).max else np.uint32),
+            pixel_size_um=calibration.settings.microscope.pixel_size_um,
+            kind="labels",
+        )
         out.mkdir(parents=True, exist_ok=True)
         for entry in sorted(staging.iterdir()):
             os.replace(entry, out / entry.name)

@@ -39,6 +39,12 @@ def test_calibrate_writes_a_matched_dataset_and_report(colicoords_files, capsys)
     assert {p.name for p in out.iterdir()} == {
         "dataset", "report.txt", "report.png", "export_settings.yaml", "masks.tif"
     }
+    # masks.tif opens as labels at the pixel size calibrated at (found as a user: none)
+    from napari_symbac.io import read_recording
+
+    masks = read_recording(out / "masks.tif")
+    assert masks.kind == "labels"
+    assert masks.pixel_size_um == pytest.approx(0.08, rel=1e-6)
     manifest = json.loads((out / "dataset" / "manifest.json").read_text())
     assert manifest["status"] == "complete"
     assert len(manifest["items"]) == 3
