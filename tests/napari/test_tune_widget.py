@@ -194,16 +194,28 @@ def test_auto_fit_of_a_phase_colony_says_what_the_linear_kernel_cannot_do(
     rendered, qtbot, real_data_dir
 ):
     """A phase recording of a colony on a pad (a crop of the Omnipose Sample000033,
-    pixel size entered by the user) fitted after an agar-pad simulation: the status
-    and a notification carry the CLI report's note on the colony's halo."""
+    pixel size entered by the user) fitted after an agar-pad simulation, drawn as
+    Simulate draws a phase pad (the partially coherent model): the scene fit's linear
+    kernel is fitted (found as a user: Auto-fit was refused, naming parameters no
+    control sets), and the status and a notification carry the CLI report's note on the
+    colony's halo."""
+    import dataclasses
 
     from napari.utils.notifications import notification_manager
 
+    from napari_symbac.fit.colony import colony_phase_render
     from napari_symbac.fit.report import OPEN_PHASE_NOTE
     from napari_symbac.io import read_image
 
     viewer, tune = rendered
     _as_agar_pad(tune)
+    metadata = tune.source.value.metadata[SYMBAC_METADATA_KEY]
+    settings = metadata["settings"]
+    drawn = colony_phase_render(settings.render, settings.microscope)
+    assert drawn.phase_model == "partially_coherent"
+    metadata["settings"] = dataclasses.replace(settings, render=drawn)
+    tune._load_source()
+    assert tune.preview.render_settings.phase_model == "partially_coherent"
     colony = read_image(real_data_dir / "omnipose" / "Sample000033.png").data[100:164, 150:214]
     real = viewer.add_image(
         colony.astype(np.float32),
@@ -219,6 +231,7 @@ def test_auto_fit_of_a_phase_colony_says_what_the_linear_kernel_cannot_do(
     qtbot.waitUntil(lambda: tune.fit_worker is None, timeout=300_000)
     assert tune.fit_result is not None, tune.status.value
     assert tune.fit_result.trench is None  # fitted as an open field
+    assert tune.fit_result.render.phase_model == "linear"
     assert f"Note: {OPEN_PHASE_NOTE}" in tune.status.value
     assert any(OPEN_PHASE_NOTE in str(n.message) for n in seen)
 

@@ -782,6 +782,14 @@ class TuneWidget(Container):
             is_dense_colony(m, microscope.modality) for m in frames_masks
         )  # a time-lapse: once any frame is a colony, every frame is drawn alike (as the CLI)
         self._fit_notes = fit_notes(microscope.modality, geometry, colony=colony)
+        if not colony and (render.phase_separate or render.phase_model != "linear"):
+            # the scene fit's one linear kernel, whatever drew the layer (found as a
+            # user: Simulate draws a phase pad with the colony's partially coherent
+            # model, and Auto-fit without masks was refused, naming parameters no
+            # control of the dock sets)
+            render = dataclasses.replace(
+                render, phase_model="linear", cell_phase_adu=None, device_phase_adu=None
+            )
         options = {}
         stain_boxes = [b for b in (self.fit_envelope_stain, self.fit_depth) if b.value]
         if stain_boxes and microscope.modality != "fluorescence":
