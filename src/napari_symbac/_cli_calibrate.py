@@ -85,17 +85,23 @@ def _refuse_a_trench(
     refused with the commands that match one (found as a user: DeLTA's trench became a
     2 x 17 um pad, and 3 of 4 images held no cell). The commands name the user's own
     ``microscope`` file (they named a placeholder, M.yaml)."""
-    from napari_symbac.fit.preflight import default_geometry
+    from napari_symbac.fit.preflight import default_geometry, lying_trench_problem
 
-    if default_geometry(image.shape, modality) == "trench":
-        name = Path(path).name
+    name = Path(path).name
+    lying = lying_trench_problem(image.shape, modality, f"IMAGE {name}")
+    if lying or default_geometry(image.shape, modality) == "trench":
         given = "" if microscope is None else f" --microscope {microscope}"
+        shape = (
+            f"{lying}; and calibrate does not lay out a trench"
+            if lying
+            else f"IMAGE {name} is {image.shape[-2]} x {image.shape[-1]} px (rows x "
+            "columns), narrow and tall: a mother-machine trench, which calibrate does not "
+            "lay out"
+        )
         raise ValueError(
-            f"IMAGE {name} is {image.shape[-2]} x {image.shape[-1]} px (rows x columns), "
-            "narrow and tall: a mother-machine trench, which "
-            "calibrate does not lay out (it matches fields: agar pads and colonies). Fit the "
-            f"trench and export from its settings: `napari-symbac fit {path}{given} --out "
-            "FIT`, then `napari-symbac export --config FIT/settings.yaml --out DATASET`"
+            f"{shape} (it matches fields: agar pads and colonies). Fit the trench and export "
+            f"from its settings: `napari-symbac fit {path}{given} --out FIT`, then "
+            "`napari-symbac export --config FIT/settings.yaml --out DATASET`"
         )
 
 

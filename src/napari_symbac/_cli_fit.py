@@ -121,8 +121,13 @@ def _given_trench(keys: dict[str, Any]) -> dict[str, Any]:
 
 
 def _closed_end_said(result, options: dict[str, Any]) -> str:
-    """The fitted trench's closed end, and who chose it."""
-    end = result.trench.closed_end
+    """The fitted trench's closed end, and who chose it; none in view when it lies above
+    the image, round end and all (found as a user: a crop below the closed end said
+    "square, chosen by the fit")."""
+    trench = result.trench
+    if trench.top_um + trench.width_um / 2 <= 0:
+        return "above the image, not in view"
+    end = trench.closed_end
     return f"{end}, from --config" if "closed_end" in options else f"{end}, chosen by the fit"
 
 
@@ -1021,6 +1026,7 @@ def run_fit(args: argparse.Namespace) -> int:
         camera_pixel_problem,
         check_fit_image,
         default_geometry,
+        lying_trench_problem,
         refuse_constant,
         resolve_pixel_size,
     )
@@ -1075,6 +1081,10 @@ def run_fit(args: argparse.Namespace) -> int:
             print(f"napari-symbac fit: note: {note}", file=sys.stderr)
         if problem := camera_pixel_problem(microscope):  # before the fit, not after it
             print(f"napari-symbac fit: warning: {problem}", file=sys.stderr)
+        if args.geometry != "field" and (
+            problem := lying_trench_problem(stack.shape, microscope.modality, Path(args.image).name)
+        ):
+            raise ValueError(f"{problem}; or pass --geometry field for an open field")
         if args.geometry is None:
             configured = (keys.get("simulation", {}) or {}).get("geometry")
             args.geometry = default_geometry(stack.shape, microscope.modality, configured)

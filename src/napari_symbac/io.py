@@ -27,6 +27,7 @@ __all__ = [
     "napari_get_reader",
     "read_image",
     "read_recording",
+    "tiff_axes_and_pixel_size",
 ]
 
 #: A floating-point image of fractional values spanning at most this much holds
@@ -401,6 +402,22 @@ def _one_channel(
     if not 0 <= channel < n_channels:
         raise ValueError(f"channel {channel}: {name} has channels 0..{n_channels - 1}")
     return np.take(data, channel, axis=axes.index("C"))
+
+
+def tiff_axes_and_pixel_size(path: str | Path | None) -> tuple[str, float | None] | None:
+    """The axes of a TIFF's first series (``C`` only where the file says channels, as
+    :func:`read_recording` reads them) and the pixel size it records (um, or ``None``),
+    read from its metadata alone; ``None`` for no path or a file that is no readable TIFF.
+    For a layer another reader opened (napari's own keeps neither)."""
+    import tifffile
+
+    if path is None or _file_kind(Path(path)) != "tiff":
+        return None
+    try:
+        with tifffile.TiffFile(path) as tif:
+            return _series_axes(tif), _pixel_size_um(tif)
+    except (OSError, ValueError, IndexError, tifffile.TiffFileError):
+        return None
 
 
 def read_recording(path: str | Path, channel: int | None = None) -> Recording:

@@ -350,6 +350,17 @@ def test_calibrate_refuses_a_trench_and_names_fit_and_export(real_data_dir, tmp_
     # the user's own files in the command to copy (was a placeholder, M.yaml)
     assert f"`napari-symbac fit {image} --microscope {tmp_path / 'm.yaml'} --out FIT`" in err
     assert not out.exists()
+    # on its side (found as a user: laid out as a pad, a dataset of empty frames, exit 0)
+    lying = tmp_path / "lying.tif"
+    tifffile.imwrite(lying, np.rot90(tifffile.imread(image)).copy())
+    code = main(["calibrate", str(lying), "--microscope", str(tmp_path / "m.yaml"),
+                 "--out", str(out)])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "IMAGE lying.tif is 32 x 256 px (rows x columns), wide and short" in err
+    assert "rotate it by 90 degrees" in err
+    assert "napari-symbac export --config FIT/settings.yaml" in err
+    assert not out.exists()
 
 
 def test_calibrate_of_a_colony_without_masks_asks_for_them(real_data_dir, tmp_path, capsys):

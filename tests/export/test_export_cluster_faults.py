@@ -19,6 +19,7 @@ import cloudpickle
 import pytest
 from _export_synthetic import SyntheticSource, tree_digest
 
+from napari_symbac.cli import main
 from napari_symbac.export import ExportError, run_export
 from napari_symbac.export import runner as export_runner
 from napari_symbac.export.atomic import EXPORT_RESUMES
@@ -82,6 +83,82 @@ def test_a_killed_worker_is_one_error_that_says_to_resume(tmp_path, by_value):
     assert report.complete
     assert report.n_skipped >= 2
     assert tree_digest(out) == tree_digest(reference)
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def test_a_scheduler_killed_mid_export_is_one_line_not_dasks_traceback(tmp_path):
+    """A user's `dask scheduler` process killed while the export runs: the export's one
+    error, and nothing of dask's on stderr (found as a user: 34 lines, two tracebacks of
+    the client's reconnection attempts, came first)."""
+    import subprocess
+    import sys
+
+    address = f"tcp://127.0.0.1:{_free_port()}"
+    dask = [sys.executable, "-m", "distributed.cli"]
+    scheduler = subprocess.Popen(
+        [*dask[:2], "distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port",
+         address.rsplit(":", 1)[1], "--dashboard-address", "127.0.0.1:0"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    worker = None
+    try:
+        from distributed import Client
+
+        worker = subprocess.Popen(
+            [*dask[:2], "distributed.cli.dask_worker", address, "--nworkers", "1",
+             "--nthreads", "1"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=tmp_path,
+        )  # fmt: skip
+        deadline = time.monotonic() + 60
+        while True:  # the scheduler up and its worker registered
+            try:
+                with Client(address, timeout=5, set_as_default=False) as client:
+                    client.wait_for_workers(1, timeout=max(deadline - time.monotonic(), 1))
+                break
+            except OSError:
+                assert time.monotonic() < deadline, "the dask scheduler did not start"
+                time.sleep(0.5)
+
+        out = tmp_path / "ds"
+
+        def kill_when_items_are_written() -> None:
+            deadline = time.monotonic() + 120
+            while _n_items(out) < 4 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            scheduler.kill()
+
+        killer = threading.Thread(target=kill_when_items_are_written, daemon=True)
+        killer.start()
+        config = tmp_path / "export.yaml"
+        assert main(["defaults", "export", "--out", str(config)]) == 0
+        # in a process of its own, as a user runs it: dask's log handlers write to the
+        # stderr of the process that imported distributed (here, pytest's capture)
+        command = subprocess.run(
+            [sys.executable, "-c", "import sys; from napari_symbac.cli import main; "
+             "sys.exit(main())", "export", "--config", str(config), "--n-items", "300",
+             "--formats", "tiff", "--scheduler", address, "--out", str(out)],
+            capture_output=True, text=True, timeout=300,
+        )  # fmt: skip
+        killer.join(30)
+    finally:
+        for process in (worker, scheduler):
+            if process is not None:
+                process.kill()
+                process.wait(30)
+    code, stderr = command.returncode, command.stderr
+    assert code == 2, stderr
+    said = [line for line in stderr.splitlines() if not line.startswith("napari-symbac export: ")]
+    assert not said, stderr
+    assert stderr.splitlines()[-1].startswith(
+        f"napari-symbac export: error: the dask scheduler at {address} lost the export's tasks"
+    )
 
 
 def test_a_scheduler_without_workers_says_to_start_some(tmp_path, by_value):

@@ -1395,3 +1395,53 @@ def test_the_microscope_files_camera_section_is_the_camera(tmp_path, truth, inpu
     report = (out / "report.txt").read_text()
     assert _fact(report, "camera") == f"from the camera section of --microscope {path}"
     assert "2.5 ADU/e-" in _fact(report, "camera used")
+
+
+@pytest.fixture
+def turned_trenches(real_data_dir, tmp_path):
+    """The SyMBac trench as other chips and microscopes show it (ImageJ TIFFs at its
+    0.065 um): on its side, upside down, four side by side, and with its closed end cut
+    off."""
+    trench = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")
+    pdms = np.full((trench.shape[0], 30), int(np.median(trench[:, :5])), trench.dtype)
+    images = {
+        "lying": np.rot90(trench),
+        "upside_down": trench[::-1],
+        "four": np.hstack([trench, pdms, trench[:, ::-1], pdms, trench, pdms, trench]),
+        "no_closed_end": trench[60:],
+    }
+    paths = {}
+    for name, image in images.items():
+        paths[name] = tmp_path / f"{name}.tif"
+        tifffile.imwrite(paths[name], np.ascontiguousarray(image), imagej=True,
+                         resolution=(1 / 0.065, 1 / 0.065), metadata={"unit": "um"})  # fmt: skip
+    return paths
+
+
+def test_a_trench_on_its_side_upside_down_or_beside_others_is_refused_with_the_fix(
+    turned_trenches, tmp_path, capsys
+):
+    """Found as a user: each was fitted, exit 0: the trench on its side as an open field
+    of 1.7 um cells ("check the pixel size"), upside down with its closed end missing (5
+    cells for 4), four side by side with the first fitted and three left in the residual.
+    Each is refused before any fit, saying how to turn or crop it."""
+    def last_line(*args) -> str:
+        return _refused(capsys, tmp_path / "o", *args).strip().splitlines()[-1]
+
+    lying = last_line(turned_trenches["lying"])
+    assert "is 46 x 256 px (rows x columns), wide and short" in lying
+    assert "rotate it by 90 degrees" in lying
+    assert lying.endswith("or pass --geometry field for an open field")
+    assert "rotate it" in last_line(turned_trenches["lying"], "--geometry", "trench")
+    upside_down = last_line(turned_trenches["upside_down"])
+    assert "the trench's closed end is at the bottom of the image" in upside_down
+    assert "flip the image upside down" in upside_down
+    four = last_line(turned_trenches["four"], "--geometry", "trench")
+    assert "holds 4 trenches side by side (columns 9-32, " in four
+    assert "crop each trench" in four
+    # cut below its closed end, the trench is fitted, and no closed end is claimed
+    out = tmp_path / "cut"
+    assert _fit(turned_trenches["no_closed_end"], "--out", out) == 0
+    report = (out / "report.txt").read_text()
+    assert "closed end: above the image" in report
+    assert "chosen by the fit" not in report

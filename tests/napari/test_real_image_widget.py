@@ -780,3 +780,34 @@ def test_a_normalised_image_opened_by_napari_is_said_unfittable_as_it_is_chosen(
     widget.file.value = path
     assert RECORDING_DOUBT not in widget.result.value
     assert "read as" in widget.result.value
+
+
+def test_a_file_napari_opened_gives_the_pixel_size_it_records(
+    make_napari_viewer, real_data_dir, tmp_path
+):
+    """Found as a user: a TIFF recording 65 nm pixels (OME), opened with napari's own
+    reader (which keeps no pixel size), was said to come from a file that "does not
+    record one"; the dock reads it from the file and enters it, placing the layer in
+    micrometres. A phase + fluorescence file napari opened as one stack is warned of
+    (it was fitted as a time-lapse of 2 frames)."""
+    trench = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")
+    path = tmp_path / "ome_nm.ome.tif"
+    tifffile.imwrite(path, trench, metadata={"axes": "YX", "PhysicalSizeX": 65,
+                                             "PhysicalSizeXUnit": "nm"})  # fmt: skip
+    viewer = make_napari_viewer()
+    widget = RealImageWidget(viewer)
+    layer = viewer.open(path, plugin="napari")[0]
+    assert widget.image.value is layer
+    assert widget.pixel_size.value == pytest.approx(0.065)
+    assert "pixel size 0.065 um read from its file" in widget.result.value
+    assert layer.metadata["pixel_size_um"] == pytest.approx(0.065)
+    assert tuple(layer.scale[-2:]) == pytest.approx((0.065, 0.065))
+    assert not widget.warning.visible or "no pixel size" not in widget.warning.value
+    channels = tmp_path / "phase_gfp.tif"
+    tifffile.imwrite(channels, np.stack([trench, trench[::-1]]), imagej=True,
+                     resolution=(1 / 0.065, 1 / 0.065),
+                     metadata={"axes": "CYX", "unit": "um", "mode": "composite"})  # fmt: skip
+    stack = viewer.open(channels, plugin="napari")[0]
+    widget.image.value = stack
+    assert "its file holds channels (axes CYX)" in widget.result.value
+    assert "napari-symbac reader, which adds a layer per channel" in widget.result.value

@@ -1162,3 +1162,21 @@ def test_auto_fit_refuses_a_real_image_without_a_pixel_size(rendered, real_data_
     assert tune.status.value.endswith("then fit it")
     assert tune.fit_result is None
 
+
+
+def test_auto_fit_refuses_a_trench_on_its_side(rendered, real_data_dir):
+    """Found as a user: the SyMBac trench turned by 90 degrees (46 x 256 px) was laid out
+    as a pad and fitted as an open field; Auto-fit now says to turn it upright."""
+    import tifffile
+
+    viewer, tune = rendered
+    trench = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")
+    real = viewer.add_image(
+        np.rot90(trench), name="lying", scale=(0.065, 0.065),
+        metadata={"pixel_size_um": 0.065, "modality": "phase"},
+    )  # fmt: skip
+    tune.reference.value = real
+    tune.fit_button.native.click()
+    assert tune.fit_worker is None
+    assert tune.status.value.startswith("lying is 46 x 256 px (rows x columns), wide and short")
+    assert "rotate it by 90 degrees" in tune.status.value

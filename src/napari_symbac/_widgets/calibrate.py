@@ -225,6 +225,7 @@ class CalibrateWidget(Container):
             check_instance_masks,
             check_modality,
             default_geometry,
+            lying_trench_problem,
         )
         from napari_symbac.settings import Microscope
 
@@ -284,12 +285,17 @@ class CalibrateWidget(Container):
                 f"'{ticked[0]}' is fitted in fluorescence; {layer.name} is "
                 f"{microscope.modality}: untick it"
             )
-        if default_geometry(frame.shape, microscope.modality) == "trench":
+        lying = lying_trench_problem(frame.shape, microscope.modality, layer.name)
+        if lying or default_geometry(frame.shape, microscope.modality) == "trench":
+            shape = (
+                f"{lying}; and Calibrate does not lay out a trench"
+                if lying
+                else f"{layer.name} is {frame.shape[0]} x {frame.shape[1]} px, narrow and "
+                "tall: a mother-machine trench, which Calibrate does not lay out"
+            )
             raise ValueError(
-                f"{layer.name} is {frame.shape[0]} x {frame.shape[1]} px, narrow and tall: a "
-                "mother-machine trench, which Calibrate does not lay out (it matches fields: "
-                "agar pads and colonies). Fit the trench with Auto-fit (3 Tune + fit), then "
-                "Export from the fitted layer"
+                f"{shape} (it matches fields: agar pads and colonies). Fit the trench with "
+                "Auto-fit (3 Tune + fit), then Export from the fitted layer"
             )
         enter_for = microscope if width is not None and problem is not None else None
         return frame, masks, microscope, width, note, enter_for

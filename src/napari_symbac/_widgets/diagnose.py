@@ -303,8 +303,10 @@ class DiagnoseWidget(Container):
             render = RenderSettings()
         camera = given_camera(layer)  # None: measured by the base fit
         # as the CLI: a narrow phase field is a trench; fluorescence shows no walls
-        from napari_symbac.fit.preflight import default_geometry
+        from napari_symbac.fit.preflight import default_geometry, lying_trench_problem
 
+        if problem := lying_trench_problem(frame.shape, microscope.modality, layer.name):
+            raise ValueError(problem)
         named = default_geometry(frame.shape, microscope.modality)
         geometry = "open" if named == "field" else named
         return frame, labels, masks, microscope, render, camera, geometry, region

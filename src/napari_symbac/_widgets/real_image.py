@@ -321,6 +321,8 @@ class RealImageWidget(Container):
         pixel = meta.get("pixel_size_um")
         if not pixel:  # a layer already scaled by its reader
             pixel = scale_pixel_um(layer)
+        if "pixel_size_um" not in meta:  # opened by another reader: what its file says
+            pixel = self._read_from_file(layer, pixel)
         self._loading = True
         try:
             if isinstance(meta.get("microscope"), Microscope):
@@ -340,6 +342,34 @@ class RealImageWidget(Container):
             self._loading = False
         self._show_camera()
         self._store()
+
+    def _read_from_file(self, layer, pixel: float | None) -> float | None:
+        """For a layer another reader opened (napari's own keeps no pixel size and reads
+        a TIFF's channels as one stack): the pixel size its file records when the layer
+        has none, said, and a file of several channels warned of. Found as a user: such
+        layers were said to come from files that "do not record" a pixel size, and a
+        phase + fluorescence file was fitted as a time-lapse of 2 frames."""
+        from napari_symbac.io import tiff_axes_and_pixel_size
+
+        facts = tiff_axes_and_pixel_size(_source_path(layer))
+        if facts is None:
+            return pixel
+        axes, recorded = facts
+        said = [self.result.value] if self.result.value else []
+        if "C" in axes:
+            said.append(
+                f"{RECORDING_DOUBT} {layer.name}: its file holds channels (axes {axes}), "
+                "which napari's reader opened as one stack, frames to the steps: open it "
+                "with File > Open and the napari-symbac reader, which adds a layer per channel"
+            )
+        elif not pixel and recorded and not pixel_size_problem(recorded):
+            pixel = recorded
+            said.append(
+                f"{layer.name}: pixel size {recorded:.4g} um read from its file (the reader "
+                "that opened it does not read it)"
+            )
+        self.result.value = "<br>".join(said)
+        return pixel
 
     def _show_entered(self, event=None) -> None:
         """Show a pixel size entered elsewhere for the layer shown (Calibrate's, derived

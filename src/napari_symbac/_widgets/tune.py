@@ -907,7 +907,11 @@ class TuneWidget(Container):
                 f"'all frames jointly' fits a time-lapse, but the real image '{reference.name}' "
                 "is a single frame: untick it to fit this frame"
             )
-        from napari_symbac.fit.preflight import check_instance_masks, check_modality
+        from napari_symbac.fit.preflight import (
+            check_instance_masks,
+            check_modality,
+            lying_trench_problem,
+        )
 
         pick = self._frames_of if all_frames else self._frame_of
         real = real if all_frames else self._frame_of(real)  # a time-lapse: checked above
@@ -938,6 +942,8 @@ class TuneWidget(Container):
 
         check_modality(first(real), microscope.modality, labels=first(labels),
                        masks=first(masks), advice=GUI_MODALITY_ADVICE)  # fmt: skip
+        if problem := lying_trench_problem(real.shape, microscope.modality, reference.name):
+            raise ValueError(problem)
         # In fluorescence the device is as dark as the media: no wall to place, so the
         # cells are fitted as in an open field.
         walled = settings.simulation.geometry in ("trench", "chamber")

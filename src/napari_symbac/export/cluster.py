@@ -14,6 +14,7 @@ import multiprocessing
 import os
 import signal
 import threading
+from collections.abc import Iterator
 from typing import Any
 
 from napari_symbac.export.atomic import ExportError
@@ -114,6 +115,20 @@ def local_cluster(workers: int):
     return cluster
 
 
+@contextlib.contextmanager
+def silenced(*names: str) -> Iterator[None]:
+    """The loggers ``names`` silenced for the block (their levels restored after)."""
+    loggers = [logging.getLogger(name) for name in names]
+    levels = [logger.level for logger in loggers]
+    for logger in loggers:
+        logger.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        for logger, level in zip(loggers, levels):
+            logger.setLevel(level)
+
+
 def close_quietly(client: Any | None, cluster: Any | None) -> None:
     """Close a client (and its local cluster) without the workers' shutdown chatter.
 
@@ -121,20 +136,13 @@ def close_quietly(client: Any | None, cluster: Any | None) -> None:
     ``KeyboardInterrupt`` / ``CancelledError`` logs would bury the one line the
     command prints, so dask's loggers are silenced while everything shuts down.
     """
-    loggers = [logging.getLogger(name) for name in ("distributed", "tornado", "asyncio")]
-    levels = [logger.level for logger in loggers]
-    for logger in loggers:
-        logger.setLevel(logging.CRITICAL + 1)
-    try:
+    with silenced("distributed", "tornado", "asyncio"):
         if client is not None:
             with contextlib.suppress(Exception):
                 client.close(timeout=10)
         if cluster is not None:
             with contextlib.suppress(Exception):
                 cluster.close(timeout=10)
-    finally:
-        for logger, level in zip(loggers, levels):
-            logger.setLevel(level)
 
 
 #: Seconds to wait for a ``scheduler`` address to answer before giving up.
@@ -154,16 +162,12 @@ def connect_scheduler(address: str, timeout_s: float | None = None) -> Any:
 
     timeout_s = SCHEDULER_TIMEOUT_S if timeout_s is None else timeout_s
     check_scheduler_address(address)
-    quiet = logging.getLogger("distributed")
-    level = quiet.level
-    quiet.setLevel(logging.CRITICAL + 1)
     try:
-        _identify_scheduler(address, timeout_s)
-        return Client(address, timeout=timeout_s, set_as_default=False)
+        with silenced("distributed"):
+            _identify_scheduler(address, timeout_s)
+            return Client(address, timeout=timeout_s, set_as_default=False)
     except (OSError, TimeoutError, ValueError) as err:
         raise _no_scheduler(address, timeout_s, err) from err
-    finally:
-        quiet.setLevel(level)
 
 
 def _no_scheduler(address: str, timeout_s: float, why: object) -> ExportError:

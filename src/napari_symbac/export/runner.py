@@ -31,6 +31,7 @@ from napari_symbac.export.cluster import (
     close_quietly,
     connect_scheduler,
     local_cluster,
+    silenced,
     start_workers_ignoring_interrupts,
 )
 from napari_symbac.export.formats import FormatWriter, get_writer
@@ -441,7 +442,7 @@ def _cluster_failure(err: BaseException, where: str, out_dir: Path) -> ExportErr
     """
     import napari_symbac
 
-    text = str(err) or type(err).__name__
+    text = " ".join(str(err).split()) or type(err).__name__  # dask's text, on one line
     kept = f"run the same command again: {EXPORT_RESUMES}"
     if "No valid workers" in text:
         return ExportError(
@@ -550,11 +551,17 @@ def run_export(
     client = None if scheduler is None else connect_scheduler(scheduler)
     existed = out.exists()
     new = not existed or not any(out.iterdir())
+    # a user's scheduler lost mid-export: the client logs its reconnection attempts,
+    # tracebacks and all, while the export's own error says what happened and what to do
+    # (found as a user: 34 lines of dask's before the one line); errors of the tasks
+    # reach the export as exceptions, not through this log
+    quiet = silenced("distributed.client") if client is not None else contextlib.nullcontext()
     try:
-        return _run_export(
-            source, out, formats, writers, options, n_workers, client, progress, cancel,
-            batch_size, overlap_start, start,
-        )
+        with quiet:
+            return _run_export(
+                source, out, formats, writers, options, n_workers, client, progress, cancel,
+                batch_size, overlap_start, start,
+            )
     except ExportError as err:
         if err.errno is None:  # not the disk's (a cluster's, a setting's): say it as it is
             if new:

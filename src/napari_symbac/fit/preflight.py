@@ -576,6 +576,25 @@ def default_geometry(
     return "trench" if narrow else "field"
 
 
+def lying_trench_problem(shape_px: tuple[int, ...], modality: str, name: str) -> str | None:
+    """What to do with a frame shaped like a trench on its side (at most
+    :data:`TRENCH_MAX_WIDTH_PX` tall and :data:`TRENCH_MIN_ASPECT` times as wide), in
+    phase contrast or bright field; ``None`` for any other frame. Found as a user: a
+    46 x 256 px trench (the chip mounted turned by 90 degrees) was fitted as an open
+    field of 1.7 um cells, exit 0, and calibrated into a dataset of empty frames."""
+    height_px, width_px = shape_px[-2:]
+    if modality == "fluorescence" or not (
+        height_px <= TRENCH_MAX_WIDTH_PX and width_px >= TRENCH_MIN_ASPECT * height_px
+    ):
+        return None
+    return (
+        f"{name} is {height_px} x {width_px} px (rows x columns), wide and short: a "
+        "mother-machine trench lying on its side, which is fitted and simulated upright: "
+        "rotate it by 90 degrees (numpy.rot90; Fiji: Image > Transform > Rotate 90 Degrees "
+        "Left or Right) so that the trench runs from top to bottom, its closed end up"
+    )
+
+
 #: Pixel sizes (um, in the sample plane) of real bacterial micrographs: 20 nm (super-
 #: resolution camera pixels at 250x) to 1 um (a 10x objective); beyond, cells are not
 #: resolved.
