@@ -212,6 +212,44 @@ def test_an_interrupted_export_leaves_no_worker_writing(tmp_path, by_value):
     assert report.complete
 
 
+def test_workers_that_do_not_see_the_output_folder_are_named_before_any_item(
+    tmp_path, by_value, monkeypatch
+):
+    """Found as a user: a worker without the shared folder computed every item (200 of
+    200) before the export said it could not see them. The workers are asked first
+    whether they see a file written in the folder; one that does not (the fault
+    injected into its answer) is named, and nothing is computed or left behind."""
+    real_connect = export_runner.connect_scheduler
+
+    def connect_to_one_blind_worker(address):
+        client = real_connect(address)
+        real_run = client.run
+
+        def run(function, *args, **kwargs):
+            answers = real_run(function, *args, **kwargs)
+            if function is os.path.isfile:
+                first = sorted(answers)[0]
+                answers[first] = False  # as a worker on a machine without the share
+            return answers
+
+        client.run = run
+        return client
+
+    monkeypatch.setattr(export_runner, "connect_scheduler", connect_to_one_blind_worker)
+    out = tmp_path / "ds"
+    with _user_cluster(2) as cluster:
+        with pytest.raises(ExportError) as raised:
+            run_export(SyntheticSource(20, delay_s=0.2), out, ["tiff"],
+                       scheduler=cluster.scheduler_address)  # fmt: skip
+        first = sorted(cluster.scheduler_info["workers"])[0]
+    said = str(raised.value)
+    where = f"the dask scheduler at {cluster.scheduler_address}"
+    assert said.startswith(f"1 of the 2 workers of {where}")
+    assert f"do not see the output folder {out} ({first})" in said
+    assert "nothing was computed" in said
+    assert not out.exists()
+
+
 def test_items_the_workers_wrote_where_this_machine_cannot_see_them(tmp_path, monkeypatch):
     """Workers that write the items on their own disks (the output folder not shared):
     said so, with the fix, instead of "run it again" that then failed the same way."""
