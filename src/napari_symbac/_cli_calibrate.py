@@ -76,21 +76,28 @@ def _settings_notes(notes: tuple[str, ...], mapping: CountsMapping | None) -> li
     return [*marked, counts_units_note(mapping)]
 
 
-def _refuse_a_trench(
-    image: np.ndarray, modality: str, path: str, microscope: str | None
-) -> None:
+def _refuse_a_trench(image: np.ndarray, modality: str, path: str, args: argparse.Namespace) -> None:
     """calibrate lays a field out as an agar pad; a mother-machine trench (a phase image
     at most :data:`~napari_symbac.fit.preflight.TRENCH_MAX_WIDTH_PX` wide and twice as
     tall, the fit's own rule, :func:`~napari_symbac.fit.preflight.default_geometry`) is
     refused with the commands that match one (found as a user: DeLTA's trench became a
-    2 x 17 um pad, and 3 of 4 images held no cell). The commands name the user's own
-    ``microscope`` file (they named a placeholder, M.yaml)."""
+    2 x 17 um pad, and 3 of 4 images held no cell). The commands carry the user's own
+    ``--microscope``, ``--pixel-size-um`` and ``--modality`` (they named a placeholder,
+    M.yaml, and left out a pixel size given, so that the fit then refused)."""
     from napari_symbac.fit.preflight import default_geometry, lying_trench_problem
 
     name = Path(path).name
     lying = lying_trench_problem(image.shape, modality, f"IMAGE {name}")
     if lying or default_geometry(image.shape, modality) == "trench":
-        given = "" if microscope is None else f" --microscope {microscope}"
+        given = "".join(
+            f" {flag} {value}"
+            for flag, value in (
+                ("--microscope", args.microscope),
+                ("--pixel-size-um", args.pixel_size_um),
+                ("--modality", args.modality),
+            )
+            if value is not None
+        )
         shape = (
             f"{lying}; and calibrate does not lay out a trench"
             if lying
@@ -248,7 +255,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
                 "median cell width (W um: 1.0 for E. coli)",
             )
         modality = args.modality or recording.modality or microscope.modality
-        _refuse_a_trench(image, modality, args.image, args.microscope)
+        _refuse_a_trench(image, modality, args.image, args)
     # found as a user: unknown keys ignored unsaid
     file_notes = list(microscope_file.notes_for(modality))
     if microscope_file.frame_interval_s is not None:

@@ -120,6 +120,10 @@ def _given_trench(keys: dict[str, Any]) -> dict[str, Any]:
     return trench if isinstance(trench, dict) else {}
 
 
+#: Frames larger than this (pixels) are announced as slow before the fit (``fit``).
+LARGE_FRAME_PX = 2 * 512**2
+
+
 def _closed_end_said(result, options: dict[str, Any]) -> str:
     """The fitted trench's closed end, and who chose it; none in view when it lies above
     the image, round end and all (found as a user: a crop below the closed end said
@@ -1088,6 +1092,14 @@ def run_fit(args: argparse.Namespace) -> int:
         if args.geometry is None:
             configured = (keys.get("simulation", {}) or {}).get("geometry")
             args.geometry = default_geometry(stack.shape, microscope.modality, configured)
+        if (pixels := stack.shape[-2] * stack.shape[-1]) > LARGE_FRAME_PX:
+            print(  # found as a user: a 2048 x 2048 field ran past 15 min, unannounced
+                f"napari-symbac fit: note: a frame of {stack.shape[-2]} x {stack.shape[-1]} "
+                f"px, {pixels / 512**2:.0f} times a 512 x 512 field (2-3 min on 2 cores with "
+                "100 cells, docs/fitting.md): the fit takes about that many times as long "
+                "or more, and GBs of memory; a crop of the region of interest fits faster",
+                file=sys.stderr,
+            )
         elif args.geometry == "trench" and microscope.modality == "fluorescence":
             raise ValueError(
                 "a fluorescence image shows no trench walls to find (the PDMS is as dark as "

@@ -361,6 +361,13 @@ def test_calibrate_refuses_a_trench_and_names_fit_and_export(real_data_dir, tmp_
     assert "rotate it by 90 degrees" in err
     assert "napari-symbac export --config FIT/settings.yaml" in err
     assert not out.exists()
+    # the pixel size given is in the command to copy (found as a user: left out, the
+    # fit then refused for want of one)
+    code = main(["calibrate", str(image), "--pixel-size-um", "0.065", "--out", str(out)])
+    assert code == 2
+    assert f"`napari-symbac fit {image} --pixel-size-um 0.065 --out FIT`" in (
+        capsys.readouterr().err
+    )
 
 
 def test_calibrate_of_a_colony_without_masks_asks_for_them(real_data_dir, tmp_path, capsys):

@@ -1445,3 +1445,18 @@ def test_a_trench_on_its_side_upside_down_or_beside_others_is_refused_with_the_f
     report = (out / "report.txt").read_text()
     assert "closed end: above the image" in report
     assert "chosen by the fit" not in report
+
+
+def test_a_large_frame_is_announced_before_the_fit(tmp_path, capsys):
+    """Found as a user: a 2048 x 2048 field ran past 15 minutes with nothing said of what
+    to expect. A frame over twice 512 x 512 pixels is announced, with the way to a faster
+    fit (here a field of noise, refused at its start, after the note)."""
+    image = tmp_path / "big.tif"
+    noise = np.random.default_rng(0).poisson(100, (1024, 1024)).astype(np.uint16)
+    tifffile.imwrite(image, noise)
+    code = _fit(image, "--pixel-size-um", 0.08, "--modality", "fluorescence", "--out",
+                tmp_path / "o")  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "note: a frame of 1024 x 1024 px, 4 times a 512 x 512 field" in err
+    assert "a crop of the region of interest fits faster" in err
