@@ -429,6 +429,23 @@ def test_the_reader_opens_a_layer_per_channel(tmp_path):
         assert meta["scale"] == pytest.approx((0.08, 0.08), rel=1e-4)
 
 
+def test_the_reader_names_channel_layers_as_the_ome_file_does(tmp_path):
+    """Found as a user: an OME-TIFF of channels BF and GFP opened as "channel 0" and
+    "channel 1", leaving the user to guess which was which."""
+    data = np.arange(2 * 16 * 16, dtype=np.uint16).reshape(2, 16, 16)
+    named, unnamed = tmp_path / "named.ome.tif", tmp_path / "unnamed.ome.tif"
+    tifffile.imwrite(named, data, ome=True,
+                     metadata={"axes": "CYX", "Channel": {"Name": ["BF", "GFP"]}})  # fmt: skip
+    tifffile.imwrite(unnamed, data, ome=True, metadata={"axes": "CYX"})
+    layers = napari_get_reader(str(named))(str(named))
+    assert [meta["name"] for _, meta, _ in layers] == ["named.ome BF", "named.ome GFP"]
+    np.testing.assert_array_equal(layers[1][0], data[1])
+    layers = napari_get_reader(str(unnamed))(str(unnamed))
+    assert [meta["name"] for _, meta, _ in layers] == [
+        "unnamed.ome channel 0", "unnamed.ome channel 1"
+    ]  # fmt: skip
+
+
 @pytest.mark.parametrize(
     ("shapes", "advice"),
     [

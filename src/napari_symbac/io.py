@@ -734,10 +734,29 @@ def _read_layers(path) -> list[tuple]:
     try:
         return [_recording_layer(_channel_of(recording, axes, path.name, None))]
     except ChannelsError as err:
+        names = _ome_channel_names(path)
+        if len(names) != err.n_channels:
+            names = [""] * err.n_channels
         return [
-            _recording_layer(_channel_of(recording, axes, path.name, k), f" channel {k}")
+            _recording_layer(
+                _channel_of(recording, axes, path.name, k), f" {names[k] or f'channel {k}'}"
+            )
             for k in range(err.n_channels)
         ]
+
+
+def _ome_channel_names(path: Path) -> list[str]:
+    """The channels' names an OME-TIFF records (``<Channel Name="GFP">``), in order, ''
+    for a channel without one; [] for any other file. Found as a user: an OME file of
+    channels BF and GFP opened as "channel 0" and "channel 1"."""
+    import tifffile
+
+    with tifffile.TiffFile(path) as tif:
+        if not (tif.is_ome and tif.ome_metadata):
+            return []
+        channels = re.findall(r"<Channel\b([^>]*)>", tif.ome_metadata)
+    names = [re.search(r'\bName="([^"]*)"', attributes) for attributes in channels]
+    return [name.group(1).strip() if name else "" for name in names]
 
 
 def _recording_layer(recording: Recording, suffix: str = "") -> tuple:
