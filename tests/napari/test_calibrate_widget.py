@@ -160,6 +160,7 @@ def test_a_stain_in_the_envelope_is_fitted_and_drawn(make_napari_viewer, qtbot, 
     ds2 = real_data_dir / "colicoords" / "test_data" / "ds2"
     image = tifffile.imread(ds2 / "fluorescence" / "00074.tif")[60:220, 352:512]
     viewer, widget = _viewer_with(make_napari_viewer, image)
+    assert not widget.envelope_stain.native.isHidden()  # a fluorescence recording's
     widget.envelope_stain.value = True
     widget.run_button.native.click()
     qtbot.waitUntil(lambda: widget.worker is None, timeout=180_000)
@@ -182,6 +183,12 @@ def test_a_stain_in_the_envelope_is_fitted_and_drawn(make_napari_viewer, qtbot, 
         "Not calibrated: 'stain in the cell envelope (membrane dye)' is fitted in "
         "fluorescence; bright field is brightfield: untick it"
     )
+    assert not widget.envelope_stain.native.isHidden()  # ticked: shown, to untick
+    widget.envelope_stain.value = False
+    widget.recording.value = viewer.layers["field"]
+    widget.recording.value = viewer.layers["bright field"]
+    assert widget.envelope_stain.native.isHidden()
+    assert widget.depth.native.isHidden()
 
 
 def test_cancel_adds_nothing(make_napari_viewer, qtbot, real_data_dir):

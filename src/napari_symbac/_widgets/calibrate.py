@@ -173,9 +173,11 @@ class CalibrateWidget(Container):
         self.run_button.changed.connect(self.run)
         self.cancel_button.changed.connect(self.cancel)
         self.recording.changed.connect(self._choose_masks)
+        self.recording.changed.connect(self._show_stain_boxes)
         self._links = ViewerLinks(self.native)
         watch_recordings(viewer, self._refresh_choices, self._links)
         self._refresh_choices()
+        self._show_stain_boxes()
 
     # -- choices --------------------------------------------------------------------------
 
@@ -198,6 +200,14 @@ class CalibrateWidget(Container):
             self.recording.value = (ready or choices)[-1]
         if getattr(event, "type", "") == "inserted":  # masks opened after the recording
             self._choose_masks(only=event.value)
+
+    def _show_stain_boxes(self, _value=None) -> None:
+        """The stain's boxes for a fluorescence recording only (as Auto-fit's), or while
+        no recording is chosen; a box ticked for another recording is refused by name."""
+        layer = self.recording.value
+        fluorescence = layer is None or layer.metadata.get("modality") in (None, "fluorescence")
+        for box in (self.envelope_stain, self.depth):
+            box.visible = fluorescence or box.value
 
     def _choose_masks(self, _value=None, *, only=None) -> None:
         """With none chosen, the newest labels layer of the recording's frame size with
