@@ -1092,6 +1092,11 @@ def run_fit(args: argparse.Namespace) -> int:
         if args.geometry is None:
             configured = (keys.get("simulation", {}) or {}).get("geometry")
             args.geometry = default_geometry(stack.shape, microscope.modality, configured)
+        elif args.geometry == "trench" and microscope.modality == "fluorescence":
+            raise ValueError(
+                "a fluorescence image shows no trench walls to find (the PDMS is as dark as "
+                "the media): pass --geometry field, which fits the cells as in an open field"
+            )
         if (pixels := stack.shape[-2] * stack.shape[-1]) > LARGE_FRAME_PX:
             print(  # found as a user: a 2048 x 2048 field ran past 15 min, unannounced
                 f"napari-symbac fit: note: a frame of {stack.shape[-2]} x {stack.shape[-1]} "
@@ -1099,11 +1104,6 @@ def run_fit(args: argparse.Namespace) -> int:
                 "100 cells, docs/fitting.md): the fit takes about that many times as long "
                 "or more, and GBs of memory; a crop of the region of interest fits faster",
                 file=sys.stderr,
-            )
-        elif args.geometry == "trench" and microscope.modality == "fluorescence":
-            raise ValueError(
-                "a fluorescence image shows no trench walls to find (the PDMS is as dark as "
-                "the media): pass --geometry field, which fits the cells as in an open field"
             )
         labels = None if args.labels is None else _read_stack(args.labels, "--labels")
         masks = None if args.masks is None else _read_stack(args.masks, "--masks")
