@@ -105,9 +105,16 @@ def _refuse_a_trench(image: np.ndarray, modality: str, path: str, args: argparse
             "columns), narrow and tall: a mother-machine trench, which calibrate does not "
             "lay out"
         )
+        image_path = Path(path)
+        fitted = (  # the turned image (found as a user: the command named this one)
+            image_path.with_name(f"{image_path.stem}_upright{image_path.suffix}")
+            if lying
+            else path
+        )
         raise ValueError(
-            f"{shape} (it matches fields: agar pads and colonies). Fit the trench and export "
-            f"from its settings: `napari-symbac fit {path}{given} --out FIT`, then "
+            f"{shape} (it matches fields: agar pads and colonies). Fit the trench"
+            f"{', turned upright,' if lying else ''} and export from its settings: "
+            f"`napari-symbac fit {fitted}{given} --out FIT`, then "
             "`napari-symbac export --config FIT/settings.yaml --out DATASET`"
         )
 

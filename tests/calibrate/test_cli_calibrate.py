@@ -359,6 +359,8 @@ def test_calibrate_refuses_a_trench_and_names_fit_and_export(real_data_dir, tmp_
     assert code == 2
     assert "IMAGE lying.tif is 32 x 256 px (rows x columns), wide and short" in err
     assert "rotate it by 90 degrees" in err
+    upright = tmp_path / "lying_upright.tif"  # the command names the turned image
+    assert f"turned upright, and export from its settings: `napari-symbac fit {upright} " in err
     assert "napari-symbac export --config FIT/settings.yaml" in err
     assert not out.exists()
     # the pixel size given is in the command to copy (found as a user: left out, the

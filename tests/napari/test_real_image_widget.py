@@ -810,4 +810,5 @@ def test_a_file_napari_opened_gives_the_pixel_size_it_records(
     stack = viewer.open(channels, plugin="napari")[0]
     widget.image.value = stack
     assert "its file holds channels (axes CYX)" in widget.result.value
+    assert widget.pixel_size.value == pytest.approx(0.065)  # read from the file all the same
     assert "napari-symbac reader, which adds a layer per channel" in widget.result.value

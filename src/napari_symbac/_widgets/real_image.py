@@ -362,7 +362,7 @@ class RealImageWidget(Container):
                 "which napari's reader opened as one stack, frames to the steps: open it "
                 "with File > Open and the napari-symbac reader, which adds a layer per channel"
             )
-        elif not pixel and recorded and not pixel_size_problem(recorded):
+        if not pixel and recorded and not pixel_size_problem(recorded):
             pixel = recorded
             said.append(
                 f"{layer.name}: pixel size {recorded:.4g} um read from its file (the reader "
