@@ -812,3 +812,17 @@ def test_a_file_napari_opened_gives_the_pixel_size_it_records(
     assert "its file holds channels (axes CYX)" in widget.result.value
     assert widget.pixel_size.value == pytest.approx(0.065)  # read from the file all the same
     assert "napari-symbac reader, which adds a layer per channel" in widget.result.value
+
+
+def test_two_recording_docks_say_a_missing_pixel_size_once(
+    make_napari_viewer, real_data_dir, notifications
+):
+    """Found as a user: with the workflow dock and the Recording step docked alone, a
+    TIFF without a pixel size gave two identical "no pixel size" toasts. Both docks
+    show the warning; one notification says it."""
+    viewer = make_napari_viewer()
+    first, second = RealImageWidget(viewer), RealImageWidget(viewer)
+    viewer.open(real_data_dir / "ecoli_100x_oil_exponential.tiff", plugin="napari-symbac")
+    for widget in (first, second):
+        assert "no pixel size" in widget.warning.value
+    assert sum("no pixel size" in message for message in notifications) == 1

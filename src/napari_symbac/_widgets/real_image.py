@@ -7,6 +7,7 @@ Headless equivalents: :func:`napari_symbac.io.read_recording` and
 
 from __future__ import annotations
 
+import weakref
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -48,6 +49,11 @@ __all__ = [
 
 #: The start of the dock's warning that the steps will refuse the image as it is.
 RECORDING_DOUBT = "Cannot be fitted as it is:"
+
+#: The warnings last notified of each layer (by the dock's label that shows them), by
+#: any Recording dock: the workflow's tab and the step docked alone say each once
+#: (found as a user: two identical toasts).
+_NOTIFIED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 #: The start of the dock's warning that the image contradicts the modality chosen.
 MODALITY_DOUBT = "Modality doubt:"
 #: How the fits know the recording's camera (the Recording step's *camera* choice).
@@ -655,11 +661,16 @@ class RealImageWidget(Container):
             label.value = ""
             label.visible = False
             self._warned.pop(label.name, None)
+            _NOTIFIED.get(layer, {}).pop(label.name, None)
             return
         label.value = f"<b style='color:#ffb000'>&#9888; {layer.name}: {problem}</b>"
         label.visible = True
-        if label.value != self._warned.get(label.name) and not self._quiet:
-            notify_warning(f"{layer.name}: {problem}")
+        message = f"{layer.name}: {problem}"
+        new_here = label.value != self._warned.get(label.name)
+        notified = _NOTIFIED.setdefault(layer, {})
+        if new_here and not self._quiet and notified.get(label.name) != message:
+            notify_warning(message)
+            notified[label.name] = message
         self._warned[label.name] = label.value
 
     def paint(self) -> None:
