@@ -357,6 +357,17 @@ class _Prepared:
     colony: bool = False  # a phase colony fitted from its masks (fit_colony)
 
 
+def refuse_lying_trench(args: argparse.Namespace, shape: tuple[int, ...], modality: str) -> None:
+    """Refuse (``fit`` and ``diagnose``) a frame shaped like a trench on its side
+    (:func:`~napari_symbac.fit.preflight.lying_trench_problem`) unless ``--geometry
+    field`` says it is an open field."""
+    from napari_symbac.fit.preflight import lying_trench_problem
+
+    problem = lying_trench_problem(shape, modality, Path(args.image).name)
+    if args.geometry != "field" and problem:
+        raise ValueError(f"{problem}; or pass --geometry field for an open field")
+
+
 def check_stain_flags(args, modality: str) -> None:
     """``--envelope-stain`` and ``--depth-layers`` (of ``fit`` and ``calibrate``) refused,
     the flag named, for a recording that is not fluorescence, and slabs out of range."""
@@ -1030,7 +1041,6 @@ def run_fit(args: argparse.Namespace) -> int:
         camera_pixel_problem,
         check_fit_image,
         default_geometry,
-        lying_trench_problem,
         refuse_constant,
         resolve_pixel_size,
     )
@@ -1085,10 +1095,7 @@ def run_fit(args: argparse.Namespace) -> int:
             print(f"napari-symbac fit: note: {note}", file=sys.stderr)
         if problem := camera_pixel_problem(microscope):  # before the fit, not after it
             print(f"napari-symbac fit: warning: {problem}", file=sys.stderr)
-        if args.geometry != "field" and (
-            problem := lying_trench_problem(stack.shape, microscope.modality, Path(args.image).name)
-        ):
-            raise ValueError(f"{problem}; or pass --geometry field for an open field")
+        refuse_lying_trench(args, stack.shape, microscope.modality)
         if args.geometry is None:
             configured = (keys.get("simulation", {}) or {}).get("geometry")
             args.geometry = default_geometry(stack.shape, microscope.modality, configured)

@@ -481,6 +481,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         counts_units_mark,
         in_read_units,
         read_recording,
+        refuse_lying_trench,
     )
     from napari_symbac.diagnose.config import NO_CAMERA_NOTE, load_microscope_file
     from napari_symbac.diagnose.figures import write_figures
@@ -504,7 +505,6 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         check_fit_image,
         check_modality,
         default_geometry,
-        lying_trench_problem,
         refuse_constant,
         resolve_pixel_size,
     )
@@ -594,10 +594,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                     f"in the window diagnosed: {DIAGNOSE_COLONY_NOTE}"
                 )
             check_modality(frame, microscope.modality, labels=labels, masks=frame_masks)
-        if args.geometry != "field" and (
-            problem := lying_trench_problem(stack.shape, microscope.modality, Path(args.image).name)
-        ):
-            raise ValueError(f"{problem}; or pass --geometry field for an open field")
+        refuse_lying_trench(args, stack.shape, microscope.modality)
         named = args.geometry or default_geometry(stack.shape, microscope.modality)
         geometry = "open" if named == "field" else named  # `fit`'s rule and words
         if microscope.modality == "phase" and geometry == "open" and stack[0].size > 2 * 96**2:

@@ -692,7 +692,7 @@ def _run_export(
     entries = read_entries(out, all_names)
     if cancelled:  # the items of tasks that finished after the cancel count too (found
         # as a user: "83 written" said where 92 were on disk)
-        state["written"] = max(state["written"], len(finished_items(out, all_names)) - n_skipped)
+        state["written"] = max(state["written"], len(entries) - n_skipped)
     if not cancelled:
         if len(entries) != total:
             missing = sorted(set(all_names) - {e["name"] for e in entries})

@@ -52,21 +52,15 @@ def _spherocylinder_width(area_um2: float, length_um: float) -> float:
     return (length_um - math.sqrt(disc)) / (2 * k)
 
 
-def _longest_run(mask: np.ndarray) -> tuple[int, int] | None:
-    labels, n = ndimage.label(mask)
-    if n == 0:
-        return None
-    sizes = ndimage.sum(mask, labels, range(1, n + 1))
-    idx = np.flatnonzero(labels == int(np.argmax(sizes)) + 1)
-    return int(idx[0]), int(idx[-1])
-
-
-def _refuse_several_trenches(trench_columns: np.ndarray, px: float) -> None:
-    """Refuse a frame whose columns hold several trenches side by side (runs of trench
-    columns at least half as wide as the widest and 0.5 um wide): the fit places one
+def _trench_run(trench_columns: np.ndarray, px: float) -> tuple[int, int] | None:
+    """The first and last column of the trench (the longest run of trench columns), or
+    ``None`` when there is none. A frame holding several trenches side by side (runs at
+    least half as wide as the widest and 0.5 um wide) is refused: the fit places one
     trench. Found as a user: four trenches side by side, fitted with ``--geometry
     trench``, had the first fitted and the other three left in the residual, exit 0."""
     labels, n = ndimage.label(trench_columns)
+    if n == 0:
+        return None
     sizes = ndimage.sum(trench_columns, labels, range(1, n + 1))
     runs = [
         np.flatnonzero(labels == k + 1)
@@ -80,6 +74,8 @@ def _refuse_several_trenches(trench_columns: np.ndarray, px: float) -> None:
             "places one trench: crop each trench, with about 1 um of PDMS either side, into "
             "an image of its own"
         )
+    idx = np.flatnonzero(labels == int(np.argmax(sizes)) + 1)
+    return int(idx[0]), int(idx[-1])
 
 
 #: Rows (um) of device across the trench that make a closed end at an image's edge.
@@ -370,10 +366,9 @@ def otsu_cells(
         low, high = np.percentile(columns, 10), columns.max()
         above = columns > low + 0.3 * (high - low)
         above = ndimage.binary_closing(above, np.ones(7, bool)) | above  # dips between halos
-        run = _longest_run(above)
+        run = _trench_run(above, px)
         if run is None:
             raise ValueError("no trench found in the image: is it a mother-machine trench?")
-        _refuse_several_trenches(above, px)
         c0, c1 = run
         inside = smooth[:, c0 : c1 + 1].mean(axis=1)
         _refuse_a_closed_end_below(smooth, inside, (c0, c1), px)
