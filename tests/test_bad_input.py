@@ -92,6 +92,22 @@ def test_export_to_folder_of_another_export(tmp_path, export_config, capsys):
     assert _files(out) == before
 
 
+def test_a_normalised_float_image_is_refused_before_it_is_written_as_zeros_and_ones(tmp_path):
+    """Found as a user: frames normalised to 0..1 were written by every format as uint16
+    images of 0s and 1s, without a word. Refused when the items are made, naming the
+    dtype, the values and the fix; counts in floats are written rounded."""
+    frames = np.random.default_rng(0).random((2, 8, 8)).astype(np.float32)
+    labels = np.zeros((2, 8, 8), np.uint16)
+    with pytest.raises(ValueError, match=r"float32 image of values 0\.00274\.\.0\.997 would") as e:
+        series_items(frames, labels)
+    assert "written as whole counts 0..1" in str(e.value)
+    assert "scale it to counts first" in str(e.value)
+    out = tmp_path / "counts"  # one format named alone (was "unknown format 't'")
+    write_items(series_items(frames * 4000, labels), out, "tiff")
+    written = tifffile.imread(out / "tiff" / "train" / "images" / "s0000_t0001.tif")
+    np.testing.assert_array_equal(written, np.rint(frames[1] * 4000).astype(np.uint16))
+
+
 def test_the_folder_of_another_export_is_refused_by_a_check_that_writes_nothing(tmp_path):
     """The check the Export dock makes before its job (found as a user: the refusal came
     only from the job): the same message as the export's own, nothing written; a missing
@@ -764,6 +780,30 @@ def test_simulate_with_an_int_rng():
     with pytest.raises(TypeError, match=r"numpy\.random\.Generator, got int 5") as info:
         simulate(SimulationSettings(n_frames=2), rng=5)
     assert "default_rng(5)" in str(info.value)
+    with pytest.raises(TypeError, match=r"got RandomState: pass numpy\.random\.default_rng\(seed"):
+        simulate(SimulationSettings(n_frames=2), rng=np.random.RandomState(0))
+
+
+def test_export_dataset_of_a_pipelines_settings_names_export_of(tmp_path):
+    """Found as an API user: ``export_dataset(PipelineSettings(), out)`` raised
+    "AttributeError: 'PipelineSettings' object has no attribute 'formats'"."""
+    from napari_symbac.export import export_dataset
+
+    with pytest.raises(TypeError, match=r"got PipelineSettings: pass export_of\(pipeline\)"):
+        export_dataset(PipelineSettings(), tmp_path / "ds")
+    assert not (tmp_path / "ds").exists()
+
+
+def test_a_simulation_is_shown_in_one_line():
+    """Found as an API user: a notebook cell ending in a 200-frame simulation printed
+    135 KB of arrays."""
+    from napari_symbac.sim import simulate
+
+    simulation = simulate(SimulationSettings(n_frames=20))
+    said = repr(simulation)
+    assert said.startswith("Simulation(trench, 20 frames, ")
+    assert f"{len(simulation.lineage)} cells over the run" in said
+    assert "\n" not in said
 
 
 def test_simulate_with_settings_of_the_wrong_type():
@@ -796,6 +836,26 @@ def test_render_simulation_with_wrong_settings_and_rng():
         render_simulation(simulation, {})
     with pytest.raises(TypeError, match=r"rng must be a numpy\.random\.Generator, got int"):
         render_simulation(simulation, PipelineSettings(), rng=3)
+
+
+def test_render_simulation_draws_the_simulations_own_trench():
+    """Found as an API user: settings of a 10 um trench rendered a 16 um trench's
+    simulation in frames 166 px tall instead of 258, its lower cells cut off. The
+    simulation's own settings draw it (as ``napari-symbac render`` does), the same bit
+    for bit whichever simulation section the pipeline settings hold."""
+    from napari_symbac.pipeline import render_simulation
+    from napari_symbac.settings import TrenchGeometry
+    from napari_symbac.sim import simulate
+
+    simulation = simulate(SimulationSettings(n_frames=3))
+    own = render_simulation(simulation, PipelineSettings(simulation=simulation.settings))
+    short = SimulationSettings(n_frames=3, seed=5, trench=TrenchGeometry(length_um=10.0))
+    other = render_simulation(simulation, PipelineSettings(simulation=short))
+    assert other.images.shape == own.images.shape
+    assert own.images.shape[1] > 16.0 / PipelineSettings().microscope.pixel_size_um
+    np.testing.assert_array_equal(other.images, own.images)
+    np.testing.assert_array_equal(other.labels, own.labels)
+    assert short.seed != simulation.settings.seed  # the noise follows the simulation's seed
 
 
 # --------------------------------------------------------------------------------------
@@ -1070,6 +1130,38 @@ def test_fit_scene_refuses_an_image_as_masks_and_takes_real_masks(real_data_dir)
         refuse_image_as_masks(tifffile.imread(path), path.name)
     masks = real_data_dir / "colicoords/test_data/ds1/binary/00001_Probabilities_filtered.tif"
     refuse_image_as_masks(tifffile.imread(masks), masks.name)
+
+
+def test_the_api_refuses_what_the_command_line_refuses_before_a_fit(real_data_dir):
+    """Found as an API user: fit_scene and calibrate skipped the commands' checks. A
+    camera offset of 3000 ADU fitted 2 cells of 4 (reduced chi-square 3350), the trench
+    on its side was "4 trenches side by side", 65 um (for 65 nm) gave "5329 cells 909 um
+    wide", and calibrate made agar-pad settings of the trench without a word; a stack
+    was "masks of another shape" and ``microscope=None`` an AttributeError."""
+    from napari_symbac.calibrate import calibrate
+    from napari_symbac.fit import fit_scene
+    from napari_symbac.settings import Camera, Microscope, RenderSettings
+
+    trench = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")
+    scope = Microscope(pixel_size_um=0.065)
+    with pytest.raises(ValueError, match=r"fit_scene\(camera=\.\.\.\): its offset 3000 ADU"):
+        fit_scene(trench, scope, RenderSettings(), Camera(baseline_adu=3000))
+    with pytest.raises(ValueError, match=r"real_image is 46 x 256 px .* rotate it by 90"):
+        fit_scene(np.rot90(trench), scope, RenderSettings())
+    with pytest.raises(ValueError, match=r"in nm\? 65 nm is 0\.065 um"):
+        fit_scene(trench, Microscope(pixel_size_um=65), RenderSettings())
+    with pytest.raises(ValueError, match="a mother-machine trench; calibrate lays out fields"):
+        calibrate(trench, microscope=scope)
+    with pytest.raises(ValueError, match=r"calibrate\(image=\.\.\.\) takes one 2D frame"):
+        calibrate(np.stack([trench, trench]), microscope=scope)
+    with pytest.raises(TypeError, match=r"calibrate\(microscope=\.\.\.\) needs Microscope"):
+        calibrate(trench, microscope=None)
+    # DeLTA's normalised trench (floats, some below 0): as_counts named first
+    delta = tifffile.imread(real_data_dir / "ecoli_delta_phase_normalised.tiff")
+    with pytest.raises(ValueError, match="has negative values") as refused:
+        fit_scene(delta, scope, RenderSettings())
+    said = str(refused.value)
+    assert said.index("napari_symbac.io.as_counts") < said.index("add a constant")
 
 
 def test_masks_are_told_from_recordings(real_data_dir):

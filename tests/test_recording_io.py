@@ -133,6 +133,24 @@ def test_ome_contrast_method_gives_modality(tmp_path, method, modality):
     assert read_recording(tmp_path / "x.ome.tif").pixel_size_um is None
 
 
+@pytest.mark.parametrize(
+    ("channel", "modality"),
+    [
+        ({"Name": "Ph3"}, "phase"),
+        ({"Name": "mCherry-560"}, "fluorescence"),
+        ({"Name": "c1", "Fluor": "GFP"}, "fluorescence"),
+        ({"Name": "Trans"}, "brightfield"),
+        ({"Name": "Brightfield", "ContrastMethod": "Phase"}, "phase"),  # its method rules
+        ({"Name": "c1"}, None),
+    ],
+)
+def test_an_ome_channels_name_gives_its_modality(tmp_path, channel, modality):
+    path = tmp_path / "x.ome.tif"
+    image = np.zeros((16, 16), np.uint16)
+    tifffile.imwrite(path, image, metadata={"axes": "YX", "Channel": channel})
+    assert read_recording(path).modality == modality
+
+
 def test_read_image_takes_a_grey_png_and_grey_saved_as_colour(tmp_path):
     """The Omnipose sample colonies are grey PNGs saved as RGB(A): every command reads
     their grey channel, as the widgets do."""
@@ -440,6 +458,10 @@ def test_the_reader_names_channel_layers_as_the_ome_file_does(tmp_path):
     layers = napari_get_reader(str(named))(str(named))
     assert [meta["name"] for _, meta, _ in layers] == ["named.ome BF", "named.ome GFP"]
     np.testing.assert_array_equal(layers[1][0], data[1])
+    # and their modalities (found as a user: the BF channel was guessed phase)
+    modalities = [meta["metadata"]["modality"] for _, meta, _ in layers]
+    assert modalities == ["brightfield", "fluorescence"]
+    assert [read_recording(named, channel=k).modality for k in (0, 1)] == modalities
     layers = napari_get_reader(str(unnamed))(str(unnamed))
     assert [meta["name"] for _, meta, _ in layers] == [
         "unnamed.ome channel 0", "unnamed.ome channel 1"

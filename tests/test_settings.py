@@ -176,3 +176,27 @@ def test_load_microscope_reads_both_spellings(tmp_path):
     incomplete.write_text("NA: 1.4\n")
     with pytest.raises(ValueError, match="lacks the required key"):
         load_microscope(incomplete)
+
+
+def test_numpy_numbers_are_taken_as_numbers(tmp_path):
+    """Found as a user: ``SimulationSettings(seed=rng.integers(1000))`` was refused ("must
+    be a non-negative integer, got np.int64(850)"), as were np.float32 sizes. They are
+    taken as Python's numbers, float32's 0.065 as 0.065, and saved as such."""
+    import numpy as np
+
+    from napari_symbac.export.dataset import ExportSettings
+
+    rng = np.random.default_rng(0)
+    simulation = SimulationSettings(seed=rng.integers(1000), n_frames=np.int64(5))
+    assert (simulation.seed, simulation.n_frames) == (850, 5)
+    assert type(simulation.seed) is int
+    microscope = Microscope(pixel_size_um=np.float32(0.065))
+    assert microscope.pixel_size_um == 0.065
+    assert ExportSettings(n_items=np.int32(3)).n_items == 3
+    path = tmp_path / "settings.yaml"
+    save_settings(PipelineSettings(simulation=simulation, microscope=microscope), path)
+    text = path.read_text()
+    assert "seed: 850" in text
+    assert "pixel_size_um: 0.065" in text
+    with pytest.raises(ValueError, match="must be a non-negative integer, got -1"):
+        SimulationSettings(seed=np.int64(-1))

@@ -568,13 +568,8 @@ def _outputs_one(
     import tifffile
 
     from napari_symbac.export.atomic import tiff_metadata
-    from napari_symbac.fit.clipped_background import drawn_clipped, fitted_clip
     from napari_symbac.fit.figure import before_after_figure
-    from napari_symbac.fit.fitted_settings import (
-        fitted_render,
-        fitted_simulation,
-        with_illumination,
-    )
+    from napari_symbac.fit.fitted_settings import fitted_pipeline
     from napari_symbac.fit.preflight import camera_pixel_problem
     from napari_symbac.fit.report import (
         CLI_CAMERA_FIX,
@@ -595,27 +590,11 @@ def _outputs_one(
     camera_note, options, notes = prepared.camera_note, prepared.options, list(prepared.notes)
     censor_note, polarity = prepared.censor_note, prepared.polarity
     geometry = _GEOMETRIES[args.geometry]
-    camera_used = getattr(result, "camera", None) or camera or base.camera
-    render = result.render if prepared.colony else fitted_render(result, microscope.modality)
-    settings = dataclasses.replace(base, microscope=microscope, render=render, camera=camera_used)
     given = keys.get("simulation") or {}
     keep = {*given, *(f"agar_pad.{k}" for k in (given.get("agar_pad") or {}))}
-    try:
-        simulation = fitted_simulation(
-            base.simulation, result, frame.shape, microscope.pixel_size_um, keep
-        )
-        settings = dataclasses.replace(settings, simulation=simulation)
-    except ValueError as err:
-        notes.append(f"simulation settings kept from the config: {err}")
-    if getattr(result, "illumination_order", 0):  # drawn as fitted (before any clip)
-        settings = dataclasses.replace(
-            settings, extra_stages=with_illumination(settings.extra_stages, result)
-        )
-    if not prepared.colony:
-        clipped = fitted_clip(frame, result.scene, camera, microscope.modality)
-        if clipped is not None:  # settings.yaml draws the recording's clipped background
-            settings, sentence = drawn_clipped(settings, clipped, noise=camera is None)
-            notes.append(sentence)
+    settings, said = fitted_pipeline(result, frame, microscope, camera, base=base, keep=keep)
+    notes += said
+    camera_used = getattr(result, "camera", None) or camera or base.camera  # as fitted
 
     records = cells_records(result)
     if masks is not None and not prepared.colony:  # which of the user's masks each is

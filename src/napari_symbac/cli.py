@@ -715,8 +715,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             doc["notes"].append(held)
             print(f"note: {held}", file=sys.stderr)
         base = PipelineSettings(simulation, microscope, final_render, camera)
-        accepted = [(e.name, e.params) for e in result.accepted]
-        settings, extra = updated_settings(base, accepted)
+        settings, extra = updated_settings(base, result.accepted)
         clipped = fitted_clip(stack[0], first_fit.scene, camera, microscope.modality)
         if clipped is not None:  # the recording's clipped background, as fit draws it
             settings, sentence = drawn_clipped(settings, clipped, noise=config.camera is None)

@@ -180,8 +180,9 @@ class Recording:
     name
         File stem, for layer names.
     modality
-        ``"phase"`` or ``"fluorescence"`` from the OME ``ContrastMethod`` of the first
-        channel, or ``None`` if the file does not say.
+        ``"phase"``, ``"fluorescence"`` or ``"brightfield"`` as the file's OME metadata
+        says it of the channel read (:func:`_channel_modality`), or ``None`` if it does
+        not say.
     kind
         ``"labels"`` for instance masks (marked ``napari_symbac=labels`` in the file's
         metadata by the dataset writers, or named like a mask: ``*_masks.tif``,
@@ -196,6 +197,9 @@ class Recording:
     frame_interval_s
         Time between frames from the file's ImageJ (``finterval``, in its ``tunit``) or
         OME (``TimeIncrement``) metadata, or ``None`` if absent.
+    channel_modalities
+        The modality of each of the file's channels, as its OME metadata says
+        (``None`` each where it does not); ``()`` for a file without OME metadata.
     """
 
     data: np.ndarray
@@ -206,6 +210,7 @@ class Recording:
     counts_mapping: CountsMapping | None = None
     planes_note: str | None = None
     frame_interval_s: float | None = None
+    channel_modalities: tuple[str | None, ...] = ()
 
     @property
     def note(self) -> str | None:
@@ -266,14 +271,49 @@ def _frame_interval_s(tif) -> float | None:
 
 _CONTRAST_METHODS = {"Phase": "phase", "Fluorescence": "fluorescence", "Brightfield": "brightfield"}
 
+#: Words of an OME channel's name that say its modality, where its ``ContrastMethod``
+#: does not (found as a user: channels named BF and GFP were both guessed phase).
+_CHANNEL_NAME_WORDS = {
+    "phase": {"phase", "ph", "ph1", "ph2", "ph3", "pc", "phc", "phasecontrast"},
+    "brightfield": {"bf", "brightfield", "transmitted", "trans"},
+    "fluorescence": {
+        "fluorescence", "fluo", "gfp", "egfp", "sfgfp", "yfp", "eyfp", "cfp", "rfp",
+        "mcherry", "mscarlet", "mkate", "mkate2", "tdtomato", "venus", "mvenus",
+        "mneongreen", "mturquoise", "dapi", "hoechst", "fitc", "tritc", "cy3", "cy5",
+        "sytox", "fm4", "alexa", "mrfp", "tagrfp",
+    },
+}  # fmt: skip
 
-def _modality(tif) -> str | None:
+
+def _channel_modality(attributes: str) -> str | None:
+    """The modality an OME ``<Channel ...>`` element's attributes say: its
+    ``ContrastMethod``, an ``IlluminationType`` of epifluorescence or a ``Fluor``, else
+    a word of its ``Name`` (:data:`_CHANNEL_NAME_WORDS`); ``None`` if none does."""
+
+    def attribute(key: str) -> str:
+        found = re.search(rf'\b{key}="([^"]*)"', attributes)
+        return found.group(1).strip() if found else ""
+
+    if attribute("ContrastMethod") in _CONTRAST_METHODS:
+        return _CONTRAST_METHODS[attribute("ContrastMethod")]
+    if attribute("IlluminationType") == "Epifluorescence" or attribute("Fluor"):
+        return "fluorescence"
+    words = set(re.split(r"[^a-z0-9]+", attribute("Name").lower()))
+    for modality, named in _CHANNEL_NAME_WORDS.items():
+        if words & named:
+            return modality
+    return None
+
+
+def _channel_modalities(tif) -> tuple[str | None, ...]:
+    """The modality of each channel an OME-TIFF describes (:func:`_channel_modality`),
+    in order; ``()`` for any other file."""
     if not (tif.is_ome and tif.ome_metadata):
-        return None
-    import re
-
-    match = re.search(r'ContrastMethod="([^"]+)"', tif.ome_metadata)
-    return _CONTRAST_METHODS.get(match.group(1)) if match else None
+        return ()
+    return tuple(
+        _channel_modality(attributes)
+        for attributes in re.findall(r"<Channel\b([^>]*)>", tif.ome_metadata)
+    )
 
 
 #: Words that name a file (its last word: ``cell_mask.tif``, ``Sample_cp_masks.tif``,
@@ -461,7 +501,9 @@ def _channel_of(recording: Recording, axes: str, name: str, channel: int | None)
                 f"channels, choose one (--channel K, K in 0..{n_planes - 1})"
             )
     data = _one_channel(recording.data, axes, name, channel)
-    return dataclasses.replace(recording, data=data, planes_note=note)
+    said = recording.channel_modalities
+    modality = said[channel or 0] if len(said) > (channel or 0) else recording.modality
+    return dataclasses.replace(recording, data=data, planes_note=note, modality=modality)
 
 
 def _file_kind(path: Path) -> str | None:
@@ -504,7 +546,7 @@ def _read_tiff(path: Path) -> tuple[Recording, str]:
             data, axes = tif.asarray(), _series_axes(tif)
             pixel = _pixel_size_um(tif)
             interval = _frame_interval_s(tif)
-            modality = _modality(tif)
+            modalities = _channel_modalities(tif)
             kind = _kind(tif, path)
     except (tifffile.TiffFileError, ValueError, EOFError, struct.error, IndexError) as err:
         if str(path) in str(err):
@@ -521,8 +563,8 @@ def _read_tiff(path: Path) -> tuple[Recording, str]:
             name = name[: -len(suffix)]
             break
     recording = Recording(
-        data=data, pixel_size_um=pixel, name=name, modality=modality, kind=kind,
-        frame_interval_s=interval,
+        data=data, pixel_size_um=pixel, name=name, kind=kind, frame_interval_s=interval,
+        channel_modalities=modalities,
     )  # fmt: skip
     return recording, axes
 

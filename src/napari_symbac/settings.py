@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
+import numpy as np
 import yaml
 
 __all__ = [
@@ -48,6 +49,7 @@ __all__ = [
     "load_settings_or_pipeline",
     "load_simulation_settings",
     "microscope_sets_pixel_size",
+    "plain_numbers",
     "read_settings_mapping",
     "refuse_another_kind",
     "save_settings",
@@ -59,6 +61,20 @@ GeometryKind = Literal["trench", "chamber", "agar_pad", "outline"]
 Modality = Literal["phase", "fluorescence", "brightfield"]
 NoiseModel = Literal["camera", "gaussian", "none"]
 ClosedEnd = Literal["square", "round"]
+
+
+def plain_numbers(settings: object) -> None:
+    """Replace a frozen settings dataclass's numpy scalar fields (``np.int64``,
+    ``np.float32``, ``np.bool_``) with Python's own numbers, so they are checked, compared
+    and written to YAML as such. Found as a user: ``SimulationSettings(seed=
+    rng.integers(1000))`` was refused as "must be a non-negative integer, got
+    np.int64(850)"."""
+    for item in dataclasses.fields(settings):
+        value = getattr(settings, item.name)
+        if isinstance(value, np.floating):  # float32's 0.065 is 0.065, not 0.06499999...
+            object.__setattr__(settings, item.name, float(str(value)))
+        elif isinstance(value, np.generic):
+            object.__setattr__(settings, item.name, value.item())
 
 
 def _require(condition: bool, message: str) -> None:
@@ -141,6 +157,7 @@ class Condenser:
     pupil_diameter_mm: float
 
     def __post_init__(self) -> None:
+        plain_numbers(self)
         _positive(self, "ring_width_mm", "ring_radius_mm", "pupil_diameter_mm")
         _require(
             self.ring_width_mm < self.ring_radius_mm,
@@ -212,6 +229,7 @@ class TrenchGeometry:
     closed_end: ClosedEnd = "square"
 
     def __post_init__(self) -> None:
+        plain_numbers(self)
         _positive(self, "length_um", "width_um", "depth_um")
         _non_negative(self, "margin_um")
         if self.top_margin_um is not None:
@@ -269,6 +287,7 @@ class AgarPadGeometry:
     edge_margin_um: float = 3.0
 
     def __post_init__(self) -> None:
+        plain_numbers(self)
         _positive(self, "field_width_um", "field_height_um")
         _non_negative(self, "founder_spacing_um", "colony_separation_um", "edge_margin_um")
         _require(
@@ -324,6 +343,7 @@ class OutlineGeometry:
     exit_margin_um: float = 2.0
 
     def __post_init__(self) -> None:
+        plain_numbers(self)
         _positive(self, "dxf_unit_um")
         _non_negative(self, "exit_margin_um")
         lines = []
@@ -456,6 +476,7 @@ class SimulationSettings:
     save_dir: str | None = None
 
     def __post_init__(self) -> None:
+        plain_numbers(self)
         _nested(
             self, trench=TrenchGeometry, agar_pad=AgarPadGeometry, outline=OutlineGeometry
         )
@@ -580,6 +601,7 @@ class Microscope:
     modality: Modality = "phase"
 
     def __post_init__(self) -> None:
+        plain_numbers(self)
         _positive(
             self,
             "pixel_size_um",
@@ -805,6 +827,7 @@ class RenderSettings:
     debris_defocus_sigma_um: float = 0.3
 
     def __post_init__(self) -> None:
+        plain_numbers(self)
         _require(
             isinstance(self.upsample, int) and self.upsample >= 1,
             f"RenderSettings.upsample must be an integer >= 1, got {self.upsample!r}",
@@ -924,6 +947,7 @@ class Camera:
     bit_depth: int = 16
 
     def __post_init__(self) -> None:
+        plain_numbers(self)
         _non_negative(self, "baseline_adu", "dark_noise_e")
         _positive(self, "sensitivity_adu_per_e")
         _require(
@@ -962,6 +986,7 @@ class ExtraStage:
     parameters: dict[str, Any] = field(default_factory=dict, hash=False)
 
     def __post_init__(self) -> None:
+        plain_numbers(self)
         # imported here: the effects' modules import these settings
         from napari_symbac.diagnose.stages import check_drawn_stage
 
@@ -988,6 +1013,7 @@ class PipelineSettings:
     extra_stages: tuple[ExtraStage, ...] = ()
 
     def __post_init__(self) -> None:
+        plain_numbers(self)
         _nested(
             self,
             simulation=SimulationSettings,

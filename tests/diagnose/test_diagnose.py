@@ -44,6 +44,11 @@ def test_concealed_illumination_is_accepted_and_improves_held_out_pixels():
     assert result.final_fit["held_out"] < result.base_fit["held_out"]
     magnitude = effect.params["peak_to_peak_fraction"]
     assert magnitude == pytest.approx(case.true_magnitude, rel=0.25)
+    # the accepted effects fold into settings as they are (found as an API user: only
+    # (name, params) pairs were taken, "cannot unpack non-iterable EffectResult")
+    folded, extra = updated_settings(PipelineSettings(), result.accepted)
+    assert extra == [{"name": "uneven_illumination", "parameters": effect.params}]
+    assert [stage.name for stage in folded.extra_stages] == ["uneven_illumination"]
     # a light field shows far from the cells too: the PDMS beside and above the trench
     # asks for the same surface (the check that refuses the SyMBac trench's surface)
     confirmation = effect.confirmation
@@ -238,6 +243,14 @@ def test_bad_input_is_refused_in_words():
         diagnose(case.images.astype(np.float64) - 1e5, case.design)
     with pytest.raises(TypeError, match=r"pass numpy.random.default_rng\(0\)"):
         diagnose(case.images, case.design, rng=0)
+    # a significance level and counts out of range (were taken: max_steps=-2 returned
+    # nothing); one effect's name given alone is that effect (was split into letters)
+    with pytest.raises(ValueError, match=r"alpha=\.\.\.\) is a significance level in \(0, 1\)"):
+        diagnose(case.images, case.design, alpha=5)
+    with pytest.raises(ValueError, match=r"max_steps=\.\.\.\) must be a whole number of at"):
+        diagnose(case.images, case.design, max_steps=-2)
+    with pytest.raises(ValueError, match=r"unknown effects \['glow'\]"):
+        diagnose(case.images, case.design, candidates="glow")
     with pytest.raises(TypeError, match=r"diagnose\(design=...\) needs BaseDesign"):
         diagnose(case.images, None)
     microscope, render, camera = base_settings("phase")

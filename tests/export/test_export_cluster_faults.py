@@ -174,15 +174,23 @@ def test_a_scheduler_without_workers_says_to_start_some(tmp_path, by_value):
     assert not (tmp_path / "ds").exists()
 
 
-def test_workers_without_napari_symbac_are_named_with_the_fix():
+def test_workers_without_napari_symbac_are_named_with_the_fix(tmp_path):
     """The error dask raises when the workers cannot unpickle the export (found as a
-    user: a 62-line traceback from inside distributed's scatter_to_workers)."""
+    user: a 62-line traceback from inside distributed's scatter_to_workers). It promises
+    to keep finished items only where there are some (found as a user: it did where
+    none was)."""
     import napari_symbac
 
     err = Exception("ImportError('No module named napari_symbac')")
-    said = str(export_runner._cluster_failure(err, "the dask scheduler at tcp://h:8786", "d"))
+    where = "the dask scheduler at tcp://h:8786"
+    said = str(export_runner._cluster_failure(err, where, tmp_path))
     assert said.startswith("the workers of the dask scheduler at tcp://h:8786 cannot import")
     assert f"install napari-symbac {napari_symbac.__version__}" in said
+    assert said.endswith("then run the same command again (no item was finished)")
+    (tmp_path / export_runner.ITEMS_DIR).mkdir()
+    (tmp_path / export_runner.ITEMS_DIR / "item_000000").mkdir()
+    said = str(export_runner._cluster_failure(err, where, tmp_path))
+    assert said.endswith(f"run the same command again: {EXPORT_RESUMES}")
 
 
 def test_an_interrupted_export_leaves_no_worker_writing(tmp_path, by_value):

@@ -189,6 +189,8 @@ def test_regenerate_is_bit_identical(frames_export):
         item.labels, tifffile.imread(frames_export / entry["files"]["tiff"][1])
     )
     assert dict(item.params) == entry["params"]
+    with pytest.raises(KeyError, match="items are named '000000' to '000004' \\(text"):
+        regenerate(frames_export, 3)  # found as an API user: no hint of the names
 
 
 def test_seed_controls_the_files(tmp_path, frames_export):

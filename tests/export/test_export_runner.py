@@ -354,8 +354,10 @@ def test_local_cluster_on_loopback_and_user_scheduler(tmp_path, reference):
                 assert os.getpid() not in pids
             with pytest.raises(ValueError, match="No clients found"):
                 default_client()  # as in a user's `napari-symbac export --scheduler`
+            # as copied from a browser's address bar (found as a user: "invalid literal
+            # for int()")
             report = run_export(
-                SyntheticSource(12), tmp_path, FORMATS, scheduler=cluster.scheduler_address
+                SyntheticSource(12), tmp_path, FORMATS, scheduler=cluster.scheduler_address + "/"
             )
             with pytest.raises(ValueError, match="No clients found"):
                 default_client()  # the export's client was not left as the default
@@ -424,3 +426,66 @@ def test_staging_folders_of_killed_runs_are_removed(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
         [running.name, another.name, "out"]
     )
+
+
+def test_a_second_export_into_a_folder_being_written_is_refused(tmp_path, reference):
+    """Found as a user: two exports into one folder at once (an Export dock beside a
+    command line) each computed every item. The second is refused, naming the first,
+    and the first completes as if alone."""
+    from napari_symbac.export.lock import LOCK
+
+    out = tmp_path / "ds"
+    first_started = threading.Event()
+    finished = {}
+
+    def progress(done: int, total: int) -> None:
+        first_started.set()
+
+    def first() -> None:
+        finished["report"] = run_export(
+            SyntheticSource(12, delay_s=0.2), out, FORMATS, workers=1, progress=progress
+        )
+
+    thread = threading.Thread(target=first)
+    thread.start()
+    try:
+        assert first_started.wait(60)
+        with pytest.raises(ExportError, match="another export is writing into") as refused:
+            run_export(SyntheticSource(12), out, FORMATS, workers=1)
+    finally:
+        thread.join(120)
+    said = str(refused.value)
+    assert f"process {os.getpid()} on " in said
+    assert "wait for it to finish, or export to another folder" in said
+    assert finished["report"].complete
+    assert not (out / LOCK).exists()
+    assert tree_digest(out) == reference
+
+
+def test_the_lock_of_a_killed_export_is_taken_over_and_another_machines_is_named(
+    tmp_path, reference
+):
+    """An export killed (SIGKILL, power cut) leaves its lock: on this machine, its
+    process gone, the next export takes it over; a lock from another machine, whose
+    process cannot be seen from here, is named with the file to delete."""
+    import socket
+
+    from napari_symbac.export.lock import LOCK
+
+    out = tmp_path / "ds"
+    out.mkdir()
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait(60)
+    lock = {"host": socket.gethostname(), "pid": gone.pid, "started": "2026-12-03 10:00:00"}
+    (out / LOCK).write_text(json.dumps(lock))
+    assert run_export(SyntheticSource(12), out, FORMATS, workers=1).complete
+    assert tree_digest(out) == reference
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / LOCK).write_text(json.dumps({**lock, "host": "cluster-node-7", "pid": 4242}))
+    with pytest.raises(ExportError) as refused:
+        run_export(SyntheticSource(12), elsewhere, FORMATS, workers=1)
+    said = str(refused.value)
+    assert "(process 4242 on cluster-node-7, started 2026-12-03 10:00:00)" in said
+    assert said.endswith(f"delete {elsewhere / LOCK}")
+    assert [p.name for p in elsewhere.iterdir()] == [LOCK]  # nothing else written

@@ -1423,8 +1423,9 @@ def test_a_trench_on_its_side_upside_down_or_beside_others_is_refused_with_the_f
 ):
     """Found as a user: each was fitted, exit 0: the trench on its side as an open field
     of 1.7 um cells ("check the pixel size"), upside down with its closed end missing (5
-    cells for 4), four side by side with the first fitted and three left in the residual.
-    Each is refused before any fit, saying how to turn or crop it."""
+    cells for 4), four side by side with the first fitted and three left in the residual
+    (with no --geometry, refused as a colony: "give instance masks"). Each is refused
+    before any fit, saying how to turn or crop it."""
     def last_line(*args) -> str:
         return _refused(capsys, tmp_path / "o", *args).strip().splitlines()[-1]
 
@@ -1436,9 +1437,10 @@ def test_a_trench_on_its_side_upside_down_or_beside_others_is_refused_with_the_f
     upside_down = last_line(turned_trenches["upside_down"])
     assert "the trench's closed end is at the bottom of the image" in upside_down
     assert "flip the image upside down" in upside_down
-    four = last_line(turned_trenches["four"], "--geometry", "trench")
-    assert "holds 4 trenches side by side (columns 9-32, " in four
-    assert "crop each trench" in four
+    for geometry in (["--geometry", "trench"], []):  # 274 px wide: a field by default
+        four = last_line(turned_trenches["four"], *geometry)
+        assert "holds 4 trenches side by side (columns 9-32, " in four
+        assert "crop each trench" in four
     # cut below its closed end, the trench is fitted, and no closed end is claimed
     out = tmp_path / "cut"
     assert _fit(turned_trenches["no_closed_end"], "--out", out) == 0

@@ -305,6 +305,16 @@ def test_cells_records_and_report_say_what_went_wrong():
     assert "no convergence diagnostics" in report_text(_result(), {})
 
 
+def test_the_report_names_the_closed_end_among_the_fits_choices_only_when_it_chose_one():
+    """Found as a user: a trench whose closed end was out of view had "what the fit chose
+    (the trench's closed end; ...)" over lines of merged cells only."""
+    merged = report_text(_result(moves=("merged cells at y = 3.1 um",)), {})
+    assert "  what the fit chose (cells added, removed, split or merged" in merged
+    assert "closed end" not in merged
+    both = report_text(_result(moves=("closed end: round, which fits better", "x")), {})
+    assert "what the fit chose (the trench's closed end; cells added" in both
+
+
 def test_a_wrong_pixel_size_is_said_through_the_cells_width(truth):
     """Found as a user: a trench of 0.065 um pixels fitted at 0.13 um gave 1.8 um wide,
     9-10 um long cells at the chi-square of the right pixel size, and nothing said it.

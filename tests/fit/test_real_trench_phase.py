@@ -7,8 +7,9 @@ import dataclasses
 import pytest
 import tifffile
 
-from napari_symbac.fit import fit_parameters, fit_scene
-from napari_symbac.settings import Microscope, RenderSettings
+from napari_symbac.fit import fit_parameters, fit_scene, fitted_pipeline
+from napari_symbac.fit.fitted_settings import fitted_render
+from napari_symbac.settings import Microscope, RenderSettings, SimulationSettings
 
 MICROSCOPE = Microscope(pixel_size_um=0.065)  # 100x oil, NA 1.45, Ph3
 FIVE = (
@@ -25,6 +26,17 @@ def test_transparent_cells_and_pdms_fit_the_trench_inside_every_bound(real_data_
     # the trench's closed end and first cell: 96 of its 256 rows
     image = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")[:96]
     linear = fit_scene(image, MICROSCOPE, RenderSettings(), None, closed_end="round")
+    # the settings that draw matched data, in Python as `fit` writes them; the trench of
+    # these 96 rows (4.8 um) is shorter than its cells divide, so it is not simulated
+    settings, notes = fitted_pipeline(linear, image, MICROSCOPE)
+    assert settings.render == fitted_render(linear, "phase")
+    assert settings.camera == linear.camera
+    assert settings.microscope == MICROSCOPE
+    [note] = notes
+    assert note.startswith("simulation settings kept from the config: cell_max_length_um=")
+    assert "must be shorter than the trench (length_um=4.8" in note
+    assert settings.simulation == SimulationSettings()
+    assert linear.trench_geometry(image.shape, 0.065).length_um < 5
     level = linear.render.media_intensity
     start = dataclasses.replace(
         linear.render, phase_model="partially_coherent", source_points=16,

@@ -523,7 +523,7 @@ class DiagnoseWidget(Container):
             render=final_render,  # the intensities refitted with the effects
             camera=camera,
         )
-        settings, extra = updated_settings(base, [(e.name, e.params) for e in result.accepted])
+        settings, extra = updated_settings(base, result.accepted)
         if clipped is not None:  # the recording's background clipped at 0, as drawn
             settings, _ = drawn_clipped(settings, clipped, noise=noise)
         layer = self._layer

@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
+from napari_symbac.arguments import require_argument
 from napari_symbac.calibrate.compaction import CompactionTrial, choose_gravity, trial
 from napari_symbac.calibrate.measure import (
     ColonyPacking,
@@ -632,6 +633,26 @@ def _fit_scene_crop(
     return result
 
 
+def _refuse_a_trench(shape: tuple[int, ...], modality: str) -> None:
+    """calibrate lays a field out as an agar pad: a mother-machine trench (the fit's
+    rule, :func:`~napari_symbac.fit.preflight.default_geometry`), upright or on its
+    side, is refused, as the command line and the Calibrate dock refuse it (found as an
+    API user: the SyMBac trench was calibrated into agar-pad settings without a word)."""
+    from napari_symbac.fit.preflight import default_geometry, lying_trench_problem
+
+    lying = lying_trench_problem(shape, modality, "the image")
+    if lying or default_geometry(shape, modality) == "trench":
+        what = lying or (
+            f"the image is {shape[-2]} x {shape[-1]} px (rows x columns), narrow and tall: "
+            "a mother-machine trench"
+        )
+        raise ValueError(
+            f"{what}; calibrate lays out fields (agar pads and colonies), not a trench: fit "
+            "the trench instead (`napari-symbac fit IMAGE --out FIT` writes its settings, "
+            "FIT/settings.yaml, for `napari-symbac export --config`)"
+        )
+
+
 def calibrate(
     image: np.ndarray,
     *,
@@ -712,19 +733,28 @@ def calibrate(
     from napari_symbac.fit.camera_estimate import censored_pixels, image_bit_depth
     from napari_symbac.fit.masks import estimate_pixel_size_um
     from napari_symbac.fit.preflight import (
+        camera_recording_problem,
         check_class_labels,
         check_fit_image,
         check_instance_masks,
         check_modality,
+        check_pixel_size,
         modality_doubt,
     )
 
+    require_argument(microscope, Microscope, "calibrate(microscope=...)")
     frame = np.asarray(image)
+    if frame.ndim != 2:  # found as an API user: a stack was "masks of another shape"
+        raise ValueError(
+            f"calibrate(image=...) takes one 2D frame, got an array of shape {frame.shape}: "
+            "pass one frame of a stack (e.g. stack[0])"
+        )
     check_fit_image(frame, "image")
     if masks is not None and labels is not None:
         raise ValueError("pass masks or labels, not both")
     if modality is not None and modality != microscope.modality:
         microscope = dataclasses.replace(microscope, modality=modality)
+    _refuse_a_trench(frame.shape, microscope.modality)
     if labels is not None:
         check_class_labels(np.asarray(labels), frame.shape, "labels")
     if masks is not None:
@@ -752,6 +782,9 @@ def calibrate(
 
         widths_um = cell_widths_px(masks) * microscope.pixel_size_um
         _refuse_wide_cells(widths_um, "the masks' cells", pixel_note)
+    check_pixel_size(microscope.pixel_size_um, pixel_note)
+    if camera is not None and (problem := camera_recording_problem(camera, frame)):
+        raise ValueError(f"calibrate(camera=...): {problem}")
     bit_depth = image_bit_depth(frame)
     mask_offset_um = mask_faintest_cnr = None
     layout = None  # the simulated field: that of the measurements

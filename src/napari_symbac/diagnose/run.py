@@ -300,7 +300,7 @@ def diagnose(
     images: np.ndarray,
     design: BaseDesign,
     *,
-    candidates: Sequence[str] | None = None,
+    candidates: Sequence[str] | str | None = None,
     alpha: float = 0.01,
     n_bootstrap: int = 30,
     max_steps: int = 4,
@@ -319,7 +319,7 @@ def diagnose(
     design
         The base model (:func:`~napari_symbac.diagnose.model.build_design`).
     candidates
-        Effect names to try (default: the whole catalogue).
+        Effect names to try, or one name (default: the whole catalogue).
     alpha
         Family-wise level of the score tests (Bonferroni) and level of the bootstrap
         held-out criterion.
@@ -343,7 +343,8 @@ def diagnose(
         ``design`` or ``rng`` of the wrong kind.
     ValueError
         Images the model cannot produce (NaN, RGB, negative or normalised values) or
-        not of the fitted scenes' shape, or an unknown effect.
+        not of the fitted scenes' shape, an unknown effect, ``alpha`` outside (0, 1) or
+        a count below 1.
 
     Notes
     -----
@@ -367,6 +368,21 @@ def diagnose(
         )
 
 
+def _check_counts(alpha: float, n_bootstrap: int, max_steps: int, max_tries: int) -> None:
+    """Refuse a significance level outside (0, 1) and counts below 1 (found as an API
+    user: ``alpha=5`` and ``max_steps=-2`` were taken, the latter returning nothing)."""
+    if isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not 0 < alpha < 1:
+        raise ValueError(
+            f"diagnose(alpha=...) is a significance level in (0, 1), e.g. 0.01; got {alpha!r}"
+        )
+    counts = {"n_bootstrap": n_bootstrap, "max_steps": max_steps, "max_tries": max_tries}
+    for name, value in counts.items():
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise ValueError(
+                f"diagnose({name}=...) must be a whole number of at least 1; got {value!r}"
+            )
+
+
 def _diagnose(
     images: np.ndarray,
     design: BaseDesign,
@@ -384,6 +400,7 @@ def _diagnose(
     """The body of :func:`diagnose` (BLAS threads already limited)."""
     require_argument(design, BaseDesign, "diagnose(design=...)")
     require_argument(rng, np.random.Generator, "diagnose(rng=...)", optional=True)
+    _check_counts(alpha, n_bootstrap, max_steps, max_tries)
     y = as_image_stack(images, name="images")  # found as an API user: a NaN pixel gave NaNs
     check_fit_image(y, "images", camera_hint=API_CAMERA_HINT)
     if y.shape != design.geometry.shape:
@@ -395,6 +412,8 @@ def _diagnose(
     baseline = design.camera.baseline_adu
     y = y - baseline
     valid = np.ones(y.shape, bool) if valid is None else np.broadcast_to(valid, y.shape)
+    if isinstance(candidates, str):  # one effect's name (found as a user: split in letters)
+        candidates = [candidates]
     names = list(CATALOGUE) if candidates is None else list(candidates)
     unknown = [n for n in names if n not in CATALOGUE]
     if unknown:

@@ -16,6 +16,7 @@ turns back into :class:`~napari_symbac.optics.forward.Stage` objects for
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -177,15 +178,21 @@ def refitted_render(
 
 
 def updated_settings(
-    settings: PipelineSettings, accepted: list[tuple[str, dict]]
+    settings: PipelineSettings, accepted: Sequence[Any]
 ) -> tuple[PipelineSettings, list[dict]]:
     """Settings with the accepted effects folded in (settings fields, and the effects
     of :data:`DRAWN` appended to ``extra_stages``), and the specs of every accepted
-    effect without a settings field (for ``extra_stages.yaml``)."""
+    effect without a settings field (for ``extra_stages.yaml``).
+
+    ``accepted`` holds a diagnosis's accepted effects (``Diagnosis.accepted``, each
+    with its ``name`` and ``params``) or ``(name, params)`` pairs. Found as an API
+    user: ``updated_settings(settings, diagnosis.accepted)`` raised "cannot unpack
+    non-iterable EffectResult object"."""
     simulation, render, camera = settings.simulation, settings.render, settings.camera
     drawn = list(settings.extra_stages)
     extra: list[dict] = []
-    for name, params in accepted:
+    pairs = [(e.name, e.params) if hasattr(e, "params") else tuple(e) for e in accepted]
+    for name, params in pairs:
         if name == "camera_noise":
             camera = camera_noise.updated_camera(camera, params)
         elif name == "cell_intensity_variability":

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from napari_symbac.arguments import require_argument
 from napari_symbac.export.atomic import ExportError
 from napari_symbac.export.dataset import (
     ExportSettings,
@@ -45,6 +46,7 @@ from napari_symbac.export.runner import (
     write_items,
 )
 from napari_symbac.export.visibility import Visibility, contrast_to_noise
+from napari_symbac.settings import PipelineSettings
 
 __all__ = [
     "FORMATS",
@@ -120,7 +122,17 @@ def export_dataset(
     ExportError
         The disk is full, a path cannot be written, or ``out_dir`` holds another export;
         the message names the path and the fix.
+    TypeError
+        If ``settings`` is not :class:`ExportSettings` (the fix for a pipeline's
+        settings: :func:`export_of`).
     """
+    if isinstance(settings, PipelineSettings):  # found as an API user: an AttributeError
+        raise TypeError(
+            "export_dataset(settings=...) needs ExportSettings, got PipelineSettings: pass "
+            "export_of(pipeline) (its default export; export_of(pipeline, n_items=...) sets "
+            "more)"
+        )
+    require_argument(settings, ExportSettings, "export_dataset(settings=...)")
     return run_export(
         PipelineSource(settings, backend),
         out_dir,

@@ -161,7 +161,7 @@ def connect_scheduler(address: str, timeout_s: float | None = None) -> Any:
     from distributed import Client
 
     timeout_s = SCHEDULER_TIMEOUT_S if timeout_s is None else timeout_s
-    check_scheduler_address(address)
+    address = check_scheduler_address(address)
     try:
         with silenced("distributed"):
             _identify_scheduler(address, timeout_s)
@@ -224,9 +224,11 @@ def _identify_scheduler(address: str, timeout_s: float) -> None:
         raise _no_scheduler(address, timeout_s, answered)
 
 
-def check_scheduler_address(address: object) -> None:
-    """Refuse an address dask cannot parse, before a client is built for it (and, in the
-    Export dock, before its job starts).
+def check_scheduler_address(address: object) -> str:
+    """The address as dask takes it (spaces and a trailing ``/`` removed: found as a
+    user, ``tcp://host:8786/`` was refused with "invalid literal for int()"); an address
+    dask cannot parse is refused before a client is built for it (and, in the Export
+    dock, before its job starts).
 
     Raises
     ------
@@ -240,6 +242,8 @@ def check_scheduler_address(address: object) -> None:
         raise ValueError(f"the scheduler address must be text {example}, got {address!r}")
     from distributed.comm.registry import backends
 
+    given, address = address, address.strip().rstrip("/")
+
     try:
         protocol, location = parse_address(address)
         if protocol not in backends:  # found as a user: http:// stalled 20 s first
@@ -248,9 +252,10 @@ def check_scheduler_address(address: object) -> None:
             parse_host_port(location)
     except ValueError as err:
         raise ValueError(
-            f"the scheduler address {address!r} is not a dask address ({err}): give one "
+            f"the scheduler address {given!r} is not a dask address ({err}): give one "
             f"{example}"
         ) from err
+    return address
 
 
 def check_workers(workers: int | None) -> int:

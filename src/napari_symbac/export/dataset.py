@@ -38,7 +38,13 @@ from napari_symbac.export.visibility import (
     contrast_to_noise,
     faint_cells,
 )
-from napari_symbac.settings import PipelineSettings, SimulationSettings, from_dict, to_dict
+from napari_symbac.settings import (
+    PipelineSettings,
+    SimulationSettings,
+    from_dict,
+    plain_numbers,
+    to_dict,
+)
 
 __all__ = [
     "ExportSettings",
@@ -68,6 +74,7 @@ class Range:
     high: float
 
     def __post_init__(self) -> None:
+        plain_numbers(self)
         for name in ("low", "high"):
             value = getattr(self, name)
             if (
@@ -124,6 +131,7 @@ class Randomisation:
     exposure_scale: Range = field(default_factory=lambda: Range(1.0, 1.0))
 
     def __post_init__(self) -> None:
+        plain_numbers(self)
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             try:  # the field named (found as a user: "Range low=2.0 must not exceed
@@ -263,6 +271,7 @@ class ExportSettings:
     mask_dilation_um: float = 0.0
 
     def __post_init__(self) -> None:
+        plain_numbers(self)
         for name, cls in (
             ("pipeline", PipelineSettings),
             ("randomise", Randomisation),
@@ -806,7 +815,7 @@ def regenerate(manifest_dir: str | os.PathLike, name: str) -> ExportItem:
     manifest_dir
         The dataset's folder (the one holding ``manifest.json``).
     name
-        The item's name, as its files are named (e.g. ``"000004"``).
+        The item's name, as its files are named (e.g. ``"000004"``; text).
 
     Raises
     ------
@@ -819,7 +828,12 @@ def regenerate(manifest_dir: str | os.PathLike, name: str) -> ExportItem:
     document = json.loads(path.read_text("utf-8"))
     settings = export_settings_from_dict(document["settings"])
     source = PipelineSource(settings, document.get("render_backend", "scipy"))
-    for unit in range(source.n_units):
-        if name in source.unit_names(unit):
+    names = [source.unit_names(unit) for unit in range(source.n_units)]
+    for unit, unit_names in enumerate(names):
+        if name in unit_names:
             return next(item for item in source.make_unit(unit) if item.name == name)
-    raise KeyError(f"{path} has no item named {name!r}")
+    every = [n for unit_names in names for n in unit_names]
+    raise KeyError(  # found as an API user: 42 for "000042", with no hint
+        f"{path} has no item named {name!r}: its {len(every)} items are named "
+        f"{every[0]!r} to {every[-1]!r} (text, as their files are named)"
+    )

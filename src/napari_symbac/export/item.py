@@ -17,6 +17,10 @@ __all__ = [
 
 Split = Literal["train", "val"]
 
+#: A float image spanning fewer counts than this, not in whole numbers, is refused: its
+#: values are no camera's counts (a normalised image), and rounding would flatten it.
+MIN_FLOAT_SPAN_COUNTS = 16
+
 
 def instance_dtype(max_label: int) -> np.dtype:
     """The narrowest unsigned type, uint16 or wider, that holds ``max_label`` without wrapping."""
@@ -140,6 +144,7 @@ class ExportItem:
         if semantic.shape != image.shape:
             raise ValueError(f"ExportItem {self.name}: semantic mask shape {semantic.shape}")
         object.__setattr__(self, "image", image)
+        self.image_uint16()  # refused now, not by a worker mid-export
         object.__setattr__(self, "labels", labels)
         object.__setattr__(self, "semantic", (semantic > 0).astype(np.uint8))
         top = int(labels.max()) if labels.size else 0
@@ -164,7 +169,9 @@ class ExportItem:
         return self.labels.astype(self.label_dtype, copy=False)
 
     def image_uint16(self) -> np.ndarray:
-        """``image`` as uint16, refusing values that would be clipped or wrapped."""
+        """``image`` as uint16, refusing values that would be clipped or wrapped, and a
+        float image that rounding to counts would flatten (spanning fewer than
+        :data:`MIN_FLOAT_SPAN_COUNTS` counts, not whole numbers)."""
         image = self.image
         if image.dtype == np.uint16:
             return image
@@ -176,7 +183,20 @@ class ExportItem:
             not np.all(np.isfinite(image)) or image.min() < 0 or image.max() > 65535
         ):
             raise ValueError(f"ExportItem {self.name}: image values outside uint16")
-        return np.rint(image).astype(np.uint16)
+        rounded = np.rint(image)
+        if (
+            image.size
+            and float(rounded.max() - rounded.min()) < MIN_FLOAT_SPAN_COUNTS
+            and not np.array_equal(rounded, image)
+        ):  # found as a user: an image normalised to 0..1 was written as 0s and 1s
+            raise ValueError(
+                f"ExportItem {self.name}: a {image.dtype} image of values "
+                f"{float(image.min()):.3g}..{float(image.max()):.3g} would be written as whole "
+                f"counts {int(rounded.min())}..{int(rounded.max())} (the formats store uint16 "
+                "counts): scale it to counts first (a normalised image: e.g. image * 65535), "
+                "or give an integer image"
+            )
+        return rounded.astype(np.uint16)
 
 
 def item_objects(item: ExportItem) -> list[list[float]]:

@@ -36,6 +36,7 @@ from napari_symbac.export.cluster import (
 )
 from napari_symbac.export.formats import FormatWriter, get_writer
 from napari_symbac.export.item import ExportItem
+from napari_symbac.export.lock import export_lock
 from napari_symbac.export.manifest import (
     ITEMS_DIR,
     check_or_start_manifest,
@@ -477,7 +478,11 @@ def _cluster_failure(err: BaseException, where: str, out_dir: Path) -> ExportErr
     import napari_symbac
 
     text = " ".join(str(err).split()) or type(err).__name__  # dask's text, on one line
-    kept = f"run the same command again: {EXPORT_RESUMES}"
+    items = out_dir / ITEMS_DIR
+    if items.is_dir() and any(items.iterdir()):
+        kept = f"run the same command again: {EXPORT_RESUMES}"
+    else:  # found as a user: "keeps its finished items" where there was none
+        kept = "then run the same command again (no item was finished)"
     if "No valid workers" in text:
         return ExportError(
             f"{where} has no worker to run the export on: start some (`dask worker "
@@ -524,7 +529,7 @@ def check_out_dir(out_dir: str | os.PathLike) -> Path:
 def run_export(
     source: ItemSource,
     out_dir: str | os.PathLike,
-    formats: Sequence[str],
+    formats: Sequence[str] | str,
     *,
     options: dict[str, Any] | None = None,
     workers: int | None = None,
@@ -543,7 +548,8 @@ def run_export(
     out_dir
         Dataset folder; created if missing.
     formats
-        Names of formats in :data:`~napari_symbac.export.formats.FORMATS`.
+        Names of formats in :data:`~napari_symbac.export.formats.FORMATS` (one name
+        alone is taken too).
     options
         Writer options (``coco_segmentation``).
     workers
@@ -578,7 +584,7 @@ def run_export(
     start = time.perf_counter()
     out = check_out_dir(out_dir)
     options = dict(options or {})
-    formats = tuple(formats)
+    formats = (formats,) if isinstance(formats, str) else tuple(formats)  # "tiff": one
     writers = _writers(formats, options)  # validates the names early
     n_workers = check_workers(workers)
     # connect before writing anything: a wrong address leaves no folder behind
@@ -591,10 +597,11 @@ def run_export(
     # reach the export as exceptions, not through this log
     quiet = silenced("distributed.client") if client is not None else contextlib.nullcontext()
     try:
-        with quiet:
+        with quiet, export_lock(out):
+            check_or_start_manifest(out, manifest_header(source, formats))
             return _run_export(
-                source, out, formats, writers, options, n_workers, client, progress, cancel,
-                batch_size, overlap_start, start,
+                source, out, formats, writers, options, n_workers, client, progress,
+                cancel, batch_size, overlap_start, start,
             )
     except ExportError as err:
         if err.errno is None:  # not the disk's (a cluster's, a setting's): say it as it is
@@ -640,7 +647,6 @@ def _run_export(
     overlap_start: bool,
     start: float,
 ) -> ExportReport:
-    check_or_start_manifest(out, manifest_header(source, formats))
     remove_stale_temporaries(out)
 
     names_of = {unit: source.unit_names(unit) for unit in range(source.n_units)}
@@ -786,7 +792,7 @@ def write_items(
     out_dir
         Dataset folder.
     formats
-        Format names, e.g. ``("tiff", "ctc")``.
+        Format names, e.g. ``("tiff", "ctc")``, or one name.
     header
         Extra manifest fields, typically ``{"settings": to_dict(pipeline_settings)}``.
     coco_segmentation

@@ -21,6 +21,7 @@
 
 from napari_symbac.fit.colony import ColonyFit, fit_colony
 from napari_symbac.fit.colony_series import ColonySeriesFit, fit_colony_series
+from napari_symbac.fit.fitted_settings import fitted_pipeline
 from napari_symbac.fit.inputs import (
     CLASS_NAMES,
     CLASS_VALUES,
@@ -74,6 +75,7 @@ __all__ = [
     "fit_parameters",
     "fit_scene",
     "fit_series",
+    "fitted_pipeline",
     "link_cells",
     "objective_terms",
     "otsu_cells",

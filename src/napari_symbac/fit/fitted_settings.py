@@ -10,9 +10,22 @@ from typing import Any
 
 import numpy as np
 
-from napari_symbac.settings import ExtraStage, RenderSettings, SimulationSettings
+from napari_symbac.settings import (
+    Camera,
+    ExtraStage,
+    Microscope,
+    PipelineSettings,
+    RenderSettings,
+    SimulationSettings,
+)
 
-__all__ = ["MIN_CELLS_FOR_SPREAD", "fitted_render", "fitted_simulation", "with_illumination"]
+__all__ = [
+    "MIN_CELLS_FOR_SPREAD",
+    "fitted_pipeline",
+    "fitted_render",
+    "fitted_simulation",
+    "with_illumination",
+]
 
 #: Fitted cells needed to take their brightness spread as the population's.
 MIN_CELLS_FOR_SPREAD = 3
@@ -170,3 +183,71 @@ def _pad_as_fitted(
         kept = {k: getattr(simulation.agar_pad, k) for k in mine}
         fields["agar_pad"] = dataclasses.replace(fields["agar_pad"], **kept)
     return {k: v for k, v in fields.items() if k not in keep}
+
+
+def fitted_pipeline(
+    result: Any,
+    image: np.ndarray,
+    microscope: Microscope,
+    camera: Camera | None = None,
+    *,
+    base: PipelineSettings | None = None,
+    keep: Collection[str] = (),
+) -> tuple[PipelineSettings, list[str]]:
+    """The settings that draw data matched to a fitted recording: what ``napari-symbac
+    fit`` writes as settings.yaml, for :func:`~napari_symbac.sim.simulate`,
+    :func:`~napari_symbac.pipeline.render_simulation` and
+    :func:`~napari_symbac.export.export_of` in Python.
+
+    Found as an API user: ``PipelineSettings(render=fit.render, camera=fit.camera)``
+    drew every cell alike, in the default trench, and only the command line's private
+    code made the rest.
+
+    Parameters
+    ----------
+    result
+        A :class:`~napari_symbac.fit.SceneFit` or :class:`~napari_symbac.fit.ColonyFit`.
+    image
+        The frame that was fitted (its shape sizes the trench or pad; in fluorescence
+        its clipped background is drawn as recorded).
+    microscope
+        The microscope it was fitted with.
+    camera
+        The camera given to the fit, if any (else the fit's own estimate is used).
+    base
+        Settings to start from (default :class:`PipelineSettings`'s).
+    keep
+        Simulation fields the user set, left as they are (:func:`fitted_simulation`).
+
+    Returns
+    -------
+    settings, notes
+        The settings, and sentences on what was kept or drawn as recorded.
+    """
+    from napari_symbac.fit.clipped_background import drawn_clipped, fitted_clip
+    from napari_symbac.fit.colony import ColonyFit
+
+    base = PipelineSettings() if base is None else base
+    image = np.asarray(image)
+    colony = isinstance(result, ColonyFit)  # its render is the fitted one as it is
+    render = result.render if colony else fitted_render(result, microscope.modality)
+    camera_used = getattr(result, "camera", None) or camera or base.camera
+    settings = dataclasses.replace(base, microscope=microscope, render=render, camera=camera_used)
+    notes = []
+    try:
+        simulation = fitted_simulation(
+            base.simulation, result, image.shape[-2:], microscope.pixel_size_um, keep
+        )
+        settings = dataclasses.replace(settings, simulation=simulation)
+    except ValueError as err:
+        notes.append(f"simulation settings kept from the config: {err}")
+    if getattr(result, "illumination_order", 0):  # drawn as fitted (before any clip)
+        settings = dataclasses.replace(
+            settings, extra_stages=with_illumination(settings.extra_stages, result)
+        )
+    if not colony:
+        clipped = fitted_clip(image, result.scene, camera, microscope.modality)
+        if clipped is not None:  # the recording's clipped background
+            settings, sentence = drawn_clipped(settings, clipped, noise=camera is None)
+            notes.append(sentence)
+    return settings, notes

@@ -123,12 +123,27 @@ def check_fit_image(
         refuse_non_finite(image, name)
     low = float(np.min(image))
     if low < 0:
+        fractional = np.issubdtype(np.asarray(image).dtype, np.floating) and not np.all(
+            np.mod(image, 1) == 0
+        )
+        counts_fix = (
+            "add a constant so that all values are >= 0 and give that constant as "
+            f"baseline_adu {camera_hint}"
+        )
+        normalised_fix = (
+            "a normalised image opened by napari-symbac (the commands, or the Real image "
+            "dock's 'or open') is read as counts, in Python by napari_symbac.io.as_counts"
+        )
+        # found as an API user: a normalised float image was told to add a constant first,
+        # and only the second refusal named as_counts
+        fixes = (
+            f"{normalised_fix}; counts with their offset subtracted: {counts_fix}"
+            if fractional
+            else f"{counts_fix}; {normalised_fix}"
+        )
         raise ValueError(
             f"{name} has negative values (minimum {low:.4g}): the fit needs camera counts "
-            "(ADU, camera baseline included). Pass the raw recording, or add a constant so "
-            f"that all values are >= 0 and give that constant as baseline_adu {camera_hint}; "
-            "a normalised image opened by napari-symbac (the commands, or the Real image "
-            "dock's 'or open') is read as counts"
+            f"(ADU, camera baseline included). Pass the raw recording, or: {fixes}"
         )
     high = float(np.max(image))
     if low < high <= 1:  # (a constant image is refused as such: refuse_constant)

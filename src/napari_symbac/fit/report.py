@@ -503,12 +503,16 @@ def report_text(
 
 def _choices(moves: tuple[str, ...]) -> list[str]:
     """report.txt's lines of what the fit chose, under a heading that says what they are
-    (found as a user: bare "merged cells at y = ..." lines read as a problem)."""
+    (found as a user: bare "merged cells at y = ..." lines read as a problem), the
+    trench's closed end named only where the fit chose one (found as a user: named for a
+    closed end out of view)."""
     if not moves:
         return []
+    chose_its_end = any(move.startswith("closed end") for move in moves)
+    closed_end = "the trench's closed end; " if chose_its_end else ""
     heading = (
-        "  what the fit chose (the trench's closed end; cells added, removed, split or "
-        "merged where the likelihood asked for it, BIC):"
+        f"  what the fit chose ({closed_end}cells added, removed, split or merged where the "
+        "likelihood asked for it, BIC):"
     )
     return [heading, *(f"    {move}" for move in moves)]
 

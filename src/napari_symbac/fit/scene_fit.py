@@ -562,6 +562,7 @@ def _run_frame(
     geometry = "open" if geometry == "field" else geometry  # `fit --geometry field`'s word
     if geometry not in ("trench", "open"):
         raise ValueError(f"geometry must be 'trench' or 'open' ('field'), got {geometry!r}")
+    _refuse_what_the_command_line_refuses(real, microscope, camera, geometry)
     if masks is not None:  # refused before minutes of fit (an image given as masks, ...)
         masks = np.asarray(masks)
         check_instance_masks(masks, real.shape)
@@ -871,6 +872,28 @@ def _narrower_start(problem: Problem, start: State) -> State:
         if trial.cost < best.cost:
             best = trial
     return best
+
+
+def _refuse_what_the_command_line_refuses(
+    real: np.ndarray, microscope: Microscope, camera: Camera | None, geometry: str
+) -> None:
+    """The checks ``napari-symbac fit`` and the docks make before a fit, made for the
+    Python API too (found as an API user: a camera offset of 3000 ADU fitted 2 cells of
+    4 to a reduced chi-square of 3350, a trench on its side was "4 trenches side by
+    side", 65 um for 65 nm "5329 cells 909 um wide"): a pixel size no micrograph has, a
+    camera that cannot have recorded the image, a trench on its side."""
+    from napari_symbac.fit.preflight import (
+        camera_recording_problem,
+        check_pixel_size,
+        lying_trench_problem,
+    )
+
+    check_pixel_size(microscope.pixel_size_um, "microscope.pixel_size_um")
+    if camera is not None and (problem := camera_recording_problem(camera, real)):
+        raise ValueError(f"fit_scene(camera=...): {problem}")
+    lying = lying_trench_problem(real.shape, microscope.modality, "real_image")
+    if geometry == "trench" and lying:
+        raise ValueError(f"{lying}; or pass geometry='open' for an open field")
 
 
 def _better_closed_end(

@@ -52,21 +52,29 @@ def _spherocylinder_width(area_um2: float, length_um: float) -> float:
     return (length_um - math.sqrt(disc)) / (2 * k)
 
 
-def _trench_run(trench_columns: np.ndarray, px: float) -> tuple[int, int] | None:
-    """The first and last column of the trench (the longest run of trench columns), or
-    ``None`` when there is none. A frame holding several trenches side by side (runs at
-    least half as wide as the widest and 0.5 um wide) is refused: the fit places one
-    trench. Found as a user: four trenches side by side, fitted with ``--geometry
-    trench``, had the first fitted and the other three left in the residual, exit 0."""
+def _trench_columns(smooth: np.ndarray) -> np.ndarray:
+    """The columns of a phase-contrast frame (dark cells, smoothed) that lie in a trench.
+    Device columns are dark all along; trench columns hold bright media or halo
+    somewhere: the 90th percentile of each column separates them."""
+    columns = np.percentile(smooth, 90, axis=0)
+    low, high = np.percentile(columns, 10), columns.max()
+    above = columns > low + 0.3 * (high - low)
+    return ndimage.binary_closing(above, np.ones(7, bool)) | above  # dips between halos
+
+
+def _trench_runs(trench_columns: np.ndarray, px: float) -> list[np.ndarray]:
+    """The runs of trench columns (each an array of column indices) at least half as
+    wide as the widest and 0.5 um wide."""
     labels, n = ndimage.label(trench_columns)
-    if n == 0:
-        return None
     sizes = ndimage.sum(trench_columns, labels, range(1, n + 1))
-    runs = [
+    return [
         np.flatnonzero(labels == k + 1)
         for k in range(n)
         if sizes[k] >= max(0.5 * sizes.max(), 0.5 / px)
     ]
+
+
+def _refuse_trenches_side_by_side(runs: list[np.ndarray]) -> None:
     if len(runs) > 1:
         where = ", ".join(f"{r[0]}-{r[-1]}" for r in runs)
         raise ValueError(
@@ -74,8 +82,41 @@ def _trench_run(trench_columns: np.ndarray, px: float) -> tuple[int, int] | None
             "places one trench: crop each trench, with about 1 um of PDMS either side, into "
             "an image of its own"
         )
-    idx = np.flatnonzero(labels == int(np.argmax(sizes)) + 1)
-    return int(idx[0]), int(idx[-1])
+
+
+def _trench_run(trench_columns: np.ndarray, px: float) -> tuple[int, int] | None:
+    """The first and last column of the trench (the longest run of trench columns), or
+    ``None`` when there is none. A frame holding several trenches side by side (runs at
+    least half as wide as the widest and 0.5 um wide) is refused: the fit places one
+    trench. Found as a user: four trenches side by side, fitted with ``--geometry
+    trench``, had the first fitted and the other three left in the residual, exit 0."""
+    runs = _trench_runs(trench_columns, px)
+    if not runs:
+        return None
+    _refuse_trenches_side_by_side(runs)
+    return int(runs[0][0]), int(runs[0][-1])
+
+
+#: The widest run of columns (um) taken for one trench in a frame of several side by
+#: side (mother-machine trenches hold cells in single file: the SyMBac and DeLTA
+#: trenches' runs are 1.5 and 1.4 um).
+SIDE_BY_SIDE_TRENCH_MAX_WIDTH_UM = 4.0
+
+
+def refuse_trenches_in_a_field(image: np.ndarray, px: float) -> None:
+    """Refuse a phase-contrast frame too wide to be taken for a trench that holds
+    several trenches side by side: at least two runs of trench columns of like widths
+    (within a factor 1.5), each at most :data:`SIDE_BY_SIDE_TRENCH_MAX_WIDTH_UM` wide.
+    Found as a user: four trenches side by side (274 px wide) were refused as a colony
+    ("give instance masks") where the fix is to crop one trench. A colony's columns make
+    runs of several micrometres."""
+    smooth = ndimage.gaussian_filter(np.asarray(image, float), 1.0)
+    runs = _trench_runs(_trench_columns(smooth), px)
+    widths_um = np.array([r.size * px for r in runs])
+    if widths_um.size and widths_um.max() <= min(
+        SIDE_BY_SIDE_TRENCH_MAX_WIDTH_UM, 1.5 * widths_um.min()
+    ):
+        _refuse_trenches_side_by_side(runs)
 
 
 #: Rows (um) of device across the trench that make a closed end at an image's edge.
@@ -360,13 +401,7 @@ def otsu_cells(
             " or geometry='open'"
         )
     elif geometry == "trench":
-        # Device columns are dark all along; trench columns hold bright media or halo
-        # somewhere: the 90th percentile of each column separates them.
-        columns = np.percentile(smooth, 90, axis=0)
-        low, high = np.percentile(columns, 10), columns.max()
-        above = columns > low + 0.3 * (high - low)
-        above = ndimage.binary_closing(above, np.ones(7, bool)) | above  # dips between halos
-        run = _trench_run(above, px)
+        run = _trench_run(_trench_columns(smooth), px)
         if run is None:
             raise ValueError("no trench found in the image: is it a mother-machine trench?")
         c0, c1 = run
@@ -734,6 +769,8 @@ def start_scene(
             trench=trench,
             valid=valid,
         )
+        if refuse_wide and too_wide(start[1]) and geometry == "open" and polarity == "dark":
+            refuse_trenches_in_a_field(image, px)
         if refuse_wide:
             refuse_blobs(start[1], px)
         return start

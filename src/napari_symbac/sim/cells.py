@@ -216,6 +216,16 @@ class Simulation:
 
     __hash__ = None  # type: ignore[assignment]
 
+    def __repr__(self) -> str:
+        """A line, not every frame's arrays (found as an API user: 135 KB for 200 frames
+        at the end of a notebook cell)."""
+        cells = sum(len(frame.ids) for frame in self.frames[-1:])
+        return (
+            f"Simulation({self.settings.geometry}, {len(self.frames)} frames, "
+            f"{len(self.lineage)} cells over the run, {cells} in the last frame, "
+            f"seed {self.settings.seed})"
+        )
+
     def trace(self, cell_id: int) -> CellTrace:
         """Per-frame position, length and width of one cell over its life.
 

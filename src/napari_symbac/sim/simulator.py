@@ -690,10 +690,12 @@ def simulate(
             "SimulationSettings(...) or load_settings(path, SimulationSettings)"
         )
     if rng is not None and not isinstance(rng, np.random.Generator):
+        seed = repr(rng) if isinstance(rng, int) else "seed"  # not a RandomState's repr
+        given = f"{type(rng).__name__} {rng!r}" if isinstance(rng, int) else type(rng).__name__
         raise TypeError(
-            f"simulate(rng=...) needs a numpy.random.Generator, got {type(rng).__name__} "
-            f"{rng!r}: pass numpy.random.default_rng({rng!r}), or set the seed in the "
-            "settings (SimulationSettings(seed=...)) and leave rng out"
+            f"simulate(rng=...) needs a numpy.random.Generator, got {given}: "
+            f"pass numpy.random.default_rng({seed}), "
+            "or set the seed in the settings (SimulationSettings(seed=...)) and leave rng out"
         )
     if settings.save_dir is not None:
         check_save_dir(settings.save_dir)
