@@ -186,7 +186,7 @@ def _draw(
 ) -> Scene:
     scene = draw_scene(
         simulation.frames[index],
-        simulation.settings.trench,  # the cells' own (see _check_render_inputs)
+        simulation.settings.trench,  # the cells' own (draw_frame says why)
         settings.microscope,
         settings.render,
         curvature=curvature,

@@ -90,11 +90,13 @@ def _trench_run(trench_columns: np.ndarray, px: float) -> tuple[int, int] | None
     least half as wide as the widest and 0.5 um wide) is refused: the fit places one
     trench. Found as a user: four trenches side by side, fitted with ``--geometry
     trench``, had the first fitted and the other three left in the residual, exit 0."""
-    runs = _trench_runs(trench_columns, px)
-    if not runs:
+    _refuse_trenches_side_by_side(_trench_runs(trench_columns, px))
+    labels, n = ndimage.label(trench_columns)
+    if n == 0:
         return None
-    _refuse_trenches_side_by_side(runs)
-    return int(runs[0][0]), int(runs[0][-1])
+    sizes = ndimage.sum(trench_columns, labels, range(1, n + 1))
+    idx = np.flatnonzero(labels == int(np.argmax(sizes)) + 1)
+    return int(idx[0]), int(idx[-1])
 
 
 #: The widest run of columns (um) taken for one trench in a frame of several side by
