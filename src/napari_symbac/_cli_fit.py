@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import inspect
 import json
 import re
 import sys
@@ -234,7 +233,6 @@ def _camera_for(
     frame: np.ndarray,
     base_camera,
     config_has_camera: bool,
-    engine_estimates: bool,
 ):
     """The camera to pass to the fit and a sentence saying where it came from."""
     from napari_symbac.fit.camera_estimate import (
@@ -281,26 +279,10 @@ def _camera_for(
         return camera, f"from the camera section of --microscope {args.microscope}"
     if config_has_camera:  # napari-symbac's own settings: in the units it read
         return base_camera, f"from --config {args.config}"
-    if engine_estimates:
-        return None, (
-            "estimated from the image by the fit: photon transfer of its high-pass part, or "
-            "the model's residual where the levels span too little (no --camera, --dark or "
-            "config camera)"
-        )
-    # One image fixes only the slope and K * offset - read variance: keep the configured
-    # (or default) baseline, lowered to the image's darkest values if it lies above them.
-    lowest = float(np.percentile(frame, 0.1))
-    reference = base_camera
-    if reference.baseline_adu > lowest:
-        reference = dataclasses.replace(reference, baseline_adu=max(lowest, 0.0))
-    reference = dataclasses.replace(reference, bit_depth=bit_depth)
-    try:
-        estimate = estimate_camera(frame, camera=reference, bit_depth=bit_depth)
-    except ValueError as err:
-        return base_camera, f"{base_camera} (defaults: no estimate from the image: {err})"
-    return estimate.camera, (
-        f"{estimate.summary()}: gain and read noise estimated from the image, baseline from "
-        "the default camera settings (pass --camera or --dark to give the real one)"
+    return None, (
+        "estimated from the image by the fit: photon transfer of its high-pass part, or "
+        "the model's residual where the levels span too little (no --camera, --dark or "
+        "config camera)"
     )
 
 
@@ -441,7 +423,6 @@ def _trench_as_field(named: str, shape: tuple[int, ...], microscope) -> str | No
 
 def _prepare_one(args, frame, labels, masks, microscope, base, keys):
     """Check one frame and its labels/masks; choose its camera and fit options."""
-    from napari_symbac.fit import fit_scene
     from napari_symbac.fit.camera_estimate import censored_pixels
     from napari_symbac.fit.preflight import (
         as_instance_ids,
@@ -468,11 +449,7 @@ def _prepare_one(args, frame, labels, masks, microscope, base, keys):
     if (note := modality_doubt(frame, microscope.modality)) is not None:
         notes.append(note)
 
-    accepted = set(inspect.signature(fit_scene).parameters)
-    engine_estimates = "valid" in accepted
-    camera, camera_note = _camera_for(
-        args, frame, base.camera, "camera" in keys, engine_estimates
-    )
+    camera, camera_note = _camera_for(args, frame, base.camera, "camera" in keys)
     censored = censored_pixels(frame, camera)
     geometry = _GEOMETRIES[args.geometry]
     options: dict[str, Any] = {"geometry": geometry, "labels": labels}
@@ -510,18 +487,10 @@ def _prepare_one(args, frame, labels, masks, microscope, base, keys):
             "intensities take up the fit's misfit)"
         )
     if masks is not None:
-        if "masks" not in accepted:
-            raise ValueError(
-                "this version of the fit engine takes no instance masks: pass --labels "
-                "(1 cell, 2 media, 3 device) instead"
-            )
         options["masks"] = masks
-    if "valid" in accepted:
-        options["valid"] = ~censored
-    censor_note = f"{int(censored.sum())} ({100 * censored.mean():.2f} %)"
-    censor_note += (
-        " left out of the likelihood" if "valid" in accepted else
-        " NOT left out (this fit engine takes no valid mask)"
+    options["valid"] = ~censored
+    censor_note = (
+        f"{int(censored.sum())} ({100 * censored.mean():.2f} %) left out of the likelihood"
     )
     return _Prepared(
         masks, labels, camera, camera_note, options, censor_note, notes, polarity, colony
