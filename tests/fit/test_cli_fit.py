@@ -824,6 +824,20 @@ def test_refuses_negative_values(tmp_path, truth, inputs, capsys):
     assert "--camera" in error
 
 
+@pytest.mark.parametrize("geometry", ["trench", "field"])
+def test_refuses_a_frame_of_noise_alone(tmp_path, inputs, capsys, geometry):
+    """Found as a user: a 256 x 256 frame of pure noise was fitted as a field with "1 cell"
+    0.3 um wide, exit 0, and told it held "2 trenches side by side" as a trench."""
+    _, _, microscope = inputs
+    image = tmp_path / "noise.tif"
+    shape = (256, 46) if geometry == "trench" else (256, 256)
+    tifffile.imwrite(image, np.random.default_rng(5).poisson(1000, shape).astype(np.uint16))
+    error = _refused(capsys, tmp_path / "o", image, "--microscope", microscope,
+                     "--geometry", geometry)  # fmt: skip
+    (refusal,) = [line for line in error.splitlines() if "found no cells" in line]
+    assert "blank or dark frame" in refusal
+
+
 def test_a_normalised_image_is_fitted_as_counts(tmp_path, truth, inputs, capsys):
     """A recording divided by its maximum (float 0..1) was fitted as camera counts, exit 0,
     a camera of 0.011 ADU/e-, and datasets drawn from the fit held only 0 and 1 (found

@@ -402,6 +402,36 @@ def test_a_cell_that_changes_no_pixel_is_pruned_after_the_last_round(truth):
     np.testing.assert_array_equal(problem.blocks(pruned.x)[0], blocks)
 
 
+@pytest.mark.parametrize("modality", ["phase", "fluorescence", "brightfield"])
+def test_an_image_of_noise_alone_is_refused_as_holding_no_cells(modality):
+    """Found as a user: a frame of pure noise fitted "1 cell" 0.3 um wide at the width's
+    bound, its intensity 721 +- 639, exit 0: the moves kept the last cell whatever it
+    was worth; as a trench it was told it held "2 trenches side by side". The start
+    refuses a frame that holds nothing but noise, whatever its modality and geometry."""
+    from napari_symbac.settings import Microscope
+
+    noise = np.random.default_rng(3).normal(1000, 30, (96, 96))
+    with pytest.raises(ValueError, match="found no cells in the image"):
+        fit_scene(noise, Microscope(pixel_size_um=0.065, modality=modality), RenderSettings(),
+                  geometry="field")  # fmt: skip
+
+
+def test_a_blank_frame_is_judged_on_its_valid_pixels(truth):
+    """A saturated blob excluded from the fit does not make a blank frame look full, a
+    constant frame is blank, and a frame with cells passes."""
+    from napari_symbac.fit.start import refuse_blank
+
+    noise = np.random.default_rng(4).normal(1000, 30, (128, 128))
+    valid = np.ones(noise.shape, bool)
+    noise[40:60, 40:60], valid[40:60, 40:60] = 65535, False
+    with pytest.raises(ValueError, match="blank or dark frame"):
+        refuse_blank(noise, valid)
+    with pytest.raises(ValueError, match=r"\(0 s\.d\."):
+        refuse_blank(np.full((64, 64), 100.0))
+    refuse_blank(truth.image)
+    refuse_blank(noise)  # the blob counts when it is valid
+
+
 def test_a_rod_turned_by_pi_and_bent_the_other_way_is_drawn_the_same():
     """Layout.wrap_angles brings every angle into [-pi/2, pi/2) and flips the curvature
     with each half turn; the scene drawn from the wrapped parameters is the same."""

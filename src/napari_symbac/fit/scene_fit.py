@@ -56,7 +56,13 @@ from napari_symbac.fit.parameters import DEFAULT_FIT, _Budget, _variance, parame
 from napari_symbac.fit.placement import TrenchPlacement
 from napari_symbac.fit.preflight import API_CAMERA_HINT, check_fit_image, check_instance_masks
 from napari_symbac.fit.problem import Problem
-from napari_symbac.fit.start import _pixel_noise, otsu_cells, polarity_of, start_scene
+from napari_symbac.fit.start import (
+    _pixel_noise,
+    otsu_cells,
+    polarity_of,
+    refuse_a_start_mostly_removed,
+    start_scene,
+)
 from napari_symbac.scene import Scene
 from napari_symbac.settings import Camera, Microscope, RenderSettings, TrenchGeometry
 from napari_symbac.sim import FrameCells
@@ -814,6 +820,9 @@ def _run_frame(
                     f"after the cells removed at the end: the fit stopped at the iteration "
                     f"limit ({max_iterations}) before converging"
                 )
+        if masks is None and labels is None and start_cells is None:
+            removed = sum(line.startswith("removed") for line in log)
+            refuse_a_start_mostly_removed(n, removed, problem.n_cells(state.x))
     return _FrameRun(
         real,
         labels,

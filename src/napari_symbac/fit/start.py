@@ -121,6 +121,44 @@ def refuse_trenches_in_a_field(image: np.ndarray, px: float) -> None:
         _refuse_trenches_side_by_side(runs)
 
 
+#: A frame is blank when its smoothed image (Gaussian, s.d. 2 px) departs from its
+#: median by at most this many s.d. of the smoothed noise: pure noise reaches 4-5.4
+#: (96 x 96 to 1024 x 1024 px), every frame of the 46 real images of ../shared 120 or more.
+BLANK_MAX_Z = 10.0
+
+
+def refuse_blank(image: np.ndarray, valid: np.ndarray | None = None) -> None:
+    """Refuse a frame that holds nothing but noise (a blank frame, a dark frame, an
+    empty channel). Found as a user: a frame of pure noise was told it held "2
+    trenches side by side" as a trench, and took 50 s to be told it held no cells as
+    a field.
+
+    Only the ``valid`` pixels count: the smoothing is normalised by the valid pixels'
+    weight, and the noise is measured where a pixel's four neighbours are valid too.
+    A frame with too few such pixels (a held-out checkerboard) is not judged.
+    """
+    valid = np.ones(image.shape, bool) if valid is None else np.asarray(valid, bool)
+    inner = valid & ndimage.binary_erosion(valid, border_value=1)
+    if inner.mean() < 0.25:
+        return
+    data = np.where(valid, np.asarray(image, float), 0.0)
+    weight = ndimage.gaussian_filter(valid.astype(float), 2.0)
+    judged = valid & (weight > 0.5)
+    smooth = ndimage.gaussian_filter(data, 2.0)[judged] / weight[judged]
+    # the s.d. of white noise after a Gaussian of s.d. 2 px: s / (4 sqrt(pi)), more
+    # where fewer pixels are valid
+    noise = _pixel_noise(data, inner) / (4 * math.sqrt(math.pi) * math.sqrt(valid.mean()))
+    departure = float(np.abs(smooth - np.median(smooth)).max())
+    z = departure / noise if noise > 0 else (math.inf if departure > 0 else 0.0)
+    if z <= BLANK_MAX_Z:  # a constant frame too
+        raise ValueError(
+            f"the start found no cells in the image: nothing in it departs from its "
+            f"median by more than its noise allows ({z:.2g} s.d. of the noise smoothed "
+            "over 2 px at most), as in a blank or dark frame or an empty channel: check "
+            "the frame and the channel"
+        )
+
+
 #: Rows (um) of device across the trench that make a closed end at an image's edge.
 CLOSED_END_ROWS_UM = 0.4
 
@@ -663,6 +701,34 @@ def refuse_blobs(widths_um: np.ndarray, pixel_size_um: float) -> None:
     )
 
 
+#: An automatic start of at least this many cells is judged by what the fit keeps of it:
+#: half or fewer, the rest removed as explaining the image no better than its background
+#: (BIC), and the start's cells were not the image's. Found as a user: a 64 x 64 px
+#: window of the Omnipose colony Sample000033 started with 13 rods across its touching
+#: cells and ended with 2, exit 0.
+MIN_START_JUDGED = 4
+
+
+def refuse_a_start_mostly_removed(n_start: int, n_removed: int, n_kept: int) -> None:
+    """Refuse a fit that removed half or more of its automatic start's cells and kept
+    half or fewer (cells it added count among those kept and removed).
+
+    Raises
+    ------
+    WideStartError
+        When ``n_start >= MIN_START_JUDGED``, ``2 n_removed >= n_start`` and ``2 n_kept
+        <= n_start``; its ``cause`` says how many were kept and why that means the start
+        was wrong.
+    """
+    if n_start < MIN_START_JUDGED or 2 * n_removed < n_start or 2 * n_kept > n_start:
+        return
+    raise WideStartError(
+        f"the fit kept {n_kept} of the {n_start} cells its automatic start found, the "
+        "others explaining the image no better than its background: the start's cells "
+        "are not the image's, as where touching cells in a colony cannot be told apart"
+    )
+
+
 def refuse_wide_cells(widths_um: np.ndarray, whose: str, pixel_note: str, fix: str = "") -> None:
     """Refuse given cells (masks', or a fit's) wider than any rod (:func:`too_wide`, the
     automatic start's rule): the pixel size is too large. Found as a user: 0.8 um for
@@ -743,7 +809,11 @@ def start_scene(
     FaintStartError
         Without ``masks``, when no bright cell stands out of the background
         (fluorescence).
+    ValueError
+        Without ``masks``, when the image holds nothing but noise (:func:`refuse_blank`).
     """
+    if masks is None:
+        refuse_blank(image, valid)
     polarity = polarity_of(image, microscope.modality, labels)
     px = microscope.pixel_size_um
     if microscope.modality == "brightfield" and masks is None and geometry == "open":
