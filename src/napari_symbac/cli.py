@@ -486,12 +486,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from napari_symbac.diagnose.config import NO_CAMERA_NOTE, load_microscope_file
     from napari_symbac.diagnose.figures import write_figures
     from napari_symbac.diagnose.model import build_design
-    from napari_symbac.diagnose.region import (
-        default_region,
-        names_centre,
-        parse_region,
-        simulated_shape,
-    )
+    from napari_symbac.diagnose.region import CELLS, names_centre, parse_region, simulated_shape
     from napari_symbac.diagnose.run import diagnose
     from napari_symbac.diagnose.stages import drawn_by_export, refitted_render, updated_settings
     from napari_symbac.export.atomic import earlier_run, remove_earlier_run
@@ -558,21 +553,25 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             check_class_labels(labels, stack.shape[-2:], f"--labels {Path(args.labels).name}")
         frame_shape = stack.shape[-2:]
         masks = None if args.masks is None else _diagnose_masks(args.masks, stack.shape)
-        if args.region is None:
-            region = default_region(frame_shape)
-        else:
-            region = parse_region(args.region, frame_shape)
+        asked = CELLS if args.region is None else args.region
+        region = parse_region(asked, stack, masks=masks)
         y0, y1, x0, x1 = region
         if region != (0, frame_shape[0], 0, frame_shape[1]):
             stack = stack[:, y0:y1, x0:x1]
             labels = None if labels is None else labels[y0:y1, x0:x1]
             masks = None if masks is None else masks[:, y0:y1, x0:x1]
-            if args.region is None or names_centre(args.region):
-                # the centre window's place is the program's choice: say where it is
+            if asked.strip().lower() == CELLS or names_centre(asked):
+                # the window's place is the program's choice: say where it is
+                if names_centre(asked):
+                    which = "the centre one"
+                else:
+                    which = "the one holding the most whole cells"
+                    which += "" if masks is None else " of --masks"
+                    which += " in every frame" if len(stack) > 1 else ""
                 print(
                     f"note: diagnosing rows {y0}:{y1}, columns {x0}:{x1} of the "
-                    f"{frame_shape[0]} x {frame_shape[1]} frame ({stack[0].size:,} of "
-                    f"{frame_shape[0] * frame_shape[1]:,} pixels: a diagnosis's time and "
+                    f"{frame_shape[0]} x {frame_shape[1]} frame, {which} ({stack[0].size:,} "
+                    f"of {frame_shape[0] * frame_shape[1]:,} pixels: a diagnosis's time and "
                     "memory grow faster than its pixels); --region Y0:Y1,X0:X1 picks "
                     "another window, --region full the whole frame",
                     file=sys.stderr,
@@ -834,10 +833,6 @@ DIAGNOSE_FAINT_START_FIX = (
 )
 
 
-#: The side of a diagnosis window under which "no cells" may mean too little background.
-SMALL_WINDOW_PX = 64
-
-
 def _no_cells_advice(
     err: Exception,
     k: int,
@@ -849,6 +844,7 @@ def _no_cells_advice(
     user: `diagnose` of ColiCoords ds3 (4 frames of 512 x 512 px, cells off centre) said
     only "the start found no cells in the image": its frame 1 held none in the centre
     256 x 256 px window that is diagnosed by default, which the message did not say."""
+    from napari_symbac.diagnose.region import SMALL_WINDOW_PX
     from napari_symbac.fit.start import FaintStartError
 
     y0, y1, x0, x1 = region
@@ -1385,9 +1381,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     diag.add_argument(
         "--region",
-        metavar="Y0:Y1,X0:X1|full|centre",
-        help="the window of each frame to diagnose, in pixels (default, centre: the whole "
-        "frame up to 256 x 256 pixels, else its centre window of that many pixels)",
+        metavar="Y0:Y1,X0:X1|full|cells|centre",
+        help="the window of each frame to diagnose, in pixels (default, cells: the whole "
+        "frame up to 256 x 256 pixels, else the window of that many that holds the most "
+        "whole cells (of --masks, when given) in every frame; centre: the centre one)",
     )
     diag.add_argument(
         "--max-effects",

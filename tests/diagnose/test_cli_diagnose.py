@@ -312,17 +312,17 @@ def test_diagnose_says_when_the_noise_is_correlated(tmp_path, capsys, real_data_
     assert settings.render.media_intensity < np.median(real[real > 0])
 
 
-@pytest.mark.parametrize(("n_frames", "region"), [(1, None), (2, None), (1, " Centre")])
+@pytest.mark.parametrize(("n_frames", "region"), [(1, "centre"), (2, "centre"), (1, " Centre")])
 def test_no_cells_in_the_diagnosed_window_names_it_and_the_fix(
     tmp_path, capsys, n_frames, region
 ):
     """Found as a user: `diagnose` of ColiCoords ds3 (4 frames of 512 x 512 px) said only
     "error: the start found no cells in the image (no region of 6 pixels or more)": its
-    frame 1 held no cell in the centre 256 x 256 px window diagnosed by default, which
-    the message did not say, nor that --region picks another. Here a 300 x 300 field
-    whose only cell lies in a corner, outside that window. The centre window's place is
-    said in a note whether it was the default or asked for by name (``--region centre``
-    said nothing of where it was)."""
+    frame 1 held no cell in the centre 256 x 256 px window, then diagnosed by default,
+    which the message did not say, nor that --region picks another. Here a 300 x 300
+    field whose only cell lies in a corner, outside the centre window (the default now
+    takes the window holding the most cells: test_region). The centre window's place is
+    said in a note (``--region centre`` once said nothing of where it was)."""
     rng = np.random.default_rng(0)
     frame = rng.poisson(200, (300, 300)).astype(np.float64) + 100
     frame[3:12, 3:40] += 3000
@@ -331,12 +331,12 @@ def test_no_cells_in_the_diagnosed_window_names_it_and_the_fix(
     mic = tmp_path / "mic.yaml"
     mic.write_text("pixel_size_um: 0.08\nmodality: fluorescence\nwavelength_um: 0.53\n")
     out = tmp_path / "out"
-    asked = [] if region is None else ["--region", region]
-    code = main(["diagnose", str(image), "--microscope", str(mic), "--out", str(out), *asked])
+    code = main(["diagnose", str(image), "--microscope", str(mic), "--out", str(out),
+                 "--region", region])  # fmt: skip
     said = capsys.readouterr().err.strip().splitlines()
     error = said[-1]
     assert code == 2
-    note = "note: diagnosing rows 22:278, columns 22:278 of the 300 x 300 frame"
+    note = "note: diagnosing rows 22:278, columns 22:278 of the 300 x 300 frame, the centre one"
     assert any(line.startswith(note) for line in said)
     where = "frame 0" if n_frames > 1 else "the image"
     assert f"{where}, rows 22:278, columns 22:278: the start found no cells" in error
@@ -517,7 +517,7 @@ def test_bright_field_is_diagnosed_with_its_lens_term(tmp_path, capsys, real_dat
     assert len([e for e in doc["effects"] if e["accepted"]]) == 1
     assert doc["final_fit"]["held_out"] < doc["base_fit"]["held_out"]
     report = (out / "report.txt").read_text()
-    untested = report.split("not tested (need a time series or another modality): ")[1]
+    untested = report.split("not tested (need a time series, another modality or more cells): ")[1]
     for name in ("halo", "photobleaching", "envelope_stain"):
         assert name in untested.splitlines()[0]
     settings = load_settings(out / "settings.yaml", PipelineSettings)
@@ -635,3 +635,20 @@ def test_a_small_window_without_cells_found_says_it_may_be_too_small(
     assert "the 40 x 40 px window may be too small for the start to tell the cells" in err
     assert not out.exists()
 
+
+
+def test_one_cell_leaves_cell_to_cell_brightness_untested(tmp_path, real_data_dir, capsys):
+    """Found as a user: the top 96 rows of the real trench hold one cell, and
+    cell_intensity_variability was accepted at a CV of 0 (one cell's gain is the fitted
+    cell intensity's own), taking one of the four places for effects; its settings then
+    drew nothing. With fewer than two cells it is not tested, and the report says so."""
+    out = tmp_path / "one-cell"
+    trench = real_data_dir / "ecoli_100x_oil_exponential.tiff"
+    code = main(["diagnose", str(trench), "--pixel-size-um", "0.065", "--region", "0:96,0:46",
+                 "--out", str(out)])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    doc = json.loads((out / "diagnosis.json").read_text())
+    assert doc["start"]["cells_per_frame"] == [1]
+    assert "cell_intensity_variability" in doc["not_tested"]
+    assert "cell_intensity_variability" not in [effect["name"] for effect in doc["effects"]]
+    assert "another modality or more cells): " in (out / "report.txt").read_text()

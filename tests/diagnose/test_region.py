@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from napari_symbac.diagnose.region import (
     MAX_DIAGNOSIS_PIXELS,
+    cells_region,
     default_region,
     parse_region,
     simulated_shape,
@@ -35,26 +37,62 @@ def test_a_long_trench_keeps_its_full_width():
     assert y1 - y0 == MAX_DIAGNOSIS_PIXELS // 46
 
 
+def _frame(rows: int, cols: int) -> np.ndarray:
+    return np.random.default_rng(0).normal(1000.0, 30.0, (rows, cols))
+
+
 def test_parse_region():
-    assert parse_region("full", (512, 512)) == (0, 512, 0, 512)
-    assert parse_region("10:138, 20:84", (512, 512)) == (10, 138, 20, 84)
+    assert parse_region("full", _frame(512, 512)) == (0, 512, 0, 512)
+    assert parse_region("10:138, 20:84", _frame(512, 512)) == (10, 138, 20, 84)
     # found as a user: a window partly outside the frame was "empty or outside" it
     with pytest.raises(ValueError, match=r"is not all inside the 64 x 32 frame \(rows 0:64"):
-        parse_region("0:65,0:32", (64, 32))
+        parse_region("0:65,0:32", _frame(64, 32))
     with pytest.raises(ValueError, match=r"'32:16,0:32' is empty \(each end after its start"):
-        parse_region("32:16,0:32", (64, 32))
+        parse_region("32:16,0:32", _frame(64, 32))
     with pytest.raises(ValueError, match="not of the form"):
-        parse_region("0-64,0-32", (64, 32))
+        parse_region("0-64,0-32", _frame(64, 32))
     # the centre window, as by default (the Diagnose dock's default), of at most max_pixels
-    assert parse_region(" Centre ", (512, 512)) == default_region((512, 512))
-    assert parse_region("center", (512, 512)) == (128, 384, 128, 384)
-    assert parse_region("centre", (512, 512), max_pixels=64 * 64) == (224, 288, 224, 288)
-    assert parse_region("centre", (64, 32)) == (0, 64, 0, 32)
+    assert parse_region(" Centre ", _frame(512, 512)) == default_region((512, 512))
+    assert parse_region("center", _frame(512, 512)) == (128, 384, 128, 384)
+    assert parse_region("centre", _frame(512, 512), max_pixels=64 * 64) == (224, 288, 224, 288)
+    assert parse_region("centre", _frame(64, 32)) == (0, 64, 0, 32)
     # the errors name what the user gave it as, and every form accepted
     with pytest.raises(ValueError, match=r"^window 'middle' is not of the form") as err:
-        parse_region("middle", (64, 32), name="window")
+        parse_region("middle", _frame(64, 32), name="window")
     assert "give Y0:Y1,X0:X1 (rows and columns in pixels" in str(err.value)
-    assert "full (the whole frame) or centre (its centre window of at most 256" in str(err.value)
+    assert "full (the whole frame), cells (the window of at most 256 x 256 px" in str(err.value)
+    assert "or centre (its centre window of that many)" in str(err.value)
+
+
+def _holds(window: tuple[int, ...], box: tuple[int, ...]) -> bool:
+    (y0, y1, x0, x1), (b0, b1, c0, c1) = window, box
+    return y0 <= b0 and b1 <= y1 and x0 <= c0 and c1 <= x1
+
+
+def test_the_cells_window_holds_the_most_whole_cells():
+    """Found as a user: the centre 256 x 256 px of a ColiCoords 512 x 512 fluorescence
+    field held none of its three cells whole; by default the window that holds the most
+    is diagnosed, of the masks when given, in every frame of a series."""
+    frame = _frame(512, 512)
+    for y, x in [(40, 20), (60, 120), (300, 430)]:  # three cells, two near the corner
+        frame[y : y + 12, x : x + 40] += 600
+    y0, y1, x0, x1 = cells_region(frame)
+    assert (y1 - y0, x1 - x0) == (256, 256)
+    assert _holds((y0, y1, x0, x1), (40, 72, 20, 160))  # the two, whole
+    assert parse_region("cells", frame) == (y0, y1, x0, x1)
+    # by the masks when given: the cell far from the others
+    masks = np.zeros(frame.shape, np.int32)
+    masks[300:312, 430:470] = 1
+    y0, y1, x0, x1 = cells_region(frame, masks)
+    assert _holds((y0, y1, x0, x1), (300, 312, 430, 470))
+    # a series: the window with cells in every frame
+    other = _frame(512, 512)
+    other[300:312, 430:470] += 600
+    y0, y1, x0, x1 = cells_region(np.stack([frame, other]))
+    assert _holds((y0, y1, x0, x1), (300, 312, 430, 470))
+    # noise alone, or a frame no larger than the window: the centre one
+    assert cells_region(_frame(512, 512)) == default_region((512, 512))
+    assert cells_region(frame[:256, :256]) == (0, 256, 0, 256)
 
 
 def test_a_trench_window_is_simulated_as_long_as_the_frame():

@@ -30,8 +30,9 @@ def diagnose_widget(make_napari_viewer, real_data_dir):
         scale=(0.065, 0.065),
         metadata={"pixel_size_um": 0.065, "modality": "phase"},
     )
-    # a window of 96 rows, as a large field gets its centre 256 x 256 px
+    # a window of 96 rows, as a large field gets one of 256 x 256 px: the centre one
     widget = DiagnoseWidget(viewer, candidates=CANDIDATES, n_bootstrap=5, max_pixels=96 * 46)
+    widget.window.value = "centre"
     return viewer, widget, real
 
 
@@ -279,13 +280,20 @@ def test_diagnose_names_the_image_that_waits_for_its_pixel_size(
     widget.run_button.clicked.emit()
     assert widget.status.value.startswith("No recording: open your image in the 1 Recording")
     real = tifffile.imread(real_data_dir / "ecoli_100x_oil_exponential.tiff")
-    viewer.add_image(real, name="my trench", metadata={"pixel_size_um": 0.0})
-    widget.run_button.clicked.emit()
-    assert widget.worker is None
-    assert widget.status.value == (
+    layer = viewer.add_image(real, name="my trench", metadata={"pixel_size_um": 0.0})
+    waiting = (
         "my trench has no pixel size yet: enter it in the 1 Recording tab (or "
         "the Real image and classes dock), then choose it here"
     )
+    # said as soon as the image is opened (found as a user: nothing until clicked)
+    assert widget.status.value == waiting
+    widget.run_button.clicked.emit()
+    assert widget.worker is None
+    assert widget.status.value == waiting
+    # entered: the image is chosen and the advice taken back (found as a user: it stayed)
+    layer.metadata = {**layer.metadata, "pixel_size_um": 0.065}
+    assert widget.reference.value is layer
+    assert widget.status.value == ""
 
 
 def test_diagnose_says_the_centre_window_holds_no_cells(make_napari_viewer, qtbot):
@@ -296,6 +304,9 @@ def test_diagnose_says_the_centre_window_holds_no_cells(make_napari_viewer, qtbo
     rng = np.random.default_rng(0)
     frame = rng.poisson(200, (300, 300)).astype(np.float64) + 100
     frame[3:12, 3:40] += 3000
+    # and a cell too faint for the start in the window (a frame of noise alone is refused
+    # as blank before the start: test_scene_engine)
+    frame[140:149, 130:167] += 40
     viewer = make_napari_viewer()
     viewer.add_image(
         frame.astype(np.uint16),
@@ -304,6 +315,7 @@ def test_diagnose_says_the_centre_window_holds_no_cells(make_napari_viewer, qtbo
         metadata={"pixel_size_um": 0.08, "modality": "fluorescence"},
     )
     widget = DiagnoseWidget(viewer, candidates=CANDIDATES, n_bootstrap=5)
+    widget.window.value = "centre"  # by default the window holding the cell is diagnosed
     widget.run_button.clicked.emit()
     qtbot.waitUntil(lambda: widget.worker is None, timeout=60_000)
     status = widget.status.value
@@ -436,7 +448,15 @@ def test_the_window_chosen_is_the_one_diagnosed(ds3_widget, qtbot):
     window, the only one the dock could diagnose; the status sent the user to the CLI's
     --region. The dock's window field takes the same forms, read by the same parser."""
     viewer, widget = ds3_widget
-    assert widget.window.value == "centre"
+    # by default the window that holds the most whole cells: frame 1's one cell
+    assert widget.window.value == "cells"
+    y0, y1, x0, x1 = widget._input()[-1]
+    assert (y1 - y0, x1 - x0) == (256, 256)
+    assert y0 <= 113
+    assert y1 >= 167
+    assert x0 <= 66
+    assert x1 >= 86
+    widget.window.value = "centre"
     widget.run_button.clicked.emit()
     qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
     assert "the centre 256 x 256 px of the 512 x 512 frame" in widget.status.value
@@ -487,10 +507,29 @@ def test_a_bad_window_is_refused_in_one_line(ds3_widget, monkeypatch, text, prob
     status = widget.status.value
     assert status.startswith(problem)
     assert "give Y0:Y1,X0:X1 (rows and columns in pixels" in status
-    assert "full (the whole frame) or centre" in status
+    assert "full (the whole frame), cells (the window of at most 256 x 256 px" in status
+    assert "or centre (its centre window" in status
     assert "\n" not in status
     assert shown == [status]
     assert [layer.name for layer in viewer.layers] == ["ds3"]
+
+
+def test_a_small_window_around_a_cell_is_said_to_be_small(ds3_widget, qtbot):
+    """Found as a user: 60 x 100 px drawn tightly around a bright cell of ds3 were told to
+    "enter one with cells"; the CLI said the window may be too small for the start. The
+    dock says so too (frame 1's cell, rows 113:167, columns 66:86, in 70 x 40 px), and an
+    earlier run's report is not left under the failure."""
+    viewer, widget = ds3_widget
+    widget.window.value = "105:175,56:96"
+    widget.report.value = "Diagnosis of the mismatch ... (an earlier run's)"
+    widget.run_button.clicked.emit()
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=60_000)
+    status = widget.status.value
+    assert status.startswith("Diagnosis failed: the start found no cells"), status
+    assert "the 70 x 40 px window may be too small for the start to tell the cells" in status
+    assert "of at least 64 x 64 px around them" in status
+    assert DIAGNOSIS_RESIDUAL_LAYER not in viewer.layers
+    assert widget.report.value == ""  # found as a user: the earlier run's report stayed
 
 
 def test_a_full_frame_above_the_cap_is_diagnosed_with_a_warning(ds3_widget, qtbot):
@@ -501,7 +540,7 @@ def test_a_full_frame_above_the_cap_is_diagnosed_with_a_warning(ds3_widget, qtbo
     widget.run_button.clicked.emit()
     assert widget.worker is not None
     assert widget.status.value == (
-        "Fitting the scene... (frame 1 of 4) (262,144 pixels, more than the 65,536 of 'centre': a "
+        "Fitting the scene... (frame 1 of 4) (262,144 pixels, more than the 65,536 of 'cells': a "
         "diagnosis's time and memory grow faster than its pixels, so this one may take "
         "long and much memory; Cancel stops it)"
     )

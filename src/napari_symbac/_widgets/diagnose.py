@@ -33,6 +33,7 @@ from napari_symbac._widgets._recording import (
     modality_render,
     no_recording_message,
     output_metadata,
+    real_images,
     recording_microscope,
     watch_recordings,
 )
@@ -43,6 +44,9 @@ if TYPE_CHECKING:
     import napari
 
 __all__ = ["DIAGNOSIS_RESIDUAL_LAYER", "WINDOW_KEY", "DiagnoseWidget", "effect_layer_name"]
+
+#: How the dock's advice for an image that is not yet a recording ends.
+WAITING_THEN = "choose it here"
 
 #: Metadata of the diagnosis' layer: the diagnosed window's ``(rows, columns)`` when
 #: smaller than the recording (its settings draw frames of that size), else ``None``.
@@ -70,30 +74,49 @@ FAINT_START_FIX = (
 )
 
 
-def window_words(
-    region: tuple[int, int, int, int], full: tuple[int, ...], centre: bool
-) -> str:
+def window_how(text: str) -> str:
+    """How the *window* field's ``text`` places the window: ``"cells"`` (the dock's
+    default, :func:`~napari_symbac.diagnose.region.cells_region`), ``"centre"`` or
+    ``"chosen"`` (rows and columns, or full)."""
+    from napari_symbac.diagnose.region import CELLS, names_centre
+
+    if names_centre(text):
+        return "centre"
+    return "cells" if text.strip().lower() == CELLS else "chosen"
+
+
+def window_words(region: tuple[int, int, int, int], full: tuple[int, ...], how: str) -> str:
     """The window diagnosed, in words: ``"the centre 256 x 256 px of the 512 x 512 frame,
-    rows 128:384 and columns 128:384"`` ("the chosen" for a window chosen)."""
+    rows 128:384 and columns 128:384"``; "the chosen" for a window chosen, "the 256 x 256
+    px ... that hold the most cells" for the cells' window (:func:`window_how`)."""
     y0, y1, x0, x1 = region
-    which = "the centre" if centre else "the chosen"
-    return (
-        f"{which} {y1 - y0} x {x1 - x0} px of the {full[0]} x {full[1]} frame, rows "
-        f"{y0}:{y1} and columns {x0}:{x1}"
-    )
+    size = f"{y1 - y0} x {x1 - x0} px of the {full[0]} x {full[1]} frame"
+    which = f"the {size} that hold the most cells" if how == "cells" else f"the {how} {size}"
+    return f"{which}, rows {y0}:{y1} and columns {x0}:{x1}"
 
 
 def no_cells_in_window(
-    err: Exception, region: tuple[int, int, int, int], full: tuple[int, ...], centre: bool
+    err: Exception, region: tuple[int, int, int, int], full: tuple[int, ...], how: str
 ) -> str:
     """The base fit's "no cells" in the window the dock diagnoses, said with that window
     and what to do. Found as a user: a 300 x 300 px field whose cells lie outside its
     centre 256 x 256 px said only "Diagnosis failed: the start found no cells in the
-    image", of an image with cells in it."""
+    image", of an image with cells in it. A small window may hold a cell with too
+    little background around it for the start, as the CLI says (found as a user: 60 x
+    100 px around a bright cell were told to "enter one with cells")."""
+    from napari_symbac.diagnose.region import SMALL_WINDOW_PX
+
+    y0, y1, x0, x1 = region
+    fix = f"enter one with cells in '{WINDOW_LABEL}' (Y0:Y1,X0:X1 in pixels, or full)"
+    if min(y1 - y0, x1 - x0) < SMALL_WINDOW_PX:
+        fix = (
+            f"the {y1 - y0} x {x1 - x0} px window may be too small for the start to tell "
+            f"the cells from the background: {fix}, of at least {SMALL_WINDOW_PX} x "
+            f"{SMALL_WINDOW_PX} px around them"
+        )
     return (
-        f"{getattr(err, 'cause', err)}, in {window_words(region, full, centre)}, the window "
-        "diagnosed: enter "
-        f"one with cells in '{WINDOW_LABEL}' (Y0:Y1,X0:X1 in pixels, or full)"
+        f"{getattr(err, 'cause', err)}, in {window_words(region, full, how)}, the window "
+        f"diagnosed: {fix}"
     )
 
 
@@ -149,11 +172,12 @@ class DiagnoseWidget(Container):
             "napari-symbac diagnose --masks. Empty: painted classes or the fit's own "
             "segmentation."
         )
-        self.window = LineEdit(name="window", label=WINDOW_LABEL, value="centre")
+        self.window = LineEdit(name="window", label=WINDOW_LABEL, value="cells")
         self.window.tooltip = (
-            "The part of the frame to diagnose, in camera pixels: centre (the whole frame "
-            "up to 256 x 256 px, else its centre window of that many pixels), full (the "
-            "whole frame: a diagnosis's time and memory grow faster than its pixels), or "
+            "The part of the frame to diagnose, in camera pixels: cells (the whole frame "
+            "up to 256 x 256 px, else the window of that many pixels that holds the most "
+            "whole cells, of the cell masks when chosen), centre (its centre window), full "
+            "(the whole frame: a diagnosis's time and memory grow faster than its pixels), or "
             "Y0:Y1,X0:X1 (rows Y0 to Y1, columns X0 to X1, e.g. 96:192,48:112); as "
             "napari-symbac diagnose --region."
         )
@@ -230,6 +254,18 @@ class DiagnoseWidget(Container):
             self.reference.value = choices[-1]
         if getattr(_event, "type", "") == "inserted":  # masks opened after the recording
             self._choose_masks(only=_event.value)
+        self._say_what_waits(choices)
+
+    def _say_what_waits(self, choices: list) -> None:
+        """Name the opened image that waits for its pixel size, and take that back once
+        it is a recording. Found as a user: the dock said nothing until *Diagnose* was
+        clicked, then kept saying "... has no pixel size yet" after it was entered."""
+        if self.worker is not None:
+            return
+        if not choices and any(not is_recording(layer) for layer in real_images(self.viewer)):
+            self.status.value = no_recording_message(self.viewer, WAITING_THEN)
+        elif self.status.value.endswith(WAITING_THEN):  # a recording now: advice done
+            self.status.value = ""
 
     def _choose_masks(self, _value=None, *, only=None) -> None:
         """With no cell masks chosen, the newest layer of instance masks of the recording's
@@ -250,7 +286,7 @@ class DiagnoseWidget(Container):
         ``y0:y1``, columns ``x0:x1``) is the *window* field's, read by the CLI's parser
         (:func:`~napari_symbac.diagnose.region.parse_region`): by default a frame larger
         than :data:`~napari_symbac.diagnose.region.MAX_DIAGNOSIS_PIXELS` is diagnosed on
-        its centre window, as the CLI does.
+        the window that holds the most whole cells, as the CLI does.
 
         Raises
         ------
@@ -263,7 +299,7 @@ class DiagnoseWidget(Container):
 
         layer = self.reference.value
         if layer is None:
-            raise ValueError(no_recording_message(self.viewer, "choose it here"))
+            raise ValueError(no_recording_message(self.viewer, WAITING_THEN))
         microscope = recording_microscope(layer)
         data = np.asarray(layer.data)
         index = int(self.viewer.dims.current_step[0]) if data.ndim == 3 else 0
@@ -279,9 +315,11 @@ class DiagnoseWidget(Container):
                 labels = labels[min(index, len(labels) - 1)]
             if labels.shape != frame.shape or not labels.any():
                 labels = None
+        given_masks = self._frame_masks(index, data.shape[-2:])
         region = parse_region(
             self.window.value,
-            frame.shape,
+            frame,
+            masks=given_masks,
             max_pixels=self.max_pixels or MAX_DIAGNOSIS_PIXELS,
             name="window",
         )
@@ -291,7 +329,7 @@ class DiagnoseWidget(Container):
             labels = labels[y0:y1, x0:x1]
             if not labels.any():
                 labels = None
-        masks = self._window_masks(index, data.shape[-2:], region, microscope.modality)
+        masks = self._window_masks(given_masks, region, microscope.modality)
         # what the fit refuses (as the CLI): a modality the image contradicts
         check_modality(
             frame, microscope.modality, labels=labels, masks=masks, advice=GUI_MODALITY_ADVICE
@@ -311,13 +349,10 @@ class DiagnoseWidget(Container):
         geometry = "open" if named == "field" else named
         return frame, labels, masks, microscope, render, camera, geometry, region
 
-    def _window_masks(
-        self, index: int, shape: tuple, region: tuple, modality: str
-    ) -> np.ndarray | None:
-        """The chosen cell masks' instance ids in the window (frame ``index`` of masks
-        given per frame), checked as the CLI checks ``--masks``; ``None`` when none
-        are chosen."""
-        from napari_symbac.fit.colony import is_dense_colony
+    def _frame_masks(self, index: int, shape: tuple) -> np.ndarray | None:
+        """The chosen cell masks' instance ids over the whole frame (frame ``index`` of
+        masks given per frame), checked as the CLI checks ``--masks``; ``None`` when
+        none are chosen."""
         from napari_symbac.fit.preflight import as_instance_ids, check_instance_masks
 
         layer = self.masks.value
@@ -326,10 +361,21 @@ class DiagnoseWidget(Container):
         masks = np.asarray(layer.data)
         if masks.ndim == 3:
             masks = masks[min(index, len(masks) - 1)]
-        name = f"'{MASKS_LABEL}' {layer.name}"
-        check_instance_masks(masks, tuple(shape), name)
+        check_instance_masks(masks, tuple(shape), f"'{MASKS_LABEL}' {layer.name}")
+        return as_instance_ids(masks)[0]
+
+    def _window_masks(
+        self, masks: np.ndarray | None, region: tuple, modality: str
+    ) -> np.ndarray | None:
+        """The frame's ``masks`` (:meth:`_frame_masks`) in the window, refused when it
+        holds none of their cells or a dense colony of them."""
+        from napari_symbac.fit.colony import is_dense_colony
+
+        if masks is None:
+            return None
+        name = f"'{MASKS_LABEL}' {self.masks.value.name}"
         y0, y1, x0, x1 = region
-        masks = as_instance_ids(masks)[0][y0:y1, x0:x1]
+        masks = masks[y0:y1, x0:x1]
         if not masks.any():
             raise ValueError(
                 f"{name} hold no cell in rows {y0}:{y1}, columns {x0}:{x1} (the window "
@@ -349,8 +395,6 @@ class DiagnoseWidget(Container):
 
     def run(self) -> None:
         """Fit the scene and diagnose it in a worker (progress in napari's activity dock)."""
-        from napari_symbac.diagnose.region import names_centre
-
         if self.worker is not None:
             return
         try:
@@ -364,7 +408,7 @@ class DiagnoseWidget(Container):
         seed, candidates, n_bootstrap = self.seed.value, self.candidates, self.n_bootstrap
         max_effects = self.max_effects.value
         base_simulation = self._simulation_to_export()
-        centre = names_centre(self.window.value)
+        how = window_how(self.window.value)
 
         def compute(progress, cancel):
             from napari_symbac.diagnose.model import build_design
@@ -394,7 +438,7 @@ class DiagnoseWidget(Container):
                     raise
                 from napari_symbac.fit.start import FaintStartError
 
-                said = no_cells_in_window(err, region, full, centre)
+                said = no_cells_in_window(err, region, full, how)
                 if isinstance(err, FaintStartError):  # a faint cell may be there: its fix
                     raise FaintStartError(said) from err  # too (found as a user: an error)
                 raise ValueError(said) from err
@@ -444,12 +488,13 @@ class DiagnoseWidget(Container):
         self.run_button.enabled = False
         self.cancel_button.enabled = True
         self._window_note = _frame_words(self.reference.value, self.viewer)
-        self._window_note += self._window_note_of(region, full, centre)
+        self._window_note += self._window_note_of(region, full, how)
         self.status.value = "Fitting the scene..." + self._window_note
+        self.report.value = ""  # found as a user: a failed run left the last one's report
         self.worker.start()
 
     def _window_note_of(
-        self, region: tuple[int, int, int, int], full: tuple[int, ...], centre: bool
+        self, region: tuple[int, int, int, int], full: tuple[int, ...], how: str
     ) -> str:
         """What the status lines add about the window: which one, when not the whole
         frame, and that it may take long when larger than the centre window may be (as
@@ -458,18 +503,18 @@ class DiagnoseWidget(Container):
 
         note = ""
         if region != (0, full[0], 0, full[1]):
-            note = f" (in {window_words(region, full, centre)}"
+            note = f" (in {window_words(region, full, how)}"
             note += (
                 ": a diagnosis's time and memory grow faster than its pixels; "
                 f"'{WINDOW_LABEL}' picks another window)"
-                if centre
+                if how != "chosen"
                 else ")"
             )
         y0, y1, x0, x1 = region
         pixels, cap = (y1 - y0) * (x1 - x0), self.max_pixels or MAX_DIAGNOSIS_PIXELS
         if pixels > cap:
             note += (
-                f" ({pixels:,} pixels, more than the {cap:,} of 'centre': a diagnosis's "
+                f" ({pixels:,} pixels, more than the {cap:,} of 'cells': a diagnosis's "
                 "time and memory grow faster than its pixels, so this one may take long "
                 "and much memory; Cancel stops it)"
             )

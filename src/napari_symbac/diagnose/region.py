@@ -6,17 +6,25 @@ effects that have a parameter per column or per mode. Its time and memory grow f
 than the pixel count: on the 2-core development machine a 256 x 256 ColiCoords field
 took 3 min and 1.6 GB, while the whole 512 x 512 field ran out of 24 GB in the GUI.
 Large frames are therefore diagnosed on a window of at most
-:data:`MAX_DIAGNOSIS_PIXELS`, the centre one unless the user picks another; most effects
-of the catalogue are properties of the microscope, not of where in the field one looks.
+:data:`MAX_DIAGNOSIS_PIXELS`: by default the one that holds the most whole cells
+(:func:`cells_region`), else the centre one or the window the user picks; most effects
+of the catalogue are properties of the microscope, not of where in the field one looks,
+but the fit under them needs cells.
 """
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
+from scipy import ndimage
+
 __all__ = [
+    "CELLS",
     "MAX_DIAGNOSIS_PIXELS",
+    "SMALL_WINDOW_PX",
     "Region",
+    "cells_region",
     "default_region",
     "names_centre",
     "parse_region",
@@ -28,6 +36,11 @@ MAX_DIAGNOSIS_PIXELS = 256 * 256
 
 #: The smallest side of a window, in pixels (the fit's smallest image).
 MIN_REGION_PX = 8
+
+#: The side of a window under which "no cells" may mean too little background around
+#: them for the start (found as a user: a 40 x 40 px window around one cell was "no
+#: cells", a 64 x 64 one worked).
+SMALL_WINDOW_PX = 64
 
 #: Rows ``y0:y1`` and columns ``x0:x1`` of a frame, half-open, in pixels.
 Region = tuple[int, int, int, int]
@@ -54,6 +67,105 @@ def default_region(shape: tuple[int, int], max_pixels: int = MAX_DIAGNOSIS_PIXEL
     return (y0, y0 + height, x0, x0 + width)
 
 
+#: The window's name for :func:`cells_region`, the default of the CLI and the dock.
+CELLS = "cells"
+#: Smoothing (px) and the departure from the median, in s.d. of the smoothed noise,
+#: that make a pixel part of something in the frame (a cell, its halo) without masks.
+STRUCTURE_SMOOTH_PX = 2.0
+STRUCTURE_MIN_Z = 5.0
+#: The fewest pixels of such a region that count as a cell (noise specks do not).
+STRUCTURE_MIN_PX = 30
+
+
+def cells_region(
+    frames: np.ndarray,
+    masks: np.ndarray | None = None,
+    max_pixels: int = MAX_DIAGNOSIS_PIXELS,
+) -> Region:
+    """The window of :func:`default_region`'s size that holds the most whole cells in
+    every frame; the centre one where no window holds one.
+
+    Found as a user: the centre 256 x 256 px of a ColiCoords 512 x 512 field held none of
+    its three cells whole, and the diagnosis, said to be of "1 cell", was of its
+    background. A cell is an instance of ``masks`` when given, else a connected region
+    of at least :data:`STRUCTURE_MIN_PX` pixels that departs from the frame's median by
+    more than :data:`STRUCTURE_MIN_Z` s.d. of its noise (both smoothed over
+    :data:`STRUCTURE_SMOOTH_PX`): a cell with its halo, whatever the modality. A window
+    counts the cells wholly inside it; of a series, its frame with the fewest. Ties go
+    to the window nearest the centre.
+
+    Parameters
+    ----------
+    frames
+        One ``(Y, X)`` frame or a ``(T, Y, X)`` series.
+    masks
+        Instance masks of the frames' shape (one frame for all, or one per frame), or
+        ``None``.
+    max_pixels
+        The most pixels of the window.
+    """
+    frames = np.asarray(frames, float)
+    frames = frames[None] if frames.ndim == 2 else frames
+    rows, cols = frames.shape[-2:]
+    centre = default_region((rows, cols), max_pixels)
+    y0, y1, x0, x1 = centre
+    height, width = y1 - y0, x1 - x0
+    if (height, width) == (rows, cols):
+        return centre
+    counts = None
+    for k, frame in enumerate(frames):
+        if masks is None:
+            cells = _structure(frame)
+        else:
+            given = np.asarray(masks)
+            cells = given[min(k, len(given) - 1)] if given.ndim == 3 else given
+        per_frame = _whole_cells_per_window(cells, height, width)
+        counts = per_frame if counts is None else np.minimum(counts, per_frame)
+    if counts.max() == 0:
+        return centre
+    best = np.argwhere(counts == counts.max())
+    nearest = best[np.argmin(np.hypot(best[:, 0] - y0, best[:, 1] - x0))]
+    top, left = (int(v) for v in nearest)
+    return (top, top + height, left, left + width)
+
+
+def _structure(frame: np.ndarray) -> np.ndarray:
+    """Labelled regions of ``frame`` that stand out of its noise (:func:`cells_region`)."""
+    from napari_symbac.fit.start import _pixel_noise
+
+    smooth = ndimage.gaussian_filter(frame, STRUCTURE_SMOOTH_PX)
+    noise = _pixel_noise(frame, np.ones(frame.shape, bool))
+    noise /= 2 * STRUCTURE_SMOOTH_PX * math.sqrt(math.pi)  # white noise, smoothed
+    if noise <= 0:
+        return np.zeros(frame.shape, np.int32)
+    labelled, _ = ndimage.label(np.abs(smooth - np.median(smooth)) > STRUCTURE_MIN_Z * noise)
+    sizes = np.bincount(labelled.ravel())
+    small = sizes < STRUCTURE_MIN_PX
+    small[0] = True
+    labelled[small[labelled]] = 0
+    return labelled
+
+
+def _whole_cells_per_window(cells: np.ndarray, height: int, width: int) -> np.ndarray:
+    """How many of the labelled ``cells`` lie wholly inside the ``height`` x ``width``
+    window at each top-left corner, an array of the corners' shape."""
+    rows, cols = cells.shape
+    marks = np.zeros((rows - height + 2, cols - width + 2), np.int64)
+    for box in ndimage.find_objects(np.asarray(cells, np.int64)):
+        if box is None:
+            continue
+        (b0, b1), (c0, c1) = (box[0].start, box[0].stop), (box[1].start, box[1].stop)
+        top, bottom = max(0, b1 - height), min(b0, rows - height)
+        left, right = max(0, c1 - width), min(c0, cols - width)
+        if top > bottom or left > right:  # larger than the window
+            continue
+        marks[top, left] += 1
+        marks[bottom + 1, left] -= 1
+        marks[top, right + 1] -= 1
+        marks[bottom + 1, right + 1] += 1
+    return marks.cumsum(0).cumsum(1)[:-1, :-1]
+
+
 def names_centre(text: str) -> bool:
     """Whether ``text`` asks for the centre window (``"centre"`` or ``"center"``, case
     and spaces aside), as :func:`parse_region` reads it."""
@@ -62,27 +174,31 @@ def names_centre(text: str) -> bool:
 
 def parse_region(
     text: str,
-    shape: tuple[int, int],
+    frames: np.ndarray,
     *,
+    masks: np.ndarray | None = None,
     max_pixels: int = MAX_DIAGNOSIS_PIXELS,
     name: str = "--region",
 ) -> Region:
-    """``"centre"``, ``"full"`` or ``"Y0:Y1,X0:X1"`` (pixels, half-open) as a region of
-    ``shape``.
+    """``"cells"``, ``"centre"``, ``"full"`` or ``"Y0:Y1,X0:X1"`` (pixels, half-open) as
+    a region of the frames.
 
     The one parser of a window to diagnose, for the CLI's ``--region`` and the Diagnose
-    dock's *window* field. ``"centre"`` (or ``"center"``) is :func:`default_region` of
-    ``shape`` with ``max_pixels``; ``"full"`` is the whole frame, however large (a
-    diagnosis of it may take long and much memory, but it is the user's choice).
+    dock's *window* field. ``"cells"`` is :func:`cells_region` of the frames (and
+    ``masks``) with ``max_pixels``; ``"centre"`` (or ``"center"``) is
+    :func:`default_region` of their shape; ``"full"`` is the whole frame, however large
+    (a diagnosis of it may take long and much memory, but it is the user's choice).
 
     Parameters
     ----------
     text
         What the user gave; case and spaces around the parts are ignored.
-    shape
-        Rows and columns of the frame.
+    frames
+        One ``(Y, X)`` frame or a ``(T, Y, X)`` series.
+    masks
+        The cells' instance masks, for ``"cells"``; ``None`` without.
     max_pixels
-        The most pixels of the centre window.
+        The most pixels of the cells' and the centre window.
     name
         What the user gave it as (``"--region"``, ``"window"``), to name in errors.
 
@@ -92,15 +208,18 @@ def parse_region(
         Naming ``name``, what is wrong and the forms accepted, when ``text`` is not one
         of those forms or the window is empty or reaches outside the frame.
     """
-    rows, cols = (int(n) for n in shape)
+    rows, cols = (int(n) for n in np.shape(frames)[-2:])
     if text.strip().lower() == "full":
         return (0, rows, 0, cols)
     if names_centre(text):
         return default_region((rows, cols), max_pixels)
+    if text.strip().lower() == CELLS:
+        return cells_region(frames, masks, max_pixels)
     side = math.isqrt(max_pixels)
     forms = (
         "give Y0:Y1,X0:X1 (rows and columns in pixels, e.g. 0:128,64:192), full (the whole "
-        f"frame) or centre (its centre window of at most {side} x {side} px)"
+        f"frame), cells (the window of at most {side} x {side} px that holds the most "
+        "cells) or centre (its centre window of that many)"
     )
     try:
         ys, xs = text.split(",")

@@ -108,7 +108,7 @@ class Diagnosis:
     threshold
         Evidence (``-log10 p``) a score test needs (Bonferroni over the candidates).
     skipped
-        Candidates not tested (they need a time series or another modality).
+        Candidates not tested (they need a time series, another modality or more cells).
     max_steps
         The most effects a diagnosis accepts: candidates above ``threshold`` that were
         never held-out tested when it stopped there are said so in the report.
@@ -247,7 +247,8 @@ class Diagnosis:
             ]
         if self.skipped:
             lines.append(
-                f"not tested (need a time series or another modality): {', '.join(self.skipped)}"
+                "not tested (need a time series, another modality or more cells): "
+                + ", ".join(self.skipped)
             )
         lines += [
             "",

@@ -52,7 +52,10 @@ class CellIntensityVariability(Effect):
         )
 
     def n_params(self) -> int:
-        return len(self._ids)
+        """One gain per cell; none for a single cell, whose gain is the fitted cell
+        intensity's own (found as a user: a 96-row window of one cell accepted this
+        effect at a CV of 0, which its settings then drew as nothing)."""
+        return len(self._ids) if len(self._ids) >= 2 else 0
 
     def mean(self, theta, mu, parts, geo):
         if not len(theta):
