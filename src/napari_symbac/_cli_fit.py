@@ -503,6 +503,7 @@ def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, ke
     from napari_symbac.fit import fit_colony, fit_scene
     from napari_symbac.fit.preflight import BRIGHT_FIELD_NOTE, PHASE_NOTE
     from napari_symbac.fit.report import OPEN_PHASE_NOTE
+    from napari_symbac.fit.start import WideStartError
 
     prepared = _prepare_one(args, frame, labels, masks, microscope, base, keys)
     for note in prepared.notes:  # before a fit that may take minutes, not after
@@ -523,6 +524,10 @@ def _fit_one(args, frame, index, labels, masks, microscope, pixel_note, base, ke
                     progress=update,
                     **prepared.options,
                 )
+        except WideStartError as err:  # a trench fitted as a field: the geometry's fix
+            if (problem := _trench_as_field(args.geometry, frame.shape, microscope)) is None:
+                raise
+            raise ValueError(f"{err.cause}: {problem}") from err
         finally:
             close()
     return _outputs_one(args, frame, index, prepared, result, microscope, pixel_note, base, keys)

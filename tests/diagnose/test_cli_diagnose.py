@@ -593,16 +593,25 @@ def test_a_large_diagnosis_of_any_modality_is_announced_as_slow(tmp_path, capsys
 def test_a_diagnosis_on_a_poor_base_fit_is_cautioned(tmp_path, capsys, real_data_dir):
     """Found as a user: a window of the dense Omnipose colony, diagnosed without its
     masks, fitted 2 cells for ~20 (reduced chi-square ~300) and accepted effects such as
-    fixed-pattern noise from the cells the fit missed, without a word. report.txt and the
-    terminal now caution that the base fit, not physics, may be the misfit, name the
+    fixed-pattern noise from the cells the fit missed, without a word. That window's fit
+    kept 2 of the 11 cells of its start and is now refused with the colony's fix; another,
+    whose fit keeps 6 of 9 at a reduced chi-square of ~340, is diagnosed, and report.txt
+    and the terminal caution that the base fit, not physics, may be the misfit, name the
     colony's way (fit --masks), and report.txt says what to do next."""
     mic = tmp_path / "mic.yaml"
     mic.write_text("pixel_size_um: 0.07\nmodality: phase\n")
+    image = real_data_dir / "omnipose" / "Sample000193.png"
+    refused = tmp_path / "refused"
+    code = main(["diagnose", str(image), "--microscope", str(mic), "--region",
+                 "234:330,234:330", "--out", str(refused)])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "the fit kept 2 of the 11 cells its automatic start found" in err
+    assert "pass the cells' instance masks as --masks M" in err
+    assert not refused.exists()
     out = tmp_path / "omni"
-    code = main(
-        ["diagnose", str(real_data_dir / "omnipose" / "Sample000193.png"), "--microscope",
-         str(mic), "--region", "234:330,234:330", "--out", str(out)]
-    )  # fmt: skip
+    code = main(["diagnose", str(image), "--microscope", str(mic), "--region",
+                 "400:496,234:330", "--out", str(out)])  # fmt: skip
     err = capsys.readouterr().err
     assert code == 0
     report = (out / "report.txt").read_text()

@@ -522,21 +522,36 @@ def test_a_trench_beyond_16_bits_is_fitted_divided_and_its_dataset_is_not_clippe
 
 def test_a_trench_fitted_as_a_field_is_said(tmp_path, real_data_dir, capsys):
     """Found as a user: DeLTA's trench with --geometry field ended with 2 rods laid along
-    its walls, exit 0, and nothing said of the geometry; the problem names it and the
-    fix. The same trench fitted as a trench has no such problem."""
+    its walls, exit 0, and nothing said of the geometry. The fit keeps few of its start's
+    rods there, and is refused naming the geometry and its fix (a trench-shaped frame
+    whose fit holds is fitted with the problem said: test_the_trench_shaped_...). The
+    same trench fitted as a trench is fitted, with no such problem."""
     microscope = save_settings(Microscope(pixel_size_um=0.065), tmp_path / "microscope.yaml")
     image = real_data_dir / "ecoli_delta_phase_normalised.tiff"
     said = "narrow and tall as a mother-machine trench, and was fitted as an open field"
-    for geometry, expected in (("field", True), ("trench", False)):
-        out = tmp_path / geometry
-        args = ("--microscope", microscope, "--out", out, "--max-iterations", 2)
-        assert _fit(image, *args, "--geometry", geometry) == 0
-        report = (out / "report.txt").read_text()
-        assert (said in report) == expected
-        assert (said in capsys.readouterr().err) == expected
-    assert "leave --geometry out (or pass --geometry trench)" in (
-        tmp_path / "field" / "report.txt"
-    ).read_text()
+    args = ("--microscope", microscope, "--max-iterations", 2)
+    error = _refused(capsys, tmp_path / "field", image, *args, "--geometry", "field")
+    assert "cells its automatic start found" in error
+    assert said in error
+    assert "leave --geometry out (or pass --geometry trench)" in error
+    out = tmp_path / "trench"
+    assert _fit(image, *args, "--out", out, "--geometry", "trench") == 0
+    assert said not in (out / "report.txt").read_text()
+    assert said not in capsys.readouterr().err
+
+
+def test_the_trench_shaped_field_fitted_as_a_field_is_said(tmp_path, truth, capsys):
+    """A trench-shaped frame fitted as a field whose fit holds (the rendered truth trench,
+    its cells kept) is fitted, with the geometry named as a problem in report.txt."""
+    microscope = save_settings(truth.microscope, tmp_path / "microscope.yaml")
+    image = tmp_path / "trench.tif"
+    tifffile.imwrite(image, truth.image)
+    out = tmp_path / "field"
+    args = ("--microscope", microscope, "--out", out, "--max-iterations", 2)
+    assert _fit(image, *args, "--geometry", "field") == 0
+    said = "narrow and tall as a mother-machine trench, and was fitted as an open field"
+    assert said in (out / "report.txt").read_text()
+    assert said in capsys.readouterr().err
 
 
 def test_a_phase_trench_fitted_as_fluorescence_names_the_modality(
