@@ -489,3 +489,18 @@ def test_horizontal_cells_are_fitted_across_the_angle_wrap():
     assert np.all((got >= -np.pi / 2) & (got < np.pi / 2))
     turn = (got - np.asarray(truth.angle_rad) + np.pi / 2) % np.pi - np.pi / 2
     np.testing.assert_allclose(turn, 0.0, atol=0.03)
+
+
+def test_painted_classes_on_a_faint_frame_are_not_refused_as_blank(truth):
+    """The blank-frame check is the automatic start's: painted classes say where faint
+    cells are (the advice of the faint-start refusal), so a frame of them is fitted."""
+    from napari_symbac.fit import scene_classes
+    from napari_symbac.fit.start import refuse_blank
+
+    faint = truth.image.astype(float)
+    faint = 1000.0 + (faint - np.median(faint)) * 0.01
+    faint += np.random.default_rng(1).normal(0, 30, faint.shape)
+    with pytest.raises(ValueError, match="blank or dark frame"):
+        refuse_blank(faint)
+    start = start_scene(faint, truth.microscope, labels=scene_classes(truth.scene))
+    assert len(start[0]) >= 1

@@ -810,9 +810,10 @@ def start_scene(
         Without ``masks``, when no bright cell stands out of the background
         (fluorescence).
     ValueError
-        Without ``masks``, when the image holds nothing but noise (:func:`refuse_blank`).
+        Without ``masks`` or ``labels``, when the image holds nothing but noise
+        (:func:`refuse_blank`; painted classes say where faint cells are).
     """
-    if masks is None:
+    if masks is None and labels is None:
         refuse_blank(image, valid)
     polarity = polarity_of(image, microscope.modality, labels)
     px = microscope.pixel_size_um
