@@ -486,7 +486,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from napari_symbac.diagnose.config import NO_CAMERA_NOTE, load_microscope_file
     from napari_symbac.diagnose.figures import write_figures
     from napari_symbac.diagnose.model import build_design
-    from napari_symbac.diagnose.region import CELLS, names_centre, parse_region, simulated_shape
+    from napari_symbac.diagnose.region import CELLS, parse_region, placement, simulated_shape
     from napari_symbac.diagnose.run import diagnose
     from napari_symbac.diagnose.stages import drawn_by_export, refitted_render, updated_settings
     from napari_symbac.export.atomic import earlier_run, remove_earlier_run
@@ -560,9 +560,9 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             stack = stack[:, y0:y1, x0:x1]
             labels = None if labels is None else labels[y0:y1, x0:x1]
             masks = None if masks is None else masks[:, y0:y1, x0:x1]
-            if asked.strip().lower() == CELLS or names_centre(asked):
+            if (how := placement(asked)) != "chosen":
                 # the window's place is the program's choice: say where it is
-                if names_centre(asked):
+                if how == "centre":
                     which = "the centre one"
                 else:
                     which = "the one holding the most whole cells"

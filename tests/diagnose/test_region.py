@@ -10,6 +10,7 @@ from napari_symbac.diagnose.region import (
     cells_region,
     default_region,
     parse_region,
+    placement,
     simulated_shape,
 )
 
@@ -56,6 +57,10 @@ def test_parse_region():
     assert parse_region("center", _frame(512, 512)) == (128, 384, 128, 384)
     assert parse_region("centre", _frame(512, 512), max_pixels=64 * 64) == (224, 288, 224, 288)
     assert parse_region("centre", _frame(64, 32)) == (0, 64, 0, 32)
+    # how each form places the window, in the CLI's note and the dock's status
+    assert [placement(t) for t in (" Centre ", "CELLS", "full", "0:8,0:8")] == [
+        "centre", "cells", "chosen", "chosen"
+    ]
     # the errors name what the user gave it as, and every form accepted
     with pytest.raises(ValueError, match=r"^window 'middle' is not of the form") as err:
         parse_region("middle", _frame(64, 32), name="window")

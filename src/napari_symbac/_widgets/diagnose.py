@@ -74,21 +74,11 @@ FAINT_START_FIX = (
 )
 
 
-def window_how(text: str) -> str:
-    """How the *window* field's ``text`` places the window: ``"cells"`` (the dock's
-    default, :func:`~napari_symbac.diagnose.region.cells_region`), ``"centre"`` or
-    ``"chosen"`` (rows and columns, or full)."""
-    from napari_symbac.diagnose.region import CELLS, names_centre
-
-    if names_centre(text):
-        return "centre"
-    return "cells" if text.strip().lower() == CELLS else "chosen"
-
-
 def window_words(region: tuple[int, int, int, int], full: tuple[int, ...], how: str) -> str:
     """The window diagnosed, in words: ``"the centre 256 x 256 px of the 512 x 512 frame,
     rows 128:384 and columns 128:384"``; "the chosen" for a window chosen, "the 256 x 256
-    px ... that hold the most cells" for the cells' window (:func:`window_how`)."""
+    px ... that hold the most cells" for the cells' window (``how``:
+    :func:`~napari_symbac.diagnose.region.placement` of the *window* field)."""
     y0, y1, x0, x1 = region
     size = f"{y1 - y0} x {x1 - x0} px of the {full[0]} x {full[1]} frame"
     which = f"the {size} that hold the most cells" if how == "cells" else f"the {how} {size}"
@@ -395,6 +385,8 @@ class DiagnoseWidget(Container):
 
     def run(self) -> None:
         """Fit the scene and diagnose it in a worker (progress in napari's activity dock)."""
+        from napari_symbac.diagnose.region import placement
+
         if self.worker is not None:
             return
         try:
@@ -408,7 +400,7 @@ class DiagnoseWidget(Container):
         seed, candidates, n_bootstrap = self.seed.value, self.candidates, self.n_bootstrap
         max_effects = self.max_effects.value
         base_simulation = self._simulation_to_export()
-        how = window_how(self.window.value)
+        how = placement(self.window.value)
 
         def compute(progress, cancel):
             from napari_symbac.diagnose.model import build_design

@@ -28,6 +28,7 @@ __all__ = [
     "default_region",
     "names_centre",
     "parse_region",
+    "placement",
     "simulated_shape",
 ]
 
@@ -69,9 +70,9 @@ def default_region(shape: tuple[int, int], max_pixels: int = MAX_DIAGNOSIS_PIXEL
 
 #: The window's name for :func:`cells_region`, the default of the CLI and the dock.
 CELLS = "cells"
-#: Smoothing (px) and the departure from the median, in s.d. of the smoothed noise,
-#: that make a pixel part of something in the frame (a cell, its halo) without masks.
-STRUCTURE_SMOOTH_PX = 2.0
+#: The departure from the frame's median, in s.d. of the smoothed noise
+#: (:func:`~napari_symbac.fit.start.departure_z`), that makes a pixel part of something
+#: in the frame (a cell, its halo) without masks.
 STRUCTURE_MIN_Z = 5.0
 #: The fewest pixels of such a region that count as a cell (noise specks do not).
 STRUCTURE_MIN_PX = 30
@@ -89,8 +90,9 @@ def cells_region(
     its three cells whole, and the diagnosis, said to be of "1 cell", was of its
     background. A cell is an instance of ``masks`` when given, else a connected region
     of at least :data:`STRUCTURE_MIN_PX` pixels that departs from the frame's median by
-    more than :data:`STRUCTURE_MIN_Z` s.d. of its noise (both smoothed over
-    :data:`STRUCTURE_SMOOTH_PX`): a cell with its halo, whatever the modality. A window
+    more than :data:`STRUCTURE_MIN_Z` s.d. of its noise (both smoothed:
+    :func:`~napari_symbac.fit.start.departure_z`): a cell with its halo, whatever the
+    modality. A window
     counts the cells wholly inside it; of a series, its frame with the fewest. Ties go
     to the window nearest the centre.
 
@@ -112,12 +114,12 @@ def cells_region(
     height, width = y1 - y0, x1 - x0
     if (height, width) == (rows, cols):
         return centre
+    given = None if masks is None else np.asarray(masks)
     counts = None
     for k, frame in enumerate(frames):
-        if masks is None:
+        if given is None:
             cells = _structure(frame)
         else:
-            given = np.asarray(masks)
             cells = given[min(k, len(given) - 1)] if given.ndim == 3 else given
         per_frame = _whole_cells_per_window(cells, height, width)
         counts = per_frame if counts is None else np.minimum(counts, per_frame)
@@ -131,14 +133,12 @@ def cells_region(
 
 def _structure(frame: np.ndarray) -> np.ndarray:
     """Labelled regions of ``frame`` that stand out of its noise (:func:`cells_region`)."""
-    from napari_symbac.fit.start import _pixel_noise
+    from napari_symbac.fit.start import departure_z
 
-    smooth = ndimage.gaussian_filter(frame, STRUCTURE_SMOOTH_PX)
-    noise = _pixel_noise(frame, np.ones(frame.shape, bool))
-    noise /= 2 * STRUCTURE_SMOOTH_PX * math.sqrt(math.pi)  # white noise, smoothed
-    if noise <= 0:
+    departures = departure_z(frame)
+    if not np.isfinite(departures).all():  # no measurable noise: nothing is judged
         return np.zeros(frame.shape, np.int32)
-    labelled, _ = ndimage.label(np.abs(smooth - np.median(smooth)) > STRUCTURE_MIN_Z * noise)
+    labelled, _ = ndimage.label(departures > STRUCTURE_MIN_Z)
     sizes = np.bincount(labelled.ravel())
     small = sizes < STRUCTURE_MIN_PX
     small[0] = True
@@ -170,6 +170,16 @@ def names_centre(text: str) -> bool:
     """Whether ``text`` asks for the centre window (``"centre"`` or ``"center"``, case
     and spaces aside), as :func:`parse_region` reads it."""
     return text.strip().lower() in ("centre", "center")
+
+
+def placement(text: str) -> str:
+    """How ``text`` places the window, as :func:`parse_region` reads it: ``"cells"``
+    (:func:`cells_region`, the default), ``"centre"`` (:func:`default_region`) or
+    ``"chosen"`` (rows and columns, or full): the words the CLI's note and the dock's
+    status give the window."""
+    if names_centre(text):
+        return "centre"
+    return "cells" if text.strip().lower() == CELLS else "chosen"
 
 
 def parse_region(
@@ -211,9 +221,10 @@ def parse_region(
     rows, cols = (int(n) for n in np.shape(frames)[-2:])
     if text.strip().lower() == "full":
         return (0, rows, 0, cols)
-    if names_centre(text):
+    how = placement(text)
+    if how == "centre":
         return default_region((rows, cols), max_pixels)
-    if text.strip().lower() == CELLS:
+    if how == "cells":
         return cells_region(frames, masks, max_pixels)
     side = math.isqrt(max_pixels)
     forms = (

@@ -127,29 +127,53 @@ def refuse_trenches_in_a_field(image: np.ndarray, px: float) -> None:
 BLANK_MAX_Z = 10.0
 
 
-def refuse_blank(image: np.ndarray, valid: np.ndarray | None = None) -> None:
-    """Refuse a frame that holds nothing but noise (a blank frame, a dark frame, an
-    empty channel). Found as a user: a frame of pure noise was told it held "2
-    trenches side by side" as a trench, and took 50 s to be told it held no cells as
-    a field.
+#: The smoothing (Gaussian s.d., px) of :func:`departure_z`.
+DEPARTURE_SMOOTH_PX = 2.0
+
+
+def departure_z(image: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray | None:
+    """How far each pixel of the smoothed frame departs from its median, in s.d. of the
+    pixel noise smoothed alike (Gaussian of :data:`DEPARTURE_SMOOTH_PX`); 0 where not
+    judged. What stands out of a frame's noise: :func:`refuse_blank` and the
+    diagnosis' window of cells (``diagnose.region.cells_region``).
 
     Only the ``valid`` pixels count: the smoothing is normalised by the valid pixels'
-    weight, and the noise is measured where a pixel's four neighbours are valid too.
-    A frame with too few such pixels (a held-out checkerboard) is not judged.
+    weight (pixels with less than half of it are not judged), and the noise is measured
+    where a pixel's four neighbours are valid too. ``None`` for a frame with too few
+    such pixels (a held-out checkerboard). Where the frame has no measurable noise (a
+    constant frame, too few grey levels) every departure is infinite.
     """
     valid = np.ones(image.shape, bool) if valid is None else np.asarray(valid, bool)
     inner = valid & ndimage.binary_erosion(valid, border_value=1)
     if inner.mean() < 0.25:
-        return
+        return None
     data = np.where(valid, np.asarray(image, float), 0.0)
-    weight = ndimage.gaussian_filter(valid.astype(float), 2.0)
+    weight = ndimage.gaussian_filter(valid.astype(float), DEPARTURE_SMOOTH_PX)
     judged = valid & (weight > 0.5)
-    smooth = ndimage.gaussian_filter(data, 2.0)[judged] / weight[judged]
-    # the s.d. of white noise after a Gaussian of s.d. 2 px: s / (4 sqrt(pi)), more
+    smooth = ndimage.gaussian_filter(data, DEPARTURE_SMOOTH_PX)[judged] / weight[judged]
+    departure = np.zeros(image.shape)
+    departure[judged] = np.abs(smooth - np.median(smooth))
+    # the s.d. of white noise after a Gaussian of s.d. r px: s / (2 r sqrt(pi)), more
     # where fewer pixels are valid
-    noise = _pixel_noise(data, inner) / (4 * math.sqrt(math.pi) * math.sqrt(valid.mean()))
-    departure = float(np.abs(smooth - np.median(smooth)).max())
-    z = departure / noise if noise > 0 else (math.inf if departure > 0 else 0.0)
+    noise = _pixel_noise(data, inner) / (
+        2 * DEPARTURE_SMOOTH_PX * math.sqrt(math.pi) * math.sqrt(valid.mean())
+    )
+    if noise > 0:
+        return departure / noise
+    return np.where(departure > 0, np.inf, 0.0)
+
+
+def refuse_blank(image: np.ndarray, valid: np.ndarray | None = None) -> None:
+    """Refuse a frame that holds nothing but noise (a blank frame, a dark frame, an
+    empty channel): no pixel of it departs by more than :data:`BLANK_MAX_Z`
+    (:func:`departure_z`; a frame it cannot judge is not refused). Found as a user: a
+    frame of pure noise was told it held "2 trenches side by side" as a trench, and
+    took 50 s to be told it held no cells as a field.
+    """
+    departures = departure_z(image, valid)
+    if departures is None:
+        return
+    z = float(departures.max())
     if z <= BLANK_MAX_Z:  # a constant frame too
         raise ValueError(
             f"the start found no cells in the image: nothing in it departs from its "
