@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -413,3 +414,62 @@ def test_cautions_point_where_the_interface_shows_the_residual():
     (said,) = result.cautions("see the layer 'diagnosis residual'", "give the camera")
     assert "misplaced; see the layer 'diagnosis residual')" in said
     assert "residuals.png" not in said
+
+
+def test_the_report_prints_huge_significances_in_three_digits():
+    """``-log10 p`` far in the tail (a real trench's 149969.40, whose decimals meant
+    nothing) in three significant digits; usual ones with two decimals, as before."""
+    from napari_symbac.diagnose.statistics import Mismatch, significance_words
+
+    assert significance_words(2.634) == "2.63"
+    assert significance_words(999.994) == "999.99"
+    assert significance_words(149969.4) == "1.5e+05"
+    assert significance_words(12064.02) == "1.21e+04"
+    case = make_case(None, modality="fluorescence", fraction_of_sd=0.5, seed=31)
+    result = diagnose(case.images, case.design, n_bootstrap=5, rng=np.random.default_rng(0))
+    huge = Mismatch("media near cells", "variance excess z", 829.0, 149405.54)
+    report = dataclasses.replace(result, mismatches=[huge]).report()
+    assert "\n  1.49e+05  media near cells: variance excess z = 829" in report
+    assert "149405" not in report
+
+
+@pytest.mark.parametrize("geometry", ["field", "trench"])
+def test_clipped_pixels_are_fitted_by_their_censored_likelihood(geometry):
+    """A fifth of the frame clipped low (as a background subtraction's zeros): the fit
+    with the clip censored finds the mean the unclipped frame gives, where leaving the
+    clipped pixels out (before 2026-12-04) put it a third of a noise s.d. too bright, and
+    the residual with each clipped pixel's expected one averages 0 (found as a user: a
+    ColiCoords field's residual after ``saturation`` averaged -0.30 s.d.)."""
+    from napari_symbac.diagnose.model import Censor, fit_model
+
+    case = make_case(None, modality="fluorescence", geometry=geometry, fraction_of_sd=0.5, seed=31)
+    y = case.images.astype(float) - case.design.camera.baseline_adu
+    valid = np.ones(y.shape, bool)
+    censor = Censor(float(np.floor(np.percentile(y, 20))), high=False)
+    clipped = np.maximum(y, censor.level_adu)
+    assert 0.15 < censor.mask(clipped).mean() < 0.3
+    unclipped = fit_model(case.design, y, valid)
+    censored = fit_model(case.design, clipped, valid, censor=censor)
+    left_out = fit_model(case.design, clipped, valid & ~censor.mask(clipped))
+    sd = np.sqrt(unclipped.var)
+    assert abs(np.mean((censored.mu - unclipped.mu) / sd)) < 0.02
+    assert np.mean((left_out.mu - unclipped.mu) / sd) > 0.2  # what the old fit did
+    r = (clipped - censored.mu) / np.sqrt(censored.var)
+    r = np.where(censor.mask(clipped), censor.standardised_mean(censored.mu, censored.var), r)
+    assert abs(r.mean()) < 0.02
+
+
+def test_a_clipped_pixels_expected_residual_is_the_half_normal_mean_at_the_clip():
+    """Clipped exactly at its mean, a normal pixel's expected standardised residual is
+    the half-normal mean, sqrt(2 / pi), above a ceiling and below a floor; with its mean
+    far beyond the clip, the clip tells nothing and it tends to 0 from that side."""
+    from napari_symbac.diagnose.model import Censor
+
+    var = np.array([4.0, 4.0])
+    ceiling, floor = Censor(100.0, high=True), Censor(0.0, high=False)
+    half_normal = np.sqrt(2 / np.pi)
+    high = ceiling.standardised_mean(np.array([99.5, 1e3]), var)
+    low = floor.standardised_mean(np.array([0.5, -1e3]), var)
+    np.testing.assert_allclose([high[0], low[0]], [half_normal, -half_normal], rtol=1e-12)
+    assert 0 <= high[1] < 1e-12
+    assert -1e-12 < low[1] <= 0

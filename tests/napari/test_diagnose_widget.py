@@ -81,6 +81,15 @@ def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
     assert np.isfinite(residual.data).all()
     assert residual.data.std() > 0
     assert tuple(residual.scale) == (0.065, 0.065)
+    # white at 0 and a colour bar (found as a user: no legend said which colour is
+    # "image brighter"); before and after on one scale, compared by eye
+    low, high = residual.contrast_limits
+    assert low == -high
+    assert high >= 3.0
+    assert residual.colorbar.visible
+    after = viewer.layers["diagnosis residual after"]
+    assert tuple(after.contrast_limits) == (low, high)
+    assert after.colorbar.visible
     assert "diagnosis residual after" in viewer.layers
     for effect in widget.result.accepted:
         if effect.effect_map is not None:
@@ -94,6 +103,7 @@ def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
     assert "unusual for bacteria" not in widget.status.value  # the right pixel size
     text = widget.report.value
     assert text.startswith("Diagnosis of the mismatch")
+    assert text.endswith("red where the image is brighter than the model, blue where darker")
     for name in CANDIDATES:
         assert name in text
     settings = residual.metadata[SYMBAC_METADATA_KEY]["settings"]

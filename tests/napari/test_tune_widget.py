@@ -161,7 +161,11 @@ def test_auto_fit_runs_the_scene_fit_on_the_recording(rendered, qtbot, real_data
     assert synthetic.data.shape == real.data.shape
     assert tuple(synthetic.scale) == tuple(real.scale)
     assert tuple(synthetic.units) == tuple(real.units)
-    assert FIT_RESIDUAL_LAYER in viewer.layers
+    residual = viewer.layers[FIT_RESIDUAL_LAYER]
+    # white at 0 (found as a user: napari's min-max limits put it elsewhere), a colour bar
+    low, high = residual.contrast_limits
+    assert low == -high > -np.abs(residual.data).max()
+    assert residual.colorbar.visible
     assert tune.terms_table.shape[0] == len(result.terms)
     assert "Fitted in" in tune.status.value
     # the convergence plot's caption says the status line's objective and the curve's ends

@@ -37,6 +37,12 @@ from napari_symbac._widgets._recording import (
     recording_microscope,
     watch_recordings,
 )
+from napari_symbac._widgets._residual import (
+    RESIDUAL_COLORMAP,
+    RESIDUAL_LEGEND,
+    add_residual_layer,
+    symmetric_limits,
+)
 from napari_symbac._widgets.real_image import class_layer_name
 from napari_symbac._widgets.simulate import SYMBAC_METADATA_KEY
 
@@ -568,14 +574,15 @@ class DiagnoseWidget(Container):
         y0, _, x0, _ = self._region  # the layers sit over the window diagnosed
         translate = (layer.translate[-2] + y0 * scale[0], layer.translate[-1] + x0 * scale[1])
         kwargs = {"scale": scale, "units": tuple(layer.units[-2:]), "translate": translate}
-        limit = max(3.0, float(np.percentile(np.abs(result.residual_before[0]), 99)))
+        # one scale for both residuals: compared by eye before and after the effects
+        limits = symmetric_limits(result.residual_before[0], floor=3.0)
         for name in [n for n in self.viewer.layers if str(n).startswith("diagnosis ")]:
             self.viewer.layers.remove(name)
-        self.viewer.add_image(
+        add_residual_layer(
+            self.viewer,
             result.residual_before[0],
             name=DIAGNOSIS_RESIDUAL_LAYER,
-            colormap="PiYG",
-            contrast_limits=(-limit, limit),
+            limits=limits,
             metadata={
                 SYMBAC_METADATA_KEY: {
                     "settings": settings,
@@ -587,11 +594,11 @@ class DiagnoseWidget(Container):
             },
             **kwargs,
         )
-        self.viewer.add_image(
+        add_residual_layer(
+            self.viewer,
             result.residual_after[0],
             name=DIAGNOSIS_AFTER_LAYER,
-            colormap="PiYG",
-            contrast_limits=(-limit, limit),
+            limits=limits,
             visible=False,
             metadata=output_metadata("Diagnose"),
             **kwargs,
@@ -604,7 +611,7 @@ class DiagnoseWidget(Container):
             self.viewer.add_image(
                 emap,
                 name=effect_layer_name(effect.name),
-                colormap="PiYG",
+                colormap=RESIDUAL_COLORMAP,
                 contrast_limits=(-span, span),
                 visible=False,
                 metadata=output_metadata("Diagnose"),
@@ -612,7 +619,11 @@ class DiagnoseWidget(Container):
             )
         from napari_symbac.diagnose.stages import drawn_by_export
 
-        self.report.value = result.report()
+        self.report.value = (
+            f"{result.report()}\nlayers '{DIAGNOSIS_RESIDUAL_LAYER}' (the base fit) and "
+            f"'{DIAGNOSIS_AFTER_LAYER}' (with the effects), in s.d. of the noise:\n"
+            f"{RESIDUAL_LEGEND}"
+        )
         accepted = [e.name for e in result.accepted]
         names = ", ".join(accepted) or "nothing significant"
         if kept:

@@ -47,6 +47,7 @@ from napari_symbac._widgets._recording import (
     shown_frame,
     watch_recordings,
 )
+from napari_symbac._widgets._residual import add_residual_layer
 from napari_symbac._widgets.real_image import class_layer_name
 from napari_symbac._widgets.simulate import FITTED_TO_KEY, SYMBAC_METADATA_KEY
 
@@ -1183,16 +1184,23 @@ class TuneWidget(Container):
             "translate": tuple(reference.translate[-axes:]),
             "axis_labels": axis_labels(axes),
         }
-        for name, data, extra in (
-            (FIT_SYNTHETIC_LAYER, synthetic, {}),
-            (FIT_RESIDUAL_LAYER, residual, {"colormap": "PiYG", "visible": False}),
-        ):
+        for name in (FIT_SYNTHETIC_LAYER, FIT_RESIDUAL_LAYER):
             if name in self.viewer.layers:
                 self.viewer.layers.remove(name)
-            self.viewer.add_image(
-                np.asarray(data), name=name, metadata=output_metadata("Auto-fit"), **kwargs,
-                **extra,
-            )
+        self.viewer.add_image(
+            np.asarray(synthetic),
+            name=FIT_SYNTHETIC_LAYER,
+            metadata=output_metadata("Auto-fit"),
+            **kwargs,
+        )
+        add_residual_layer(
+            self.viewer,
+            np.asarray(residual),
+            name=FIT_RESIDUAL_LAYER,
+            visible=False,
+            metadata=output_metadata("Auto-fit"),
+            **kwargs,
+        )
         # the fitted image in the real image's grey levels: compare them by eye
         self.viewer.layers[FIT_SYNTHETIC_LAYER].contrast_limits = reference.contrast_limits
         self._show_tracks(series, kwargs)

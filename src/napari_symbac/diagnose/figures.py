@@ -18,6 +18,7 @@ import numpy as np
 from scipy import ndimage
 
 from napari_symbac.diagnose.run import RESIDUAL_SMOOTHING_PX
+from napari_symbac.diagnose.statistics import significance_words
 from napari_symbac.figure_layout import (
     ColourBar,
     diverging,
@@ -96,7 +97,7 @@ def _profile_panel(stat) -> tuple[str, np.ndarray]:
     )
     title = (
         f"what revealed it (base fit), {stat.where}: {stat.statistic} = {stat.value:.4g}, "
-        f"-log10 p = {stat.significance:.1f}{smoothing}"
+        f"-log10 p = {significance_words(stat.significance)}{smoothing}"
     )
     return title, plot
 
@@ -185,7 +186,7 @@ def write_figures(
             continue
         heading = f"Accepted effect {k}: {effect.name}" + (f" ({name})" if name else "")
         note = (
-            f"{effect.explanation} Evidence {effect.evidence:.1f} (-log10 p"
+            f"{effect.explanation} Evidence {significance_words(effect.evidence)} (-log10 p"
             + ("" if stat is not None else "; its own score test, which no profile shows")
             + f"); held-out deviance {effect.held_out_before:.4g} -> "
             f"{effect.held_out_after:.4g} per pixel."

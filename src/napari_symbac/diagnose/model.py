@@ -408,6 +408,18 @@ class Censor:
     def mask(self, y: np.ndarray) -> np.ndarray:
         return y >= self.level_adu - 0.5 if self.high else y <= self.level_adu + 0.5
 
+    def standardised_mean(self, mu: np.ndarray, var: np.ndarray) -> np.ndarray:
+        """``E[(Y - mu) / sd | Y clipped]`` for ``Y ~ N(mu, var)``: the censored pixel's
+        expected standardised residual (Chesher and Irish's generalised residual of a
+        censored normal model), ``phi(a) / (1 - Phi(a))`` above the ceiling ``a`` and
+        ``-phi(a) / Phi(a)`` below the floor (each limit half a grey level out)."""
+        sd = np.sqrt(var)
+        if self.high:
+            a = (self.level_adu - 0.5 - mu) / sd
+            return np.exp(-0.5 * a**2 - 0.5 * math.log(2 * math.pi) - special.log_ndtr(-a))
+        a = (self.level_adu + 0.5 - mu) / sd
+        return -np.exp(-0.5 * a**2 - 0.5 * math.log(2 * math.pi) - special.log_ndtr(a))
+
 
 @dataclass(frozen=True, eq=False)
 class FittedModel:
@@ -612,21 +624,33 @@ def fit_model(
     fit_camera
         Also fit the gain and read-noise factors of the variance (``camera_noise``).
     censor
-        Clipped pixels (``saturation``): left out of the fit of the mean.
+        Clipped pixels (``saturation``): fitted by their censored likelihood, each
+        clipped value replaced in every step by its expectation beyond the clip under
+        the current model (the EM algorithm of a censored normal model). Left out, as
+        before 2026-12-04, they biased the mean towards the unclipped side (found as a
+        user: ColiCoords' background-subtracted field 00003, 18 % of its pixels at 0,
+        had a residual after ``saturation`` of -0.30 s.d. on average, the model too
+        bright everywhere).
     """
     beta = design.start() if beta0 is None else np.array(beta0, float)
     effects = [(e, np.array(t, float)) for e, t in effects]
     gain = read = 1.0
     fit_mask = mask & ~censor.mask(y) if censor is not None else mask
-    idx = np.flatnonzero(fit_mask.ravel())
-    yv = y.ravel()[idx]
+    idx = np.flatnonzero(mask.ravel())
+    observed = y.ravel()[idx]
+    clipped = censor.mask(observed) if censor is not None else np.zeros(idx.size, bool)
+    yv = observed
     a = None
     penalty = shrinkage = None
     mu = predict(design, beta, effects)
     for round_index in range(rounds):
         v = variance(mu, design.camera, gain, read).ravel()[idx]
         w = 1.0 / v
-        for _inner in range(2 if effects else 1):
+        for _inner in range(2 if effects or clipped.any() else 1):
+            if clipped.any():  # E-step: the clipped values expected under this model
+                at = mu.ravel()[idx][clipped]
+                yv = observed.copy()
+                yv[clipped] = at + np.sqrt(v[clipped]) * censor.standardised_mean(at, v[clipped])
             # The catalogue's effects are linear or nearly so in their parameters: the
             # Jacobian is computed at the start and once more before the last round.
             if a is None or (round_index == rounds - 1 and _inner == 0):

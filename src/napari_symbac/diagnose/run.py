@@ -16,7 +16,11 @@ from napari_symbac.diagnose.effects import CATALOGUE
 from napari_symbac.diagnose.effects.base import Confirmation, Effect
 from napari_symbac.diagnose.model import BaseDesign, FittedModel, build_design
 from napari_symbac.diagnose.selection import ModelSpec, cross_fitted_deviance, held_out, rank
-from napari_symbac.diagnose.statistics import Mismatch, discrepancy_statistics
+from napari_symbac.diagnose.statistics import (
+    Mismatch,
+    discrepancy_statistics,
+    significance_words,
+)
 from napari_symbac.fit.inputs import as_image_stack
 from napari_symbac.fit.preflight import API_CAMERA_HINT, check_fit_image
 from napari_symbac.settings import Camera, Microscope, RenderSettings
@@ -204,13 +208,18 @@ class Diagnosis:
             "Most significant discrepancy statistics (-log10 p; > 2 is unusual for noise):",
         ]
         for m in self.mismatches[:8]:
-            lines.append(f"  {m.significance:8.2f}  {m.where}: {m.statistic} = {m.value:.4g}")
+            lines.append(
+                f"  {significance_words(m.significance):>8s}  {m.where}: {m.statistic} = "
+                f"{m.value:.4g}"
+            )
         lines += ["", f"Effects (score-test evidence needed: {self.threshold:.2f}):"]
         for e in self.effects:
             verdict = "ACCEPTED" if e.accepted else "not accepted"
             if self._untested(e):  # found as a user: said "not accepted" as if tested
                 verdict = "not held-out tested"
-            lines.append(f"  {e.name:28s} evidence {e.evidence:8.2f}  {verdict}")
+            lines.append(
+                f"  {e.name:28s} evidence {significance_words(e.evidence):>8s}  {verdict}"
+            )
             earlier = 0 < e.held_out_step != e.step  # its own check refused it again first
             if e.accepted or math.isfinite(e.null_threshold_nats):
                 lines.append(
@@ -550,7 +559,11 @@ def _diagnose(
     for e in spec.effects:
         results[e.name].params = _params(e, current, spec, design)
     r1 = (y - current.mu) / np.sqrt(current.var)
-    valid_final = valid & ~spec.censor.mask(y) if spec.censor is not None else valid
+    valid_final = valid
+    if spec.censor is not None:  # a clipped pixel's residual is its expected one
+        clipped = spec.censor.mask(y)
+        r1 = np.where(clipped, spec.censor.standardised_mean(current.mu, current.var), r1)
+        valid_final = valid & ~clipped
     final_summary = _fit_summary(y, current, spec, design, valid)
     final_summary["value"] = float(np.mean(r1[valid_final] ** 2))
     ordered = sorted(

@@ -18,7 +18,13 @@ from scipy import stats
 
 from napari_symbac.diagnose.model import Geometry
 
-__all__ = ["Mismatch", "discrepancy_statistics", "neg_log10_p_chi2", "neg_log10_p_z"]
+__all__ = [
+    "Mismatch",
+    "discrepancy_statistics",
+    "neg_log10_p_chi2",
+    "neg_log10_p_z",
+    "significance_words",
+]
 
 LN10 = float(np.log(10.0))
 
@@ -40,6 +46,13 @@ def neg_log10_p_chi2(value: float, dof: int) -> float:
 def neg_log10_p_z(z: float) -> float:
     """``-log10`` of the two-sided normal p-value of ``z``."""
     return float(-(stats.norm.logsf(abs(z)) + np.log(2.0)) / LN10)
+
+
+def significance_words(neg_log10_p: float) -> str:
+    """``-log10 p`` as a report prints it: two decimals below 1000, three significant
+    digits from there (found as a user: "149969.40", decimals of a p-value of 1e-149969,
+    now "1.5e+05")."""
+    return f"{neg_log10_p:.2f}" if abs(neg_log10_p) < 1000 else f"{neg_log10_p:.3g}"
 
 
 @dataclass(frozen=True)
