@@ -25,6 +25,7 @@ __all__ = [
     "counts_record",
     "counts_units_mark",
     "counts_units_note",
+    "number_runs",
     "parse_frames",
     "read_recording",
     "run_fit",
@@ -66,11 +67,11 @@ def parse_frames(spec: str | None, n_frames: int, name: str) -> list[int]:
             f"{name} has 1 frame (frame 0)" if n_frames == 1 else
             f"{name} has {n_frames} frames, numbered 0-{n_frames - 1}"
         )
-        raise ValueError(f"--frames {spec!r}: frame(s) {_runs(bad)} do not exist: {has}")
+        raise ValueError(f"--frames {spec!r}: frame(s) {number_runs(bad)} do not exist: {has}")
     return sorted(set(frames))
 
 
-def _runs(numbers: list[int]) -> str:
+def number_runs(numbers: list[int]) -> str:
     """Sorted whole numbers with their runs compressed: ``[1, 3, 4, 5]`` -> ``"1, 3-5"``."""
     runs: list[list[int]] = []
     for number in numbers:

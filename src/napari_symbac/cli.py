@@ -480,6 +480,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         counts_record,
         counts_units_mark,
         in_read_units,
+        number_runs,
+        parse_frames,
         read_recording,
         refuse_lying_trench,
     )
@@ -542,8 +544,15 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                 f"{args.image} must be one frame (Y, X) or a series (T, Y, X), got {image.shape}"
             )
         stack = image[None] if image.ndim == 2 else image
+        recorded = len(stack)
+        # found as a user: ColiCoords ds3's four fields in one file could be diagnosed
+        # only together, as a time series, or cut into a TIFF of their own
+        numbers = list(range(recorded)) if args.frames is None else parse_frames(
+            args.frames, recorded, Path(args.image).name
+        )
+        stack = stack[numbers]
         for k, frame in enumerate(stack):  # the fit's refusals (negative values: not counts)
-            name = Path(args.image).name + (f" frame {k}" if k else "")
+            name = Path(args.image).name + (f" frame {numbers[k]}" if recorded > 1 else "")
             check_fit_image(frame, name, camera_hint=_DIAGNOSE_CAMERA_HINT)
             refuse_constant(frame, name)
         labels = None
@@ -552,7 +561,9 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             labels = np.asarray(read_image(args.labels, "--labels").data)
             check_class_labels(labels, stack.shape[-2:], f"--labels {Path(args.labels).name}")
         frame_shape = stack.shape[-2:]
-        masks = None if args.masks is None else _diagnose_masks(args.masks, stack.shape)
+        masks = None
+        if args.masks is not None:  # one per recorded frame, or one for all
+            masks = _diagnose_masks(args.masks, (recorded, *frame_shape))[numbers]
         asked = CELLS if args.region is None else args.region
         region = parse_region(asked, stack, masks=masks)
         y0, y1, x0, x1 = region
@@ -583,7 +594,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             if frame_masks is not None and not frame_masks.any():
                 raise ValueError(
                     f"--masks {Path(args.masks).name} hold no cell in "
-                    f"{'frame ' + str(k) + ', ' if len(stack) > 1 else ''}rows {y0}:{y1}, "
+                    f"{f'frame {numbers[k]}, ' if recorded > 1 else ''}rows {y0}:{y1}, "
                     f"columns {x0}:{x1} (the window diagnosed): pass --region Y0:Y1,X0:X1 "
                     "for a window with cells, or --region full"
                 )
@@ -646,7 +657,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             except ValueError as err:
                 if "no cells" not in str(err):
                     raise
-                advice = _no_cells_advice(err, k, len(stack), region, frame_shape)
+                advice = _no_cells_advice(err, numbers[k], len(stack), region, frame_shape)
                 raise ValueError(advice) from err
             if first_fit is None:  # the settings' simulation is fitted to frame 0
                 first_fit = fit
@@ -660,7 +671,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                 print(f"note: {measured_note}", file=sys.stderr)
             scenes.append(fit.scene)
             n_cells.append(len(fit.cells))
-            of = f"frame {k}: " if len(stack) > 1 else ""
+            of = f"frame {numbers[k]}: " if len(stack) > 1 else ""
             problems += [
                 of + p for p in base_fit_problems(fit, microscope, "see residuals.png")
             ]
@@ -690,6 +701,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         doc["camera"] = dataclasses.asdict(camera)
         doc["counts_mapping"] = counts_record(mapping)
         doc["region"] = {"rows": [y0, y1], "columns": [x0, x1]}
+        doc["frames"] = numbers  # of the recording, diagnosed together
         doc["start"] = {  # what the base fit started from, and the cells it ended with
             "from": "instance masks" if masks is not None else
             "painted labels" if labels is not None else "automatic segmentation",
@@ -724,7 +736,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         context = [
             f"recording: {Path(args.image).name}, rows {y0}:{y1}, columns {x0}:{x1} of the "
             f"{frame_shape[0]} x {frame_shape[1]} px frame"
-            + (f", {len(stack)} frames" if len(stack) > 1 else ""),
+            + (f", frames {number_runs(numbers)} of {recorded}" if recorded > 1 else ""),
             f"{pixel_note}; modality: {microscope.modality}",
             f"camera: {camera_text(camera)}"
             + (" (measured from the recording)" if config.camera is None else ""),
@@ -866,7 +878,7 @@ def _no_cells_advice(
     else:
         fix = DIAGNOSE_FAINT_START_FIX if faint else "give an image with cells in it"
     if n_frames > 1:
-        fix += ", or diagnose the frames with cells on their own (a TIFF of those frames)"
+        fix += ", or --frames with the frames that hold cells"
     return f"{where}: {err.cause if faint else err}: {fix}"
 
 
@@ -1353,6 +1365,11 @@ def build_parser() -> argparse.ArgumentParser:
         "improve held-out pixels; write diagnosis.json, report.txt, figures and settings.",
     )
     diag.add_argument("image", help="recording (TIFF or PNG), one frame or a (T, Y, X) series")
+    diag.add_argument(
+        "--frames",
+        help="frames of a series to diagnose, e.g. 0, 0,2,5 or 0-3, as fit takes them "
+        "(default: every frame, diagnosed as one time series)",
+    )
     diag.add_argument("--channel", type=_whole_number(0), help=CHANNEL_HELP)
     diag_start = diag.add_mutually_exclusive_group()
     diag_start.add_argument(

@@ -661,3 +661,34 @@ def test_one_cell_leaves_cell_to_cell_brightness_untested(tmp_path, real_data_di
     assert "cell_intensity_variability" in doc["not_tested"]
     assert "cell_intensity_variability" not in [effect["name"] for effect in doc["effects"]]
     assert "another modality or more cells): " in (out / "report.txt").read_text()
+
+
+def test_frames_of_a_series_are_picked_as_fit_picks_them(tmp_path, capsys, real_data_dir):
+    """Found as a user: ColiCoords ds3 holds four fields in one file, and diagnose took
+    them only together, as one time series (its advice: "a TIFF of those frames"). Now
+    --frames picks them as `fit --frames` does, with the masks of the frames picked."""
+    ds3 = real_data_dir / "colicoords" / "test_data" / "ds3"
+    mic = tmp_path / "mic.yaml"
+    mic.write_text("pixel_size_um: 0.08\nmodality: fluorescence\nwavelength_um: 0.53\n")
+    out = tmp_path / "two"
+    args = ["diagnose", str(ds3 / "flu.tif"), "--microscope", str(mic),
+            "--masks", str(ds3 / "binary.tif"), "--region", "280:370,0:96",
+            "--max-effects", "1"]  # fmt: skip
+    assert main([*args, "--frames", "7", "--out", str(out)]) == 2
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert error.endswith(
+        "--frames '7': frame(s) 7 do not exist: flu.tif has 4 frames, numbered 0-3"
+    )
+    # frame 2's cell at rows 303:346, columns 11:68; frames 0 and 1 have none there
+    assert main([*args, "--frames", "2", "--out", str(out)]) == 0, capsys.readouterr().err
+    doc = json.loads((out / "diagnosis.json").read_text())
+    assert doc["frames"] == [2]
+    assert doc["start"]["from"] == "instance masks"
+    assert len(doc["start"]["cells_per_frame"]) == 1
+    report = (out / "report.txt").read_text()
+    assert report.startswith(
+        "recording: flu.tif, rows 280:370, columns 0:96 of the 512 x 512 px frame, frames 2 of 4\n"
+    )
+    assert main([*args, "--frames", "0-1", "--out", str(tmp_path / "none")]) == 2
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "hold no cell in frame 0, rows 280:370, columns 0:96" in error

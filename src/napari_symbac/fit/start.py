@@ -768,7 +768,8 @@ def refuse_a_start_mostly_removed(n_start: int, n_removed: int, n_kept: int) -> 
     raise WideStartError(
         f"the fit kept {n_kept} of the {n_start} cells its automatic start found, the "
         "others explaining the image no better than its background: the start's cells "
-        "are not the image's, as where touching cells in a colony cannot be told apart"
+        "are not the image's, as where touching cells in a colony cannot be told apart "
+        "or a textured background is taken for cells"
     )
 
 
