@@ -99,11 +99,24 @@ def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
 
     accepted = [effect.name for effect in widget.result.accepted]
     assert accepted, widget.status.value  # the real trench's misfit names some effect
-    assert drawn_by_export(accepted) in widget.status.value
-    assert "unusual for bacteria" not in widget.status.value  # the right pixel size
+    said = _said(widget)
+    assert drawn_by_export(accepted) in said
+    assert "unusual for bacteria" not in said  # the right pixel size
+    # the status keeps to the outcome, what changed leads the report (found as a user:
+    # 17 lines of status left the report 2 lines of the dock at 1366 x 768)
+    outcome = f"Accepted: {', '.join(accepted)}{widget._window_note}. "
+    assert widget.status.value.startswith(outcome)
+    assert re.fullmatch(
+        r"(\d+ cautions?, what|What) Export draws and the camera are said at the top of "
+        r"the report below\.",
+        widget.status.value.removeprefix(outcome),
+    ), widget.status.value
     text = widget.report.value
-    assert text.startswith("Diagnosis of the mismatch")
-    assert text.endswith("red where the image is brighter than the model, blue where darker")
+    assert text.startswith("Export now takes the updated settings")
+    preamble, report = text.split("\n\nDiagnosis of the mismatch")
+    assert max(len(line) for line in preamble.split("\n")) <= 64  # the box's width
+    assert "red where the image is brighter than the model, blue where darker." in said
+    assert report.startswith(" between the fitted model and the recording\n")
     for name in CANDIDATES:
         assert name in text
     settings = residual.metadata[SYMBAC_METADATA_KEY]["settings"]
@@ -114,7 +127,7 @@ def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
     # the layer before it, nor the defaults' 3.5 um-wide trench; the trench as long as
     # the recording, not the 96-row window (too short for the fitted cells to divide in)
     simulation = settings.simulation
-    assert "the cells and layout fitted, sized as the recording" in widget.status.value
+    assert "the cells and layout fitted, sized as the recording" in said
     assert simulation.n_frames == fitted.n_frames
     assert simulation.geometry == "trench"
     assert 0.95 <= simulation.cell_width_um <= 1.3, simulation
@@ -124,8 +137,8 @@ def test_diagnose_adds_layers_report_and_settings(diagnose_widget, qtbot):
     # the camera is measured from the recording (2.0 ADU/e- on the whole trench, 1.8 on
     # this window), not assumed (2.9 ADU/e- by default)
     pattern = r"camera measured from the recording: ([0-9.]+) ADU/e-"
-    measured = re.search(pattern, widget.status.value)
-    assert measured is not None, widget.status.value
+    measured = re.search(pattern.replace("camera", "Camera"), said)
+    assert measured is not None, said
     assert float(measured.group(1)) == pytest.approx(2.0, rel=0.2)
     # and the residual's excess over it (reduced chi-square 43 before the diagnosis) is
     # misfit of the mean, not camera noise: camera_noise, judged on the high-pass residual,
@@ -381,6 +394,12 @@ def test_diagnose_of_a_colony_names_the_docks_own_fixes(
     assert "Tune's Auto-fit" in widget.status.value
 
 
+def _said(widget) -> str:
+    """The dock's status and report as one text, its lines joined (the report's own
+    lines are wrapped to the box's width)."""
+    return " ".join(f"{widget.status.value} {widget.report.value}".split())
+
+
 def _dock_beside(viewer, path, pixel_um: float, modality: str):
     """The viewer with the recording at ``path`` (its pixel size entered) and a Diagnose
     dock of the test's candidates."""
@@ -404,8 +423,11 @@ def test_a_pixel_size_slip_is_cautioned_in_the_status(make_napari_viewer, qtbot,
     widget.run_button.clicked.emit()
     qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
     assert widget.result is not None, widget.status.value
-    assert "<br>Caution: base fit: the cells' median width, 1.8" in widget.status.value
-    assert "is unusual for bacteria (0.4-1.6 um): check the pixel size" in widget.status.value
+    assert re.search(r"\. \d+ cautions?, what Export draws and the camera are said at the "
+                     r"top of the report below\.$", widget.status.value)  # fmt: skip
+    said = _said(widget)
+    assert "CAUTION: base fit: the cells' median width, 1.8" in said
+    assert "is unusual for bacteria (0.4-1.6 um): check the pixel size" in said
 
 
 def test_diagnose_starts_from_the_cell_masks_opened(make_napari_viewer, qtbot, real_data_dir):
@@ -573,9 +595,7 @@ def test_a_bright_field_recording_is_diagnosed_with_its_lens_term(make_napari_vi
     assert widget.result is not None, widget.status.value
     assert [e.name for e in widget.result.accepted] == ["background_texture"]
     # its "camera" is the residual's variance, and the status says why (flattened)
-    assert "the image's own photon transfer: the pixel variance does not grow" in (
-        widget.status.value
-    )
+    assert "the image's own photon transfer: the pixel variance does not grow" in _said(widget)
     residual = viewer.layers[DIAGNOSIS_RESIDUAL_LAYER]
     settings = residual.metadata[SYMBAC_METADATA_KEY]["settings"]  # what Export takes
     assert settings.microscope.modality == "brightfield"

@@ -12,6 +12,7 @@ the residual layer's ``metadata["symbac"]["settings"]``, so Export offers them u
 
 from __future__ import annotations
 
+import textwrap
 import threading
 from typing import TYPE_CHECKING
 
@@ -64,6 +65,9 @@ DIAGNOSIS_RESIDUAL_LAYER = "diagnosis residual"
 DIAGNOSIS_AFTER_LAYER = "diagnosis residual after"
 #: The label of the dock's field of the window diagnosed.
 WINDOW_LABEL = "window (rows, columns)"
+#: The width of the report's own lines (what the diagnosis changed, at its top): the
+#: report box shows about this many characters in the workflow dock at 1366 x 768.
+REPORT_COLUMNS = 64
 #: The label of the dock's field of the cells' instance masks.
 MASKS_LABEL = "cell masks"
 #: What the dock asks of a start wider than any rod
@@ -618,35 +622,47 @@ class DiagnoseWidget(Container):
                 **kwargs,
             )
         from napari_symbac.diagnose.stages import drawn_by_export
+        from napari_symbac.fit.report import base_fit_problems
 
-        self.report.value = (
-            f"{result.report()}\nlayers '{DIAGNOSIS_RESIDUAL_LAYER}' (the base fit) and "
-            f"'{DIAGNOSIS_AFTER_LAYER}' (with the effects), in s.d. of the noise:\n"
-            f"{RESIDUAL_LEGEND}"
-        )
         accepted = [e.name for e in result.accepted]
-        names = ", ".join(accepted) or "nothing significant"
         if kept:
             simulated = f"the simulation is kept as it was ({kept})"
         else:
             where = "the diagnosed window" if windowed else "the recording"
             simulated = f"the cells and layout fitted, sized as {where}"
-        self.status.value = (
-            f"Accepted: {names}{self._window_note}; {camera_note}. Export now takes the "
-            f"updated settings (its 'settings from' names the '{DIAGNOSIS_RESIDUAL_LAYER}' "
-            f"layer, which carries them): {simulated}"
-            + (f"; {drawn_by_export(accepted)}." if accepted else ".")
-            + (f" Note: {held}." if held else "")
-        )
-        from napari_symbac.fit.report import base_fit_problems
-
+        residual_hint = f"see the layer '{DIAGNOSIS_RESIDUAL_LAYER}'"
         # as the command warns (found as a user: unsaid), the base fit's problems first
-        cautions = [
-            f"base fit: {p}"
-            for p in base_fit_problems(fit, self._microscope, f"see '{DIAGNOSIS_RESIDUAL_LAYER}'")
-        ] + result.cautions(f"see the layer '{DIAGNOSIS_RESIDUAL_LAYER}'", GUI_CAMERA_FIX)
+        problems = [
+            f"base fit: {p}" for p in base_fit_problems(fit, self._microscope, residual_hint)
+        ]
+        cautions = problems + result.cautions(residual_hint, GUI_CAMERA_FIX)
+        # what changed leads the report, in lines of the box's width; the status keeps
+        # to the outcome (found as a user: 17 lines of status left the report 2 lines of
+        # the dock at 1366 x 768)
+        said = [
+            f"Export now takes the updated settings (its 'settings from' names the "
+            f"'{DIAGNOSIS_RESIDUAL_LAYER}' layer, which carries them): {simulated}"
+            + (f"; {drawn_by_export(accepted)}." if accepted else "."),
+            f"{camera_note[:1].upper()}{camera_note[1:]}.",
+            *([f"Note: {held}."] if held else []),
+            *(f"CAUTION: {p}" for p in problems),
+            f"Layers '{DIAGNOSIS_RESIDUAL_LAYER}' (the base fit) and "
+            f"'{DIAGNOSIS_AFTER_LAYER}' (with the effects), in s.d. of the noise: "
+            f"{RESIDUAL_LEGEND}.",
+        ]
+        preamble = "\n".join(
+            textwrap.fill(line, REPORT_COLUMNS, subsequent_indent="  ") for line in said
+        )
+        report = result.report(residual_hint, GUI_CAMERA_FIX)
+        self.report.value = f"{preamble}\n\n{report}"
+        names = ", ".join(accepted) or "nothing significant"
+        count = f"{len(cautions)} caution" + ("s" if len(cautions) > 1 else "")
+        self.status.value = (
+            f"Accepted: {names}{self._window_note}. "
+            + (f"{count}, what Export draws" if cautions else "What Export draws")
+            + " and the camera are said at the top of the report below."
+        )
         if cautions:
-            self.status.value += "".join(f"<br>Caution: {c}" for c in cautions)
             notify_warning("Diagnose: " + "; ".join(cautions))
 
     def _on_cancelled(self) -> None:

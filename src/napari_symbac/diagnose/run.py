@@ -197,13 +197,18 @@ class Diagnosis:
             "not_tested": list(self.skipped),
         }
 
-    def report(self) -> str:
-        """A short plain-text report."""
+    def report(
+        self,
+        residual_hint: str = "see residuals.png",
+        camera_fix: str = "give the camera (the microscope file's camera section)",
+    ) -> str:
+        """A short plain-text report; its cautions say ``residual_hint`` and
+        ``camera_fix`` in the interface's words (:meth:`cautions`)."""
         lines = [
             "Diagnosis of the mismatch between the fitted model and the recording",
             f"base fit: reduced chi-square {self.base_fit['value']:.4f}, held-out deviance "
             f"{self.base_fit['held_out']:.5f} per pixel",
-            *(f"CAUTION: {caution}" for caution in self.cautions()),
+            *(f"CAUTION: {caution}" for caution in self.cautions(residual_hint, camera_fix)),
             "",
             "Most significant discrepancy statistics (-log10 p; > 2 is unusual for noise):",
         ]
