@@ -666,17 +666,18 @@ def test_a_typo_in_a_simulation_file_names_the_file(tmp_path, capsys):
 
 
 def test_an_unknown_option_is_said_by_its_command(tmp_path, capsys):
-    """Found as a user: `diagnose IMAGE ... --frames 3` (an option of fit's) said
-    "napari-symbac: error: unrecognized arguments: --frames 3 (see napari-symbac --help)":
+    """Found as a user: `diagnose IMAGE ... --frames 3` (then an option of fit's alone)
+    said "napari-symbac: error: unrecognized arguments: --frames 3 (see napari-symbac
+    --help)":
     neither the command nor its help, where the options are. A misspelt option is also
     given its nearest spelling."""
     out = str(tmp_path / "d")
     with pytest.raises(SystemExit) as refused:
-        main(["diagnose", "image.tif", "--microscope", "m.yaml", "--out", out, "--frames", "3"])
+        main(["diagnose", "image.tif", "--microscope", "m.yaml", "--out", out, "--dark", "d.tif"])
     assert refused.value.code == 2
     error = capsys.readouterr().err
-    assert error == (
-        "napari-symbac diagnose: error: unrecognized arguments: --frames 3 "
+    assert error == (  # fit's --dark, which diagnose has not
+        "napari-symbac diagnose: error: unrecognized arguments: --dark d.tif "
         "(see napari-symbac diagnose --help)\n"
     )
     with pytest.raises(SystemExit):
