@@ -408,17 +408,21 @@ class Censor:
     def mask(self, y: np.ndarray) -> np.ndarray:
         return y >= self.level_adu - 0.5 if self.high else y <= self.level_adu + 0.5
 
+    def clip_z(self, mu: np.ndarray, var: np.ndarray) -> np.ndarray:
+        """How far the clip (half a grey level out) lies from ``mu`` towards the clipped
+        side, in s.d.: ``Y ~ N(mu, var)`` is clipped with probability ``Phi(-z)``."""
+        if self.high:
+            return (self.level_adu - 0.5 - mu) / np.sqrt(var)
+        return -(self.level_adu + 0.5 - mu) / np.sqrt(var)
+
     def standardised_mean(self, mu: np.ndarray, var: np.ndarray) -> np.ndarray:
         """``E[(Y - mu) / sd | Y clipped]`` for ``Y ~ N(mu, var)``: the censored pixel's
         expected standardised residual (Chesher and Irish's generalised residual of a
-        censored normal model), ``phi(a) / (1 - Phi(a))`` above the ceiling ``a`` and
-        ``-phi(a) / Phi(a)`` below the floor (each limit half a grey level out)."""
-        sd = np.sqrt(var)
-        if self.high:
-            a = (self.level_adu - 0.5 - mu) / sd
-            return np.exp(-0.5 * a**2 - 0.5 * math.log(2 * math.pi) - special.log_ndtr(-a))
-        a = (self.level_adu + 0.5 - mu) / sd
-        return -np.exp(-0.5 * a**2 - 0.5 * math.log(2 * math.pi) - special.log_ndtr(a))
+        censored normal model), ``phi(z) / Phi(-z)`` (:meth:`clip_z`), above a ceiling
+        and negated below a floor."""
+        z = self.clip_z(mu, var)
+        ratio = np.exp(-0.5 * z**2 - 0.5 * math.log(2 * math.pi) - special.log_ndtr(-z))
+        return ratio if self.high else -ratio
 
 
 @dataclass(frozen=True, eq=False)
@@ -639,6 +643,7 @@ def fit_model(
     idx = np.flatnonzero(mask.ravel())
     observed = y.ravel()[idx]
     clipped = censor.mask(observed) if censor is not None else np.zeros(idx.size, bool)
+    any_clipped = bool(clipped.any())
     yv = observed
     a = None
     penalty = shrinkage = None
@@ -646,8 +651,8 @@ def fit_model(
     for round_index in range(rounds):
         v = variance(mu, design.camera, gain, read).ravel()[idx]
         w = 1.0 / v
-        for _inner in range(2 if effects or clipped.any() else 1):
-            if clipped.any():  # E-step: the clipped values expected under this model
+        for _inner in range(2 if effects or any_clipped else 1):
+            if any_clipped:  # E-step: the clipped values expected under this model
                 at = mu.ravel()[idx][clipped]
                 yv = observed.copy()
                 yv[clipped] = at + np.sqrt(v[clipped]) * censor.standardised_mean(at, v[clipped])
@@ -699,9 +704,6 @@ def deviance(y: np.ndarray, model: FittedModel, mask: np.ndarray) -> np.ndarray:
     dev = (yy - mu) ** 2 / v + np.log(2 * math.pi * v)
     if model.censor is not None:
         clipped = model.censor.mask(yy)
-        z = (model.censor.level_adu - 0.5 - mu) / np.sqrt(v)
-        if not model.censor.high:
-            z = -(model.censor.level_adu + 0.5 - mu) / np.sqrt(v)
-        tail = special.log_ndtr(-z)
+        tail = special.log_ndtr(-model.censor.clip_z(mu, v))
         dev = np.where(clipped, -2 * tail, dev)
     return dev
