@@ -504,3 +504,22 @@ def test_painted_classes_on_a_faint_frame_are_not_refused_as_blank(truth):
         refuse_blank(faint)
     start = start_scene(faint, truth.microscope, labels=scene_classes(truth.scene))
     assert len(start[0]) >= 1
+
+
+def test_a_rod_is_cut_only_where_both_pieces_show_in_view():
+    """The split move's cuts (at a septum or the middle) leave 0.6 widths of rod in
+    view on each side: a rod cut by the image's edge only within what the image shows."""
+    from napari_symbac.fit.moves import _cuttable_span
+
+    view = (3.0, 15.0)  # um: the image's width and height
+    inside = np.array([1.5, 7.0, 0.0, 4.0])  # x, y, angle (0: along y), length
+    assert _cuttable_span(inside, 1.0, view) == pytest.approx((-1.4, 1.4))
+    # 0.3 um of this rod's upper half lies inside the bottom edge
+    at_edge = np.array([1.5, 14.7, 0.0, 3.0])
+    assert _cuttable_span(at_edge, 1.0, view) == pytest.approx((-0.9, -0.3))
+    sliver = np.array([1.5, 15.9, 0.0, 3.0])  # 0.6 um of it in view: no cut
+    low, high = _cuttable_span(sliver, 1.0, view)
+    assert low > high
+    # turned by 90 degrees (angle pi/2: along x), past the right edge by its half
+    across = np.array([3.0, 7.0, np.pi / 2, 2.0])
+    assert _cuttable_span(across, 0.5, view) == pytest.approx((-0.7, -0.3))

@@ -91,8 +91,8 @@ def test_the_sdist_builds_a_wheel_that_carries_the_manifest(tmp_path, monkeypatc
     """Found as a user: the package's napari.yaml was a link to a root file the sdist left
     out, so a wheel built from the sdist (``python -m build``, conda-forge, ``pip install``
     of the sdist) failed, and a checkout without links (Windows) shipped the link's text.
-    The sdist was 17 MB, 15 of them the docs' pictures. The manifest is one plain file in the package: the sdist, and the wheel built from it,
-    carry it and npe2 loads it."""
+    The sdist was 17 MB, 15 of them the docs' pictures. The manifest is one plain file in
+    the package: the sdist, and the wheel built from it, carry it and npe2 loads it."""
     import tarfile
     import zipfile
     from pathlib import Path

@@ -258,27 +258,29 @@ def septum_along(
     the standardised residual, signed so that positive is "less cell than the
     model" (fluorescence: darker, phase: brighter), peaks there. It is averaged
     over a strip across the axis (half the width wide, two pixels long) at every
-    half pixel along the axis, leaving each side at least 0.6 widths of rod.
+    half pixel along the axis, leaving each side at least 0.6 widths of rod in view
+    (:func:`_cuttable_span`).
 
     Returns
     -------
     offset_um, z
         The peak's distance from the rod's centre along its axis (towards the pole at
         ``+axis``) and the strip's mean residual times the square root of its pixels
-        (a noise s.d. of about 1 for white noise); ``(0, 0)`` for a rod too short.
+        (a noise s.d. of about 1 for white noise); ``(0, 0)`` for a rod too short, or
+        too little of it in view.
     """
     rows, cols = problem.shape
     px = problem.microscope.pixel_size_um
     width = problem.blocks(state.x)[1][0]
     sign = -1.0 if polarity == "dark" else 1.0
     short = -sign * (problem.y - state.mu) * np.sqrt(problem.w)
-    cx, cy, angle, length = block[:4]
-    reach = length / 2 - 0.6 * width
-    if reach <= px:
+    cx, cy, angle = block[:3]
+    low, high = _cuttable_span(block, width, (cols * px, rows * px))
+    if high - low <= 2 * px:
         return 0.0, 0.0
     u = np.array([math.sin(angle), math.cos(angle)])
     n = np.array([u[1], -u[0]])
-    along = np.arange(-reach, reach + 1e-9, px / 2)
+    along = np.arange(low, high + 1e-9, px / 2)
     across = np.linspace(-width / 4, width / 4, max(round(width / 2 / px) + 1, 2))
     ahead = np.array([-px / 2, 0.0, px / 2])
     points = (
@@ -294,6 +296,33 @@ def septum_along(
     pixels = max((2 * px) * (width / 2) / px**2, 1.0)
     k = int(np.argmax(strip))
     return float(along[k]), float(strip[k] * math.sqrt(pixels))
+
+
+def _cuttable_span(
+    block: np.ndarray, width_um: float, size_um: tuple[float, float]
+) -> tuple[float, float]:
+    """The offsets from a rod's centre along its axis (um, towards the pole at
+    ``+axis``) at which a cut leaves at least 0.6 widths of the rod in view on each
+    side, the view being the image (``size_um``: its width and height).
+
+    A rod cut by the image's edge is seen only up to the edge: found as a user, the
+    0.6 um of a cell that a drifting trench showed at the image's bottom was split at
+    a "septum" 0.2 um from the edge into a round piece and a rod beyond the image
+    (frame 3 of the real trench shifted down the frames, fitted as a series; the
+    linking then read the pieces as a division). ``low > high``: no such cut.
+    """
+    cx, cy, angle, length = (float(v) for v in block[:4])
+    low, high = -length / 2, length / 2
+    axis = ((cx, math.sin(angle), size_um[0]), (cy, math.cos(angle), size_um[1]))
+    for centre, step, size in axis:
+        if abs(step) < 1e-12:
+            if not 0.0 <= centre <= size:
+                return 0.0, -1.0
+            continue
+        ends = sorted(((0.0 - centre) / step, (size - centre) / step))
+        low, high = max(low, ends[0]), min(high, ends[1])
+    margin = 0.6 * width_um
+    return low + margin, high - margin
 
 
 def _split_at(blocks: np.ndarray, i: int, offset_um: float) -> np.ndarray:
@@ -319,6 +348,8 @@ def _split_pass(
         return state, False
     width = shared[0]
     limit = 1.6 * float(np.median(blocks[:, 3]))
+    rows, cols = problem.shape
+    view_um = (cols * problem.microscope.pixel_size_um, rows * problem.microscope.pixel_size_um)
     for i in np.argsort(-blocks[:, 3], kind="stable"):
         x, y = blocks[i, :2]
         if ctx.near("merge", x, y):
@@ -328,7 +359,9 @@ def _split_pass(
         offset, z = septum_along(problem, state, blocks[i], polarity)
         if z > SEPTUM_Z * math.sqrt(ctx.dispersion) and not ctx.tried("septum", x, y, offset):
             cuts.append(("septum", offset))
-        if blocks[i, 3] >= threshold and not (cuts and abs(offset) < 0.1):
+        low, high = _cuttable_span(blocks[i], width, view_um)
+        middle_in_view = low <= 0.0 <= high
+        if blocks[i, 3] >= threshold and middle_in_view and not (cuts and abs(offset) < 0.1):
             cuts.append(("middle", 0.0))
         for kind, offset in cuts:
             trial_blocks = _split_at(blocks, int(i), offset)
