@@ -240,5 +240,35 @@ def test_a_ring_or_haze_found_is_said_by_its_sign():
     halo, stray = CATALOGUE["halo"], CATALOGUE["stray_light"]
     assert halo.finding({"amplitude_adu": -173.0}).startswith("a weaker halo than the model's")
     assert halo.finding({"amplitude_adu": 50.0}).startswith("a stronger halo")
-    assert "(-196 ADU at the pattern's peak)" in stray.finding({"amplitude_adu": -196.0})
+    said = stray.finding({"amplitude_adu": -196.0})
+    assert "(-196 ADU where cells fill the surroundings)" in said
     assert stray.finding({"amplitude_adu": -196.0}).startswith("the cells darken")
+
+
+@pytest.mark.parametrize("name", ["halo", "stray_light"])
+def test_a_cell_pattern_draws_a_cell_the_same_whatever_else_the_frame_holds(name):
+    """A ring or haze was scaled to each image's own peak: the exported frame of one cell
+    got the haze the fit had measured around a trench full of them, and a series' frames
+    were scaled together in the fit but each alone in the export. Now the pattern around
+    a cell is the same alone, beside a crowd 10 um away and in any frame of a stack; a
+    straight edge's ring and a wide region's haze are 1 (the amplitude's meaning)."""
+    from napari_symbac.diagnose.effects import CATALOGUE
+
+    pattern = CATALOGUE[name].pattern
+    px = 0.1
+    alone = np.zeros((1, 300, 300))
+    alone[0, 40:70, 45:55] = 1.0  # a 1 x 3 um cell
+    crowd = alone.copy()
+    crowd[0, 150:300, 150:300] = 1.0  # 15 x 15 um of cells, 10 um away
+    stack = np.concatenate([crowd, alone])
+    near = (slice(None), slice(20, 90), slice(25, 75))
+    drawn = pattern(alone, px)[near]
+    np.testing.assert_allclose(pattern(crowd, px)[near], drawn, atol=1e-6)
+    np.testing.assert_allclose(pattern(stack, px)[1:][near], drawn, atol=1e-12)
+    wide = pattern(crowd, px)[0]
+    if name == "stray_light":
+        assert wide[225, 225] == pytest.approx(1.0, abs=1e-3)  # 7.5 um inside the crowd
+        assert drawn.max() == pytest.approx(0.18, abs=0.01)  # one cell alone
+    else:
+        # beside the crowd's edge (the 0.1 um Gaussian sampled at 0.1 um: 2 % high)
+        assert wide[225, 100:150].max() == pytest.approx(1.0, abs=0.03)

@@ -154,13 +154,19 @@ class Effect:
 
 class CellPatternEffect(Effect):
     """An effect that adds ``a P`` to the mean: one amplitude ``a`` (ADU) times a
-    unit-peak pattern ``P`` drawn from the cells' mask (a ring, a haze, ...).
+    pattern ``P`` drawn from the cells' mask (a ring, a haze, ...).
 
     Subclasses set :attr:`pattern`, ``pattern(cell_fraction, pixel_size_um)`` on a
-    ``(T, Y, X)`` stack.
+    ``(T, Y, X)`` stack. Its scale is fixed (:attr:`amplitude_at` says where it is 1),
+    never the image's own peak: the same amplitude then draws the same effect in the
+    fitted recording, in each frame of an export and in a frame of one cell (a haze
+    scaled to each frame's peak drew a lone cell's surroundings as dark as a full
+    trench's).
     """
 
     pattern: ClassVar[Callable[[np.ndarray, float], np.ndarray]]
+    #: Where the pattern is 1, in words for the report: the amplitude's meaning.
+    amplitude_at: ClassVar[str] = ""
     #: What a positive and a negative amplitude mean, in words (the report says which
     #: the fit found; found as a user: "halo -173 ADU" left the sign to decode).
     sign_words: ClassVar[tuple[str, str]] = ("", "")
@@ -170,7 +176,7 @@ class CellPatternEffect(Effect):
         """The fitted amplitude in words: :attr:`sign_words` by its sign, and its size."""
         amplitude = float(parameters["amplitude_adu"])
         words = cls.sign_words[0] if amplitude > 0 else cls.sign_words[1]
-        return f"{words} ({amplitude:+.3g} ADU at the pattern's peak)" if words else ""
+        return f"{words} ({amplitude:+.3g} ADU {cls.amplitude_at})" if words else ""
 
     def __init__(self, geometry: Geometry) -> None:
         super().__init__(geometry)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from napari_symbac.diagnose.effects.base import CellPatternEffect, gaussian
@@ -13,21 +15,34 @@ __all__ = ["Halo"]
 INNER_UM, OUTER_UM = 0.1, 0.35
 
 
+def _edge_peak(inner: float, outer: float) -> float:
+    """The ring's peak beside a straight edge: ``Phi(d / outer) - Phi(d / inner)`` at
+    the distance ``d`` outside it where the two Gaussians' slopes are equal."""
+    d = math.sqrt(2 * math.log(outer / inner) / (1 / inner**2 - 1 / outer**2))
+    return 0.5 * (math.erf(d / (outer * math.sqrt(2))) - math.erf(d / (inner * math.sqrt(2))))
+
+
+#: :func:`_edge_peak` of the ring's widths (-0.269 outside an edge, +0.269 inside).
+EDGE_PEAK = abs(_edge_peak(INNER_UM, OUTER_UM))
+
+
 def halo_ring(cell_fraction: np.ndarray, pixel_size_um: float) -> np.ndarray:
-    """Unit-peak ring around the cells: ``G_outer * F - G_inner * F`` (``(T, Y, X)``)."""
+    """Ring around the cells, ``(G_outer * F - G_inner * F) / EDGE_PEAK`` (``(T, Y,
+    X)``): 1 at its bright band beside a straight cell edge (a rod's side), -1.68 at
+    the middle of a 1 um wide cell."""
     ring = gaussian(cell_fraction, OUTER_UM / pixel_size_um) - gaussian(
         cell_fraction, INNER_UM / pixel_size_um
     )
-    peak = float(np.abs(ring).max())
-    return ring / peak if peak > 0 else ring
+    return ring / EDGE_PEAK
 
 
 class Halo(CellPatternEffect):
     """A bright ring just outside every cell and a darker rim inside: ``mu + a R``.
 
-    ``R`` is a difference of Gaussians (0.1 and 0.35 um) of the cell mask, scaled to
-    a peak of 1, and ``a`` its amplitude in ADU: the part of the phase ring's halo
-    (eq. 10-13) that the fitted ring contrast and apodisation did not capture.
+    ``R`` is a difference of Gaussians (0.1 and 0.35 um) of the cell mask, 1 at its
+    peak beside a straight edge (:func:`halo_ring`), and ``a`` its amplitude in ADU:
+    the part of the phase ring's halo (eq. 10-13) that the fitted ring contrast and
+    apodisation did not capture.
     """
 
     name = "halo"
@@ -44,6 +59,7 @@ class Halo(CellPatternEffect):
     )
 
     pattern = staticmethod(halo_ring)
+    amplitude_at = "beside a straight cell edge"
 
 
 def stage(parameters: dict) -> Stage:

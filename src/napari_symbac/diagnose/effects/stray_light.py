@@ -14,17 +14,19 @@ WIDTH_UM = 1.5
 
 
 def haze(cell_fraction: np.ndarray, pixel_size_um: float) -> np.ndarray:
-    """The cell mask blurred over :data:`WIDTH_UM`, scaled to a peak of 1."""
-    field = gaussian(cell_fraction, WIDTH_UM / pixel_size_um)
-    peak = float(field.max())
-    return field / peak if peak > 0 else field
+    """The cell mask blurred over :data:`WIDTH_UM`: the share of each pixel's
+    surroundings (a Gaussian of that s.d.) that is cell, 1 where cells fill them (0.26
+    at the middle of a trench filled by 1 um wide cells, 0.18 at the centre of one
+    1 x 3 um cell alone)."""
+    return gaussian(cell_fraction, WIDTH_UM / pixel_size_um)
 
 
 class StrayLight(CellPatternEffect):
     """Light scattered by the cells over microns: ``mu + s G_L * F`` (``L`` = 1.5 um).
 
-    ``F`` is the cell mask, the blurred mask scaled to peak 1, ``s`` in ADU (negative:
-    the cells shadow their surroundings).
+    ``F`` is the cell mask, ``G_L * F`` the share of each pixel's surroundings that
+    is cell (:func:`haze`), ``s`` in ADU where cells fill them (negative: the cells
+    shadow their surroundings).
     """
 
     name = "stray_light"
@@ -40,6 +42,7 @@ class StrayLight(CellPatternEffect):
     )
 
     pattern = staticmethod(haze)
+    amplitude_at = "where cells fill the surroundings"
 
 
 def stage(parameters: dict) -> Stage:
