@@ -507,19 +507,22 @@ def test_painted_classes_on_a_faint_frame_are_not_refused_as_blank(truth):
 
 
 def test_a_rod_is_cut_only_where_both_pieces_show_in_view():
-    """The split move's cuts (at a septum or the middle) leave 0.6 widths of rod in
-    view on each side: a rod cut by the image's edge only within what the image shows."""
+    """The split move's cuts (at a septum or the middle) leave 0.6 widths of rod on each
+    side of a rod wholly in view; of a rod that the image's edge cuts, the piece in view
+    must be a rod (1.25 widths) and the piece past the edge must show a quarter width."""
     from napari_symbac.fit.moves import _cuttable_span
 
     view = (3.0, 15.0)  # um: the image's width and height
     inside = np.array([1.5, 7.0, 0.0, 4.0])  # x, y, angle (0: along y), length
     assert _cuttable_span(inside, 1.0, view) == pytest.approx((-1.4, 1.4))
-    # 0.3 um of this rod's upper half lies inside the bottom edge
+    # 0.3 um of this rod's lower half lies inside the bottom edge
     at_edge = np.array([1.5, 14.7, 0.0, 3.0])
-    assert _cuttable_span(at_edge, 1.0, view) == pytest.approx((-0.9, -0.3))
+    assert _cuttable_span(at_edge, 1.0, view) == pytest.approx((-0.25, 0.05))
     sliver = np.array([1.5, 15.9, 0.0, 3.0])  # 0.6 um of it in view: no cut
     low, high = _cuttable_span(sliver, 1.0, view)
     assert low > high
     # turned by 90 degrees (angle pi/2: along x), past the right edge by its half
     across = np.array([3.0, 7.0, np.pi / 2, 2.0])
-    assert _cuttable_span(across, 0.5, view) == pytest.approx((-0.7, -0.3))
+    assert _cuttable_span(across, 0.5, view) == pytest.approx((-0.375, -0.125))
+    through = np.array([1.5, 7.5, 0.0, 20.0])  # past both edges
+    assert _cuttable_span(through, 1.0, view) == pytest.approx((-7.25, 7.25))

@@ -302,12 +302,16 @@ def _cuttable_span(
     block: np.ndarray, width_um: float, size_um: tuple[float, float]
 ) -> tuple[float, float]:
     """The offsets from a rod's centre along its axis (um, towards the pole at
-    ``+axis``) at which a cut leaves at least 0.6 widths of the rod in view on each
-    side, the view being the image (``size_um``: its width and height).
+    ``+axis``) at which a split may cut it, the view being the image (``size_um``: its
+    width and height).
 
-    A rod cut by the image's edge is seen only up to the edge: found as a user, the
-    0.6 um of a cell that a drifting trench showed at the image's bottom was split at
-    a "septum" 0.2 um from the edge into a round piece and a rod beyond the image
+    A rod wholly in view keeps 0.6 widths on each side of the cut. A rod that the
+    image's edge cuts is seen only up to the edge: its piece past the edge must show a
+    quarter of a width in view, and its piece wholly in view must be a rod
+    (:data:`RESEED_ASPECT` widths long, as :func:`_are_rods` asks of a split's cells,
+    which cannot judge it once the refinement has moved it past the edge). Found as a
+    user: the 0.6 um of a cell that a drifting trench showed at the image's bottom was
+    cut at a "septum" 0.2 um from the edge into a round cell and a rod beyond the image
     (frame 3 of the real trench shifted down the frames, fitted as a series; the
     linking then read the pieces as a division). ``low > high``: no such cut.
     """
@@ -321,8 +325,11 @@ def _cuttable_span(
             continue
         ends = sorted(((0.0 - centre) / step, (size - centre) / step))
         low, high = max(low, ends[0]), min(high, ends[1])
-    margin = 0.6 * width_um
-    return low + margin, high - margin
+    past_low, past_high = low > -length / 2, high < length / 2
+    in_view = 0.6 if not (past_low or past_high) else RESEED_ASPECT
+    low += width_um * (0.25 if past_low else in_view)
+    high -= width_um * (0.25 if past_high else in_view)
+    return low, high
 
 
 def _split_at(blocks: np.ndarray, i: int, offset_um: float) -> np.ndarray:
