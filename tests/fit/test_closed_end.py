@@ -40,7 +40,8 @@ def test_a_window_below_the_closed_end_starts_with_the_end_above_it(real_data_di
     start dropped the rows above it and the fit drew one 11.9 um cell for two and a half
     (reduced chi-square 76). Rows above a closed end show the device alone, with little
     structure across them; a window whose first rows show the trench's walls has its
-    closed end above the image. The whole trench keeps its closed end, 22 rows down."""
+    closed end above the image. The whole trench keeps its closed end, 22 rows down,
+    and so do windows that start just above it."""
     import tifffile
 
     from napari_symbac.fit.start import start_scene
@@ -52,6 +53,10 @@ def test_a_window_below_the_closed_end_starts_with_the_end_above_it(real_data_di
     for row in (110, 116, 122):
         window = image[row : row + 126, 2:45]
         assert start_scene(window, microscope)[2].top_um < 0
+    # windows that keep the closed end 6 to 2 rows below their top keep it in view
+    # (the rows its own halo reaches above it are not judged)
+    for row in (16, 20):
+        assert 0 <= start_scene(image[row:, 2:45], microscope)[2].top_um < 0.5
     fit = fit_scene(image[110:236, 2:45], microscope, RenderSettings(), None)
     assert len(fit.cells) == 2
     assert fit.objective_after < 15  # 11.9; 76 with the septum taken for the closed end

@@ -236,12 +236,21 @@ def _refuse_a_closed_end_below(
         )
 
 
-def _closed_end_in_view(smooth: np.ndarray, first: int) -> bool:
-    """Whether the ``first`` rows, above the closed end that the trench's row profile
-    places, show the device alone: rows of PDMS have little structure across them,
-    while every row of the trench shows its walls' edges and the media's halo. Their
-    spread across the row (90th less 10th percentile) must be a quarter or less of the
-    trench rows' (the real trench: 70-390 ADU above its closed end, 2400-5500 below).
+#: Rows (um) above a closed end that its own halo reaches, left out of the judgement of
+#: the rows above it (:func:`_closed_end_in_view`): on the real trench the two rows
+#: above its end spread 907 and 1687 ADU across, and the profile's end moves by two
+#: rows with the window.
+CLOSED_END_HALO_UM = 0.4
+
+
+def _closed_end_in_view(smooth: np.ndarray, first: int, px: float) -> bool:
+    """Whether the rows above the closed end that the trench's row profile places at
+    row ``first`` show the device alone: rows of PDMS have little structure across
+    them, while every row of the trench shows its walls' edges and the media's halo.
+    Their spread across the row (90th less 10th percentile) must be a quarter or less
+    of the trench rows' (the real trench: 70-390 ADU above its closed end, 2400-5500
+    below). The rows that the end's own halo reaches (:data:`CLOSED_END_HALO_UM`) are
+    not judged; a closed end within them of the image's top is taken as placed.
 
     Found as a user: windows of the real trench below its closed end (126 rows from
     row 110) took a bright septum between two cells for the closed end, so the start
@@ -250,8 +259,11 @@ def _closed_end_in_view(smooth: np.ndarray, first: int) -> bool:
     """
     if first <= 0:
         return False
+    judged = first - max(round(CLOSED_END_HALO_UM / px), 1)
+    if judged <= 0:
+        return True
     spread = np.percentile(smooth, 90, axis=1) - np.percentile(smooth, 10, axis=1)
-    return bool(np.median(spread[:first]) <= 0.25 * np.median(spread[first:]))
+    return bool(np.median(spread[:judged]) <= 0.25 * np.median(spread[first:]))
 
 
 #: Septum split of the Otsu start (:func:`_split_at_septa`): a bright band across a
@@ -510,7 +522,7 @@ def otsu_cells(
         _refuse_a_closed_end_below(smooth, inside, (c0, c1), px)
         above = inside > threshold_otsu(inside)
         first = int(np.argmax(np.convolve(above, np.ones(3), "same") >= 2))
-        first = first if _closed_end_in_view(smooth, first) else 0
+        first = first if _closed_end_in_view(smooth, first, px) else 0
         top_um = first * px if first > 0 else -2.0
         trench = TrenchPlacement(c0 * px, (c1 - c0 + 1) * px, top_um, depth_um)
         region[:, :c0] = False
