@@ -16,13 +16,14 @@ INNER_UM, OUTER_UM = 0.1, 0.35
 
 
 def _edge_peak(inner: float, outer: float) -> float:
-    """The ring's peak beside a straight edge: ``Phi(d / outer) - Phi(d / inner)`` at
-    the distance ``d`` outside it where the two Gaussians' slopes are equal."""
+    """The ring across a straight edge, ``Phi(d / outer) - Phi(d / inner)``, at the
+    distance ``d`` from it where the two Gaussians' slopes are equal (its extreme)."""
     d = math.sqrt(2 * math.log(outer / inner) / (1 / inner**2 - 1 / outer**2))
     return 0.5 * (math.erf(d / (outer * math.sqrt(2))) - math.erf(d / (inner * math.sqrt(2))))
 
 
-#: :func:`_edge_peak` of the ring's widths (-0.269 outside an edge, +0.269 inside).
+#: The ring's extreme across a straight edge (:func:`_edge_peak`): 0.269, positive
+#: just outside the edge and negative just inside.
 EDGE_PEAK = abs(_edge_peak(INNER_UM, OUTER_UM))
 
 
