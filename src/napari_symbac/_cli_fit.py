@@ -550,6 +550,7 @@ def _outputs_one(
         CLI_CAMERA_FIX,
         camera_text,
         cells_records,
+        colony_gains_text,
         colony_noise_text,
         lens_problem,
         mask_labels,
@@ -569,6 +570,8 @@ def _outputs_one(
     keep = {*given, *(f"agar_pad.{k}" for k in (given.get("agar_pad") or {}))}
     settings, said = fitted_pipeline(result, frame, microscope, camera, base=base, keep=keep)
     notes += said
+    if (gains_note := colony_gains_text(result)) is not None:
+        notes.append(gains_note)
     camera_used = getattr(result, "camera", None) or camera or base.camera  # as fitted
 
     records = cells_records(result)

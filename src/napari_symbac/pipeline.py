@@ -25,6 +25,7 @@ from napari_symbac.scene import (
     draw_scene,
     envelope_stain,
     field_of,
+    scale_cells,
 )
 from napari_symbac.settings import Microscope, PipelineSettings, RenderSettings
 from napari_symbac.sim import Simulation
@@ -136,32 +137,19 @@ def apply_cell_brightness(scene: Scene, cv: float, seed: int, max_gain: float = 
     """Multiply each cell of ``scene`` by its gain of :func:`cell_brightness_gains`
     (at most ``max_gain`` when it is positive).
 
-    ``cv = 0`` returns ``scene`` itself (no copy, bit-identical rendering). A pixel
-    takes the gain of the cell its label names (the thickest cell there). A gain
-    ``g < 1`` gives the ``1 - g`` share of the cell's material back to the medium, so a
-    dim cell fades towards the medium around it and never below it (eq. 3: it adds
-    ``g (I_c - I_m)``; with the share left out a cell of gain near 0 imaged as a rod
-    darker than the background, in fluorescence).
+    ``cv = 0`` returns ``scene`` itself (no copy, bit-identical rendering). The gains
+    scale each cell's material as :func:`~napari_symbac.scene.scale_cells` does (eq. 3
+    adds ``g (I_c - I_m)``: a dim cell fades towards the medium, never below it; with
+    the share left out a cell of gain near 0 imaged as a rod darker than the
+    background, in fluorescence). In phase contrast a gain is the cell's optical path
+    relative to the mean cell's, as ``fit_colony`` fits it.
     """
     if cv == 0 or scene.cell_ids.size == 0:
         if not (np.isfinite(cv) and cv >= 0):
             raise ValueError(f"cv must be zero or positive, got {cv!r}")
         return scene
     ids = np.asarray(scene.cell_ids, np.int64)
-    lut_ids = np.concatenate([[0], ids])
-    gains = cell_brightness_gains(ids, cv, seed, max_gain)
-    lut_gain = np.concatenate([[1.0], gains]).astype(np.float32)
-    order = np.argsort(lut_ids)
-    lut_ids, lut_gain = lut_ids[order], lut_gain[order]
-    labels = scene.labels.astype(np.int64)
-    index = np.clip(np.searchsorted(lut_ids, labels), 0, lut_ids.size - 1)
-    per_pixel = np.where(lut_ids[index] == labels, lut_gain[index], np.float32(1.0))
-    per_pixel = per_pixel.astype(np.float32)
-    cells = np.asarray(scene.cells, np.float32)
-    lost = cells * np.maximum(np.float32(1.0) - per_pixel, np.float32(0.0))
-    return scene.replace_cells(cells * per_pixel).replace_media(
-        np.asarray(scene.media, np.float32) + lost
-    )
+    return scale_cells(scene, ids, cell_brightness_gains(ids, cv, seed, max_gain))
 
 
 def stain_cells(scene: Scene, microscope: Microscope, render: RenderSettings) -> Scene:

@@ -743,8 +743,9 @@ class RenderSettings:
         multiplied by a gain from a gamma distribution with mean 1 and this
         coefficient of variation. The gain is drawn once per cell id from the
         simulation seed, so a cell keeps its brightness in every frame and the same
-        seed gives the same gains; 0 = every cell alike (in phase contrast it varies
-        ``I_c`` per cell).
+        seed gives the same gains; 0 = every cell alike (in phase contrast a gain
+        scales the cell's material, so its optical path: the spread ``fit_colony``
+        measures on a colony, 0.10-0.19 on the Omnipose colonies).
     cell_brightness_max_gain
         The largest per-cell gain, as a multiple of the mean cell (at least 1): the
         gamma of ``cell_brightness_cv`` truncated there, so that no cell is brighter

@@ -9,8 +9,11 @@ its mask) and fits the partially coherent phase model (docs/physics.md) to it pi
 pixel with :func:`~napari_symbac.fit.fit_parameters`: the cells' phase, apodisation and
 ring width, the media level in closed form, with Gaussian noise of the
 background's pixel noise (the 8-bit exports such colonies come in are not raw camera
-counts). The cells are the masks' (centre, length, width and angle from each mask's
-moments), not refitted. :func:`is_dense_colony` says when to take this path.
+counts). Then each cell's own optical path, a gain on its phase
+(:func:`~napari_symbac.fit.cell_gains.fit_cell_gains`: real cells differ in thickness
+and density), whose spread becomes the export's ``cell_brightness_cv``. The cells are
+the masks' (centre, length, width and angle from each mask's moments), not refitted.
+:func:`is_dense_colony` says when to take this path.
 """
 
 from __future__ import annotations
@@ -228,6 +231,9 @@ class ColonyFit:
     measured_noise_adu
         The image's pixel noise (robust, from pixel differences; 0 below one grey level),
         whose variance plus the quantisation's (1/12 ADU^2) weighs the pixel term.
+    cell_gains
+        Cell id -> its fitted optical path relative to ``render.cell_phase_rad``
+        (empty when not fitted); the scene and the synthetic image carry them.
     """
 
     cells: FrameCells
@@ -248,6 +254,7 @@ class ColonyFit:
     camera: Camera
     measured_noise_adu: float = 0.0
     trench: None = None
+    cell_gains: dict[int, float] = field(default_factory=dict)
 
     @property
     def pixel_size_um(self) -> float:
@@ -266,6 +273,8 @@ class ColonyFit:
             name: np.asarray(getattr(self.cells, name)).tolist()
             for name in ("ids", "x_um", "y_um", "angle_rad", "length_um", "width_um")
         }
+        if self.cell_gains:
+            table["optical_path_gain"] = [self.cell_gains.get(int(i)) for i in table["ids"]]
         return table
 
 
@@ -276,6 +285,8 @@ def fit_colony(
     camera: Camera | None = None,
     *,
     max_evaluations: int = 40,
+    cell_gains: bool = True,
+    max_gain_evaluations: int = 40,
     progress: Any = None,
     cancel: Any = None,
 ) -> ColonyFit:
@@ -292,7 +303,14 @@ def fit_colony(
     camera
         Its baseline and bit depth; default baseline 0 and the image's bit depth.
     max_evaluations
-        Renders of the partially coherent model (each sums its source points).
+        Renders of the partially coherent model (each sums its source points) for the
+        optics.
+    cell_gains
+        Fit each cell's optical path after the optics (with at least
+        :data:`~napari_symbac.fit.fitted_settings.MIN_CELLS_FOR_SPREAD` cells); kept
+        only when it lowers the residual.
+    max_gain_evaluations
+        Renders for the cells' optical paths.
     progress, cancel
         As :func:`~napari_symbac.fit.fit_parameters`.
 
@@ -307,30 +325,91 @@ def fit_colony(
         levels).
     """
     real, masks, camera, noise = checked_colony_frame(image, microscope, masks, camera)
+    gain_budget = max_gain_evaluations if cell_gains else 0
+    total = max_evaluations + gain_budget
+
+    def optics_progress(done: int, _total: int) -> None:
+        if progress is not None:
+            progress(min(done, max_evaluations), total)
+
     result, scene, start = colony_optics(
-        real, masks, microscope, camera, noise, max_evaluations, progress=progress, cancel=cancel
-    )
+        real, masks, microscope, camera, noise, max_evaluations,
+        progress=optics_progress, cancel=cancel,
+    )  # fmt: skip
     before = rendered_start(microscope, start, camera, scene)
     names = (*result.fitted, "media_intensity")
     values = np.array([float(getattr(result.render, n)) for n in names])
     errors = np.array([result.standard_errors.get(n, math.nan) for n in result.fitted] + [math.nan])
+    outcome = _with_cell_gains(
+        real, scene, microscope, camera, result, gain_budget,
+        progress=None if progress is None else lambda k, _n: progress(max_evaluations + k, total),
+        cancel=cancel,
+    )  # fmt: skip
+    scene, render, synthetic, objective_after, gains, gain_warnings, gain_renders = outcome
     return colony_result(
         real,
         masks,
         microscope,
         camera,
         scene,
-        result.render,
-        synthetic=real - result.residual,
+        render,
+        synthetic=synthetic,
         before=before,
-        objective=(result.objective_before, result.objective_after),
+        objective=(result.objective_before, objective_after),
         parameter_names=names,
         parameters=values,
         standard_errors=errors,
-        warnings=result.warnings,
+        warnings=(*result.warnings, *gain_warnings),
         at_bounds=tuple(n for n in result.fitted if any(n in w for w in result.warnings)),
-        n_evaluations=result.n_evaluations,
+        n_evaluations=result.n_evaluations + gain_renders,
+        cell_gains=gains,
     )
+
+
+def _with_cell_gains(
+    real: np.ndarray,
+    scene: Any,
+    microscope: Microscope,
+    camera: Camera,
+    result: Any,
+    budget: int,
+    *,
+    progress: Any,
+    cancel: Any,
+) -> tuple[Any, RenderSettings, np.ndarray, float, dict[int, float], tuple[str, ...], int]:
+    """The optics fit ``result`` with each cell's optical path fitted on top (``budget``
+    renders; none, or fewer cells than a spread needs: the fit as it is): the scene,
+    the render (``cell_brightness_cv`` and its bound from the gains), the synthetic
+    image, the pixel term, the gains, their warnings and the renders used."""
+    from napari_symbac.fit.cell_gains import fit_cell_gains
+    from napari_symbac.fit.fitted_settings import MIN_CELLS_FOR_SPREAD
+    from napari_symbac.fit.objectives import objective_terms
+    from napari_symbac.fit.parameters import _variance, scene_classes
+    from napari_symbac.optics import ForwardModel
+
+    unchanged = (scene, result.render, real - result.residual, result.objective_after, {}, (), 0)
+    if budget <= 0 or scene.cell_ids.size < MIN_CELLS_FOR_SPREAD:
+        return unchanged
+    render = result.render
+    fit = fit_cell_gains(
+        real - camera.baseline_adu, scene, microscope, render, camera,
+        max_evaluations=budget, progress=progress, cancel=cancel,
+    )  # fmt: skip
+    if fit.rms_after_adu >= fit.rms_before_adu:
+        return (*unchanged[:-1], fit.n_evaluations)
+    clean = ForwardModel(microscope, render, camera).render_clean(fit.scene, cache=False)
+    synthetic = np.asarray(clean, np.float64) + camera.baseline_adu
+    variance = _variance(synthetic, render, camera)
+    pixel = objective_terms(
+        synthetic, real, scene_classes(fit.scene), terms=("pixel",), variance=variance
+    )["pixel"]
+    gains = np.array(list(fit.gains.values()))
+    render = dataclasses.replace(
+        render,
+        cell_brightness_cv=min(fit.cv, 2.0),
+        cell_brightness_max_gain=max(float(gains.max() / gains.mean()), 1.0),
+    )
+    return fit.scene, render, synthetic, pixel, fit.gains, fit.warnings, fit.n_evaluations
 
 
 def checked_colony_frame(
@@ -404,6 +483,7 @@ def colony_result(
     warnings: tuple[str, ...],
     at_bounds: tuple[str, ...],
     n_evaluations: int,
+    cell_gains: dict[int, float] | None = None,
 ) -> ColonyFit:
     """A :class:`ColonyFit` of one frame: the masks' cells measured (each cell's id its
     mask's label), ``render``'s noise (the measured) drawn at least :data:`MIN_NOISE_ADU`,
@@ -432,4 +512,5 @@ def colony_result(
         n_evaluations=n_evaluations,
         camera=camera,
         measured_noise_adu=measured,
+        cell_gains=dict(cell_gains or {}),
     )

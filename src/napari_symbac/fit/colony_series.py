@@ -320,6 +320,7 @@ def fit_colony_series(
         all_masks[reference],
         camera,
         max_evaluations=max_evaluations,
+        cell_gains=False,  # the frames' cells are drawn again below, without gains
         progress=optics_progress,
         cancel=cancel,
     )

@@ -24,6 +24,7 @@ __all__ = [
     "camera_text",
     "cells_counted",
     "cells_records",
+    "colony_gains_text",
     "colony_noise_text",
     "fit_notes",
     "fit_problems",
@@ -263,6 +264,19 @@ def colony_noise_text(result: Any) -> str:
     if drawn > measured:
         text += f"; drawn with {drawn:.3g} ADU, the least, so that synthetic pixels scatter"
     return text
+
+
+def colony_gains_text(result: Any) -> str | None:
+    """Each cell's own optical path of a colony fit in words (None when not fitted)."""
+    gains = np.array(list(getattr(result, "cell_gains", {}).values()))
+    if not gains.size:
+        return None
+    low, high = np.percentile(gains, [5, 95])
+    return (
+        f"each cell's own optical path fitted after the optics: gains {low:.2f}-{high:.2f} "
+        f"of the fitted phase (5-95 %), optical_path_gain in cells.json; settings.yaml "
+        f"draws their spread (cell_brightness_cv {result.render.cell_brightness_cv:.2f})"
+    )
 
 
 def fit_notes(modality: str, geometry: str, colony: bool = False) -> list[str]:

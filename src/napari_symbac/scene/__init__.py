@@ -22,6 +22,7 @@ from napari_symbac.scene._field import (
     add_media_texture,
     field_of,
 )
+from napari_symbac.scene._gains import scale_cells
 from napari_symbac.scene._kymograph import kymograph
 from napari_symbac.scene._masks import cell_thickness_from_masks, scene_from_masks
 from napari_symbac.scene._stain import (
@@ -49,6 +50,7 @@ __all__ = [
     "envelope_weight",
     "field_of",
     "kymograph",
+    "scale_cells",
     "scene_from_masks",
     "semantic_from_labels",
     "shell_chord_um",
