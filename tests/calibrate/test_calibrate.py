@@ -432,6 +432,10 @@ def test_dense_phase_colony_uses_the_partially_coherent_fit(real_data_dir):
     assert s.simulation.agar_pad.n_colonies == cal.measurements.cluster_sizes.size
     assert s.simulation.n_frames > 30  # grown to a colony of tens of cells
     assert cal.fit_chi2[1] <= cal.fit_chi2[0]
+    # each cell's own optical path, its spread drawn by the dataset
+    assert any(note.startswith("cells' own optical paths") for note in cal.notes), cal.notes
+    assert 0.02 < s.render.cell_brightness_cv < 0.5
+    assert s.render.cell_brightness_max_gain > 1
     item = PipelineSource(export_settings(cal, n_items=1, seed=0)).make_unit(0)[0]
     cells = item.labels > 0
     assert (np.unique(item.labels) > 0).sum() >= 10

@@ -349,6 +349,10 @@ def test_auto_fit_of_a_phase_colony_with_its_masks_fits_the_halo(rendered, qtbot
     stored = tune.source.value.metadata[SYMBAC_METADATA_KEY]["settings"].render
     assert stored.phase_model == "partially_coherent"  # Export renders the fitted model
     assert stored.cell_phase_rad == pytest.approx(result.render.cell_phase_rad)
+    # each cell's own optical path: Export draws the cells as varied as the fit found them
+    assert result.cell_gains
+    assert stored.cell_brightness_cv == pytest.approx(result.render.cell_brightness_cv)
+    assert stored.cell_brightness_cv > 0
     assert viewer.layers[FIT_SYNTHETIC_LAYER].data.shape == grey.shape
     assert tune.fit_button.enabled
     # the sliders are the partially coherent model's: phase, ring width, plate, and the

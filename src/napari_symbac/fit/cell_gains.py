@@ -18,6 +18,7 @@ per cell).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -83,6 +84,20 @@ class CellGainFit:
         return math.sqrt(max(spread, 0.0)) / float(values.mean())
 
 
+    def render_with_spread(self, render: RenderSettings) -> RenderSettings:
+        """``render`` drawing cells as varied as these: :attr:`cv` as
+        ``cell_brightness_cv`` (at most 2) and the largest gain over the mean as
+        ``cell_brightness_max_gain``; ``render`` itself when no gain was fitted."""
+        values = np.array(list(self.gains.values()))
+        if not values.size or values.mean() <= 0:
+            return render
+        return dataclasses.replace(
+            render,
+            cell_brightness_cv=min(self.cv, 2.0),
+            cell_brightness_max_gain=max(float(values.max() / values.mean()), 1.0),
+        )
+
+
 def _colours(labels: np.ndarray, ids: np.ndarray, reach_px: int) -> np.ndarray:
     """A colour per id (1, 2, ...) such that two cells within ``2 reach_px`` differ."""
     colour = np.zeros(int(labels.max()) + 1, np.int64)
@@ -101,7 +116,7 @@ def _colours(labels: np.ndarray, ids: np.ndarray, reach_px: int) -> np.ndarray:
 
 
 def _owners(labels: np.ndarray, members: np.ndarray) -> np.ndarray:
-    """For each pixel, the index (into the sorted ids) of its nearest cell of ``members``."""
+    """For each pixel, the id of its nearest cell among ``members``."""
     chosen = np.isin(labels, members)
     _, (iy, ix) = ndimage.distance_transform_edt(~chosen, return_indices=True)
     return labels[iy, ix]

@@ -403,12 +403,7 @@ def _with_cell_gains(
     pixel = objective_terms(
         synthetic, real, scene_classes(fit.scene), terms=("pixel",), variance=variance
     )["pixel"]
-    gains = np.array(list(fit.gains.values()))
-    render = dataclasses.replace(
-        render,
-        cell_brightness_cv=min(fit.cv, 2.0),
-        cell_brightness_max_gain=max(float(gains.max() / gains.mean()), 1.0),
-    )
+    render = fit.render_with_spread(render)
     return fit.scene, render, synthetic, pixel, fit.gains, fit.warnings, fit.n_evaluations
 
 
