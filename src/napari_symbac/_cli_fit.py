@@ -571,7 +571,7 @@ def _outputs_one(
     settings, said = fitted_pipeline(result, frame, microscope, camera, base=base, keep=keep)
     notes += said
     if (gains_note := colony_gains_text(result)) is not None:
-        notes.append(gains_note)
+        notes.append(f"{gains_note} in settings.yaml; each cell's: optical_path_gain, cells.json")
     camera_used = getattr(result, "camera", None) or camera or base.camera  # as fitted
 
     records = cells_records(result)

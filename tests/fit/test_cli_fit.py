@@ -639,6 +639,12 @@ def test_a_phase_colony_with_its_masks_is_fitted_with_its_halo(tmp_path, real_da
     assert len(table["cells"]) == int(np.count_nonzero(sizes * 0.0745**2 >= 0.25))
     phase = next(p for p in table["parameters"] if p["name"] == "cell_phase_rad")
     assert 0 < phase["se"] < 0.05 * phase["value"]
+    # each cell's own optical path: in cells.json, said in the report, drawn by settings
+    gains = [cell["optical_path_gain"] for cell in table["cells"]]
+    assert all(0 < g < 3 for g in gains)
+    assert np.std(gains) > 0.01
+    assert "each cell's own optical path fitted after the optics" in report
+    assert settings.render.cell_brightness_cv > 0
     # the halo: the pad within 4 px of the colony is brighter than the pad beyond 12 px,
     # in the real image and, by at least half as much, in the fitted one
     fitted = grey - tifffile.imread(out / "residual.tif")

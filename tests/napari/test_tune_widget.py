@@ -353,6 +353,7 @@ def test_auto_fit_of_a_phase_colony_with_its_masks_fits_the_halo(rendered, qtbot
     assert result.cell_gains
     assert stored.cell_brightness_cv == pytest.approx(result.render.cell_brightness_cv)
     assert stored.cell_brightness_cv > 0
+    assert "Each cell's own optical path fitted after the optics" in tune.status.value
     assert viewer.layers[FIT_SYNTHETIC_LAYER].data.shape == grey.shape
     assert tune.fit_button.enabled
     # the sliders are the partially coherent model's: phase, ring width, plate, and the

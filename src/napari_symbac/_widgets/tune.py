@@ -997,6 +997,7 @@ class TuneWidget(Container):
         from napari_symbac.fit.fitted_settings import fitted_render
         from napari_symbac.fit.report import (
             cells_counted,
+            colony_gains_text,
             fit_problems,
             lens_problem,
             read_noise_note,
@@ -1160,6 +1161,8 @@ class TuneWidget(Container):
             problems.append(lens)
         moves = tuple(getattr(result, "moves", ()) or ())
         lines = [f"{cells_counted(len(result.cells))} fitted"] + [simulated] * bool(simulated)
+        if (gains := colony_gains_text(result)) is not None:
+            lines.append(f"{gains[0].upper()}{gains[1:]} by Export")
         lines += [f"Moves: {'; '.join(moves)}"] if moves else []
         lines += [f"Problem: {problem}" for problem in problems]
         lines += [f"Note: {note}" for note in self._fit_notes]

@@ -274,8 +274,8 @@ def colony_gains_text(result: Any) -> str | None:
     low, high = np.percentile(gains, [5, 95])
     return (
         f"each cell's own optical path fitted after the optics: gains {low:.2f}-{high:.2f} "
-        f"of the fitted phase (5-95 %), optical_path_gain in cells.json; settings.yaml "
-        f"draws their spread (cell_brightness_cv {result.render.cell_brightness_cv:.2f})"
+        f"of the fitted phase (5-95 %), their spread drawn as cell_brightness_cv "
+        f"{result.render.cell_brightness_cv:.2f}"
     )
 
 
