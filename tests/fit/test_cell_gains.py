@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import tifffile
 
-from napari_symbac.fit import fit_colony
+from napari_symbac.fit import FitCancelled, fit_colony
 from napari_symbac.fit.cell_gains import fit_cell_gains
 from napari_symbac.fit.colony import colony_start
 from napari_symbac.fit.masks import class_medians, estimate_pixel_size_um
@@ -76,7 +76,7 @@ def test_identical_cells_get_no_spread_beyond_their_errors(rendered_colony):
     assert fit.cv < 0.005
 
 
-def test_bad_input_is_refused_with_the_fix(rendered_colony):
+def test_bad_input_is_refused_with_the_fix_and_a_cancel_stops_the_fit(rendered_colony):
     image, scene, render = rendered_colony
     with pytest.raises(ValueError, match="draw the scene from the image's own masks"):
         fit_cell_gains(image[:50], scene, MICROSCOPE, render, CAMERA)
@@ -86,6 +86,8 @@ def test_bad_input_is_refused_with_the_fix(rendered_colony):
         fit_cell_gains(holes, scene, MICROSCOPE, render, CAMERA)
     with pytest.raises(ValueError, match="reach_um must be positive"):
         fit_cell_gains(image, scene, MICROSCOPE, render, CAMERA, reach_um=0.0)
+    with pytest.raises(FitCancelled):
+        fit_cell_gains(image, scene, MICROSCOPE, render, CAMERA, cancel=lambda: True)
     with pytest.raises(ValueError, match="one gain per cell id"):
         scale_cells(scene, np.arange(1, 7), np.ones(5))
     with pytest.raises(ValueError, match="finite and non-negative"):

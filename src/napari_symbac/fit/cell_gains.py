@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage, sparse
 
-from napari_symbac.fit.parameters import FitCancelled
+from napari_symbac.fit.parameters import _Budget
 from napari_symbac.optics import ForwardModel
 from napari_symbac.scene import Scene, scale_cells
 from napari_symbac.settings import Camera, Microscope, RenderSettings
@@ -173,15 +173,10 @@ def fit_cell_gains(
     labels = scene.camera_labels().astype(np.int64)
     ids = np.unique(labels[labels > 0])
     model = ForwardModel(microscope, render, camera)
-    evaluations = 0
+    budget = _Budget(max_evaluations, progress, cancel)
 
     def draw(gains: np.ndarray) -> np.ndarray:
-        nonlocal evaluations
-        if cancel is not None and cancel():
-            raise FitCancelled("fit cancelled")
-        evaluations += 1
-        if progress is not None:
-            progress(min(evaluations, max_evaluations), max_evaluations)
+        budget.tick()
         return model.render_clean(scale_cells(scene, ids, gains), cache=False).astype(np.float64)
 
     gains = np.ones(ids.size)
@@ -189,7 +184,7 @@ def fit_cell_gains(
     cost = float(np.sum((image - current) ** 2))
     rms_before = float(np.sqrt(cost / image.size))
     if ids.size == 0:
-        return CellGainFit({}, scene, rms_before, rms_before, evaluations)
+        return CellGainFit({}, scene, rms_before, rms_before, budget.done)
     reach_px = max(1, round(reach_um / microscope.pixel_size_um))
     colour = _colours(labels, ids, reach_px)
     groups = [ids[colour[ids] == c] for c in range(1, int(colour[ids].max()) + 1)]
@@ -198,7 +193,7 @@ def fit_cell_gains(
     owners = [column[_owners(labels, members)].ravel() for members in groups]
     damping = 1.0
     normal = np.zeros((ids.size, ids.size))
-    while evaluations + len(groups) + 1 <= max_evaluations:
+    while budget.done + len(groups) + 1 <= max_evaluations:
         rows, cols, values = [], [], []
         for members, owner in zip(groups, owners):
             stepped = gains.copy()
@@ -216,7 +211,7 @@ def fit_cell_gains(
         gradient = jac.T @ (image - current).ravel()
         scale = np.diag(normal) + 1e-12
         improved = False
-        while evaluations < max_evaluations:
+        while budget.done < max_evaluations:
             step = np.linalg.solve(normal + damping * np.diag(scale), gradient)
             trial = np.clip(gains + step, 0.0, MAX_CELL_GAIN)
             image_trial = draw(trial)
@@ -248,7 +243,7 @@ def fit_cell_gains(
         scene=scale_cells(scene, ids, gains),
         rms_before_adu=rms_before,
         rms_after_adu=rms_after,
-        n_evaluations=evaluations,
+        n_evaluations=budget.done,
         standard_errors={int(i): float(e) for i, e in zip(ids, errors)},
         warnings=tuple(warnings),
     )
