@@ -833,9 +833,11 @@ def calibrate(
         # rendered as fitted: the upsampling that samples the image band (1 for pixels
         # finer than lambda / 4 NA); the partially coherent model sums source points, so
         # a 3x finer grid would cost 9x per image
+        done = result.n_evaluations  # the cells' renders count on from the optics'
         render, note = _with_own_optical_paths(
             crop_image - base_camera.baseline_adu, scene, microscope, base_camera,
-            result.render, max_evaluations, progress=progress, cancel=cancel,
+            result.render, max_evaluations, cancel=cancel,
+            progress=None if progress is None else lambda k, n: progress(done + k, done + n),
         )  # fmt: skip
         fitted_camera = base_camera
         chi2 = (result.objective_before, result.objective_after)
