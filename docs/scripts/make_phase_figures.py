@@ -148,7 +148,7 @@ def with_own_paths(image: np.ndarray, labels: np.ndarray, px: float, optics: dic
     fit = fit_cell_gains(image, scene, microscope, render, CAMERA, max_evaluations=80)
     seconds = time.perf_counter() - start
     model_ = ForwardModel(microscope, render, CAMERA)
-    clean = model_.render_clean(fit.scene).astype(np.float64)
+    clean = fit.image
     noisy = model_.render(fit.scene, np.random.default_rng(0)).astype(np.float64)
     gains = np.array(list(fit.gains.values()))
     return {

@@ -810,7 +810,7 @@ def calibrate(
     crop_image = frame[crop]
     crop_masks = None if masks is None else masks[crop]
     crop_labels = None if labels is None else np.asarray(labels)[crop]
-    from napari_symbac.fit.colony import colony_optics, is_dense_colony
+    from napari_symbac.fit.colony import colony_cell_gains, colony_optics, is_dense_colony
 
     dense = is_dense_colony(crop_masks, microscope.modality)
     crop_m = None  # the crop's masks, measured once
@@ -834,11 +834,12 @@ def calibrate(
         # finer than lambda / 4 NA); the partially coherent model sums source points, so
         # a 3x finer grid would cost 9x per image
         done = result.n_evaluations  # the cells' renders count on from the optics'
-        render, note = _with_own_optical_paths(
+        gains = colony_cell_gains(
             crop_image - base_camera.baseline_adu, scene, microscope, base_camera,
             result.render, max_evaluations, cancel=cancel,
             progress=None if progress is None else lambda k, n: progress(done + k, done + n),
         )  # fmt: skip
+        render, note = _with_own_optical_paths(result.render, gains)
         fitted_camera = base_camera
         chi2 = (result.objective_before, result.objective_after)
         method = "masks + partially coherent fit"
@@ -1307,43 +1308,26 @@ def _with_field_brightness(render, field, crop) -> tuple[RenderSettings, str]:
     )
 
 
-def _with_own_optical_paths(
-    image: np.ndarray,
-    scene,
-    microscope: Microscope,
-    camera: Camera,
-    render: RenderSettings,
-    max_evaluations: int,
-    *,
-    progress: Callable[[int, int], None] | None,
-    cancel: Callable[[], bool] | None,
-) -> tuple[RenderSettings, str]:
+def _with_own_optical_paths(render: RenderSettings, gains) -> tuple[RenderSettings, str]:
     """``render`` drawing cells whose optical paths differ as the colony's do, and a note.
 
-    Each masked cell's own gain on its phase fitted on the fitted optics
-    (:func:`~napari_symbac.fit.cell_gains.fit_cell_gains`, ``max_evaluations`` renders, as
-    ``fit_colony`` does); their spread less the errors' becomes ``cell_brightness_cv``
-    (the Omnipose colonies: 0.10-0.19). With fewer cells than a spread needs, or no gain
-    that lowers the residual, ``render`` as it is.
+    ``gains``: each masked cell's own gain on its phase, fitted on the fitted optics
+    (:func:`~napari_symbac.fit.colony.colony_cell_gains`, as ``fit_colony`` does); their
+    spread less the errors' becomes ``cell_brightness_cv`` (the Omnipose colonies:
+    0.10-0.19). None (fewer cells than a spread needs) or gains that did not lower the
+    residual: ``render`` as it is.
     """
-    from napari_symbac.fit.cell_gains import fit_cell_gains
-    from napari_symbac.fit.fitted_settings import MIN_CELLS_FOR_SPREAD
-
-    if scene.cell_ids.size < MIN_CELLS_FOR_SPREAD:
+    if gains is None:
         return render, "cells' optical paths: alike (fewer than 3 cells in the crop)"
-    fit = fit_cell_gains(
-        image, scene, microscope, render, camera, max_evaluations=max_evaluations,
-        progress=progress, cancel=cancel,
-    )  # fmt: skip
-    if fit.rms_after_adu >= fit.rms_before_adu:
+    if not gains.improved:
         return render, "cells' optical paths: alike (no gain per cell lowered the residual)"
-    gains = np.array(list(fit.gains.values()))
-    low, high = np.percentile(gains, [5, 95])
-    render = fit.render_with_spread(render)
+    values = np.array(list(gains.gains.values()))
+    low, high = np.percentile(values, [5, 95])
+    render = gains.render_with_spread(render)
     return render, (
-        f"cells' own optical paths ({len(gains)} cells of the crop, {fit.n_evaluations} "
+        f"cells' own optical paths ({len(values)} cells of the crop, {gains.n_evaluations} "
         f"renders): gains {low:.2f}-{high:.2f} of the fitted phase (5-95 %), residual rms "
-        f"{fit.rms_before_adu:.2f} -> {fit.rms_after_adu:.2f} ADU; drawn with per-cell "
+        f"{gains.rms_before_adu:.2f} -> {gains.rms_after_adu:.2f} ADU; drawn with per-cell "
         f"brightness CV {render.cell_brightness_cv:.2f}, at most "
         f"x{render.cell_brightness_max_gain:.2f} the mean cell"
     )

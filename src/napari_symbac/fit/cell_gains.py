@@ -50,6 +50,8 @@ class CellGainFit:
         Cell id -> fitted gain (1 = the fitted render's own cell).
     scene
         The scene with the gains applied (render it with the same settings).
+    image
+        Its noise-free image, in ADU above the camera baseline (the fit's last render).
     rms_before_adu, rms_after_adu
         Root-mean-square pixel residual with all gains 1 and with the fitted ones.
     n_evaluations
@@ -64,6 +66,7 @@ class CellGainFit:
 
     gains: dict[int, float]
     scene: Scene = field(repr=False)
+    image: np.ndarray = field(repr=False)
     rms_before_adu: float
     rms_after_adu: float
     n_evaluations: int
@@ -83,6 +86,10 @@ class CellGainFit:
         spread = float(np.var(values, ddof=1) - np.mean(np.nan_to_num(errors) ** 2))
         return math.sqrt(max(spread, 0.0)) / float(values.mean())
 
+    @property
+    def improved(self) -> bool:
+        """Whether the gains lowered the residual (else they are all 1)."""
+        return self.rms_after_adu < self.rms_before_adu
 
     def render_with_spread(self, render: RenderSettings) -> RenderSettings:
         """``render`` drawing cells as varied as these: :attr:`cv` as
@@ -184,7 +191,7 @@ def fit_cell_gains(
     cost = float(np.sum((image - current) ** 2))
     rms_before = float(np.sqrt(cost / image.size))
     if ids.size == 0:
-        return CellGainFit({}, scene, rms_before, rms_before, budget.done)
+        return CellGainFit({}, scene, current, rms_before, rms_before, budget.done)
     reach_px = max(1, round(reach_um / microscope.pixel_size_um))
     colour = _colours(labels, ids, reach_px)
     groups = [ids[colour[ids] == c] for c in range(1, int(colour[ids].max()) + 1)]
@@ -241,6 +248,7 @@ def fit_cell_gains(
     return CellGainFit(
         gains={int(i): float(g) for i, g in zip(ids, gains)},
         scene=scale_cells(scene, ids, gains),
+        image=current,
         rms_before_adu=rms_before,
         rms_after_adu=rms_after,
         n_evaluations=budget.done,

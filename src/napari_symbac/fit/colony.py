@@ -45,6 +45,7 @@ __all__ = [
     "ColonyFit",
     "band_upsample",
     "checked_colony_frame",
+    "colony_cell_gains",
     "colony_optics",
     "colony_phase_render",
     "colony_result",
@@ -340,12 +341,17 @@ def fit_colony(
     names = (*result.fitted, "media_intensity")
     values = np.array([float(getattr(result.render, n)) for n in names])
     errors = np.array([result.standard_errors.get(n, math.nan) for n in result.fitted] + [math.nan])
-    outcome = _with_cell_gains(
-        real, scene, microscope, camera, result, gain_budget,
+    gains = colony_cell_gains(
+        real - camera.baseline_adu, scene, microscope, camera, result.render, gain_budget,
         progress=None if progress is None else lambda k, _n: progress(max_evaluations + k, total),
         cancel=cancel,
     )  # fmt: skip
-    scene, render, synthetic, objective_after, gains, gain_warnings, gain_renders = outcome
+    render, objective_after = result.render, result.objective_after
+    synthetic = real - result.residual
+    if gains is not None and gains.improved:
+        scene, render = gains.scene, gains.render_with_spread(result.render)
+        synthetic = gains.image + camera.baseline_adu
+        objective_after = _pixel_term(real, synthetic, scene, render, camera)
     return colony_result(
         real,
         masks,
@@ -359,52 +365,52 @@ def fit_colony(
         parameter_names=names,
         parameters=values,
         standard_errors=errors,
-        warnings=(*result.warnings, *gain_warnings),
+        warnings=(*result.warnings, *(gains.warnings if gains is not None else ())),
         at_bounds=tuple(n for n in result.fitted if any(n in w for w in result.warnings)),
-        n_evaluations=result.n_evaluations + gain_renders,
-        cell_gains=gains,
+        n_evaluations=result.n_evaluations + (gains.n_evaluations if gains is not None else 0),
+        cell_gains=gains.gains if gains is not None and gains.improved else None,
     )
 
 
-def _with_cell_gains(
-    real: np.ndarray,
+def colony_cell_gains(
+    image: np.ndarray,
     scene: Any,
     microscope: Microscope,
     camera: Camera,
-    result: Any,
+    render: RenderSettings,
     budget: int,
     *,
-    progress: Any,
-    cancel: Any,
-) -> tuple[Any, RenderSettings, np.ndarray, float, dict[int, float], tuple[str, ...], int]:
-    """The optics fit ``result`` with each cell's optical path fitted on top (``budget``
-    renders; none, or fewer cells than a spread needs: the fit as it is): the scene,
-    the render (``cell_brightness_cv`` and its bound from the gains), the synthetic
-    image, the pixel term, the gains, their warnings and the renders used."""
+    progress: Any = None,
+    cancel: Any = None,
+) -> Any:
+    """Each cell's own optical path on the fitted optics ``render``
+    (:func:`~napari_symbac.fit.cell_gains.fit_cell_gains`, ``budget`` renders; ``image``
+    in ADU above the baseline), or None with no budget or fewer cells than a spread
+    needs (:data:`~napari_symbac.fit.fitted_settings.MIN_CELLS_FOR_SPREAD`). The
+    gains are worth keeping only where :attr:`~napari_symbac.fit.cell_gains.CellGainFit.improved`.
+    Used by :func:`fit_colony` and by ``calibrate`` for dense colonies."""
     from napari_symbac.fit.cell_gains import fit_cell_gains
     from napari_symbac.fit.fitted_settings import MIN_CELLS_FOR_SPREAD
-    from napari_symbac.fit.objectives import objective_terms
-    from napari_symbac.fit.parameters import _variance, scene_classes
-    from napari_symbac.optics import ForwardModel
 
-    unchanged = (scene, result.render, real - result.residual, result.objective_after, {}, (), 0)
     if budget <= 0 or scene.cell_ids.size < MIN_CELLS_FOR_SPREAD:
-        return unchanged
-    render = result.render
-    fit = fit_cell_gains(
-        real - camera.baseline_adu, scene, microscope, render, camera,
+        return None
+    return fit_cell_gains(
+        image, scene, microscope, render, camera,
         max_evaluations=budget, progress=progress, cancel=cancel,
     )  # fmt: skip
-    if fit.rms_after_adu >= fit.rms_before_adu:
-        return (*unchanged[:-1], fit.n_evaluations)
-    clean = ForwardModel(microscope, render, camera).render_clean(fit.scene, cache=False)
-    synthetic = np.asarray(clean, np.float64) + camera.baseline_adu
+
+
+def _pixel_term(
+    real: np.ndarray, synthetic: np.ndarray, scene: Any, render: RenderSettings, camera: Camera
+) -> float:
+    """The pixel term of :func:`~napari_symbac.fit.fit_parameters` (its variance) for
+    ``synthetic`` (ADU, baseline included) against ``real``."""
+    from napari_symbac.fit.objectives import objective_terms
+    from napari_symbac.fit.parameters import _variance, scene_classes
+
     variance = _variance(synthetic, render, camera)
-    pixel = objective_terms(
-        synthetic, real, scene_classes(fit.scene), terms=("pixel",), variance=variance
-    )["pixel"]
-    render = fit.render_with_spread(render)
-    return fit.scene, render, synthetic, pixel, fit.gains, fit.warnings, fit.n_evaluations
+    classes = scene_classes(scene)
+    return objective_terms(synthetic, real, classes, terms=("pixel",), variance=variance)["pixel"]
 
 
 def checked_colony_frame(
