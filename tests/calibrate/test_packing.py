@@ -12,11 +12,12 @@ from scipy import ndimage
 
 from napari_symbac.calibrate.compaction import (
     MAX_OVERLAP_WIDTHS,
+    PAD_PHYS_ITERS,
     choose_gravity,
     overlap_depths_um,
     trial,
 )
-from napari_symbac.calibrate.core import PAD_PHYS_ITERS, settings_from_fit
+from napari_symbac.calibrate.core import settings_from_fit
 from napari_symbac.calibrate.measure import cell_curvatures_px, measure_field, measure_packing
 from napari_symbac.fit.masks import estimate_pixel_size_um
 from napari_symbac.settings import Camera, Microscope, RenderSettings

@@ -8,7 +8,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from napari_symbac.calibrate.core import PHASE_TRANSMISSION_SCALE, _drawn_phase
+from napari_symbac.export.dataset import PHASE_TRANSMISSION_SCALE, export_of
+from napari_symbac.fit.fitted_settings import drawn_colony_phase
 from napari_symbac.optics import ForwardModel
 from napari_symbac.scene import draw_scene, field_of, scene_from_masks
 from napari_symbac.settings import (
@@ -60,7 +61,7 @@ def test_drawn_cell_carries_the_phase_fitted_on_its_masks(width_um):
     settings = _pad_settings(width_um)
     depth = settings.simulation.trench.depth_um
     assert depth != pytest.approx(width_um)  # the pad is deeper or shallower than the cell
-    drawn_settings, note = _drawn_phase(settings)
+    drawn_settings, note = drawn_colony_phase(settings)
     assert drawn_settings.render.cell_phase_rad == pytest.approx(0.5 * depth / width_um)
     assert "pad depth" in note
     drawn = draw_scene(
@@ -117,6 +118,9 @@ def test_partially_coherent_export_keeps_the_cells_transmission(real_data_dir):
     assert max(transmissions) <= 1.0
     assert min(transmissions) >= PHASE_TRANSMISSION_SCALE[0]
     assert max(transmissions) - min(transmissions) > 0.1  # still varied between images
+    # the default export of such settings (`export --config FIT/settings.yaml`) alike
+    # (found as a user: a colony fit's settings drew B up to 1.28)
+    assert export_of(coherent.pipeline).randomise == coherent.randomise
     linear = export_settings(
         calibration(dataclasses.replace(RENDER, phase_model="linear")), n_items=4, seed=0
     )

@@ -15,6 +15,7 @@ import tifffile
 import yaml
 from scipy import ndimage
 
+from napari_symbac.calibrate.compaction import PAD_PHYS_ITERS
 from napari_symbac.cli import main
 from napari_symbac.fit import scene_classes
 from napari_symbac.fit.preflight import BRIGHT_FIELD_NOTE
@@ -645,6 +646,15 @@ def test_a_phase_colony_with_its_masks_is_fitted_with_its_halo(tmp_path, real_da
     assert np.std(gains) > 0.01
     assert "each cell's own optical path fitted after the optics" in report
     assert settings.render.cell_brightness_cv > 0
+    # drawn as recorded: the fitted optical path per unit of the pad's drawn material (the
+    # fit's is per unit of the masks' scene: chord / width), and colonies packed as the
+    # recording's by simulated gravity (found as a user: loose colonies at the masks'
+    # phase, exported cells far darker than the recording's)
+    simulation = settings.simulation
+    drawn_phase = phase["value"] * simulation.trench.depth_um / simulation.cell_width_um
+    assert settings.render.cell_phase_rad == pytest.approx(drawn_phase, rel=1e-4)
+    assert simulation.phys_iters == PAD_PHYS_ITERS
+    assert f"gravity {simulation.gravity:g} um/min towards each colony's centre" in report
     # the halo: the pad within 4 px of the colony is brighter than the pad beyond 12 px,
     # in the real image and, by at least half as much, in the fitted one
     fitted = grey - tifffile.imread(out / "residual.tif")

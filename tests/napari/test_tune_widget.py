@@ -320,6 +320,7 @@ def test_auto_fit_of_a_phase_colony_with_its_masks_fits_the_halo(rendered, qtbot
     import tifffile
 
     from napari_symbac._widgets.tune import FIT_SYNTHETIC_LAYER
+    from napari_symbac.calibrate.compaction import PAD_PHYS_ITERS
     from napari_symbac.fit import ColonyFit
     from napari_symbac.fit.report import COLONY_NOTE
 
@@ -346,9 +347,17 @@ def test_auto_fit_of_a_phase_colony_with_its_masks_fits_the_halo(rendered, qtbot
     assert "partially coherent" in tune.status.value
     assert f"Note: {COLONY_NOTE}" in tune.status.value
     assert tune.noise_model.value == "gaussian"
-    stored = tune.source.value.metadata[SYMBAC_METADATA_KEY]["settings"].render
+    settings = tune.source.value.metadata[SYMBAC_METADATA_KEY]["settings"]
+    stored, simulation = settings.render, settings.simulation
     assert stored.phase_model == "partially_coherent"  # Export renders the fitted model
-    assert stored.cell_phase_rad == pytest.approx(result.render.cell_phase_rad)
+    # Export draws a pad (chord over its depth), the fit the masks' scene (chord over the
+    # cell's width): the same optical path per cell (as `fit --masks`'s settings.yaml)
+    drawn_phase = result.render.cell_phase_rad * simulation.trench.depth_um
+    assert stored.cell_phase_rad == pytest.approx(drawn_phase / simulation.cell_width_um)
+    assert simulation.cell_width_um == pytest.approx(np.median(result.cells.width_um))
+    # and its colonies packed as the recording's (gravity chosen by simulated colonies)
+    assert simulation.phys_iters == PAD_PHYS_ITERS
+    assert f"(gravity {simulation.gravity:g} um/min)" in tune.status.value
     # each cell's own optical path: Export draws the cells as varied as the fit found them
     assert result.cell_gains
     assert stored.cell_brightness_cv == pytest.approx(result.render.cell_brightness_cv)
@@ -359,7 +368,7 @@ def test_auto_fit_of_a_phase_colony_with_its_masks_fits_the_halo(rendered, qtbot
     # the sliders are the partially coherent model's: phase, ring width, plate, and the
     # linear kernel's ring contrast and PSF offset are hidden; the phase slider acts
     phase = tune.sliders["cell_phase_rad"]
-    assert phase.value == pytest.approx(result.render.cell_phase_rad, abs=0.01)
+    assert phase.value == pytest.approx(stored.cell_phase_rad, abs=0.01)
     assert not phase.native.isHidden()
     assert tune.sliders["ring_contrast"].native.isHidden()
     assert tune.sliders["psf_offset"].native.isHidden()
@@ -491,11 +500,13 @@ def test_auto_fit_of_all_frames_fits_a_colony_time_lapse_jointly(rendered, qtbot
         assert viewer.layers[name].data.shape == real.data.shape
         assert tuple(viewer.layers[name].scale) == scale
     shown = series.frames[tune._current_frame()]
-    assert tune.sliders["cell_phase_rad"].value == pytest.approx(
-        shown.render.cell_phase_rad, abs=0.01
-    )
-    stored = tune.source.value.metadata[SYMBAC_METADATA_KEY]["settings"].render
-    assert stored.cell_phase_rad == pytest.approx(series.shared()["cell_phase_rad"][0])
+    settings = tune.source.value.metadata[SYMBAC_METADATA_KEY]["settings"]
+    # the shared phase, per unit of the pad's drawn material (as a single frame's)
+    drawn_phase = series.shared()["cell_phase_rad"][0] * settings.simulation.trench.depth_um
+    assert shown.render.cell_phase_rad == pytest.approx(series.shared()["cell_phase_rad"][0])
+    stored = settings.render
+    assert stored.cell_phase_rad == pytest.approx(drawn_phase / settings.simulation.cell_width_um)
+    assert tune.sliders["cell_phase_rad"].value == pytest.approx(stored.cell_phase_rad, abs=0.01)
     # the masks' cells whole in both windows keep their tracks
     ids = [
         dict(zip(f.cells.ids.tolist(), t.tolist()))

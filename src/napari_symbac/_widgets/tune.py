@@ -612,24 +612,30 @@ class TuneWidget(Container):
             if not fluorescence:  # a hidden box asks for nothing
                 box.value = False
 
-    def _store_fitted_simulation(self, result) -> str:
+    def _store_fitted_simulation(self, result, colony_drawn=None) -> str:
         """The simulation the fit implies (the fitted cells' width and division length,
         the fitted trench or a pad laid out as the recording's field:
         :func:`~napari_symbac.fit.fitted_settings.fitted_simulation`, as in ``napari-symbac
         fit``'s settings.yaml) becomes the layer's, which Export simulates (found as a
         user: Export after Auto-fit drew the Simulate tab's 3.5 um cells in a 16 um trench
         for a recording of 5 um cells). The scene is sized in the recording's pixels; the
-        status says so when the layer was simulated at another pixel size. Returns a
-        sentence for the status."""
+        status says so when the layer was simulated at another pixel size. A colony fit's
+        simulation comes from the worker (``colony_drawn``: :func:`_colony_drawn`).
+        Returns a sentence for the status."""
         from napari_symbac.fit.fitted_settings import fitted_simulation
 
         meta = self.source.value.metadata[SYMBAC_METADATA_KEY]
         shape = tuple(self.reference.value.data.shape[-2:])
         microscope = self._fit_microscope
         try:
-            simulation = fitted_simulation(
-                meta["settings"].simulation, result, shape, microscope.pixel_size_um
-            )
+            if colony_drawn is None:
+                simulation = fitted_simulation(
+                    meta["settings"].simulation, result, shape, microscope.pixel_size_um
+                )
+            elif colony_drawn[0] is None:
+                raise ValueError(colony_drawn[1])
+            else:
+                simulation = colony_drawn[0].simulation
         except ValueError as err:
             return f"the simulation is kept as it was ({err})"
         meta["settings"] = dataclasses.replace(meta["settings"], simulation=simulation)
@@ -648,6 +654,11 @@ class TuneWidget(Container):
             else f"{simulation.agar_pad.n_colonies} "
             f"{'colony' if simulation.agar_pad.n_colonies == 1 else 'colonies'} on a pad the "
             "recording's size"
+            + (
+                f", packed as the recording's (gravity {simulation.gravity:g} um/min)"
+                if colony_drawn is not None and simulation.gravity
+                else ""
+            )
         )
         return (
             f"Export simulates cells {simulation.cell_width_um:.2f} um wide dividing at "
@@ -847,6 +858,8 @@ class TuneWidget(Container):
                 "them as 'cell masks'"
             ) * (geometry != "trench")
 
+        layer_settings = self.source.value.metadata[SYMBAC_METADATA_KEY]["settings"]
+
         def work():
             result = yield from blocking_steps(fit, cancelled.is_set)
             frame = real[min(shown, len(real) - 1)] if all_frames else real
@@ -854,7 +867,12 @@ class TuneWidget(Container):
             clipped = _clipped_background(shown_fit, frame, microscope)
             # a measured camera is checked model-free, as `fit` does without --camera
             check = _camera_check(shown_fit, frame, advice) if camera is None else None
-            return _FitOutcome(result, shown, clipped, check)
+            drawn = (  # simulated colonies: minutes' worth of physics, not in the GUI thread
+                _colony_drawn(layer_settings, shown_fit, frame.shape, microscope, cancelled)
+                if colony
+                else None
+            )
+            return _FitOutcome(result, shown, clipped, check, drawn)
 
         self.fit_worker = Job(
             work,
@@ -1019,6 +1037,11 @@ class TuneWidget(Container):
                 cell_brightness_cv=spread.cell_brightness_cv,
                 cell_brightness_max_gain=spread.cell_brightness_max_gain,
             )
+        colony_drawn = outcome.colony_drawn
+        if colony_drawn is not None and colony_drawn[0] is not None:  # per drawn material
+            fit_render = dataclasses.replace(
+                fit_render, cell_phase_rad=colony_drawn[0].render.cell_phase_rad
+            )
         fitted = {name: float(getattr(fit_render, name)) for name in self.sliders}
         # the preview takes the recording's modality with its fitted settings (found as a
         # user: a bright-field recording fitted beside a phase preview left the preview,
@@ -1073,7 +1096,7 @@ class TuneWidget(Container):
                     meta["settings"],
                     extra_stages=with_clip(meta["settings"].extra_stages, clipped[2]),
                 )
-            simulated = self._store_fitted_simulation(result)
+            simulated = self._store_fitted_simulation(result, colony_drawn)
             self._mark_fitted()
         except ValueError as err:
             notify_warning(f"The fitted settings were not applied to the preview: {err}")
@@ -1310,6 +1333,25 @@ class TuneWidget(Container):
             self._show(self._preview_frame())
 
 
+def _colony_drawn(
+    settings, fit, shape: tuple[int, ...], microscope, cancelled: threading.Event
+) -> tuple[Any, str]:
+    """The layer's ``settings`` with the simulation a colony ``fit`` implies and its cells
+    drawn as recorded (phase per drawn material, packing:
+    :func:`~napari_symbac.fit.fitted_settings.colony_drawn`, as ``napari-symbac fit``'s
+    settings.yaml), and ``""``; ``None`` and the reason when they would be invalid."""
+    from napari_symbac.fit.fitted_settings import colony_drawn, fitted_simulation
+
+    try:
+        simulation = fitted_simulation(
+            settings.simulation, fit, tuple(shape[-2:]), microscope.pixel_size_um
+        )
+        drawn = dataclasses.replace(settings, simulation=simulation, render=fit.render)
+        return colony_drawn(drawn, fit, cancel=cancelled.is_set)[0], ""
+    except ValueError as err:
+        return None, str(err)
+
+
 @dataclasses.dataclass(frozen=True)
 class _FitOutcome:
     """What the Auto-fit worker hands back to the GUI thread.
@@ -1322,12 +1364,17 @@ class _FitOutcome:
         The frame shown when the fit started: its fit sets the sliders.
     clipped
         :func:`_clipped_background` of that frame, computed in the worker.
+    camera_check
+        :func:`_camera_check` of that frame (a measured camera), else ``None``.
+    colony_drawn
+        A colony fit's :func:`_colony_drawn`, computed in the worker.
     """
 
     result: Any
     shown: int
     clipped: tuple | None
     camera_check: tuple[str, str | None] | None
+    colony_drawn: tuple[Any, str] | None = None
 
 
 def _camera_check(result, frame: np.ndarray, advice: str) -> tuple[str, str | None] | None:

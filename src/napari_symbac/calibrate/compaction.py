@@ -28,7 +28,14 @@ from napari_symbac.calibrate.measure import (
 )
 from napari_symbac.settings import PipelineSettings
 
-__all__ = ["CompactionTrial", "choose_gravity", "overlap_depths_um", "trial"]
+__all__ = [
+    "PAD_PHYS_ITERS",
+    "CompactionTrial",
+    "choose_gravity",
+    "compacted",
+    "overlap_depths_um",
+    "trial",
+]
 
 #: Gravities tried (um/min towards each colony's centre; the simulator applies
 #: ``GRAVITY_COMPRESSION`` of it to a colony).
@@ -36,6 +43,11 @@ GRAVITY_CANDIDATES = (0.0, 4.0, 8.0, 16.0, 32.0)
 #: Largest overlap allowed (95th percentile of the contacts' depth, fraction of the
 #: cell width): deeper means cells pushed into one another, crossing in the masks.
 MAX_OVERLAP_WIDTHS = 0.2
+#: Physics iterations per frame of calibrated agar pads (the default 15 leaves deeper
+#: overlaps in a colony compacted by gravity).
+PAD_PHYS_ITERS = 30
+#: Bounds of the division-length correction of :func:`compacted`.
+_LENGTH_CORRECTION = (0.7, 1.3)
 
 
 @dataclass(frozen=True)
@@ -216,3 +228,49 @@ def choose_gravity(
         return allowed[0].gravity, trials
     best = min(measured, key=lambda t: abs(t.packing.cell_fraction - target.cell_fraction))
     return best.gravity, trials
+
+
+def compacted(
+    settings: PipelineSettings,
+    packing: ColonyPacking,
+    length_px: float,
+    cancel: Callable[[], bool] | None = None,
+) -> tuple[PipelineSettings, list[CompactionTrial], str]:
+    """Settings whose colonies are packed like the recording's (:func:`choose_gravity`,
+    with :data:`PAD_PHYS_ITERS` physics iterations) and whose cells are as long, the
+    trials, and a note.
+
+    The division length of :func:`~napari_symbac.calibrate.core.settings_from_fit` (or
+    of a fit's settings) assumes a steady population; a colony grown from one founder is
+    not one yet (its cells divide nearly in step), so the kept trial's median mask length
+    can differ from the recording's ``length_px``: the division length is scaled by their
+    ratio (within :data:`_LENGTH_CORRECTION`) and that trial simulated again. Cells stay straight:
+    bending them by eq. 1 (``do_transformation``, a fixed amplitude) brought the
+    Omnipose colonies' median curvature half-way to the real one but lowered the
+    transfer benchmark's F1 (docs/proof.md).
+    """
+    simulation = dataclasses.replace(settings.simulation, phys_iters=PAD_PHYS_ITERS)
+    settings = dataclasses.replace(settings, simulation=simulation)
+    gravity, trials = choose_gravity(settings, packing, cancel=cancel)
+    kept = next(t for t in trials if t.gravity == gravity)
+    ratio = float(np.clip(length_px / kept.median_length_px, *_LENGTH_CORRECTION))
+    simulation = dataclasses.replace(
+        simulation, gravity=gravity, cell_max_length_um=simulation.cell_max_length_um * ratio
+    )
+    settings = dataclasses.replace(settings, simulation=simulation)
+    final = trial(settings, gravity)
+    tried = ", ".join(
+        f"{t.gravity:g}: {t.packing.cell_fraction:.2f} ({t.overlap_widths:.2f} w)"
+        for t in trials
+    )
+    return settings, trials, (
+        f"packing: cells cover {packing.cell_fraction:.2f} of the image's colonies, seams "
+        f"{packing.mean_gap_px:.2f} px (labels touch at {100 * packing.touching_fraction:.0f} "
+        f"% of the neighbouring pairs); gravity {gravity:g} um/min towards each colony's "
+        f"centre (tried, cell fraction (95th percentile overlap in widths): {tried}; "
+        f"{PAD_PHYS_ITERS} physics iterations per frame); division length x {ratio:.2f} "
+        f"(median length {kept.median_length_px:.1f} px simulated, {length_px:.1f} px "
+        f"real): cells cover {final.packing.cell_fraction:.2f}, seams "
+        f"{final.packing.mean_gap_px:.2f} px, overlap {final.overlap_widths:.2f} w, median "
+        f"length {final.median_length_px:.1f} px"
+    )

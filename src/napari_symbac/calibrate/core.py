@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 
 from napari_symbac.arguments import require_argument
-from napari_symbac.calibrate.compaction import CompactionTrial, choose_gravity, trial
+from napari_symbac.calibrate.compaction import CompactionTrial, compacted
 from napari_symbac.calibrate.measure import (
     ColonyPacking,
     FieldMeasurements,
@@ -82,9 +82,6 @@ NO_MASKS_CROP_PX = 512
 #: Doubling time and frame interval of the simulated colonies (minutes).
 _DOUBLING_MIN = 25.0
 _FRAME_MIN = 3.0
-#: Physics iterations per frame of calibrated agar pads (the default 15 leaves deeper
-#: overlaps in a colony compacted by gravity).
-PAD_PHYS_ITERS = 30
 
 
 @dataclass(frozen=True)
@@ -732,6 +729,7 @@ def calibrate(
         image contradicts, cells wider than any rod at the pixel size given.
     """
     from napari_symbac.fit.camera_estimate import censored_pixels, image_bit_depth
+    from napari_symbac.fit.fitted_settings import drawn_colony_phase
     from napari_symbac.fit.masks import estimate_pixel_size_um
     from napari_symbac.fit.preflight import (
         camera_recording_problem,
@@ -986,7 +984,7 @@ def calibrate(
         if packing.n_colonies:
             if stage is not None:
                 stage("choosing the colonies' packing (simulating colonies under gravity)")
-            settings, trials, note = _compacted(
+            settings, trials, note = compacted(
                 settings,
                 packing,
                 float(np.median(measurements.of_whole_cells(measurements.lengths_px))),
@@ -994,7 +992,7 @@ def calibrate(
             )
             more.append(note)
     if dense:
-        settings, note = _drawn_phase(settings)
+        settings, note = drawn_colony_phase(settings)
         more.append(note)
     return Calibration(
         settings=settings,
@@ -1198,82 +1196,6 @@ def _faintest_masked_cnr(frame: np.ndarray, masks: np.ndarray) -> tuple[float | 
         "the dataset's masks leave out synthetic cells fainter than it, as the annotation "
         "leaves out cells fainter than that (ExportSettings.visibility)"
     )
-
-
-def _compacted(
-    settings: PipelineSettings,
-    packing: ColonyPacking,
-    length_px: float,
-    cancel: Callable[[], bool] | None = None,
-) -> tuple[PipelineSettings, list[CompactionTrial], str]:
-    """Settings whose colonies are packed like the recording's (:func:`choose_gravity`,
-    with :data:`PAD_PHYS_ITERS` physics iterations) and whose cells are as long, the
-    trials, and a note.
-
-    The division length of :func:`settings_from_fit` assumes a steady population; a
-    colony grown from one founder is not one yet (its cells divide nearly in step), so
-    the kept trial's median mask length can differ from the recording's
-    ``length_px``: the division length is scaled by their ratio (within
-    :data:`_LENGTH_CORRECTION`) and that trial simulated again. Cells stay straight:
-    bending them by eq. 1 (``do_transformation``, a fixed amplitude) brought the
-    Omnipose colonies' median curvature half-way to the real one but lowered the
-    transfer benchmark's F1 (docs/proof.md).
-    """
-    simulation = dataclasses.replace(settings.simulation, phys_iters=PAD_PHYS_ITERS)
-    settings = dataclasses.replace(settings, simulation=simulation)
-    gravity, trials = choose_gravity(settings, packing, cancel=cancel)
-    kept = next(t for t in trials if t.gravity == gravity)
-    ratio = float(np.clip(length_px / kept.median_length_px, *_LENGTH_CORRECTION))
-    simulation = dataclasses.replace(
-        simulation, gravity=gravity, cell_max_length_um=simulation.cell_max_length_um * ratio
-    )
-    settings = dataclasses.replace(settings, simulation=simulation)
-    final = trial(settings, gravity)
-    tried = ", ".join(
-        f"{t.gravity:g}: {t.packing.cell_fraction:.2f} ({t.overlap_widths:.2f} w)"
-        for t in trials
-    )
-    return settings, trials, (
-        f"packing: cells cover {packing.cell_fraction:.2f} of the image's colonies, seams "
-        f"{packing.mean_gap_px:.2f} px (labels touch at {100 * packing.touching_fraction:.0f} "
-        f"% of the neighbouring pairs); gravity {gravity:g} um/min towards each colony's "
-        f"centre (tried, cell fraction (95th percentile overlap in widths): {tried}; "
-        f"{PAD_PHYS_ITERS} physics iterations per frame); division length x {ratio:.2f} "
-        f"(median length {kept.median_length_px:.1f} px simulated, {length_px:.1f} px "
-        f"real): cells cover {final.packing.cell_fraction:.2f}, seams "
-        f"{final.packing.mean_gap_px:.2f} px, overlap {final.overlap_widths:.2f} w, median "
-        f"length {final.median_length_px:.1f} px"
-    )
-
-
-def _drawn_phase(settings: PipelineSettings) -> tuple[PipelineSettings, str]:
-    """Settings whose drawn cells carry the phase fitted to the masks' scene, and a note.
-
-    The phase ``phi = 2 pi (n_cell - n_media) s / lambda`` (eq. OPL2) is fitted per unit
-    of material on :func:`~napari_symbac.scene.scene_from_masks`, whose material is the
-    chord over the cell's own width (1 on a cell's centre line). A drawn agar pad holds
-    the chord over the pad's optical depth ``D`` (``TrenchGeometry.depth_um``), so a
-    cell of width ``w`` peaks at ``w / D``: the same cells carry the same optical path
-    only with ``phi_drawn = phi_fit D / w``.
-    """
-    simulation, render = settings.simulation, settings.render
-    depth, width = simulation.trench.depth_um, simulation.cell_width_um
-    phase = render.cell_phase_rad * depth / width
-    render = dataclasses.replace(render, cell_phase_rad=phase)
-    return dataclasses.replace(settings, render=render), (
-        f"phase per unit of drawn material {phase:.2f} rad = fitted "
-        f"{settings.render.cell_phase_rad:.2f} rad x pad depth {depth:.2f} um / cell width "
-        f"{width:.2f} um (the masks' scene holds chord / width, the drawn pad chord / depth)"
-    )
-
-
-#: Range of the cells' bright-field transmission ``B = I_c / I_m`` drawn for each image
-#: of a partially coherent phase dataset (:func:`export_settings`): the physical part
-#: (``B <= 1``) of what the default intensity draws span.
-PHASE_TRANSMISSION_SCALE = (0.77, 1.0)
-
-#: Bounds of the division-length correction of :func:`_compacted`.
-_LENGTH_CORRECTION = (0.7, 1.3)
 
 
 #: Largest per-cell brightness CV a calibration draws: the gains are gamma
@@ -1561,16 +1483,9 @@ def export_settings(
     The images are varied as the default export varies them
     (:func:`~napari_symbac.export.dataset.default_randomisation`): the fitted defocus
     kept (eq. 14); in bright field the light as a whole, never past the camera's full
-    scale.
-
-    With the partially coherent phase model (dense phase colonies) the cells' intensity
-    over the media's is their bright-field transmission ``B`` (eq. 3), at most 1
-    (nothing passes more light than the clear media). The default independent draws of
-    the two (0.85-1.15 and 0.9-1.1) span ``B`` from 0.77 to 1.28; here only the cells'
-    intensity is drawn, from :data:`PHASE_TRANSMISSION_SCALE` (``B`` 0.77-1: cells that
-    lose up to as much light to absorption and to scattering out of the pupil as the
-    default's darkest draw), and the media level is kept (a per-image normalisation
-    removes it). Without any such draw the transfer benchmark's F1 fell (docs/rendering.md).
+    scale; with the partially coherent phase model (dense phase colonies) the cells'
+    bright-field transmission within its physical range
+    (:data:`~napari_symbac.export.dataset.PHASE_TRANSMISSION_SCALE`).
 
     Fluorescence or bright field with masks: the dataset's masks follow their outline
     convention, grown by ``calibration.mask_offset_um`` (``mask_dilation_um``; an offset
@@ -1579,24 +1494,11 @@ def export_settings(
     the ColiCoords transfer benchmark every range tried lowered the mean F1 of the
     calibration without masks (docs/proof.md); in bright field it is, as a whole.
     """
-    from napari_symbac.export.dataset import ExportSettings, Range, default_randomisation
+    from napari_symbac.export.dataset import ExportSettings, default_randomisation
     from napari_symbac.export.visibility import Visibility
 
     n_frames = calibration.settings.simulation.n_frames
-    render = calibration.settings.render
     first = max(0, n_frames - 1 - (n_frames - 1) // 8)
-    # the fitted defocus (eq. 14); bright field: the light as a whole, below full scale
-    randomise = default_randomisation(calibration.settings)
-    if calibration.settings.microscope.modality == "phase" and (
-        render.phase_model == "partially_coherent"
-    ):
-        fixed = Range(1.0, 1.0)
-        randomise = dataclasses.replace(
-            randomise,
-            cell_intensity_scale=Range(*PHASE_TRANSMISSION_SCALE),
-            media_intensity_scale=fixed,
-            device_intensity_scale=fixed,
-        )
     return ExportSettings(
         n_items=n_items,
         kind="frames",
@@ -1612,6 +1514,6 @@ def export_settings(
             ),
             action="drop",
         ),
-        randomise=randomise,
+        randomise=default_randomisation(calibration.settings),
         mask_dilation_um=max(0.0, round(calibration.mask_offset_um or 0.0, 4)),
     )
