@@ -151,6 +151,19 @@ def load_colicoords(
 
 
 
+#: Packages whose versions a result depends on (written beside it: found rerunning the
+#: Omnipose rows, seed 0 gave 0.789 where the same commit had given 0.872 two days
+#: before, in an environment installed anew since, whose versions no file recorded).
+RESULT_PACKAGES = ("numpy", "scipy", "scikit-image", "pymunk", "numba", "torch")
+
+
+def package_versions() -> dict[str, str]:
+    """The installed version of each of :data:`RESULT_PACKAGES`."""
+    from importlib.metadata import version
+
+    return {name: version(name) for name in RESULT_PACKAGES}
+
+
 def load_omnipose(budget: Budget) -> tuple[list[RealImage], str]:
     import imageio.v3 as iio
     import tifffile
@@ -606,6 +619,7 @@ def run(
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         (out / f"results_{data}.json").write_text(json.dumps(rows, indent=2))
+        (out / f"versions_{data}.json").write_text(json.dumps(package_versions(), indent=2))
         _pictures(out, data, images, modality, pictures, reference_of, judged)
     return rows
 
@@ -861,8 +875,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
     import torch
 
     torch.set_num_threads(1)  # 2 threads on a loaded 2-core machine: 7x slower per step
+    versions = ", ".join(f"{name} {version}" for name, version in package_versions().items())
     print(
-        f"bench_transfer: {args.data}, {budget}; torch {torch.__version__} on "
+        f"bench_transfer: {args.data}, {budget}; {versions}; on "
         f"{'cuda' if torch.cuda.is_available() else 'cpu'}; load average "
         f"{os.getloadavg()[0]:.1f}",
         flush=True,

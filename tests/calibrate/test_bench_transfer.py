@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import json
 import math
 import sys
 from pathlib import Path
@@ -144,6 +145,10 @@ def test_quick_run_has_every_row(real_data_dir, tmp_path, monkeypatch, data, bas
         assert 0 <= row["pixel_iou"] <= 1
         assert math.isfinite(row["seconds"])
     assert (tmp_path / f"results_{data}.json").is_file()
+    # the versions the numbers came from (found: a rerun of one commit differed by 0.08)
+    versions = json.loads((tmp_path / f"versions_{data}.json").read_text())
+    assert versions["numpy"] == np.__version__
+    assert set(versions) == set(bench.RESULT_PACKAGES)
     assert (tmp_path / f"transfer_{data}_prediction.png").is_file()
     table = bench.table(rows)
     assert table.count("\n") == len(rows) + 1
