@@ -867,7 +867,7 @@ class TuneWidget(Container):
             clipped = _clipped_background(shown_fit, frame, microscope)
             # a measured camera is checked model-free, as `fit` does without --camera
             check = _camera_check(shown_fit, frame, advice) if camera is None else None
-            drawn = (  # simulated colonies: minutes' worth of physics, not in the GUI thread
+            drawn = (  # simulated colonies (seconds of physics): not in the GUI thread
                 _colony_drawn(layer_settings, shown_fit, frame.shape, microscope, cancelled)
                 if colony
                 else None
